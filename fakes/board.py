@@ -1,0 +1,121 @@
+"""Base class of every register-level fake board.
+
+A fake is addressed by **byte offset from its base**. It knows one board's
+registers (from the board description the driver also uses) and the physics
+behind them, never a driver. Bus-side methods raise :class:`NoAnswer` for an
+access the board does not decode; the rack turns that into a ``BusError`` that
+names the board, register and absolute address.
+
+Every fake offers:
+
+- physical-side hooks (per board: set a resolver angle, an ADC input voltage ...);
+- ``inject(fault, **kw)`` / ``clear(fault)`` for named faults; ``"no_answer"`` is
+  common to all boards and makes every access a bus error;
+- ``traffic``: a log of ``(op, width, offset, value)`` tuples that tests compare
+  with init sequences (``fakes.testing``).
+"""
+
+from __future__ import annotations
+
+from drivers.registers import BoardDescription
+from pfma.clock import Clock, SimClock
+
+
+class NoAnswer(Exception):
+    """Raised by a fake board for an access it does not decode (becomes BusError)."""
+
+    def __init__(self, reason: str = "no answer") -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+class FakeBoard:
+    """Register-level fake of one board. Subclasses set ``description`` and
+    implement ``_read8/_read16/_write8/_write16`` (offsets relative to the base).
+    """
+
+    description: BoardDescription
+
+    def __init__(self, name: str | None = None, clock: Clock | None = None) -> None:
+        self.name = name or self.description.kind
+        self.clock = clock if clock is not None else SimClock()
+        self.faults: dict[str, dict] = {}
+        self.traffic: list[tuple[str, int, int, int]] = []
+        self.log_traffic = True
+
+    # -- faults ---------------------------------------------------------------
+    def inject(self, fault: str, **params) -> None:
+        """Switch on a named fault (board-specific names, plus ``no_answer``)."""
+        known = ("no_answer",) + tuple(getattr(self, "FAULTS", ()))
+        if fault not in known:
+            raise ValueError(f"{self.name}: unknown fault {fault!r}; known: {', '.join(known)}")
+        self.faults[fault] = params
+
+    def clear(self, fault: str | None = None) -> None:
+        """Clear one fault, or all of them."""
+        if fault is None:
+            self.faults.clear()
+        else:
+            self.faults.pop(fault, None)
+
+    # -- bus side -----------------------------------------------------------
+    def _check(self, offset: int, width: int) -> None:
+        if "no_answer" in self.faults:
+            raise NoAnswer("board does not answer (injected fault)")
+        if not 0 <= offset < self.description.window:
+            raise NoAnswer("outside the board's decoded window")
+        if self.description.byte_lanes == "odd" and width == 8 and offset % 2 == 0:
+            raise NoAnswer("even byte of an odd-byte board is not decoded")
+        if width == 16 and offset % 2:
+            raise NoAnswer("16-bit access at an odd address")
+
+    def read8(self, offset: int) -> int:
+        self._check(offset, 8)
+        v = self._read8(offset) & 0xFF
+        if self.log_traffic:
+            self.traffic.append(("r", 8, offset, v))
+        return v
+
+    def read16(self, offset: int) -> int:
+        self._check(offset, 16)
+        if self.description.byte_lanes == "odd":
+            # Assumed: a D16 cycle to an odd-byte board reaches the chip on D7..D0;
+            # the undriven upper lane reads 0xFF. This is what a word-only gateway sees.
+            v = 0xFF00 | (self._read8(offset + 1) & 0xFF)
+        else:
+            v = self._read16(offset) & 0xFFFF
+        if self.log_traffic:
+            self.traffic.append(("r", 16, offset, v))
+        return v
+
+    def write8(self, offset: int, value: int) -> None:
+        self._check(offset, 8)
+        if self.log_traffic:
+            self.traffic.append(("w", 8, offset, value & 0xFF))
+        self._write8(offset, value & 0xFF)
+
+    def write16(self, offset: int, value: int) -> None:
+        self._check(offset, 16)
+        if self.log_traffic:
+            self.traffic.append(("w", 16, offset, value & 0xFFFF))
+        if self.description.byte_lanes == "odd":
+            self._write8(offset + 1, value & 0xFF)
+        else:
+            self._write16(offset, value & 0xFFFF)
+
+    # -- to be implemented by boards -------------------------------------------
+    def _read8(self, offset: int) -> int:
+        raise NoAnswer("8-bit access not decoded by this board")
+
+    def _write8(self, offset: int, value: int) -> None:
+        raise NoAnswer("8-bit access not decoded by this board")
+
+    def _read16(self, offset: int) -> int:
+        raise NoAnswer("16-bit access not decoded by this board")
+
+    def _write16(self, offset: int, value: int) -> None:
+        raise NoAnswer("16-bit access not decoded by this board")
+
+    # -- simulated time -----------------------------------------------------------
+    def step(self, dt_s: float) -> None:
+        """Advance the board's physical side by ``dt_s`` (boards with dynamics override)."""

@@ -1,0 +1,128 @@
+"""The fake rack: every fake board mapped at its address, behind the RegisterBus contract.
+
+``FakeRack`` is a RegisterBus (absolute A16 addresses). It dispatches each access to
+the board whose window holds the address, turns a board's ``NoAnswer`` into a
+``BusError`` naming board, register and address, and charges each access
+``access_time_s`` of simulated time (a VME short-I/O cycle is about a microsecond),
+so a driver polling a busy bit sees simulated time pass.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from drivers.registers import register_name
+from fakes.board import FakeBoard, NoAnswer
+from pfma.clock import Clock, SimClock
+from pfma.errors import BusError
+from pfma.rack import RackConfig, load_rack
+
+#: board kind -> "module:FakeClass"
+FAKES: dict[str, str] = {
+    "vmivme4940": "fakes.rtd:FakeVmivme4940",
+    "vmivme4100": "fakes.dac:FakeVmivme4100",
+    "dvme611": "fakes.adc:FakeDvme611",
+    "mvme400": "fakes.mvme400:FakeMvme400",
+    "mvme410": "fakes.mvme410:FakeMvme410",
+}
+
+
+def fake_class(kind: str) -> type[FakeBoard]:
+    module_name, _, cls = FAKES[kind].partition(":")
+    return getattr(importlib.import_module(module_name), cls)
+
+
+class FakeRack:
+    """A register-level rack of fake boards.
+
+    :param clock: simulated (default) or monotonic clock shared by every board
+    :param access_time_s: simulated time charged per bus access
+    """
+
+    def __init__(self, clock: Clock | None = None, access_time_s: float = 1e-6) -> None:
+        self.clock = clock if clock is not None else SimClock()
+        self.access_time_s = access_time_s
+        self._map: list[tuple[int, int, FakeBoard]] = []  # (base, end, board)
+        self.boards: dict[str, FakeBoard] = {}
+        self.bases: dict[str, int] = {}
+
+    # -- building ---------------------------------------------------------------
+    def add(self, base: int, board: FakeBoard) -> FakeBoard:
+        end = base + board.description.window
+        for b0, b1, other in self._map:
+            if base < b1 and b0 < end:
+                raise ValueError(f"{board.name} at 0x{base:04X} overlaps {other.name} at 0x{b0:04X}")
+        self._map.append((base, end, board))
+        self._map.sort(key=lambda e: e[0])
+        self.boards[board.name] = board
+        self.bases[board.name] = base
+        return board
+
+    @classmethod
+    def from_config(cls, rack: RackConfig | None = None, clock: Clock | None = None,
+                    **kwargs) -> "FakeRack":
+        rack = rack if rack is not None else load_rack()
+        self = cls(clock=clock, **kwargs)
+        for b in rack.boards:
+            self.add(b.base, fake_class(b.kind)(name=b.name, clock=self.clock))
+        return self
+
+    def __getitem__(self, name: str) -> FakeBoard:
+        return self.boards[name]
+
+    def describe(self) -> str:
+        return "fake a16 rack: " + ", ".join(f"{b.name}@0x{b0:04X}" for b0, _, b in self._map)
+
+    def step(self, dt_s: float) -> None:
+        """Advance every board's physical side by ``dt_s`` (does not move the clock)."""
+        for _, _, b in self._map:
+            b.step(dt_s)
+
+    # -- RegisterBus ------------------------------------------------------------
+    def _find(self, addr: int, width: int, op: str) -> tuple[FakeBoard, int]:
+        if not 0 <= addr <= 0xFFFF:
+            raise ValueError(f"A16 address 0x{addr:X} out of range")
+        if self.access_time_s:
+            self.clock.advance(self.access_time_s)
+        for b0, b1, board in self._map:
+            if b0 <= addr < b1:
+                return board, addr - b0
+        raise BusError(addr, width, op, reason="no board decodes this address")
+
+    def _fail(self, err: NoAnswer, board: FakeBoard, off: int, addr: int, width: int, op: str):
+        raise BusError(addr, width, op, board.name, register_name(board.description, off),
+                       err.reason) from None
+
+    def read8(self, addr: int) -> int:
+        board, off = self._find(addr, 8, "read")
+        try:
+            return board.read8(off)
+        except NoAnswer as err:
+            self._fail(err, board, off, addr, 8, "read")
+
+    def read16(self, addr: int) -> int:
+        board, off = self._find(addr, 16, "read")
+        try:
+            return board.read16(off)
+        except NoAnswer as err:
+            self._fail(err, board, off, addr, 16, "read")
+
+    def write8(self, addr: int, value: int) -> None:
+        board, off = self._find(addr, 8, "write")
+        try:
+            board.write8(off, value)
+        except NoAnswer as err:
+            self._fail(err, board, off, addr, 8, "write")
+
+    def write16(self, addr: int, value: int) -> None:
+        board, off = self._find(addr, 16, "write")
+        try:
+            board.write16(off, value)
+        except NoAnswer as err:
+            self._fail(err, board, off, addr, 16, "write")
+
+
+def open_fake_bus(url: str = "fake", rack: RackConfig | None = None, clock: Clock | None = None,
+                  **kwargs) -> FakeRack:
+    """``open_bus("fake")``: the fake rack built from the rack configuration."""
+    return FakeRack.from_config(rack, clock=clock, **kwargs)

@@ -1,0 +1,5 @@
+import sys
+
+from pfma.cli import main
+
+sys.exit(main())

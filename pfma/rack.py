@@ -1,0 +1,250 @@
+"""Rack configuration: boards, addresses and every channel's name, units and rate.
+
+The default (``pfma/rack_default.toml``) is the IRSS report's tables, section 3.4.2.
+Nothing else in the project hard-codes a channel number: code asks this module.
+Invalid configuration is refused with a :class:`ConfigError` naming file and line.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from pfma.errors import ConfigError
+
+DEFAULT_RACK = Path(__file__).with_name("rack_default.toml")
+
+#: board kind -> (device class, channel count, "module:DESCRIPTION" of its register table)
+KINDS: dict[str, tuple[str, int, str]] = {
+    "vmivme4940": ("rtd", 4, "drivers.rtd.registers:VMIVME4940"),
+    "vmivme4100": ("dac", 16, "drivers.dac.registers:VMIVME4100"),
+    "dvme611": ("adc", 32, "drivers.adc.registers:DVME611"),
+    "mvme400": ("serial", 2, "drivers.mvme400.registers:MVME400"),
+    "mvme410": ("pio", 4, "drivers.pio.registers:MVME410"),
+}
+DEFAULT_DIRECTION = {"rtd": "in", "adc": "in", "dac": "out", "serial": "in"}
+BOARD_KEYS = {"name", "kind", "device", "base", "rate_hz", "title", "channels"}
+CHANNEL_KEYS = {"ch", "signal", "label", "units", "direction", "spare", "scale", "offset", "baud"}
+SIGNAL_RE = re.compile(r"^[a-z][a-z0-9_]*$")
+
+
+def board_description(kind: str):
+    """The register table (``BoardDescription``) of a board kind."""
+    try:
+        target = KINDS[kind][2]
+    except KeyError:
+        raise ConfigError(f"unknown board kind {kind!r}; known: {', '.join(sorted(KINDS))}") from None
+    module_name, _, attr = target.partition(":")
+    return getattr(importlib.import_module(module_name), attr)
+
+
+@dataclass(frozen=True)
+class Channel:
+    """One channel of one board, as ``pfma channels`` prints it."""
+
+    device: str  #: rtd, adc, dac, serial, pio
+    board: str  #: board name from the rack file, e.g. "rtd1"
+    kind: str  #: board kind, e.g. "vmivme4940"
+    address: int  #: board base (A16)
+    channel: int  #: 0-based index on that board
+    signal: str  #: snake_case name, unique in the rack
+    label: str  #: the seed's wording
+    units: str  #: engineering units
+    direction: str  #: "in" or "out"
+    rate_hz: float
+    spare: bool = False
+    scale: float = 1.0  #: engineering units per volt (analog channels)
+    offset: float = 0.0  #: engineering value at 0 V
+    baud: int | None = None
+
+    def as_dict(self) -> dict:
+        d = {
+            "device": self.device, "board": self.board, "kind": self.kind,
+            "address": self.address, "channel": self.channel, "signal": self.signal,
+            "label": self.label, "units": self.units, "direction": self.direction,
+            "rate_hz": self.rate_hz, "spare": self.spare,
+        }
+        if self.device in ("adc", "dac"):
+            d["scale"] = self.scale
+            d["offset"] = self.offset
+        if self.baud is not None:
+            d["baud"] = self.baud
+        return d
+
+
+@dataclass(frozen=True)
+class BoardConfig:
+    name: str
+    kind: str
+    device: str
+    base: int
+    window: int
+    rate_hz: float
+    title: str
+    channels: tuple[Channel, ...]
+
+    def signal(self, ch: int) -> Channel:
+        for c in self.channels:
+            if c.channel == ch:
+                return c
+        raise KeyError(f"board {self.name} has no channel {ch}")
+
+
+@dataclass
+class RackConfig:
+    name: str
+    boards: tuple[BoardConfig, ...]
+    bit3: dict = field(default_factory=dict)
+    source: str = "<default>"
+
+    def channels(self) -> list[Channel]:
+        return [c for b in self.boards for c in b.channels]
+
+    def channel(self, signal: str) -> Channel:
+        for c in self.channels():
+            if c.signal == signal:
+                return c
+        raise KeyError(f"no channel named {signal!r} in rack {self.name} ({self.source})")
+
+    def board(self, name: str) -> BoardConfig:
+        for b in self.boards:
+            if b.name == name:
+                return b
+        raise KeyError(f"no board named {name!r} in rack {self.name}")
+
+    def boards_of(self, device: str) -> list[BoardConfig]:
+        return [b for b in self.boards if b.device == device]
+
+
+class _Lines:
+    """Finds the line of a board or channel entry in the TOML text, for error messages."""
+
+    def __init__(self, text: str) -> None:
+        self.board_lines: list[int] = []
+        self.channel_lines: list[list[int]] = []
+        for n, line in enumerate(text.splitlines(), start=1):
+            s = line.strip()
+            if s == "[[board]]":
+                self.board_lines.append(n)
+                self.channel_lines.append([])
+            elif self.board_lines and re.match(r"^\{\s*ch\s*=", s):
+                self.channel_lines[-1].append(n)
+
+    def of(self, board: int, channel: int | None = None) -> int | None:
+        if board >= len(self.board_lines):
+            return None
+        if channel is not None and channel < len(self.channel_lines[board]):
+            return self.channel_lines[board][channel]
+        return self.board_lines[board]
+
+
+def load_rack(path: str | Path | None = None) -> RackConfig:
+    """Load and validate a rack file (the seed's default when ``path`` is None or "fake").
+
+    :raises ConfigError: naming file and line of the first problem
+    """
+    p = DEFAULT_RACK if path in (None, "fake", "default") else Path(path)
+    try:
+        text = p.read_text()
+    except OSError as err:
+        raise ConfigError(f"cannot read rack file {p}: {err.strerror}") from err
+    return parse_rack(text, str(p))
+
+
+def parse_rack(text: str, source: str = "<string>") -> RackConfig:
+    """Parse and validate rack TOML text. See :func:`load_rack`."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{source}: not valid TOML: {err}") from err
+    lines = _Lines(text)
+
+    def fail(msg: str, board: int | None = None, channel: int | None = None):
+        line = lines.of(board, channel) if board is not None else None
+        where = f"{source}:{line}" if line else source
+        raise ConfigError(f"{where}: {msg}")
+
+    rack = data.get("rack", {})
+    boards_raw = data.get("board")
+    if not isinstance(boards_raw, list) or not boards_raw:
+        fail("no [[board]] entries")
+    unknown_top = set(data) - {"rack", "bit3", "board"}
+    if unknown_top:
+        fail(f"unknown top-level section(s): {', '.join(sorted(unknown_top))}")
+
+    boards: list[BoardConfig] = []
+    signals: dict[str, tuple[int, int]] = {}
+    for bi, b in enumerate(boards_raw):
+        extra = set(b) - BOARD_KEYS
+        if extra:
+            fail(f"board entry has unknown key(s) {', '.join(sorted(extra))}", bi)
+        for key in ("name", "kind", "base", "channels"):
+            if key not in b:
+                fail(f"board entry is missing {key!r}", bi)
+        name, kind = b["name"], b["kind"]
+        if kind not in KINDS:
+            fail(f"board {name}: unknown device kind {kind!r}; known: {', '.join(sorted(KINDS))}", bi)
+        device, n_channels, _ = KINDS[kind]
+        if b.get("device", device) != device:
+            fail(f"board {name}: kind {kind} is a {device} board, not {b['device']!r}", bi)
+        base = b["base"]
+        if not isinstance(base, int) or not 0 <= base <= 0xFFFF:
+            fail(f"board {name}: base {base!r} is not an A16 address (0..0xFFFF)", bi)
+        window = board_description(kind).window
+        if base + window > 0x10000:
+            fail(f"board {name}: window 0x{base:04X}+0x{window:X} runs past the A16 space", bi)
+        for other in boards:
+            if base < other.base + other.window and other.base < base + window:
+                fail(f"board {name} at 0x{base:04X}-0x{base + window - 1:04X} overlaps board "
+                     f"{other.name} at 0x{other.base:04X}-0x{other.base + other.window - 1:04X}", bi)
+            if other.name == name:
+                fail(f"board name {name!r} used twice", bi)
+        rate = float(b.get("rate_hz", 0))
+        if rate <= 0:
+            fail(f"board {name}: rate_hz must be positive", bi)
+        chans: list[Channel] = []
+        seen: set[int] = set()
+        for ci, c in enumerate(b["channels"]):
+            if not isinstance(c, dict):
+                fail(f"board {name}: channel entry {ci} is not a table", bi, ci)
+            extra = set(c) - CHANNEL_KEYS
+            if extra:
+                fail(f"board {name}: channel entry has unknown key(s) {', '.join(sorted(extra))}", bi, ci)
+            for key in ("ch", "signal", "label", "units"):
+                if key not in c:
+                    fail(f"board {name}: channel entry is missing {key!r}", bi, ci)
+            ch = c["ch"]
+            if not isinstance(ch, int) or not 0 <= ch < n_channels:
+                fail(f"board {name}: channel {ch!r} out of range 0..{n_channels - 1} for a {kind}", bi, ci)
+            if ch in seen:
+                fail(f"board {name}: channel {ch} listed twice", bi, ci)
+            seen.add(ch)
+            sig = c["signal"]
+            if not isinstance(sig, str) or not SIGNAL_RE.match(sig):
+                fail(f"board {name}: signal {sig!r} is not a snake_case name", bi, ci)
+            if sig in signals:
+                fail(f"signal {sig!r} used twice (also board entry {signals[sig][0] + 1})", bi, ci)
+            signals[sig] = (bi, ci)
+            direction = c.get("direction", DEFAULT_DIRECTION.get(device))
+            if direction not in ("in", "out"):
+                fail(f"board {name}: channel {ch} needs direction 'in' or 'out', not {direction!r}", bi, ci)
+            scale = float(c.get("scale", 1.0))
+            if scale == 0:
+                fail(f"board {name}: channel {ch} scale must not be 0", bi, ci)
+            chans.append(Channel(
+                device=device, board=name, kind=kind, address=base, channel=ch, signal=sig,
+                label=str(c["label"]), units=str(c["units"]), direction=direction, rate_hz=rate,
+                spare=bool(c.get("spare", False)), scale=scale, offset=float(c.get("offset", 0.0)),
+                baud=c.get("baud")))
+        missing = sorted(set(range(n_channels)) - seen)
+        if missing:
+            fail(f"board {name}: channel(s) {', '.join(map(str, missing))} not listed "
+                 f"(list unused ones with spare = true)", bi)
+        chans.sort(key=lambda x: x.channel)
+        boards.append(BoardConfig(name=name, kind=kind, device=device, base=base, window=window,
+                                  rate_hz=rate, title=str(b.get("title", kind)), channels=tuple(chans)))
+    return RackConfig(name=str(rack.get("name", "rack")), boards=tuple(boards),
+                      bit3=dict(data.get("bit3", {})), source=source)
