@@ -1,0 +1,137 @@
+"""The acquisition schedule: what runs in which minor frame.
+
+IRSS report 2.3.5: minor frames of about 3 ms, 16 minor frames per major frame,
+tasks phased relative to each other by frame number. Here the minor frame is
+3.125 ms (320 Hz) by default and each I/O task has a divider (run every N-th
+frame) and a phase (which frame of N). Defaults, from the report and the design
+card: DAC outputs every frame (320 Hz), resolvers and ADC every 2nd (160 Hz), F/T
+and the serial hand controller every 4th (80 Hz), the parallel ports every 8th
+(40 Hz: the user I/F box is a panel of switches; 40 Hz gives a 25 ms response,
+well under what an operator notices, and keeps their bus traffic off the
+resolver/ADC frames).
+
+The schedule is configuration (``[schedule]`` in a service TOML or keyword
+arguments), validated at start.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from pfma.errors import ConfigError
+
+MINOR_FRAMES_PER_MAJOR = 16  # IRSS report 2.3.5
+
+#: task name -> what it does (the service implements each)
+TASKS = {
+    "dac": "write joint rate commands and current limits to the DAC (or safe 0 V)",
+    "rtd": "sample both resolver boards",
+    "adc": "scan all 32 ADC channels (motor currents, tach rates, CAE stick)",
+    "ft": "pick up the latest F/T record from its reader",
+    "hand": "pick up the latest serial/HID hand-controller state",
+    "pio": "read the user I/F box, write the matrix switcher route when it changes",
+    "publish": "publish the input area and statistics to the Bit3 buffer",
+}
+
+#: documented rates (Hz) each task must keep at the default 320 Hz minor frame
+DOCUMENTED_RATES_HZ = {"dac": 320.0, "rtd": 160.0, "adc": 160.0, "ft": 80.0, "hand": 80.0}
+
+
+@dataclass(frozen=True)
+class TaskSlot:
+    divider: int  #: run every ``divider`` minor frames
+    phase: int = 0  #: in frame k when k % divider == phase
+
+
+DEFAULT_SLOTS = {
+    "dac": TaskSlot(1, 0),
+    "rtd": TaskSlot(2, 0),
+    "adc": TaskSlot(2, 0),
+    "ft": TaskSlot(4, 1),
+    "hand": TaskSlot(4, 3),
+    "pio": TaskSlot(8, 5),
+    "publish": TaskSlot(1, 0),
+}
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """A validated acquisition schedule.
+
+    :param frame_rate_hz: minor-frame rate (320 by default; 1000 for the fast profile)
+    :param slots: task name -> TaskSlot
+    """
+
+    frame_rate_hz: float = 320.0
+    slots: dict[str, TaskSlot] = field(default_factory=lambda: dict(DEFAULT_SLOTS))
+
+    def __post_init__(self) -> None:
+        if not 1.0 <= self.frame_rate_hz <= 5000.0:
+            raise ConfigError(f"schedule: frame_rate_hz {self.frame_rate_hz} outside 1..5000 Hz")
+        for name, slot in self.slots.items():
+            if name not in TASKS:
+                raise ConfigError(f"schedule: unknown task {name!r}; known: {', '.join(TASKS)}")
+            if slot.divider < 1 or MINOR_FRAMES_PER_MAJOR % slot.divider:
+                raise ConfigError(f"schedule: task {name} divider {slot.divider} must divide "
+                                  f"the {MINOR_FRAMES_PER_MAJOR}-frame major frame")
+            if not 0 <= slot.phase < slot.divider:
+                raise ConfigError(f"schedule: task {name} phase {slot.phase} not in 0..{slot.divider - 1}")
+        for name in ("dac", "publish"):
+            if name not in self.slots:
+                raise ConfigError(f"schedule: task {name!r} is required (outputs and publishing)")
+            if self.slots[name].divider != 1:
+                raise ConfigError(f"schedule: task {name!r} must run every frame (the watchdog "
+                                  f"and the buffer depend on it)")
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.frame_rate_hz
+
+    def rate_hz(self, task: str) -> float:
+        return self.frame_rate_hz / self.slots[task].divider
+
+    def frame_table(self) -> tuple[tuple[str, ...], ...]:
+        """One tuple of task names per minor frame of the major frame, in run order."""
+        order = list(TASKS)  # inputs before outputs? no: see the service's frame body
+        return tuple(tuple(t for t in order if t in self.slots
+                           and k % self.slots[t].divider == self.slots[t].phase)
+                     for k in range(MINOR_FRAMES_PER_MAJOR))
+
+    def check_documented_rates(self) -> list[str]:
+        """Differences from the report's rates (empty when the schedule keeps them)."""
+        return [f"{t}: {self.rate_hz(t):g} Hz (documented {hz:g} Hz)"
+                for t, hz in DOCUMENTED_RATES_HZ.items()
+                if t in self.slots and abs(self.rate_hz(t) - hz) > 1e-9]
+
+    @classmethod
+    def from_config(cls, cfg: dict | None) -> "Schedule":
+        """Build from a ``[schedule]`` table: ``frame_rate_hz = 320`` and
+        ``[schedule.tasks] rtd = {divider = 2, phase = 0}``."""
+        cfg = dict(cfg or {})
+        rate = float(cfg.pop("frame_rate_hz", 320.0))
+        tasks = cfg.pop("tasks", {})
+        if cfg:
+            raise ConfigError(f"schedule: unknown key(s) {', '.join(sorted(cfg))}")
+        slots = dict(DEFAULT_SLOTS)
+        for name, t in tasks.items():
+            extra = set(t) - {"divider", "phase"}
+            if extra:
+                raise ConfigError(f"schedule: task {name}: unknown key(s) {', '.join(sorted(extra))}")
+            slots[name] = TaskSlot(int(t.get("divider", 1)), int(t.get("phase", 0)))
+        return cls(frame_rate_hz=rate, slots=slots)
+
+    @classmethod
+    def scaled(cls, frame_rate_hz: float) -> "Schedule":
+        """A schedule at another minor-frame rate that keeps the documented task rates
+        where the divider allows (e.g. 1 kHz is not a multiple of 160 Hz: the dividers
+        are chosen to give the nearest rate at or above the documented one)."""
+        slots = {}
+        for name, slot in DEFAULT_SLOTS.items():
+            want = DOCUMENTED_RATES_HZ.get(name)
+            if want is None or name in ("dac", "publish"):
+                slots[name] = TaskSlot(slot.divider, slot.phase) if name not in ("dac", "publish") else slot
+                continue
+            divs = [d for d in (1, 2, 4, 8, 16) if frame_rate_hz / d >= want]
+            d = max(divs) if divs else 1
+            slots[name] = TaskSlot(d, slot.phase % d)
+        return cls(frame_rate_hz=frame_rate_hz, slots=slots)

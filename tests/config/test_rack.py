@@ -1,0 +1,138 @@
+"""Rack configuration: the default is the IRSS report's section 3.4.2 tables, channel for channel."""
+
+import json
+
+import pytest
+
+from pfma.cli import main
+from pfma.errors import ConfigError
+from pfma.rack import DEFAULT_RACK, load_rack, parse_rack
+
+# The seed's tables, transcribed independently of pfma/rack_default.toml (IRSS report 3.4.2).
+SEED_RTD = {
+    0x0100: ["Elbow Pitch", "Wrist Yaw", "Wrist Pitch", "Wrist Roll"],
+    0x0200: ["Shoulder Yaw", "Shoulder Pitch", "Not used", "Not used"],
+}
+SEED_DAC = ["Shoulder Pitch Command", "Shoulder Yaw Command", "Elbow Pitch Command",
+            "Wrist Yaw Command", "Wrist Pitch Command", "Wrist Roll Command", "Gripper Command",
+            "Shoulder Pitch Current Limit", "Shoulder Yaw Current Limit",
+            "Elbow Pitch Current Limit", "Wrist Yaw Current Limit", "Wrist Pitch Current Limit",
+            "Wrist Roll Current Limit", "Gripper Current Limit", "Spare", "Spare"]
+SEED_ADC = (["Shoulder Yaw Motor Current", "Shoulder Pitch Motor Current",
+             "Shoulder Roll Motor Current", "Elbow Pitch Motor Current",
+             "Wrist Pitch Motor Current", "Wrist Yaw Motor Current", "Wrist Roll Motor Current",
+             "End Effector Motor Current", "Shoulder Yaw Rate", "Shoulder Pitch Rate",
+             "Shoulder Roll Rate", "Elbow Pitch Rate", "Wrist Pitch Rate", "Wrist Yaw Rate",
+             "Wrist Roll Rate", "End Effector Rate", "CAE Up/Down", "CAE Forward/Backward",
+             "CAE Right/Left", "CAE Yaw", "CAE Pitch", "CAE Roll", "CAE Discrete 1",
+             "CAE Discrete 2", "CAE Discrete 3"] + ["Spare"] * 7)
+
+
+def _json_channels(capsys):
+    assert main(["channels", "--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_channels_json_matches_seed_tables(capsys):
+    chans = _json_channels(capsys)
+    by = lambda dev, addr: sorted((c for c in chans if c["device"] == dev and c["address"] == addr),
+                                  key=lambda c: c["channel"])
+    for addr, labels in SEED_RTD.items():
+        got = by("rtd", addr)
+        assert [c["label"] for c in got] == labels
+        assert all(c["rate_hz"] == 160 and c["direction"] == "in" for c in got)
+        assert [c["spare"] for c in got] == [lab == "Not used" for lab in labels]
+    dac = by("dac", 0xD000)
+    assert [c["label"] for c in dac] == SEED_DAC
+    assert all(c["rate_hz"] == 320 and c["direction"] == "out" for c in dac)
+    adc = by("adc", 0xC000)
+    assert [c["label"] for c in adc] == SEED_ADC
+    assert all(c["rate_hz"] == 160 for c in adc)
+    serial = by("serial", 0x0000)
+    assert [c["signal"] for c in serial] == ["ft_sensor", "crl_hand_controller"]
+    assert serial[0]["rate_hz"] == 80 and serial[0]["baud"] == 19200
+    assert {c["address"] for c in chans if c["device"] == "pio"} == {0x0020, 0x0040}
+    assert [c["direction"] for c in by("pio", 0x0040)][:2] == ["in", "in"]
+    assert by("pio", 0x0020)[0]["direction"] == "out"
+
+
+def test_signal_names_examples_and_uniqueness(capsys):
+    chans = _json_channels(capsys)
+    names = [c["signal"] for c in chans]
+    assert len(names) == len(set(names))
+    for expected in ("elbow_pitch_angle", "shoulder_yaw_motor_current", "wrist_roll_current_limit"):
+        assert expected in names
+    required = {"device", "address", "channel", "signal", "label", "units", "direction", "rate_hz"}
+    assert all(required <= set(c) for c in chans)
+
+
+def test_channels_table_prints(capsys):
+    assert main(["channels"]) == 0
+    out = capsys.readouterr().out
+    assert "0xD000" in out and "wrist_roll_current_limit" in out
+
+
+def _text_with(old: str, new: str) -> str:
+    text = DEFAULT_RACK.read_text()
+    assert old in text
+    return text.replace(old, new, 1)
+
+
+def _line_of(text: str, needle: str, nth: int = 1) -> int:
+    hits = [i for i, line in enumerate(text.splitlines(), 1) if needle in line]
+    return hits[nth - 1]
+
+
+def test_overlapping_boards_refused_naming_line():
+    text = _text_with("base = 0x0200", "base = 0x0110")
+    with pytest.raises(ConfigError) as exc:
+        parse_rack(text, "rack.toml")
+    msg = str(exc.value)
+    assert "overlaps" in msg and "rtd1" in msg
+    assert f"rack.toml:{_line_of(text, '[[board]]', 2)}:" in msg
+
+
+def test_channel_listed_twice_refused_naming_line():
+    text = _text_with('{ ch = 3, signal = "wrist_roll_angle"', '{ ch = 2, signal = "wrist_roll_angle"')
+    with pytest.raises(ConfigError) as exc:
+        parse_rack(text, "rack.toml")
+    assert "channel 2 listed twice" in str(exc.value)
+    assert f"rack.toml:{_line_of(text, 'wrist_roll_angle')}:" in str(exc.value)
+
+
+def test_unknown_device_refused_naming_line():
+    text = _text_with('kind = "dvme611"', 'kind = "dvme999"')
+    with pytest.raises(ConfigError) as exc:
+        parse_rack(text, "rack.toml")
+    assert "unknown device kind 'dvme999'" in str(exc.value)
+    assert f"rack.toml:{_line_of(text, '[[board]]', 4)}:" in str(exc.value)
+
+
+@pytest.mark.parametrize("old,new,words", [
+    ('signal = "elbow_pitch_angle"', 'signal = "Elbow Pitch"', "snake_case"),
+    ('{ ch = 31, signal = "adc_spare_31"', '{ ch = 32, signal = "adc_spare_31"', "out of range"),
+    ('signal = "wrist_yaw_angle"', 'signal = "elbow_pitch_angle"', "used twice"),
+    ('rate_hz = 320', 'rate_hz = 0', "rate_hz must be positive"),
+    ('name = "adc"', 'name = "adc"\nbogus = 1', "unknown key"),
+])
+def test_other_invalid_configs_refused(old, new, words):
+    with pytest.raises(ConfigError, match=words):
+        parse_rack(_text_with(old, new), "rack.toml")
+
+
+def test_missing_channel_refused_and_default_loads():
+    text = _text_with('  { ch = 15, signal = "dac_spare_15",                 label = "Spare",                        units = "V", spare = true },\n', "")
+    with pytest.raises(ConfigError, match=r"channel\(s\) 15 not listed"):
+        parse_rack(text, "rack.toml")
+    rack = load_rack()
+    assert len(rack.channels()) == 4 + 4 + 16 + 32 + 2 + 4 + 4
+    assert rack.channel("gripper_current_limit").channel == 13
+
+
+def test_toml_syntax_error_is_config_error(tmp_path):
+    p = tmp_path / "bad.toml"
+    p.write_text("[[board]\nname = 1\n")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_rack(p)
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_rack(tmp_path / "missing.toml")
