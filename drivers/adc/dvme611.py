@@ -1,0 +1,144 @@
+"""Driver for the Datel DVME-611B 32-channel 12-bit A/D board.
+
+Register model: ``drivers.adc.registers.DVME611`` (R3, assumed). Conversions are
+polled with a bounded number of CSR reads, so a dead converter raises
+:class:`~pfma.errors.BoardError` instead of hanging the I/O loop.
+"""
+
+from __future__ import annotations
+
+import operator
+
+import numpy as np
+
+from drivers.adc.registers import AUTOINC, BUSY, CSR, DATA, DVME611, EOC, N_CHANNELS, START
+from drivers.registers import register_name
+from pfma.errors import BoardError, BusError
+
+_EOC = EOC.mask
+_BUSY = BUSY.mask
+_CH = 0x1F
+_AUTOINC = AUTOINC.mask
+_CODE = 0x0FFF
+
+
+class Dvme611:
+    """One DVME-611B board at A16 ``base``.
+
+    :param bus: any object with ``read16``/``write16`` on absolute A16 addresses
+    :param base: board base address (0xC000 in the PFMA rack)
+    :param name: board name for messages (default ``dvme611@0xBASE``)
+    :param range_volts: bipolar input range, +-range_volts offset binary
+    :param max_polls: CSR reads allowed per conversion before giving up (BoardError)
+    """
+
+    description = DVME611
+    n_channels = N_CHANNELS
+
+    def __init__(self, bus, base: int, name: str | None = None, *, range_volts: float = 10.0,
+                 max_polls: int = 64) -> None:
+        if not range_volts > 0:
+            raise ValueError(f"range_volts must be positive, not {range_volts!r}")
+        if max_polls < 1:
+            raise ValueError(f"max_polls must be at least 1, not {max_polls!r}")
+        self.bus = bus
+        self.base = base
+        self.name = name or f"{DVME611.kind}@0x{base:04X}"
+        self.range_volts = float(range_volts)
+        self.max_polls = int(max_polls)
+        self.lsb_volts = 2.0 * self.range_volts / DVME611.constants["full_scale_counts"]
+        self.zero_code = DVME611.constants["full_scale_counts"] // 2
+        self._csr = base + CSR.offset
+        self._start = base + START.offset
+        self._data = base + DATA.offset
+        self._counts = np.zeros(N_CHANNELS, dtype=np.int64)
+
+    # -- errors / validation ----------------------------------------------------------
+    def _bus_error(self, err: BusError, channel: int | None) -> BusError:
+        reg = register_name(DVME611, err.addr - self.base)
+        if channel is not None:
+            reg = f"{reg} (channel {channel})"
+        return err.with_context(self.name, reg)
+
+    def _check_channel(self, channel: int) -> int:
+        try:
+            ch = operator.index(channel)
+        except TypeError:
+            ch = -1
+        if not 0 <= ch < N_CHANNELS:
+            raise ValueError(f"{self.name} (A16 0x{self.base:04X}): channel {channel!r} "
+                             f"out of range 0..{N_CHANNELS - 1}")
+        return ch
+
+    def _no_eoc(self, channel: int, csr: int) -> BoardError:
+        what = "busy stuck" if csr & _BUSY else "no EOC"
+        return BoardError(
+            f"{self.name}: {what} converting channel {channel}: CSR at A16 0x{self._csr:04X} "
+            f"= 0x{csr:04X} after {self.max_polls} polls")
+
+    # -- conversion ---------------------------------------------------------------------
+    def _convert(self, channel: int) -> int:
+        """START, poll EOC (bounded), read DATA. The CSR must already select ``channel``."""
+        r16 = self.bus.read16
+        self.bus.write16(self._start, 0)
+        csr_addr = self._csr
+        csr = 0
+        for _ in range(self.max_polls):
+            csr = r16(csr_addr)
+            if csr & _EOC:
+                break
+        else:
+            raise self._no_eoc(channel, csr)
+        if csr & _CH != channel:
+            raise BoardError(f"{self.name}: CSR at A16 0x{csr_addr:04X} selects channel {csr & _CH}, "
+                             f"expected {channel} (auto-increment out of step)")
+        return r16(self._data) & _CODE
+
+    def read_counts(self, channel: int) -> int:
+        """Convert one channel; returns the 12-bit code (offset binary).
+
+        :raises ValueError: channel outside 0..31
+        :raises BoardError: no end of conversion within ``max_polls`` CSR reads
+        :raises BusError: naming the board, register, channel and address
+        """
+        ch = self._check_channel(channel)
+        try:
+            self.bus.write16(self._csr, ch)  # single mode, gain x1, no interrupt
+            return self._convert(ch)
+        except BusError as err:
+            raise self._bus_error(err, ch) from err
+
+    def scan(self, out: np.ndarray | None = None) -> np.ndarray:
+        """Convert all 32 channels in auto-increment mode; returns their codes.
+
+        :param out: optional preallocated integer array of length 32 to fill
+        """
+        if out is None:
+            out = np.empty(N_CHANNELS, dtype=np.int64)
+        ch = 0
+        try:
+            self.bus.write16(self._csr, _AUTOINC)  # channel 0, auto-increment
+            convert = self._convert
+            for ch in range(N_CHANNELS):
+                out[ch] = convert(ch)
+        except BusError as err:
+            raise self._bus_error(err, ch) from err
+        return out
+
+    # -- volts --------------------------------------------------------------------------------
+    def volts_from_counts(self, counts):
+        """Offset binary code(s) to volts: V = (code - 2048) * LSB."""
+        return (counts - self.zero_code) * self.lsb_volts
+
+    def read_volts(self, channel: int) -> float:
+        """Convert one channel; returns volts."""
+        return (self.read_counts(channel) - self.zero_code) * self.lsb_volts
+
+    def scan_volts(self, out: np.ndarray | None = None) -> np.ndarray:
+        """Scan all 32 channels; returns volts (fills ``out`` if given, a float array of 32)."""
+        counts = self.scan(self._counts)
+        if out is None:
+            out = np.empty(N_CHANNELS)
+        np.subtract(counts, self.zero_code, out=out, casting="unsafe")
+        out *= self.lsb_volts
+        return out

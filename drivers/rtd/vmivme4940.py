@@ -1,0 +1,153 @@
+"""Driver for the VMIC VMIVME-4940 4-channel 14-bit resolver-to-digital board.
+
+Register model: ``drivers.rtd.registers.VMIVME4940`` (R1, assumed). Talks only to a
+RegisterBus (any object with ``read16``/``write16``); knows nothing of rates or buffers.
+"""
+
+from __future__ import annotations
+
+import operator
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.registers import register_name
+from drivers.rtd.registers import ANGLE, CONTROL, N_CHANNELS, STATUS, VMIVME4940
+from pfma.errors import BusError
+
+
+@dataclass(frozen=True)
+class RtdStatus:
+    """Decoded STATUS word."""
+
+    faults: tuple[bool, bool, bool, bool]  #: per channel: loss of signal or BIT fail
+    reference_present: bool  #: 400 Hz reference seen
+    raw: int  #: the STATUS word as read
+
+    @property
+    def ok(self) -> bool:
+        """True when the reference is present and no channel reports a fault."""
+        return self.reference_present and not any(self.faults)
+
+
+class Vmivme4940:
+    """One VMIVME-4940 board at A16 ``base``.
+
+    :param bus: any object with ``read16``/``write16`` on absolute A16 addresses
+    :param base: board base address (0x0100, 0x0200 in the PFMA rack)
+    :param name: board name for messages (default ``vmivme4940@0xBASE``)
+    """
+
+    description = VMIVME4940
+    n_channels = N_CHANNELS
+
+    def __init__(self, bus, base: int, name: str | None = None) -> None:
+        self.bus = bus
+        self.base = base
+        self.name = name or f"{VMIVME4940.kind}@0x{base:04X}"
+        self._ch_addr = tuple(base + VMIVME4940.reg(f"CH{n}").offset for n in range(N_CHANNELS))
+        self._status_addr = base + STATUS.offset
+        self._control_addr = base + CONTROL.offset
+        self._shift = ANGLE.lsb
+        self._mask = (1 << ANGLE.bits) - 1
+        self.counts_per_rev = 1 << ANGLE.bits
+        self.lsb_rad = VMIVME4940.constants["lsb_rad"]
+
+    # -- errors -------------------------------------------------------------------
+    def _bus_error(self, err: BusError) -> BusError:
+        """The bus error, renamed with this board's name and the register at its address."""
+        return err.with_context(self.name, register_name(VMIVME4940, err.addr - self.base))
+
+    def _check_channel(self, channel: int) -> int:
+        try:
+            ch = operator.index(channel)
+        except TypeError:
+            ch = -1
+        if not 0 <= ch < N_CHANNELS:
+            raise ValueError(f"{self.name} (A16 0x{self.base:04X}): channel {channel!r} "
+                             f"out of range 0..{N_CHANNELS - 1}")
+        return ch
+
+    # -- scaling (the ONE place that knows how an angle sits in its word) ----------
+    def counts_from_word(self, word: int) -> int:
+        """Angle counts (0 .. counts_per_rev-1) in a channel word, per the ANGLE field."""
+        return (word >> self._shift) & self._mask
+
+    # -- readings -------------------------------------------------------------------
+    def read_counts(self) -> tuple[int, int, int, int]:
+        """The four channels' angles in counts (0..16383 for 14 bits)."""
+        r16, c = self.bus.read16, self.counts_from_word
+        a0, a1, a2, a3 = self._ch_addr
+        try:
+            return (c(r16(a0)), c(r16(a1)), c(r16(a2)), c(r16(a3)))
+        except BusError as err:
+            raise self._bus_error(err) from err
+
+    def read_channel_counts(self, channel: int) -> int:
+        """One channel's angle in counts."""
+        ch = self._check_channel(channel)
+        try:
+            word = self.bus.read16(self._ch_addr[ch])
+        except BusError as err:
+            raise self._bus_error(err) from err
+        return self.counts_from_word(word)
+
+    def read_angles_rad(self, out: np.ndarray | None = None) -> np.ndarray:
+        """The four angles in radians, 0 <= angle < 2*pi (natural binary).
+
+        :param out: optional preallocated float array of length 4 to fill
+        """
+        counts = self.read_counts()
+        if out is None:
+            out = np.empty(N_CHANNELS)
+        out[:] = counts
+        out *= self.lsb_rad
+        return out
+
+    def read_angle_rad(self, channel: int) -> float:
+        """One channel's angle in radians, 0 <= angle < 2*pi."""
+        return self.read_channel_counts(channel) * self.lsb_rad
+
+    def status(self) -> RtdStatus:
+        """Read and decode STATUS."""
+        try:
+            word = self.bus.read16(self._status_addr)
+        except BusError as err:
+            raise self._bus_error(err) from err
+        return RtdStatus(faults=tuple(bool(word >> n & 1) for n in range(N_CHANNELS)),
+                         reference_present=bool(word >> 4 & 1), raw=word)
+
+    # -- CONTROL ------------------------------------------------------------------------
+    def read_control(self) -> int:
+        """The CONTROL word (hold bits b3..b0, Fail LED off b14)."""
+        try:
+            return self.bus.read16(self._control_addr)
+        except BusError as err:
+            raise self._bus_error(err) from err
+
+    def _modify_control(self, clear: int, set_: int) -> None:
+        word = (self.read_control() & ~clear) | set_
+        try:
+            self.bus.write16(self._control_addr, word & 0xFFFF)
+        except BusError as err:
+            raise self._bus_error(err) from err
+
+    def _hold_mask(self, channels: tuple[int, ...]) -> int:
+        chans = channels or tuple(range(N_CHANNELS))
+        mask = 0
+        for ch in chans:
+            mask |= 1 << self._check_channel(ch)
+        return mask
+
+    def hold(self, *channels: int) -> None:
+        """Freeze the reading of the given channels (all when none given)."""
+        self._modify_control(0, self._hold_mask(channels))
+
+    def release(self, *channels: int) -> None:
+        """Let the given channels (all when none given) track again."""
+        self._modify_control(self._hold_mask(channels), 0)
+
+    def set_fail_led(self, on: bool) -> None:
+        """Switch the front-panel Fail LED (CONTROL b14 = 1 turns it off)."""
+        led_off = 1 << CONTROL.field("led_off").lsb
+        self._modify_control(led_off, 0 if on else led_off)
