@@ -35,6 +35,19 @@ class BusError(PfmaError, OSError):
         return BusError(self.addr, self.width, self.op, board, register, self.reason)
 
 
+class AlignmentError(BusError, ValueError):
+    """A 16-bit access at an odd address, or an 8-bit access a backend cannot express.
+
+    Both a :class:`BusError` (the access did not happen; same ``addr/width/op``) and a
+    ``ValueError`` (it is the caller's bug: a 68000 raises an address error before
+    any bus cycle starts). Raised by the Modbus and device-file buses; the fake rack
+    raises a plain ``BusError`` for the same access.
+    """
+
+    def with_context(self, board: str, register: str | None) -> "AlignmentError":
+        return AlignmentError(self.addr, self.width, self.op, board, register, self.reason)
+
+
 class BoardError(PfmaError):
     """A board answered but is not doing what it must (stuck busy bit, bad status)."""
 

@@ -1,0 +1,205 @@
+"""A RegisterBus through a Modbus TCP gateway to the VME A16 space.
+
+Mapping (project convention, docs/architecture "RegisterBus"): **holding register N
+is the 16-bit word at A16 address 2N**, big-endian as on VME. So ``read16(0xD000)``
+reads holding register 0x6800 and ``write16`` writes it with function code 6.
+
+8-bit accesses, which Modbus cannot express:
+
+- ``read8(addr)`` reads the word at ``addr & ~1`` and returns its high byte for an
+  even ``addr``, its low byte for an odd one. On an odd-byte board (MVME400/410)
+  the gateway's D16 cycle reaches the chip on D7..D0, so the low byte is the
+  register; the high byte is whatever the undriven lanes read.
+- ``write8(addr, v)`` for an **odd** ``addr`` writes the word ``0x00 << 8 | v``.
+  There is deliberately **no read-modify-write**: reading an 8-bit chip register
+  has side effects (a 6821 data read clears its IRQ flags; a uPD7201 read moves
+  the register pointer), and on an odd-byte board the even byte is not decoded, so
+  writing 0x00 there is harmless. A word board answers 8-bit cycles with a bus
+  error anyway, so nothing correct ever needs a byte write to it.
+- ``write8`` to an **even** address cannot be represented (it would clobber the
+  odd byte) and raises :class:`pfma.errors.AlignmentError` (a ``BusError`` and a
+  ``ValueError``) without touching the network; so does any 16-bit access at an
+  odd address.
+
+Errors: a gateway exception response (code 2 "illegal address" when no board
+answered, 4 "device failure", 0x0B "gateway target did not respond", ...), a
+timeout, or an unreachable gateway become :class:`BusError` ``(addr, width, op,
+reason=...)`` raised ``from`` the pymodbus error. An unreachable gateway is a
+BusError too (reason ``"gateway HOST:PORT unreachable"``), not a LinkError, so
+drivers handle every failed access the same way; the client reconnects on the
+next access. Construction never touches the network.
+
+pymodbus 3.16 (see the project's pins): keyword-only client arguments,
+``device_id=`` (not ``slave=``), ``retries=0`` (retries are the caller's policy).
+"""
+
+from __future__ import annotations
+
+import logging
+import operator
+from urllib.parse import parse_qsl, urlsplit
+
+from pymodbus.client import ModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException
+
+from pfma.errors import AlignmentError, BusError
+
+__all__ = ["ModbusTcpBus", "open_modbus_bus", "EXCEPTION_REASONS"]
+
+# pymodbus logs connection failures at error level; without a handler anywhere Python
+# would print them to stderr on its own. Applications that configure logging still
+# see them (this only stops the last-resort printer).
+logging.getLogger("pymodbus").addHandler(logging.NullHandler())
+
+#: Modbus exception code -> reason text (Modbus Application Protocol v1.1b, section 7)
+EXCEPTION_REASONS: dict[int, str] = {
+    1: "gateway exception 1 (illegal function)",
+    2: "gateway exception 2 (illegal data address: no board answered)",
+    3: "gateway exception 3 (illegal data value)",
+    4: "gateway exception 4 (server device failure)",
+    6: "gateway exception 6 (server device busy)",
+    10: "gateway exception 10 (gateway path unavailable)",
+    11: "gateway exception 11 (gateway target device failed to respond)",
+}
+
+
+def _check_addr(addr: int) -> None:
+    if not isinstance(addr, int) or not 0 <= addr <= 0xFFFF:
+        raise ValueError(f"A16 address {addr!r} out of range 0..0xFFFF")
+
+
+def _check_value(addr: int, value: int, width: int) -> int:
+    """The value as an int, or ValueError: every backend refuses, never masks (contract)."""
+    try:
+        v = operator.index(value)  # ints and numpy integers, not floats
+    except TypeError:
+        v = -1
+    if not 0 <= v < (1 << width):
+        raise ValueError(f"write{width} to A16 0x{addr:04X}: value {value!r} does not fit "
+                         f"{width} bits (0..0x{(1 << width) - 1:X})")
+    return v
+
+
+class ModbusTcpBus:
+    """RegisterBus over a Modbus TCP gateway (holding register N = A16 word 2N).
+
+    :param host: gateway host name or address
+    :param port: gateway TCP port
+    :param unit: Modbus unit (device) id the gateway answers to
+    :param timeout: seconds to wait for connect and for each reply
+    """
+
+    def __init__(self, host: str, port: int = 502, *, unit: int = 1, timeout: float = 1.0) -> None:
+        if not 0 <= unit <= 255:
+            raise ValueError(f"Modbus unit id {unit} out of range 0..255")
+        if timeout <= 0:
+            raise ValueError(f"Modbus timeout must be positive, not {timeout}")
+        self.host = host
+        self.port = port
+        self.unit = unit
+        self.timeout = timeout
+        self._client = ModbusTcpClient(host, port=port, timeout=timeout, retries=0)
+
+    @property
+    def gateway(self) -> str:
+        return f"{self.host}:{self.port}"
+
+    # -- one Modbus transaction ---------------------------------------------------------
+    def _call(self, addr: int, width: int, op: str, request, *args):
+        if not self._client.connected and not self._client.connect():
+            raise BusError(addr, width, op, reason=f"gateway {self.gateway} unreachable")
+        try:
+            rr = request(*args, device_id=self.unit)
+        except ConnectionException as err:
+            self._client.close()
+            raise BusError(addr, width, op, reason=f"gateway {self.gateway} unreachable ({err})") from err
+        except ModbusException as err:  # ModbusIOException: no reply within the timeout
+            self._client.close()  # drop the connection so a late reply cannot be mistaken for the next
+            raise BusError(addr, width, op,
+                           reason=f"no reply from gateway {self.gateway} within {self.timeout:g} s") from err
+        if rr.isError():
+            code = getattr(rr, "exception_code", None)
+            reason = EXCEPTION_REASONS.get(code, f"gateway exception {code}")
+            raise BusError(addr, width, op, reason=reason) from ModbusException(str(rr))
+        return rr
+
+    def _read_word(self, addr: int, width: int) -> int:
+        rr = self._call(addr, width, "read", self._client.read_holding_registers, (addr & ~1) >> 1)
+        return rr.registers[0] & 0xFFFF
+
+    # -- RegisterBus ----------------------------------------------------------------------
+    def read16(self, addr: int) -> int:
+        """Read the word at even A16 ``addr`` (holding register ``addr // 2``)."""
+        _check_addr(addr)
+        if addr % 2:
+            raise AlignmentError(addr, 16, "read", reason="16-bit access at an odd address")
+        return self._read_word(addr, 16)
+
+    def read8(self, addr: int) -> int:
+        """Read the byte at ``addr``: high byte of the word for even, low byte for odd."""
+        _check_addr(addr)
+        word = self._read_word(addr, 8)
+        return word & 0xFF if addr % 2 else word >> 8
+
+    def write16(self, addr: int, value: int) -> None:
+        """Write the word at even A16 ``addr`` (function code 6)."""
+        _check_addr(addr)
+        value = _check_value(addr, value, 16)
+        if addr % 2:
+            raise AlignmentError(addr, 16, "write", reason="16-bit access at an odd address")
+        self._call(addr, 16, "write", self._client.write_register, addr >> 1, value)
+
+    def write8(self, addr: int, value: int) -> None:
+        """Write the byte at odd A16 ``addr`` as the word ``0x00 << 8 | value`` (no read first)."""
+        _check_addr(addr)
+        value = _check_value(addr, value, 8)
+        if addr % 2 == 0:
+            raise AlignmentError(addr, 8, "write", reason="an even-byte write cannot be expressed over "
+                                 "Modbus (it would also write the odd byte)")
+        self._call(addr, 8, "write", self._client.write_register, addr >> 1, value)
+
+    # -- lifetime ---------------------------------------------------------------------------
+    def describe(self) -> str:
+        return (f"Modbus TCP gateway {self.gateway} unit {self.unit} (timeout {self.timeout:g} s): "
+                f"holding register N = A16 word 2N")
+
+    def close(self) -> None:
+        self._client.close()
+
+    def __enter__(self) -> "ModbusTcpBus":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"ModbusTcpBus({self.host!r}, {self.port}, unit={self.unit}, timeout={self.timeout:g})"
+
+
+def open_modbus_bus(url: str, **kwargs) -> ModbusTcpBus:
+    """``open_bus("modbus://HOST:PORT[?unit=N&timeout=S]")``.
+
+    :raises ValueError: for a missing host or port, an unknown option or a bad number
+    """
+    parts = urlsplit(url)
+    if parts.scheme != "modbus":
+        raise ValueError(f"not a modbus:// bus URL: {url!r}")
+    try:
+        port = parts.port
+    except ValueError:
+        raise ValueError(f"bus URL {url!r}: the port is not a number") from None
+    if not parts.hostname or port is None:
+        raise ValueError(f"bus URL {url!r} needs a host and a port: modbus://HOST:PORT")
+    if parts.path not in ("", "/"):
+        raise ValueError(f"bus URL {url!r}: unexpected path {parts.path!r}")
+    parsers = {"unit": lambda v: int(v, 0), "timeout": float}
+    opts: dict = {}
+    for key, value in parse_qsl(parts.query, keep_blank_values=True):
+        if key not in parsers:
+            raise ValueError(f"bus URL {url!r}: unknown option {key!r}; known: timeout, unit")
+        try:
+            opts[key] = parsers[key](value)
+        except ValueError:
+            raise ValueError(f"bus URL {url!r}: {key}={value!r} is not a number") from None
+    opts.update(kwargs)
+    return ModbusTcpBus(parts.hostname, port, **opts)

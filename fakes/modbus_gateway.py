@@ -1,0 +1,140 @@
+"""A fake Modbus TCP gateway that serves any RegisterBus (normally the fake rack).
+
+It is a real pymodbus ``ModbusTcpServer`` on 127.0.0.1 (ephemeral port by
+default), run in a background thread with its own event loop, so a real
+``ModbusTcpBus`` (or any Modbus tool) talks to it over loopback TCP.
+
+Mapping, the same as ``drivers.bus.modbus``: holding register N is the 16-bit word
+at A16 address 2N. Every register of a request is forwarded to the hosted bus
+(``read16``/``write16`` at 2N), one at a time and only the requested ones, because
+reads of real registers have side effects. A ``BusError`` from the hosted bus
+answers Modbus exception 2 (ILLEGAL_ADDRESS, "no board answered"); any other error
+answers exception 4 (DEVICE_FAILURE). Input registers (fc 4) read the same words.
+
+pymodbus 3.16: the supported way to serve live objects is ``SimDevice(action=...)``
+(legacy datablock subclasses are deep-copied and silently ignored); ``id=0`` is the
+catch-all device so any unit id is answered.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+
+from pymodbus.constants import ExcCodes
+from pymodbus.server import ModbusTcpServer
+from pymodbus.simulator import DataType, SimData, SimDevice
+
+from pfma.errors import BusError
+
+__all__ = ["ModbusGateway"]
+
+_READS = {3, 4}
+_WRITES = {6, 16}
+
+
+class ModbusGateway:
+    """Serve ``bus`` (any RegisterBus) as Modbus holding registers on ``host:port``.
+
+    :param bus: the hosted RegisterBus; accessed only under :attr:`lock`
+    :param host: address to listen on (loopback by default)
+    :param port: TCP port, 0 for an ephemeral one (see :attr:`port` after start)
+    :param reply_delay_s: answer each request this late (simulates a slow gateway)
+    """
+
+    def __init__(self, bus, host: str = "127.0.0.1", port: int = 0, *,
+                 reply_delay_s: float = 0.0) -> None:
+        self.bus = bus
+        self.host = host
+        self.port = port
+        self.reply_delay_s = reply_delay_s
+        #: held while the hosted bus is accessed; take it to touch the bus from another thread
+        self.lock = threading.Lock()
+        self.requests = 0
+        self._ready = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._server: ModbusTcpServer | None = None
+        self._error: BaseException | None = None
+
+    # -- the action pymodbus calls for every register request --------------------------
+    async def _action(self, function_code: int, start_address: int, address: int, count: int,
+                      current_registers: list[int], set_values) -> ExcCodes | None:
+        self.requests += 1
+        if self.reply_delay_s:
+            await asyncio.sleep(self.reply_delay_s)
+        if function_code not in _READS | _WRITES:
+            return ExcCodes.ILLEGAL_FUNCTION
+        off = address - start_address
+        try:
+            with self.lock:
+                if set_values is None or function_code in _READS:
+                    for i in range(count):
+                        current_registers[off + i] = self.bus.read16(2 * (address + i)) & 0xFFFF
+                else:
+                    for i, value in enumerate(set_values):
+                        self.bus.write16(2 * (address + i), int(value) & 0xFFFF)
+        except BusError:
+            return ExcCodes.ILLEGAL_ADDRESS
+        except Exception:  # noqa: BLE001 - any other failure of the hosted bus is a device failure
+            return ExcCodes.DEVICE_FAILURE
+        return None
+
+    # -- server thread -----------------------------------------------------------------------
+    def _run(self) -> None:
+        self._loop = asyncio.new_event_loop()
+        asyncio.set_event_loop(self._loop)
+
+        async def main() -> None:
+            device = SimDevice(
+                id=0,  # catch-all unit id
+                simdata=[SimData(address=0, count=32768, values=0, datatype=DataType.REGISTERS)],
+                action=self._action)
+            self._server = ModbusTcpServer(device, address=(self.host, self.port))
+            await self._server.serve_forever(background=True)
+            self.port = self._server.transport.sockets[0].getsockname()[1]
+            self._ready.set()
+            await self._server.serving  # resolved by shutdown()
+
+        try:
+            self._loop.run_until_complete(main())
+        except BaseException as err:  # noqa: BLE001 - reported to start()
+            self._error = err
+            self._ready.set()
+        finally:
+            self._loop.close()
+
+    def start(self, timeout_s: float = 5.0) -> "ModbusGateway":
+        """Start listening; returns once the port is bound."""
+        if self._thread is not None:
+            raise RuntimeError("gateway already started")
+        self._thread = threading.Thread(target=self._run, name=f"modbus-gateway-{self.port}", daemon=True)
+        self._thread.start()
+        if not self._ready.wait(timeout_s):
+            raise RuntimeError(f"fake Modbus gateway did not start within {timeout_s} s")
+        if self._error is not None:
+            raise RuntimeError(f"fake Modbus gateway on {self.host}:{self.port} failed to start: "
+                               f"{self._error}") from self._error
+        return self
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Shut the server down and join its thread (the port can be re-bound at once)."""
+        if self._thread is None:
+            return
+        if self._server is not None and self._loop is not None and not self._loop.is_closed():
+            asyncio.run_coroutine_threadsafe(self._server.shutdown(), self._loop).result(timeout_s)
+        self._thread.join(timeout_s)
+        self._thread = None
+        self._server = None
+        self._ready.clear()
+
+    @property
+    def url(self) -> str:
+        """The ``open_bus`` URL of this gateway."""
+        return f"modbus://{self.host}:{self.port}"
+
+    def __enter__(self) -> "ModbusGateway":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
