@@ -1,0 +1,110 @@
+"""Fail-safe output policy: when the DAC may drive the arm, and when it must not.
+
+Rules (issue "data-acquisition service", item 3; MVME 104 watchdog 15 ms, IRSS 3.4.2):
+
+- Outputs start **SAFE**: DAC outputs disconnected from the field (P3 off) and every
+  channel at 0 V. The arm is enabled only by an explicit command.
+- **Arming** needs all of: the command area's ``arm_enable`` set, a *new* arm
+  request (the controller increments ``arm_request``; an old request never arms
+  again), a fresh command heartbeat, and every joint rate command at zero. So
+  nothing jumps to a stale setpoint on (re-)arm.
+- **Tripping**: in ARMED, a command heartbeat that has not changed for longer than
+  the watchdog time, or a fault the service cannot explain, latches **FAULT**: every
+  joint command and every current limit goes to 0 V (a current limit below 0.3 V
+  sets the brakes), the event is posted to the message queue, and outputs stay
+  safe until an explicit re-arm. ``arm_enable`` cleared by the controller disarms
+  to SAFE (an orderly stop, not a fault).
+- The heartbeat is judged on the **service's** clock: the service notes when it
+  last saw the heartbeat counter change, so the two processes' clocks never need to
+  agree.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+from pfma.clock import Clock
+
+
+class ServiceState(IntEnum):
+    STARTING = 0
+    SAFE = 1  #: outputs at 0 V, not armed
+    ARMED = 2  #: commands applied to the DAC
+    FAULT = 3  #: tripped; 0 V until an explicit re-arm
+    STOPPED = 4  #: service stopped; outputs 0 V and disconnected
+
+
+class OutputGuard:
+    """Decides, frame by frame, whether commands reach the DAC.
+
+    :param clock: the service's clock
+    :param watchdog_s: command heartbeat time-out (15 ms, the MVME 104's, by default)
+    :param post: callable(severity, code, text) posting to the message queue
+    """
+
+    def __init__(self, clock: Clock, watchdog_s: float = 0.015, post=None) -> None:
+        if watchdog_s <= 0:
+            raise ValueError("watchdog_s must be positive")
+        self.clock = clock
+        self.watchdog_s = watchdog_s
+        self.post = post or (lambda severity, code, text: None)
+        self.state = ServiceState.SAFE
+        self.trips = 0
+        self.reason = ""
+        self._hb = None  # last heartbeat counter seen
+        self._hb_t = -1e300  # when it last changed (service clock)
+        self._arm_request_used = None  # arm_request value that armed or was refused last
+        self._ever_seen = False
+        self._pending_notice = None
+
+    def heartbeat_age_s(self) -> float:
+        return self.clock.now() - self._hb_t
+
+    def update(self, heartbeat: int, arm_enable: bool, arm_request: int, rates_zero: bool) -> bool:
+        """Feed this frame's command-area values; return True when commands may drive the DAC."""
+        now = self.clock.now()
+        if heartbeat != self._hb:
+            self._hb = heartbeat
+            self._hb_t = now
+        fresh = self._ever_seen and (now - self._hb_t) <= self.watchdog_s
+        self._ever_seen = True
+        if self.state == ServiceState.ARMED:
+            if not fresh:
+                self.trip(f"command heartbeat stale ({(now - self._hb_t) * 1e3:.1f} ms > "
+                          f"{self.watchdog_s * 1e3:.1f} ms watchdog)", code=1)
+            elif not arm_enable:
+                self.state = ServiceState.SAFE
+                self.post(0, 2, "disarmed by command")
+            return self.state == ServiceState.ARMED
+        if arm_enable and arm_request != self._arm_request_used and self.state in (
+                ServiceState.SAFE, ServiceState.FAULT):
+            if not fresh:
+                # keep the request pending: a controller that is starting up may arm as
+                # soon as its heartbeat is seen to move; say so once
+                if self._pending_notice != arm_request:
+                    self._pending_notice = arm_request
+                    self.post(1, 3, "arm pending: command heartbeat not fresh")
+                return False
+            self._arm_request_used = arm_request
+            if not rates_zero:
+                self.post(1, 4, "arm refused: joint rate commands must be 0 when arming")
+            else:
+                self.state = ServiceState.ARMED
+                self.reason = ""
+                self.post(0, 5, "armed")
+                return True
+        return False
+
+    def trip(self, reason: str, code: int = 9) -> None:
+        """Latch FAULT (outputs to 0 V) and post the reason; idempotent while faulted."""
+        if self.state in (ServiceState.FAULT, ServiceState.STOPPED):
+            return
+        self.state = ServiceState.FAULT
+        self.trips += 1
+        self.reason = reason
+        self.post(2, code, f"outputs safe: {reason}")
+
+    def stop(self, reason: str = "service stopped") -> None:
+        self.state = ServiceState.STOPPED
+        self.reason = reason
+        self.post(1, 10, f"outputs safe: {reason}")
