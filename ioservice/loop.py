@@ -120,15 +120,15 @@ class FrameLoop:
         loop runs, so no full collection happens inside a frame.
         """
         clock, period, stats, info = self.clock, self.period_s, self.stats, self._info
-        if self.t0 is None:
-            self.t0 = clock.now()
-        end_k = None if frames is None else self.k + frames
-        end_t = None if duration_s is None else clock.now() + duration_s
         gc_was_enabled = gc.isenabled()
         if freeze_gc:
             gc.collect()
             gc.freeze()
             gc.disable()
+        if self.t0 is None:
+            self.t0 = clock.now()
+        end_k = None if frames is None else self.k + frames
+        end_t = None if duration_s is None else clock.now() + duration_s
         try:
             while not self.stop_requested:
                 if end_k is not None and self.k >= end_k:
