@@ -1,0 +1,151 @@
+"""Register-level fake of the Datel DVME-611B 32-channel 12-bit A/D board (model R3).
+
+Conversions take ``conversion_time_s`` (4 us) of model time on ``self.clock``; a
+driver polling CSR through a :class:`fakes.rack.FakeRack` (1 us per access) sees BUSY
+for a few reads, then EOC. Physical side: :meth:`FakeDvme611.set_input_volts`,
+:meth:`set_inputs_volts`. Faults: ``busy_stuck``, ``stuck_bit`` and ``no_answer``.
+Optional noise: ``noise_counts`` (standard deviation in counts, default 0) drawn from
+a seeded generator (``seed_noise``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from drivers.adc.registers import (AUTOINC, BOARD_ID, BUSY, CSR, DATA, DVME611, EOC, IE,
+                                   N_CHANNELS, SCAN, START)
+from fakes.board import FakeBoard, NoAnswer
+from fakes.testing import StuckBits
+
+_FULL = DVME611.constants["full_scale_counts"]
+_CSR_STORED = 0x1F | AUTOINC.mask | IE.mask  # gain bits read back 00 (no PGA, assumed)
+_SCAN_END = SCAN.offset + 2 * N_CHANNELS
+
+
+class FakeDvme611(FakeBoard):
+    """Fake DVME-611B with a 4 us conversion on the board's clock."""
+
+    description = DVME611
+    FAULTS = ("busy_stuck", "stuck_bit")
+
+    def __init__(self, name: str | None = None, clock=None) -> None:
+        super().__init__(name, clock)
+        self.range_volts = float(DVME611.constants["range_volts"])
+        self.conversion_time_s = float(DVME611.constants["conversion_time_s"])
+        self.noise_counts = 0.0
+        self._rng = np.random.default_rng(0)
+        self._inputs = np.zeros(N_CHANNELS)
+        self._stuck = StuckBits(DVME611)
+        self.conversions = 0  #: number of START strobes seen
+        self.reset()
+
+    def reset(self) -> None:
+        """Board reset: CSR 0, no conversion, DATA and scan buffer 0. Inputs stay."""
+        self.csr = 0  # stored CSR bits (channel, auto-increment, interrupt enable)
+        self.data = 0
+        self.eoc = False
+        self._busy_until: float | None = None
+        self._pending = (0, 0)  # (channel, code) of the conversion in progress
+        self._scan = [0] * N_CHANNELS
+
+    def seed_noise(self, seed: int) -> None:
+        """Restart the noise generator from ``seed`` (deterministic tests)."""
+        self._rng = np.random.default_rng(seed)
+
+    # -- physical side ---------------------------------------------------------------------
+    def set_input_volts(self, channel: int, volts: float) -> None:
+        """Voltage at one input (clipped to the range when converted)."""
+        if not 0 <= channel < N_CHANNELS:
+            raise ValueError(f"{self.name}: channel {channel} out of range 0..{N_CHANNELS - 1}")
+        self._inputs[channel] = volts
+
+    def set_inputs_volts(self, volts) -> None:
+        """Voltages at all 32 inputs."""
+        v = np.asarray(volts, dtype=float)
+        if v.shape != (N_CHANNELS,):
+            raise ValueError(f"{self.name}: need {N_CHANNELS} input voltages, got shape {v.shape}")
+        self._inputs[:] = v
+
+    @property
+    def input_volts(self) -> np.ndarray:
+        return self._inputs.copy()
+
+    def code_for_volts(self, volts: float) -> int:
+        """The converter's transfer function: clip to the range, offset binary, floor."""
+        r = self.range_volts
+        code = math.floor((min(max(volts, -r), r) + r) * (_FULL / (2.0 * r)))
+        if self.noise_counts:
+            code += int(round(self._rng.normal(0.0, self.noise_counts)))
+        return min(max(code, 0), _FULL - 1)
+
+    # -- faults --------------------------------------------------------------------------
+    def inject(self, fault: str, **params) -> None:
+        """``inject("busy_stuck")``: BUSY stays set, EOC never comes;
+        ``inject("stuck_bit", register="DATA"|"CSR"|offset, bit=n, value=0|1)``;
+        ``inject("no_answer")``."""
+        if fault == "stuck_bit":
+            self._stuck.add(**params)
+        super().inject(fault, **params)
+
+    def clear(self, fault: str | None = None) -> None:
+        super().clear(fault)
+        if fault in (None, "stuck_bit"):
+            self._stuck.clear()
+
+    # -- conversion state --------------------------------------------------------------------
+    @property
+    def busy(self) -> bool:
+        self._update()
+        return self._busy_until is not None or "busy_stuck" in self.faults
+
+    def _update(self) -> None:
+        """Finish the conversion in progress if its time is up."""
+        if self._busy_until is None or "busy_stuck" in self.faults:
+            return
+        if self.clock.now() >= self._busy_until:
+            ch, code = self._pending
+            self.data = code
+            self._scan[ch] = code
+            self.eoc = True
+            self._busy_until = None
+
+    def _start(self) -> None:
+        ch = self.csr & 0x1F
+        self._pending = (ch, self.code_for_volts(float(self._inputs[ch])))
+        self._busy_until = self.clock.now() + self.conversion_time_s
+        self.eoc = False
+        self.conversions += 1
+
+    # -- bus side -----------------------------------------------------------------------------
+    def _read16(self, offset: int) -> int:
+        if offset == CSR.offset:
+            busy = self.busy
+            word = self.csr | (BUSY.mask if busy else 0) | (EOC.mask if self.eoc and not busy else 0)
+        elif offset == DATA.offset:
+            word = self.data
+            if not self.busy:
+                self.eoc = False
+                if self.csr & AUTOINC.mask:
+                    self.csr = (self.csr & ~0x1F) | ((self.csr + 1) & 0x1F)
+        elif offset == START.offset:
+            word = 0  # write-only strobe (assumed: reads 0)
+        elif offset == BOARD_ID.offset:
+            word = BOARD_ID.reset
+        elif SCAN.offset <= offset < _SCAN_END:
+            word = self._scan[(offset - SCAN.offset) >> 1]
+        else:
+            raise NoAnswer("offset not decoded by the DVME-611 (assumed map R3)")
+        return self._stuck.apply(offset, word) if self._stuck else word
+
+    def _write16(self, offset: int, value: int) -> None:
+        if offset == CSR.offset:
+            self._update()
+            self.csr = value & _CSR_STORED
+        elif offset == START.offset:
+            self._start()
+        elif offset in (DATA.offset, BOARD_ID.offset) or SCAN.offset <= offset < _SCAN_END:
+            return  # read-only: writes ignored (assumed)
+        else:
+            raise NoAnswer("offset not decoded by the DVME-611 (assumed map R3)")
