@@ -10,6 +10,9 @@ at A16 address 2N. Every register of a request is forwarded to the hosted bus
 reads of real registers have side effects. A ``BusError`` from the hosted bus
 answers Modbus exception 2 (ILLEGAL_ADDRESS, "no board answered"); any other error
 answers exception 4 (DEVICE_FAILURE). Input registers (fc 4) read the same words.
+Function codes other than 3, 4, 6 and 16 answer exception 1 (ILLEGAL_FUNCTION); the
+echo of a write (pymodbus reads the written block back for fc 6) never reaches the
+hosted bus.
 
 pymodbus 3.16: the supported way to serve live objects is ``SimDevice(action=...)``
 (legacy datablock subclasses are deep-copied and silently ignored); ``id=0`` is the
@@ -65,10 +68,14 @@ class ModbusGateway:
             await asyncio.sleep(self.reply_delay_s)
         if function_code not in _READS | _WRITES:
             return ExcCodes.ILLEGAL_FUNCTION
+        if function_code in _WRITES and set_values is None:
+            # pymodbus reads the block back to echo a write (fc 6); never read the hosted
+            # bus for that: a read has side effects and VME writes do not read back.
+            return None
         off = address - start_address
         try:
             with self.lock:
-                if set_values is None or function_code in _READS:
+                if function_code in _READS:
                     for i in range(count):
                         current_registers[off + i] = self.bus.read16(2 * (address + i)) & 0xFFFF
                 else:

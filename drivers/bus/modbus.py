@@ -105,11 +105,11 @@ class ModbusTcpBus:
         return f"{self.host}:{self.port}"
 
     # -- one Modbus transaction ---------------------------------------------------------
-    def _call(self, addr: int, width: int, op: str, request, *args):
+    def _call(self, addr: int, width: int, op: str, request, *args, **kwargs):
         if not self._client.connected and not self._client.connect():
             raise BusError(addr, width, op, reason=f"gateway {self.gateway} unreachable")
         try:
-            rr = request(*args, device_id=self.unit)
+            rr = request(*args, device_id=self.unit, **kwargs)
         except ConnectionException as err:
             self._client.close()
             raise BusError(addr, width, op, reason=f"gateway {self.gateway} unreachable ({err})") from err
@@ -140,6 +140,22 @@ class ModbusTcpBus:
         _check_addr(addr)
         word = self._read_word(addr, 8)
         return word & 0xFF if addr % 2 else word >> 8
+
+    def read_block16(self, addr: int, n_words: int) -> list[int]:
+        """Read ``n_words`` (1..125) consecutive words from even ``addr`` in one request.
+
+        Not part of the RegisterBus contract (drivers must not need it); for dumps and
+        scans. The gateway performs one D16 read per word, in address order.
+        """
+        _check_addr(addr)
+        if addr % 2:
+            raise AlignmentError(addr, 16, "read", reason="16-bit access at an odd address")
+        if not 1 <= n_words <= 125 or addr + 2 * n_words > 0x10000:
+            raise ValueError(f"read_block16 at A16 0x{addr:04X}: {n_words} words is not 1..125 "
+                             f"inside the A16 space (Modbus limit: 125 registers)")
+        rr = self._call(addr, 16, "read", self._client.read_holding_registers, addr >> 1,
+                        count=n_words)
+        return [r & 0xFFFF for r in rr.registers[:n_words]]
 
     def write16(self, addr: int, value: int) -> None:
         """Write the word at even A16 ``addr`` (function code 6)."""
