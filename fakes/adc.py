@@ -124,8 +124,9 @@ class FakeDvme611(FakeBoard):
             busy = self.busy
             word = self.csr | (BUSY.mask if busy else 0) | (EOC.mask if self.eoc and not busy else 0)
         elif offset == DATA.offset:
+            busy = self.busy  # finishes a conversion whose time is up
             word = self.data
-            if not self.busy:
+            if not busy:
                 self.eoc = False
                 if self.csr & AUTOINC.mask:
                     self.csr = (self.csr & ~0x1F) | ((self.csr + 1) & 0x1F)

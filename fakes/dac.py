@@ -51,6 +51,13 @@ class FakeVmivme4100(FakeBoard):
         if fault in (None, "stuck_bit"):
             self._stuck.clear()
 
+    @staticmethod
+    def access_name(op: str, offset: int, value: int) -> str:
+        """Register an access reached: reads and D15 = 1 writes reach CTRL, others DAC[n]."""
+        if op == "r" or value & SELECT_CTRL:
+            return "CTRL"
+        return f"DAC[{offset >> 1}]"
+
     # -- bus side ----------------------------------------------------------------------------
     def _read16(self, offset: int) -> int:
         return self.control  # status = control bits 14..8 (R2); DACs are never readable

@@ -22,10 +22,12 @@ def register_writes(fake, width: int | None = 16, since: int = 0) -> list[tuple[
 def format_traffic(fake, entries: Iterable[tuple] | None = None) -> str:
     """One line per access: ``w16 +0x00 DAC[0] = 0x0800``."""
     desc = fake.description
+    name_of = getattr(fake, "access_name", None)  # boards whose registers overlay (VMIVME-4100)
     rows = fake.traffic if entries is None else entries
     lines = []
     for op, width, off, val in rows:
-        lines.append(f"{op}{width} +0x{off:02X} {register_name(desc, off):<10} = 0x{val:04X}")
+        reg = name_of(op, off, val) if name_of else register_name(desc, off)
+        lines.append(f"{op}{width} +0x{off:02X} {reg:<10} = 0x{val:04X}")
     return "\n".join(lines)
 
 
@@ -100,3 +102,17 @@ class StuckBits:
             return word
         mask, forced = entry
         return (word & ~mask) | forced
+
+
+def fake_rack_of_kinds(kinds: Iterable[str], clock=None, rack=None):
+    """``FakeRack.from_config`` restricted to boards of the given kinds (default rack file),
+    for tests of some boards that must not depend on every other board's fake."""
+    import dataclasses
+
+    from fakes.rack import FakeRack
+    from pfma.rack import load_rack
+
+    cfg = rack if rack is not None else load_rack()
+    wanted = set(kinds)
+    sub = dataclasses.replace(cfg, boards=tuple(b for b in cfg.boards if b.kind in wanted))
+    return FakeRack.from_config(sub, clock=clock)

@@ -11,7 +11,7 @@ import pytest
 from drivers.adc import Dvme611
 from fakes.adc import FakeDvme611
 from fakes.rack import FakeRack
-from fakes.testing import assert_register_writes
+from fakes.testing import assert_register_writes, fake_rack_of_kinds
 from pfma.clock import SimClock
 from pfma.errors import BoardError, BusError
 
@@ -162,11 +162,15 @@ def test_constructor_arguments(rig):
     assert five.name == "dvme611@0xC000"
 
 
-def test_from_config_rack():
-    try:
-        rack = FakeRack.from_config(clock=SimClock())
-    except ModuleNotFoundError as err:  # another board's fake not written yet
-        pytest.skip(f"fake rack incomplete: {err}")
+@pytest.mark.parametrize("whole", [False, True], ids=["analog-boards", "whole-rack"])
+def test_from_config_rack(whole):
+    if whole:
+        try:
+            rack = FakeRack.from_config(clock=SimClock())
+        except ModuleNotFoundError as err:  # another board's fake not written yet
+            pytest.skip(f"fake rack incomplete: {err}")
+    else:
+        rack = fake_rack_of_kinds(("vmivme4940", "vmivme4100", "dvme611"), clock=SimClock())
     v = np.linspace(-5, 5, 32)
     rack["adc"].set_inputs_volts(v)
     assert np.all(np.abs(Dvme611(rack, 0xC000, name="adc").scan_volts() - v) <= LSB)

@@ -11,7 +11,7 @@ import pytest
 from drivers.dac import Vmivme4100
 from fakes.dac import FakeVmivme4100
 from fakes.rack import FakeRack
-from fakes.testing import assert_register_writes, register_writes
+from fakes.testing import assert_register_writes, fake_rack_of_kinds, register_writes
 from pfma.clock import SimClock
 from pfma.errors import BusError
 
@@ -183,11 +183,15 @@ def test_stuck_latch_bit_shows_on_output(rig):
     assert fake.output_volts(2) == pytest.approx(-5.0)
 
 
-def test_from_config_rack():
-    try:
-        rack = FakeRack.from_config(clock=SimClock())
-    except ModuleNotFoundError as err:  # another board's fake not written yet
-        pytest.skip(f"fake rack incomplete: {err}")
+@pytest.mark.parametrize("whole", [False, True], ids=["analog-boards", "whole-rack"])
+def test_from_config_rack(whole):
+    if whole:
+        try:
+            rack = FakeRack.from_config(clock=SimClock())
+        except ModuleNotFoundError as err:  # another board's fake not written yet
+            pytest.skip(f"fake rack incomplete: {err}")
+    else:
+        rack = fake_rack_of_kinds(("vmivme4940", "vmivme4100", "dvme611"), clock=SimClock())
     dac = Vmivme4100(rack, 0xD000, name="dac")
     dac.enable_outputs()
     dac.write_volts(6, -4.0)

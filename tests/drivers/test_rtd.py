@@ -11,7 +11,7 @@ import pytest
 from drivers.rtd import RtdStatus, Vmivme4940
 from fakes.rack import FakeRack
 from fakes.rtd import FakeVmivme4940
-from fakes.testing import assert_register_writes
+from fakes.testing import assert_register_writes, fake_rack_of_kinds
 from pfma.clock import SimClock
 from pfma.errors import BusError
 
@@ -180,11 +180,15 @@ def test_bad_channel_is_value_error(rig, bad):
         rtd.read_angle_rad(bad)
 
 
-def test_from_config_rack():
-    try:
-        rack = FakeRack.from_config(clock=SimClock())
-    except ModuleNotFoundError as err:  # another board's fake not written yet
-        pytest.skip(f"fake rack incomplete: {err}")
+@pytest.mark.parametrize("whole", [False, True], ids=["analog-boards", "whole-rack"])
+def test_from_config_rack(whole):
+    if whole:
+        try:
+            rack = FakeRack.from_config(clock=SimClock())
+        except ModuleNotFoundError as err:  # another board's fake not written yet
+            pytest.skip(f"fake rack incomplete: {err}")
+    else:
+        rack = fake_rack_of_kinds(("vmivme4940", "vmivme4100", "dvme611"), clock=SimClock())
     for name, base in (("rtd1", 0x0100), ("rtd2", 0x0200)):
         rack[name].set_angles_rad([0.1, 1.1, 2.1, 3.1])
         got = Vmivme4940(rack, base, name=name).read_angles_rad()
