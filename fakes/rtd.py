@@ -45,6 +45,8 @@ class FakeVmivme4940(FakeBoard):
     def set_angle_rad(self, channel: int, angle_rad: float) -> None:
         """Set a resolver's shaft angle (any real value; wrapped into 0..2*pi, truncated)."""
         self._check_channel(channel)
+        if not math.isfinite(angle_rad):
+            raise ValueError(f"{self.name}: channel {channel} angle {angle_rad!r} is not finite")
         counts = math.floor((angle_rad % _TWO_PI) * (_COUNTS / _TWO_PI))
         self._counts[channel] = counts & (_COUNTS - 1)
 

@@ -108,6 +108,8 @@ def test_rtd_fault_parameters_are_checked():
         rtd.inject("loss_of_signal", channel=0, mode="explode")
     with pytest.raises(KeyError):
         rtd.inject("stuck_bit", register="CH9", bit=0, value=1)
+    with pytest.raises(ValueError, match="not finite"):
+        rtd.set_angle_rad(0, math.nan)
     assert rtd.faults == {}
 
 
