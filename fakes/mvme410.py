@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 from drivers.pio.registers import MATRIX_SWITCHER, MVME410, PORTS, decode_matrix_route
 from fakes.board import FakeBoard, NoAnswer
-from fakes.pia import FakePia6821
+from fakes.pia import FakePia6821, even_byte_reason
 from pfma.clock import Clock
 
 
@@ -130,9 +130,7 @@ class FakeMvme410(FakeBoard):
     def _check(self, offset: int, width: int) -> None:
         if width == 8 and offset % 2 == 0 and 0 <= offset < self.description.window \
                 and "no_answer" not in self.faults:
-            near = self.description.register_at(offset + 1)
-            what = f"fill byte before {near.name} (+0x{offset + 1:02X})" if near else "fill byte"
-            raise NoAnswer(f"even byte not decoded ({what}); the 8-bit PIA registers sit on odd bytes")
+            raise NoAnswer(even_byte_reason(self.description, offset))
         super()._check(offset, width)
 
     def _locate(self, offset: int) -> tuple[FakePia6821, int]:

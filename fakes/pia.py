@@ -23,10 +23,18 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from drivers.registers import BoardDescription
 from drivers.pio.registers import (
     CR_C1_IRQ_EN, CR_C1_RISING, CR_C2_B3, CR_C2_B4, CR_C2_OUTPUT, CR_DATA, CR_IRQ1, CR_IRQ2,
     CR_WRITABLE,
 )
+
+
+def even_byte_reason(description: BoardDescription, offset: int) -> str:
+    """NoAnswer reason for an even-byte access to an odd-byte board, naming the neighbour."""
+    near = description.register_at(offset + 1)
+    what = f"fill byte before {near.name} (+0x{offset + 1:02X})" if near else "fill byte"
+    return f"even byte not decoded ({what}); the 8-bit registers sit on odd bytes"
 
 
 class _Side:
