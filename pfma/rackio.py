@@ -48,11 +48,13 @@ class RackIO:
 
     :param bus: any RegisterBus (fake rack, Modbus gateway, device file)
     :param rack: the rack configuration (boards, addresses, channel scales)
+    :param clock: passed to drivers that wait (the serial board); None: their default
     """
 
-    def __init__(self, bus, rack: RackConfig) -> None:
+    def __init__(self, bus, rack: RackConfig, clock=None) -> None:
         self.bus = bus
         self.rack = rack
+        self.clock = clock
         self._drivers: dict[str, object] = {}
 
     def driver(self, board: str | BoardConfig):
@@ -86,6 +88,8 @@ class RackIO:
         except (ImportError, AttributeError) as err:
             raise BoardError(f"board {cfg.name} ({cfg.kind} at A16 0x{cfg.base:04X}): driver "
                              f"{target} is not available: {err}") from err
+        if cfg.device == "serial" and self.clock is not None:
+            return cls(self.bus, cfg.base, name=cfg.name, clock=self.clock)
         return cls(self.bus, cfg.base, name=cfg.name)
 
     def channel(self, signal: str) -> Channel:

@@ -158,6 +158,16 @@ def test_rackio_dac_reads_its_shadow():
     assert raw == io.driver("dac").shadow_counts[5]
 
 
+def test_rackio_builds_a_driver_for_every_board():
+    clock = SimClock()
+    io = RackIO(open_bus("fake", clock=clock), load_rack(), clock=clock)
+    drivers = io.drivers()
+    assert set(drivers) == {"rtd1", "rtd2", "dac", "adc", "sio", "pio_user", "pio_video"}
+    assert type(drivers["rtd1"]).__name__ == "Vmivme4940"
+    assert type(drivers["sio"]).__name__ == "Mvme400" and drivers["sio"].clock is clock
+    assert io.driver("rtd1") is drivers["rtd1"]  # built once
+
+
 # -- pfma regs -------------------------------------------------------------------------------
 def test_regs_lists_tables_and_assumptions(capsys):
     assert main(["regs", "dac"]) == 0
