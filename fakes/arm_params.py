@@ -1,0 +1,198 @@
+"""Nominal parameters of the simulated PFMA: one table, one place.
+
+Source for every number below, unless a line says otherwise: the project's
+nominal arm model, pfma-model.md sections 8.1-8.7 (ALL VALUES ASSUMED there:
+the real PFMA data are not public), and the IRSS report section 3.6 (seven
+PWM/rate servo cards incl. the gripper, six brake release cards, 10 Hz one-pole
+tach filter cards). The facts are copied in here; nothing reads the reference
+files at run time. The gripper axis has no published numbers at all: its row is
+this simulator's own assumption (marked ``assumed (simulator)``).
+
+Axis order everywhere in the simulator is the DH order SY, SP, EP, WP, WY, WR,
+then the gripper (index 6). Rotary axes are in rad, rad/s, N*m, kg*m^2; the
+gripper is a linear jaw opening in m, m/s, N, kg.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+SOURCE = "pfma-model.md 8.1-8.7 (nominal model, assumed); IRSS report 3.6"
+
+DEG = math.pi / 180.0
+
+
+@dataclass(frozen=True)
+class AxisParams:
+    """One servoed axis: limits, gearing, amplifier and friction (per pfma-model.md 8.2-8.4)."""
+
+    name: str  #: short name: SY, SP, EP, WP, WY, WR, GR
+    label: str  #: long name
+    stem: str  #: signal stem in the rack config: "<stem>_command", "<stem>_angle" ...
+    adc_stem: str  #: stem of the ADC monitor signals "<adc_stem>_motor_current", "<adc_stem>_rate"
+    hard_lo: float  #: hard stop, rad (gripper: m)
+    hard_hi: float  #: hard stop, rad (gripper: m)
+    soft_lo: float  #: software limit (information only; the controller enforces it)
+    soft_hi: float
+    gear_n: float  #: gear ratio N
+    omega_fs: float  #: joint rate at a full-scale 10 V command, rad/s (gripper: m/s)
+    k_t: float  #: motor torque constant, N*m/A
+    i_max_a: float  #: amplifier current at a 10 V current limit, A
+    inertia: float  #: decoupled effective inertia incl. reflected rotor, kg*m^2 (gripper: kg)
+    coulomb: float  #: joint-side Coulomb friction, N*m (gripper: N)
+    viscous: float  #: joint-side viscous friction, N*m*s/rad (gripper: N*s/m)
+    counterbalanced: bool  #: 90 % of link gravity removed (J2-J4)
+    brake: bool  #: brake fitted (six joints; the gripper has none, IRSS 3.6)
+    has_angle: bool = True  #: resolver fitted (the gripper has none in the rack)
+    eta: float = 0.8  #: gear efficiency
+
+    @property
+    def k_w(self) -> float:
+        """Rate scale, V per rad/s (gripper: V per m/s): 10 V / omega_fs (8.4)."""
+        return 10.0 / self.omega_fs
+
+    @property
+    def torque_per_amp(self) -> float:
+        """N * eta * K_t: joint torque per motor ampere (8.2)."""
+        return self.gear_n * self.eta * self.k_t
+
+    @property
+    def torque_max(self) -> float:
+        """Joint torque at I_max (8.2 last column)."""
+        return self.torque_per_amp * self.i_max_a
+
+
+#: The seven axes. Columns per pfma-model.md 8.2 (limits, N, omega_fs, K_t, I_max) and
+#: 8.3 (inertia, friction); counterbalance on J2-J4 (8.3); brakes on the six joints (IRSS 3.6).
+AXES: tuple[AxisParams, ...] = (
+    AxisParams("SY", "Shoulder Yaw", "shoulder_yaw", "shoulder_yaw", -150 * DEG, 150 * DEG,
+               -145 * DEG, 145 * DEG, 200, 0.40, 0.12, 10.0, 40.0, 8.0, 20.0, False, True),
+    AxisParams("SP", "Shoulder Pitch", "shoulder_pitch", "shoulder_pitch", -30 * DEG, 120 * DEG,
+               -25 * DEG, 115 * DEG, 200, 0.40, 0.12, 10.0, 40.0, 8.0, 20.0, True, True),
+    AxisParams("EP", "Elbow Pitch", "elbow_pitch", "elbow_pitch", -150 * DEG, 10 * DEG,
+               -145 * DEG, 5 * DEG, 150, 0.50, 0.12, 10.0, 12.0, 8.0, 20.0, True, True),
+    AxisParams("WP", "Wrist Pitch", "wrist_pitch", "wrist_pitch", -110 * DEG, 110 * DEG,
+               -105 * DEG, 105 * DEG, 100, 1.00, 0.06, 5.0, 0.6, 1.0, 2.0, True, True),
+    AxisParams("WY", "Wrist Yaw", "wrist_yaw", "wrist_yaw", -110 * DEG, 110 * DEG,
+               -105 * DEG, 105 * DEG, 100, 1.00, 0.06, 5.0, 0.6, 1.0, 2.0, False, True),
+    AxisParams("WR", "Wrist Roll", "wrist_roll", "wrist_roll", -180 * DEG, 180 * DEG,
+               -175 * DEG, 175 * DEG, 60, 2.00, 0.06, 5.0, 0.08, 1.0, 2.0, False, True),
+    # assumed (simulator): gripper jaw opening 0..0.10 m, 0.05 m/s at 10 V, 40 N/A
+    # (N = 500 rotor rad per m of jaw travel), 5 A (the rack's 0.5 A/V scale), 20 kg reflected
+    # mass (lead screw), friction 2 N + 20 N*s/m; no brake, no resolver, no gravity.
+    AxisParams("GR", "Gripper", "gripper", "end_effector", 0.0, 0.10, 0.005, 0.095,
+               500, 0.05, 0.10, 5.0, 20.0, 2.0, 20.0, False, False, has_angle=False),
+)
+
+N_AXES = len(AXES)
+N_JOINTS = 6  #: the six arm joints (resolver + DH); axis 6 is the gripper
+
+
+@dataclass(frozen=True)
+class DhRow:
+    """Standard (distal) DH row: T_i = Rz(q_i + offset) Tz(d) Tx(a) Rx(alpha) (8.1)."""
+
+    offset_rad: float
+    d_m: float
+    a_m: float
+    alpha_rad: float
+
+
+#: pfma-model.md 8.1 DH table (SY, SP, EP, WP, WY, WR).
+DH: tuple[DhRow, ...] = (
+    DhRow(0.0, 0.0, 0.0, 90 * DEG),
+    DhRow(0.0, 0.0, 0.90, 0.0),
+    DhRow(0.0, 0.0, 0.90, 0.0),
+    DhRow(0.0, 0.0, 0.0, -90 * DEG),
+    DhRow(90 * DEG, 0.0, 0.0, 90 * DEG),
+    DhRow(0.0, 0.30, 0.0, 0.0),
+)
+
+
+@dataclass(frozen=True)
+class PointMass:
+    """A lumped mass fixed in DH frame ``frame`` (moved by joints 1..frame) (8.3)."""
+
+    name: str
+    mass_kg: float
+    frame: int  #: DH frame index 1..6
+    com_m: tuple[float, float, float]  #: centre of mass in that frame
+
+
+#: pfma-model.md 8.3 link masses (arm total 44 kg moving).
+LINK_MASSES: tuple[PointMass, ...] = (
+    PointMass("upper arm", 20.0, 2, (-0.45, 0.0, 0.0)),
+    PointMass("forearm", 12.0, 3, (-0.45, 0.0, 0.0)),
+    PointMass("wrist", 8.0, 5, (0.0, 0.0, 0.0)),  # lumped at the wrist centre
+    PointMass("roll + F/T + end effector", 4.0, 6, (0.0, 0.0, -0.08)),
+)
+
+
+@dataclass(frozen=True)
+class ArmParams:
+    """Everything the simulated arm needs besides the axis table."""
+
+    axes: tuple[AxisParams, ...] = AXES
+    dh: tuple[DhRow, ...] = DH
+    link_masses: tuple[PointMass, ...] = LINK_MASSES
+    gravity_m_s2: float = 9.81
+    counterbalance_fraction: float = 0.9  #: 8.3: tau_cb = -0.9 tau_grav,links on J2-J4
+    rate_loop_lambda: float = 40.0  #: 8.4: K_a = lambda J / (N eta K_t K_w), rad/s
+    tach_filter_hz: float = 10.0  #: IRSS 3.6.3 (sourced) / 8.4: tau_f = 15.9 ms
+    brake_engage_v: float = 0.3  #: 8.4: brake engaged when V_ilim < 0.3 V
+    brake_release_v: float = 0.5  #: 8.4: released when V_ilim > 0.5 V
+    brake_slip_factor: float = 1.5  #: 8.4: slip torque = 1.5 x max joint torque
+    dac_range_v: float = 10.0  #: 8.4: +-10 V DAC and ADC
+    ft_offset_m: float = 0.20  #: 8.1: F/T frame 0.20 m from the wrist centre along z6
+    tool_mass_kg: float = 1.5  #: 8.7: tool behind the sensor
+    tool_com_m: float = 0.06  #: 8.7: tool centre of mass beyond the sensor along z6
+    # Simulator choices (assumed, documented in docs/simulated-arm.md):
+    stop_omega_rad_s: float = 300.0  #: hard stop stiffness k = J * omega^2
+    stop_zeta: float = 0.7  #: hard stop damping ratio
+    max_substep_s: float = 1.0e-3  #: integration substep upper bound (1 kHz or finer)
+    q_initial: tuple[float, ...] = (0.0, 30 * DEG, -90 * DEG, 60 * DEG, 0.0, 0.0, 0.05)
+    #: q_ready of 8.1 (tool point (1.529, 0, -0.329) m), gripper half open
+
+    @property
+    def tau_f_s(self) -> float:
+        """Tach filter time constant (1 / (2 pi 10 Hz) = 15.9 ms)."""
+        return 1.0 / (2.0 * math.pi * self.tach_filter_hz)
+
+    def k_a(self) -> tuple[float, ...]:
+        """Amplifier rate-loop gains, A/V (8.4: 3.33, 3.33, 1.67, 0.50, 0.50, 0.22; gripper 0.1)."""
+        return tuple(self.rate_loop_lambda * a.inertia / (a.torque_per_amp * a.k_w) for a in self.axes)
+
+
+NOMINAL = ArmParams()
+
+
+@dataclass
+class SimErrors:
+    """Known, settable departures of the simulated truth from the nominal model.
+
+    All zero by default. Calibration tests set them and check that a fit finds them.
+    """
+
+    resolver_offset_rad: tuple[float, ...] = (0.0,) * N_JOINTS
+    """Added to each joint's resolver reading (resolver zero = DH zero + offset)."""
+    tach_scale_error: tuple[float, ...] = (0.0,) * N_AXES
+    """Fractional tach gain error: tach volts = K_w (1 + e) qdot (the rate loop sees it too)."""
+    adc_gain_error: dict[str, float] = field(default_factory=dict)
+    """Fractional ADC gain error per signal name: read = (1 + g) V + offset."""
+    adc_offset_v: dict[str, float] = field(default_factory=dict)
+    """ADC offset per signal name, volts."""
+    dac_gain_error: dict[str, float] = field(default_factory=dict)
+    """Fractional DAC gain error per signal name: amplifier sees (1 + g) V + offset."""
+    dac_offset_v: dict[str, float] = field(default_factory=dict)
+    """DAC offset per signal name, volts."""
+    payload_kg: float = 0.0
+    """Payload at the tool point (not counterbalanced; seen by the F/T sensor)."""
+
+    def __post_init__(self) -> None:
+        if len(self.resolver_offset_rad) != N_JOINTS:
+            raise ValueError(f"resolver_offset_rad needs {N_JOINTS} values, got {len(self.resolver_offset_rad)}")
+        if len(self.tach_scale_error) != N_AXES:
+            raise ValueError(f"tach_scale_error needs {N_AXES} values, got {len(self.tach_scale_error)}")
+        if self.payload_kg < 0:
+            raise ValueError(f"payload_kg must be >= 0, got {self.payload_kg}")

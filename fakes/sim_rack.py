@@ -1,0 +1,252 @@
+"""The simulated PFMA behind the fake rack: DAC fake -> amplifiers + arm -> RTD/ADC fakes.
+
+``SimulatedRack`` owns a :class:`fakes.rack.FakeRack` built from the rack configuration,
+an :class:`fakes.arm.ArmModel` and its :class:`fakes.environment.Environment`. Each
+``step(dt_s)`` reads the DAC fake's field voltages (0 V while its outputs are
+disconnected), integrates the arm and writes what the sensors would show through the
+boards' physical-side hooks:
+
+- resolver angles -> RTD fakes (``<joint>_angle`` signals), wrapped to 0..2 pi:
+  ``reading = wrap(q + resolver_offset_rad)`` (resolver zero = DH zero + offset, 0 nominal);
+- filtered tach volts V_tf -> ADC ``<joint>_rate`` (``shoulder_roll_rate`` stays 0 V:
+  the shoulder roll is indexed by hand);
+- motor current monitor 10 I / I_max -> ADC ``<joint>_motor_current``;
+- CAE hand-controller volts (``set_cae``) -> ADC ``cae_*``.
+
+Every channel is found by signal name in the rack configuration; nothing here knows a
+channel number. The drivers are not used: this module only talks to the fakes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from fakes.arm import ArmModel, ArmState
+from fakes.arm_params import AXES, N_AXES, N_JOINTS, SimErrors
+from fakes.environment import Environment
+from fakes.rack import FakeRack
+from pfma.clock import Clock
+from pfma.rack import RackConfig, load_rack
+
+#: ADC signals of the CAE rate hand controller, in ``set_cae`` order (rack config, IRSS 3.4.2).
+CAE_AXIS_SIGNALS = ("cae_up_down", "cae_forward_backward", "cae_right_left", "cae_yaw", "cae_pitch", "cae_roll")
+CAE_DISCRETE_SIGNALS = ("cae_discrete_1", "cae_discrete_2", "cae_discrete_3")
+#: Voltage of a closed CAE discrete given as a bool (assumed: TTL-level switch to +5 V).
+CAE_DISCRETE_HIGH_V = 5.0
+#: Monitor signals of the manually indexed shoulder roll: held at 0 V.
+IDLE_SIGNALS = ("shoulder_roll_rate", "shoulder_roll_motor_current")
+
+_TWO_PI = 2.0 * math.pi
+
+
+class _AdcBoardMap:
+    """What the simulator drives on one ADC board."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.volts = np.zeros(0)  # set when the board's channel count is known
+        self.rate_ch: list[int] = []
+        self.rate_axis: list[int] = []
+        self.cur_ch: list[int] = []
+        self.cur_axis: list[int] = []
+        self.gain = np.zeros(0)
+        self.offset = np.zeros(0)
+
+
+class SimulatedRack:
+    """A fake rack with the simulated arm wired to it.
+
+    :param rack: rack configuration (default: ``pfma/rack_default.toml``)
+    :param clock: clock shared by the fake boards (default: a new ``SimClock``)
+    :param fake_rack: an existing fake rack to wire (default: built from ``rack``)
+    :param arm: an existing arm model (default: a new ``ArmModel`` at the ready pose)
+    :param environment: contact objects (default: free space; ignored when ``arm`` is given)
+    :param errors: known truth errors (resolver offsets, tach scale, ADC/DAC gain and
+        offset per signal, payload); default all zero
+    :raises KeyError: when the rack configuration lacks a signal the arm needs
+    """
+
+    def __init__(self, rack: RackConfig | None = None, *, clock: Clock | None = None,
+                 fake_rack: FakeRack | None = None, arm: ArmModel | None = None,
+                 environment: Environment | None = None, errors: SimErrors | None = None) -> None:
+        self.config = rack if rack is not None else load_rack()
+        self.fake_rack = fake_rack if fake_rack is not None else FakeRack.from_config(self.config, clock=clock)
+        self.clock = self.fake_rack.clock
+        self.errors = errors if errors is not None else SimErrors()
+        self.arm = arm if arm is not None else ArmModel(environment=environment, errors=self.errors)
+        self.environment = self.arm.environment
+        self._ft_push = None
+        self._wire()
+        self.set_errors(self.errors)
+        self._cae_axes = np.zeros(len(CAE_AXIS_SIGNALS))
+        self._cae_discretes = np.zeros(len(CAE_DISCRETE_SIGNALS))
+        self._write_sensors()
+
+    # -- wiring -----------------------------------------------------------------------
+    def _where(self, signal: str) -> tuple[str, int]:
+        c = self.config.channel(signal)
+        return c.board, c.channel
+
+    def _wire(self) -> None:
+        """Look up every channel the simulator touches, by signal name."""
+        self.command = [self._where(f"{a.stem}_command") for a in AXES]
+        self.current_limit = [self._where(f"{a.stem}_current_limit") for a in AXES]
+        self.angle = {i: self._where(f"{a.stem}_angle") for i, a in enumerate(AXES) if a.has_angle}
+        self.rate = [self._where(f"{a.adc_stem}_rate") for a in AXES]
+        self.motor_current = [self._where(f"{a.adc_stem}_motor_current") for a in AXES]
+        self.cae_axes = [self._where(s) for s in CAE_AXIS_SIGNALS]
+        self.cae_discretes = [self._where(s) for s in CAE_DISCRETE_SIGNALS]
+        self.idle = []
+        for s in IDLE_SIGNALS:
+            try:
+                self.idle.append(self._where(s))
+            except KeyError:
+                pass
+        self._adc: dict[str, _AdcBoardMap] = {}
+        for role, chans in (("rate", self.rate), ("cur", self.motor_current)):
+            for axis, (board, ch) in enumerate(chans):
+                m = self._adc_board(board)
+                getattr(m, f"{role}_ch").append(ch)
+                getattr(m, f"{role}_axis").append(axis)
+        for board, _ in self.cae_axes + self.cae_discretes + self.idle:
+            self._adc_board(board)
+        self._dac_boards = sorted({b for b, _ in self.command + self.current_limit})
+
+    def _adc_board(self, name: str) -> _AdcBoardMap:
+        if name not in self._adc:
+            m = _AdcBoardMap(name)
+            m.volts = np.array(self.fake_rack[name].input_volts, dtype=float)
+            self._adc[name] = m
+        return self._adc[name]
+
+    def wiring(self) -> list[tuple[str, str, str, int]]:
+        """``(axis, role, board, channel)`` for every channel the simulator drives or reads."""
+        out = []
+        for i, a in enumerate(AXES):
+            out.append((a.name, "rate command (in)", *self.command[i]))
+            out.append((a.name, "current limit (in)", *self.current_limit[i]))
+            if i in self.angle:
+                out.append((a.name, "resolver angle (out)", *self.angle[i]))
+            out.append((a.name, "tach volts (out)", *self.rate[i]))
+            out.append((a.name, "motor current volts (out)", *self.motor_current[i]))
+        return out
+
+    # -- truth errors -------------------------------------------------------------------
+    def set_errors(self, errors: SimErrors) -> None:
+        """Install known truth errors (see :class:`fakes.arm_params.SimErrors`).
+
+        :raises KeyError: for an ADC/DAC error on a signal the rack does not have
+        """
+        self.errors = errors
+        self.arm.set_errors(errors)
+        self._resolver_offset = np.asarray(errors.resolver_offset_rad, dtype=float)
+        for m in self._adc.values():
+            n = len(m.volts)
+            m.gain, m.offset = np.ones(n), np.zeros(n)
+        for sig, g in errors.adc_gain_error.items():
+            board, ch = self._where(sig)
+            self._adc_board(board).gain[ch] = 1.0 + g
+        for sig, off in errors.adc_offset_v.items():
+            board, ch = self._where(sig)
+            self._adc_board(board).offset[ch] = off
+        self._dac_gain = {}
+        self._dac_offset = {}
+        for sig, g in errors.dac_gain_error.items():
+            self._dac_gain[self._where(sig)] = 1.0 + g
+        for sig, off in errors.dac_offset_v.items():
+            self._dac_offset[self._where(sig)] = off
+
+    # -- physical inputs ------------------------------------------------------------------
+    def set_cae(self, axes_volts: Sequence[float], discretes: Sequence[bool | float] = (False, False, False)) -> None:
+        """Hold the CAE hand controller: six axis voltages (up/down, forward/backward,
+        right/left, yaw, pitch, roll; +-10 V full deflection, pfma-model.md 8.5) and three
+        discretes (bool -> 5 V / 0 V, or a voltage).
+
+        :raises ValueError: on the wrong number of values
+        """
+        axes = np.asarray(axes_volts, dtype=float)
+        if axes.shape != (len(CAE_AXIS_SIGNALS),):
+            raise ValueError(f"set_cae needs {len(CAE_AXIS_SIGNALS)} axis voltages "
+                             f"({', '.join(CAE_AXIS_SIGNALS)}), got shape {axes.shape}")
+        if len(discretes) != len(CAE_DISCRETE_SIGNALS):
+            raise ValueError(f"set_cae needs {len(CAE_DISCRETE_SIGNALS)} discretes, got {len(discretes)}")
+        self._cae_axes = axes
+        self._cae_discretes = np.array([(CAE_DISCRETE_HIGH_V if d else 0.0) if isinstance(d, bool) else float(d)
+                                        for d in discretes])
+        self._write_sensors()
+
+    def attach_ft(self, fake) -> None:
+        """Feed the arm's F/T load to an F/T fake: sets its ``load_fn`` if it has one,
+        otherwise calls its ``set_load(force_n, torque_nm)`` after every step."""
+        if hasattr(fake, "load_fn"):
+            fake.load_fn = lambda t_s: self.arm.ft_load()
+            self._ft_push = None
+        elif hasattr(fake, "set_load"):
+            self._ft_push = fake
+            fake.set_load(*self.arm.ft_load())
+        else:
+            raise TypeError(f"{type(fake).__name__} has neither load_fn nor set_load")
+
+    # -- simulation -----------------------------------------------------------------------
+    def amplifier_inputs(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rate command volts[7], current limit volts[7]) as the amplifiers see them now."""
+        dac = {b: self.fake_rack[b].output_volts_all() for b in self._dac_boards}
+        v_cmd = np.array([dac[b][ch] for b, ch in self.command])
+        v_ilim = np.array([dac[b][ch] for b, ch in self.current_limit])
+        if self._dac_gain or self._dac_offset:
+            for arr, chans in ((v_cmd, self.command), (v_ilim, self.current_limit)):
+                for i, key in enumerate(chans):
+                    arr[i] = arr[i] * self._dac_gain.get(key, 1.0) + self._dac_offset.get(key, 0.0)
+        return v_cmd, v_ilim
+
+    def step(self, dt_s: float) -> None:
+        """Advance the world by ``dt_s``: amplifiers + arm, then every fake board's physical
+        side (``FakeRack.step``), then the sensor outputs. Does not move the clock."""
+        v_cmd, v_ilim = self.amplifier_inputs()
+        self.arm.step(dt_s, v_cmd, v_ilim)
+        self.fake_rack.step(dt_s)
+        self._write_sensors()
+        if self._ft_push is not None:
+            self._ft_push.set_load(*self.arm.ft_load())
+
+    def advance(self, dt_s: float) -> None:
+        """``step(dt_s)`` and move the clock by ``dt_s`` (single-step mode, tests)."""
+        self.step(dt_s)
+        self.clock.advance(dt_s)
+
+    def _write_sensors(self) -> None:
+        arm = self.arm
+        q = arm.q
+        for axis, (board, ch) in self.angle.items():
+            self.fake_rack[board].set_angle_rad(ch, (q[axis] + self._resolver_offset[axis]) % _TWO_PI)
+        tach, imon = arm.tach_volts, arm.current_monitor_volts
+        for m in self._adc.values():
+            m.volts[m.rate_ch] = tach[m.rate_axis]
+            m.volts[m.cur_ch] = imon[m.cur_axis]
+        for (board, ch), v in zip(self.cae_axes, self._cae_axes):
+            self._adc[board].volts[ch] = v
+        for (board, ch), v in zip(self.cae_discretes, self._cae_discretes):
+            self._adc[board].volts[ch] = v
+        for board, ch in self.idle:
+            self._adc[board].volts[ch] = 0.0
+        for m in self._adc.values():
+            self.fake_rack[m.name].set_inputs_volts(m.volts * m.gain + m.offset)
+
+    # -- truth ----------------------------------------------------------------------------
+    def true_state(self) -> ArmState:
+        """The arm's true state (for tests and calibration truth)."""
+        return self.arm.state()
+
+    def ft_load(self) -> tuple[np.ndarray, np.ndarray]:
+        """F/T load in the sensor frame, see :meth:`ArmModel.ft_load`."""
+        return self.arm.ft_load()
+
+    def resolver_angles_rad(self) -> np.ndarray:
+        """What the six resolvers are set to (0..2 pi), in axis order SY..WR."""
+        return (self.arm.q[:N_JOINTS] + self._resolver_offset) % _TWO_PI
+
+
+__all__ = ["SimulatedRack", "CAE_AXIS_SIGNALS", "CAE_DISCRETE_SIGNALS", "N_AXES"]
