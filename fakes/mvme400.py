@@ -54,6 +54,8 @@ class ByteDevice(Protocol):
     def transmit(self, max_bytes: int) -> bytes:
         """Up to ``max_bytes`` bytes to send now (b"" when idle)."""
 
+    # optional: ``advance(dt_s)`` is called as model time passes, before ``transmit``
+
 
 class SerialPeer:
     """The far end of one channel's cable.
@@ -75,14 +77,25 @@ class SerialPeer:
         self._queue: deque[tuple[float, int, str | None]] = deque()  # (due time, byte, error)
         self._line_free_t = -math.inf
         self._received = bytearray()
+        self._device_t = board.t
 
     @property
     def char_time_s(self) -> float:
         return BITS_PER_CHAR / self.baud
 
     def attach(self, device: ByteDevice | None) -> None:
-        """Put a protocol fake (``receive``/``transmit``) on the far end (None removes it)."""
+        """Put a protocol fake (``receive``/``transmit``, optional ``advance(dt_s)``) on the
+        far end (None removes it)."""
+        self._board._sync()
         self.device = device
+        self._device_t = self._board.t
+
+    def _advance_device(self, t: float) -> None:
+        if t > self._device_t:
+            advance = getattr(self.device, "advance", None)
+            if advance is not None:
+                advance(t - self._device_t)
+            self._device_t = t
 
     def send(self, data: bytes, error: str | None = None) -> None:
         """Queue ``data`` for the board; each character arrives 10/baud s after the previous.
@@ -270,6 +283,8 @@ class FakeMvme400(FakeBoard):
         peer = self._peers[c.idx]
         t = self.t
         while True:
+            if peer.device is not None:
+                peer._advance_device(t)
             self._try_start_tx(c, t)
             t_tx = c.tx_done_t if c.shifting is not None else math.inf
             if peer.device is not None and not peer._queue:
@@ -284,6 +299,8 @@ class FakeMvme400(FakeBoard):
             t_rx = peer._queue[0][0] if peer._queue else math.inf
             t_next = min(t_rx, t_tx)
             if t_next > t_to:
+                if peer.device is not None:
+                    peer._advance_device(t_to)
                 return
             t = t_next
             if t_rx <= t_tx:
