@@ -1,0 +1,838 @@
+"""The Bit3 buffer: 32 KB of shared memory with sequence-locked areas and one writer each.
+
+Backings (one class, :class:`Bit3Buffer`):
+
+- POSIX shared memory through :class:`multiprocessing.shared_memory.SharedMemory`
+  (``create(name)`` / ``attach(name)``; on Linux it is the file ``/dev/shm/<name>``);
+- a file or device-file window (``from_file(path)``), e.g. on hardware the dual-port RAM
+  window mapped from a device file.
+
+**resource_tracker workaround.** On Python < 3.13 ``SharedMemory`` registers every
+segment it opens -- also one it merely attaches to -- with multiprocessing's resource
+tracker, which unlinks the segment when that process exits (CPython gh-82300). A tool
+that attached, read and quit would delete the service's buffer. So every open is
+followed by ``resource_tracker.unregister`` (3.13+: ``track=False``). The buffer is
+therefore never removed automatically: the creator removes it with
+``close(unlink=True)`` or :meth:`Bit3Buffer.unlink`. (If two processes open the same
+name at the same instant, the tracker may print a harmless KeyError.)
+
+**Sequence lock, memory ordering** (the conditions of perf-limits.md 4.4, checked here):
+
+- the counter is one naturally aligned 8-byte word accessed only through
+  ``memoryview.cast("Q")[0]`` -- one ``mov`` on x86-64, never torn (never
+  ``struct.pack_into``/``int.from_bytes``, which go byte by byte);
+- writer: ``seq = s+1`` (odd), copy the body, ``seq = s+2``. x86-64 is TSO: stores
+  become visible in program order; ``memcpy``'s fast-string stores are not reordered
+  with the stores around them, and glibc uses non-temporal stores only for copies of
+  megabytes, never for <= 12 KB;
+- reader: load seq (retry while odd), copy the body into a private record, load seq
+  again and accept only if unchanged; x86 does not reorder loads with loads;
+- every Python statement is a separate opaque C call, so the C compiler cannot move
+  the copy across the counter accesses;
+- exactly one writer per area (enforced by :meth:`Bit3Buffer.claim`); 64-bit counters
+  never wrap;
+- a writer that dies mid-write leaves the counter odd: readers give up after a bounded
+  time with :class:`SeqLockTimeout` (never hang); the next owner makes it even again.
+
+This is **not** correct on weakly ordered CPUs (ARM64) without barriers; there the
+``SeqLock.write``/``read_into`` pair is the place to drop in a C11-atomics version.
+
+**Ownership.** A writer claims its role's areas (layout.WRITER_ROLES): an open-file-
+description lock (``F_OFD_SETLK``, Linux) on one byte per area of the backing file, plus
+the owner slot in the header (pid, name, claim time, heartbeat). The lock dies with the
+process, so a dead owner's claim is taken over (and counted in ``takeovers``); a live
+owner's lock refuses a second writer with an :class:`OwnershipError` naming it. OFD
+locks, unlike POSIX ``lockf`` locks, also refuse a second claim from another
+attachment in the same process. A forked child inherits the parent's lock.
+"""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import mmap
+import os
+import struct
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ioservice.layout import (
+    BUFFER_SIZE, LAYOUT_VERSION, MAGIC, MESSAGE_DTYPE, MESSAGE_QUEUE_LEN, MESSAGE_TEXT_BYTES,
+    OWNER_DTYPE, OWNER_NAME_BYTES, SEQ_BLOCK, WRITER_ROLES, AreaSpec, Layout, ServiceState,
+    Severity, default_layout, resolve_role,
+)
+from pfma.errors import PfmaError, PfmaTimeoutError
+
+
+class Bit3Error(PfmaError):
+    """A Bit3 buffer problem (not initialised, read-only, wrong area ...)."""
+
+
+class LayoutMismatchError(Bit3Error):
+    """The buffer's magic, version, size or layout hash is not the one expected."""
+
+
+class OwnershipError(Bit3Error):
+    """An area already has a live writer."""
+
+
+class SeqLockTimeout(Bit3Error, PfmaTimeoutError):
+    """A reader could not get a stable copy in time (writer stuck or dead mid-write)."""
+
+
+DEFAULT_READ_TIMEOUT_S = 0.1
+#: fast retries before a reader starts yielding the CPU to a (maybe descheduled) writer
+_SPIN_RETRIES = 64
+_F_OFD_SETLK = getattr(fcntl, "F_OFD_SETLK", None)  # Linux >= 3.15, Python >= 3.9
+
+
+# ----------------------------------------------------------------------------------------
+# the sequence lock
+
+
+class SeqLock:
+    """One sequence-locked region: an 8-byte counter at ``offset``, the body at +64.
+
+    ``write(src)`` and ``read_into(dst) -> seq`` take byte memoryviews of exactly the body
+    size; nothing is allocated per call.
+    """
+
+    __slots__ = ("name", "_seq", "_body", "_s", "body_size", "retries", "timeout_s", "owner_hint")
+
+    def __init__(self, buf: memoryview, offset: int, body_size: int, name: str = "area",
+                 timeout_s: float = DEFAULT_READ_TIMEOUT_S) -> None:
+        if offset % 8:
+            raise Bit3Error(f"seqlock {name}: counter offset {offset} is not 8-byte aligned")
+        self.name = name
+        self._seq = buf[offset:offset + 8].cast("Q")
+        self._body = buf[offset + SEQ_BLOCK:offset + SEQ_BLOCK + body_size]
+        self._s = self._seq[0]
+        self.body_size = body_size
+        self.retries = 0  #: failed read attempts (torn or in-progress), for statistics
+        self.timeout_s = timeout_s
+        self.owner_hint = ""  #: names the writer in timeout errors
+
+    @property
+    def seq(self) -> int:
+        """The current counter (even = stable)."""
+        return self._seq[0]
+
+    def take_over(self) -> None:
+        """Become the writer: continue from the counter, making it even if a dead writer left it odd."""
+        s = self._seq[0]
+        if s & 1:
+            s += 1
+            self._seq[0] = s
+        self._s = s
+
+    def begin(self) -> None:
+        """Start an in-place update (writer only); pair with :meth:`end`."""
+        self._seq[0] = self._s + 1
+
+    def end(self) -> int:
+        s = self._s + 2
+        self._seq[0] = s
+        self._s = s
+        return s
+
+    def write(self, src: memoryview) -> int:
+        """Publish ``src`` (the whole body) under the lock; returns the new (even) counter."""
+        s = self._s
+        seq = self._seq
+        seq[0] = s + 1
+        self._body[:] = src
+        seq[0] = s + 2
+        self._s = s + 2
+        return s + 2
+
+    def read_into(self, dst: memoryview) -> int:
+        """Copy a stable body into ``dst``; returns the counter it was stable at.
+
+        :raises SeqLockTimeout: no stable copy within ``timeout_s``
+        """
+        seq = self._seq
+        s1 = seq[0]
+        if not s1 & 1:
+            dst[:] = self._body
+            if seq[0] == s1:
+                return s1
+        return self._read_retry(dst)
+
+    def _read_retry(self, dst: memoryview) -> int:
+        seq = self._seq
+        body = self._body
+        deadline = time.perf_counter() + self.timeout_s
+        n = 0
+        while True:
+            self.retries += 1
+            n += 1
+            s1 = seq[0]
+            if not s1 & 1:
+                dst[:] = body
+                if seq[0] == s1:
+                    return s1
+            if n > _SPIN_RETRIES:
+                if time.perf_counter() > deadline:
+                    raise SeqLockTimeout(
+                        f"Bit3 area {self.name}: no stable copy in {self.timeout_s * 1e3:.0f} ms "
+                        f"(sequence {s1}{', odd: write in progress' if s1 & 1 else ''}); "
+                        f"writer {self.owner_hint or '?'} stuck or dead mid-write")
+                os.sched_yield()
+
+    def release(self) -> None:
+        self._seq.release()
+        self._body.release()
+
+
+# ----------------------------------------------------------------------------------------
+# header helpers
+
+
+@dataclass(frozen=True)
+class OwnerInfo:
+    """One area's owner slot."""
+
+    area: str
+    pid: int
+    name: str
+    claimed_ns: int
+    heartbeat: int
+    heartbeat_t_s: float
+    takeovers: int
+
+    @property
+    def alive(self) -> bool:
+        """The owner's process exists (on this host)."""
+        return self.pid > 0 and _pid_alive(self.pid)
+
+    def describe(self) -> str:
+        if self.pid <= 0:
+            return "nobody"
+        return f"{self.name!r} (pid {self.pid}{'' if self.alive else ', not running'})"
+
+
+@dataclass(frozen=True)
+class HeaderInfo:
+    magic: bytes
+    layout_version: int
+    buffer_size: int
+    layout_hash: bytes
+    calibration_hash: bytes
+    created_ns: int
+    service_state: ServiceState
+    frame: int
+    frame_t_s: float
+    rack_name: str
+    owners: tuple[OwnerInfo, ...]
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _open_shm(name: str, create: bool):
+    from multiprocessing import shared_memory
+    if sys.version_info >= (3, 13):
+        return shared_memory.SharedMemory(name, create=create, size=BUFFER_SIZE if create else 0,
+                                          track=False)
+    shm = shared_memory.SharedMemory(name, create=create, size=BUFFER_SIZE if create else 0)
+    from multiprocessing import resource_tracker
+    resource_tracker.unregister(shm._name, "shared_memory")  # see module docstring
+    return shm
+
+
+def _lock_byte(fd: int, index: int, lock: bool) -> None:
+    """Non-blocking OFD write lock (or unlock) of byte ``index`` of the backing file."""
+    kind = fcntl.F_WRLCK if lock else fcntl.F_UNLCK
+    if _F_OFD_SETLK is not None:
+        fcntl.fcntl(fd, _F_OFD_SETLK, struct.pack("hhqqi4x", kind, os.SEEK_SET, index, 1, 0))
+    else:  # POSIX record locks: per process, see module docstring
+        fcntl.lockf(fd, (fcntl.LOCK_EX | fcntl.LOCK_NB) if lock else fcntl.LOCK_UN, 1, index)
+
+
+# ----------------------------------------------------------------------------------------
+# area writer / reader
+
+
+class AreaWriter:
+    """Publishes one area: fill :attr:`record` (a private numpy record), then :meth:`publish`.
+
+    ``record`` is a 0-d structured array of the area's body dtype; ``record["t_s"] = t``
+    and ``record["adc_value"][:] = volts`` write into it without allocating.
+    """
+
+    def __init__(self, buf: "Bit3Buffer", area: AreaSpec, lock: SeqLock, owner_index: int) -> None:
+        self.area = area
+        self._buf = buf
+        self._lock = lock
+        self._raw = bytearray(area.body_size)
+        self._src = memoryview(self._raw)
+        self.record: np.ndarray = np.ndarray((), area.body_dtype, buffer=self._raw)
+        self._hb = buf._word(buf._owner_offset(owner_index, "heartbeat"), "Q")
+        self._hbt = buf._word(buf._owner_offset(owner_index, "heartbeat_t_s"), "d")
+        self._now = buf.clock_now
+        self.load()
+
+    def load(self) -> int:
+        """Start from what is in the buffer (after a takeover, keep the last published values)."""
+        return self._lock.read_into(self._src)
+
+    def publish(self) -> int:
+        """Copy :attr:`record` into the buffer under the sequence lock; bump the heartbeat."""
+        s = self._lock.write(self._src)
+        self._hb[0] = self._hb[0] + 1
+        self._hbt[0] = self._now()
+        return s
+
+
+class AreaReader:
+    """Reads one area into a private, preallocated :attr:`record`."""
+
+    def __init__(self, buf: "Bit3Buffer", area: AreaSpec, lock: SeqLock) -> None:
+        self.area = area
+        self._lock = lock
+        self._raw = bytearray(area.body_size)
+        self._dst = memoryview(self._raw)
+        self.record: np.ndarray = np.ndarray((), area.body_dtype, buffer=self._raw)
+        self.last_seq = -1  #: counter of the copy in :attr:`record` (-1: never read)
+
+    def read(self) -> int:
+        """Refresh :attr:`record` with a whole, consistent copy; returns its sequence number."""
+        s = self._lock.read_into(self._dst)
+        self.last_seq = s
+        return s
+
+    @property
+    def seq(self) -> int:
+        return self._lock.seq
+
+    def changed(self) -> bool:
+        """A newer copy has been published since the last :meth:`read` (cheap poll)."""
+        return self._lock.seq != self.last_seq
+
+    @property
+    def retries(self) -> int:
+        return self._lock.retries
+
+
+@dataclass(frozen=True)
+class Message:
+    """One message-queue entry."""
+
+    queue: str
+    seq: int
+    t_s: float
+    severity: Severity
+    source: int
+    code: int
+    text: str
+
+    def format(self) -> str:
+        return (f"{self.t_s:12.6f} {self.queue:<20} #{self.seq:<6} {self.severity.name:<7} "
+                f"src={self.source} code={self.code} {self.text}")
+
+
+class MessageQueue:
+    """A 50-entry circular message queue area (like each IRSS processor card's).
+
+    Message ``s`` (1, 2, ...) lives in ``entries[(s - 1) % 50]``; ``head_seq`` is the newest.
+    Only the area's owner may :meth:`post`; anyone may :meth:`read`.
+    """
+
+    def __init__(self, buf: "Bit3Buffer", area: AreaSpec, lock: SeqLock) -> None:
+        self.area = area
+        self._lock = lock
+        self._reader = AreaReader(buf, area, lock)
+        self._entries_off = area.body_dtype.fields["entries"][1]
+        self._entry_raw = bytearray(MESSAGE_DTYPE.itemsize)
+        self._entry_mv = memoryview(self._entry_raw)
+        self._entry = np.ndarray((), MESSAGE_DTYPE, buffer=self._entry_raw)
+        self._body = lock._body  # in-place posting, under begin()/end()
+        self._head = None
+        self._now = buf.clock_now
+
+    def _attach_writer(self, buf: "Bit3Buffer") -> None:
+        off = self.area.body_offset
+        self._head = buf._word(off + self.area.body_dtype.fields["head_seq"][1], "Q")
+        buf._word(off + self.area.body_dtype.fields["capacity"][1], "I")[0] = MESSAGE_QUEUE_LEN
+
+    def post(self, text: str, severity: Severity | int = Severity.INFO, code: int = 0,
+             source: int = 0, t_s: float | None = None) -> int:
+        """Append a message (text is cut to 56 bytes of UTF-8); returns its sequence number."""
+        if self._head is None:
+            raise Bit3Error(f"Bit3 area {self.area.name}: not claimed by this attachment; "
+                            f"only its owner may post")
+        raw = text.encode("utf-8", "replace")[:MESSAGE_TEXT_BYTES]
+        n = self._head[0] + 1
+        e = self._entry
+        e["seq"] = n
+        e["t_s"] = self._now() if t_s is None else t_s
+        e["severity"] = int(severity)
+        e["source"] = source
+        e["code"] = code
+        e["text"] = raw
+        off = self._entries_off + ((n - 1) % MESSAGE_QUEUE_LEN) * MESSAGE_DTYPE.itemsize
+        self._lock.begin()
+        self._body[off:off + MESSAGE_DTYPE.itemsize] = self._entry_mv
+        self._head[0] = n
+        self._lock.end()
+        return n
+
+    def read(self, since_seq: int = 0) -> list[Message]:
+        """Messages newer than ``since_seq`` still in the ring, oldest first."""
+        self._reader.read()
+        rec = self._reader.record
+        head = int(rec["head_seq"])
+        first = max(since_seq + 1, head - MESSAGE_QUEUE_LEN + 1, 1)
+        out = []
+        entries = rec["entries"]
+        for s in range(first, head + 1):
+            e = entries[(s - 1) % MESSAGE_QUEUE_LEN]
+            if int(e["seq"]) != s:  # cannot happen with a stable copy; be strict anyway
+                continue
+            try:
+                sev = Severity(int(e["severity"]))
+            except ValueError:
+                sev = Severity.ERROR
+            out.append(Message(self.area.name, s, float(e["t_s"]), sev, int(e["source"]),
+                               int(e["code"]), bytes(e["text"]).decode("utf-8", "replace")))
+        return out
+
+    @property
+    def head_seq(self) -> int:
+        self._reader.read()
+        return int(self._reader.record["head_seq"])
+
+
+# ----------------------------------------------------------------------------------------
+# the buffer
+
+
+class Bit3Buffer:
+    """The 32 KB buffer. Use :meth:`create`, :meth:`attach` or :meth:`from_file`."""
+
+    def __init__(self, mem, layout: Layout, *, name: str, fd: int, readonly: bool,
+                 closer, clock_now=time.monotonic) -> None:
+        if len(mem) != BUFFER_SIZE:
+            closer()
+            raise LayoutMismatchError(f"Bit3 buffer {name}: size {len(mem)} bytes, "
+                                      f"expected {BUFFER_SIZE}")
+        self.layout = layout
+        self.name = name
+        self.readonly = readonly
+        self.clock_now = clock_now
+        self._mem = mem
+        self._fd = fd
+        self._closer = closer
+        mv = memoryview(mem)
+        self._mv = mv.toreadonly() if readonly else mv
+        self._root = mv
+        self._views: list[memoryview] = []
+        self._locks: dict[str, SeqLock] = {}
+        self._claimed: dict[str, str] = {}  # area -> owner name
+        self._writers: dict[str, AreaWriter] = {}
+        self._queues: dict[str, MessageQueue] = {}
+        self._hdr_off = {f.name: f.offset for f in layout.fields if f.area == "header"}
+        for a in layout.areas:
+            if a.seqlocked:
+                self._locks[a.name] = SeqLock(self._mv, a.offset, a.body_size, a.name)
+
+    # --- opening ---------------------------------------------------------------------
+
+    @classmethod
+    def create(cls, name: str = "pfma", layout: Layout | None = None, *,
+               exist_ok: bool = False) -> "Bit3Buffer":
+        """Create and initialise POSIX shared memory ``name`` (``/dev/shm/<name>``).
+
+        With ``exist_ok`` an existing segment is attached writable instead (and must match).
+        """
+        layout = layout or default_layout()
+        try:
+            shm = _open_shm(name, create=True)
+        except FileExistsError:
+            if not exist_ok:
+                raise Bit3Error(f"Bit3 buffer {name!r} already exists (/dev/shm/{name}); attach "
+                                f"to it, or remove it with Bit3Buffer.unlink({name!r}) when no "
+                                f"process uses it") from None
+            return cls.attach(name, readonly=False, layout=layout)
+        buf = cls(shm.buf, layout, name=name, fd=shm._fd, readonly=False, closer=shm.close)
+        buf._shm = shm
+        buf._initialise()
+        return buf
+
+    @classmethod
+    def attach(cls, name: str = "pfma", readonly: bool = True,
+               layout: Layout | None = None) -> "Bit3Buffer":
+        """Attach to an existing segment; refused unless magic, version, size and hash match."""
+        layout = layout or default_layout()
+        try:
+            shm = _open_shm(name, create=False)
+        except FileNotFoundError:
+            raise Bit3Error(f"no Bit3 buffer {name!r} (/dev/shm/{name}); is the I/O service "
+                            f"running?") from None
+        buf = cls(shm.buf, layout, name=name, fd=shm._fd, readonly=readonly, closer=shm.close)
+        buf._shm = shm
+        try:
+            buf._verify()
+        except BaseException:
+            buf.close()
+            raise
+        return buf
+
+    @classmethod
+    def from_file(cls, path: str | Path, layout: Layout | None = None, *, readonly: bool = False,
+                  create: bool = False) -> "Bit3Buffer":
+        """Map a file or device-file window of 32768 bytes.
+
+        ``create``: make a regular file of the right size if missing, and initialise the
+        header if the magic is absent.
+        """
+        layout = layout or default_layout()
+        p = Path(path)
+        flags = os.O_RDONLY if readonly else os.O_RDWR
+        if create and not readonly:
+            flags |= os.O_CREAT
+        try:
+            fd = os.open(p, flags, 0o600)
+        except OSError as err:
+            raise Bit3Error(f"cannot open Bit3 window {p}: {err.strerror}") from err
+        try:
+            st = os.fstat(fd)
+            import stat as _stat
+            if _stat.S_ISREG(st.st_mode):
+                if st.st_size == 0 and create:
+                    os.ftruncate(fd, BUFFER_SIZE)
+                elif st.st_size != BUFFER_SIZE:
+                    raise LayoutMismatchError(f"Bit3 window {p}: size {st.st_size} bytes, expected "
+                                              f"{BUFFER_SIZE}")
+            mm = mmap.mmap(fd, BUFFER_SIZE, access=mmap.ACCESS_READ if readonly else mmap.ACCESS_WRITE)
+        except BaseException:
+            os.close(fd)
+            raise
+
+        def closer() -> None:
+            mm.close()
+            os.close(fd)
+
+        buf = cls(mm, layout, name=str(p), fd=fd, readonly=readonly, closer=closer)
+        try:
+            if create and bytes(buf._mv[0:8]) != MAGIC:
+                buf._initialise()
+            buf._verify()
+        except BaseException:
+            buf.close()
+            raise
+        return buf
+
+    @staticmethod
+    def unlink(name: str = "pfma") -> bool:
+        """Remove POSIX shared memory ``name``; False if it did not exist."""
+        from multiprocessing import shared_memory
+        try:
+            shm = _open_shm(name, create=False)
+        except FileNotFoundError:
+            return False
+        shm.close()
+        try:
+            shared_memory._posixshmem.shm_unlink("/" + name)  # no tracker round trip
+        except FileNotFoundError:
+            return False
+        return True
+
+    def _initialise(self) -> None:
+        lay = self.layout
+        mv = self._root
+        mv[:] = bytes(BUFFER_SIZE)
+        h = self._hdr_off
+        struct.pack_into("<IIII", mv, h["layout_version"], LAYOUT_VERSION, lay.area("header").size,
+                         BUFFER_SIZE, len(lay.areas))
+        mv[h["layout_hash"]:h["layout_hash"] + 8] = lay.hash
+        struct.pack_into("<Q", mv, h["created_ns"], time.time_ns())
+        name = lay.rack_name.encode()[:16]
+        mv[h["rack_name"]:h["rack_name"] + len(name)] = name
+        at = h["area_table"]
+        for a in lay.areas:
+            n = a.name.encode()[:16]
+            e = at + 32 * a.index
+            mv[e:e + len(n)] = n
+            struct.pack_into("<IIII", mv, e + 16, a.offset, a.size, a.body_offset, a.body_size)
+        mv[0:8] = MAGIC  # last: a buffer without magic is "not initialised yet"
+
+    def _verify(self) -> None:
+        mv = self._mv
+        h = self._hdr_off
+        magic = bytes(mv[0:8])
+        if magic != MAGIC:
+            raise LayoutMismatchError(f"Bit3 buffer {self.name}: magic {magic!r}, expected "
+                                      f"{MAGIC!r} (not initialised, or not a Bit3 buffer)")
+        version, _hsize, size, _n = struct.unpack_from("<IIII", mv, h["layout_version"])
+        if version != LAYOUT_VERSION:
+            raise LayoutMismatchError(f"Bit3 buffer {self.name}: layout version {version}, this "
+                                      f"program speaks {LAYOUT_VERSION}")
+        if size != BUFFER_SIZE:
+            raise LayoutMismatchError(f"Bit3 buffer {self.name}: header says {size} bytes, "
+                                      f"expected {BUFFER_SIZE}")
+        got = bytes(mv[h["layout_hash"]:h["layout_hash"] + 8])
+        if got != self.layout.hash:
+            rack = bytes(mv[h["rack_name"]:h["rack_name"] + 16]).rstrip(b"\0").decode(errors="replace")
+            raise LayoutMismatchError(
+                f"Bit3 buffer {self.name}: layout hash {got.hex()} (rack {rack!r}) differs from "
+                f"this program's {self.layout.hash_hex} (rack {self.layout.rack_name!r}); both "
+                f"sides must use the same rack file and ioservice version")
+
+    # --- low-level words -------------------------------------------------------------
+
+    def _word(self, offset: int, fmt: str) -> memoryview:
+        """A 1-element typed view (aligned single load/store) of the buffer."""
+        size = struct.calcsize(fmt)
+        if offset % size:
+            raise Bit3Error(f"Bit3 word at {offset} is not {size}-byte aligned")
+        v = self._mv[offset:offset + size].cast(fmt)
+        self._views.append(v)
+        return v
+
+    def _owner_offset(self, index: int, fld: str) -> int:
+        return self._hdr_off["owners"] + index * OWNER_DTYPE.itemsize + OWNER_DTYPE.fields[fld][1]
+
+    # --- header ------------------------------------------------------------------------
+
+    def owner(self, area: str) -> OwnerInfo:
+        """The owner slot of an area (read consistently under the slot's counter)."""
+        a = self.layout.area(area)
+        base = self._owner_offset(a.index, "seq")
+        for _ in range(1000):
+            s1 = struct.unpack_from("<Q", self._mv, base)[0]
+            raw = bytes(self._mv[base:base + OWNER_DTYPE.itemsize])
+            if not s1 & 1 and struct.unpack_from("<Q", self._mv, base)[0] == s1:
+                break
+            os.sched_yield()
+        rec = np.frombuffer(raw, OWNER_DTYPE)[0]
+        return OwnerInfo(area, int(rec["pid"]), bytes(rec["name"]).decode("utf-8", "replace"),
+                         int(rec["claimed_ns"]), int(rec["heartbeat"]), float(rec["heartbeat_t_s"]),
+                         int(rec["takeovers"]))
+
+    def header(self) -> HeaderInfo:
+        """A copy of the header's identification, state, frame and owners."""
+        mv, h = self._mv, self._hdr_off
+        version, _hs, size, _n = struct.unpack_from("<IIII", mv, h["layout_version"])
+        state = struct.unpack_from("<I", mv, h["service_state"])[0]
+        try:
+            state = ServiceState(state)
+        except ValueError:
+            state = ServiceState.FAULT
+        return HeaderInfo(
+            magic=bytes(mv[0:8]), layout_version=version, buffer_size=size,
+            layout_hash=bytes(mv[h["layout_hash"]:h["layout_hash"] + 8]),
+            calibration_hash=bytes(mv[h["calibration_hash"]:h["calibration_hash"] + 8]),
+            created_ns=struct.unpack_from("<Q", mv, h["created_ns"])[0],
+            service_state=state,
+            frame=self._read_q(h["frame"]),
+            frame_t_s=struct.unpack_from("<d", mv, h["frame_t_s"])[0],
+            rack_name=bytes(mv[h["rack_name"]:h["rack_name"] + 16]).rstrip(b"\0").decode(),
+            owners=tuple(self.owner(a.name) for a in self.layout.areas if a.writer))
+
+    def _read_q(self, offset: int) -> int:
+        v = self._mv[offset:offset + 8].cast("Q")
+        try:
+            return v[0]
+        finally:
+            v.release()
+
+    @property
+    def service_state(self) -> ServiceState:
+        return self.header().service_state
+
+    def _require(self, area: str) -> None:
+        if area not in self._claimed:
+            raise OwnershipError(f"Bit3 buffer {self.name}: this attachment does not own area "
+                                 f"{area!r} (owner: {self.owner(area).describe()})")
+
+    def set_service_state(self, state: ServiceState) -> None:
+        """Header service state (inputs owner only)."""
+        self._require("inputs")
+        self._word_cached("service_state", "I")[0] = int(ServiceState(state))
+
+    def set_frame(self, frame: int, t_s: float) -> None:
+        """Header frame counter and time (inputs owner only; two aligned 8-byte stores)."""
+        self._require("inputs")
+        self._word_cached("frame_t_s", "d")[0] = t_s
+        self._word_cached("frame", "Q")[0] = frame
+
+    def set_calibration_hash(self, digest: bytes) -> None:
+        """Header calibration hash slot, 8 bytes (inputs owner only)."""
+        self._require("inputs")
+        if len(digest) < 8:
+            raise Bit3Error(f"calibration hash needs 8 bytes, got {len(digest)}")
+        off = self._hdr_off["calibration_hash"]
+        self._mv[off:off + 8] = digest[:8]
+
+    def _word_cached(self, field: str, fmt: str) -> memoryview:
+        key = "_w_" + field
+        v = self.__dict__.get(key)
+        if v is None:
+            v = self.__dict__[key] = self._word(self._hdr_off[field], fmt)
+        return v
+
+    # --- ownership ---------------------------------------------------------------------
+
+    def claim(self, writer: str, owner: str) -> list[OwnerInfo]:
+        """Claim every area of a writer role (``"service"``/``"inputs"`` or
+        ``"controller"``/``"commands"``) for ``owner``.
+
+        :returns: the previous owners whose (dead) claims were taken over
+        :raises OwnershipError: an area has a live owner (named in the message)
+        """
+        role = resolve_role(writer)
+        if self.readonly:
+            raise Bit3Error(f"Bit3 buffer {self.name} is attached read-only; attach with "
+                            f"readonly=False to write {role} areas")
+        name = owner.encode("utf-8")[:OWNER_NAME_BYTES]
+        taken: list[str] = []
+        previous: list[OwnerInfo] = []
+        try:
+            for area_name in WRITER_ROLES[role]:
+                a = self.layout.area(area_name)
+                if area_name in self._claimed:
+                    raise OwnershipError(f"Bit3 buffer {self.name}: area {area_name!r} already "
+                                         f"claimed by this attachment ({self._claimed[area_name]!r})")
+                try:
+                    _lock_byte(self._fd, a.index, True)
+                except OSError as err:
+                    if err.errno not in (errno.EAGAIN, errno.EACCES):
+                        raise
+                    cur = self.owner(area_name)
+                    raise OwnershipError(
+                        f"Bit3 buffer {self.name}: area {area_name!r} is owned by {cur.name!r} "
+                        f"(pid {cur.pid}); refusing second writer {owner!r} (one writer per "
+                        f"area)") from None
+                taken.append(area_name)
+                prev = self.owner(area_name)
+                if prev.pid > 0:
+                    previous.append(prev)
+                self._write_owner(a.index, os.getpid(), name, prev.takeovers + (prev.pid > 0))
+                self._claimed[area_name] = owner
+                lock = self._locks[area_name]
+                lock.take_over()
+                lock.owner_hint = f"{owner!r} (pid {os.getpid()})"
+        except BaseException:
+            for area_name in taken:
+                self._release_area(area_name)
+            raise
+        return previous
+
+    def _write_owner(self, index: int, pid: int, name: bytes, takeovers: int) -> None:
+        base = self._owner_offset(index, "seq")
+        seq = self._mv[base:base + 8].cast("Q")
+        try:
+            s = seq[0]
+            seq[0] = s + 1 + (s & 1)
+            struct.pack_into("<iI", self._mv, base + OWNER_DTYPE.fields["pid"][1], pid, 1 if pid else 0)
+            no = base + OWNER_DTYPE.fields["name"][1]
+            self._mv[no:no + OWNER_NAME_BYTES] = name.ljust(OWNER_NAME_BYTES, b"\0")
+            struct.pack_into("<Q", self._mv, base + OWNER_DTYPE.fields["claimed_ns"][1], time.time_ns())
+            struct.pack_into("<I", self._mv, base + OWNER_DTYPE.fields["takeovers"][1], takeovers)
+            seq[0] = s + 2 + (s & 1)
+        finally:
+            seq.release()
+
+    def _release_area(self, area_name: str) -> None:
+        a = self.layout.area(area_name)
+        if area_name in self._claimed:
+            cur = self.owner(area_name)
+            if cur.pid == os.getpid():
+                self._write_owner(a.index, 0, cur.name.encode()[:OWNER_NAME_BYTES], cur.takeovers)
+            del self._claimed[area_name]
+        try:
+            _lock_byte(self._fd, a.index, False)
+        except OSError:
+            pass
+
+    def release(self) -> None:
+        """Give up every claimed area (the owner slot keeps the name, pid becomes 0)."""
+        for area_name in list(self._claimed):
+            self._release_area(area_name)
+        self._writers.clear()
+
+    @property
+    def claimed(self) -> tuple[str, ...]:
+        return tuple(self._claimed)
+
+    # --- areas ---------------------------------------------------------------------------
+
+    def writer(self, area: str) -> AreaWriter:
+        """The writer of a claimed area (one per attachment and area)."""
+        self._require(area)
+        w = self._writers.get(area)
+        if w is None:
+            a = self.layout.area(area)
+            w = self._writers[area] = AreaWriter(self, a, self._locks[area], a.index)
+        return w
+
+    def reader(self, area: str) -> AreaReader:
+        """A new reader of an area (each has its own preallocated record)."""
+        a = self.layout.area(area)
+        if not a.seqlocked or a.body_dtype is None:
+            raise Bit3Error(f"Bit3 area {area!r} is not a data area")
+        return AreaReader(self, a, self._locks[area])
+
+    def queue(self, area: str) -> MessageQueue:
+        """A message-queue area (``service_messages``/``controller_messages``)."""
+        q = self._queues.get(area)
+        if q is None:
+            a = self.layout.area(area)
+            if a.body_dtype is None or "entries" not in a.body_dtype.names:
+                raise Bit3Error(f"Bit3 area {area!r} is not a message queue")
+            q = self._queues[area] = MessageQueue(self, a, self._locks[area])
+        if area in self._claimed and q._head is None:
+            q._attach_writer(self)
+        return q
+
+    def lock(self, area: str) -> SeqLock:
+        """The raw sequence lock of an area (benchmarks, C accelerators)."""
+        return self._locks[area]
+
+    # --- closing -------------------------------------------------------------------------
+
+    def _release_views(self) -> None:
+        self._writers.clear()
+        self._queues.clear()
+        for v in self._views:
+            v.release()
+        self._views.clear()
+        for lk in self._locks.values():
+            lk.release()
+        self._locks.clear()
+        if self._mv is not self._root:
+            self._mv.release()
+        self._root.release()
+
+    def close(self, unlink: bool = False) -> None:
+        """Release claims, unmap; with ``unlink`` also remove the shared-memory name."""
+        if self._closer is None:
+            return
+        self.release()
+        self._release_views()
+        closer, self._closer = self._closer, None
+        closer()
+        if unlink and hasattr(self, "_shm"):
+            Bit3Buffer.unlink(self.name)
+
+    def __enter__(self) -> "Bit3Buffer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return (f"<Bit3Buffer {self.name} {'ro' if self.readonly else 'rw'} "
+                f"hash={self.layout.hash_hex} claimed={list(self._claimed)}>")
