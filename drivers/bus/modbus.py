@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import logging
 import operator
+import threading
 from urllib.parse import parse_qsl, urlsplit
 
 from pymodbus.client import ModbusTcpClient
@@ -99,6 +100,7 @@ class ModbusTcpBus:
         self.unit = unit
         self.timeout = timeout
         self._client = ModbusTcpClient(host, port=port, timeout=timeout, retries=0)
+        self._lock = threading.Lock()  # one transaction at a time: threads may share the bus
 
     @property
     def gateway(self) -> str:
@@ -106,6 +108,10 @@ class ModbusTcpBus:
 
     # -- one Modbus transaction ---------------------------------------------------------
     def _call(self, addr: int, width: int, op: str, request, *args, **kwargs):
+        with self._lock:
+            return self._transact(addr, width, op, request, *args, **kwargs)
+
+    def _transact(self, addr: int, width: int, op: str, request, *args, **kwargs):
         if not self._client.connected and not self._client.connect():
             raise BusError(addr, width, op, reason=f"gateway {self.gateway} unreachable")
         try:
