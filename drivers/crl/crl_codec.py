@@ -212,13 +212,14 @@ class FrameDecoder:
     """Incremental, resynchronising decoder for a byte stream of 16-byte frames.
 
     Feed it any chunking of the stream (byte by byte is fine). While in sync a frame
-    is accepted on start byte + checksum + reserved bits. After sync is lost the
-    decoder hunts for 0x7E; a candidate found while hunting is accepted only when the
-    byte after it is again 0x7E (the next frame's start), so noise that happens to
-    checksum correctly is not delivered. Nothing but a fully checked frame comes out.
+    is accepted on start byte + checksum + reserved bits. At start and after sync is
+    lost the decoder hunts for 0x7E; a candidate found while hunting is accepted only
+    when the 16 bytes after it are also a good frame with the next sequence number,
+    so noise that happens to checksum correctly is not delivered (the price: one
+    frame of latency after a resync). Nothing but a fully checked frame comes out.
 
     :param kind: ``"master"`` (positions, for the driver) or ``"force"`` (for the fake)
-    :param confirm_resync: require the look-ahead 0x7E while hunting (default True)
+    :param confirm_resync: require the confirming next frame while hunting (default True)
     """
 
     kind: str = "master"
@@ -275,9 +276,10 @@ class FrameDecoder:
                 break
             good = not check_frame(bytes(buf[:FRAME_LEN]), self._reserved)
             if good and not self.locked and self.confirm_resync:
-                if len(buf) == FRAME_LEN:
-                    break  # wait for the byte after it
-                good = buf[FRAME_LEN] == SOF
+                if len(buf) < 2 * FRAME_LEN:
+                    break  # wait for the frame after it
+                nxt = bytes(buf[FRAME_LEN:2 * FRAME_LEN])
+                good = not check_frame(nxt, self._reserved) and nxt[1] == (buf[1] + 1) & 0xFF
             if not good:
                 if self.locked:
                     self.stats.frames_bad += 1
