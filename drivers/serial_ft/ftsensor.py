@@ -61,6 +61,12 @@ class LinkStats:
     bytes_discarded: int = 0  #: bytes thrown away while hunting for framing
 
 
+UNSAFE_BINARY_STREAM = (
+    "F/T on {name}: binary QS stream without checksum cannot detect a framing slip reliably "
+    "(records have no sync byte; a shifted record whose first byte is 0x00 passes). "
+    "Use set_checksum(True) or Ctrl-T polling (FtReader framing='poll').")
+
+
 def _port_label(port: Any) -> str:
     return str(getattr(port, "port", None) or getattr(port, "name", None) or type(port).__name__)
 
@@ -174,40 +180,66 @@ class FtSensor:
         if rec is None:
             self._stats.bad_records += 1
             raise LinkError(f"F/T on {self.name}: corrupt QR record {body!r} discarded")
+        self._stats.records += 1
         return self._accept(rec)
 
     def poll(self) -> FtReading:
         """Ctrl-T: one record, no echo, no prompt (framed by request/response).
 
-        The reply must be exactly one record and nothing more, else it is discarded.
-        :raises LinkError: corrupt/extra bytes; :raises PfmaTimeoutError: short reply
+        The reply must be exactly one record followed by silence for ``guard_s``
+        (3 character times), else it is discarded and counted as bad.
+        :raises LinkError: corrupt or over-long reply, port failure
+        :raises PfmaTimeoutError: short or missing reply within ``reply_timeout_s``
         """
+        rec, why = self._poll_once()
+        if rec is None:
+            if why.startswith("no reply") or why.startswith("short"):
+                raise PfmaTimeoutError(f"F/T on {self.name}: Ctrl-T poll: {why}")
+            raise LinkError(f"F/T on {self.name}: Ctrl-T reply discarded: {why}")
+        return rec
+
+    @property
+    def guard_s(self) -> float:
+        """Silence required after a polled record (3 character times)."""
+        return 3 * P.BITS_PER_CHAR / self.baud
+
+    def _poll_once(self) -> tuple[FtReading | None, str]:
+        """One Ctrl-T transaction; (reading, "") or (None, reason). Raises only on port failure."""
         self._require_idle("poll")
         self._reset_input()
         self._write(P.CTRL_T)
         deadline = time.monotonic() + self.reply_timeout_s
         buf = bytearray()
-        if self.mode == "binary":
-            n = P.record_bytes("binary", self.checksum_on)
-            while len(buf) < n:
-                buf += self._read_some(n - len(buf), deadline, "Ctrl-T poll", buf)
-        else:
-            while not buf.endswith(b"\n"):
-                buf += self._read_some(1, deadline, "Ctrl-T poll", buf)
-                if len(buf) > 128:
-                    break
+        binary = self.mode == "binary"
+        n = P.record_bytes("binary", self.checksum_on) if binary else 0
+        while (len(buf) < n) if binary else (not buf.endswith(b"\n") and len(buf) <= 128):
+            if time.monotonic() > deadline:
+                self._stats.bad_records += 1
+                self._stats.bytes_in += len(buf)
+                self._stats.bytes_discarded += len(buf)
+                if not buf:
+                    return None, f"no reply within {self.reply_timeout_s:g} s"
+                return None, f"short reply ({len(buf)} bytes) within {self.reply_timeout_s:g} s: {bytes(buf)!r}"
+            try:
+                buf += self.port.read((n - len(buf)) if binary else 1)
+            except OSError as err:
+                raise LinkError(f"F/T on {self.name}: read failed during Ctrl-T poll: {err}") from err
+        # silence check: an inserted byte shows up as an extra byte right behind the record
+        t_guard = time.monotonic() + self.guard_s
         extra = self._in_waiting()
-        if self.mode == "binary":
-            rec = P.decode_binary(bytes(buf), self.checksum_on)
-        else:
-            rec = P.decode_ascii_line(bytes(buf).rstrip(b"\r\n"))
+        while not extra and time.monotonic() < t_guard:
+            time.sleep(self.guard_s / 6)  # driver-side guard of a few character times
+            extra = self._in_waiting()
         self._stats.bytes_in += len(buf)
+        rec = P.decode_binary(bytes(buf), self.checksum_on) if binary else \
+            P.decode_ascii_line(bytes(buf).rstrip(b"\r\n"))
         if rec is None or extra:
             self._stats.bad_records += 1
             self._stats.bytes_discarded += len(buf)
             why = f"{extra} unexpected extra byte(s)" if rec is not None else "corrupt record"
-            raise LinkError(f"F/T on {self.name}: Ctrl-T reply discarded ({why}): {bytes(buf)!r}")
-        return self._accept(rec)
+            return None, f"{why}: {bytes(buf)!r}"
+        self._stats.records += 1
+        return self._accept(rec), ""
 
     def start_stream(self, rate_hz: float | None = None, on_slow: str = "raise") -> None:
         """``QS``: start streaming; records are then read with :meth:`read_records`.
@@ -219,6 +251,8 @@ class FtSensor:
         self._require_idle("start a stream")
         if rate_hz is not None:
             self.check_rate(rate_hz, on_slow)
+        if self.mode == "binary" and not self.checksum_on:
+            warnings.warn(UNSAFE_BINARY_STREAM.format(name=self.name), RuntimeWarning, stacklevel=2)
         self._reset_input()
         text = P.COMMANDS["stream"].text.encode("ascii")
         self._write(text + P.CR)
@@ -399,9 +433,16 @@ class FtSensor:
 
 
 class FtReader:
-    """Reader thread: streams and keeps the latest reading for the DAQ loop.
+    """Reader thread: keeps the latest reading for the DAQ loop (``latest()`` never blocks).
 
-    ``latest()`` never blocks. ``error`` holds what stopped the thread, if anything.
+    Framing (see docs/ft-protocol.md, "What the decoder can detect"):
+
+    * ``"stream"``: ``QS`` and the incremental decoder - ASCII, or binary WITH checksum;
+    * ``"poll"``: one Ctrl-T request per record, framed by request/response (exact
+      length, then silence) - the safe choice for binary without checksum;
+    * ``"auto"`` (default): poll for binary without checksum, stream otherwise.
+
+    ``error`` holds what stopped the thread (a port failure), if anything.
 
     :param sensor: a configured :class:`FtSensor`
     :param rate_hz: rate the loop needs (checked against the line on start)
@@ -409,10 +450,14 @@ class FtReader:
     :param keep: also keep the last ``keep`` readings in ``history``
     """
 
-    def __init__(self, sensor: FtSensor, rate_hz: float = 80.0, on_slow: str = "raise", keep: int = 0) -> None:
+    def __init__(self, sensor: FtSensor, rate_hz: float = 80.0, on_slow: str = "raise", keep: int = 0,
+                 framing: str = "auto") -> None:
+        if framing not in ("auto", "stream", "poll"):
+            raise ValueError(f"framing must be 'auto', 'stream' or 'poll', not {framing!r}")
         self.sensor = sensor
         self.rate_hz = rate_hz
         self.on_slow = on_slow
+        self.framing = framing
         self.history: deque[FtReading] = deque(maxlen=keep or 1)
         self._keep = keep
         self._stop = threading.Event()
@@ -421,10 +466,19 @@ class FtReader:
         self.error: BaseException | None = None
 
     def start(self) -> "FtReader":
-        """Start the stream and the thread."""
-        self.sensor.start_stream(self.rate_hz, self.on_slow)
+        """Start the stream (or the poll loop) and the thread.
+
+        :raises ConfigError: the line cannot carry ``rate_hz`` and ``on_slow == "raise"``
+        """
+        s = self.sensor
+        if self.framing == "auto":
+            self.framing = "poll" if (s.mode == "binary" and not s.checksum_on) else "stream"
+        if self.framing == "stream":
+            s.start_stream(self.rate_hz, self.on_slow)
+        else:
+            s.check_rate(self.rate_hz, self.on_slow)
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"FtReader {self.sensor.name}", daemon=True)
+        self._thread = threading.Thread(target=self._run, name=f"FtReader {s.name}", daemon=True)
         self._thread.start()
         return self
 
@@ -460,7 +514,11 @@ class FtReader:
     def _run(self) -> None:
         try:
             while not self._stop.is_set():
-                out = self.sensor.read_records()
+                if self.framing == "stream":
+                    out = self.sensor.read_records()
+                else:
+                    rec, _why = self.sensor._poll_once()  # bad replies are counted, not fatal
+                    out = [rec] if rec is not None else []
                 if out:
                     if self._keep:
                         self.history.extend(out)

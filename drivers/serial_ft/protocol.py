@@ -337,3 +337,54 @@ class BinaryStreamDecoder:
                 continue
             del self._buf[:1]
             self.stats.bytes_discarded += 1
+
+
+# ---------------------------------------------------------------------------------------
+# CAN F/T layout (PROJECT-DEFINED, all assumed; used by can_ft.py and fakes/ft_can.py).
+# No public Lord/ATI CAN layout was available; ATI CAN F/T interfaces are recalled
+# (unverified) to answer a read request with the gauge data split over two frames.
+# 11-bit identifiers, base = 0x100 + 0x10 * node_id (node 0..15).
+# ---------------------------------------------------------------------------------------
+CAN_BASE_ID = 0x100  #: assumed (project-defined)
+CAN_NODE_STRIDE = 0x10  #: assumed: each node owns 16 identifiers
+MAX_NODE_ID = 15
+
+
+@dataclass(frozen=True)
+class CanFrameLayout:
+    """One row of the CAN layout table."""
+
+    offset: int  #: identifier = base + offset
+    direction: str  #: "host->node" or "node->host"
+    dlc: int
+    payload: str  #: byte layout
+    struct_fmt: str  #: struct format of the payload (big-endian)
+
+
+#: The one table of the project-defined CAN F/T layout (all ASSUMED).
+CAN_LAYOUT: dict[str, CanFrameLayout] = {
+    "request": CanFrameLayout(0x0, "host->node", 2, "opcode u8, tag u8", ">BB"),
+    "forces": CanFrameLayout(0x1, "node->host", 8, "Fx Fy Fz int16 BE counts, status u8, seq u8", ">3hBB"),
+    "torques": CanFrameLayout(0x2, "node->host", 8, "Tx Ty Tz int16 BE counts, seq u8, tag u8", ">3hBB"),
+    "ack": CanFrameLayout(0x3, "node->host", 4, "opcode u8, tag u8, result u8 (0 = ok), bias depth u8", ">BBBB"),
+}
+
+#: Request opcodes (assumed; mirror the serial commands QR, SB, SU, SZ).
+OP_READ, OP_BIAS, OP_UNBIAS, OP_CLEAR_BIAS = 0x01, 0x02, 0x03, 0x04
+
+
+def node_base_id(node_id: int) -> int:
+    """First CAN identifier of ``node_id``.
+
+    :raises ValueError: node id outside 0..15
+    """
+    if not 0 <= node_id <= MAX_NODE_ID:
+        raise ValueError(f"CAN F/T node id must be 0..{MAX_NODE_ID}, not {node_id}")
+    return CAN_BASE_ID + CAN_NODE_STRIDE * node_id
+
+
+def frame_id(node_id: int, kind: str) -> int:
+    """Identifier of frame ``kind`` (a :data:`CAN_LAYOUT` key) for ``node_id``."""
+    return node_base_id(node_id) + CAN_LAYOUT[kind].offset
+
+
