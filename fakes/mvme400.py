@@ -258,7 +258,7 @@ class FakeMvme400(FakeBoard):
 
     def _update_pia_inputs(self) -> None:
         led = self.pia.port_a_output() & PA_FAIL_LED
-        value = JUMPER_CODE | (PA_FAIL_LED_STATUS if led else 0)
+        value = (JUMPER_CODE & PA_JUMPERS) | (PA_FAIL_LED_STATUS if led else 0)
         for ch in (0, 1):
             if self._dsr[ch]:
                 value |= PA_DSR[ch]
