@@ -196,10 +196,12 @@ class SimulatedRack:
         dac = {b: self.fake_rack[b].output_volts_all() for b in self._dac_boards}
         v_cmd = np.array([dac[b][ch] for b, ch in self.command])
         v_ilim = np.array([dac[b][ch] for b, ch in self.current_limit])
-        if self._dac_gain or self._dac_offset:
+        if self._dac_gain or self._dac_offset:  # only while the board drives the field
+            live = {b: self.fake_rack[b].outputs_connected for b in self._dac_boards}
             for arr, chans in ((v_cmd, self.command), (v_ilim, self.current_limit)):
                 for i, key in enumerate(chans):
-                    arr[i] = arr[i] * self._dac_gain.get(key, 1.0) + self._dac_offset.get(key, 0.0)
+                    if live[key[0]]:
+                        arr[i] = arr[i] * self._dac_gain.get(key, 1.0) + self._dac_offset.get(key, 0.0)
         return v_cmd, v_ilim
 
     def step(self, dt_s: float) -> None:
