@@ -55,6 +55,7 @@ import os
 import struct
 import sys
 import time
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -101,7 +102,7 @@ class SeqLock:
     size; nothing is allocated per call.
     """
 
-    __slots__ = ("name", "_seq", "_body", "_s", "body_size", "retries", "timeout_s", "owner_hint")
+    __slots__ = ("name", "_seq", "_body", "_s", "body_size", "retries", "timeout_s", "owner_lookup")
 
     def __init__(self, buf: memoryview, offset: int, body_size: int, name: str = "area",
                  timeout_s: float = DEFAULT_READ_TIMEOUT_S) -> None:
@@ -114,7 +115,7 @@ class SeqLock:
         self.body_size = body_size
         self.retries = 0  #: failed read attempts (torn or in-progress), for statistics
         self.timeout_s = timeout_s
-        self.owner_hint = ""  #: names the writer in timeout errors
+        self.owner_lookup = None  #: callable -> "name (pid N)" of the writer, for error messages
 
     @property
     def seq(self) -> int:
@@ -177,10 +178,14 @@ class SeqLock:
                     return s1
             if n > _SPIN_RETRIES:
                 if time.perf_counter() > deadline:
+                    try:
+                        who = self.owner_lookup() if self.owner_lookup else "?"
+                    except Exception:  # the message must not hide the timeout
+                        who = "?"
                     raise SeqLockTimeout(
                         f"Bit3 area {self.name}: no stable copy in {self.timeout_s * 1e3:.0f} ms "
                         f"(sequence {s1}{', odd: write in progress' if s1 & 1 else ''}); "
-                        f"writer {self.owner_hint or '?'} stuck or dead mid-write")
+                        f"writer {who} stuck or dead mid-write")
                 os.sched_yield()
 
     def release(self) -> None:
@@ -275,9 +280,9 @@ class AreaWriter:
         self.area = area
         self._buf = buf
         self._lock = lock
-        self._raw = bytearray(area.body_size)
-        self._src = memoryview(self._raw)
-        self.record: np.ndarray = np.ndarray((), area.body_dtype, buffer=self._raw)
+        self.raw = bytearray(area.body_size)
+        self._src = memoryview(self.raw)
+        self.record: np.ndarray = np.ndarray((), area.body_dtype, buffer=self.raw)
         self._hb = buf._word(buf._owner_offset(owner_index, "heartbeat"), "Q")
         self._hbt = buf._word(buf._owner_offset(owner_index, "heartbeat_t_s"), "d")
         self._now = buf.clock_now
@@ -301,9 +306,9 @@ class AreaReader:
     def __init__(self, buf: "Bit3Buffer", area: AreaSpec, lock: SeqLock) -> None:
         self.area = area
         self._lock = lock
-        self._raw = bytearray(area.body_size)
-        self._dst = memoryview(self._raw)
-        self.record: np.ndarray = np.ndarray((), area.body_dtype, buffer=self._raw)
+        self.raw = bytearray(area.body_size)
+        self._dst = memoryview(self.raw)
+        self.record: np.ndarray = np.ndarray((), area.body_dtype, buffer=self.raw)
         self.last_seq = -1  #: counter of the copy in :attr:`record` (-1: never read)
 
     def read(self) -> int:
@@ -443,9 +448,11 @@ class Bit3Buffer:
         self._writers: dict[str, AreaWriter] = {}
         self._queues: dict[str, MessageQueue] = {}
         self._hdr_off = {f.name: f.offset for f in layout.fields if f.area == "header"}
+        me = weakref.ref(self)
         for a in layout.areas:
             if a.seqlocked:
-                self._locks[a.name] = SeqLock(self._mv, a.offset, a.body_size, a.name)
+                lk = self._locks[a.name] = SeqLock(self._mv, a.offset, a.body_size, a.name)
+                lk.owner_lookup = lambda n=a.name: me().owner(n).describe()
 
     # --- opening ---------------------------------------------------------------------
 
@@ -723,7 +730,6 @@ class Bit3Buffer:
                 self._claimed[area_name] = owner
                 lock = self._locks[area_name]
                 lock.take_over()
-                lock.owner_hint = f"{owner!r} (pid {os.getpid()})"
         except BaseException:
             for area_name in taken:
                 self._release_area(area_name)
@@ -826,6 +832,14 @@ class Bit3Buffer:
         closer()
         if unlink and hasattr(self, "_shm"):
             Bit3Buffer.unlink(self.name)
+
+    def __del__(self) -> None:
+        # release our views before SharedMemory's own finaliser tries to unmap
+        if getattr(self, "_closer", None) is not None:
+            try:
+                self.close()
+            except Exception:
+                pass
 
     def __enter__(self) -> "Bit3Buffer":
         return self

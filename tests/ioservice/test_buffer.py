@@ -1,0 +1,235 @@
+import os
+import struct
+
+import numpy as np
+import pytest
+
+from ioservice.client import Client
+from ioservice.layout import MAGIC, ServiceState, Severity, build_layout, default_layout
+from ioservice.shm import (
+    Bit3Buffer, Bit3Error, LayoutMismatchError, OwnershipError, SeqLockTimeout,
+)
+from pfma.errors import ConfigError
+from pfma.rack import DEFAULT_RACK, parse_rack
+
+
+def test_create_publish_and_read_back(buf, shm_name):
+    lay = default_layout()
+    assert buf.header().magic == MAGIC and buf.header().layout_hash == lay.hash
+    assert buf.claim("service", "svc") == []
+    w = buf.writer("inputs")
+    w.record["frame"] = 12
+    w.record["rtd_angle_rad"][lay.slot("rtd", "shoulder_pitch_angle")] = 0.75
+    w.record["adc_value"][3] = -1.25
+    w.record["ft_force_n"] = [1.0, 2.0, 3.0]
+    w.record["hc_axes"][lay.slot("hc", "crl")] = [0.1, 0, 0, 0, 0, -0.1]
+    s1 = w.publish()
+    buf.set_frame(12, 0.0375)
+    buf.set_service_state(ServiceState.SAFE)
+    with Client.attach(shm_name) as c:
+        snap = c.read_inputs()
+        assert snap.seq == s1 and s1 % 2 == 0
+        assert snap.frame == 12 and snap.shoulder_pitch_angle == 0.75
+        assert snap.elbow_pitch_motor_current == -1.25
+        assert snap.value("elbow_pitch_motor_current") == snap.adc_value[3]
+        assert list(snap.ft_force_n) == [1.0, 2.0, 3.0]
+        assert snap.channel("crl")["hc_axes"][5] == pytest.approx(-0.1)
+        assert snap.channel("shoulder_pitch_angle")["rtd_angle_rad"] == 0.75
+        with pytest.raises(AttributeError, match="no field or channel"):
+            snap.no_such_thing
+        h = c.header()
+        assert h.frame == 12 and h.frame_t_s == 0.0375 and h.service_state is ServiceState.SAFE
+        owners = c.owners()
+        assert owners["inputs"].name == "svc" and owners["inputs"].pid == os.getpid()
+        assert owners["inputs"].heartbeat == 1 and owners["commands"].pid == 0
+        assert not c.changed("inputs")
+        w.publish()
+        assert c.changed("inputs")
+
+
+def test_record_bytes_land_at_the_documented_offsets(buf):
+    lay = default_layout()
+    buf.claim("service", "svc")
+    w = buf.writer("inputs")
+    w.record["adc_value"][5] = 42.5
+    w.publish()
+    off = lay.channel("wrist_yaw_motor_current").fields[2][2]  # adc_value element
+    assert struct.unpack_from("<d", buf._mv, off)[0] == 42.5
+    seq_off = lay.area("inputs").offset
+    assert struct.unpack_from("<Q", buf._mv, seq_off)[0] == 2
+
+
+def test_wrong_layout_hash_is_refused(shm_name):
+    other = build_layout(parse_rack(DEFAULT_RACK.read_text().replace(
+        '"wrist_roll_angle"', '"wrist_roll_angle_x"'), "other.toml"))
+    b = Bit3Buffer.create(shm_name, other)
+    try:
+        with pytest.raises(LayoutMismatchError, match=f"layout hash {other.hash_hex}.*"
+                                                      f"{default_layout().hash_hex}"):
+            Client.attach(shm_name)
+        assert Bit3Buffer.attach(shm_name, layout=other).header().layout_hash == other.hash
+    finally:
+        b.close()
+
+
+def test_missing_buffer_and_duplicate_create_are_clear(shm_name, buf):
+    with pytest.raises(Bit3Error, match="no Bit3 buffer 'pfma_nope_x'"):
+        Bit3Buffer.attach("pfma_nope_x")
+    with pytest.raises(Bit3Error, match="already exists"):
+        Bit3Buffer.create(shm_name)
+    again = Bit3Buffer.create(shm_name, exist_ok=True)  # a restarting service re-attaches
+    assert not again.readonly
+    again.close()
+
+
+def test_file_window_wrong_magic_version_and_size(tmp_path):
+    p = tmp_path / "zero.bin"
+    p.write_bytes(bytes(32768))
+    with pytest.raises(LayoutMismatchError, match="magic"):
+        Bit3Buffer.from_file(p)
+    small = tmp_path / "small.bin"
+    small.write_bytes(bytes(1000))
+    with pytest.raises(LayoutMismatchError, match="size 1000 bytes, expected 32768"):
+        Bit3Buffer.from_file(small)
+    good = tmp_path / "win.bin"
+    Bit3Buffer.from_file(good, create=True).close()
+    data = bytearray(good.read_bytes())
+    struct.pack_into("<I", data, 8, 99)
+    good.write_bytes(bytes(data))
+    with pytest.raises(LayoutMismatchError, match="layout version 99"):
+        Bit3Buffer.from_file(good)
+
+
+def test_file_window_round_trip(tmp_path):
+    p = tmp_path / "dpram.bin"
+    w = Bit3Buffer.from_file(p, create=True)
+    w.claim("controller", "ctl")
+    c = Client(w, "controller", "ctl")
+    c.write_commands(matrix_route=0x0102, mode=3)
+    ro = Client.attach(path=p)
+    snap = ro.read_commands()
+    assert snap.matrix_route == 0x0102 and snap.mode == 3 and snap.heartbeat == 1
+    assert ro.owners()["commands"].name == "ctl"
+    ro.close()
+    w.close()
+
+
+def test_second_live_writer_is_refused_naming_the_owner(buf, shm_name):
+    first = Client.attach(shm_name, writer="commands", owner="ctl-A")
+    try:
+        with pytest.raises(OwnershipError, match=f"owned by 'ctl-A' \\(pid {os.getpid()}\\).*'ctl-B'"):
+            Client.attach(shm_name, writer="controller", owner="ctl-B")
+        with pytest.raises(OwnershipError, match="already claimed by this attachment"):
+            first.buffer.claim("commands", "again")
+    finally:
+        first.close()
+    # released cleanly: the next writer gets it and nothing was "taken over"
+    second = Client.attach(shm_name, writer="commands", owner="ctl-B")
+    assert second.owners()["commands"].name == "ctl-B"
+    assert second.owners()["commands"].takeovers == 0
+    second.close()
+
+
+def test_a_failed_role_claim_keeps_nothing(buf, shm_name):
+    other = Bit3Buffer.attach(shm_name, readonly=False)
+    other.claim("service", "svc")
+    # steal only the service queue lock, then try the whole role from another attachment
+    other.release()
+    q = Bit3Buffer.attach(shm_name, readonly=False)
+    from ioservice.shm import _lock_byte
+    _lock_byte(q._fd, default_layout().area("service_messages").index, True)
+    with pytest.raises(OwnershipError, match="service_messages"):
+        buf.claim("service", "svc2")
+    assert buf.claimed == ()
+    q.close()
+    assert buf.claim("service", "svc2") == []  # "svc" had released: nothing taken over
+    assert buf.claimed == ("inputs", "stats", "service_messages")
+    other.close()
+
+
+def test_read_only_clients_cannot_write(buf, shm_name):
+    with Client.attach(shm_name) as c:
+        with pytest.raises(Bit3Error, match="does not own the command area"):
+            c.write_commands(arm_request=1)
+        with pytest.raises(Bit3Error, match="read-only"):
+            c.buffer.claim("commands", "x")
+        with pytest.raises(Bit3Error, match="cannot post"):
+            c.post_message("x")
+        with pytest.raises(TypeError):
+            c.buffer.lock("inputs").write(memoryview(bytearray(12224)))
+
+
+def test_write_commands_validates_and_is_all_or_nothing(buf, shm_name):
+    with Client.attach(shm_name, writer="commands", owner="ctl") as c:
+        assert c.write_commands(wrist_roll_command=0.5) == 1
+        with pytest.raises(Bit3Error, match="not finite"):
+            c.write_commands(arm_request=1, gripper=float("inf"))
+        with pytest.raises(Bit3Error, match="no command field or DAC command channel 'bogus'"):
+            c.write_commands(bogus=1)
+        with pytest.raises(Bit3Error, match="set by write_commands itself"):
+            c.write_commands(heartbeat=5)
+        with pytest.raises(Bit3Error, match="joint_rate_rad_s"):
+            c.write_commands(joint_rate_rad_s=[1, 2, 3])
+        snap = c.read_commands()
+        assert snap.heartbeat == 1 and snap.arm_request == 0  # refused writes left no trace
+        assert snap.joint_rate_rad_s[5] == 0.5
+        t_before = snap.t_s
+        assert c.write_commands() == 2 and c.read_commands().t_s >= t_before
+
+
+def test_message_queue_wraps_at_50(buf, shm_name):
+    buf.claim("service", "svc")
+    q = buf.queue("service_messages")
+    for i in range(1, 121):
+        assert q.post(f"message {i}", Severity.WARNING if i % 2 else Severity.INFO, code=i,
+                      source=2, t_s=float(i)) == i
+    with Client.attach(shm_name) as c:
+        got = c.messages()
+        assert [m.seq for m in got] == list(range(71, 121))
+        assert got[0].text == "message 71" and got[0].code == 71 and got[0].t_s == 71.0
+        assert got[-1].severity is Severity.INFO and got[-1].source == 2
+        assert [m.seq for m in c.messages(since_seq=110)] == list(range(111, 121))
+        assert c.messages(since_seq=120) == []
+        assert len(c.new_messages()) == 50 and c.new_messages() == []
+        q.post("x" * 200)
+        (m,) = c.new_messages()
+        assert m.seq == 121 and m.text == "x" * 56  # cut to the 56-byte slot
+
+
+def test_stuck_writer_gives_a_bounded_error_not_a_hang(buf, shm_name):
+    buf.claim("service", "svc")
+    buf.lock("inputs").begin()  # odd: a write "in progress" forever
+    c = Client.attach(shm_name, timeout_s=0.02)
+    with pytest.raises(SeqLockTimeout, match=f"inputs.*odd.*'svc' \\(pid {os.getpid()}\\)"):
+        c.read_inputs()
+    buf.lock("inputs").end()
+    assert c.read_inputs().seq == 2
+    c.close()
+
+
+def test_header_writes_need_the_inputs_claim(buf):
+    with pytest.raises(OwnershipError, match="does not own area 'inputs'"):
+        buf.set_service_state(ServiceState.ARMED)
+    buf.claim("inputs", "svc")
+    buf.set_calibration_hash(bytes(range(8)))
+    assert buf.header().calibration_hash == bytes(range(8))
+
+
+def test_unknown_writer_role_is_refused(shm_name, buf):
+    with pytest.raises(ConfigError, match="unknown Bit3 writer 'stats-tool'"):
+        Client.attach(shm_name, writer="stats-tool", owner="x")
+    with pytest.raises(Bit3Error, match="needs an owner name"):
+        Client.attach(shm_name, writer="commands")
+
+
+def test_snapshot_copy_is_independent(buf, shm_name):
+    buf.claim("service", "svc")
+    w = buf.writer("inputs")
+    w.record["frame"] = 1
+    w.publish()
+    with Client.attach(shm_name) as c:
+        kept = c.read_inputs().copy()
+        w.record["frame"] = 2
+        w.publish()
+        assert c.read_inputs().frame == 2 and kept.frame == 1
+        assert np.shares_memory(c.read_inputs().record, c.read_inputs().record)
