@@ -273,6 +273,10 @@ class ArmModel:
             F = self.kin.frames(q)
             tool0 = F[-1, :3, 3].copy()
             jac = Kinematics.position_jacobian(F, tool0)
+            # skip contact for this step when the tool cannot reach any object in it
+            reach = 0.01 + 2.0 * float(np.linalg.norm(jac @ v[:N_JOINTS])) * dt_s
+            contact = dt_s > 0.01 or self.environment.clearance_m(tool0) <= reach
+        if contact:
             jac_hj = jac.T * self._h_over_j[:N_JOINTS, None]
             q0 = q[:N_JOINTS].copy()
             env = self.environment

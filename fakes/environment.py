@@ -11,6 +11,7 @@ enough for the 1 kHz substep (see docs/simulated-arm.md).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -59,6 +60,10 @@ class Wall:
         """Penetration depth, m (negative: in free space)."""
         return -float(self.normal @ (point_m - self.point_m))
 
+    def clearance_m(self, point_m: np.ndarray) -> float:
+        """Distance from the surface, m (<= 0: touching)."""
+        return -self.depth_m(point_m)
+
     def force_n(self, point_m: np.ndarray, velocity_m_s: np.ndarray) -> np.ndarray:
         depth = self.depth_m(point_m)
         if depth <= 0.0:
@@ -84,6 +89,11 @@ class Box:
         self.half_size_m = np.asarray(self.half_size_m, dtype=float)
         if np.any(self.half_size_m <= 0):
             raise ValueError(f"box half sizes must be > 0, got {self.half_size_m}")
+
+    def clearance_m(self, point_m: np.ndarray) -> float:
+        """Distance from the box, m (<= 0: inside)."""
+        outside = np.maximum(np.abs(point_m - self.centre_m) - self.half_size_m, 0.0)
+        return float(np.linalg.norm(outside)) if outside.any() else 0.0
 
     def force_n(self, point_m: np.ndarray, velocity_m_s: np.ndarray) -> np.ndarray:
         rel = point_m - self.centre_m
@@ -120,6 +130,11 @@ class Environment:
     def active(self) -> bool:
         """True when there is anything to touch."""
         return bool(self.objects)
+
+    def clearance_m(self, point_m: np.ndarray) -> float:
+        """Smallest distance from the point to any object, m (0 for objects that cannot tell)."""
+        return min((obj.clearance_m(point_m) if hasattr(obj, "clearance_m") else 0.0
+                    for obj in self.objects), default=math.inf)
 
     def contact_force_n(self, point_m: np.ndarray, velocity_m_s: np.ndarray) -> np.ndarray:
         """Total force on the tool point, N, world frame."""

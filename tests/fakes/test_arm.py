@@ -283,6 +283,9 @@ def test_environment_objects_push_and_never_pull():
     assert np.allclose(box.force_n(np.array([1.095, 0, 0]), np.zeros(3)), (5.0, 0, 0))
     assert np.allclose(box.force_n(np.array([1.0, -0.19, 0.0]), np.zeros(3)), (0, -10.0, 0))
     assert not box.force_n(np.array([1.2, 0, 0]), np.zeros(3)).any()
+    assert box.clearance_m(np.array([1.4, 0.0, 0.0])) == pytest.approx(0.3)
+    assert box.clearance_m(np.array([1.0, 0.1, 0.1])) == 0.0
+    assert wall.clearance_m(np.array([0, 5.0, 0.25])) == pytest.approx(0.25)
     env = Environment()
     assert not env.active
     env.add(box)
