@@ -65,8 +65,8 @@ class FakeCanFtNode(can.Listener):
         if self.mute_replies:
             self.mute_replies -= 1
             return
+        self.transducer.sample(self.clock.now() if self.clock else 0.0)  # one sample per request
         if opcode == OP_READ:
-            self.transducer.sample(self.clock.now() if self.clock else 0.0)
             status, c = self.transducer.reading()
             self.sent.append((status, c))
             seq = self.seq & 0xFF
