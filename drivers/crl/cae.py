@@ -147,10 +147,6 @@ class CaeHandController:
         """The nine ADC channels in rack (ascending channel) order: ``from_volts``'s order."""
         return tuple(sorted(self.channels))
 
-    def with_calibration(self, calibration: CaeCalibration) -> "CaeHandController":
-        self.calibration = calibration
-        return self
-
     def _discrete(self, i: int, volts: float) -> bool:
         cal = self.calibration
         half = cal.discrete_hysteresis_v / 2
@@ -164,6 +160,7 @@ class CaeHandController:
     def from_volts(self, volts_9: Sequence[float], t_s: float | None = None) -> HandControllerState:
         """Nine ADC voltages (rack order: 6 axes then 3 discretes) -> state.
 
+        The discretes have hysteresis, so the result depends on the previous call too.
         A non-finite or over-range axis voltage gives a fault state (deadman released).
 
         :raises ValueError: when ``volts_9`` does not hold nine values
