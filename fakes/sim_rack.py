@@ -25,7 +25,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from fakes.arm import ArmModel, ArmState
-from fakes.arm_params import AXES, N_AXES, N_JOINTS, SimErrors
+from fakes.arm_params import AXES, N_JOINTS, SimErrors
 from fakes.environment import Environment
 from fakes.rack import FakeRack
 from pfma.clock import Clock
@@ -113,12 +113,16 @@ class SimulatedRack:
                 getattr(m, f"{role}_axis").append(axis)
         for board, _ in self.cae_axes + self.cae_discretes + self.idle:
             self._adc_board(board)
+        for m in self._adc.values():
+            m.rate_ch, m.rate_axis = np.array(m.rate_ch, dtype=int), np.array(m.rate_axis, dtype=int)
+            m.cur_ch, m.cur_axis = np.array(m.cur_ch, dtype=int), np.array(m.cur_axis, dtype=int)
         self._dac_boards = sorted({b for b, _ in self.command + self.current_limit})
 
     def _adc_board(self, name: str) -> _AdcBoardMap:
         if name not in self._adc:
             m = _AdcBoardMap(name)
             m.volts = np.array(self.fake_rack[name].input_volts, dtype=float)
+            m.gain, m.offset = np.ones(len(m.volts)), np.zeros(len(m.volts))
             self._adc[name] = m
         return self._adc[name]
 
@@ -139,6 +143,7 @@ class SimulatedRack:
         """Install known truth errors (see :class:`fakes.arm_params.SimErrors`).
 
         :raises KeyError: for an ADC/DAC error on a signal the rack does not have
+        :raises ValueError: for an ADC error on a non-ADC signal (or DAC likewise)
         """
         self.errors = errors
         self.arm.set_errors(errors)
@@ -147,17 +152,24 @@ class SimulatedRack:
             n = len(m.volts)
             m.gain, m.offset = np.ones(n), np.zeros(n)
         for sig, g in errors.adc_gain_error.items():
-            board, ch = self._where(sig)
+            board, ch = self._where_on(sig, "adc")
             self._adc_board(board).gain[ch] = 1.0 + g
         for sig, off in errors.adc_offset_v.items():
-            board, ch = self._where(sig)
+            board, ch = self._where_on(sig, "adc")
             self._adc_board(board).offset[ch] = off
         self._dac_gain = {}
         self._dac_offset = {}
         for sig, g in errors.dac_gain_error.items():
-            self._dac_gain[self._where(sig)] = 1.0 + g
+            self._dac_gain[self._where_on(sig, "dac")] = 1.0 + g
         for sig, off in errors.dac_offset_v.items():
-            self._dac_offset[self._where(sig)] = off
+            self._dac_offset[self._where_on(sig, "dac")] = off
+
+    def _where_on(self, signal: str, device: str) -> tuple[str, int]:
+        c = self.config.channel(signal)
+        if c.device != device:
+            raise ValueError(f"signal {signal!r} is on {c.device} board {c.board} channel {c.channel} "
+                             f"(A16 0x{c.address:04X}), not on an {device} board")
+        return c.board, c.channel
 
     # -- physical inputs ------------------------------------------------------------------
     def set_cae(self, axes_volts: Sequence[float], discretes: Sequence[bool | float] = (False, False, False)) -> None:
@@ -176,6 +188,21 @@ class SimulatedRack:
         self._cae_axes = axes
         self._cae_discretes = np.array([(CAE_DISCRETE_HIGH_V if d else 0.0) if isinstance(d, bool) else float(d)
                                         for d in discretes])
+        self._write_sensors()
+
+    def hold_adc_volts(self, signal: str, volts: float) -> None:
+        """Hold any other ADC input (spares, test signals) at ``volts``. The simulator owns
+        every input of its ADC boards, so set them here, not on the board fake.
+
+        :raises ValueError: for a signal the simulator drives itself or one not on an ADC
+        """
+        board, ch = self._where_on(signal, "adc")
+        m = self._adc_board(board)
+        driven = set(m.rate_ch.tolist()) | set(m.cur_ch.tolist()) | {
+            c for b, c in self.cae_axes + self.cae_discretes + self.idle if b == board}
+        if ch in driven:
+            raise ValueError(f"ADC signal {signal!r} (board {board} channel {ch}) is driven by the simulator")
+        m.volts[ch] = float(volts)
         self._write_sensors()
 
     def attach_ft(self, fake) -> None:
@@ -251,4 +278,4 @@ class SimulatedRack:
         return (self.arm.q[:N_JOINTS] + self._resolver_offset) % _TWO_PI
 
 
-__all__ = ["SimulatedRack", "CAE_AXIS_SIGNALS", "CAE_DISCRETE_SIGNALS", "N_AXES"]
+__all__ = ["SimulatedRack", "CAE_AXIS_SIGNALS", "CAE_DISCRETE_SIGNALS"]

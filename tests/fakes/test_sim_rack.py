@@ -152,6 +152,14 @@ def test_truth_errors_show_where_calibration_will_look_for_them():
     assert rig.adc_volts("shoulder_yaw_rate") == pytest.approx(1.05 * st.tach_volts[SY], abs=ADC_LSB)
     with pytest.raises(KeyError, match="no_such_signal"):
         rig.sim.set_errors(SimErrors(adc_offset_v={"no_such_signal": 1.0}))
+    with pytest.raises(ValueError, match="shoulder_yaw_command.*dac board dac channel 1"):
+        rig.sim.set_errors(SimErrors(adc_gain_error={"shoulder_yaw_command": 0.1}))
+    rig.sim.set_errors(SimErrors(adc_offset_v={"adc_spare_31": -1.0}))  # a channel the arm never drives
+    rig.sim.hold_adc_volts("adc_spare_31", 3.0)
+    rig.sim.step(DT)
+    assert rig.adc_volts("adc_spare_31") == pytest.approx(2.0, abs=ADC_LSB)
+    with pytest.raises(ValueError, match="driven by the simulator"):
+        rig.sim.hold_adc_volts("cae_yaw", 1.0)
 
 
 def test_ft_fake_gets_the_arm_load():
