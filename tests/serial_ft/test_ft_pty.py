@@ -52,8 +52,10 @@ def test_binary_without_checksum_reader_polls_with_ctrl_t_at_more_than_80_hz(rig
     got = list(reader.history)
     assert ground_truth_check(model, got) == 0
     assert sensor.stats().bad_records == 0
-    t = [r.t_s for r in got]
-    assert (len(t) - 1) / (t[-1] - t[0]) >= 80.0 * 0.8  # polls at ~105/s; loose on a busy CI box
+    # one poll = request + 13 bytes of wire time + a 1.6 ms silence guard: ~105 polls/s on an
+    # idle host. The median spacing is robust to scheduling hiccups of a busy CI box.
+    gaps = sorted(b.t_s - a.t_s for a, b in zip(got, got[1:]))
+    assert gaps[len(gaps) // 2] < 1 / 80.0
 
 
 def test_binary_stream_without_checksum_warns(rig):
