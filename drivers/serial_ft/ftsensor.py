@@ -5,8 +5,9 @@
 pty, ``socket://``, ``rfc2217://``, ``loop://``) or the MVME400 byte port. The
 protocol table and codecs are in ``drivers.serial_ft.protocol``.
 
-Timestamps come from the injected clock; bounded waits on the link use real time
-(``time.monotonic``), because they wait for real bytes.
+Timestamps come from the injected clock. A bounded wait ends when ``reply_timeout_s``
+has passed on the real clock OR on the injected clock: real ports wait in real time,
+a port on a simulated line (the fake MVME400) advances the simulated clock.
 """
 
 from __future__ import annotations
@@ -208,12 +209,12 @@ class FtSensor:
         self._require_idle("poll")
         self._reset_input()
         self._write(P.CTRL_T)
-        deadline = time.monotonic() + self.reply_timeout_s
+        deadline = self._deadline()
         buf = bytearray()
         binary = self.mode == "binary"
         n = P.record_bytes("binary", self.checksum_on) if binary else 0
         while (len(buf) < n) if binary else (not buf.endswith(b"\n") and len(buf) <= 128):
-            if time.monotonic() > deadline:
+            if self._expired(deadline, self.clock):
                 self._stats.bad_records += 1
                 self._stats.bytes_in += len(buf)
                 self._stats.bytes_discarded += len(buf)
@@ -225,8 +226,12 @@ class FtSensor:
             except OSError as err:
                 raise LinkError(f"F/T on {self.name}: read failed during Ctrl-T poll: {err}") from err
         # silence check: an inserted byte shows up as an extra byte right behind the record
-        t_guard = time.monotonic() + self.guard_s
         extra = self._in_waiting()
+        if getattr(self.clock, "simulated", False):
+            if not extra:
+                self.clock.sleep_until(self.clock.now() + self.guard_s)  # simulated line: jump
+                extra = self._in_waiting()
+        t_guard = time.monotonic() + (0.0 if getattr(self.clock, "simulated", False) else self.guard_s)
         while not extra and time.monotonic() < t_guard:
             time.sleep(self.guard_s / 6)  # driver-side guard of a few character times
             extra = self._in_waiting()
@@ -256,7 +261,7 @@ class FtSensor:
         self._reset_input()
         text = P.COMMANDS["stream"].text.encode("ascii")
         self._write(text + P.CR)
-        deadline = time.monotonic() + self.reply_timeout_s
+        deadline = self._deadline()
         buf = bytearray()
         echo = text + P.CRLF
         while echo not in buf:
@@ -290,12 +295,12 @@ class FtSensor:
         if not self.streaming:
             return []
         self._write(P.CR)
-        deadline = time.monotonic() + self.reply_timeout_s
+        deadline = self._deadline()
         buf = bytearray()
         while P.STOP_PROMPT not in buf:
             try:
                 buf += self._read_some(max(1, self._in_waiting()), deadline, "stream stop (CR)", buf)
-            except PfmaTimeoutError:
+            except (PfmaTimeoutError, LinkError):
                 self.streaming = False
                 raise
         self.streaming = False
@@ -328,7 +333,7 @@ class FtSensor:
         cmd = text.encode("ascii")
         self._write(cmd + P.CR)
         head = cmd + P.CRLF
-        deadline = time.monotonic() + self.reply_timeout_s
+        deadline = self._deadline()
         buf = bytearray()
         while True:
             i = buf.find(head)
@@ -407,7 +412,8 @@ class FtSensor:
 
     def _in_waiting(self) -> int:
         try:
-            return int(self.port.in_waiting)
+            n = self.port.in_waiting  # a property in pyserial, a method on some ports
+            return int(n() if callable(n) else n)
         except OSError as err:
             raise LinkError(f"F/T on {self.name}: port failed: {err}") from err
 
@@ -419,8 +425,17 @@ class FtSensor:
         except OSError as err:
             raise LinkError(f"F/T on {self.name}: port failed: {err}") from err
 
-    def _read_some(self, n: int, deadline: float, what: str, got: bytes | bytearray) -> bytes:
-        if time.monotonic() > deadline:
+    def _deadline(self) -> tuple[float, float]:
+        """Reply deadline on the real clock and on the injected clock (a port that waits in
+        simulated time, like the fake MVME400's, ends the wait by advancing the clock)."""
+        return time.monotonic() + self.reply_timeout_s, self.clock.now() + self.reply_timeout_s
+
+    @staticmethod
+    def _expired(deadline: tuple[float, float], clock: Clock) -> bool:
+        return time.monotonic() > deadline[0] or clock.now() > deadline[1]
+
+    def _read_some(self, n: int, deadline: tuple[float, float], what: str, got: bytes | bytearray) -> bytes:
+        if self._expired(deadline, self.clock):
             if got:
                 raise LinkError(f"F/T on {self.name}: garbled or incomplete reply to {what} within "
                                 f"{self.reply_timeout_s:g} s: {bytes(got[-64:])!r} (wrong mode/baud, or line noise?)")
