@@ -26,3 +26,25 @@ def test_pfma_ft_bias(capsys):
     assert main(["ft", "bias", "--port", "fake"]) == 0
     out = capsys.readouterr().out
     assert "bias: done" in out and out.count("F[N]") == 1
+
+
+def test_pfma_ft_stops_cleanly_on_ctrl_c():
+    import signal
+    import subprocess
+    import sys
+
+    p = subprocess.Popen([sys.executable, "-m", "pfma", "ft", "--port", "fake", "--stream", "--checksum",
+                          "--interval", "0.02"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        for line in p.stdout:  # wait for live values, then press Ctrl-C
+            if "F[N]" in line:
+                break
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=10)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    assert p.returncode == 0 and "interrupted" in err
+    assert out.strip().splitlines()[-1].startswith("records ")
