@@ -231,12 +231,18 @@ class SimulatedRack:
                         arr[i] = arr[i] * self._dac_gain.get(key, 1.0) + self._dac_offset.get(key, 0.0)
         return v_cmd, v_ilim
 
-    def step(self, dt_s: float) -> None:
+    def step(self, dt_s: float, *, boards: bool = True) -> None:
         """Advance the world by ``dt_s``: amplifiers + arm, then every fake board's physical
-        side (``FakeRack.step``), then the sensor outputs. Does not move the clock."""
+        side (``FakeRack.step``), then the sensor outputs. Does not move the clock.
+
+        :param boards: also step the fake boards; pass False when the clock has already
+            moved to the new time (boards that follow the clock catch up by themselves,
+            and stepping them too would run them ``dt_s`` ahead of it)
+        """
         v_cmd, v_ilim = self.amplifier_inputs()
         self.arm.step(dt_s, v_cmd, v_ilim)
-        self.fake_rack.step(dt_s)
+        if boards:
+            self.fake_rack.step(dt_s)
         self._write_sensors()
         if self._ft_push is not None:
             self._ft_push.set_load(*self.arm.ft_load())

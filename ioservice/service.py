@@ -1,0 +1,652 @@
+"""The data-acquisition service: the I/O chassis of the PFMA rack, in one process.
+
+It owns the drivers of every board in the rack configuration and runs them on the
+acquisition schedule (``ioservice.schedule``): DAC outputs every 3.125 ms minor
+frame (320 Hz), resolvers and ADC every second frame (160 Hz), the F/T sensor and
+the serial hand controller every fourth (80 Hz), the parallel ports every eighth.
+Each frame's inputs carry the time they were sampled. Everything is published in
+the Bit3 buffer's input area (one seqlocked copy per frame); commands are taken
+from its command area; ``ioservice.safety.OutputGuard`` decides whether they may
+reach the DAC.
+
+Serial lines are drained between frames by the ``TickingClock`` hook
+(:meth:`IoService.serial_tick`), never inside a frame: their FIFOs are 3
+characters deep and fill in 1.56 ms at 19200 baud.
+
+The service knows schedules, the buffer and safety; it asks the rack
+configuration for channels and the drivers for registers, and never uses a
+register offset itself.
+"""
+
+from __future__ import annotations
+
+import gc
+import math
+import os
+import resource
+import signal
+from dataclasses import dataclass
+
+import numpy as np
+
+from ioservice.layout import ServiceState, Severity
+from ioservice.loop import FrameInfo, FrameLoop, LoopStats
+from ioservice.safety import OutputGuard
+from ioservice.schedule import MINOR_FRAMES_PER_MAJOR, Schedule
+from ioservice.shm import Bit3Buffer
+from pfma.clock import Clock
+from pfma.errors import PfmaError
+from pfma.rack import RackConfig
+from pfma.rackio import RackIO
+
+#: board_status bits in the input area
+BOARD_OK, BOARD_INIT, BOARD_FAULT = 1, 2, 4
+#: link_status bits
+LINK_OPEN, LINK_SYNCED, LINK_FAULT, LINK_STALE = 1, 2, 4, 8
+#: dac_status bits
+DAC_CLIPPED, DAC_FORCED_SAFE = 1, 2
+#: fault codes (inputs.fault_code)
+FAULT_NONE, FAULT_WATCHDOG, FAULT_DAC, FAULT_INPUTS, FAULT_UNEXPECTED = 0, 1, 2, 3, 4
+#: consecutive failing samples of an input board before the outputs are made safe
+INPUT_FAULT_FRAMES = 3
+#: F/T record older than this is flagged stale (4 F/T periods)
+FT_STALE_S = 0.05
+#: current-limit volts above which the amplifier releases the brake (pfma-model 8.4, assumed)
+BRAKE_RELEASE_V = 0.5
+
+
+@dataclass
+class _DeviceCounter:
+    samples: int = 0
+    errors: int = 0
+    t_last: float = math.nan
+    window_samples: int = 0
+    window_t0: float = math.nan
+    rate_hz: float = 0.0
+
+
+class IoService:
+    """The I/O service over any RegisterBus.
+
+    :param rack: rack configuration (boards, channels, scales)
+    :param bus: RegisterBus (fake rack, Modbus gateway, device-file window)
+    :param buffer: the Bit3 buffer; the service claims its ``service`` role
+    :param clock: the loop's clock (a ``TickingClock`` so serial lines are drained)
+    :param schedule: acquisition schedule (default: the report's rates at 320 Hz)
+    :param watchdog_s: command heartbeat time-out (15 ms: the MVME 104's watchdog)
+    :param owner: name written into the buffer's owner slot
+    :param serial: open the F/T and CRL lines of the MVME400 (off for racks without them)
+    """
+
+    def __init__(self, rack: RackConfig, bus, buffer: Bit3Buffer, clock: Clock, *,
+                 schedule: Schedule | None = None, watchdog_s: float = 0.015,
+                 owner: str = "pfma-ioservice", serial: bool = True) -> None:
+        self.rack = rack
+        self.bus = bus
+        self.buf = buffer
+        self.clock = clock
+        self.schedule = schedule or Schedule()
+        self.layout = buffer.layout
+        buffer.claim("service", owner)
+        self.inputs = buffer.writer("inputs")
+        self.stats_writer = buffer.writer("stats")
+        self.commands = buffer.reader("commands")
+        self.queue = buffer.queue("service_messages")
+        self.guard = OutputGuard(clock, watchdog_s, post=self._post_guard)
+        self.loop_stats = LoopStats()
+        self.loop = FrameLoop(clock, self.schedule.period_s, self.frame, self.loop_stats)
+        self.io = RackIO(bus, rack, clock)
+        self.state = ServiceState.STARTING
+        self.fault_code = FAULT_NONE
+        self._rec = self.inputs.record
+        self._v = {name: self.inputs.record[name] for name in self.inputs.record.dtype.names}
+        self._stats_rec = self.stats_writer.record
+        self._devices = {g: _DeviceCounter() for g in ("rtd", "adc", "dac", "ft", "pio", "crl", "hid")}
+        self._board_fail_run: dict[str, int] = {}
+        self.init_errors: list[str] = []  #: full texts of start-up problems (messages are cut to 56 bytes)
+        self._build_tasks()
+        self._wire_rtd()
+        self._wire_adc()
+        self._wire_dac()
+        self._wire_pio()
+        self._ft = self._crl = self._cae = None
+        self._ft_latest = None
+        self._crl_latest = None
+        self._mvme400 = None
+        if serial:
+            self._wire_serial()
+        self._wire_cae()
+        self._cpu0 = self._cpu_s()
+        self._wall0 = clock.now()
+        self._gc_gen2_0 = gc.get_stats()[2]["collections"]
+        self.stats_every = max(1, int(round(self.schedule.frame_rate_hz / 2)))  # twice a second
+        self.set_state(ServiceState.SAFE)
+        self.post(Severity.INFO, 100, f"service started: {rack.name}, "
+                  f"{self.schedule.frame_rate_hz:g} Hz frames, watchdog {watchdog_s * 1e3:g} ms")
+        for diff in self.schedule.check_documented_rates():
+            self.post(Severity.WARNING, 101, f"schedule differs from the report: {diff}")
+
+    # ------------------------------------------------------------------ set-up
+    def _build_tasks(self) -> None:
+        table = self.schedule.frame_table()
+        names = ("rtd", "adc", "ft", "hand", "pio")  # inputs, in run order
+        self._frame_tasks = tuple(tuple(n for n in names if n in frame) for frame in table)
+        self._frame_masks = tuple(sum(1 << i for i, n in enumerate(names) if n in frame)
+                                  for frame in table)
+        self._task_names = names
+
+    def _board_slot(self, board: str) -> int:
+        return self.layout.slot("board", board)
+
+    def _slots(self, kind: str, channels) -> np.ndarray:
+        return np.array([self.layout.slot(kind, c.signal) for c in channels], dtype=np.intp)
+
+    def _init_board(self, cfg, action) -> bool:
+        slot = self._board_slot(cfg.name)
+        try:
+            action()
+        except PfmaError as err:
+            self._v["board_status"][slot] = BOARD_FAULT
+            self._count_board_error(cfg.name, err)
+            self.post(Severity.ERROR, 110, f"{cfg.name}: init failed: {err}")
+            return False
+        self._v["board_status"][slot] = BOARD_OK | BOARD_INIT
+        return True
+
+    def _wire_rtd(self) -> None:
+        self._rtd = []
+        for cfg in self.rack.boards_of("rtd"):
+            drv = self.io.driver(cfg)
+            slots = self._slots("rtd", cfg.channels)
+            self._rtd.append((cfg, drv, slots, self._board_slot(cfg.name)))
+            self._init_board(cfg, drv.status)
+
+    def _wire_adc(self) -> None:
+        self._adc = []
+        for cfg in self.rack.boards_of("adc"):
+            drv = self.io.driver(cfg)
+            chans = sorted(cfg.channels, key=lambda c: c.channel)
+            slots = self._slots("adc", chans)
+            scale = np.array([c.scale for c in chans])
+            offset = np.array([c.offset for c in chans])
+            counts = np.zeros(len(chans), dtype=np.int64)
+            volts = np.zeros(len(chans))
+            self._adc.append((cfg, drv, slots, scale, offset, counts, volts, self._board_slot(cfg.name)))
+            self._init_board(cfg, lambda d=drv: d.read_counts(0))
+
+    def _wire_dac(self) -> None:
+        dacs = self.rack.boards_of("dac")
+        if len(dacs) != 1:
+            raise PfmaError(f"rack {self.rack.name}: the service drives exactly one DAC board, "
+                            f"found {len(dacs)}")
+        cfg = dacs[0]
+        self._dac_cfg = cfg
+        self._dac = self.io.driver(cfg)
+        n = len(cfg.channels)
+        chans = sorted(cfg.channels, key=lambda c: c.channel)
+        self._dac_slots = self._slots("dac", chans)
+        self._dac_scale = np.array([c.scale for c in chans])
+        self._dac_offset = np.array([c.offset for c in chans])
+        self._dac_eng = np.zeros(n)  # engineering command per DAC channel
+        self._dac_volts = np.zeros(n)
+        self._dac_safe = np.zeros(n)
+        self._dac_status = np.zeros(n, dtype=np.uint16)
+        sig = {c.signal: c.channel for c in chans}
+        # command-area order (layout.joints / layout.limits) -> DAC channel
+        self._cmd_rate_ch = np.array([sig[j + "_command"] for j in self.layout.joint_names], dtype=np.intp)
+        self._cmd_limit_ch = np.array([sig[s] for s in self.layout.current_limit_names], dtype=np.intp)
+        self._limit_mask = np.zeros(n, dtype=bool)
+        self._limit_mask[self._cmd_limit_ch] = True
+        grip = [c.channel for c in chans if "gripper" in c.signal and "current_limit" not in c.signal]
+        self._cmd_gripper_ch = grip[0] if grip else None
+        self._dac_board_slot = self._board_slot(cfg.name)
+        self._outputs_enabled = False
+        # Outputs start disconnected and at 0 V: write the zeros, keep P3 off.
+        self._init_board(cfg, self._dac.disable_outputs)
+
+    def _wire_pio(self) -> None:
+        self._pio_in = []
+        self._pio_out = None
+        self._matrix_applied = -1
+        for cfg in self.rack.boards_of("pio"):
+            drv = self.io.driver(cfg)
+            dirs = ["in"] * 4
+            for c in cfg.channels:
+                dirs[c.channel] = c.direction
+            slots = {c.channel: self.layout.slot("pio", c.signal) for c in cfg.channels}
+            if self._init_board(cfg, lambda d=drv, dd=dirs: d.configure(dd)):
+                if any(c.signal == "matrix_switcher_route" for c in cfg.channels):
+                    self._pio_out = (cfg, drv, slots)
+                if any(c.signal.startswith("user_if_box_inputs") for c in cfg.channels):
+                    self._pio_in.append((cfg, drv, slots))
+
+    def _wire_serial(self) -> None:
+        from drivers.crl.crl import CrlHandController
+        from drivers.serial_ft.ftsensor import FtSensor
+        boards = self.rack.boards_of("serial")
+        if not boards:
+            return
+        cfg = boards[0]
+        ch = {c.signal: c for c in cfg.channels}
+        drv = self.io.driver(cfg)
+        bauds = [int(ch_.baud or 19200) for ch_ in sorted(cfg.channels, key=lambda c: c.channel)]
+        if not self._init_board(cfg, lambda: drv.init(baud_a=bauds[0], baud_b=bauds[1])):
+            return
+        self._mvme400 = (cfg, drv)
+        if "ft_sensor" in ch:
+            port = drv.port(ch["ft_sensor"].channel, timeout=0.05)
+            ft = FtSensor(port, clock=self.clock, baud=bauds[ch["ft_sensor"].channel])
+            try:
+                ft.set_mode("binary")
+                ft.set_checksum(True)
+                ft.start_stream(rate_hz=self.schedule.rate_hz("ft"))
+                port.timeout = 0  # from now on only non-blocking reads, between frames
+                self._ft = ft
+            except PfmaError as err:
+                self.init_errors.append(str(err))
+                self.post(Severity.ERROR, 120, f"F/T sensor on {cfg.name} port "
+                          f"{ch['ft_sensor'].channel}: not streaming: {err}")
+                self._v["link_status"][self.layout.slot("link", "ft_sensor")] = LINK_FAULT
+        if "crl_hand_controller" in ch:
+            port = drv.port(ch["crl_hand_controller"].channel, timeout=0)
+            self._crl = CrlHandController(port, self.clock)
+
+    def _wire_cae(self) -> None:
+        from drivers.crl.cae import CaeHandController
+        try:
+            self._cae = CaeHandController(rack=self.rack, clock=self.clock)
+        except (PfmaError, KeyError) as err:
+            self.post(Severity.WARNING, 130, f"CAE hand controller not available: {err}")
+            return
+        # where the CAE channels sit among the ADC board's scanned volts
+        sigs = ("cae_up_down", "cae_forward_backward", "cae_right_left", "cae_yaw", "cae_pitch",
+                "cae_roll", "cae_discrete_1", "cae_discrete_2", "cae_discrete_3")
+        chans = [self.rack.channel(s) for s in sigs]
+        board = chans[0].board
+        self._cae_adc = next(i for i, a in enumerate(self._adc) if a[0].name == board)
+        self._cae_idx = np.array([c.channel for c in chans], dtype=np.intp)
+
+    # ------------------------------------------------------------------ messages and state
+    def post(self, severity: int, code: int, text: str) -> None:
+        self.queue.post(text, severity=severity, code=code, t_s=self.clock.now())
+
+    def _post_guard(self, severity: int, code: int, text: str) -> None:
+        self.post((Severity.INFO, Severity.WARNING, Severity.ERROR)[min(severity, 2)], code, text)
+
+    def set_state(self, state: ServiceState) -> None:
+        self.state = state
+        self.buf.set_service_state(state)
+        self._v["service_state"][...] = int(state)
+
+    def _count_board_error(self, board: str, err: Exception) -> None:
+        slot = self._board_slot(board)
+        self._v["board_errors"][slot] += 1
+        self._v["board_status"][slot] |= BOARD_FAULT
+        self._v["board_last_error_addr"][slot] = getattr(err, "addr", 0) or 0
+        self._v["board_last_error_t_s"][slot] = self.clock.now()
+
+    def _input_failed(self, board: str, group: str, err: Exception) -> None:
+        self._count_board_error(board, err)
+        self._devices[group].errors += 1
+        run = self._board_fail_run.get(board, 0) + 1
+        self._board_fail_run[board] = run
+        if run == 1:
+            self.post(Severity.ERROR, 111, f"{board}: {err}")
+        if run == INPUT_FAULT_FRAMES:
+            self.fault_code = FAULT_INPUTS
+            self.guard.trip(f"{board} failed {run} samples in a row: {err}", code=FAULT_INPUTS)
+
+    def _input_ok(self, board: str, slot: int) -> None:
+        if self._board_fail_run.get(board):
+            self._board_fail_run[board] = 0
+            self._v["board_status"][slot] = BOARD_OK | BOARD_INIT
+
+    def _sampled(self, group: str, t: float) -> None:
+        d = self._devices[group]
+        d.samples += 1
+        d.t_last = t
+
+    # ------------------------------------------------------------------ the frame
+    def frame(self, info: FrameInfo) -> None:
+        """One minor frame: inputs due in this frame (and in frames just dropped), then the
+        DAC, then one consistent publish of the input area."""
+        k = info.index
+        mask = self._frame_masks[k % MINOR_FRAMES_PER_MAJOR]
+        for j in range(1, min(info.missed, MINOR_FRAMES_PER_MAJOR) + 1):
+            mask |= self._frame_masks[(k - j) % MINOR_FRAMES_PER_MAJOR]
+        try:
+            if mask & 1:
+                self._task_rtd()
+            if mask & 2:
+                self._task_adc()
+            if mask & 4:
+                self._task_ft()
+            if mask & 8:
+                self._task_hand()
+            if mask & 16:
+                self._task_pio()
+            self._task_dac()
+        except Exception as err:  # noqa: BLE001 - a fault we cannot explain: outputs safe
+            self.fault_code = FAULT_UNEXPECTED
+            self.guard.trip(f"unexpected {type(err).__name__} in frame {k}: {err}", code=FAULT_UNEXPECTED)
+            self._apply_safe()
+        self._publish(info)
+        if k % self.stats_every == 0:
+            self.publish_stats()
+
+    def _task_rtd(self) -> None:
+        v = self._v
+        t_ok = None
+        for cfg, drv, slots, bslot in self._rtd:
+            t = self.clock.now()
+            try:
+                counts = drv.read_counts()
+                status = drv.status()
+            except PfmaError as err:
+                self._input_failed(cfg.name, "rtd", err)
+                v["rtd_status"][slots] |= 0x100
+                continue
+            v["rtd_counts"][slots] = counts
+            v["rtd_angle_rad"][slots] = np.multiply(counts, drv.lsb_rad)
+            v["rtd_status"][slots] = [int(f) | (0 if status.reference_present else 2) for f in status.faults]
+            self._input_ok(cfg.name, bslot)
+            v["t_rtd_s"][...] = t
+            t_ok = t
+        if t_ok is not None:
+            self._sampled("rtd", t_ok)
+
+    def _task_adc(self) -> None:
+        v = self._v
+        for cfg, drv, slots, scale, offset, counts, volts, bslot in self._adc:
+            t = self.clock.now()
+            try:
+                drv.scan(counts)
+            except PfmaError as err:
+                self._input_failed(cfg.name, "adc", err)
+                v["adc_status"][slots] |= 0x100
+                continue
+            np.multiply(np.subtract(counts, drv.zero_code, out=volts, casting="unsafe"), drv.lsb_volts, out=volts)
+            v["adc_counts"][slots] = counts
+            v["adc_volts"][slots] = volts
+            v["adc_value"][slots] = volts * scale + offset
+            v["adc_status"][slots] = 0
+            self._input_ok(cfg.name, bslot)
+            v["t_adc_s"][...] = t
+            self._sampled("adc", t)
+
+    def _task_ft(self) -> None:
+        self._decode_serial()
+        ft = self._ft
+        if ft is None:
+            return
+        v = self._v
+        slot = self.layout.slot("link", "ft_sensor")
+        r = self._ft_latest
+        st = ft.stats()
+        v["link_records"][slot] = st.records
+        v["link_bad"][slot] = st.bad_records
+        v["link_resyncs"][slot] = st.resyncs
+        v["link_rate_hz"][slot] = st.rate_hz
+        v["link_age_s"][slot] = -1.0 if st.age_s is None else st.age_s
+        stale = st.age_s is None or st.age_s > FT_STALE_S
+        v["link_status"][slot] = LINK_OPEN | (LINK_STALE if stale else LINK_SYNCED)
+        if r is not None and r.t_s != v["ft_t_s"][()]:
+            v["ft_counts"][:] = r.counts
+            v["ft_force_n"][:] = r.force_n
+            v["ft_torque_nm"][:] = r.torque_nm
+            v["ft_status"][...] = r.status
+            v["ft_t_s"][...] = r.t_s
+            v["t_ft_s"][...] = r.t_s
+            self._sampled("ft", r.t_s)
+
+    def _put_hand(self, name: str, s) -> None:
+        v = self._v
+        i = self.layout.slot("hc", name)
+        v["hc_axes"][i] = s.axes
+        v["hc_deadman"][i] = s.deadman
+        v["hc_valid"][i] = s.valid
+        v["hc_fault"][i] = s.fault
+        v["hc_buttons"][i] = s.buttons
+        v["hc_t_s"][i] = s.t_s
+
+    def _task_hand(self) -> None:
+        if self._crl is not None and self._ft is None:
+            self._decode_serial()
+        if self._cae is not None and self._adc:
+            volts = self._adc[self._cae_adc][6]
+            self._put_hand("cae", self._cae.from_volts(volts[self._cae_idx], t_s=self._v["t_adc_s"][()]))
+        if self._crl_latest is not None:
+            self._put_hand("crl", self._crl_latest)
+            stats = self._crl.link_stats()
+            slot = self.layout.slot("link", "crl_hand_controller")
+            v = self._v
+            v["link_records"][slot] = stats["frames_ok"]
+            v["link_bad"][slot] = stats["frames_bad"]
+            v["link_resyncs"][slot] = stats["resyncs"]
+            v["link_status"][slot] = LINK_OPEN | (LINK_FAULT if stats["tripped"] else LINK_SYNCED)
+            self._sampled("crl", self._crl_latest.t_s)
+
+    def _task_pio(self) -> None:
+        v = self._v
+        t = self.clock.now()
+        for cfg, drv, slots in self._pio_in:
+            try:
+                word = drv.read_user_inputs()
+            except PfmaError as err:
+                self._input_failed(cfg.name, "pio", err)
+                continue
+            v["pio_user_inputs"][...] = word
+            v["pio_port_bits"][slots[0]] = word & 0xFF
+            v["pio_port_bits"][slots[1]] = word >> 8
+            self._input_ok(cfg.name, self._board_slot(cfg.name))
+            v["t_pio_s"][...] = t
+            self._sampled("pio", t)
+        if self._pio_out is not None:
+            route = int(self.commands.record["matrix_route"])
+            if route != self._matrix_applied:
+                cfg, drv, slots = self._pio_out
+                try:
+                    drv.write_matrix_route(route)
+                    self._matrix_applied = route
+                    v["matrix_route"][...] = route
+                    v["pio_port_bits"][slots[0]] = route & 0xFF
+                    self.post(Severity.INFO, 140, f"matrix switcher route 0x{route:02X}")
+                except (PfmaError, ValueError) as err:
+                    self._count_board_error(cfg.name, err)
+                    self._matrix_applied = route  # do not retry every frame; posted once
+                    self.post(Severity.ERROR, 141, f"{cfg.name}: matrix route 0x{route:02X} failed: {err}")
+
+    def _task_dac(self) -> None:
+        cmd = self.commands
+        cmd.read()
+        c = cmd.record
+        rates = c["joint_rate_rad_s"]
+        live = self.guard.update(int(c["heartbeat"]), bool(c["arm_request"]), int(c["rearm_counter"]),
+                                 bool(np.all(rates == 0.0)))
+        v = self._v
+        v["command_heartbeat"][...] = c["heartbeat"]
+        v["command_age_s"][...] = self.guard.heartbeat_age_s()
+        if self.guard.state == ServiceState.FAULT and self.state != ServiceState.FAULT:
+            if self.fault_code == FAULT_NONE:
+                self.fault_code = FAULT_WATCHDOG
+            v["watchdog_tripped"][...] = self.fault_code == FAULT_WATCHDOG
+        if not live:
+            self._apply_safe()
+            return
+        if not self._outputs_enabled:
+            self._dac.enable_outputs()  # the shadow holds the zeros written while safe
+            self._outputs_enabled = True
+            self.fault_code = FAULT_NONE
+            v["watchdog_tripped"][...] = 0
+        eng = self._dac_eng
+        eng[:] = 0.0
+        eng[self._cmd_rate_ch] = rates[: len(self._cmd_rate_ch)]
+        eng[self._cmd_limit_ch] = c["current_limit_a"][: len(self._cmd_limit_ch)]
+        if self._cmd_gripper_ch is not None:
+            eng[self._cmd_gripper_ch] = c["gripper"]
+        volts = self._dac_volts
+        np.divide(np.subtract(eng, self._dac_offset, out=volts), self._dac_scale, out=volts)
+        volts[~np.isfinite(volts)] = 0.0
+        r = self._dac.range_volts
+        status = self._dac_status
+        status[:] = 0
+        # a negative current limit means nothing to the amplifier: clamp to 0 (brakes set)
+        clipped = (np.abs(volts) > r) | (self._limit_mask & (volts < 0))
+        status[clipped] = DAC_CLIPPED
+        np.clip(volts, -r, r, out=volts)
+        volts[self._limit_mask & (volts < 0)] = 0.0
+        self._write_dac(volts, status, eng)
+
+    def _apply_safe(self) -> None:
+        self._dac_status[:] = DAC_FORCED_SAFE
+        self._dac_eng[:] = 0.0
+        if self.state == ServiceState.ARMED or self.guard.state == ServiceState.FAULT:
+            self.set_state(self.guard.state)
+        self._write_dac(self._dac_safe, self._dac_status, self._dac_eng)
+
+    def _write_dac(self, volts: np.ndarray, status: np.ndarray, eng: np.ndarray) -> None:
+        v = self._v
+        t = self.clock.now()
+        try:
+            self._dac.write_volts_all(volts, clamp=True)
+        except PfmaError as err:
+            self._count_board_error(self._dac_cfg.name, err)
+            self._devices["dac"].errors += 1
+            self.fault_code = FAULT_DAC
+            self.guard.trip(f"DAC write failed: {err}", code=FAULT_DAC)
+            return
+        slots = self._dac_slots
+        v["dac_counts"][slots] = self._dac.shadow_counts
+        v["dac_volts"][slots] = self._dac.shadow_volts
+        v["dac_value"][slots] = eng
+        v["dac_status"][slots] = status
+        v["outputs_enabled"][...] = self._outputs_enabled and self.guard.state == ServiceState.ARMED
+        v["brakes_released"][...] = bool(np.any(volts[self._cmd_limit_ch] > BRAKE_RELEASE_V)) and \
+            self._outputs_enabled
+        v["t_dac_s"][...] = t
+        self._sampled("dac", t)
+        if self.guard.state != self.state and self.state not in (ServiceState.STOPPED,):
+            self.set_state(self.guard.state)
+
+    def _publish(self, info: FrameInfo) -> None:
+        v = self._v
+        v["frame"][...] = info.index
+        v["t_s"][...] = info.t_wake
+        v["service_state"][...] = int(self.state)
+        v["fault_code"][...] = self.fault_code
+        self.inputs.publish()
+        self.buf.set_frame(info.index, info.t_wake)
+
+    # ------------------------------------------------------------------ between frames
+    def serial_tick(self, now: float) -> None:
+        """Drain the serial boards' receive FIFOs into the drivers' buffers (TickingClock
+        hook, between frames). Decoding happens in the F/T and hand tasks."""
+        if self._mvme400 is None:
+            return
+        cfg, drv = self._mvme400
+        try:
+            drv.poll()
+        except PfmaError as err:
+            self._count_board_error(cfg.name, err)
+
+    def _decode_serial(self) -> None:
+        if self._mvme400 is None:
+            return
+        try:
+            if self._ft is not None:
+                recs = self._ft.read_records()
+                if recs:
+                    self._ft_latest = recs[-1]
+            if self._crl is not None:
+                self._crl_latest = self._crl.update()
+        except PfmaError as err:
+            self._count_board_error(self._mvme400[0].name, err)
+
+    # ------------------------------------------------------------------ statistics
+    @staticmethod
+    def _cpu_s() -> float:
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return r.ru_utime + r.ru_stime
+
+    def publish_stats(self) -> dict:
+        """Compute loop and device statistics, publish them in the stats area, return them."""
+        now = self.clock.now()
+        s = self.loop_stats.summary()
+        rec = self._stats_rec
+        rec["frame"] = self.loop.k
+        rec["t_s"] = now
+        rec["frames"] = s["frames"]
+        rec["dropped_frames"] = s["dropped"]
+        rec["overruns"] = s["overruns"]
+        rec["stall_events"] = s["stalls"]
+        rec["window_frames"] = min(self.loop_stats.n, self.loop_stats.window)
+        rec["period_s"] = self.schedule.period_s
+        p = s["period_s"]["p50"]
+        rec["rate_hz"] = 1.0 / p if p and p > 0 and not math.isnan(p) else 0.0
+        for n in ("p50", "p99", "p999", "max"):
+            rec[f"wake_latency_{n}_us"] = s["wake_latency_s"][n] * 1e6
+        for n in ("p50", "p99", "max"):
+            rec[f"work_{n}_us"] = s["work_s"][n] * 1e6
+        wall = now - self._wall0
+        rec["cpu_percent"] = 100.0 * (self._cpu_s() - self._cpu0) / wall if wall > 0 and \
+            not getattr(self.clock, "simulated", False) else 0.0
+        rec["gc_gen2"] = gc.get_stats()[2]["collections"] - self._gc_gen2_0
+        out = {"loop": s, "devices": {}}
+        for name, d in self._devices.items():
+            if not math.isnan(d.window_t0) and d.t_last > d.window_t0:
+                d.rate_hz = (d.samples - d.window_samples) / (d.t_last - d.window_t0)
+            d.window_samples, d.window_t0 = d.samples, d.t_last
+            slot = self.layout.slot("device", name)
+            rec["device_rate_hz"][slot] = d.rate_hz
+            rec["device_t_s"][slot] = d.t_last if not math.isnan(d.t_last) else 0.0
+            rec["device_samples"][slot] = d.samples
+            rec["device_errors"][slot] = d.errors
+            out["devices"][name] = {"rate_hz": d.rate_hz, "samples": d.samples, "errors": d.errors}
+        self.stats_writer.publish()
+        return out
+
+    # ------------------------------------------------------------------ running
+    def run(self, duration_s: float | None = None, frames: int | None = None) -> LoopStats:
+        """Run the frame loop; outputs are made safe and disconnected however it ends."""
+        hook = getattr(self.clock, "hooks", None)
+        if hook is not None and self.serial_tick not in hook:
+            hook.append(self.serial_tick)
+        try:
+            return self.loop.run(frames=frames, duration_s=duration_s)
+        finally:
+            self.stop()
+
+    def install_signal_handlers(self) -> None:
+        """SIGINT/SIGTERM end the loop after the current frame; outputs then go safe."""
+        def handler(signum, _frame):
+            self.loop.stop()
+        signal.signal(signal.SIGINT, handler)
+        signal.signal(signal.SIGTERM, handler)
+
+    def stop(self, reason: str = "service stopped") -> None:
+        """Outputs to 0 V and disconnected, state STOPPED, message posted (idempotent)."""
+        if self.state == ServiceState.STOPPED:
+            return
+        self.guard.stop(reason)
+        try:
+            self._dac.disable_outputs()
+        except PfmaError as err:
+            self.post(Severity.ERROR, 150, f"could not disable DAC outputs: {err}")
+        self._outputs_enabled = False
+        self._dac_status[:] = DAC_FORCED_SAFE
+        self._dac_eng[:] = 0.0
+        slots = self._dac_slots
+        self._v["dac_counts"][slots] = self._dac.shadow_counts
+        self._v["dac_volts"][slots] = self._dac.shadow_volts
+        self._v["dac_value"][slots] = 0.0
+        self._v["outputs_enabled"][...] = 0
+        self._v["brakes_released"][...] = 0
+        self.set_state(ServiceState.STOPPED)
+        self.publish_stats()
+        self.inputs.publish()
+        if self._ft is not None:
+            try:
+                self._ft.stop_stream()
+            except PfmaError:
+                pass
+        self.post(Severity.INFO, 151, f"{reason} (pid {os.getpid()})")
