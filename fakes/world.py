@@ -32,6 +32,8 @@ class FakeWorld:
         self.clock = clock if clock is not None else SimClock()
         self.sim = SimulatedRack(self.rack_config, clock=self.clock, **sim_kwargs)
         self.bus = self.sim.fake_rack
+        for board in self.bus.boards.values():  # a long-running world keeps no traffic log
+            board.log_traffic = False
         self.max_step_s = max_step_s
         self.min_step_s = min_step_s
         self.ft = FakeFtController()

@@ -311,6 +311,7 @@ class IoService:
         """One minor frame: inputs due in this frame (and in frames just dropped), then the
         DAC, then one consistent publish of the input area."""
         k = info.index
+        self.serial_tick(info.t_wake)  # the 3-deep serial FIFOs: drain on both sides of the work
         mask = self._frame_masks[k % MINOR_FRAMES_PER_MAJOR]
         for j in range(1, min(info.missed, MINOR_FRAMES_PER_MAJOR) + 1):
             mask |= self._frame_masks[(k - j) % MINOR_FRAMES_PER_MAJOR]
@@ -331,6 +332,7 @@ class IoService:
             self.guard.trip(f"unexpected {type(err).__name__} in frame {k}: {err}", code=FAULT_UNEXPECTED)
             self._apply_safe()
         self._publish(info)
+        self.serial_tick(info.t_wake)
         if k % self.stats_every == 0:
             self.publish_stats()
 

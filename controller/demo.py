@@ -1,0 +1,75 @@
+"""A tiny demonstration controller for ``make run``: arms the simulated arm and
+swings the wrist roll and shoulder yaw slowly back and forth.
+
+It is an ordinary commanding process: it claims the Bit3 buffer's command area,
+writes joint rate commands and current limits with a heartbeat at 100 Hz, and
+disarms (rates 0, limits 0, arm request off) when it ends. The real controller
+layers replace it.
+
+Run: ``python -m controller.demo --buffer pfma --duration 30``
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+from ioservice.client import Client
+
+#: current limits while armed (A): enough to release the brakes and hold the arm
+DEMO_CURRENT_LIMIT_A = (5.0, 5.0, 5.0, 2.5, 2.5, 2.5, 0.0)
+#: joint rate amplitude (rad/s) and period (s) of the swing, per command-area joint
+SWING = {"wrist_roll": (0.3, 6.0), "shoulder_yaw": (0.05, 10.0)}
+
+
+def run(buffer: str = "pfma", duration_s: float = 30.0, rate_hz: float = 100.0,
+        wait_s: float = 10.0) -> int:
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            c = Client.attach(buffer, writer="commands", owner="demo-controller")
+            break
+        except Exception as err:  # the service may not have created the buffer yet
+            if time.monotonic() > deadline:
+                print(f"demo controller: cannot attach to Bit3 buffer {buffer!r}: {err}", file=sys.stderr)
+                return 1
+            time.sleep(0.1)
+    joints = list(c.layout.joint_names)
+    period = 1.0 / rate_hz
+    rates = [0.0] * len(joints)
+    try:
+        # power-up sequence (pfma-model 8.4): rate 0 V first, then raise the current limits
+        c.write_commands(joint_rate_rad_s=rates, current_limit_a=DEMO_CURRENT_LIMIT_A,
+                         arm_request=1, rearm_counter=1)
+        t0 = time.monotonic()
+        k = 0
+        while time.monotonic() - t0 < duration_s:
+            t = k * period
+            if t > 0.5:  # let the service arm first (rates must be 0 when arming)
+                for name, (amp, per) in SWING.items():
+                    if name in joints:
+                        rates[joints.index(name)] = amp * math.sin(2 * math.pi * (t - 0.5) / per)
+            c.write_commands(joint_rate_rad_s=rates, current_limit_a=DEMO_CURRENT_LIMIT_A,
+                             arm_request=1)
+            k += 1
+            time.sleep(max(0.0, t0 + k * period - time.monotonic()))
+    except KeyboardInterrupt:
+        pass
+    finally:
+        c.write_commands(joint_rate_rad_s=[0.0] * len(joints), current_limit_a=[0.0] * 7, arm_request=0)
+        c.close()
+    return 0
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--buffer", default="pfma")
+    p.add_argument("--duration", type=float, default=30.0)
+    a = p.parse_args(argv)
+    return run(a.buffer, a.duration)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,148 @@
+"""``pfma serve``: run the data-acquisition service (the main job).
+
+On the simulated rack (``--rack fake``, the default) the register-level fakes,
+the arm model, the F/T sensor and the CRL hand controller run in this process in
+real time; on hardware, ``--rack FILE.toml --bus URL`` names the rack and the bus.
+The Bit3 buffer is POSIX shared memory ``/dev/shm/NAME``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import threading
+import time
+
+from ioservice.layout import ServiceState, build_layout, default_layout
+from ioservice.schedule import Schedule
+from ioservice.shm import Bit3Buffer, Bit3Error
+from ioservice.ticking import TickingClock
+from pfma.clock import MonotonicClock
+from pfma.rack import load_rack
+
+LIVE_SIGNALS = ("shoulder_yaw_angle", "shoulder_pitch_angle", "elbow_pitch_angle", "wrist_pitch_angle",
+                "wrist_yaw_angle", "wrist_roll_angle")
+
+
+def add_parser(sub):
+    p = sub.add_parser("serve", help="run the data-acquisition service",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--rack", default="fake", help="fake (simulated rack, default) or a rack TOML")
+    p.add_argument("--bus", default=None, help="register bus for a real rack (modbus://H:P, file:PATH)")
+    p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
+    p.add_argument("--duration", type=float, default=None, help="seconds to run (default: until Ctrl-C)")
+    p.add_argument("--modbus", default=None, metavar="HOST:PORT", help="export the buffer over Modbus TCP")
+    p.add_argument("--modbus-writes", action="store_true", help="let Modbus clients write the command area")
+    p.add_argument("--frame-rate", type=float, default=320.0, help="minor-frame rate (320 default; 1000 fast)")
+    p.add_argument("--watchdog-ms", type=float, default=15.0, help="command heartbeat time-out (15 ms)")
+    p.add_argument("--live", action="store_true", help="print a live channel view twice a second")
+    p.add_argument("--demo", action="store_true",
+                   help="also start the demo controller (a separate process) that arms and swings the arm")
+    p.add_argument("--realtime", action="store_true", help="try SCHED_FIFO and a pinned CPU (needs privileges)")
+    return p
+
+
+def _live_view(buffer_name: str, stop: threading.Event, rack) -> None:
+    from ioservice.client import Client
+    try:
+        c = Client.attach(buffer_name, rack=None if rack.source.endswith("rack_default.toml") else rack.source)
+    except Bit3Error as err:
+        print(f"live view: {err}", file=sys.stderr)
+        return
+    names = [n for n in LIVE_SIGNALS if any(ch.name == n for ch in c.layout.channels)]
+    try:
+        while not stop.wait(0.5):
+            s = c.read_inputs()
+            st = c.read_stats()
+            angles = " ".join(f"{s.value(n):+6.3f}" for n in names)
+            f = s.ft_force_n
+            rates = st.device_rate_hz
+            print(f"t={s.t_s:8.2f}s frame={s.frame:7d} {ServiceState(s.service_state).name:7s} "
+                  f"q[rad] {angles}  F[N] {f[0]:+6.1f} {f[1]:+6.1f} {f[2]:+6.1f}  "
+                  f"rates rtd/adc/dac/ft {rates[0]:.0f}/{rates[1]:.0f}/{rates[2]:.0f}/{rates[3]:.0f} Hz "
+                  f"work p50 {st.work_p50_us:.0f} us", flush=True)
+            for m in c.new_messages():
+                print("   ", m.format(), flush=True)
+    finally:
+        c.close()
+
+
+def run(args) -> int:
+    from ioservice.service import IoService
+    from ioservice.loop import realtime_setup
+    rack = load_rack(args.rack)
+    layout = default_layout() if args.rack in ("fake", "default") else build_layout(rack)
+    base = MonotonicClock()
+    clock = TickingClock(base)
+    world = None
+    if args.rack == "fake" and args.bus in (None, "fake"):
+        from fakes.world import FakeWorld
+        world = FakeWorld(rack, clock=base)
+        bus = world.bus
+        clock.hooks.append(world.tick)
+    else:
+        from drivers.bus import open_bus
+        bus = open_bus(args.bus or "fake")
+    if args.realtime:
+        for w in realtime_setup(cpu=os.cpu_count() - 1 if os.cpu_count() else None):
+            print(f"pfma serve: {w}", file=sys.stderr)
+    Bit3Buffer.unlink(args.buffer) if _stale(args.buffer) else None
+    buf = Bit3Buffer.create(args.buffer, layout, exist_ok=True)
+    schedule = Schedule() if args.frame_rate == 320.0 else Schedule.scaled(args.frame_rate)
+    svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3)
+    for e in svc.init_errors:
+        print(f"pfma serve: {e}", file=sys.stderr)
+    svc.install_signal_handlers()
+    export = None
+    if args.modbus:
+        from ioservice.modbus_export import start_export_from_args
+        export = start_export_from_args(args.buffer, args.modbus, args.modbus_writes)
+        print(f"pfma serve: Modbus TCP export on {args.modbus}"
+              f"{' (command writes allowed)' if args.modbus_writes else ' (read-only)'}")
+    stop = threading.Event()
+    viewer = demo = None
+    print(f"pfma serve: {rack.name} on {'the simulated rack' if world else args.bus}, buffer "
+          f"/dev/shm/{args.buffer}, {schedule.frame_rate_hz:g} Hz frames; Ctrl-C stops "
+          f"(outputs go to 0 V)", flush=True)
+    if args.live:
+        viewer = threading.Thread(target=_live_view, args=(args.buffer, stop, rack), daemon=True)
+        viewer.start()
+    if args.demo:
+        demo = subprocess.Popen([sys.executable, "-m", "controller.demo", "--buffer", args.buffer,
+                                 "--duration", str(args.duration or 3600)])
+    try:
+        svc.run(duration_s=args.duration)
+    finally:
+        stop.set()
+        if demo is not None:
+            demo.terminate()
+            demo.wait(5)
+        if viewer is not None:
+            viewer.join(2)
+        if export is not None:
+            export.stop()
+        s = svc.publish_stats()
+        loop = s["loop"]
+        print(f"pfma serve: stopped after {loop['frames']} frames, {loop['dropped']} dropped, "
+              f"{loop['overruns']} overruns; work p50 {loop['work_s']['p50'] * 1e6:.0f} us, "
+              f"p99 {loop['work_s']['p99'] * 1e6:.0f} us; wake latency p50 "
+              f"{loop['wake_latency_s']['p50'] * 1e6:.0f} us; device rates "
+              + ", ".join(f"{k} {v['rate_hz']:.1f} Hz" for k, v in s["devices"].items() if v["samples"]))
+        buf.release()
+        buf.close()
+    return 0
+
+
+def _stale(name: str) -> bool:
+    """A buffer left by a service that is gone (its owner pid is dead)."""
+    try:
+        b = Bit3Buffer.attach(name, readonly=True)
+    except Exception:  # noqa: BLE001 - wrong layout, partial file: treat as stale
+        return os.path.exists(f"/dev/shm/{name}")
+    try:
+        owner = b.owner("inputs")
+        return not owner.alive
+    finally:
+        b.close()

@@ -1,0 +1,139 @@
+"""The data-acquisition service on the simulated rack, in simulated time."""
+
+import numpy as np
+import pytest
+
+from ioservice.layout import ServiceState
+from ioservice.service import DAC_FORCED_SAFE, FAULT_INPUTS, FAULT_WATCHDOG
+
+P = 1 / 320
+
+
+def test_inputs_refresh_at_documented_rates(rig):
+    rig.run(2.0)
+    rig.svc.publish_stats()
+    st = rig.reader.read_stats()
+    rate = {n: st.device_rate_hz[rig.reader.layout.slot("device", n)] for n in ("rtd", "adc", "dac", "ft", "crl")}
+    assert rate["rtd"] == pytest.approx(160, rel=0.01)
+    assert rate["adc"] == pytest.approx(160, rel=0.01)
+    assert rate["dac"] == pytest.approx(320, rel=0.01)
+    assert rate["ft"] == pytest.approx(80, rel=0.01)
+    assert rate["crl"] == pytest.approx(80, rel=0.01)
+    s = rig.reader.read_inputs()
+    # the resolver sample matches the simulated arm (wrapped to 0..2 pi, 14-bit)
+    truth = rig.world.sim.resolver_angles_rad()
+    got = np.array([s.value(n) for n in ("shoulder_yaw_angle", "shoulder_pitch_angle", "elbow_pitch_angle",
+                                         "wrist_pitch_angle", "wrist_yaw_angle", "wrist_roll_angle")])
+    assert np.allclose(got, truth, atol=2 * 2 * np.pi / 16384)
+    # F/T: the tool's weight (1.5 kg) in the sensor frame, through the MVME400 at 19200 baud
+    assert np.linalg.norm(s.ft_force_n) == pytest.approx(1.5 * 9.81, rel=0.05)
+    link = rig.reader.layout.slot("link", "ft_sensor")
+    assert s.link_records[link] > 200 and s.link_bad[link] <= 2
+    assert s.t_ft_s > s.t_s - 0.03  # fresh
+
+
+def test_outputs_start_disconnected_and_zero(rig):
+    rig.run(0.1)
+    dac = rig.world.bus["dac"]
+    assert not dac.outputs_connected
+    assert np.all(dac.output_volts_all() == 0.0)
+    s = rig.reader.read_inputs()
+    assert s.service_state == ServiceState.SAFE and not s.outputs_enabled
+
+
+def _arm(rig, rates=None, limits=(5, 5, 5, 2.5, 2.5, 2.5, 0)):
+    ctl = rig.controller()
+    state = {"rates": [0.0] * 6}
+
+    def command(info):
+        ctl.write_commands(joint_rate_rad_s=state["rates"], current_limit_a=limits, arm_request=1)
+    rig.on_frame.append(command)
+    rig.run(0.05)
+    assert rig.reader.read_inputs().service_state == ServiceState.ARMED
+    return ctl, state, command
+
+
+def test_armed_rate_command_moves_the_joint(rig):
+    ctl, state, _ = _arm(rig)
+    joints = list(rig.reader.layout.joint_names)
+    state["rates"][joints.index("shoulder_yaw")] = 0.1
+    q0 = rig.world.sim.true_state().q[0]
+    rig.run(1.0)
+    q1 = rig.world.sim.true_state().q[0]
+    assert 0.07 < q1 - q0 < 0.11  # ~0.1 rad/s after the rate loop's rise
+    dac = rig.world.bus["dac"]
+    ch = rig.svc.rack.channel("shoulder_yaw_command").channel
+    assert dac.output_volts(ch) == pytest.approx(0.1 * 25, abs=0.01)  # K_w = 25 V per rad/s
+    s = rig.reader.read_inputs()
+    assert s.value("shoulder_yaw_rate") == pytest.approx(0.1, rel=0.1)  # tach via the ADC
+
+
+def test_dead_controller_makes_outputs_safe_within_watchdog_plus_one_frame(rig):
+    ctl, state, command = _arm(rig)
+    joints = list(rig.reader.layout.joint_names)
+    state["rates"][joints.index("wrist_roll")] = 0.5
+    rig.run(0.2)
+    dac = rig.world.bus["dac"]
+    ch = rig.svc.rack.channel("wrist_roll_command").channel
+    assert dac.output_volts(ch) != 0
+    t_dead = rig.clock.now()
+    rig.on_frame.remove(command)  # the controller dies: no more heartbeats
+    times = []
+
+    def watch(info):
+        if not times and np.all(dac.output_volts_all() == 0.0):
+            times.append(rig.clock.now())
+    rig.on_frame.append(watch)
+    rig.run(0.1)
+    assert times, "outputs never went to 0 V"
+    # the service writes 0 V in the frame it detects the stale heartbeat; `watch` sees it
+    # at the start of the next frame
+    assert times[0] - t_dead <= 0.015 + 2 * P
+    s = rig.reader.read_inputs()
+    assert s.service_state == ServiceState.FAULT and s.fault_code == FAULT_WATCHDOG
+    assert np.all(s.dac_status[:16] == DAC_FORCED_SAFE)
+    assert any("stale" in m.text for m in rig.reader.messages())
+    # heartbeats come back with the old request: stays safe; nothing jumps to the old setpoint
+    rig.on_frame.append(command)
+    rig.run(0.1)
+    assert rig.reader.read_inputs().service_state == ServiceState.FAULT
+    assert np.all(dac.output_volts_all() == 0.0)
+
+
+def test_stop_disconnects_outputs(rig):
+    _arm(rig)
+    rig.svc.stop()
+    dac = rig.world.bus["dac"]
+    assert not dac.outputs_connected and np.all(dac.output_volts_all() == 0.0)
+    assert rig.reader.read_inputs().service_state == ServiceState.STOPPED
+
+
+def test_resolver_board_failure_is_counted_then_trips(rig):
+    _arm(rig)
+    rig.world.bus["rtd1"].inject("no_answer")
+    rig.run(0.05)
+    s = rig.reader.read_inputs()
+    slot = rig.reader.layout.slot("board", "rtd1")
+    assert s.board_errors[slot] >= 3 and s.board_last_error_addr[slot] == 0x0100
+    assert s.service_state == ServiceState.FAULT and s.fault_code == FAULT_INPUTS
+    assert any("rtd1" in m.text for m in rig.reader.messages())
+
+
+def test_user_inputs_and_matrix_route(rig):
+    ctl = rig.controller()
+    rig.world.set_user_inputs(0xA55A)
+    ctl.write_commands(matrix_route=0b0110)
+    rig.run(0.1)
+    s = rig.reader.read_inputs()
+    assert s.pio_user_inputs == 0xA55A
+    assert s.matrix_route == 0b0110
+    assert rig.world.bus["pio_video"].route == 0b0110
+
+
+def test_cae_stick_reaches_hand_controller_slot(rig):
+    rig.world.set_cae([5.0, 0, 0, 0, 0, 0], (True, False, False))
+    rig.run(0.1)
+    s = rig.reader.read_inputs()
+    i = rig.reader.layout.slot("hc", "cae")
+    assert s.hc_valid[i] and s.hc_deadman[i]
+    assert s.hc_axes[i][2] > 0.1  # up/down -> z
