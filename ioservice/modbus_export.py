@@ -37,6 +37,8 @@ must not import fakes, so it is written once more here as :class:`ModbusServerTh
 from __future__ import annotations
 
 import asyncio
+import inspect
+import ipaddress
 import logging
 import threading
 from dataclasses import dataclass
@@ -50,6 +52,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from ioservice.client import PRIMARY_FIELD, Client
 from ioservice.layout import Layout, default_layout
+from ioservice.safety import OutputGuard
 from ioservice.shm import Bit3Buffer, Bit3Error
 from pfma.errors import ConfigError, PfmaError
 
@@ -77,8 +80,9 @@ MAP_VERSION = 1
 CHANNEL_KINDS = ("rtd", "adc", "dac", "pio")
 #: command fields the export sets itself; writing them is accepted as a keep-alive only
 KEEPALIVE_FIELDS = ("heartbeat", "t_s")
-#: the service's default command watchdog (ioservice/safety.py OutputGuard: MVME 104, 15 ms)
-SERVICE_WATCHDOG_S = 0.015
+#: the service's default command watchdog, taken from ioservice/safety.py OutputGuard (the
+#: MVME 104's 15 ms, IRSS report 3.4.2) so that the generated map follows the service
+SERVICE_WATCHDOG_S: float = inspect.signature(OutputGuard).parameters["watchdog_s"].default
 #: Modbus limit on registers per read (fc 3/4)
 MAX_READ_REGISTERS = 125
 DEFAULT_PORT = 5020
@@ -325,7 +329,7 @@ def modbus_map_markdown(layout: Layout | None = None) -> str:
         "",
         f"**Watchdog.** When the service is ARMED it trips the outputs to 0 V (FAULT; brakes "
         f"set) if the command heartbeat does not change for longer than its watchdog, "
-        f"{wd_ms:.0f} ms by default (the MVME 104's). A Modbus HMI that commands the arm "
+        f"{wd_ms:.0f} ms by default (the MVME 104's; `ioservice/safety.py`). A Modbus HMI that commands the arm "
         f"must therefore write (for example the heartbeat register) at least every "
         f"{wd_ms:.0f} ms, with every request answered in time, for as long as the arm is "
         "armed. A Modbus/TCP round trip on a plant network does not reliably meet that. "
@@ -639,6 +643,9 @@ class ModbusExport:
             raise
         log.info("Modbus export of Bit3 buffer %s on %s:%d (writes %s)", self.buffer_name,
                  self.host, self.port, "allowed" if self.allow_writes else "refused")
+        if self.allow_writes and not _is_loopback(self.host):
+            log.warning("Modbus export on %s:%d accepts command writes from the network "
+                        "(no authentication in Modbus TCP)", self.host, self.port)
         return self
 
     def stop(self, timeout_s: float = 5.0) -> None:
@@ -759,6 +766,15 @@ class ModbusExport:
 
 # ----------------------------------------------------------------------------------------
 # command-line helper
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 
 def parse_host_port(host_port: str, default_host: str = "127.0.0.1") -> tuple[str, int]:

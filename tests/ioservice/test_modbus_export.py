@@ -217,6 +217,20 @@ def test_multi_register_reads_are_never_torn(buf, shm_name, mp):
             child.kill()
 
 
+def test_a_writer_stuck_mid_write_answers_device_failure(service, mb):
+    """A writer that died inside a write leaves the counter odd: the read gives up after
+    the buffer's bounded reader time-out (0.1 s) with exception 4; other areas still read."""
+    lock = service.lock("inputs")
+    lock.begin()
+    try:
+        rr = mb.read_input_registers(0, count=4, device_id=1)
+        assert rr.isError() and rr.exception_code == 4
+        assert value(mb, "rate_hz") == 333.25
+    finally:
+        lock.end()
+    assert value(mb, "frame", area="inputs") == 123456789012
+
+
 # --- holding registers -----------------------------------------------------------------
 
 
