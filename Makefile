@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(BIN)/pfma run-demo
+	$(BIN)/pfma serve --rack fake --live --demo
 
 test: $(STAMP)
 	$(BIN)/python -m pytest

@@ -41,8 +41,9 @@ def run(buffer: str = "pfma", duration_s: float = 30.0, rate_hz: float = 100.0,
     rates = [0.0] * len(joints)
     try:
         # power-up sequence (pfma-model 8.4): rate 0 V first, then raise the current limits
+        # a new arm request: the service never re-arms on a request it has already seen
         c.write_commands(joint_rate_rad_s=rates, current_limit_a=DEMO_CURRENT_LIMIT_A,
-                         arm_request=1, rearm_counter=1)
+                         arm_request=1, rearm_counter=int(c.command["rearm_counter"]) + 1)
         t0 = time.monotonic()
         k = 0
         while time.monotonic() - t0 < duration_s:

@@ -40,6 +40,7 @@ class LoopStats:
         self.overrun_run = 0  #: current run of consecutive overruns
         self.longest_overrun_run = 0
         self.stalls = 0  #: wake-ups more than 10 periods late
+        self.gc_gen2_at_start = gc.get_stats()[2]["collections"]  #: reset when a run starts
         self._last_wake = math.nan
 
     def record(self, wake_latency_s: float, t_wake: float, work_s: float, overrun: bool) -> None:
@@ -61,7 +62,8 @@ class LoopStats:
         """p50/p99/p99.9/max of wake latency, period and work (seconds), and the counters."""
         m = min(self.n, self.window)
         out = {"frames": self.n, "dropped": self.dropped, "overruns": self.overruns,
-               "longest_overrun_run": self.longest_overrun_run, "stalls": self.stalls}
+               "longest_overrun_run": self.longest_overrun_run, "stalls": self.stalls,
+               "gc_gen2_in_loop": gc.get_stats()[2]["collections"] - self.gc_gen2_at_start}
         for name, ring in (("wake_latency_s", self.wake_latency_s), ("period_s", self.period_s),
                            ("work_s", self.work_s)):
             data = ring[:m]
@@ -125,6 +127,7 @@ class FrameLoop:
             gc.collect()
             gc.freeze()
             gc.disable()
+        stats.gc_gen2_at_start = gc.get_stats()[2]["collections"]
         if self.t0 is None:
             self.t0 = clock.now()
         end_k = None if frames is None else self.k + frames

@@ -4,15 +4,16 @@ Rules (issue "data-acquisition service", item 3; MVME 104 watchdog 15 ms, IRSS 3
 
 - Outputs start **SAFE**: DAC outputs disconnected from the field (P3 off) and every
   channel at 0 V. The arm is enabled only by an explicit command.
-- **Arming** needs all of: the command area's ``arm_enable`` set, a *new* arm
-  request (the controller increments ``arm_request``; an old request never arms
-  again), a fresh command heartbeat, and every joint rate command at zero. So
+- **Arming** needs all of: the command area's ``arm_request`` set (``arm_enable``
+  below), a *new* request number (the controller increments ``rearm_counter``,
+  ``arm_request`` below; a number already used never arms again), a fresh command
+  heartbeat, and every joint rate command at zero. So
   nothing jumps to a stale setpoint on (re-)arm.
 - **Tripping**: in ARMED, a command heartbeat that has not changed for longer than
   the watchdog time, or a fault the service cannot explain, latches **FAULT**: every
   joint command and every current limit goes to 0 V (a current limit below 0.3 V
   sets the brakes), the event is posted to the message queue, and outputs stay
-  safe until an explicit re-arm. ``arm_enable`` cleared by the controller disarms
+  safe until an explicit re-arm. ``arm_request`` cleared by the controller disarms
   to SAFE (an orderly stop, not a fault).
 - The heartbeat is judged on the **service's** clock: the service notes when it
   last saw the heartbeat counter change, so the two processes' clocks never need to

@@ -118,7 +118,6 @@ class IoService:
         self._wire_cae()
         self._cpu0 = self._cpu_s()
         self._wall0 = clock.now()
-        self._gc_gen2_0 = gc.get_stats()[2]["collections"]
         self.stats_every = max(1, int(round(self.schedule.frame_rate_hz / 2)))  # twice a second
         self.set_state(ServiceState.SAFE)
         self.post(Severity.INFO, 100, f"service started: {rack.name}, "
@@ -592,7 +591,7 @@ class IoService:
         wall = now - self._wall0
         rec["cpu_percent"] = 100.0 * (self._cpu_s() - self._cpu0) / wall if wall > 0 and \
             not getattr(self.clock, "simulated", False) else 0.0
-        rec["gc_gen2"] = gc.get_stats()[2]["collections"] - self._gc_gen2_0
+        rec["gc_gen2"] = s["gc_gen2_in_loop"]
         out = {"loop": s, "devices": {}}
         for name, d in self._devices.items():
             if not math.isnan(d.window_t0) and d.t_last > d.window_t0:
