@@ -26,10 +26,65 @@ def add_parser(sub):
     p.add_argument("signals", nargs="+", metavar="SIGNAL", help="signal name(s), see `pfma channels`")
     p.add_argument("--json", action="store_true", help="one JSON list with an object per signal")
     add_bus_arguments(p)
+    p.set_defaults(bus=None)  # None: a running service's buffer if there is one, else the fake rack
+    p.add_argument("--buffer", default="pfma",
+                   help="when a service is running on this Bit3 buffer (and --bus is not given), "
+                        "read its latest published values instead of the registers (default pfma)")
     return p
 
 
+def _service_client(name: str):
+    """A read-only client of a running service's buffer, or None."""
+    try:
+        from ioservice.client import Client
+        from ioservice.layout import ServiceState
+        c = Client.attach(name)
+    except Exception:  # noqa: BLE001 - no buffer, other layout: read the registers instead
+        return None
+    if c.service_state == ServiceState.STOPPED or not c.owners()["inputs"].alive:
+        c.close()
+        return None
+    return c
+
+
+def _read_buffer(client, signals, as_json: bool) -> int:
+    snap = client.read_inputs()
+    rows, failures = [], 0
+    for signal in signals:
+        row: dict = {"signal": signal}
+        try:
+            entry = next(e for e in client.layout.channels if e.name == signal and e.area == "inputs")
+            value = snap.value(signal)
+            value = value.tolist() if hasattr(value, "tolist") else value
+            row.update(board=entry.board, channel=entry.channel, value=value, units=entry.units,
+                       note=f"from the service (frame {snap.frame})")
+        except StopIteration:
+            failures += 1
+            row["error"] = f"no channel named {signal!r} in the service's Bit3 layout"
+            if not as_json:
+                print(f"pfma read: {signal}: {row['error']}", file=sys.stderr)
+        rows.append(row)
+    if as_json:
+        print(json.dumps(rows, indent=1))
+    else:
+        for row in rows:
+            if "error" not in row:
+                v = row["value"]
+                shown = f"{v:.6g}" if isinstance(v, float) else str(v)
+                print(f"{row['signal']:32} {shown:>14} {row['units']:6} {row['board']} ch {row['channel']}  "
+                      f"{row['note']}")
+    return 1 if failures else 0
+
+
 def run(args) -> int:
+    if args.bus is None:
+        client = _service_client(args.buffer)
+        if client is not None:
+            try:
+                return _read_buffer(client, args.signals, args.json)
+            finally:
+                client.close()
+        args.bus = "fake"
     rack = load_rack(args.rack)
     try:
         bus = open_cli_bus(args.bus, rack)
