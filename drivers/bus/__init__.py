@@ -11,7 +11,7 @@ Backends are opened by URL, as pyserial opens ports:
 - ``fake`` or ``fake://``: the register-level fake rack (``fakes.rack``)
 - ``modbus://HOST:PORT[?unit=N&timeout=S]``: a Modbus TCP gateway where holding
   register N is the 16-bit word at A16 address 2N (``drivers.bus.modbus``)
-- ``file:PATH[?offset=N]``: an mmap of a VME A16 window exposed as a device file
+- ``file:PATH[?size=N&offset=N&base=N]``: an mmap of a VME A16 window exposed as a device file
   (``drivers.bus.devicefile``)
 - ``spy+URL``: any of the above, logging every access (``drivers.bus.spy``)
 """
