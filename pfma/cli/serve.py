@@ -36,6 +36,8 @@ def add_parser(sub):
     p.add_argument("--modbus", default=None, metavar="HOST:PORT", help="export the buffer over Modbus TCP")
     p.add_argument("--modbus-writes", action="store_true", help="let Modbus clients write the command area")
     p.add_argument("--frame-rate", type=float, default=320.0, help="minor-frame rate (320 default; 1000 fast)")
+    p.add_argument("--schedule", default=None, metavar="FILE.toml",
+                   help="acquisition schedule: a [schedule] table (frame_rate_hz, tasks.NAME = {divider, phase})")
     p.add_argument("--watchdog-ms", type=float, default=15.0, help="command heartbeat time-out (15 ms)")
     p.add_argument("--live", action="store_true", help="print a live channel view twice a second")
     p.add_argument("--demo", action="store_true",
@@ -90,7 +92,16 @@ def run(args) -> int:
             print(f"pfma serve: {w}", file=sys.stderr)
     Bit3Buffer.unlink(args.buffer) if _stale(args.buffer) else None
     buf = Bit3Buffer.create(args.buffer, layout, exist_ok=True)
-    schedule = Schedule() if args.frame_rate == 320.0 else Schedule.scaled(args.frame_rate)
+    if args.schedule:
+        import tomllib
+        from pfma.errors import ConfigError
+        try:
+            with open(args.schedule, "rb") as f:
+                schedule = Schedule.from_config(tomllib.load(f).get("schedule", {}))
+        except (OSError, tomllib.TOMLDecodeError) as err:
+            raise ConfigError(f"schedule file {args.schedule}: {err}") from err
+    else:
+        schedule = Schedule() if args.frame_rate == 320.0 else Schedule.scaled(args.frame_rate)
     svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3)
     for e in svc.init_errors:
         print(f"pfma serve: {e}", file=sys.stderr)
