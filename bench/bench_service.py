@@ -23,6 +23,7 @@ import uuid
 import numpy as np
 
 from ioservice.client import Client
+from ioservice.shm import Bit3Buffer
 
 
 def _cpu_s(pid: int) -> float:
@@ -71,6 +72,7 @@ def loop_figures(rate: float, seconds: float) -> dict:
         return out
     finally:
         p.wait(30)
+        Bit3Buffer.unlink(name)
 
 
 def watchdog_figures(trials: int = 5) -> list[dict]:
@@ -113,6 +115,7 @@ def watchdog_figures(trials: int = 5) -> list[dict]:
     finally:
         p.send_signal(signal.SIGINT)
         p.wait(30)
+        Bit3Buffer.unlink(name)
     return results
 
 

@@ -74,6 +74,16 @@ def _live_view(buffer_name: str, stop: threading.Event, rack) -> None:
 def run(args) -> int:
     from ioservice.service import IoService
     from ioservice.loop import realtime_setup
+    if args.schedule:
+        import tomllib
+        from pfma.errors import ConfigError
+        try:
+            with open(args.schedule, "rb") as f:
+                schedule = Schedule.from_config(tomllib.load(f).get("schedule", {}))
+        except (OSError, tomllib.TOMLDecodeError) as err:
+            raise ConfigError(f"schedule file {args.schedule}: {err}") from err
+    else:
+        schedule = Schedule() if args.frame_rate == 320.0 else Schedule.scaled(args.frame_rate)
     rack = load_rack(args.rack)
     layout = default_layout() if args.rack in ("fake", "default") else build_layout(rack)
     base = MonotonicClock()
@@ -92,16 +102,6 @@ def run(args) -> int:
             print(f"pfma serve: {w}", file=sys.stderr)
     Bit3Buffer.unlink(args.buffer) if _stale(args.buffer) else None
     buf = Bit3Buffer.create(args.buffer, layout, exist_ok=True)
-    if args.schedule:
-        import tomllib
-        from pfma.errors import ConfigError
-        try:
-            with open(args.schedule, "rb") as f:
-                schedule = Schedule.from_config(tomllib.load(f).get("schedule", {}))
-        except (OSError, tomllib.TOMLDecodeError) as err:
-            raise ConfigError(f"schedule file {args.schedule}: {err}") from err
-    else:
-        schedule = Schedule() if args.frame_rate == 320.0 else Schedule.scaled(args.frame_rate)
     svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3)
     for e in svc.init_errors:
         print(f"pfma serve: {e}", file=sys.stderr)
