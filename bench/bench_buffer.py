@@ -293,8 +293,11 @@ def latency(n: int, ctx, period_s: float = 0.001) -> dict:
 
 # --- report ---------------------------------------------------------------------------
 
-def run(quick: bool = False) -> dict:
-    """Measure and print; returns the figures. ``quick``: about 4 s instead of about 12 s."""
+def run(quick: bool = False, seconds: float | None = None) -> dict:
+    """Measure and print; returns the figures. ``quick``: about 4 s instead of about 12 s.
+    ``seconds`` (from ``pfma bench --seconds``): below 5 s means quick."""
+    if seconds is not None:
+        quick = quick or seconds < 5
     ctx = multiprocessing.get_context("spawn")
     n_ops = 5000 if quick else 20000
     fuzz_s = 1.0 if quick else 3.0
