@@ -104,6 +104,9 @@ class SeqLock:
 
     __slots__ = ("name", "_seq", "_body", "_s", "body_size", "retries", "timeout_s", "owner_lookup")
 
+    #: what the lock protects, for error messages (subclasses for other segments override it)
+    kind = "Bit3 area"
+
     def __init__(self, buf: memoryview, offset: int, body_size: int, name: str = "area",
                  timeout_s: float = DEFAULT_READ_TIMEOUT_S) -> None:
         if offset % 8:
@@ -163,9 +166,21 @@ class SeqLock:
                 return s1
         return self._read_retry(dst)
 
-    def _read_retry(self, dst: memoryview) -> int:
+    def read_part_into(self, dst: memoryview, start: int) -> int:
+        """Copy a stable ``body[start:start + len(dst)]`` into ``dst`` (one field, not the
+        whole body); returns the counter it was stable at. Same rules as :meth:`read_into`."""
+        part = self._body[start:start + len(dst)]
         seq = self._seq
-        body = self._body
+        s1 = seq[0]
+        if not s1 & 1:
+            dst[:] = part
+            if seq[0] == s1:
+                return s1
+        return self._read_retry(dst, part)
+
+    def _read_retry(self, dst: memoryview, body: memoryview | None = None) -> int:
+        seq = self._seq
+        body = self._body if body is None else body
         deadline = time.perf_counter() + self.timeout_s
         n = 0
         while True:
@@ -183,7 +198,7 @@ class SeqLock:
                     except Exception:  # the message must not hide the timeout
                         who = "?"
                     raise SeqLockTimeout(
-                        f"Bit3 area {self.name}: no stable copy in {self.timeout_s * 1e3:.0f} ms "
+                        f"{self.kind} {self.name}: no stable copy in {self.timeout_s * 1e3:.0f} ms "
                         f"(sequence {s1}{', odd: write in progress' if s1 & 1 else ''}); "
                         f"writer {who} stuck or dead mid-write")
                 os.sched_yield()
@@ -245,12 +260,14 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-def _open_shm(name: str, create: bool):
+def _open_shm(name: str, create: bool, size: int = BUFFER_SIZE):
+    """Open (or create, ``size`` bytes) POSIX shared memory without resource-tracker
+    registration (module docstring). Also used by ``controller.worldmodel``."""
     from multiprocessing import shared_memory
     if sys.version_info >= (3, 13):
-        return shared_memory.SharedMemory(name, create=create, size=BUFFER_SIZE if create else 0,
+        return shared_memory.SharedMemory(name, create=create, size=size if create else 0,
                                           track=False)
-    shm = shared_memory.SharedMemory(name, create=create, size=BUFFER_SIZE if create else 0)
+    shm = shared_memory.SharedMemory(name, create=create, size=size if create else 0)
     from multiprocessing import resource_tracker
     resource_tracker.unregister(shm._name, "shared_memory")  # see module docstring
     return shm
@@ -263,6 +280,12 @@ def _lock_byte(fd: int, index: int, lock: bool) -> None:
         fcntl.fcntl(fd, _F_OFD_SETLK, struct.pack("hhqqi4x", kind, os.SEEK_SET, index, 1, 0))
     else:  # POSIX record locks: per process, see module docstring
         fcntl.lockf(fd, (fcntl.LOCK_EX | fcntl.LOCK_NB) if lock else fcntl.LOCK_UN, 1, index)
+
+
+#: public names of the helpers above, for other shared-memory segments (the world model)
+open_shm = _open_shm
+pid_alive = _pid_alive
+lock_byte = _lock_byte
 
 
 # ----------------------------------------------------------------------------------------
