@@ -747,6 +747,11 @@ class WorldModel:
         self._stats["posts_applied"] += len(batch)
         return len(batch) + n_user
 
+    @property
+    def read_retries(self) -> int:
+        """Reads of this attachment that met a segment in progress and retried."""
+        return self._lock.retries
+
     def stats(self) -> dict[str, int]:
         """Counters of this process: frames, posts, posts_applied, deferred_posts,
         user_applied, user_rejected."""

@@ -1,0 +1,252 @@
+"""``pfma wm``: browse a running controller's world model, and ask it for user writes.
+
+    pfma wm list [--area A] [--filter TEXT] [--name WM] [--json]
+    pfma wm get NAME... [--json] [--name WM]
+    pfma wm set NAME VALUE [--key KEY] [--wait S] [--name WM]
+    pfma wm requests [--name WM]
+
+Everything is decoded from the variable table stored (as JSON) in the shared-memory
+segment, so this needs no controller code. ``set`` checks the request here (unknown
+variable, protected while powered up, wrong key, bad value) and puts it into the
+segment's user-request ring; the owning process applies it at its next communications
+segment (docs/world-model.md). VALUE is JSON: ``1.5``, ``-3``, ``true``, ``[0.1, 0.2, 0.3]``
+(or numbers separated by commas/spaces).
+"""
+
+from __future__ import annotations
+
+import argparse
+import fnmatch
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+WAIT_POLL_S = 0.002
+
+
+def add_parser(sub):
+    from controller.worldmodel import AREAS, DEFAULT_NAME, ACCESS_KEY_ENV
+
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--name", default=os.environ.get("PFMA_WM", DEFAULT_NAME),
+                        help=f"world-model shared-memory name (default $PFMA_WM or {DEFAULT_NAME})")
+    p = sub.add_parser("wm", help="browse the controller's world model; user writes with a key",
+                       description="Browse a running controller's world model (read from its "
+                                   "shared memory), and ask its owner for keyed user writes.")
+    wsub = p.add_subparsers(dest="wm_cmd", metavar="COMMAND")
+    ls = wsub.add_parser("list", parents=[common], help="variables with area, type, units, writer, value")
+    ls.add_argument("--area", choices=AREAS, help="only this area")
+    ls.add_argument("--filter", metavar="TEXT",
+                    help="only variables whose name, doc, units or writer contain TEXT (or match a *glob*)")
+    ls.add_argument("--json", action="store_true", help="one JSON object")
+    g = wsub.add_parser("get", parents=[common], help="variables in full (one consistent copy)")
+    g.add_argument("names", nargs="+", metavar="NAME")
+    g.add_argument("--json", action="store_true", help="one JSON object")
+    s = wsub.add_parser("set", parents=[common], help="user write, applied at the next communications segment")
+    s.add_argument("var", metavar="NAME")
+    s.add_argument("value", metavar="VALUE", help="JSON value: 1.5, 3, true, [1, 2, 3]")
+    s.add_argument("--key", default=None, help=f"access key (default ${ACCESS_KEY_ENV})")
+    s.add_argument("--wait", type=float, default=2.0, metavar="S",
+                   help="wait up to S seconds for the owner to apply it (0: just queue; default 2)")
+    r = wsub.add_parser("requests", parents=[common], help="the user-request ring and each outcome")
+    r.add_argument("--json", action="store_true", help="one JSON object")
+    p.set_defaults(_wm_parser=p)
+    return p
+
+
+# ----------------------------------------------------------------------------------------
+# formatting
+
+
+def _py(v):
+    """A JSON-ready Python value."""
+    return v.tolist() if isinstance(v, (np.ndarray, np.generic)) else v
+
+
+def format_value(v, width: int | None = None) -> str:
+    """Readable value text: ``%.6g`` floats, ints, ``[a, b, c]`` arrays (cut to ``width``)."""
+    def one(x) -> str:
+        if isinstance(x, (bool, np.bool_)):
+            return "true" if x else "false"
+        if isinstance(x, (float, np.floating)):
+            return f"{float(x):.6g}"
+        return str(int(x))
+
+    a = np.asarray(v)
+    if a.shape == ():
+        text = one(a.item())
+    else:
+        def rec(x) -> str:
+            return "[" + ", ".join(rec(e) if isinstance(e, list) else one(e) for e in x) + "]"
+        text = rec(a.tolist())
+    if width is not None and len(text) > width:
+        text = text[:width - 3] + "..."
+    return text
+
+
+def _header(info) -> str:
+    owner = (f"{info.owner} (pid {info.owner_pid}, {'running' if info.owner_alive else 'NOT running'})"
+             if info.owner_pid > 0 else f"{info.owner} (closed)")
+    return (f"world model {info.name!r}: owner {owner}, frame {info.frame}, "
+            f"powered up: {'yes' if info.powered_up else 'no'}, {info.n_variables} variables")
+
+
+def _matches(spec, text: str | None) -> bool:
+    if not text:
+        return True
+    hay = [spec.name, spec.doc, spec.units, spec.writer]
+    if any(c in text for c in "*?["):
+        return any(fnmatch.fnmatch(h.lower(), text.lower()) for h in hay)
+    t = text.lower()
+    return any(t in h.lower() for h in hay)
+
+
+def _describe(spec, value) -> dict:
+    return {"name": spec.name, "area": spec.area, "type": spec.type_text, "dtype": spec.dtype,
+            "shape": list(spec.shape), "units": spec.units, "writer": spec.writer,
+            "protected": spec.protected, "value": _py(value), "doc": spec.doc}
+
+
+# ----------------------------------------------------------------------------------------
+# commands
+
+
+def cmd_list(wm, args) -> int:
+    specs = [s for s in wm.specs if (not args.area or s.area == args.area) and _matches(s, args.filter)]
+    values = wm.get_task_inputs([s.name for s in specs])
+    info = wm.info()
+    if args.json:
+        print(json.dumps({"name": info.name, "owner": info.owner, "owner_pid": info.owner_pid,
+                          "frame": info.frame, "powered_up": info.powered_up,
+                          "variables": [_describe(s, values[s.name]) for s in specs]}, indent=1))
+        return 0
+    print(_header(info))
+    if not specs:
+        print("no variables match" + (f" area {args.area}" if args.area else "")
+              + (f" filter {args.filter!r}" if args.filter else ""))
+        return 0
+    rows = [(s.name, s.area, s.type_text, s.units or "-", s.writer, "P" if s.protected else "",
+             format_value(values[s.name], 28), s.doc) for s in specs]
+    heads = ("NAME", "AREA", "TYPE", "UNITS", "WRITER", "P", "VALUE", "DOC")
+    widths = [max(len(h), *(len(r[k]) for r in rows)) for k, h in enumerate(heads[:-1])]
+    fmt = "  ".join(f"{{:<{w}}}" for w in widths) + "  {}"
+    print(fmt.format(*heads))
+    for r in rows:
+        print(fmt.format(*r).rstrip())
+    print("P = protected: no user write while powered up. `pfma wm get NAME` shows one in full.")
+    return 0
+
+
+def cmd_get(wm, args) -> int:
+    specs = [wm.spec(n) for n in args.names]  # unknown names fail before reading
+    values = wm.get_task_inputs([s.name for s in specs])
+    info = wm.info()
+    if args.json:
+        print(json.dumps({"name": info.name, "frame": info.frame, "powered_up": info.powered_up,
+                          "variables": {s.name: _describe(s, values[s.name]) for s in specs}}, indent=1))
+        return 0
+    print(f"{_header(info)} (values from one consistent copy)")
+    for s in specs:
+        print(f"\n{s.name}")
+        print(f"  area       {s.area}")
+        print(f"  type       {s.type_text}" + ("" if s.shape else " (scalar)"))
+        print(f"  units      {s.units or '-'}")
+        print(f"  writer     {s.writer}")
+        print(f"  protected  {'yes: no user write while powered up' if s.protected else 'no'}")
+        print(f"  value      {format_value(values[s.name])}")
+        print(f"  doc        {s.doc or '-'}")
+    return 0
+
+
+def parse_value(text: str):
+    """VALUE as JSON; else numbers separated by commas/spaces (``1,2,3`` or ``"1 2 3"``)."""
+    try:
+        return json.loads(text)
+    except ValueError:
+        pass
+    def number(p: str):
+        try:
+            return json.loads(p)
+        except ValueError:
+            return float(p)  # also "nan", "inf": refused later with a clear "not finite"
+
+    parts = [p for p in text.replace(",", " ").split() if p]
+    try:
+        if len(parts) == 1:
+            return number(parts[0])
+        if len(parts) > 1:
+            return [number(p) for p in parts]
+    except ValueError:
+        pass
+    from controller.worldmodel import WorldModelValueError
+    raise WorldModelValueError(f"value {text!r} is not JSON (examples: 1.5, -3, true, [0.1, 0.2, 0.3])")
+
+
+def cmd_set(wm, args) -> int:
+    from controller.worldmodel import ACCESS_KEY_ENV, WorldModelError
+
+    spec = wm.spec(args.var)
+    key = args.key if args.key is not None else os.environ.get(ACCESS_KEY_ENV)
+    if not key:
+        raise WorldModelError(f"setting {spec.name!r} needs the world model's access key "
+                              f"(--key KEY or ${ACCESS_KEY_ENV})")
+    value = parse_value(args.value)
+    rid = wm.set_user(spec.name, value, key)
+    if args.wait <= 0:
+        print(f"{spec.name}: request #{rid} queued; the owner applies it at its next "
+              f"communications segment (`pfma wm requests` shows the outcome)")
+        return 0
+    deadline = time.monotonic() + args.wait
+    while True:
+        r = wm.request(rid)
+        if r is None:
+            print(f"{spec.name}: request #{rid} was overwritten before its outcome was read")
+            return 1
+        if r.state == "applied":
+            print(f"{spec.name} = {format_value(wm.get(spec.name))} {spec.units}".rstrip()
+                  + f"  (request #{rid}, {r.result})")
+            return 0
+        if r.state == "rejected":
+            print(f"pfma wm: {spec.name}: request #{rid} rejected by the owner: {r.result}",
+                  file=sys.stderr)
+            return 1
+        if time.monotonic() > deadline:
+            print(f"pfma wm: {spec.name}: request #{rid} still pending after {args.wait:g} s; is the "
+                  f"controller running communications segments? (`pfma wm requests`)", file=sys.stderr)
+            return 1
+        time.sleep(WAIT_POLL_S)  # a CLI waiting for another process, not a test
+
+
+def cmd_requests(wm, args) -> int:
+    reqs = wm.requests()
+    if args.json:
+        print(json.dumps([r.__dict__ for r in reqs], indent=1))
+        return 0
+    print(_header(wm.info()))
+    if not reqs:
+        print("no user requests")
+        return 0
+    print(f"{'ID':>5}  {'STATE':<8}  {'VARIABLE':<28}  {'USER':<12}  {'FRAME':>8}  RESULT")
+    for r in reqs:
+        print(f"{r.req_id:>5}  {r.state:<8}  {r.variable:<28}  {r.user:<12}  "
+              f"{r.applied_frame or '-':>8}  {r.result}")
+    return 0
+
+
+COMMANDS = {"list": cmd_list, "get": cmd_get, "set": cmd_set, "requests": cmd_requests}
+
+
+def run(args) -> int:
+    from controller.worldmodel import WorldModel
+
+    if not getattr(args, "wm_cmd", None):
+        args._wm_parser.print_help()
+        return 2
+    wm = WorldModel.attach(args.name)  # WorldModelError (a PfmaError) -> "pfma wm: ..." exit 1
+    try:
+        return COMMANDS[args.wm_cmd](wm, args)
+    finally:
+        wm.close()
