@@ -129,7 +129,7 @@ def cmd_list(wm, args) -> int:
               + (f" filter {args.filter!r}" if args.filter else ""))
         return 0
     rows = [(s.name, s.area, s.type_text, s.units or "-", s.writer, "P" if s.protected else "",
-             format_value(values[s.name], 28), s.doc) for s in specs]
+             format_value(values[s.name], 40), s.doc) for s in specs]
     heads = ("NAME", "AREA", "TYPE", "UNITS", "WRITER", "P", "VALUE", "DOC")
     widths = [max(len(h), *(len(r[k]) for r in rows)) for k, h in enumerate(heads[:-1])]
     fmt = "  ".join(f"{{:<{w}}}" for w in widths) + "  {}"
