@@ -864,7 +864,9 @@ class WorldModel:
                 k = (rid - 1) % REQUEST_SLOTS
                 st = self._slot_state(k)
                 try:
-                    if st[0] in (PENDING, WRITING):
+                    # a WRITING slot seen while holding the lock was abandoned by a
+                    # submitter that died mid-write (writers hold the lock): reuse it
+                    if st[0] == PENDING:
                         raise WorldModelError(
                             f"world model {self.name or 'private'}: user request queue full "
                             f"({REQUEST_SLOTS} pending); the owner applies them at each "

@@ -433,3 +433,14 @@ def test_no_torn_frames_against_a_flat_out_writer_in_another_process(wm_name, mp
         child.join(30.0)
         if child.is_alive():
             child.kill()
+
+
+def test_a_slot_abandoned_mid_write_is_reused(wm):
+    """A submitter that died between 'writing' and 'pending' does not block the ring."""
+    from controller.worldmodel import WRITING
+    st = wm._slot_state(0)
+    st[0] = WRITING  # as left by a tool killed in the middle of its write
+    st.release()
+    assert wm.communications_segment() == 0  # the owner ignores it
+    rid = wm.set_user("hc.enable", True, DEFAULT_ACCESS_KEY)
+    assert rid == 1 and wm.communications_segment() == 1 and wm.get("hc.enable")
