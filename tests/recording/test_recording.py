@@ -1,0 +1,301 @@
+"""Recorder, recover, scope and replay on the simulated-time rig (tests/service/conftest.py).
+
+Recordings are read back independently with ``mcap.reader.make_reader`` and decoded from
+the schema stored in the file, not with the recorder's own state.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import random
+import select
+import signal
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from ioservice.recorder import RAW_TOPIC, Recorder, decode_raw, recover
+from ioservice.shm import Bit3Buffer
+from pfma.cli.replay import replay_through_fakes, republish
+from pfma.cli.scope import ScopeCapture, load, render, save
+from tests.service.conftest import Rig
+
+REPO = Path(__file__).resolve().parents[2]
+OFFSET_NS = 1_700_000_000_000_000_000
+
+
+@pytest.fixture
+def rig():
+    r = Rig("pfma-rec-" + uuid.uuid4().hex[:8])
+    yield r
+    r.close()
+
+
+class _Wall:
+    """A wall clock the test moves: one tick per poll."""
+
+    def __init__(self, step_s: float) -> None:
+        self.t, self.step = 0.0, step_s
+
+    def __call__(self) -> float:
+        self.t += self.step
+        return self.t
+
+
+def _record(rig: Rig, path, seconds: float, every: int = 1, keep: list | None = None, **kw) -> Recorder:
+    """Record while the rig runs; the recorder polls before every ``every``-th frame.
+    ``keep`` collects a copy of what the service published in each frame."""
+    rec = Recorder(rig.reader, path, rack=rig.world.rack_config, epoch_offset_ns=OFFSET_NS, **kw)
+
+    def hook(info):
+        if keep is not None and rig.svc.loop_stats.n:
+            keep.append(rig.svc.inputs.record.copy())
+        if info.index % every == 0:
+            rec.poll()
+    rig.on_frame.append(hook)
+    rig.run(seconds)
+    if keep is not None:
+        keep.append(rig.svc.inputs.record.copy())
+    rig.on_frame.remove(hook)
+    return rec
+
+
+def _read(path) -> tuple[dict, list]:
+    """(per-topic counts from the summary, [(topic, log_time, decoded)]) via make_reader."""
+    with open(path, "rb") as f:
+        r = make_reader(f)
+        s = r.get_summary()
+        counts = {s.channels[c].topic: n for c, n in s.statistics.channel_message_counts.items()}
+        out = []
+        for schema, ch, m in r.iter_messages(log_time_order=False):
+            if ch.message_encoding == "pfma-bit3-v1":
+                out.append((ch.topic, m.log_time, decode_raw(schema.data, m.data)))
+            else:
+                out.append((ch.topic, m.log_time, json.loads(m.data)))
+        return counts, out
+
+
+def test_every_frame_recorded_and_read_back_independently(rig, tmp_path):
+    published: list[np.ndarray] = []
+    path = tmp_path / "rec.mcap"
+    rec = _record(rig, path, 1.0, keep=published)
+    cnt = rec.close()
+    n = rig.svc.loop_stats.n
+    assert n == 320 and len(published) == n
+    counts, msgs = _read(path)
+    raw = [(t, v) for topic, t, v in msgs if topic == RAW_TOPIC]
+    assert counts[RAW_TOPIC] == len(raw) == n
+    # zero drops by the recorder's own counters, and the window matches the service's count
+    assert cnt.frames_recorded == n and cnt.recorder_missed == 0 and cnt.frame_gaps == 0
+    assert cnt.window_service_frames > 0 and cnt.window_recorded == cnt.window_service_frames
+    assert cnt.lossless
+    # values equal the buffer's, byte for byte (the stored part of the body)
+    by_frame = {int(v["frame"]): v for _, v in raw}
+    for p in published:
+        got = by_frame[int(p["frame"])]
+        for name in p.dtype.names:
+            assert np.array_equal(got[name], p[name]), name
+    # log_time = offset + service time
+    for t, v in raw:
+        assert t == OFFSET_NS + int(round(float(v["t_s"]) * 1e9))
+    # JSON channels at native rates, with engineering values equal to the buffer's
+    assert counts["/pfma/status"] == n
+    assert counts["/pfma/joints"] == n // 2 and counts["/pfma/adc"] == n // 2
+    assert counts["/pfma/ft"] > 0 and counts["/pfma/pio"] == n // 8
+    joints = [v for topic, _, v in msgs if topic == "/pfma/joints"]
+    lay = rig.reader.layout
+    slot = lay.channel("elbow_pitch_angle").slot
+    j = joints[-1]
+    assert j["elbow_pitch_angle"]["angle_rad"] == float(by_frame[j["frame"]]["rtd_angle_rad"][slot])
+    # the summary record and the context metadata are in the file
+    with open(path, "rb") as f:
+        r = make_reader(f)
+        meta = {m.name: m.metadata for m in r.iter_metadata()}
+        atts = {a.name: a for a in r.iter_attachments()}
+    assert meta["pfma.layout"]["hash"] == lay.hash_hex
+    assert meta["pfma.recorder.summary"]["lossless"] == "True"
+    assert meta["pfma.recorder.summary"]["recorder_missed"] == "0"
+    assert "calibration" in "".join(meta)
+    assert json.loads(atts["bit3-layout.json"].data)["hash"] == lay.hash_hex
+    assert any(c["signal"] == "elbow_pitch_angle" for c in json.loads(atts["rack-channels.json"].data))
+
+
+def test_missed_publishes_are_counted(rig):
+    rec = _record(rig, io.BytesIO(), 1.2, every=2)  # the recorder looks only every other frame
+    cnt = rec.close()
+    assert cnt.frames_recorded == 192
+    assert cnt.recorder_missed == 191 and cnt.frame_gaps == 191 and cnt.service_skipped == 0
+    assert cnt.window_service_frames == 160 and cnt.window_recorded == 80
+    assert not cnt.lossless
+
+
+def test_service_skipped_frames_are_not_recorder_losses(rig):
+    period = rig.svc.schedule.period_s
+
+    def stall(info):
+        if info.index == 100:
+            rig.clock.advance(3.5 * period)  # the service wakes late: it drops two frames
+    rig.on_frame.append(stall)
+    rec = _record(rig, io.BytesIO(), 1.0)
+    cnt = rec.close()
+    assert rig.svc.loop_stats.dropped == 2
+    assert cnt.service_skipped == 2 and cnt.frame_gaps == 2 and cnt.recorder_missed == 0
+    assert cnt.window_service_dropped == 2 and cnt.window_recorded == cnt.window_service_frames
+    assert cnt.lossless
+
+
+def test_truncated_file_is_made_whole(rig, tmp_path):
+    path = tmp_path / "full.mcap"
+    rec = _record(rig, path, 1.0, wall=_Wall(0.01), flush_every_s=0.1)  # a chunk every 10 polls
+    rec.close()
+    total = _read(path)[0][RAW_TOPIC]
+    data = path.read_bytes()
+    rng = random.Random(8)
+    last = -1
+    for cut in sorted(rng.randrange(200, len(data) - 1) for _ in range(6)):
+        broken = tmp_path / f"cut{cut}.mcap"
+        broken.write_bytes(data[:cut])
+        with pytest.raises(Exception):
+            with open(broken, "rb") as f:
+                make_reader(f).get_summary().statistics  # noqa: B018 - unreadable as it is
+        rep = recover(broken, tmp_path / f"fixed{cut}.mcap")
+        assert not rep.had_footer and rep.stopped_by
+        counts = _read(rep.output)[0]
+        raw = counts.get(RAW_TOPIC, 0)
+        assert raw == rep.frames and rep.frame_gaps == 0
+        assert last <= raw <= total
+        last = raw
+    assert last > 0
+
+
+_CHILD = r"""
+import sys, time, uuid
+sys.path.insert(0, sys.argv[2])
+from tests.service.conftest import Rig
+from ioservice.recorder import Recorder
+rig = Rig("pfma-kill-" + uuid.uuid4().hex[:8])
+rec = Recorder(rig.reader, sys.argv[1], rack=rig.world.rack_config, flush_every_s=1e9)
+n = [0]
+def hook(info):
+    rec.poll()
+    n[0] += 1
+    if n[0] % 64 == 0:
+        rec.flush()
+        print(rec.counters.frames_recorded, flush=True)
+rig.on_frame.append(hook)
+rig.run(3600)
+"""
+
+
+def test_recorder_killed_with_sigkill_is_recovered(tmp_path):
+    path = tmp_path / "killed.mcap"
+    p = subprocess.Popen([sys.executable, "-c", _CHILD, str(path), str(REPO)], cwd=REPO,
+                         stdout=subprocess.PIPE, text=True)
+    flushed = 0
+    try:
+        while flushed < 300:
+            ready, _, _ = select.select([p.stdout], [], [], 30)
+            assert ready, "recorder child printed nothing within 30 s"
+            line = p.stdout.readline()
+            assert line, "recorder child ended early"
+            flushed = int(line)
+        os.kill(p.pid, signal.SIGKILL)
+    finally:
+        p.kill()
+        p.wait(10)
+        p.stdout.close()
+    rep = recover(path, tmp_path / "fixed.mcap")
+    assert rep.frames >= flushed and rep.frame_gaps == 0
+    counts = _read(rep.output)[0]
+    assert counts[RAW_TOPIC] == rep.frames
+    for name in os.listdir("/dev/shm"):  # the child's buffer (killed, never unlinked)
+        if name.startswith("pfma-kill-"):
+            Bit3Buffer.unlink(name)
+
+
+def test_scope_trigger_and_pre_trigger_on_a_step(rig, tmp_path):
+    period = rig.svc.schedule.period_s
+    step_frame = 200
+
+    def step(info):
+        if info.index == step_frame:
+            rig.world.sim.hold_adc_volts("adc_spare_25", 2.5)
+    rig.on_frame.append(step)
+    sc = ScopeCapture(rig.reader.layout, ["adc_spare_25", "frame"], "adc_spare_25>1.0",
+                      pre_s=0.05, post_s=0.1)
+
+    def feed(info):
+        if rig.reader.changed("inputs"):
+            sc.feed(rig.reader.read_inputs().record)
+    rig.on_frame.append(feed)
+    rig.run(1.0)
+    assert sc.done
+    cap = sc.capture
+    ti = cap.trigger_index
+    # the ADC is scanned in frames of one phase; the first scan after the step triggers
+    assert step_frame <= cap.trigger_frame <= step_frame + 2
+    assert cap.values[ti][0] == pytest.approx(2.5, abs=0.01)
+    assert all(v[0] == pytest.approx(0.0, abs=0.01) for v in cap.values[:ti])
+    assert ti == pytest.approx(0.05 / period, abs=1)          # pre-trigger frames
+    assert len(cap.t_s) - ti - 1 == pytest.approx(0.1 / period, abs=1)
+    assert np.all(np.diff(cap.frames) == 1)                  # native rate, no gaps
+    out = tmp_path / "cap.mcap"
+    assert save(cap, out, epoch_offset_ns=OFFSET_NS) == len(cap.t_s)
+    back = load(out)
+    assert back.frames == cap.frames and back.trigger_frame == cap.trigger_frame
+    assert back.values == cap.values
+    assert "adc_spare_25" in render(back)
+
+
+def test_replay_round_trip_is_byte_identical(rig, tmp_path):
+    first = tmp_path / "a.mcap"
+    _record(rig, first, 0.5).close()
+    name = "pfma-rep-" + uuid.uuid4().hex[:8]
+    buf = Bit3Buffer.create(name, rig.reader.layout)
+    from ioservice.client import Client
+    reader = Client.attach(name)
+    try:
+        second = tmp_path / "b.mcap"
+        rec = Recorder(reader, second, epoch_offset_ns=OFFSET_NS)
+        # the replay's pacing sleep is where the recorder polls: one poll between publishes
+        n = republish(str(first), buf, sleep=lambda dt: rec.poll(), now=lambda: 0.0)
+        cnt = rec.close()
+    finally:
+        reader.close()
+        buf.close()
+        Bit3Buffer.unlink(name)
+    assert n == 160 and cnt.frames_recorded == 160 and cnt.recorder_missed == 0
+    a = [v.tobytes() for t, _, v in _read(first)[1] if t == RAW_TOPIC]
+    b = [v.tobytes() for t, _, v in _read(second)[1] if t == RAW_TOPIC]
+    assert a == b
+
+
+def test_replay_through_the_fakes_matches_the_recording(rig, tmp_path):
+    def wiggle(info):  # CAE axes move: ADC channels that change every scan
+        x = math.sin(info.index / 20.0)
+        rig.world.set_cae([x, -x, 0.5 * x, 0.0, 0.2, -0.2])
+    rig.on_frame.append(wiggle)
+    path = tmp_path / "rec.mcap"
+    _record(rig, path, 0.5).close()
+    rep = replay_through_fakes(str(path), rack=rig.world.rack_config)
+    assert rep.frames_compared >= 150
+    assert "cae_up_down.adc_counts" in rep.channels
+    assert not rep.mismatches, rep.describe()
+
+
+def test_record_cli_waits_with_a_message_and_gives_up(tmp_path):
+    name = "pfma-none-" + uuid.uuid4().hex[:8]
+    p = subprocess.run([sys.executable, "-m", "pfma", "record", str(tmp_path / "x.mcap"), "--buffer", name,
+                        "--wait", "0.5"], cwd=REPO, capture_output=True, text=True, timeout=30)
+    assert p.returncode == 1
+    assert f"waiting for service on /dev/shm/{name}" in p.stderr
+    assert "nothing recorded" in p.stderr
+    assert not (tmp_path / "x.mcap").exists()
