@@ -1,0 +1,288 @@
+"""Data Acquisition (layer 7): the bridge between the world model and the Bit3 buffer.
+
+IRSS report 2.2.1: "the layer through which all I/O data (other than user keyboard
+input) comes ... This layer also controls the DACs that command joint motions and
+control motor current limits." Here the I/O chassis is the data-acquisition service
+(:mod:`ioservice`); this layer talks to it only through
+:class:`ioservice.client.Client`:
+
+* **acquire** (first thing in every minor frame, before the communications segment):
+  the service's latest input snapshot -> world-model variables ``daq.*`` (resolver
+  angles unwrapped to each joint's range, tach rates, F/T, hand controllers, service
+  state and brake/arm bits), and the hardware checks -> the layer's fault flag;
+* **output** (right after the decision tables): ``servo.rate_cmd_rad_s`` and
+  ``servo.current_limit_cmd_a`` -> ``write_commands`` with a new heartbeat every
+  minor frame. Rates are forced to 0 unless the layer is START UP COMPLETE, and
+  everything is 0 (arm request off) while SHUT DOWN.
+
+Hardware checks (``daq.fault_bits``; any of them, once the layer is initialised,
+raises its fault flag, which its decision table turns into ERROR in the same frame):
+
+=====  ======================================================================
+bit    meaning
+=====  ======================================================================
+1      resolver fault on a joint channel (loss of signal / BIT, no reference,
+       or the board did not answer)
+2      tach ADC sample failed (bus error)
+4      F/T link stale or faulted (disable with ``require_ft=False``)
+8      a board the controller needs reports a fault (bus error, init failure)
+16     the service is in FAULT or STOPPED, or not ARMED while it should be
+32     the service has not published a new frame for ``STALE_FRAMES`` frames
+=====  ======================================================================
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from controller.decision import Status, TaskState
+from controller.layers import Layer, bottom_table
+from controller.messages import Level
+from controller.params import JOINTS, N_CURRENT_LIMITS, N_JOINTS
+from controller.worldmodel import VarSpec
+from ioservice.layout import HAND_CONTROLLERS, HC_AXES, ServiceState
+
+if TYPE_CHECKING:  # pragma: no cover
+    from controller.runtime import ControllerRuntime
+    from ioservice.client import Client
+
+FAULT_RESOLVER, FAULT_TACH, FAULT_FT, FAULT_BOARD, FAULT_SERVICE, FAULT_STALE = 1, 2, 4, 8, 16, 32
+FAULT_NAMES = {FAULT_RESOLVER: "resolver", FAULT_TACH: "tach ADC", FAULT_FT: "F/T link",
+               FAULT_BOARD: "board fault", FAULT_SERVICE: "service state", FAULT_STALE: "service not publishing"}
+#: board_status / link_status bits of the input area (ioservice.service)
+BOARD_FAULT = 4
+LINK_FAULT, LINK_STALE = 4, 8
+#: controller frames without a new service frame before the service counts as lost
+STALE_FRAMES = 4
+#: time the init task waits for healthy inputs, the start-up task for ARMED (assumed)
+INIT_TIMEOUT_S = 0.5
+ARM_TIMEOUT_S = 0.2
+#: time the shut-down task waits for the servo's safe stop (current limits 0) before
+#: disarming anyway (assumed: the servo's 0.5 s safe stop plus margin)
+SHUTDOWN_WAIT_S = 1.0
+#: boards whose faults matter to the controller (the rest are reported only)
+REQUIRED_BOARDS = ("rtd1", "rtd2", "adc", "dac")
+FT_BOARD = "sio"
+
+
+class DataAcquisitionLayer(Layer):
+    """Data Acquisition (layer 7, the bottom).
+
+    :param client: a Client attached as the command writer of the service's buffer
+    :param require_ft: a stale F/T link is a fault (True on the simulated rack)
+    """
+
+    key = "daq"
+    title = "Data Acquisition"
+    short = "DAQ "
+
+    def __init__(self, client: "Client", require_ft: bool = True) -> None:
+        super().__init__()
+        self.table = bottom_table()
+        self.client = client
+        self.require_ft = require_ft
+        lay = client.layout
+        self.joint_order = tuple(lay.joint_names)
+        if self.joint_order != tuple(j.name for j in JOINTS):
+            raise ValueError(f"Bit3 command joints {self.joint_order} differ from controller.params "
+                             f"{tuple(j.name for j in JOINTS)}")
+        self.rtd_slots = np.array([lay.slot("rtd", f"{j}_angle") for j in self.joint_order], dtype=np.intp)
+        self.tach_slots = np.array([lay.slot("adc", f"{j}_rate") for j in self.joint_order], dtype=np.intp)
+        self.centre = np.array([j.centre_rad for j in JOINTS])
+        boards = [c.name for c in lay.channels if c.kind == "board"]
+        need = [b for b in REQUIRED_BOARDS if b in boards] + ([FT_BOARD] if require_ft and FT_BOARD in boards else [])
+        self.board_slots = np.array([lay.slot("board", b) for b in need], dtype=np.intp)
+        self.board_names = need
+        self.ft_slot = lay.slot("link", "ft_sensor") if any(
+            c.kind == "link" and c.name == "ft_sensor" for c in lay.channels) else None
+        self.monitoring = False  #: faults count once initialised
+        self.fault_bits = 0
+        self.fault_detail = ""
+        self.snapshot = None
+        self._last_frame = -1
+        self._same_frames = 0
+        self.arm_request = 0
+        self.rearm_counter = int(client.command["rearm_counter"])
+        self._t_phase = 0.0
+        self._phase = 0
+        self.writes = 0
+
+    def specs(self) -> list[VarSpec]:
+        z6 = [0.0] * N_JOINTS
+        nh, na = len(HAND_CONTROLLERS), len(HC_AXES)
+        w = "daq"
+        return self.state_specs() + [
+            VarSpec("daq.joint_angle_rad", "task_io", "f8", (N_JOINTS,), w, [j.centre_rad * 0 for j in JOINTS],
+                    "rad", doc="resolver joint angles unwrapped to each joint's range (command-area order)"),
+            VarSpec("daq.joint_rate_rad_s", "task_io", "f8", (N_JOINTS,), w, z6, "rad/s",
+                    doc="tachometer joint rates (filtered tach, ADC)"),
+            VarSpec("daq.ft_force_n", "task_io", "f8", (3,), w, [0.0] * 3, "N", doc="wrist F/T force"),
+            VarSpec("daq.ft_torque_nm", "task_io", "f8", (3,), w, [0.0] * 3, "N*m", doc="wrist F/T torque"),
+            VarSpec("daq.hc_axes", "task_io", "f8", (nh, na), w, [[0.0] * na] * nh, "1",
+                    doc=f"hand-controller axes ({', '.join(HAND_CONTROLLERS)} x {', '.join(HC_AXES)})"),
+            VarSpec("daq.hc_deadman", "task_io", "b1", (nh,), w, [False] * nh, doc="hand-controller deadman"),
+            VarSpec("daq.service_frame", "task_io", "i8", (), w, 0, doc="service frame of the inputs"),
+            VarSpec("daq.service_state", "status_output", "i2", (), w, 0,
+                    doc="I/O service state (0 STARTING 1 SAFE 2 ARMED 3 FAULT 4 STOPPED)"),
+            VarSpec("daq.brakes_released", "task_io", "b1", (), w, False, doc="the service sees a current limit "
+                    "above the brake release level with outputs live"),
+            VarSpec("daq.outputs_enabled", "task_io", "b1", (), w, False, doc="the DAC drives the arm"),
+            VarSpec("daq.fault_bits", "error_reports", "i4", (), w, 0,
+                    doc="hardware checks: 1 resolver 2 tach ADC 4 F/T 8 board 16 service state 32 service stale"),
+        ]
+
+    # --- acquire -------------------------------------------------------------------------
+    def acquire(self, rt: "ControllerRuntime") -> int:
+        """Read the service's inputs, post them, run the hardware checks. Returns the
+        service frame number of the inputs."""
+        snap = self.client.read_inputs()
+        self.snapshot = snap
+        frame = int(snap.frame)
+        if frame == self._last_frame:
+            self._same_frames += 1
+        else:
+            self._same_frames = 0
+            self._last_frame = frame
+        ang = snap.rtd_angle_rad[self.rtd_slots]
+        q = self.centre + np.mod(ang - self.centre + math.pi, 2 * math.pi) - math.pi
+        qdot = snap.adc_value[self.tach_slots]
+        st = int(snap.service_state)
+        rt.wm.post_task_outputs("daq", {
+            "daq.joint_angle_rad": q, "daq.joint_rate_rad_s": qdot,
+            "daq.ft_force_n": snap.ft_force_n, "daq.ft_torque_nm": snap.ft_torque_nm,
+            "daq.hc_axes": snap.hc_axes[:len(HAND_CONTROLLERS)],
+            "daq.hc_deadman": snap.hc_deadman[:len(HAND_CONTROLLERS)].astype(bool),
+            "daq.service_frame": frame, "daq.service_state": st,
+            "daq.brakes_released": bool(snap.brakes_released),
+            "daq.outputs_enabled": bool(snap.outputs_enabled),
+        })
+        bits, detail = self.check(snap, st)
+        if bits != self.fault_bits:
+            names = [n for b, n in FAULT_NAMES.items() if bits & b]
+            rt.wm.post_task_outputs("daq", {"daq.fault_bits": bits})
+            if bits:
+                rt.post(self.key, Level.WARNING if not self.monitoring else Level.ERROR,
+                        f"hardware check: {', '.join(names)}: {detail}")
+            else:
+                rt.post(self.key, Level.INFO, "hardware checks clear")
+        self.fault_bits, self.fault_detail = bits, detail
+        if self.monitoring and bits:
+            code = next(b for b in FAULT_NAMES if bits & b)
+            self.set_fault(rt, code, detail)
+        elif self.fault and not bits:
+            self.clear_fault(rt)  # the flag follows the hardware; ERROR itself is latched by the table
+        return frame
+
+    def status_value(self, rt) -> int:
+        return rt.wm.get_state_variable(self.v_status)
+
+    def check(self, snap, service_state: int) -> tuple[int, str]:
+        """The hardware checks of one snapshot: (fault bits, description)."""
+        bits, why = 0, []
+        rs = snap.rtd_status[self.rtd_slots]
+        if np.any(rs):
+            bits |= FAULT_RESOLVER
+            why += [f"{self.joint_order[i]} resolver status 0x{int(rs[i]):X}" for i in np.nonzero(rs)[0]]
+        ts = snap.adc_status[self.tach_slots]
+        if np.any(ts & 0x100):
+            bits |= FAULT_TACH
+            why.append("tach ADC sample failed")
+        if self.require_ft and self.ft_slot is not None:
+            ls = int(snap.link_status[self.ft_slot])
+            if ls & (LINK_STALE | LINK_FAULT) or not ls:
+                bits |= FAULT_FT
+                why.append(f"F/T link {'stale' if ls & LINK_STALE else 'faulted' if ls & LINK_FAULT else 'not open'}"
+                           f" (age {float(snap.link_age_s[self.ft_slot]) * 1e3:.0f} ms)")
+        bs = snap.board_status[self.board_slots]
+        if np.any(bs & BOARD_FAULT):
+            bits |= FAULT_BOARD
+            why += [f"board {self.board_names[i]} fault (errors {int(snap.board_errors[self.board_slots[i]])})"
+                    for i in np.nonzero(bs & BOARD_FAULT)[0]]
+        if service_state in (ServiceState.FAULT, ServiceState.STOPPED) or \
+                (self.arm_request and self._phase == 2 and service_state != ServiceState.ARMED):
+            bits |= FAULT_SERVICE
+            why.append(f"service {ServiceState(service_state).name}")
+        if self._same_frames >= STALE_FRAMES:
+            bits |= FAULT_STALE
+            why.append(f"service frame {self._last_frame} unchanged for {self._same_frames} frames")
+        return bits, "; ".join(why)
+
+    # --- output --------------------------------------------------------------------------
+    def output(self, rt: "ControllerRuntime", status: int) -> None:
+        """Write this frame's commands with a new heartbeat."""
+        if status == Status.SHUT_DOWN:
+            rates = np.zeros(N_JOINTS)
+            limits = np.zeros(N_CURRENT_LIMITS)
+        else:
+            v = rt.wm.get_task_inputs(("servo.rate_cmd_rad_s", "servo.current_limit_cmd_a"))
+            limits = np.asarray(v["servo.current_limit_cmd_a"], dtype=float)
+            rates = np.asarray(v["servo.rate_cmd_rad_s"], dtype=float) if status == Status.START_UP_COMPLETE \
+                else np.zeros(N_JOINTS)
+            if status in (Status.INITIALIZATION_IN_PROGRESS, Status.INITIALIZATION_COMPLETE, Status.START_UP):
+                limits = np.zeros(N_CURRENT_LIMITS)
+        self.client.write_commands(joint_rate_rad_s=rates, current_limit_a=limits,
+                                   arm_request=self.arm_request, rearm_counter=self.rearm_counter)
+        self.writes += 1
+
+    # --- sequence tasks ------------------------------------------------------------------
+    def seq_init(self, rt: "ControllerRuntime") -> TaskState:
+        """Wait (at most INIT_TIMEOUT_S) for a SAFE service with clean hardware checks."""
+        if self.task_frames == 0:
+            self._t_phase = rt.now
+        st = int(self.snapshot.service_state) if self.snapshot is not None else -1
+        if st == ServiceState.SAFE and not self.fault_bits:
+            self.monitoring = True
+            return TaskState.DONE
+        if rt.now - self._t_phase > INIT_TIMEOUT_S:
+            why = self.fault_detail or f"service state {st}"
+            self.set_fault(rt, FAULT_SERVICE if not self.fault_bits else self.fault_bits & -self.fault_bits,
+                           f"inputs not healthy after {INIT_TIMEOUT_S} s: {why}")
+            return TaskState.FAILED
+        return TaskState.RUNNING
+
+    def seq_startup(self, rt: "ControllerRuntime") -> TaskState:
+        """Arm the service: a new arm request with all rates 0; wait for ARMED."""
+        if self.task_frames == 0:
+            self.rearm_counter += 1
+            self.arm_request = 1
+            self._phase = 1
+            self._t_phase = rt.now
+            return TaskState.RUNNING
+        if int(self.snapshot.service_state) == ServiceState.ARMED:
+            self._phase = 2
+            rt.post(self.key, Level.INFO, f"service ARMED (request {self.rearm_counter}) after "
+                                          f"{(rt.now - self._t_phase) * 1e3:.1f} ms")
+            return TaskState.DONE
+        if rt.now - self._t_phase > ARM_TIMEOUT_S:
+            rt.post(self.key, Level.ERROR, f"service did not arm within {ARM_TIMEOUT_S} s "
+                                           f"(state {ServiceState(int(self.snapshot.service_state)).name})")
+            return TaskState.FAILED
+        return TaskState.RUNNING
+
+    def seq_shutdown(self, rt: "ControllerRuntime") -> TaskState:
+        """Keep bridging until the servo's safe stop has set the current limits to 0 (or
+        SHUTDOWN_WAIT_S), then withdraw the arm request (the service goes SAFE: 0 V)."""
+        if self.task_frames == 0:
+            self._t_phase = rt.now
+        if self.arm_request:
+            limits = np.asarray(rt.wm.get("servo.current_limit_cmd_a"), dtype=float)
+            if np.any(limits != 0) and rt.now - self._t_phase < SHUTDOWN_WAIT_S:
+                return TaskState.RUNNING
+            self.arm_request = 0
+            self._phase = 0
+            rt.post(self.key, Level.INFO, f"arm request withdrawn after {(rt.now - self._t_phase) * 1e3:.1f} ms")
+        self.monitoring = self.status_value(rt) == Status.ERROR  # an error stays monitored
+        return TaskState.DONE
+
+    def seq_safe(self, rt: "ControllerRuntime") -> TaskState:
+        return self.seq_shutdown(rt)
+
+    def seq_reset(self, rt: "ControllerRuntime") -> TaskState:
+        if self.fault_bits:
+            return TaskState.RUNNING  # the table refuses a reset while the fault is present
+        self.monitoring = False
+        self.clear_fault(rt)
+        return TaskState.DONE

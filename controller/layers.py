@@ -1,0 +1,404 @@
+"""The seven IRSS layers: a decision table, sequence tasks and periodic tasks each.
+
+IRSS report 2.2.1 lists the layers, highest first: System Up/Down, Multi-Segment Path
+Planner, Trajectory Path Planner, Cartesian Engine, Joint Planner, Servo Control, Data
+Acquisition. Every layer here has
+
+* world-model state variables ``<key>.command`` (written by the layer above; for
+  System Up/Down by its request task), ``<key>.status`` (written by the layer),
+  ``<key>.row`` (the table row that decided last), ``<key>.task`` (its sequence-task
+  mailbox) and ``<key>.error`` (error report code);
+* a decision table (:mod:`controller.decision`) run once per minor frame right after
+  the communications segment: it reads only its command, its own status and the status
+  of the layer below, checks the subordinate for errors, and posts its status and the
+  command to the layer below;
+* **sequence tasks** the table creates - init, start-up, shut-down, safe (error) and
+  error-reset - each run once per minor frame until it reports DONE or FAILED in the
+  layer's mailbox, which the table reads in the next frame;
+* **periodic tasks** run by the scheduling table (:mod:`controller.frames`).
+
+The layers above the Joint Planner are placeholders in this issue (their tasks do no
+motion work yet); the next issue fills them in.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Callable
+
+import numpy as np
+
+from controller.decision import (
+    BOTTOM_TABLE, LAYER_TABLE, Action, Command, CompiledTable, KEEP, Status, TaskState, compile_table,
+    command_text, status_text,
+)
+from controller.messages import Level
+from controller.params import JOINTS, N_JOINTS
+from controller.worldmodel import VarSpec
+
+if TYPE_CHECKING:  # pragma: no cover
+    from controller.runtime import ControllerRuntime
+
+#: user requests to System Up/Down (``ui.request``), report 2.2.8 request/response protocol
+class Request:
+    NONE = 0
+    POWER_UP = 1
+    POWER_DOWN = 2
+    ERROR_RESET = 3
+    NAMES = {0: "NONE", 1: "POWER UP", 2: "POWER DOWN", 3: "ERROR RESET"}
+
+
+class Response:
+    NONE = 0
+    IN_PROGRESS = 1
+    COMPLETE = 2
+    REFUSED = 3
+    FAILED = 4
+    NAMES = {0: "NONE", 1: "IN PROGRESS", 2: "COMPLETE", 3: "REFUSED", 4: "FAILED"}
+
+
+SEQ_ACTIONS = {Action.INIT: "init", Action.STARTUP: "startup", Action.SHUTDOWN: "shutdown",
+               Action.SAFE: "safe", Action.RESET: "reset"}
+
+
+class Layer:
+    """One layer. Subclasses add variables, sequence-task bodies and periodic tasks.
+
+    :param key: short name used in variable names and traces (``servo``)
+    :param title: the report's name (``Servo Control``)
+    """
+
+    key = "layer"
+    title = "Layer"
+    short = "LAYR"  #: four letters for the trace
+
+    def __init__(self) -> None:
+        self.superior: Layer | None = None
+        self.subordinate: Layer | None = None
+        self.table: CompiledTable = compile_table(LAYER_TABLE)
+        # mailbox (local to the layer, IRSS task mail boxes)
+        self.task_kind = Action.NONE
+        self.task_state = TaskState.IDLE
+        self.task_t0 = 0.0
+        self.task_frames = 0
+        self.fault = False
+        self.fault_text = ""
+        self.error_code = 0
+        # what the table read and decided this frame (for the trace)
+        self.last = (0, 0, 0, 0, False, 0)  # command, status, sub, task, fault, rid
+        self.decided = int(Status.SHUT_DOWN)  # the status the table decided last
+        self.periodic: dict[str, Callable[["ControllerRuntime"], None]] = {}
+
+    # --- names ---------------------------------------------------------------------------
+    @property
+    def v_command(self) -> str:
+        return f"{self.key}.command"
+
+    @property
+    def v_status(self) -> str:
+        return f"{self.key}.status"
+
+    def command_writer(self) -> str:
+        """Who writes this layer's command: the layer above."""
+        return self.superior.key if self.superior is not None else "updown_requests"
+
+    def state_specs(self) -> list[VarSpec]:
+        """The layer's state variables (commands, status, row, mailbox, error report)."""
+        k = self.key
+        return [
+            VarSpec(f"{k}.command", "command_input", "i2", (), self.command_writer(), 0,
+                    doc=f"command to {self.title} (Command enum: 0 NONE 1 INIT TO START 2 START UP "
+                        f"3 SHUT DOWN 4 ERROR RESET)"),
+            VarSpec(f"{k}.status", "status_output", "i2", (), k, int(Status.SHUT_DOWN),
+                    doc=f"{self.title} status (Status enum: 0 SHUT DOWN 1 INIT IN PROGRESS 2 WAITING FOR "
+                        f"SUBORDINATE TO INIT 3 INIT COMPLETE 4 START UP 5 START UP COMPLETE 6 SHUT DOWN "
+                        f"IN PROGRESS 7 ERROR 8 ERROR RESET)"),
+            VarSpec(f"{k}.row", "task_status", "i2", (), k, 0,
+                    doc=f"the {self.title} decision-table row that decided last"),
+            VarSpec(f"{k}.task", "task_status", "i2", (), k, 0,
+                    doc="sequence-task mailbox: 10 x kind (1 init 2 startup 3 shutdown 4 safe 5 reset) "
+                        "+ state (0 idle 1 running 2 done 3 failed)"),
+            VarSpec(f"{k}.error", "error_reports", "i4", (), k, 0,
+                    doc=f"{self.title} error report code (0 none; see docs/controller.md)"),
+        ]
+
+    def specs(self) -> list[VarSpec]:
+        """Every variable this layer owns or is the declared writer of (override to add)."""
+        return self.state_specs()
+
+    # --- decision table ------------------------------------------------------------------
+    def run_table(self, rt: "ControllerRuntime") -> None:
+        """Read command, own status and the subordinate's status; decide; post."""
+        wm = rt.wm
+        c = wm.get_state_variable(self.v_command)
+        s = wm.get_state_variable(self.v_status)
+        b = wm.get_state_variable(self.subordinate.v_status) if self.subordinate is not None \
+            else int(Status.NO_SUBORDINATE)
+        t = int(self.task_state)
+        f = self.fault
+        out = self.table.decide(c, s, b, t, f)
+        self.last = (c, s, b, t, f, out.rid)
+        self.decided = int(out.next_status)
+        if out.next_status != s:
+            wm.post_state_variable(self.key, self.v_status, int(out.next_status))
+            lvl = Level.ERROR if out.next_status == Status.ERROR else Level.INFO
+            why = out.note
+            if out.next_status == Status.ERROR and f and self.fault_text:
+                why = f"{why}: {self.fault_text}"
+            elif out.next_status == Status.ERROR and out.rid == 1 and self.subordinate is not None:
+                why = f"{why} ({self.subordinate.title})"
+            rt.post(self.key, lvl, f"{status_text(s)} -> {status_text(out.next_status)} "
+                                   f"(row {out.rid}: {why})")
+            rt.on_status_change(self, s, int(out.next_status))
+        if out.command_down != KEEP and self.subordinate is not None:
+            cur = wm.get_state_variable(self.subordinate.v_command)
+            if cur != out.command_down:
+                wm.post_state_variable(self.key, self.subordinate.v_command, out.command_down)
+                rt.post(self.key, Level.DEBUG, f"command {self.subordinate.title}: "
+                                               f"{command_text(out.command_down)}")
+        if out.rid != rt.last_rid.get(self.key):
+            wm.post_state_variable(self.key, f"{self.key}.row", out.rid)
+            rt.last_rid[self.key] = out.rid
+        if out.action != Action.NONE:
+            self._act(rt, out.action)
+
+    def _act(self, rt: "ControllerRuntime", action: Action) -> None:
+        if action == Action.CLEAR:
+            self.task_kind, self.task_state = Action.NONE, TaskState.IDLE
+        else:
+            self.task_kind, self.task_state = action, TaskState.RUNNING
+            self.task_t0 = rt.now
+            self.task_frames = 0
+            rt.post(self.key, Level.DEBUG, f"{SEQ_ACTIONS[action]} task scheduled")
+        self._post_mailbox(rt)
+
+    def _post_mailbox(self, rt: "ControllerRuntime") -> None:
+        rt.wm.post_state_variable(self.key, f"{self.key}.task", int(self.task_kind) * 10 + int(self.task_state))
+
+    # --- sequence tasks ------------------------------------------------------------------
+    def run_sequence(self, rt: "ControllerRuntime") -> None:
+        """Run the current sequence task once, if it is running."""
+        if self.task_state != TaskState.RUNNING:
+            return
+        body = getattr(self, "seq_" + SEQ_ACTIONS[self.task_kind])
+        try:
+            state = body(rt)
+        except Exception as err:  # noqa: BLE001 - a task failure is a layer error, never a crash
+            rt.post(self.key, Level.ERROR, f"{SEQ_ACTIONS[self.task_kind]} task raised "
+                                           f"{type(err).__name__}: {err}")
+            state = TaskState.FAILED
+        self.task_frames += 1
+        if state != TaskState.RUNNING:
+            self.task_state = TaskState(state)
+            self._post_mailbox(rt)
+            if state == TaskState.FAILED:
+                rt.post(self.key, Level.ERROR, f"{SEQ_ACTIONS[self.task_kind]} task FAILED")
+
+    def set_fault(self, rt: "ControllerRuntime", code: int, text: str) -> None:
+        """Raise this layer's fault flag (read by its table next frame) and report it."""
+        if not self.fault or code != self.error_code:
+            rt.post(self.key, Level.ERROR, f"fault {code}: {text}")
+            rt.wm.post_task_outputs(self.key, {f"{self.key}.error": code})
+        self.fault, self.fault_text, self.error_code = True, text, code
+
+    def clear_fault(self, rt: "ControllerRuntime") -> None:
+        if self.fault or self.error_code:
+            rt.wm.post_task_outputs(self.key, {f"{self.key}.error": 0})
+        self.fault, self.fault_text, self.error_code = False, "", 0
+
+    def seq_init(self, rt: "ControllerRuntime") -> TaskState:
+        return TaskState.DONE
+
+    def seq_startup(self, rt: "ControllerRuntime") -> TaskState:
+        return TaskState.DONE
+
+    def seq_shutdown(self, rt: "ControllerRuntime") -> TaskState:
+        return TaskState.DONE
+
+    def seq_safe(self, rt: "ControllerRuntime") -> TaskState:
+        return self.seq_shutdown(rt)
+
+    def seq_reset(self, rt: "ControllerRuntime") -> TaskState:
+        self.clear_fault(rt)
+        return TaskState.DONE
+
+    def status(self, rt: "ControllerRuntime") -> Status:
+        return Status(rt.wm.get_state_variable(self.v_status))
+
+
+class UpDownLayer(Layer):
+    """System Up/Down: master control; user requests arrive here (request/response).
+
+    Its request task (``updown_requests``, every minor frame) is the report's "real time
+    task running in the system up/down layer": it takes a request posted asynchronously
+    by the user interface (``ui.request`` + a new ``ui.request_seq``), turns it into the
+    layer's command, follows the power-up sequence (INIT TO START, then START UP once
+    INITIALIZATION COMPLETE) and answers in ``ui.response`` / ``ui.response_seq``.
+    """
+
+    key = "updown"
+    title = "System Up/Down"
+    short = "UPDN"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._seen_seq = 0
+        self._active = Request.NONE
+        self._active_seq = 0
+        self._cmd = Command.NONE
+        self.periodic["updown_requests"] = self.requests_task
+
+    def specs(self) -> list[VarSpec]:
+        return self.state_specs() + [
+            VarSpec("ui.request", "command_input", "i2", (), "user", 0,
+                    doc="user request to System Up/Down: 1 POWER UP 2 POWER DOWN 3 ERROR RESET "
+                        "(acted on when ui.request_seq changes)"),
+            VarSpec("ui.request_seq", "command_input", "i4", (), "user", 0,
+                    doc="user request number: increment to make a new request"),
+            VarSpec("ui.response", "response_output", "i2", (), "updown_requests", 0,
+                    doc="answer to the request ui.response_seq: 1 IN PROGRESS 2 COMPLETE 3 REFUSED 4 FAILED"),
+            VarSpec("ui.response_seq", "response_output", "i4", (), "updown_requests", 0,
+                    doc="the request number ui.response answers"),
+        ]
+
+    def _respond(self, rt, seq: int, code: int, text: str) -> None:
+        rt.wm.post_task_outputs("updown_requests", {"ui.response": code, "ui.response_seq": seq})
+        lvl = Level.WARNING if code in (Response.REFUSED, Response.FAILED) else Level.INFO
+        rt.post(self.key, lvl, f"request {seq}: {text} -> {Response.NAMES[code]}")
+
+    def _command(self, rt, cmd: Command) -> None:
+        if cmd != self._cmd:
+            self._cmd = cmd
+            rt.wm.post_task_outputs("updown_requests", {"updown.command": int(cmd)})
+
+    def requests_task(self, rt: "ControllerRuntime") -> None:
+        wm = rt.wm
+        v = wm.get_task_inputs(("ui.request", "ui.request_seq", "updown.status"))
+        seq, req, st = int(v["ui.request_seq"]), int(v["ui.request"]), Status(int(v["updown.status"]))
+        if seq != self._seen_seq:
+            self._seen_seq = seq
+            name = Request.NAMES.get(req, f"request {req}")
+            if req == Request.POWER_UP:
+                if st == Status.SHUT_DOWN:
+                    self._active, self._active_seq = req, seq
+                    self._command(rt, Command.INIT_TO_START)
+                    self._respond(rt, seq, Response.IN_PROGRESS, name)
+                else:
+                    self._respond(rt, seq, Response.REFUSED, f"{name}: system is {status_text(st)}")
+            elif req == Request.POWER_DOWN:
+                if st in (Status.INITIALIZATION_COMPLETE, Status.START_UP, Status.START_UP_COMPLETE):
+                    self._active, self._active_seq = req, seq
+                    self._command(rt, Command.SHUT_DOWN)
+                    self._respond(rt, seq, Response.IN_PROGRESS, name)
+                elif st == Status.SHUT_DOWN:
+                    self._respond(rt, seq, Response.COMPLETE, f"{name}: already SHUT DOWN")
+                elif st in (Status.INITIALIZATION_IN_PROGRESS, Status.WAITING_FOR_SUBORDINATE_TO_INIT):
+                    self._respond(rt, seq, Response.REFUSED, f"{name}: no SHUT DOWN before INITIALIZATION "
+                                                             f"COMPLETE (report 2.2.6)")
+                else:
+                    self._respond(rt, seq, Response.REFUSED, f"{name}: system is {status_text(st)}")
+            elif req == Request.ERROR_RESET:
+                if st == Status.ERROR:
+                    self._active, self._active_seq = req, seq
+                    self._command(rt, Command.ERROR_RESET)
+                    self._respond(rt, seq, Response.IN_PROGRESS, name)
+                else:
+                    self._respond(rt, seq, Response.REFUSED, f"{name}: system is {status_text(st)}, not ERROR")
+            else:
+                self._respond(rt, seq, Response.REFUSED, f"unknown request {req}")
+        # follow the active request synchronously with the real-time system
+        a = self._active
+        if a == Request.NONE:
+            return
+        name = Request.NAMES[a]
+        if st == Status.ERROR and a != Request.ERROR_RESET:
+            self._respond(rt, self._active_seq, Response.FAILED, f"{name}: System Up/Down in ERROR")
+            self._active = Request.NONE
+        elif a == Request.POWER_UP:
+            if st == Status.INITIALIZATION_COMPLETE:
+                self._command(rt, Command.START_UP)
+            elif st == Status.START_UP_COMPLETE:
+                self._respond(rt, self._active_seq, Response.COMPLETE, f"{name}: START UP COMPLETE")
+                self._active = Request.NONE
+        elif a in (Request.POWER_DOWN, Request.ERROR_RESET) and st == Status.SHUT_DOWN:
+            self._respond(rt, self._active_seq, Response.COMPLETE, f"{name}: SHUT DOWN")
+            self._active = Request.NONE
+
+
+class PlaceholderLayer(Layer):
+    """A planning layer whose algorithms come with the motion issue: the decision table
+    and the sequences are real, the periodic task only counts its runs."""
+
+    def __init__(self, key: str, title: str, short: str, tasks: tuple[str, ...]) -> None:
+        self.key, self.title, self.short = key, title, short
+        super().__init__()
+        self.runs = dict.fromkeys(tasks, 0)
+        for t in tasks:
+            self.periodic[t] = self._make(t)
+
+    def _make(self, name: str):
+        def task(rt: "ControllerRuntime") -> None:
+            self.runs[name] += 1
+        return task
+
+
+class JointPlannerLayer(Layer):
+    """Joint Planner: produces the commanded joint positions for the servo layer.
+
+    In this issue it passes a user joint goal (``joint.goal_rad`` with a new
+    ``joint.goal_seq``), clipped to the soft limits, to ``servo.q_cmd_rad`` (a position
+    step into the servo layer); the kinematics come with the motion issue. Its start-up
+    task commands the current joint angles so that nothing moves when the loop closes.
+    """
+
+    key = "joint"
+    title = "Joint Planner"
+    short = "JNTP"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._seen_goal = 0
+        self.periodic["joint_planner"] = self.plan_task
+        self.lo = np.array([j.soft_lo_rad for j in JOINTS])
+        self.hi = np.array([j.soft_hi_rad for j in JOINTS])
+
+    def specs(self) -> list[VarSpec]:
+        z = [0.0] * N_JOINTS
+        return self.state_specs() + [
+            VarSpec("joint.goal_rad", "command_input", "f8", (N_JOINTS,), "user", z, "rad",
+                    doc="user joint goal (command-area joint order); acted on when joint.goal_seq changes"),
+            VarSpec("joint.goal_seq", "command_input", "i4", (), "user", 0,
+                    doc="increment to command joint.goal_rad"),
+            VarSpec("servo.q_cmd_rad", "task_io", "f8", (N_JOINTS,), "joint", z, "rad",
+                    doc="commanded joint positions for Servo Control"),
+            VarSpec("servo.q_cmd_valid", "task_io", "b1", (), "joint", False,
+                    doc="servo.q_cmd_rad is a command (else the servo holds where it started)"),
+        ]
+
+    def seq_startup(self, rt: "ControllerRuntime") -> TaskState:
+        v = rt.wm.get_task_inputs(("daq.joint_angle_rad", "joint.goal_seq"))
+        self._seen_goal = int(v["joint.goal_seq"])  # goals set while powered down do not jump
+        rt.wm.post_task_outputs("joint", {"servo.q_cmd_rad": v["daq.joint_angle_rad"], "servo.q_cmd_valid": True})
+        return TaskState.DONE
+
+    def seq_shutdown(self, rt: "ControllerRuntime") -> TaskState:
+        rt.wm.post_task_outputs("joint", {"servo.q_cmd_valid": False})
+        return TaskState.DONE
+
+    def plan_task(self, rt: "ControllerRuntime") -> None:
+        if rt.wm.get_state_variable(self.v_status) != Status.START_UP_COMPLETE:
+            return
+        v = rt.wm.get_task_inputs(("joint.goal_rad", "joint.goal_seq"))
+        seq = int(v["joint.goal_seq"])
+        if seq == self._seen_goal:
+            return
+        self._seen_goal = seq
+        goal = np.asarray(v["joint.goal_rad"], dtype=float)
+        q = np.clip(goal, self.lo, self.hi)
+        if np.any(q != goal):
+            rt.post(self.key, Level.WARNING, f"goal {seq} clipped to the soft limits")
+        rt.wm.post_task_outputs("joint", {"servo.q_cmd_rad": q})
+        rt.post(self.key, Level.INFO, f"goal {seq}: " + " ".join(f"{x:+.4f}" for x in q) + " rad")
+
+
+def bottom_table() -> CompiledTable:
+    return compile_table(BOTTOM_TABLE)

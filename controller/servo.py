@@ -1,0 +1,298 @@
+"""Servo Control: independent first-order joint compensators, limits, brake sequencing.
+
+IRSS report 2.2.1: the servo layer "combines the current commanded joint positions
+with the current joint angles (and tachometer data) to produce motor control
+voltages. During Phase II of IRSS first order compensators are being used to perform
+independent joint control." pfma-model.md 8.4 and 5 (copied in controller.params):
+
+* joint loop ``qdot_cmd = C_j(z) (q_cmd - q)`` with C_j(s) = K (tau_z s + 1) /
+  (tau_p s + 1), discretised by Tustin at the servo period T::
+
+      u_k = a u_{k-1} + b0 e_k + b1 e_{k-1}
+      a = (2 tau_p - T) / (2 tau_p + T),  b0 = K (2 tau_z + T) / (2 tau_p + T),
+      b1 = K (T - 2 tau_z) / (2 tau_p + T)
+
+  (tau_z = tau_p = 0: the pure gain K, the default K = 8 1/s);
+* rate command saturated at omega_lim = 0.6 omega_fs, commanded positions clipped to
+  the soft limits, no rate further out beyond a soft limit, a fault 1 degree beyond;
+* power-up: rate command 0 V, then raise the current limit (the brake releases);
+  safe stop: rate 0 V, wait for |qdot| < 0.01 rad/s or 0.5 s, then current limit 0 V.
+
+The control-law parameters are protected world-model variables (``servo.kp_per_s``
+...): ``pfma wm set`` refuses them while powered up; the layer latches them in its
+initialisation task.
+
+:func:`predict_step` is the compensator design's prediction of a position step: the
+same discrete compensator, the controller's I/O delay, and the amplifier's rate loop of
+pfma-model 8.4 (tach filter, lambda, viscous friction, current saturation), linear
+otherwise. Tests compare the simulated arm's response with it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from controller.decision import Status, TaskState
+from controller.layers import Layer
+from controller.messages import Level
+from controller.params import (
+    DEFAULT_KP_PER_S, JOINTS, N_CURRENT_LIMITS, N_JOINTS, RATE_LOOP_LAMBDA, SAFE_STOP_RATE_RAD_S,
+    SAFE_STOP_TIMEOUT_S, TACH_TAU_S, JointFacts, run_current_limits_a,
+)
+from controller.worldmodel import VarSpec
+
+if TYPE_CHECKING:  # pragma: no cover
+    from controller.runtime import ControllerRuntime
+
+#: a joint this far beyond its soft limit is a servo fault (assumed: 1 degree)
+LIMIT_FAULT_MARGIN_RAD = math.radians(1.0)
+#: brakes must report released within this time of raising the current limits (assumed)
+BRAKE_RELEASE_TIMEOUT_S = 0.5
+
+#: error report codes of the servo layer
+ERR_LIMIT, ERR_PARAMS = 10, 11
+
+
+class LeadLag:
+    """Independent first-order compensators, one per joint, Tustin-discretised.
+
+    :param k: DC gain K per joint (1/s: rad/s of rate per rad of error)
+    :param tau_z: zero time constants (s)
+    :param tau_p: pole time constants (s); > 0 whenever tau_z > 0
+    :param period_s: sample period T
+    """
+
+    def __init__(self, k, tau_z, tau_p, period_s: float) -> None:
+        k, tz, tp = (np.asarray(x, dtype=float).copy() for x in (k, tau_z, tau_p))
+        if np.any(k <= 0) or np.any(tz < 0) or np.any(tp < 0):
+            raise ValueError("compensator: K must be > 0 and time constants >= 0")
+        if np.any((tp == 0) & (tz > 0)):
+            raise ValueError("compensator: a zero (tau_z > 0) needs a pole (tau_p > 0) to be proper")
+        if period_s <= 0:
+            raise ValueError("compensator: period must be positive")
+        T = float(period_s)
+        pure = (tz == 0) & (tp == 0)
+        d = 2 * tp + T
+        self.k, self.tau_z, self.tau_p, self.period_s = k, tz, tp, T
+        self.a = np.where(pure, 0.0, (2 * tp - T) / d)
+        self.b0 = np.where(pure, k, k * (2 * tz + T) / d)
+        self.b1 = np.where(pure, 0.0, k * (T - 2 * tz) / d)
+        self.u = np.zeros_like(k)
+        self.e = np.zeros_like(k)
+
+    def reset(self, e0=0.0) -> None:
+        """Start in steady state for a constant error ``e0`` (u = K e0)."""
+        self.e = np.broadcast_to(np.asarray(e0, dtype=float), self.k.shape).copy()
+        self.u = self.k * self.e
+
+    def step(self, e: np.ndarray) -> np.ndarray:
+        """One sample: the new outputs (rad/s)."""
+        u = self.a * self.u + self.b0 * e + self.b1 * self.e
+        self.u = u
+        self.e = np.array(e, dtype=float)
+        return u
+
+
+@dataclass
+class StepPrediction:
+    t_s: np.ndarray
+    q_rad: np.ndarray
+    step_rad: float
+    overshoot_rad: float  #: max excursion beyond the target, in the step's direction (>= 0)
+    settle_s: float  #: last time outside 2 % of the step
+
+
+def predict_step(jf: JointFacts, step_rad: float, *, kp: float = DEFAULT_KP_PER_S, tau_z: float = 0.0,
+                 tau_p: float = 0.0, servo_period_s: float = 1 / 160, delay_s: float = 2 / 320,
+                 rate_limit: float | None = None, current_limit_a: float | None = None,
+                 duration_s: float = 3.0, substeps: int = 16) -> StepPrediction:
+    """Predicted response of one joint to a position step of the servo's command.
+
+    The compensator runs every ``servo_period_s`` on the angle sampled then; its output
+    reaches the amplifier ``delay_s`` later and is held (ZOH). The amplifier is the
+    rate loop of pfma-model 8.4: ``w' = lambda (u - y) - (b/J) w`` with the tach filter
+    ``y' = (w - y) / tau_f``, torque saturated at the current limit. Coulomb friction,
+    gravity and resolver quantisation are left out (they only take energy out or add
+    a dead band; the tests allow for the quantisation).
+    """
+    comp = LeadLag([kp], [tau_z], [tau_p], servo_period_s)
+    comp.reset(0.0)
+    lim = jf.omega_lim_rad_s if rate_limit is None else rate_limit
+    i_lim = (0.5 * jf.i_max_a) if current_limit_a is None else current_limit_a
+    acc_max = jf.torque_per_amp * i_lim / jf.inertia_kg_m2
+    lam, tf, damp = RATE_LOOP_LAMBDA, TACH_TAU_S, jf.viscous_nm_s / jf.inertia_kg_m2
+    dt = servo_period_s / substeps
+    n = int(round(duration_s / dt))
+    q = w = y = 0.0
+    pending: list[tuple[float, float]] = []  # (time it reaches the amplifier, value)
+    u_amp = 0.0
+    ts = np.empty(n)
+    qs = np.empty(n)
+    next_sample = 0.0
+    for i in range(n):
+        t = i * dt
+        if t >= next_sample - 1e-12:
+            u = float(np.clip(comp.step(np.array([step_rad - q]))[0], -lim, lim))
+            pending.append((t + delay_s, u))
+            next_sample += servo_period_s
+        while pending and pending[0][0] <= t + 1e-12:
+            u_amp = pending.pop(0)[1]
+        acc = lam * (u_amp - y)
+        acc = max(-acc_max, min(acc_max, acc)) - damp * w
+        w += acc * dt
+        y += (w - y) / tf * dt
+        q += w * dt
+        ts[i], qs[i] = t, q
+    sgn = 1.0 if step_rad >= 0 else -1.0
+    over = max(0.0, float(np.max(sgn * (qs - step_rad))))
+    outside = np.nonzero(np.abs(qs - step_rad) > 0.02 * abs(step_rad))[0]
+    settle = float(ts[outside[-1]]) if outside.size else 0.0
+    return StepPrediction(ts, qs, step_rad, over, settle)
+
+
+class ServoLayer(Layer):
+    """Servo Control (layer 6)."""
+
+    key = "servo"
+    title = "Servo Control"
+    short = "SERV"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.periodic["servo_control"] = self.control_task
+        self.comp: LeadLag | None = None
+        self.period_s = 1 / 160
+        self.params: dict[str, np.ndarray] = {}
+        self.hold = np.zeros(N_JOINTS)
+        self._phase = 0
+        self._t_phase = 0.0
+
+    def specs(self) -> list[VarSpec]:
+        z6 = [0.0] * N_JOINTS
+
+        def par(name, value, units, doc):
+            return VarSpec(f"servo.{name}", "control_flags", "f8", (len(value),), "user", list(value), units,
+                           protected=True, doc=doc + " (protected: not while powered up)")
+        return self.state_specs() + [
+            par("kp_per_s", [DEFAULT_KP_PER_S] * N_JOINTS, "1/s", "compensator DC gain K (pfma-model 8.4: 8)"),
+            par("tau_z_s", z6, "s", "compensator zero time constant (0 = none)"),
+            par("tau_p_s", z6, "s", "compensator pole time constant (0 = none; > 0 if tau_z > 0)"),
+            par("rate_limit_rad_s", [j.omega_lim_rad_s for j in JOINTS], "rad/s",
+                "joint rate limit (pfma-model 8.2: 0.6 omega_fs)"),
+            par("current_limit_a", run_current_limits_a(), "A",
+                "current limits while powered up (6 joints + gripper)"),
+            par("q_min_rad", [j.soft_lo_rad for j in JOINTS], "rad", "soft lower joint limits (8.2)"),
+            par("q_max_rad", [j.soft_hi_rad for j in JOINTS], "rad", "soft upper joint limits (8.2)"),
+            VarSpec("servo.rate_cmd_rad_s", "task_io", "f8", (N_JOINTS,), "servo", z6, "rad/s",
+                    doc="joint rate commands to Data Acquisition (command-area joint order)"),
+            VarSpec("servo.current_limit_cmd_a", "task_io", "f8", (N_CURRENT_LIMITS,), "servo",
+                    [0.0] * N_CURRENT_LIMITS, "A", doc="current-limit commands (0 = brakes set)"),
+            VarSpec("servo.error_rad", "task_status", "f8", (N_JOINTS,), "servo", z6, "rad",
+                    doc="position error q_cmd - q of the last servo run"),
+            VarSpec("servo.brake_phase", "task_status", "i2", (), "servo", 0,
+                    doc="0 brakes set, 1 rate zeroed, 2 limits raised, 3 released (loop closed), "
+                        "4 stopping, 5 limits zero"),
+        ]
+
+    # --- sequence tasks ------------------------------------------------------------------
+    def seq_init(self, rt: "ControllerRuntime") -> TaskState:
+        names = ("kp_per_s", "tau_z_s", "tau_p_s", "rate_limit_rad_s", "current_limit_a", "q_min_rad", "q_max_rad")
+        v = rt.wm.get_task_inputs([f"servo.{n}" for n in names])
+        p = {n: np.array(v[f"servo.{n}"], dtype=float) for n in names}
+        self.period_s = rt.task_period_s("servo_control")
+        try:
+            self.comp = LeadLag(p["kp_per_s"], p["tau_z_s"], p["tau_p_s"], self.period_s)
+            problems = []
+            for i, j in enumerate(JOINTS):
+                if not 0 < p["rate_limit_rad_s"][i] <= j.omega_fs_rad_s:
+                    problems.append(f"{j.name} rate limit {p['rate_limit_rad_s'][i]} outside (0, {j.omega_fs_rad_s}]")
+                if not j.hard_lo_rad <= p["q_min_rad"][i] < p["q_max_rad"][i] <= j.hard_hi_rad:
+                    problems.append(f"{j.name} soft limits {p['q_min_rad'][i]:.3f}..{p['q_max_rad'][i]:.3f} "
+                                    f"not inside the hard limits")
+                if not 0 <= p["current_limit_a"][i] <= j.i_max_a:
+                    problems.append(f"{j.name} current limit {p['current_limit_a'][i]} A outside 0..{j.i_max_a}")
+            if problems:
+                raise ValueError("; ".join(problems))
+        except ValueError as err:
+            self.set_fault(rt, ERR_PARAMS, f"control-law parameters: {err}")
+            return TaskState.FAILED
+        self.params = p
+        rt.post(self.key, Level.INFO, f"compensators latched: T={self.period_s * 1e3:.3f} ms, "
+                                      f"K={' '.join(f'{x:g}' for x in p['kp_per_s'])}")
+        return TaskState.DONE
+
+    def _brake_phase(self, rt, phase: int) -> None:
+        self._phase = phase
+        self._t_phase = rt.now
+        rt.wm.post_task_outputs("servo", {"servo.brake_phase": phase})
+
+    def seq_startup(self, rt: "ControllerRuntime") -> TaskState:
+        """Brake release (pfma-model 8.4): rate 0 V, then raise the current limits, wait
+        until the brakes report released; then hold the present angles and close the loop."""
+        if self.task_frames == 0:
+            rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS)})
+            self._brake_phase(rt, 1)
+            return TaskState.RUNNING
+        if self._phase == 1:
+            rt.wm.post_task_outputs("servo", {"servo.current_limit_cmd_a": self.params["current_limit_a"]})
+            self._brake_phase(rt, 2)
+            return TaskState.RUNNING
+        v = rt.wm.get_task_inputs(("daq.brakes_released", "daq.joint_angle_rad"))
+        if bool(v["daq.brakes_released"]):
+            self.hold = np.array(v["daq.joint_angle_rad"], dtype=float)
+            self.comp.reset(0.0)
+            rt.post(self.key, Level.INFO, f"brakes released {(rt.now - self._t_phase) * 1e3:.1f} ms after the "
+                                          f"current limits were raised; holding the present angles")
+            self._brake_phase(rt, 3)
+            return TaskState.DONE
+        if rt.now - self._t_phase > BRAKE_RELEASE_TIMEOUT_S:
+            rt.post(self.key, Level.ERROR, f"brakes not released {BRAKE_RELEASE_TIMEOUT_S} s after the "
+                                           f"current limits were raised")
+            return TaskState.FAILED
+        return TaskState.RUNNING
+
+    def seq_shutdown(self, rt: "ControllerRuntime") -> TaskState:
+        """Safe stop (pfma-model 8.4): rate 0 V; wait |qdot| < 0.01 rad/s or 0.5 s; limits 0 V."""
+        if self.task_frames == 0:
+            rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS)})
+            self._brake_phase(rt, 4)
+            return TaskState.RUNNING
+        qdot = np.asarray(rt.wm.get("daq.joint_rate_rad_s"), dtype=float)
+        still = bool(np.all(np.abs(qdot) < SAFE_STOP_RATE_RAD_S))
+        if still or rt.now - self._t_phase >= SAFE_STOP_TIMEOUT_S:
+            rt.wm.post_task_outputs("servo", {"servo.current_limit_cmd_a": np.zeros(N_CURRENT_LIMITS)})
+            self._brake_phase(rt, 5)
+            rt.post(self.key, Level.INFO, f"safe stop: current limits 0 after "
+                                          f"{(rt.now - self._t_phase) * 1e3:.1f} ms "
+                                          f"({'joints still' if still else 'timeout'})")
+            return TaskState.DONE
+        return TaskState.RUNNING
+
+    def seq_safe(self, rt: "ControllerRuntime") -> TaskState:
+        return self.seq_shutdown(rt)
+
+    # --- the control law -----------------------------------------------------------------
+    def control_task(self, rt: "ControllerRuntime") -> None:
+        """Commanded joint positions -> rate commands (only while START UP COMPLETE)."""
+        wm = rt.wm
+        if wm.get_state_variable(self.v_status) != Status.START_UP_COMPLETE or self.fault:
+            return
+        v = wm.get_task_inputs(("daq.joint_angle_rad", "servo.q_cmd_rad", "servo.q_cmd_valid"))
+        q = np.asarray(v["daq.joint_angle_rad"], dtype=float)
+        p = self.params
+        q_cmd = np.asarray(v["servo.q_cmd_rad"], dtype=float) if bool(v["servo.q_cmd_valid"]) else self.hold
+        q_cmd = np.clip(q_cmd, p["q_min_rad"], p["q_max_rad"])
+        e = q_cmd - q
+        rate = np.clip(self.comp.step(e), -p["rate_limit_rad_s"], p["rate_limit_rad_s"])
+        below, above = q < p["q_min_rad"], q > p["q_max_rad"]
+        rate[(below & (rate < 0)) | (above & (rate > 0))] = 0.0
+        out = (q < p["q_min_rad"] - LIMIT_FAULT_MARGIN_RAD) | (q > p["q_max_rad"] + LIMIT_FAULT_MARGIN_RAD)
+        if np.any(out):
+            names = [JOINTS[i].name for i in np.nonzero(out)[0]]
+            self.set_fault(rt, ERR_LIMIT, f"beyond the soft limit: {', '.join(names)}")
+            rate[:] = 0.0
+        wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": rate, "servo.error_rad": e})
