@@ -308,7 +308,8 @@ def run(args) -> int:
         last_note = time.monotonic()
         while not stop["flag"]:
             if client.changed("inputs"):
-                if sc.feed(client.read_inputs().record):
+                snap = client.read_inputs()
+                if snap.seq and sc.feed(snap.record):  # seq 0: nothing published yet
                     break
                 continue
             now = time.monotonic()
