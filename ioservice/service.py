@@ -76,11 +76,16 @@ class IoService:
     :param watchdog_s: command heartbeat time-out (15 ms: the MVME 104's watchdog)
     :param owner: name written into the buffer's owner slot
     :param serial: open the F/T and CRL lines of the MVME400 (off for racks without them)
+    :param calibration: calibration file path or loaded ``calibration.files.Calibration``,
+        applied before the drivers are wired (see the "calibration" section at the end)
     """
 
     def __init__(self, rack: RackConfig, bus, buffer: Bit3Buffer, clock: Clock, *,
                  schedule: Schedule | None = None, watchdog_s: float = 0.015,
-                 owner: str = "pfma-ioservice", serial: bool = True) -> None:
+                 owner: str = "pfma-ioservice", serial: bool = True, calibration=None) -> None:
+        self.calibration = None  # calibration: the loaded calibration in force (None = nominal)
+        if calibration is not None:
+            rack, self.calibration = _calibrated_rack(rack, calibration)
         self.rack = rack
         self.bus = bus
         self.buf = buffer
@@ -116,6 +121,7 @@ class IoService:
         if serial:
             self._wire_serial()
         self._wire_cae()
+        self._apply_calibration_extras()  # calibration: resolver offsets, CAE, F/T, header hash
         self._cpu0 = self._cpu_s()
         self._wall0 = clock.now()
         self.stats_every = max(1, int(round(self.schedule.frame_rate_hz / 2)))  # twice a second
@@ -348,7 +354,11 @@ class IoService:
                 v["rtd_status"][slots] |= 0x100
                 continue
             v["rtd_counts"][slots] = counts
-            v["rtd_angle_rad"][slots] = np.multiply(counts, drv.lsb_rad)
+            ang = np.multiply(counts, drv.lsb_rad)
+            cal = self._rtd_cal.get(cfg.name)
+            if cal is not None:  # calibration: (scale * raw + offset) mod 2 pi
+                ang = np.mod(ang * cal[0] + cal[1], 2.0 * math.pi)
+            v["rtd_angle_rad"][slots] = ang
             v["rtd_status"][slots] = [int(f) | (0 if status.reference_present else 2) for f in status.faults]
             self._input_ok(cfg.name, bslot)
             v["t_rtd_s"][...] = t
@@ -395,6 +405,10 @@ class IoService:
             v["ft_counts"][:] = r.counts
             v["ft_force_n"][:] = r.force_n
             v["ft_torque_nm"][:] = r.torque_nm
+            if self._ft_cal is not None:  # calibration: wrench = matrix @ (counts - bias)
+                w = self._ft_cal.wrench(r.counts)
+                v["ft_force_n"][:] = w[:3]
+                v["ft_torque_nm"][:] = w[3:]
             v["ft_status"][...] = r.status
             v["ft_t_s"][...] = r.t_s
             v["t_ft_s"][...] = r.t_s
@@ -651,3 +665,53 @@ class IoService:
             except PfmaError:
                 pass
         self.post(Severity.INFO, 151, f"{reason} (pid {os.getpid()})")
+
+    # ------------------------------------------------------------------ calibration
+    # (calibration issue) Scales and offsets come from the rack configuration with the
+    # calibration applied (calibration.files.apply_to_rack); resolver offsets, the CAE
+    # and F/T sections and the header hash are applied here.
+    def _apply_calibration_extras(self) -> None:
+        from calibration.files import cae_calibration, calibration_hash, ft_calibration
+        self._rtd_cal = {}
+        for cfg, _drv, _slots, _b in self._rtd:
+            chans = sorted(self.rack.board(cfg.name).channels, key=lambda c: c.channel)
+            scale = np.array([c.scale for c in chans])
+            offset = np.array([c.offset for c in chans])
+            if np.any(scale != 1.0) or np.any(offset != 0.0):
+                self._rtd_cal[cfg.name] = (scale, offset)
+        cal = self.calibration
+        self._ft_cal = ft_calibration(cal) if cal is not None else None
+        if self._cae is not None:
+            from drivers.crl.cae import CaeCalibration
+            cae = cae_calibration(cal) if cal is not None else None
+            self._cae.calibration = cae if cae is not None else CaeCalibration()
+        self.buf.set_calibration_hash(calibration_hash(cal) if cal is not None else bytes(8))
+
+    def reload_calibration(self, calibration) -> None:
+        """Load a calibration (path or loaded object) and re-wire every conversion.
+
+        :raises PfmaError: while the arm is ARMED (nothing changes)
+        :raises CalibrationError: for a bad file (naming the field); the calibration in
+            force stays
+        """
+        if self.state == ServiceState.ARMED or self.guard.state == ServiceState.ARMED:
+            raise PfmaError("calibration reload refused: the arm is ARMED; disarm first "
+                            "(the calibration in force is unchanged)")
+        rack, cal = _calibrated_rack(self.rack, calibration)
+        self.rack, self.calibration = rack, cal
+        for cfg, _drv, _slots, scale, offset, *_ in self._adc:
+            chans = sorted(rack.board(cfg.name).channels, key=lambda c: c.channel)
+            scale[:] = [c.scale for c in chans]
+            offset[:] = [c.offset for c in chans]
+        chans = sorted(rack.board(self._dac_cfg.name).channels, key=lambda c: c.channel)
+        self._dac_scale[:] = [c.scale for c in chans]
+        self._dac_offset[:] = [c.offset for c in chans]
+        self._apply_calibration_extras()
+        self.post(Severity.INFO, 160, f"calibration v{cal.version} loaded ({cal.hash().hex()})")
+
+
+def _calibrated_rack(rack: RackConfig, calibration):
+    """(rack with calibrated scales, validated calibration) from a path or object."""
+    from calibration.files import apply_to_rack, resolve
+    cal = resolve(calibration, rack)
+    return apply_to_rack(rack, cal), cal

@@ -43,6 +43,8 @@ def add_parser(sub):
     p.add_argument("--demo", action="store_true",
                    help="also start the demo controller (a separate process) that arms and swings the arm")
     p.add_argument("--realtime", action="store_true", help="try SCHED_FIFO and a pinned CPU (needs privileges)")
+    p.add_argument("--calibration", default=None, metavar="FILE",
+                   help="calibration file (pfma calibrate ...) applied at start; default: nominal scales")
     return p
 
 
@@ -102,7 +104,8 @@ def run(args) -> int:
             print(f"pfma serve: {w}", file=sys.stderr)
     Bit3Buffer.unlink(args.buffer) if _stale(args.buffer) else None
     buf = Bit3Buffer.create(args.buffer, layout, exist_ok=True)
-    svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3)
+    svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3,
+                    calibration=getattr(args, "calibration", None))
     for e in svc.init_errors:
         print(f"pfma serve: {e}", file=sys.stderr)
     svc.install_signal_handlers()

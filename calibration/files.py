@@ -1,0 +1,558 @@
+"""Versioned, validated calibration files: one JSON file per rack.
+
+A calibration file holds the conversion of **every** analog channel of the rack
+(ADC, DAC and resolver channels: ``engineering = scale * raw + offset``, where raw is
+volts for ADC/DAC channels and the resolver's angle in rad for RTD channels; a DAC
+writes ``volts = (engineering - offset) / scale``), plus optional sections for the CAE
+hand controller (centre/deadband/span/sign per axis) and the wrist F/T sensor (bias in
+counts, 6x6 counts -> N/N*m matrix, tool payload). Each entry carries its provenance:
+date, operator, method, points, residuals and the software version that made it.
+
+Files are written atomically (temporary file, fsync, rename); the file being replaced
+is kept, byte for byte, in ``<file>.history/``. A file that is truncated, has a value
+of the wrong type, lacks a channel of the rack or names one it does not have is
+refused with a :class:`CalibrationError` that names the field; the caller's previous
+calibration stays in force (nothing is changed until a file has fully validated).
+
+Format (``format = "pfma-calibration"``, ``format_version = 1``)::
+
+    {"format": "pfma-calibration", "format_version": 1, "rack": "pfma", "version": 3,
+     "created": "2024-05-01T10:00:00Z", "software_version": "pfma 0.1.0",
+     "previous_hash": "0123456789abcdef",
+     "channels": {"shoulder_yaw_rate": {"device": "adc", "units": "rad/s", "scale": 0.04,
+                  "offset": 0.0, "provenance": {"date": ..., "operator": ..., "method": ...,
+                  "software_version": ..., "points": [[x, y], ...], "residuals": [...]}}, ...},
+     "cae": {"x": {"centre_v": 0.0, "deadband_v": 0.5, "span_v": 10.0, "sign": 1,
+                   "provenance": {...}}, ...},
+     "ft": {"bias_counts": [6], "matrix": [[6] x 6], "payload_mass_kg": 1.5,
+            "payload_com_m": [0, 0, 0.06], "provenance": {...}}}
+"""
+
+from __future__ import annotations
+
+import copy
+import datetime as _dt
+import hashlib
+import json
+import math
+import os
+import shutil
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import pfma
+from pfma.errors import CalibrationError
+from pfma.rack import RackConfig
+
+FORMAT = "pfma-calibration"
+FORMAT_VERSION = 1
+#: devices whose channels carry a scale/offset conversion in the calibration file
+ANALOG_DEVICES = ("adc", "dac", "rtd")
+SOFTWARE_VERSION = f"pfma {pfma.__version__}"
+PROVENANCE_KEYS = ("date", "operator", "method", "software_version")
+CAE_AXIS_NAMES = ("x", "y", "z", "roll", "pitch", "yaw")
+
+
+def now_iso() -> str:
+    """UTC time stamp for provenance (seconds resolution)."""
+    return _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat().replace("+00:00", "Z")
+
+
+def provenance(method: str, operator: str = "", *, date: str | None = None, **extra: Any) -> dict:
+    """A provenance record: date, operator, method, software version, plus e.g. points/residuals."""
+    p = {"date": date or now_iso(), "operator": operator or os.environ.get("USER", "unknown"),
+         "method": method, "software_version": SOFTWARE_VERSION}
+    p.update(_plain(extra))
+    return p
+
+
+def _plain(obj: Any) -> Any:
+    """numpy values -> JSON-able Python values (recursively)."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+@dataclass
+class FtCalibration:
+    """F/T sensor calibration: ``wrench = matrix @ (counts - bias_counts)``; tool payload."""
+
+    bias_counts: np.ndarray  #: (6,) counts subtracted before the matrix
+    matrix: np.ndarray  #: (6, 6) counts -> (Fx, Fy, Fz [N], Tx, Ty, Tz [N*m])
+    payload_mass_kg: float  #: tool + payload mass behind the sensor
+    payload_com_m: np.ndarray  #: (3,) its centre of mass in sensor coordinates
+
+    def wrench(self, counts) -> np.ndarray:
+        """Counts (6) -> wrench (6): forces N, torques N*m, in the sensor frame."""
+        return self.matrix @ (np.asarray(counts, dtype=float) - self.bias_counts)
+
+    def gravity_wrench(self, g_sensor) -> np.ndarray:
+        """The payload's weight in the sensor frame, given gravity (m/s^2) in sensor axes."""
+        f = self.payload_mass_kg * np.asarray(g_sensor, dtype=float)
+        return np.concatenate([f, np.cross(self.payload_com_m, f)])
+
+
+class Calibration:
+    """A validated calibration (the file's JSON object) and where it came from."""
+
+    def __init__(self, data: dict, path: Path | None = None) -> None:
+        self.data = data
+        self.path = path
+
+    # accessors
+    @property
+    def rack_name(self) -> str:
+        return self.data["rack"]
+
+    @property
+    def version(self) -> int:
+        return self.data["version"]
+
+    @property
+    def created(self) -> str:
+        return self.data["created"]
+
+    @property
+    def channels(self) -> dict[str, dict]:
+        return self.data["channels"]
+
+    @property
+    def cae(self) -> dict | None:
+        return self.data.get("cae")
+
+    @property
+    def ft(self) -> dict | None:
+        return self.data.get("ft")
+
+    def channel(self, signal: str) -> dict:
+        try:
+            return self.channels[signal]
+        except KeyError:
+            raise CalibrationError(f"calibration {self.describe()} has no channel {signal!r}") from None
+
+    def hash(self) -> bytes:
+        return calibration_hash(self)
+
+    def describe(self) -> str:
+        where = str(self.path) if self.path else "<in memory>"
+        return f"{where} (rack {self.rack_name}, version {self.version})"
+
+    def updated(self, *, channels: dict[str, dict] | None = None, cae: dict | None = None,
+                ft: dict | None = None, rack: RackConfig | None = None) -> "Calibration":
+        """A new, validated calibration with these entries replaced (the rest kept)."""
+        data = copy.deepcopy(self.data)
+        for sig, entry in (channels or {}).items():
+            if sig not in data["channels"]:
+                raise CalibrationError(f"channels.{sig}: not a channel of this calibration")
+            merged = dict(data["channels"][sig])
+            merged.update(_plain(entry))
+            data["channels"][sig] = merged
+        if cae is not None:
+            merged = copy.deepcopy(data.get("cae") or {})
+            merged.update(_plain(cae))
+            data["cae"] = merged
+        if ft is not None:
+            merged = copy.deepcopy(data.get("ft") or {})
+            merged.update(_plain(ft))
+            data["ft"] = merged
+        return validate(data, rack=rack, source="updated calibration", path=self.path)
+
+
+# ---------------------------------------------------------------- validation
+def _fail(field: str, msg: str, source: str) -> CalibrationError:
+    return CalibrationError(f"calibration {source}: {field}: {msg}; file refused, the previous "
+                            f"calibration stays in force")
+
+
+def _typename(v: Any) -> str:
+    return "null" if v is None else {dict: "object", list: "list", str: "string", bool: "boolean"}.get(
+        type(v), type(v).__name__)
+
+
+def _num(v: Any, field: str, source: str, *, nonzero: bool = False, minimum: float | None = None) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise _fail(field, f"expected a number, got {_typename(v)} {v!r}", source)
+    x = float(v)
+    if not math.isfinite(x):
+        raise _fail(field, f"expected a finite number, got {v!r}", source)
+    if nonzero and x == 0:
+        raise _fail(field, "must not be 0", source)
+    if minimum is not None and x < minimum:
+        raise _fail(field, f"must be >= {minimum:g}, got {x:g}", source)
+    return x
+
+
+def _obj(v: Any, field: str, source: str) -> dict:
+    if not isinstance(v, dict):
+        raise _fail(field, f"expected an object, got {_typename(v)}", source)
+    return v
+
+
+def _str(v: Any, field: str, source: str) -> str:
+    if not isinstance(v, str):
+        raise _fail(field, f"expected a string, got {_typename(v)} {v!r}", source)
+    return v
+
+
+def _int(v: Any, field: str, source: str) -> int:
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise _fail(field, f"expected an integer, got {_typename(v)} {v!r}", source)
+    return v
+
+
+def _vec(v: Any, n: int, field: str, source: str) -> list[float]:
+    if not isinstance(v, list) or len(v) != n:
+        raise _fail(field, f"expected a list of {n} numbers, got {_typename(v)}"
+                    + (f" of {len(v)}" if isinstance(v, list) else ""), source)
+    return [_num(x, f"{field}[{i}]", source) for i, x in enumerate(v)]
+
+
+def _provenance(v: Any, field: str, source: str) -> None:
+    p = _obj(v, field, source)
+    for k in PROVENANCE_KEYS:
+        if k not in p:
+            raise _fail(f"{field}.{k}", "missing", source)
+        _str(p[k], f"{field}.{k}", source)
+    for k in ("residuals", "points"):
+        if k in p and not isinstance(p[k], (list, dict)):
+            raise _fail(f"{field}.{k}", f"expected a list, got {_typename(p[k])}", source)
+
+
+def validate(data: Any, rack: RackConfig | None = None, source: str = "<data>",
+             path: Path | None = None) -> Calibration:
+    """Check a calibration's structure and types (and, given ``rack``, that it covers exactly
+    the rack's analog channels). :raises CalibrationError: naming the first bad field"""
+    d = _obj(data, "(top level)", source)
+    for key in ("format", "format_version", "rack", "version", "created", "software_version", "channels"):
+        if key not in d:
+            raise _fail(key, "missing (truncated or partial file?)", source)
+    if d["format"] != FORMAT:
+        raise _fail("format", f"expected {FORMAT!r}, got {d['format']!r}", source)
+    if _int(d["format_version"], "format_version", source) != FORMAT_VERSION:
+        raise _fail("format_version", f"this software reads version {FORMAT_VERSION}, "
+                    f"got {d['format_version']}", source)
+    _str(d["rack"], "rack", source)
+    if _int(d["version"], "version", source) < 0:
+        raise _fail("version", "must be >= 0", source)
+    _str(d["created"], "created", source)
+    _str(d["software_version"], "software_version", source)
+    if "previous_hash" in d and d["previous_hash"] is not None:
+        _str(d["previous_hash"], "previous_hash", source)
+    chans = _obj(d["channels"], "channels", source)
+    for sig, e in chans.items():
+        f = f"channels.{sig}"
+        _obj(e, f, source)
+        for key in ("device", "units", "scale", "offset", "provenance"):
+            if key not in e:
+                raise _fail(f"{f}.{key}", "missing", source)
+        if e["device"] not in ANALOG_DEVICES:
+            raise _fail(f"{f}.device", f"expected one of {', '.join(ANALOG_DEVICES)}, got {e['device']!r}", source)
+        _str(e["units"], f"{f}.units", source)
+        _num(e["scale"], f"{f}.scale", source, nonzero=True)
+        _num(e["offset"], f"{f}.offset", source)
+        _provenance(e["provenance"], f"{f}.provenance", source)
+    if rack is not None:
+        if d["rack"] != rack.name:
+            raise _fail("rack", f"calibration is for rack {d['rack']!r}, the rack configuration "
+                        f"({rack.source}) is {rack.name!r}", source)
+        for c in rack.channels():
+            if c.device not in ANALOG_DEVICES:
+                continue
+            if c.signal not in chans:
+                raise _fail(f"channels.{c.signal}", f"missing: the rack's {c.device} channel "
+                            f"{c.channel} on board {c.board} (A16 0x{c.address:04X}) has no conversion", source)
+            if chans[c.signal]["device"] != c.device:
+                raise _fail(f"channels.{c.signal}.device", f"the rack has it on a {c.device} board "
+                            f"({c.board}), not {chans[c.signal]['device']}", source)
+        known = {c.signal for c in rack.channels() if c.device in ANALOG_DEVICES}
+        extra = sorted(set(chans) - known)
+        if extra:
+            raise _fail(f"channels.{extra[0]}", f"not an analog channel of rack {rack.name} ({rack.source})", source)
+    if d.get("cae") is not None:
+        _validate_cae(d["cae"], source)
+    if d.get("ft") is not None:
+        _validate_ft(d["ft"], source)
+    unknown = set(d) - {"format", "format_version", "rack", "version", "created", "software_version",
+                        "previous_hash", "channels", "cae", "ft", "comment"}
+    if unknown:
+        raise _fail(sorted(unknown)[0], "unknown top-level key", source)
+    return Calibration(d, path)
+
+
+def _validate_cae(v: Any, source: str) -> None:
+    cae = _obj(v, "cae", source)
+    for axis in CAE_AXIS_NAMES:
+        f = f"cae.{axis}"
+        if axis not in cae:
+            raise _fail(f, "missing", source)
+        e = _obj(cae[axis], f, source)
+        for key in ("centre_v", "deadband_v", "span_v", "sign", "provenance"):
+            if key not in e:
+                raise _fail(f"{f}.{key}", "missing", source)
+        _num(e["centre_v"], f"{f}.centre_v", source)
+        db = _num(e["deadband_v"], f"{f}.deadband_v", source, minimum=0.0)
+        span = _num(e["span_v"], f"{f}.span_v", source)
+        if _int(e["sign"], f"{f}.sign", source) not in (1, -1):
+            raise _fail(f"{f}.sign", f"must be +1 or -1, got {e['sign']}", source)
+        if not db < span:
+            raise _fail(f"{f}.span_v", f"must exceed deadband_v ({db:g}), got {span:g}", source)
+        _provenance(e["provenance"], f"{f}.provenance", source)
+    extra = sorted(set(cae) - set(CAE_AXIS_NAMES))
+    if extra:
+        raise _fail(f"cae.{extra[0]}", f"unknown axis (known: {', '.join(CAE_AXIS_NAMES)})", source)
+
+
+def _validate_ft(v: Any, source: str) -> None:
+    ft = _obj(v, "ft", source)
+    for key in ("bias_counts", "matrix", "payload_mass_kg", "payload_com_m", "provenance"):
+        if key not in ft:
+            raise _fail(f"ft.{key}", "missing", source)
+    _vec(ft["bias_counts"], 6, "ft.bias_counts", source)
+    m = ft["matrix"]
+    if not isinstance(m, list) or len(m) != 6:
+        raise _fail("ft.matrix", f"expected 6 rows of 6 numbers, got {_typename(m)}"
+                    + (f" of {len(m)}" if isinstance(m, list) else ""), source)
+    rows = [_vec(r, 6, f"ft.matrix[{i}]", source) for i, r in enumerate(m)]
+    if abs(np.linalg.det(np.array(rows))) < 1e-30:
+        raise _fail("ft.matrix", "singular", source)
+    _num(ft["payload_mass_kg"], "ft.payload_mass_kg", source, minimum=0.0)
+    _vec(ft["payload_com_m"], 3, "ft.payload_com_m", source)
+    _obj(ft["provenance"], "ft.provenance", source)
+
+
+# ---------------------------------------------------------------- files
+def parse_calibration(text: str, source: str = "<string>", rack: RackConfig | None = None,
+                      path: Path | None = None) -> Calibration:
+    """Parse and validate calibration JSON text. :raises CalibrationError: naming the field"""
+    if not text.strip():
+        raise CalibrationError(f"calibration {source}: empty file; file refused, the previous "
+                               f"calibration stays in force")
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as err:
+        hint = " (truncated?)" if err.pos >= len(text.rstrip()) - 1 else ""
+        raise CalibrationError(f"calibration {source}: not valid JSON{hint}: {err.msg} at line "
+                               f"{err.lineno} column {err.colno}; file refused, the previous "
+                               f"calibration stays in force") from err
+    return validate(data, rack=rack, source=source, path=path)
+
+
+def load_calibration(path: str | Path, rack: RackConfig | None = None) -> Calibration:
+    """Load and validate a calibration file (against ``rack`` when given).
+
+    :raises CalibrationError: unreadable, truncated, wrong type, missing/unknown channel
+    """
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        raise CalibrationError(f"cannot read calibration file {p}: {err}") from err
+    return parse_calibration(text, str(p), rack, path=p)
+
+
+def resolve(calibration: "Calibration | str | Path", rack: RackConfig | None = None) -> Calibration:
+    """A path or a loaded calibration -> a calibration validated against ``rack``."""
+    if isinstance(calibration, Calibration):
+        return validate(calibration.data, rack=rack, source=calibration.describe(), path=calibration.path)
+    return load_calibration(calibration, rack)
+
+
+def nominal_calibration(rack: RackConfig, operator: str = "", date: str | None = None) -> Calibration:
+    """Version 0: the rack configuration's nominal scales (every analog channel)."""
+    prov = provenance("nominal (rack configuration)", operator, date=date, rack_file=rack.source)
+    chans = {c.signal: {"device": c.device, "units": c.units, "scale": c.scale, "offset": c.offset,
+                        "provenance": dict(prov)}
+             for c in rack.channels() if c.device in ANALOG_DEVICES}
+    data = {"format": FORMAT, "format_version": FORMAT_VERSION, "rack": rack.name, "version": 0,
+            "created": prov["date"], "software_version": SOFTWARE_VERSION, "previous_hash": None,
+            "channels": chans}
+    return validate(data, rack=rack, source="nominal calibration")
+
+
+def history_dir(path: str | Path) -> Path:
+    p = Path(path)
+    return p.with_name(p.name + ".history")
+
+
+def _fsync_dir(d: Path) -> None:
+    try:
+        fd = os.open(d, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def save_calibration(cal: Calibration, path: str | Path, rack: RackConfig | None = None) -> Calibration:
+    """Write ``cal`` as the next version of ``path``, atomically; the file it replaces is
+    kept byte for byte in ``<path>.history/``. Returns the calibration as saved.
+
+    :raises CalibrationError: when ``cal`` does not validate (nothing is written)
+    """
+    p = Path(path)
+    data = copy.deepcopy(cal.data)
+    prev_version, prev_hash = -1, None
+    if p.exists():
+        hist = history_dir(p)
+        hist.mkdir(parents=True, exist_ok=True)
+        try:
+            prev = load_calibration(p)
+            prev_version, prev_hash = prev.version, calibration_hash(prev).hex()
+            keep = hist / f"{p.stem}.v{prev.version:04d}{p.suffix or '.json'}"
+        except CalibrationError:
+            keep = hist / f"{p.stem}.unreadable-{_dt.datetime.now().strftime('%Y%m%dT%H%M%S%f')}{p.suffix}"
+        if not keep.exists():
+            shutil.copy2(p, keep)
+    data["version"] = max(prev_version + 1, int(data.get("version", 0)))
+    data["created"] = now_iso()
+    data["software_version"] = SOFTWARE_VERSION
+    data["previous_hash"] = prev_hash
+    out = validate(data, rack=rack, source=str(p), path=p)
+    text = json.dumps(data, indent=1, sort_keys=False) + "\n"
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_name(f".{p.name}.tmp-{os.getpid()}")
+    with open(tmp, "w") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, p)
+    _fsync_dir(p.parent)
+    return out
+
+
+def history(path: str | Path) -> list[Calibration]:
+    """Every kept version of ``path`` (oldest first), then the current file. Unreadable
+    history files are skipped."""
+    p = Path(path)
+    out = []
+    hist = history_dir(p)
+    if hist.is_dir():
+        for f in sorted(hist.glob(f"{p.stem}.v*")):
+            try:
+                out.append(load_calibration(f))
+            except CalibrationError:
+                continue
+    if p.exists():
+        out.append(load_calibration(p))
+    return out
+
+
+def load_version(path: str | Path, version: int) -> Calibration:
+    """One version of ``path`` (current or from its history)."""
+    for c in history(path):
+        if c.version == version:
+            return c
+    raise CalibrationError(f"calibration {path}: no version {version} (have "
+                           f"{', '.join(str(c.version) for c in history(path)) or 'none'})")
+
+
+def previous(path: str | Path) -> Calibration | None:
+    """The current file of ``path`` if it loads, else None (first calibration)."""
+    try:
+        return load_calibration(path)
+    except CalibrationError:
+        return None
+
+
+# ---------------------------------------------------------------- consumers
+def calibration_hash(cal: Calibration) -> bytes:
+    """8-byte digest (SHA-256 prefix) of the calibration's canonical JSON: stamped in the
+    Bit3 header so every consumer and recording knows which calibration made its numbers."""
+    canon = json.dumps(cal.data, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
+    return hashlib.sha256(canon.encode()).digest()[:8]
+
+
+def apply_to_rack(rack: RackConfig, cal: Calibration) -> RackConfig:
+    """A rack configuration whose analog channels carry the calibrated scale and offset.
+
+    :raises CalibrationError: when the calibration lacks one of the rack's analog channels
+    """
+    chans = cal.channels
+    boards = []
+    for b in rack.boards:
+        new = []
+        for c in b.channels:
+            if c.device in ANALOG_DEVICES:
+                e = chans.get(c.signal)
+                if e is None:
+                    raise CalibrationError(f"calibration {cal.describe()}: channels.{c.signal}: missing "
+                                           f"({c.device} channel {c.channel} on {c.board}, A16 0x{c.address:04X})")
+                c = replace(c, scale=float(e["scale"]), offset=float(e["offset"]))
+            new.append(c)
+        boards.append(replace(b, channels=tuple(new)))
+    return replace(rack, boards=tuple(boards))
+
+
+def cae_calibration(cal: Calibration):
+    """The CAE section as a ``drivers.crl.cae.CaeCalibration`` (None when absent)."""
+    from drivers.crl.cae import CaeAxisCal, CaeCalibration
+    if not cal.cae:
+        return None
+    return CaeCalibration(axes={a: CaeAxisCal(centre_v=float(e["centre_v"]), deadband_v=float(e["deadband_v"]),
+                                              span_v=float(e["span_v"]), sign=int(e["sign"]))
+                                for a, e in cal.cae.items()})
+
+
+def ft_calibration(cal: Calibration) -> FtCalibration | None:
+    """The F/T section (bias, 6x6 matrix, payload); None when absent."""
+    ft = cal.ft
+    if not ft:
+        return None
+    return FtCalibration(np.array(ft["bias_counts"], dtype=float), np.array(ft["matrix"], dtype=float),
+                         float(ft["payload_mass_kg"]), np.array(ft["payload_com_m"], dtype=float))
+
+
+def nominal_ft(cpf: float | None = None, cpt: float | None = None) -> dict:
+    """The F/T section from the sensor's nominal counts per unit (no bias, no payload)."""
+    from drivers.serial_ft.protocol import NOMINAL
+    cpf = NOMINAL.cpf if cpf is None else cpf
+    cpt = NOMINAL.cpt if cpt is None else cpt
+    return {"bias_counts": [0.0] * 6,
+            "matrix": np.diag([1 / cpf] * 3 + [1 / cpt] * 3).tolist(),
+            "payload_mass_kg": 0.0, "payload_com_m": [0.0, 0.0, 0.0],
+            "provenance": {"matrix": provenance("nominal (sensor CPF/CPT)")}}
+
+
+# ---------------------------------------------------------------- comparison
+def diff(a: Calibration, b: Calibration, rel_tol: float = 1e-12) -> list[dict]:
+    """Entries that differ between ``a`` (older) and ``b`` (newer): one dict per value."""
+    out = []
+    for sig in sorted(set(a.channels) | set(b.channels)):
+        ea, eb = a.channels.get(sig), b.channels.get(sig)
+        for key in ("scale", "offset"):
+            va = None if ea is None else ea.get(key)
+            vb = None if eb is None else eb.get(key)
+            if va is None or vb is None or not math.isclose(va, vb, rel_tol=rel_tol, abs_tol=1e-15):
+                out.append({"entry": f"channels.{sig}.{key}", "old": va, "new": vb,
+                            "change": None if va is None or vb is None else vb - va,
+                            "method": (eb or {}).get("provenance", {}).get("method")})
+    for sec, keys in (("cae", ("centre_v", "deadband_v", "span_v", "sign")),):
+        sa, sb = a.data.get(sec) or {}, b.data.get(sec) or {}
+        for axis in sorted(set(sa) | set(sb)):
+            for key in keys:
+                va, vb = (sa.get(axis) or {}).get(key), (sb.get(axis) or {}).get(key)
+                if va != vb:
+                    out.append({"entry": f"{sec}.{axis}.{key}", "old": va, "new": vb,
+                                "change": None if va is None or vb is None else vb - va, "method": None})
+    fa, fb = a.ft or {}, b.ft or {}
+    for key in ("bias_counts", "matrix", "payload_mass_kg", "payload_com_m"):
+        va, vb = fa.get(key), fb.get(key)
+        if va != vb:
+            change = None
+            if va is not None and vb is not None:
+                change = float(np.max(np.abs(np.asarray(vb, float) - np.asarray(va, float))))
+            out.append({"entry": f"ft.{key}", "old": va, "new": vb, "change": change, "method": None})
+    return out

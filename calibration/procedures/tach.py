@@ -1,0 +1,63 @@
+"""Tachometer scale per joint: tach volts against the resolver-derived velocity.
+
+Legs at +-25 % and +-40 % of full-scale rate (all selected joints together; the
+fractions net to zero travel; the amplifiers' proportional rate loops droop by up to
+0.3 rad/s in Coulomb friction (wrist roll, pfma-model 8.3/8.4), so slower legs would
+stick); per joint the fit ``tach_volts = k * velocity + c``.
+The ``<joint>_rate`` ADC channel's conversion becomes ``rate = v / k - c / k``: this
+absorbs the tach's own scale error and the ADC channel's gain and offset together.
+
+Tolerances (stated): fit residual <= 1 % of the largest tach reading + 2 ADC LSB;
+k within 20 % of the nominal K_w (pfma-model 8.4) else fail (wiring/sign suspect).
+Expected accuracy of k on the simulated rack: 0.3 %.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calibration import fit as F
+from calibration.plot import Series, plot_fit
+from calibration.procedures.base import Context, ProcedureResult, finish, plot_name
+from calibration.procedures.motion import full_scale_rad_s, run_legs
+from calibration.session import JOINTS
+
+NAME = "tach"
+LSB_V = 20.0 / 4096
+FRACTIONS = (0.25, -0.25, 0.4, -0.4)
+MIN_SPEED_RAD_S = 0.01  #: legs slower than this (stuck in friction) are left out
+NOMINAL_BAND = 0.2
+COLOURS = ("blue", "red", "green", "orange", "purple", "black")
+
+
+def run(ctx: Context) -> ProcedureResult:
+    joints = list(ctx.options.get("joints") or JOINTS)
+    legs = run_legs(ctx, joints, list(ctx.options.get("fractions") or FRACTIONS))
+    res = ProcedureResult(NAME, tolerances={"residual": "<= 1 % of max tach volts + 2 LSB",
+                                            "k": f"within {NOMINAL_BAND:.0%} of nominal K_w"})
+    pts, resid = [], []
+    for i, j in enumerate(joints):
+        vel = np.array([leg.velocity[j] for leg in legs])
+        tach = np.array([leg.tach_v[j] for leg in legs])
+        moving = np.abs(vel) >= MIN_SPEED_RAD_S
+        res.check(f"{j} legs moving", int(moving.sum()), None, "legs", ok=moving.sum() >= 3)
+        if moving.sum() < 2:
+            continue
+        vel, tach = vel[moving], tach[moving]
+        f = F.linear(vel, tach, what=f"tach {j}")
+        k, c = f["gain"], f["offset"]
+        sig = f"{j}_rate"
+        k_nom = 10.0 / full_scale_rad_s(ctx, j)
+        res.fits[sig] = f
+        res.channels[sig] = {"scale": 1.0 / k, "offset": -c / k,
+                             "provenance": ctx.provenance("tach vs resolver velocity, constant-rate legs", f,
+                                                          k_v_per_rad_s=k, c_v=c, x="velocity rad/s",
+                                                          y="tach V")}
+        res.found[sig] = {"k_v_per_rad_s": k, "c_v": c, "k_nominal": k_nom}
+        res.check(f"{sig} max residual", f.max_abs, 0.01 * float(np.max(np.abs(tach))) + 2 * LSB_V, "V")
+        res.check(f"{sig} k / K_w nominal - 1", k / k_nom - 1.0, NOMINAL_BAND)
+        col = COLOURS[i % len(COLOURS)]
+        pts += [Series(vel, tach, "points", col), Series(vel, k * vel + c, "line", col)]
+        resid.append(Series(vel, f.residuals, "points", col))
+    res.plots.append(plot_fit(plot_name(ctx, NAME, "fit"), [pts, resid]))
+    return finish(ctx, res)
