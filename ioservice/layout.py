@@ -349,7 +349,7 @@ def _inputs(area: AreaSpec, rack: RackConfig) -> tuple[_Record, list[ChannelEntr
     r.add("t_pio_s", "<f8", units="s", doc="time of the PIO input sample")
 
     rtd = _group(r, "rtd", [
-        ("rtd_counts", "<u2", (), "counts", "RDC angle word (16-bit, 0..65535 = 0..2 pi)"),
+        ("rtd_counts", "<u2", (), "counts", "RDC angle counts as the driver returns them (VMIVME-4940: 14-bit, 0..16383 = 0..2 pi)"),
         ("rtd_angle_rad", "<f8", (), "rad", "joint angle"),
         ("rtd_status", "<u2", (), "bits", "per-channel status bits (RDC LOS/DOS, bus error)"),
     ])
