@@ -1,0 +1,53 @@
+"""``pfma watch SIGNAL...``: a few values of a running service, one line per sample.
+
+Signals are rack channels (``elbow_pitch_angle``), boards, links, hand controllers
+(``cae``) or input-area fields (``ft_force_n``, ``ft_force_n[2]``, ``service_state``).
+``--rate`` lines per second (default 30), ``--count`` lines then exit. Waits for
+the service with a message every few seconds and reattaches when it restarts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+
+def add_parser(sub):
+    p = sub.add_parser("watch", help="a few values at ~30 Hz, one line each",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("signals", nargs="+", metavar="SIGNAL")
+    p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
+    p.add_argument("--rack", default=None, help="rack TOML the service runs (default: the IRSS rack)")
+    p.add_argument("--rate", type=float, default=30.0, help="lines per second (default 30)")
+    p.add_argument("--count", type=int, default=0, help="stop after N lines (default: until Ctrl-C)")
+    p.add_argument("--wait", type=float, default=30.0, metavar="S",
+                   help="wait this long for the service, at start and after it goes away (0 = forever)")
+    return p
+
+
+def run(args) -> int:
+    from ioservice.checkout.connect import ServiceLink
+    from ioservice.checkout.view import resolve_signals, watch_line
+    from pfma.errors import ConfigError
+    if args.rate <= 0:
+        raise ConfigError(f"--rate must be positive, not {args.rate}")
+    link = ServiceLink(args.buffer, args.rack, wait_s=args.wait)
+    try:
+        client = link.client()
+        signals = resolve_signals(client.layout, args.signals)
+        period = 1.0 / args.rate
+        t_next = time.monotonic()
+        n = 0
+        while not args.count or n < args.count:
+            client = link.client()
+            print(watch_line(client.read_inputs(), signals), flush=True)
+            n += 1
+            t_next += period
+            delay = t_next - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                t_next = time.monotonic()  # fell behind: do not burst to catch up
+        return 0
+    finally:
+        link.close()
