@@ -1,0 +1,151 @@
+"""`pfma monitor --once`, `pfma watch --count` against a running (simulated-time) service;
+waiting for a service that is not up, reattaching after a restart, never hanging."""
+
+import re
+import uuid
+
+import pytest
+
+from ioservice.checkout import Checkout, LiveTarget
+from ioservice.checkout.connect import ServiceLink, attach_waiting
+from ioservice.client import Client
+from pfma.cli import main
+from pfma.errors import PfmaTimeoutError
+from tests.service.conftest import Rig
+
+
+def test_monitor_once_shows_every_channel_with_units_status_and_links(rig, capsys):
+    rig.run(1.0)
+    rig.svc.publish_stats()
+    assert main(["monitor", "--buffer", rig.name, "--once"]) == 0
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    assert "state SAFE" in lines[0] and f"buffer {rig.name}" in lines[0]
+    for c in rig.reader.layout.channels:
+        if c.area == "inputs":
+            assert any(line.startswith(c.name) for line in lines), c.name
+    row = next(line for line in lines if line.startswith("elbow_pitch_angle "))
+    angle = rig.reader.read_inputs().value("elbow_pitch_angle")
+    assert f"{angle:+.4f}" in row and " rad " in row and "160.0" in row  # value, units, rate
+    ft = next(line for line in lines if line.startswith("ft_sensor "))
+    assert "SYNCED" in ft and re.search(r"bad \d+ resyncs \d+", ft)
+    assert "messages:" in out and "service started" in out
+
+
+def test_monitor_filter(rig, capsys):
+    rig.run(0.2)
+    assert main(["monitor", "--buffer", rig.name, "--once", "--filter", "wrist"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines()[5:] if line and not line.startswith(" ")]
+    names = [r.split()[0] for r in rows if not r.startswith("messages")]
+    assert names and all("wrist" in n for n in names)
+    assert "wrist_roll_angle" in names and "shoulder_yaw_angle" not in names
+    assert main(["monitor", "--buffer", rig.name, "--once", "--filter", "*_motor_current"]) == 0
+    names = [r.split()[0] for r in capsys.readouterr().out.splitlines()[5:] if r and r[0] != " "]
+    assert "elbow_pitch_motor_current" in names and "elbow_pitch_rate" not in names
+
+
+def test_watch_count_prints_one_line_per_sample(rig, capsys):
+    rig.world.set_cae([5.0, 0, 0, 0, 0, 0])
+    rig.run(0.3)
+    assert main(["watch", "elbow_pitch_angle", "cae_up_down", "ft_force_n[2]", "service_state",
+                 "--buffer", rig.name, "--count", "3", "--rate", "500"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 3
+    s = rig.reader.read_inputs()
+    for line in lines:
+        assert line.startswith(f"t={s.t_s:.4f} s")
+        assert f"elbow_pitch_angle={s.value('elbow_pitch_angle'):+.4f} rad" in line
+        assert "cae_up_down=+5.00" in line and " V" in line
+        assert "service_state=1 enum" in line
+
+
+def test_watch_unknown_signal_names_close_matches(rig, capsys):
+    assert main(["watch", "elbow_pitch_angel", "--buffer", rig.name, "--count", "1"]) == 1
+    err = capsys.readouterr().err
+    assert "elbow_pitch_angel" in err and "did you mean elbow_pitch_angle" in err
+
+
+class FakeTime:
+    """Injected clock for the waiting loops: sleeping advances it, nothing really waits."""
+
+    def __init__(self, on_sleep=None):
+        self.t = 0.0
+        self.on_sleep = on_sleep
+        self.slept = 0
+
+    def now(self):
+        return self.t
+
+    def sleep(self, dt):
+        self.t += dt
+        self.slept += 1
+        if self.on_sleep:
+            self.on_sleep(self)
+
+
+def test_attach_waits_with_messages_then_gives_up_clearly():
+    ft = FakeTime()
+    said = []
+    name = "pfma-nobody-" + uuid.uuid4().hex[:6]
+    with pytest.raises(PfmaTimeoutError, match=f"no I/O service on buffer '{name}' after 10 s"):
+        attach_waiting(name, wait_s=10, notice_s=3, say=said.append, sleep=ft.sleep, now=ft.now)
+    assert 3 <= len(said) <= 5 and all("waiting for the I/O service" in s for s in said)
+    assert "is the I/O service running?" in said[0]
+
+
+def test_attach_waits_until_the_service_comes_up():
+    name = "pfma-cotest-" + uuid.uuid4().hex[:8]
+    rigs = []
+
+    def start(ft):
+        if ft.t >= 4 and not rigs:
+            rigs.append(Rig(name))
+    ft = FakeTime(start)
+    said = []
+    try:
+        c = attach_waiting(name, wait_s=30, notice_s=3, say=said.append, sleep=ft.sleep, now=ft.now)
+        assert c.service_state.name == "SAFE"
+        assert said[-1] == f"attached to the I/O service on buffer {name!r}"
+        assert any("waiting" in s for s in said)
+        c.close()
+    finally:
+        for r in rigs:
+            r.close()
+
+
+def test_link_reattaches_after_the_service_restarts():
+    name = "pfma-cotest-" + uuid.uuid4().hex[:8]
+    first = Rig(name)
+    rigs = []
+    said = []
+    link = ServiceLink(name, wait_s=30, notice_s=3, say=said.append,
+                       sleep=lambda dt: rigs.append(Rig(name)) if not rigs else None)
+    try:
+        c1 = link.client()
+        first.run(0.1)
+        assert link.client() is c1  # healthy: the same attachment
+        first.close()  # the service stops and its buffer goes away
+        c2 = link.client()  # waits (one injected sleep starts a new service), reattaches
+        assert c2 is not c1 and link.reattachments == 1
+        rigs[0].run(0.1)
+        assert c2.read_inputs().frame > 0
+        assert any("lost the I/O service" in s for s in said) and said[-1].startswith("reattached")
+    finally:
+        link.close()
+        for r in rigs:
+            r.close()
+
+
+def test_live_checkout_stops_with_a_message_when_the_service_stops_publishing(rig, cfg):
+    rig.run(0.1)  # then the service never runs again: no new frames
+    client = Client.attach(rig.name)
+    target = LiveTarget(client, rig.svc.rack, service_timeout_s=0.2)
+    lines = []
+    try:
+        rep = Checkout(target, cfg, only=["links"], say=lines.append).run()
+    finally:
+        target.close()
+    assert not rep.passed
+    assert "published no frame" in rep.stopped_early
+    assert rep.failures()[-1].channel == "service"
+    assert rep.target_time_s < 5
