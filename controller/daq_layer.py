@@ -141,6 +141,7 @@ class DataAcquisitionLayer(Layer):
         snap = self.client.read_inputs()
         self.snapshot = snap
         frame = int(snap.frame)
+        rt.frame = frame  # messages of this frame carry its number
         if frame == self._last_frame:
             self._same_frames += 1
         else:

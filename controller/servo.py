@@ -265,10 +265,10 @@ class ServoLayer(Layer):
         still = bool(np.all(np.abs(qdot) < SAFE_STOP_RATE_RAD_S))
         if still or rt.now - self._t_phase >= SAFE_STOP_TIMEOUT_S:
             rt.wm.post_task_outputs("servo", {"servo.current_limit_cmd_a": np.zeros(N_CURRENT_LIMITS)})
-            self._brake_phase(rt, 5)
             rt.post(self.key, Level.INFO, f"safe stop: current limits 0 after "
                                           f"{(rt.now - self._t_phase) * 1e3:.1f} ms "
                                           f"({'joints still' if still else 'timeout'})")
+            self._brake_phase(rt, 5)
             return TaskState.DONE
         return TaskState.RUNNING
 

@@ -1,0 +1,105 @@
+"""Faults injected at the bottom reach System Up/Down within 6 minor frames and the
+DAC goes to 0 V (simulated time)."""
+
+import numpy as np
+import pytest
+
+from controller.daq_layer import FAULT_BOARD, FAULT_FT, FAULT_RESOLVER, FAULT_TACH
+from controller.decision import Status
+from controller.layers import Request, Response
+from tests.controller._rt_support import powered, sim  # noqa: F401 (fixtures)
+
+S = Status
+RATE_CHANNELS = slice(0, 6)  # DAC channels 0..5: the joint rate commands (rack_default.toml)
+
+FAULTS = {
+    "resolver_loss_of_signal": (lambda w: w.bus["rtd1"].inject("loss_of_signal", channel=0), FAULT_RESOLVER),
+    "ft_stall": (lambda w: w.ft.stall(1.0), FAULT_FT),
+    "ft_disconnect": (lambda w: w.ft.disconnect(), FAULT_FT),
+    "adc_bus_error": (lambda w: w.bus["adc"].inject("no_answer"), FAULT_TACH | FAULT_BOARD),
+}
+
+
+def inject_and_measure(sim, inject):
+    """Inject, run until System Up/Down is ERROR; return (detect frame, Up/Down frame, inject frame)."""
+    rt = sim.rt
+    k_inject = rt.frame
+    inject(sim.world)
+    sim.run_until(lambda: rt.daq.fault_bits != 0, 200)
+    k_detect = rt.frame
+    # the frame the fault was detected in drives the rates to 0 at once (service applies next frame)
+    sim.step(1)
+    assert np.all(sim.dac_volts()[RATE_CHANNELS] == 0.0)
+    sim.run_until(lambda: rt.status("updown") == S.ERROR, 20)
+    return k_detect, rt.first_change("updown", S.ERROR, k_inject), k_inject
+
+
+@pytest.mark.parametrize("fault", sorted(FAULTS))
+def test_fault_reaches_system_up_down_within_6_minor_frames_and_dac_is_0_v(powered, fault):
+    inject, bit = FAULTS[fault]
+    rt = powered.rt
+    k_detect, k_updown, _ = inject_and_measure(powered, inject)
+    assert rt.daq.fault_bits & bit
+    assert k_updown - k_detect <= 6, f"{fault}: {k_updown - k_detect} frames"
+    # every layer is in ERROR, and the chain went up one layer per frame
+    assert rt.all_status(S.ERROR)
+    err = [rt.first_change(k, S.ERROR, k_detect - 1) for k in
+           ("daq", "servo", "joint", "cartesian", "trajectory", "msp", "updown")]
+    assert err == list(range(k_detect, k_detect + 7))
+    assert np.all(powered.dac_volts()[RATE_CHANNELS] == 0.0)
+    # the safe stop ends with the current limits at 0 and the arm request withdrawn: all 0 V
+    powered.run_until(lambda: np.all(powered.dac_volts() == 0.0), 250)
+    powered.step(5)
+    assert np.all(powered.dac_volts() == 0.0)
+    # the messages say what happened, in time order
+    msgs = rt.messages.recent(min_level=3)
+    assert msgs[0].source == "daq" and "hardware check" in msgs[0].text
+    assert any(m.source == "updown" and "ERROR" in m.text for m in msgs)
+
+
+def test_error_reset_waits_for_the_fault_to_clear_then_shuts_down(powered):
+    rt = powered.rt
+    inject_and_measure(powered, FAULTS["resolver_loss_of_signal"][0])
+    powered.step(200)  # safe task finished everywhere
+    seq = rt.request(Request.ERROR_RESET)
+    powered.step(30)
+    assert rt.status("daq") == S.ERROR  # the fault is still there: reset refused at the bottom
+    assert rt.status("updown") == S.ERROR_RESET
+    powered.world.bus["rtd1"].clear("loss_of_signal")
+    powered.run_until(lambda: rt.all_status(S.SHUT_DOWN), 100)
+    powered.step(2)
+    assert rt.response() == (seq, Response.COMPLETE)
+    powered.power_up(400)  # and the system powers up again
+    assert rt.all_status(S.START_UP_COMPLETE)
+
+
+def test_fault_while_shut_down_blocks_power_up_with_error(sim):
+    rt = sim.rt
+    sim.world.bus["rtd2"].inject("loss_of_signal", channel=1)
+    sim.step(4)
+    assert rt.all_status(S.SHUT_DOWN)  # only reported while shut down
+    assert rt.daq.fault_bits & FAULT_RESOLVER
+    seq = rt.request(Request.POWER_UP)
+    sim.run_until(lambda: rt.status("updown") == S.ERROR, 300)
+    sim.step(2)
+    assert rt.response() == (seq, Response.FAILED)
+    assert np.all(sim.dac_volts() == 0.0)
+
+
+def test_servo_limit_fault_is_an_error_of_the_servo_layer(powered):
+    rt = powered.rt
+    # drive the elbow past its soft limit by hand: a wrong resolver offset in the plant
+    from fakes.arm_params import SimErrors
+    offs = [0.0] * 6
+    offs[2] = np.radians(100.0)  # EP reads -90 + 100 = +10 deg > +5 deg soft limit + 1 deg
+    powered.world.sim.set_errors(SimErrors(resolver_offset_rad=tuple(offs)))
+    powered.run_until(lambda: rt.status("updown") == S.ERROR, 40)
+    k_servo = rt.first_change("servo", S.ERROR)
+    assert rt.first_change("updown", S.ERROR) - k_servo == 5  # five layers above the servo
+    assert int(rt.wm.get("servo.error")) == 10
+    powered.step(2)
+    assert np.all(powered.dac_volts()[RATE_CHANNELS] == 0.0)
+    # the servo commands SHUT DOWN below it: Data Acquisition disarms once the limits are 0
+    powered.run_until(lambda: rt.status("daq") == S.SHUT_DOWN, 250)
+    powered.step(3)
+    assert np.all(powered.dac_volts() == 0.0)
