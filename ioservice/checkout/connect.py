@@ -143,6 +143,14 @@ class ServiceLink:
         self.say(f"reattached to the I/O service on buffer {self.name!r}")
         return self._client
 
+    def invalidate(self, why: str) -> None:
+        """Drop the attachment after a failed read; the next :meth:`client` reattaches."""
+        if self._client is not None:
+            self.say(f"lost the I/O service on buffer {self.name!r} ({why}); waiting to reattach")
+            self._client.close()
+            self._client = None
+            self.reattachments += 1
+
     def close(self) -> None:
         if self._client is not None:
             self._client.close()

@@ -55,7 +55,7 @@ def run(args) -> int:
         client = attach_waiting(args.buffer, rack_path, wait_s=args.wait)
         target = LiveTarget(client, load_rack(rack_path),
                             service_timeout_s=cfg.num("checkout", "service_timeout_s"))
-        interactive = not args.non_interactive and sys.stdin.isatty()
+        interactive = not args.non_interactive
     else:
         target = make_sim_target(rack_path)
         interactive = False  # the stimulus acts for the operator

@@ -34,13 +34,18 @@ def add_parser(sub):
 def run(args) -> int:
     from ioservice.checkout.connect import ServiceLink
     from ioservice.checkout.view import monitor_lines
+    from ioservice.shm import Bit3Error
     link = ServiceLink(args.buffer, args.rack, wait_s=args.wait)
     try:
         if args.once:
             print("\n".join(monitor_lines(link.client(), args.filter)))
             return 0
         while True:
-            lines = monitor_lines(link.client(), args.filter)
+            try:
+                lines = monitor_lines(link.client(), args.filter)
+            except Bit3Error as err:  # e.g. a service killed in the middle of a write
+                link.invalidate(str(err))
+                continue
             sys.stdout.write(CLEAR + "\n".join(lines) + "\n")
             sys.stdout.flush()
             time.sleep(args.interval)

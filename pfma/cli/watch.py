@@ -28,6 +28,7 @@ def add_parser(sub):
 def run(args) -> int:
     from ioservice.checkout.connect import ServiceLink
     from ioservice.checkout.view import resolve_signals, watch_line
+    from ioservice.shm import Bit3Error
     from pfma.errors import ConfigError
     if args.rate <= 0:
         raise ConfigError(f"--rate must be positive, not {args.rate}")
@@ -40,7 +41,12 @@ def run(args) -> int:
         n = 0
         while not args.count or n < args.count:
             client = link.client()
-            print(watch_line(client.read_inputs(), signals), flush=True)
+            try:
+                line = watch_line(client.read_inputs(), signals)
+            except Bit3Error as err:  # e.g. a service killed in the middle of a write
+                link.invalidate(str(err))
+                continue
+            print(line, flush=True)
             n += 1
             t_next += period
             delay = t_next - time.monotonic()

@@ -149,3 +149,18 @@ def test_live_checkout_stops_with_a_message_when_the_service_stops_publishing(ri
     assert "published no frame" in rep.stopped_early
     assert rep.failures()[-1].channel == "service"
     assert rep.target_time_s < 5
+
+
+def test_link_invalidated_after_a_failed_read_reattaches(rig):
+    said = []
+    link = ServiceLink(rig.name, wait_s=5, say=said.append, sleep=lambda dt: None)
+    try:
+        c1 = link.client()
+        link.invalidate("read timed out")
+        c2 = link.client()
+        assert c2 is not c1 and link.reattachments == 1
+        rig.run(0.05)
+        assert c2.read_inputs().frame > 0
+        assert "read timed out" in said[0]
+    finally:
+        link.close()
