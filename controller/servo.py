@@ -53,6 +53,8 @@ LIMIT_FAULT_MARGIN_RAD = math.radians(1.0)
 #: brakes must report released within this time of raising the current limits (assumed)
 BRAKE_RELEASE_TIMEOUT_S = 0.5
 
+#: Data Acquisition's "tach ADC failed" hardware-check bit (controller.daq_layer.FAULT_TACH)
+TACH_FAULT_BIT = 2
 #: error report codes of the servo layer
 ERR_LIMIT, ERR_PARAMS = 10, 11
 
@@ -261,8 +263,10 @@ class ServoLayer(Layer):
             rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS)})
             self._brake_phase(rt, 4)
             return TaskState.RUNNING
-        qdot = np.asarray(rt.wm.get("daq.joint_rate_rad_s"), dtype=float)
-        still = bool(np.all(np.abs(qdot) < SAFE_STOP_RATE_RAD_S))
+        v = rt.wm.get_task_inputs(("daq.joint_rate_rad_s", "daq.fault_bits"))
+        qdot = np.asarray(v["daq.joint_rate_rad_s"], dtype=float)
+        tach_ok = not int(v["daq.fault_bits"]) & TACH_FAULT_BIT  # a failed tach ADC proves nothing
+        still = tach_ok and bool(np.all(np.abs(qdot) < SAFE_STOP_RATE_RAD_S))
         if still or rt.now - self._t_phase >= SAFE_STOP_TIMEOUT_S:
             rt.wm.post_task_outputs("servo", {"servo.current_limit_cmd_a": np.zeros(N_CURRENT_LIMITS)})
             rt.post(self.key, Level.INFO, f"safe stop: current limits 0 after "

@@ -1,0 +1,103 @@
+"""Controller figures from the system simulator (simulated time, deterministic except the
+host cost): power-up time, fault propagation to System Up/Down for each injected fault,
+and the controller's minor-frame cost on this host.
+
+Run: ``pfma bench controller`` or ``python -m bench.bench_controller``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from controller.decision import Status
+from controller.layers import Request
+from controller.simulator import SystemSimulator
+
+FAULTS = {
+    "resolver loss of signal (rtd1 ch 0)": lambda w: w.bus["rtd1"].inject("loss_of_signal", channel=0),
+    "F/T link stalled": lambda w: w.ft.stall(1.0),
+    "F/T link disconnected": lambda w: w.ft.disconnect(),
+    "ADC bus error (no answer)": lambda w: w.bus["adc"].inject("no_answer"),
+}
+
+
+def power_up_figures(profile: str = "layers") -> dict:
+    with SystemSimulator(profile=profile) as sim:
+        sim.step(10)
+        frames = sim.power_up(1000)
+        return {"frames": frames, "ms": frames * sim.period_s * 1e3, "period_ms": sim.period_s * 1e3}
+
+
+def fault_figures(name: str) -> dict:
+    """Frames from injection and from the first inputs showing the fault to System Up/Down
+    ERROR, frames until the DAC rate channels and then all channels read 0 V."""
+    with SystemSimulator() as sim:
+        sim.step(10)
+        sim.power_up(1000)
+        sim.step(30)
+        rt = sim.rt
+        k_inject = rt.frame
+        FAULTS[name](sim.world)
+        k_detect = k_up = k_rates0 = k_all0 = None
+        for _ in range(1000):
+            sim.step(1)
+            v = sim.dac_volts()  # what the service drove in this frame
+            if k_detect is None and rt.daq.fault_bits:
+                k_detect = rt.frame
+            if k_detect is not None:
+                if k_rates0 is None and np.all(v[:6] == 0.0):
+                    k_rates0 = rt.frame
+                if k_up is None and rt.first_change("updown", Status.ERROR, k_inject) is not None:
+                    k_up = rt.first_change("updown", Status.ERROR, k_inject)
+                if k_all0 is None and np.all(v == 0.0):
+                    k_all0 = rt.frame
+            if k_up is not None and k_all0 is not None:
+                break
+        return {"inject": k_inject, "detect": k_detect, "updown": k_up,
+                "detect_to_updown": k_up - k_detect, "inject_to_updown": k_up - k_inject,
+                "rates_0v_after_detect": None if k_rates0 is None else k_rates0 - k_detect,
+                "all_0v_after_detect": None if k_all0 is None else k_all0 - k_detect,
+                "period_ms": sim.period_s * 1e3}
+
+
+def cost_figures(seconds: float) -> dict:
+    with SystemSimulator() as sim:
+        sim.step(10)
+        sim.power_up(1000)
+        n = max(64, int(seconds / sim.period_s))
+        costs = []
+        sim.rt.on_frame.append(lambda r: costs.append(r.cost_s))
+        sim.step(n)
+        c = np.array(costs) * 1e6
+        return {"frames": len(c), "p50_us": float(np.percentile(c, 50)), "p99_us": float(np.percentile(c, 99)),
+                "max_us": float(c.max()), "period_us": sim.period_s * 1e6}
+
+
+def run(seconds: float = 5.0) -> dict:
+    out = {"power_up": {}, "faults": {}, "cost": None}
+    print("controller in the system simulator (simulated time; costs are this host's)")
+    for profile in ("layers", "overview"):
+        p = power_up_figures(profile)
+        out["power_up"][profile] = p
+        print(f"power-up ({profile} profile, {p['period_ms']:.3f} ms frames): {p['frames']} minor frames "
+              f"= {p['ms']:.1f} ms simulated (report: 'a few hundred milliseconds')")
+    print(f"{'fault':<38} {'detect->Up/Down':>15} {'inject->Up/Down':>15} {'rates 0 V':>10} {'all 0 V':>8}")
+    for name in FAULTS:
+        f = fault_figures(name)
+        out["faults"][name] = f
+        r0 = "-" if f["rates_0v_after_detect"] is None else f"+{f['rates_0v_after_detect']}"
+        a0 = "-" if f["all_0v_after_detect"] is None else f"+{f['all_0v_after_detect']}"
+        print(f"{name:<38} {f['detect_to_updown']:>9} frames {f['inject_to_updown']:>9} frames "
+              f"{r0:>10} {a0:>8}")
+    print("  (frames counted from the controller frame whose inputs first show the fault; report 2.2.4: "
+          "'within 6 minor frames'. 0 V columns: frames after detection until the DAC board"
+          " drives 0 V on the six rate channels / on every channel)")
+    c = cost_figures(min(seconds, 5.0))
+    out["cost"] = c
+    print(f"controller frame cost over {c['frames']} frames: p50 {c['p50_us']:.0f} us, p99 {c['p99_us']:.0f} us, "
+          f"max {c['max_us']:.0f} us of a {c['period_us']:.0f} us minor frame")
+    return out
+
+
+if __name__ == "__main__":
+    run(1.0)

@@ -1,0 +1,208 @@
+"""``pfma controller``: run the seven-layer controller against a running I/O service, or
+the whole system in the simulator; halt, single-step, trace, messages.
+
+Examples::
+
+    pfma controller --sim --power-up --duration 0.5 --trace --changes
+    pfma controller --sim --halt            # single-step: Enter = one minor frame, ? = help
+    pfma controller --sim --power-up --step 40
+    pfma controller --buffer pfma --power-up --duration 10     # against ``pfma serve``
+    pfma controller --tables                # the decision tables and the scheduling table
+
+The trace has one line per minor frame: for every layer ``COMMAND>STATUS rN`` (the
+command it receives, the status its decision table decided, the table row that
+decided; ``*`` marks a change) and the Data Acquisition hardware-check bits.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+HELP = """single-step commands (IRSS halt / manual interrupt):
+  Enter or s      one minor frame          s N   N minor frames
+  c               continue to the end      q     quit
+  p / d / r       request POWER UP / POWER DOWN / ERROR RESET
+  m               the last 100 messages    t     the layers' statuses
+  ?               this help"""
+
+
+def add_parser(sub):
+    p = sub.add_parser("controller", help="run the IRSS-layered controller (live service or --sim)",
+                       description=__doc__.split("\n\n")[0])
+    p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name of the service (default pfma)")
+    p.add_argument("--sim", action="store_true", help="simulate the whole system (fake rack + service) "
+                                                     "in simulated time instead")
+    p.add_argument("--wm", default="pfma_wm", help="world-model shared-memory name for `pfma wm` "
+                                                  "(default pfma_wm; 'none' = private)")
+    p.add_argument("--profile", default="layers", help="rate profile: layers (default) or overview")
+    p.add_argument("--power-up", action="store_true", help="request POWER UP at start")
+    p.add_argument("--duration", type=float, default=None,
+                   help="seconds to run (simulated with --sim: default 1; live: until Ctrl-C)")
+    p.add_argument("--halt", action="store_true", help="start halted; single-step from the keyboard")
+    p.add_argument("--step", type=int, default=None, metavar="N",
+                   help="run N minor frames one at a time, printing each frame's trace, then stop")
+    p.add_argument("--trace", action="store_true", help="print the per-frame trace")
+    p.add_argument("--changes", action="store_true", help="trace only frames in which a status changed")
+    p.add_argument("--messages", type=int, default=30, metavar="N", help="messages shown at the end (30)")
+    p.add_argument("--no-ft", action="store_true", help="a stale F/T link is not a fault")
+    p.add_argument("--tables", action="store_true", help="print the decision tables and the schedule")
+    return p
+
+
+def _print_tables(profile: str) -> int:
+    from controller.decision import BOTTOM_TABLE, LAYER_TABLE, describe
+    from controller.frames import FrameConfig
+    print(describe(LAYER_TABLE))
+    print()
+    print(describe(BOTTOM_TABLE))
+    print()
+    print(FrameConfig.profile(profile).validate().describe())
+    return 0
+
+
+def _status_line(rt) -> str:
+    from controller.decision import status_text
+    return "  ".join(f"{l.short.strip()}={status_text(s)}" for l, s in zip(rt.layers, rt.statuses().values()))
+
+
+class _Driver:
+    """Steps either a SystemSimulator or a runtime paced by a live service."""
+
+    def __init__(self, args) -> None:
+        from controller.frames import FrameConfig
+        self.args = args
+        frames = FrameConfig.profile(args.profile)
+        wm_name = None if args.wm in ("none", "") else args.wm
+        self.sim = None
+        self.client = None
+        if args.sim:
+            from controller.simulator import SystemSimulator
+            self.sim = SystemSimulator(frames=frames, wm_name=wm_name, require_ft=not args.no_ft)
+            self.rt = self.sim.rt
+            self.sim.step(10)  # the service's first frames (links open)
+        else:
+            from controller.runtime import ControllerRuntime
+            from ioservice.client import Client
+            from pfma.clock import MonotonicClock
+            self.client = Client.attach(args.buffer, writer="commands", owner="pfma-controller")
+            self.rt = ControllerRuntime(self.client, frames=frames, wm_name=wm_name, clock=MonotonicClock(),
+                                        require_ft=not args.no_ft)
+        self.printed_header = False
+
+    @property
+    def period_s(self) -> float:
+        return self.rt.frames.period_s
+
+    def frame(self) -> None:
+        if self.sim is not None:
+            self.sim.step(1)
+            return
+        c = self.client
+        deadline = time.monotonic() + 0.1
+        while not c.changed("inputs"):  # locked to the service: wait for its next frame
+            if time.monotonic() > deadline:
+                break  # the runtime's stale-service check will report it
+            time.sleep(0.0002)
+        self.rt.step()
+
+    def show(self, rec) -> None:
+        if not self.args.trace and self.args.step is None and not self.args.halt:
+            return
+        if self.args.changes and not any(l.changed for l in rec.layers):
+            return
+        if not self.printed_header:
+            print(self.rt.header())
+            self.printed_header = True
+        print(self.rt.format_frame(rec), flush=True)
+
+    def close(self) -> None:
+        from controller.decision import Status
+        rt = self.rt
+        if self.sim is None and rt.status("updown") not in (Status.SHUT_DOWN, Status.ERROR):
+            from controller.layers import Request
+            try:  # leave the arm safe: power down in order before letting go of the buffer
+                rt.request(Request.POWER_DOWN)
+                t_end = time.monotonic() + 2.0
+                while time.monotonic() < t_end and not rt.all_status(Status.SHUT_DOWN):
+                    self.frame()
+            except Exception as err:  # noqa: BLE001
+                print(f"pfma controller: power down on exit: {err}", file=sys.stderr)
+        if self.sim is not None:
+            self.sim.close()
+        else:
+            rt.close()
+            self.client.close()
+
+
+def _interactive(d: _Driver, budget: int) -> None:
+    from controller.layers import Request
+    print(HELP)
+    run = 0
+    while run < budget:
+        try:
+            line = input(f"[frame {d.rt.frame}] > ").strip()
+        except EOFError:
+            return
+        cmd, _, arg = line.partition(" ")
+        if cmd in ("", "s"):
+            n = int(arg) if arg.strip().isdigit() else 1
+            for _ in range(min(n, budget - run)):
+                d.frame()
+                run += 1
+        elif cmd == "c":
+            while run < budget:
+                d.frame()
+                run += 1
+        elif cmd == "q":
+            return
+        elif cmd in ("p", "d", "r"):
+            kind = {"p": Request.POWER_UP, "d": Request.POWER_DOWN, "r": Request.ERROR_RESET}[cmd]
+            print(f"request {d.rt.request(kind)}: {Request.NAMES[kind]} (applied at the next frame)")
+        elif cmd == "m":
+            print(d.rt.messages.format())
+        elif cmd == "t":
+            print(_status_line(d.rt))
+        else:
+            print(HELP)
+
+
+def run(args) -> int:
+    if args.tables:
+        return _print_tables(args.profile)
+    from controller.layers import Request
+    try:
+        d = _Driver(args)
+    except FileNotFoundError as err:
+        print(f"pfma controller: no service buffer {args.buffer!r} ({err}); start `pfma serve` or use --sim",
+              file=sys.stderr)
+        return 1
+    d.rt.on_frame.append(d.show)
+    try:
+        if args.power_up:
+            d.rt.request(Request.POWER_UP)
+        if args.duration is not None:
+            budget = int(round(args.duration / d.period_s))
+        elif args.sim:
+            budget = int(round(1.0 / d.period_s))
+        else:
+            budget = sys.maxsize
+        if args.step is not None:
+            budget = min(budget, args.step)
+        if args.halt:
+            if not args.sim:
+                print("note: halting a controller on a live service lets its watchdog trip the "
+                      "outputs safe (15 ms); single steps then run on the latest inputs", file=sys.stderr)
+            _interactive(d, budget)
+        else:
+            for _ in range(budget):
+                d.frame()
+        print(_status_line(d.rt))
+        if args.messages:
+            print(f"--- last {args.messages} messages ---")
+            print(d.rt.messages.format(args.messages))
+    except KeyboardInterrupt:
+        print()
+    finally:
+        d.close()
+    return 0
