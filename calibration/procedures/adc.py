@@ -8,7 +8,8 @@ engineering conversion becomes ``nominal_scale * (gain * v + offset) + nominal_o
 
 Tolerances (stated): fit residual <= 2 LSB (9.8 mV, 12-bit +-10 V, pfma-model 8.4)
 at every point; |gain - 1| <= 5 % and |offset| <= 0.25 V, else the channel or the
-reference wiring is suspect (fail).
+reference wiring is suspect (fail). Expected recovery of an injected ADC error on the
+simulated rack: gain to 0.1 %, offset to 1 LSB (4.9 mV).
 """
 
 from __future__ import annotations

@@ -4,7 +4,8 @@ With the service SAFE (DAC outputs disconnected, current limits 0 V, brakes set)
 motor currents are zero, so whatever each current-monitor channel reads is its offset.
 The gain (10 I / I_max, pfma-model 8.4) is not touched: it needs a current reference.
 
-Tolerances (stated): the offset is found to +-0.5 LSB of the ADC (2.4 mV); the
+Tolerances (stated): the offset is found to 1 LSB of the ADC (4.9 mV: the 12-bit
+converter's quantization; better only with noise to dither it); the
 procedure fails when a channel reads more than 0.2 V (the amplifier is not disabled or
 the monitor is faulty) or its noise exceeds 3 LSB rms while the arm is still.
 """
@@ -28,7 +29,7 @@ MAX_NOISE_V = 3 * LSB_V
 def run(ctx: Context) -> ProcedureResult:
     signals = list(ctx.options.get("signals") or [c.signal for c in ctx.rack.channels()
                                                   if c.device == "adc" and c.signal.endswith("_motor_current")])
-    res = ProcedureResult(NAME, tolerances={"resolution": f"+-{LSB_V / 2 * 1e3:.1f} mV",
+    res = ProcedureResult(NAME, tolerances={"resolution": f"{LSB_V * 1e3:.1f} mV",
                                             "offset": f"<= {MAX_OFFSET_V} V", "noise": f"<= {MAX_NOISE_V * 1e3:.1f} mV rms"})
     ctx.progress(0, 2, "amplifiers disabled?")
     state = ctx.session.read()["service_state"]

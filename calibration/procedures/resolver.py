@@ -57,7 +57,7 @@ def run(ctx: Context) -> ProcedureResult:
         f = F.mean_offset(ang - target, what=f"resolver {j}")
         sig = f"{j}_angle"
         res.fits[sig] = f
-        res.channels[sig] = {"scale": 1.0, "offset": -offset,
+        res.channels[sig] = {"scale": 1.0, "offset": 0.0 - offset,
                              "provenance": ctx.provenance("resolver reading at index mark", f,
                                                           index_rad=target, raw_rad=raw, resolver_offset_rad=offset)}
         res.found[sig] = {"resolver_offset_rad": offset}
