@@ -25,7 +25,7 @@ from typing import Any, Callable
 
 from ioservice.client import Client
 from ioservice.layout import ServiceState
-from pfma.errors import PfmaError, PfmaTimeoutError
+from pfma.errors import PfmaError
 from pfma.rack import RackConfig, load_rack
 
 
@@ -350,4 +350,4 @@ def make_sim_target(rack: str | RackConfig | None = None) -> SimTarget:
 
 
 __all__ = ["Commander", "FakeStimulus", "LiveTarget", "ServiceLost", "SimTarget", "Target",
-           "make_sim_target", "PfmaTimeoutError"]
+           "make_sim_target"]
