@@ -47,6 +47,8 @@ def add_parser(sub):
     p.add_argument("--plots", default=None, help="directory for PNG plots (default: next to the file)")
     p.add_argument("--joints", default=None, help="comma-separated joints (tach, resolver, dac-rate)")
     p.add_argument("--signals", default=None, help="comma-separated ADC signals (adc, current-offsets)")
+    p.add_argument("--index", default=None, metavar="JOINT=RAD,...",
+                   help="resolver: known index positions (default: the DH zero of every joint, assumed)")
     p.add_argument("--save-failed", action="store_true", help="save the result even when a check failed")
     return p
 
@@ -147,12 +149,20 @@ def run(args, out=None) -> int:
     from calibration.session import ConsoleOperator, LiveSession, SimSession
     rack = _rack(args)
     path = Path(args.file)
-    cal = files.load_calibration(path, rack) if path.exists() else files.nominal_calibration(rack, args.operator)
+    if not path.exists():  # version 0 = the nominal scales, so history starts there
+        files.save_calibration(files.nominal_calibration(rack, args.operator), path, rack=rack)
+        print(f"pfma calibrate: created {path} (version 0, nominal scales)", file=out)
+    cal = files.load_calibration(path, rack)
     options = {}
     if args.joints:
         options["joints"] = [j.strip() for j in args.joints.split(",") if j.strip()]
     if args.signals:
         options["signals"] = [s.strip() for s in args.signals.split(",") if s.strip()]
+    if args.index:
+        try:
+            options["index_rad"] = {k.strip(): float(v) for k, v in (kv.split("=") for kv in args.index.split(","))}
+        except ValueError:
+            raise CalibrationError(f"--index {args.index!r}: expected JOINT=RAD,... e.g. wrist_roll=0.5") from None
     plot_dir = Path(args.plots) if args.plots else path.parent / (path.stem + "-plots")
     rig = None
     if args.buffer:
