@@ -82,7 +82,8 @@ class IoService:
 
     def __init__(self, rack: RackConfig, bus, buffer: Bit3Buffer, clock: Clock, *,
                  schedule: Schedule | None = None, watchdog_s: float = 0.015,
-                 owner: str = "pfma-ioservice", serial: bool = True, calibration=None) -> None:
+                 owner: str = "pfma-ioservice", serial: bool = True, calibration=None,
+                 ft_port: str | None = None) -> None:
         self.calibration = None  # calibration: the loaded calibration in force (None = nominal)
         if calibration is not None:
             rack, self.calibration = _calibrated_rack(rack, calibration)
@@ -118,8 +119,11 @@ class IoService:
         self._ft_latest = None
         self._crl_latest = None
         self._mvme400 = None
+        self._ft_url = ft_port
         if serial:
             self._wire_serial()
+        if ft_port is not None:
+            self._wire_ft_url()
         self._wire_cae()
         self._apply_calibration_extras()  # calibration: resolver offsets, CAE, F/T, header hash
         self._cpu0 = self._cpu_s()
@@ -225,9 +229,35 @@ class IoService:
                 if any(c.signal.startswith("user_if_box_inputs") for c in cfg.channels):
                     self._pio_in.append((cfg, drv, slots))
 
+    def _start_ft(self, port, baud: int, where: str) -> None:
+        """Binary records with checksum, streamed (QS); then only non-blocking reads."""
+        from drivers.serial_ft.ftsensor import FtSensor
+        ft = FtSensor(port, clock=self.clock, baud=baud)
+        try:
+            ft.set_mode("binary")
+            ft.set_checksum(True)
+            ft.start_stream(rate_hz=self.schedule.rate_hz("ft"))
+            port.timeout = 0  # from now on only non-blocking reads, between frames
+            self._ft = ft
+        except PfmaError as err:
+            self.init_errors.append(str(err))
+            self.post(Severity.ERROR, 120, f"F/T sensor on {where}: not streaming: {err}")
+            self._v["link_status"][self.layout.slot("link", "ft_sensor")] = LINK_FAULT
+
+    def _wire_ft_url(self) -> None:
+        """The F/T sensor on a pyserial URL (USB-serial adapter, terminal server) instead of
+        the MVME400: the kernel's or the server's buffer holds the bytes between frames."""
+        import serial
+        try:
+            port = serial.serial_for_url(self._ft_url, baudrate=19200, timeout=0.05)
+        except (serial.SerialException, ValueError) as err:
+            self.init_errors.append(f"F/T port {self._ft_url}: {err}")
+            self.post(Severity.ERROR, 121, f"F/T port {self._ft_url}: {err}")
+            return
+        self._start_ft(port, 19200, self._ft_url)
+
     def _wire_serial(self) -> None:
         from drivers.crl.crl import CrlHandController
-        from drivers.serial_ft.ftsensor import FtSensor
         boards = self.rack.boards_of("serial")
         if not boards:
             return
@@ -238,20 +268,9 @@ class IoService:
         if not self._init_board(cfg, lambda: drv.init(baud_a=bauds[0], baud_b=bauds[1])):
             return
         self._mvme400 = (cfg, drv)
-        if "ft_sensor" in ch:
+        if "ft_sensor" in ch and self._ft_url is None:
             port = drv.port(ch["ft_sensor"].channel, timeout=0.05)
-            ft = FtSensor(port, clock=self.clock, baud=bauds[ch["ft_sensor"].channel])
-            try:
-                ft.set_mode("binary")
-                ft.set_checksum(True)
-                ft.start_stream(rate_hz=self.schedule.rate_hz("ft"))
-                port.timeout = 0  # from now on only non-blocking reads, between frames
-                self._ft = ft
-            except PfmaError as err:
-                self.init_errors.append(str(err))
-                self.post(Severity.ERROR, 120, f"F/T sensor on {cfg.name} port "
-                          f"{ch['ft_sensor'].channel}: not streaming: {err}")
-                self._v["link_status"][self.layout.slot("link", "ft_sensor")] = LINK_FAULT
+            self._start_ft(port, bauds[ch["ft_sensor"].channel], f"{cfg.name} port {ch['ft_sensor'].channel}")
         if "crl_hand_controller" in ch:
             port = drv.port(ch["crl_hand_controller"].channel, timeout=0)
             self._crl = CrlHandController(port, self.clock)
@@ -565,8 +584,6 @@ class IoService:
             self._count_board_error(cfg.name, err)
 
     def _decode_serial(self) -> None:
-        if self._mvme400 is None:
-            return
         try:
             if self._ft is not None:
                 recs = self._ft.read_records()
@@ -575,7 +592,9 @@ class IoService:
             if self._crl is not None:
                 self._crl_latest = self._crl.update()
         except PfmaError as err:
-            self._count_board_error(self._mvme400[0].name, err)
+            if self._mvme400 is not None:
+                self._count_board_error(self._mvme400[0].name, err)
+            self._devices["ft"].errors += 1
 
     # ------------------------------------------------------------------ statistics
     @staticmethod

@@ -38,6 +38,9 @@ def add_parser(sub):
     p.add_argument("--frame-rate", type=float, default=320.0, help="minor-frame rate (320 default; 1000 fast)")
     p.add_argument("--schedule", default=None, metavar="FILE.toml",
                    help="acquisition schedule: a [schedule] table (frame_rate_hz, tasks.NAME = {divider, phase})")
+    p.add_argument("--ft-port", default=None, metavar="URL",
+                   help="F/T sensor on a pyserial URL (/dev/ttyUSB0, socket://host:port) instead of "
+                        "MVME400 port A")
     p.add_argument("--watchdog-ms", type=float, default=15.0, help="command heartbeat time-out (15 ms)")
     p.add_argument("--live", action="store_true", help="print a live channel view twice a second")
     p.add_argument("--demo", action="store_true",
@@ -105,7 +108,7 @@ def run(args) -> int:
     Bit3Buffer.unlink(args.buffer) if _stale(args.buffer) else None
     buf = Bit3Buffer.create(args.buffer, layout, exist_ok=True)
     svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3,
-                    calibration=getattr(args, "calibration", None))
+                    calibration=getattr(args, "calibration", None), ft_port=args.ft_port)
     for e in svc.init_errors:
         print(f"pfma serve: {e}", file=sys.stderr)
     svc.install_signal_handlers()
