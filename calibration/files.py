@@ -339,8 +339,7 @@ def parse_calibration(text: str, source: str = "<string>", rack: RackConfig | No
     try:
         data = json.loads(text)
     except json.JSONDecodeError as err:
-        hint = " (truncated?)" if err.pos >= len(text.rstrip()) - 1 else ""
-        raise CalibrationError(f"calibration {source}: not valid JSON{hint}: {err.msg} at line "
+        raise CalibrationError(f"calibration {source}: not valid JSON (truncated or corrupt?): {err.msg} at line "
                                f"{err.lineno} column {err.colno}; file refused, the previous "
                                f"calibration stays in force") from err
     return validate(data, rack=rack, source=source, path=path)

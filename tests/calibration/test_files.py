@@ -43,7 +43,7 @@ def test_truncated_file_is_refused_naming_the_problem(tmp_path, rack):
     p, _ = _good(tmp_path, rack)
     text = p.read_text()
     p.write_text(text[: len(text) // 2])
-    with pytest.raises(CalibrationError, match=r"not valid JSON \(truncated\?\).*previous calibration stays"):
+    with pytest.raises(CalibrationError, match=r"not valid JSON \(truncated or corrupt\?\).*previous calibration stays"):
         files.load_calibration(p, rack)
     p.write_text("")
     with pytest.raises(CalibrationError, match="empty file"):
