@@ -165,8 +165,13 @@ class SimRig:
         self.tclock = TickingClock(self.clock)
         self.tclock.hooks.append(self.world.tick)
         self.buf = Bit3Buffer.create(self.name)
-        self.svc = IoService(self.world.rack_config, self.world.bus, self.buf, self.tclock,
-                             calibration=calibration)
+        try:
+            self.svc = IoService(self.world.rack_config, self.world.bus, self.buf, self.tclock,
+                                 calibration=calibration)
+        except BaseException:
+            self.buf.close()
+            Bit3Buffer.unlink(self.name)
+            raise
         self.tclock.hooks.append(self.svc.serial_tick)
         self.reader = Client.attach(self.name)
         self.ctl = None

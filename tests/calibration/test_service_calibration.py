@@ -8,6 +8,7 @@ import uuid
 import pytest
 
 from calibration import files
+from ioservice.shm import Bit3Buffer
 from pfma.cli import build_parser
 from pfma.errors import CalibrationError
 from tests.service.conftest import Rig
@@ -56,8 +57,12 @@ def test_applied_at_start_and_bad_reload_keeps_previous(tmp_path):
 def test_service_refuses_a_bad_file_at_start(tmp_path):
     p = tmp_path / "cal.json"
     p.write_text('{"format": "pfma-calibration", "format_version": 1')
-    with pytest.raises(CalibrationError, match="truncated"):
-        Rig("pfma-caltest-" + uuid.uuid4().hex[:8], calibration=p)
+    name = "pfma-caltest-" + uuid.uuid4().hex[:8]
+    try:
+        with pytest.raises(CalibrationError, match="truncated"):
+            Rig(name, calibration=p)
+    finally:
+        Bit3Buffer.unlink(name)  # the rig made the buffer before the service refused the file
 
 
 def _cli(*argv) -> tuple[int, str]:
