@@ -24,7 +24,8 @@ bit    meaning
 1      resolver fault on a joint channel (loss of signal / BIT, no reference,
        or the board did not answer)
 2      tach ADC sample failed (bus error)
-4      F/T link stale or faulted (disable with ``require_ft=False``)
+4      F/T link stale or faulted for FT_BAD_FRAMES frames in a row (disable with
+       ``require_ft=False``)
 8      a board the controller needs reports a fault (bus error, init failure)
 16     the service is in FAULT or STOPPED, or not ARMED while it should be
 32     the service has not published a new frame for ``STALE_FRAMES`` frames
@@ -57,6 +58,10 @@ BOARD_FAULT = 4
 LINK_FAULT, LINK_STALE = 4, 8
 #: controller frames without a new service frame before the service counts as lost
 STALE_FRAMES = 4
+#: consecutive frames the service must flag the F/T link stale/faulted before it counts
+#: (assumed: 4 frames = 12.5 ms on top of the service's 50 ms stale age, so that one late
+#: record on a busy host does not stop the arm; a dead link still trips in 62.5 ms)
+FT_BAD_FRAMES = 4
 #: time the init task waits for healthy inputs, the start-up task for ARMED (assumed)
 INIT_TIMEOUT_S = 0.5
 ARM_TIMEOUT_S = 0.2
@@ -104,6 +109,7 @@ class DataAcquisitionLayer(Layer):
         self.snapshot = None
         self._last_frame = -1
         self._same_frames = 0
+        self._ft_bad_run = 0
         self.arm_request = 0
         self.rearm_counter = int(client.command["rearm_counter"])
         self._t_phase = 0.0
@@ -193,7 +199,9 @@ class DataAcquisitionLayer(Layer):
             why.append("tach ADC sample failed")
         if self.require_ft and self.ft_slot is not None:
             ls = int(snap.link_status[self.ft_slot])
-            if ls & (LINK_STALE | LINK_FAULT) or not ls:
+            bad = bool(ls & (LINK_STALE | LINK_FAULT) or not ls)
+            self._ft_bad_run = self._ft_bad_run + 1 if bad else 0
+            if self._ft_bad_run >= FT_BAD_FRAMES:
                 bits |= FAULT_FT
                 why.append(f"F/T link {'stale' if ls & LINK_STALE else 'faulted' if ls & LINK_FAULT else 'not open'}"
                            f" (age {float(snap.link_age_s[self.ft_slot]) * 1e3:.0f} ms)")

@@ -64,7 +64,7 @@ class LayerTrace:
 @dataclass(frozen=True)
 class FrameTrace:
     frame: int
-    t_s: float
+    t_s: float  #: seconds since the runtime started
     layers: tuple[LayerTrace, ...]
     fault_bits: int
     tasks: tuple[str, ...]  #: periodic tasks run
@@ -120,6 +120,7 @@ class ControllerRuntime:
         self.frame = -1
         self.frames_run = 0
         self.now = clock.now() if clock is not None else time.monotonic()
+        self.t0 = self.now  #: trace and message times are seconds since the runtime started
         self.last_rid: dict[str, int] = {}
         self.status_changes: list[tuple[int, str, int, int]] = []  #: (frame, layer, old, new)
         self.on_frame: list[Callable[[FrameTrace], None]] = []
@@ -154,7 +155,7 @@ class ControllerRuntime:
 
     # --- messages ----------------------------------------------------------------------------
     def post(self, source: str, level: Level | int, text: str) -> Message:
-        return self.messages.post(source, level, text, self.now, self.frame)
+        return self.messages.post(source, level, text, self.now - self.t0, self.frame)
 
     def _forward(self, m: Message) -> None:
         if m.level >= Level.WARNING and getattr(self.client, "role", None) == "controller":
@@ -193,7 +194,7 @@ class ControllerRuntime:
                 layer.set_fault(self, 90, f"task {name} raised {type(err).__name__}: {err}")
             ran.append(name)
         self.frames_run += 1
-        rec = FrameTrace(self.frame, self.now, tuple(
+        rec = FrameTrace(self.frame, self.now - self.t0, tuple(
             LayerTrace(l.last[0], self._decided(l), l.last[5], int(l.task_kind) * 10 + int(l.task_state),
                        l.key in self._changed) for l in self.layers),
             self.daq.fault_bits, tuple(ran), time.perf_counter() - t0)

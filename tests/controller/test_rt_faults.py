@@ -103,3 +103,13 @@ def test_servo_limit_fault_is_an_error_of_the_servo_layer(powered):
     powered.run_until(lambda: rt.status("daq") == S.SHUT_DOWN, 250)
     powered.step(3)
     assert np.all(powered.dac_volts() == 0.0)
+
+
+def test_a_service_that_stops_publishing_is_a_fault(powered):
+    from controller.daq_layer import FAULT_STALE, STALE_FRAMES
+    rt = powered.rt
+    for _ in range(STALE_FRAMES + 1):  # controller frames without a service frame in between
+        rt.step()
+    assert rt.daq.fault_bits & FAULT_STALE
+    assert rt.status("servo") == S.ERROR or rt.status("daq") == S.ERROR
+    assert any("not publishing" in m.text or "unchanged" in m.text for m in rt.messages.recent())
