@@ -10,7 +10,6 @@ from __future__ import annotations
 import numpy as np
 
 from controller.decision import Status
-from controller.layers import Request
 from controller.simulator import SystemSimulator
 
 FAULTS = {

@@ -25,8 +25,10 @@ Acquisition in frame k is System Up/Down's ERROR in frame k + 6 (report 2.2.4: "
 
 Visibility: :attr:`trace` keeps a record of every frame (each layer's command,
 status, deciding row and mailbox; :func:`format_trace`), :attr:`messages` the layers'
-messages (50 per source, the last 100 merged by time), and :attr:`halted` /
-:meth:`step` give IRSS's halt and single step.
+messages (50 per source, the last 100 merged by time). IRSS's halt is simply not
+calling :meth:`step` (no frame interrupts); a single step is one call (the simulator's
+``step(1)`` runs one service frame and one controller frame; ``pfma controller --halt``
+single-steps from the keyboard).
 """
 
 from __future__ import annotations
@@ -39,11 +41,10 @@ from typing import Callable, Sequence
 import numpy as np
 
 from controller.daq_layer import DataAcquisitionLayer
-from controller.decision import SHORT, SHORT_CMD, Command, Status, TaskState, status_text
+from controller.decision import SHORT, SHORT_CMD, Command, Status, TaskState
 from controller.frames import MINOR_FRAMES_PER_MAJOR, FrameConfig, ScheduleError
 from controller.layers import JointPlannerLayer, Layer, PlaceholderLayer, Request, Response, UpDownLayer
 from controller.messages import Level, Message, MessageBoard
-from controller.params import N_JOINTS
 from controller.servo import ServoLayer
 from controller.worldmodel import WorldModel
 from ioservice.layout import Severity
@@ -116,7 +117,6 @@ class ControllerRuntime:
         self._key = self.wm.access_key
         self.messages = MessageBoard()
         self.trace: deque[FrameTrace] = deque(maxlen=trace_frames)
-        self.halted = False
         self.frame = -1
         self.frames_run = 0
         self.now = clock.now() if clock is not None else time.monotonic()
