@@ -11,7 +11,7 @@ Two sessions share one interface:
 
 - :class:`SimSession` wraps a simulated-time rig (``FakeWorld`` + ``IoService`` +
   clients on one ``SimClock``; any object with ``run(seconds)``, ``on_frame``,
-  ``reader``, ``controller()``, ``world``, ``svc``, e.g. ``tests/service/conftest.Rig``
+  ``reader``, ``controller()``, ``world``, ``svc``, e.g. ``ioservice.simrig.SimRig``
   or :func:`calibration.sim.build_rig`); time passes only when the procedure waits.
 - :class:`LiveSession` attaches to a running service (``pfma serve``) by buffer name
   and runs in real time (command heartbeat every 2 ms).

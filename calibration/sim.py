@@ -9,13 +9,11 @@ and offset, resolver offsets, tach scale, payload) are set on the simulated rack
 ``world.sim.set_errors(SimErrors(...))``.
 
 :class:`SimRig` is the simulated-time rig ``pfma calibrate --rack fake`` runs on
-(``FakeWorld`` + ``IoService`` + a reader on one ``SimClock``); tests use the service
-tests' ``Rig``, which has the same interface.
+(``ioservice.simrig.SimRig`` with the calibration passed to the service).
 """
 
 from __future__ import annotations
 
-import uuid
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -25,10 +23,7 @@ from drivers.crl.cae import CAE_AXES
 from fakes.sim_rack import CAE_AXIS_SIGNALS, CAE_DISCRETE_SIGNALS
 from fakes.world import FakeWorld
 from ioservice.client import Client
-from ioservice.service import IoService
-from ioservice.shm import Bit3Buffer
-from ioservice.ticking import TickingClock
-from pfma.clock import SimClock
+from ioservice.simrig import SimRig as _BaseSimRig
 
 #: CAE axis name (x, y, ...) -> its ADC signal
 CAE_SIGNAL_OF = {axis: sig for sig, axis, _ in CAE_AXES}
@@ -152,49 +147,17 @@ class SimOperator:
         return None
 
 
-class SimRig:
+class SimRig(_BaseSimRig):
     """Simulated rack + service + reader on one SimClock (``pfma calibrate --rack fake``).
 
     :param calibration: passed to the service (path or loaded calibration)
     """
 
     def __init__(self, calibration=None, name: str | None = None, **world_kw: Any) -> None:
-        self.name = name or "pfma-cal-" + uuid.uuid4().hex[:8]
-        self.clock = SimClock()
-        self.world = FakeWorld(clock=self.clock, **world_kw)
-        self.tclock = TickingClock(self.clock)
-        self.tclock.hooks.append(self.world.tick)
-        self.buf = Bit3Buffer.create(self.name)
-        try:
-            self.svc = IoService(self.world.rack_config, self.world.bus, self.buf, self.tclock,
-                                 calibration=calibration)
-        except BaseException:
-            self.buf.close()
-            Bit3Buffer.unlink(self.name)
-            raise
-        self.tclock.hooks.append(self.svc.serial_tick)
-        self.reader = Client.attach(self.name)
-        self.ctl = None
-        self.on_frame: list = []
-        body = self.svc.frame
+        super().__init__(name=name, prefix="pfma-cal-",
+                         service_kw={"calibration": calibration} if calibration is not None else None,
+                         **world_kw)
 
-        def frame(info):
-            for f in self.on_frame:
-                f(info)
-            body(info)
-        self.svc.loop.body = frame
+    def controller(self, owner: str = "pfma-calibrate") -> Client:
+        return super().controller(owner)
 
-    def controller(self) -> Client:
-        self.ctl = Client.attach(self.name, writer="commands", owner="pfma-calibrate", clock_now=self.clock.now)
-        return self.ctl
-
-    def run(self, seconds: float):
-        return self.svc.loop.run(frames=int(round(seconds * self.svc.schedule.frame_rate_hz)), freeze_gc=False)
-
-    def close(self) -> None:
-        if self.ctl is not None:
-            self.ctl.close()
-        self.reader.close()
-        self.svc.stop()
-        self.buf.close()
-        Bit3Buffer.unlink(self.name)

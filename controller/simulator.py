@@ -22,20 +22,13 @@ and driven the same way produce identical traces.
 
 from __future__ import annotations
 
-import uuid
-
 import numpy as np
 
 from controller.frames import FrameConfig
 from controller.layers import Request
 from controller.runtime import ControllerRuntime
-from fakes.world import FakeWorld
-from ioservice.client import Client
 from ioservice.schedule import Schedule
-from ioservice.service import IoService
-from ioservice.shm import Bit3Buffer
-from ioservice.ticking import TickingClock
-from pfma.clock import SimClock
+from ioservice.simrig import SimRig
 
 
 class SystemSimulator:
@@ -55,34 +48,25 @@ class SystemSimulator:
         if frames is None:
             frames = FrameConfig.profile(profile) if profile else FrameConfig()
         self.frames = frames
-        self.name = name or "pfma-sim-" + uuid.uuid4().hex[:10]
-        self.clock = SimClock()
-        self.world = FakeWorld(clock=self.clock, **world_kw)
-        self.tclock = TickingClock(self.clock)
-        self.tclock.hooks.append(self.world.tick)
-        self.buf = Bit3Buffer.create(self.name)
-        self.svc = self.client = self.rt = None
+        self.rig = SimRig(name=name, prefix="pfma-sim-",
+                          service_kw={"schedule": Schedule(frame_rate_hz=frames.frame_rate_hz)}, **world_kw)
+        self.name, self.clock, self.world, self.svc = self.rig.name, self.rig.clock, self.rig.world, self.rig.svc
+        self.rt = None
         try:
-            self.svc = IoService(self.world.rack_config, self.world.bus, self.buf, self.tclock,
-                                 schedule=Schedule(frame_rate_hz=frames.frame_rate_hz))
-            self.tclock.hooks.append(self.svc.serial_tick)
-            self.client = Client.attach(self.name, writer="commands", owner="controller",
-                                        clock_now=self.clock.now)
+            self.client = self.rig.controller(owner="controller")
             self.rt = ControllerRuntime(self.client, frames=frames, wm_name=wm_name, clock=self.clock,
                                         require_ft=require_ft, trace_frames=trace_frames)
         except BaseException:
-            self.close()
+            self.rig.close()
             raise
         self.controller_enabled = True  #: False: the service runs alone (controller "dead")
         self.service_frames = 0
-        body = self.svc.frame
 
-        def frame(info) -> None:
-            body(info)
+        def controller_frame(info) -> None:  # right after each service frame
             self.service_frames += 1
             if self.controller_enabled:
                 self.rt.step()
-        self.svc.loop.body = frame
+        self.rig.after_frame.append(controller_frame)
 
     # --- running -------------------------------------------------------------------------
     @property
@@ -127,12 +111,7 @@ class SystemSimulator:
     def close(self) -> None:
         if self.rt is not None:
             self.rt.close()
-        if self.client is not None:
-            self.client.close()
-        if self.svc is not None:
-            self.svc.stop()
-        self.buf.close()
-        Bit3Buffer.unlink(self.name)
+        self.rig.close()
 
     def __enter__(self) -> "SystemSimulator":
         return self

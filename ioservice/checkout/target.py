@@ -10,9 +10,8 @@ Both targets offer the same small API to the checks:
 - ``stimulus``: a :class:`FakeStimulus` on the simulated rack, ``None`` on a real one
   (where the checkout prompts the operator instead).
 
-:class:`SimTarget` builds the simulated rack exactly as the service tests' ``Rig`` does
-(``tests/service/conftest.py``): ``FakeWorld`` + ``TickingClock`` + ``IoService`` on a
-private buffer, with hooks that run before every service frame.
+:class:`SimTarget` runs on :class:`ioservice.simrig.SimRig` (``FakeWorld`` + ``IoService``
+on a private buffer, with hooks that run before every service frame).
 """
 
 from __future__ import annotations
@@ -159,37 +158,16 @@ class SimTarget(Target):
 
     def __init__(self, rack: RackConfig | None = None, buffer_name: str | None = None,
                  **service_kw) -> None:
-        from fakes.world import FakeWorld
-        from ioservice.service import IoService
-        from ioservice.shm import Bit3Buffer
-        from ioservice.ticking import TickingClock
-        from pfma.clock import SimClock
-        from ioservice.layout import build_layout
-
+        from ioservice.simrig import SimRig
         rack = rack if rack is not None else load_rack()
-        layout = build_layout(rack)
-        self.buffer_name = buffer_name or f"pfma-checkout-{os.getpid()}-{uuid.uuid4().hex[:6]}"
-        self.clock = SimClock()
-        self.world = FakeWorld(rack, clock=self.clock)
-        self.tclock = TickingClock(self.clock)
-        self.tclock.hooks.append(self.world.tick)
-        self.buf = Bit3Buffer.create(self.buffer_name, layout)
-        try:
-            self.svc = IoService(rack, self.world.bus, self.buf, self.tclock, **service_kw)
-        except BaseException:
-            self.buf.close()
-            Bit3Buffer.unlink(self.buffer_name)
-            raise
-        self.tclock.hooks.append(self.svc.serial_tick)
-        self.on_frame: list[Callable] = []  #: run before each service frame
-        body = self.svc.frame
-
-        def frame(info) -> None:
-            for f in self.on_frame:
-                f(info)
-            body(info)
-        self.svc.loop.body = frame
-        reader = Client.attach(self.buffer_name, layout=layout, clock_now=self.clock.now)
+        self.rig = SimRig(rack, name=buffer_name or f"pfma-checkout-{os.getpid()}-{uuid.uuid4().hex[:6]}",
+                          service_kw=service_kw)
+        self.buffer_name = self.rig.name
+        self.clock = self.rig.clock
+        self.world = self.rig.world
+        self.svc = self.rig.svc
+        self.on_frame: list[Callable] = self.rig.on_frame  #: run before each service frame
+        reader = self.rig.reader
         super().__init__(reader, rack, f"simulated rack {rack.name!r} (in-process service, simulated time)")
         self.stimulus = FakeStimulus(self.world)
 
@@ -262,13 +240,11 @@ class SimTarget(Target):
         super().release_commands()
 
     def close(self) -> None:
-        from ioservice.shm import Bit3Buffer
         try:
-            super().close()
+            super().close()  # releases the commands, closes the reader
         finally:
-            self.svc.stop()
-            self.buf.close()
-            Bit3Buffer.unlink(self.buffer_name)
+            self.rig.reader = None
+            self.rig.close()
 
 
 class LiveTarget(Target):

@@ -9,7 +9,7 @@ from calibration.files import nominal_calibration, save_calibration
 from calibration.procedures import Context
 from calibration.session import SimSession
 from calibration.sim import SimOperator
-from tests.service.conftest import Rig
+from calibration.sim import SimRig as Rig
 
 
 class CalRig:
@@ -17,7 +17,7 @@ class CalRig:
 
     def __init__(self, tmp_path, **rig_kw):
         self.path = tmp_path / "pfma-cal.json"
-        self.rig = Rig("pfma-caltest-" + uuid.uuid4().hex[:8], **rig_kw)
+        self.rig = Rig(name="pfma-caltest-" + uuid.uuid4().hex[:8], **rig_kw)
         self.world = self.rig.world
         self.rack = self.world.rack_config
         if not self.path.exists():

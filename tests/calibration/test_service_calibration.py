@@ -11,7 +11,7 @@ from calibration import files
 from ioservice.shm import Bit3Buffer
 from pfma.cli import build_parser
 from pfma.errors import CalibrationError
-from tests.service.conftest import Rig
+from calibration.sim import SimRig as Rig
 
 
 def _cal(tmp_path, rack, scale=2.0):
@@ -24,7 +24,7 @@ def _cal(tmp_path, rack, scale=2.0):
 def test_applied_at_start_and_bad_reload_keeps_previous(tmp_path):
     from pfma.rack import load_rack
     saved, p = _cal(tmp_path, load_rack())
-    rig = Rig("pfma-caltest-" + uuid.uuid4().hex[:8], calibration=p)
+    rig = Rig(name="pfma-caltest-" + uuid.uuid4().hex[:8], calibration=p)
     try:
         rig.world.sim.hold_adc_volts("adc_spare_25", 1.0)
         rig.run(0.05)
@@ -60,7 +60,7 @@ def test_service_refuses_a_bad_file_at_start(tmp_path):
     name = "pfma-caltest-" + uuid.uuid4().hex[:8]
     try:
         with pytest.raises(CalibrationError, match="truncated"):
-            Rig(name, calibration=p)
+            Rig(name=name, calibration=p)
     finally:
         Bit3Buffer.unlink(name)  # the rig made the buffer before the service refused the file
 

@@ -5,7 +5,7 @@ import uuid
 import pytest
 
 from ioservice.checkout import load_checkout_config, make_sim_target
-from tests.service.conftest import Rig
+from ioservice.simrig import SimRig as Rig
 
 
 @pytest.fixture
@@ -22,6 +22,6 @@ def cfg():
 
 @pytest.fixture
 def rig():
-    r = Rig("pfma-cotest-" + uuid.uuid4().hex[:8])
+    r = Rig(name="pfma-cotest-" + uuid.uuid4().hex[:8])
     yield r
     r.close()

@@ -11,7 +11,7 @@ from ioservice.checkout.connect import ServiceLink, attach_waiting
 from ioservice.client import Client
 from pfma.cli import main
 from pfma.errors import PfmaTimeoutError
-from tests.service.conftest import Rig
+from ioservice.simrig import SimRig as Rig
 
 
 def test_monitor_once_shows_every_channel_with_units_status_and_links(rig, capsys):
@@ -99,7 +99,7 @@ def test_attach_waits_until_the_service_comes_up():
 
     def start(ft):
         if ft.t >= 4 and not rigs:
-            rigs.append(Rig(name))
+            rigs.append(Rig(name=name))
     ft = FakeTime(start)
     said = []
     try:
@@ -115,11 +115,11 @@ def test_attach_waits_until_the_service_comes_up():
 
 def test_link_reattaches_after_the_service_restarts():
     name = "pfma-cotest-" + uuid.uuid4().hex[:8]
-    first = Rig(name)
+    first = Rig(name=name)
     rigs = []
     said = []
     link = ServiceLink(name, wait_s=30, notice_s=3, say=said.append,
-                       sleep=lambda dt: rigs.append(Rig(name)) if not rigs else None)
+                       sleep=lambda dt: rigs.append(Rig(name=name)) if not rigs else None)
     try:
         c1 = link.client()
         first.run(0.1)

@@ -26,7 +26,7 @@ from ioservice.recorder import RAW_TOPIC, Recorder, decode_raw, recover
 from ioservice.shm import Bit3Buffer
 from pfma.cli.replay import replay_through_fakes, republish
 from pfma.cli.scope import ScopeCapture, load, render, save
-from tests.service.conftest import Rig
+from ioservice.simrig import SimRig as Rig
 
 REPO = Path(__file__).resolve().parents[2]
 OFFSET_NS = 1_700_000_000_000_000_000
@@ -34,7 +34,7 @@ OFFSET_NS = 1_700_000_000_000_000_000
 
 @pytest.fixture
 def rig():
-    r = Rig("pfma-rec-" + uuid.uuid4().hex[:8])
+    r = Rig(name="pfma-rec-" + uuid.uuid4().hex[:8])
     yield r
     r.close()
 
@@ -179,9 +179,9 @@ def test_truncated_file_is_made_whole(rig, tmp_path):
 _CHILD = r"""
 import sys, time, uuid
 sys.path.insert(0, sys.argv[2])
-from tests.service.conftest import Rig
+from ioservice.simrig import SimRig as Rig
 from ioservice.recorder import Recorder
-rig = Rig("pfma-kill-" + uuid.uuid4().hex[:8])
+rig = Rig(name="pfma-kill-" + uuid.uuid4().hex[:8])
 rec = Recorder(rig.reader, sys.argv[1], rack=rig.world.rack_config, flush_every_s=1e9)
 n = [0]
 def hook(info):
