@@ -467,6 +467,11 @@ def _commands(area: AreaSpec, rack: RackConfig) -> tuple[_Record, list[ChannelEn
     r.add("arm_request", "u1", units="bool", doc="1 = the controller wants outputs enabled")
     r.add("rearm_counter", "<u4", units="1", doc="increment to ask the service to leave FAULT")
     r.add("mode", "<u4", units="enum", doc="controller mode (informational)")
+    r.add("crl_reflect_force_n", "<f8", (3,), "N",
+          "force to display on the CRL hand controller (sent by the service at 40 Hz)")
+    r.add("crl_reflect_torque_nm", "<f8", (3,), "N*m", "torque to display on the CRL hand controller")
+    r.add("crl_reflect_enable", "u1", units="bool",
+          doc="1 = the CRL displays the force above (0 = zero forces, disabled)")
     entries = []
     for i, c in enumerate(joints):
         entries.append(ChannelEntry(c.signal, "command", area.name, i, c.units, c.label,

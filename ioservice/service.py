@@ -272,8 +272,9 @@ class IoService:
             port = drv.port(ch["ft_sensor"].channel, timeout=0.05)
             self._start_ft(port, bauds[ch["ft_sensor"].channel], f"{cfg.name} port {ch['ft_sensor'].channel}")
         if "crl_hand_controller" in ch:
-            port = drv.port(ch["crl_hand_controller"].channel, timeout=0)
+            port = drv.port(ch["crl_hand_controller"].channel, timeout=0, write_queue=True)
             self._crl = CrlHandController(port, self.clock)
+            self._crl_tx = 0
 
     def _wire_cae(self) -> None:
         from drivers.crl.cae import CaeHandController
@@ -449,6 +450,8 @@ class IoService:
         if self._cae is not None and self._adc:
             volts = self._adc[self._cae_adc][6]
             self._put_hand("cae", self._cae.from_volts(volts[self._cae_idx], t_s=self._v["t_adc_s"][()]))
+        if self._crl is not None:
+            self._send_crl_force()
         if self._crl_latest is not None:
             self._put_hand("crl", self._crl_latest)
             stats = self._crl.link_stats()
@@ -459,6 +462,24 @@ class IoService:
             v["link_resyncs"][slot] = stats["resyncs"]
             v["link_status"][slot] = LINK_OPEN | (LINK_FAULT if stats["tripped"] else LINK_SYNCED)
             self._sampled("crl", self._crl_latest.t_s)
+
+    def _send_crl_force(self) -> None:
+        """Force reflection to the CRL at half the hand-controller rate (40 Hz; its
+        placeholder protocol's watchdog is 60 ms): the command area's force while armed and
+        enabled, zero and disabled otherwise. Queued: the bytes leave between frames."""
+        self._crl_tx ^= 1
+        if not self._crl_tx:
+            return
+        c = self.commands.record
+        live = self.guard.state == ServiceState.ARMED and bool(c["crl_reflect_enable"])
+        f = tuple(float(x) for x in c["crl_reflect_force_n"]) if live else (0.0, 0.0, 0.0)
+        t = tuple(float(x) for x in c["crl_reflect_torque_nm"]) if live else (0.0, 0.0, 0.0)
+        try:
+            self._crl.send_force(f, t, enable=live)
+        except (PfmaError, ValueError) as err:
+            self._devices["crl"].errors += 1
+            if self._devices["crl"].errors == 1:
+                self.post(Severity.ERROR, 142, f"CRL force reflection: {err}")
 
     def _task_pio(self) -> None:
         v = self._v

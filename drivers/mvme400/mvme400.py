@@ -264,10 +264,14 @@ class Mvme400Port:
     :param timeout: ``read`` wait in seconds: None = until ``size`` bytes, 0 = non-blocking
     :param write_timeout: longest wait for the Tx buffer per character (None = forever)
     :param max_buffer_bytes: software receive buffer bound (excess is counted and dropped)
+    :param write_queue: ``write`` queues the bytes and returns at once; :meth:`poll` moves
+        one queued byte into the Tx buffer whenever it is empty (for callers that must not
+        wait 0.52 ms per character, such as the service's frame)
     """
 
     def __init__(self, board: Mvme400, channel: int, timeout: float | None = 1.0,
-                 write_timeout: float | None = 0.1, max_buffer_bytes: int = 65536) -> None:
+                 write_timeout: float | None = 0.1, max_buffer_bytes: int = 65536,
+                 write_queue: bool = False) -> None:
         self.board = board
         self.channel = channel
         self.timeout = timeout
@@ -278,6 +282,8 @@ class Mvme400Port:
         self.stats = LinkStats()
         self.is_open = True
         self._buf = bytearray()
+        self.write_queue = write_queue
+        self._txq = bytearray()
         self._baud = board.baud(channel)
         self._last_poll_t: float | None = None
 
@@ -345,6 +351,9 @@ class Mvme400Port:
                     self.stats.buffer_overflows += 1
                 else:
                     self._buf.append(value)
+            if self._txq and b.read_register(ch, 0) & RR0_TX_EMPTY:
+                b.write_data(ch, self._txq.pop(0))
+                self.stats.tx_bytes += 1
         return moved
 
     @property
@@ -418,6 +427,12 @@ class Mvme400Port:
         """
         self._check_open()
         data = bytes(data)
+        if self.write_queue:
+            if len(self._txq) + len(data) > self.max_buffer_bytes:
+                raise PfmaTimeoutError(f"{self.name}: transmit queue full ({len(self._txq)} bytes "
+                                       f"waiting); the line is not keeping up")
+            self._txq += data
+            return len(data)
         for i, value in enumerate(data):
             # the lock is taken per register access, never across a wait
             self._wait_tx("Tx buffer empty (RR0 b2)", RR0_TX_EMPTY, False, i, len(data))
@@ -431,7 +446,13 @@ class Mvme400Port:
         self._wait_tx("all sent (RR1 b0)", RR1_ALL_SENT, True, self.stats.tx_bytes, self.stats.tx_bytes)
 
     def reset_output_buffer(self) -> None:
-        """No software Tx buffer exists; nothing to discard."""
+        """Discard bytes queued by ``write`` in ``write_queue`` mode."""
+        self._txq.clear()
+
+    @property
+    def out_waiting(self) -> int:
+        """Bytes queued and not yet in the Tx buffer (``write_queue`` mode)."""
+        return len(self._txq)
 
     # -- modem lines -----------------------------------------------------------------------
     @property

@@ -137,3 +137,20 @@ def test_cae_stick_reaches_hand_controller_slot(rig):
     i = rig.reader.layout.slot("hc", "cae")
     assert s.hc_valid[i] and s.hc_deadman[i]
     assert s.hc_axes[i][2] > 0.1  # up/down -> z
+
+
+def test_crl_force_reflection_reaches_the_hand_controller_only_while_armed(rig):
+    """The command area's CRL force goes out over MVME400 port B (queued, between frames)."""
+    crl = rig.world.crl
+    ctl = rig.controller()
+    ctl.write_commands(crl_reflect_force_n=[10.0, -5.0, 0.0], crl_reflect_enable=1)
+    rig.run(0.2)  # not armed: the service sends zero, disabled frames
+    assert crl.received and not crl.received[-1].frame.enabled
+    assert list(crl.displayed_force_n) == [0.0, 0.0, 0.0]
+    rig.on_frame.append(lambda info: ctl.write_commands(current_limit_a=[5, 5, 5, 2.5, 2.5, 2.5, 0],
+                                                        arm_request=1))
+    crl.deadman = True  # the CRL driver sends forces only while its deadman is held
+    rig.run(0.3)
+    assert rig.reader.read_inputs().service_state == ServiceState.ARMED
+    assert crl.received[-1].frame.enabled
+    assert np.allclose(crl.displayed_force_n, [10.0, -5.0, 0.0], atol=0.01)
