@@ -40,6 +40,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from controller.cartesian import CartesianLayer
 from controller.daq_layer import DataAcquisitionLayer
 from controller.decision import SHORT, SHORT_CMD, Command, Status, TaskState
 from controller.frames import MINOR_FRAMES_PER_MAJOR, FrameConfig, ScheduleError
@@ -78,7 +79,7 @@ def build_layers(client, require_ft: bool = True) -> list[Layer]:
         UpDownLayer(),
         PlaceholderLayer("msp", "Multi-Segment Path Planner", "MSPP", ("msp_planner",)),
         PlaceholderLayer("trajectory", "Trajectory Planner", "TRAJ", ("trajectory_planner",)),
-        PlaceholderLayer("cartesian", "Cartesian Engine", "CART", ("cartesian_slow", "cartesian_fast")),
+        CartesianLayer(),
         JointPlannerLayer(),
         ServoLayer(),
         DataAcquisitionLayer(client, require_ft=require_ft),
