@@ -54,7 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controller.params import JOINT_NAMES, JOINTS
-from controller.quat import q_conj, q_from_matrix, q_mul, q_normalize, q_to_matrix, q_to_rotvec
+from controller.quat import q_from_matrix, q_to_matrix, q_to_rotvec
 from pfma.errors import PfmaError
 
 SOURCE = "pfma-model.md 8.1 (DH table, frames, singular sets) and 8.2 (limits) - nominal, assumed"
@@ -112,6 +112,10 @@ _D = np.array([r.d_m for r in DH])
 _A = np.array([r.a_m for r in DH])
 _CA = np.array([math.cos(r.alpha_rad) for r in DH])
 _SA = np.array([math.sin(r.alpha_rad) for r in DH])
+_CAF = tuple(float(v) for v in _CA)
+_SAF = tuple(float(v) for v in _SA)
+_AF = tuple(float(v) for v in _A)
+_DF = tuple(float(v) for v in _D)
 _LIMIT_TOL = 1e-9
 
 
@@ -134,11 +138,11 @@ def base_transform(shoulder_roll_rad: float = 0.0) -> np.ndarray:
 
 def _dh_matrix(i: int, theta: float) -> np.ndarray:
     ct, st = math.cos(theta), math.sin(theta)
-    ca, sa = _CA[i], _SA[i]
+    ca, sa = _CAF[i], _SAF[i]
     return np.array([
-        [ct, -st * ca, st * sa, _A[i] * ct],
-        [st, ct * ca, -ct * sa, _A[i] * st],
-        [0.0, sa, ca, _D[i]],
+        [ct, -st * ca, st * sa, _AF[i] * ct],
+        [st, ct * ca, -ct * sa, _AF[i] * st],
+        [0.0, sa, ca, _DF[i]],
         [0.0, 0.0, 0.0, 1.0],
     ])
 
@@ -174,13 +178,15 @@ def wrist_centre(q6: Sequence[float], shoulder_roll_rad: float = 0.0) -> np.ndar
 def jacobian(q6: Sequence[float], shoulder_roll_rad: float = 0.0) -> np.ndarray:
     """Geometric Jacobian, 6x6: rows (linear velocity of the tool point, m/s; angular
     velocity, rad/s) in the world frame; columns per joint in command-area order."""
-    f = fk_frames(q6, shoulder_roll_rad)
-    p = f[6][:3, 3]
+    return _jacobian_from_frames(fk_frames(q6, shoulder_roll_rad))
+
+
+def _jacobian_from_frames(f: list[np.ndarray]) -> np.ndarray:
+    st = np.stack(f[:6])
+    z, o = st[:, :3, 2], st[:, :3, 3]
     jd = np.empty((6, 6))
-    for i in range(6):
-        z, o = f[i][:3, 2], f[i][:3, 3]
-        jd[:3, i] = np.cross(z, p - o)
-        jd[3:, i] = z
+    jd[:3, :] = np.cross(z, f[6][:3, 3] - o).T
+    jd[3:, :] = z.T
     return jd[:, CA_FROM_DH]
 
 
@@ -368,9 +374,10 @@ class StepResult:
     sigma_min: float  #: smallest singular value of the Jacobian at q_now
 
 
-def _pose_error(q: np.ndarray, p_t: np.ndarray, quat_t: np.ndarray, roll: float) -> np.ndarray:
-    p, qc = fk(q, roll)
-    return np.concatenate((p_t - p, q_to_rotvec(q_mul(quat_t, q_conj(qc)))))
+def _pose_error(f: list[np.ndarray], p_t: np.ndarray, r_t: np.ndarray) -> np.ndarray:
+    """(position error, world-frame rotation vector taking the tool to the target)."""
+    t = f[6]
+    return np.concatenate((p_t - t[:3, 3], q_to_rotvec(q_from_matrix(r_t @ t[:3, :3].T))))
 
 
 def _dls(jm: np.ndarray, e: np.ndarray, free: np.ndarray) -> tuple[np.ndarray, float, bool]:
@@ -396,33 +403,35 @@ def ik_step_ex(q_now: Sequence[float], p_m: Sequence[float], quat: Sequence[floa
     8.2); a larger step is scaled down as a whole (same direction, so the tool heads
     straight for the pose), so no joint ever moves more than its rate limit times
     ``dt_s``. Joints at a soft limit that the step would push further out are locked
-    for the step and the others compensate; the result is always inside the limits
-    (if ``q_now`` is). Never raises for an unreachable pose: it moves toward it.
+    for the step and the others compensate; a joint that would cross a limit during the
+    step stops on it (and is locked in the next step); the result is inside the limits, or, for a
+    joint that starts outside them, no further out than it started (it is never pulled
+    in by more than its rate budget). Never raises for an unreachable pose: it moves
+    toward it and stops where the error is smallest.
     """
     if dt_s <= 0.0:
         raise KinematicsError(f"ik_step needs dt_s > 0, got {dt_s}")
     q0 = _q(q_now).astype(float).copy()
-    lo = SOFT_LO_RAD if lo_rad is None else lo_rad
-    hi = SOFT_HI_RAD if hi_rad is None else hi_rad
+    lo = np.minimum(SOFT_LO_RAD if lo_rad is None else lo_rad, q0)
+    hi = np.maximum(SOFT_HI_RAD if hi_rad is None else hi_rad, q0)
     rate = RATE_LIMIT_RAD_S if rate_limit_rad_s is None else np.asarray(rate_limit_rad_s, dtype=float)
     budget = rate * dt_s
     p_t = np.asarray(p_m, dtype=float).reshape(3)
-    quat_t = q_normalize(quat)
+    r_t = q_to_matrix(quat)
     q = q0.copy()
-    e = _pose_error(q, p_t, quat_t, shoulder_roll_rad)
+    f = fk_frames(q, shoulder_roll_rad)
+    e = _pose_error(f, p_t, r_t)
     pos_err, rot_err = float(np.linalg.norm(e[:3])), float(np.linalg.norm(e[3:]))
     rate_limited = limited = singular = False
     smin0 = math.nan
     for it in range(max(1, iterations)):
         if float(np.linalg.norm(e)) < 1e-12:
             break
-        jm = jacobian(q, shoulder_roll_rad)
+        jm = _jacobian_from_frames(f)
         free = np.ones(6, dtype=bool)
-        for _ in range(2):  # lock joints that the step pushes beyond a limit, then redo once
+        for _ in range(3):  # joints already at a limit that the step pushes further out are locked
             dq, smin, damped = _dls(jm, e, free.astype(float))
-            nxt = q + dq
-            push = ((nxt < lo) & (dq < 0)) | ((nxt > hi) & (dq > 0))
-            push &= free
+            push = free & (((q <= lo + _LIMIT_TOL) & (dq < 0.0)) | ((q >= hi - _LIMIT_TOL) & (dq > 0.0)))
             if not push.any():
                 break
             free &= ~push
@@ -434,15 +443,17 @@ def ik_step_ex(q_now: Sequence[float], p_m: Sequence[float], quat: Sequence[floa
         over = float(np.max(np.abs(total) / budget))
         if over > 1.0:
             if it == 0:
-                q = q0 + total / over
+                q = np.clip(q0 + total / over, lo, hi)
                 rate_limited = True
             break  # later iteration: keep the last step that fitted
-        q = q + dq
-        e = _pose_error(q, p_t, quat_t, shoulder_roll_rad)
-    clipped = np.clip(q, lo, hi)
-    if np.any(clipped != q):
-        limited = True
-    return StepResult(clipped, pos_err, rot_err, rate_limited, limited, singular, smin0)
+        nxt = np.clip(q + dq, lo, hi)
+        if np.any(nxt != q + dq):
+            q, limited = nxt, True
+            break  # a joint stopped on a limit: no refinement past it
+        q = nxt
+        f = fk_frames(q, shoulder_roll_rad)
+        e = _pose_error(f, p_t, r_t)
+    return StepResult(q, pos_err, rot_err, rate_limited, limited, singular, smin0)
 
 
 def ik_step(q_now: Sequence[float], p_m: Sequence[float], quat: Sequence[float], dt_s: float, *,

@@ -113,8 +113,8 @@ def q_to_rotvec(q: ArrayLike) -> np.ndarray:
 
 def q_angle(a: ArrayLike, b: ArrayLike) -> float:
     """Angle (rad, 0..pi) of the rotation taking ``b`` to ``a``."""
-    d = abs(float(np.dot(q_normalize(a), q_normalize(b))))
-    return 2.0 * math.acos(min(1.0, d))
+    d = q_mul(q_normalize(a), q_conj(q_normalize(b)))  # atan2 form: accurate near 0 and pi
+    return 2.0 * math.atan2(math.sqrt(float(d[1:] @ d[1:])), abs(float(d[0])))
 
 
 def q_slerp(a: ArrayLike, b: ArrayLike, s: float) -> np.ndarray:
