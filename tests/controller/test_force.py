@@ -1,0 +1,85 @@
+"""Force control (pfma-model 5, 8.7, 8.9): F/T processing, the admittance filter, the
+zeroing/impedance task state transitions, and in the loop: pushing the tool into a stiff
+virtual wall with impedance on settles at the force the stiffness predicts."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from controller.force import (
+    DEADBAND_N, IMPEDANCE, OFF, ZEROING, Admittance, ForceControl, FtProcessor, ImpedanceParams, ToolLoad, shrink,
+)
+from controller.kinematics import fk
+from controller.quat import q_to_matrix
+from fakes.environment import point_load_wrench, tool_gravity_wrench
+from pfma.errors import ConfigError
+
+Q_READY = [np.radians(30), 0.0, np.radians(-90), 0.0, np.radians(60), 0.0]  # command-area order
+Q_DOWN = [np.radians(60), 0.0, np.radians(-150), np.radians(20), 0.0, np.radians(30)]
+
+
+@pytest.mark.parametrize("q", [Q_READY, Q_DOWN])
+def test_tool_gravity_compensated_and_contact_force_recovered(q):
+    p, quat = fk(q)
+    rot = q_to_matrix(quat)
+    gf, gt = tool_gravity_wrench(rot, 1.5, 0.06)  # what the simulated sensor feels (8.7)
+    contact = np.array([-30.0, 5.0, 12.0])  # world, applied at the tool point
+    cf, ct = point_load_wrench(rot, contact, (0.0, 0.0, 0.10))
+    bias = np.array([1.0, -2.0, 0.5, 0.05, 0.0, -0.1])
+    ft = FtProcessor(ToolLoad(), deadband_n=0.0, deadband_nm=0.0)
+    ft.zero_begin()
+    ft.zero_add(gf + bias[:3], gt + bias[3:], rot)
+    assert ft.zero_end() == pytest.approx(bias, abs=1e-12)
+    w = ft.tool_wrench_world(gf + cf + bias[:3], gt + ct + bias[3:], rot, 0.0125)
+    assert w[:3] == pytest.approx(contact, abs=1e-9)
+    assert w[3:] == pytest.approx(np.zeros(3), abs=1e-9)  # no moment about the tool point
+
+
+def test_filter_is_10_hz_one_pole_and_deadband_shrinks():
+    ft = FtProcessor(ToolLoad(mass_kg=0.0), deadband_n=0.0, deadband_nm=0.0)
+    eye = np.eye(3)
+    ft.tool_wrench_world([0.0] * 3, [0.0] * 3, eye, 0.0125)  # primes at 0
+    ys = [ft.tool_wrench_world([10.0, 0, 0], [0.0] * 3, eye, 0.0125)[0] for _ in range(40)]
+    tau = 1.0 / (2 * np.pi * 10.0)
+    assert ys[0] == pytest.approx(10.0 * (1 - np.exp(-0.0125 / tau)))
+    assert ys[-1] == pytest.approx(10.0, rel=1e-6)
+    assert shrink(np.array([1.5, 0, 0]), DEADBAND_N).tolist() == [0.0, 0.0, 0.0]
+    assert shrink(np.array([0.0, 5.0, 0]), DEADBAND_N) == pytest.approx([0.0, 3.0, 0.0])
+
+
+def test_admittance_step_settles_at_f_over_k_without_overshoot():
+    adm = Admittance()  # 8.9 defaults: zeta 1.4 translation, 1.6 rotation
+    f = np.array([20.0, 0, 0, 0, 0, 1.0])
+    es = np.array([adm.step(f, 0.0125).copy() for _ in range(400)])  # 5 s
+    assert es[-1, 0] == pytest.approx(20.0 / 500.0, rel=1e-3)
+    assert es[-1, 5] == pytest.approx(1.0 / 20.0, rel=1e-3)
+    assert es[:, 0].max() <= 20.0 / 500.0 * (1 + 1e-6)  # overdamped: no overshoot
+
+
+def test_impedance_parameters_checked():
+    with pytest.raises(ConfigError, match="axis y"):
+        ImpedanceParams(mass=(10.0, 0.0, 10.0, 0.5, 0.5, 0.5)).check(0.0125)
+    with pytest.raises(ConfigError, match="axis roll.*too fast"):
+        ImpedanceParams(stiffness=(500.0,) * 3 + (1e5, 20.0, 20.0)).check(0.0125)
+    ImpedanceParams().check(0.0125)
+
+
+def test_zeroing_and_impedance_transitions_fold_the_offset():
+    fc = ForceControl(0.0125, ToolLoad(mass_kg=0.0), zero_time_s=0.1)
+    ident = np.array([1.0, 0, 0, 0])
+    t = 0.0
+    res = fc.step(t, True, [0.3, 0, 0], [0.0] * 3, ident, ident)  # enable: zero first
+    assert res.state == ZEROING and "ZEROING" in res.events[0]
+    while fc.state == ZEROING:
+        t += 0.0125
+        res = fc.step(t, True, [0.3, 0, 0], [0.0] * 3, ident, ident)
+    assert res.state == IMPEDANCE and fc.ft.bias[0] == pytest.approx(0.3)
+    for _ in range(200):
+        t += 0.0125
+        res = fc.step(t, True, [0.3 + 22.0, 0, 0], [0.0] * 3, ident, ident)
+    assert res.offset_world[0] == pytest.approx((22.0 - DEADBAND_N) / 500.0, rel=0.02)
+    res = fc.step(t + 0.0125, False, [22.3, 0, 0], [0.0] * 3, ident, ident)  # leave impedance
+    assert res.state == OFF and res.fold[0] == pytest.approx((22.0 - DEADBAND_N) / 500.0, rel=0.02)
+    assert not res.offset_world.any()
+    assert fc.request_zero(t) and fc.state == ZEROING  # zero on request while OFF
