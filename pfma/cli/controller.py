@@ -47,7 +47,101 @@ def add_parser(sub):
     p.add_argument("--messages", type=int, default=30, metavar="N", help="messages shown at the end (30)")
     p.add_argument("--no-ft", action="store_true", help="a stale F/T link is not a fault")
     p.add_argument("--tables", action="store_true", help="print the decision tables and the schedule")
+    _add_motion_arguments(p)
     return p
+
+
+# --- motion: teleoperation, force control, time delay (Cartesian engine, issue 6) -------------
+def _add_motion_arguments(p) -> None:
+    g = p.add_argument_group("teleoperation, force control, time delay (Cartesian engine)")
+    g.add_argument("--teleop", choices=("cae", "crl", "hid"), default=None,
+                   help="teleoperate from this hand controller (cart.mode 1; deadman required)")
+    g.add_argument("--hc-frame", choices=("world", "tool"), default="world",
+                   help="hand-controller rates in the world (default) or the tool frame")
+    g.add_argument("--vernier", action="store_true", help="vernier rates (0.03 m/s, 0.05 rad/s)")
+    g.add_argument("--impedance", choices=("on", "off"), default=None,
+                   help="impedance control on (zeroes the F/T sensor first) or off")
+    g.add_argument("--delay", type=float, default=None, metavar="S",
+                   help="synthetic round-trip delay in seconds, split equally up/down (0..8)")
+    g.add_argument("--jitter", type=float, default=None, metavar="F",
+                   help="synthetic delay jitter fraction per packet (e.g. 0.1; order preserved)")
+    g.add_argument("--demo-stick", action="store_true",
+                   help="--sim only: move the simulated CAE stick (deadman, +x 1 s, +z 1 s, release)")
+    g.add_argument("--demo-wall", type=float, default=None, metavar="M",
+                   help="--sim only: a stiff virtual wall M metres in front of the tool (+x, world)")
+
+
+def _motion_settings(args) -> dict:
+    """World-model user variables the motion flags set (empty: none given)."""
+    from controller.teleop import HC_SOURCES
+    out: dict = {}
+    if args.teleop is not None:
+        out.update({"cart.mode": 1, "cart.hc_source": HC_SOURCES.index(args.teleop)})
+    if args.teleop is not None or args.hc_frame != "world":
+        out["cart.hc_frame"] = 1 if args.hc_frame == "tool" else 0
+    if args.vernier:
+        out["cart.vernier"] = True
+    if args.impedance is not None:
+        out["force.enable"] = args.impedance == "on"
+    if args.delay is not None:
+        out["delay.round_trip_s"] = args.delay
+    if args.jitter is not None:
+        out["delay.jitter"] = args.jitter
+    return out
+
+
+def _setup_motion(d, args) -> None:
+    """Apply the motion flags (user writes, applied at the next frames) and the sim demos."""
+    if (args.demo_stick or args.demo_wall is not None) and d.sim is None:
+        raise SystemExit("pfma controller: --demo-stick and --demo-wall need --sim")
+    settings = _motion_settings(args)
+    if args.demo_stick and "cart.mode" not in settings:
+        settings.update({"cart.mode": 1, "cart.hc_source": 0})
+    wm = d.rt.wm
+    for name, value in settings.items():
+        wm.set_user(name, value, wm.access_key)
+    if settings:
+        d.frame()  # applied at this frame's communications segment
+        print("motion settings: " + ", ".join(f"{k}={v}" for k, v in settings.items()))
+    if args.demo_wall is not None:
+        from controller.kinematics import fk
+        from fakes.environment import Wall
+        p, _ = fk(d.sim.joint_angles_rad())
+        x = float(p[0]) + args.demo_wall
+        d.sim.world.sim.environment.add(Wall(point_m=(x, 0.0, 0.0), normal=(-1.0, 0.0, 0.0)))
+        print(f"virtual wall at x = {x:.3f} m (normal -x, 2e4 N/m)")
+    if args.demo_stick:
+        world, t0 = d.sim.world, [None]
+
+        def stick(rec) -> None:
+            from controller.decision import Status
+            if d.rt.status("updown") != Status.START_UP_COMPLETE:
+                return
+            if t0[0] is None:
+                t0[0] = rec.t_s
+            t = rec.t_s - t0[0]
+            if t < 1.0:  # CAE axis order: up/down, forward/backward, right/left, yaw, pitch, roll
+                world.set_cae([0.0, 5.25, 0, 0, 0, 0], (True, False, False))
+            elif t < 2.0:
+                world.set_cae([5.25, 0.0, 0, 0, 0, 0], (True, False, False))
+            else:
+                world.set_cae([0.0] * 6, (False, False, False))
+        d.rt.on_frame.append(stick)
+
+
+def _motion_summary(d) -> str:
+    v = d.rt.wm.get_task_inputs(("cart.pos_cmd_m", "cart.cmd_valid", "force.state", "force.wrench_n",
+                                 "teleop.reflect_enabled"))
+    p = v["cart.pos_cmd_m"]
+    w = v["force.wrench_n"]
+    line = (f"Cartesian command ({p[0]:+.4f}, {p[1]:+.4f}, {p[2]:+.4f}) m valid={bool(v['cart.cmd_valid'])}  "
+            f"force state {int(v['force.state'])} F ({w[0]:+.2f}, {w[1]:+.2f}, {w[2]:+.2f}) N  "
+            f"reflection {'on' if v['teleop.reflect_enabled'] else 'off'}")
+    if d.sim is not None:
+        from controller.kinematics import fk
+        t, _ = fk(d.sim.joint_angles_rad())
+        line += f"\ntool (true) ({t[0]:+.4f}, {t[1]:+.4f}, {t[2]:+.4f}) m"
+    return line
 
 
 def _print_tables(profile: str) -> int:
@@ -179,6 +273,7 @@ def run(args) -> int:
         return 1
     d.rt.on_frame.append(d.show)
     try:
+        _setup_motion(d, args)
         if args.power_up:
             d.rt.request(Request.POWER_UP)
         if args.duration is not None:
@@ -198,6 +293,8 @@ def run(args) -> int:
             for _ in range(budget):
                 d.frame()
         print(_status_line(d.rt))
+        if _motion_settings(args) or args.demo_stick or args.demo_wall is not None:
+            print(_motion_summary(d))
         if args.messages:
             print(f"--- last {args.messages} messages ---")
             print(d.rt.messages.format(args.messages))
