@@ -342,42 +342,105 @@ class PlaceholderLayer(Layer):
 
 
 class JointPlannerLayer(Layer):
-    """Joint Planner: produces the commanded joint positions for the servo layer.
+    """Joint Planner (80 Hz): produces the commanded joint positions for the servo layer.
 
-    In this issue it passes a user joint goal (``joint.goal_rad`` with a new
-    ``joint.goal_seq``), clipped to the soft limits, to ``servo.q_cmd_rad`` (a position
-    step into the servo layer); the kinematics come with the motion issue. Its start-up
+    Two modes (docs/controller.md, "Kinematics and the Joint Planner"):
+
+    * **Cartesian** while the Cartesian Engine's ``cart.cmd_valid`` is set: every run it
+      moves ``servo.q_cmd_rad`` one rate-limited damped-least-squares step
+      (:func:`controller.kinematics.ik_step_ex`) toward the pose ``cart.pos_cmd_m`` /
+      ``cart.quat_cmd``: no joint moves more than its software rate limit times the task
+      period, soft limits are respected, singular sets are passed without a jump.
+    * **joint goal**: a user joint goal (``joint.goal_rad`` with a new ``joint.goal_seq``),
+      clipped to the soft limits, goes to ``servo.q_cmd_rad`` (a position step into the
+      servo layer, which rate-limits it). A new goal takes precedence over a valid
+      Cartesian command: the planner stays in joint-goal mode until the Cartesian
+      command's pose changes (the Cartesian Engine holding a pose does not undo a goal),
+      then continues in Cartesian mode from the goal (``joint.mode`` says which).
+
+    Every run from INITIALIZATION COMPLETE on it also posts the measured tool pose
+    ``joint.tool_pos_m`` / ``joint.tool_quat`` = fk(``daq.joint_angle_rad``). Its start-up
     task commands the current joint angles so that nothing moves when the loop closes.
+
+    :param shoulder_roll_rad: the manually indexed shoulder roll (configuration,
+        pfma-model 8.1: -90..+90 deg in 45 deg steps, default 0); published as
+        ``joint.shoulder_roll_rad``
     """
 
     key = "joint"
     title = "Joint Planner"
     short = "JNTP"
+    #: the Cartesian Engine's command (writer "cartesian"); without them only joint goals work
+    CART_VARS = ("cart.pos_cmd_m", "cart.quat_cmd", "cart.cmd_valid", "cart.cmd_seq")
+    MODE_JOINT, MODE_CARTESIAN = 0, 1
 
-    def __init__(self) -> None:
+    def __init__(self, shoulder_roll_rad: float = 0.0) -> None:
         super().__init__()
         self._seen_goal = 0
         self.periodic["joint_planner"] = self.plan_task
         self.lo = np.array([j.soft_lo_rad for j in JOINTS])
         self.hi = np.array([j.soft_hi_rad for j in JOINTS])
+        self.shoulder_roll_rad = float(shoulder_roll_rad)
+        self.q_cmd = np.zeros(N_JOINTS)  #: the last joint command posted (rad)
+        self.mode = self.MODE_JOINT
+        self._have_cart: bool | None = None
+        self._dt_s = 0.0
+        self._flags = (False, False)  # (singular, limited) last posted
+        self._bad_cmd = False
+        self._cart_at_goal: tuple[np.ndarray, np.ndarray] | None = None  # cart pose when a goal won
+        self.last_step = None  #: the last kinematics.StepResult (tests, trace)
 
     def specs(self) -> list[VarSpec]:
         z = [0.0] * N_JOINTS
+        w = "joint"
         return self.state_specs() + [
             VarSpec("joint.goal_rad", "command_input", "f8", (N_JOINTS,), "user", z, "rad",
                     doc="user joint goal (command-area joint order); acted on when joint.goal_seq changes"),
             VarSpec("joint.goal_seq", "command_input", "i4", (), "user", 0,
-                    doc="increment to command joint.goal_rad"),
-            VarSpec("servo.q_cmd_rad", "task_io", "f8", (N_JOINTS,), "joint", z, "rad",
+                    doc="increment to command joint.goal_rad (refused while a Cartesian command is valid)"),
+            VarSpec("servo.q_cmd_rad", "task_io", "f8", (N_JOINTS,), w, z, "rad",
                     doc="commanded joint positions for Servo Control"),
-            VarSpec("servo.q_cmd_valid", "task_io", "b1", (), "joint", False,
+            VarSpec("servo.q_cmd_valid", "task_io", "b1", (), w, False,
                     doc="servo.q_cmd_rad is a command (else the servo holds where it started)"),
+            VarSpec("joint.tool_pos_m", "task_io", "f8", (3,), w, [0.0] * 3, "m",
+                    doc="measured tool point, world: fk(daq.joint_angle_rad), every 80 Hz run"),
+            VarSpec("joint.tool_quat", "task_io", "f8", (4,), w, [0.0] * 4, "1",
+                    doc="measured tool orientation (w x y z), world; all zero until first computed"),
+            VarSpec("joint.singular", "task_status", "b1", (), w, False,
+                    doc="the joint command is near a singular set (wrist yaw +-90, full stretch, "
+                        "wrist centre on the shoulder-yaw axis) or the step was damped"),
+            VarSpec("joint.limited", "task_status", "b1", (), w, False,
+                    doc="a joint is held at a soft limit (Cartesian mode) or a goal was clipped"),
+            VarSpec("joint.mode", "task_status", "i2", (), w, 0,
+                    doc="0 joint goal, 1 Cartesian (cart.cmd_valid)"),
+            VarSpec("joint.cart_err_m", "task_status", "f8", (), w, 0.0, "m",
+                    doc="Cartesian mode: tool-point distance from the commanded pose to fk(servo.q_cmd_rad)"),
+            VarSpec("joint.cart_err_rad", "task_status", "f8", (), w, 0.0, "rad",
+                    doc="Cartesian mode: orientation angle from the commanded pose to fk(servo.q_cmd_rad)"),
+            VarSpec("joint.shoulder_roll_rad", "status_output", "f8", (), w, self.shoulder_roll_rad, "rad",
+                    doc="the shoulder-roll index the kinematics use (configuration, pfma-model 8.1)"),
         ]
+
+    def _cart_available(self, rt: "ControllerRuntime") -> bool:
+        if self._have_cart is None:
+            names = set(rt.wm.names())
+            self._have_cart = all(n in names for n in self.CART_VARS)
+        return self._have_cart
+
+    def seq_init(self, rt: "ControllerRuntime") -> TaskState:
+        self._cart_available(rt)
+        self._dt_s = rt.task_period_s("joint_planner")
+        return TaskState.DONE
 
     def seq_startup(self, rt: "ControllerRuntime") -> TaskState:
         v = rt.wm.get_task_inputs(("daq.joint_angle_rad", "joint.goal_seq"))
         self._seen_goal = int(v["joint.goal_seq"])  # goals set while powered down do not jump
-        rt.wm.post_task_outputs("joint", {"servo.q_cmd_rad": v["daq.joint_angle_rad"], "servo.q_cmd_valid": True})
+        self.q_cmd = np.asarray(v["daq.joint_angle_rad"], dtype=float).copy()
+        self.mode = self.MODE_JOINT
+        self._bad_cmd = False
+        self._cart_at_goal = None
+        rt.wm.post_task_outputs("joint", {"servo.q_cmd_rad": self.q_cmd, "servo.q_cmd_valid": True,
+                                          "joint.mode": self.mode})
         return TaskState.DONE
 
     def seq_shutdown(self, rt: "ControllerRuntime") -> TaskState:
@@ -385,18 +448,98 @@ class JointPlannerLayer(Layer):
         return TaskState.DONE
 
     def plan_task(self, rt: "ControllerRuntime") -> None:
-        if rt.wm.get_state_variable(self.v_status) != Status.START_UP_COMPLETE:
+        from controller import kinematics as kin  # (import here: layers.py stays light)
+
+        status = rt.wm.get_state_variable(self.v_status)
+        if status not in (Status.INITIALIZATION_COMPLETE, Status.START_UP, Status.START_UP_COMPLETE):
             return
-        v = rt.wm.get_task_inputs(("joint.goal_rad", "joint.goal_seq"))
+        names = ("daq.joint_angle_rad", "joint.goal_rad", "joint.goal_seq")
+        cart = self._cart_available(rt)
+        v = rt.wm.get_task_inputs(names + self.CART_VARS if cart else names)
+        p, quat = kin.fk(v["daq.joint_angle_rad"], self.shoulder_roll_rad)
+        out: dict = {"joint.tool_pos_m": p, "joint.tool_quat": quat}
+        if status == Status.START_UP_COMPLETE:
+            valid = cart and bool(v["cart.cmd_valid"])
+            if int(v["joint.goal_seq"]) != self._seen_goal:
+                self._set_mode(rt, self.MODE_JOINT, out)
+                self._joint_goal(rt, v, out)
+                self._cart_at_goal = (np.array(v["cart.pos_cmd_m"], dtype=float),
+                                      np.array(v["cart.quat_cmd"], dtype=float)) if valid else None
+            elif valid and (self.mode == self.MODE_CARTESIAN or self._cart_moved(v)):
+                self._cart_at_goal = None
+                self._cartesian(rt, kin, v, out)
+            else:
+                self._set_mode(rt, self.MODE_JOINT, out)
+        rt.wm.post_task_outputs("joint", out)
+
+    def _cart_moved(self, v: dict) -> bool:
+        """The Cartesian command differs from the one in force when a joint goal won."""
+        if self._cart_at_goal is None:
+            return True
+        p, q = self._cart_at_goal
+        return not (np.array_equal(p, np.asarray(v["cart.pos_cmd_m"], dtype=float))
+                    and np.array_equal(q, np.asarray(v["cart.quat_cmd"], dtype=float)))
+
+    def _set_mode(self, rt: "ControllerRuntime", mode: int, out: dict) -> None:
+        if mode != self.mode:
+            self.mode = mode
+            out["joint.mode"] = mode
+            rt.post(self.key, Level.INFO, "Cartesian mode (cart.cmd_valid)" if mode == self.MODE_CARTESIAN
+                    else "joint-goal mode: holding the last command")
+            if mode == self.MODE_JOINT:
+                self._post_flags(rt, False, False, out)
+
+    def _post_flags(self, rt: "ControllerRuntime", singular: bool, limited: bool, out: dict) -> None:
+        if (singular, limited) == self._flags:
+            return
+        if singular != self._flags[0]:
+            out["joint.singular"] = singular
+            if singular:
+                rt.post(self.key, Level.INFO, "near a singular set: damped steps")
+        if limited != self._flags[1]:
+            out["joint.limited"] = limited
+            if limited:
+                rt.post(self.key, Level.WARNING, "a joint is held at its soft limit")
+        self._flags = (singular, limited)
+
+    def _cartesian(self, rt: "ControllerRuntime", kin, v: dict, out: dict) -> None:
+        if self.mode != self.MODE_CARTESIAN:
+            # continue from the command in force (a joint goal, or the start-up angles): no jump
+            self._set_mode(rt, self.MODE_CARTESIAN, out)
+        pos = np.asarray(v["cart.pos_cmd_m"], dtype=float)
+        q4 = np.asarray(v["cart.quat_cmd"], dtype=float)
+        n = float(np.dot(q4, q4)) if np.all(np.isfinite(q4)) else 0.0
+        if not (np.all(np.isfinite(pos)) and 0.5 < n < 2.0):
+            if not self._bad_cmd:
+                rt.post(self.key, Level.ERROR, f"Cartesian command {int(v['cart.cmd_seq'])} is not a pose "
+                                               f"(position {pos.tolist()}, quaternion {q4.tolist()}): holding")
+            self._bad_cmd = True
+            return
+        self._bad_cmd = False
+        dt = self._dt_s or rt.task_period_s("joint_planner")
+        r = kin.ik_step_ex(self.q_cmd, pos, q4, dt, lo_rad=self.lo, hi_rad=self.hi,
+                           shoulder_roll_rad=self.shoulder_roll_rad)
+        self.last_step = r
+        self.q_cmd = r.q_rad
+        out["servo.q_cmd_rad"] = self.q_cmd
+        out["joint.cart_err_m"] = r.pos_err_m
+        out["joint.cart_err_rad"] = r.rot_err_rad
+        singular = r.singular or bool(kin.singular_sets(self.q_cmd))
+        self._post_flags(rt, singular, r.limited, out)
+
+    def _joint_goal(self, rt: "ControllerRuntime", v: dict, out: dict) -> None:
         seq = int(v["joint.goal_seq"])
         if seq == self._seen_goal:
             return
         self._seen_goal = seq
         goal = np.asarray(v["joint.goal_rad"], dtype=float)
         q = np.clip(goal, self.lo, self.hi)
-        if np.any(q != goal):
+        clipped = bool(np.any(q != goal))
+        if clipped:
             rt.post(self.key, Level.WARNING, f"goal {seq} clipped to the soft limits")
-        rt.wm.post_task_outputs("joint", {"servo.q_cmd_rad": q})
+        self._post_flags(rt, False, clipped, out)
+        self.q_cmd = q
+        out["servo.q_cmd_rad"] = q
         rt.post(self.key, Level.INFO, f"goal {seq}: " + " ".join(f"{x:+.4f}" for x in q) + " rad")
 
 
