@@ -629,6 +629,7 @@ class MultiSegmentLayer(Layer):
         self.store = store if store is not None else PathStore()
         self.background_save = background_save
         self.periodic["msp_planner"] = self.plan_task
+        self.runs = {"msp_planner": 0}  #: task runs (as the placeholder counted them)
         self.state = MspMode.IDLE
         self._mode_seen = MspMode.IDLE
         self._teach_seen = 0
@@ -861,6 +862,7 @@ class MultiSegmentLayer(Layer):
         return super().seq_shutdown(rt)
 
     def plan_task(self, rt: "ControllerRuntime") -> None:
+        self.runs["msp_planner"] += 1
         if rt.wm.get_state_variable(self.v_status) != Status.START_UP_COMPLETE:
             if self.state != MspMode.IDLE:
                 self._leave(rt, "Multi-Segment Path Planner not running")

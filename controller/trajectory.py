@@ -288,6 +288,7 @@ class TrajectoryLayer(Layer):
     def __init__(self) -> None:
         super().__init__()
         self.periodic["trajectory_planner"] = self.plan_task
+        self.runs = {"trajectory_planner": 0}  #: task runs (as the placeholder counted them)
         self.run: SegmentRun | None = None
         self.active = False
         self.hold_p: np.ndarray | None = None
@@ -380,6 +381,7 @@ class TrajectoryLayer(Layer):
 
     # --- the periodic task -----------------------------------------------------------------
     def plan_task(self, rt: "ControllerRuntime") -> None:
+        self.runs["trajectory_planner"] += 1
         if rt.wm.get_state_variable(self.v_status) != Status.START_UP_COMPLETE:
             if self.run is not None or self.active:
                 self.release(rt, "Trajectory Planner not running")
