@@ -46,6 +46,8 @@ from controller.decision import SHORT, SHORT_CMD, Command, Status, TaskState
 from controller.frames import MINOR_FRAMES_PER_MAJOR, FrameConfig, ScheduleError
 from controller.layers import JointPlannerLayer, Layer, PlaceholderLayer, Request, Response, UpDownLayer
 from controller.messages import Level, Message, MessageBoard
+from controller.paths import MultiSegmentLayer
+from controller.trajectory import TrajectoryLayer
 from controller.servo import ServoLayer
 from controller.worldmodel import WorldModel
 from ioservice.layout import Severity
@@ -77,8 +79,8 @@ def build_layers(client, require_ft: bool = True) -> list[Layer]:
     """The seven layers, highest first, linked superior/subordinate."""
     layers: list[Layer] = [
         UpDownLayer(),
-        PlaceholderLayer("msp", "Multi-Segment Path Planner", "MSPP", ("msp_planner",)),
-        PlaceholderLayer("trajectory", "Trajectory Planner", "TRAJ", ("trajectory_planner",)),
+        MultiSegmentLayer(),
+        TrajectoryLayer(),
         CartesianLayer(),
         JointPlannerLayer(),
         ServoLayer(),
