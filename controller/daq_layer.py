@@ -232,9 +232,27 @@ class DataAcquisitionLayer(Layer):
                 else np.zeros(N_JOINTS)
             if status in (Status.INITIALIZATION_IN_PROGRESS, Status.INITIALIZATION_COMPLETE, Status.START_UP):
                 limits = np.zeros(N_CURRENT_LIMITS)
+        reflect = self._reflection(rt, status)
         self.client.write_commands(joint_rate_rad_s=rates, current_limit_a=limits,
-                                   arm_request=self.arm_request, rearm_counter=self.rearm_counter)
+                                   arm_request=self.arm_request, rearm_counter=self.rearm_counter,
+                                   **reflect)
         self.writes += 1
+
+    _REFLECT = ("teleop.reflect_force_n", "teleop.reflect_torque_nm", "teleop.reflect_enabled")
+
+    def _reflection(self, rt: "ControllerRuntime", status: int) -> dict:
+        """CRL force reflection (the Cartesian engine's teleop output) for the command area;
+        zero and disabled unless the layer is START UP COMPLETE. The service sends it to the
+        CRL only while armed."""
+        if getattr(self, "_has_reflect", None) is None:
+            self._has_reflect = self._REFLECT[0] in rt.wm.names()
+        if not self._has_reflect:
+            return {}
+        v = rt.wm.get_task_inputs(self._REFLECT)
+        on = status == Status.START_UP_COMPLETE and bool(v["teleop.reflect_enabled"])
+        return {"crl_reflect_force_n": v["teleop.reflect_force_n"] if on else np.zeros(3),
+                "crl_reflect_torque_nm": v["teleop.reflect_torque_nm"] if on else np.zeros(3),
+                "crl_reflect_enable": int(on)}
 
     # --- sequence tasks ------------------------------------------------------------------
     def seq_init(self, rt: "ControllerRuntime") -> TaskState:
