@@ -607,8 +607,18 @@ class MspResult:
 
 
 TOOL_POSE = ("joint.tool_pos_m", "joint.tool_quat")
+CMD_POSE = ("cart.cmd_valid", "cart.pos_cmd_m", "cart.quat_cmd")
 USER_VARS = ("msp.mode", "msp.path_id", "msp.teach", "msp.capture", "msp.capture_dist_m", "msp.capture_angle_rad",
-             "msp.speed_scale")
+             "msp.speed_scale", "msp.record_source")
+
+
+class RecordSource:
+    """``msp.record_source``: which pose a recording stores."""
+
+    MEASURED = 0  #: the measured tool pose (fk of the resolver angles): where the tool was
+    COMMAND = 1  #: the Cartesian command: played back, the arm retraces the recorded motion
+    #: including the servo's static error (teach-and-repeat: repeatability, not accuracy)
+    NAMES = {0: "MEASURED", 1: "COMMAND"}
 
 
 class MultiSegmentLayer(Layer):
@@ -635,6 +645,7 @@ class MultiSegmentLayer(Layer):
         self._teach_seen = 0
         self._rec: list[PathPoint] = []
         self._rec_id = 0
+        self._source = RecordSource.MEASURED
         self._rec_t0 = 0.0
         self._plan: list[PlannedSegment] = []
         self._seg_i = 0
@@ -660,6 +671,9 @@ class MultiSegmentLayer(Layer):
                     doc="continuous capture: a point each time the tool moved this far"),
             VarSpec("msp.capture_angle_rad", "command_input", "f8", (), "user", CAPTURE_ANGLE_RAD, "rad",
                     doc="continuous capture: a point each time the tool turned this far"),
+            VarSpec("msp.record_source", "command_input", "i2", (), "user", RecordSource.MEASURED,
+                    doc="recording stores 0 the measured tool pose (joint.tool_*) or 1 the Cartesian command "
+                        "(cart.pos_cmd_m/quat_cmd: playback repeats the recorded motion)"),
             VarSpec("msp.speed_scale", "command_input", "f8", (), "user", 1.0,
                     doc="playback speed factor on the path's speeds (capped by traj.*_max)"),
             VarSpec("msp.state", "status_output", "i2", (), "msp", 0,
@@ -684,6 +698,13 @@ class MultiSegmentLayer(Layer):
         return all(n in self._names for n in names)
 
     def _tool_pose(self, rt: "ControllerRuntime") -> tuple[np.ndarray, np.ndarray] | None:
+        if self._source == RecordSource.COMMAND:
+            if not self._has(rt, CMD_POSE):
+                return None
+            v = rt.wm.get_task_inputs(CMD_POSE)
+            if not bool(v["cart.cmd_valid"]):
+                return None
+            return np.asarray(v["cart.pos_cmd_m"], dtype=float), q_normalize(v["cart.quat_cmd"])
         if not self._has(rt, TOOL_POSE):
             return None
         v = rt.wm.get_task_inputs(TOOL_POSE)
@@ -712,10 +733,15 @@ class MultiSegmentLayer(Layer):
                                    round(rt.now - self._rec_t0, 6)))
 
     def _start_record(self, rt, v) -> None:
+        self._source = int(v["msp.record_source"])
+        if self._source not in RecordSource.NAMES:
+            rt.post(self.key, Level.WARNING, f"msp.record_source {self._source} unknown; recording the measured pose")
+            self._source = RecordSource.MEASURED
         pose = self._tool_pose(rt)
         self._rec_id = int(v["msp.path_id"])
         if pose is None:
-            self._end(rt, MspResult.NO_POSE, "record: no measured tool pose (joint.tool_pos_m)")
+            self._end(rt, MspResult.NO_POSE, f"record: no {RecordSource.NAMES[self._source].lower()} tool pose "
+                                             f"({'cart.pos_cmd_m' if self._source else 'joint.tool_pos_m'})")
             return
         self._rec, self._rec_t0 = [], rt.now
         self._teach_seen = int(v["msp.teach"])
@@ -723,7 +749,8 @@ class MultiSegmentLayer(Layer):
         if bool(v["msp.capture"]):
             self._add_point(rt, *pose, "capture")
         self._status(rt, state=MspMode.RECORD, points=len(self._rec))
-        rt.post(self.key, Level.INFO, f"recording path id {self._rec_id}")
+        rt.post(self.key, Level.INFO, f"recording path id {self._rec_id} "
+                                      f"({RecordSource.NAMES[self._source].lower()} pose)")
 
     def _record(self, rt, v) -> None:
         pose = self._tool_pose(rt)
@@ -895,5 +922,5 @@ def path_missing(err: PathError) -> bool:
 
 __all__ = ["Path", "PathPoint", "PathStore", "PathInfo", "PathError", "make_point", "delete_points",
            "insert_point", "move_point", "set_speed", "set_limits", "simplify", "plan_path", "plan_duration_s",
-           "PlannedSegment", "MultiSegmentLayer", "MspMode", "MspResult", "default_dir", "FORMAT_VERSION",
+           "PlannedSegment", "MultiSegmentLayer", "MspMode", "MspResult", "RecordSource", "default_dir", "FORMAT_VERSION",
            "DEFAULT_LIMITS"]

@@ -310,6 +310,8 @@ class TrajectoryLayer(Layer):
                     doc="trajectory linear velocity (world frame; feed-forward)"),
             VarSpec("traj.omega_rad_s", "task_io", "f8", (3,), "trajectory", z3, "rad/s",
                     doc="trajectory angular velocity (world frame; feed-forward)"),
+            VarSpec("traj.t_s", "task_io", "f8", (), "trajectory", 0.0, "s",
+                    doc="controller time (rt.now) at which traj.pos_m/traj.quat were evaluated"),
             VarSpec("traj.active", "task_io", "b1", (), "trajectory", False,
                     doc="a trajectory commands the pose (running a segment or holding between segments)"),
             VarSpec("traj.seg_seq", "task_io", "i4", (), "trajectory", 0,
@@ -361,7 +363,7 @@ class TrajectoryLayer(Layer):
     def _post_pose(self, rt: "ControllerRuntime", p, q, v, w, s: float) -> None:
         rt.wm.post_task_outputs("trajectory", {
             "traj.pos_m": p, "traj.quat": q, "traj.vel_m_s": v, "traj.omega_rad_s": w,
-            "traj.progress": s, "traj.active": True})
+            "traj.progress": s, "traj.active": True, "traj.t_s": float(rt.now)})
         self.samples_posted += 1
 
     def release(self, rt: "ControllerRuntime", why: str) -> None:
