@@ -48,6 +48,7 @@ def add_parser(sub):
     p.add_argument("--no-ft", action="store_true", help="a stale F/T link is not a fault")
     p.add_argument("--tables", action="store_true", help="print the decision tables and the schedule")
     _add_motion_arguments(p)
+    _add_path_arguments(p)
     return p
 
 
@@ -142,6 +143,103 @@ def _motion_summary(d) -> str:
         t, _ = fk(d.sim.joint_angles_rad())
         line += f"\ntool (true) ({t[0]:+.4f}, {t[1]:+.4f}, {t[2]:+.4f}) m"
     return line
+
+
+# --- paths: record and play back (Multi-Segment Path Planner, issue 6) -------------------------
+def _add_path_arguments(p) -> None:
+    g = p.add_argument_group("path record and playback (Multi-Segment Path Planner; files: pfma path)")
+    x = g.add_mutually_exclusive_group()
+    x.add_argument("--record", metavar="NAME", default=None,
+                   help="record path NAME once powered up, until the end of the run (teach points with "
+                        "--teach-every or `pfma wm set msp.teach`; continuous capture unless --no-capture)")
+    x.add_argument("--play", metavar="NAME", default=None,
+                   help="play path NAME back once powered up (cart.mode 2)")
+    g.add_argument("--path-dir", default=None, metavar="DIR",
+                   help="path directory (default $PFMA_PATH_DIR or ~/.local/share/pfma/paths)")
+    g.add_argument("--teach-every", type=float, default=None, metavar="S",
+                   help="while recording, store a teach point every S seconds")
+    g.add_argument("--no-capture", action="store_true", help="record teach points only")
+    g.add_argument("--record-command", action="store_true",
+                   help="record the Cartesian command instead of the measured tool pose (playback then "
+                        "repeats the recorded motion, servo errors included)")
+    g.add_argument("--speed", type=float, default=None, metavar="F", help="playback speed factor (msp.speed_scale)")
+
+
+def _setup_paths(d, args) -> None:
+    """Path store, path id, and a frame hook that starts recording/playback once powered up."""
+    if args.record is None and args.play is None:
+        return
+    from controller.decision import Status
+    from controller.paths import MspMode, PathStore
+    store = PathStore(args.path_dir)
+    msp = d.rt.by_key["msp"]
+    msp.store = store
+    wm, key = d.rt.wm, d.rt.wm.access_key
+    if args.record is not None:
+        path = store.load(args.record) if store.exists(args.record) else store.new(args.record,
+                                                                                   note="pfma controller --record")
+        settings = {"msp.path_id": path.id, "msp.capture": not args.no_capture,
+                    "msp.record_source": 1 if args.record_command else 0}
+        start = {"msp.mode": MspMode.RECORD}
+        print(f"recording into path {path.name} (id {path.id}) in {store.dir}")
+    else:
+        path = store.load(args.play)
+        settings = {"msp.path_id": path.id}
+        if args.speed is not None:
+            settings["msp.speed_scale"] = args.speed
+        start = {"cart.mode": 2, "msp.mode": MspMode.PLAY}
+        print(f"playing path {path.name} (id {path.id}, {len(path.points)} points) from {store.dir}")
+    for name, value in settings.items():
+        wm.set_user(name, value, key)
+    state = {"started": None, "teach_t": None}
+
+    def hook(rec) -> None:
+        if state["started"] is None:
+            if d.rt.status("updown") == Status.START_UP_COMPLETE:
+                for name, value in start.items():
+                    wm.set_user(name, value, key)
+                state["started"] = state["teach_t"] = rec.t_s
+            return
+        if args.record is not None and args.teach_every and rec.t_s - state["teach_t"] >= args.teach_every:
+            state["teach_t"] = rec.t_s
+            wm.set_user("msp.teach", int(wm.get("msp.teach")) + 1, key)
+    d.rt.on_frame.append(hook)
+    d.path_state = state
+
+
+def _finish_paths(d, args) -> None:
+    """End a recording (saved), report a playback."""
+    if args.record is None and args.play is None:
+        return
+    from controller.paths import MspMode, MspResult
+    wm = d.rt.wm
+    if getattr(d, "path_state", {}).get("started") is None:
+        print("path: never powered up (use --power-up); nothing recorded or played")
+        return
+    if args.record is not None:
+        n = int(wm.get("msp.finished"))
+        wm.set_user("msp.mode", MspMode.IDLE, wm.access_key)
+        for _ in range(64):  # the planner runs at 20 Hz: a few of its periods
+            d.frame()
+            if int(wm.get("msp.finished")) > n:
+                break
+        d.rt.by_key["msp"].wait_saved()
+        for _ in range(4):
+            d.frame()
+        saved = d.rt.by_key["msp"].last_saved
+        res = MspResult.NAMES.get(int(wm.get("msp.result")), "?")
+        if saved is not None:
+            print(f"path {saved.name}: {len(saved.points)} points, {saved.length_m:.3f} m, revision {saved.revision} "
+                  f"({res})")
+        else:
+            print(f"path {args.record}: not saved ({res})")
+    else:
+        v = wm.get_task_inputs(("msp.state", "msp.segment", "msp.segments", "msp.result", "msp.finished"))
+        if int(v["msp.state"]) == MspMode.PLAY:
+            print(f"path {args.play}: still playing, segment {int(v['msp.segment'])} of {int(v['msp.segments'])} "
+                  f"(run longer: --duration)")
+        else:
+            print(f"path {args.play}: playback ended ({MspResult.NAMES.get(int(v['msp.result']), '?')})")
 
 
 def _print_tables(profile: str) -> int:
@@ -274,6 +372,7 @@ def run(args) -> int:
     d.rt.on_frame.append(d.show)
     try:
         _setup_motion(d, args)
+        _setup_paths(d, args)
         if args.power_up:
             d.rt.request(Request.POWER_UP)
         if args.duration is not None:
@@ -292,6 +391,7 @@ def run(args) -> int:
         else:
             for _ in range(budget):
                 d.frame()
+        _finish_paths(d, args)
         print(_status_line(d.rt))
         if _motion_settings(args) or args.demo_stick or args.demo_wall is not None:
             print(_motion_summary(d))

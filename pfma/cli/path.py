@@ -1,0 +1,163 @@
+"""``pfma path``: list, show, create, edit and delete the recorded path files.
+
+Examples::
+
+    pfma path list
+    pfma path show demo
+    pfma path new square --point 1.5,0,-0.3 --point 1.6,0,-0.3 --point 1.6,0.1,-0.3
+    pfma path edit demo --delete 3,4 --insert 2 --pos 1.55,0.02,-0.3
+    pfma path edit demo --move 5 --offset 0,0,0.01 --speed 5 --v-lin 0.02
+    pfma path edit demo --limits 0.05,0.1,0.15,0.2 --rename demo2
+    pfma path delete demo2
+
+Files live in ``--dir`` (default ``$PFMA_PATH_DIR``, else ``~/.local/share/pfma/paths``);
+``pfma controller --record NAME`` / ``--play NAME`` record and play them. Points are
+numbered from 0 (negative numbers count from the end).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+
+def add_parser(sub):
+    p = sub.add_parser("path", help="list, show, edit and delete recorded paths",
+                       description=__doc__.split("\n\n")[0])
+    p.add_argument("--dir", default=None, help="path directory (default $PFMA_PATH_DIR or ~/.local/share/pfma/paths)")
+    ps = p.add_subparsers(dest="path_cmd", metavar="CMD")
+    ps.add_parser("list", help="the paths (name, id, points, length, revision)")
+    s = ps.add_parser("show", help="one path, point by point")
+    s.add_argument("name")
+    s.add_argument("--json", action="store_true", help="the file's JSON")
+    s.add_argument("--plan", action="store_true", help="also the playback plan (key points, limits, time)")
+    n = ps.add_parser("new", help="a new path from points")
+    n.add_argument("name")
+    n.add_argument("--point", action="append", default=[], metavar="X,Y,Z[,QW,QX,QY,QZ]",
+                   help="a teach point (metres, world frame; quaternion default identity); repeat")
+    n.add_argument("--note", default="")
+    e = ps.add_parser("edit", help="change points, speeds, limits or the name (saved as a new revision)")
+    e.add_argument("name")
+    e.add_argument("--delete", metavar="I[,J...]", help="delete these points")
+    e.add_argument("--insert", type=int, metavar="I", help="insert a point before I (with --pos [--quat])")
+    e.add_argument("--move", type=int, metavar="I", help="move point I (with --pos, --offset and/or --quat)")
+    e.add_argument("--pos", metavar="X,Y,Z", help="position for --insert/--move (m)")
+    e.add_argument("--offset", metavar="DX,DY,DZ", help="shift for --move (m)")
+    e.add_argument("--quat", metavar="QW,QX,QY,QZ", help="orientation for --insert/--move")
+    e.add_argument("--speed", metavar="I[,J...]|all", help="speed override of the segments ending at these points "
+                                                            "(with --v-lin/--v-rot, or --clear)")
+    e.add_argument("--v-lin", type=float, help="translation speed m/s for --speed")
+    e.add_argument("--v-rot", type=float, help="rotation speed rad/s for --speed")
+    e.add_argument("--clear", action="store_true", help="remove the --speed overrides")
+    e.add_argument("--limits", metavar="VLIN,ALIN,VROT,AROT", help="path limits (m/s, m/s^2, rad/s, rad/s^2)")
+    e.add_argument("--note", default=None)
+    e.add_argument("--rename", metavar="NEW")
+    d = ps.add_parser("delete", help="delete a path file")
+    d.add_argument("name")
+    return p
+
+
+def _floats(text: str, n: tuple[int, ...], what: str) -> list[float]:
+    from controller.paths import PathError
+    try:
+        vals = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise PathError(f"{what}: {text!r} is not a comma-separated list of numbers") from None
+    if len(vals) not in n:
+        raise PathError(f"{what}: {text!r} needs {' or '.join(map(str, n))} numbers")
+    return vals
+
+
+def _ints(text: str, what: str) -> list[int]:
+    from controller.paths import PathError
+    try:
+        return [int(x) for x in text.split(",")]
+    except ValueError:
+        raise PathError(f"{what}: {text!r} is not a comma-separated list of point numbers") from None
+
+
+def _edit(store, args) -> int:
+    from dataclasses import replace
+
+    from controller.paths import (
+        PathError, delete_points, insert_point, move_point, set_limits, set_speed,
+    )
+    from controller.trajectory import Limits
+    p = store.load(args.name)
+    orig = p
+    quat = _floats(args.quat, (4,), "--quat") if args.quat else None
+    if args.delete:
+        p = delete_points(p, _ints(args.delete, "--delete"))
+    if args.insert is not None:
+        if not args.pos:
+            raise PathError("--insert needs --pos")
+        p = insert_point(p, args.insert, _floats(args.pos, (3,), "--pos"), quat)
+    if args.move is not None:
+        if not (args.pos or args.offset or quat):
+            raise PathError("--move needs --pos, --offset or --quat")
+        p = move_point(p, args.move, _floats(args.pos, (3,), "--pos") if args.pos else None, quat,
+                       _floats(args.offset, (3,), "--offset") if args.offset else None)
+    if args.speed:
+        idx = None if args.speed == "all" else _ints(args.speed, "--speed")
+        if not args.clear and args.v_lin is None and args.v_rot is None:
+            raise PathError("--speed needs --v-lin and/or --v-rot (or --clear)")
+        p = set_speed(p, idx, args.v_lin, args.v_rot, clear=args.clear)
+    if args.limits:
+        p = set_limits(p, **dict(zip(Limits._fields, _floats(args.limits, (4,), "--limits"))))
+    if args.note is not None:
+        p = replace(p, note=args.note)
+    if p == orig and not args.rename:
+        print("nothing to change (see pfma path edit --help)", file=sys.stderr)
+        return 2
+    if p != orig:
+        p = store.save(p)
+        print(f"path {p.name}: revision {p.revision}, {len(p.points)} points")
+    if args.rename:
+        p = store.rename(p.name, args.rename)
+        print(f"path {args.name} renamed {p.name} (id {p.id}, revision {p.revision})")
+    return 0
+
+
+def run(args) -> int:
+    from controller.paths import PathStore, make_point, plan_duration_s, plan_path
+    store = PathStore(args.dir)
+    cmd = args.path_cmd or "list"
+    if cmd == "list":
+        infos = store.list()
+        if not infos:
+            print(f"no paths in {store.dir}")
+        else:
+            print(f"{'name':<24} {'id':>5} {'points':>7} {'length m':>9} {'rev':>4}  modified")
+            for i in infos:
+                print(f"{i.name:<24} {i.id:>5} {i.points:>7} {i.length_m:>9.3f} {i.revision:>4}  {i.modified}")
+        for prob in store.problems():
+            print(f"unreadable: {prob}", file=sys.stderr)
+        return 0
+    if cmd == "show":
+        p = store.load(args.name)
+        if args.json:
+            print(json.dumps(p.to_json(), indent=1))
+            return 0
+        print(p.describe())
+        if args.plan and p.points:
+            plan = plan_path(p)
+            print(f"  playback plan: {len(plan)} segments to key points "
+                  f"{', '.join(str(s.index) for s in plan)}; {plan_duration_s(p):.2f} s at the limits "
+                  f"(from point 0, without the approach)")
+        return 0
+    if cmd == "new":
+        pts = []
+        for i, text in enumerate(args.point):
+            v = _floats(text, (3, 7), f"--point {i}")
+            pts.append(make_point(v[:3], v[3:] if len(v) == 7 else (1.0, 0.0, 0.0, 0.0), "teach",
+                                  where=f"--point {i}"))
+        p = store.new(args.name, pts, note=args.note)
+        print(f"path {p.name}: id {p.id}, {len(p.points)} points, {store.file(p.name)}")
+        return 0
+    if cmd == "edit":
+        return _edit(store, args)
+    if cmd == "delete":
+        store.delete(args.name)
+        print(f"path {args.name} deleted")
+        return 0
+    return 2
