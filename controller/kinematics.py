@@ -462,3 +462,15 @@ def ik_step(q_now: Sequence[float], p_m: Sequence[float], quat: Sequence[float],
     """The next joint command (see :func:`ik_step_ex`; this returns only the angles)."""
     return ik_step_ex(q_now, p_m, quat, dt_s, rate_limit_rad_s=rate_limit_rad_s, lo_rad=lo_rad,
                       hi_rad=hi_rad, shoulder_roll_rad=shoulder_roll_rad).q_rad
+
+
+def joint_step_toward(q_now: Sequence[float], q_goal: Sequence[float], dt_s: float,
+                      rate_limit_rad_s: np.ndarray | None = None) -> np.ndarray:
+    """One joint-space step from ``q_now`` toward ``q_goal``: the whole step scaled down so
+    that no joint moves more than its rate limit times ``dt_s`` (a straight line in joint
+    space; used to leave a soft limit the damped least squares cannot leave)."""
+    q0 = _q(q_now).astype(float)
+    d = _q(q_goal).astype(float) - q0
+    rate = RATE_LIMIT_RAD_S if rate_limit_rad_s is None else np.asarray(rate_limit_rad_s, dtype=float)
+    over = float(np.max(np.abs(d) / (rate * dt_s)))
+    return q0 + (d / over if over > 1.0 else d)

@@ -33,6 +33,7 @@ from controller.decision import (
 )
 from controller.messages import Level
 from controller.params import JOINTS, N_JOINTS
+from controller.quat import q_angle
 from controller.worldmodel import VarSpec
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -341,6 +342,13 @@ class PlaceholderLayer(Layer):
         return task
 
 
+#: Joint Planner: a Cartesian command that stays blocked at a soft limit (pose error above
+#: these) for STUCK_S with the command unchanged triggers the joint-space recovery (assumed)
+STUCK_S = 0.5
+STUCK_POS_M = 1e-4
+STUCK_ROT_RAD = 1e-3
+
+
 class JointPlannerLayer(Layer):
     """Joint Planner (80 Hz): produces the commanded joint positions for the servo layer.
 
@@ -350,7 +358,11 @@ class JointPlannerLayer(Layer):
       moves ``servo.q_cmd_rad`` one rate-limited damped-least-squares step
       (:func:`controller.kinematics.ik_step_ex`) toward the pose ``cart.pos_cmd_m`` /
       ``cart.quat_cmd``: no joint moves more than its software rate limit times the task
-      period, soft limits are respected, singular sets are passed without a jump.
+      period, soft limits are respected, singular sets are passed without a jump. If
+      the step stays blocked at a soft limit for STUCK_S with an unchanged command, and
+      the pose has a closed-form solution inside the limits (the least squares went
+      round a singular set onto the other wrist branch), it moves there on a
+      rate-limited straight line in joint space.
     * **joint goal**: a user joint goal (``joint.goal_rad`` with a new ``joint.goal_seq``),
       clipped to the soft limits, goes to ``servo.q_cmd_rad`` (a position step into the
       servo layer, which rate-limits it). A new goal takes precedence over a valid
@@ -388,6 +400,9 @@ class JointPlannerLayer(Layer):
         self._flags = (False, False)  # (singular, limited) last posted
         self._bad_cmd = False
         self._cart_at_goal: tuple[np.ndarray, np.ndarray] | None = None  # cart pose when a goal won
+        self._last_pose: tuple[np.ndarray, np.ndarray] | None = None  # the Cartesian command last run
+        self._stuck_runs = 0  # runs blocked at a soft limit with a static command
+        self._recover: np.ndarray | None = None  # joint-space goal that leaves a soft limit
         self.last_step = None  #: the last kinematics.StepResult (tests, trace)
 
     def specs(self) -> list[VarSpec]:
@@ -439,6 +454,7 @@ class JointPlannerLayer(Layer):
         self.mode = self.MODE_JOINT
         self._bad_cmd = False
         self._cart_at_goal = None
+        self._last_pose, self._stuck_runs, self._recover = None, 0, None
         rt.wm.post_task_outputs("joint", {"servo.q_cmd_rad": self.q_cmd, "servo.q_cmd_valid": True,
                                           "joint.mode": self.mode})
         return TaskState.DONE
@@ -517,6 +533,21 @@ class JointPlannerLayer(Layer):
             return
         self._bad_cmd = False
         dt = self._dt_s or rt.task_period_s("joint_planner")
+        moved = self._last_pose is None or not (np.array_equal(pos, self._last_pose[0])
+                                                and np.array_equal(q4, self._last_pose[1]))
+        self._last_pose = (pos.copy(), q4.copy())
+        if moved:
+            self._stuck_runs, self._recover = 0, None
+        if self._recover is not None:  # leaving a soft limit on a joint-space line (static command)
+            self.q_cmd = kin.joint_step_toward(self.q_cmd, self._recover, dt)
+            if np.array_equal(self.q_cmd, self._recover):
+                self._recover = None
+            p_c, quat_c = kin.fk(self.q_cmd, self.shoulder_roll_rad)
+            out["servo.q_cmd_rad"] = self.q_cmd
+            out["joint.cart_err_m"] = float(np.linalg.norm(pos - p_c))
+            out["joint.cart_err_rad"] = q_angle(q4, quat_c)
+            self._post_flags(rt, bool(kin.singular_sets(self.q_cmd)), False, out)
+            return
         r = kin.ik_step_ex(self.q_cmd, pos, q4, dt, lo_rad=self.lo, hi_rad=self.hi,
                            shoulder_roll_rad=self.shoulder_roll_rad)
         self.last_step = r
@@ -526,6 +557,18 @@ class JointPlannerLayer(Layer):
         out["joint.cart_err_rad"] = r.rot_err_rad
         singular = r.singular or bool(kin.singular_sets(self.q_cmd))
         self._post_flags(rt, singular, r.limited, out)
+        blocked = r.limited and (r.pos_err_m > STUCK_POS_M or r.rot_err_rad > STUCK_ROT_RAD)
+        self._stuck_runs = self._stuck_runs + 1 if blocked else 0
+        if self._stuck_runs == int(round(STUCK_S / dt)):
+            # Damped least squares can end on a soft limit on the wrong side of a singular set
+            # (e.g. the wrist flipped while passing wrist yaw -90 deg). If the pose has a
+            # closed-form solution inside the limits, go there in joint space.
+            try:
+                self._recover = kin.ik(pos, q4, self.q_cmd, self.shoulder_roll_rad, self.lo, self.hi)
+                rt.post(self.key, Level.WARNING, "blocked at a soft limit: joint-space move to the "
+                                                 "closed-form solution of the Cartesian command")
+            except kin.KinematicsError as err:
+                rt.post(self.key, Level.WARNING, f"blocked at a soft limit, holding: {err}")
 
     def _joint_goal(self, rt: "ControllerRuntime", v: dict, out: dict) -> None:
         seq = int(v["joint.goal_seq"])
