@@ -68,8 +68,8 @@ class TaskSpec:
 #: task name -> (layer, doc) of the default tasks; rates and phases come from the profiles
 TASK_DOCS = {
     "updown_requests": ("updown", "user requests -> Up/Down command; responses (request/response)"),
-    "msp_planner": ("msp", "multi-segment path planner (placeholder until the motion issue)"),
-    "trajectory_planner": ("trajectory", "trajectory planner (placeholder)"),
+    "msp_planner": ("msp", "multi-segment path planner: path recording, files, playback segments"),
+    "trajectory_planner": ("trajectory", "trajectory planner: one Cartesian segment, speed profile"),
     "cartesian_slow": ("cartesian", "Cartesian engine: trajectory and hand-controller composition"),
     "cartesian_fast": ("cartesian", "Cartesian engine: force/torque offsets"),
     "joint_planner": ("joint", "joint planner: commanded joint positions for the servo"),
@@ -99,12 +99,23 @@ PROFILES: dict[str, tuple[float, dict[str, tuple[float, int]]]] = {
 }
 
 
+#: worst-case time budget per task (s): about twice the median cost measured in the system
+#: simulator on the development VM (joint planner step ~0.25 ms, Cartesian engine and
+#: servo ~0.1 ms); the schedule check uses them to report tasks that cannot fit
+TASK_BUDGETS_S = {
+    "updown_requests": 50e-6, "servo_control": 250e-6, "joint_planner": 500e-6,
+    "cartesian_fast": 300e-6, "cartesian_slow": 300e-6, "trajectory_planner": 200e-6,
+    "msp_planner": 200e-6,
+}
+
+
 def default_tasks(profile: str = "layers") -> tuple[TaskSpec, ...]:
     try:
         _, table = PROFILES[profile]
     except KeyError:
         raise ScheduleError(f"no schedule profile {profile!r}; profiles: {', '.join(PROFILES)}") from None
-    return tuple(TaskSpec(n, TASK_DOCS[n][0], hz, ph, doc=TASK_DOCS[n][1]) for n, (hz, ph) in table.items())
+    return tuple(TaskSpec(n, TASK_DOCS[n][0], hz, ph, budget_s=TASK_BUDGETS_S.get(n, 100e-6),
+                          doc=TASK_DOCS[n][1]) for n, (hz, ph) in table.items())
 
 
 @dataclass(frozen=True)
