@@ -75,6 +75,41 @@ def loop_figures(rate: float, seconds: float) -> dict:
         Bit3Buffer.unlink(name)
 
 
+def task_costs(frames: int = 300) -> dict:
+    """Median cost of each frame task (drivers + the fakes' register emulation), in this
+    process on the monotonic clock: where a frame's work goes."""
+    from fakes.world import FakeWorld
+    from ioservice.loop import FrameInfo
+    from ioservice.service import IoService
+    from ioservice.ticking import TickingClock
+    from pfma.clock import MonotonicClock
+    name = "pfma-bench-" + uuid.uuid4().hex[:6]
+    base = MonotonicClock()
+    world = FakeWorld(clock=base)
+    buf = Bit3Buffer.create(name)
+    try:
+        svc = IoService(world.rack_config, world.bus, buf, TickingClock(base))
+        info = FrameInfo()
+        tasks = {"rtd (2 boards)": svc._task_rtd, "adc scan (32 ch)": svc._task_adc,
+                 "dac (16 ch) + commands": svc._task_dac, "ft decode": svc._task_ft,
+                 "hand controllers": svc._task_hand, "pio": svc._task_pio,
+                 "serial drain": lambda: svc.serial_tick(0.0), "publish": lambda: svc._publish(info)}
+        out = {}
+        for label, fn in tasks.items():
+            ts = np.empty(frames)
+            for i in range(frames):
+                world.tick(base.now())
+                t0 = time.perf_counter()
+                fn()
+                ts[i] = time.perf_counter() - t0
+            out[label] = float(np.median(ts) * 1e6)
+        svc.stop()
+        return out
+    finally:
+        buf.close()
+        Bit3Buffer.unlink(name)
+
+
 def watchdog_figures(trials: int = 5) -> list[dict]:
     name = "pfma-bench-" + uuid.uuid4().hex[:6]
     p = _serve(name, 10 + 4 * trials, 320)
@@ -131,6 +166,10 @@ def run(seconds: float = 5.0) -> dict:
         print(f"{rate:6g} {f['work_p50_us']:8.0f}us {f['work_p99_us']:8.0f}us {f['wake_p50_us']:8.0f}us "
               f"{f['wake_p99_us']:8.0f}us {f['cpu_percent']:6.1f} {f['dropped']:8d} {f['overruns']:8d} "
               f"{f['gc_gen2']:7d}  {r['rtd']:.1f}/{r['adc']:.1f}/{r['dac']:.1f}/{r['ft']:.1f} Hz")
+    costs = task_costs()
+    out["task_costs_us"] = costs
+    print("median cost per task on the simulated rack (drivers + register-level fakes), us: "
+          + ", ".join(f"{k} {v:.0f}" for k, v in costs.items()))
     w = watchdog_figures(3)
     out["watchdog"] = w
     if w:

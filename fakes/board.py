@@ -60,7 +60,7 @@ class FakeBoard:
 
     # -- bus side -----------------------------------------------------------
     def _check(self, offset: int, width: int) -> None:
-        if "no_answer" in self.faults:
+        if self.faults and "no_answer" in self.faults:
             raise NoAnswer("board does not answer (injected fault)")
         if not 0 <= offset < self.description.window:
             raise NoAnswer("outside the board's decoded window")

@@ -43,7 +43,10 @@ class FakeRack:
     def __init__(self, clock: Clock | None = None, access_time_s: float = 1e-6) -> None:
         self.clock = clock if clock is not None else SimClock()
         self.access_time_s = access_time_s
+        # real time passes by itself: only a simulated clock is charged per access
+        self._charge = bool(access_time_s) and getattr(self.clock, "simulated", True)
         self._map: list[tuple[int, int, FakeBoard]] = []  # (base, end, board)
+        self._pages: dict[int, tuple[FakeBoard, int]] = {}  # addr >> 4 -> (board, base)
         self.boards: dict[str, FakeBoard] = {}
         self.bases: dict[str, int] = {}
 
@@ -55,6 +58,9 @@ class FakeRack:
                 raise ValueError(f"{board.name} at 0x{base:04X} overlaps {other.name} at 0x{b0:04X}")
         self._map.append((base, end, board))
         self._map.sort(key=lambda e: e[0])
+        if base % 16 == 0 and end % 16 == 0:  # every board here; others use the linear search
+            for page in range(base >> 4, end >> 4):
+                self._pages[page] = (board, base)
         self.boards[board.name] = board
         self.bases[board.name] = base
         return board
@@ -81,9 +87,14 @@ class FakeRack:
 
     # -- RegisterBus ------------------------------------------------------------
     def _find(self, addr: int, width: int, op: str) -> tuple[FakeBoard, int]:
+        hit = self._pages.get(addr >> 4)
+        if hit is not None and addr >= 0:
+            if self._charge:
+                self.clock.advance(self.access_time_s)
+            return hit[0], addr - hit[1]
         if not 0 <= addr <= 0xFFFF:
             raise ValueError(f"A16 address 0x{addr:X} out of range")
-        if self.access_time_s:
+        if self._charge:
             self.clock.advance(self.access_time_s)
         for b0, b1, board in self._map:
             if b0 <= addr < b1:
