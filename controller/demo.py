@@ -21,7 +21,7 @@ from ioservice.client import Client
 #: current limits while armed (A): enough to release the brakes and hold the arm
 DEMO_CURRENT_LIMIT_A = (5.0, 5.0, 5.0, 2.5, 2.5, 2.5, 0.0)
 #: joint rate amplitude (rad/s) and period (s) of the swing, per command-area joint
-SWING = {"wrist_roll": (0.3, 6.0), "shoulder_yaw": (0.05, 10.0)}
+SWING = {"wrist_roll": (0.8, 6.0), "shoulder_yaw": (0.05, 10.0)}  # WR: above its Coulomb friction
 
 
 def run(buffer: str = "pfma", duration_s: float = 30.0, rate_hz: float = 100.0,
