@@ -21,6 +21,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from fakes.byteline import FaultyLine
 from drivers.crl import crl_codec as codec
 
 AxesFn = Callable[[float], Sequence[float]]  # t_s -> 6 normalised axes
@@ -51,7 +52,7 @@ class ReceivedForce:
         return self.frame.wrench()[1]
 
 
-class FakeCrlMaster:
+class FakeCrlMaster(FaultyLine):
     """Byte-stream model of the CRL force-reflecting hand controller.
 
     :param axes_fn: optional ``t_s -> 6 axes (-1..1)``, sampled for every frame (a moving stick)
@@ -63,12 +64,11 @@ class FakeCrlMaster:
         self.axes_fn = axes_fn
         self.frame_period_s = frame_period_s
         self.t_s = 0.0
+        self._init_line()
         self._next_frame_s = 0.0
         self.seq = 0
         self.axes_counts: tuple[int, ...] = (0,) * 6
         self.buttons = 0
-        self.connected = True
-        self._tx = bytearray()
         self._rx = codec.FrameDecoder("force")
         self.sent_frames: deque[SentMasterFrame] = deque(maxlen=100_000)  #: ground truth
         self.frames_sent = 0
@@ -78,15 +78,7 @@ class FakeCrlMaster:
         self.displayed_torque_nm: tuple[float, ...] = (0.0,) * 3
         self._t_last_force = None
         self.watchdog_trips = 0  #: times the master zeroed its forces for lack of frames
-        # faults
-        self._noise: list[tuple[int, bytes]] = []
-        self._drops: list[tuple[int, int]] = []
-        self._drop_left = 0
         self._corrupt_left = 0
-        self._stall_until_s = -1.0
-        self.tx_count = 0  #: model bytes taken from the output queue (incl. dropped)
-        self.bytes_dropped = 0
-        self.noise_bytes_sent = 0
 
     # -- physical side --------------------------------------------------------------------
     def set_axes(self, axes: Sequence[float]) -> None:
@@ -144,60 +136,15 @@ class FakeCrlMaster:
             self.displayed_force_n = force_n if on else (0.0,) * 3
             self.displayed_torque_nm = torque_nm if on else (0.0,) * 3
 
-    def transmit(self, max_bytes: int) -> bytes:
-        """Up to ``max_bytes`` bytes ready for the line."""
-        if not self.connected or max_bytes <= 0 or self.t_s < self._stall_until_s:
-            return b""
-        out = bytearray()
-        while len(out) < max_bytes:
-            if self._noise and self._noise[0][0] <= self.tx_count:
-                _, noise = self._noise.pop(0)
-                take = noise[: max_bytes - len(out)]
-                if len(take) < len(noise):
-                    self._noise.insert(0, (self.tx_count, noise[len(take):]))
-                out += take
-                self.noise_bytes_sent += len(take)
-                continue
-            if not self._tx:
-                break
-            if self._drops and self._drops[0][0] <= self.tx_count:
-                self._drop_left += self._drops.pop(0)[1]
-            b = self._tx.pop(0)
-            self.tx_count += 1
-            if self._drop_left:
-                self._drop_left -= 1
-                self.bytes_dropped += 1
-                continue
-            out.append(b)
-        return bytes(out)
-
     @property
     def rx_stats(self) -> codec.LinkStats:
         """Counters of the force frames received."""
         return self._rx.stats
 
-    # -- faults ---------------------------------------------------------------------------
-    def inject_noise(self, data: bytes, after_bytes: int = 0) -> None:
-        """Insert ``data`` into the output after ``after_bytes`` more model bytes."""
-        self._noise.append((self.tx_count + after_bytes, bytes(data)))
-        self._noise.sort(key=lambda e: e[0])
-
-    def drop_next(self, n: int, after_bytes: int = 0) -> None:
-        """Lose ``n`` output bytes, starting after ``after_bytes`` more model bytes."""
-        self._drops.append((self.tx_count + after_bytes, int(n)))
-        self._drops.sort(key=lambda e: e[0])
-
+    # -- faults (noise, drops, stall, disconnect: FaultyLine) ----------------------------
     def corrupt_next(self, n_frames: int) -> None:
         """Send the next ``n_frames`` position frames with a wrong checksum."""
         self._corrupt_left += int(n_frames)
-
-    def stall(self, seconds: float) -> None:
-        """Send nothing for ``seconds`` of master time (frames made meanwhile are lost)."""
-        self._stall_until_s = self.t_s + seconds
-
-    def disconnect(self) -> None:
-        """Go silent for good (a PtyDevice owner then closes the line)."""
-        self.connected = False
 
     # -- internals --------------------------------------------------------------------------
     def _queue_frame(self, t_s: float) -> None:

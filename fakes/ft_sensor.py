@@ -18,6 +18,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from fakes.byteline import FaultyLine
 from drivers.serial_ft.protocol import (CR, CRLF, CTRL_T, NOMINAL, PROMPT, NominalSensor,
                                         encode_ascii, encode_binary)
 
@@ -106,7 +107,7 @@ class SentRecord:
     t_s: float  #: controller time when the record was encoded
 
 
-class FakeFtController:
+class FakeFtController(FaultyLine):
     """Byte-stream model of the F/T controller (R7 line editor, QS/Ctrl-T, SB/SU/SZ, SA).
 
     :param sensor: nominal sensor (scale, range, internal sample rate)
@@ -125,20 +126,11 @@ class FakeFtController:
         self.streaming = False
         self._pending = False  # a new sample is waiting for the line
         self._line = bytearray()
-        self._tx = bytearray()
-        self.connected = True
+        self._init_line()
         self.sent_records: deque[SentRecord] = deque(maxlen=200_000)  #: ground truth
         self.records_sent = 0
         self.skipped_samples = 0  #: samples overwritten because the line was busy
         self.commands: list[str] = []  #: command log
-        # faults
-        self._noise: list[tuple[int, bytes]] = []  # (due at tx_count, bytes)
-        self._drops: list[tuple[int, int]] = []  # (due at tx_count, n)
-        self._drop_left = 0
-        self._stall_until_s = -1.0
-        self.tx_count = 0  #: model bytes taken from the output queue (incl. dropped)
-        self.noise_bytes_sent = 0
-        self.bytes_dropped = 0
 
     # -- load ---------------------------------------------------------------------------
     def set_load(self, force_n: Vec3, torque_nm: Vec3) -> None:
@@ -192,51 +184,10 @@ class FakeFtController:
                 self._line += ch
                 self._tx += ch
 
-    def transmit(self, max_bytes: int) -> bytes:
-        """Up to ``max_bytes`` bytes that are ready for the line (the owner paces them)."""
-        if not self.connected or max_bytes <= 0 or self.t_s < self._stall_until_s:
-            return b""
-        out = bytearray()
-        while len(out) < max_bytes:
-            if self._noise and self._noise[0][0] <= self.tx_count:
-                _, noise = self._noise.pop(0)
-                out += noise
-                self.noise_bytes_sent += len(noise)
-                continue
-            if not self._tx and self.streaming and self._pending:
-                self._tx += self._record(with_terminator=True)
-                self._pending = False
-            if not self._tx:
-                break
-            if self._drops and self._drops[0][0] <= self.tx_count:
-                self._drop_left += self._drops.pop(0)[1]
-            b = self._tx.pop(0)
-            self.tx_count += 1
-            if self._drop_left:
-                self._drop_left -= 1
-                self.bytes_dropped += 1
-                continue
-            out.append(b)
-        return bytes(out)
-
-    # -- faults ---------------------------------------------------------------------------
-    def inject_noise(self, data: bytes, after_bytes: int = 0) -> None:
-        """Insert ``data`` into the output after ``after_bytes`` more model bytes."""
-        self._noise.append((self.tx_count + after_bytes, bytes(data)))
-        self._noise.sort(key=lambda e: e[0])
-
-    def drop_next(self, n: int, after_bytes: int = 0) -> None:
-        """Lose ``n`` output bytes, starting after ``after_bytes`` more model bytes."""
-        self._drops.append((self.tx_count + after_bytes, int(n)))
-        self._drops.sort(key=lambda e: e[0])
-
-    def stall(self, seconds: float) -> None:
-        """Send nothing for ``seconds`` of controller time (sampling goes on)."""
-        self._stall_until_s = self.t_s + seconds
-
-    def disconnect(self) -> None:
-        """Go silent for good (owner closes the line)."""
-        self.connected = False
+    def _refill(self) -> None:
+        if self.streaming and self._pending:  # the newest sample, when the line is free
+            self._tx += self._record(with_terminator=True)
+            self._pending = False
 
     # -- internals --------------------------------------------------------------------------
     def _record(self, with_terminator: bool) -> bytes:

@@ -1,0 +1,81 @@
+"""The far end of a serial line, with the line faults every byte-stream fake offers.
+
+A byte-stream device model (the F/T controller, the CRL master) keeps its output in
+``self._tx`` and its own time in ``self.t_s``; :class:`FaultyLine` gives it
+``transmit(max_bytes)`` with scheduled noise bytes, dropped bytes, stalls and a
+disconnect, counted so tests can compare what went out with what the driver saw.
+Models that produce output lazily override :meth:`_refill`.
+"""
+
+from __future__ import annotations
+
+
+class FaultyLine:
+    """Mixin: call :meth:`_init_line` from ``__init__``."""
+
+    def _init_line(self) -> None:
+        self._tx = bytearray()
+        self.t_s = getattr(self, "t_s", 0.0)
+        self.connected = True
+        self._noise: list[tuple[int, bytes]] = []  # (due at tx_count, bytes)
+        self._drops: list[tuple[int, int]] = []  # (due at tx_count, n)
+        self._drop_left = 0
+        self._stall_until_s = -1.0
+        self.tx_count = 0  #: model bytes taken from the output queue (incl. dropped)
+        self.noise_bytes_sent = 0
+        self.bytes_dropped = 0
+
+    def _refill(self) -> None:
+        """Called when the output queue is empty (lazy producers put their next bytes)."""
+
+    @property
+    def stalled(self) -> bool:
+        return self.t_s < self._stall_until_s
+
+    def transmit(self, max_bytes: int) -> bytes:
+        """Up to ``max_bytes`` bytes ready for the line (the owner paces them)."""
+        if not self.connected or max_bytes <= 0 or self.stalled:
+            return b""
+        out = bytearray()
+        while len(out) < max_bytes:
+            if self._noise and self._noise[0][0] <= self.tx_count:
+                _, noise = self._noise.pop(0)
+                take = noise[: max_bytes - len(out)]
+                if len(take) < len(noise):
+                    self._noise.insert(0, (self.tx_count, noise[len(take):]))
+                out += take
+                self.noise_bytes_sent += len(take)
+                continue
+            if not self._tx:
+                self._refill()
+                if not self._tx:
+                    break
+            if self._drops and self._drops[0][0] <= self.tx_count:
+                self._drop_left += self._drops.pop(0)[1]
+            b = self._tx.pop(0)
+            self.tx_count += 1
+            if self._drop_left:
+                self._drop_left -= 1
+                self.bytes_dropped += 1
+                continue
+            out.append(b)
+        return bytes(out)
+
+    # -- faults ---------------------------------------------------------------------------
+    def inject_noise(self, data: bytes, after_bytes: int = 0) -> None:
+        """Insert ``data`` into the output after ``after_bytes`` more model bytes."""
+        self._noise.append((self.tx_count + after_bytes, bytes(data)))
+        self._noise.sort(key=lambda e: e[0])
+
+    def drop_next(self, n: int, after_bytes: int = 0) -> None:
+        """Lose ``n`` output bytes, starting after ``after_bytes`` more model bytes."""
+        self._drops.append((self.tx_count + after_bytes, int(n)))
+        self._drops.sort(key=lambda e: e[0])
+
+    def stall(self, seconds: float) -> None:
+        """Send nothing for ``seconds`` of the model's time."""
+        self._stall_until_s = self.t_s + seconds
+
+    def disconnect(self) -> None:
+        """Go silent for good (a PtyDevice owner then closes the line)."""
+        self.connected = False
