@@ -10,8 +10,8 @@ so a driver polling a busy bit sees simulated time pass.
 from __future__ import annotations
 
 import importlib
-import operator
 
+from drivers.bus import check_value
 from drivers.registers import register_name
 from fakes.board import FakeBoard, NoAnswer
 from pfma.clock import Clock, SimClock
@@ -119,20 +119,8 @@ class FakeRack:
         except NoAnswer as err:
             self._fail(err, board, off, addr, 16, "read")
 
-    @staticmethod
-    def _check_value(addr: int, value: int, width: int) -> int:
-        # Same rule as every RegisterBus backend (tests/bus/test_contract.py): refuse, never mask.
-        try:
-            v = operator.index(value)
-        except TypeError:
-            v = -1
-        if not 0 <= v < (1 << width):
-            raise ValueError(f"write{width} to A16 0x{addr:04X}: value {value!r} does not fit "
-                             f"{width} bits (0..0x{(1 << width) - 1:X})")
-        return v
-
     def write8(self, addr: int, value: int) -> None:
-        value = self._check_value(addr, value, 8)
+        value = check_value(addr, value, 8)
         board, off = self._find(addr, 8, "write")
         try:
             board.write8(off, value)
@@ -140,7 +128,7 @@ class FakeRack:
             self._fail(err, board, off, addr, 8, "write")
 
     def write16(self, addr: int, value: int) -> None:
-        value = self._check_value(addr, value, 16)
+        value = check_value(addr, value, 16)
         board, off = self._find(addr, 16, "write")
         try:
             board.write16(off, value)

@@ -19,11 +19,31 @@ Backends are opened by URL, as pyserial opens ports:
 from __future__ import annotations
 
 import importlib
+import operator
 from typing import Protocol, runtime_checkable
 
 from pfma.errors import BusError
 
-__all__ = ["RegisterBus", "BusError", "open_bus", "BACKENDS"]
+__all__ = ["RegisterBus", "BusError", "open_bus", "BACKENDS", "check_addr", "check_value"]
+
+
+def check_addr(addr: int) -> None:
+    """ValueError unless ``addr`` is an A16 address (0..0xFFFF)."""
+    if not isinstance(addr, int) or not 0 <= addr <= 0xFFFF:
+        raise ValueError(f"A16 address {addr!r} out of range 0..0xFFFF")
+
+
+def check_value(addr: int, value: int, width: int) -> int:
+    """The value as an int, or ValueError: every backend refuses, never masks (contract:
+    masking -1 to 0xFFFF would hit the DAC control register)."""
+    try:
+        v = operator.index(value)  # ints and numpy integers, not floats
+    except TypeError:
+        v = -1
+    if not 0 <= v < (1 << width):
+        raise ValueError(f"write{width} to A16 0x{addr:04X}: value {value!r} does not fit "
+                         f"{width} bits (0..0x{(1 << width) - 1:X})")
+    return v
 
 
 @runtime_checkable

@@ -38,34 +38,17 @@ from __future__ import annotations
 
 import fcntl
 import mmap
-import operator
 import os
 import struct
 import sys
 from urllib.parse import parse_qsl, urlsplit
 
+from drivers.bus import check_addr, check_value
 from pfma.errors import AlignmentError, BusError, LinkError
 
 __all__ = ["DeviceFileBus", "open_devicefile_bus", "vme_user_set_master"]
 
 _SWAP = sys.byteorder == "little"
-
-
-def _check_value(addr: int, value: int, width: int) -> int:
-    """The value as an int, or ValueError: every backend refuses, never masks (contract)."""
-    try:
-        v = operator.index(value)  # ints and numpy integers, not floats
-    except TypeError:
-        v = -1
-    if not 0 <= v < (1 << width):
-        raise ValueError(f"write{width} to A16 0x{addr:04X}: value {value!r} does not fit "
-                         f"{width} bits (0..0x{(1 << width) - 1:X})")
-    return v
-
-
-def _check_addr(addr: int) -> None:
-    if not isinstance(addr, int) or not 0 <= addr <= 0xFFFF:
-        raise ValueError(f"A16 address {addr!r} out of range 0..0xFFFF")
 
 
 class DeviceFileBus:
@@ -110,7 +93,7 @@ class DeviceFileBus:
 
     # -- helpers ------------------------------------------------------------------
     def _index(self, addr: int, width: int, op: str) -> int:
-        _check_addr(addr)
+        check_addr(addr)
         if width == 16 and addr % 2:
             raise AlignmentError(addr, 16, op, reason="16-bit access at an odd address")
         i = addr - self.base
@@ -139,14 +122,14 @@ class DeviceFileBus:
 
     def write8(self, addr: int, value: int) -> None:
         """Write one byte at A16 ``addr``."""
-        value = _check_value(addr, value, 8)
+        value = check_value(addr, value, 8)
         i = self._index(addr, 8, "write")
         self._live(addr, 8, "write")
         self._bytes[i] = value
 
     def write16(self, addr: int, value: int) -> None:
         """Write the big-endian word ``value`` at even A16 ``addr`` (one D16 cycle)."""
-        value = _check_value(addr, value, 16)
+        value = check_value(addr, value, 16)
         i = self._index(addr, 16, "write")
         self._live(addr, 16, "write")
         self._words[i >> 1] = ((value & 0xFF) << 8) | (value >> 8) if _SWAP else value

@@ -36,13 +36,13 @@ pymodbus 3.16 (see the project's pins): keyword-only client arguments,
 from __future__ import annotations
 
 import logging
-import operator
 import threading
 from urllib.parse import parse_qsl, urlsplit
 
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException
 
+from drivers.bus import check_addr, check_value
 from pfma.errors import AlignmentError, BusError
 
 __all__ = ["ModbusTcpBus", "open_modbus_bus", "EXCEPTION_REASONS"]
@@ -62,23 +62,6 @@ EXCEPTION_REASONS: dict[int, str] = {
     10: "gateway exception 10 (gateway path unavailable)",
     11: "gateway exception 11 (gateway target device failed to respond)",
 }
-
-
-def _check_addr(addr: int) -> None:
-    if not isinstance(addr, int) or not 0 <= addr <= 0xFFFF:
-        raise ValueError(f"A16 address {addr!r} out of range 0..0xFFFF")
-
-
-def _check_value(addr: int, value: int, width: int) -> int:
-    """The value as an int, or ValueError: every backend refuses, never masks (contract)."""
-    try:
-        v = operator.index(value)  # ints and numpy integers, not floats
-    except TypeError:
-        v = -1
-    if not 0 <= v < (1 << width):
-        raise ValueError(f"write{width} to A16 0x{addr:04X}: value {value!r} does not fit "
-                         f"{width} bits (0..0x{(1 << width) - 1:X})")
-    return v
 
 
 class ModbusTcpBus:
@@ -136,14 +119,14 @@ class ModbusTcpBus:
     # -- RegisterBus ----------------------------------------------------------------------
     def read16(self, addr: int) -> int:
         """Read the word at even A16 ``addr`` (holding register ``addr // 2``)."""
-        _check_addr(addr)
+        check_addr(addr)
         if addr % 2:
             raise AlignmentError(addr, 16, "read", reason="16-bit access at an odd address")
         return self._read_word(addr, 16)
 
     def read8(self, addr: int) -> int:
         """Read the byte at ``addr``: high byte of the word for even, low byte for odd."""
-        _check_addr(addr)
+        check_addr(addr)
         word = self._read_word(addr, 8)
         return word & 0xFF if addr % 2 else word >> 8
 
@@ -153,7 +136,7 @@ class ModbusTcpBus:
         Not part of the RegisterBus contract (drivers must not need it); for dumps and
         scans. The gateway performs one D16 read per word, in address order.
         """
-        _check_addr(addr)
+        check_addr(addr)
         if addr % 2:
             raise AlignmentError(addr, 16, "read", reason="16-bit access at an odd address")
         if not 1 <= n_words <= 125 or addr + 2 * n_words > 0x10000:
@@ -165,16 +148,16 @@ class ModbusTcpBus:
 
     def write16(self, addr: int, value: int) -> None:
         """Write the word at even A16 ``addr`` (function code 6)."""
-        _check_addr(addr)
-        value = _check_value(addr, value, 16)
+        check_addr(addr)
+        value = check_value(addr, value, 16)
         if addr % 2:
             raise AlignmentError(addr, 16, "write", reason="16-bit access at an odd address")
         self._call(addr, 16, "write", self._client.write_register, addr >> 1, value)
 
     def write8(self, addr: int, value: int) -> None:
         """Write the byte at odd A16 ``addr`` as the word ``0x00 << 8 | value`` (no read first)."""
-        _check_addr(addr)
-        value = _check_value(addr, value, 8)
+        check_addr(addr)
+        value = check_value(addr, value, 8)
         if addr % 2 == 0:
             raise AlignmentError(addr, 8, "write", reason="an even-byte write cannot be expressed over "
                                  "Modbus (it would also write the odd byte)")
