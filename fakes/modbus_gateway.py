@@ -25,10 +25,10 @@ import asyncio
 import threading
 
 from pymodbus.constants import ExcCodes
-from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from pfma.errors import BusError
+from pfma.modbus_server import ModbusServerThread
 
 __all__ = ["ModbusGateway"]
 
@@ -54,11 +54,7 @@ class ModbusGateway:
         #: held while the hosted bus is accessed; take it to touch the bus from another thread
         self.lock = threading.Lock()
         self.requests = 0
-        self._ready = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._server: ModbusTcpServer | None = None
-        self._error: BaseException | None = None
+        self._server: ModbusServerThread | None = None
 
     # -- the action pymodbus calls for every register request --------------------------
     async def _action(self, function_code: int, start_address: int, address: int, count: int,
@@ -88,52 +84,26 @@ class ModbusGateway:
         return None
 
     # -- server thread -----------------------------------------------------------------------
-    def _run(self) -> None:
-        self._loop = asyncio.new_event_loop()
-        asyncio.set_event_loop(self._loop)
-
-        async def main() -> None:
-            device = SimDevice(
-                id=0,  # catch-all unit id
-                simdata=[SimData(address=0, count=32768, values=0, datatype=DataType.REGISTERS)],
-                action=self._action)
-            self._server = ModbusTcpServer(device, address=(self.host, self.port))
-            await self._server.serve_forever(background=True)
-            self.port = self._server.transport.sockets[0].getsockname()[1]
-            self._ready.set()
-            await self._server.serving  # resolved by shutdown()
-
-        try:
-            self._loop.run_until_complete(main())
-        except BaseException as err:  # noqa: BLE001 - reported to start()
-            self._error = err
-            self._ready.set()
-        finally:
-            self._loop.close()
+    def _device(self) -> SimDevice:
+        return SimDevice(id=0,  # catch-all unit id
+                         simdata=[SimData(address=0, count=32768, values=0, datatype=DataType.REGISTERS)],
+                         action=self._action)
 
     def start(self, timeout_s: float = 5.0) -> "ModbusGateway":
         """Start listening; returns once the port is bound."""
-        if self._thread is not None:
+        if self._server is not None:
             raise RuntimeError("gateway already started")
-        self._thread = threading.Thread(target=self._run, name=f"modbus-gateway-{self.port}", daemon=True)
-        self._thread.start()
-        if not self._ready.wait(timeout_s):
-            raise RuntimeError(f"fake Modbus gateway did not start within {timeout_s} s")
-        if self._error is not None:
-            raise RuntimeError(f"fake Modbus gateway on {self.host}:{self.port} failed to start: "
-                               f"{self._error}") from self._error
+        server = ModbusServerThread(self._device, self.host, self.port,
+                                    name=f"modbus-gateway-{self.port}", error=RuntimeError)
+        self.port = server.start(timeout_s)
+        self._server = server
         return self
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """Shut the server down and join its thread (the port can be re-bound at once)."""
-        if self._thread is None:
-            return
-        if self._server is not None and self._loop is not None and not self._loop.is_closed():
-            asyncio.run_coroutine_threadsafe(self._server.shutdown(), self._loop).result(timeout_s)
-        self._thread.join(timeout_s)
-        self._thread = None
-        self._server = None
-        self._ready.clear()
+        if self._server is not None:
+            self._server.stop(timeout_s)
+            self._server = None
 
     @property
     def url(self) -> str:

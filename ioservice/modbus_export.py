@@ -31,30 +31,27 @@ pymodbus 3.16.1 facts used here (packages.md section 2): live objects are served
 ``SimDevice(id=0)`` answers every unit id; an action returning an ``ExcCodes`` member
 becomes that exception response; addresses outside every ``SimData`` answer exception 2.
 The server-in-a-thread pattern is the one of ``fakes/modbus_gateway.py`` (the service
-must not import fakes, so it is written once more here as :class:`ModbusServerThread`).
+must not import fakes; both use :class:`pfma.modbus_server.ModbusServerThread`).
 """
 
 from __future__ import annotations
 
-import asyncio
 import inspect
 import ipaddress
 import logging
-import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 from pymodbus.constants import ExcCodes
-from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from ioservice.client import PRIMARY_FIELD, Client
 from ioservice.layout import Layout, default_layout
 from ioservice.safety import OutputGuard
 from ioservice.shm import Bit3Buffer, Bit3Error
-from pfma.errors import ConfigError, PfmaError
+from pfma.errors import ConfigError
+from pfma.modbus_server import ModbusServerError, ModbusServerThread
 
 __all__ = [
     "CHANNELS_BASE", "COMMANDS_BASE", "IDENT_BASE", "INPUTS_BASE", "MAP_DOC_PATH", "MAP_VERSION",
@@ -98,7 +95,7 @@ _AREA_BASES = (("inputs", INPUTS_BASE, "input"), ("stats", STATS_BASE, "input"),
                ("commands", COMMANDS_BASE, "holding"))
 
 
-class ModbusExportError(PfmaError):
+class ModbusExportError(ModbusServerError):
     """The Modbus export could not start (port in use, bad address, buffer missing)."""
 
 
@@ -429,82 +426,6 @@ class _AreaView:
 # the server thread (same approach as fakes/modbus_gateway.py)
 
 
-class ModbusServerThread:
-    """A pymodbus ``ModbusTcpServer`` for one ``SimDevice`` in a background thread.
-
-    :param make_device: called on the server thread to build the ``SimDevice``
-    :param host: address to bind
-    :param port: TCP port, 0 for an ephemeral one (:attr:`port` after :meth:`start`)
-    """
-
-    def __init__(self, make_device: Callable[[], SimDevice], host: str, port: int,
-                 name: str = "modbus-server") -> None:
-        self.make_device = make_device
-        self.host = host
-        self.port = port
-        self.name = name
-        self._ready = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._server: ModbusTcpServer | None = None
-        self._error: BaseException | None = None
-
-    def _run(self) -> None:
-        self._loop = asyncio.new_event_loop()
-        asyncio.set_event_loop(self._loop)
-
-        async def main() -> None:
-            self._server = ModbusTcpServer(self.make_device(), address=(self.host, self.port))
-            await self._server.serve_forever(background=True)
-            if self._server.transport is None:  # pymodbus logs the bind error and returns
-                raise OSError(f"could not listen on {self.host}:{self.port}")
-            self.port = self._server.transport.sockets[0].getsockname()[1]
-            self._ready.set()
-            await self._server.serving  # resolved by shutdown()
-
-        try:
-            self._loop.run_until_complete(main())
-        except BaseException as err:  # noqa: BLE001 - reported to start()
-            self._error = err
-            self._ready.set()
-        finally:
-            self._loop.close()
-
-    def start(self, timeout_s: float = 5.0) -> int:
-        """Start listening; returns the bound port once it is bound."""
-        if self._thread is not None:
-            raise RuntimeError(f"{self.name} already started")
-        self._error = None
-        self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
-        self._thread.start()
-        if not self._ready.wait(timeout_s):
-            raise ModbusExportError(f"{self.name} did not start within {timeout_s} s")
-        if self._error is not None:
-            self._thread.join(timeout_s)
-            self._thread = None
-            raise ModbusExportError(f"{self.name} on {self.host}:{self.port} failed to start: "
-                                    f"{self._error}") from self._error
-        return self.port
-
-    def stop(self, timeout_s: float = 5.0) -> None:
-        """Shut the server down and join its thread (the port can be re-bound at once)."""
-        if self._thread is None:
-            return
-        if self._server is not None and self._loop is not None and not self._loop.is_closed():
-            try:
-                asyncio.run_coroutine_threadsafe(self._server.shutdown(), self._loop).result(timeout_s)
-            except RuntimeError:  # loop already finished
-                pass
-        self._thread.join(timeout_s)
-        self._thread = None
-        self._server = None
-        self._ready.clear()
-
-    @property
-    def running(self) -> bool:
-        return self._thread is not None and self._thread.is_alive()
-
-
 # ----------------------------------------------------------------------------------------
 # the export
 
@@ -634,7 +555,7 @@ class ModbusExport:
                 self._client = Client.attach(self.buffer_name, writer="commands", owner=self.owner,
                                              layout=self.layout, path=path)
             self._views = {n: _AreaView(self._buf, n) for n in ("inputs", "stats", "commands")}
-            server = ModbusServerThread(self._device, self.host, self._port,
+            server = ModbusServerThread(self._device, self.host, self._port, error=ModbusExportError,
                                         name=f"modbus-export-{self.buffer_name}")
             server.start(timeout_s)
             self._server = server
