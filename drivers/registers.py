@@ -7,6 +7,7 @@ is visible in one place and can be corrected in one edit.
 
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass, field
 
 
@@ -93,3 +94,15 @@ def register_name(desc: BoardDescription, offset: int) -> str:
     if r.count > 1:
         return f"{r.name}[{(offset - r.offset) // (r.width // 8)}]"
     return r.name
+
+
+def check_channel(board: str, base: int, channel: int, n_channels: int) -> int:
+    """``channel`` as an int in 0..n_channels-1, or ValueError naming board and address."""
+    try:
+        ch = operator.index(channel)
+    except TypeError:
+        ch = -1
+    if not 0 <= ch < n_channels:
+        raise ValueError(f"{board} (A16 0x{base:04X}): channel {channel!r} "
+                         f"out of range 0..{n_channels - 1}")
+    return ch

@@ -7,12 +7,11 @@ polled with a bounded number of CSR reads, so a dead converter raises
 
 from __future__ import annotations
 
-import operator
 
 import numpy as np
 
 from drivers.adc.registers import AUTOINC, BUSY, CSR, DATA, DVME611, EOC, N_CHANNELS, START
-from drivers.registers import register_name
+from drivers.registers import check_channel, register_name
 from pfma.errors import BoardError, BusError
 
 _EOC = EOC.mask
@@ -61,14 +60,7 @@ class Dvme611:
         return err.with_context(self.name, reg)
 
     def _check_channel(self, channel: int) -> int:
-        try:
-            ch = operator.index(channel)
-        except TypeError:
-            ch = -1
-        if not 0 <= ch < N_CHANNELS:
-            raise ValueError(f"{self.name} (A16 0x{self.base:04X}): channel {channel!r} "
-                             f"out of range 0..{N_CHANNELS - 1}")
-        return ch
+        return check_channel(self.name, self.base, channel, N_CHANNELS)
 
     def _no_eoc(self, channel: int, csr: int) -> BoardError:
         what = "busy stuck" if csr & _BUSY else "no EOC"

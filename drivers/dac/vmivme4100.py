@@ -15,6 +15,7 @@ import numpy as np
 
 from drivers.dac.registers import (CTRL_MASK, DATA_MASK, DISABLE_WORD, ENABLE_WORD, N_CHANNELS,
                                    P3_ENABLE, VMIVME4100)
+from drivers.registers import check_channel
 from pfma.errors import BusError
 
 _MAX_CODE = DATA_MASK
@@ -55,14 +56,7 @@ class Vmivme4100:
         return err.with_context(self.name, reg)
 
     def _check_channel(self, channel: int) -> int:
-        try:
-            ch = operator.index(channel)
-        except TypeError:
-            ch = -1
-        if not 0 <= ch < N_CHANNELS:
-            raise ValueError(f"{self.name} (A16 0x{self.base:04X}): channel {channel!r} "
-                             f"out of range 0..{N_CHANNELS - 1}")
-        return ch
+        return check_channel(self.name, self.base, channel, N_CHANNELS)
 
     # -- scaling -------------------------------------------------------------------------
     def code_from_volts(self, volts: float, *, clamp: bool = False) -> int:

@@ -6,12 +6,11 @@ RegisterBus (any object with ``read16``/``write16``); knows nothing of rates or 
 
 from __future__ import annotations
 
-import operator
 from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.registers import register_name
+from drivers.registers import check_channel, register_name
 from drivers.rtd.registers import ANGLE, CONTROL, N_CHANNELS, STATUS, VMIVME4940
 from pfma.errors import BusError
 
@@ -59,14 +58,7 @@ class Vmivme4940:
         return err.with_context(self.name, register_name(VMIVME4940, err.addr - self.base))
 
     def _check_channel(self, channel: int) -> int:
-        try:
-            ch = operator.index(channel)
-        except TypeError:
-            ch = -1
-        if not 0 <= ch < N_CHANNELS:
-            raise ValueError(f"{self.name} (A16 0x{self.base:04X}): channel {channel!r} "
-                             f"out of range 0..{N_CHANNELS - 1}")
-        return ch
+        return check_channel(self.name, self.base, channel, N_CHANNELS)
 
     # -- scaling (the ONE place that knows how an angle sits in its word) ----------
     def counts_from_word(self, word: int) -> int:
