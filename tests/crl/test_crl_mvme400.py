@@ -10,9 +10,8 @@ from drivers.crl import crl_codec as codec
 from fakes.crl import FakeCrlMaster
 from pfma.rack import load_rack
 
-mvme400 = pytest.importorskip("drivers.mvme400")
-fakes_rack = pytest.importorskip("fakes.rack")
-pytest.importorskip("fakes.mvme400")
+import drivers.mvme400 as mvme400
+import fakes.rack as fakes_rack
 
 POLL_S = 0.0005  # under one character time (0.52 ms) at 19200: the 3-deep FIFO never overruns
 

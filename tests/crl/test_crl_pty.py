@@ -247,7 +247,7 @@ def _wait_until(cond, port, timeout_s=3.0):
 
 
 def test_real_time_behind_ptydevice():
-    pty = pytest.importorskip("fakes.pty")
+    import fakes.pty as pty
     fake = FakeCrlMaster(axes_fn=lambda t: (0.25, -0.5, 0.0, 0.0, 0.0, 0.75))
     with pty.PtyDevice(fake, baud=codec.BAUD) as dev:
         drv = CrlHandController.open(dev.port_name, MonotonicClock())

@@ -12,9 +12,8 @@ from pfma.rack import load_rack
 
 from .conftest import ground_truth_check, safe_load
 
-mvme400 = pytest.importorskip("drivers.mvme400")
-fakes_rack = pytest.importorskip("fakes.rack")
-pytest.importorskip("fakes.mvme400")
+import drivers.mvme400 as mvme400
+import fakes.rack as fakes_rack
 
 
 @pytest.fixture
