@@ -59,7 +59,7 @@ LINK_FAULT, LINK_STALE = 4, 8
 #: controller frames without a new service frame before the service counts as lost
 STALE_FRAMES = 4
 #: consecutive frames the service must flag the F/T link stale/faulted before it counts
-#: (assumed: 4 frames = 12.5 ms on top of the service's 50 ms stale age, so that one late
+#: (assumed: 4 frames = 12.5 ms on top of the service's 100 ms stale age, so that one late
 #: record on a busy host does not stop the arm; a dead link still trips in 62.5 ms)
 FT_BAD_FRAMES = 4
 #: time the init task waits for healthy inputs, the start-up task for ARMED (assumed)

@@ -49,8 +49,10 @@ DAC_CLIPPED, DAC_FORCED_SAFE = 1, 2
 FAULT_NONE, FAULT_WATCHDOG, FAULT_DAC, FAULT_INPUTS, FAULT_UNEXPECTED = 0, 1, 2, 3, 4
 #: consecutive failing samples of an input board before the outputs are made safe
 INPUT_FAULT_FRAMES = 3
-#: F/T record older than this is flagged stale (4 F/T periods)
-FT_STALE_S = 0.05
+#: F/T record older than this is flagged stale: 8 F/T periods. Assumed: long enough to
+#: ride through a development VM's 10-50 ms host stalls (each costs a burst of lost bytes
+#: on the 3-deep FIFO), short enough that a dead sensor stops force control within 0.1 s.
+FT_STALE_S = 0.1
 #: current-limit volts above which the amplifier releases the brake (pfma-model 8.4, assumed)
 BRAKE_RELEASE_V = 0.5
 
