@@ -641,6 +641,45 @@ def layout_markdown(layout: Layout | None = None) -> str:
         "8 bytes are its sequence counter (even = stable, odd = write in progress); the body "
         "follows at +64. Readers copy the body and re-check the counter.",
         "",
+        "## Attaching without the project's code",
+        "",
+        "Everything an independent reader (any language) needs; `pfma layout --json` gives the "
+        "same areas and fields as JSON (`areas[]`: name, offset, size, body_offset, body_size, "
+        "seqlocked; `fields[]`: name, area, offset, dtype, shape, nbytes, units; offsets are "
+        "from the start of the buffer, also for fields inside a body).",
+        "",
+        "1. **Where.** `pfma serve --buffer NAME` (default `pfma`) creates POSIX shared memory "
+        f"`NAME`, on Linux the file `/dev/shm/NAME`, exactly {lay.size} bytes. Open it "
+        "read-only and map it shared (`mmap(PROT_READ, MAP_SHARED)`). Never write to an area "
+        "you have not claimed.",
+        f"2. **Check.** `magic` (offset 0) is `{MAGIC.decode()}` and the 8 `layout_hash` bytes "
+        "(offset 24) are the layout hash above (as hex); otherwise the layout differs: stop.",
+        "3. **Read an area (sequence lock).** The counter is the naturally aligned little-endian "
+        "`<u8` at the area's `offset`; read it with one 8-byte load. Loop: `s1` = counter; if "
+        "`s1` is odd a write is in progress, retry; copy `body_size` bytes from `body_offset`; "
+        "`s2` = counter; accept the copy only if `s2 == s1`, else retry. Decode fields from "
+        "the copy, never from the live memory. The writer sets the counter to `s+1`, writes "
+        "the body and sets it to `s+2`, so a copy taken between two equal even values is one "
+        "whole frame. x86-64 keeps loads in order; on a weakly ordered CPU put an acquire "
+        "fence after the first load and before the second. Bound the retries: a counter odd "
+        "for more than about 0.1 s means the writer died mid-write (check the owner's `pid` "
+        "in `owners[i]`).",
+        "4. **Clock.** Every `t_*` / `*_t_s` time is the service clock in seconds: "
+        "`CLOCK_MONOTONIC` in `pfma serve` (Python `time.monotonic()`), simulated time in tests.",
+        "5. **What refreshes when.** The service publishes the `inputs` area once per minor frame "
+        "that it runs (320 Hz by default): `inputs.frame` goes up by 1 per frame and jumps by "
+        "more than 1 when frames were dropped (a host stall; counted in `stats.dropped_frames`). "
+        "A sample time changes exactly when that input was sampled or that output applied: "
+        "`t_rtd_s` (resolvers, 160 Hz), `t_adc_s` (ADC scan, 160 Hz), `t_ft_s` (a new F/T "
+        "record, 80 Hz), `t_dac_s` (DAC written, every frame, 320 Hz), `t_pio_s` (user I/F box, "
+        "40 Hz); rates of the default schedule. The `stats` area is published twice a second: `stats.device_samples[slot]` "
+        "counts every sample or apply since start and `stats.device_t_s[slot]` is the time of "
+        "the latest (slots: the `device` rows of the channel table, "
+        + ", ".join(f"`{g}` {i}" for i, g in enumerate(DEVICE_GROUPS))
+        + "), so a reader that polls slower than a device can "
+        "still compute its exact rate: difference of `device_samples` over difference of "
+        "`stats.t_s`.",
+        "",
         "## Areas",
         "",
         "| area | offset | size | body offset | body size | writer | seqlock | contents |",

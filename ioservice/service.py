@@ -53,6 +53,10 @@ INPUT_FAULT_FRAMES = 3
 #: ride through a development VM's 10-50 ms host stalls (each costs a burst of lost bytes
 #: on the 3-deep FIFO), short enough that a dead sensor stops force control within 0.1 s.
 FT_STALE_S = 0.1
+#: attempts at the F/T start-up dialogue (mode, checksum, stream) before the link is
+#: reported faulty: one lost character garbles a reply, and on a loaded host the 3-deep
+#: MVME400 FIFO can overrun during the dialogue
+FT_START_ATTEMPTS = 3
 #: current-limit volts above which the amplifier releases the brake (pfma-model 8.4, assumed)
 BRAKE_RELEASE_V = 0.5
 
@@ -235,16 +239,30 @@ class IoService:
         """Binary records with checksum, streamed (QS); then only non-blocking reads."""
         from drivers.serial_ft.ftsensor import FtSensor
         ft = FtSensor(port, clock=self.clock, baud=baud)
-        try:
-            ft.set_mode("binary")
-            ft.set_checksum(True)
-            ft.start_stream(rate_hz=self.schedule.rate_hz("ft"))
-            port.timeout = 0  # from now on only non-blocking reads, between frames
-            self._ft = ft
-        except PfmaError as err:
-            self.init_errors.append(str(err))
-            self.post(Severity.ERROR, 120, f"F/T sensor on {where}: not streaming: {err}")
-            self._v["link_status"][self.layout.slot("link", "ft_sensor")] = LINK_FAULT
+        err = None
+        for attempt in range(1, FT_START_ATTEMPTS + 1):
+            try:
+                ft.set_mode("binary")
+                ft.set_checksum(True)
+                ft.start_stream(rate_hz=self.schedule.rate_hz("ft"))
+                port.timeout = 0  # from now on only non-blocking reads, between frames
+                self._ft = ft
+                if attempt > 1:
+                    self.post(Severity.WARNING, 122, f"F/T sensor on {where}: streaming after "
+                              f"{attempt} attempts ({str(err)[:40]})")
+                return
+            except PfmaError as e:
+                # A reply garbled by characters lost on a 3-deep FIFO (a host that did not
+                # poll the line in time) is transient: ask again, the sensor answers anew.
+                err = e
+                try:  # the sensor may be streaming already (a garbled QS echo): CR stops it
+                    ft.streaming = True
+                    ft.stop_stream()
+                except PfmaError:
+                    pass
+        self.init_errors.append(str(err))
+        self.post(Severity.ERROR, 120, f"F/T sensor on {where}: not streaming: {err}")
+        self._v["link_status"][self.layout.slot("link", "ft_sensor")] = LINK_FAULT
 
     def _wire_ft_url(self) -> None:
         """The F/T sensor on a pyserial URL (USB-serial adapter, terminal server) instead of

@@ -154,3 +154,42 @@ def test_crl_force_reflection_reaches_the_hand_controller_only_while_armed(rig):
     assert rig.reader.read_inputs().service_state == ServiceState.ARMED
     assert crl.received[-1].frame.enabled
     assert np.allclose(crl.displayed_force_n, [10.0, -5.0, 0.0], atol=0.01)
+
+
+def test_ft_start_dialogue_garbled_by_lost_characters_is_retried():
+    """Characters lost on the 3-deep MVME400 FIFO during the F/T start-up dialogue (a
+    loaded host that polled the line late) garble a reply; the service asks again and the
+    sensor streams at 80 Hz, instead of running without F/T."""
+    from fakes.world import FakeWorld
+    from ioservice.client import Client
+    from ioservice.service import IoService
+    from ioservice.shm import Bit3Buffer
+    from ioservice.ticking import TickingClock
+    from pfma.clock import SimClock
+    import uuid
+
+    name = "pfma-test-" + uuid.uuid4().hex[:8]
+    clock = SimClock()
+    world = FakeWorld(clock=clock)
+    tclock = TickingClock(clock)
+    tclock.hooks.append(world.tick)
+    world.ft.drop_next(2, after_bytes=1)  # inside the echo of the first command
+    buf = Bit3Buffer.create(name)
+    svc = reader = None
+    try:
+        svc = IoService(world.rack_config, world.bus, buf, tclock)
+        tclock.hooks.append(svc.serial_tick)
+        assert svc.init_errors == []
+        reader = Client.attach(name, clock_now=clock.now)
+        assert any(m.code == 122 and "attempts" in m.text for m in reader.messages())
+        svc.loop.run(frames=640, freeze_gc=False)
+        svc.publish_stats()
+        st = reader.read_stats()
+        assert st.device_rate_hz[reader.layout.slot("device", "ft")] == pytest.approx(80, rel=0.01)
+    finally:
+        if reader is not None:
+            reader.close()
+        if svc is not None:
+            svc.stop()
+        buf.close()
+        Bit3Buffer.unlink(name)
