@@ -120,24 +120,89 @@ class RackConfig:
 
 
 class _Lines:
-    """Finds the line of a board or channel entry in the TOML text, for error messages."""
+    """Finds the line of a board, one of its keys, or a channel entry in the TOML text.
+
+    Channel entries are counted as TOML writes them: inline tables (``{ ... }``, one line
+    each, several allowed per line, keys in any order) inside a board's ``channels``
+    array, or ``[[board.channels]]`` tables.
+    """
+
+    _HEADER = re.compile(r"^\[\[?\s*([A-Za-z0-9_.\s]+?)\s*\]\]?\s*(#.*)?$")
 
     def __init__(self, text: str) -> None:
         self.board_lines: list[int] = []
+        self.key_lines: list[dict[str, int]] = []
         self.channel_lines: list[list[int]] = []
+        in_board = in_channels = False
+        self._depth = 0  # bracket depth inside a channels = [...] array
         for n, line in enumerate(text.splitlines(), start=1):
             s = line.strip()
-            if s == "[[board]]":
-                self.board_lines.append(n)
-                self.channel_lines.append([])
-            elif self.board_lines and re.match(r"^\{\s*ch\s*=", s):
-                self.channel_lines[-1].append(n)
+            header = self._HEADER.match(s)
+            if header:
+                name = header.group(1).replace(" ", "")
+                in_channels = False
+                if s.startswith("[[") and name == "board":
+                    in_board = True
+                    self.board_lines.append(n)
+                    self.key_lines.append({})
+                    self.channel_lines.append([])
+                elif s.startswith("[[") and name == "board.channels" and in_board:
+                    self.channel_lines[-1].append(n)
+                else:
+                    in_board = False
+                continue
+            if not in_board:
+                continue
+            key = re.match(r"^([A-Za-z0-9_]+)\s*=", s)
+            if key and not in_channels:
+                self.key_lines[-1].setdefault(key.group(1), n)
+                if key.group(1) != "channels":
+                    continue
+                in_channels, self._depth = True, 0
+                s = s[key.end():]
+            if in_channels:
+                in_channels = self._scan_channels(s, n)
 
-    def of(self, board: int, channel: int | None = None) -> int | None:
+    @staticmethod
+    def _code(s: str) -> str:
+        """``s`` without string contents and comments."""
+        out, quote, i = [], None, 0
+        while i < len(s):
+            c = s[i]
+            if quote:
+                if c == "\\" and quote == '"':
+                    i += 1
+                elif c == quote:
+                    quote = None
+            elif c in "\"'":
+                quote = c
+            elif c == "#":
+                break
+            else:
+                out.append(c)
+            i += 1
+        return "".join(out)
+
+    def _scan_channels(self, s: str, n: int) -> bool:
+        """Note line ``n`` for each channel table opened on it; False once the array closed."""
+        for c in self._code(s):
+            if c in "[{":
+                if c == "{" and self._depth == 1:
+                    self.channel_lines[-1].append(n)
+                self._depth += 1
+            elif c in "]}":
+                self._depth -= 1
+                if self._depth == 0:
+                    return False
+        return True
+
+    def of(self, board: int, channel: int | None = None, key: str | None = None) -> int | None:
         if board >= len(self.board_lines):
             return None
         if channel is not None and channel < len(self.channel_lines[board]):
             return self.channel_lines[board][channel]
+        if key is not None and key in self.key_lines[board]:
+            return self.key_lines[board][key]
         return self.board_lines[board]
 
 
@@ -162,8 +227,9 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
         raise ConfigError(f"{source}: not valid TOML: {err}") from err
     lines = _Lines(text)
 
-    def fail(msg: str, board: int | None = None, channel: int | None = None):
-        line = lines.of(board, channel) if board is not None else None
+    def fail(msg: str, board: int | None = None, channel: int | None = None,
+             key: str | None = None):
+        line = lines.of(board, channel, key) if board is not None else None
         where = f"{source}:{line}" if line else source
         raise ConfigError(f"{where}: {msg}")
 
@@ -186,25 +252,27 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
                 fail(f"board entry is missing {key!r}", bi)
         name, kind = b["name"], b["kind"]
         if kind not in KINDS:
-            fail(f"board {name}: unknown device kind {kind!r}; known: {', '.join(sorted(KINDS))}", bi)
+            fail(f"board {name}: unknown device kind {kind!r}; known: {', '.join(sorted(KINDS))}", bi,
+                 key="kind")
         device, n_channels, _ = KINDS[kind]
         if b.get("device", device) != device:
-            fail(f"board {name}: kind {kind} is a {device} board, not {b['device']!r}", bi)
+            fail(f"board {name}: kind {kind} is a {device} board, not {b['device']!r}", bi, key="device")
         base = b["base"]
         if not isinstance(base, int) or not 0 <= base <= 0xFFFF:
-            fail(f"board {name}: base {base!r} is not an A16 address (0..0xFFFF)", bi)
+            fail(f"board {name}: base {base!r} is not an A16 address (0..0xFFFF)", bi, key="base")
         window = board_description(kind).window
         if base + window > 0x10000:
-            fail(f"board {name}: window 0x{base:04X}+0x{window:X} runs past the A16 space", bi)
+            fail(f"board {name}: window 0x{base:04X}+0x{window:X} runs past the A16 space", bi, key="base")
         for other in boards:
             if base < other.base + other.window and other.base < base + window:
                 fail(f"board {name} at 0x{base:04X}-0x{base + window - 1:04X} overlaps board "
-                     f"{other.name} at 0x{other.base:04X}-0x{other.base + other.window - 1:04X}", bi)
+                     f"{other.name} at 0x{other.base:04X}-0x{other.base + other.window - 1:04X}", bi,
+                     key="base")
             if other.name == name:
-                fail(f"board name {name!r} used twice", bi)
+                fail(f"board name {name!r} used twice", bi, key="name")
         rate = float(b.get("rate_hz", 0))
         if rate <= 0:
-            fail(f"board {name}: rate_hz must be positive", bi)
+            fail(f"board {name}: rate_hz must be positive", bi, key="rate_hz")
         chans: list[Channel] = []
         seen: set[int] = set()
         for ci, c in enumerate(b["channels"]):

@@ -89,7 +89,7 @@ def test_overlapping_boards_refused_naming_line():
         parse_rack(text, "rack.toml")
     msg = str(exc.value)
     assert "overlaps" in msg and "rtd1" in msg
-    assert f"rack.toml:{_line_of(text, '[[board]]', 2)}:" in msg
+    assert f"rack.toml:{_line_of(text, 'base = 0x0110')}:" in msg  # the offending key's line
 
 
 def test_channel_listed_twice_refused_naming_line():
@@ -105,7 +105,60 @@ def test_unknown_device_refused_naming_line():
     with pytest.raises(ConfigError) as exc:
         parse_rack(text, "rack.toml")
     assert "unknown device kind 'dvme999'" in str(exc.value)
-    assert f"rack.toml:{_line_of(text, '[[board]]', 4)}:" in str(exc.value)
+    line = _line_of(text, 'kind = "dvme999"')
+    assert f"rack.toml:{line}:" in str(exc.value)
+
+
+def test_device_not_matching_kind_names_its_line():
+    text = _text_with('device = "adc"', 'device = "scope"')
+    with pytest.raises(ConfigError) as exc:
+        parse_rack(text, "rack.toml")
+    assert "not 'scope'" in str(exc.value)
+    line = _line_of(text, 'device = "scope"')
+    assert f"rack.toml:{line}:" in str(exc.value)
+
+
+def test_duplicate_channel_line_with_keys_in_any_order():
+    # an entry whose first key is not ``ch`` must not shift the line of later entries
+    text = _text_with('{ ch = 0, signal = "elbow_pitch_angle",', '{ signal = "elbow_pitch_angle", ch = 0,')
+    text = text.replace('{ ch = 3, signal = "wrist_roll_angle"', '{ ch = 2, signal = "wrist_roll_angle"', 1)
+    with pytest.raises(ConfigError) as exc:
+        parse_rack(text, "rack.toml")
+    assert "channel 2 listed twice" in str(exc.value)
+    assert f"rack.toml:{_line_of(text, 'wrist_roll_angle')}:" in str(exc.value)
+
+
+def test_duplicate_channel_line_with_two_entries_on_one_line():
+    text = _text_with('units = "rad" },\n  { ch = 1, signal = "wrist_yaw_angle"',
+                      'units = "rad" }, { ch = 1, signal = "wrist_yaw_angle"')
+    text = text.replace('{ ch = 3, signal = "wrist_roll_angle"', '{ ch = 1, signal = "wrist_roll_angle"', 1)
+    with pytest.raises(ConfigError) as exc:
+        parse_rack(text, "rack.toml")
+    assert "channel 1 listed twice" in str(exc.value)
+    assert f"rack.toml:{_line_of(text, 'wrist_roll_angle')}:" in str(exc.value)
+
+
+def test_duplicate_channel_line_in_array_of_tables_form():
+    text = """[[board]]
+name = "rtd1"
+kind = "vmivme4940"
+base = 0x0100
+rate_hz = 160
+
+[[board.channels]]
+ch = 0
+signal = "a_angle"
+label = "A"
+units = "rad"
+
+[[board.channels]]
+signal = "b_angle"
+ch = 0
+label = "B"
+units = "rad"
+"""
+    with pytest.raises(ConfigError, match=r"^rack.toml:13: board rtd1: channel 0 listed twice"):
+        parse_rack(text, "rack.toml")
 
 
 @pytest.mark.parametrize("old,new,words", [
