@@ -2,11 +2,15 @@
 
 Register model: ``drivers.adc.registers.DVME611`` (R3, assumed). Conversions are
 polled with a bounded number of CSR reads, so a dead converter raises
-:class:`~pfma.errors.BoardError` instead of hanging the I/O loop.
+:class:`~pfma.errors.BoardError` instead of hanging the I/O loop. The bound is
+``max_polls`` reads **and** at least ``min_wait_s`` of wall-clock time: a board (or
+a model of one) whose 4 us conversion runs on real time must not be declared stuck
+just because the polls came faster than 4 us apart.
 """
 
 from __future__ import annotations
 
+import time
 
 import numpy as np
 
@@ -29,13 +33,17 @@ class Dvme611:
     :param name: board name for messages (default ``dvme611@0xBASE``)
     :param range_volts: bipolar input range, +-range_volts offset binary
     :param max_polls: CSR reads allowed per conversion before giving up (BoardError)
+    :param min_wait_s: after ``max_polls`` reads without EOC, keep polling until this much
+        wall-clock time has passed (0 = give up after exactly ``max_polls`` reads); one last
+        read is always made after the deadline, so a conversion that ended is never missed
+    :param timer: wall-clock seconds for ``min_wait_s`` (default ``time.perf_counter``)
     """
 
     description = DVME611
     n_channels = N_CHANNELS
 
     def __init__(self, bus, base: int, name: str | None = None, *, range_volts: float = 10.0,
-                 max_polls: int = 64) -> None:
+                 max_polls: int = 64, min_wait_s: float = 50e-6, timer=time.perf_counter) -> None:
         if not range_volts > 0:
             raise ValueError(f"range_volts must be positive, not {range_volts!r}")
         if max_polls < 1:
@@ -44,7 +52,11 @@ class Dvme611:
         self.base = base
         self.name = name or f"{DVME611.kind}@0x{base:04X}"
         self.range_volts = float(range_volts)
+        if not min_wait_s >= 0:
+            raise ValueError(f"min_wait_s must be >= 0, not {min_wait_s!r}")
         self.max_polls = int(max_polls)
+        self.min_wait_s = float(min_wait_s)
+        self._timer = timer
         self.lsb_volts = 2.0 * self.range_volts / DVME611.constants["full_scale_counts"]
         self.zero_code = DVME611.constants["full_scale_counts"] // 2
         self._csr = base + CSR.offset
@@ -62,11 +74,12 @@ class Dvme611:
     def _check_channel(self, channel: int) -> int:
         return check_channel(self.name, self.base, channel, N_CHANNELS)
 
-    def _no_eoc(self, channel: int, csr: int) -> BoardError:
+    def _no_eoc(self, channel: int, csr: int, polls: int) -> BoardError:
         what = "busy stuck" if csr & _BUSY else "no EOC"
+        waited = f" and {self.min_wait_s * 1e6:g} us" if self.min_wait_s else ""
         return BoardError(
             f"{self.name}: {what} converting channel {channel}: CSR at A16 0x{self._csr:04X} "
-            f"= 0x{csr:04X} after {self.max_polls} polls")
+            f"= 0x{csr:04X} after {polls} polls{waited}")
 
     # -- conversion ---------------------------------------------------------------------
     def _convert(self, channel: int) -> int:
@@ -80,17 +93,34 @@ class Dvme611:
             if csr & _EOC:
                 break
         else:
-            raise self._no_eoc(channel, csr)
+            csr = self._wait_eoc_slow(channel, csr)
         if csr & _CH != channel:
             raise BoardError(f"{self.name}: CSR at A16 0x{csr_addr:04X} selects channel {csr & _CH}, "
                              f"expected {channel} (auto-increment out of step)")
         return r16(self._data) & _CODE
 
+    def _wait_eoc_slow(self, channel: int, csr: int) -> int:
+        """``max_polls`` reads saw no EOC: poll on until ``min_wait_s`` has passed, then fail."""
+        polls = self.max_polls
+        if self.min_wait_s > 0:
+            timer = self._timer
+            deadline = timer() + self.min_wait_s
+            while True:
+                expired = timer() >= deadline  # checked BEFORE the read: the
+                csr = self.bus.read16(self._csr)  # last read always follows the deadline
+                polls += 1
+                if csr & _EOC:
+                    return csr
+                if expired:
+                    break
+        raise self._no_eoc(channel, csr, polls)
+
     def read_counts(self, channel: int) -> int:
         """Convert one channel; returns the 12-bit code (offset binary).
 
         :raises ValueError: channel outside 0..31
-        :raises BoardError: no end of conversion within ``max_polls`` CSR reads
+        :raises BoardError: no end of conversion within ``max_polls`` CSR reads and
+            ``min_wait_s`` seconds
         :raises BusError: naming the board, register, channel and address
         """
         ch = self._check_channel(channel)

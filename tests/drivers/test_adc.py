@@ -92,7 +92,12 @@ def test_busy_stuck_raises_board_error_not_hang(rig):
         adc.read_counts(7)
     msg = str(exc.value)
     assert "busy stuck" in msg and "adc" in msg and "channel 7" in msg and "0xC000" in msg
-    assert len(_csr_reads(fake, start)) == adc.max_polls  # bounded
+    assert len(_csr_reads(fake, start)) >= adc.max_polls  # bounded by polls and wall time
+    exact = Dvme611(rack, BASE, name="adc", min_wait_s=0)
+    start = len(fake.traffic)
+    with pytest.raises(BoardError, match=r"after 64 polls$"):
+        exact.read_counts(7)
+    assert len(_csr_reads(fake, start)) == exact.max_polls  # min_wait_s=0: polls only
     with pytest.raises(BoardError, match="busy stuck converting channel 0"):
         adc.scan()
     fake.clear("busy_stuck")
@@ -103,7 +108,7 @@ def test_busy_stuck_raises_board_error_not_hang(rig):
 def test_missing_eoc_raises_no_eoc(rig):
     rack, fake, adc = rig
     fake.inject("stuck_bit", register="CSR", bit=15, value=0)
-    small = Dvme611(rack, BASE, name="adc", max_polls=8)
+    small = Dvme611(rack, BASE, name="adc", max_polls=8, min_wait_s=0)
     with pytest.raises(BoardError, match=r"adc: no EOC converting channel 3: CSR at A16 0xC000"):
         small.read_counts(3)
 
@@ -157,6 +162,8 @@ def test_constructor_arguments(rig):
     rack, fake, adc = rig
     with pytest.raises(ValueError):
         Dvme611(rack, BASE, max_polls=0)
+    with pytest.raises(ValueError):
+        Dvme611(rack, BASE, min_wait_s=-1.0)
     five = Dvme611(rack, BASE, range_volts=5.0)
     assert five.volts_from_counts(0xFFF) == pytest.approx(5.0 - 10.0 / 4096)
     assert five.name == "dvme611@0xC000"
