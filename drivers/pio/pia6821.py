@@ -5,7 +5,11 @@ the data direction registers, with b2 = 1 the peripheral data registers
 (``mamedev/mame: src/devices/machine/6821pia.cpp``, copied in ``drivers.pio.registers``).
 The driver keeps a shadow of the writable control bits (b5..b0) it wrote, so it can
 change C2 without reading the control register back (the VME/10 ``bios.c`` printer
-driver writes constant control values the same way).
+driver writes constant control values the same way). Until the driver has written a
+control register itself it does not know it: the first port access or C2 change then
+reads CRx once (a control read has no side effects) and keeps every bit the board
+already holds, so a checkout tool (``pfma read``) on a rack another program set up
+does not reset C2 or the C1 edge.
 """
 
 from __future__ import annotations
@@ -48,6 +52,7 @@ class Pia6821:
         self._data = {"a": pra, "b": prb}
         self._ctrl = {"a": cra, "b": crb}
         self._cr = {"a": 0x00, "b": 0x00}  # shadow of CR b5..b0 as last written
+        self._cr_known = {"a": False, "b": False}  # shadow valid (written or read back)
         self._ddr = {"a": 0x00, "b": 0x00}  # DDR as last configured (reset: all inputs)
 
     # -- bus helpers ------------------------------------------------------------------
@@ -82,6 +87,14 @@ class Pia6821:
         value &= CR_WRITABLE
         self._write(self._ctrl[side], value, side, True)
         self._cr[side] = value
+        self._cr_known[side] = True
+
+    def _current_cr(self, s: str) -> int:
+        """CR b5..b0: the shadow, or (first use, nothing written yet) read from the board."""
+        if not self._cr_known[s]:
+            self._cr[s] = self._read(self._ctrl[s], s, True) & CR_WRITABLE
+            self._cr_known[s] = True
+        return self._cr[s]
 
     # -- configuration ------------------------------------------------------------
     def configure(self, side: str, ddr: int, c2_mode: str = "in_falling", *,
@@ -115,8 +128,9 @@ class Pia6821:
         return self._ddr[self._side(side)]
 
     def _select_data(self, s: str) -> None:
-        if not self._cr[s] & CR_DATA:
-            self._write_cr(s, self._cr[s] | CR_DATA)
+        cr = self._current_cr(s)
+        if not cr & CR_DATA:
+            self._write_cr(s, cr | CR_DATA)
 
     # -- ports --------------------------------------------------------------------
     def read_port(self, side: str) -> int:
@@ -158,7 +172,7 @@ class Pia6821:
             c2 = C2_MODES[c2_mode]
         except KeyError:
             raise ValueError(f"{self.name}: unknown C2 mode {c2_mode!r}; known: {', '.join(C2_MODES)}") from None
-        self._write_cr(s, (self._cr[s] & ~C2_MASK) | c2)
+        self._write_cr(s, (self._current_cr(s) & ~C2_MASK) | c2)
 
     def set_c2(self, side: str, level: bool) -> None:
         """Drive C2 to ``level`` in set/reset mode (CR b5 = b4 = 1, b3 = level)."""

@@ -174,3 +174,24 @@ def test_bus_errors_name_board_register_address(rack, call, words):
     with pytest.raises(BusError) as exc:
         call(rack)
     assert words in str(exc.value)
+
+
+def test_fresh_pio_driver_reads_without_resetting_control_lines(rack):
+    """A second program (``pfma read``) reading a port the service configured must keep
+    the control register: before, its driver wrote CRA = 0x04 (C2 to input, strobe line
+    released) because its own shadow of CRA was the reset value."""
+    from pfma.rack import load_rack
+    from pfma.rackio import RackIO
+
+    service = Mvme410(rack, 0x0020, name="pio_video")
+    service.configure(["out", "in", "in", "in"])
+    service.write_matrix_route(0x0E)
+    pia = rack.pio_video.pia1
+    assert pia.cr["a"] == 0x3C and pia.c2["a"] == 1
+    reading = RackIO(rack, load_rack()).read_signal("matrix_switcher_route")
+    assert reading.raw == 0x0E
+    assert pia.cr["a"] == 0x3C and pia.c2["a"] == 1  # CA2 still an output, held high
+    assert rack.pio_video.routes == [0x0E]  # no spurious strobe
+    # a fresh driver on a board nobody configured still selects the data register
+    other = Mvme410(rack, 0x0040, name="pio_user")
+    assert other.read_port(0) == 0xFF and rack.pio_user.pia1.cr["a"] == 0x04
