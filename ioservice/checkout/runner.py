@@ -38,6 +38,13 @@ from pfma.errors import PfmaError
 RTD_BITS = {1: "loss of signal", 2: "no reference", 0x100: "board read failed"}
 LINK_BITS = {LINK_OPEN: "open", LINK_SYNCED: "synced", LINK_FAULT: "fault", LINK_STALE: "stale"}
 BOARD_BITS = {BOARD_OK: "ok", 2: "init", BOARD_FAULT: "fault"}
+#: open-loop test: the motor-current monitor's peak-to-peak while a joint is driven must
+#: reach this fraction of the test's current limit ([joints] min_current_fraction); the
+#: simulated arm reaches the limit itself while accelerating
+MIN_CURRENT_FRACTION = 0.1
+#: a tach whose samples span less than this fraction of the commanded rate while the
+#: resolver shows the joint moving is reported as dead or stuck rather than reversed
+STUCK_TACH_FRACTION = 0.1
 
 GROUP_TITLES = {
     "resolvers": "resolvers valid and quiet",
@@ -458,6 +465,12 @@ class Checkout:
         agree = float(cfg.joint(j, "tach_resolver_tolerance"))
         max_factor = float(cfg.joint(j, "max_travel_factor"))
         dt = self.cfg.num("capture", "interval_s")
+        # the joint's motor-current monitor must respond while the joint is driven: a dead
+        # ADC input reads a constant (0 V passes the idle range) and only shows here
+        current = f"{j}_motor_current"
+        if current not in {c.name for c in self.lay.channels}:
+            current = ""
+        min_current = float(cfg.joint_opt(j, "min_current_fraction", MIN_CURRENT_FRACTION)) * i_lim
         cmd = self.t.commander()
         rates = [0.0] * len(jn)
         limits = [0.0] * n_lim
@@ -489,6 +502,7 @@ class Checkout:
                 rates[ji] = v
                 cmd.set(joint_rate_rad_s=rates)
                 samples: list[tuple[float, float]] = []
+                currents: list[float] = []
                 runaway = ""
                 while self.t.now() - t0 < move_s:
                     self.t.wait(dt)
@@ -500,6 +514,8 @@ class Checkout:
                     tach_integral += 0.5 * (x + x_prev) * (now - t_prev)
                     a_prev, x_prev, t_prev = a, x, now
                     samples.append((now - t0, x))
+                    if current:
+                        currents.append(float(s.value(current)))
                     if abs(travel) > max_factor * abs(expected):
                         runaway = (f"runaway: {travel:+.4f} rad after {now - t0:.2f} s, more than "
                                    f"{max_factor:g} x the expected {expected:+.4f} rad; outputs made safe")
@@ -513,11 +529,28 @@ class Checkout:
                 win = xs[ts >= ts[-1] * (1.0 - float(cfg.joint(j, "tach_window")))] if len(xs) else xs
                 mean_tach = float(np.mean(win)) if len(win) else math.nan
                 t_lo, t_hi = sorted((v * r_lo, v * r_hi))
+                # a tach that does not change while the joint is driven is dead or stuck, not
+                # reversed (a dead input held at a few mV would otherwise read "reversed")
+                swing = float(np.ptp(xs)) if len(xs) else 0.0
+                travelled = abs(travel) >= r_lo * abs(expected)
+                stuck = travelled and swing < STUCK_TACH_FRACTION * abs(v)
+                diag = ""
+                if stuck:
+                    diag = (f"; TACH NOT RESPONDING (dead or stuck input: it moved {swing:.3g} rad/s "
+                            f"while the resolver travelled {travel:+.4f} rad)")
+                elif mean_tach * v < 0:
+                    diag = "; TACH POLARITY REVERSED"
                 self.record("joints", tach, f"open-loop rate {tag}", t_lo <= mean_tach <= t_hi and not runaway,
                             round(mean_tach, 5), round(t_lo, 5), round(t_hi, 5), "rad/s",
-                            f"commanded {v:+.4g} rad/s at a {i_lim:.2f} A limit"
-                            + ("; TACH POLARITY REVERSED" if mean_tach * v < 0 else "")
+                            f"commanded {v:+.4g} rad/s at a {i_lim:.2f} A limit" + diag
                             + (f"; {runaway}" if runaway else ""))
+                if current and not runaway:
+                    span = float(np.ptp(currents)) if currents else 0.0
+                    self.record("joints", current, f"motor current responds {tag}", span >= min_current,
+                                round(span, 4), round(min_current, 4), None, "A",
+                                f"peak-to-peak while driven at {v:+.4g} rad/s (limit {i_lim:.2f} A)"
+                                + ("" if span >= min_current else
+                                   "; MOTOR CURRENT NOT RESPONDING (dead input or amplifier monitor)"))
                 x_lo, x_hi = sorted((expected * r_lo, expected * r_hi))
                 self.record("joints", angle, f"open-loop travel {tag}", x_lo <= travel <= x_hi and not runaway,
                             round(travel, 5), round(x_lo, 5), round(x_hi, 5), "rad",

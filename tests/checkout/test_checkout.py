@@ -82,6 +82,7 @@ def test_healthy_rack_passes_with_json_and_html_reports(tmp_path, capsys):
             assert (f"{j}_rate", f"open-loop rate {sign}") in rows
             assert (f"{j}_angle", f"open-loop travel {sign}") in rows
         assert (j, "disarm") in rows
+        assert (f"{j}_motor_current", "motor current responds +") in rows
     # measured values, limits and units are in the report
     ft = next(r for r in res if r["channel"] == "ft_sensor" and r["check"] == "record rate")
     assert ft["measured"] >= 75 and ft["low"] == 75 and ft["units"] == "records/s"
@@ -131,6 +132,22 @@ def test_dead_tach_at_zero_volts_passes_idle_but_fails_the_open_loop_test(sim, c
     f = first_failure(rep)
     assert (f.group, f.channel, f.check) == ("joints", "wrist_pitch_rate", "open-loop rate +")
     assert f.measured == 0
+    assert "TACH NOT RESPONDING" in f.detail and "REVERSED" not in f.detail
+    outputs_safe(sim)
+
+
+def test_dead_motor_current_at_zero_volts_passes_idle_but_fails_when_driven(sim, cfg):
+    sim.world.sim.set_errors(replace(sim.world.sim.errors, adc_gain_error={"elbow_pitch_motor_current": -1.0}))
+    rep, _ = run(sim, cfg)
+    idle = next(r for r in rep.results if r.channel == "elbow_pitch_motor_current" and r.group == "adc")
+    assert idle.status == PASS
+    f = first_failure(rep)
+    assert (f.group, f.channel, f.check) == ("joints", "elbow_pitch_motor_current", "motor current responds +")
+    assert f.measured == 0 and f.low > 0 and f.units == "A"
+    assert "MOTOR CURRENT NOT RESPONDING" in f.detail
+    # the joints driven before it showed their currents responding
+    ok = {r.channel for r in rep.results if r.check.startswith("motor current responds") and r.status == PASS}
+    assert "shoulder_yaw_motor_current" in ok
     outputs_safe(sim)
 
 
