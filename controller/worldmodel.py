@@ -198,14 +198,22 @@ class VarSpec:
                                   f"variable holds a valid value after initialisation): {err}") from None
         object.__setattr__(self, "initial", _freeze(value))
         object.__setattr__(self, "protected", bool(self.protected))
+        # derived once: the controller reads variables thousands of times a second
+        object.__setattr__(self, "_np_dtype", np.dtype(self.dtype))
+        object.__setattr__(self, "_count", int(np.prod(self.shape, dtype=np.int64)))
 
     @property
     def np_dtype(self) -> np.dtype:
-        return np.dtype(self.dtype)
+        return self._np_dtype
+
+    @property
+    def count(self) -> int:
+        """Number of elements (1 for a scalar)."""
+        return self._count
 
     @property
     def nbytes(self) -> int:
-        return int(np.prod(self.shape, dtype=np.int64)) * self.np_dtype.itemsize
+        return self._count * self._np_dtype.itemsize
 
     @property
     def type_text(self) -> str:
@@ -235,47 +243,50 @@ def _jsonable(v: Any) -> Any:
     return v
 
 
+def _where(spec: VarSpec) -> str:
+    """The variable as named in error messages (built only when one is raised)."""
+    return f"world-model variable {spec.name!r} ({spec.type_text}" + (f" {spec.units})" if spec.units else ")")
+
+
 def coerce(spec: VarSpec, value: Any) -> np.ndarray:
     """``value`` as a C-contiguous array of the variable's dtype and shape.
 
     :raises WorldModelValueError: wrong shape, a non-number, an integer out of range or a
         fractional/bool value for an integer, a non-finite float
     """
-    where = f"world-model variable {spec.name!r} ({spec.type_text}"
-    where += f" {spec.units})" if spec.units else ")"
     dt = np.dtype(spec.dtype)
     try:
         a = np.asarray(value)
     except (ValueError, TypeError) as err:  # ragged lists
-        raise WorldModelValueError(f"{where}: {value!r} is not a regular array ({err})") from None
+        raise WorldModelValueError(f"{_where(spec)}: {value!r} is not a regular array ({err})") from None
     if a.shape != spec.shape:
         got = "a scalar" if a.shape == () else f"shape {a.shape}"
         want = "a scalar" if spec.shape == () else f"shape {spec.shape}"
-        raise WorldModelValueError(f"{where}: {got} given, {want} expected")
+        raise WorldModelValueError(f"{_where(spec)}: {got} given, {want} expected")
     k = a.dtype.kind
     if k not in "biuf":
-        raise WorldModelValueError(f"{where}: {value!r} is not a number (numpy kind {k!r})")
+        raise WorldModelValueError(f"{_where(spec)}: {value!r} is not a number (numpy kind {k!r})")
     if dt.kind == "b":
         if k != "b" and not (k in "iu" and bool(np.all((a == 0) | (a == 1)))):
-            raise WorldModelValueError(f"{where}: boolean variable needs true/false or 0/1, got {value!r}")
+            raise WorldModelValueError(f"{_where(spec)}: boolean variable needs true/false or 0/1, got {value!r}")
         return np.array(a, dtype=dt, order="C")
     if k == "b":
-        raise WorldModelValueError(f"{where}: a boolean given for a {dt.name} variable")
+        raise WorldModelValueError(f"{_where(spec)}: a boolean given for a {dt.name} variable")
     if dt.kind in "iu":
         if k == "f":
-            raise WorldModelValueError(f"{where}: a float given for an integer variable ({value!r})")
+            raise WorldModelValueError(f"{_where(spec)}: a float given for an integer variable ({value!r})")
         if a.size:
             info = np.iinfo(dt)
             lo, hi = int(a.min()), int(a.max())
             if lo < info.min or hi > info.max:
-                raise WorldModelValueError(f"{where}: {lo if lo < info.min else hi} is outside "
+                raise WorldModelValueError(f"{_where(spec)}: {lo if lo < info.min else hi} is outside "
                                            f"{dt.name} range [{info.min}, {info.max}]")
         return np.array(a, dtype=dt, order="C")
     with np.errstate(over="ignore", invalid="ignore"):
         out = np.array(a, dtype=dt, order="C")
     if not bool(np.all(np.isfinite(out))):
         bad = (a if a.shape == () else a[~np.isfinite(out)][0]).item()
-        raise WorldModelValueError(f"{where}: value {bad!r} is not finite as {dt.name}")
+        raise WorldModelValueError(f"{_where(spec)}: value {bad!r} is not finite as {dt.name}")
     return out
 
 
@@ -596,7 +607,7 @@ class WorldModel:
 
     def _decode_value(self, i: int, raw) -> Any:
         s = self._specs[i]
-        a = np.frombuffer(raw, s.np_dtype, count=int(np.prod(s.shape, dtype=np.int64)))
+        a = np.frombuffer(raw, s.np_dtype, count=s.count)
         return a[0] if s.shape == () else a.reshape(s.shape).copy()
 
     def _read(self, fn):
