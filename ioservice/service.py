@@ -10,8 +10,9 @@ from its command area; ``ioservice.safety.OutputGuard`` decides whether they may
 reach the DAC.
 
 Serial lines are drained between frames by the ``TickingClock`` hook
-(:meth:`IoService.serial_tick`), never inside a frame: their FIFOs are 3
-characters deep and fill in 1.56 ms at 19200 baud.
+(:meth:`IoService.serial_tick`), at the start and end of each frame and between its
+tasks when the frame runs long: their FIFOs are 3 characters deep and fill in
+1.56 ms at 19200 baud. Decoding happens only in the F/T and hand tasks.
 
 The service knows schedules, the buffer and safety; it asks the rack
 configuration for channels and the drivers for registers, and never uses a
@@ -57,6 +58,11 @@ FT_STALE_S = 0.1
 #: reported faulty: one lost character garbles a reply, and on a loaded host the 3-deep
 #: MVME400 FIFO can overrun during the dialogue
 FT_START_ATTEMPTS = 3
+#: serial FIFO drains (``IoService.serial_tick``) closer together than this are skipped: at
+#: 19200 baud the MVME400's 3-character Rx FIFO takes 1.56 ms to fill, so with a drain at
+#: each task boundary a task may take up to about 1.1 ms (a 32-channel ADC scan on a busy
+#: host) without losing characters
+SERIAL_MIN_GAP_S = 0.0004
 #: current-limit volts above which the amplifier releases the brake (pfma-model 8.4, assumed)
 BRAKE_RELEASE_V = 0.5
 
@@ -125,6 +131,7 @@ class IoService:
         self._ft_latest = None
         self._crl_latest = None
         self._mvme400 = None
+        self._last_drain = -math.inf  # clock time of the last serial FIFO drain
         self._ft_url = ft_port
         if serial:
             self._wire_serial()
@@ -356,28 +363,31 @@ class IoService:
         """One minor frame: inputs due in this frame (and in frames just dropped), then the
         DAC, then one consistent publish of the input area."""
         k = info.index
-        self.serial_tick(info.t_wake)  # the 3-deep serial FIFOs: drain on both sides of the work
+        self.serial_tick()  # the 3-deep serial FIFOs: drain on both sides of the work
         mask = self._frame_masks[k % MINOR_FRAMES_PER_MAJOR]
         for j in range(1, min(info.missed, MINOR_FRAMES_PER_MAJOR) + 1):
             mask |= self._frame_masks[(k - j) % MINOR_FRAMES_PER_MAJOR]
         try:
             if mask & 1:
                 self._task_rtd()
+                self._drain_if_due()  # a slow input scan must not overrun the FIFOs
             if mask & 2:
                 self._task_adc()
+                self._drain_if_due()
             if mask & 4:
                 self._task_ft()
             if mask & 8:
                 self._task_hand()
             if mask & 16:
                 self._task_pio()
+            self._drain_if_due()
             self._task_dac()
         except Exception as err:  # noqa: BLE001 - a fault we cannot explain: outputs safe
             self.fault_code = FAULT_UNEXPECTED
             self.guard.trip(f"unexpected {type(err).__name__} in frame {k}: {err}", code=FAULT_UNEXPECTED)
             self._apply_safe()
         self._publish(info)
-        self.serial_tick(info.t_wake)
+        self.serial_tick()
         if k % self.stats_every == 0:
             self.publish_stats()
 
@@ -613,16 +623,27 @@ class IoService:
         self.buf.set_frame(info.index, info.t_wake)
 
     # ------------------------------------------------------------------ between frames
-    def serial_tick(self, now: float) -> None:
+    def serial_tick(self, now: float | None = None) -> None:
         """Drain the serial boards' receive FIFOs into the drivers' buffers (TickingClock
-        hook, between frames). Decoding happens in the F/T and hand tasks."""
+        hook between frames, and around the work inside a frame). Decoding happens in the
+        F/T and hand tasks. A drain within ``SERIAL_MIN_GAP_S`` of the previous one is
+        skipped: the FIFO cannot have filled, and every drain costs register accesses."""
         if self._mvme400 is None:
             return
+        t = self.clock.now()
+        if t - self._last_drain < SERIAL_MIN_GAP_S:
+            return
+        self._last_drain = t
         cfg, drv = self._mvme400
         try:
             drv.poll()
         except PfmaError as err:
             self._count_board_error(cfg.name, err)
+
+    def _drain_if_due(self) -> None:
+        """Inside a frame, at a task boundary: drain the serial FIFOs if ``SERIAL_MIN_GAP_S``
+        has passed since the last drain (a slow scan, or a host that preempted the frame)."""
+        self.serial_tick()
 
     def _decode_serial(self) -> None:
         try:

@@ -193,3 +193,33 @@ def test_ft_start_dialogue_garbled_by_lost_characters_is_retried():
             svc.stop()
         buf.close()
         Bit3Buffer.unlink(name)
+
+
+@pytest.mark.parametrize("drain_inside_frame", [True, False])
+def test_slow_input_scans_do_not_overrun_the_serial_fifos(rig, monkeypatch, drain_inside_frame):
+    """A host that makes the resolver board read take 0.6 ms and the 32-channel ADC scan 1.0 ms
+    (a busy VM) must not cost F/T records: the 3-deep MVME400 FIFO fills in 1.56 ms at 19200
+    baud, so the service drains it between the tasks of a long frame. Without those drains
+    (the False case) characters are lost in every record and the link never re-syncs."""
+    slow = {"adc": 1.0e-3 / 64, "rtd1": 0.6e-3 / 5}  # per read16: 64 per ADC scan, 5 per resolver read
+    accesses = dict.fromkeys(slow, 0)
+    for name, cost in slow.items():
+        board = rig.world.bus[name]
+        inner = board.read16
+
+        def slow_read16(offset, _inner=inner, _name=name, _cost=cost):
+            rig.clock.advance(_cost)
+            accesses[_name] += 1
+            return _inner(offset)
+
+        monkeypatch.setattr(board, "read16", slow_read16)
+    if not drain_inside_frame:
+        monkeypatch.setattr(rig.svc, "_drain_if_due", lambda: None)
+    rig.run(2.0)
+    assert accesses == {"adc": 64 * 320, "rtd1": 5 * 320}  # 2 s of scans at 160 Hz, all slowed
+    s = rig.reader.read_inputs()
+    link = rig.reader.layout.slot("link", "ft_sensor")
+    if drain_inside_frame:
+        assert s.link_records[link] >= 150 and s.link_bad[link] == 0
+    else:
+        assert s.link_records[link] < 10 and s.link_bad[link] >= 1
