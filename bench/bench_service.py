@@ -6,13 +6,22 @@
    boards, arm model, F/T and CRL byte models) runs inside the same process, so
    the frame work includes the fakes' register emulation; the figure is an upper
    bound on what the service itself costs.
-2. Kill the commanding process (SIGKILL) and measure, in real time, how long the DAC
+2. The same real periodic loop in this process, with the fake rack behind a
+   ``fakes.metered.MeteredBus`` and the arm model's ticks timed: each frame's work is
+   split into the fakes' register emulation (what a real rack does in hardware) and
+   the service's own work (drivers, conversions, safety, publish), and the process CPU
+   likewise. This is how perf-limits.md section 5 counts frame work ("the simulator's
+   own update is timed separately and not included"); the figures to hold against the
+   issue's 200/500 us and 10 %/20 % targets are the service's own.
+3. Median cost of each frame task, split the same way.
+4. Kill the commanding process (SIGKILL) and measure, in real time, how long the DAC
    commands take to reach 0 V: from the kill and from the last heartbeat the
    service saw, against the watchdog time plus one frame.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import subprocess
@@ -75,9 +84,67 @@ def loop_figures(rate: float, seconds: float) -> dict:
         Bit3Buffer.unlink(name)
 
 
+def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
+    """The service's real periodic loop in this process on the simulated rack, each
+    frame's work split into the fakes' register emulation and the service's own work."""
+    from fakes.metered import MeteredBus
+    from fakes.world import FakeWorld
+    from ioservice.schedule import Schedule
+    from ioservice.service import LIVE_TICK_S, IoService
+    from ioservice.ticking import TickingClock
+    from pfma.clock import MonotonicClock
+    name = "pfma-bench-" + uuid.uuid4().hex[:6]
+    base = MonotonicClock()
+    world = FakeWorld(clock=base)
+    bus = MeteredBus(world.bus)
+    clock = TickingClock(base, tick_s=LIVE_TICK_S)
+    arm_s = [0.0]
+
+    def arm_tick(now: float) -> None:
+        t0 = time.perf_counter()
+        world.tick(now)
+        arm_s[0] += time.perf_counter() - t0
+
+    clock.hooks.append(arm_tick)
+    buf = Bit3Buffer.create(name)
+    try:
+        schedule = Schedule() if rate == 320.0 else Schedule.scaled(rate)
+        svc = IoService(world.rack_config, bus, buf, clock, schedule=schedule)
+        body = svc.loop.body
+        rows: list[tuple[float, float]] = []
+        mark: dict = {}
+
+        def frame(info) -> None:
+            t0, s0 = time.perf_counter(), bus.sim_s
+            body(info)
+            if t0 >= t_measure:
+                if not mark:
+                    mark.update(cpu=time.process_time(), sim=bus.sim_s, arm=arm_s[0], t=t0)
+                rows.append((time.perf_counter() - t0, bus.sim_s - s0))
+
+        svc.loop.body = frame
+        t_measure = time.perf_counter() + settle_s
+        svc.run(duration_s=settle_s + seconds)
+        wall = time.perf_counter() - mark["t"]
+        cpu = time.process_time() - mark["cpu"]
+        sim = (bus.sim_s - mark["sim"]) + (arm_s[0] - mark["arm"])
+        work = np.array([r[0] for r in rows]) * 1e6
+        fake = np.array([r[1] for r in rows]) * 1e6
+        own = work - fake
+        return {"rate": rate, "frames": len(rows),
+                "work_p50_us": float(np.median(work)), "work_p99_us": float(np.percentile(work, 99)),
+                "fake_p50_us": float(np.median(fake)),
+                "own_p50_us": float(np.median(own)), "own_p99_us": float(np.percentile(own, 99)),
+                "cpu_percent": 100 * cpu / wall, "own_cpu_percent": 100 * (cpu - sim) / wall}
+    finally:
+        buf.close()
+        Bit3Buffer.unlink(name)
+
+
 def task_costs(frames: int = 300) -> dict:
-    """Median cost of each frame task (drivers + the fakes' register emulation), in this
-    process on the monotonic clock: where a frame's work goes."""
+    """Median cost of each frame task in this process on the monotonic clock, with the
+    fakes' register emulation measured apart: {task: (total us, fakes us)}."""
+    from fakes.metered import MeteredBus
     from fakes.world import FakeWorld
     from ioservice.loop import FrameInfo
     from ioservice.service import IoService
@@ -86,23 +153,31 @@ def task_costs(frames: int = 300) -> dict:
     name = "pfma-bench-" + uuid.uuid4().hex[:6]
     base = MonotonicClock()
     world = FakeWorld(clock=base)
+    bus = MeteredBus(world.bus)
     buf = Bit3Buffer.create(name)
     try:
-        svc = IoService(world.rack_config, world.bus, buf, TickingClock(base))
+        svc = IoService(world.rack_config, bus, buf, TickingClock(base))
         info = FrameInfo()
+
+        def drain() -> None:
+            svc._last_drain = -math.inf  # a drain is skipped within 0.4 ms of the last one
+            svc.serial_tick()
+
         tasks = {"rtd (2 boards)": svc._task_rtd, "adc scan (32 ch)": svc._task_adc,
                  "dac (16 ch) + commands": svc._task_dac, "ft decode": svc._task_ft,
                  "hand controllers": svc._task_hand, "pio": svc._task_pio,
-                 "serial drain": lambda: svc.serial_tick(0.0), "publish": lambda: svc._publish(info)}
+                 "serial drain": drain, "publish": lambda: svc._publish(info)}
         out = {}
         for label, fn in tasks.items():
-            ts = np.empty(frames)
+            ts, fs = np.empty(frames), np.empty(frames)
             for i in range(frames):
                 world.tick(base.now())
-                t0 = time.perf_counter()
+                time.sleep(0.0005)  # cold, as between the frames of the real loop
+                t0, s0 = time.perf_counter(), bus.sim_s
                 fn()
                 ts[i] = time.perf_counter() - t0
-            out[label] = float(np.median(ts) * 1e6)
+                fs[i] = bus.sim_s - s0
+            out[label] = (float(np.median(ts) * 1e6), float(np.median(fs) * 1e6))
         svc.stop()
         return out
     finally:
@@ -166,10 +241,20 @@ def run(seconds: float = 5.0) -> dict:
         print(f"{rate:6g} {f['work_p50_us']:8.0f}us {f['work_p99_us']:8.0f}us {f['wake_p50_us']:8.0f}us "
               f"{f['wake_p99_us']:8.0f}us {f['cpu_percent']:6.1f} {f['dropped']:8d} {f['overruns']:8d} "
               f"{f['gc_gen2']:7d}  {r['rtd']:.1f}/{r['adc']:.1f}/{r['dac']:.1f}/{r['ft']:.1f} Hz")
+    print("the same loop in-process, fake rack metered: frame work = the service's own + the fakes' "
+          "register emulation (targets apply to the service's own)")
+    print(f"{'frame':>6} {'work p50':>9} {'work p99':>9} {'fakes p50':>9} {'own p50':>8} {'own p99':>8} "
+          f"{'CPU %':>6} {'own CPU %':>9}")
+    for rate in (320.0, 1000.0):
+        f = split_figures(rate, seconds)
+        out[f"split_{rate:g}"] = f
+        print(f"{rate:6g} {f['work_p50_us']:8.0f}us {f['work_p99_us']:8.0f}us {f['fake_p50_us']:8.0f}us "
+              f"{f['own_p50_us']:6.0f}us {f['own_p99_us']:6.0f}us {f['cpu_percent']:6.1f} "
+              f"{f['own_cpu_percent']:9.1f}")
     costs = task_costs()
     out["task_costs_us"] = costs
-    print("median cost per task on the simulated rack (drivers + register-level fakes), us: "
-          + ", ".join(f"{k} {v:.0f}" for k, v in costs.items()))
+    print("median cost per task on the simulated rack, us (total / of which the fakes): "
+          + ", ".join(f"{k} {v[0]:.0f}/{v[1]:.0f}" for k, v in costs.items()))
     w = watchdog_figures(3)
     out["watchdog"] = w
     if w:

@@ -63,6 +63,11 @@ FT_START_ATTEMPTS = 3
 #: each task boundary a task may take up to about 1.1 ms (a 32-channel ADC scan on a busy
 #: host) without losing characters
 SERIAL_MIN_GAP_S = 0.0004
+#: tick of the ``TickingClock`` a live service sleeps on (hooks: the serial drain, the
+#: simulated rack): wake-up latency on a shared VM (p99 ~0.85 ms measured) plus this tick
+#: must stay under the FIFO's 1.56 ms; at 0.7 ms one F/T record in ten was lost to
+#: overruns on the simulated rack, at 0.4 ms one in fifty (``bench/bench_service.py``)
+LIVE_TICK_S = 0.0004
 #: current-limit volts above which the amplifier releases the brake (pfma-model 8.4, assumed)
 BRAKE_RELEASE_V = 0.5
 
@@ -253,6 +258,8 @@ class IoService:
                 ft.set_checksum(True)
                 ft.start_stream(rate_hz=self.schedule.rate_hz("ft"))
                 port.timeout = 0  # from now on only non-blocking reads, between frames
+                if hasattr(port, "autopoll"):  # an MVME400 port: serial_tick drains it
+                    port.autopoll = False
                 self._ft = ft
                 if attempt > 1:
                     self.post(Severity.WARNING, 122, f"F/T sensor on {where}: streaming after "
@@ -300,6 +307,7 @@ class IoService:
             self._start_ft(port, bauds[ch["ft_sensor"].channel], f"{cfg.name} port {ch['ft_sensor'].channel}")
         if "crl_hand_controller" in ch:
             port = drv.port(ch["crl_hand_controller"].channel, timeout=0, write_queue=True)
+            port.autopoll = False  # serial_tick drains the FIFO; decoding reads the buffer
             self._crl = CrlHandController(port, self.clock)
             self._crl_tx = 0
 

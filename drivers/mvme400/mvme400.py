@@ -267,6 +267,11 @@ class Mvme400Port:
     :param write_queue: ``write`` queues the bytes and returns at once; :meth:`poll` moves
         one queued byte into the Tx buffer whenever it is empty (for callers that must not
         wait 0.52 ms per character, such as the service's frame)
+
+    ``autopoll`` (default True): ``in_waiting``, ``read_all`` and non-blocking reads
+    (``timeout == 0``) drain the FIFO first. An owner that drains it itself on a schedule
+    (the service, several times a frame) sets it False, so decoding reads only the
+    software buffer instead of making another dozen register accesses per call.
     """
 
     def __init__(self, board: Mvme400, channel: int, timeout: float | None = 1.0,
@@ -286,6 +291,7 @@ class Mvme400Port:
         self._txq = bytearray()
         self._baud = board.baud(channel)
         self._last_poll_t: float | None = None
+        self.autopoll = True
 
     # -- pyserial-like settings ---------------------------------------------------------
     @property
@@ -333,33 +339,47 @@ class Mvme400Port:
             self.stats.max_poll_gap_s = max(self.stats.max_poll_gap_s, now - self._last_poll_t)
         self._last_poll_t = now
         moved = 0
+        # the same register sequence as read_register/read_data/write_register, with the
+        # bus calls bound once: this runs several times per frame in the service
+        read8, write8 = b.bus.read8, b.bus.write8
+        ctrl, data = b._ctrl[ch], b._data[ch]
+        errors = RR1_RX_OVERRUN | RR1_PARITY_ERROR | RR1_FRAMING_ERROR
+        buf, stats = self._buf, self.stats
         with b.lock:
-            # bounded: a stuck RR0 b0 cannot hang the caller
-            for _ in range(4 * RX_FIFO_DEPTH):
-                if not b.read_register(ch, 0) & RR0_RX_AVAILABLE:
-                    break
-                rr1 = b.read_register(ch, 1)
-                value = b.read_data(ch)
-                if rr1 & (RR1_RX_OVERRUN | RR1_PARITY_ERROR | RR1_FRAMING_ERROR):
-                    self.stats.overruns += bool(rr1 & RR1_RX_OVERRUN)
-                    self.stats.parity_errors += bool(rr1 & RR1_PARITY_ERROR)
-                    self.stats.framing_errors += bool(rr1 & RR1_FRAMING_ERROR)
-                    b.write_register(ch, 0, CMD_ERROR_RESET)
-                self.stats.rx_bytes += 1
-                moved += 1
-                if len(self._buf) >= self.max_buffer_bytes:
-                    self.stats.buffer_overflows += 1
-                else:
-                    self._buf.append(value)
-            if self._txq and b.read_register(ch, 0) & RR0_TX_EMPTY:
-                b.write_data(ch, self._txq.pop(0))
-                self.stats.tx_bytes += 1
+            try:
+                # bounded: a stuck RR0 b0 cannot hang the caller
+                for _ in range(4 * RX_FIFO_DEPTH):
+                    if not read8(ctrl) & RR0_RX_AVAILABLE:
+                        break
+                    write8(ctrl, 1)  # WR0 pointer -> RR1 (errors of the character at the head)
+                    rr1 = read8(ctrl)
+                    value = read8(data) & 0xFF
+                    if rr1 & errors:
+                        stats.overruns += bool(rr1 & RR1_RX_OVERRUN)
+                        stats.parity_errors += bool(rr1 & RR1_PARITY_ERROR)
+                        stats.framing_errors += bool(rr1 & RR1_FRAMING_ERROR)
+                        write8(ctrl, CMD_ERROR_RESET)
+                    stats.rx_bytes += 1
+                    moved += 1
+                    if len(buf) >= self.max_buffer_bytes:
+                        stats.buffer_overflows += 1
+                    else:
+                        buf.append(value)
+                if self._txq and read8(ctrl) & RR0_TX_EMPTY:
+                    write8(data, self._txq.pop(0))
+                    stats.tx_bytes += 1
+            except BusError as err:
+                if err.board:
+                    raise
+                reg = ("SIO_CTRL_" if err.addr == ctrl else "SIO_DATA_") + CHANNEL_NAMES[ch]
+                raise err.with_context(b.name, reg) from None
         return moved
 
     @property
     def in_waiting(self) -> int:
-        """Bytes available now (polls first)."""
-        self.poll()
+        """Bytes available now (polls first, unless ``autopoll`` is off)."""
+        if self.autopoll:
+            self.poll()
         return len(self._buf)
 
     def read(self, size: int = 1) -> bytes:
@@ -373,7 +393,8 @@ class Mvme400Port:
         clock = self.board.clock
         deadline = None if self.timeout is None else clock.now() + self.timeout
         while True:
-            self.poll()
+            if self.autopoll or self.timeout != 0:
+                self.poll()
             if len(self._buf) >= size or self.timeout == 0:
                 break
             now = clock.now()
@@ -387,7 +408,8 @@ class Mvme400Port:
 
     def read_all(self) -> bytes:
         """Everything buffered now (non-blocking)."""
-        self.poll()
+        if self.autopoll:
+            self.poll()
         out = bytes(self._buf)
         self._buf.clear()
         return out

@@ -77,7 +77,7 @@ def _live_view(buffer_name: str, stop: threading.Event, rack) -> None:
 
 
 def run(args) -> int:
-    from ioservice.service import IoService
+    from ioservice.service import LIVE_TICK_S, IoService
     from ioservice.loop import realtime_setup
     if args.schedule:
         import tomllib
@@ -92,7 +92,7 @@ def run(args) -> int:
     rack = load_rack(args.rack)
     layout = default_layout() if args.rack in ("fake", "default") else build_layout(rack)
     base = MonotonicClock()
-    clock = TickingClock(base)
+    clock = TickingClock(base, tick_s=LIVE_TICK_S)
     world = None
     if args.rack == "fake" and args.bus in (None, "fake"):
         from fakes.world import FakeWorld

@@ -159,6 +159,24 @@ def test_read_timeout_on_the_injected_clock(rack, fake, board):
     assert port.in_waiting == 0
 
 
+def test_autopoll_off_reads_only_the_buffer_the_owner_drains(rack, fake, board):
+    """The service drains the FIFO on its own schedule; its decoders' reads must not make
+    register accesses of their own."""
+    port = board.port(0, timeout=0)
+    port.autopoll = False
+    fake.peer(0).send(b"ab")
+    rack.clock.advance(3 * CT)
+    mark = len(fake.traffic)
+    assert port.in_waiting == 0 and port.read(5) == b"" and port.read_all() == b""
+    assert len(fake.traffic) == mark  # not one bus access
+    assert board.poll() == 2  # the owner's drain
+    assert port.in_waiting == 2 and port.read(5) == b"ab"
+    # a blocking read still polls (it would otherwise wait out its timeout for nothing)
+    port.timeout = 0.01
+    fake.peer(0).send(b"c")
+    assert port.read(1) == b"c"
+
+
 def test_overrun_when_not_polled_for_more_than_three_characters(rack, fake, board):
     port = board.port(0, timeout=0)
     fake.peer(0).send(b"ABCDEF")
