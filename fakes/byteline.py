@@ -36,6 +36,10 @@ class FaultyLine:
         """Up to ``max_bytes`` bytes ready for the line (the owner paces them)."""
         if not self.connected or max_bytes <= 0 or self.stalled:
             return b""
+        if not self._tx and not self._noise:  # the usual idle poll: nothing to build
+            self._refill()
+            if not self._tx:
+                return b""
         out = bytearray()
         while len(out) < max_bytes:
             if self._noise and self._noise[0][0] <= self.tx_count:

@@ -17,7 +17,9 @@ Register map, bit values and assumptions: ``drivers.mvme400.registers`` (section
 
 Model time follows the board's clock: every bus access first runs the line up to
 ``clock.now()``; ``step(dt_s)`` runs ``dt_s`` more (never double-counting a period the
-clock also covered).
+clock also covered). An access that finds no character due, no transmission ending and
+none to start before ``clock.now()`` only moves the far ends' time (and asks an idle far
+end for output), so polling stays cheap.
 """
 
 from __future__ import annotations
@@ -146,7 +148,7 @@ class _Channel:
         self.overrun_latch = False
         self.tx_buf: int | None = None
         self.shifting: int | None = None
-        self.tx_done_t = math.inf
+        self.tx_done_t = math.inf  # end of the character shifting out (inf while none is)
         self.tx_int_pending = False
         self.ext_pending = False
         self.last_rx = 0
@@ -170,6 +172,7 @@ class FakeMvme400(FakeBoard):
         self.pia = FakePia6821(f"{self.name}.PIA")
         self._ch = [_Channel(0), _Channel(1)]
         self._peers = [SerialPeer(self, 0), SerialPeer(self, 1)]
+        self._lines = tuple(zip(self._ch, self._peers))  # (channel, peer) pairs, A then B
         self._cts = [True, True]
         self._dcd = [True, True]
         self._dsr = [True, True]
@@ -218,12 +221,16 @@ class FakeMvme400(FakeBoard):
         return BAUD_CODES[code] * 16 / CLOCK_MULTIPLIERS[self._ch[ch].wr[4] & WR4_CLOCK_MASK]
 
     def cts(self, channel: int) -> bool:
-        ch = self._check_channel(channel)
-        return self._cts[ch] and not self._fault_on("cts_low", ch)
+        return self._cts_on(self._check_channel(channel))
 
     def dcd(self, channel: int) -> bool:
-        ch = self._check_channel(channel)
-        return self._dcd[ch] and not self._fault_on("dcd_low", ch)
+        return self._dcd_on(self._check_channel(channel))
+
+    def _cts_on(self, ch: int) -> bool:
+        return self._cts[ch] and not (self.faults and self._fault_on("cts_low", ch))
+
+    def _dcd_on(self, ch: int) -> bool:
+        return self._dcd[ch] and not (self.faults and self._fault_on("dcd_low", ch))
 
     def _fault_on(self, fault: str, ch: int) -> bool:
         if fault not in self.faults:
@@ -249,7 +256,7 @@ class FakeMvme400(FakeBoard):
 
     def _lines_changed(self) -> None:
         for c in self._ch:
-            now = (self.cts(c.idx), self.dcd(c.idx))
+            now = (self._cts_on(c.idx), self._dcd_on(c.idx))
             if now != self._lines_seen[c.idx]:
                 self._lines_seen[c.idx] = now
                 if c.wr[1] & WR1_EXT_INT_EN:
@@ -275,38 +282,60 @@ class FakeMvme400(FakeBoard):
     def _advance(self, t_to: float) -> None:
         if t_to <= self.t:
             return
-        for c in self._ch:
-            self._advance_channel(c, t_to)
+        t = self.t
+        for c, peer in self._lines:
+            queue = peer._queue
+            if queue and queue[0][0] > t_to and c.tx_done_t > t_to \
+                    and (c.tx_buf is None or c.shifting is not None):
+                # fast path: no character arrives, none finishes or starts shifting out before
+                # t_to (and the far end is not asked for output while its line is busy)
+                if peer.device is not None:
+                    if t > peer._device_t:
+                        peer._advance_device(t)
+                    peer._advance_device(t_to)
+                continue
+            self._advance_channel(c, peer, t_to)
         self.t = t_to
 
-    def _advance_channel(self, c: _Channel, t_to: float) -> None:
-        peer = self._peers[c.idx]
+    def _advance_channel(self, c: _Channel, peer: SerialPeer, t_to: float) -> None:
+        """Run one channel and its far end from ``self.t`` to ``t_to``, event by event.
+
+        At each event time: the far end's time catches up, a buffered Tx character starts
+        shifting if it may, and a far end whose line is idle (nothing queued) is asked for as
+        many characters as could start by ``t_to`` or the Tx completion, whichever is first;
+        then the earlier of the next Rx arrival and the Tx completion happens (the arrival
+        on a tie). ``_advance`` skips this for a channel where nothing can happen.
+        """
+        queue = peer._queue
         t = self.t
         while True:
-            if peer.device is not None:
+            device = peer.device
+            if device is not None and t > peer._device_t:
                 peer._advance_device(t)
-            self._try_start_tx(c, t)
-            t_tx = c.tx_done_t if c.shifting is not None else math.inf
-            if peer.device is not None and not peer._queue:
-                start = max(peer._line_free_t, t)
-                horizon = min(t_to, t_tx)
+            if c.shifting is None and c.tx_buf is not None:
+                self._try_start_tx(c, t)
+            t_tx = c.tx_done_t  # inf while nothing is shifting
+            if device is not None and not queue:
+                line_free_t = peer._line_free_t
+                start = t if t > line_free_t else line_free_t  # max(line_free_t, t)
+                horizon = t_tx if t_tx < t_to else t_to  # min(t_to, t_tx)
                 if start <= horizon:
-                    n = int((horizon - start) / peer.char_time_s) + 1
-                    data = peer.device.transmit(n)
+                    n = int((horizon - start) / (BITS_PER_CHAR / peer.baud)) + 1  # char_time_s
+                    data = device.transmit(n)
                     if data:
                         peer._enqueue(bytes(data[:n]), t)
                         continue
-            t_rx = peer._queue[0][0] if peer._queue else math.inf
-            t_next = min(t_rx, t_tx)
-            if t_next > t_to:
-                if peer.device is not None:
+            t_rx = queue[0][0] if queue else math.inf
+            if t_rx > t_to and t_tx > t_to:
+                if device is not None and t_to > peer._device_t:
                     peer._advance_device(t_to)
                 return
-            t = t_next
             if t_rx <= t_tx:
-                _, value, err = peer._queue.popleft()
+                t = t_rx
+                _, value, err = queue.popleft()
                 self._deliver_rx(c, peer, value, err)
             else:
+                t = t_tx
                 self._complete_tx(c, peer)
 
     def _rate_ok(self, c: _Channel, peer: SerialPeer) -> bool:
@@ -318,7 +347,7 @@ class FakeMvme400(FakeBoard):
             peer.baud_mismatches += 1
             return
         auto = c.wr[3] & WR3_AUTO_ENABLES
-        if not c.wr[3] & WR3_RX_ENABLE or (auto and not self.dcd(c.idx)):
+        if not c.wr[3] & WR3_RX_ENABLE or (auto and not self._dcd_on(c.idx)):
             peer.dropped += 1
             return
         fmt_ok = (c.wr[3] & WR3_RX_BITS_MASK) == WR3_RX_8BITS and c.wr[4] & WR4_STOP_MASK \
@@ -334,7 +363,7 @@ class FakeMvme400(FakeBoard):
     def _tx_allowed(self, c: _Channel) -> bool:
         if not c.wr[5] & WR5_TX_ENABLE:
             return False
-        if c.wr[3] & WR3_AUTO_ENABLES and not self.cts(c.idx):
+        if c.wr[3] & WR3_AUTO_ENABLES and not self._cts_on(c.idx):
             return False
         return self.programmed_baud(c.idx) is not None
 
@@ -374,6 +403,15 @@ class FakeMvme400(FakeBoard):
                 codes.append(base + 1)
         return codes
 
+    def _int_pending(self) -> bool:
+        """Whether any status-affects-vector code is pending (``_pending_codes()`` non-empty)."""
+        for c in self._ch:
+            wr1 = c.wr[1]
+            if (wr1 & WR1_RX_INT_MASK and c.fifo) or (wr1 & WR1_TX_INT_EN and c.tx_int_pending) \
+                    or (wr1 & WR1_EXT_INT_EN and c.ext_pending):
+                return True
+        return False
+
     def _vector(self) -> int:
         b = self._ch[1]
         vec = b.wr[2]
@@ -387,34 +425,41 @@ class FakeMvme400(FakeBoard):
 
     # -- bus side -------------------------------------------------------------------------
     def _check(self, offset: int, width: int) -> None:
+        if width == 8 and offset & 1 and 0 <= offset < self.description.window \
+                and "no_answer" not in self.faults:
+            return  # an odd byte in the window: decoded (what every register access is)
         if width == 8 and offset % 2 == 0 and 0 <= offset < self.description.window \
                 and "no_answer" not in self.faults:
             raise NoAnswer(even_byte_reason(self.description, offset))
         super()._check(offset, width)
 
     def _read8(self, offset: int) -> int:
-        self._sync()
-        if offset in _PIA_RS:
-            return self.pia.read(_PIA_RS[offset])
-        if offset in _DATA:
-            c = self._ch[_DATA[offset]]
+        t = self.clock.now()
+        if t > self.t:
+            self._advance(t)
+        i = _CTRL.get(offset)
+        if i is not None:
+            c = self._ch[i]
+            n, c.pointer = c.pointer, 0
+            return self._read_rr(c, n)
+        i = _DATA.get(offset)
+        if i is not None:
+            c = self._ch[i]
             if c.fifo:
                 c.last_rx = c.fifo.popleft()[0]
             return c.last_rx
-        if offset in _CTRL:
-            c = self._ch[_CTRL[offset]]
-            n, c.pointer = c.pointer, 0
-            return self._read_rr(c, n)
+        if offset in _PIA_RS:
+            return self.pia.read(_PIA_RS[offset])
         raise NoAnswer(f"offset +0x{offset:02X} is not decoded (registers at +0x01..+0x0F)")
 
     def _read_rr(self, c: _Channel, n: int) -> int:
         if n == 0:
-            v = 0
-            v |= RR0_RX_AVAILABLE if c.fifo else 0
+            idx = c.idx
+            v = RR0_RX_AVAILABLE if c.fifo else 0
             v |= RR0_TX_EMPTY if c.tx_buf is None else 0
-            v |= RR0_DCD if self.dcd(c.idx) else 0
-            v |= RR0_CTS if self.cts(c.idx) else 0
-            if c.idx == 0 and self._pending_codes():
+            v |= RR0_DCD if self._dcd_on(idx) else 0
+            v |= RR0_CTS if self._cts_on(idx) else 0
+            if idx == 0 and self._int_pending():
                 v |= RR0_INT_PENDING
             return v
         if n == 1:
@@ -428,7 +473,9 @@ class FakeMvme400(FakeBoard):
         return 0x00
 
     def _write8(self, offset: int, value: int) -> None:
-        self._sync()
+        t = self.clock.now()
+        if t > self.t:
+            self._advance(t)
         if offset in _PIA_RS:
             self.pia.write(_PIA_RS[offset], value)
             self._update_pia_inputs()
