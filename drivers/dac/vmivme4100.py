@@ -118,24 +118,35 @@ class Vmivme4100:
         """Write 16 voltages, channel 0 first (all validated before anything is written)."""
         if len(volts) != N_CHANNELS:
             raise ValueError(f"{self.name}: need {N_CHANNELS} voltages, got {len(volts)}")
-        codes = []
-        for ch in range(N_CHANNELS):
-            try:
-                codes.append(self.code_from_volts(float(volts[ch]), clamp=clamp))
+        v = np.asarray(volts, dtype=float)
+        r = self.range_volts
+        bad = np.isnan(v) if clamp else ~(np.abs(v) <= r)  # NaN is never within range
+        if bad.any():
+            ch = int(np.flatnonzero(bad)[0])
+            try:  # the same message as a single-channel write
+                self.code_from_volts(float(v[ch]), clamp=clamp)
             except ValueError as err:
                 raise ValueError(f"{err} (channel {ch}, A16 0x{self._addr[ch]:04X})") from None
-        self._write_codes(codes)
+        # code_from_volts, vectorised: clamp, round half to even (as round()), top at 4095
+        codes = np.minimum(np.rint((np.clip(v, -r, r) + r) * self._counts_per_volt), _MAX_CODE)
+        self._write_codes(codes.astype(np.int64).tolist())
 
-    def _write_codes(self, codes) -> None:
+    def _write_codes(self, codes: list[int]) -> None:
         """Write every channel; on a bus error keep going (fail safe), then raise the first."""
-        w16, first = self.bus.write16, None
+        w16, addr, first = self.bus.write16, self._addr, None
+        written = [True] * N_CHANNELS
         for ch in range(N_CHANNELS):
             try:
-                w16(self._addr[ch], codes[ch])
-                self._shadow[ch] = codes[ch]
+                w16(addr[ch], codes[ch])
             except BusError as err:
+                written[ch] = False
                 first = first or self._bus_error(err, ch)
-        if first is not None:
+        if first is None:
+            self._shadow[:] = codes
+        else:
+            for ch in range(N_CHANNELS):
+                if written[ch]:
+                    self._shadow[ch] = codes[ch]
             raise first
 
     def zero_all(self) -> None:
