@@ -1,0 +1,55 @@
+"""A reader that knows only the published layout (``pfma layout --json``) and the
+stdlib (bench/independent_reader.py) attaches to the service's buffer and sees the
+documented refresh rates: resolvers and ADC 160 Hz, F/T 80 Hz, DAC 320 Hz, within 1 %."""
+
+import ast
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bench.independent_reader import IndependentReader, LayoutMismatch, SAMPLE_TIMES, measure
+from ioservice.simrig import SimRig
+
+READER = Path(__file__).resolve().parents[2] / "bench" / "independent_reader.py"
+
+
+@pytest.fixture(scope="module")
+def published_layout():
+    out = subprocess.run([sys.executable, "-m", "pfma", "layout", "--json"], capture_output=True,
+                         text=True, check=True).stdout
+    return json.loads(out)
+
+
+def test_reader_imports_only_the_standard_library():
+    tree = ast.parse(READER.read_text())
+    mods = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    mods |= {n.module.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
+    assert mods <= set(sys.stdlib_module_names) | {"__future__"}, mods
+
+
+def test_independent_reader_sees_the_documented_rates(published_layout):
+    rig = SimRig(prefix="pfma-test-")
+    try:
+        r = IndependentReader(published_layout, f"/dev/shm/{rig.name}")
+        try:
+            res = measure(r, lambda: rig.svc.loop.run(frames=1), seconds=3.0)
+        finally:
+            r.close()
+    finally:
+        rig.close()
+    for name, want in SAMPLE_TIMES.items():
+        assert res[name] == pytest.approx(want, rel=0.01), (name, res)
+        assert res[f"stats.{name[2:-2]}"] == pytest.approx(want, rel=0.01), (name, res)
+
+
+def test_a_different_layout_is_refused(published_layout):
+    wrong = dict(published_layout, hash="0" * 16)
+    rig = SimRig(prefix="pfma-test-")
+    try:
+        with pytest.raises(LayoutMismatch, match="layout hash"):
+            IndependentReader(wrong, f"/dev/shm/{rig.name}")
+    finally:
+        rig.close()
