@@ -110,6 +110,7 @@ def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
     try:
         schedule = Schedule() if rate == 320.0 else Schedule.scaled(rate)
         svc = IoService(world.rack_config, bus, buf, clock, schedule=schedule)
+        clock.hooks[:] = [svc.serial_tick, arm_tick, svc.serial_tick]  # as pfma serve does
         body = svc.loop.body
         rows: list[tuple[float, float]] = []
         mark: dict = {}

@@ -109,6 +109,10 @@ def run(args) -> int:
     buf = Bit3Buffer.create(args.buffer, layout, exist_ok=True)
     svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3,
                     calibration=getattr(args, "calibration", None), ft_port=args.ft_port)
+    if world is not None:
+        # drain the serial FIFOs on both sides of the arm model's step (130 us typical,
+        # 0.6 ms at p99), so the step and a late wake-up do not add up to an overrun
+        clock.hooks[:] = [svc.serial_tick, world.tick, svc.serial_tick]
     for e in svc.init_errors:
         print(f"pfma serve: {e}", file=sys.stderr)
     svc.install_signal_handlers()
