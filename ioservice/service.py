@@ -168,6 +168,14 @@ class IoService:
     def _slots(self, kind: str, channels) -> np.ndarray:
         return np.array([self.layout.slot(kind, c.signal) for c in channels], dtype=np.intp)
 
+    def _span(self, kind: str, channels) -> np.ndarray | slice:
+        """Like :meth:`_slots`, as a slice when the slots are consecutive (the default
+        layout's): the per-frame copies into the input area then avoid fancy indexing."""
+        slots = self._slots(kind, channels)
+        if len(slots) and np.array_equal(slots, np.arange(slots[0], slots[0] + len(slots))):
+            return slice(int(slots[0]), int(slots[0]) + len(slots))
+        return slots
+
     def _init_board(self, cfg, action) -> bool:
         slot = self._board_slot(cfg.name)
         try:
@@ -184,7 +192,7 @@ class IoService:
         self._rtd = []
         for cfg in self.rack.boards_of("rtd"):
             drv = self.io.driver(cfg)
-            slots = self._slots("rtd", cfg.channels)
+            slots = self._span("rtd", cfg.channels)
             self._rtd.append((cfg, drv, slots, self._board_slot(cfg.name)))
             self._init_board(cfg, drv.status)
 
@@ -193,7 +201,7 @@ class IoService:
         for cfg in self.rack.boards_of("adc"):
             drv = self.io.driver(cfg)
             chans = sorted(cfg.channels, key=lambda c: c.channel)
-            slots = self._slots("adc", chans)
+            slots = self._span("adc", chans)
             scale = np.array([c.scale for c in chans])
             offset = np.array([c.offset for c in chans])
             counts = np.zeros(len(chans), dtype=np.int64)
@@ -211,7 +219,7 @@ class IoService:
         self._dac = self.io.driver(cfg)
         n = len(cfg.channels)
         chans = sorted(cfg.channels, key=lambda c: c.channel)
-        self._dac_slots = self._slots("dac", chans)
+        self._dac_slots = self._span("dac", chans)
         self._dac_scale = np.array([c.scale for c in chans])
         self._dac_offset = np.array([c.offset for c in chans])
         self._dac_eng = np.zeros(n)  # engineering command per DAC channel
