@@ -142,6 +142,9 @@ def encode_ascii(status: int, counts: tuple[int, ...] | list[int], terminator: b
 
 _ASCII_LINE = re.compile(rb"^(\d{1,3})((?:,[ \-0-9]{6}){6})$")
 _ASCII_FIELD = re.compile(rb"^ *-?\d+$")
+#: text that is not a record but belongs in the stream: an echoed command ("QS", "CD B",
+#: "SA 4") or a prompt line (">"); any other line is a garbled record and is counted
+_ECHO_LINE = re.compile(rb"^(>.*|[A-Z]{2}(?: [A-Z0-9 ]*)?)$")
 
 
 def decode_ascii_line(line: bytes) -> tuple[int, tuple[int, ...]] | None:
@@ -194,9 +197,10 @@ class AsciiStreamDecoder:
     """Incremental decoder for ASCII record streams, fed with whatever bytes arrived.
 
     Lines are split at LF (a CR before it is dropped). The first fragment after a
-    (re)start is discarded as a partial line. Lines that are echo/prompt text (start
-    with ``>`` or a letter) are skipped without counting; anything else that is not
-    exactly the record format counts as a bad record.
+    (re)start is discarded as a partial line. Lines that are echo/prompt text (a prompt
+    ``>...`` or an echoed command: two capitals and optional upper-case arguments) are
+    skipped without counting; anything else that is not exactly the record format
+    (including a record garbled into a letter at its start) counts as a bad record.
     """
 
     MAX_LINE = 128
@@ -247,7 +251,7 @@ class AsciiStreamDecoder:
                 out.append(rec)
                 self.stats.records += 1
                 continue
-            if not line or line[:1] == b">" or line[:1].isalpha():
+            if not line or _ECHO_LINE.match(line):
                 continue  # blank line, echo or prompt
             rec = decode_ascii_line(line)
             if rec is None:

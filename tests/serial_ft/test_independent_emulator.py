@@ -243,15 +243,10 @@ def test_ascii_line_garbled_into_a_letter_is_not_returned(rig):
     sent = emu.stream_records()
     idx = match_in_order(sent, got)
     assert sent[5].damaged is False and sent[5].wire.startswith(b"A0,")
-    assert 5 not in idx  # rejected (silently: see the xfail below)
+    assert 5 not in idx  # rejected (and counted: the test below)
     assert set(range(len(sent))) - set(idx) == {5}
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "docs/ft-protocol.md says for ASCII streams 'Any inserted or lost character ... is "
-    "rejected and counted', but AsciiStreamDecoder skips lines that start with a letter or "
-    "'>' (taken as echo/prompt text) without counting them: a record garbled into 'A0,...' "
-    "is dropped with bad_records == 0 and resyncs == 0"))
 def test_ascii_line_garbled_into_a_letter_is_counted(rig):
     emu, sensor, got = _ascii_letter_at_line_start(rig)
     assert sensor.stats().bad_records >= 1
