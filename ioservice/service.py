@@ -68,6 +68,10 @@ SERIAL_MIN_GAP_S = 0.0004
 #: must stay under the FIFO's 1.56 ms; at 0.7 ms one F/T record in ten was lost to
 #: overruns on the simulated rack, at 0.4 ms one in fifty (``bench/bench_service.py``)
 LIVE_TICK_S = 0.0004
+#: an F/T slot that found no new record (characters lost, decoder re-syncing) is tried
+#: again in this many following minor frames, so the record is published a frame or two
+#: late instead of a whole F/T period (12.5 ms) late
+FT_RETRY_FRAMES = 2
 #: current-limit volts above which the amplifier releases the brake (pfma-model 8.4, assumed)
 BRAKE_RELEASE_V = 0.5
 
@@ -134,6 +138,7 @@ class IoService:
         self._wire_pio()
         self._ft = self._crl = self._cae = None
         self._ft_latest = None
+        self._ft_retry = 0  # frames left in which a missed F/T slot is tried again
         self._crl_latest = None
         self._mvme400 = None
         self._last_drain = -math.inf  # clock time of the last serial FIFO drain
@@ -383,6 +388,11 @@ class IoService:
         mask = self._frame_masks[k % MINOR_FRAMES_PER_MAJOR]
         for j in range(1, min(info.missed, MINOR_FRAMES_PER_MAJOR) + 1):
             mask |= self._frame_masks[(k - j) % MINOR_FRAMES_PER_MAJOR]
+        if mask & 4:
+            self._ft_retry = FT_RETRY_FRAMES
+        elif self._ft_retry:  # the last F/T slot found nothing new: look again
+            self._ft_retry -= 1
+            mask |= 4
         try:
             if mask & 1:
                 self._task_rtd()
@@ -468,6 +478,7 @@ class IoService:
         stale = st.age_s is None or st.age_s > FT_STALE_S
         v["link_status"][slot] = LINK_OPEN | (LINK_STALE if stale else LINK_SYNCED)
         if r is not None and r.t_s != v["ft_t_s"][()]:
+            self._ft_retry = 0  # this F/T period has its record
             v["ft_counts"][:] = r.counts
             v["ft_force_n"][:] = r.force_n
             v["ft_torque_nm"][:] = r.torque_nm

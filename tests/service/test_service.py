@@ -223,3 +223,30 @@ def test_slow_input_scans_do_not_overrun_the_serial_fifos(rig, monkeypatch, drai
         assert s.link_records[link] >= 150 and s.link_bad[link] == 0
     else:
         assert s.link_records[link] < 10 and s.link_bad[link] >= 1
+
+
+@pytest.mark.parametrize("retry", [True, False])
+def test_a_missed_ft_slot_is_tried_again_in_the_next_frames(rig, monkeypatch, retry):
+    """Characters lost on the F/T line (one overrun) cost the record they hit, and the
+    decoder needs two whole records to re-sync: the F/T slot after the loss finds nothing
+    new. The service looks again in the next two minor frames, so every 80 Hz period still
+    publishes a record (a frame or two late); without the retry (False) periods are lost."""
+    import ioservice.service as service
+    if not retry:
+        monkeypatch.setattr(service, "FT_RETRY_FRAMES", 0)
+    rig.run(0.5)
+    dev = rig.svc._devices["ft"]
+    n0 = dev.samples
+    losses = 0
+    for k in range(10):  # one lost character every 0.2 s, at a different phase each time
+        rig.world.ft.drop_next(1, after_bytes=7 + 3 * k)
+        rig.run(0.2)
+        losses += 1
+    published = dev.samples - n0
+    link = rig.reader.layout.slot("link", "ft_sensor")
+    assert rig.reader.read_inputs().link_bad[link] >= losses  # every loss cost a record
+    assert rig.world.ft.bytes_dropped == losses
+    if retry:
+        assert published >= 160 - 1  # 2 s at 80 Hz
+    else:
+        assert published <= 160 - 5
