@@ -49,8 +49,9 @@ from __future__ import annotations
 import json
 import math
 import os
+import threading
 import time
-from collections import defaultdict
+from collections import defaultdict, deque
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import IO, Any, Callable, Iterator
@@ -496,12 +497,16 @@ class Recorder:
         self.topic_counts[topic] = n + 1
         self.counters.messages_total += 1
 
-    def poll(self) -> int:
-        """Read what changed since the last call and write it; returns frames written (0/1)."""
+    def poll(self, inputs: bool = True) -> int:
+        """Read what changed since the last call and write it; returns frames written (0/1).
+
+        :param inputs: False when an :class:`InputsCapture` thread reads the inputs area
+            (its snapshots go through :meth:`feed_inputs`)
+        """
         c = self.client
         n = 0
         if c is not None:
-            if c.changed("inputs"):
+            if inputs and c.changed("inputs"):
                 n = self._inputs(c.read_inputs())
             if c.changed("commands"):
                 self._commands(c.read_commands())
@@ -516,6 +521,12 @@ class Recorder:
             self._last_flush = now
             self.w.flush()
         return n
+
+    def feed_inputs(self, snap) -> int:
+        """Write one inputs snapshot captured elsewhere (a private copy, in publish order);
+        returns frames written (0/1). Publishes the capture never saw show as
+        ``recorder_missed`` from the sequence numbers, as with :meth:`poll`."""
+        return self._inputs(snap)
 
     def _inputs(self, snap) -> int:
         r = snap.record
@@ -691,6 +702,106 @@ class Recorder:
             else:
                 self._f.flush()
         return self.counters
+
+
+class InputsCapture:
+    """Copies every inputs publish into a queue from its own thread, so the recorder's
+    slow moments (closing and compressing a chunk, flushing the file, encoding JSON; 2-4
+    ms measured) no longer make it miss a 3.125 ms frame. With the service's frame ring
+    (``ioservice.ring``) it reads the ring instead and may itself be descheduled for up
+    to n_slots - 1 frames without a loss. The writing thread empties the
+    queue with :meth:`drain`. Run the process with a short GIL switch interval
+    (``sys.setswitchinterval(0.0005)``) so this thread gets in while the other one works.
+
+    :param client: the recorder's read-only client (this thread is the only one that
+        reads its inputs area)
+    :param poll_s: sleep between polls when nothing new was published
+    :param max_queue: snapshots held at most (about 2.6 s at 320 Hz); beyond it the newest
+        are not queued, and the recorder counts them as missed
+    """
+
+    def __init__(self, client: Client, poll_s: float = 0.0002, max_queue: int = 8192,
+                 ring=None) -> None:
+        self.client = client
+        self.poll_s = poll_s
+        self.max_queue = max_queue
+        #: an attached ``ioservice.ring.FrameRing`` of the same layout: frames are taken
+        #: from it (up to n_slots - 1 behind) instead of from the single inputs area
+        self.ring = ring
+        self.ring_lost = 0  #: frames overwritten in the ring before this thread read them
+        self._ring_k: int | None = None  # next ring frame to take
+        self.queue: deque = deque()
+        self.error: BaseException | None = None  #: what stopped the thread (e.g. SeqLockTimeout)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="pfma-record-capture", daemon=True)
+
+    def start(self) -> "InputsCapture":
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        c, q, sleep, stop = self.client, self.queue, time.sleep, self._stop
+        try:
+            if self.ring is not None:
+                self._run_ring()
+                return
+            while not stop.is_set():
+                if c.changed("inputs"):
+                    snap = c.read_inputs()
+                    if snap.seq and len(q) < self.max_queue:
+                        q.append(snap.copy())
+                else:
+                    sleep(self.poll_s)
+        except BaseException as err:  # noqa: BLE001 - handed to the writing thread
+            self.error = err
+
+    def _run_ring(self) -> None:
+        self._ring_k = self.ring.count()  # frames already in the ring are history
+        while not self._stop.is_set():
+            if not self.take_from_ring():
+                time.sleep(self.poll_s)
+
+    def take_from_ring(self) -> int:
+        """Queue every whole frame the ring holds beyond the last one taken; returns how
+        many were queued (the thread calls it; tests call it in simulated time)."""
+        from ioservice.client import Snapshot
+        ring, q = self.ring, self.queue
+        if self._ring_k is None:
+            self._ring_k = ring.count()
+        layout = self.client.layout
+        dtype = layout.area("inputs").body_dtype
+        k, n, taken = self._ring_k, ring.count(), 0
+        if n - k >= ring.n_slots:  # fell a whole ring behind: those frames are gone
+            self.ring_lost += n - k - (ring.n_slots - 1)
+            k = n - (ring.n_slots - 1)
+        while k < n:
+            data = ring.read(k)
+            k += 1
+            if data is None or len(q) >= self.max_queue:
+                self.ring_lost += 1  # the gap in the sequence numbers counts it as missed
+                continue
+            # seq: even and +2 per frame, as the buffer's own counter
+            q.append(Snapshot(np.ndarray((), dtype, buffer=data), "inputs", layout, 2 * k))
+            taken += 1
+        self._ring_k = k
+        return taken
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(2.0)
+
+    def drain(self, rec: "Recorder") -> int:
+        """Write every queued snapshot; returns frames written."""
+        n = 0
+        q = self.queue
+        while q:
+            n += rec.feed_inputs(q.popleft())
+        return n
 
 
 def epoch_offset_ns_default() -> int:

@@ -116,6 +116,9 @@ class IoService:
         self.layout = buffer.layout
         buffer.claim("service", owner)
         self.inputs = buffer.writer("inputs")
+        #: optional ``ioservice.ring.FrameRing``: every published inputs body is also
+        #: appended there (``pfma serve`` creates it for recorders)
+        self.ring = None
         self.stats_writer = buffer.writer("stats")
         self.commands = buffer.reader("commands")
         self.queue = buffer.queue("service_messages")
@@ -647,6 +650,8 @@ class IoService:
         v["service_state"][...] = int(self.state)
         v["fault_code"][...] = self.fault_code
         self.inputs.publish()
+        if self.ring is not None:  # the history a stalled recorder catches up from
+            self.ring.write(self.inputs.raw)
         self.buf.set_frame(info.index, info.t_wake)
 
     # ------------------------------------------------------------------ between frames
@@ -767,6 +772,8 @@ class IoService:
         self.set_state(ServiceState.STOPPED)
         self.publish_stats()
         self.inputs.publish()
+        if self.ring is not None:
+            self.ring.write(self.inputs.raw)
         if self._ft is not None:
             try:
                 self._ft.stop_stream()

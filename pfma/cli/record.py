@@ -32,6 +32,16 @@ STALE_S = 1.0
 POLL_SLEEP_S = 0.0004
 
 
+def _ring(buffer: str, client):
+    """The service's frame ring of this buffer and layout, or None (then the inputs area
+    itself is polled, and a reader descheduled for a frame period misses that frame)."""
+    from ioservice.ring import FrameRing, RingError
+    try:
+        return FrameRing.attach(buffer, client.layout.hash)
+    except RingError:
+        return None
+
+
 def add_parser(sub):
     p = sub.add_parser("record", help="record every frame of the buffer to MCAP (also: recover, info)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -112,8 +122,11 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
            quiet: bool = False) -> int:
     """The recording loop (see the module docstring); returns the exit code."""
     from ioservice.layout import ServiceState, build_layout, default_layout
-    from ioservice.recorder import Recorder, buffer_replaced, wait_for_service
+    from ioservice.recorder import InputsCapture, Recorder, buffer_replaced, wait_for_service
     from ioservice.shm import LayoutMismatchError, SeqLockTimeout
+    # the capture thread must get the GIL within a fraction of a frame while this one
+    # compresses or encodes (the default switch interval is 5 ms, longer than a frame)
+    sys.setswitchinterval(0.0005)
     rack = load_rack(rack_arg)
     layout = default_layout() if rack_arg in ("fake", "default") else build_layout(rack)
     say = _say(quiet)
@@ -158,12 +171,21 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
             gc.freeze()  # long-lived objects out of the collector's way: short GC pauses
             idle_since = time.monotonic()
             warned = False
+            capture = InputsCapture(client, ring=_ring(buffer, client)).start()  # every publish
             while not done():
                 try:
-                    n = rec.poll()
+                    n = capture.drain(rec)
+                    rec.poll(inputs=False)
                 except SeqLockTimeout as e:  # the service died mid-write
                     say(f"{e}")
                     n = 0
+                if capture.error is not None:
+                    if isinstance(capture.error, SeqLockTimeout):
+                        say(f"{capture.error}")
+                    else:
+                        raise capture.error
+                    capture.error = None
+                    capture = InputsCapture(client, ring=_ring(buffer, client)).start()
                 now = time.monotonic()
                 if n:
                     idle_since = now
@@ -182,7 +204,9 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
                             f"published no frame for {now - idle_since:.1f} s")
                         warned = True
                 time.sleep(POLL_SLEEP_S)
-            rec.poll()
+            capture.stop()
+            capture.drain(rec)
+            rec.poll(inputs=False)
             rec.client = None
             client.close()
     finally:

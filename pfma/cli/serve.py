@@ -109,6 +109,8 @@ def run(args) -> int:
     buf = Bit3Buffer.create(args.buffer, layout, exist_ok=True)
     svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3,
                     calibration=getattr(args, "calibration", None), ft_port=args.ft_port)
+    from ioservice.ring import FrameRing
+    svc.ring = FrameRing.create(args.buffer, layout.area("inputs").body_size, layout.hash)
     if world is not None:
         # drain the serial FIFOs on both sides of the arm model's step (130 us typical,
         # 0.6 ms at p99), so the step and a late wake-up do not add up to an overrun
@@ -153,6 +155,8 @@ def run(args) -> int:
               + ", ".join(f"{k} {v['rate_hz']:.1f} Hz" for k, v in s["devices"].items() if v["samples"]))
         buf.release()
         buf.close()
+        svc.ring.close()
+        FrameRing.unlink(args.buffer)
     return 0
 
 
