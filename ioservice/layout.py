@@ -43,7 +43,7 @@ import enum
 import hashlib
 import json
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -233,12 +233,21 @@ class Layout:
         raise KeyError(f"no channel {name!r}{' in area ' + area if area else ''} in the Bit3 "
                        f"layout (rack {self.rack_name})")
 
-    def slot(self, kind: str, name: str) -> int:
-        """Slot index of a named entry of one group, e.g. ``slot("link", "ft_sensor")``."""
+    @cached_property
+    def _slot_index(self) -> dict[tuple[str, str], int]:
+        index: dict[tuple[str, str], int] = {}
         for c in self.channels:
-            if c.kind == kind and c.name == name:
-                return c.slot
-        raise KeyError(f"no {kind} entry named {name!r} in the Bit3 layout (rack {self.rack_name})")
+            index.setdefault((c.kind, c.name), c.slot)  # the first entry wins, as before
+        return index
+
+    def slot(self, kind: str, name: str) -> int:
+        """Slot index of a named entry of one group, e.g. ``slot("link", "ft_sensor")``
+        (a dict lookup: the service calls this in its frame tasks)."""
+        try:
+            return self._slot_index[(kind, name)]
+        except KeyError:
+            raise KeyError(f"no {kind} entry named {name!r} in the Bit3 layout "
+                           f"(rack {self.rack_name})") from None
 
     def canonical(self) -> dict:
         """The JSON-able description the hash is taken over (no docs)."""

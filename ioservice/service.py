@@ -509,7 +509,8 @@ class IoService:
             self._decode_serial()
         if self._cae is not None and self._adc:
             volts = self._adc[self._cae_adc][6]
-            self._put_hand("cae", self._cae.from_volts(volts[self._cae_idx], t_s=self._v["t_adc_s"][()]))
+            self._put_hand("cae", self._cae.from_volts(volts[self._cae_idx].tolist(),
+                                                        t_s=float(self._v["t_adc_s"][()])))
         if self._crl is not None:
             self._send_crl_force()
         if self._crl_latest is not None:
