@@ -86,6 +86,9 @@ class _DeviceCounter:
     rate_hz: float = 0.0
 
 
+_TWO_PI = 2.0 * math.pi
+
+
 class IoService:
     """The I/O service over any RegisterBus.
 
@@ -238,6 +241,7 @@ class IoService:
         # command-area order (layout.joints / layout.limits) -> DAC channel
         self._cmd_rate_ch = np.array([sig[j + "_command"] for j in self.layout.joint_names], dtype=np.intp)
         self._cmd_limit_ch = np.array([sig[s] for s in self.layout.current_limit_names], dtype=np.intp)
+        self._cmd_limit_list = self._cmd_limit_ch.tolist()
         self._limit_mask = np.zeros(n, dtype=bool)
         self._limit_mask[self._cmd_limit_ch] = True
         grip = [c.channel for c in chans if "gripper" in c.signal and "current_limit" not in c.signal]
@@ -384,8 +388,10 @@ class IoService:
 
     # ------------------------------------------------------------------ the frame
     def frame(self, info: FrameInfo) -> None:
-        """One minor frame: inputs due in this frame (and in frames just dropped), then the
-        DAC, then one consistent publish of the input area."""
+        """One minor frame: the DAC first (commands and the watchdog checked at a fixed,
+        short time after the wake-up, before the variable input work), then the inputs due
+        in this frame (and in frames just dropped), then one consistent publish of the
+        input area."""
         k = info.index
         self.serial_tick()  # the 3-deep serial FIFOs: drain on both sides of the work
         mask = self._frame_masks[k % MINOR_FRAMES_PER_MAJOR]
@@ -397,6 +403,7 @@ class IoService:
             self._ft_retry -= 1
             mask |= 4
         try:
+            self._task_dac()
             if mask & 1:
                 self._task_rtd()
                 self._drain_if_due()  # a slow input scan must not overrun the FIFOs
@@ -409,8 +416,6 @@ class IoService:
                 self._task_hand()
             if mask & 16:
                 self._task_pio()
-            self._drain_if_due()
-            self._task_dac()
         except Exception as err:  # noqa: BLE001 - a fault we cannot explain: outputs safe
             self.fault_code = FAULT_UNEXPECTED
             self.guard.trip(f"unexpected {type(err).__name__} in frame {k}: {err}", code=FAULT_UNEXPECTED)
@@ -432,13 +437,17 @@ class IoService:
                 self._input_failed(cfg.name, "rtd", err)
                 v["rtd_status"][slots] |= 0x100
                 continue
+            # four values: plain Python beats numpy's per-call cost
             v["rtd_counts"][slots] = counts
-            ang = np.multiply(counts, drv.lsb_rad)
+            lsb = drv.lsb_rad
             cal = self._rtd_cal.get(cfg.name)
-            if cal is not None:  # calibration: (scale * raw + offset) mod 2 pi
-                ang = np.mod(ang * cal[0] + cal[1], 2.0 * math.pi)
-            v["rtd_angle_rad"][slots] = ang
-            v["rtd_status"][slots] = [int(f) | (0 if status.reference_present else 2) for f in status.faults]
+            if cal is None:
+                v["rtd_angle_rad"][slots] = [c * lsb for c in counts]
+            else:  # calibration: (scale * raw + offset) mod 2 pi
+                v["rtd_angle_rad"][slots] = [(c * lsb * k + off) % _TWO_PI
+                                             for c, k, off in zip(counts, *cal, strict=True)]
+            ref = 0 if status.reference_present else 2
+            v["rtd_status"][slots] = [int(f) | ref for f in status.faults]
             self._input_ok(cfg.name, bslot)
             v["t_rtd_s"][...] = t
             t_ok = t
@@ -578,7 +587,7 @@ class IoService:
         c = cmd.record
         rates = c["joint_rate_rad_s"]
         live = self.guard.update(int(c["heartbeat"]), bool(c["arm_request"]), int(c["rearm_counter"]),
-                                 bool(np.all(rates == 0.0)))
+                                 not rates.any())
         v = self._v
         v["command_heartbeat"][...] = c["heartbeat"]
         v["command_age_s"][...] = self.guard.heartbeat_age_s()
@@ -624,7 +633,8 @@ class IoService:
         v = self._v
         t = self.clock.now()
         try:
-            self._dac.write_volts_all(volts, clamp=True)
+            vl = volts.tolist()  # 16 values: list indexing in the driver's loop
+            self._dac.write_volts_all(vl, clamp=True)
         except PfmaError as err:
             self._count_board_error(self._dac_cfg.name, err)
             self._devices["dac"].errors += 1
@@ -637,8 +647,8 @@ class IoService:
         v["dac_value"][slots] = eng
         v["dac_status"][slots] = status
         v["outputs_enabled"][...] = self._outputs_enabled and self.guard.state == ServiceState.ARMED
-        v["brakes_released"][...] = bool(np.any(volts[self._cmd_limit_ch] > BRAKE_RELEASE_V)) and \
-            self._outputs_enabled
+        v["brakes_released"][...] = self._outputs_enabled and \
+            any(vl[ch] > BRAKE_RELEASE_V for ch in self._cmd_limit_list)
         v["t_dac_s"][...] = t
         self._sampled("dac", t)
         if self.guard.state != self.state and self.state not in (ServiceState.STOPPED,):
@@ -794,7 +804,7 @@ class IoService:
             scale = np.array([c.scale for c in chans])
             offset = np.array([c.offset for c in chans])
             if np.any(scale != 1.0) or np.any(offset != 0.0):
-                self._rtd_cal[cfg.name] = (scale, offset)
+                self._rtd_cal[cfg.name] = (scale.tolist(), offset.tolist())  # per channel
         cal = self.calibration
         self._ft_cal = ft_calibration(cal) if cal is not None else None
         if self._cae is not None:
