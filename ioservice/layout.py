@@ -227,11 +227,19 @@ class Layout:
     def channel(self, name: str, area: str | None = None) -> ChannelEntry:
         """A named entry; DAC signals have one in ``inputs`` (applied) and one in
         ``commands`` (requested), so give ``area`` when it matters (default: the first)."""
-        for c in self.channels:
-            if c.name == name and (area is None or c.area == area):
-                return c
+        c = self._channel_index.get((name, area))
+        if c is not None:
+            return c
         raise KeyError(f"no channel {name!r}{' in area ' + area if area else ''} in the Bit3 "
                        f"layout (rack {self.rack_name})")
+
+    @cached_property
+    def _channel_index(self) -> dict[tuple[str, str | None], ChannelEntry]:
+        index: dict[tuple[str, str | None], ChannelEntry] = {}
+        for c in self.channels:  # the first entry wins, with and without an area
+            index.setdefault((c.name, c.area), c)
+            index.setdefault((c.name, None), c)
+        return index
 
     @cached_property
     def _slot_index(self) -> dict[tuple[str, str], int]:

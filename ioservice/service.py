@@ -231,19 +231,18 @@ class IoService:
         n = len(cfg.channels)
         chans = sorted(cfg.channels, key=lambda c: c.channel)
         self._dac_slots = self._span("dac", chans)
-        self._dac_scale = np.array([c.scale for c in chans])
-        self._dac_offset = np.array([c.offset for c in chans])
-        self._dac_eng = np.zeros(n)  # engineering command per DAC channel
-        self._dac_volts = np.zeros(n)
-        self._dac_safe = np.zeros(n)
-        self._dac_status = np.zeros(n, dtype=np.uint16)
+        self._dac_n = n
+        self._dac_scale_l = [c.scale for c in chans]  # volts = (engineering - offset) / scale
+        self._dac_offset_l = [c.offset for c in chans]
+        self._dac_zeros = [0.0] * n
+        self._dac_forced_safe = [DAC_FORCED_SAFE] * n
         sig = {c.signal: c.channel for c in chans}
         # command-area order (layout.joints / layout.limits) -> DAC channel
         self._cmd_rate_ch = np.array([sig[j + "_command"] for j in self.layout.joint_names], dtype=np.intp)
         self._cmd_limit_ch = np.array([sig[s] for s in self.layout.current_limit_names], dtype=np.intp)
+        self._cmd_rate_list = self._cmd_rate_ch.tolist()
         self._cmd_limit_list = self._cmd_limit_ch.tolist()
-        self._limit_mask = np.zeros(n, dtype=bool)
-        self._limit_mask[self._cmd_limit_ch] = True
+        self._dac_is_limit = [ch in self._cmd_limit_list for ch in range(n)]
         grip = [c.channel for c in chans if "gripper" in c.signal and "current_limit" not in c.signal]
         self._cmd_gripper_ch = grip[0] if grip else None
         self._dac_board_slot = self._board_slot(cfg.name)
@@ -603,38 +602,41 @@ class IoService:
             self._outputs_enabled = True
             self.fault_code = FAULT_NONE
             v["watchdog_tripped"][...] = 0
-        eng = self._dac_eng
-        eng[:] = 0.0
-        eng[self._cmd_rate_ch] = rates[: len(self._cmd_rate_ch)]
-        eng[self._cmd_limit_ch] = c["current_limit_a"][: len(self._cmd_limit_ch)]
+        # 16 channels in plain Python (numpy's per-call cost exceeds the arithmetic here)
+        eng = [0.0] * self._dac_n  # engineering command per DAC channel
+        for ch, x in zip(self._cmd_rate_list, rates.tolist()):
+            eng[ch] = x
+        for ch, x in zip(self._cmd_limit_list, c["current_limit_a"].tolist()):
+            eng[ch] = x
         if self._cmd_gripper_ch is not None:
-            eng[self._cmd_gripper_ch] = c["gripper"]
-        volts = self._dac_volts
-        np.divide(np.subtract(eng, self._dac_offset, out=volts), self._dac_scale, out=volts)
-        volts[~np.isfinite(volts)] = 0.0
+            eng[self._cmd_gripper_ch] = float(c["gripper"])
         r = self._dac.range_volts
-        status = self._dac_status
-        status[:] = 0
-        # a negative current limit means nothing to the amplifier: clamp to 0 (brakes set)
-        clipped = (np.abs(volts) > r) | (self._limit_mask & (volts < 0))
-        status[clipped] = DAC_CLIPPED
-        np.clip(volts, -r, r, out=volts)
-        volts[self._limit_mask & (volts < 0)] = 0.0
+        isfinite = math.isfinite
+        volts, status = [], []
+        for e, off, k, lim in zip(eng, self._dac_offset_l, self._dac_scale_l, self._dac_is_limit):
+            x = (e - off) / k if k else 0.0
+            st = 0
+            if not isfinite(x):  # a non-finite command drives 0 V
+                x = 0.0
+            elif x > r or x < -r or (lim and x < 0.0):
+                # out of range: saturate; a negative current limit means nothing to the
+                # amplifier: 0 V (brakes set)
+                st = DAC_CLIPPED
+                x = 0.0 if lim and x < 0.0 else (r if x > r else -r)
+            volts.append(x)
+            status.append(st)
         self._write_dac(volts, status, eng)
 
     def _apply_safe(self) -> None:
-        self._dac_status[:] = DAC_FORCED_SAFE
-        self._dac_eng[:] = 0.0
         if self.state == ServiceState.ARMED or self.guard.state == ServiceState.FAULT:
             self.set_state(self.guard.state)
-        self._write_dac(self._dac_safe, self._dac_status, self._dac_eng)
+        self._write_dac(self._dac_zeros, self._dac_forced_safe, self._dac_zeros)
 
-    def _write_dac(self, volts: np.ndarray, status: np.ndarray, eng: np.ndarray) -> None:
+    def _write_dac(self, volts: list[float], status: list[int], eng: list[float]) -> None:
         v = self._v
         t = self.clock.now()
         try:
-            vl = volts.tolist()  # 16 values: list indexing in the driver's loop
-            self._dac.write_volts_all(vl, clamp=True)
+            self._dac.write_volts_all(volts, clamp=True)
         except PfmaError as err:
             self._count_board_error(self._dac_cfg.name, err)
             self._devices["dac"].errors += 1
@@ -648,7 +650,7 @@ class IoService:
         v["dac_status"][slots] = status
         v["outputs_enabled"][...] = self._outputs_enabled and self.guard.state == ServiceState.ARMED
         v["brakes_released"][...] = self._outputs_enabled and \
-            any(vl[ch] > BRAKE_RELEASE_V for ch in self._cmd_limit_list)
+            any(volts[ch] > BRAKE_RELEASE_V for ch in self._cmd_limit_list)
         v["t_dac_s"][...] = t
         self._sampled("dac", t)
         if self.guard.state != self.state and self.state not in (ServiceState.STOPPED,):
@@ -772,8 +774,6 @@ class IoService:
         except PfmaError as err:
             self.post(Severity.ERROR, 150, f"could not disable DAC outputs: {err}")
         self._outputs_enabled = False
-        self._dac_status[:] = DAC_FORCED_SAFE
-        self._dac_eng[:] = 0.0
         slots = self._dac_slots
         self._v["dac_counts"][slots] = self._dac.shadow_counts
         self._v["dac_volts"][slots] = self._dac.shadow_volts
@@ -830,8 +830,8 @@ class IoService:
             scale[:] = [c.scale for c in chans]
             offset[:] = [c.offset for c in chans]
         chans = sorted(rack.board(self._dac_cfg.name).channels, key=lambda c: c.channel)
-        self._dac_scale[:] = [c.scale for c in chans]
-        self._dac_offset[:] = [c.offset for c in chans]
+        self._dac_scale_l = [c.scale for c in chans]
+        self._dac_offset_l = [c.offset for c in chans]
         self._apply_calibration_extras()
         self.post(Severity.INFO, 160, f"calibration v{cal.version} loaded ({cal.hash().hex()})")
 

@@ -313,7 +313,9 @@ class FtSensor:
     def stats(self) -> LinkStats:
         """Link statistics now (rate over the last ``rate_window_s``)."""
         now = self.clock.now()
-        times = [t for t in self._times if t >= now - self.rate_window_s]
+        times = self._times
+        while times and times[0] < now - self.rate_window_s:  # out of the window for good
+            times.popleft()
         rate = (len(times) - 1) / (times[-1] - times[0]) if len(times) >= 2 and times[-1] > times[0] else 0.0
         s = self._stats
         return LinkStats(records=s.records, bad_records=s.bad_records, resyncs=s.resyncs, rate_hz=rate,
