@@ -50,6 +50,11 @@ BUTTONS: dict[int, str] = {bit: role for _, role, bit in CAE_DISCRETES}
 #: the nine signals in rack order (the order of ``from_volts``'s argument with the default rack)
 CAE_SIGNALS: tuple[str, ...] = tuple(s for s, _, _ in CAE_AXES) + tuple(s for s, _, _ in CAE_DISCRETES)
 
+_N_AXES = len(CAE_AXES)
+#: for each of AXES (the state's order): (axis name, its position in CAE_AXES)
+_AXIS_SOURCE: tuple[tuple[str, int], ...] = tuple(
+    (a, [axis for _, axis, _ in CAE_AXES].index(a)) for a in AXES)
+
 FULL_SCALE_V = 10.0  #: +-10 V at full deflection (pfma-model 8.5, assumed)
 DEADBAND_V = 0.5  #: +-5 % of full scale (pfma-model 8.5, assumed)
 OVERRANGE_V = 10.5  #: beyond this an axis is reported as a fault (ADC rail / broken wire; assumed)
@@ -170,24 +175,21 @@ class CaeHandController:
             raise ValueError(f"CAE hand controller needs {len(CAE_SIGNALS)} voltages (ADC channels "
                              f"{', '.join(map(str, self.adc_channels))}), got {len(volts_9)}")
         v = [float(volts_9[i]) for i in self._index]  # CAE_SIGNALS order
+        isfinite = math.isfinite
         buttons = 0
         for i, (_, _, bit) in enumerate(CAE_DISCRETES):
-            vi = v[len(CAE_AXES) + i]
-            if math.isfinite(vi) and self._discrete(i, vi):
+            vi = v[_N_AXES + i]
+            if isfinite(vi) and self._discrete(i, vi):
                 buttons |= bit
-        bad = [(sig, ch, x) for (sig, _, _), ch, x in zip(CAE_AXES, self.channels, v)
-               if not (math.isfinite(x) and abs(x) <= OVERRANGE_V)]
-        bad += [(sig, ch, x) for (sig, _, _), ch, x in zip(CAE_DISCRETES, self.channels[6:], v[6:])
-                if not math.isfinite(x)]
-        if bad:
-            sig, ch, x = bad[0]
-            self._state = safe_state("cae", t, f"{sig} (ADC channel {ch}) reads {x!r} V: out of range",
-                                     buttons=buttons)
-            return self._state
-        shaped = {axis: self.calibration.axes[axis].shape(x) for (_, axis, _), x in zip(CAE_AXES, v)}
+        for k, x in enumerate(v):  # the first bad input names itself: axes over-range, any NaN
+            if not isfinite(x) or (k < _N_AXES and abs(x) > OVERRANGE_V):
+                self._state = safe_state("cae", t, f"{CAE_SIGNALS[k]} (ADC channel {self.channels[k]}) "
+                                         f"reads {x!r} V: out of range", buttons=buttons)
+                return self._state
+        cal = self.calibration.axes
         deadman = bool(buttons & CAE_DISCRETES[0][2])
         self._state = HandControllerState(
-            axes=tuple(shaped[a] for a in AXES), deadman=deadman, buttons=buttons, source="cae",
+            axes=tuple(cal[a].shape(v[k]) for a, k in _AXIS_SOURCE), deadman=deadman, buttons=buttons, source="cae",
             t_s=t, valid=True, fault=False, reason="", raw=tuple(float(x) for x in volts_9))
         return self._state
 
