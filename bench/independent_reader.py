@@ -93,20 +93,36 @@ class IndependentReader:
         return vals[0] if not f["shape"] else list(vals)
 
 
-def measure(reader: IndependentReader, step, seconds: float) -> dict:
+class ServiceStalled(RuntimeError):
+    """The service stopped publishing before the measurement was complete."""
+
+
+def measure(reader: IndependentReader, step, seconds: float, stall_s: float = 2.0,
+            wall=time.monotonic) -> dict:
     """Poll the inputs after each ``step()`` for ``seconds`` of the service clock; return
     the refresh rate of each sample time and each device counter.
 
     ``step`` is whatever lets time pass: a short sleep against a live service, one
     simulated frame in a test.
+
+    :raises ServiceStalled: the inputs' time stood still for ``stall_s`` of wall-clock
+        time (the service stopped or hangs) - rather than waiting for ever; ``wall`` is
+        that clock
     """
     seen: dict[str, list[float]] = {k: [] for k in SAMPLE_TIMES}
     stats0 = None
     t_start = None
+    t_last, wall_last = None, wall()
     while True:
         step()
         body = reader.copy_area("inputs")
         t_now = reader.field(body, "inputs", "t_s")
+        if t_now != t_last:
+            t_last, wall_last = t_now, wall()
+        elif wall() - wall_last > stall_s:
+            got = 0.0 if t_start is None else t_now - t_start
+            raise ServiceStalled(f"the service's inputs have not changed for {stall_s:g} s "
+                                 f"(service stopped?) after {got:.1f} of {seconds:g} s measured")
         if t_start is None:
             t_start = t_now
             st = reader.copy_area("stats")
@@ -143,6 +159,9 @@ def main(argv: list[str] | None = None) -> int:
     r = IndependentReader(layout, f"/dev/shm/{a.buffer}")
     try:
         res = measure(r, lambda: time.sleep(a.poll_s), a.seconds)
+    except ServiceStalled as err:
+        print(f"independent reader: {err}", file=sys.stderr)
+        return 2
     finally:
         r.close()
     print(f"independent reader, {a.seconds:g} s of /dev/shm/{a.buffer} (layout {layout['hash']}):")

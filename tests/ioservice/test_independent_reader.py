@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from bench.independent_reader import IndependentReader, LayoutMismatch, SAMPLE_TIMES, measure
+from bench.independent_reader import IndependentReader, LayoutMismatch, SAMPLE_TIMES, ServiceStalled, measure
 from ioservice.simrig import SimRig
 
 READER = Path(__file__).resolve().parents[2] / "bench" / "independent_reader.py"
@@ -53,3 +53,28 @@ def test_a_different_layout_is_refused(published_layout):
             IndependentReader(wrong, f"/dev/shm/{rig.name}")
     finally:
         rig.close()
+
+
+def test_a_service_that_stops_mid_measurement_is_reported_not_waited_for(published_layout):
+    """Frames stop after 1 s of a 3 s measurement: the reader says so once its inputs have
+    stood still for ``stall_s`` of (here simulated) wall-clock time, instead of hanging."""
+    rig = SimRig(prefix="pfma-test-")
+    wall = [0.0]
+    frames = [0]
+
+    def step():
+        wall[0] += 0.01
+        if frames[0] < 320:  # 1 s of frames, then the service is gone
+            rig.svc.loop.run(frames=1)
+            frames[0] += 1
+
+    try:
+        r = IndependentReader(published_layout, f"/dev/shm/{rig.name}")
+        try:
+            with pytest.raises(ServiceStalled, match=r"not changed for 2 s .* after 1\.0 of 3 s"):
+                measure(r, step, seconds=3.0, stall_s=2.0, wall=lambda: wall[0])
+        finally:
+            r.close()
+    finally:
+        rig.close()
+    assert 2.0 < wall[0] - 3.2 < 2.1  # gave up 2 s (of its wall clock) after the last frame
