@@ -9,6 +9,7 @@ The Bit3 buffer is POSIX shared memory ``/dev/shm/NAME``.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import subprocess
 import sys
@@ -69,7 +70,8 @@ def _live_view(buffer_name: str, stop: threading.Event, rack) -> None:
             print(f"t={s.t_s:8.2f}s frame={s.frame:7d} {ServiceState(s.service_state).name:7s} "
                   f"q[rad] {angles}  F[N] {f[0]:+6.1f} {f[1]:+6.1f} {f[2]:+6.1f}  "
                   f"rates rtd/adc/dac/ft {rates[0]:.0f}/{rates[1]:.0f}/{rates[2]:.0f}/{rates[3]:.0f} Hz "
-                  f"work p50 {st.work_p50_us:.0f} us", flush=True)
+                  + (f"work p50 {st.work_p50_us:.0f} us" if math.isfinite(st.work_p50_us)
+                     else "work p50 -- (no statistics yet)"), flush=True)
             for m in c.new_messages():
                 print("   ", m.format(), flush=True)
     finally:
