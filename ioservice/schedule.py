@@ -92,7 +92,7 @@ class Schedule:
 
     def frame_table(self) -> tuple[tuple[str, ...], ...]:
         """One tuple of task names per minor frame of the major frame, in run order."""
-        order = list(TASKS)  # inputs before outputs? no: see the service's frame body
+        order = list(TASKS)  # the service runs them in this order: DAC first, inputs, publish
         return tuple(tuple(t for t in order if t in self.slots
                            and k % self.slots[t].divider == self.slots[t].phase)
                      for k in range(MINOR_FRAMES_PER_MAJOR))
