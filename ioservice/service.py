@@ -329,6 +329,7 @@ class IoService:
             port.autopoll = False  # serial_tick drains the FIFO; decoding reads the buffer
             self._crl = CrlHandController(port, self.clock)
             self._crl_tx = 0
+            self._crl_rate_mark = (None, 0)  # (time, good frames) at the start of the rate window
 
     def _wire_cae(self) -> None:
         from drivers.crl.cae import CaeHandController
@@ -530,6 +531,15 @@ class IoService:
             v["link_bad"][slot] = stats["frames_bad"]
             v["link_resyncs"][slot] = stats["resyncs"]
             v["link_status"][slot] = LINK_OPEN | (LINK_FAULT if stats["tripped"] else LINK_SYNCED)
+            # good frames per second over windows of at least 0.5 s, and the last one's age
+            now, n = self.clock.now(), stats["frames_ok"]
+            t0, n0 = self._crl_rate_mark
+            if t0 is None:
+                self._crl_rate_mark = (now, n)
+            elif now - t0 >= 0.5:
+                v["link_rate_hz"][slot] = (n - n0) / (now - t0)
+                self._crl_rate_mark = (now, n)
+            v["link_age_s"][slot] = now - self._crl.last_good_t
             self._sampled("crl", self._crl_latest.t_s)
 
     def _send_crl_force(self) -> None:

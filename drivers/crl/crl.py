@@ -102,6 +102,11 @@ class CrlHandController:
         return self.port.read(n) if n else b""
 
     # -- receive ------------------------------------------------------------------
+    @property
+    def last_good_t(self) -> float:
+        """Clock time of the last good frame (construction time before the first)."""
+        return self._last_good_t
+
     def update(self) -> HandControllerState:
         """Take in every byte waiting on the port; return the current state.
 

@@ -30,6 +30,11 @@ def test_inputs_refresh_at_documented_rates(rig):
     link = rig.reader.layout.slot("link", "ft_sensor")
     assert s.link_records[link] > 200 and s.link_bad[link] <= 2
     assert s.t_ft_s > s.t_s - 0.03  # fresh
+    # the CRL link: its good-frame rate (the master sends a frame every 20 ms, pfma-model
+    # 8.6; the service samples the latest at 80 Hz) and the last good frame's age
+    crl = rig.reader.layout.slot("link", "crl_hand_controller")
+    assert s.link_rate_hz[crl] == pytest.approx(50, rel=0.02)
+    assert 0.0 <= s.link_age_s[crl] < 0.020 + 0.0125  # a frame period + one 80 Hz task period
 
 
 def test_outputs_start_disconnected_and_zero(rig):
