@@ -255,3 +255,46 @@ def test_a_missed_ft_slot_is_tried_again_in_the_next_frames(rig, monkeypatch, re
         assert published >= 160 - 1  # 2 s at 80 Hz
     else:
         assert published <= 160 - 5
+
+
+def _stats_calls(rig, monkeypatch):
+    """Record, for every publish_stats call, the loop's frame and whether a frame was running."""
+    calls, in_frame = [], [False]
+    body, publish = rig.svc.loop.body, rig.svc.publish_stats
+
+    def frame(info):
+        in_frame[0] = True
+        try:
+            body(info)
+        finally:
+            in_frame[0] = False
+
+    def recorded():
+        calls.append((rig.svc.loop.k, in_frame[0]))
+        return publish()
+    rig.svc.loop.body = frame
+    monkeypatch.setattr(rig.svc, "publish_stats", recorded)
+    return calls
+
+
+def test_statistics_are_computed_between_frames_when_the_service_runs(rig, monkeypatch):
+    """``IoService.run`` publishes the statistics a frame asks for (every 160th) in the sleep
+    after it, so their ~1 ms percentile work is not a periodic spike in the frame work."""
+    calls = _stats_calls(rig, monkeypatch)
+    rig.svc.run(frames=400)
+    # loop.k is the next frame's number in the sleep after frames 0, 160 and 320
+    between = [k for k, inside in calls[:-1] if not inside]  # the last call is stop()'s
+    assert between == [1, 161, 321] and not any(inside for _, inside in calls)
+    st = rig.reader.read_stats()
+    assert st.frame == 400 and st.frames == 400  # stop() published the final figures
+
+
+def test_statistics_fall_back_into_a_frame_when_there_is_no_idle_time(rig, monkeypatch):
+    """Hooks run only in sleeps of at least a tick; with ticks longer than the frame they never
+    run, and the frame publishes the statistics itself STATS_MAX_DEFER_FRAMES frames late."""
+    from ioservice.service import STATS_MAX_DEFER_FRAMES
+    rig.tclock.tick_s = 1.0
+    calls = _stats_calls(rig, monkeypatch)
+    rig.svc.run(frames=400)
+    d = STATS_MAX_DEFER_FRAMES
+    assert [k for k, inside in calls if inside] == [d, 160 + d, 320 + d]
