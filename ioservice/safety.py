@@ -96,6 +96,20 @@ class OutputGuard:
                 return True
         return False
 
+    def check_between_frames(self, heartbeat: int) -> bool:
+        """Between frames: note ``heartbeat``; trip when ARMED and it is older than the
+        watchdog. Returns True when this call tripped. Lets the service act on a stale
+        heartbeat within a hook tick instead of at the next frame."""
+        now = self.clock.now()
+        if heartbeat != self._hb:
+            self._hb = heartbeat
+            self._hb_t = now
+        if self.state == ServiceState.ARMED and now - self._hb_t > self.watchdog_s:
+            self.trip(f"command heartbeat stale between frames ({(now - self._hb_t) * 1e3:.1f} ms > "
+                      f"{self.watchdog_s * 1e3:.1f} ms watchdog)", code=1)
+            return True
+        return False
+
     def trip(self, reason: str, code: int = 9) -> None:
         """Latch FAULT (outputs to 0 V) and post the reason; idempotent while faulted."""
         if self.state in (ServiceState.FAULT, ServiceState.STOPPED):

@@ -730,9 +730,22 @@ class IoService:
         return r.ru_utime + r.ru_stime
 
     def idle_tick(self, now: float | None = None) -> None:
-        """Between frames (a TickingClock hook that :meth:`run` installs): publish the
-        statistics a frame asked for. Percentiles over the 4096-frame window cost about
-        1 ms, which inside a frame would show as a periodic work spike."""
+        """Between frames (a TickingClock hook that :meth:`run` installs, every 0.4 ms of
+        sleep when live):
+
+        - while ARMED, the command heartbeat is checked, and a stale one drives the DAC to
+          0 V at once rather than at the next frame (the reaction to a dead controller is
+          then the watchdog plus one tick, not plus one frame and a late wake-up);
+        - the statistics a frame asked for are published (percentiles over the 4096-frame
+          window cost about 1 ms, a periodic work spike inside a frame).
+        """
+        if self.guard.state == ServiceState.ARMED and self.state == ServiceState.ARMED:
+            cmd = self.commands
+            cmd.read()
+            if self.guard.check_between_frames(int(cmd.record["heartbeat"])):
+                self.fault_code = FAULT_WATCHDOG
+                self._v["watchdog_tripped"][...] = 1
+                self._apply_safe()
         if self._stats_due_k is not None:
             self.publish_stats()
 

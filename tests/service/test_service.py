@@ -298,3 +298,38 @@ def test_statistics_fall_back_into_a_frame_when_there_is_no_idle_time(rig, monke
     rig.svc.run(frames=400)
     d = STATS_MAX_DEFER_FRAMES
     assert [k for k, inside in calls if inside] == [d, 160 + d, 320 + d]
+
+
+def test_a_dead_controller_is_caught_between_frames_within_the_watchdog_plus_a_tick(rig, monkeypatch):
+    """Under ``IoService.run`` the heartbeat is also checked in the sleeps between frames, so
+    outputs go to 0 V within the watchdog plus one hook tick of the last heartbeat the service
+    saw, not at the next frame. The controller here beats from the clock's ticks (between
+    frames) and dies 0.3 s after arming; the kill time is chosen so the watchdog expires
+    early in a frame period, where waiting for the next frame would cost ~2 ms more."""
+    ctl = rig.controller()
+    ctl.write_commands(arm_request=1, current_limit_a=[1.0] * len(ctl.command["current_limit_a"]))
+    t0 = rig.clock.now()
+    t_kill = t0 + 100 * P + 0.0016  # the last beat is the first tick of frame 100's period
+    beats = []
+
+    def controller(now):
+        if now < t_kill:
+            ctl.publish_commands()
+            beats.append(now)
+    rig.tclock.hooks.insert(0, controller)
+    zeros = []
+    write = rig.svc._write_dac
+
+    def recorded(volts, status, eng):
+        if rig.clock.now() > t_kill and not zeros and not any(volts):
+            zeros.append(rig.clock.now())
+        return write(volts, status, eng)
+    monkeypatch.setattr(rig.svc, "_write_dac", recorded)
+    rig.svc.run(frames=200)
+    t_beat = beats[-1]
+    next_frame = t0 + P * (int((t_beat + 0.015 - t0) / P) + 1)
+    assert next_frame - (t_beat + 0.015) > rig.tclock.tick_s + 0.0005  # the case is telling
+    assert zeros and 0.015 < zeros[0] - t_beat <= 0.015 + rig.tclock.tick_s + 0.0005
+    assert rig.svc.state == ServiceState.FAULT or rig.svc.state == ServiceState.STOPPED
+    assert any("between frames" in m.text for m in rig.reader.messages())
+    assert np.all(rig.world.bus["dac"].output_volts_all() == 0.0)
