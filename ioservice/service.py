@@ -243,10 +243,8 @@ class IoService:
         self._dac_forced_safe = [DAC_FORCED_SAFE] * n
         sig = {c.signal: c.channel for c in chans}
         # command-area order (layout.joints / layout.limits) -> DAC channel
-        self._cmd_rate_ch = np.array([sig[j + "_command"] for j in self.layout.joint_names], dtype=np.intp)
-        self._cmd_limit_ch = np.array([sig[s] for s in self.layout.current_limit_names], dtype=np.intp)
-        self._cmd_rate_list = self._cmd_rate_ch.tolist()
-        self._cmd_limit_list = self._cmd_limit_ch.tolist()
+        self._cmd_rate_list = [sig[j + "_command"] for j in self.layout.joint_names]
+        self._cmd_limit_list = [sig[s] for s in self.layout.current_limit_names]
         self._dac_is_limit = [ch in self._cmd_limit_list for ch in range(n)]
         grip = [c.channel for c in chans if "gripper" in c.signal and "current_limit" not in c.signal]
         self._cmd_gripper_ch = grip[0] if grip else None
@@ -334,7 +332,6 @@ class IoService:
             port.autopoll = False  # serial_tick drains the FIFO; decoding reads the buffer
             self._crl = CrlHandController(port, self.clock)
             self._crl_tx = 0
-            self._crl_rate_mark = (None, 0)  # (time, good frames) at the start of the rate window
 
     def _wire_cae(self) -> None:
         from drivers.crl.cae import CaeHandController
@@ -541,15 +538,8 @@ class IoService:
             v["link_bad"][slot] = stats["frames_bad"]
             v["link_resyncs"][slot] = stats["resyncs"]
             v["link_status"][slot] = LINK_OPEN | (LINK_FAULT if stats["tripped"] else LINK_SYNCED)
-            # good frames per second over windows of at least 0.5 s, and the last one's age
-            now, n = self.clock.now(), stats["frames_ok"]
-            t0, n0 = self._crl_rate_mark
-            if t0 is None:
-                self._crl_rate_mark = (now, n)
-            elif now - t0 >= 0.5:
-                v["link_rate_hz"][slot] = (n - n0) / (now - t0)
-                self._crl_rate_mark = (now, n)
-            v["link_age_s"][slot] = now - self._crl.last_good_t
+            v["link_rate_hz"][slot] = stats["rate_hz"]
+            v["link_age_s"][slot] = stats["age_s"]
             self._sampled("crl", self._crl_latest.t_s)
 
     def _send_crl_force(self) -> None:

@@ -22,6 +22,7 @@ from drivers.crl import crl_codec as codec
 from drivers.crl.state import HandControllerState, safe_state
 from pfma.clock import Clock, MonotonicClock
 from pfma.errors import LinkError
+from pfma.ratewindow import RateWindow
 
 #: meaning of ``HandControllerState.buttons`` for source "crl" (the frame's buttons byte)
 BUTTONS: dict[int, str] = {codec.BTN_DEADMAN: "deadman", codec.BTN_INDEX: "index (clutch)",
@@ -67,6 +68,7 @@ class CrlHandController:
         self._tx_seq = 0
         self._last_frame: codec.MasterFrame | None = None
         self._last_good_t = self.clock.now()
+        self._rate = RateWindow(1.0)  # good frames per second
         self._state = safe_state("crl", self._last_good_t, "waiting for the first frame", fault=False)
 
     @classmethod
@@ -102,11 +104,6 @@ class CrlHandController:
         return self.port.read(n) if n else b""
 
     # -- receive ------------------------------------------------------------------
-    @property
-    def last_good_t(self) -> float:
-        """Clock time of the last good frame (construction time before the first)."""
-        return self._last_good_t
-
     def update(self) -> HandControllerState:
         """Take in every byte waiting on the port; return the current state.
 
@@ -125,6 +122,7 @@ class CrlHandController:
         for frame in self.decoder.feed(data):
             self._last_frame = frame
             self._last_good_t = now
+            self._rate.mark(now)
         return self._evaluate(now)
 
     def _trip(self) -> None:
@@ -212,11 +210,13 @@ class CrlHandController:
         return sent
 
     def link_stats(self) -> dict:
-        """Receive counters plus watchdog trips, transmitted frames and port errors."""
+        """Receive counters plus watchdog trips, transmitted frames and port errors, the
+        good-frame rate over the last second and the age of the last good frame."""
+        now = self.clock.now()
         d = self.decoder.stats.as_dict()
         d.update(watchdog_trips=self.watchdog_trips, tx_frames=self.tx_frames,
                  tx_saturated=self.tx_saturated, port_errors=self.port_errors,
-                 tripped=self._tripped)
+                 tripped=self._tripped, rate_hz=self._rate.rate_hz(now), age_s=now - self._last_good_t)
         return d
 
     def close(self) -> None:

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import struct
 import time
-from collections import deque
 from typing import Any
 
 from pfma.clock import Clock, MonotonicClock
 from pfma.errors import ConfigError, LinkError, PfmaTimeoutError
+from pfma.ratewindow import RateWindow
 
 from .ftsensor import FtReading, LinkStats
 from .protocol import (CAN_BASE_ID, CAN_LAYOUT, CAN_NODE_STRIDE, MAX_NODE_ID, NOMINAL,  # noqa: F401
@@ -48,14 +48,13 @@ class CanFtSensor:
         self.cpf, self.cpt = float(cpf), float(cpt)
         self.clock = clock or MonotonicClock()
         self.timeout_s = timeout_s
-        self.rate_window_s = rate_window_s
         self.latest: FtReading | None = None
         self._tag = 0
         self._seq = 0
         self._records = 0
         self._bad = 0
         self._frames_in = 0
-        self._times: deque[float] = deque()
+        self._rate = RateWindow(rate_window_s)
         self.name = f"CAN node {node_id} (ids 0x{self.base_id:03X}..0x{self.base_id + 3:03X})"
 
     def read(self) -> FtReading:
@@ -96,9 +95,8 @@ class CanFtSensor:
     def stats(self) -> LinkStats:
         """Link statistics (bytes_in counts payload bytes of this node's frames)."""
         now = self.clock.now()
-        times = [t for t in self._times if t >= now - self.rate_window_s]
-        rate = (len(times) - 1) / (times[-1] - times[0]) if len(times) >= 2 and times[-1] > times[0] else 0.0
-        return LinkStats(records=self._records, bad_records=self._bad, resyncs=0, rate_hz=rate,
+        return LinkStats(records=self._records, bad_records=self._bad, resyncs=0,
+                         rate_hz=self._rate.rate_hz(now),
                          age_s=None if self.latest is None else now - self.latest.t_s,
                          bytes_in=self._frames_in * 8)
 
@@ -151,8 +149,6 @@ class CanFtSensor:
                       torque_nm=(c[3] / self.cpt, c[4] / self.cpt, c[5] / self.cpt), t_s=t, seq=self._seq)
         self._seq += 1
         self._records += 1
-        self._times.append(t)
-        while self._times and self._times[0] < t - self.rate_window_s:
-            self._times.popleft()
+        self._rate.mark(t)
         self.latest = r
         return r

@@ -21,6 +21,7 @@ from typing import Any, Protocol
 
 from pfma.clock import Clock, MonotonicClock
 from pfma.errors import ConfigError, LinkError, PfmaTimeoutError
+from pfma.ratewindow import RateWindow
 
 from . import protocol as P
 
@@ -98,14 +99,13 @@ class FtSensor:
         self.clock = clock or MonotonicClock()
         self.baud = baud
         self.reply_timeout_s = reply_timeout_s
-        self.rate_window_s = rate_window_s
         self.mode = "ascii"  # controller power-up defaults (CD A, CD U)
         self.checksum_on = False
         self.streaming = False
         self.latest: FtReading | None = None  #: last accepted reading (atomic reference)
         self._stats = P.DecoderStats()
         self._seq = 0
-        self._times: deque[float] = deque()
+        self._rate = RateWindow(rate_window_s)
         self._decoder: P.AsciiStreamDecoder | P.BinaryStreamDecoder = self._new_decoder()
         self.name = _port_label(port)
 
@@ -269,7 +269,7 @@ class FtSensor:
         rest = bytes(buf[buf.index(echo) + len(echo):])
         self._decoder = self._new_decoder()
         self.streaming = True
-        self._times.clear()
+        self._rate.clear()
         if rest:
             self._feed(rest)
 
@@ -313,12 +313,9 @@ class FtSensor:
     def stats(self) -> LinkStats:
         """Link statistics now (rate over the last ``rate_window_s``)."""
         now = self.clock.now()
-        times = self._times
-        while times and times[0] < now - self.rate_window_s:  # out of the window for good
-            times.popleft()
-        rate = (len(times) - 1) / (times[-1] - times[0]) if len(times) >= 2 and times[-1] > times[0] else 0.0
         s = self._stats
-        return LinkStats(records=s.records, bad_records=s.bad_records, resyncs=s.resyncs, rate_hz=rate,
+        return LinkStats(records=s.records, bad_records=s.bad_records, resyncs=s.resyncs,
+                         rate_hz=self._rate.rate_hz(now),
                          age_s=None if self.latest is None else now - self.latest.t_s,
                          bytes_in=s.bytes_in, bytes_discarded=s.bytes_discarded)
 
@@ -396,9 +393,7 @@ class FtSensor:
                             torque_nm=(c[3] / self.cpt, c[4] / self.cpt, c[5] / self.cpt),
                             t_s=t, seq=self._seq)
         self._seq += 1
-        self._times.append(t)
-        while self._times and self._times[0] < t - self.rate_window_s:
-            self._times.popleft()
+        self._rate.mark(t)
         self.latest = reading
         return reading
 
