@@ -59,7 +59,7 @@ from typing import IO, Any, Callable, Iterator
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from ioservice.client import Client
+from ioservice.client import Client, Snapshot
 from ioservice.layout import HC_AXES, Layout, ServiceState
 from ioservice.shm import MESSAGE_DTYPE  # noqa: F401  (documented message fields)
 
@@ -726,8 +726,10 @@ class InputsCapture:
         self.poll_s = poll_s
         self.max_queue = max_queue
         #: an attached ``ioservice.ring.FrameRing`` of the same layout: frames are taken
-        #: from it (up to n_slots - 1 behind) instead of from the single inputs area
+        #: from it (up to n_slots - 1 behind) instead of from the single inputs area;
+        #: the capture owns it (``stop`` closes it)
         self.ring = ring
+        self._inputs_dtype = client.layout.area("inputs").body_dtype
         self.ring_lost = 0  #: frames overwritten in the ring before this thread read them
         self._ring_k: int | None = None  # next ring frame to take
         self.queue: deque = deque()
@@ -764,12 +766,10 @@ class InputsCapture:
     def take_from_ring(self) -> int:
         """Queue every whole frame the ring holds beyond the last one taken; returns how
         many were queued (the thread calls it; tests call it in simulated time)."""
-        from ioservice.client import Snapshot
         ring, q = self.ring, self.queue
         if self._ring_k is None:
             self._ring_k = ring.count()
-        layout = self.client.layout
-        dtype = layout.area("inputs").body_dtype
+        layout, dtype = self.client.layout, self._inputs_dtype
         k, n, taken = self._ring_k, ring.count(), 0
         if n - k >= ring.n_slots:  # fell a whole ring behind: those frames are gone
             self.ring_lost += n - k - (ring.n_slots - 1)
@@ -791,9 +791,12 @@ class InputsCapture:
         return self._thread.is_alive()
 
     def stop(self) -> None:
+        """End the thread and close the ring (queued snapshots stay for :meth:`drain`)."""
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(2.0)
+        if self.ring is not None and not self._thread.is_alive():
+            self.ring.close()
 
     def drain(self, rec: "Recorder") -> int:
         """Write every queued snapshot; returns frames written."""

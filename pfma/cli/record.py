@@ -184,7 +184,8 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
                         say(f"{capture.error}")
                     else:
                         raise capture.error
-                    capture.error = None
+                    capture.stop()  # the thread has ended; this closes its ring
+                    capture.drain(rec)
                     capture = InputsCapture(client, ring=_ring(buffer, client)).start()
                 now = time.monotonic()
                 if n:
