@@ -82,22 +82,36 @@ class Dvme611:
             f"= 0x{csr:04X} after {polls} polls{waited}")
 
     # -- conversion ---------------------------------------------------------------------
-    def _convert(self, channel: int) -> int:
-        """START, poll EOC (bounded), read DATA. The CSR must already select ``channel``."""
-        r16 = self.bus.read16
-        self.bus.write16(self._start, 0)
-        csr_addr = self._csr
-        csr = 0
-        for _ in range(self.max_polls):
-            csr = r16(csr_addr)
-            if csr & _EOC:
-                break
-        else:
-            csr = self._wait_eoc_slow(channel, csr)
-        if csr & _CH != channel:
-            raise BoardError(f"{self.name}: CSR at A16 0x{csr_addr:04X} selects channel {csr & _CH}, "
-                             f"expected {channel} (auto-increment out of step)")
-        return r16(self._data) & _CODE
+    def _convert_run(self, csr_word: int, channels: range | tuple[int, ...]) -> list[int]:
+        """Write ``csr_word`` to the CSR, then for each channel in turn: START, poll EOC
+        (bounded), check that the CSR selects that channel, read DATA. The one conversion
+        sequence of single reads and scans; bus calls are bound once (the service scans 32
+        channels every other frame, ~5 accesses each).
+
+        :raises BusError: naming the board, register and the channel being converted
+        """
+        w16, r16 = self.bus.write16, self.bus.read16
+        start, csr_addr, data, polls = self._start, self._csr, self._data, range(self.max_polls)
+        codes = []
+        ch = channels[0]  # a failing CSR write names the first channel
+        try:
+            w16(csr_addr, csr_word)
+            for ch in channels:
+                w16(start, 0)
+                csr = 0
+                for _ in polls:
+                    csr = r16(csr_addr)
+                    if csr & _EOC:
+                        break
+                else:
+                    csr = self._wait_eoc_slow(ch, csr)
+                if csr & _CH != ch:
+                    raise BoardError(f"{self.name}: CSR at A16 0x{csr_addr:04X} selects channel "
+                                     f"{csr & _CH}, expected {ch} (auto-increment out of step)")
+                codes.append(r16(data) & _CODE)
+        except BusError as err:
+            raise self._bus_error(err, ch) from err
+        return codes
 
     def _wait_eoc_slow(self, channel: int, csr: int) -> int:
         """``max_polls`` reads saw no EOC: poll on until ``min_wait_s`` has passed, then fail."""
@@ -124,11 +138,7 @@ class Dvme611:
         :raises BusError: naming the board, register, channel and address
         """
         ch = self._check_channel(channel)
-        try:
-            self.bus.write16(self._csr, ch)  # single mode, gain x1, no interrupt
-            return self._convert(ch)
-        except BusError as err:
-            raise self._bus_error(err, ch) from err
+        return self._convert_run(ch, (ch,))[0]  # CSR: single mode on ch, gain x1, no interrupt
 
     def scan(self, out: np.ndarray | None = None) -> np.ndarray:
         """Convert all 32 channels in auto-increment mode; returns their codes.
@@ -137,29 +147,7 @@ class Dvme611:
         """
         if out is None:
             out = np.empty(N_CHANNELS, dtype=np.int64)
-        ch = 0
-        # _convert inlined, bus calls bound once: 32 conversions of ~5 accesses each
-        w16, r16 = self.bus.write16, self.bus.read16
-        start, csr_addr, data, polls = self._start, self._csr, self._data, range(self.max_polls)
-        codes = []
-        try:
-            w16(csr_addr, _AUTOINC)  # channel 0, auto-increment
-            for ch in range(N_CHANNELS):
-                w16(start, 0)
-                csr = 0
-                for _ in polls:
-                    csr = r16(csr_addr)
-                    if csr & _EOC:
-                        break
-                else:
-                    csr = self._wait_eoc_slow(ch, csr)
-                if csr & _CH != ch:
-                    raise BoardError(f"{self.name}: CSR at A16 0x{csr_addr:04X} selects channel "
-                                     f"{csr & _CH}, expected {ch} (auto-increment out of step)")
-                codes.append(r16(data) & _CODE)
-        except BusError as err:
-            raise self._bus_error(err, ch) from err
-        out[:] = codes
+        out[:] = self._convert_run(_AUTOINC, range(N_CHANNELS))  # from channel 0
         return out
 
     # -- volts --------------------------------------------------------------------------------

@@ -118,19 +118,12 @@ class Vmivme4100:
         """Write 16 voltages, channel 0 first (all validated before anything is written)."""
         if len(volts) != N_CHANNELS:
             raise ValueError(f"{self.name}: need {N_CHANNELS} voltages, got {len(volts)}")
-        # code_from_volts inlined (16 channels: plain Python beats numpy's per-call cost)
-        r, cpv = self.range_volts, self._counts_per_volt
-        codes = []
+        code, codes = self.code_from_volts, []
         for ch in range(N_CHANNELS):
-            x = float(volts[ch])
-            if not -r <= x <= r:
-                if clamp and not math.isnan(x):
-                    x = r if x > r else -r
-                else:
-                    raise ValueError(f"{self.name}: {x!r} V is outside the +-{r:g} V range "
-                                     f"(channel {ch}, A16 0x{self._addr[ch]:04X})")
-            code = int(round((x + r) * cpv))
-            codes.append(_MAX_CODE if code > _MAX_CODE else code)
+            try:
+                codes.append(code(float(volts[ch]), clamp=clamp))
+            except ValueError as err:
+                raise ValueError(f"{err} (channel {ch}, A16 0x{self._addr[ch]:04X})") from None
         self._write_codes(codes)
 
     def _write_codes(self, codes: list[int]) -> None:
