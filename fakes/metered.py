@@ -39,6 +39,19 @@ def overhead_per_access_s(n: int = 20000) -> float:
     return max(0.0, runs[2])
 
 
+def _metered(op: str):
+    """A MeteredBus method that forwards ``op`` to the wrapped bus and times it."""
+    def call(self, *args):
+        t0 = time.perf_counter()
+        try:
+            return getattr(self.bus, op)(*args)
+        finally:
+            self.sim_s += time.perf_counter() - t0
+            self.accesses += 1
+    call.__name__ = op
+    return call
+
+
 class MeteredBus:
     """Forwards ``read8/read16/write8/write16`` to ``bus`` and sums the time they take.
 
@@ -56,34 +69,7 @@ class MeteredBus:
     def __getitem__(self, name):
         return self.bus[name]
 
-    def read8(self, addr: int) -> int:
-        t0 = time.perf_counter()
-        try:
-            return self.bus.read8(addr)
-        finally:
-            self.sim_s += time.perf_counter() - t0
-            self.accesses += 1
-
-    def read16(self, addr: int) -> int:
-        t0 = time.perf_counter()
-        try:
-            return self.bus.read16(addr)
-        finally:
-            self.sim_s += time.perf_counter() - t0
-            self.accesses += 1
-
-    def write8(self, addr: int, value: int) -> None:
-        t0 = time.perf_counter()
-        try:
-            self.bus.write8(addr, value)
-        finally:
-            self.sim_s += time.perf_counter() - t0
-            self.accesses += 1
-
-    def write16(self, addr: int, value: int) -> None:
-        t0 = time.perf_counter()
-        try:
-            self.bus.write16(addr, value)
-        finally:
-            self.sim_s += time.perf_counter() - t0
-            self.accesses += 1
+    read8 = _metered("read8")
+    read16 = _metered("read16")
+    write8 = _metered("write8")
+    write16 = _metered("write16")
