@@ -71,14 +71,6 @@ class CheckoutConfig:
             return over[key]
         return self.get("joints", key)
 
-    def joint_opt(self, joint: str, key: str, default: Any) -> Any:
-        """Like :meth:`joint`, with ``default`` when neither table has ``key`` (keys added
-        after pfma/checkout_default.toml was written, so older override files still load)."""
-        over = self.data.get("joints", {}).get(joint)
-        if isinstance(over, dict) and key in over:
-            return over[key]
-        return self.data.get("joints", {}).get(key, default)
-
     def adc_group(self, signal: str) -> dict | None:
         """The first ``[[adc.group]]`` whose patterns match ``signal`` (None: no idle range)."""
         for g in self.get("adc", "group"):

@@ -38,10 +38,6 @@ from pfma.errors import PfmaError
 RTD_BITS = {1: "loss of signal", 2: "no reference", 0x100: "board read failed"}
 LINK_BITS = {LINK_OPEN: "open", LINK_SYNCED: "synced", LINK_FAULT: "fault", LINK_STALE: "stale"}
 BOARD_BITS = {BOARD_OK: "ok", 2: "init", BOARD_FAULT: "fault"}
-#: open-loop test: the motor-current monitor's peak-to-peak while a joint is driven must
-#: reach this fraction of the test's current limit ([joints] min_current_fraction); the
-#: simulated arm reaches the limit itself while accelerating
-MIN_CURRENT_FRACTION = 0.1
 #: a tach whose samples span less than this fraction of the commanded rate while the
 #: resolver shows the joint moving is reported as dead or stuck rather than reversed
 STUCK_TACH_FRACTION = 0.1
@@ -468,9 +464,13 @@ class Checkout:
         # the joint's motor-current monitor must respond while the joint is driven: a dead
         # ADC input reads a constant (0 V passes the idle range) and only shows here
         current = f"{j}_motor_current"
-        if current not in {c.name for c in self.lay.channels}:
+        try:
+            self.lay.channel(current)
+        except KeyError:  # a rack without that monitor
             current = ""
-        min_current = float(cfg.joint_opt(j, "min_current_fraction", MIN_CURRENT_FRACTION)) * i_lim
+        # peak-to-peak it must reach, a fraction of the test's current limit (the simulated
+        # arm reaches the limit itself while accelerating)
+        min_current = float(cfg.joint(j, "min_current_fraction")) * i_lim
         cmd = self.t.commander()
         rates = [0.0] * len(jn)
         limits = [0.0] * n_lim
