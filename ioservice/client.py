@@ -112,6 +112,10 @@ class Snapshot:
         return f"<Snapshot {self.area} seq={self.seq}>"
 
 
+#: command fields the client stamps itself
+_STAMPS = ("heartbeat", "t_s", "writer_pid", "writer_token")
+
+
 class Client:
     """Attach to the buffer as a reader, or as the writer of one role's areas."""
 
@@ -126,8 +130,15 @@ class Client:
         self._snaps: dict[str, Snapshot] = {}
         self._cursor = {q: 0 for q in QUEUES.values()}
         self._cmd = None
+        self._frame_word = None
         if role == "controller":
             self._cmd = buf.writer("commands")
+            claim = buf.owner("commands")
+            # the claim's pid and token ride in every command body: the service obeys a
+            # command area only while both match the header's owner slot (second writers refused)
+            self._cmd.record["writer_pid"] = claim.pid
+            self._cmd.record["writer_token"] = claim.claimed_ns
+            self._frame_word = buf._word(buf._hdr_off["frame"], "Q")
 
     @classmethod
     def attach(cls, name: str = "pfma", writer: str | bool | None = False,
@@ -234,14 +245,24 @@ class Client:
         """Set command fields (others keep their values), bump the heartbeat, publish.
 
         Keys are command-area fields (``joint_rate_rad_s``, ``current_limit_a``,
-        ``gripper``, ``matrix_route``, ``arm_request``, ``rearm_counter``, ``mode``) or
-        DAC channel signals (``elbow_pitch_command``, ``gripper_current_limit``).
-        Non-finite numbers are refused. Returns the new heartbeat.
+        ``gripper``, ``matrix_route``, ``arm_request``, ``rearm_counter``, ``mode``,
+        ``inputs_frame``, ``controller_frame``) or DAC channel signals
+        (``elbow_pitch_command``, ``gripper_current_limit``). Non-finite numbers are
+        refused. Returns the new heartbeat.
+
+        ``inputs_frame`` says which service frame's inputs the rate commands were computed
+        from; the service drives rate channels only from commands at most its configured
+        age old (default 4 frames). A write that does not give it is stamped with the
+        newest frame the service has published (right for a writer whose commands do not
+        depend on the inputs, e.g. a fixed setpoint or an operator's jog). A controller
+        closing a loop must give it every time.
         """
         w = self._writer_check()
         rec = w.record
         names = rec.dtype.names
         backup = rec.copy()  # all or nothing: a bad key or value leaves the record unchanged
+        if "inputs_frame" not in fields:
+            rec["inputs_frame"] = self._frame_word[0]
         try:
             for key, value in fields.items():
                 target, idx = self._command_target(key, names)
@@ -261,7 +282,7 @@ class Client:
         return self.publish_commands()
 
     def _command_target(self, key: str, names: tuple[str, ...]) -> tuple[str, int | None]:
-        if key in ("heartbeat", "t_s"):
+        if key in ("heartbeat", "t_s", "writer_pid", "writer_token"):
             raise Bit3Error(f"command field {key!r} is set by write_commands itself")
         if key in names:
             return key, None
@@ -269,7 +290,7 @@ class Client:
             c = self.layout.channel(key, "commands")
         except KeyError:
             raise Bit3Error(f"no command field or DAC command channel {key!r}; fields: "
-                            f"{', '.join(n for n in names if n not in ('heartbeat', 't_s'))}; "
+                            f"{', '.join(n for n in names if n not in _STAMPS)}; "
                             f"channels: {', '.join(c.name for c in self.layout.channels if c.area == 'commands')}"
                             ) from None
         return c.fields[0][0], c.fields[0][1]
@@ -298,6 +319,7 @@ class Client:
         self._readers.clear()
         self._snaps.clear()
         self._cmd = None
+        self._frame_word = None  # a view the buffer releases itself
         self.buffer.close()
 
     def __enter__(self) -> "Client":

@@ -26,7 +26,8 @@ Layout shape (fixed; byte offsets in the 32768-byte buffer)::
     15360  commands            1024  seqlocked, controller- joint rates, limits, arm requests
     16384  service_messages    4096  seqlocked, service   - 50-entry circular message queue
     20480  controller_messages 4096  seqlocked, controller- 50-entry circular message queue
-    24576  spare               8192  reserved for later areas (zero)
+    24576  controller_stats    2048  seqlocked, controller- the controller's frame timing
+    26624  spare               6144  reserved for later areas (zero)
 
 Each seqlocked area starts with a 64-byte block holding its 8-byte sequence counter;
 the area's *body* (a numpy structured record) follows at +64. Per-channel data sit in
@@ -112,8 +113,15 @@ class Severity(enum.IntEnum):
 #: writer role -> areas it owns. A role is claimed as a whole (see shm.Bit3Buffer.claim).
 WRITER_ROLES: dict[str, tuple[str, ...]] = {
     "service": ("inputs", "stats", "service_messages"),
-    "controller": ("commands", "controller_messages"),
+    "controller": ("commands", "controller_messages", "controller_stats"),
 }
+#: ``inputs.command_status`` bits: what the service made of this frame's command area
+CMD_STALE = 1  #: computed from inputs older than the configured age: rate channels at 0 V
+CMD_ABSENT = 2  #: no stable copy this frame (writer died mid-write / torn): the last good one kept
+CMD_REFUSED = 4  #: a field was NaN, infinite or beyond its limit: outputs made safe
+CMD_FOREIGN = 8  #: written by a process that does not hold the claim: refused, outputs made safe
+CMD_STATUS_NAMES = {CMD_STALE: "stale", CMD_ABSENT: "absent", CMD_REFUSED: "refused",
+                    CMD_FOREIGN: "foreign writer"}
 #: other accepted spellings of a role: the name of its main area
 ROLE_ALIASES = {"inputs": "service", "commands": "controller"}
 
@@ -416,6 +424,19 @@ def _inputs(area: AreaSpec, rack: RackConfig) -> tuple[_Record, list[ChannelEntr
         ("hc_buttons", "<u4", (), "bits", "raw button mask"),
         ("hc_t_s", "<f8", (), "s", "sample time"),
     ])
+    # command freshness and refusals (issue "the arm never moves on a stale command")
+    r.add("command_inputs_frame", "<u8", units="1",
+          doc="inputs frame the applied commands were computed from (commands.inputs_frame)")
+    r.add("command_input_age_frames", "<u4", units="1",
+          doc="this frame minus command_inputs_frame (rates drive 0 V beyond the configured age)")
+    r.add("command_status", "<u4", units="bits",
+          doc="1 stale inputs (rates 0 V), 2 absent (torn/stuck write), 4 refused (limit), 8 foreign writer")
+    r.add("stale_commands", "<u8", units="1", doc="frames whose rate commands were too old (driven at 0 V)")
+    r.add("absent_commands", "<u8", units="1", doc="frames with no stable copy of the command area")
+    r.add("refused_commands", "<u8", units="1", doc="commands refused (NaN, inf, beyond limit): outputs safe")
+    r.add("foreign_writes", "<u8", units="1", doc="command areas written by a process without the claim")
+    r.add("host_stall_s", "<f8", units="s", doc="length of the latest host stall the service saw (0 = none)")
+    r.add("host_stall_t_s", "<f8", units="s", doc="when that stall ended")
 
     entries: list[ChannelEntry] = []
     for kind, group in (("rtd", rtd), ("adc", adc), ("dac", dac), ("pio", pio)):
@@ -489,6 +510,11 @@ def _commands(area: AreaSpec, rack: RackConfig) -> tuple[_Record, list[ChannelEn
     r.add("crl_reflect_torque_nm", "<f8", (3,), "N*m", "torque to display on the CRL hand controller")
     r.add("crl_reflect_enable", "u1", units="bool",
           doc="1 = the CRL displays the force above (0 = zero forces, disabled)")
+    r.add("inputs_frame", "<u8", units="1",
+          doc="inputs frame the rate commands were computed from (0 = none: rates drive 0 V)")
+    r.add("controller_frame", "<u8", units="1", doc="the writer's own frame counter")
+    r.add("writer_pid", "<i4", units="1", doc="pid of the writing process (must hold the claim)")
+    r.add("writer_token", "<u8", units="1", doc="the claim's token (owners[commands].claimed_ns)")
     entries = []
     for i, c in enumerate(joints):
         entries.append(ChannelEntry(c.signal, "command", area.name, i, c.units, c.label,
@@ -510,6 +536,31 @@ MESSAGE_DTYPE = np.dtype({
     "offsets": [0, 8, 16, 18, 20, 24],
     "itemsize": 24 + MESSAGE_TEXT_BYTES,
 })
+
+
+def _controller_stats(area: AreaSpec) -> _Record:
+    """The controller's own frame timing (``pfma stats`` shows it beside the service's)."""
+    r = _Record(area.name, area.body_offset, area.body_size)
+    r.add("frame", "<u8", units="1", doc="service frame of the latest controller frame")
+    r.add("t_s", "<f8", units="s", doc="controller clock time of this publish")
+    r.add("frames", "<u8", units="1", doc="controller frames run since start")
+    r.add("missed_frames", "<u8", units="1", doc="service frames the controller did not run")
+    r.add("missed_events", "<u8", units="1", doc="times one or more frames were missed")
+    r.add("missed_run", "<u4", units="1", doc="frames missed just before the latest frame")
+    r.add("longest_missed_run", "<u4", units="1", doc="most frames missed in a row")
+    r.add("max_missed_run", "<u4", units="1", doc="configured: more in a row is a fault")
+    r.add("missed_task_slots", "<u8", units="1", doc="periodic task slots that did not run")
+    r.add("overruns", "<u8", units="1", doc="frames whose work ended after the next service frame")
+    r.add("period_s", "<f8", units="s", doc="nominal minor-frame period")
+    r.add("rate_hz", "<f8", units="Hz", doc="measured frame rate")
+    for n in ("p50", "p99", "max"):
+        r.add(f"wake_latency_{n}_us", "<f8", units="us",
+              doc=f"wake-up latency after the service's frame {n}")
+    for n in ("p50", "p99", "max"):
+        r.add(f"work_{n}_us", "<f8", units="us", doc=f"controller frame work time {n}")
+    r.add("cpu_percent", "<f8", units="%", doc="controller CPU use of one core")
+    r.add("gc_gen2", "<u8", units="1", doc="full garbage collections since start")
+    return r
 
 
 def _messages(area: AreaSpec) -> _Record:
@@ -579,7 +630,8 @@ AREA_MAP: tuple[tuple[str, int, int, str, bool, str], ...] = (
     ("service_messages", 16384, 4096, "service", True, "50-entry message queue of the service"),
     ("controller_messages", 20480, 4096, "controller", True,
      "50-entry message queue of the controller"),
-    ("spare", 24576, 8192, "", False, "reserved (zero) for later areas"),
+    ("controller_stats", 24576, 2048, "controller", True, "the controller's frame timing and missed frames"),
+    ("spare", 26624, 6144, "", False, "reserved (zero) for later areas"),
 )
 
 
@@ -600,6 +652,7 @@ def build_layout(rack: RackConfig | None = None) -> Layout:
     channels += ch
     records["service_messages"] = _messages(areas[4])
     records["controller_messages"] = _messages(areas[5])
+    records["controller_stats"] = _controller_stats(areas[6])
     out_areas = tuple(AreaSpec(a.name, a.index, a.offset, a.size, a.writer, a.seqlocked, a.doc,
                                records[a.name].dtype() if a.name in records else None)
                       for a in areas)

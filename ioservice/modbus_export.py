@@ -76,7 +76,7 @@ MAP_VERSION = 1
 #: the channel kinds that are rack channels (in the inputs area), served in the float32 block
 CHANNEL_KINDS = ("rtd", "adc", "dac", "pio")
 #: command fields the export sets itself; writing them is accepted as a keep-alive only
-KEEPALIVE_FIELDS = ("heartbeat", "t_s")
+KEEPALIVE_FIELDS = ("heartbeat", "t_s", "writer_pid", "writer_token")
 #: the service's default command watchdog, taken from ioservice/safety.py OutputGuard (the
 #: MVME 104's 15 ms, IRSS report 3.4.2) so that the generated map follows the service
 SERVICE_WATCHDOG_S: float = inspect.signature(OutputGuard).parameters["watchdog_s"].default

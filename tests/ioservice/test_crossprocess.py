@@ -129,7 +129,8 @@ def test_takeover_reports_the_previous_owner(shm_name, mp):
         me = Bit3Buffer.attach(shm_name, readonly=False)
         prev = me.claim("commands", "heir")
         assert [(p.area, p.name, p.pid) for p in prev] == [
-            ("commands", "doomed-ctl", child.pid), ("controller_messages", "doomed-ctl", child.pid)]
+            ("commands", "doomed-ctl", child.pid), ("controller_messages", "doomed-ctl", child.pid),
+            ("controller_stats", "doomed-ctl", child.pid)]
         assert me.owner("commands").pid == os.getpid()
         me.close()
     finally:

@@ -384,7 +384,8 @@ def test_map_covers_every_field_without_overlap():
                 owner[a] = r.name
     assert [r.name for r in ROWS if r.table == "holding" and r.writable] == [
         "joint_rate_rad_s", "gripper", "current_limit_a", "matrix_route", "arm_request",
-        "rearm_counter", "mode", "crl_reflect_force_n", "crl_reflect_torque_nm", "crl_reflect_enable"]
+        "rearm_counter", "mode", "crl_reflect_force_n", "crl_reflect_torque_nm", "crl_reflect_enable",
+        "inputs_frame", "controller_frame"]
 
 
 def test_committed_map_doc_is_the_generated_one():
