@@ -22,7 +22,6 @@ driven, so they are not compared.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 import uuid

@@ -3,7 +3,7 @@
 import pytest
 
 from ioservice.loop import FrameLoop
-from ioservice.schedule import MINOR_FRAMES_PER_MAJOR, Schedule, TaskSlot
+from ioservice.schedule import MINOR_FRAMES_PER_MAJOR, Schedule
 from pfma.clock import SimClock
 from pfma.errors import ConfigError
 
