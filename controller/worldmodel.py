@@ -16,10 +16,11 @@ Rules kept here:
   posted value is checked (shape, dtype range, finite floats) before it is queued;
 - posts are queued and applied all together by :meth:`WorldModel.communications_segment`
   under one sequence lock, so a reader (this process or another) never sees half a frame;
-- a user-interface write (:meth:`WorldModel.set_user`, ``pfma wm set``) needs the access
-  key, is refused for protected variables while the system is powered up, and goes
-  through a small request ring in the segment that the owner applies at its next
-  communications segment.
+- a user-interface write (:meth:`WorldModel.set_user`, ``pfma wm set``) is allowed only for
+  variables that declare it (``VarSpec.user``: task outputs, layer commands and statuses
+  never, control-law parameters only while powered down, requests always), needs the access
+  key, and goes through a small request ring in the segment that the owner applies, after
+  checking all of it again, at its next communications segment.
 
 **IRSS queue logic in Python.** IRSS posted into a temporary queue that the
 communications-frame interrupt flushed; the COMM-INTERRUPT and IN-COMM-FRAME flags kept
@@ -52,7 +53,7 @@ import re
 import struct
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
@@ -67,6 +68,22 @@ from pfma.errors import PfmaError
 #: "8 separate areas" but names seven kinds; its task input/output is counted twice there.
 AREAS = ("task_io", "task_status", "command_input", "status_output", "control_flags",
          "response_output", "error_reports")
+
+#: who may set a variable through :meth:`WorldModel.set_user` / ``pfma wm set`` (``VarSpec.user``)
+USER_NEVER, USER_POWERED_DOWN, USER_ALWAYS = "never", "powered_down", "always"
+USER_MODES = (USER_NEVER, USER_POWERED_DOWN, USER_ALWAYS)
+#: writer names that stand for the user interface: only their variables may be user-set (a
+#: user write of a variable a task or table posts would give it a second writer, rule 3)
+USER_WRITERS = ("user", "user_interface")
+#: areas users may set (if the writer is the user interface); the default ``user`` of a
+#: user-written variable there. Task status, status output, response output and error
+#: reports describe what a task did: never user-set.
+USER_AREAS = {"command_input": USER_ALWAYS, "task_io": USER_ALWAYS, "control_flags": USER_POWERED_DOWN}
+#: what a variable of each area is, in a refusal ("... is an output of task servo")
+_AREA_ROLE = {"task_io": "an output of task", "task_status": "a status of task",
+              "command_input": "a layer command posted by", "status_output": "a status posted by",
+              "control_flags": "a control flag posted by", "response_output": "a response posted by",
+              "error_reports": "an error report posted by"}
 
 #: the access key a model gets when none is given and PFMA_WM_KEY is not set
 DEFAULT_ACCESS_KEY = "pfma"
@@ -162,8 +179,15 @@ class VarSpec:
     :param writer: the one task or layer allowed to post it
     :param initial: its valid value from creation on
     :param units: e.g. ``"rad"``, ``"N"``, ``"rad/s"`` (empty for counts, states, flags)
-    :param protected: control-law parameter etc.: no user write while powered up
+    :param protected: control-law parameter etc.: no user write while powered up (the
+        same as ``user="powered_down"``; kept equal to ``user == "powered_down"``)
     :param doc: one line for someone reading ``pfma wm list``
+    :param user: who may set it with a keyed user write (:meth:`WorldModel.set_user`):
+        ``"never"`` (a task or table posts it), ``"powered_down"`` (control-law parameter),
+        ``"always"`` (a request or an operator setting safe live). Default (``""``): derived
+        from the writer and area, see :func:`default_user`. Only a variable whose writer is
+        the user interface (:data:`USER_WRITERS`) in an area of :data:`USER_AREAS` may be
+        anything but ``"never"``.
     """
 
     name: str
@@ -175,6 +199,7 @@ class VarSpec:
     units: str = ""
     protected: bool = False
     doc: str = ""
+    user: str = ""
 
     def __post_init__(self) -> None:
         where = f"world-model variable {self.name!r}"
@@ -197,7 +222,19 @@ class VarSpec:
             raise WorldModelError(f"{where}: initial value is not valid (report rule 4: every "
                                   f"variable holds a valid value after initialisation): {err}") from None
         object.__setattr__(self, "initial", _freeze(value))
-        object.__setattr__(self, "protected", bool(self.protected))
+        user = self.user or default_user(self.area, self.writer, bool(self.protected))
+        if user not in USER_MODES:
+            raise WorldModelError(f"{where}: user {self.user!r} is not one of {', '.join(USER_MODES)}")
+        if self.protected and user != USER_POWERED_DOWN:
+            raise WorldModelError(f"{where}: protected=True means user='powered_down', not {user!r}")
+        if user != USER_NEVER and (self.writer not in USER_WRITERS or self.area not in USER_AREAS):
+            raise WorldModelError(
+                f"{where}: user={user!r} (or protected=True) needs the user interface as its one "
+                f"writer ({' or '.join(map(repr, USER_WRITERS))}) in area "
+                f"{', '.join(USER_AREAS)}; it is {self.area} written by {self.writer!r}, and a user "
+                f"write would give it a second writer")
+        object.__setattr__(self, "user", user)
+        object.__setattr__(self, "protected", user == USER_POWERED_DOWN)
         # derived once: the controller reads variables thousands of times a second
         object.__setattr__(self, "_np_dtype", np.dtype(self.dtype))
         object.__setattr__(self, "_count", int(np.prod(self.shape, dtype=np.int64)))
@@ -225,16 +262,48 @@ class VarSpec:
         """An integer scalar: usable with get/post_state_variable."""
         return self.shape == () and self.np_dtype.kind in "iu"
 
+    def user_refusal(self, powered_up: bool) -> str | None:
+        """Why a user may not set this variable now, or None if one may."""
+        if self.user == USER_ALWAYS or (self.user == USER_POWERED_DOWN and not powered_up):
+            return None
+        if self.user == USER_POWERED_DOWN:
+            return (f"{self.name} is protected: it may be set only while powered down "
+                    f"(the system is powered up)")
+        if self.writer in USER_WRITERS:
+            return f"{self.name} (writer {self.writer}) is declared user='never'; users may not set it"
+        return f"{self.name} is {_AREA_ROLE[self.area]} {self.writer}; users may not set it"
+
     def to_json(self) -> dict:
         return {"name": self.name, "area": self.area, "dtype": self.dtype, "shape": list(self.shape),
                 "writer": self.writer, "initial": _jsonable(self.initial), "units": self.units,
-                "protected": self.protected, "doc": self.doc}
+                "protected": self.protected, "doc": self.doc, "user": self.user}
 
     @classmethod
     def from_json(cls, d: Mapping) -> "VarSpec":
+        protected = bool(d.get("protected", False))
+        user = d.get("user")
+        if user is None:  # a table written before "user" existed: today's rule, never an error
+            user = default_user(d["area"], d["writer"], protected, strict=False)
+            protected = user == USER_POWERED_DOWN
         return cls(name=d["name"], area=d["area"], dtype=d["dtype"], shape=tuple(d["shape"]),
                    writer=d["writer"], initial=d["initial"], units=d.get("units", ""),
-                   protected=bool(d.get("protected", False)), doc=d.get("doc", ""))
+                   protected=protected, doc=d.get("doc", ""), user=user)
+
+
+def default_user(area: str, writer: str, protected: bool = False, *, strict: bool = True) -> str:
+    """The ``user`` of a variable that does not declare one.
+
+    ``"never"`` unless the writer is the user interface (:data:`USER_WRITERS`) and the area
+    is in :data:`USER_AREAS`; there ``protected=True`` gives ``"powered_down"``, otherwise the
+    area's default (requests in command_input and task_io: ``"always"``; parameters in
+    control_flags: ``"powered_down"``). ``protected=True`` on any other variable is an error
+    (``strict``) or ``"never"`` (reading an old segment's table).
+    """
+    if writer in USER_WRITERS and area in USER_AREAS:
+        return USER_POWERED_DOWN if protected else USER_AREAS[area]
+    if protected and strict:
+        return USER_POWERED_DOWN  # refused by VarSpec with the reason
+    return USER_NEVER
 
 
 def _jsonable(v: Any) -> Any:
@@ -847,14 +916,12 @@ class WorldModel:
         """Asynchronous user-interface write (``pfma wm set``): checked now, applied by the
         owner at its next communications segment. Returns the request id.
 
-        :raises WorldModelError: unknown variable, protected while powered up, wrong key,
+        :raises WorldModelError: unknown variable, not user-settable (a task's output, a layer
+            command, a status ...: names the owner), protected while powered up, wrong key,
             request ring full, owner not running
         :raises WorldModelValueError: the value does not fit the variable
         """
-        s = self.spec(name)
-        if s.protected and self.powered_up:
-            raise WorldModelError(f"world-model variable {name!r} is protected: it cannot be "
-                                  f"changed while the system is powered up (power down first)")
+        s = self.check_user_settable(name)
         if not self.check_key(key):
             raise WorldModelError(f"world-model variable {name!r}: wrong or missing access key; "
                                   f"user writes need the model's access key")
@@ -865,6 +932,18 @@ class WorldModel:
                 raise WorldModelError(f"world model {self.name!r}: its owner {info.owner!r} (pid "
                                       f"{info.owner_pid}) is not running; nobody would apply the write")
         return self._submit(self._index[name], raw, self._key_hash(key), user)
+
+    def check_user_settable(self, name: str) -> VarSpec:
+        """The variable's spec if a user may set it now (its ``user`` declaration and the
+        power state; the key is not checked). Refusals hold with or without the key.
+
+        :raises WorldModelError: unknown variable, or why not (names the owner)
+        """
+        s = self.spec(name)
+        why = s.user_refusal(self.powered_up)
+        if why is not None:
+            raise WorldModelError(why)
+        return s
 
     def _submit(self, i: int, raw: bytes, key_hash: bytes, user: str | None) -> int:
         with self._req_tlock:
@@ -937,14 +1016,17 @@ class WorldModel:
         return [(k, i, raw) for _rid, k, i, raw in out]
 
     def _check_request(self, k: int, i: int, raw: bytes) -> tuple[bool, str]:
-        """Re-check a request at apply time (power state or key may have changed)."""
+        """Re-check a request at apply time: the ring is shared memory any process can write
+        (so who may set the variable is checked again), and the power state or key may have
+        changed since it was queued."""
         if not 0 <= i < len(self._specs):
             return False, f"unknown variable index {i}"
         s = self._specs[i]
+        why = s.user_refusal(self.powered_up)
+        if why is not None:
+            return False, why
         if len(raw) != s.nbytes:
             return False, f"{s.name}: {len(raw)} bytes given, {s.nbytes} expected"
-        if s.protected and self.powered_up:
-            return False, f"{s.name} is protected while powered up"
         o = HEADER_FIELDS["key_hash"][0]
         if not hmac.compare_digest(self._slot_get(k, "key_hash"), bytes(self._root[o:o + 32])):
             return False, f"{s.name}: wrong access key"

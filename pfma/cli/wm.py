@@ -6,10 +6,11 @@
     pfma wm requests [--name WM]
 
 Everything is decoded from the variable table stored (as JSON) in the shared-memory
-segment, so this needs no controller code. ``set`` checks the request here (unknown
-variable, protected while powered up, wrong key, bad value) and puts it into the
-segment's user-request ring; the owning process applies it at its next communications
-segment (docs/world-model.md). VALUE is JSON: ``1.5``, ``-3``, ``true``, ``[0.1, 0.2, 0.3]``
+segment, so this needs no controller code. ``set`` checks the request here: unknown
+variable; a variable users may not set (a task output, layer command, status or report, or
+a control-law parameter while powered up: ``VarSpec.user``, the USER column of ``list``);
+wrong key; bad value. It then puts it into the segment's user-request ring; the owning
+process applies it at its next communications segment (docs/world-model.md). VALUE is JSON: ``1.5``, ``-3``, ``true``, ``[0.1, 0.2, 0.3]``
 (or numbers separated by commas/spaces).
 """
 
@@ -37,7 +38,8 @@ def add_parser(sub):
                        description="Browse a running controller's world model (read from its "
                                    "shared memory), and ask its owner for keyed user writes.")
     wsub = p.add_subparsers(dest="wm_cmd", metavar="COMMAND")
-    ls = wsub.add_parser("list", parents=[common], help="variables with area, type, units, writer, value")
+    ls = wsub.add_parser("list", parents=[common],
+                         help="variables with area, type, units, writer, who may set them, value")
     ls.add_argument("--area", choices=AREAS, help="only this area")
     ls.add_argument("--filter", metavar="TEXT",
                     help="only variables whose name, doc, units or writer contain TEXT (or match a *glob*)")
@@ -104,10 +106,18 @@ def _matches(spec, text: str | None) -> bool:
     return any(t in h.lower() for h in hay)
 
 
+def _user_text(spec) -> str:
+    if spec.user == "always":
+        return "yes, any time (with the access key)"
+    if spec.user == "powered_down":
+        return "only while powered down (protected; with the access key)"
+    return f"never (posted by {spec.writer})"
+
+
 def _describe(spec, value) -> dict:
     return {"name": spec.name, "area": spec.area, "type": spec.type_text, "dtype": spec.dtype,
             "shape": list(spec.shape), "units": spec.units, "writer": spec.writer,
-            "protected": spec.protected, "value": _py(value), "doc": spec.doc}
+            "protected": spec.protected, "user": spec.user, "value": _py(value), "doc": spec.doc}
 
 
 # ----------------------------------------------------------------------------------------
@@ -128,15 +138,16 @@ def cmd_list(wm, args) -> int:
         print("no variables match" + (f" area {args.area}" if args.area else "")
               + (f" filter {args.filter!r}" if args.filter else ""))
         return 0
-    rows = [(s.name, s.area, s.type_text, s.units or "-", s.writer, "P" if s.protected else "",
+    rows = [(s.name, s.area, s.type_text, s.units or "-", s.writer, s.user,
              format_value(values[s.name], 40), s.doc) for s in specs]
-    heads = ("NAME", "AREA", "TYPE", "UNITS", "WRITER", "P", "VALUE", "DOC")
+    heads = ("NAME", "AREA", "TYPE", "UNITS", "WRITER", "USER", "VALUE", "DOC")
     widths = [max(len(h), *(len(r[k]) for r in rows)) for k, h in enumerate(heads[:-1])]
     fmt = "  ".join(f"{{:<{w}}}" for w in widths) + "  {}"
     print(fmt.format(*heads))
     for r in rows:
         print(fmt.format(*r).rstrip())
-    print("P = protected: no user write while powered up. `pfma wm get NAME` shows one in full.")
+    print("USER = when `pfma wm set` may change it: always | powered_down (protected) | never (its writer "
+          "only). `pfma wm get NAME` shows one in full.")
     return 0
 
 
@@ -155,7 +166,7 @@ def cmd_get(wm, args) -> int:
         print(f"  type       {s.type_text}" + ("" if s.shape else " (scalar)"))
         print(f"  units      {s.units or '-'}")
         print(f"  writer     {s.writer}")
-        print(f"  protected  {'yes: no user write while powered up' if s.protected else 'no'}")
+        print(f"  user set   {_user_text(s)}")
         print(f"  value      {format_value(values[s.name])}")
         print(f"  doc        {s.doc or '-'}")
     return 0
@@ -188,7 +199,7 @@ def parse_value(text: str):
 def cmd_set(wm, args) -> int:
     from controller.worldmodel import ACCESS_KEY_ENV, WorldModelError
 
-    spec = wm.spec(args.var)
+    spec = wm.check_user_settable(args.var)  # who may set it: refused with or without a key
     key = args.key if args.key is not None else os.environ.get(ACCESS_KEY_ENV)
     if not key:
         raise WorldModelError(f"setting {spec.name!r} needs the world model's access key "

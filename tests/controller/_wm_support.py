@@ -3,13 +3,24 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
+import mmap
 import os
+import struct
 import time
 import uuid
 
 import numpy as np
 
-from controller.worldmodel import VarSpec, WorldModel
+from controller.worldmodel import (
+    HEADER_FIELDS,
+    PENDING,
+    SLOT_FIELDS,
+    SLOT_HEADER,
+    VarSpec,
+    WorldModel,
+)
 
 
 def unique_name() -> str:
@@ -29,9 +40,9 @@ def sample_specs() -> list[VarSpec]:
                 doc="command to the System Up/Down layer"),
         VarSpec("updown.status", "status_output", "i2", (), "updown", 0,
                 doc="System Up/Down layer status"),
-        VarSpec("servo.kp_1_s", "control_flags", "f8", (6,), "servo", [10.0] * 6, "1/s", protected=True,
+        VarSpec("servo.kp_1_s", "control_flags", "f8", (6,), "user", [10.0] * 6, "1/s", protected=True,
                 doc="position-loop gains (control-law parameter)"),
-        VarSpec("hc.enable", "control_flags", "b1", (), "hand_controller", False,
+        VarSpec("hc.enable", "control_flags", "b1", (), "user", False, user="always",
                 doc="hand controller connected to the arm"),
         VarSpec("servo.frames", "response_output", "u4", (), "servo", 0, doc="servo frames run"),
         VarSpec("servo.error_code", "error_reports", "i4", (), "servo", 0, doc="last servo error (0 none)"),
@@ -95,3 +106,36 @@ def inspect_model(name: str, conn) -> None:
                 conn.send(("error", f"{type(err).__name__}: {err}"))
     finally:
         wm.close()
+
+
+def forge_request(name: str, var: str, value, key: str, user: str = "forger") -> int:
+    """Write a user request straight into segment ``name``'s request ring, as any process
+    that can map /dev/shm/<name> could, using only the documented layout (header fields,
+    spec JSON, slot fields) and skipping every check ``set_user`` makes. Returns its id."""
+    fd = os.open(f"/dev/shm/{name}", os.O_RDWR)
+    try:
+        mm = mmap.mmap(fd, 0)
+    finally:
+        os.close(fd)
+    try:
+        def hget(fld):
+            off, fmt = HEADER_FIELDS[fld]
+            return struct.unpack_from("<" + fmt, mm, off)[0]
+
+        doc = json.loads(mm[hget("spec_offset"):hget("spec_offset") + hget("spec_len")])
+        i = [v["name"] for v in doc["variables"]].index(var)
+        raw = np.asarray(value, dtype=doc["variables"][i]["dtype"]).tobytes()
+        rid = hget("req_next_id") + 1
+        base = hget("req_offset") + (rid - 1) % hget("req_slots") * hget("req_slot_size")
+        for fld, v in (("var_index", i), ("req_id", rid), ("submit_ns", time.time_ns()),
+                       ("pid", os.getpid()), ("nbytes", len(raw)), ("applied_frame", 0),
+                       ("key_hash", hashlib.sha256(hget("key_salt") + key.encode()).digest()),
+                       ("user", user.encode()), ("result", b"")):
+            off, fmt = SLOT_FIELDS[fld]
+            struct.pack_into("<" + fmt, mm, base + off, v)
+        mm[base + SLOT_HEADER:base + SLOT_HEADER + len(raw)] = raw
+        struct.pack_into("<I", mm, base + SLOT_FIELDS["state"][0], PENDING)
+        struct.pack_into("<Q", mm, HEADER_FIELDS["req_next_id"][0], rid)
+        return rid
+    finally:
+        mm.close()

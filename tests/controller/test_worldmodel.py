@@ -5,7 +5,9 @@ Children are spawned processes; the parent waits on events/pipes with time-outs,
 on sleeps. The torn-read fuzz is a correctness test (zero torn frames), not a timing test.
 """
 
+import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -100,8 +102,9 @@ def test_only_the_one_writer_may_post_and_the_error_names_the_owner(wm):
     assert wm.pending == 0
     assert wm.communications_segment() == 0
     np.testing.assert_array_equal(wm.get("servo.q_cmd_rad"), np.zeros(6))
-    assert wm.variables_of("servo") == ("servo.q_rad", "servo.integrator", "servo.kp_1_s",
-                                        "servo.frames", "servo.error_code")
+    assert wm.variables_of("servo") == ("servo.q_rad", "servo.integrator", "servo.frames",
+                                        "servo.error_code")
+    assert wm.variables_of("user") == ("servo.kp_1_s", "hc.enable")
 
 
 @pytest.mark.parametrize("name, value, text", [
@@ -219,6 +222,97 @@ def test_clock_stamps_each_segment(wm_name):
         m.close()
 
 
+# --- who may set what (VarSpec.user) -------------------------------------------------------
+
+
+def test_user_declaration_defaults_from_the_writer_and_the_area():
+    def spec(area, writer, **kw):
+        return VarSpec("v", area, "f8", (), writer, 0.0, **kw)
+
+    for area in AREAS:  # whatever a task or a table posts: never, in every area
+        assert spec(area, "servo").user == "never", area
+    assert spec("command_input", "user").user == "always"        # a user request
+    assert spec("task_io", "user").user == "always"              # a task input the user supplies
+    assert spec("control_flags", "user").user == "powered_down"  # a parameter: locked while up
+    assert spec("control_flags", "user", user="always").user == "always"  # declared safe live
+    assert spec("command_input", "user", user="never").user == "never"
+    for area in ("task_status", "status_output", "response_output", "error_reports"):
+        assert spec(area, "user").user == "never", area
+    # protected is the old name of powered_down, and stays equal to it
+    p = spec("control_flags", "user", protected=True)
+    assert p.user == "powered_down" and p.protected
+    assert spec("control_flags", "user", user="powered_down").protected
+    assert not spec("control_flags", "user", user="always").protected
+
+
+@pytest.mark.parametrize("kw, text", [
+    ({"area": "task_io", "writer": "joint", "user": "always"}, "written by 'joint'"),
+    ({"area": "command_input", "writer": "servo", "user": "always"}, "second writer"),
+    ({"area": "control_flags", "writer": "servo", "protected": True}, "written by 'servo'"),
+    ({"area": "status_output", "writer": "user", "user": "always"}, "status_output written by 'user'"),
+    ({"area": "error_reports", "writer": "user", "user": "powered_down"}, "error_reports"),
+    ({"area": "control_flags", "writer": "user", "user": "sometimes"}, "not one of never, powered_down, always"),
+    ({"area": "control_flags", "writer": "user", "user": "always", "protected": True},
+     "protected=True means user='powered_down'"),
+])
+def test_a_user_writable_task_output_status_or_command_cannot_be_declared(kw, text):
+    with pytest.raises(WorldModelError, match=re.escape(text)):
+        VarSpec("v", dtype="f8", initial=0.0, **kw)
+
+
+def test_user_declaration_is_stored_in_the_segment_table_and_old_tables_still_read():
+    specs = sup.sample_specs()
+    for s in specs:
+        assert s.to_json()["user"] == s.user and VarSpec.from_json(s.to_json()) == s
+    m = WorldModel.create(specs)
+    try:
+        table = json.loads(m._lay.spec_json)
+        assert {v["name"]: v["user"] for v in table["variables"]} == {s.name: s.user for s in specs}
+    finally:
+        m.close()
+    # a table written before "user" existed: the same rule; protected on a task's variable
+    # (allowed then) reads as never instead of failing
+    old = {"name": "servo.kp", "area": "control_flags", "dtype": "f8", "shape": [], "writer": "servo",
+           "initial": 10.0, "units": "1/s", "protected": True, "doc": ""}
+    assert VarSpec.from_json(old).user == "never" and not VarSpec.from_json(old).protected
+    assert VarSpec.from_json(dict(old, writer="user")).user == "powered_down"
+    assert VarSpec.from_json(dict(old, writer="user", protected=False)).user == "powered_down"
+    assert VarSpec.from_json(dict(old, area="command_input", writer="user", protected=False)).user == "always"
+
+
+def test_users_may_not_set_what_a_task_posts_with_or_without_the_key(wm):
+    cases = {"servo.q_cmd_rad": "an output of task trajectory", "servo.integrator": "a status of task servo",
+             "updown.status": "a status posted by updown", "servo.frames": "a response posted by servo",
+             "servo.error_code": "an error report posted by servo"}
+    for powered in (False, True):
+        wm.powered_up = powered
+        for name, role in cases.items():
+            value = wm.spec(name).initial
+            for key in (DEFAULT_ACCESS_KEY, "wrong", None):
+                with pytest.raises(WorldModelError) as e:
+                    wm.set_user(name, value, key)
+                assert str(e.value) == f"{name} is {role}; users may not set it"
+    assert wm.user_requests_pending() == 0
+
+
+def test_a_forged_ring_entry_for_a_task_output_is_rejected_by_the_owner(wm_name):
+    m = WorldModel.create(sup.sample_specs(), name=wm_name)
+    try:
+        rid = sup.forge_request(wm_name, "servo.q_cmd_rad", [6.0] * 6, DEFAULT_ACCESS_KEY)
+        ok = sup.forge_request(wm_name, "hc.enable", True, DEFAULT_ACCESS_KEY)  # the forger's layout is right
+        assert m.user_requests_pending() == 2
+        assert m.communications_segment() == 1
+        np.testing.assert_array_equal(m.get("servo.q_cmd_rad"), np.zeros(6))
+        r = m.request(rid)
+        assert (r.state, r.variable, r.user) == ("rejected", "servo.q_cmd_rad", "forger")
+        assert r.result == "servo.q_cmd_rad is an output of task trajectory; users may not set it"
+        assert m.request(ok).state == "applied" and m.get("hc.enable")
+        assert m.stats()["user_rejected"] == 1 and m.info().user_rejected == 1
+        assert m.info().user_applied == 1
+    finally:
+        m.close()
+
+
 # --- user writes: access key, protected variables ------------------------------------------
 
 
@@ -260,7 +354,7 @@ def test_the_owner_rechecks_a_request_when_it_applies_it(wm):
     wm.powered_up = True
     assert wm.communications_segment() == 0
     r = wm.request(rid)
-    assert r.state == "rejected" and "protected while powered up" in r.result
+    assert r.state == "rejected" and "may be set only while powered down" in r.result
     assert wm.get("servo.kp_1_s")[0] == 10.0
     assert wm.stats()["user_rejected"] == 1 and wm.info().user_rejected == 1
     # a key change between request and segment also rejects it
