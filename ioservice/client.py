@@ -131,6 +131,7 @@ class Client:
         self._cursor = {q: 0 for q in QUEUES.values()}
         self._cmd = None
         self._frame_word = None
+        self._closed_loop = False
         if role == "controller":
             self._cmd = buf.writer("commands")
             claim = buf.owner("commands")
@@ -253,16 +254,19 @@ class Client:
         ``inputs_frame`` says which service frame's inputs the rate commands were computed
         from; the service drives rate channels only from commands at most its configured
         age old (default 4 frames). A write that does not give it is stamped with the
-        newest frame the service has published (right for a writer whose commands do not
-        depend on the inputs, e.g. a fixed setpoint or an operator's jog). A controller
-        closing a loop must give it every time.
+        newest frame the service has published at each publish, keep-alives included (right
+        for an open-loop writer whose commands do not depend on the inputs: a fixed
+        setpoint, an operator's jog, a checkout step). Once a writer passes
+        ``inputs_frame``, the client never stamps it again: a controller closing a loop
+        gives it on every write, and a keep-alive (:meth:`publish_commands`) does not make
+        its old rates fresh.
         """
         w = self._writer_check()
         rec = w.record
         names = rec.dtype.names
         backup = rec.copy()  # all or nothing: a bad key or value leaves the record unchanged
-        if "inputs_frame" not in fields:
-            rec["inputs_frame"] = self._frame_word[0]
+        if "inputs_frame" in fields:
+            self._closed_loop = True  # from now on the writer says which inputs it used
         try:
             for key, value in fields.items():
                 target, idx = self._command_target(key, names)
@@ -301,6 +305,8 @@ class Client:
         rec = w.record
         hb = int(rec["heartbeat"]) + 1
         rec["heartbeat"] = hb
+        if not self._closed_loop:  # an open-loop writer: its setpoint is as new as the inputs
+            rec["inputs_frame"] = self._frame_word[0]
         rec["t_s"] = self._now()
         w.publish()
         return hb

@@ -15,6 +15,11 @@ Rules (issue "data-acquisition service", item 3; MVME 104 watchdog 15 ms, IRSS 3
   sets the brakes), the event is posted to the message queue, and outputs stay
   safe until an explicit re-arm. ``arm_request`` cleared by the controller disarms
   to SAFE (an orderly stop, not a fault).
+- **Refusing**: a command that is NaN, infinite or beyond its configured limit, or that
+  was written by a process that does not hold the command area's claim, is refused
+  (:meth:`OutputGuard.refuse`): ARMED -> SAFE (0 V, brakes set) with a message naming
+  the field, the value and the limit (or the writer), never clipped and obeyed. An arm
+  request with such a command is refused the same way. Re-arming needs a new request.
 - The heartbeat is judged on the **service's** clock: the service notes when it
   last saw the heartbeat counter change, so the two processes' clocks never need to
   agree.
@@ -51,6 +56,7 @@ class OutputGuard:
         self.post = post or (lambda severity, code, text: None)
         self.state = ServiceState.SAFE
         self.trips = 0
+        self.refusals = 0  #: commands refused while they would have driven the arm
         self.reason = ""
         self._hb = None  # last heartbeat counter seen
         self._hb_t = -1e300  # when it last changed (service clock)
@@ -61,8 +67,16 @@ class OutputGuard:
     def heartbeat_age_s(self) -> float:
         return self.clock.now() - self._hb_t
 
-    def update(self, heartbeat: int, arm_enable: bool, arm_request: int, rates_zero: bool) -> bool:
-        """Feed this frame's command-area values; return True when commands may drive the DAC."""
+    def update(self, heartbeat: int, arm_enable: bool, arm_request: int, rates_zero: bool,
+               refusal: str | None = None, stall_note: str = "") -> bool:
+        """Feed this frame's command-area values; return True when commands may drive the DAC.
+
+        :param refusal: why this frame's command must not drive the arm (a field beyond its
+            limit, a foreign writer), or None; refused while ARMED -> SAFE, at arming ->
+            the arm request is refused
+        :param stall_note: appended to a heartbeat trip's reason when the service itself
+            was stalled during the heartbeat's age (names the host stall as the cause)
+        """
         now = self.clock.now()
         if heartbeat != self._hb:
             self._hb = heartbeat
@@ -71,8 +85,9 @@ class OutputGuard:
         self._ever_seen = True
         if self.state == ServiceState.ARMED:
             if not fresh:
-                self.trip(f"command heartbeat stale ({(now - self._hb_t) * 1e3:.1f} ms > "
-                          f"{self.watchdog_s * 1e3:.1f} ms watchdog)", code=1)
+                self.trip(self._stale_text(now - self._hb_t, stall_note), code=1)
+            elif refusal is not None:
+                self.refuse(refusal)
             elif not arm_enable:
                 self.state = ServiceState.SAFE
                 self.post(0, 2, "disarmed by command")
@@ -87,7 +102,10 @@ class OutputGuard:
                     self.post(1, 3, "arm pending: command heartbeat not fresh")
                 return False
             self._arm_request_used = arm_request
-            if not rates_zero:
+            if refusal is not None:
+                self.refusals += 1
+                self.post(2, 6, f"arm refused: {refusal}")
+            elif not rates_zero:
                 self.post(1, 4, "arm refused: joint rate commands must be 0 when arming")
             else:
                 self.state = ServiceState.ARMED
@@ -96,7 +114,7 @@ class OutputGuard:
                 return True
         return False
 
-    def check_between_frames(self, heartbeat: int) -> bool:
+    def check_between_frames(self, heartbeat: int, stall_note: str = "") -> bool:
         """Between frames: note ``heartbeat``; trip when ARMED and it is older than the
         watchdog. Returns True when this call tripped. Lets the service act on a stale
         heartbeat within a hook tick instead of at the next frame."""
@@ -105,10 +123,27 @@ class OutputGuard:
             self._hb = heartbeat
             self._hb_t = now
         if self.state == ServiceState.ARMED and now - self._hb_t > self.watchdog_s:
-            self.trip(f"command heartbeat stale between frames ({(now - self._hb_t) * 1e3:.1f} ms > "
-                      f"{self.watchdog_s * 1e3:.1f} ms watchdog)", code=1)
+            self.trip(self._stale_text(now - self._hb_t, stall_note) + ("" if stall_note else " between frames"),
+                      code=1)
             return True
         return False
+
+    def _stale_text(self, age_s: float, stall_note: str) -> str:
+        """The trip reason, short enough for a 56-byte message with its prefix."""
+        if stall_note:
+            return f"stale heartbeat {age_s * 1e3:.0f}>{self.watchdog_s * 1e3:.0f} ms{stall_note}"
+        return f"stale heartbeat {age_s * 1e3:.1f}>{self.watchdog_s * 1e3:.0f} ms"
+
+    def refuse(self, reason: str, code: int = 7) -> None:
+        """A command that must not drive the arm: ARMED -> SAFE (outputs 0 V) and the reason
+        posted as an error. Not a latched FAULT: the controller re-arms with a new request
+        once its commands are valid again."""
+        if self.state != ServiceState.ARMED:
+            return
+        self.state = ServiceState.SAFE
+        self.refusals += 1
+        self.reason = reason
+        self.post(2, code, reason)
 
     def trip(self, reason: str, code: int = 9) -> None:
         """Latch FAULT (outputs to 0 V) and post the reason; idempotent while faulted."""

@@ -21,7 +21,6 @@ register offset itself.
 
 from __future__ import annotations
 
-import gc
 import math
 import os
 import resource
@@ -30,13 +29,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ioservice.layout import ServiceState, Severity
+from ioservice.layout import CMD_ABSENT, CMD_FOREIGN, CMD_REFUSED, CMD_STALE, ServiceState, Severity
 from ioservice.loop import FrameInfo, FrameLoop, LoopStats
 from ioservice.safety import OutputGuard
 from ioservice.schedule import MINOR_FRAMES_PER_MAJOR, Schedule
 from ioservice.shm import Bit3Buffer
 from pfma.clock import Clock
-from pfma.errors import PfmaError
+from pfma.errors import ConfigError, PfmaError
 from pfma.rack import RackConfig
 from pfma.rackio import RackIO
 
@@ -48,6 +47,11 @@ LINK_OPEN, LINK_SYNCED, LINK_FAULT, LINK_STALE = 1, 2, 4, 8
 DAC_CLIPPED, DAC_FORCED_SAFE = 1, 2
 #: fault codes (inputs.fault_code)
 FAULT_NONE, FAULT_WATCHDOG, FAULT_DAC, FAULT_INPUTS, FAULT_UNEXPECTED = 0, 1, 2, 3, 4
+#: inputs.fault_code when the outputs went safe because a command was refused (the service
+#: is then SAFE, not FAULT): a field beyond its limit / NaN, or a writer without the claim
+FAULT_COMMAND, FAULT_FOREIGN = 5, 6
+#: internal: nobody holds the command area's claim (no controller yet); not published
+_NO_WRITER = 0x100
 #: consecutive failing samples of an input board before the outputs are made safe
 INPUT_FAULT_FRAMES = 3
 #: F/T record older than this is flagged stale: 8 F/T periods. Assumed: long enough to
@@ -74,6 +78,14 @@ LIVE_TICK_S = 0.0004
 FT_RETRY_FRAMES = 2
 #: current-limit volts above which the amplifier releases the brake (pfma-model 8.4, assumed)
 BRAKE_RELEASE_V = 0.5
+#: a gap this long with no frame and no hook tick of the service is a host stall (the
+#: machine, or this process, did not run): recorded in ``inputs.host_stall_s`` and named
+#: as the cause of a watchdog trip or stale command it explains. Assumed: 10 ms, well
+#: above the wake-up jitter of a shared VM (p99 ~0.85 ms) and below the 15 ms watchdog
+HOST_STALL_S = 0.010
+#: a stall is named in trips and stale-command messages for this long after it ended (the
+#: time a controller needs to see new inputs and answer: two watchdog periods, assumed)
+STALL_BLAME_S = 0.030
 
 
 @dataclass
@@ -129,6 +141,21 @@ class IoService:
         self.commands = buffer.reader("commands")
         self.queue = buffer.queue("service_messages")
         self.guard = OutputGuard(clock, watchdog_s, post=self._post_guard)
+        self.policy = rack.commands
+        age_s = self.policy.max_input_age_frames * self.schedule.period_s
+        if age_s > watchdog_s + 1e-9:
+            raise ConfigError(f"rack {rack.name}: [commands] max_input_age_frames = "
+                              f"{self.policy.max_input_age_frames} ({age_s * 1e3:.2f} ms at "
+                              f"{self.schedule.frame_rate_hz:g} Hz) exceeds the {watchdog_s * 1e3:g} ms "
+                              f"command watchdog; lower it or raise the watchdog")
+        self._hb_ok = None  # heartbeat of the last command written by the claim holder
+        self._hb_seen = None  # heartbeat in the command record at the last good read
+        self._refusals_seen = 0
+        self._cmd_episode = 0  # command_status bits already announced by a message
+        self._last_alive = None  # clock time the service last ran (frame or hook tick)
+        self._stall_s = 0.0  # the latest host stall and when it ended
+        self._stall_end = -math.inf
+        self._guard_state = self.guard.state
         self.loop_stats = LoopStats()
         self.loop = FrameLoop(clock, self.schedule.period_s, self.frame, self.loop_stats)
         self.io = RackIO(bus, rack, clock)
@@ -246,12 +273,34 @@ class IoService:
         self._cmd_rate_list = [sig[j + "_command"] for j in self.layout.joint_names]
         self._cmd_limit_list = [sig[s] for s in self.layout.current_limit_names]
         self._dac_is_limit = [ch in self._cmd_limit_list for ch in range(n)]
+        self._dac_is_rate = [ch in self._cmd_rate_list for ch in range(n)]
         grip = [c.channel for c in chans if "gripper" in c.signal and "current_limit" not in c.signal]
         self._cmd_gripper_ch = grip[0] if grip else None
+        if self._cmd_gripper_ch is not None:
+            self._dac_is_rate[self._cmd_gripper_ch] = True  # a motor command too: 0 V when stale
+        self._set_dac_limits(chans)
         self._dac_board_slot = self._board_slot(cfg.name)
         self._outputs_enabled = False
         # Outputs start disconnected and at 0 V: write the zeros, keep P3 off.
         self._init_board(cfg, self._dac.disable_outputs)
+
+    def _set_dac_limits(self, chans) -> None:
+        """Per DAC channel: the engineering limit a command is refused beyond (``limit``
+        in the rack file, default the DAC's full range), the saturation volts within it,
+        and the names the refusal message uses."""
+        r = self._dac.range_volts
+        m = 1.0 + self.policy.limit_margin
+        self._dac_limit = []  # engineering limit per channel (rates: |x|, current limits: 0..x)
+        self._dac_refuse = []  # limit x (1 + margin)
+        self._dac_sat_v = []  # saturation volts: the DAC range or the limit, whichever is lower
+        for c in chans:
+            full = r * abs(c.scale)
+            lim = c.limit if c.limit is not None else full
+            self._dac_limit.append(lim)
+            self._dac_refuse.append(lim * m)
+            self._dac_sat_v.append(min(r, lim / abs(c.scale)) if c.scale else 0.0)
+        self._dac_names = [c.signal for c in chans]
+        self._dac_units = [c.units for c in chans]
 
     def _wire_pio(self) -> None:
         self._pio_in = []
@@ -404,8 +453,9 @@ class IoService:
         elif self._ft_retry:  # the last F/T slot found nothing new: look again
             self._ft_retry -= 1
             mask |= 4
+        self._note_alive(info.t_wake)
         try:
-            self._task_dac()
+            self._task_dac(k)
             if mask & 1:
                 self._task_rtd()
                 self._drain_if_due()  # a slow input scan must not overrun the FIFOs
@@ -590,52 +640,166 @@ class IoService:
                     self._matrix_applied = route  # do not retry every frame; posted once
                     self.post(Severity.ERROR, 141, f"{cfg.name}: matrix route 0x{route:02X} failed: {err}")
 
-    def _task_dac(self) -> None:
-        cmd = self.commands
-        cmd.read()
-        c = cmd.record
-        rates = c["joint_rate_rad_s"]
-        live = self.guard.update(int(c["heartbeat"]), bool(c["arm_request"]), int(c["rearm_counter"]),
-                                 not rates.any())
+    # ------------------------------------------------------------------ the command path
+    def _fetch_command(self) -> int:
+        """One bounded read of the command area (a writer killed mid-write leaves its
+        counter odd: the frame goes on and the command counts as absent, the record keeps
+        the last good copy) and the claim check (pid and token in the body must be the
+        owner slot's). Returns 0 for a good command, CMD_ABSENT, CMD_FOREIGN, or
+        _NO_WRITER (nobody holds the claim). Only a good command's heartbeat is noted in
+        ``_hb_ok``: a foreign write never feeds the watchdog."""
+        if not self.commands.try_read():
+            return CMD_ABSENT
+        c = self.commands.record
+        pid, token = self.buf.owner_pid_token("commands")
+        if pid <= 0:
+            return _NO_WRITER
+        if int(c["writer_pid"]) != pid or int(c["writer_token"]) != token:
+            return CMD_FOREIGN
+        self._hb_ok = int(c["heartbeat"])
+        return 0
+
+    def _stall_note(self) -> str:
+        """" (stall N ms)" while a recent host stall explains a late command, else "" (the
+        stall itself was announced as "host stall: ..." when it ended)."""
+        if self.clock.now() - self._stall_end <= STALL_BLAME_S:
+            return f" (stall {self._stall_s * 1e3:.0f} ms)"
+        return ""
+
+    def _note_alive(self, now: float) -> None:
+        """Called at every frame and hook tick: a gap longer than HOST_STALL_S since the
+        last one is a host stall, recorded and announced (the service could not run)."""
+        last = self._last_alive
+        self._last_alive = now
+        if last is not None and now - last > HOST_STALL_S:
+            self._stall_s, self._stall_end = now - last, now
+            v = self._v
+            v["host_stall_s"][...] = self._stall_s
+            v["host_stall_t_s"][...] = now
+            self.post(Severity.WARNING, 170, f"host stall: service did not run for {self._stall_s * 1e3:.0f} ms")
+
+    def _check_limits(self, eng: list[float]) -> str | None:
+        """The first command value that is not finite or beyond its limit (x (1 + margin)),
+        as a message giving field, value and limit; None when every value is acceptable."""
+        isfinite = math.isfinite
+        for ch, e in enumerate(eng):
+            lim = self._dac_refuse[ch]
+            if not isfinite(e):
+                bad = True
+            elif self._dac_is_limit[ch]:
+                bad = e > lim or e < -self.policy.limit_margin * self._dac_limit[ch]
+            else:
+                bad = e > lim or e < -lim
+            if bad:
+                lo = "0.." if self._dac_is_limit[ch] else "+-"
+                return (f"refused {self._dac_names[ch]}={e:.4g} {self._dac_units[ch]}, "
+                        f"limit {lo}{self._dac_limit[ch]:g}")
+        c = self.commands.record
+        for f in ("crl_reflect_force_n", "crl_reflect_torque_nm"):
+            if not all(isfinite(x) for x in c[f].tolist()):
+                return f"refused {f} not finite"
+        return None
+
+    def _announce(self, bits: int, text: str, severity: int = Severity.ERROR) -> None:
+        """Post ``text`` when a command-status condition starts (not every frame it lasts)."""
+        if not self._cmd_episode & bits:
+            self._cmd_episode |= bits
+            self.post(severity, 171, text)
+
+    def _task_dac(self, k: int = 0) -> None:
         v = self._v
-        v["command_heartbeat"][...] = c["heartbeat"]
-        v["command_age_s"][...] = self.guard.heartbeat_age_s()
-        if self.guard.state == ServiceState.FAULT and self.state != ServiceState.FAULT:
-            if self.fault_code == FAULT_NONE:
-                self.fault_code = FAULT_WATCHDOG
-            v["watchdog_tripped"][...] = self.fault_code == FAULT_WATCHDOG
-        if not live:
-            self._apply_safe()
-            return
-        if not self._outputs_enabled:
-            self._dac.enable_outputs()  # the shadow holds the zeros written while safe
-            self._outputs_enabled = True
-            self.fault_code = FAULT_NONE
-            v["watchdog_tripped"][...] = 0
-        # 16 channels in plain Python (numpy's per-call cost exceeds the arithmetic here)
-        eng = [0.0] * self._dac_n  # engineering command per DAC channel
-        for ch, x in zip(self._cmd_rate_list, rates.tolist()):
+        status = self._fetch_command()
+        c = self.commands.record
+        refusal = None
+        hb_now = int(c["heartbeat"])
+        new_write = self._hb_seen is not None and hb_now != self._hb_seen
+        if not status & CMD_ABSENT:
+            self._hb_seen = hb_now
+        if status & CMD_ABSENT:
+            v["absent_commands"] += 1
+            self._announce(CMD_ABSENT, "command area: no stable copy (writer died mid-write?)",
+                           Severity.WARNING)
+        elif status & CMD_FOREIGN:
+            # the body is not the claim holder's: never obeyed; a new such write is counted
+            pid, _tok = self.buf.owner_pid_token("commands")
+            if new_write:
+                v["foreign_writes"] += 1
+            refusal = f"refused write by pid {int(c['writer_pid'])}: owner pid {pid}"
+        status &= CMD_ABSENT | CMD_FOREIGN  # _NO_WRITER is not published: no command yet
+        # engineering command per DAC channel, in plain Python (16 values)
+        eng = [0.0] * self._dac_n
+        rates = c["joint_rate_rad_s"].tolist()
+        for ch, x in zip(self._cmd_rate_list, rates):
             eng[ch] = x
         for ch, x in zip(self._cmd_limit_list, c["current_limit_a"].tolist()):
             eng[ch] = x
         if self._cmd_gripper_ch is not None:
             eng[self._cmd_gripper_ch] = float(c["gripper"])
+        if refusal is None:
+            refusal = self._check_limits(eng)
+            if refusal is not None:
+                status |= CMD_REFUSED
+        hb = self._hb_ok if self._hb_ok is not None else -1
+        live = self.guard.update(hb, bool(c["arm_request"]), int(c["rearm_counter"]),
+                                 not any(rates), refusal=refusal, stall_note=self._stall_note())
+        if self.guard.refusals != self._refusals_seen:  # one refusal, one message (the guard's)
+            self._refusals_seen = self.guard.refusals
+            v["refused_commands"] += 1
+            self.fault_code = FAULT_FOREIGN if status & CMD_FOREIGN else FAULT_COMMAND
+        v["command_heartbeat"][...] = hb if hb >= 0 else 0
+        v["command_age_s"][...] = self.guard.heartbeat_age_s()
+        if self.guard.state == ServiceState.FAULT and self.state != ServiceState.FAULT:
+            if self.fault_code == FAULT_NONE:
+                self.fault_code = FAULT_WATCHDOG
+            v["watchdog_tripped"][...] = self.fault_code == FAULT_WATCHDOG
+        if self.guard.state == ServiceState.ARMED and self._guard_state != ServiceState.ARMED:
+            # a successful (re-)arm: what made the outputs safe before is over
+            self.fault_code = FAULT_NONE
+            v["watchdog_tripped"][...] = 0
+            self._cmd_episode = 0
+        self._guard_state = self.guard.state
+        # freshness: how old are the inputs these commands were computed from?
+        f_in = int(c["inputs_frame"])
+        age = k - f_in
+        v["command_inputs_frame"][...] = f_in
+        v["command_input_age_frames"][...] = age if 0 <= age < 0xFFFFFFFF else 0xFFFFFFFF
+        if not live:
+            v["command_status"][...] = status
+            if not status:
+                self._cmd_episode &= CMD_REFUSED | CMD_FOREIGN  # those stay announced until re-armed
+            self._apply_safe()
+            return
+        if not self._outputs_enabled:
+            self._dac.enable_outputs()  # the shadow holds the zeros written while safe
+            self._outputs_enabled = True
+        stale = age < 0 or age > self.policy.max_input_age_frames
+        if stale:
+            status |= CMD_STALE
+            v["stale_commands"] += 1
+            self._announce(CMD_STALE, f"rates 0V: cmd inputs {age} fr old > "
+                                      f"{self.policy.max_input_age_frames}{self._stall_note()}")
+        else:
+            self._cmd_episode &= ~(CMD_STALE | CMD_ABSENT)
+        v["command_status"][...] = status
         r = self._dac.range_volts
-        isfinite = math.isfinite
-        volts, status = [], []
-        for e, off, k, lim in zip(eng, self._dac_offset_l, self._dac_scale_l, self._dac_is_limit):
-            x = (e - off) / k if k else 0.0
+        volts, st_out = [], []
+        for ch, e in enumerate(eng):
+            k_ = self._dac_scale_l[ch]
+            if stale and self._dac_is_rate[ch]:
+                volts.append(0.0)
+                st_out.append(DAC_FORCED_SAFE)
+                eng[ch] = 0.0
+                continue
+            x = (e - self._dac_offset_l[ch]) / k_ if k_ else 0.0
             st = 0
-            if not isfinite(x):  # a non-finite command drives 0 V
-                x = 0.0
-            elif x > r or x < -r or (lim and x < 0.0):
-                # out of range: saturate; a negative current limit means nothing to the
-                # amplifier: 0 V (brakes set)
-                st = DAC_CLIPPED
-                x = 0.0 if lim and x < 0.0 else (r if x > r else -r)
+            sat = self._dac_sat_v[ch] if self._dac_sat_v[ch] > 0 else r
+            if self._dac_is_limit[ch] and x < 0.0:
+                st, x = DAC_CLIPPED, 0.0  # a current limit within the margin below 0: brakes set
+            elif x > sat or x < -sat:  # within the refusal margin: saturate, say so
+                st, x = DAC_CLIPPED, (sat if x > sat else -sat)
             volts.append(x)
-            status.append(st)
-        self._write_dac(volts, status, eng)
+            st_out.append(st)
+        self._write_dac(volts, st_out, eng)
 
     def _apply_safe(self) -> None:
         if self.state == ServiceState.ARMED or self.guard.state == ServiceState.FAULT:
@@ -729,10 +893,11 @@ class IoService:
         - the statistics a frame asked for are published (percentiles over the 4096-frame
           window cost about 1 ms, a periodic work spike inside a frame).
         """
+        self._note_alive(self.clock.now())
         if self.guard.state == ServiceState.ARMED and self.state == ServiceState.ARMED:
-            cmd = self.commands
-            cmd.read()
-            if self.guard.check_between_frames(int(cmd.record["heartbeat"])):
+            self._fetch_command()  # only a good command's heartbeat counts (_hb_ok)
+            hb = self._hb_ok if self._hb_ok is not None else -1
+            if self.guard.check_between_frames(hb, stall_note=self._stall_note()):
                 self.fault_code = FAULT_WATCHDOG
                 self._v["watchdog_tripped"][...] = 1
                 self._apply_safe()
@@ -869,6 +1034,7 @@ class IoService:
         chans = sorted(rack.board(self._dac_cfg.name).channels, key=lambda c: c.channel)
         self._dac_scale_l = [c.scale for c in chans]
         self._dac_offset_l = [c.offset for c in chans]
+        self._set_dac_limits(chans)
         self._apply_calibration_extras()
         self.post(Severity.INFO, 160, f"calibration v{cal.version} loaded ({cal.hash().hex()})")
 

@@ -8,6 +8,7 @@ Invalid configuration is refused with a :class:`ConfigError` naming file and lin
 from __future__ import annotations
 
 import importlib
+import math
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -27,7 +28,9 @@ KINDS: dict[str, tuple[str, int, str]] = {
 }
 DEFAULT_DIRECTION = {"rtd": "in", "adc": "in", "dac": "out", "serial": "in"}
 BOARD_KEYS = {"name", "kind", "device", "base", "rate_hz", "title", "channels"}
-CHANNEL_KEYS = {"ch", "signal", "label", "units", "direction", "spare", "scale", "offset", "baud"}
+CHANNEL_KEYS = {"ch", "signal", "label", "units", "direction", "spare", "scale", "offset", "baud", "limit"}
+#: ``[commands]`` keys: how the service judges the command area (see :class:`CommandPolicy`)
+COMMANDS_KEYS = {"max_input_age_frames", "limit_margin"}
 SIGNAL_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
@@ -59,6 +62,11 @@ class Channel:
     scale: float = 1.0  #: engineering units per volt (analog channels)
     offset: float = 0.0  #: engineering value at 0 V
     baud: int | None = None
+    #: DAC command channels: the largest engineering command the service obeys (rates and
+    #: the gripper: |value| <= limit; current limits: 0 <= value <= limit), within the
+    #: rack's ``[commands] limit_margin``; beyond it the service refuses the command and
+    #: makes the outputs safe. None: the DAC's full range (10 V x scale).
+    limit: float | None = None
 
     def as_dict(self) -> dict:
         d = {
@@ -72,6 +80,8 @@ class Channel:
             d["offset"] = self.offset
         if self.baud is not None:
             d["baud"] = self.baud
+        if self.limit is not None:
+            d["limit"] = self.limit
         return d
 
 
@@ -93,12 +103,32 @@ class BoardConfig:
         raise KeyError(f"board {self.name} has no channel {ch}")
 
 
+@dataclass(frozen=True)
+class CommandPolicy:
+    """How the service judges the command area (rack file section ``[commands]``).
+
+    :param max_input_age_frames: a rate channel is driven only from a command computed
+        from inputs at most this many minor frames old (``commands.inputs_frame``); older
+        commands drive the rate channels at 0 V. Default 4 (12.5 ms at 320 Hz), which
+        must not exceed the command watchdog (checked when the service starts). Assumed:
+        nominal age is 2-3 frames (servo at 160 Hz, output in the next frame), so one
+        missed controller frame is tolerated and two are not.
+    :param limit_margin: fraction of a channel's ``limit`` a command may exceed it by and
+        still be obeyed (saturated at the limit, status bit set); beyond it the command is
+        refused. Default 0.02 (assumed: rounding in a controller's own saturation).
+    """
+
+    max_input_age_frames: int = 4
+    limit_margin: float = 0.02
+
+
 @dataclass
 class RackConfig:
     name: str
     boards: tuple[BoardConfig, ...]
     bit3: dict = field(default_factory=dict)
     source: str = "<default>"
+    commands: CommandPolicy = field(default_factory=CommandPolicy)
 
     def channels(self) -> list[Channel]:
         return [c for b in self.boards for c in b.channels]
@@ -237,7 +267,7 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
     boards_raw = data.get("board")
     if not isinstance(boards_raw, list) or not boards_raw:
         fail("no [[board]] entries")
-    unknown_top = set(data) - {"rack", "bit3", "board"}
+    unknown_top = set(data) - {"rack", "bit3", "board", "commands"}
     if unknown_top:
         fail(f"unknown top-level section(s): {', '.join(sorted(unknown_top))}")
 
@@ -302,11 +332,19 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
             scale = float(c.get("scale", 1.0))
             if scale == 0:
                 fail(f"board {name}: channel {ch} scale must not be 0", bi, ci)
+            limit = c.get("limit")
+            if limit is not None:
+                if device != "dac":
+                    fail(f"board {name}: channel {ch}: 'limit' applies to DAC command channels only", bi, ci)
+                if isinstance(limit, bool) or not isinstance(limit, (int, float)) or \
+                        not math.isfinite(limit) or limit <= 0:
+                    fail(f"board {name}: channel {ch} limit must be a positive number, not {limit!r}", bi, ci)
+                limit = float(limit)
             chans.append(Channel(
                 device=device, board=name, kind=kind, address=base, channel=ch, signal=sig,
                 label=str(c["label"]), units=str(c["units"]), direction=direction, rate_hz=rate,
                 spare=bool(c.get("spare", False)), scale=scale, offset=float(c.get("offset", 0.0)),
-                baud=c.get("baud")))
+                baud=c.get("baud"), limit=limit))
         missing = sorted(set(range(n_channels)) - seen)
         if missing:
             fail(f"board {name}: channel(s) {', '.join(map(str, missing))} not listed "
@@ -315,4 +353,20 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
         boards.append(BoardConfig(name=name, kind=kind, device=device, base=base, window=window,
                                   rate_hz=rate, title=str(b.get("title", kind)), channels=tuple(chans)))
     return RackConfig(name=str(rack.get("name", "rack")), boards=tuple(boards),
-                      bit3=dict(data.get("bit3", {})), source=source)
+                      bit3=dict(data.get("bit3", {})), source=source,
+                      commands=_command_policy(data.get("commands", {}), fail))
+
+
+def _command_policy(raw, fail) -> CommandPolicy:
+    if not isinstance(raw, dict):
+        fail("[commands] must be a table")
+    extra = set(raw) - COMMANDS_KEYS
+    if extra:
+        fail(f"[commands]: unknown key(s) {', '.join(sorted(extra))}; known: {', '.join(sorted(COMMANDS_KEYS))}")
+    age = raw.get("max_input_age_frames", CommandPolicy.max_input_age_frames)
+    if isinstance(age, bool) or not isinstance(age, int) or not 1 <= age <= 64:
+        fail(f"[commands] max_input_age_frames must be an integer 1..64, not {age!r}")
+    margin = raw.get("limit_margin", CommandPolicy.limit_margin)
+    if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin <= 0.5:
+        fail(f"[commands] limit_margin must be a number 0..0.5, not {margin!r}")
+    return CommandPolicy(int(age), float(margin))
