@@ -83,12 +83,15 @@ class FtSensor:
     :param baud: line rate, used for the rate check (the port's own rate is not changed)
     :param reply_timeout_s: bound on every command reply
     :param rate_window_s: sliding window for ``rate_hz``
+    :param resync_records: whole valid binary records the stream decoder needs to regain
+        framing after a bad one (default: 1 with the checksum, 2 without; see
+        ``protocol.BinaryStreamDecoder``)
     :raises ConfigError: when cpf/cpt are not positive
     """
 
     def __init__(self, port: BytePort, *, cpf: float = P.NOMINAL.cpf, cpt: float = P.NOMINAL.cpt,
                  clock: Clock | None = None, baud: int = P.DEFAULT_BAUD, reply_timeout_s: float = 0.5,
-                 rate_window_s: float = 1.0) -> None:
+                 rate_window_s: float = 1.0, resync_records: int | None = None) -> None:
         if not (cpf > 0 and cpt > 0):
             raise ConfigError(f"F/T sensor on {_port_label(port)}: cpf and cpt must be > 0 (got {cpf}, {cpt})")
         self.port = port
@@ -106,6 +109,7 @@ class FtSensor:
         self._stats = P.DecoderStats()
         self._seq = 0
         self._rate = RateWindow(rate_window_s)
+        self.resync_records = resync_records
         self._decoder: P.AsciiStreamDecoder | P.BinaryStreamDecoder = self._new_decoder()
         self.name = _port_label(port)
 
@@ -286,6 +290,19 @@ class FtSensor:
             raise LinkError(f"F/T on {self.name}: read failed: {err}") from err
         return self._feed(data) if data else []
 
+    def record_due(self) -> bool:
+        """While streaming: the port's buffer holds enough bytes to complete a record (a
+        whole record plus the next status byte in binary, a line's worth in ASCII), so a
+        :meth:`read_records` now is worth its cost. Never blocks, no bus access on a port
+        whose owner drains it (the MVME400 port with ``autopoll`` off).
+
+        :raises LinkError: the port failed
+        """
+        if not self.streaming:
+            return False
+        n = P.record_bytes(self.mode, self.checksum_on) + (1 if self.mode == "binary" else 0)
+        return self._in_waiting() + self._decoder.buffered >= n
+
     def stop_stream(self) -> list[FtReading]:
         """Stop ``QS``: send CR, keep decoding until the prompt ``CR LF CR LF >``.
 
@@ -377,7 +394,8 @@ class FtSensor:
 
     # -- internals -----------------------------------------------------------------------------
     def _new_decoder(self) -> P.AsciiStreamDecoder | P.BinaryStreamDecoder:
-        dec = P.BinaryStreamDecoder(self.checksum_on) if self.mode == "binary" else P.AsciiStreamDecoder()
+        dec = P.BinaryStreamDecoder(self.checksum_on, self.resync_records) if self.mode == "binary" \
+            else P.AsciiStreamDecoder()
         dec.stats = self._stats  # one set of counters across mode changes
         dec.reset(synced=True)
         return dec

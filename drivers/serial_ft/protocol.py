@@ -211,6 +211,11 @@ class AsciiStreamDecoder:
         self._synced = False
         self._resyncing = False
 
+    @property
+    def buffered(self) -> int:
+        """Bytes of an unfinished line."""
+        return len(self._buf)
+
     def reset(self, synced: bool = False) -> None:
         """Forget buffered bytes; ``synced=True`` when the next byte starts a record."""
         self._buf.clear()
@@ -274,16 +279,40 @@ class BinaryStreamDecoder:
     * in sync: the record at the buffer head is accepted when its status byte is a
       known code, its checksum matches (if enabled) AND the byte after it (the next
       record's status byte) is also a known code - one byte of look-ahead;
-    * otherwise the decoder counts a bad record, drops one byte at a time and only
-      re-enters sync when TWO consecutive whole records pass all checks.
+    * otherwise the decoder counts a bad record, drops one byte at a time and re-enters
+      sync on the first position that passes ``resync_records`` whole-record checks:
+      with the checksum one record (the same test as in sync, so the first whole record
+      after a loss is decoded at once: a lost character costs only the record it hit),
+      without it two consecutive records (a slip is otherwise too likely to pass).
+      Bytes after a bad record are always kept and searched: no good record is thrown
+      away with a bad one.
+
+    :param checksum_on: records carry the (assumed) checksum byte
+    :param resync_records: whole valid records needed to regain sync (default 1 with the
+        checksum, 2 without)
     """
 
-    def __init__(self, checksum_on: bool = False) -> None:
+    def __init__(self, checksum_on: bool = False, resync_records: int | None = None) -> None:
         self.checksum_on = checksum_on
         self.length = record_bytes("binary", checksum_on)
+        if resync_records is None:
+            resync_records = 1 if checksum_on else 2
+        if resync_records not in (1, 2):
+            raise ValueError(f"resync_records must be 1 or 2, not {resync_records!r}")
+        self.resync_records = resync_records
         self.stats = DecoderStats()
         self._buf = bytearray()
         self._synced = True
+
+    @property
+    def buffered(self) -> int:
+        """Bytes held for the next record (or the hunt)."""
+        return len(self._buf)
+
+    @property
+    def synced(self) -> bool:
+        """False while hunting for framing after a bad record."""
+        return self._synced
 
     def reset(self, synced: bool = True) -> None:
         """Forget buffered bytes; ``synced=True`` when the next byte starts a record."""
@@ -313,33 +342,40 @@ class BinaryStreamDecoder:
         self._buf += data
         out: list[tuple[int, tuple[int, ...]]] = []
         n = self.length
+        buf = self._buf
         while True:
             if self._synced:
-                if len(self._buf) < n + 1:
+                if len(buf) < n + 1:
                     return out
                 rec = self._valid(0)
-                if rec is not None and self._buf[n] in STATUS_CODES:
-                    del self._buf[:n]
+                if rec is not None and buf[n] in STATUS_CODES:
+                    del buf[:n]
                     self.stats.records += 1
                     out.append(rec)
                     continue
                 self.stats.bad_records += 1
                 self._synced = False
-                del self._buf[:1]
+                del buf[:1]
                 self.stats.bytes_discarded += 1
                 continue
-            # hunting: need two consecutive valid records
-            if len(self._buf) < 2 * n:
+            # hunting: the first position that passes the resync test
+            need = n + 1 if self.resync_records == 1 else 2 * n
+            if len(buf) < need:
                 return out
-            rec = self._valid(0)
-            if rec is not None and self._valid(n) is not None:
-                del self._buf[:n]
+            rec = None
+            if buf[0] in STATUS_CODES:  # cheap test first: most positions fail here
+                rec = self._valid(0)
+                if rec is not None:
+                    ok = buf[n] in STATUS_CODES if self.resync_records == 1 else self._valid(n) is not None
+                    rec = rec if ok else None
+            if rec is not None:
+                del buf[:n]
                 self._synced = True
                 self.stats.resyncs += 1
                 self.stats.records += 1
                 out.append(rec)
                 continue
-            del self._buf[:1]
+            del buf[:1]
             self.stats.bytes_discarded += 1
 
 
