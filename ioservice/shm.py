@@ -33,6 +33,10 @@ name at the same instant, the tracker may print a harmless KeyError.)
   never wrap;
 - a writer that dies mid-write leaves the counter odd: readers give up after a bounded
   time with :class:`SeqLockTimeout` (never hang); the next owner makes it even again.
+  A reader that must not wait at all (the service reading the commands every frame)
+  uses the non-blocking :meth:`AreaReader.try_read` / :meth:`SeqLock.try_read_into`:
+  at most ``TRY_READ_ATTEMPTS`` copies, no clock, no yield, and ``False`` when none was
+  stable (the record keeps its last good copy).
 
 This is **not** correct on weakly ordered CPUs (ARM64) without barriers; there the
 ``SeqLock.write``/``read_into`` pair is the place to drop in a C11-atomics version.
@@ -62,9 +66,9 @@ from pathlib import Path
 import numpy as np
 
 from ioservice.layout import (
-    BUFFER_SIZE, LAYOUT_VERSION, MAGIC, MESSAGE_DTYPE, MESSAGE_QUEUE_LEN, MESSAGE_TEXT_BYTES,
+    AREA_MAP, BUFFER_SIZE, LAYOUT_VERSION, MAGIC, MESSAGE_DTYPE, MESSAGE_QUEUE_LEN, MESSAGE_TEXT_BYTES,
     OWNER_DTYPE, OWNER_NAME_BYTES, SEQ_BLOCK, WRITER_ROLES, AreaSpec, Layout, ServiceState,
-    Severity, default_layout, resolve_role,
+    Severity, _header, default_layout, resolve_role,
 )
 from pfma.errors import PfmaError, PfmaTimeoutError
 
@@ -88,7 +92,11 @@ class SeqLockTimeout(Bit3Error, PfmaTimeoutError):
 DEFAULT_READ_TIMEOUT_S = 0.1
 #: fast retries before a reader starts yielding the CPU to a (maybe descheduled) writer
 _SPIN_RETRIES = 64
+#: copy attempts of one non-blocking read (SeqLock.try_read_into, AreaReader.try_read)
+TRY_READ_ATTEMPTS = 3
 _F_OFD_SETLK = getattr(fcntl, "F_OFD_SETLK", None)  # Linux >= 3.15, Python >= 3.9
+_F_OFD_GETLK = getattr(fcntl, "F_OFD_GETLK", None)
+_FLOCK = "hhqqi4x"  # struct flock on Linux x86-64/arm64 (native alignment)
 
 
 # ----------------------------------------------------------------------------------------
@@ -177,6 +185,23 @@ class SeqLock:
             if seq[0] == s1:
                 return s1
         return self._read_retry(dst, part)
+
+    def try_read_into(self, dst: memoryview, scratch: memoryview, attempts: int = TRY_READ_ATTEMPTS) -> int:
+        """Non-blocking read: at most ``attempts`` copies of the body into ``scratch`` (no
+        clock, no yield); the first stable one is copied on into ``dst``. Returns the
+        counter it was stable at, or -1 when none was (counter odd: a write in progress or
+        a writer dead mid-write; or it changed during the copy) -- then ``dst`` is left as
+        it was. ``scratch`` and ``dst`` are caller-preallocated views of the body size."""
+        seq, body = self._seq, self._body
+        for _ in range(attempts):
+            s1 = seq[0]
+            if not s1 & 1:
+                scratch[:] = body
+                if seq[0] == s1:
+                    dst[:] = scratch
+                    return s1
+            self.retries += 1
+        return -1
 
     def _read_retry(self, dst: memoryview, body: memoryview | None = None) -> int:
         seq = self._seq
@@ -282,6 +307,27 @@ def _lock_byte(fd: int, index: int, lock: bool) -> None:
         fcntl.lockf(fd, (fcntl.LOCK_EX | fcntl.LOCK_NB) if lock else fcntl.LOCK_UN, 1, index)
 
 
+def _byte_locked(fd: int, index: int) -> bool:
+    """Someone holds a lock on byte ``index`` of the backing file (a test only: nothing is
+    taken, so a service claiming at this instant is not disturbed)."""
+    cmd = _F_OFD_GETLK if _F_OFD_GETLK is not None else fcntl.F_GETLK
+    res = fcntl.fcntl(fd, cmd, struct.pack(_FLOCK, fcntl.F_WRLCK, os.SEEK_SET, index, 1, 0))
+    return struct.unpack(_FLOCK, res)[0] != fcntl.F_UNLCK
+
+
+#: the header's field offsets: the same for every rack (only the area bodies differ)
+_HEADER_OFF: dict[str, int] | None = None
+
+
+def _header_offsets() -> dict[str, int]:
+    global _HEADER_OFF
+    if _HEADER_OFF is None:
+        name, offset, size, writer, seqlocked, doc = AREA_MAP[0]
+        _HEADER_OFF = {f.name: f.offset for f in _header(AreaSpec(name, 0, offset, size, writer, seqlocked,
+                                                                   doc)).specs}
+    return _HEADER_OFF
+
+
 #: public names of the helpers above, for other shared-memory segments (the world model)
 open_shm = _open_shm
 pid_alive = _pid_alive
@@ -331,14 +377,31 @@ class AreaReader:
         self._lock = lock
         self.raw = bytearray(area.body_size)
         self._dst = memoryview(self.raw)
+        self._scratch = memoryview(bytearray(area.body_size))  # try_read's landing place
         self.record: np.ndarray = np.ndarray((), area.body_dtype, buffer=self.raw)
         self.last_seq = -1  #: counter of the copy in :attr:`record` (-1: never read)
+        self.try_failures = 0  #: :meth:`try_read` calls that got no stable copy
 
     def read(self) -> int:
-        """Refresh :attr:`record` with a whole, consistent copy; returns its sequence number."""
+        """Refresh :attr:`record` with a whole, consistent copy; returns its sequence number.
+
+        :raises SeqLockTimeout: no stable copy within the lock's ``timeout_s`` (it waits that long)
+        """
         s = self._lock.read_into(self._dst)
         self.last_seq = s
         return s
+
+    def try_read(self) -> bool:
+        """Refresh :attr:`record` without waiting: at most ``TRY_READ_ATTEMPTS`` copies (no
+        clock, no sleep, no allocation). False when none was stable (the writer is mid-write
+        or died mid-write): :attr:`record` and :attr:`last_seq` keep the last good copy and
+        :attr:`try_failures` counts the call. True: :attr:`last_seq` is the new copy's."""
+        s = self._lock.try_read_into(self._dst, self._scratch)
+        if s < 0:
+            self.try_failures += 1
+            return False
+        self.last_seq = s
+        return True
 
     @property
     def seq(self) -> int:
@@ -470,6 +533,7 @@ class Bit3Buffer:
         self._claimed: dict[str, str] = {}  # area -> owner name
         self._writers: dict[str, AreaWriter] = {}
         self._queues: dict[str, MessageQueue] = {}
+        self._owner_views: dict[str, tuple[memoryview, memoryview, memoryview]] = {}
         self._hdr_off = {f.name: f.offset for f in layout.fields if f.area == "header"}
         me = weakref.ref(self)
         for a in layout.areas:
@@ -565,6 +629,55 @@ class Bit3Buffer:
         return buf
 
     @staticmethod
+    def owner_alive(name: str = "pfma", area: str = "inputs") -> tuple[bool, str]:
+        """Is the writer of ``area`` (default: the service) of POSIX shared memory ``name``
+        alive? Decided without attaching, so for a buffer of any layout (another rack file),
+        and without writing or locking anything.
+
+        Alive means the writer holds its claim lock (the OFD byte lock :meth:`claim` takes;
+        it dies with the process), not that the pid in the owner record runs: a dead
+        owner's pid may belong to another process by now. A segment that cannot be opened
+        counts as alive (it cannot be proved unused).
+
+        :returns: ``(alive, description)``; the description names the owner (name, pid)
+            from the header's owner record when the segment is a Bit3 buffer
+        """
+        from multiprocessing import shared_memory
+        path = f"/dev/shm/{name}"
+        index = next((i for i, a in enumerate(AREA_MAP) if a[0] == area and a[3]), None)
+        if index is None:
+            raise Bit3Error(f"Bit3 area {area!r} has no owner (no writer role writes it)")
+        try:
+            fd = shared_memory._posixshmem.shm_open("/" + name, os.O_RDONLY, mode=0o600)
+        except FileNotFoundError:
+            return False, f"no buffer {path}"
+        except OSError as err:
+            return True, f"{path} cannot be inspected ({err.strerror}), so it may be in use"
+        try:
+            head = os.pread(fd, 1024, 0)
+            try:
+                locked = _byte_locked(fd, index)
+            except OSError as err:
+                return True, f"{path}: cannot test its claim lock ({err.strerror}), so it may be in use"
+        finally:
+            os.close(fd)
+        if len(head) < 1024 or head[:8] != MAGIC:
+            what = f"{path} is not a Bit3 buffer"
+            return locked, what + (" and a process holds a lock on it" if locked else " (nobody holds it)")
+        h = _header_offsets()
+        rec = np.frombuffer(head, OWNER_DTYPE, 1, h["owners"] + index * OWNER_DTYPE.itemsize)[0]
+        pid = int(rec["pid"])
+        owner = bytes(rec["name"]).rstrip(b"\0").decode("utf-8", "replace")
+        rack = head[h["rack_name"]:h["rack_name"] + 16].rstrip(b"\0").decode("utf-8", "replace")
+        hash_hex = head[h["layout_hash"]:h["layout_hash"] + 8].hex()
+        where = f"rack {rack!r}, layout {hash_hex}"
+        if locked:
+            return True, f"owned by {owner!r} (pid {pid}), which holds its claim lock ({where})"
+        if pid > 0:
+            return False, f"last owner {owner!r} (pid {pid}) is gone: it holds no claim lock ({where})"
+        return False, f"no owner{f' (last: {owner!r})' if owner else ''} ({where})"
+
+    @staticmethod
     def unlink(name: str = "pfma") -> bool:
         """Remove POSIX shared memory ``name``; False if it did not exist."""
         from multiprocessing import shared_memory
@@ -650,6 +763,32 @@ class Bit3Buffer:
         return OwnerInfo(area, int(rec["pid"]), bytes(rec["name"]).decode("utf-8", "replace"),
                          int(rec["claimed_ns"]), int(rec["heartbeat"]), float(rec["heartbeat_t_s"]),
                          int(rec["takeovers"]))
+
+    def owner_pid_token(self, area: str) -> tuple[int, int]:
+        """``(pid, token)`` of an area's owner, cheap enough for every frame: aligned loads
+        from views cached on first use, consistent under the owner record's counter.
+        The token is the record's ``claimed_ns``, rewritten (strictly increasing) by every
+        :meth:`claim` and release, so a new claim -- even by the same pid -- changes it.
+        ``pid`` is 0 when nobody owns the area; ``(0, 0)`` also when no stable copy came in
+        ``TRY_READ_ATTEMPTS`` tries (a claim being written right now, or a claimer killed
+        inside it): no owner this time."""
+        v = self._owner_views.get(area)
+        if v is None:
+            a = self.layout.area(area)
+            if not a.writer:
+                raise Bit3Error(f"Bit3 area {area!r} has no owner (no writer role writes it)")
+            v = self._owner_views[area] = (
+                self._word(self._owner_offset(a.index, "seq"), "Q"),
+                self._word(self._owner_offset(a.index, "pid"), "i"),
+                self._word(self._owner_offset(a.index, "claimed_ns"), "Q"))
+        seq, pid, token = v
+        for _ in range(TRY_READ_ATTEMPTS):
+            s1 = seq[0]
+            if not s1 & 1:
+                p, t = pid[0], token[0]
+                if seq[0] == s1:
+                    return p, t
+        return 0, 0
 
     def header(self) -> HeaderInfo:
         """A copy of the header's identification, state, frame and owners."""
@@ -768,7 +907,9 @@ class Bit3Buffer:
             struct.pack_into("<iI", self._mv, base + OWNER_DTYPE.fields["pid"][1], pid, 1 if pid else 0)
             no = base + OWNER_DTYPE.fields["name"][1]
             self._mv[no:no + OWNER_NAME_BYTES] = name.ljust(OWNER_NAME_BYTES, b"\0")
-            struct.pack_into("<Q", self._mv, base + OWNER_DTYPE.fields["claimed_ns"][1], time.time_ns())
+            cns = base + OWNER_DTYPE.fields["claimed_ns"][1]
+            # the claim token (owner_pid_token): strictly increasing, also within one clock tick
+            struct.pack_into("<Q", self._mv, cns, max(time.time_ns(), struct.unpack_from("<Q", self._mv, cns)[0] + 1))
             struct.pack_into("<I", self._mv, base + OWNER_DTYPE.fields["takeovers"][1], takeovers)
             seq[0] = s + 2 + (s & 1)
         finally:
@@ -835,6 +976,7 @@ class Bit3Buffer:
     def _release_views(self) -> None:
         self._writers.clear()
         self._queues.clear()
+        self._owner_views.clear()
         for v in self._views:
             v.release()
         self._views.clear()

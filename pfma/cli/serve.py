@@ -14,7 +14,6 @@ import os
 import subprocess
 import sys
 import threading
-import time
 
 from ioservice.layout import ServiceState, build_layout, default_layout
 from ioservice.schedule import Schedule
@@ -107,8 +106,8 @@ def run(args) -> int:
     if args.realtime:
         for w in realtime_setup(cpu=os.cpu_count() - 1 if os.cpu_count() else None):
             print(f"pfma serve: {w}", file=sys.stderr)
-    Bit3Buffer.unlink(args.buffer) if _stale(args.buffer) else None
-    buf = Bit3Buffer.create(args.buffer, layout, exist_ok=True)
+    _replace_stale(args.buffer)
+    buf = Bit3Buffer.create(args.buffer, layout)
     svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3,
                     calibration=getattr(args, "calibration", None), ft_port=args.ft_port)
     from ioservice.ring import FrameRing
@@ -162,14 +161,15 @@ def run(args) -> int:
     return 0
 
 
-def _stale(name: str) -> bool:
-    """A buffer left by a service that is gone (its owner pid is dead)."""
-    try:
-        b = Bit3Buffer.attach(name, readonly=True)
-    except Exception:  # noqa: BLE001 - wrong layout, partial file: treat as stale
-        return os.path.exists(f"/dev/shm/{name}")
-    try:
-        owner = b.owner("inputs")
-        return not owner.alive
-    finally:
-        b.close()
+def _replace_stale(name: str) -> None:
+    """Remove buffer ``name`` when its service is provably gone (its claim lock is free),
+    whatever the buffer's layout; refuse, touching nothing, while that service lives.
+
+    :raises Bit3Error: the buffer's service is alive (or the buffer cannot be inspected)
+    """
+    alive, who = Bit3Buffer.owner_alive(name)
+    if alive:
+        raise Bit3Error(f"Bit3 buffer /dev/shm/{name} is in use: {who}. This service leaves it "
+                        f"alone; stop that service first, or run this one on another buffer "
+                        f"with --buffer OTHER")
+    Bit3Buffer.unlink(name)

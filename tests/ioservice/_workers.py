@@ -56,3 +56,35 @@ def die_holding_claim(name: str, mid_write: bool) -> None:
     if mid_write:
         buf.lock("commands").begin()  # counter left odd, as if killed inside a write
     os._exit(0)
+
+
+def hold_service_claim(name: str, layout_hash: bytes, conn) -> None:
+    """Claim the service role of a buffer whose layout hash is ``layout_hash`` (another
+    rack's), report the pid, hold the claim until told, then die without releasing."""
+    from dataclasses import replace
+
+    from ioservice.layout import default_layout
+    buf = Bit3Buffer.attach(name, readonly=False, layout=replace(default_layout(), hash=layout_hash))
+    buf.claim("service", "other-rack-serve")
+    conn.send(os.getpid())
+    if conn.poll(60.0):
+        conn.recv()
+    os._exit(0)
+
+
+def ring_reader_across_replacement(name: str, layout_hash: bytes, conn) -> None:
+    """Map a frame ring, let the parent replace it, then touch every page of the old
+    mapping (SIGBUS if the file was truncated under it), notice the replacement and
+    attach the new ring."""
+    from ioservice.ring import FrameRing
+    r = FrameRing.attach(name, layout_hash)
+    conn.send(("attached", r.count(), r.replaced()))
+    conn.recv()  # the parent has created a new ring at the same path
+    whole = bytes(r._mm[:])
+    last = r.read(r.count() - 1)
+    replaced = r.replaced()
+    new = FrameRing.attach(name, layout_hash)
+    conn.send(("after", len(whole), r.count(), bytes(last), replaced, new.n_slots, new.count(),
+               bytes(new.read(0)), new.replaced()))
+    new.close()
+    r.close()

@@ -233,3 +233,139 @@ def test_snapshot_copy_is_independent(buf, shm_name):
         w.publish()
         assert c.read_inputs().frame == 2 and kept.frame == 1
         assert np.shares_memory(c.read_inputs().record, c.read_inputs().record)
+
+
+# --- non-blocking reads: a stuck-odd counter costs one bounded attempt, never a wait
+
+
+def _no_clock_no_yield(monkeypatch):
+    """try_read must neither look at a clock nor yield the CPU (it is called every frame)."""
+    import ioservice.shm as shm
+
+    def boom(*_a):
+        raise AssertionError("try_read waited (clock or sched_yield)")
+    monkeypatch.setattr(shm.time, "perf_counter", boom)
+    monkeypatch.setattr(shm.time, "monotonic", boom)
+    monkeypatch.setattr(shm.os, "sched_yield", boom)
+
+
+def test_try_read_of_a_stuck_odd_counter_fails_at_once_and_keeps_the_record(buf, shm_name, monkeypatch):
+    from ioservice.shm import TRY_READ_ATTEMPTS
+    buf.claim("controller", "ctl")
+    w = buf.writer("commands")
+    w.record["arm_request"] = 1
+    w.publish()
+    with Client.attach(shm_name) as c:
+        r = c.buffer.reader("commands")
+        assert r.try_read() and r.last_seq == 2 and int(r.record["arm_request"]) == 1
+        # the controller is killed mid-write: counter odd forever, body half written
+        seq_off = buf.layout.area("commands").offset
+        struct.pack_into("<Q", buf._mv, seq_off, 3)
+        w.record["arm_request"] = 7
+        buf.lock("commands")._body[:] = memoryview(w.raw)
+        _no_clock_no_yield(monkeypatch)
+        retries0 = r.retries
+        for i in range(1, 4):
+            assert r.try_read() is False
+            assert r.try_failures == i
+        assert int(r.record["arm_request"]) == 1 and r.last_seq == 2  # the last good copy
+        assert r.retries - retries0 == 3 * TRY_READ_ATTEMPTS  # bounded: a few copies per call
+        monkeypatch.undo()
+        with pytest.raises(SeqLockTimeout):  # the blocking read still reports it, after its wait
+            c.buffer.lock("commands").timeout_s = 0.001
+            r.read()
+        struct.pack_into("<Q", buf._mv, seq_off, 4)  # a new owner makes it even again
+        assert r.try_read() and r.last_seq == 4 and int(r.record["arm_request"]) == 7
+        assert r.try_failures == 3
+
+
+class _MovingCounter:
+    """Stands in for a sequence counter that a writer bumps during every copy (each load
+    sees the next even value), for ``changes`` copies; then it stays put."""
+
+    def __init__(self, start: int, changes: int) -> None:
+        self.value, self.changes, self.loads = start, changes, 0
+
+    def __getitem__(self, i: int) -> int:
+        self.loads += 1
+        v = self.value
+        if self.changes and self.loads % 2 == 1:  # the load before a copy: a write follows
+            self.value += 2
+            self.changes -= 1
+        return v
+
+
+def test_try_read_refuses_a_copy_during_which_the_counter_changed(buf, shm_name, monkeypatch):
+    from ioservice.shm import TRY_READ_ATTEMPTS
+    buf.claim("service", "svc")
+    w = buf.writer("inputs")
+    w.record["frame"] = 1
+    w.publish()
+    r = buf.reader("inputs")
+    assert r.try_read() and int(r.record["frame"]) == 1
+    w.record["frame"] = 2
+    w.publish()  # the body now holds frame 2; every copy of it is "torn" by the fake counter
+    lock = buf.lock("inputs")
+    real = lock._seq
+    try:
+        lock._seq = moving = _MovingCounter(4, changes=TRY_READ_ATTEMPTS)
+        _no_clock_no_yield(monkeypatch)
+        assert r.try_read() is False and r.try_failures == 1
+        assert moving.loads == 2 * TRY_READ_ATTEMPTS
+        assert int(r.record["frame"]) == 1 and r.last_seq == 2  # nothing of the torn copies
+        lock._seq = moving = _MovingCounter(8, changes=1)  # torn once, then stable
+        assert r.try_read() is True and int(r.record["frame"]) == 2 and r.last_seq == 10
+        assert moving.loads == 4 and r.try_failures == 1
+    finally:
+        lock._seq = real
+
+
+def test_try_read_after_a_controller_died_mid_write(shm_name, mp):
+    from tests.ioservice import _workers
+    buf = Bit3Buffer.create(shm_name)
+    try:
+        child = mp.Process(target=_workers.die_holding_claim, args=(shm_name, True))
+        child.start()
+        child.join(30)
+        assert child.exitcode == 0
+        r = buf.reader("commands")
+        assert buf.lock("commands").seq % 2 == 1
+        assert r.try_read() is False and r.try_failures == 1 and r.last_seq == -1
+    finally:
+        buf.close()
+
+
+# --- owner pid and claim token, for a per-frame check
+
+
+def test_owner_pid_token_follows_claims_and_releases(buf, shm_name):
+    assert buf.owner_pid_token("commands") == (0, 0)
+    views = len(buf._views)
+    buf.claim("controller", "ctl")
+    pid, tok = buf.owner_pid_token("commands")
+    o = buf.owner("commands")
+    assert pid == os.getpid() == o.pid and tok == o.claimed_ns > 0
+    assert buf.owner_pid_token("controller_messages")[0] == os.getpid()
+    assert buf.owner_pid_token("inputs") == (0, 0)
+    for _ in range(100):
+        assert buf.owner_pid_token("commands") == (pid, tok)
+    assert len(buf._views) - views <= 2 * 3  # cached per area on first use, not per call
+    buf.release()
+    pid2, tok2 = buf.owner_pid_token("commands")
+    assert pid2 == 0 and tok2 > tok
+    with Client.attach(shm_name, writer="commands", owner="ctl2") as c:
+        pid3, tok3 = buf.owner_pid_token("commands")
+        assert pid3 == os.getpid() and tok3 > tok2  # a new claim: a new token, even in one process
+        assert c.buffer.owner_pid_token("commands") == (pid3, tok3)
+    with pytest.raises(Bit3Error, match="no owner"):
+        buf.owner_pid_token("header")
+
+
+def test_owner_pid_token_of_a_record_being_written_reads_as_nobody(buf):
+    buf.claim("controller", "ctl")
+    base = buf._owner_offset(buf.layout.area("commands").index, "seq")
+    s = struct.unpack_from("<Q", buf._mv, base)[0]
+    struct.pack_into("<Q", buf._mv, base, s + 1)  # a claimer killed inside _write_owner
+    assert buf.owner_pid_token("commands") == (0, 0)
+    struct.pack_into("<Q", buf._mv, base, s + 2)
+    assert buf.owner_pid_token("commands")[0] == os.getpid()

@@ -1,11 +1,14 @@
 """`pfma serve` end to end for one real-time second (a smoke test: nothing here is timed)."""
 
+import multiprocessing
 import uuid
+from dataclasses import replace
 
 from ioservice.client import Client
-from ioservice.layout import ServiceState
+from ioservice.layout import ServiceState, default_layout
 from ioservice.shm import Bit3Buffer
 from pfma.cli import main
+from tests.ioservice import _workers
 
 
 def test_serve_runs_and_leaves_a_stopped_safe_buffer(capsys):
@@ -51,4 +54,37 @@ def test_serve_with_ft_on_a_pyserial_port(capsys):
         assert list(s.ft_force_n) == [1.0, 2.0, 3.0]  # 16 counts per N: exact in binary
         c.close()
     finally:
+        Bit3Buffer.unlink(name)
+
+
+def test_serve_never_replaces_a_live_service_buffer_of_another_layout(capsys):
+    """A buffer of another rack (another layout hash) whose service is alive is left
+    alone: serve refuses with the owner's name and pid; once that service is gone the
+    buffer is replaced."""
+    name = "pfma-serve-" + uuid.uuid4().hex[:6]
+    mp = multiprocessing.get_context("spawn")
+    b = Bit3Buffer.create(name, replace(default_layout(), hash=b"otherrk!"))
+    parent, child_end = mp.Pipe()
+    child = mp.Process(target=_workers.hold_service_claim, args=(name, b"otherrk!", child_end))
+    child.start()
+    try:
+        assert parent.poll(60.0), "child did not claim"
+        pid = parent.recv()
+        assert main(["serve", "--duration", "0.1", "--buffer", name]) != 0
+        err = capsys.readouterr().err
+        assert name in err and "'other-rack-serve'" in err and f"pid {pid}" in err and "--buffer" in err
+        assert "Traceback" not in err
+        with Client.attach(name, layout=b.layout) as c:  # the same segment, untouched
+            h = c.header()
+        assert h.layout_hash == b"otherrk!" and h.owners[0].pid == pid
+        parent.send("die")
+        child.join(60.0)
+        assert child.exitcode == 0
+        assert main(["serve", "--duration", "0.1", "--buffer", name]) == 0  # gone: replaced
+        with Client.attach(name) as c:
+            assert c.header().layout_hash == default_layout().hash
+    finally:
+        if child.is_alive():
+            child.kill()
+        b.close()
         Bit3Buffer.unlink(name)
