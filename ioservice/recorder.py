@@ -704,6 +704,19 @@ class Recorder:
         return self.counters
 
 
+#: idle polls of the capture thread between two looks whether its frame ring was replaced
+#: (one ``stat``; 50 polls of 0.2 ms: about every 10 ms while no frame comes)
+RING_CHECK_POLLS = 50
+
+
+@dataclass(frozen=True)
+class RingSwitch:
+    """Queued by :class:`InputsCapture` between the last frame of a replaced ring and the
+    first of the new one; :meth:`InputsCapture.drain` stops there and sets ``replaced_note``."""
+
+    note: str
+
+
 class InputsCapture:
     """Copies every inputs publish into a queue from its own thread, so the recorder's
     slow moments (closing and compressing a chunk, flushing the file, encoding JSON; 2-4
@@ -718,6 +731,13 @@ class InputsCapture:
     :param poll_s: sleep between polls when nothing new was published
     :param max_queue: snapshots held at most (about 2.6 s at 320 Hz); beyond it the newest
         are not queued, and the recorder counts them as missed
+
+    A restarted service replaces the ring file (``ioservice.ring``): the thread notices it
+    (:meth:`check_ring`), takes what the old ring still holds, attaches the new ring and
+    reads it from its first frame. The switch is a :class:`RingSwitch` in the queue:
+    :meth:`drain` stops there and sets :attr:`replaced_note`, so the recorder can start
+    the new session (``Recorder.attach`` with the new service's client) before the new
+    ring's frames.
     """
 
     def __init__(self, client: Client, poll_s: float = 0.0002, max_queue: int = 8192,
@@ -732,6 +752,9 @@ class InputsCapture:
         self._inputs_dtype = client.layout.area("inputs").body_dtype
         self.ring_lost = 0  #: frames overwritten in the ring before this thread read them
         self._ring_k: int | None = None  # next ring frame to take
+        self.ring_reattached = 0  #: replaced rings this capture moved on from
+        #: set by :meth:`drain` when it reached a ring switch (the caller clears it)
+        self.replaced_note: str | None = None
         self.queue: deque = deque()
         self.error: BaseException | None = None  #: what stopped the thread (e.g. SeqLockTimeout)
         self._stop = threading.Event()
@@ -759,9 +782,38 @@ class InputsCapture:
 
     def _run_ring(self) -> None:
         self._ring_k = self.ring.count()  # frames already in the ring are history
+        idle = 0
         while not self._stop.is_set():
-            if not self.take_from_ring():
-                time.sleep(self.poll_s)
+            if self.take_from_ring():
+                idle = 0
+                continue
+            idle += 1
+            if idle % RING_CHECK_POLLS == 0 and self.check_ring():
+                continue
+            time.sleep(self.poll_s)
+
+    def check_ring(self) -> bool:
+        """If the ring's file was replaced (the service restarted), take what the old ring
+        still holds, attach the new ring, queue a :class:`RingSwitch` and read the new ring
+        from its first frame; returns True when it switched. A ring that was removed, or
+        whose replacement is not there yet or has another layout, is kept: the recorder's
+        own checks on the buffer decide what happens then."""
+        from ioservice.ring import FrameRing, RingError
+        old = self.ring
+        if old is None or not old.replaced():
+            return False
+        try:
+            new = FrameRing.attach(old.buffer_name, old.layout_hash)
+        except RingError:
+            return False
+        self.take_from_ring()  # the old ring's memory stays valid: finish it
+        self.queue.append(RingSwitch(
+            f"frame ring {old.path} was replaced (service restarted?): the old ring ended after "
+            f"{old.count()} frames; reading the new ring from its first frame"))
+        self.ring, self._ring_k = new, 0
+        self.ring_reattached += 1
+        old.close()
+        return True
 
     def take_from_ring(self) -> int:
         """Queue every whole frame the ring holds beyond the last one taken; returns how
@@ -799,11 +851,16 @@ class InputsCapture:
             self.ring.close()
 
     def drain(self, rec: "Recorder") -> int:
-        """Write every queued snapshot; returns frames written."""
+        """Write every queued snapshot up to a ring switch (then :attr:`replaced_note` is
+        set and the rest stays queued for the next call); returns frames written."""
         n = 0
         q = self.queue
         while q:
-            n += rec.feed_inputs(q.popleft())
+            snap = q.popleft()
+            if type(snap) is RingSwitch:  # the frames after it are the new service's
+                self.replaced_note = snap.note
+                return n
+            n += rec.feed_inputs(snap)
         return n
 
 

@@ -23,6 +23,14 @@ Format (little-endian; all offsets from the start of the file)::
 A reader of frame k checks the stamp is 2k+2 before and after copying the body (like the
 buffer's sequence lock); any other value means the slot was overwritten (the reader
 fell more than ``n_slots - 1`` behind) or is being written.
+
+**Replacement, never truncation.** A restarted service makes a new ring file (under a
+temporary name in the same directory, then ``os.rename`` over the path); it never
+truncates the old one, whose pages a reader may still have mapped (a mapped page beyond
+the end of a truncated file kills the reader with SIGBUS). The reader keeps reading its
+old ring -- which simply stops growing -- and sees the replacement with
+:meth:`FrameRing.replaced` (the path now names another file, or none), then attaches the
+new ring. The file is private to the user, mode 0600, like the Bit3 segment.
 """
 
 from __future__ import annotations
@@ -30,11 +38,14 @@ from __future__ import annotations
 import mmap
 import os
 import struct
+import uuid
 
 MAGIC = b"PFMARING"
 VERSION = 1
 HEADER = 64
 DEFAULT_SLOTS = 256
+#: the ring file's mode: the same as the Bit3 buffer's shared-memory segment
+MODE = 0o600
 _HDR = struct.Struct("<8sIIII8s")
 _U64 = struct.Struct("<Q")
 
@@ -54,9 +65,11 @@ class FrameRing:
     """
 
     def __init__(self, mm: mmap.mmap, path: str, n_slots: int, slot_size: int, body_size: int,
-                 layout_hash: bytes) -> None:
+                 layout_hash: bytes, file_id: tuple[int, int] = (0, 0), buffer_name: str = "") -> None:
         self._mm = mm
         self.path = path
+        self.buffer_name = buffer_name
+        self.file_id = file_id  #: (st_dev, st_ino) of the mapped file
         self.n_slots = n_slots
         self.slot_size = slot_size
         self.body_size = body_size
@@ -66,21 +79,35 @@ class FrameRing:
     @classmethod
     def create(cls, buffer_name: str, body_size: int, layout_hash: bytes,
                n_slots: int = DEFAULT_SLOTS) -> "FrameRing":
-        """Create (or replace) the ring of ``buffer_name``."""
+        """Create (or replace) the ring of ``buffer_name``: a new file, complete with its
+        header, renamed over the path; an old ring file is never truncated (see the module
+        docstring), readers that map it keep valid memory."""
         if n_slots < 2 or body_size <= 0:
             raise ValueError(f"ring needs >= 2 slots and a body (got {n_slots}, {body_size})")
         slot = -(-(8 + body_size) // 64) * 64
         path = ring_path(buffer_name)
         size = HEADER + n_slots * slot
-        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o644)
+        tmp = f"{path}.{os.getpid()}-{uuid.uuid4().hex[:8]}.new"
+        fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL, MODE)
         try:
+            os.fchmod(fd, MODE)  # whatever the umask
             os.ftruncate(fd, size)
             mm = mmap.mmap(fd, size, mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
+            st = os.fstat(fd)
+            _HDR.pack_into(mm, 0, MAGIC, VERSION, n_slots, slot, body_size,
+                           bytes(layout_hash)[:8].ljust(8, b"\0"))
+            _U64.pack_into(mm, 32, 0)
+            os.rename(tmp, path)
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            raise
         finally:
             os.close(fd)
-        _HDR.pack_into(mm, 0, MAGIC, VERSION, n_slots, slot, body_size, bytes(layout_hash)[:8].ljust(8, b"\0"))
-        _U64.pack_into(mm, 32, 0)
-        return cls(mm, path, n_slots, slot, body_size, bytes(layout_hash)[:8])
+        return cls(mm, path, n_slots, slot, body_size, bytes(layout_hash)[:8], (st.st_dev, st.st_ino),
+                   buffer_name)
 
     @classmethod
     def attach(cls, buffer_name: str, layout_hash: bytes | None = None) -> "FrameRing":
@@ -94,7 +121,8 @@ class FrameRing:
         except OSError as err:
             raise RingError(f"no frame ring {path}: {err.strerror}") from None
         try:
-            size = os.fstat(fd).st_size
+            st = os.fstat(fd)
+            size = st.st_size
             if size < HEADER:
                 raise RingError(f"{path}: {size} bytes, not a frame ring")
             mm = mmap.mmap(fd, size, mmap.MAP_SHARED, mmap.PROT_READ)
@@ -107,7 +135,16 @@ class FrameRing:
         if layout_hash is not None and h != bytes(layout_hash)[:8]:
             mm.close()
             raise RingError(f"{path}: layout {h.hex()}, expected {bytes(layout_hash)[:8].hex()}")
-        return cls(mm, path, n, slot, body, h)
+        return cls(mm, path, n, slot, body, h, (st.st_dev, st.st_ino), buffer_name)
+
+    def replaced(self) -> bool:
+        """The path no longer names the file this ring maps (a restarted service made a new
+        ring, or the ring was removed). One ``stat``; this ring's memory stays readable."""
+        try:
+            st = os.stat(self.path)
+        except FileNotFoundError:
+            return True
+        return (st.st_dev, st.st_ino) != self.file_id
 
     # -- writer -------------------------------------------------------------------------
     def write(self, body) -> None:

@@ -179,6 +179,33 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
                 except SeqLockTimeout as e:  # the service died mid-write
                     say(f"{e}")
                     n = 0
+                if capture.replaced_note is not None:
+                    # a restarted service made a new frame ring and the capture moved to it:
+                    # the new service's frames follow in the queue; start their session first
+                    say(capture.replaced_note)
+                    capture.replaced_note = None
+                    if not buffer_replaced(client) and client.buffer.owner("inputs").alive:
+                        continue  # this session's client already is the new service's (it made
+                        # its buffer before its ring, and we attached in between)
+                    rec.flush()
+                    remaining = None if t_end is None else max(0.0, t_end - time.monotonic())
+                    try:
+                        new = wait_for_service(buffer, layout, timeout_s=remaining, say=say, stop=done)
+                    except LayoutMismatchError as err:
+                        print(f"pfma record: {err}; this recording ends here (a different rack or "
+                              f"layout is a different recording)", file=sys.stderr)
+                        err_code = 1
+                        stop["flag"] = True
+                        break
+                    if new is None:
+                        break
+                    rec.client = None
+                    client.close()
+                    client = capture.client = new
+                    rec.attach(client)
+                    say(f"service restarted: recording continues as session {rec.counters.sessions}")
+                    idle_since = time.monotonic()
+                    continue
                 if capture.error is not None:
                     if isinstance(capture.error, SeqLockTimeout):
                         say(f"{capture.error}")
