@@ -1,0 +1,393 @@
+"""The whole stack in real time: ``pfma serve --rack fake`` + ``pfma controller --power-up``
++ ``pfma record``, each a subprocess with this venv's python, for M minutes (issue 14).
+
+Reported (text or ``--json``): watchdog/safety trips and every WARNING/ERROR message of the
+service's and the controller's queues (read every 20 ms, so none of the 50 entries is
+overwritten unread; a gap in the sequence numbers is counted as lost), the controller layers
+that went to ERROR and why, the service's frame counters (``stats`` area), the controller's
+(``controller_stats`` area, "n/a" without an owner), the F/T link (records, bad, resyncs, the
+largest age seen, time flagged stale), the recorder's summary, CPU % per process (utime +
+stime from /proc over the run), the host stalls the service named. A process that dies is
+reported with its exit code and the tail of its output, never a traceback.
+
+``pfma bench stack --minutes 10 [--json]``; ``--minutes 0.05`` is the short variant a test runs.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import uuid
+from pathlib import Path
+
+POLL_S = 0.02  #: reading period of the buffer (messages, F/T link, host stalls)
+START_TIMEOUT_S = 30.0  #: the service must publish frames within this
+STOP_TIMEOUT_S = 15.0  #: each process must exit this long after SIGINT (then SIGKILL)
+LINK_STALE = 8  #: link_status bit (ioservice.service.LINK_STALE)
+
+
+def _cpu_s(pid: int) -> float | None:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            parts = f.read().rsplit(")", 1)[1].split()
+        return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+class _Proc:
+    """One subprocess, its output in a file (no pipe to fill), its CPU over the run."""
+
+    def __init__(self, name: str, argv: list[str], workdir: Path) -> None:
+        self.name = name
+        self.argv = argv
+        self.log_path = workdir / f"{name}.log"
+        self._log = open(self.log_path, "w")
+        self.p = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT, text=True,
+                                  start_new_session=True)  # a Ctrl-C on the bench reaches only us
+        self.cpu0 = _cpu_s(self.p.pid)
+        self.t0 = time.monotonic()
+        self.cpu_percent: float | None = None
+        self.died: dict | None = None  # exited before we stopped it
+        self.stop_how = "not stopped"
+        self.returncode: int | None = None
+
+    def alive(self) -> bool:
+        return self.p.poll() is None
+
+    def measure_cpu(self) -> None:
+        c = _cpu_s(self.p.pid)
+        wall = time.monotonic() - self.t0
+        if c is not None and self.cpu0 is not None and wall > 0:
+            self.cpu_percent = 100.0 * (c - self.cpu0) / wall
+
+    def note_death(self, t_run: float) -> None:
+        if self.died is None and not self.alive():
+            self.died = {"at_s": round(t_run, 2), "returncode": self.p.returncode, "output_tail": self.tail()}
+
+    def stop(self) -> None:
+        """SIGINT, then wait; SIGKILL if it does not exit in time."""
+        if not self.alive():
+            self.returncode = self.p.returncode
+            self.stop_how = "had exited"
+            return
+        self.measure_cpu()
+        self.p.send_signal(signal.SIGINT)
+        try:
+            self.returncode = self.p.wait(timeout=STOP_TIMEOUT_S)
+            self.stop_how = "SIGINT"
+        except subprocess.TimeoutExpired:
+            self.p.kill()
+            self.returncode = self.p.wait(timeout=10)
+            self.stop_how = f"SIGKILL (no exit {STOP_TIMEOUT_S:g} s after SIGINT)"
+
+    def tail(self, n: int = 12) -> list[str]:
+        try:
+            if not self._log.closed:
+                self._log.flush()
+            return self.log_path.read_text(errors="replace").splitlines()[-n:]
+        except OSError:
+            return []
+
+    def close(self) -> None:
+        if self.alive():
+            self.p.kill()
+            self.p.wait(timeout=10)
+        self._log.close()
+
+    def report(self) -> dict:
+        return {"pid": self.p.pid, "argv": self.argv[1:], "cpu_percent": _r(self.cpu_percent),
+                "stopped": self.stop_how, "returncode": self.returncode, "died": self.died}
+
+
+def _r(x, nd: int = 1):
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return None
+    return round(float(x), nd)
+
+
+class _Watch:
+    """Everything read from the buffer while the stack runs."""
+
+    def __init__(self, client, t0: float) -> None:
+        self.c = client
+        self.t0 = t0
+        self.cursor = {"service": 0, "controller": 0}
+        self.lost = {"service": 0, "controller": 0}
+        self.messages: list[dict] = []
+        self.counts = {"service": {}, "controller": {}}
+        self.stalls: dict[float, float] = {}  # host_stall_t_s -> length
+        self.ft_max_age_s = 0.0
+        self.ft_stale_reads = 0
+        self.reads = 0
+        self.link = client.layout.slot("link", "ft_sensor")
+        self.last_inputs = None
+
+    def poll(self) -> None:
+        c = self.c
+        for q in ("service", "controller"):
+            try:
+                got = c.messages(self.cursor[q], queue=q)
+            except Exception as err:  # noqa: BLE001 - a torn read: try again next time
+                self.counts[q]["read_errors"] = self.counts[q].get("read_errors", 0) + 1
+                _ = err
+                continue
+            for m in got:
+                if self.cursor[q] and m.seq > self.cursor[q] + 1:
+                    self.lost[q] += m.seq - self.cursor[q] - 1
+                self.cursor[q] = max(self.cursor[q], m.seq)
+                sev = m.severity.name if hasattr(m.severity, "name") else str(m.severity)
+                self.counts[q][sev] = self.counts[q].get(sev, 0) + 1
+                if sev in ("WARNING", "ERROR", "FATAL"):
+                    self.messages.append({"queue": q, "seq": m.seq, "t_s": round(m.t_s, 3),
+                                          "at_s": round(time.monotonic() - self.t0, 2), "severity": sev,
+                                          "code": m.code, "text": m.text})
+        try:
+            s = c.read_inputs()
+        except Exception:  # noqa: BLE001
+            return
+        self.reads += 1
+        age = float(s.link_age_s[self.link])
+        self.ft_max_age_s = max(self.ft_max_age_s, age)
+        if int(s.link_status[self.link]) & LINK_STALE:
+            self.ft_stale_reads += 1
+        try:
+            st, st_t = float(s.host_stall_s), float(s.host_stall_t_s)
+            if st > 0:
+                self.stalls[st_t] = st
+        except (AttributeError, KeyError, ValueError):
+            pass
+        self.last_inputs = {"link_records": int(s.link_records[self.link]), "link_bad": int(s.link_bad[self.link]),
+                            "link_resyncs": int(s.link_resyncs[self.link]),
+                            "link_rate_hz": _r(float(s.link_rate_hz[self.link])),
+                            "link_age_ms": _r(age * 1e3), "watchdog_tripped": int(s.watchdog_tripped),
+                            "fault_code": int(s.fault_code), "frame": int(s.frame)}
+
+
+def _area(client, name: str, fields: tuple[str, ...]) -> dict | str:
+    """A stats area as a dict, or "n/a" when the layout has no such area or nobody owns it."""
+    try:
+        owner = client.owners().get(name)
+        if owner is None or owner.pid <= 0:
+            return "n/a"
+        s = client.read(name)
+        return {f: (_r(float(s[f]), 2) if isinstance(s[f].item(), float) else int(s[f])) for f in fields}
+    except Exception:  # noqa: BLE001 - an area this layout does not have
+        return "n/a"
+
+
+_LAYER_ERR = re.compile(r"^(\w[\w ]*?): .*", re.S)
+
+
+def _layers_in_error(messages: list[dict]) -> list[dict]:
+    """The controller's ERROR messages ("<layer>: <why>"), first per layer."""
+    seen: dict[str, dict] = {}
+    for m in messages:
+        if m["queue"] != "controller" or m["severity"] != "ERROR":
+            continue
+        mm = _LAYER_ERR.match(m["text"])
+        layer = mm.group(1) if mm else "?"
+        seen.setdefault(layer, {"layer": layer, "at_s": m["at_s"], "why": m["text"], "count": 0})
+        seen[layer]["count"] += 1
+    return list(seen.values())
+
+
+def _trips(messages: list[dict]) -> list[dict]:
+    """Service messages that name a watchdog/safety trip or a fault."""
+    words = ("watchdog", "trip", "safe", "fault", "refused", "stale")
+    return [m for m in messages if m["queue"] == "service" and any(w in m["text"].lower() for w in words)]
+
+
+def measure(minutes: float, workdir: Path, *, progress=None) -> dict:
+    from ioservice.client import Client
+    from ioservice.recorder import read_metadata
+
+    py = sys.executable
+    name = "pfma-stack-" + uuid.uuid4().hex[:6]
+    rec_path = workdir / "stack.mcap"
+    seconds = max(0.0, minutes * 60.0)
+    procs: dict[str, _Proc] = {}
+    rep: dict = {"minutes": minutes, "buffer": name, "started": [], "errors": []}
+    client = None
+    watch = None
+    try:
+        procs["service"] = _Proc("service", [py, "-m", "pfma", "serve", "--rack", "fake", "--buffer", name], workdir)
+        rep["started"].append("service")
+        t_start = time.monotonic()
+        while True:  # wait for frames
+            if not procs["service"].alive():
+                rep["errors"].append("service exited during start-up")
+                break
+            try:
+                if client is None:
+                    client = Client.attach(name)
+                if client.read_inputs().frame > 10:
+                    break
+            except Exception:  # noqa: BLE001 - not up yet
+                if client is not None:
+                    client.close()
+                    client = None
+            if time.monotonic() - t_start > START_TIMEOUT_S:
+                rep["errors"].append(f"service published no frames within {START_TIMEOUT_S:g} s")
+                break
+            time.sleep(0.1)
+        rep["service_start_s"] = _r(time.monotonic() - t_start, 2)
+        if client is not None and not rep["errors"]:
+            procs["controller"] = _Proc("controller", [py, "-m", "pfma", "controller", "--buffer", name,
+                                                       "--wm", name + "-wm", "--power-up"], workdir)
+            procs["recorder"] = _Proc("recorder", [py, "-m", "pfma", "record", str(rec_path), "--buffer", name,
+                                                   "--quiet"], workdir)
+            rep["started"] += ["controller", "recorder"]
+            t0 = time.monotonic()
+            watch = _Watch(client, t0)
+            next_report = t0 + 60.0
+            while (now := time.monotonic()) - t0 < seconds:
+                watch.poll()
+                for p in procs.values():
+                    p.note_death(now - t0)
+                if progress and now >= next_report:
+                    next_report += 60.0
+                    progress(f"{(now - t0) / 60:.0f} min: {len(watch.messages)} warnings/errors, "
+                             f"F/T max age {watch.ft_max_age_s * 1e3:.0f} ms")
+                time.sleep(POLL_S)
+            watch.poll()
+            rep["run_s"] = _r(time.monotonic() - t0, 2)
+            for p in procs.values():
+                p.note_death(time.monotonic() - t0)
+                p.measure_cpu()
+            # final counters while everything still runs
+            rep["service_stats"] = _area(client, "stats", ("frames", "dropped_frames", "overruns", "stall_events",
+                                                           "wake_latency_p99_us", "wake_latency_max_us",
+                                                           "work_p99_us", "cpu_percent"))
+            rep["controller_stats"] = _area(client, "controller_stats",
+                                            ("frames", "missed_frames", "missed_events", "longest_missed_run",
+                                             "missed_task_slots", "overruns", "rate_hz", "cpu_percent"))
+    except Exception as err:  # noqa: BLE001 - the report, never a traceback
+        rep["errors"].append(f"{type(err).__name__}: {err}")
+    finally:
+        for key in ("controller", "recorder", "service"):  # the service last: the others end cleanly
+            p = procs.get(key)
+            if p is not None:
+                try:
+                    p.stop()
+                except Exception as err:  # noqa: BLE001
+                    rep["errors"].append(f"stopping {key}: {err}")
+        if watch is not None:
+            try:
+                watch.poll()  # the messages the shutdown posted
+            except Exception:  # noqa: BLE001
+                pass
+        if client is not None:
+            client.close()
+        for p in procs.values():
+            p.close()
+    rep["processes"] = {k: p.report() for k, p in procs.items()}
+    for k, p in procs.items():
+        if p.died is not None:
+            rep["errors"].append(f"{k} died after {p.died['at_s']} s (exit {p.died['returncode']})")
+        elif p.stop_how.startswith("SIGKILL"):
+            rep["errors"].append(f"{k} needed SIGKILL")
+    rep["tails"] = {k: p.tail(8) for k, p in procs.items()}
+    if watch is not None:
+        rep["messages"] = watch.messages
+        rep["message_counts"] = watch.counts
+        rep["messages_lost"] = watch.lost
+        rep["trips"] = _trips(watch.messages)
+        rep["layers_in_error"] = _layers_in_error(watch.messages)
+        rep["host_stalls"] = {"named": len(watch.stalls),
+                              "longest_ms": _r(max(watch.stalls.values(), default=0.0) * 1e3),
+                              "over_20ms": sum(1 for v in watch.stalls.values() if v > 0.02),
+                              "over_60ms": sum(1 for v in watch.stalls.values() if v > 0.06),
+                              "over_100ms": sum(1 for v in watch.stalls.values() if v > 0.1)}
+        li = watch.last_inputs or {}
+        rep["ft_link"] = {"records": li.get("link_records"), "bad": li.get("link_bad"),
+                          "resyncs": li.get("link_resyncs"), "rate_hz": li.get("link_rate_hz"),
+                          "max_age_ms": _r(watch.ft_max_age_s * 1e3),
+                          "stale_fraction": _r(watch.ft_stale_reads / watch.reads, 4) if watch.reads else None,
+                          "reads": watch.reads}
+        rep["inputs"] = li
+    rep["recorder"] = {}
+    if rec_path.exists():
+        try:
+            meta = read_metadata(rec_path).get("pfma.recorder.summary", {})
+            rep["recorder"] = {k: meta.get(k) for k in ("frames_recorded", "recorder_missed", "service_skipped",
+                                                        "messages_missed", "lossless", "sessions")}
+            rep["recorder"]["file_mb"] = _r(rec_path.stat().st_size / 1e6, 2)
+        except Exception as err:  # noqa: BLE001 - a cut file: say so
+            rep["recorder"] = {"error": f"{type(err).__name__}: {err}"}
+    return rep
+
+
+def _print(rep: dict) -> None:
+    pr = rep.get("processes", {})
+    print(f"stack on buffer {rep['buffer']}: {rep.get('run_s', 0):g} s measured "
+          f"(service up in {rep.get('service_start_s')} s)")
+    for k, p in pr.items():
+        died = f", DIED at {p['died']['at_s']} s (exit {p['died']['returncode']})" if p["died"] else ""
+        print(f"  {k:<10} pid {p['pid']:<7} CPU {p['cpu_percent']} % of a core, stopped by {p['stopped']} "
+              f"(exit {p['returncode']}){died}")
+    for e in rep["errors"]:
+        print(f"  PROBLEM: {e}")
+    s = rep.get("service_stats")
+    if isinstance(s, dict):
+        print(f"  service: frames {s['frames']}, dropped {s['dropped_frames']}, overruns {s['overruns']}, "
+              f"stall events {s['stall_events']}, wake p99/max {s['wake_latency_p99_us']:.0f}/"
+              f"{s['wake_latency_max_us']:.0f} us, work p99 {s['work_p99_us']:.0f} us")
+    c = rep.get("controller_stats")
+    if isinstance(c, dict):
+        print(f"  controller: frames {c['frames']}, missed {c['missed_frames']} in {c['missed_events']} events "
+              f"(longest run {c['longest_missed_run']}), missed task slots {c['missed_task_slots']}, "
+              f"overruns {c['overruns']}")
+    else:
+        print(f"  controller: stats {c}")
+    f = rep.get("ft_link")
+    if f:
+        print(f"  F/T link: records {f['records']}, bad {f['bad']}, resyncs {f['resyncs']}, rate {f['rate_hz']} Hz, "
+              f"max age {f['max_age_ms']} ms (read every {POLL_S * 1e3:.0f} ms), stale in "
+              f"{100 * (f['stale_fraction'] or 0):.2f} % of reads")
+    h = rep.get("host_stalls")
+    if h:
+        print(f"  host stalls named by the service: {h['named']} (longest {h['longest_ms']} ms; >20 ms "
+              f"{h['over_20ms']}, >60 ms {h['over_60ms']}, >100 ms {h['over_100ms']})")
+    r = rep.get("recorder")
+    if r:
+        print(f"  recorder: {r}")
+    if "trips" in rep:
+        print(f"  trips (service): {len(rep['trips'])}")
+        for m in rep["trips"][:20]:
+            print(f"    {m['at_s']:8.2f} s {m['severity']:<7} {m['text']}")
+        print(f"  layers that went to ERROR: {len(rep['layers_in_error'])}")
+        for m in rep["layers_in_error"]:
+            print(f"    {m['layer']} at {m['at_s']} s ({m['count']}x): {m['why']}")
+        print(f"  warnings/errors: {rep['message_counts']} (lost unread: {rep['messages_lost']})")
+        for m in rep["messages"][:40]:
+            print(f"    {m['at_s']:8.2f} s {m['queue']:<10} {m['severity']:<7} {m['code']:>4} {m['text']}")
+        if len(rep["messages"]) > 40:
+            print(f"    ... {len(rep['messages']) - 40} more (--json has them all)")
+
+
+def run(seconds: float | None = None, minutes: float = 10.0, as_json: bool = False) -> dict:
+    """Run the stack; ``seconds`` (``pfma bench --seconds``) overrides ``minutes`` when given."""
+    if seconds is not None:
+        minutes = seconds / 60.0
+    progress = None if as_json else (lambda s: print("  ..." + s, flush=True))
+    if not as_json:
+        print(f"pfma serve --rack fake + pfma controller --power-up + pfma record, {minutes:g} min", flush=True)
+    with tempfile.TemporaryDirectory(prefix="pfma-bench-stack-") as d:
+        rep = measure(minutes, Path(d), progress=progress)
+    if as_json:
+        print(json.dumps(rep, indent=1))
+    else:
+        _print(rep)
+    return rep
+
+
+if __name__ == "__main__":
+    run(minutes=float(sys.argv[1]) if len(sys.argv) > 1 else 10.0, as_json="--json" in sys.argv)
