@@ -178,7 +178,14 @@ def _area(client, name: str, fields: tuple[str, ...]) -> dict | str:
         if owner is None or owner.pid <= 0:
             return "n/a"
         s = client.read(name)
-        return {f: (_r(float(s[f]), 2) if isinstance(s[f].item(), float) else int(s[f])) for f in fields}
+        out = {}
+        for f in fields:
+            v = s[f]
+            v = v.item() if hasattr(v, "item") else v
+            out[f] = _r(v, 2) if isinstance(v, float) else int(v)
+        if not out.get("frames"):
+            return "n/a (owned, never published)"
+        return out
     except Exception:  # noqa: BLE001 - an area this layout does not have
         return "n/a"
 

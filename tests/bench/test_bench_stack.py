@@ -1,0 +1,29 @@
+"""``pfma bench stack --minutes 0.05 --json``: the report's structure, and the three processes
+were started and stopped (no timing is asserted: this is a benchmark)."""
+
+import json
+import subprocess
+import sys
+
+
+def test_short_stack_bench_reports_and_stops_every_process():
+    out = subprocess.run([sys.executable, "-m", "pfma", "bench", "stack", "--minutes", "0.05", "--json"],
+                         capture_output=True, text=True, timeout=240)
+    assert "Traceback" not in out.stderr, out.stderr[-2000:]
+    rep = json.loads(out.stdout)
+    assert rep["started"] == ["service", "controller", "recorder"]
+    for name in ("service", "controller", "recorder"):
+        p = rep["processes"][name]
+        assert p["pid"] > 0
+        assert p["stopped"] in ("SIGINT", "had exited")
+        assert p["returncode"] is not None  # it is gone
+        assert p["cpu_percent"] is None or p["cpu_percent"] >= 0
+    for key in ("service_stats", "controller_stats", "ft_link", "host_stalls", "recorder", "messages",
+                "message_counts", "messages_lost", "trips", "layers_in_error", "errors", "run_s"):
+        assert key in rep, key
+    assert isinstance(rep["service_stats"], dict) and rep["service_stats"]["frames"] > 0
+    cs = rep["controller_stats"]
+    assert (isinstance(cs, str) and cs.startswith("n/a")) or "missed_frames" in cs
+    assert set(rep["ft_link"]) >= {"records", "bad", "resyncs", "max_age_ms"}
+    assert all({"queue", "severity", "text"} <= set(m) for m in rep["messages"])
+    assert out.returncode == (1 if rep["errors"] else 0)
