@@ -42,6 +42,12 @@ def _cpu_s(pid: int) -> float | None:
         return None
 
 
+def _default_sigint() -> None:
+    """In the child before exec: SIGINT back to default, so Python installs its handler even
+    when the bench runs as a background job (whose shell ignores SIGINT for it)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class _Proc:
     """One subprocess, its output in a file (no pipe to fill), its CPU over the run."""
 
@@ -51,7 +57,8 @@ class _Proc:
         self.log_path = workdir / f"{name}.log"
         self._log = open(self.log_path, "w")
         self.p = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT, text=True,
-                                  start_new_session=True)  # a Ctrl-C on the bench reaches only us
+                                  start_new_session=True,  # a Ctrl-C on the bench reaches only us
+                                  preexec_fn=_default_sigint)
         self.cpu0 = _cpu_s(self.p.pid)
         self.t0 = time.monotonic()
         self.cpu_percent: float | None = None
