@@ -29,7 +29,22 @@ bit    meaning
 8      a board the controller needs reports a fault (bus error, init failure)
 16     the service is in FAULT or STOPPED, or not ARMED while it should be
 32     the service has not published a new frame for ``STALE_FRAMES`` frames
+64     the service refused this controller's command: its ``command_status``
+       shows stale inputs (rates driven at 0 V because the command was computed
+       from inputs older than the service's ``max_input_age_frames``), a refused
+       value, or a foreign writer; or its stale/refused/foreign counters went up
+       since the last frame (a refusal between two controller frames)
 =====  ======================================================================
+
+Freshness of the rate commands (docs/controller.md, "Missed frames and command
+freshness"): every write carries ``inputs_frame`` (the service frame of the inputs the
+rates were computed from: the servo's stamp ``servo.rate_cmd_frame``, or this frame for
+zero rates, which depend on no inputs) and ``controller_frame`` (this layer's write
+counter). A servo output is sent only if it belongs to the current servo period
+(:attr:`ControllerRuntime.servo_oldest_frame`); otherwise the rates are 0 and it is a fault
+of the Servo Control layer (code 13), which its decision table propagates - except in the
+one frame that catches up a servo slot missed with the controller's frame
+(:attr:`ControllerRuntime.servo_catch_up`), which sends 0 rates without a fault.
 """
 
 from __future__ import annotations
@@ -43,16 +58,26 @@ from controller.decision import Status, TaskState
 from controller.layers import Layer, bottom_table
 from controller.messages import Level
 from controller.params import JOINTS, N_CURRENT_LIMITS, N_JOINTS
+from controller.servo import ERR_NO_OUTPUT
 from controller.worldmodel import VarSpec
-from ioservice.layout import HAND_CONTROLLERS, HC_AXES, ServiceState
+from ioservice.layout import (
+    CMD_FOREIGN, CMD_REFUSED, CMD_STALE, CMD_STATUS_NAMES, HAND_CONTROLLERS, HC_AXES, ServiceState,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     from controller.runtime import ControllerRuntime
     from ioservice.client import Client
 
 FAULT_RESOLVER, FAULT_TACH, FAULT_FT, FAULT_BOARD, FAULT_SERVICE, FAULT_STALE = 1, 2, 4, 8, 16, 32
+FAULT_COMMAND = 64
 FAULT_NAMES = {FAULT_RESOLVER: "resolver", FAULT_TACH: "tach ADC", FAULT_FT: "F/T link",
-               FAULT_BOARD: "board fault", FAULT_SERVICE: "service state", FAULT_STALE: "service not publishing"}
+               FAULT_BOARD: "board fault", FAULT_SERVICE: "service state", FAULT_STALE: "service not publishing",
+               FAULT_COMMAND: "command refused/stale at the service"}
+#: command_status bits that make FAULT_COMMAND (CMD_ABSENT is the service keeping the last
+#: good copy of a torn write: the heartbeat watchdog covers a writer that stopped)
+COMMAND_FAULT_STATUS = CMD_STALE | CMD_REFUSED | CMD_FOREIGN
+#: the service's counters of refused commands (inputs area), with what each one counts
+COMMAND_COUNTERS = (("stale_commands", "stale"), ("refused_commands", "refused"), ("foreign_writes", "foreign"))
 #: board_status / link_status bits of the input area (ioservice.service)
 BOARD_FAULT = 4
 LINK_FAULT, LINK_STALE = 4, 8
@@ -114,7 +139,19 @@ class DataAcquisitionLayer(Layer):
         self.rearm_counter = int(client.command["rearm_counter"])
         self._t_phase = 0.0
         self._phase = 0
-        self.writes = 0
+        self.writes = 0  #: command writes (the controller_frame stamp of the next write)
+        self._cmd_counts: list[int] | None = None  # the service's refusal counters last frame
+        self._svc_msg_seq = 0  # newest service message looked at for a refusal's reason
+        self._zeros = np.zeros(N_JOINTS)
+        self._zero_limits = np.zeros(N_CURRENT_LIMITS)
+        if getattr(client, "role", None) == "controller":
+            # a claimed command area the service has never seen written looks like a foreign
+            # writer's: publish a safe command (0 rates, 0 limits, no arm request) at once
+            client.write_commands(joint_rate_rad_s=self._zeros, current_limit_a=self._zero_limits, arm_request=0,
+                                  controller_frame=0)
+        self.stale_outputs = 0  #: frames whose servo output was not of the current servo period
+        self.catch_up_zeros = 0  #: frames with 0 rates while a missed servo slot was caught up
+        self.sent_input_frame = -1  #: inputs_frame of the last write
 
     def specs(self) -> list[VarSpec]:
         z6 = [0.0] * N_JOINTS
@@ -137,7 +174,8 @@ class DataAcquisitionLayer(Layer):
                     "above the brake release level with outputs live"),
             VarSpec("daq.outputs_enabled", "task_io", "b1", (), w, False, doc="the DAC drives the arm"),
             VarSpec("daq.fault_bits", "error_reports", "i4", (), w, 0,
-                    doc="hardware checks: 1 resolver 2 tach ADC 4 F/T 8 board 16 service state 32 service stale"),
+                    doc="hardware checks: 1 resolver 2 tach ADC 4 F/T 8 board 16 service state 32 service stale "
+                        "64 command refused/stale at the service"),
         ]
 
     # --- acquire -------------------------------------------------------------------------
@@ -217,25 +255,82 @@ class DataAcquisitionLayer(Layer):
         if self._same_frames >= STALE_FRAMES:
             bits |= FAULT_STALE
             why.append(f"service frame {self._last_frame} unchanged for {self._same_frames} frames")
+        cmd = self._command_check(snap)
+        if cmd:
+            bits |= FAULT_COMMAND
+            why.append(cmd)
         return bits, "; ".join(why)
 
+    def _command_check(self, snap) -> str:
+        """The service's verdict on our commands: '' when it took them, else its reason."""
+        cs = int(snap.command_status) & COMMAND_FAULT_STATUS
+        counts = [int(snap[f]) for f, _ in COMMAND_COUNTERS]
+        last, self._cmd_counts = self._cmd_counts, counts
+        up = [(n, c - c0) for (_, n), c, c0 in zip(COMMAND_COUNTERS, counts, last or counts) if c > c0]
+        if not cs and not up:
+            return ""
+        parts = [CMD_STATUS_NAMES[b] for b in (CMD_STALE, CMD_REFUSED, CMD_FOREIGN) if cs & b]
+        parts += [f"{n} +{d}" for n, d in up if n not in parts]
+        text = (f"service: command {', '.join(parts)} (computed from inputs frame {int(snap.command_inputs_frame)}, "
+                f"{int(snap.command_input_age_frames)} frames old)")
+        reason = self._service_reason()
+        return f"{text}: {reason}" if reason else text
+
+    def _service_reason(self) -> str:
+        """The newest WARNING/ERROR the service posted since the last look (only read when
+        a refusal is seen, never in a healthy frame)."""
+        try:
+            msgs = self.client.messages(self._svc_msg_seq, "service")
+        except Exception:  # noqa: BLE001 - the reason is a courtesy
+            return ""
+        if msgs:
+            self._svc_msg_seq = msgs[-1].seq
+        bad = [m for m in msgs if int(m.severity) >= 2]
+        return bad[-1].text if bad else ""
+
     # --- output --------------------------------------------------------------------------
+    _OUT = ("servo.rate_cmd_rad_s", "servo.rate_cmd_frame", "servo.current_limit_cmd_a", "servo.error")
+
     def output(self, rt: "ControllerRuntime", status: int) -> None:
-        """Write this frame's commands with a new heartbeat."""
+        """Write this frame's commands with a new heartbeat, ``inputs_frame`` and
+        ``controller_frame``.
+
+        Zero rates depend on no inputs: they carry this frame (``rt.frame``). Servo rates
+        carry the servo's stamp and are sent only while START UP COMPLETE and only if the
+        stamp is at least :attr:`ControllerRuntime.servo_oldest_frame` (this frame minus the
+        servo divider: the output of its latest slot) and the servo reports no error;
+        otherwise the rates are 0 and, unless this frame catches up a missed servo slot or
+        the servo already has a fault, it is one (code 13)."""
+        frame = rt.frame
+        rates, stamp = self._zeros, frame
         if status == Status.SHUT_DOWN:
-            rates = np.zeros(N_JOINTS)
-            limits = np.zeros(N_CURRENT_LIMITS)
+            limits = self._zero_limits
         else:
-            v = rt.wm.get_task_inputs(("servo.rate_cmd_rad_s", "servo.current_limit_cmd_a"))
-            limits = np.asarray(v["servo.current_limit_cmd_a"], dtype=float)
-            rates = np.asarray(v["servo.rate_cmd_rad_s"], dtype=float) if status == Status.START_UP_COMPLETE \
-                else np.zeros(N_JOINTS)
+            v = rt.wm.get_task_inputs(self._OUT)
+            limits = v["servo.current_limit_cmd_a"]
             if status in (Status.INITIALIZATION_IN_PROGRESS, Status.INITIALIZATION_COMPLETE, Status.START_UP):
-                limits = np.zeros(N_CURRENT_LIMITS)
+                limits = self._zero_limits
+            if status == Status.START_UP_COMPLETE:
+                s = int(v["servo.rate_cmd_frame"])
+                servo = rt.servo
+                if s < 0:
+                    pass  # a sequence task's constant zero
+                elif s >= rt.servo_oldest_frame and not servo.fault and not int(v["servo.error"]):
+                    rates, stamp = v["servo.rate_cmd_rad_s"], s
+                elif rt.servo_catch_up and not servo.fault:
+                    self.catch_up_zeros += 1  # the missed slot runs in this frame: 0 for one frame
+                else:
+                    self.stale_outputs += 1
+                    if not servo.fault:
+                        servo.set_fault(rt, ERR_NO_OUTPUT,
+                                        f"no servo output for the servo period of frame {rt.servo_oldest_frame} "
+                                        f"at frame {frame}: the last was computed from frame {s} "
+                                        f"({frame - s} frames old); rates 0")
         reflect = self._reflection(rt, status)
         self.client.write_commands(joint_rate_rad_s=rates, current_limit_a=limits,
                                    arm_request=self.arm_request, rearm_counter=self.rearm_counter,
-                                   **reflect)
+                                   inputs_frame=stamp, controller_frame=self.writes, **reflect)
+        self.sent_input_frame = stamp
         self.writes += 1
 
     _REFLECT = ("teleop.reflect_force_n", "teleop.reflect_torque_nm", "teleop.reflect_enabled")

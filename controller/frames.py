@@ -38,6 +38,9 @@ from dataclasses import dataclass, field
 from pfma.errors import ConfigError
 
 MINOR_FRAMES_PER_MAJOR = 16  # IRSS report 2.3.5
+#: service frames the controller may miss in a row before it is a Servo Control fault
+#: (assumed; see FrameConfig.max_missed_run)
+DEFAULT_MAX_MISSED_RUN = 1
 #: share of the minor frame the communications segment takes (report 2.2.3)
 COMM_FRACTION = 0.15
 
@@ -126,12 +129,19 @@ class FrameConfig:
     :param tasks: the periodic tasks
     :param tables_budget_s: time reserved each minor frame for the seven decision tables
         and the data-acquisition bridge
+    :param max_missed_run: service frames the controller may miss in a row (their periodic
+        tasks are caught up in the frame it wakes in); more is a fault of the Servo Control
+        layer. Assumed default 1: with the servo at half the frame rate and Data Acquisition's
+        output before the tasks, one missed frame makes the service see a rate command at
+        most 4 frames old, the service's default ``max_input_age_frames`` (docs/controller.md,
+        "Missed frames and command freshness")
     """
 
     frame_rate_hz: float = 320.0
     tasks: tuple[TaskSpec, ...] = field(default_factory=default_tasks)
     tables_budget_s: float = 400e-6
     profile_name: str = "layers"
+    max_missed_run: int = DEFAULT_MAX_MISSED_RUN
 
     @classmethod
     def profile(cls, name: str = "layers", **kw) -> "FrameConfig":
@@ -154,6 +164,8 @@ class FrameConfig:
         if not 1.0 <= self.frame_rate_hz <= 5000.0:
             out.append(f"minor-frame rate {self.frame_rate_hz} Hz outside 1..5000 Hz")
             return out
+        if not 0 <= int(self.max_missed_run) <= MINOR_FRAMES_PER_MAJOR:
+            out.append(f"max_missed_run {self.max_missed_run} outside 0..{MINOR_FRAMES_PER_MAJOR}")
         names = [t.name for t in self.tasks]
         for n in {n for n in names if names.count(n) > 1}:
             out.append(f"task {n} is listed more than once")
@@ -192,6 +204,18 @@ class FrameConfig:
         if p:
             raise ScheduleError("controller schedule: " + "; ".join(p))
         return self
+
+    def task(self, name: str) -> TaskSpec:
+        for t in self.tasks:
+            if t.name == name:
+                return t
+        raise KeyError(name)
+
+    def last_slot(self, name: str, frame: int) -> int:
+        """The latest service frame <= ``frame`` in which task ``name`` is scheduled."""
+        t = self.task(name)
+        d = self.divider(t)
+        return frame - ((frame - t.phase) % d)
 
     def table(self) -> tuple[tuple[TaskSpec, ...], ...]:
         """The scheduling table: the tasks of each of the 16 minor frames, in list order."""

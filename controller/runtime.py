@@ -23,6 +23,24 @@ A status change therefore climbs one layer per minor frame: an error seen by Dat
 Acquisition in frame k is System Up/Down's ERROR in frame k + 6 (report 2.2.4: "within
 6 minor frames").
 
+Missed frames (docs/controller.md, "Missed frames and command freshness"): when the
+service frame jumped by more than 1 since the last step, the frames in between were
+missed. They are counted (:attr:`missed_frames`, :attr:`missed_events`,
+:attr:`longest_missed_run`, :attr:`missed_task_slots`), a WARNING names them (at most one
+message per :data:`MISSED_MESSAGE_INTERVAL_S`, with a count of the others), and the
+periodic tasks due in them run once in this frame (catch-up; a task due both in a missed
+frame and in this one runs once). More than ``FrameConfig.max_missed_run`` in a row while
+the servo is starting up or running is a fault of the Servo Control layer (code 12), raised
+before the tables so its table goes to ERROR in this frame. :attr:`servo_oldest_frame` and
+:attr:`servo_catch_up` tell Data Acquisition's output which servo outputs it may send.
+
+Timing: each step records its wake latency (clock time at the start of the step minus the
+service's frame time ``inputs.t_s``, the same host clock), its work (host time of the
+step) and overruns (work ended after the next service frame was due or had been
+published) in preallocated rings, and about every :data:`STATS_PUBLISH_S` publishes them
+(percentiles) into ``runtime.*`` world-model variables and the Bit3 ``controller_stats``
+area (when this controller holds the command area).
+
 Visibility: :attr:`trace` keeps a record of every frame (each layer's command,
 status, deciding row and mailbox; :func:`format_trace`), :attr:`messages` the layers'
 messages (50 per source, the last 100 merged by time). IRSS's halt is simply not
@@ -33,6 +51,7 @@ single-steps from the keyboard).
 
 from __future__ import annotations
 
+import gc
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -44,16 +63,72 @@ from controller.cartesian import CartesianLayer
 from controller.daq_layer import DataAcquisitionLayer
 from controller.decision import SHORT, SHORT_CMD, Command, Status, TaskState
 from controller.frames import MINOR_FRAMES_PER_MAJOR, FrameConfig, ScheduleError
-from controller.layers import JointPlannerLayer, Layer, PlaceholderLayer, Request, Response, UpDownLayer
+from controller.layers import JointPlannerLayer, Layer, Request, Response, UpDownLayer
 from controller.messages import Level, Message, MessageBoard
 from controller.paths import MultiSegmentLayer
 from controller.trajectory import TrajectoryLayer
-from controller.servo import ServoLayer
-from controller.worldmodel import WorldModel
+from controller.servo import ERR_MISSED, ServoLayer
+from controller.worldmodel import VarSpec, WorldModel
 from ioservice.layout import Severity
 
 #: frames kept in the trace by default (about 6 s at 320 Hz)
 TRACE_FRAMES = 2048
+#: at most one missed-frame WARNING per this many seconds; the others are counted into the next
+MISSED_MESSAGE_INTERVAL_S = 1.0
+#: controller statistics are published (world model, Bit3 controller_stats) this often
+STATS_PUBLISH_S = 0.5
+#: frames of wake-latency and work samples kept for the percentiles (3.2 s at 320 Hz)
+TIMING_RING = 1024
+#: the servo's periodic task (its slot defines the servo period)
+SERVO_TASK = "servo_control"
+
+
+class FrameTiming:
+    """Preallocated rings of the controller's per-frame wake latency and work (us)."""
+
+    def __init__(self, n: int = TIMING_RING) -> None:
+        self.wake_us = np.zeros(n)
+        self.work_us = np.zeros(n)
+        self.n = 0
+        self._i = 0
+        self._size = n
+
+    def add(self, wake_us: float, work_us: float) -> None:
+        i = self._i
+        self.wake_us[i] = wake_us
+        self.work_us[i] = work_us
+        self._i = (i + 1) % self._size
+        if self.n < self._size:
+            self.n += 1
+
+    def summary(self) -> tuple[float, float, float, float, float, float]:
+        """wake p50, p99, max, work p50, p99, max (us) over the ring (zeros while empty)."""
+        if not self.n:
+            return (0.0,) * 6
+        w, k = self.wake_us[:self.n], self.work_us[:self.n]
+        wp, kp = np.percentile(w, (50, 99)), np.percentile(k, (50, 99))
+        return (float(wp[0]), float(wp[1]), float(w.max()), float(kp[0]), float(kp[1]), float(k.max()))
+
+
+def runtime_specs() -> list[VarSpec]:
+    """The runtime's own world-model variables (frame timing and missed frames)."""
+    w = "runtime"
+    return [
+        VarSpec("runtime.frames", "task_status", "i8", (), w, 0, doc="controller frames run"),
+        VarSpec("runtime.missed_frames", "task_status", "i8", (), w, 0,
+                doc="service frames the controller did not run (their tasks caught up)"),
+        VarSpec("runtime.missed_events", "task_status", "i8", (), w, 0, doc="times one or more frames were missed"),
+        VarSpec("runtime.longest_missed_run", "task_status", "i4", (), w, 0, doc="most frames missed in a row"),
+        VarSpec("runtime.missed_task_slots", "task_status", "i8", (), w, 0,
+                doc="periodic task slots that fell in missed frames (caught up once in the next frame)"),
+        VarSpec("runtime.overruns", "task_status", "i8", (), w, 0,
+                doc="frames whose work ended after the next service frame"),
+        VarSpec("runtime.rate_hz", "task_status", "f8", (), w, 0.0, "Hz", doc="measured controller frame rate"),
+        VarSpec("runtime.wake_latency_us", "task_status", "f8", (3,), w, [0.0] * 3, "us",
+                doc="wake latency after the service's frame time: p50 p99 max"),
+        VarSpec("runtime.work_us", "task_status", "f8", (3,), w, [0.0] * 3, "us",
+                doc="controller frame work (host time): p50 p99 max"),
+    ]
 
 
 @dataclass(frozen=True)
@@ -115,7 +190,7 @@ class ControllerRuntime:
         self.daq: DataAcquisitionLayer = self.by_key["daq"]  # type: ignore[assignment]
         self.servo: ServoLayer = self.by_key["servo"]  # type: ignore[assignment]
         self.updown: UpDownLayer = self.by_key["updown"]  # type: ignore[assignment]
-        specs = [s for l in self.layers for s in l.specs()]
+        specs = [s for l in self.layers for s in l.specs()] + runtime_specs()
         self.wm = WorldModel.create(specs, name=wm_name, clock=clock, access_key=access_key, owner="controller")
         self._key = self.wm.access_key
         self.messages = MessageBoard()
@@ -130,6 +205,36 @@ class ControllerRuntime:
         self._request_seq = 0
         self._goal_seq = 0
         self._changed: set[str] = set()
+        # missed frames
+        self.prev_frame = -1  #: service frame of the previous step (-1: none yet)
+        self.missed_frames = 0
+        self.missed_events = 0
+        self.missed_run = 0  #: frames missed just before the latest step
+        self.longest_missed_run = 0
+        self.missed_task_slots = 0
+        self.caught_up: tuple[str, ...] = ()  #: tasks caught up in the latest step
+        #: oldest inputs frame a servo output sent this frame may be computed from: this frame
+        #: minus the servo's divider (its latest slot before this frame)
+        self.servo_oldest_frame = -1
+        #: this frame catches up the servo slot of a missed frame (Data Acquisition sends 0
+        #: rates for this one frame rather than an output from the period before)
+        self.servo_catch_up = False
+        self._miss_msg_t = -float("inf")
+        self._miss_quiet = [0, 0]  # missed events, frames not reported since the last message
+        # timing
+        self.timing = FrameTiming()
+        self.overruns = 0
+        self._pub_t = self.now
+        self._pub_frames = 0
+        self._pub_cpu = time.process_time()
+        self._pub_host = time.perf_counter()
+        self.stats_published = 0
+        self._stats_w = None
+        if getattr(client, "role", None) == "controller":
+            try:
+                self._stats_w = client.buffer.writer("controller_stats")
+            except Exception:  # noqa: BLE001 - an older buffer without the area: world model only
+                self._stats_w = None
         self._build_schedule()
         if forward_messages:
             self.messages.listeners.append(self._forward)
@@ -149,6 +254,11 @@ class ControllerRuntime:
         if problems:
             raise ScheduleError("controller schedule: " + "; ".join(problems))
         self._table = tuple(tuple((t.name, impl[t.name]) for t in frame) for frame in self.frames.table())
+        self._impl = impl
+        self._order = tuple(t.name for t in self.frames.tasks)  # catch-up runs in schedule order
+        self._per_major = sum(len(fr) for fr in self._table)
+        self._has_servo = any(t.name == SERVO_TASK for t in self.frames.tasks)
+        self._servo_div = self.frames.divider(self.frames.task(SERVO_TASK)) if self._has_servo else 1
 
     def task_period_s(self, name: str) -> float:
         for t in self.frames.tasks:
@@ -178,9 +288,27 @@ class ControllerRuntime:
     def step(self) -> FrameTrace:
         """Run one minor frame (also the single step while halted)."""
         t0 = time.perf_counter()
-        self.now = self.clock.now() if self.clock is not None else time.monotonic()
+        self.now = self._clock_now()
         self._changed.clear()
-        self.frame = self.daq.acquire(self)
+        self.frame = f = self.daq.acquire(self)
+        prev = self.prev_frame
+        catch: frozenset[str] = frozenset()
+        if f != prev:  # a repeated frame (no new inputs) keeps the servo period it had
+            missed = f - prev - 1 if 0 <= prev < f else 0
+            self.missed_run = missed
+            if missed:
+                catch = self._missed(prev, f, missed)
+            else:
+                self.caught_up = ()
+            if self._has_servo:
+                self.servo_oldest_frame = f - self._servo_div
+                # the latest servo slot before this frame fell in the missed frames: it is
+                # caught up in this frame, its output is sent from the next
+                self.servo_catch_up = 0 < missed <= self.frames.max_missed_run and \
+                    self.frames.last_slot(SERVO_TASK, f - 1) > prev
+            self.prev_frame = max(prev, f)
+        else:
+            self.servo_catch_up = False
         self.wm.communications_segment()
         for l in self.layers:
             l.run_table(self)
@@ -188,8 +316,12 @@ class ControllerRuntime:
         self.daq.output(self, daq_status)
         for l in self.layers:
             l.run_sequence(self)
+        due = self._table[f % MINOR_FRAMES_PER_MAJOR]
+        if catch:
+            names = set(catch).union(n for n, _ in due)
+            due = tuple((n, self._impl[n]) for n in self._order if n in names)
         ran = []
-        for name, fn in self._table[self.frame % MINOR_FRAMES_PER_MAJOR]:
+        for name, fn in due:
             try:
                 fn(self)
             except Exception as err:  # noqa: BLE001 - a task error is its layer's fault
@@ -197,14 +329,114 @@ class ControllerRuntime:
                 layer.set_fault(self, 90, f"task {name} raised {type(err).__name__}: {err}")
             ran.append(name)
         self.frames_run += 1
+        cost = time.perf_counter() - t0
+        self._time_frame(cost)
         rec = FrameTrace(self.frame, self.now - self.t0, tuple(
             LayerTrace(l.last[0], self._decided(l), l.last[5], int(l.task_kind) * 10 + int(l.task_state),
                        l.key in self._changed) for l in self.layers),
-            self.daq.fault_bits, tuple(ran), time.perf_counter() - t0)
+            self.daq.fault_bits, tuple(ran), cost)
         self.trace.append(rec)
         for fn in self.on_frame:
             fn(rec)
         return rec
+
+    def _clock_now(self) -> float:
+        return self.clock.now() if self.clock is not None else time.monotonic()
+
+    # --- missed frames -------------------------------------------------------------------
+    def _missed(self, prev: int, f: int, missed: int) -> frozenset[str]:
+        """Service frames prev+1 .. f-1 were not run: count them, say so, return the tasks
+        to catch up, and fault the servo if the run is longer than allowed."""
+        first, last = prev + 1, f - 1
+        span = min(missed, MINOR_FRAMES_PER_MAJOR)  # the table repeats every major frame
+        names = frozenset(n for g in range(first, first + span) for n, _ in self._table[g % MINOR_FRAMES_PER_MAJOR])
+        slots = (missed // MINOR_FRAMES_PER_MAJOR) * self._per_major + sum(
+            len(self._table[g % MINOR_FRAMES_PER_MAJOR]) for g in range(first, first + missed % MINOR_FRAMES_PER_MAJOR))
+        self.missed_frames += missed
+        self.missed_events += 1
+        self.longest_missed_run = max(self.longest_missed_run, missed)
+        self.missed_task_slots += slots
+        self.caught_up = tuple(n for n in self._order if n in names)
+        where = f"frame {first}" if missed == 1 else f"frames {first}..{last}"
+        self.wm.post_task_outputs("runtime", {
+            "runtime.missed_frames": self.missed_frames, "runtime.missed_events": self.missed_events,
+            "runtime.longest_missed_run": self.longest_missed_run, "runtime.missed_task_slots": self.missed_task_slots})
+        if self.now - self._miss_msg_t >= MISSED_MESSAGE_INTERVAL_S:
+            more = ""
+            if self._miss_quiet[0]:
+                more = f" (+{self._miss_quiet[0]} more events, {self._miss_quiet[1]} frames, since the last message)"
+            self.post("runtime", Level.WARNING, f"missed service {where} ({missed}): caught up "
+                                                f"{', '.join(self.caught_up) or 'no tasks'} in frame {f}{more}")
+            self._miss_msg_t = self.now
+            self._miss_quiet = [0, 0]
+        else:
+            self._miss_quiet[0] += 1
+            self._miss_quiet[1] += missed
+        m = self.frames.max_missed_run
+        if missed > m and self._has_servo and not self.servo.fault and \
+                self.wm.get_state_variable(self.servo.v_status) in (Status.START_UP, Status.START_UP_COMPLETE):
+            lost = [g for g in range(first, first + span) if any(n == SERVO_TASK for n, _ in
+                                                                 self._table[g % MINOR_FRAMES_PER_MAJOR])]
+            lost_s = ", ".join(str(g) for g in lost[:4]) + (" ..." if len(lost) > 4 or missed > span else "")
+            self.servo.set_fault(self, ERR_MISSED, f"controller missed service {where} ({missed} in a row > "
+                                                   f"max_missed_run {m}): servo slot(s) {lost_s or 'none'} "
+                                                   f"did not run in their period")
+        return names
+
+    # --- timing and statistics -------------------------------------------------------------
+    def _time_frame(self, cost_s: float) -> None:
+        """Record this step's wake latency, work and overrun; publish the statistics when due."""
+        snap = self.daq.snapshot
+        t_frame = float(snap.t_s) if snap is not None else self.now
+        period = self.frames.period_s
+        end = self._clock_now()
+        wake_us = (self.now - t_frame) * 1e6
+        self.timing.add(wake_us, cost_s * 1e6)
+        # overrun: the work ended after the next service frame was due, or it was already published
+        if end > t_frame + period or self.client.changed("inputs"):
+            self.overruns += 1
+        if self.now - self._pub_t >= STATS_PUBLISH_S:
+            self.publish_stats()
+
+    def stats(self) -> dict:
+        """The controller's frame statistics (what :meth:`publish_stats` publishes)."""
+        w50, w99, wmax, k50, k99, kmax = self.timing.summary()
+        dt = self.now - self._pub_t
+        host = time.perf_counter() - self._pub_host
+        return {
+            "frame": max(self.frame, 0), "t_s": self.now, "frames": self.frames_run,
+            "missed_frames": self.missed_frames, "missed_events": self.missed_events,
+            "missed_run": self.missed_run, "longest_missed_run": self.longest_missed_run,
+            "max_missed_run": self.frames.max_missed_run, "missed_task_slots": self.missed_task_slots,
+            "overruns": self.overruns, "period_s": self.frames.period_s,
+            "rate_hz": (self.frames_run - self._pub_frames) / dt if dt > 0 else 0.0,
+            "wake_latency_p50_us": w50, "wake_latency_p99_us": w99, "wake_latency_max_us": wmax,
+            "work_p50_us": k50, "work_p99_us": k99, "work_max_us": kmax,
+            "cpu_percent": 100.0 * (time.process_time() - self._pub_cpu) / host if host > 0 else 0.0,
+            "gc_gen2": gc.get_stats()[2]["collections"],
+        }
+
+    def publish_stats(self) -> dict:
+        """Publish :meth:`stats` into ``runtime.*`` and the Bit3 ``controller_stats`` area."""
+        st = self.stats()
+        self.wm.post_task_outputs("runtime", {
+            "runtime.frames": st["frames"], "runtime.missed_frames": st["missed_frames"],
+            "runtime.missed_events": st["missed_events"], "runtime.longest_missed_run": st["longest_missed_run"],
+            "runtime.missed_task_slots": st["missed_task_slots"], "runtime.overruns": st["overruns"],
+            "runtime.rate_hz": st["rate_hz"],
+            "runtime.wake_latency_us": (st["wake_latency_p50_us"], st["wake_latency_p99_us"],
+                                        st["wake_latency_max_us"]),
+            "runtime.work_us": (st["work_p50_us"], st["work_p99_us"], st["work_max_us"])})
+        w = self._stats_w
+        if w is not None:
+            rec = w.record
+            for k, v in st.items():
+                rec[k] = v
+            w.publish()
+        self._pub_t, self._pub_frames = self.now, self.frames_run
+        self._pub_cpu, self._pub_host = time.process_time(), time.perf_counter()
+        self.stats_published += 1
+        return st
 
     @staticmethod
     def _decided(layer: Layer) -> int:

@@ -55,8 +55,10 @@ BRAKE_RELEASE_TIMEOUT_S = 0.5
 
 #: Data Acquisition's "tach ADC failed" hardware-check bit (controller.daq_layer.FAULT_TACH)
 TACH_FAULT_BIT = 2
-#: error report codes of the servo layer
-ERR_LIMIT, ERR_PARAMS = 10, 11
+#: error report codes of the servo layer: 10 soft limit, 11 bad parameters, 12 the controller
+#: missed more frames in a row than FrameConfig.max_missed_run (the servo slot did not run in
+#: its period), 13 no servo output for the current servo period at Data Acquisition's output
+ERR_LIMIT, ERR_PARAMS, ERR_MISSED, ERR_NO_OUTPUT = 10, 11, 12, 13
 
 
 class LeadLag:
@@ -91,12 +93,27 @@ class LeadLag:
         self.e = np.broadcast_to(np.asarray(e0, dtype=float), self.k.shape).copy()
         self.u = self.k * self.e
 
-    def step(self, e: np.ndarray) -> np.ndarray:
-        """One sample: the new outputs (rad/s)."""
+    def step(self, e: np.ndarray, limit=None) -> np.ndarray:
+        """One sample: the new outputs (rad/s), saturated at +-``limit`` when given.
+
+        Anti-windup: the state ``u_{k-1}`` the next sample builds on is the *saturated*
+        output (the rate actually commanded), not the unsaturated one. With a lag design
+        (tau_p > tau_z, a close to 1) the unsaturated state would keep integrating the
+        error during a long saturation and overshoot on the way back; this way it never
+        leaves the limits (back-calculation with the tracking time constant equal to the
+        sample period: the state is re-set to the applied output every sample). A caller
+        that limits the output further (a soft limit) reports it with :meth:`track`.
+        """
         u = self.a * self.u + self.b0 * e + self.b1 * self.e
+        if limit is not None:
+            u = np.clip(u, -np.asarray(limit, dtype=float), np.asarray(limit, dtype=float))
         self.u = u
         self.e = np.array(e, dtype=float)
         return u
+
+    def track(self, applied: np.ndarray) -> None:
+        """The output that was actually applied (after every limit): the state follows it."""
+        self.u = np.array(applied, dtype=float)
 
 
 @dataclass
@@ -138,7 +155,7 @@ def predict_step(jf: JointFacts, step_rad: float, *, kp: float = DEFAULT_KP_PER_
     for i in range(n):
         t = i * dt
         if t >= next_sample - 1e-12:
-            u = float(np.clip(comp.step(np.array([step_rad - q]))[0], -lim, lim))
+            u = float(comp.step(np.array([step_rad - q]), lim)[0])
             pending.append((t + delay_s, u))
             next_sample += servo_period_s
         while pending and pending[0][0] <= t + 1e-12:
@@ -191,6 +208,9 @@ class ServoLayer(Layer):
             par("q_max_rad", [j.soft_hi_rad for j in JOINTS], "rad", "soft upper joint limits (8.2)"),
             VarSpec("servo.rate_cmd_rad_s", "task_io", "f8", (N_JOINTS,), "servo", z6, "rad/s",
                     doc="joint rate commands to Data Acquisition (command-area joint order)"),
+            VarSpec("servo.rate_cmd_frame", "task_io", "i8", (), "servo", -1,
+                    doc="service frame of the inputs servo.rate_cmd_rad_s was computed from (-1: a "
+                        "constant 0 posted by a sequence task, not computed from inputs)"),
             VarSpec("servo.current_limit_cmd_a", "task_io", "f8", (N_CURRENT_LIMITS,), "servo",
                     [0.0] * N_CURRENT_LIMITS, "A", doc="current-limit commands (0 = brakes set)"),
             VarSpec("servo.error_rad", "task_status", "f8", (N_JOINTS,), "servo", z6, "rad",
@@ -236,7 +256,7 @@ class ServoLayer(Layer):
         """Brake release (pfma-model 8.4): rate 0 V, then raise the current limits, wait
         until the brakes report released; then hold the present angles and close the loop."""
         if self.task_frames == 0:
-            rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS)})
+            rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS), "servo.rate_cmd_frame": -1})
             self._brake_phase(rt, 1)
             return TaskState.RUNNING
         if self._phase == 1:
@@ -260,7 +280,7 @@ class ServoLayer(Layer):
     def seq_shutdown(self, rt: "ControllerRuntime") -> TaskState:
         """Safe stop (pfma-model 8.4): rate 0 V; wait |qdot| < 0.01 rad/s or 0.5 s; limits 0 V."""
         if self.task_frames == 0:
-            rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS)})
+            rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS), "servo.rate_cmd_frame": -1})
             self._brake_phase(rt, 4)
             return TaskState.RUNNING
         v = rt.wm.get_task_inputs(("daq.joint_rate_rad_s", "daq.fault_bits"))
@@ -283,15 +303,17 @@ class ServoLayer(Layer):
     def control_task(self, rt: "ControllerRuntime") -> None:
         """Commanded joint positions -> rate commands (only while START UP COMPLETE)."""
         wm = rt.wm
-        if wm.get_state_variable(self.v_status) != Status.START_UP_COMPLETE or self.fault:
+        # the status this frame's table decided (the posted one is applied next frame): a
+        # safe stop or shut-down starting this frame posted 0 rates the loop must not overwrite
+        if self.decided != Status.START_UP_COMPLETE or self.fault:
             return
-        v = wm.get_task_inputs(("daq.joint_angle_rad", "servo.q_cmd_rad", "servo.q_cmd_valid"))
+        v = wm.get_task_inputs(("daq.joint_angle_rad", "daq.service_frame", "servo.q_cmd_rad", "servo.q_cmd_valid"))
         q = np.asarray(v["daq.joint_angle_rad"], dtype=float)
         p = self.params
         q_cmd = np.asarray(v["servo.q_cmd_rad"], dtype=float) if bool(v["servo.q_cmd_valid"]) else self.hold
         q_cmd = np.clip(q_cmd, p["q_min_rad"], p["q_max_rad"])
         e = q_cmd - q
-        rate = np.clip(self.comp.step(e), -p["rate_limit_rad_s"], p["rate_limit_rad_s"])
+        rate = self.comp.step(e, p["rate_limit_rad_s"])  # saturated, the state follows (anti-windup)
         below, above = q < p["q_min_rad"], q > p["q_max_rad"]
         rate[(below & (rate < 0)) | (above & (rate > 0))] = 0.0
         out = (q < p["q_min_rad"] - LIMIT_FAULT_MARGIN_RAD) | (q > p["q_max_rad"] + LIMIT_FAULT_MARGIN_RAD)
@@ -299,4 +321,8 @@ class ServoLayer(Layer):
             names = [JOINTS[i].name for i in np.nonzero(out)[0]]
             self.set_fault(rt, ERR_LIMIT, f"beyond the soft limit: {', '.join(names)}")
             rate[:] = 0.0
-        wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": rate, "servo.error_rad": e})
+        self.comp.track(rate)
+        # stamped with the service frame of the inputs it was computed from: Data Acquisition
+        # sends it only within its servo period, the service only while young enough
+        wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": rate, "servo.error_rad": e,
+                                       "servo.rate_cmd_frame": int(v["daq.service_frame"])})

@@ -22,6 +22,8 @@ and driven the same way produce identical traces.
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from controller.frames import FrameConfig
@@ -60,11 +62,17 @@ class SystemSimulator:
             self.rig.close()
             raise
         self.controller_enabled = True  #: False: the service runs alone (controller "dead")
+        #: optional pattern: service frame number -> controller steps after it (0 skips the
+        #: frame: a missed frame; 2 or more: a burst on the same inputs); None = 1 each
+        self.controller_steps: Callable[[int], int] | None = None
         self.service_frames = 0
 
         def controller_frame(info) -> None:  # right after each service frame
             self.service_frames += 1
-            if self.controller_enabled:
+            if not self.controller_enabled:
+                return
+            n = 1 if self.controller_steps is None else int(self.controller_steps(self.svc_frame()))
+            for _ in range(n):
                 self.rt.step()
         self.rig.after_frame.append(controller_frame)
 
@@ -96,6 +104,10 @@ class SystemSimulator:
         return self.run_until(lambda: self.rt.all_status(Status.START_UP_COMPLETE), max_frames)
 
     # --- looking -------------------------------------------------------------------------
+    def svc_frame(self) -> int:
+        """The service frame number of the newest inputs published."""
+        return int(self.client.header().frame)
+
     def dac_volts(self) -> np.ndarray:
         """What the DAC board drives right now (all channels), volts."""
         return np.asarray(self.world.bus["dac"].output_volts_all(), dtype=float)

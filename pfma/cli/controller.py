@@ -16,6 +16,7 @@ decided; ``*`` marks a change) and the Data Acquisition hardware-check bits.
 
 from __future__ import annotations
 
+import gc
 import sys
 import time
 
@@ -258,6 +259,76 @@ def _status_line(rt) -> str:
     return "  ".join(f"{l.short.strip()}={status_text(s)}" for l, s in zip(rt.layers, rt.statuses().values()))
 
 
+class LivePacer:
+    """Paces a live controller to the service's frames, by the service's hot-loop rules.
+
+    Absolute deadlines: the service publishes frame k + 1 at about ``t_s(k) + period``
+    (``inputs.t_s`` is the service's frame time on the same CLOCK_MONOTONIC host clock), so
+    the pacer sleeps to :data:`LEAD_S` before that, then polls ``client.changed("inputs")``
+    every :data:`POLL_S` until the frame is there (at most :data:`GIVE_UP_PERIODS` periods
+    past it: the runtime's stale-service check then reports a service that stopped). A
+    controller that woke late steps at once on the newest frame; the runtime counts the
+    frames in between as missed and catches their tasks up. Nothing is allocated per frame
+    here (floats only). After start-up :meth:`freeze_gc` moves everything allocated so far
+    out of the collector's reach and turns automatic collection off; young generations are
+    collected in the slack before a frame (:data:`GC_EVERY_FRAMES`), never a full one.
+    """
+
+    #: wake this long before the service's next frame time, then poll (assumed: more than
+    #: the host's usual sleep overshoot, less than the service's publish delay)
+    LEAD_S = 0.3e-3
+    POLL_S = 50e-6
+    GIVE_UP_PERIODS = 4
+    GC_EVERY_FRAMES = 64
+    GC_MIN_SLACK_S = 1.5e-3
+
+    def __init__(self, client, period_s: float) -> None:
+        self.client = client
+        self.period_s = period_s
+        self.t_next = -1.0  # expected time of the next service frame (-1: not known yet)
+        self.frames = 0
+        self.gave_up = 0  #: waits that ended without a new frame
+        self.gc_frozen = False
+
+    def wait(self) -> None:
+        c, mono = self.client, time.monotonic
+        if c.changed("inputs"):
+            return  # already published (we are late): step on the newest frame now
+        now = mono()
+        t_next = self.t_next if self.t_next > 0 else now
+        slack = t_next - self.LEAD_S - now
+        if self.gc_frozen and slack > self.GC_MIN_SLACK_S and self.frames % self.GC_EVERY_FRAMES == 0:
+            gc.collect(1)  # young generations only, in the slack before the frame
+            now = mono()
+            slack = t_next - self.LEAD_S - now
+        if slack > 0:
+            time.sleep(slack)
+        give_up = t_next + self.GIVE_UP_PERIODS * self.period_s
+        while not c.changed("inputs"):
+            if mono() > give_up:
+                self.gave_up += 1
+                break
+            time.sleep(self.POLL_S)
+
+    def stepped(self, t_frame_s: float) -> None:
+        """The controller ran on the service frame of time ``t_frame_s``: the next is due a
+        period later (absolute, so no drift accumulates)."""
+        self.t_next = t_frame_s + self.period_s
+        self.frames += 1
+
+    def freeze_gc(self) -> None:
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+        self.gc_frozen = True
+
+    def release_gc(self) -> None:
+        if self.gc_frozen:
+            gc.enable()
+            gc.unfreeze()
+            self.gc_frozen = False
+
+
 class _Driver:
     """Steps either a SystemSimulator or a runtime paced by a live service."""
 
@@ -280,6 +351,7 @@ class _Driver:
             self.client = Client.attach(args.buffer, writer="commands", owner="pfma-controller")
             self.rt = ControllerRuntime(self.client, frames=frames, wm_name=wm_name, clock=MonotonicClock(),
                                         require_ft=not args.no_ft)
+            self.pacer = LivePacer(self.client, frames.period_s)
         self.printed_header = False
 
     @property
@@ -290,13 +362,15 @@ class _Driver:
         if self.sim is not None:
             self.sim.step(1)
             return
-        c = self.client
-        deadline = time.monotonic() + 0.1
-        while not c.changed("inputs"):  # locked to the service: wait for its next frame
-            if time.monotonic() > deadline:
-                break  # the runtime's stale-service check will report it
-            time.sleep(0.0002)
+        self.pacer.wait()  # locked to the service: its next frame, on absolute deadlines
         self.rt.step()
+        snap = self.rt.daq.snapshot
+        self.pacer.stepped(float(snap.t_s))
+        if not self.pacer.gc_frozen and self.pacer.frames == self.FREEZE_AFTER_FRAMES:
+            self.pacer.freeze_gc()  # start-up allocations done: no collector pauses in frames
+
+    #: live frames run before the garbage collector is frozen (imports, first allocations)
+    FREEZE_AFTER_FRAMES = 32
 
     def show(self, rec) -> None:
         if not self.args.trace and self.args.step is None and not self.args.halt:
@@ -323,6 +397,7 @@ class _Driver:
         if self.sim is not None:
             self.sim.close()
         else:
+            self.pacer.release_gc()
             rt.close()
             self.client.close()
 

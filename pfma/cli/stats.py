@@ -1,5 +1,6 @@
 """``pfma stats``: measured rates per device, loop latency percentiles, overruns and
-error counters of a running service, read from its Bit3 buffer."""
+error counters of a running service, read from its Bit3 buffer; and the controller's
+frame timing and missed frames (Bit3 ``controller_stats``) when a controller is attached."""
 
 from __future__ import annotations
 
@@ -37,7 +38,47 @@ def collect(client) -> dict:
                            "resyncs": int(s.link_resyncs[c.slot]), "rate_hz": float(s.link_rate_hz[c.slot])}
                   for c in lay.channels if c.kind == "link"},
     }
+    out["controller"] = collect_controller(client)
     return out
+
+
+#: controller_stats fields shown by ``pfma stats`` (all of them go into ``--json``)
+CONTROLLER_FIELDS = ("frame", "frames", "missed_frames", "missed_events", "missed_run", "longest_missed_run",
+                     "max_missed_run", "missed_task_slots", "overruns", "period_s", "rate_hz",
+                     "wake_latency_p50_us", "wake_latency_p99_us", "wake_latency_max_us",
+                     "work_p50_us", "work_p99_us", "work_max_us", "cpu_percent", "gc_gen2")
+
+
+def collect_controller(client) -> dict | None:
+    """The controller's own statistics (Bit3 ``controller_stats``), or None when no live
+    controller holds the area or it has not published yet."""
+    try:
+        owner = client.owners().get("controller_stats")
+        if owner is None or not owner.alive:
+            return None
+        cs = client.read("controller_stats")
+    except Exception:  # noqa: BLE001 - an older buffer without the area
+        return None
+    if not cs.frames:
+        return None
+    out = {"owner": owner.name, "pid": owner.pid}
+    out.update({f: cs[f] for f in CONTROLLER_FIELDS})
+    return out
+
+
+def format_controller(c: dict | None) -> str:
+    if c is None:
+        return "controller: no controller attached"
+    return "\n".join([
+        f"controller {c['owner']} (pid {c['pid']}): frame {c['frame']}  {c['rate_hz']:.1f} Hz  "
+        f"frames {c['frames']}  overruns {c['overruns']}  cpu {c['cpu_percent']:.1f} %  gen2 GCs {c['gc_gen2']}",
+        f"  missed frames {c['missed_frames']} in {c['missed_events']} events  last run {c['missed_run']}  "
+        f"longest run {c['longest_missed_run']} (fault above {c['max_missed_run']})  "
+        f"task slots caught up {c['missed_task_slots']}",
+        f"  wake latency us: p50 {c['wake_latency_p50_us']:.0f}  p99 {c['wake_latency_p99_us']:.0f}  "
+        f"max {c['wake_latency_max_us']:.0f}",
+        f"  frame work us:   p50 {c['work_p50_us']:.0f}  p99 {c['work_p99_us']:.0f}  max {c['work_max_us']:.0f}",
+    ])
 
 
 def run(args) -> int:
@@ -66,4 +107,5 @@ def run(args) -> int:
     print("boards:  " + ", ".join(f"{b} status {v['status']} errors {v['errors']}" for b, v in d["boards"].items()))
     print("links:   " + ", ".join(f"{n} {v['records']} records {v['bad']} bad {v['resyncs']} resyncs "
                                   f"{v['rate_hz']:.1f}/s" for n, v in d["links"].items()))
+    print(format_controller(d["controller"]))
     return 0
