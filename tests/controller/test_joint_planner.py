@@ -232,8 +232,11 @@ def test_a_moving_pose_through_the_wrist_singularity_is_followed_without_jumps(m
     assert any("singular" in m.text for m in sim.rt.messages.recent(1000, source="joint"))
     pc, oc = K.fk(q_cmd[-1])
     assert np.linalg.norm(pc - pb) < 1e-6 and q_angle(oc, ob) < 1e-6
-    p, q = true_tool(sim)  # 1.5 s after the path the lag servo (2.5 s pole) still settles: 3.5 mm, 0.7 deg
-    assert np.linalg.norm(p - pb) < 5e-3 and q_angle(q, ob) < 1.0 * D
+    # the lag servo (2.5 s pole, saturating on the branch flip; anti-windup keeps its state at
+    # the applied rate) is still settling 1.5 s after the path; 3 s after it the tool is on the pose
+    sim.step(seconds(sim, 1.5))
+    p, q = true_tool(sim)
+    assert np.linalg.norm(p - pb) < 2e-3 and q_angle(q, ob) < 1.0 * D
     assert sim.rt.all_status(Status.START_UP_COMPLETE)
 
 
