@@ -40,7 +40,7 @@ from pfma.errors import ConfigError
 MINOR_FRAMES_PER_MAJOR = 16  # IRSS report 2.3.5
 #: service frames the controller may miss in a row before it is a Servo Control fault
 #: (assumed; see FrameConfig.max_missed_run)
-DEFAULT_MAX_MISSED_RUN = 1
+DEFAULT_MAX_MISSED_RUN = 2
 #: share of the minor frame the communications segment takes (report 2.2.3)
 COMM_FRACTION = 0.15
 
@@ -131,9 +131,9 @@ class FrameConfig:
         and the data-acquisition bridge
     :param max_missed_run: service frames the controller may miss in a row (their periodic
         tasks are caught up in the frame it wakes in); more is a fault of the Servo Control
-        layer. Assumed default 1: with the servo at half the frame rate and Data Acquisition's
-        output before the tasks, one missed frame makes the service see a rate command at
-        most 4 frames old, the service's default ``max_input_age_frames`` (docs/controller.md,
+        layer. Assumed default 2: with the servo at half the frame rate and Data Acquisition's
+        output at the end of the frame, two missed frames make the service see a rate command
+        at most 4 frames old, the service's default ``max_input_age_frames`` (docs/controller.md,
         "Missed frames and command freshness")
     """
 

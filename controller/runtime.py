@@ -30,7 +30,8 @@ missed. They are counted (:attr:`missed_frames`, :attr:`missed_events`,
 message per :data:`MISSED_MESSAGE_INTERVAL_S`, with a count of the others), and the
 periodic tasks due in them run once in this frame (catch-up; a task due both in a missed
 frame and in this one runs once). More than ``FrameConfig.max_missed_run`` in a row while
-the servo is starting up or running is a fault of the Servo Control layer (code 12), raised
+the servo is running (START UP COMPLETE: its rates reach the arm; while it starts up, Data
+Acquisition sends rates of 0 whatever happens) is a fault of the Servo Control layer (code 12), raised
 before the tables so its table goes to ERROR in this frame. :attr:`servo_oldest_frame` and
 :attr:`servo_catch_up` tell Data Acquisition's output which servo outputs it may send.
 
@@ -313,7 +314,6 @@ class ControllerRuntime:
         for l in self.layers:
             l.run_table(self)
         daq_status = self._decided(self.daq)
-        self.daq.output(self, daq_status)
         for l in self.layers:
             l.run_sequence(self)
         due = self._table[f % MINOR_FRAMES_PER_MAJOR]
@@ -328,6 +328,10 @@ class ControllerRuntime:
                 layer = next(l for l in self.layers if name in l.periodic)
                 layer.set_fault(self, 90, f"task {name} raised {type(err).__name__}: {err}")
             ran.append(name)
+        # output last, after a second communications segment: the rates leave in the frame
+        # whose inputs they were computed from (the service sees them 1-2 frames old, not 2-3)
+        self.wm.communications_segment()
+        self.daq.output(self, daq_status)
         self.frames_run += 1
         cost = time.perf_counter() - t0
         self._time_frame(cost)
@@ -374,7 +378,7 @@ class ControllerRuntime:
             self._miss_quiet[1] += missed
         m = self.frames.max_missed_run
         if missed > m and self._has_servo and not self.servo.fault and \
-                self.wm.get_state_variable(self.servo.v_status) in (Status.START_UP, Status.START_UP_COMPLETE):
+                self.wm.get_state_variable(self.servo.v_status) == Status.START_UP_COMPLETE:
             lost = [g for g in range(first, first + span) if any(n == SERVO_TASK for n, _ in
                                                                  self._table[g % MINOR_FRAMES_PER_MAJOR])]
             lost_s = ", ".join(str(g) for g in lost[:4]) + (" ..." if len(lost) > 4 or missed > span else "")

@@ -329,7 +329,11 @@ class IoService:
                 ft.set_checksum(True)
                 ft.start_stream(rate_hz=self.schedule.rate_hz("ft"))
                 port.timeout = 0  # from now on only non-blocking reads, between frames
-                if hasattr(port, "autopoll"):  # an MVME400 port: serial_tick drains it
+                # an MVME400 port: serial_tick drains it, and decodes as soon as a record is
+                # complete (its time stamp is then its arrival, and after lost characters
+                # the link is synced again at the first whole record, not at the next F/T slot)
+                self._ft_in_tick = hasattr(port, "autopoll")
+                if self._ft_in_tick:
                     port.autopoll = False
                 self._ft = ft
                 if attempt > 1:
@@ -652,9 +656,10 @@ class IoService:
             return CMD_ABSENT
         c = self.commands.record
         pid, token = self.buf.owner_pid_token("commands")
-        if pid <= 0:
+        body_pid = int(c["writer_pid"])
+        if pid <= 0 or body_pid == 0:  # nobody holds the claim, or the holder has not written yet
             return _NO_WRITER
-        if int(c["writer_pid"]) != pid or int(c["writer_token"]) != token:
+        if body_pid != pid or int(c["writer_token"]) != token:
             return CMD_FOREIGN
         self._hb_ok = int(c["heartbeat"])
         return 0
@@ -844,9 +849,10 @@ class IoService:
     # ------------------------------------------------------------------ between frames
     def serial_tick(self, now: float | None = None) -> None:
         """Drain the serial boards' receive FIFOs into the drivers' buffers (TickingClock
-        hook between frames, and around the work inside a frame). Decoding happens in the
-        F/T and hand tasks. A drain within ``SERIAL_MIN_GAP_S`` of the previous one is
-        skipped: the FIFO cannot have filled, and every drain costs register accesses."""
+        hook between frames, and around the work inside a frame). The MVME400 F/T line is
+        decoded here as soon as its buffer can complete a record (``FtSensor.record_due``);
+        the hand controller in its task. A drain within ``SERIAL_MIN_GAP_S`` of the previous
+        one is skipped: the FIFO cannot have filled, and every drain costs register accesses."""
         if self._mvme400 is None:
             return
         t = self.clock.now()
@@ -858,19 +864,27 @@ class IoService:
             drv.poll()
         except PfmaError as err:
             self._count_board_error(cfg.name, err)
+        ft = self._ft
+        if ft is not None and self._ft_in_tick:
+            try:
+                due = ft.record_due()  # a length check on the software buffer: no bus access
+            except PfmaError:
+                due = True  # let the decode count the failure
+            if due:
+                self._decode_serial(hand=False)
 
     def _drain_if_due(self) -> None:
         """Inside a frame, at a task boundary: drain the serial FIFOs if ``SERIAL_MIN_GAP_S``
         has passed since the last drain (a slow scan, or a host that preempted the frame)."""
         self.serial_tick()
 
-    def _decode_serial(self) -> None:
+    def _decode_serial(self, hand: bool = True) -> None:
         try:
             if self._ft is not None:
                 recs = self._ft.read_records()
                 if recs:
                     self._ft_latest = recs[-1]
-            if self._crl is not None:
+            if hand and self._crl is not None:
                 self._crl_latest = self._crl.update()
         except PfmaError as err:
             if self._mvme400 is not None:

@@ -48,6 +48,8 @@ def add_parser(sub):
     p.add_argument("--messages", type=int, default=30, metavar="N", help="messages shown at the end (30)")
     p.add_argument("--no-ft", action="store_true", help="a stale F/T link is not a fault")
     p.add_argument("--tables", action="store_true", help="print the decision tables and the schedule")
+    p.add_argument("--realtime", action="store_true",
+                   help="SCHED_FIFO priority 49 pinned to CPU 0 (needs privileges; pfma serve --realtime takes the last CPU)")
     _add_motion_arguments(p)
     _add_path_arguments(p)
     return p
@@ -352,6 +354,14 @@ class _Driver:
             self.rt = ControllerRuntime(self.client, frames=frames, wm_name=wm_name, clock=MonotonicClock(),
                                         require_ft=not args.no_ft)
             self.pacer = LivePacer(self.client, frames.period_s)
+            if args.realtime:
+                from ioservice.loop import realtime_setup
+                # the service pins itself to the last CPU (pfma serve --realtime); the
+                # controller takes the first, one priority below it
+                for w in realtime_setup(cpu=0, fifo_priority=49):
+                    print(f"pfma controller: {w}", file=sys.stderr)
+            gc.collect()  # what start-up allocated is not collected inside the first frames
+            gc.freeze()
         self.printed_header = False
 
     @property
