@@ -24,8 +24,10 @@ bit    meaning
 1      resolver fault on a joint channel (loss of signal / BIT, no reference,
        or the board did not answer)
 2      tach ADC sample failed (bus error)
-4      F/T link stale or faulted for FT_BAD_FRAMES frames in a row (disable with
-       ``require_ft=False``)
+4      F/T link stale or faulted for FT_BAD_FRAMES frames in a row while the wrench
+       drives the arm (impedance control on, or CRL force reflection); otherwise one
+       WARNING says the force data are not valid and the arm goes on (disable the
+       check entirely with ``require_ft=False``)
 8      a board the controller needs reports a fault (bus error, init failure)
 16     the service is in FAULT or STOPPED, or not ARMED while it should be
 32     the service has not published a new frame for ``STALE_FRAMES`` frames
@@ -135,6 +137,9 @@ class DataAcquisitionLayer(Layer):
         self._last_frame = -1
         self._same_frames = 0
         self._ft_bad_run = 0
+        self.ft_in_use = True  #: force control or force reflection uses the F/T (see _force_in_use)
+        self._ft_warned = False
+        self._ft_warning = ""
         self.arm_request = 0
         self.rearm_counter = int(client.command["rearm_counter"])
         self._t_phase = 0.0
@@ -204,7 +209,12 @@ class DataAcquisitionLayer(Layer):
             "daq.brakes_released": bool(snap.brakes_released),
             "daq.outputs_enabled": bool(snap.outputs_enabled),
         })
+        self.ft_in_use = self._force_in_use(rt)
         bits, detail = self.check(snap, st)
+        if self._ft_warning:
+            rt.post(self.key, Level.WARNING, f"{self._ft_warning}: force data not valid (force control off: "
+                                             f"the arm goes on)")
+            self._ft_warning = ""
         if bits != self.fault_bits:
             names = [n for b, n in FAULT_NAMES.items() if bits & b]
             rt.wm.post_task_outputs("daq", {"daq.fault_bits": bits})
@@ -224,6 +234,27 @@ class DataAcquisitionLayer(Layer):
     def status_value(self, rt) -> int:
         return rt.wm.get_state_variable(self.v_status)
 
+    @staticmethod
+    def _force_in_use(rt) -> bool:
+        """The wrench drives the arm now: impedance control (``force.state`` not OFF) or
+        force reflection to the CRL. A stale F/T link is then a fault; otherwise it only
+        makes the force data invalid (a WARNING), so a host stall that starves the F/T line
+        for 100 ms does not stop an arm that is not using it. Without the force layer's
+        variables (a bare runtime) the F/T is taken to be in use."""
+        names = rt.wm.names()
+        if "force.state" not in names:
+            return True
+        v = rt.wm.get_task_inputs([n for n in ("force.state", "teleop.reflect_enabled") if n in names])
+        return int(v["force.state"]) != 0 or bool(v.get("teleop.reflect_enabled", False))
+
+    @staticmethod
+    def _stall_note(snap) -> str:
+        """" after a host stall of N ms" when the service saw one in the last 0.5 s."""
+        stall = float(snap.host_stall_s)
+        if stall > 0 and 0 <= float(snap.t_s) - float(snap.host_stall_t_s) <= 0.5:
+            return f" after a host stall of {stall * 1e3:.0f} ms"
+        return ""
+
     def check(self, snap, service_state: int) -> tuple[int, str]:
         """The hardware checks of one snapshot: (fault bits, description)."""
         bits, why = 0, []
@@ -240,9 +271,16 @@ class DataAcquisitionLayer(Layer):
             bad = bool(ls & (LINK_STALE | LINK_FAULT) or not ls)
             self._ft_bad_run = self._ft_bad_run + 1 if bad else 0
             if self._ft_bad_run >= FT_BAD_FRAMES:
-                bits |= FAULT_FT
-                why.append(f"F/T link {'stale' if ls & LINK_STALE else 'faulted' if ls & LINK_FAULT else 'not open'}"
-                           f" (age {float(snap.link_age_s[self.ft_slot]) * 1e3:.0f} ms)")
+                what = (f"F/T link {'stale' if ls & LINK_STALE else 'faulted' if ls & LINK_FAULT else 'not open'}"
+                        f" (age {float(snap.link_age_s[self.ft_slot]) * 1e3:.0f} ms){self._stall_note(snap)}")
+                if self.ft_in_use:
+                    bits |= FAULT_FT
+                    why.append(what)
+                elif not self._ft_warned:  # nothing uses the wrench now: force data invalid, arm fine
+                    self._ft_warned = True
+                    self._ft_warning = what
+            elif not bad:
+                self._ft_warned = False
         bs = snap.board_status[self.board_slots]
         if np.any(bs & BOARD_FAULT):
             bits |= FAULT_BOARD

@@ -27,6 +27,7 @@ def inject_and_measure(sim, inject):
     inject(sim.world)
     sim.run_until(lambda: rt.daq.fault_bits != 0, 200)
     k_detect = rt.frame
+    sim.detected_bits = rt.daq.fault_bits  # the bits follow the hardware (and, for the F/T, its use)
     # the frame the fault was detected in drives the rates to 0 at once (service applies next frame)
     sim.step(1)
     assert np.all(sim.dac_volts()[RATE_CHANNELS] == 0.0)
@@ -34,12 +35,21 @@ def inject_and_measure(sim, inject):
     return k_detect, rt.first_change("updown", S.ERROR, k_inject), k_inject
 
 
+def _force_on(sim) -> None:
+    """Impedance control on: the wrench now drives the arm, so a stale F/T is a fault."""
+    wm = sim.rt.wm
+    wm.set_user("force.enable", True, wm.access_key)
+    sim.run_until(lambda: int(wm.get("force.state")) != 0, 20)
+
+
 @pytest.mark.parametrize("fault", sorted(FAULTS))
 def test_fault_reaches_system_up_down_within_6_minor_frames_and_dac_is_0_v(powered, fault):
     inject, bit = FAULTS[fault]
     rt = powered.rt
+    if bit == FAULT_FT:
+        _force_on(powered)
     k_detect, k_updown, _ = inject_and_measure(powered, inject)
-    assert rt.daq.fault_bits & bit
+    assert powered.detected_bits & bit
     assert k_updown - k_detect <= 6, f"{fault}: {k_updown - k_detect} frames"
     # every layer is in ERROR, and the chain went up one layer per frame
     assert rt.all_status(S.ERROR)
@@ -55,6 +65,22 @@ def test_fault_reaches_system_up_down_within_6_minor_frames_and_dac_is_0_v(power
     msgs = rt.messages.recent(min_level=3)
     assert msgs[0].source == "daq" and "hardware check" in msgs[0].text
     assert any(m.source == "updown" and "ERROR" in m.text for m in msgs)
+
+
+@pytest.mark.parametrize("fault", ["ft_stall", "ft_disconnect"])
+def test_a_stale_ft_without_force_control_is_a_warning_and_the_arm_goes_on(powered, fault):
+    """A host stall that starves the F/T line for 100 ms used to put every layer in ERROR
+    although nothing used the wrench; now the force data are declared invalid and the arm
+    goes on. (With force control on it is a fault: the test above.)"""
+    rt = powered.rt
+    FAULTS[fault][0](powered.world)
+    powered.step(160)  # 0.5 s: well past the 100 ms stale age and FT_BAD_FRAMES
+    assert rt.all_status(S.START_UP_COMPLETE) and not rt.daq.fault_bits & FAULT_FT
+    warn = [m for m in rt.messages.recent(1000, source="daq") if "force data not valid" in m.text]
+    assert len(warn) == 1 and "F/T link" in warn[0].text
+    _force_on(powered)  # turning force control on with a dead sensor is a fault at once
+    powered.run_until(lambda: rt.status("updown") == S.ERROR, 20)
+    assert any(f"fault {FAULT_FT}: F/T link" in m.text for m in rt.messages.recent(1000, source="daq"))
 
 
 def test_error_reset_waits_for_the_fault_to_clear_then_shuts_down(powered):
