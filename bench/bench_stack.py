@@ -219,7 +219,7 @@ def _trips(messages: list[dict]) -> list[dict]:
     return [m for m in messages if m["queue"] == "service" and any(w in m["text"].lower() for w in words)]
 
 
-def measure(minutes: float, workdir: Path, *, progress=None) -> dict:
+def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = False) -> dict:
     from ioservice.client import Client
     from ioservice.recorder import read_metadata
 
@@ -228,11 +228,13 @@ def measure(minutes: float, workdir: Path, *, progress=None) -> dict:
     rec_path = workdir / "stack.mcap"
     seconds = max(0.0, minutes * 60.0)
     procs: dict[str, _Proc] = {}
-    rep: dict = {"minutes": minutes, "buffer": name, "started": [], "errors": []}
+    rep: dict = {"minutes": minutes, "buffer": name, "started": [], "errors": [], "realtime": realtime}
+    rt_flag = ["--realtime"] if realtime else []  # service SCHED_FIFO on the last CPU, controller on CPU 0
     client = None
     watch = None
     try:
-        procs["service"] = _Proc("service", [py, "-m", "pfma", "serve", "--rack", "fake", "--buffer", name], workdir)
+        procs["service"] = _Proc("service", [py, "-m", "pfma", "serve", "--rack", "fake", "--buffer", name, *rt_flag],
+                                 workdir)
         rep["started"].append("service")
         t_start = time.monotonic()
         while True:  # wait for frames
@@ -255,7 +257,7 @@ def measure(minutes: float, workdir: Path, *, progress=None) -> dict:
         rep["service_start_s"] = _r(time.monotonic() - t_start, 2)
         if client is not None and not rep["errors"]:
             procs["controller"] = _Proc("controller", [py, "-m", "pfma", "controller", "--buffer", name,
-                                                       "--wm", name + "-wm", "--power-up"], workdir)
+                                                       "--wm", name + "-wm", "--power-up", *rt_flag], workdir)
             procs["recorder"] = _Proc("recorder", [py, "-m", "pfma", "record", str(rec_path), "--buffer", name,
                                                    "--quiet"], workdir)
             rep["started"] += ["controller", "recorder"]
@@ -387,15 +389,16 @@ def _print(rep: dict) -> None:
             print(f"    ... {len(rep['messages']) - 40} more (--json has them all)")
 
 
-def run(seconds: float | None = None, minutes: float = 10.0, as_json: bool = False) -> dict:
+def run(seconds: float | None = None, minutes: float = 10.0, as_json: bool = False, realtime: bool = False) -> dict:
     """Run the stack; ``seconds`` (``pfma bench --seconds``) overrides ``minutes`` when given."""
     if seconds is not None:
         minutes = seconds / 60.0
     progress = None if as_json else (lambda s: print("  ..." + s, flush=True))
     if not as_json:
-        print(f"pfma serve --rack fake + pfma controller --power-up + pfma record, {minutes:g} min", flush=True)
+        print(f"pfma serve --rack fake + pfma controller --power-up + pfma record, {minutes:g} min"
+              f"{' (service and controller --realtime)' if realtime else ''}", flush=True)
     with tempfile.TemporaryDirectory(prefix="pfma-bench-stack-") as d:
-        rep = measure(minutes, Path(d), progress=progress)
+        rep = measure(minutes, Path(d), progress=progress, realtime=realtime)
     if as_json:
         print(json.dumps(rep, indent=1))
     else:

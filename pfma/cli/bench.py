@@ -30,6 +30,8 @@ def add_parser(sub):
     p.add_argument("--minutes", type=float, default=10.0,
                    help="stack: minutes the whole stack runs (default 10; 0.05 for a quick check)")
     p.add_argument("--json", action="store_true", help="stack: print the report as JSON")
+    p.add_argument("--realtime", action="store_true",
+                   help="stack: run the service and the controller with --realtime (SCHED_FIFO, pinned CPUs)")
     return p
 
 
@@ -48,7 +50,7 @@ def run(args) -> int:
         if name == "stack":
             if not args.json:
                 print(f"== bench {name} ==")
-            rep = mod.run(seconds=args.seconds, minutes=args.minutes, as_json=args.json)
+            rep = mod.run(seconds=args.seconds, minutes=args.minutes, as_json=args.json, realtime=args.realtime)
             if rep.get("errors") and args.json:
                 return 1
             continue
