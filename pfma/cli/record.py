@@ -140,6 +140,15 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
     def done() -> bool:
         return stop["flag"] or (t_end is not None and time.monotonic() >= t_end)
 
+    def wait(remaining):
+        """(the service's client or None, True when its layout is another recording's)."""
+        try:
+            return wait_for_service(buffer, layout, timeout_s=remaining, say=say, stop=done), False
+        except LayoutMismatchError as err:
+            print(f"pfma record: {err}; this recording ends here (a different rack or "
+                  f"layout is a different recording)", file=sys.stderr)
+            return None, True
+
     rec = None
     err_code = 0
     try:
@@ -147,11 +156,8 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
             remaining = None if t_end is None else max(0.0, t_end - time.monotonic())
             if wait_s is not None and rec is None:
                 remaining = wait_s if remaining is None else min(wait_s, remaining)
-            try:
-                client = wait_for_service(buffer, layout, timeout_s=remaining, say=say, stop=done)
-            except LayoutMismatchError as err:
-                print(f"pfma record: {err}; this recording ends here (a different rack or "
-                      f"layout is a different recording)", file=sys.stderr)
+            client, mismatch = wait(remaining)
+            if mismatch:
                 err_code = 1
                 break
             if client is None:
@@ -189,11 +195,8 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
                         # its buffer before its ring, and we attached in between)
                     rec.flush()
                     remaining = None if t_end is None else max(0.0, t_end - time.monotonic())
-                    try:
-                        new = wait_for_service(buffer, layout, timeout_s=remaining, say=say, stop=done)
-                    except LayoutMismatchError as err:
-                        print(f"pfma record: {err}; this recording ends here (a different rack or "
-                              f"layout is a different recording)", file=sys.stderr)
+                    new, mismatch = wait(remaining)
+                    if mismatch:
                         err_code = 1
                         stop["flag"] = True
                         break
