@@ -117,12 +117,15 @@ class IoService:
     :param serial: open the F/T and CRL lines of the MVME400 (off for racks without them)
     :param calibration: calibration file path or loaded ``calibration.files.Calibration``,
         applied before the drivers are wired (see the "calibration" section at the end)
+    :param max_input_age_frames: rate channels are driven only from commands computed from
+        inputs at most this many frames old (default: the rack file's ``[commands]``, 4);
+        refused with a ConfigError if it exceeds the watchdog
     """
 
     def __init__(self, rack: RackConfig, bus, buffer: Bit3Buffer, clock: Clock, *,
                  schedule: Schedule | None = None, watchdog_s: float = 0.015,
                  owner: str = "pfma-ioservice", serial: bool = True, calibration=None,
-                 ft_port: str | None = None) -> None:
+                 ft_port: str | None = None, max_input_age_frames: int | None = None) -> None:
         self.calibration = None  # calibration: the loaded calibration in force (None = nominal)
         if calibration is not None:
             rack, self.calibration = _calibrated_rack(rack, calibration)
@@ -132,6 +135,20 @@ class IoService:
         self.clock = clock
         self.schedule = schedule or Schedule()
         self.layout = buffer.layout
+        self.policy = rack.commands
+        if max_input_age_frames is not None:  # overrides the rack file's [commands] value
+            if isinstance(max_input_age_frames, bool) or int(max_input_age_frames) != max_input_age_frames \
+                    or max_input_age_frames < 1:
+                raise ConfigError(f"max_input_age_frames must be a whole number of frames >= 1, "
+                                  f"not {max_input_age_frames!r}")
+            from dataclasses import replace
+            self.policy = replace(self.policy, max_input_age_frames=int(max_input_age_frames))
+        age_s = self.policy.max_input_age_frames * self.schedule.period_s
+        if age_s > watchdog_s + 1e-9:
+            raise ConfigError(f"rack {rack.name}: [commands] max_input_age_frames = "
+                              f"{self.policy.max_input_age_frames} ({age_s * 1e3:.2f} ms at "
+                              f"{self.schedule.frame_rate_hz:g} Hz) exceeds the {watchdog_s * 1e3:g} ms "
+                              f"command watchdog; lower it or raise the watchdog")
         buffer.claim("service", owner)
         self.inputs = buffer.writer("inputs")
         #: optional ``ioservice.ring.FrameRing``: every published inputs body is also
@@ -141,13 +158,6 @@ class IoService:
         self.commands = buffer.reader("commands")
         self.queue = buffer.queue("service_messages")
         self.guard = OutputGuard(clock, watchdog_s, post=self._post_guard)
-        self.policy = rack.commands
-        age_s = self.policy.max_input_age_frames * self.schedule.period_s
-        if age_s > watchdog_s + 1e-9:
-            raise ConfigError(f"rack {rack.name}: [commands] max_input_age_frames = "
-                              f"{self.policy.max_input_age_frames} ({age_s * 1e3:.2f} ms at "
-                              f"{self.schedule.frame_rate_hz:g} Hz) exceeds the {watchdog_s * 1e3:g} ms "
-                              f"command watchdog; lower it or raise the watchdog")
         self._hb_ok = None  # heartbeat of the last command written by the claim holder
         self._hb_seen = None  # heartbeat in the command record at the last good read
         self._refusals_seen = 0

@@ -42,6 +42,10 @@ def add_parser(sub):
                    help="F/T sensor on a pyserial URL (/dev/ttyUSB0, socket://host:port) instead of "
                         "MVME400 port A")
     p.add_argument("--watchdog-ms", type=float, default=15.0, help="command heartbeat time-out (15 ms)")
+    p.add_argument("--max-input-age", type=int, default=None, metavar="FRAMES",
+                   help="drive rate channels only from commands computed from inputs at most FRAMES "
+                        "minor frames old (default: the rack file's [commands] max_input_age_frames, 4); "
+                        "must fit the watchdog")
     p.add_argument("--live", action="store_true", help="print a live channel view twice a second")
     p.add_argument("--demo", action="store_true",
                    help="also start the demo controller (a separate process) that arms and swings the arm")
@@ -108,8 +112,13 @@ def run(args) -> int:
             print(f"pfma serve: {w}", file=sys.stderr)
     _replace_stale(args.buffer)
     buf = Bit3Buffer.create(args.buffer, layout)
-    svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3,
-                    calibration=getattr(args, "calibration", None), ft_port=args.ft_port)
+    try:
+        svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3,
+                        max_input_age_frames=args.max_input_age,
+                        calibration=getattr(args, "calibration", None), ft_port=args.ft_port)
+    except BaseException:
+        buf.close(unlink=True)  # a service that could not start leaves no buffer behind
+        raise
     from ioservice.ring import FrameRing
     svc.ring = FrameRing.create(args.buffer, layout.area("inputs").body_size, layout.hash)
     if world is not None:

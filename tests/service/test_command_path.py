@@ -288,3 +288,50 @@ def test_fuzzed_command_areas_never_drive_a_channel_beyond_its_limit(writes):
     finally:
         rogue.close()
         rig.close()
+
+
+def test_an_absurd_rate_written_over_modbus_is_refused_too(rig):
+    """The Modbus export (``pfma serve --modbus-writes``) writes the command area through
+    the same client: 1e9 rad/s from a Modbus master is refused by the service, not clipped
+    to 9.995 V."""
+    from pymodbus.client import ModbusTcpClient
+
+    from ioservice.modbus_export import ModbusExport, map_row, register_map
+    ROWS = register_map(rig.layout)
+    DT = ModbusTcpClient.DATATYPE
+    rig.run_frames(4)  # the service has seen the (still empty) command area
+    with ModbusExport(rig.name, port=0, allow_writes=True, layout=rig.layout) as ex:
+        c = ModbusTcpClient("127.0.0.1", port=ex.port, timeout=2, retries=0)
+        assert c.connect()
+        try:
+            def write(field, values, dt):
+                row = map_row(ROWS, field, "holding")
+                regs = [r for v in values for r in c.convert_to_registers(v, dt)]
+                assert not c.write_registers(row.address, regs, device_id=1).isError()
+            write("current_limit_a", list(LIMITS), DT.FLOAT64)
+            write("rearm_counter", [1], DT.UINT32)
+            row = map_row(ROWS, "arm_request", "holding")
+            assert not c.write_register(row.address, 0x0100, device_id=1).isError()  # high byte: arm_request
+            rig.run_frames(1)
+            assert rig.reader.read_inputs().service_state == ServiceState.ARMED
+            write("joint_rate_rad_s", [1e9, 0, 0, 0, 0, 0], DT.FLOAT64)
+            rig.run_frames(1)
+        finally:
+            c.close()
+    s = rig.reader.read_inputs()
+    assert s.service_state == ServiceState.SAFE and s.refused_commands == 1
+    assert np.all(volts(rig) == 0.0)
+    assert "refused shoulder_pitch_command=1e+09 rad/s, limit +-0.4" in texts(rig)
+
+
+def test_the_input_age_can_be_set_per_service_and_is_checked_against_the_watchdog(rig):
+    buf = Bit3Buffer.create(rig.name + "y", rig.layout)
+    try:
+        svc = IoService(rig.rack, rig.world.bus, buf, rig.tclock, max_input_age_frames=2)
+        assert svc.policy.max_input_age_frames == 2 and rig.svc.policy.max_input_age_frames == 4
+        svc.stop()
+        for bad in (0, 5, 2.5, True):
+            with pytest.raises(ConfigError):
+                IoService(rig.rack, rig.world.bus, buf, rig.tclock, max_input_age_frames=bad, owner="x")
+    finally:
+        buf.close(unlink=True)
