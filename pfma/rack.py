@@ -31,6 +31,9 @@ BOARD_KEYS = {"name", "kind", "device", "base", "rate_hz", "title", "channels"}
 CHANNEL_KEYS = {"ch", "signal", "label", "units", "direction", "spare", "scale", "offset", "baud", "limit"}
 #: ``[commands]`` keys: how the service judges the command area (see :class:`CommandPolicy`)
 COMMANDS_KEYS = {"max_input_age_frames", "limit_margin"}
+#: ``[bit3]`` keys: the Bit3 shared-memory window (IRSS report 3.4.3)
+BIT3_KEYS = {"size", "computational_window", "io_window"}
+BIT3_SIZE = 32768  #: the Bit3 adapter's 32 KiB window
 SIGNAL_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
@@ -243,10 +246,49 @@ def load_rack(path: str | Path | None = None) -> RackConfig:
     """
     p = DEFAULT_RACK if path in (None, "fake", "default") else Path(path)
     try:
-        text = p.read_text()
+        raw = p.read_bytes()
     except OSError as err:
         raise ConfigError(f"cannot read rack file {p}: {err.strerror}") from err
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = raw.count(b"\n", 0, err.start) + 1
+        raise ConfigError(f"{p}:{line}: not UTF-8 text (byte 0x{raw[err.start]:02X} at offset "
+                          f"{err.start}); TOML files are UTF-8") from None
     return parse_rack(text, str(p))
+
+
+def _is_number(v) -> bool:
+    """An int or float TOML value (not a bool), finite."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _serial_rates() -> tuple[float, ...]:
+    """The bit rates the MVME400's baud generator offers (``drivers.mvme400`` table)."""
+    from drivers.mvme400.registers import BAUD_CODES
+    return tuple(sorted(BAUD_CODES.values()))
+
+
+def _section_key_line(text: str, section: str, key: str | None = None) -> int | None:
+    """Line of ``[section]`` (or of ``key = ...`` inside it) in TOML text."""
+    header = None
+    for n, line in enumerate(text.splitlines(), start=1):
+        s = line.strip()
+        if s.startswith("["):
+            if header is not None:
+                break
+            if re.match(rf"^\[\s*{re.escape(section)}\s*\]\s*(#.*)?$", s):
+                header = n
+                if key is None:
+                    return n
+            continue
+        if header is not None and re.match(rf"^{re.escape(key)}\s*=", s):
+            return n
+    return header
 
 
 def parse_rack(text: str, source: str = "<string>") -> RackConfig:
@@ -264,6 +306,8 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
         raise ConfigError(f"{where}: {msg}")
 
     rack = data.get("rack", {})
+    if not isinstance(rack, dict):
+        fail("[rack] must be a table")
     boards_raw = data.get("board")
     if not isinstance(boards_raw, list) or not boards_raw:
         fail("no [[board]] entries")
@@ -274,6 +318,8 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
     boards: list[BoardConfig] = []
     signals: dict[str, tuple[int, int]] = {}
     for bi, b in enumerate(boards_raw):
+        if not isinstance(b, dict):
+            fail(f"board entry {bi + 1} is not a table", bi)
         extra = set(b) - BOARD_KEYS
         if extra:
             fail(f"board entry has unknown key(s) {', '.join(sorted(extra))}", bi)
@@ -281,15 +327,20 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
             if key not in b:
                 fail(f"board entry is missing {key!r}", bi)
         name, kind = b["name"], b["kind"]
-        if kind not in KINDS:
+        if not isinstance(name, str) or not name:
+            fail(f"board name must be a string, not {name!r}", bi, key="name")
+        if not isinstance(kind, str) or kind not in KINDS:
             fail(f"board {name}: unknown device kind {kind!r}; known: {', '.join(sorted(KINDS))}", bi,
                  key="kind")
         device, n_channels, _ = KINDS[kind]
         if b.get("device", device) != device:
             fail(f"board {name}: kind {kind} is a {device} board, not {b['device']!r}", bi, key="device")
         base = b["base"]
-        if not isinstance(base, int) or not 0 <= base <= 0xFFFF:
-            fail(f"board {name}: base {base!r} is not an A16 address (0..0xFFFF)", bi, key="base")
+        if not _is_int(base) or not 0 <= base <= 0xFFFF:
+            fail(f"board {name}: base {base!r} is not an A16 address (integer 0..0xFFFF)", bi, key="base")
+        if base % 2:
+            fail(f"board {name}: base 0x{base:04X} is odd; the boards' 16-bit registers need an "
+                 f"even A16 base", bi, key="base")
         window = board_description(kind).window
         if base + window > 0x10000:
             fail(f"board {name}: window 0x{base:04X}+0x{window:X} runs past the A16 space", bi, key="base")
@@ -300,9 +351,14 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
                      key="base")
             if other.name == name:
                 fail(f"board name {name!r} used twice", bi, key="name")
-        rate = float(b.get("rate_hz", 0))
+        rate = b.get("rate_hz", 0)
+        if not _is_number(rate):
+            fail(f"board {name}: rate_hz must be a number (Hz), not {rate!r}", bi, key="rate_hz")
+        rate = float(rate)
         if rate <= 0:
             fail(f"board {name}: rate_hz must be positive", bi, key="rate_hz")
+        if not isinstance(b["channels"], list):
+            fail(f"board {name}: channels must be an array of channel tables", bi, key="channels")
         chans: list[Channel] = []
         seen: set[int] = set()
         for ci, c in enumerate(b["channels"]):
@@ -315,7 +371,7 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
                 if key not in c:
                     fail(f"board {name}: channel entry is missing {key!r}", bi, ci)
             ch = c["ch"]
-            if not isinstance(ch, int) or not 0 <= ch < n_channels:
+            if not _is_int(ch) or not 0 <= ch < n_channels:
                 fail(f"board {name}: channel {ch!r} out of range 0..{n_channels - 1} for a {kind}", bi, ci)
             if ch in seen:
                 fail(f"board {name}: channel {ch} listed twice", bi, ci)
@@ -329,9 +385,22 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
             direction = c.get("direction", DEFAULT_DIRECTION.get(device))
             if direction not in ("in", "out"):
                 fail(f"board {name}: channel {ch} needs direction 'in' or 'out', not {direction!r}", bi, ci)
+            for key in ("scale", "offset"):
+                if key in c and not _is_number(c[key]):
+                    fail(f"board {name}: channel {ch} {key} must be a number, not {c[key]!r}", bi, ci)
             scale = float(c.get("scale", 1.0))
             if scale == 0:
                 fail(f"board {name}: channel {ch} scale must not be 0", bi, ci)
+            baud = c.get("baud")
+            if baud is not None:
+                if device != "serial":
+                    fail(f"board {name}: channel {ch}: 'baud' applies to serial channels only", bi, ci)
+                rates = _serial_rates()
+                if not _is_number(baud) or baud not in rates:
+                    fail(f"board {name}: channel {ch} baud {baud!r} is not a rate the {kind} offers "
+                         f"({', '.join(f'{r:g}' for r in rates)})", bi, ci)
+            if not isinstance(c.get("spare", False), bool):
+                fail(f"board {name}: channel {ch} spare must be true or false, not {c['spare']!r}", bi, ci)
             limit = c.get("limit")
             if limit is not None:
                 if device != "dac":
@@ -353,7 +422,7 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
         boards.append(BoardConfig(name=name, kind=kind, device=device, base=base, window=window,
                                   rate_hz=rate, title=str(b.get("title", kind)), channels=tuple(chans)))
     return RackConfig(name=str(rack.get("name", "rack")), boards=tuple(boards),
-                      bit3=dict(data.get("bit3", {})), source=source,
+                      bit3=_bit3(data.get("bit3", {}), text, source), source=source,
                       commands=_command_policy(data.get("commands", {}), fail))
 
 
@@ -370,3 +439,34 @@ def _command_policy(raw, fail) -> CommandPolicy:
     if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin <= 0.5:
         fail(f"[commands] limit_margin must be a number 0..0.5, not {margin!r}")
     return CommandPolicy(int(age), float(margin))
+
+
+
+def _bit3(raw, text: str, source: str) -> dict:
+    """Validate ``[bit3]``: ``size`` (32768, the adapter's window) and ``*_window`` keys,
+    each ``[lo, hi]`` integers with ``hi - lo + 1 == size``."""
+    def fail(msg: str, key: str | None = None):
+        line = _section_key_line(text, "bit3", key)
+        raise ConfigError(f"{source}:{line}: {msg}" if line else f"{source}: {msg}")
+
+    if not isinstance(raw, dict):
+        fail("[bit3] must be a table")
+    extra = set(raw) - BIT3_KEYS
+    if extra:
+        fail(f"[bit3]: unknown key(s) {', '.join(sorted(extra))}; known: {', '.join(sorted(BIT3_KEYS))}",
+             sorted(extra)[0])
+    size = raw.get("size", BIT3_SIZE)
+    if not _is_int(size) or size != BIT3_SIZE:
+        fail(f"[bit3] size must be {BIT3_SIZE} (the Bit3 window, bytes), not {size!r}", "size")
+    out = {"size": size}
+    for key in sorted(BIT3_KEYS - {"size"}):
+        if key not in raw:
+            continue
+        w = raw[key]
+        if not (isinstance(w, list) and len(w) == 2 and all(_is_int(x) and x >= 0 for x in w)):
+            fail(f"[bit3] {key} must be a [lo, hi] pair of addresses (integers), not {w!r}", key)
+        lo, hi = w
+        if hi - lo + 1 != size:
+            fail(f"[bit3] {key} [0x{lo:X}, 0x{hi:X}] spans {hi - lo + 1} bytes, not size {size}", key)
+        out[key] = (lo, hi)
+    return out

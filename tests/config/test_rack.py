@@ -189,3 +189,47 @@ def test_toml_syntax_error_is_config_error(tmp_path):
         load_rack(p)
     with pytest.raises(ConfigError, match="cannot read"):
         load_rack(tmp_path / "missing.toml")
+
+
+def _first_match(text: str, pattern: str) -> str:
+    import re
+    m = re.search(pattern, text, re.M)
+    assert m, pattern
+    return m.group(0)
+
+
+@pytest.mark.parametrize("pattern,new,words,needle", [
+    (r"rate_hz = 320", 'rate_hz = "fast"', "rate_hz must be a number", 'rate_hz = "fast"'),
+    (r"base = 0x0200", "base = 0x0201", "base 0x0201 is odd", "base = 0x0201"),
+    (r"base = 0x0200", 'base = "0x0200"', "not an A16 address", 'base = "0x0200"'),
+    (r"base = 0x0200", "base = true", "not an A16 address", "base = true"),
+    (r"scale = [-0-9.e]+", 'scale = "x"', "scale must be a number", 'scale = "x"'),
+    (r"scale = 0.04", "scale = 0.04, offset = [1]", "offset must be a number", "offset = [1]"),
+    (r"baud = 19200", "baud = 19201", "baud 19201 is not a rate", "baud = 19201"),
+    (r"baud = 19200", 'baud = "fast"', "baud 'fast' is not a rate", 'baud = "fast"'),
+    (r"^size = 32768", "size = 4096", r"\[bit3\] size must be 32768", "size = 4096"),
+    (r"^io_window = .*", "io_window = [0x800000]", r"\[bit3\] io_window must be a \[lo, hi\]",
+     "io_window = [0x800000]"),
+    (r"^io_window = .*", "io_window = [0x800000, 0x80FFFF]", "spans 65536 bytes",
+     "io_window = [0x800000, 0x80FFFF]"),
+    (r"^size = 32768", "size = 32768\nbogus = 1", r"\[bit3\]: unknown key", "bogus = 1"),
+])
+def test_wrong_types_and_values_refused_naming_line_and_field(pattern, new, words, needle):
+    base = DEFAULT_RACK.read_text()
+    text = base.replace(_first_match(base, pattern), new, 1)
+    with pytest.raises(ConfigError, match=words) as exc:
+        parse_rack(text, "rack.toml")
+    assert str(exc.value).startswith(f"rack.toml:{_line_of(text, needle)}: "), str(exc.value)
+
+
+def test_non_utf8_rack_file_names_file_and_line(tmp_path):
+    p = tmp_path / "latin1.toml"
+    p.write_bytes(DEFAULT_RACK.read_bytes() + b"# caf\xe9\n")
+    n = DEFAULT_RACK.read_text().count("\n") + 1
+    with pytest.raises(ConfigError, match=rf"^{p}:{n}: not UTF-8 text \(byte 0xE9"):
+        load_rack(p)
+
+
+def test_default_rack_bit3_section_is_read():
+    assert load_rack().bit3 == {"size": 32768, "computational_window": (0x01ED0000, 0x01ED7FFF),
+                                "io_window": (0x800000, 0x807FFF)}
