@@ -257,7 +257,7 @@ def run(args) -> int:
                 break
             buf.release()
         from ioservice.layout import ServiceState
-        if "inputs" in buf.claimed():
+        if "inputs" in buf.claimed:
             buf.set_service_state(ServiceState.STOPPED)
         print(f"pfma replay: {total} frames published")
     finally:
