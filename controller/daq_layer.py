@@ -63,7 +63,8 @@ from controller.params import JOINTS, N_CURRENT_LIMITS, N_JOINTS
 from controller.servo import ERR_NO_OUTPUT
 from controller.worldmodel import VarSpec
 from ioservice.layout import (
-    CMD_FOREIGN, CMD_REFUSED, CMD_STALE, CMD_STATUS_NAMES, HAND_CONTROLLERS, HC_AXES, ServiceState,
+    BOARD_FAULT, CHANNEL_BUS_ERROR, CMD_FOREIGN, CMD_REFUSED, CMD_STALE, CMD_STATUS_NAMES, HAND_CONTROLLERS, HC_AXES,
+    LINK_FAULT, LINK_STALE, ServiceState,
 )
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -80,9 +81,6 @@ FAULT_NAMES = {FAULT_RESOLVER: "resolver", FAULT_TACH: "tach ADC", FAULT_FT: "F/
 COMMAND_FAULT_STATUS = CMD_STALE | CMD_REFUSED | CMD_FOREIGN
 #: the service's counters of refused commands (inputs area), with what each one counts
 COMMAND_COUNTERS = (("stale_commands", "stale"), ("refused_commands", "refused"), ("foreign_writes", "foreign"))
-#: board_status / link_status bits of the input area (ioservice.service)
-BOARD_FAULT = 4
-LINK_FAULT, LINK_STALE = 4, 8
 #: controller frames without a new service frame before the service counts as lost
 STALE_FRAMES = 4
 #: consecutive frames the service must flag the F/T link stale/faulted before it counts
@@ -263,7 +261,7 @@ class DataAcquisitionLayer(Layer):
             bits |= FAULT_RESOLVER
             why += [f"{self.joint_order[i]} resolver status 0x{int(rs[i]):X}" for i in np.nonzero(rs)[0]]
         ts = snap.adc_status[self.tach_slots]
-        if np.any(ts & 0x100):
+        if np.any(ts & CHANNEL_BUS_ERROR):
             bits |= FAULT_TACH
             why.append("tach ADC sample failed")
         if self.require_ft and self.ft_slot is not None:

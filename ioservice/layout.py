@@ -115,6 +115,13 @@ WRITER_ROLES: dict[str, tuple[str, ...]] = {
     "service": ("inputs", "stats", "service_messages"),
     "controller": ("commands", "controller_messages", "controller_stats"),
 }
+#: status bits of the input area, by name (the one definition: the service writes them,
+#: the controller, checkout and tools read them)
+BOARD_OK, BOARD_INIT, BOARD_FAULT = 1, 2, 4  #: ``board_status``
+LINK_OPEN, LINK_SYNCED, LINK_FAULT, LINK_STALE = 1, 2, 4, 8  #: ``link_status``
+DAC_CLIPPED, DAC_FORCED_SAFE = 1, 2  #: ``dac_status``: saturated within the limit margin / forced to 0 V
+RTD_LOSS_OF_SIGNAL, RTD_NO_REFERENCE = 1, 2  #: ``rtd_status`` (from the VMIVME-4940's status)
+CHANNEL_BUS_ERROR = 0x100  #: ``rtd_status`` / ``adc_status``: the board did not answer this sample
 #: ``inputs.command_status`` bits: what the service made of this frame's command area
 CMD_STALE = 1  #: computed from inputs older than the configured age: rate channels at 0 V
 CMD_ABSENT = 2  #: no stable copy this frame (writer died mid-write / torn): the last good one kept

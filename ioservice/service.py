@@ -29,7 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ioservice.layout import CMD_ABSENT, CMD_FOREIGN, CMD_REFUSED, CMD_STALE, ServiceState, Severity
+from ioservice.layout import (  # noqa: F401 - the status bits are re-exported for older importers
+    BOARD_FAULT, BOARD_INIT, BOARD_OK, CHANNEL_BUS_ERROR, CMD_ABSENT, CMD_FOREIGN, CMD_REFUSED, CMD_STALE,
+    DAC_CLIPPED, DAC_FORCED_SAFE, LINK_FAULT, LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_NO_REFERENCE, ServiceState,
+    Severity,
+)
 from ioservice.loop import FrameInfo, FrameLoop, LoopStats
 from ioservice.safety import OutputGuard
 from ioservice.schedule import MINOR_FRAMES_PER_MAJOR, Schedule
@@ -39,12 +43,6 @@ from pfma.errors import ConfigError, PfmaError
 from pfma.rack import RackConfig
 from pfma.rackio import RackIO
 
-#: board_status bits in the input area
-BOARD_OK, BOARD_INIT, BOARD_FAULT = 1, 2, 4
-#: link_status bits
-LINK_OPEN, LINK_SYNCED, LINK_FAULT, LINK_STALE = 1, 2, 4, 8
-#: dac_status bits
-DAC_CLIPPED, DAC_FORCED_SAFE = 1, 2
 #: fault codes (inputs.fault_code)
 FAULT_NONE, FAULT_WATCHDOG, FAULT_DAC, FAULT_INPUTS, FAULT_UNEXPECTED = 0, 1, 2, 3, 4
 #: inputs.fault_code when the outputs went safe because a command was refused (the service
@@ -506,7 +504,7 @@ class IoService:
                 status = drv.status()
             except PfmaError as err:
                 self._input_failed(cfg.name, "rtd", err)
-                v["rtd_status"][slots] |= 0x100
+                v["rtd_status"][slots] |= CHANNEL_BUS_ERROR
                 continue
             # four values: plain Python beats numpy's per-call cost
             v["rtd_counts"][slots] = counts
@@ -517,7 +515,7 @@ class IoService:
             else:  # calibration: (scale * raw + offset) mod 2 pi
                 v["rtd_angle_rad"][slots] = [(c * lsb * k + off) % _TWO_PI
                                              for c, k, off in zip(counts, *cal, strict=True)]
-            ref = 0 if status.reference_present else 2
+            ref = 0 if status.reference_present else RTD_NO_REFERENCE
             v["rtd_status"][slots] = [int(f) | ref for f in status.faults]
             self._input_ok(cfg.name, bslot)
             v["t_rtd_s"][...] = t
@@ -533,7 +531,7 @@ class IoService:
                 drv.scan(counts)
             except PfmaError as err:
                 self._input_failed(cfg.name, "adc", err)
-                v["adc_status"][slots] |= 0x100
+                v["adc_status"][slots] |= CHANNEL_BUS_ERROR
                 continue
             np.multiply(np.subtract(counts, drv.zero_code, out=volts, casting="unsafe"), drv.lsb_volts, out=volts)
             v["adc_counts"][slots] = counts

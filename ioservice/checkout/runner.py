@@ -29,13 +29,15 @@ import numpy as np
 from ioservice.checkout.config import CheckoutConfig
 from ioservice.checkout.report import FAIL, PASS, SKIP, Report, Result
 from ioservice.checkout.target import ServiceLost, Target
-from ioservice.layout import ServiceState
-from ioservice.service import (BOARD_FAULT, BOARD_OK, LINK_FAULT, LINK_OPEN, LINK_STALE,
-                               LINK_SYNCED)
+from ioservice.layout import (
+    BOARD_FAULT, BOARD_OK, CHANNEL_BUS_ERROR, LINK_FAULT, LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_LOSS_OF_SIGNAL,
+    RTD_NO_REFERENCE, ServiceState,
+)
 from pfma.errors import PfmaError
 
-#: rtd_status bits (ioservice.service._task_rtd)
-RTD_BITS = {1: "loss of signal", 2: "no reference", 0x100: "board read failed"}
+#: rtd_status bits (ioservice.layout)
+RTD_BITS = {RTD_LOSS_OF_SIGNAL: "loss of signal", RTD_NO_REFERENCE: "no reference",
+            CHANNEL_BUS_ERROR: "board read failed"}
 LINK_BITS = {LINK_OPEN: "open", LINK_SYNCED: "synced", LINK_FAULT: "fault", LINK_STALE: "stale"}
 BOARD_BITS = {BOARD_OK: "ok", 2: "init", BOARD_FAULT: "fault"}
 #: a tach whose samples span less than this fraction of the commanded rate while the

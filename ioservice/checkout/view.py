@@ -14,15 +14,16 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ioservice.layout import DEVICE_GROUPS, ServiceState
-from ioservice.service import (BOARD_FAULT, BOARD_OK, DAC_CLIPPED, DAC_FORCED_SAFE, LINK_FAULT,
-                               LINK_OPEN, LINK_STALE, LINK_SYNCED)
+from ioservice.layout import (
+    BOARD_FAULT, BOARD_INIT, BOARD_OK, CHANNEL_BUS_ERROR, DAC_CLIPPED, DAC_FORCED_SAFE, DEVICE_GROUPS, LINK_FAULT,
+    LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_LOSS_OF_SIGNAL, RTD_NO_REFERENCE, ServiceState,
+)
 from pfma.errors import PfmaError
 
-RTD_BITS = {1: "LOS", 2: "NOREF", 0x100: "BUSERR"}
-ADC_BITS = {0x100: "BUSERR"}
+RTD_BITS = {RTD_LOSS_OF_SIGNAL: "LOS", RTD_NO_REFERENCE: "NOREF", CHANNEL_BUS_ERROR: "BUSERR"}
+ADC_BITS = {CHANNEL_BUS_ERROR: "BUSERR"}
 DAC_BITS = {DAC_CLIPPED: "CLIPPED", DAC_FORCED_SAFE: "SAFE"}
-BOARD_BITS = {BOARD_OK: "OK", 2: "INIT", BOARD_FAULT: "FAULT"}
+BOARD_BITS = {BOARD_OK: "OK", BOARD_INIT: "INIT", BOARD_FAULT: "FAULT"}
 LINK_BITS = {LINK_OPEN: "OPEN", LINK_SYNCED: "SYNCED", LINK_FAULT: "FAULT", LINK_STALE: "STALE"}
 #: which device group's measured rate applies to a channel kind
 KIND_DEVICE = {"rtd": "rtd", "adc": "adc", "dac": "dac", "pio": "pio"}
