@@ -6,11 +6,17 @@ so a new verb is a new file.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import pkgutil
+import struct
 import sys
+from pathlib import Path
 
 from pfma.errors import PfmaError
+
+#: the first 8 bytes of every MCAP file
+MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,6 +57,63 @@ def main(argv: list[str] | None = None) -> int:
         import os
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except OSError as err:  # a file the user named: missing, unreadable, a directory ...
+        print(f"pfma {args.verb}: {_os_error_text(err)}", file=sys.stderr)
+        return 1
+
+
+def _os_error_text(err: OSError) -> str:
+    """``strerror: filename`` of an OSError (``str(err)`` when it has neither)."""
+    text = err.strerror or str(err) or type(err).__name__
+    names = [n for n in (err.filename, err.filename2) if n is not None]
+    return ": ".join([text, *map(str, names)])
+
+
+def _mcap_damage() -> tuple[type[BaseException], ...]:
+    """What the mcap reader raises on a damaged file (its own errors, short reads,
+    a corrupt compressed chunk)."""
+    from mcap.exceptions import McapError
+    kinds: list[type[BaseException]] = [McapError, struct.error, EOFError]
+    try:
+        import zstandard
+        kinds.append(zstandard.ZstdError)
+    except ImportError:  # pragma: no cover - mcap then cannot read zstd chunks at all
+        pass
+    return tuple(kinds)
+
+
+@contextlib.contextmanager
+def mcap_errors(path: str | Path):
+    """Reading MCAP ``path`` inside this block: damage becomes one :class:`PfmaError`."""
+    try:
+        yield
+    except _mcap_damage() as err:
+        why = f"{type(err).__name__}: {err}" if str(err) else type(err).__name__
+        raise PfmaError(f"{path}: damaged MCAP file ({why}); try: pfma record recover {path}") from err
+
+
+def check_mcap(path: str | Path, *, summary: bool = True):
+    """Refuse, with one :class:`PfmaError`, a file that is not a readable MCAP recording.
+
+    OSErrors (missing, no permission, a directory) propagate; :func:`main` prints them.
+    With ``summary`` the file must also be finished (have its summary), and the summary
+    is returned.
+    """
+    with open(path, "rb") as f:
+        head = f.read(len(MCAP_MAGIC))
+        if not head:
+            raise PfmaError(f"{path}: empty file, not an MCAP recording")
+        if head != MCAP_MAGIC:
+            raise PfmaError(f"{path}: not an MCAP file (it does not start with the MCAP magic)")
+        if not summary:
+            return None
+        from mcap.reader import make_reader
+        f.seek(0)
+        with mcap_errors(path):
+            s = make_reader(f).get_summary()
+    if s is None or s.statistics is None:
+        raise PfmaError(f"{path}: no summary (unfinished recording?); try: pfma record recover {path}")
+    return s
 
 
 if __name__ == "__main__":

@@ -73,26 +73,31 @@ def run(args) -> int:
 
 def _recover(args) -> int:
     from ioservice.recorder import recover
+    from pfma.cli import check_mcap
+    from pfma.errors import PfmaError
     if len(args.target) != 2:
         print("usage: pfma record recover BROKEN.mcap [-o FIXED.mcap]", file=sys.stderr)
         return 2
-    rep = recover(args.target[1], args.output)
+    check_mcap(args.target[1], summary=False)  # missing / empty / not an MCAP: nothing written
+    try:
+        rep = recover(args.target[1], args.output)
+    except ValueError as err:  # the output is the input
+        raise PfmaError(str(err)) from err
     print(rep.describe())
-    return 0 if rep.messages else 1
+    if not rep.messages:
+        raise PfmaError(f"{args.target[1]}: no message recoverable"
+                        f"{' (' + rep.stopped_by + ')' if rep.stopped_by else ''}")
+    return 0
 
 
 def _info(args) -> int:
-    from mcap.reader import make_reader
     from ioservice.recorder import read_metadata
+    from pfma.cli import check_mcap, mcap_errors
     if len(args.target) != 2:
         print("usage: pfma record info FILE.mcap", file=sys.stderr)
         return 2
     path = args.target[1]
-    with open(path, "rb") as f:
-        s = make_reader(f).get_summary()
-    if s is None or s.statistics is None:
-        print(f"{path}: no summary (unfinished?); try: pfma record recover {path}", file=sys.stderr)
-        return 1
+    s = check_mcap(path)  # raises naming the file: missing, not an MCAP, damaged, unfinished
     st = s.statistics
     dur = (st.message_end_time - st.message_start_time) / 1e9
     print(f"{path}: {st.message_count} messages, {st.chunk_count} chunks, {dur:.3f} s, "
@@ -100,7 +105,8 @@ def _info(args) -> int:
     for cid, n in sorted(st.channel_message_counts.items()):
         ch = s.channels[cid]
         print(f"  {ch.topic:22} {n:9d}  {n / dur if dur > 0 else 0:8.1f}/s  {ch.message_encoding}")
-    meta = read_metadata(path)
+    with mcap_errors(path):
+        meta = read_metadata(path)
     summ = meta.get("pfma.recorder.summary")
     if summ:
         keys = ("frames_recorded", "recorder_missed", "service_skipped", "frame_gaps",

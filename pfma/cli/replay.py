@@ -145,6 +145,7 @@ def replay_through_fakes(path: str, *, rack=None, max_frames: int | None = None)
     from ioservice.shm import Bit3Buffer
     from ioservice.ticking import TickingClock
     from pfma.clock import SimClock
+    from pfma.errors import ConfigError
     from pfma.rack import load_rack
     rack = rack or load_rack()
     layout = default_layout() if rack.source.endswith("rack_default.toml") else build_layout(rack)
@@ -155,7 +156,7 @@ def replay_through_fakes(path: str, *, rack=None, max_frames: int | None = None)
             break
     meta = read_metadata(path).get("pfma.layout", {})
     if meta.get("hash") and meta["hash"] != layout.hash_hex:
-        raise ValueError(f"replay: the recording's layout {meta['hash']} is not this rack's "
+        raise ConfigError(f"the recording's layout {meta['hash']} is not this rack's "
                          f"{layout.hash_hex}; give --rack")
     rep = FakeReplayReport(frames_recorded=len(frames))
     if not frames:
@@ -226,9 +227,13 @@ def replay_through_fakes(path: str, *, rack=None, max_frames: int | None = None)
 
 
 def run(args) -> int:
+    from pfma.cli import check_mcap, mcap_errors
     from pfma.rack import load_rack
+    check_mcap(args.file)  # before any buffer is made: a missing, foreign or unfinished file
     if args.through_fakes:
-        rep = replay_through_fakes(args.file, rack=load_rack(args.rack), max_frames=args.frames)
+        rack = load_rack(args.rack)
+        with mcap_errors(args.file):
+            rep = replay_through_fakes(args.file, rack=rack, max_frames=args.frames)
         print(rep.describe())
         return 0 if rep.frames_compared and not rep.mismatches else 1
     import signal
@@ -251,7 +256,8 @@ def run(args) -> int:
         print(f"pfma replay: {args.file} -> /dev/shm/{args.buffer} "
               f"({'fast' if args.fast else f'x{args.speed:g}'}; Ctrl-C stops)", flush=True)
         while True:
-            n = republish(args.file, buf, speed=args.speed, fast=args.fast, stop=lambda: stop["flag"])
+            with mcap_errors(args.file):
+                n = republish(args.file, buf, speed=args.speed, fast=args.fast, stop=lambda: stop["flag"])
             total += n
             if not args.loop or stop["flag"] or n == 0:
                 break

@@ -278,7 +278,11 @@ def render(cap: Capture, rows: int = 20, width: int = 64, height: int = 8) -> st
 
 def run(args) -> int:
     if args.open:
-        print(render(load(args.open), rows=args.rows))
+        from pfma.cli import check_mcap, mcap_errors
+        check_mcap(args.open)
+        with mcap_errors(args.open):
+            cap = load(args.open)
+        print(render(cap, rows=args.rows))
         return 0
     if not args.signals:
         print("pfma scope: name at least one signal (or --open CAPTURE.mcap)", file=sys.stderr)
