@@ -107,6 +107,10 @@ def check_mcap(path: str | Path, *, summary: bool = True):
             raise PfmaError(f"{path}: not an MCAP file (it does not start with the MCAP magic)")
         if not summary:
             return None
+        f.seek(0, 2)
+        if f.tell() < 2 * len(MCAP_MAGIC) or (f.seek(-len(MCAP_MAGIC), 2), f.read())[1] != MCAP_MAGIC:
+            raise PfmaError(f"{path}: truncated or unfinished MCAP file (no end magic); "
+                            f"try: pfma record recover {path}")
         from mcap.reader import make_reader
         f.seek(0)
         with mcap_errors(path):

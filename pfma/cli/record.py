@@ -76,7 +76,7 @@ def _recover(args) -> int:
     from pfma.cli import check_mcap
     from pfma.errors import PfmaError
     if len(args.target) != 2:
-        print("usage: pfma record recover BROKEN.mcap [-o FIXED.mcap]", file=sys.stderr)
+        print("pfma record: usage: pfma record recover BROKEN.mcap [-o FIXED.mcap]", file=sys.stderr)
         return 2
     check_mcap(args.target[1], summary=False)  # missing / empty / not an MCAP: nothing written
     try:
@@ -94,7 +94,7 @@ def _info(args) -> int:
     from ioservice.recorder import read_metadata
     from pfma.cli import check_mcap, mcap_errors
     if len(args.target) != 2:
-        print("usage: pfma record info FILE.mcap", file=sys.stderr)
+        print("pfma record: usage: pfma record info FILE.mcap", file=sys.stderr)
         return 2
     path = args.target[1]
     s = check_mcap(path)  # raises naming the file: missing, not an MCAP, damaged, unfinished
