@@ -17,8 +17,8 @@ Acquisition. Every layer here has
   layer's mailbox, which the table reads in the next frame;
 * **periodic tasks** run by the scheduling table (:mod:`controller.frames`).
 
-The layers above the Joint Planner are placeholders in this issue (their tasks do no
-motion work yet); the next issue fills them in.
+The layers above the Joint Planner are in their own modules (:mod:`controller.cartesian`,
+:mod:`controller.trajectory`, :mod:`controller.paths`).
 """
 
 from __future__ import annotations
@@ -323,23 +323,6 @@ class UpDownLayer(Layer):
         elif a in (Request.POWER_DOWN, Request.ERROR_RESET) and st == Status.SHUT_DOWN:
             self._respond(rt, self._active_seq, Response.COMPLETE, f"{name}: SHUT DOWN")
             self._active = Request.NONE
-
-
-class PlaceholderLayer(Layer):
-    """A planning layer whose algorithms come with the motion issue: the decision table
-    and the sequences are real, the periodic task only counts its runs."""
-
-    def __init__(self, key: str, title: str, short: str, tasks: tuple[str, ...]) -> None:
-        self.key, self.title, self.short = key, title, short
-        super().__init__()
-        self.runs = dict.fromkeys(tasks, 0)
-        for t in tasks:
-            self.periodic[t] = self._make(t)
-
-    def _make(self, name: str):
-        def task(rt: "ControllerRuntime") -> None:
-            self.runs[name] += 1
-        return task
 
 
 #: Joint Planner: a Cartesian command that stays blocked at a soft limit (pose error above

@@ -52,9 +52,6 @@ V_LIN_MAX_M_S = 0.15
 A_LIN_MAX_M_S2 = 0.15
 V_ROT_MAX_RAD_S = 0.25
 A_ROT_MAX_RAD_S2 = 0.25
-#: a segment start this far from the held pose is reported (the held pose is used)
-START_MISMATCH_M = 1e-3
-START_MISMATCH_RAD = 1e-2
 #: distances below these count as "no motion" on that axis
 EPS_M = 1e-9
 EPS_RAD = 1e-9

@@ -91,8 +91,6 @@ MAP_DOC_PATH = Path(__file__).resolve().parent.parent / "docs" / "modbus-map.md"
 _MODBUS_TYPE = {"<f8": "FLOAT64", "<f4": "FLOAT32", "<u8": "UINT64", "<i8": "INT64",
                 "<u4": "UINT32", "<i4": "INT32", "<u2": "UINT16", "<i2": "INT16",
                 "|u1": "UINT8", "|i1": "INT8"}
-_AREA_BASES = (("inputs", INPUTS_BASE, "input"), ("stats", STATS_BASE, "input"),
-               ("commands", COMMANDS_BASE, "holding"))
 
 
 class ModbusExportError(ModbusServerError):

@@ -69,10 +69,6 @@ RAW_TOPIC = "/pfma/inputs_raw"
 RAW_SCHEMA = "pfma.bit3.inputs"
 RAW_SCHEMA_ENCODING = "pfma-bit3-layout"
 RAW_ENCODING = "pfma-bit3-v1"
-#: JSON topics, in the order they are registered
-TOPICS = ("/pfma/status", "/pfma/joints", "/pfma/adc", "/pfma/dac", "/pfma/ft", "/pfma/hand",
-          "/pfma/pio", "/pfma/boards", "/pfma/links", "/pfma/commands", "/pfma/stats",
-          "/pfma/messages", "/pfma/recorder")
 #: close the chunk and flush the file this often (packages.md 4: a flush every 0.5 s lost
 #: < 0.5 s on SIGKILL; the default 1 MiB chunk without flushes lost everything)
 FLUSH_EVERY_S = 0.25
