@@ -22,9 +22,14 @@ import importlib
 import operator
 from typing import Protocol, runtime_checkable
 
-from pfma.errors import BusError
+from pfma.errors import BusError, ConfigError
 
-__all__ = ["RegisterBus", "BusError", "open_bus", "BACKENDS", "check_addr", "check_value"]
+__all__ = ["RegisterBus", "BusError", "BusUrlError", "open_bus", "BACKENDS", "check_addr", "check_value"]
+
+
+class BusUrlError(ConfigError):
+    """A bus URL :func:`open_bus` cannot open: unknown scheme or malformed (a ``ValueError``
+    too, as before)."""
 
 
 def check_addr(addr: int) -> None:
@@ -70,20 +75,27 @@ def _scheme(url: str) -> str:
         return "spy"
     scheme, sep, _ = url.partition(":")
     if not sep:
-        raise ValueError(f"bus URL {url!r} has no scheme; use fake, modbus://HOST:PORT or file:PATH")
+        raise BusUrlError(f"bus URL {url!r} has no scheme; use fake, modbus://HOST:PORT or file:PATH")
     return scheme
 
 
 def open_bus(url: str = "fake", **kwargs):
     """Open a RegisterBus by URL.
 
-    :raises ValueError: for an unknown scheme or malformed URL
+    :raises BusUrlError: (a ``PfmaError`` and a ``ValueError``) for an unknown scheme or a
+        malformed URL (``modbus://HOST`` without a port, an unknown option ...)
     """
     scheme = _scheme(url)
     try:
         target = BACKENDS[scheme]
     except KeyError:
-        raise ValueError(f"unknown bus scheme {scheme!r} in {url!r}; known: {', '.join(sorted(BACKENDS))}") from None
+        raise BusUrlError(f"unknown bus scheme {scheme!r} in {url!r}; known: "
+                          f"{', '.join(sorted(BACKENDS))}") from None
     module_name, _, func_name = target.partition(":")
     factory = getattr(importlib.import_module(module_name), func_name)
-    return factory(url, **kwargs)
+    try:
+        return factory(url, **kwargs)
+    except ValueError as err:
+        if isinstance(err, BusUrlError):
+            raise
+        raise BusUrlError(str(err)) from err

@@ -6,7 +6,8 @@ rate, link counters and the latest messages. Redrawn twice a second with plain A
 codes; ``--filter`` keeps channels whose name, label, kind or board contains the
 text (or matches a shell pattern such as ``wrist_*``); ``--once`` prints one
 snapshot and exits (scripts, tests). Waits for the service with a message every few
-seconds and reattaches when it restarts.
+seconds (``--wait``) and reattaches when it restarts; with no live service on the
+buffer at start (and no ``--wait``) it says so and exits 1.
 """
 
 from __future__ import annotations
@@ -26,8 +27,10 @@ def add_parser(sub):
     p.add_argument("--filter", default=None, metavar="TEXT", help="only channels matching TEXT")
     p.add_argument("--once", action="store_true", help="print one snapshot and exit")
     p.add_argument("--interval", type=float, default=0.5, help="redraw period, s (default 0.5)")
-    p.add_argument("--wait", type=float, default=30.0, metavar="S",
-                   help="wait this long for the service, at start and after it goes away (0 = forever)")
+    p.add_argument("--wait", type=float, default=None, metavar="S",
+                   help="wait this long for the service at start (0 = forever) and after it goes "
+                        "away; default: no service at start is an error (exit 1), one that goes "
+                        "away is waited for 30 s")
     return p
 
 
@@ -35,7 +38,13 @@ def run(args) -> int:
     from ioservice.checkout.connect import ServiceLink
     from ioservice.checkout.view import monitor_lines
     from ioservice.shm import Bit3Error
-    link = ServiceLink(args.buffer, args.rack, wait_s=args.wait)
+    from pfma.cli.read import no_service
+    from pfma.errors import PfmaError
+    if args.wait is None:
+        why = no_service(args.buffer)
+        if why is not None:
+            raise PfmaError(why)  # main prints it on one line, exit 1
+    link = ServiceLink(args.buffer, args.rack, wait_s=30.0 if args.wait is None else args.wait)
     try:
         if args.once:
             print("\n".join(monitor_lines(link.client(), args.filter)))

@@ -13,38 +13,81 @@ import json
 import sys
 
 from pfma.cli import add_bus_arguments
-from pfma.cli.reg import FAKE_NOTE, UsageError, close_bus, open_cli_bus
+from pfma.cli.reg import UsageError, close_bus, open_cli_bus
 from pfma.errors import PfmaError
 from pfma.rack import load_rack
 from pfma.rackio import RackIO
 
+READ_NOTE = ("Without --bus the values come from the I/O service running on --buffer (start it "
+             "with `pfma serve`); with no live service there the command says so and exits 1. "
+             "--bus URL reads the registers instead; --bus fake reads a fresh simulated rack in its "
+             "power-up state (every line says so).")
+
 
 def add_parser(sub):
     p = sub.add_parser("read", help="read channels by signal name (engineering units)",
-                       description=__doc__.split("\n\n")[1] + "\n\n" + FAKE_NOTE,
+                       description=__doc__.split("\n\n")[1] + "\n\n" + READ_NOTE,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("signals", nargs="+", metavar="SIGNAL", help="signal name(s), see `pfma channels`")
     p.add_argument("--json", action="store_true", help="one JSON list with an object per signal")
     add_bus_arguments(p)
-    p.set_defaults(bus=None)  # None: a running service's buffer if there is one, else the fake rack
+    p.set_defaults(bus=None)  # None: the running service's buffer; registers only with an explicit --bus
     p.add_argument("--buffer", default="pfma",
-                   help="when a service is running on this Bit3 buffer (and --bus is not given), "
-                        "read its latest published values instead of the registers (default pfma)")
+                   help="read the latest values the service running on this Bit3 buffer published "
+                        "(default pfma; the service must be running: `pfma serve`). With --bus the "
+                        "registers are read instead (--bus fake: the simulated rack)")
     return p
 
 
-def _service_client(name: str):
-    """A read-only client of a running service's buffer, or None."""
+def no_service(name: str) -> str | None:
+    """Why no live service publishes Bit3 buffer ``name`` (None: one does).
+
+    Decided from the service's claim lock (:meth:`Bit3Buffer.owner_alive`), so for a
+    buffer of any layout; the message is one line a tool prints before exiting 1.
+    """
+    from ioservice.shm import Bit3Buffer
+    path = f"/dev/shm/{name}"
+    alive, who = Bit3Buffer.owner_alive(name)
+    if alive:
+        return None
+    if who.startswith("no buffer"):
+        return (f"no service buffer {path}: no I/O service runs on buffer {name!r}; start one "
+                f"with `pfma serve --buffer {name}` (in another terminal), or check --buffer")
+    return f"service on {path} is not running ({_last_frame(name)}{who})"
+
+
+def _last_frame(name: str) -> str:
+    """``"last frame N at t=T s; "`` from the buffer's header, or "" when it cannot be read."""
+    import struct
+
+    from ioservice.layout import MAGIC, ServiceState
+    from ioservice.shm import _header_offsets
     try:
-        from ioservice.client import Client
-        from ioservice.layout import ServiceState
-        c = Client.attach(name)
-    except Exception:  # noqa: BLE001 - no buffer, other layout: read the registers instead
-        return None
-    if c.service_state == ServiceState.STOPPED or not c.owners()["inputs"].alive:
-        c.close()
-        return None
-    return c
+        with open(f"/dev/shm/{name}", "rb") as f:
+            head = f.read(1024)
+        if head[:8] != MAGIC:
+            return ""
+        h = _header_offsets()
+        frame = struct.unpack_from("<Q", head, h["frame"])[0]
+        t_s = struct.unpack_from("<d", head, h["frame_t_s"])[0]
+        state = struct.unpack_from("<I", head, h["service_state"])[0]
+    except (OSError, KeyError, struct.error):
+        return ""
+    how = "it stopped; " if state == ServiceState.STOPPED else ""
+    return f"{how}last frame {frame} at t={t_s:.3f} s; "
+
+
+def _service_client(name: str, rack: str | None):
+    """A read-only client of the live service on buffer ``name``.
+
+    :raises PfmaError: no live service there (the message says why), or its layout differs
+    """
+    from ioservice.client import Client
+    from pfma.errors import PfmaError
+    why = no_service(name)
+    if why is not None:
+        raise PfmaError(why)
+    return Client.attach(name, rack=rack)
 
 
 def _read_buffer(client, signals, as_json: bool) -> int:
@@ -78,13 +121,12 @@ def _read_buffer(client, signals, as_json: bool) -> int:
 
 def run(args) -> int:
     if args.bus is None:
-        client = _service_client(args.buffer)
-        if client is not None:
-            try:
-                return _read_buffer(client, args.signals, args.json)
-            finally:
-                client.close()
-        args.bus = "fake"
+        client = _service_client(args.buffer, None if args.rack in ("fake", "default") else args.rack)
+        try:
+            return _read_buffer(client, args.signals, args.json)
+        finally:
+            client.close()
+    simulated = args.bus.removeprefix("spy+") in ("fake", "fake://", "")
     rack = load_rack(args.rack)
     try:
         bus = open_cli_bus(args.bus, rack)
@@ -102,6 +144,8 @@ def run(args) -> int:
                 row.update(board=ch.board, channel=ch.channel, address=ch.address)
                 r = io.read_signal(signal)
                 row.update(value=r.value, units=r.units, raw=r.raw, note=r.note)
+                if simulated:
+                    row["source"] = "simulated rack"
             except PfmaError as err:
                 failures += 1
                 row["error"] = str(err)
@@ -118,6 +162,7 @@ def run(args) -> int:
                 continue
             value = row["value"]
             shown = f"{value:.6g}" if isinstance(value, float) else f"{value} (0x{value:02X})"
+            sim = "(simulated rack) " if simulated else ""
             print(f"{row['signal']:32} {shown:>14} {row['units']:6} raw {row['raw']:<6} "
-                  f"{row['board']} ch {row['channel']}  {row['note']}".rstrip())
+                  f"{row['board']} ch {row['channel']}  {sim}{row['note']}".rstrip())
     return 1 if failures else 0

@@ -94,6 +94,11 @@ def run(args) -> int:
             raise ConfigError(f"schedule file {args.schedule}: {err}") from err
     else:
         schedule = Schedule() if args.frame_rate == 320.0 else Schedule.scaled(args.frame_rate)
+    if args.rack != "fake" and args.bus is None:
+        print(f"pfma serve: --rack {args.rack} needs --bus: the rack's register bus "
+              f"(modbus://HOST:PORT, file:PATH), or --bus fake to run it on the simulated "
+              f"rack's registers", file=sys.stderr)
+        return 2
     rack = load_rack(args.rack)
     layout = default_layout() if args.rack in ("fake", "default") else build_layout(rack)
     base = MonotonicClock()
@@ -106,7 +111,12 @@ def run(args) -> int:
         clock.hooks.append(world.tick)
     else:
         from drivers.bus import open_bus
-        bus = open_bus(args.bus or "fake")
+        from pfma.errors import PfmaError
+        try:
+            bus = open_bus(args.bus)
+        except (PfmaError, OSError) as err:
+            print(f"pfma serve: cannot open the bus {args.bus}: {err}", file=sys.stderr)
+            return 1
     if args.realtime:
         for w in realtime_setup(cpu=os.cpu_count() - 1 if os.cpu_count() else None):
             print(f"pfma serve: {w}", file=sys.stderr)
@@ -119,6 +129,21 @@ def run(args) -> int:
     except BaseException:
         buf.close(unlink=True)  # a service that could not start leaves no buffer behind
         raise
+    failed = _failed_boards(svc, buf, layout)
+    if failed and len(failed) == len(_boards(layout)):
+        first = _why_unreachable(bus, svc, layout) or failed[0]
+        try:
+            svc.stop("no board answered at start")
+        finally:
+            buf.close(unlink=True)
+            close = getattr(bus, "close", None)
+            if close is not None:
+                close()
+        print(f"pfma serve: cannot reach the boards on {args.bus or 'the simulated rack'}: every "
+              f"board failed to initialise; first: {first}", file=sys.stderr)
+        return 1
+    for f in failed:
+        print(f"pfma serve: {f}", file=sys.stderr)
     from ioservice.ring import FrameRing
     svc.ring = FrameRing.create(args.buffer, layout.area("inputs").body_size, layout.hash)
     if world is not None:
@@ -136,7 +161,10 @@ def run(args) -> int:
               f"{' (command writes allowed)' if args.modbus_writes else ' (read-only)'}")
     stop = threading.Event()
     viewer = demo = None
-    print(f"pfma serve: {rack.name} on {'the simulated rack' if world else args.bus}, buffer "
+    on = "the simulated rack" if world else (
+        f"{args.bus} (simulated registers)" if args.bus.removeprefix("spy+") in ("fake", "fake://")
+        else args.bus)
+    print(f"pfma serve: {rack.name} on {on}, buffer "
           f"/dev/shm/{args.buffer}, {schedule.frame_rate_hz:g} Hz frames; Ctrl-C stops "
           f"(outputs go to 0 V)", flush=True)
     if args.live:
@@ -168,6 +196,39 @@ def run(args) -> int:
         svc.ring.close()
         FrameRing.unlink(args.buffer)
     return 0
+
+
+def _boards(layout) -> list:
+    return [c for c in layout.channels if c.kind == "board"]
+
+
+def _failed_boards(svc, buf, layout) -> list[str]:
+    """One line per board whose initialisation failed (its ``board_status`` FAULT bit),
+    with the service's message about it when there is one."""
+    from ioservice.layout import BOARD_FAULT
+    status = svc.inputs.record["board_status"]
+    texts = [m.text for m in buf.queue("service_messages").read(0)]
+    out = []
+    for c in _boards(layout):
+        if int(status[c.slot]) & BOARD_FAULT:
+            said = next((t for t in texts if t.startswith(f"{c.name}:")), None)
+            out.append(said or f"{c.name}: init failed")
+    return out
+
+
+def _why_unreachable(bus, svc, layout) -> str | None:
+    """The full text of the first board's failure (the message queue keeps 56 bytes): one
+    read of the word it failed at, made only when no board answered at all."""
+    from pfma.errors import PfmaError
+    board = _boards(layout)[0]
+    addr = int(svc.inputs.record["board_last_error_addr"][board.slot]) & 0xFFFE
+    if not addr:
+        return None
+    try:
+        bus.read16(addr)
+    except PfmaError as err:
+        return f"{board.name}: {err}"
+    return None
 
 
 def _replace_stale(name: str) -> None:

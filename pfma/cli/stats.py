@@ -84,6 +84,11 @@ def format_controller(c: dict | None) -> str:
 def run(args) -> int:
     from ioservice.client import Client
     from ioservice.shm import Bit3Error
+    from pfma.cli.read import no_service
+    why = no_service(args.buffer)
+    if why is not None:  # a dead service's last statistics are not a live service's
+        print(f"pfma stats: {why}", file=sys.stderr)
+        return 1
     try:
         c = Client.attach(args.buffer)
     except (Bit3Error, FileNotFoundError) as err:

@@ -3,7 +3,9 @@
 Signals are rack channels (``elbow_pitch_angle``), boards, links, hand controllers
 (``cae``) or input-area fields (``ft_force_n``, ``ft_force_n[2]``, ``service_state``).
 ``--rate`` lines per second (default 30), ``--count`` lines then exit. Waits for
-the service with a message every few seconds and reattaches when it restarts.
+the service with a message every few seconds (``--wait``) and reattaches when it
+restarts; with no live service on the buffer at start (and no ``--wait``) it says so
+and exits 1.
 """
 
 from __future__ import annotations
@@ -20,8 +22,10 @@ def add_parser(sub):
     p.add_argument("--rack", default=None, help="rack TOML the service runs (default: the IRSS rack)")
     p.add_argument("--rate", type=float, default=30.0, help="lines per second (default 30)")
     p.add_argument("--count", type=int, default=0, help="stop after N lines (default: until Ctrl-C)")
-    p.add_argument("--wait", type=float, default=30.0, metavar="S",
-                   help="wait this long for the service, at start and after it goes away (0 = forever)")
+    p.add_argument("--wait", type=float, default=None, metavar="S",
+                   help="wait this long for the service at start (0 = forever) and after it goes "
+                        "away; default: no service at start is an error (exit 1), one that goes "
+                        "away is waited for 30 s")
     return p
 
 
@@ -32,7 +36,13 @@ def run(args) -> int:
     from pfma.errors import ConfigError
     if args.rate <= 0:
         raise ConfigError(f"--rate must be positive, not {args.rate}")
-    link = ServiceLink(args.buffer, args.rack, wait_s=args.wait)
+    from pfma.cli.read import no_service
+    from pfma.errors import PfmaError
+    if args.wait is None:
+        why = no_service(args.buffer)
+        if why is not None:
+            raise PfmaError(why)  # main prints it on one line, exit 1
+    link = ServiceLink(args.buffer, args.rack, wait_s=30.0 if args.wait is None else args.wait)
     try:
         client = link.client()
         signals = resolve_signals(client.layout, args.signals)

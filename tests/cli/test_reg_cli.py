@@ -135,14 +135,14 @@ def test_read_signals_in_engineering_units_over_modbus(rack_gateway, capsys):
 
 
 def test_read_text_output_and_dac_shadow(capsys):
-    assert main(["read", "elbow_pitch_angle", "wrist_roll_command"]) == 0
+    assert main(["read", "--bus", "fake", "elbow_pitch_angle", "wrist_roll_command"]) == 0
     out = capsys.readouterr().out
     assert "elbow_pitch_angle" in out and " rad " in out
     assert "wrist_roll_command" in out and "shadow" in out
 
 
 def test_read_unknown_and_serial_signals_fail_clearly(capsys):
-    assert main(["read", "elbow_pitch_angle", "no_such_signal", "ft_sensor"]) == 1
+    assert main(["read", "--bus", "fake", "elbow_pitch_angle", "no_such_signal", "ft_sensor"]) == 1
     captured = capsys.readouterr()
     assert "elbow_pitch_angle" in captured.out
     assert "no channel named 'no_such_signal'" in captured.err

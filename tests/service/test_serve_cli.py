@@ -24,8 +24,9 @@ def test_serve_runs_and_leaves_a_stopped_safe_buffer(capsys):
         assert all(v == 0 for v in s.dac_volts[:16])
         assert any("service stopped" in m.text for m in c.messages())
         c.close()
-        assert main(["stats", "--buffer", name]) == 0
-        assert "devices:" in capsys.readouterr().out
+        assert main(["stats", "--buffer", name]) == 1  # a stopped service is not shown as live
+        cap = capsys.readouterr()
+        assert cap.out == "" and f"service on /dev/shm/{name} is not running (it stopped" in cap.err
     finally:
         Bit3Buffer.unlink(name)
 
