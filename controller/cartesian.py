@@ -65,7 +65,7 @@ from controller.worldmodel import VarSpec
 from pfma.errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from controller.runtime import ControllerRuntime
+    from controller.context import LayerContext
 
 MODE_HOLD, MODE_TELEOP, MODE_TRAJECTORY = 0, 1, 2
 MODE_NAMES = {MODE_HOLD: "HOLD", MODE_TELEOP: "TELEOP", MODE_TRAJECTORY: "TRAJECTORY"}
@@ -208,19 +208,19 @@ class CartesianLayer(Layer):
                     doc="tool-point force as the operator sees it"),
         ]
 
-    def _check_model(self, rt: "ControllerRuntime") -> dict[str, bool]:
+    def _check_model(self, rt: "LayerContext") -> dict[str, bool]:
         if self._have is None:
             names = set(rt.wm.names())
             self._have = {"traj": all(n in names for n in TRAJ_VARS), "tool": all(n in names for n in TOOL_VARS)}
         return self._have
 
     # --- sequences -----------------------------------------------------------------------
-    def seq_init(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_init(self, rt: "LayerContext") -> TaskState:
         self._check_model(rt)
         self.force = ForceControl(rt.task_period_s("cartesian_fast"), self.tool_load)
         return TaskState.DONE
 
-    def seq_startup(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_startup(self, rt: "LayerContext") -> TaskState:
         """Hold where the arm is: the measured pose becomes the held pose and the command."""
         self._reset_motion()
         if self.force is None:
@@ -240,7 +240,7 @@ class CartesianLayer(Layer):
                                       f"mode {MODE_NAMES[self.mode]}")
         return TaskState.DONE
 
-    def seq_shutdown(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_shutdown(self, rt: "LayerContext") -> TaskState:
         self.valid = False
         if self.force is not None:
             self.force.reset()
@@ -256,10 +256,10 @@ class CartesianLayer(Layer):
                 f"{q[3]:+.4f})")
 
     # --- helpers -------------------------------------------------------------------------
-    def _running(self, rt: "ControllerRuntime") -> bool:
+    def _running(self, rt: "LayerContext") -> bool:
         return self.valid and rt.wm.get_state_variable(self.v_status) == Status.START_UP_COMPLETE
 
-    def _measured(self, rt: "ControllerRuntime", v: dict) -> None:
+    def _measured(self, rt: "LayerContext", v: dict) -> None:
         if self._check_model(rt)["tool"]:
             p, q = v["joint.tool_pos_m"], v["joint.tool_quat"]
             if float(np.dot(q, q)) > 0.5:  # a real quaternion (written by the Joint Planner)
@@ -294,7 +294,7 @@ class CartesianLayer(Layer):
         self.blend = _difference(p0, q0, p1, q1)
 
     # --- slow task (40 Hz) ---------------------------------------------------------------
-    def slow_task(self, rt: "ControllerRuntime") -> None:
+    def slow_task(self, rt: "LayerContext") -> None:
         self.runs["cartesian_slow"] += 1
         if not self._running(rt):
             return
@@ -400,7 +400,7 @@ class CartesianLayer(Layer):
             rt.post(self.key, Level.WARNING, text)
 
     # --- fast task (80 Hz) ---------------------------------------------------------------
-    def fast_task(self, rt: "ControllerRuntime") -> None:
+    def fast_task(self, rt: "LayerContext") -> None:
         self.runs["cartesian_fast"] += 1
         if not self._running(rt):
             return
@@ -475,7 +475,7 @@ class CartesianLayer(Layer):
         rt.wm.post_task_outputs(self.key, out)
         self._post_command(rt, p_ref, q_ref)
 
-    def _post_command(self, rt: "ControllerRuntime", p_ref=None, q_ref=None) -> None:
+    def _post_command(self, rt: "LayerContext", p_ref=None, q_ref=None) -> None:
         if p_ref is None:
             p_ref, q_ref = self.reference()
         p, q = _compose(self.offset, p_ref, q_ref)

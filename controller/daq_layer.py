@@ -43,10 +43,10 @@ freshness"): every write carries ``inputs_frame`` (the service frame of the inpu
 rates were computed from: the servo's stamp ``servo.rate_cmd_frame``, or this frame for
 zero rates, which depend on no inputs) and ``controller_frame`` (this layer's write
 counter). A servo output is sent only if it belongs to the current servo period
-(:attr:`ControllerRuntime.servo_oldest_frame`); otherwise the rates are 0 and it is a fault
+(:attr:`LayerContext.servo_oldest_frame`); otherwise the rates are 0 and it is a fault
 of the Servo Control layer (code 13), which its decision table propagates - except in the
 one frame that catches up a servo slot missed with the controller's frame
-(:attr:`ControllerRuntime.servo_catch_up`), which sends 0 rates without a fault.
+(:attr:`LayerContext.servo_catch_up`), which sends 0 rates without a fault.
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ from ioservice.layout import (
 )
 
 if TYPE_CHECKING:  # pragma: no cover
-    from controller.runtime import ControllerRuntime
+    from controller.context import LayerContext
     from ioservice.client import Client
 
 FAULT_RESOLVER, FAULT_TACH, FAULT_FT, FAULT_BOARD, FAULT_SERVICE, FAULT_STALE = 1, 2, 4, 8, 16, 32
@@ -182,7 +182,7 @@ class DataAcquisitionLayer(Layer):
         ]
 
     # --- acquire -------------------------------------------------------------------------
-    def acquire(self, rt: "ControllerRuntime") -> int:
+    def acquire(self, rt: "LayerContext") -> int:
         """Read the service's inputs, post them, run the hardware checks. Returns the
         service frame number of the inputs."""
         snap = self.client.read_inputs()
@@ -327,13 +327,13 @@ class DataAcquisitionLayer(Layer):
     # --- output --------------------------------------------------------------------------
     _OUT = ("servo.rate_cmd_rad_s", "servo.rate_cmd_frame", "servo.current_limit_cmd_a", "servo.error")
 
-    def output(self, rt: "ControllerRuntime", status: int) -> None:
+    def output(self, rt: "LayerContext", status: int) -> None:
         """Write this frame's commands with a new heartbeat, ``inputs_frame`` and
         ``controller_frame``.
 
         Zero rates depend on no inputs: they carry this frame (``rt.frame``). Servo rates
         carry the servo's stamp and are sent only while START UP COMPLETE and only if the
-        stamp is at least :attr:`ControllerRuntime.servo_oldest_frame` (this frame minus the
+        stamp is at least :attr:`LayerContext.servo_oldest_frame` (this frame minus the
         servo divider: the output of its latest slot) and the servo reports no error;
         otherwise the rates are 0 and, unless this frame catches up a missed servo slot or
         the servo already has a fault, it is one (code 13)."""
@@ -371,7 +371,7 @@ class DataAcquisitionLayer(Layer):
 
     _REFLECT = ("teleop.reflect_force_n", "teleop.reflect_torque_nm", "teleop.reflect_enabled")
 
-    def _reflection(self, rt: "ControllerRuntime", status: int) -> dict:
+    def _reflection(self, rt: "LayerContext", status: int) -> dict:
         """CRL force reflection (the Cartesian engine's teleop output) for the command area;
         zero and disabled unless the layer is START UP COMPLETE. The service sends it to the
         CRL only while armed."""
@@ -386,7 +386,7 @@ class DataAcquisitionLayer(Layer):
                 "crl_reflect_enable": int(on)}
 
     # --- sequence tasks ------------------------------------------------------------------
-    def seq_init(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_init(self, rt: "LayerContext") -> TaskState:
         """Wait (at most INIT_TIMEOUT_S) for a SAFE service with clean hardware checks."""
         if self.task_frames == 0:
             self._t_phase = rt.now
@@ -401,7 +401,7 @@ class DataAcquisitionLayer(Layer):
             return TaskState.FAILED
         return TaskState.RUNNING
 
-    def seq_startup(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_startup(self, rt: "LayerContext") -> TaskState:
         """Arm the service: a new arm request with all rates 0; wait for ARMED."""
         if self.task_frames == 0:
             self.rearm_counter += 1
@@ -420,7 +420,7 @@ class DataAcquisitionLayer(Layer):
             return TaskState.FAILED
         return TaskState.RUNNING
 
-    def seq_shutdown(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_shutdown(self, rt: "LayerContext") -> TaskState:
         """Keep bridging until the servo's safe stop has set the current limits to 0 (or
         SHUTDOWN_WAIT_S), then withdraw the arm request (the service goes SAFE: 0 V)."""
         if self.task_frames == 0:
@@ -435,10 +435,10 @@ class DataAcquisitionLayer(Layer):
         self.monitoring = self.status_value(rt) == Status.ERROR  # an error stays monitored
         return TaskState.DONE
 
-    def seq_safe(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_safe(self, rt: "LayerContext") -> TaskState:
         return self.seq_shutdown(rt)
 
-    def seq_reset(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_reset(self, rt: "LayerContext") -> TaskState:
         if self.fault_bits:
             return TaskState.RUNNING  # the table refuses a reset while the fault is present
         self.monitoring = False

@@ -37,7 +37,7 @@ from controller.quat import q_angle
 from controller.worldmodel import VarSpec
 
 if TYPE_CHECKING:  # pragma: no cover
-    from controller.runtime import ControllerRuntime
+    from controller.context import LayerContext
 
 #: user requests to System Up/Down (``ui.request``), report 2.2.8 request/response protocol
 class Request:
@@ -87,7 +87,7 @@ class Layer:
         # what the table read and decided this frame (for the trace)
         self.last = (0, 0, 0, 0, False, 0)  # command, status, sub, task, fault, rid
         self.decided = int(Status.SHUT_DOWN)  # the status the table decided last
-        self.periodic: dict[str, Callable[["ControllerRuntime"], None]] = {}
+        self.periodic: dict[str, Callable[["LayerContext"], None]] = {}
 
     # --- names ---------------------------------------------------------------------------
     @property
@@ -127,7 +127,7 @@ class Layer:
         return self.state_specs()
 
     # --- decision table ------------------------------------------------------------------
-    def run_table(self, rt: "ControllerRuntime") -> None:
+    def run_table(self, rt: "LayerContext") -> None:
         """Read command, own status and the subordinate's status; decide; post."""
         wm = rt.wm
         c = wm.get_state_variable(self.v_command)
@@ -162,7 +162,7 @@ class Layer:
         if out.action != Action.NONE:
             self._act(rt, out.action)
 
-    def _act(self, rt: "ControllerRuntime", action: Action) -> None:
+    def _act(self, rt: "LayerContext", action: Action) -> None:
         if action == Action.CLEAR:
             self.task_kind, self.task_state = Action.NONE, TaskState.IDLE
         else:
@@ -172,11 +172,11 @@ class Layer:
             rt.post(self.key, Level.DEBUG, f"{SEQ_ACTIONS[action]} task scheduled")
         self._post_mailbox(rt)
 
-    def _post_mailbox(self, rt: "ControllerRuntime") -> None:
+    def _post_mailbox(self, rt: "LayerContext") -> None:
         rt.wm.post_state_variable(self.key, f"{self.key}.task", int(self.task_kind) * 10 + int(self.task_state))
 
     # --- sequence tasks ------------------------------------------------------------------
-    def run_sequence(self, rt: "ControllerRuntime") -> None:
+    def run_sequence(self, rt: "LayerContext") -> None:
         """Run the current sequence task once, if it is running."""
         if self.task_state != TaskState.RUNNING:
             return
@@ -194,35 +194,35 @@ class Layer:
             if state == TaskState.FAILED:
                 rt.post(self.key, Level.ERROR, f"{SEQ_ACTIONS[self.task_kind]} task FAILED")
 
-    def set_fault(self, rt: "ControllerRuntime", code: int, text: str) -> None:
+    def set_fault(self, rt: "LayerContext", code: int, text: str) -> None:
         """Raise this layer's fault flag (read by its table next frame) and report it."""
         if not self.fault or code != self.error_code:
             rt.post(self.key, Level.ERROR, f"fault {code}: {text}")
             rt.wm.post_task_outputs(self.key, {f"{self.key}.error": code})
         self.fault, self.fault_text, self.error_code = True, text, code
 
-    def clear_fault(self, rt: "ControllerRuntime") -> None:
+    def clear_fault(self, rt: "LayerContext") -> None:
         if self.fault or self.error_code:
             rt.wm.post_task_outputs(self.key, {f"{self.key}.error": 0})
         self.fault, self.fault_text, self.error_code = False, "", 0
 
-    def seq_init(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_init(self, rt: "LayerContext") -> TaskState:
         return TaskState.DONE
 
-    def seq_startup(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_startup(self, rt: "LayerContext") -> TaskState:
         return TaskState.DONE
 
-    def seq_shutdown(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_shutdown(self, rt: "LayerContext") -> TaskState:
         return TaskState.DONE
 
-    def seq_safe(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_safe(self, rt: "LayerContext") -> TaskState:
         return self.seq_shutdown(rt)
 
-    def seq_reset(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_reset(self, rt: "LayerContext") -> TaskState:
         self.clear_fault(rt)
         return TaskState.DONE
 
-    def status(self, rt: "ControllerRuntime") -> Status:
+    def status(self, rt: "LayerContext") -> Status:
         return Status(rt.wm.get_state_variable(self.v_status))
 
 
@@ -271,7 +271,7 @@ class UpDownLayer(Layer):
             self._cmd = cmd
             rt.wm.post_task_outputs("updown_requests", {"updown.command": int(cmd)})
 
-    def requests_task(self, rt: "ControllerRuntime") -> None:
+    def requests_task(self, rt: "LayerContext") -> None:
         wm = rt.wm
         v = wm.get_task_inputs(("ui.request", "ui.request_seq", "updown.status"))
         seq, req, st = int(v["ui.request_seq"]), int(v["ui.request"]), Status(int(v["updown.status"]))
@@ -419,18 +419,18 @@ class JointPlannerLayer(Layer):
                     doc="the shoulder-roll index the kinematics use (configuration, pfma-model 8.1)"),
         ]
 
-    def _cart_available(self, rt: "ControllerRuntime") -> bool:
+    def _cart_available(self, rt: "LayerContext") -> bool:
         if self._have_cart is None:
             names = set(rt.wm.names())
             self._have_cart = all(n in names for n in self.CART_VARS)
         return self._have_cart
 
-    def seq_init(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_init(self, rt: "LayerContext") -> TaskState:
         self._cart_available(rt)
         self._dt_s = rt.task_period_s("joint_planner")
         return TaskState.DONE
 
-    def seq_startup(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_startup(self, rt: "LayerContext") -> TaskState:
         v = rt.wm.get_task_inputs(("daq.joint_angle_rad", "joint.goal_seq"))
         self._seen_goal = int(v["joint.goal_seq"])  # goals set while powered down do not jump
         self.q_cmd = np.asarray(v["daq.joint_angle_rad"], dtype=float).copy()
@@ -442,11 +442,11 @@ class JointPlannerLayer(Layer):
                                           "joint.mode": self.mode})
         return TaskState.DONE
 
-    def seq_shutdown(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_shutdown(self, rt: "LayerContext") -> TaskState:
         rt.wm.post_task_outputs("joint", {"servo.q_cmd_valid": False})
         return TaskState.DONE
 
-    def plan_task(self, rt: "ControllerRuntime") -> None:
+    def plan_task(self, rt: "LayerContext") -> None:
         from controller import kinematics as kin  # (import here: layers.py stays light)
 
         status = rt.wm.get_state_variable(self.v_status)
@@ -479,7 +479,7 @@ class JointPlannerLayer(Layer):
         return not (np.array_equal(p, np.asarray(v["cart.pos_cmd_m"], dtype=float))
                     and np.array_equal(q, np.asarray(v["cart.quat_cmd"], dtype=float)))
 
-    def _set_mode(self, rt: "ControllerRuntime", mode: int, out: dict) -> None:
+    def _set_mode(self, rt: "LayerContext", mode: int, out: dict) -> None:
         if mode != self.mode:
             self.mode = mode
             out["joint.mode"] = mode
@@ -488,7 +488,7 @@ class JointPlannerLayer(Layer):
             if mode == self.MODE_JOINT:
                 self._post_flags(rt, False, False, out)
 
-    def _post_flags(self, rt: "ControllerRuntime", singular: bool, limited: bool, out: dict) -> None:
+    def _post_flags(self, rt: "LayerContext", singular: bool, limited: bool, out: dict) -> None:
         if (singular, limited) == self._flags:
             return
         if singular != self._flags[0]:
@@ -501,7 +501,7 @@ class JointPlannerLayer(Layer):
                 rt.post(self.key, Level.WARNING, "a joint is held at its soft limit")
         self._flags = (singular, limited)
 
-    def _cartesian(self, rt: "ControllerRuntime", kin, v: dict, out: dict) -> None:
+    def _cartesian(self, rt: "LayerContext", kin, v: dict, out: dict) -> None:
         if self.mode != self.MODE_CARTESIAN:
             # continue from the command in force (a joint goal, or the start-up angles): no jump
             self._set_mode(rt, self.MODE_CARTESIAN, out)
@@ -553,7 +553,7 @@ class JointPlannerLayer(Layer):
             except kin.KinematicsError as err:
                 rt.post(self.key, Level.WARNING, f"blocked at a soft limit, holding: {err}")
 
-    def _joint_goal(self, rt: "ControllerRuntime", v: dict, out: dict) -> None:
+    def _joint_goal(self, rt: "LayerContext", v: dict, out: dict) -> None:
         seq = int(v["joint.goal_seq"])
         if seq == self._seen_goal:
             return

@@ -54,7 +54,7 @@ from controller.worldmodel import VarSpec
 from pfma.errors import PfmaError
 
 if TYPE_CHECKING:  # pragma: no cover
-    from controller.runtime import ControllerRuntime
+    from controller.context import LayerContext
 
 FORMAT = "pfma-path"
 #: version of the path file format; files of a newer version are refused
@@ -692,12 +692,12 @@ class MultiSegmentLayer(Layer):
         ]
 
     # --- helpers ---------------------------------------------------------------------------
-    def _has(self, rt: "ControllerRuntime", names: Sequence[str]) -> bool:
+    def _has(self, rt: "LayerContext", names: Sequence[str]) -> bool:
         if self._names is None:
             self._names = set(rt.wm.names())
         return all(n in self._names for n in names)
 
-    def _tool_pose(self, rt: "ControllerRuntime") -> tuple[np.ndarray, np.ndarray] | None:
+    def _tool_pose(self, rt: "LayerContext") -> tuple[np.ndarray, np.ndarray] | None:
         if self._source == RecordSource.COMMAND:
             if not self._has(rt, CMD_POSE):
                 return None
@@ -713,10 +713,10 @@ class MultiSegmentLayer(Layer):
             return None
         return np.asarray(v["joint.tool_pos_m"], dtype=float), q_normalize(q)
 
-    def _status(self, rt: "ControllerRuntime", **kw: int) -> None:
+    def _status(self, rt: "LayerContext", **kw: int) -> None:
         rt.wm.post_task_outputs("msp", {f"msp.{k}": v for k, v in kw.items()})
 
-    def _end(self, rt: "ControllerRuntime", result: int, text: str, idle: bool = True) -> None:
+    def _end(self, rt: "LayerContext", result: int, text: str, idle: bool = True) -> None:
         with self._end_lock:  # the background save ends recordings from its thread
             self._finished += 1
             n = self._finished
@@ -884,11 +884,11 @@ class MultiSegmentLayer(Layer):
             v = rt.wm.get_task_inputs(USER_VARS)
             self._stop_record(rt, v)  # keep what was recorded
 
-    def seq_shutdown(self, rt: "ControllerRuntime"):
+    def seq_shutdown(self, rt: "LayerContext"):
         self._leave(rt, "shut down")
         return super().seq_shutdown(rt)
 
-    def plan_task(self, rt: "ControllerRuntime") -> None:
+    def plan_task(self, rt: "LayerContext") -> None:
         self.runs["msp_planner"] += 1
         if rt.wm.get_state_variable(self.v_status) != Status.START_UP_COMPLETE:
             if self.state != MspMode.IDLE:

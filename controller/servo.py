@@ -46,7 +46,7 @@ from controller.params import (
 from controller.worldmodel import VarSpec
 
 if TYPE_CHECKING:  # pragma: no cover
-    from controller.runtime import ControllerRuntime
+    from controller.context import LayerContext
 
 #: a joint this far beyond its soft limit is a servo fault (assumed: 1 degree)
 LIMIT_FAULT_MARGIN_RAD = math.radians(1.0)
@@ -221,7 +221,7 @@ class ServoLayer(Layer):
         ]
 
     # --- sequence tasks ------------------------------------------------------------------
-    def seq_init(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_init(self, rt: "LayerContext") -> TaskState:
         names = ("kp_per_s", "tau_z_s", "tau_p_s", "rate_limit_rad_s", "current_limit_a", "q_min_rad", "q_max_rad")
         v = rt.wm.get_task_inputs([f"servo.{n}" for n in names])
         p = {n: np.array(v[f"servo.{n}"], dtype=float) for n in names}
@@ -252,7 +252,7 @@ class ServoLayer(Layer):
         self._t_phase = rt.now
         rt.wm.post_task_outputs("servo", {"servo.brake_phase": phase})
 
-    def seq_startup(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_startup(self, rt: "LayerContext") -> TaskState:
         """Brake release (pfma-model 8.4): rate 0 V, then raise the current limits, wait
         until the brakes report released; then hold the present angles and close the loop."""
         if self.task_frames == 0:
@@ -277,7 +277,7 @@ class ServoLayer(Layer):
             return TaskState.FAILED
         return TaskState.RUNNING
 
-    def seq_shutdown(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_shutdown(self, rt: "LayerContext") -> TaskState:
         """Safe stop (pfma-model 8.4): rate 0 V; wait |qdot| < 0.01 rad/s or 0.5 s; limits 0 V."""
         if self.task_frames == 0:
             rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS), "servo.rate_cmd_frame": -1})
@@ -296,11 +296,11 @@ class ServoLayer(Layer):
             return TaskState.DONE
         return TaskState.RUNNING
 
-    def seq_safe(self, rt: "ControllerRuntime") -> TaskState:
+    def seq_safe(self, rt: "LayerContext") -> TaskState:
         return self.seq_shutdown(rt)
 
     # --- the control law -----------------------------------------------------------------
-    def control_task(self, rt: "ControllerRuntime") -> None:
+    def control_task(self, rt: "LayerContext") -> None:
         """Commanded joint positions -> rate commands (only while START UP COMPLETE)."""
         wm = rt.wm
         # the status this frame's table decided (the posted one is applied next frame): a

@@ -42,7 +42,7 @@ from controller.quat import q_conj, q_from_rotvec, q_mul, q_normalize, q_to_rotv
 from controller.worldmodel import VarSpec
 
 if TYPE_CHECKING:  # pragma: no cover
-    from controller.runtime import ControllerRuntime
+    from controller.context import LayerContext
 
 #: Hard caps on every trajectory (user-settable, protected). Speeds: pfma-model.md 8.2
 #: "Cartesian teleoperation limits ... 0.15 m/s translation and 0.25 rad/s rotation
@@ -330,12 +330,12 @@ class TrajectoryLayer(Layer):
         ]
 
     # --- helpers ---------------------------------------------------------------------------
-    def _has(self, rt: "ControllerRuntime", names: Sequence[str]) -> bool:
+    def _has(self, rt: "LayerContext", names: Sequence[str]) -> bool:
         if self._names is None:
             self._names = set(rt.wm.names())
         return all(n in self._names for n in names)
 
-    def _start_pose(self, rt: "ControllerRuntime") -> tuple[np.ndarray, np.ndarray] | None:
+    def _start_pose(self, rt: "LayerContext") -> tuple[np.ndarray, np.ndarray] | None:
         if self.active and self.hold_p is not None:
             return self.hold_p, self.hold_q
         if self._has(rt, CART_START):
@@ -349,7 +349,7 @@ class TrajectoryLayer(Layer):
                 return np.asarray(v["joint.tool_pos_m"], float), q_normalize(q)
         return None
 
-    def _finish(self, rt: "ControllerRuntime", seq: int, code: int, release: bool) -> None:
+    def _finish(self, rt: "LayerContext", seq: int, code: int, release: bool) -> None:
         self.run = None
         if release:
             self.active = False
@@ -357,13 +357,13 @@ class TrajectoryLayer(Layer):
             "traj.done_seq": seq, "traj.done_code": code, "traj.active": self.active,
             "traj.vel_m_s": np.zeros(3), "traj.omega_rad_s": np.zeros(3)})
 
-    def _post_pose(self, rt: "ControllerRuntime", p, q, v, w, s: float) -> None:
+    def _post_pose(self, rt: "LayerContext", p, q, v, w, s: float) -> None:
         rt.wm.post_task_outputs("trajectory", {
             "traj.pos_m": p, "traj.quat": q, "traj.vel_m_s": v, "traj.omega_rad_s": w,
             "traj.progress": s, "traj.active": True, "traj.t_s": float(rt.now)})
         self.samples_posted += 1
 
-    def release(self, rt: "ControllerRuntime", why: str) -> None:
+    def release(self, rt: "LayerContext", why: str) -> None:
         """Stop commanding at once (layer leaving START UP COMPLETE): traj.active false."""
         if self.run is not None:
             seq = self.run.seq
@@ -374,12 +374,12 @@ class TrajectoryLayer(Layer):
             self.active = False
             rt.wm.post_task_outputs("trajectory", {"traj.active": False})
 
-    def seq_shutdown(self, rt: "ControllerRuntime"):
+    def seq_shutdown(self, rt: "LayerContext"):
         self.release(rt, "shut down")
         return super().seq_shutdown(rt)
 
     # --- the periodic task -----------------------------------------------------------------
-    def plan_task(self, rt: "ControllerRuntime") -> None:
+    def plan_task(self, rt: "LayerContext") -> None:
         self.runs["trajectory_planner"] += 1
         if rt.wm.get_state_variable(self.v_status) != Status.START_UP_COMPLETE:
             if self.run is not None or self.active:
@@ -414,7 +414,7 @@ class TrajectoryLayer(Layer):
         vl, w = seg.rates_at(sdot)
         self._post_pose(rt, p, q, vl, w, s)
 
-    def _accept(self, rt: "ControllerRuntime", seq: int, v) -> None:
+    def _accept(self, rt: "LayerContext", seq: int, v) -> None:
         cap = Limits(*(float(v[n]) for n in CAP_VARS))
         start = self._start_pose(rt)
         if start is None:
