@@ -2,8 +2,9 @@
 swings the wrist roll and shoulder yaw slowly back and forth.
 
 It is an ordinary commanding process: it claims the Bit3 buffer's command area,
-writes joint rate commands and current limits with a heartbeat at 100 Hz, and
-disarms (rates 0, limits 0, arm request off) when it ends. The real controller
+writes joint rate commands and current limits once per service frame (320 Hz, right
+after each new input snapshot, stamped with its frame so the service sees fresh commands:
+docs/safety.md), and disarms (rates 0, limits 0, arm request off) when it ends. The real controller
 layers replace it.
 
 Run: ``python -m controller.demo --buffer pfma --duration 30``
@@ -24,8 +25,7 @@ DEMO_CURRENT_LIMIT_A = (5.0, 5.0, 5.0, 2.5, 2.5, 2.5, 0.0)
 SWING = {"wrist_roll": (0.8, 6.0), "shoulder_yaw": (0.05, 10.0)}  # WR: above its Coulomb friction
 
 
-def run(buffer: str = "pfma", duration_s: float = 30.0, rate_hz: float = 100.0,
-        wait_s: float = 10.0) -> int:
+def run(buffer: str = "pfma", duration_s: float = 30.0, wait_s: float = 10.0) -> int:
     deadline = time.monotonic() + wait_s
     while True:
         try:
@@ -37,29 +37,31 @@ def run(buffer: str = "pfma", duration_s: float = 30.0, rate_hz: float = 100.0,
                 return 1
             time.sleep(0.1)
     joints = list(c.layout.joint_names)
-    period = 1.0 / rate_hz
     rates = [0.0] * len(joints)
+    frame = 0
     try:
         # power-up sequence (pfma-model 8.4): rate 0 V first, then raise the current limits
         # a new arm request: the service never re-arms on a request it has already seen
         c.write_commands(joint_rate_rad_s=rates, current_limit_a=DEMO_CURRENT_LIMIT_A,
                          arm_request=1, rearm_counter=int(c.command["rearm_counter"]) + 1)
         t0 = time.monotonic()
-        k = 0
-        while time.monotonic() - t0 < duration_s:
-            t = k * period
+        while (now := time.monotonic()) - t0 < duration_s:
+            if not c.changed("inputs"):  # locked to the service: one write per new frame
+                time.sleep(0.0002)
+                continue
+            frame = c.read_inputs().frame
+            t = now - t0
             if t > 0.5:  # let the service arm first (rates must be 0 when arming)
                 for name, (amp, per) in SWING.items():
                     if name in joints:
                         rates[joints.index(name)] = amp * math.sin(2 * math.pi * (t - 0.5) / per)
             c.write_commands(joint_rate_rad_s=rates, current_limit_a=DEMO_CURRENT_LIMIT_A,
-                             arm_request=1)
-            k += 1
-            time.sleep(max(0.0, t0 + k * period - time.monotonic()))
+                             arm_request=1, inputs_frame=frame)
     except KeyboardInterrupt:
         pass
     finally:
-        c.write_commands(joint_rate_rad_s=[0.0] * len(joints), current_limit_a=[0.0] * 7, arm_request=0)
+        c.write_commands(joint_rate_rad_s=[0.0] * len(joints), current_limit_a=[0.0] * 7, arm_request=0,
+                         inputs_frame=frame)
         c.close()
     return 0
 
