@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 import sys
 
-from ioservice.layout import DEVICE_GROUPS, ServiceState
+from ioservice.layout import CMD_STATUS_NAMES, DEVICE_GROUPS, ServiceState
 
 
 def add_parser(sub):
@@ -37,6 +37,15 @@ def collect(client) -> dict:
         "links": {c.name: {"records": int(s.link_records[c.slot]), "bad": int(s.link_bad[c.slot]),
                            "resyncs": int(s.link_resyncs[c.slot]), "rate_hz": float(s.link_rate_hz[c.slot])}
                   for c in lay.channels if c.kind == "link"},
+    }
+    status = int(s.command_status)
+    out["commands"] = {  # what the service made of the command area (docs/safety.md)
+        "fault_code": int(s.fault_code), "watchdog_tripped": bool(s.watchdog_tripped),
+        "inputs_frame": int(s.command_inputs_frame), "input_age_frames": int(s.command_input_age_frames),
+        "status": [n for b, n in CMD_STATUS_NAMES.items() if status & b],
+        "stale_frames": int(s.stale_commands), "absent_frames": int(s.absent_commands),
+        "refused": int(s.refused_commands), "foreign_writes": int(s.foreign_writes),
+        "last_host_stall_s": float(s.host_stall_s), "last_host_stall_t_s": float(s.host_stall_t_s),
     }
     out["controller"] = collect_controller(client)
     return out
@@ -112,5 +121,11 @@ def run(args) -> int:
     print("boards:  " + ", ".join(f"{b} status {v['status']} errors {v['errors']}" for b, v in d["boards"].items()))
     print("links:   " + ", ".join(f"{n} {v['records']} records {v['bad']} bad {v['resyncs']} resyncs "
                                   f"{v['rate_hz']:.1f}/s" for n, v in d["links"].items()))
+    cm = d["commands"]
+    stall = (f"  last host stall {cm['last_host_stall_s'] * 1e3:.0f} ms at t={cm['last_host_stall_t_s']:.1f} s"
+             if cm["last_host_stall_s"] > 0 else "")
+    print(f"commands: age {cm['input_age_frames']} frames  status {'+'.join(cm['status']) or 'ok'}  "
+          f"stale {cm['stale_frames']} frames  absent {cm['absent_frames']}  refused {cm['refused']}  "
+          f"foreign writes {cm['foreign_writes']}{'  WATCHDOG TRIPPED' if cm['watchdog_tripped'] else ''}{stall}")
     print(format_controller(d["controller"]))
     return 0

@@ -335,3 +335,16 @@ def test_the_input_age_can_be_set_per_service_and_is_checked_against_the_watchdo
                 IoService(rig.rack, rig.world.bus, buf, rig.tclock, max_input_age_frames=bad, owner="x")
     finally:
         buf.close(unlink=True)
+
+
+def test_pfma_stats_shows_what_the_service_made_of_the_commands(rig):
+    from pfma.cli import stats as stats_cli
+    ctl = armed(rig)
+    ctl.frames_old = 4  # 5 frames old at the service
+    rig.run_frames(3)
+    ctl.frames_old = None
+    ctl.cmd["joint_rate_rad_s"] = [0.0, 0.0, 1e9, 0.0, 0.0, 0.0]
+    rig.run_frames(1)
+    cm = stats_cli.collect(rig.reader)["commands"]
+    assert cm["stale_frames"] == 3 and cm["refused"] == 1 and "refused" in cm["status"]
+    assert cm["foreign_writes"] == 0 and not cm["watchdog_tripped"]
