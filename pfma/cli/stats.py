@@ -39,7 +39,9 @@ def collect(client) -> dict:
                   for c in lay.channels if c.kind == "link"},
     }
     status = int(s.command_status)
+    writer = client.owners().get("commands")
     out["commands"] = {  # what the service made of the command area (docs/safety.md)
+        "writer": writer.name if writer is not None and writer.alive else None,
         "fault_code": int(s.fault_code), "watchdog_tripped": bool(s.watchdog_tripped),
         "inputs_frame": int(s.command_inputs_frame), "input_age_frames": int(s.command_input_age_frames),
         "status": [n for b, n in CMD_STATUS_NAMES.items() if status & b],
@@ -124,7 +126,8 @@ def run(args) -> int:
     cm = d["commands"]
     stall = (f"  last host stall {cm['last_host_stall_s'] * 1e3:.0f} ms at t={cm['last_host_stall_t_s']:.1f} s"
              if cm["last_host_stall_s"] > 0 else "")
-    print(f"commands: age {cm['input_age_frames']} frames  status {'+'.join(cm['status']) or 'ok'}  "
+    age = f"age {cm['input_age_frames']} frames" if cm["writer"] else "no command writer attached"
+    print(f"commands: {age}  status {'+'.join(cm['status']) or 'ok'}  "
           f"stale {cm['stale_frames']} frames  absent {cm['absent_frames']}  refused {cm['refused']}  "
           f"foreign writes {cm['foreign_writes']}{'  WATCHDOG TRIPPED' if cm['watchdog_tripped'] else ''}{stall}")
     print(format_controller(d["controller"]))
