@@ -1,5 +1,7 @@
-"""A tiny demonstration controller for ``make run``: arms the simulated arm and
-swings the wrist roll and shoulder yaw slowly back and forth.
+"""A tiny demonstration controller for ``make run``: arms the simulated arm,
+swings the wrist roll and shoulder yaw slowly back and forth and holds the other
+joints at their start pose (a position loop on the resolver angles, so the shoulder
+pitch does not sag under residual gravity with a zero rate command).
 
 It is an ordinary commanding process: it claims the Bit3 buffer's command area,
 writes joint rate commands and current limits once per service frame (320 Hz, right
@@ -23,6 +25,47 @@ from ioservice.client import Client
 DEMO_CURRENT_LIMIT_A = (5.0, 5.0, 5.0, 2.5, 2.5, 2.5, 0.0)
 #: joint rate amplitude (rad/s) and period (s) of the swing, per command-area joint
 SWING = {"wrist_roll": (0.8, 6.0), "shoulder_yaw": (0.05, 10.0)}  # WR: above its Coulomb friction
+#: the hold loop of the other joints: rate = -k (q - q0), clipped to +-HOLD_MAX_RATE_RAD_S
+HOLD_GAIN_1_S = 2.0
+HOLD_MAX_RATE_RAD_S = 0.1  # well under every joint's rate limit (0.4 rad/s at the shoulder)
+#: seconds after the arm request before any joint moves (rates must be 0 when arming)
+ARM_SETTLE_S = 0.5
+
+
+def hold_rate(q: float, q0: float, k: float = HOLD_GAIN_1_S,
+              max_rate: float = HOLD_MAX_RATE_RAD_S) -> float:
+    """Rate (rad/s) pulling the resolver angle ``q`` back to ``q0``; the error is taken
+    around ``q0`` (the resolvers read 0..2 pi, so 6.28 is next to 0.0)."""
+    err = math.remainder(q - q0, 2 * math.pi)
+    return max(-max_rate, min(max_rate, -k * err))
+
+
+def frame_rates(t: float, joints, q, q0) -> list[float]:
+    """The demo's joint rate commands ``t`` s after its arm request, per command-area joint
+    (``joints``), from the resolver angles ``q`` and the start pose ``q0`` (None: no angle)."""
+    if t <= ARM_SETTLE_S:
+        return [0.0] * len(joints)
+    out = []
+    for name, qi, q0i in zip(joints, q, q0):
+        if name in SWING:
+            amp, per = SWING[name]
+            out.append(amp * math.sin(2 * math.pi * (t - ARM_SETTLE_S) / per))
+        elif qi is None or q0i is None:
+            out.append(0.0)
+        else:
+            out.append(hold_rate(qi, q0i))
+    return out
+
+
+def joint_angles(snap, joints) -> list[float | None]:
+    """Resolver angle (rad) of each command-area joint (``<joint>_angle``), None if absent."""
+    out = []
+    for name in joints:
+        try:
+            out.append(float(snap.value(f"{name}_angle")))
+        except KeyError:
+            out.append(None)
+    return out
 
 
 def run(buffer: str = "pfma", duration_s: float = 30.0, wait_s: float = 10.0) -> int:
@@ -39,6 +82,7 @@ def run(buffer: str = "pfma", duration_s: float = 30.0, wait_s: float = 10.0) ->
     joints = list(c.layout.joint_names)
     rates = [0.0] * len(joints)
     frame = 0
+    q0 = None
     try:
         # power-up sequence (pfma-model 8.4): rate 0 V first, then raise the current limits
         # a new arm request: the service never re-arms on a request it has already seen
@@ -49,12 +93,12 @@ def run(buffer: str = "pfma", duration_s: float = 30.0, wait_s: float = 10.0) ->
             if not c.changed("inputs"):  # locked to the service: one write per new frame
                 time.sleep(0.0002)
                 continue
-            frame = c.read_inputs().frame
-            t = now - t0
-            if t > 0.5:  # let the service arm first (rates must be 0 when arming)
-                for name, (amp, per) in SWING.items():
-                    if name in joints:
-                        rates[joints.index(name)] = amp * math.sin(2 * math.pi * (t - 0.5) / per)
+            snap = c.read_inputs()
+            frame = snap.frame
+            q = joint_angles(snap, joints)
+            if q0 is None:
+                q0 = q  # the start pose the hold loop keeps
+            rates = frame_rates(now - t0, joints, q, q0)
             c.write_commands(joint_rate_rad_s=rates, current_limit_a=DEMO_CURRENT_LIMIT_A,
                              arm_request=1, inputs_frame=frame)
     except KeyboardInterrupt:

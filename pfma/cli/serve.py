@@ -55,6 +55,51 @@ def add_parser(sub):
     return p
 
 
+#: short labels of the command-area joints in the live view (layout.joint_names order)
+JOINT_ABBREV = {"shoulder_pitch": "SP", "shoulder_yaw": "SY", "elbow_pitch": "EP",
+                "wrist_yaw": "WY", "wrist_pitch": "WP", "wrist_roll": "WR"}
+#: the live view's leading columns: time since start, frame, service state
+_LIVE_LEAD = "{:>8} {:>7} {:<8}"
+
+
+def _wrap_pi(a: float) -> float:
+    """An angle (rad) wrapped to (-pi, pi]: the resolvers read 0..2 pi, so a joint near 0
+    would jump between ~0 and ~2 pi."""
+    w = math.remainder(a, 2 * math.pi)  # [-pi, pi]
+    return math.pi if w <= -math.pi else w
+
+
+def _joint_label(name: str) -> str:
+    return JOINT_ABBREV.get(name) or "".join(w[0] for w in name.split("_")).upper()[:3]
+
+
+def _live_header(joints) -> list[str]:
+    """The column names, printed once above the live view's two-line updates."""
+    return ["live view: t = s since the service started; joint angles in deg, (-180, 180]",
+            _LIVE_LEAD.format("t[s]", "frame", "state") + " "
+            + " ".join(f"{_joint_label(j):>7}" for j in joints) + "  deg",
+            "  F/T force Fx Fy Fz [N]; device rates [Hz]; frame work time p50 [us]"]
+
+
+def _live_lines(t_since_start_s: float, frame: int, state: str, angles_rad, force_n,
+                rates_hz, work_p50_us: float) -> list[str]:
+    """One live-view update (two lines, each <= 80 columns); ``angles_rad`` in the
+    command-area joint order of :func:`_live_header`."""
+    q = " ".join(f"{math.degrees(_wrap_pi(a)):+7.1f}" for a in angles_rad)
+    work = f"{work_p50_us:.0f} us" if math.isfinite(work_p50_us) else "--"
+    r = "/".join(f"{x:.0f}" for x in rates_hz[:4])
+    return [_LIVE_LEAD.format(f"{t_since_start_s:.2f}", frame, state) + " " + q,
+            f"  F[N] {force_n[0]:+6.1f} {force_n[1]:+6.1f} {force_n[2]:+6.1f}  "
+            f"rtd/adc/dac/ft {r} Hz  work p50 {work}"]
+
+
+def _live_message(m, t_start_s: float) -> str:
+    """A service or controller message, its time since start, its text whole (a Bit3
+    queue entry holds 56 bytes of text: nothing is cut beyond that)."""
+    return (f"  > {m.t_s - t_start_s:9.2f} {m.queue.removesuffix('_messages')} "
+            f"{m.severity.name} src={m.source} code={m.code}: {m.text}")
+
+
 def _live_view(buffer_name: str, stop: threading.Event, rack) -> None:
     from ioservice.client import Client
     try:
@@ -62,21 +107,25 @@ def _live_view(buffer_name: str, stop: threading.Event, rack) -> None:
     except Bit3Error as err:
         print(f"live view: {err}", file=sys.stderr)
         return
-    names = [n for n in LIVE_SIGNALS if any(ch.name == n for ch in c.layout.channels)]
+    joints = list(c.layout.joint_names)
+    have = {ch.name for ch in c.layout.channels}
+    joints = [j for j in joints if f"{j}_angle" in have]
+    t_start = None
     try:
+        print("\n".join(_live_header(joints)), flush=True)
         while not stop.wait(0.5):
             s = c.read_inputs()
             st = c.read_stats()
-            angles = " ".join(f"{s.value(n):+6.3f}" for n in names)
-            f = s.ft_force_n
-            rates = st.device_rate_hz
-            print(f"t={s.t_s:8.2f}s frame={s.frame:7d} {ServiceState(s.service_state).name:7s} "
-                  f"q[rad] {angles}  F[N] {f[0]:+6.1f} {f[1]:+6.1f} {f[2]:+6.1f}  "
-                  f"rates rtd/adc/dac/ft {rates[0]:.0f}/{rates[1]:.0f}/{rates[2]:.0f}/{rates[3]:.0f} Hz "
-                  + (f"work p50 {st.work_p50_us:.0f} us" if math.isfinite(st.work_p50_us)
-                     else "work p50 -- (no statistics yet)"), flush=True)
+            if s.t_s == 0.0 and s.frame == 0:
+                continue  # no frame published yet
+            if t_start is None:  # the service's start: its frame 0 (if the viewer came late)
+                t_start = s.t_s - s.frame * (st.period_s if st.period_s > 0 else 1 / 320)
+            lines = _live_lines(s.t_s - t_start, s.frame, ServiceState(s.service_state).name,
+                                [s.value(f"{j}_angle") for j in joints], s.ft_force_n,
+                                st.device_rate_hz, st.work_p50_us)
+            print("\n".join(lines), flush=True)
             for m in c.new_messages():
-                print("   ", m.format(), flush=True)
+                print(_live_message(m, t_start), flush=True)
     finally:
         c.close()
 
