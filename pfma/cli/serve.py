@@ -22,9 +22,6 @@ from ioservice.ticking import TickingClock
 from pfma.clock import MonotonicClock
 from pfma.rack import load_rack
 
-LIVE_SIGNALS = ("shoulder_yaw_angle", "shoulder_pitch_angle", "elbow_pitch_angle", "wrist_pitch_angle",
-                "wrist_yaw_angle", "wrist_roll_angle")
-
 
 def add_parser(sub):
     p = sub.add_parser("serve", help="run the data-acquisition service",
