@@ -181,8 +181,10 @@ def test_ft_matrix_from_known_loads(cal):
 
 
 def test_dac_to_rate_gain_and_null(cal):
-    gains = {"shoulder_yaw_command": 0.04, "wrist_roll_command": -0.03}
-    offs = {"shoulder_yaw_command": 0.05, "wrist_roll_command": -0.04}
+    # shoulder yaw with injected DAC gain/offset errors, wrist roll a perfect rack (no error):
+    # both come back within the stated 1 % (wrist roll: DAC gain 1, its viscous droop 0.615 is the loop's)
+    gains = {"shoulder_yaw_command": 0.04, "wrist_roll_command": 0.0}
+    offs = {"shoulder_yaw_command": 0.05, "wrist_roll_command": 0.0}
     cal.world.sim.set_errors(SimErrors(dac_gain_error=gains, dac_offset_v=offs))
     res = _run(cal, "dac-rate")
     ka = NOMINAL.k_a()
@@ -195,6 +197,12 @@ def test_dac_to_rate_gain_and_null(cal):
         sig = f"{stem}_command"
         assert res.found[sig]["scale"] == pytest.approx((1 + gains[sig]) * per_v, rel=0.01), stem
         assert res.found[sig]["offset"] == pytest.approx(offs[sig] * per_v, abs=0.002), stem
+        assert res.found[sig]["dac_gain"] == pytest.approx(1 + gains[sig], rel=0.01), stem
+    # legs below breakaway (wrist roll +-15 %: Coulomb friction holds it) are excluded, counted, named
+    assert res.found["shoulder_yaw_command"]["excluded_legs"] == []
+    assert res.found["wrist_roll_command"]["excluded_legs"] == pytest.approx([0.3, -0.3])
+    assert res.found["wrist_roll_command"]["loop_gain"] == pytest.approx(0.615, abs=0.001)
+    assert "wrist_roll legs moving (excluded below breakaway, commands rad/s: +0.3, -0.3)" in res.report()
     # the corrected conversion: a command of 0.25 rad/s gives 0.25 rad/s (wrist roll: above its friction droop)
     cal.session.arm()
     cal.session.set_rates({"shoulder_yaw": 0.05, "wrist_roll": 0.6})
@@ -203,3 +211,21 @@ def test_dac_to_rate_gain_and_null(cal):
     cal.session.disarm()
     assert qdot[0] == pytest.approx(0.05 + res.found["shoulder_yaw_command"]["friction_rad_s"], abs=0.002)
     assert cal.rig.reader.read_inputs().service_state != ServiceState.ARMED
+
+
+
+def test_dac_rate_fails_naming_stuck_legs_and_a_gain_unlike_the_loop(cal):
+    # one run, two refusals: wrist roll has only 2 moving legs (its +-15 % legs stay in
+    # Coulomb friction) -> FAIL naming them, no fit; shoulder yaw's gain is checked
+    # against a loop gain it does not have (0.6) -> FAIL, a wrong answer cannot pass
+    before = cal.path.read_bytes()
+    ctx = cal.context(fractions=[0.15, -0.15, 0.4, -0.4], expected_gain={"shoulder_yaw": 0.6})
+    res = run_procedure("dac-rate", ctx, save_to=cal.path)
+    assert not res.passed and cal.path.read_bytes() == before
+    bad = [c.name for c in res.checks if not c.passed]
+    assert len(bad) == 2, bad
+    assert bad[0].startswith("shoulder_yaw_command DAC gain - 1")
+    assert bad[1] == "wrist_roll legs moving (excluded below breakaway, commands rad/s: +0.3, -0.3)"
+    assert res.found["shoulder_yaw_command"]["dac_gain"] == pytest.approx(0.9877 / 0.6, rel=0.01)
+    assert "wrist_roll_command" not in res.channels
+    assert "stayed in Coulomb friction" in cal.out.getvalue()
