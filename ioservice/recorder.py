@@ -443,6 +443,9 @@ class Recorder:
                              f"recording's {self.layout.hash_hex}")
         self.client = client
         self.counters.sessions += 1
+        t_frame = client.header().frame_t_s  # the service's newest frame: messages recorded
+        if t_frame > 0:  # before the first frame (a command area never written) are stamped
+            self._log_ns = _ns(t_frame, self.offset_ns)  # there, not at host boot (t = 0)
         self._last_seq = -1
         self._last_frame = -1
         self._last_t = {}

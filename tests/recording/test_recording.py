@@ -299,3 +299,18 @@ def test_record_cli_waits_with_a_message_and_gives_up(tmp_path):
     assert f"waiting for service on /dev/shm/{name}" in p.stderr
     assert "nothing recorded" in p.stderr
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_nothing_is_stamped_before_the_service_time_the_recording_starts_at(rig, tmp_path):
+    """A command area nobody has written yet (t_s = 0) used to be stamped at the service
+    clock's zero (host boot time, live): a viewer's timeline then began ~2,000 s before the
+    data. It is stamped at the service's newest frame when the recorder attaches."""
+    rig.run(0.5)
+    path = tmp_path / "late.mcap"
+    rec = _record(rig, path, 0.1)
+    rec.close()
+    _, msgs = _read(path)
+    first_frame = min(t for topic, t, _ in msgs if topic == RAW_TOPIC)
+    cmd = [t for topic, t, _ in msgs if topic == "/pfma/commands"]
+    assert cmd and min(cmd) >= first_frame - 10_000_000  # within a few frames, not 0.5 s early
+    # (messages posted before the recording started keep their own times: they are history)
