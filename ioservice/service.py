@@ -778,8 +778,8 @@ class IoService:
         v["command_input_age_frames"][...] = age if 0 <= age < 0xFFFFFFFF else 0xFFFFFFFF
         if not live:
             v["command_status"][...] = status
-            if not status:
-                self._cmd_episode &= CMD_REFUSED | CMD_FOREIGN  # those stay announced until re-armed
+            # a condition that ended may be announced again; refusals stay announced until re-armed
+            self._cmd_episode &= status | CMD_REFUSED | CMD_FOREIGN
             self._apply_safe()
             return
         if not self._outputs_enabled:
@@ -791,8 +791,7 @@ class IoService:
             v["stale_commands"] += 1
             self._announce(CMD_STALE, f"rates 0V: cmd inputs {age} fr old > "
                                       f"{self.policy.max_input_age_frames}{self._stall_note()}")
-        else:
-            self._cmd_episode &= ~(CMD_STALE | CMD_ABSENT)
+        self._cmd_episode &= status | CMD_REFUSED | CMD_FOREIGN
         v["command_status"][...] = status
         r = self._dac.range_volts
         volts, st_out = [], []
