@@ -486,6 +486,7 @@ class IoService:
             self._apply_safe()
         self._publish(info)
         self.serial_tick()
+        self._last_alive = self.clock.now()  # a long frame is the service's own work, not a stall
         if k % self.stats_every == 0:
             if self._stats_between_frames:
                 self._stats_due_k = k  # computed in the sleep after this frame (idle_tick)
@@ -680,11 +681,15 @@ class IoService:
         return ""
 
     def _note_alive(self, now: float) -> None:
-        """Called at every frame and hook tick: a gap longer than HOST_STALL_S since the
-        last one is a host stall, recorded and announced (the service could not run)."""
+        """Called at every frame start and hook tick: a gap longer than HOST_STALL_S since the
+        service last ran (a tick, or the end of a frame's work) is a host stall, recorded and
+        announced (the service could not run). A stall inside a frame's work shows as an
+        overrun instead."""
         last = self._last_alive
         self._last_alive = now
-        if last is not None and now - last > HOST_STALL_S:
+        # without the between-frames ticks (run() installs them) a whole period may pass
+        limit = HOST_STALL_S if self._stats_between_frames else HOST_STALL_S + self.schedule.period_s
+        if last is not None and now - last > limit:
             self._stall_s, self._stall_end = now - last, now
             v = self._v
             v["host_stall_s"][...] = self._stall_s

@@ -348,3 +348,18 @@ def test_pfma_stats_shows_what_the_service_made_of_the_commands(rig):
     cm = stats_cli.collect(rig.reader)["commands"]
     assert cm["stale_frames"] == 3 and cm["refused"] == 1 and "refused" in cm["status"]
     assert cm["foreign_writes"] == 0 and not cm["watchdog_tripped"]
+
+
+def test_a_long_frame_of_the_service_itself_is_not_called_a_host_stall(rig, monkeypatch):
+    """Only time in which the service could not run is a host stall: a frame whose own work
+    takes 12 ms (a slow bus) is an overrun, not a stall of the host."""
+    armed(rig)
+    slow = rig.svc._task_rtd
+
+    def slow_rtd():
+        slow()
+        rig.clock.advance(0.012)  # the service itself busy for 12 ms in this frame
+    monkeypatch.setattr(rig.svc, "_task_rtd", slow_rtd)
+    rig.run_frames(4)
+    assert rig.reader.read_inputs().host_stall_s == 0.0
+    assert not any(t.startswith("host stall") for t in texts(rig))
