@@ -136,6 +136,7 @@ class DataAcquisitionLayer(Layer):
         self._same_frames = 0
         self._ft_bad_run = 0
         self.ft_in_use = True  #: force control or force reflection uses the F/T (see _force_in_use)
+        self._force_vars: tuple[str, ...] | None = None
         self._ft_warned = False
         self._ft_warning = ""
         self.arm_request = 0
@@ -232,17 +233,18 @@ class DataAcquisitionLayer(Layer):
     def status_value(self, rt) -> int:
         return rt.wm.get_state_variable(self.v_status)
 
-    @staticmethod
-    def _force_in_use(rt) -> bool:
+    def _force_in_use(self, rt) -> bool:
         """The wrench drives the arm now: impedance control (``force.state`` not OFF) or
         force reflection to the CRL. A stale F/T link is then a fault; otherwise it only
         makes the force data invalid (a WARNING), so a host stall that starves the F/T line
         for 100 ms does not stop an arm that is not using it. Without the force layer's
         variables (a bare runtime) the F/T is taken to be in use."""
-        names = rt.wm.names()
-        if "force.state" not in names:
+        if self._force_vars is None:  # which of them this model has: looked up once, not every frame
+            names = set(rt.wm.names())
+            self._force_vars = tuple(n for n in ("force.state", "teleop.reflect_enabled") if n in names)
+        if "force.state" not in self._force_vars:
             return True
-        v = rt.wm.get_task_inputs([n for n in ("force.state", "teleop.reflect_enabled") if n in names])
+        v = rt.wm.get_task_inputs(self._force_vars)
         return int(v["force.state"]) != 0 or bool(v.get("teleop.reflect_enabled", False))
 
     @staticmethod
