@@ -23,8 +23,8 @@ import uuid
 
 import numpy as np
 
-from ioservice.layout import SEQ_BLOCK
-from ioservice.shm import Bit3Buffer, SeqLock
+from bit3.layout import SEQ_BLOCK
+from bit3.buffer import Bit3Buffer, SeqLock
 
 REGION = 32768
 
@@ -60,7 +60,7 @@ def _time_op(op, n: int, overhead: float) -> np.ndarray:
 def _region(name: str, create: bool):
     from multiprocessing import resource_tracker, shared_memory
     shm = shared_memory.SharedMemory(name, create=create, size=SEQ_BLOCK + REGION if create else 0)
-    resource_tracker.unregister(shm._name, "shared_memory")  # see ioservice/shm.py
+    resource_tracker.unregister(shm._name, "shared_memory")  # see bit3/buffer.py
     return shm
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from controller.decision import Status
-from controller.simulator import SystemSimulator
+from sim.system import SystemSimulator
 
 FAULTS = {
     "resolver loss of signal (rtd1 ch 0)": lambda w: w.bus["rtd1"].inject("loss_of_signal", channel=0),

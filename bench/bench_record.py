@@ -18,7 +18,7 @@ import time
 import uuid
 from pathlib import Path
 
-from ioservice.recorder import read_metadata, recover
+from tools.recording.recorder import read_metadata, recover
 
 
 def _cpu_s(pid: int) -> float:
@@ -32,9 +32,9 @@ def one(rate: float, seconds: float, workdir: Path) -> dict:
     path = workdir / f"rec-{int(rate)}.mcap"
     py = sys.executable
     # the recorder starts first and waits for the service (start-up robustness on the way)
-    rec = subprocess.Popen([py, "-m", "pfma", "record", str(path), "--buffer", name, "--quiet"],
+    rec = subprocess.Popen([py, "-m", "tools.cli", "record", str(path), "--buffer", name, "--quiet"],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    srv = subprocess.Popen([py, "-m", "pfma", "serve", "--buffer", name, "--duration", str(seconds),
+    srv = subprocess.Popen([py, "-m", "tools.cli", "serve", "--buffer", name, "--duration", str(seconds),
                             "--frame-rate", str(rate)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                            text=True)
     cpu0, t0 = _cpu_s(rec.pid), time.monotonic()

@@ -32,9 +32,9 @@ import uuid
 
 import numpy as np
 
-from ioservice.client import Client
-from ioservice.layout import ServiceState
-from ioservice.shm import Bit3Buffer
+from bit3.client import Client
+from bit3.layout import ServiceState
+from bit3.buffer import Bit3Buffer
 
 
 def _cpu_s(pid: int) -> float:
@@ -59,7 +59,7 @@ def _attach(name: str, timeout_s: float = 20.0) -> Client:
 
 
 def _serve(name: str, seconds: float, rate: float) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "pfma", "serve", "--buffer", name,
+    return subprocess.Popen([sys.executable, "-m", "tools.cli", "serve", "--buffer", name,
                              "--duration", str(seconds), "--frame-rate", str(rate)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
@@ -234,7 +234,7 @@ def watchdog_figures(trials: int = 5) -> list[dict]:
     try:
         c = _attach(name)
         for _ in range(trials):
-            ctl = subprocess.Popen([sys.executable, "-m", "controller.demo", "--buffer", name,
+            ctl = subprocess.Popen([sys.executable, "-m", "sim.demo", "--buffer", name,
                                     "--duration", "60"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             t_end = time.monotonic() + 10
             armed = False

@@ -220,8 +220,8 @@ def _trips(messages: list[dict]) -> list[dict]:
 
 
 def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = False) -> dict:
-    from ioservice.client import Client
-    from ioservice.recorder import read_metadata
+    from bit3.client import Client
+    from tools.recording.recorder import read_metadata
 
     py = sys.executable
     name = "pfma-stack-" + uuid.uuid4().hex[:6]
@@ -233,7 +233,7 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
     client = None
     watch = None
     try:
-        procs["service"] = _Proc("service", [py, "-m", "pfma", "serve", "--rack", "fake", "--buffer", name, *rt_flag],
+        procs["service"] = _Proc("service", [py, "-m", "tools.cli", "serve", "--rack", "fake", "--buffer", name, *rt_flag],
                                  workdir)
         rep["started"].append("service")
         t_start = time.monotonic()
@@ -256,9 +256,9 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
             time.sleep(0.1)
         rep["service_start_s"] = _r(time.monotonic() - t_start, 2)
         if client is not None and not rep["errors"]:
-            procs["controller"] = _Proc("controller", [py, "-m", "pfma", "controller", "--buffer", name,
+            procs["controller"] = _Proc("controller", [py, "-m", "tools.cli", "controller", "--buffer", name,
                                                        "--wm", name + "-wm", "--power-up", *rt_flag], workdir)
-            procs["recorder"] = _Proc("recorder", [py, "-m", "pfma", "record", str(rec_path), "--buffer", name,
+            procs["recorder"] = _Proc("recorder", [py, "-m", "tools.cli", "record", str(rec_path), "--buffer", name,
                                                    "--quiet"], workdir)
             rep["started"] += ["controller", "recorder"]
             t0 = time.monotonic()

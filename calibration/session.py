@@ -11,14 +11,14 @@ Two sessions share one interface:
 
 - :class:`SimSession` wraps a simulated-time rig (``FakeWorld`` + ``IoService`` +
   clients on one ``SimClock``; any object with ``run(seconds)``, ``on_frame``,
-  ``reader``, ``controller()``, ``world``, ``svc``, e.g. ``ioservice.simrig.SimRig``
-  or :func:`calibration.sim.build_rig`); time passes only when the procedure waits.
+  ``reader``, ``controller()``, ``world``, ``svc``, e.g. ``sim.rig.SimRig``
+  or :func:`sim.calibration.build_rig`); time passes only when the procedure waits.
 - :class:`LiveSession` attaches to a running service (``pfma serve``) by buffer name
   and runs in real time (command heartbeat every 2 ms).
 
 Operators: :class:`ConsoleOperator` prints the prompt and waits for Enter (or, with
 ``--non-interactive``, goes on at once); on the simulated rack
-``calibration.sim.SimOperator`` acts instead of a person.
+``sim.calibration.SimOperator`` acts instead of a person.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from typing import Any, Callable, Protocol, TextIO
 
 import numpy as np
 
-from ioservice.layout import ServiceState
+from bit3.layout import ServiceState
 from pfma.errors import CalibrationError
 
 #: joints in DH order (pfma-model 8.1), by the rack's signal stem
@@ -254,7 +254,7 @@ class LiveSession(Session):
 
     def __init__(self, buffer: str = "pfma", rack: str | None = None, tick_s: float = 0.002) -> None:
         super().__init__()
-        from ioservice.client import Client
+        from bit3.client import Client
         self._Client = Client
         self.buffer = buffer
         self.rack = rack

@@ -4,7 +4,7 @@ IRSS report 2.2.1: "the layer through which all I/O data (other than user keyboa
 input) comes ... This layer also controls the DACs that command joint motions and
 control motor current limits." Here the I/O chassis is the data-acquisition service
 (:mod:`ioservice`); this layer talks to it only through
-:class:`ioservice.client.Client`:
+:class:`bit3.client.Client`:
 
 * **acquire** (first thing in every minor frame, before the communications segment):
   the service's latest input snapshot -> world-model variables ``daq.*`` (resolver
@@ -62,14 +62,14 @@ from controller.messages import Level
 from controller.params import JOINTS, N_CURRENT_LIMITS, N_JOINTS
 from controller.servo import ERR_NO_OUTPUT
 from controller.worldmodel import VarSpec
-from ioservice.layout import (
+from bit3.layout import (
     BOARD_FAULT, CHANNEL_BUS_ERROR, CMD_FOREIGN, CMD_REFUSED, CMD_STALE, CMD_STATUS_NAMES, HAND_CONTROLLERS, HC_AXES,
     LINK_FAULT, LINK_STALE, ServiceState,
 )
 
 if TYPE_CHECKING:  # pragma: no cover
     from controller.context import LayerContext
-    from ioservice.client import Client
+    from bit3.client import Client
 
 FAULT_RESOLVER, FAULT_TACH, FAULT_FT, FAULT_BOARD, FAULT_SERVICE, FAULT_STALE = 1, 2, 4, 8, 16, 32
 FAULT_COMMAND = 64

@@ -15,7 +15,7 @@ PFMA model; ALL VALUES ASSUMED there, the real PFMA data are not public):
   tau_f = 15.9 ms (10 Hz), K_a = lambda J / (N eta K_t K_w) with lambda = 40 rad/s,
   effective inertia 8.3 and viscous friction 8.3.
 
-Joints are listed in the Bit3 command-area order (``ioservice.layout`` joint_names):
+Joints are listed in the Bit3 command-area order (``bit3.layout`` joint_names):
 shoulder pitch, shoulder yaw, elbow pitch, wrist yaw, wrist pitch, wrist roll.
 """
 

@@ -70,7 +70,7 @@ from controller.paths import MultiSegmentLayer
 from controller.trajectory import TrajectoryLayer
 from controller.servo import ERR_MISSED, ServoLayer
 from controller.worldmodel import VarSpec, WorldModel
-from ioservice.layout import Severity
+from bit3.layout import Severity
 
 #: frames kept in the trace by default (about 6 s at 320 Hz)
 TRACE_FRAMES = 2048
@@ -173,7 +173,7 @@ def build_layers(client, require_ft: bool = True) -> list[Layer]:
 class ControllerRuntime:
     """The controller: seven layers over a world model, driven one minor frame at a time.
 
-    :param client: a :class:`ioservice.client.Client` attached as the command writer
+    :param client: a :class:`bit3.client.Client` attached as the command writer
     :param frames: frame rate and scheduling table (validated here)
     :param wm_name: shared-memory name of the world model (None: private, in-process)
     :param clock: time source for stamps and sequence-task timeouts (the service's)

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 SOURCE = "pfma-model.md 8.2, 8.5, 8.6 (assumed)"
-#: hand-controller sources, the rows of daq.hc_axes (ioservice.layout.HAND_CONTROLLERS)
+#: hand-controller sources, the rows of daq.hc_axes (bit3.layout.HAND_CONTROLLERS)
 HC_SOURCES: tuple[str, ...] = ("cae", "crl", "hid")
 HC_CAE, HC_CRL, HC_HID = 0, 1, 2
 FRAME_WORLD, FRAME_TOOL = 0, 1

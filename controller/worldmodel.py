@@ -39,7 +39,7 @@ the communications frame"); readers in other processes retry on the sequence loc
 The segment layout (header, spec JSON, request ring, seqlocked data body) is in
 ``docs/world-model.md``. The sequence lock, the shared-memory open without the
 resource-tracker, the liveness check and the byte lock are those of the Bit3 buffer
-(:mod:`ioservice.shm`), including its x86-64 memory-ordering argument.
+(:mod:`bit3.buffer`), including its x86-64 memory-ordering argument.
 """
 
 from __future__ import annotations
@@ -59,7 +59,9 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
-from ioservice.shm import SeqLock, lock_byte, open_shm, pid_alive
+from bit3.buffer import lock_byte, open_shm, pid_alive
+from bit3.layout import SEQ_BLOCK  # the SeqLock counter block before the body
+from bit3.seqlock import SeqLock
 from pfma.clock import MonotonicClock
 from pfma.errors import PfmaError
 
@@ -99,7 +101,6 @@ HEADER_SIZE = 512
 REQUEST_SLOTS = 16
 SLOT_HEADER = 192
 MIN_PAYLOAD = 64
-SEQ_BLOCK = 64  # the SeqLock counter block before the body (ioservice.layout.SEQ_BLOCK)
 READ_TIMEOUT_S = 0.1
 
 #: header field -> (offset, struct format); all little-endian, naturally aligned

@@ -28,7 +28,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from pfma.errors import BusError
-from pfma.modbus_server import ModbusServerThread
+from drivers.bus.modbus_server import ModbusServerThread
 
 __all__ = ["ModbusGateway"]
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ioservice.layout import (  # noqa: F401 - the status bits are re-exported for older importers
+from bit3.layout import (  # noqa: F401 - the status bits are re-exported for older importers
     BOARD_FAULT, BOARD_INIT, BOARD_OK, CHANNEL_BUS_ERROR, CMD_ABSENT, CMD_FOREIGN, CMD_REFUSED, CMD_STALE,
     DAC_CLIPPED, DAC_FORCED_SAFE, LINK_FAULT, LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_NO_REFERENCE, ServiceState,
     Severity,
@@ -37,11 +37,11 @@ from ioservice.layout import (  # noqa: F401 - the status bits are re-exported f
 from ioservice.loop import FrameInfo, FrameLoop, LoopStats
 from ioservice.safety import OutputGuard
 from ioservice.schedule import MINOR_FRAMES_PER_MAJOR, Schedule
-from ioservice.shm import Bit3Buffer
+from bit3.buffer import Bit3Buffer
 from pfma.clock import Clock
 from pfma.errors import ConfigError, PfmaError
 from pfma.rack import RackConfig
-from pfma.rackio import RackIO
+from drivers.rackio import RackIO
 
 #: fault codes (inputs.fault_code)
 FAULT_NONE, FAULT_WATCHDOG, FAULT_DAC, FAULT_INPUTS, FAULT_UNEXPECTED = 0, 1, 2, 3, 4
@@ -149,7 +149,7 @@ class IoService:
                               f"command watchdog; lower it or raise the watchdog")
         buffer.claim("service", owner)
         self.inputs = buffer.writer("inputs")
-        #: optional ``ioservice.ring.FrameRing``: every published inputs body is also
+        #: optional ``bit3.ring.FrameRing``: every published inputs body is also
         #: appended there (``pfma serve`` creates it for recorders)
         self.ring = None
         self.stats_writer = buffer.writer("stats")

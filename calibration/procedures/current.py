@@ -17,7 +17,7 @@ import numpy as np
 from calibration import fit as F
 from calibration.plot import Series, plot_fit
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name
-from ioservice.layout import ServiceState
+from bit3.layout import ServiceState
 from pfma.errors import CalibrationError
 
 NAME = "current-offsets"

@@ -22,7 +22,7 @@ from drivers.crl import crl_codec as codec
 from drivers.crl.state import HandControllerState, safe_state
 from pfma.clock import Clock, MonotonicClock
 from pfma.errors import LinkError
-from pfma.ratewindow import RateWindow
+from drivers.ratewindow import RateWindow
 
 #: meaning of ``HandControllerState.buttons`` for source "crl" (the frame's buttons byte)
 BUTTONS: dict[int, str] = {codec.BTN_DEADMAN: "deadman", codec.BTN_INDEX: "index (clutch)",

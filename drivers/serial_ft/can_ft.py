@@ -17,7 +17,7 @@ from typing import Any
 
 from pfma.clock import Clock, MonotonicClock
 from pfma.errors import ConfigError, LinkError, PfmaTimeoutError
-from pfma.ratewindow import RateWindow
+from drivers.ratewindow import RateWindow
 
 from .ftsensor import FtReading, LinkStats
 from .protocol import (CAN_BASE_ID, CAN_LAYOUT, CAN_NODE_STRIDE, MAX_NODE_ID, NOMINAL,  # noqa: F401

@@ -21,7 +21,7 @@ from typing import Any, Protocol
 
 from pfma.clock import Clock, MonotonicClock
 from pfma.errors import ConfigError, LinkError, PfmaTimeoutError
-from pfma.ratewindow import RateWindow
+from drivers.ratewindow import RateWindow
 
 from . import protocol as P
 

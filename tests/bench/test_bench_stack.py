@@ -7,7 +7,7 @@ import sys
 
 
 def test_short_stack_bench_reports_and_stops_every_process():
-    out = subprocess.run([sys.executable, "-m", "pfma", "bench", "stack", "--minutes", "0.05", "--json"],
+    out = subprocess.run([sys.executable, "-m", "tools.cli", "bench", "stack", "--minutes", "0.05", "--json"],
                          capture_output=True, text=True, timeout=240)
     assert "Traceback" not in out.stderr, out.stderr[-2000:]
     rep = json.loads(out.stdout)

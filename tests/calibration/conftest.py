@@ -8,8 +8,8 @@ import pytest
 from calibration.files import nominal_calibration, save_calibration
 from calibration.procedures import Context
 from calibration.session import SimSession
-from calibration.sim import SimOperator
-from calibration.sim import SimRig as Rig
+from sim.calibration import SimOperator
+from sim.calibration import SimRig as Rig
 
 
 class CalRig:

@@ -9,9 +9,9 @@ import pytest
 
 from calibration.procedures import run_procedure
 from calibration.procedures.motion import LSB_RAD
-from calibration.sim import SensorTruth, SimOperator, StickTruth
+from sim.calibration import SensorTruth, SimOperator, StickTruth
 from fakes.arm_params import AXES, NOMINAL, SimErrors
-from ioservice.layout import ServiceState
+from bit3.layout import ServiceState
 from pfma.errors import PfmaError
 
 LSB_V = 20.0 / 4096

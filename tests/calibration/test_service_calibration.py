@@ -8,10 +8,10 @@ import uuid
 import pytest
 
 from calibration import files
-from ioservice.shm import Bit3Buffer
-from pfma.cli import build_parser
+from bit3.buffer import Bit3Buffer
+from tools.cli import build_parser
 from pfma.errors import CalibrationError
-from calibration.sim import SimRig as Rig
+from sim.calibration import SimRig as Rig
 
 
 def _cal(tmp_path, rack, scale=2.0):
@@ -68,7 +68,7 @@ def test_service_refuses_a_bad_file_at_start(tmp_path):
 def _cli(*argv) -> tuple[int, str]:
     args = build_parser().parse_args(["calibrate", *argv])
     out = io.StringIO()
-    from pfma.cli import calibrate
+    from tools.cli import calibrate
     return calibrate.run(args, out=out), out.getvalue()
 
 

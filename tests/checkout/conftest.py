@@ -4,8 +4,8 @@ import uuid
 
 import pytest
 
-from ioservice.checkout import load_checkout_config, make_sim_target
-from ioservice.simrig import SimRig as Rig
+from tools.checkout import load_checkout_config, make_sim_target
+from sim.rig import SimRig as Rig
 
 
 @pytest.fixture

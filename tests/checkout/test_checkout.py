@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from fakes.arm_params import AXES, SimErrors
-from ioservice.checkout import FAIL, PASS, SKIP, Checkout, CheckoutConfig
-from ioservice.layout import ServiceState
-from pfma.cli import main
+from tools.checkout import FAIL, PASS, SKIP, Checkout, CheckoutConfig
+from bit3.layout import ServiceState
+from tools.cli import main
 
 
 def run(target, cfg, **kw):

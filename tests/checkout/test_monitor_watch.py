@@ -6,12 +6,12 @@ import uuid
 
 import pytest
 
-from ioservice.checkout import Checkout, LiveTarget
-from ioservice.checkout.connect import ServiceLink, attach_waiting
-from ioservice.client import Client
-from pfma.cli import main
+from tools.checkout import Checkout, LiveTarget
+from tools.checkout.connect import ServiceLink, attach_waiting
+from bit3.client import Client
+from tools.cli import main
 from pfma.errors import PfmaTimeoutError
-from ioservice.simrig import SimRig as Rig
+from sim.rig import SimRig as Rig
 
 
 def test_monitor_once_shows_every_channel_with_units_status_and_links(rig, capsys):

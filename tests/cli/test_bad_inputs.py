@@ -2,8 +2,8 @@
 exits 2 (usage, argparse) or 1 (runtime) with one ``pfma VERB:`` line on stderr naming
 the file or field, and prints no traceback.
 
-Verbs run in-process through :func:`pfma.cli.main`. The MCAP files are a real 0.3 s
-recording of the simulated-time rig (``ioservice.simrig``) and copies of it cut short.
+Verbs run in-process through :func:`tools.cli.main`. The MCAP files are a real 0.3 s
+recording of the simulated-time rig (``sim.rig``) and copies of it cut short.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from pfma.cli import main
+from tools.cli import main
 from pfma.rack import DEFAULT_RACK
 
 OFFSET_NS = 1_700_000_000_000_000_000
@@ -25,8 +25,8 @@ OFFSET_NS = 1_700_000_000_000_000_000
 @pytest.fixture(scope="module")
 def files(tmp_path_factory) -> dict[str, Path]:
     """Name -> path of every input the table refers to."""
-    from ioservice.recorder import Recorder
-    from ioservice.simrig import SimRig
+    from tools.recording.recorder import Recorder
+    from sim.rig import SimRig
 
     d = tmp_path_factory.mktemp("bad_inputs")
     good = d / "good.mcap"
@@ -202,7 +202,7 @@ def test_truncated_recording_recovers_and_then_reads(files, capsys, tmp_path):
 
 def test_os_error_escaping_a_verb_is_one_line(monkeypatch, capsys):
     """Any OSError a verb lets out (here from ``pfma channels``) becomes ``strerror: file``."""
-    import pfma.cli.channels as channels
+    import tools.cli.channels as channels
 
     def boom(_args):
         raise PermissionError(13, "Permission denied", "/var/lib/pfma/stats.json")
@@ -213,7 +213,7 @@ def test_os_error_escaping_a_verb_is_one_line(monkeypatch, capsys):
 
 
 def test_programming_errors_are_not_hidden(monkeypatch):
-    import pfma.cli.channels as channels
+    import tools.cli.channels as channels
 
     def bug(_args):
         raise TypeError("a bug")

@@ -7,10 +7,10 @@ import math
 
 import pytest
 
-from controller import demo
-from ioservice.layout import ServiceState, default_layout
-from ioservice.simrig import SimRig
-from pfma.cli.serve import _live_header, _live_lines, _live_message, _wrap_pi
+from sim import demo
+from bit3.layout import ServiceState, default_layout
+from sim.rig import SimRig
+from tools.cli.serve import _live_header, _live_lines, _live_message, _wrap_pi
 
 JOINTS = default_layout().joint_names
 

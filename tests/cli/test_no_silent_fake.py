@@ -12,9 +12,9 @@ import uuid
 import pytest
 
 from drivers.bus import open_bus
-from ioservice.layout import default_layout
-from ioservice.shm import Bit3Buffer
-from pfma.cli import main
+from bit3.layout import default_layout
+from bit3.buffer import Bit3Buffer
+from tools.cli import main
 from pfma.errors import PfmaError
 from tests.ioservice import _workers
 

@@ -1,4 +1,4 @@
-"""``pfma reg``, ``pfma read`` and ``pfma regs`` through pfma.cli.main."""
+"""``pfma reg``, ``pfma read`` and ``pfma regs`` through tools.cli.main."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import pytest
 
 from drivers.bus import open_bus
 from fakes.modbus_gateway import ModbusGateway
-from pfma.cli import main
+from tools.cli import main
 from pfma.clock import SimClock
 from pfma.rack import load_rack
-from pfma.rackio import RackIO
+from drivers.rackio import RackIO
 from tests.bus.tinybus import free_port, quiet_pymodbus
 
 

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from pfma.cli import main
+from tools.cli import main
 from pfma.errors import ConfigError
 from pfma.rack import DEFAULT_RACK, load_rack, parse_rack
 

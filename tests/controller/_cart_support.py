@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from controller.kinematics import fk
-from controller.simulator import SystemSimulator
+from sim.system import SystemSimulator
 
 #: CAE volts giving a shaped demand of 0.25 (pfma-model 8.5: u = ((|v| - 0.5) / 9.5)^2)
 V_QUARTER = 0.5 + 9.5 * 0.5

@@ -3,7 +3,7 @@
 import pytest
 
 from controller.decision import Status
-from controller.simulator import SystemSimulator
+from sim.system import SystemSimulator
 
 
 @pytest.fixture

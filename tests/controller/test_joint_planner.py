@@ -27,7 +27,7 @@ from controller.decision import Status
 from controller.layers import JointPlannerLayer, Layer
 from controller.messages import Level
 from controller.quat import q_angle, q_from_axis_angle, q_from_matrix, q_mul, q_slerp
-from controller.simulator import SystemSimulator
+from sim.system import SystemSimulator
 from fakes.arm import ArmModel
 from fakes.kinematics import Kinematics as SimKinematics
 

@@ -17,9 +17,9 @@ from controller.daq_layer import FAULT_COMMAND
 from controller.decision import Status
 from controller.frames import FrameConfig
 from controller.servo import ERR_MISSED, LeadLag
-from controller.simulator import SystemSimulator
-from ioservice.client import Client
-from ioservice.layout import CMD_FOREIGN, CMD_REFUSED, CMD_STALE
+from sim.system import SystemSimulator
+from bit3.client import Client
+from bit3.layout import CMD_FOREIGN, CMD_REFUSED, CMD_STALE
 from tests.controller._rt_support import powered, sim  # noqa: F401 (fixtures)
 
 S = Status
@@ -217,7 +217,7 @@ def test_lead_lag_anti_windup_recovers_from_a_long_saturation_without_overshoot(
 
 # --- controller statistics -----------------------------------------------------------------
 def test_controller_stats_are_published_and_pfma_stats_shows_them(powered):
-    from pfma.cli import stats as stats_cli
+    from tools.cli import stats as stats_cli
     powered.controller_steps = lambda f: 0 if f % 50 == 0 else 1
     powered.step(400)
     rt = powered.rt
@@ -238,8 +238,8 @@ def test_controller_stats_are_published_and_pfma_stats_shows_them(powered):
 
 
 def test_pfma_stats_without_a_controller_says_so():
-    from ioservice.simrig import SimRig
-    from pfma.cli import stats as stats_cli
+    from sim.rig import SimRig
+    from tools.cli import stats as stats_cli
     with SimRig(prefix="pfma-sim-") as rig:
         rig.svc.loop.run(frames=5, freeze_gc=False)
         out = io.StringIO()

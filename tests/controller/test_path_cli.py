@@ -1,6 +1,6 @@
 """``pfma path`` and ``pfma controller --record/--play`` on the simulated rack."""
 
-from pfma.cli import main
+from tools.cli import main
 
 
 def test_path_cli_new_edit_show_delete(tmp_path, capsys):

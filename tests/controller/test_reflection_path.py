@@ -3,7 +3,7 @@ command area -> service -> MVME400 port B -> the CRL master fake."""
 
 import numpy as np
 
-from controller.simulator import SystemSimulator
+from sim.system import SystemSimulator
 
 
 def test_reflected_force_reaches_the_crl_display():

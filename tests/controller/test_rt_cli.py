@@ -4,7 +4,7 @@ import io
 
 from controller.daq_layer import FAULT_TACH
 from controller.servo import TACH_FAULT_BIT
-from pfma.cli import main
+from tools.cli import main
 
 
 def test_sim_power_up_prints_the_trace_and_the_final_statuses(capsys):

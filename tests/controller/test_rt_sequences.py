@@ -5,7 +5,7 @@ import pytest
 
 from controller.decision import Status
 from controller.layers import Request, Response
-from controller.simulator import SystemSimulator
+from sim.system import SystemSimulator
 from controller.worldmodel import WorldModelError
 from tests.controller._rt_support import powered, sim  # noqa: F401 (fixtures)
 

@@ -6,7 +6,7 @@ import pytest
 
 from controller.params import JOINT_NAMES, RESOLVER_LSB_RAD, joint, unwrap_angle
 from controller.servo import LeadLag, predict_step
-from controller.simulator import SystemSimulator
+from sim.system import SystemSimulator
 
 
 def test_tustin_coefficients_match_the_formulas():

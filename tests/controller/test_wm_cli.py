@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from controller.worldmodel import DEFAULT_ACCESS_KEY, WorldModel
-from pfma.cli import main
+from tools.cli import main
 from tests.controller import _wm_support as sup
 
 

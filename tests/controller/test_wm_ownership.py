@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from controller.decision import Status
-from controller.simulator import SystemSimulator
+from sim.system import SystemSimulator
 from controller.worldmodel import WorldModel, WorldModelError
-from pfma.cli import main
+from tools.cli import main
 from tests.controller import _wm_support as sup
 
 #: variable -> what the refusal says it is (the writer named as its owner)

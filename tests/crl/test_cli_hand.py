@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from pfma.cli import main
+from tools.cli import main
 
 
 def test_cae_on_the_fake_rack(capsys):

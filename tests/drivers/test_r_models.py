@@ -181,7 +181,7 @@ def test_fresh_pio_driver_reads_without_resetting_control_lines(rack):
     the control register: before, its driver wrote CRA = 0x04 (C2 to input, strobe line
     released) because its own shadow of CRA was the reset value."""
     from pfma.rack import load_rack
-    from pfma.rackio import RackIO
+    from drivers.rackio import RackIO
 
     service = Mvme410(rack, 0x0020, name="pio_video")
     service.configure(["out", "in", "in", "in"])

@@ -1,8 +1,8 @@
-"""pfma.ratewindow.RateWindow: the link-rate figure of the F/T and hand-controller drivers."""
+"""drivers.ratewindow.RateWindow: the link-rate figure of the F/T and hand-controller drivers."""
 
 import pytest
 
-from pfma.ratewindow import RateWindow
+from drivers.ratewindow import RateWindow
 
 
 def test_rate_over_the_window_and_events_leaving_it():

@@ -7,8 +7,8 @@ import time
 
 import numpy as np
 
-from ioservice.client import Client
-from ioservice.shm import Bit3Buffer
+from bit3.client import Client
+from bit3.buffer import Bit3Buffer
 
 
 def flat_out_writer(name: str, started, stop, max_s: float, result) -> None:
@@ -63,7 +63,7 @@ def hold_service_claim(name: str, layout_hash: bytes, conn) -> None:
     rack's), report the pid, hold the claim until told, then die without releasing."""
     from dataclasses import replace
 
-    from ioservice.layout import default_layout
+    from bit3.layout import default_layout
     buf = Bit3Buffer.attach(name, readonly=False, layout=replace(default_layout(), hash=layout_hash))
     buf.claim("service", "other-rack-serve")
     conn.send(os.getpid())
@@ -76,7 +76,7 @@ def ring_reader_across_replacement(name: str, layout_hash: bytes, conn) -> None:
     """Map a frame ring, let the parent replace it, then touch every page of the old
     mapping (SIGBUS if the file was truncated under it), notice the replacement and
     attach the new ring."""
-    from ioservice.ring import FrameRing
+    from bit3.ring import FrameRing
     r = FrameRing.attach(name, layout_hash)
     conn.send(("attached", r.count(), r.replaced()))
     conn.recv()  # the parent has created a new ring at the same path

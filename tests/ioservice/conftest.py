@@ -4,7 +4,7 @@ import uuid
 
 import pytest
 
-from ioservice.shm import Bit3Buffer
+from bit3.buffer import Bit3Buffer
 
 
 @pytest.fixture

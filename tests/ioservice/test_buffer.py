@@ -4,9 +4,9 @@ import struct
 import numpy as np
 import pytest
 
-from ioservice.client import Client
-from ioservice.layout import MAGIC, ServiceState, Severity, build_layout, default_layout
-from ioservice.shm import (
+from bit3.client import Client
+from bit3.layout import MAGIC, ServiceState, Severity, build_layout, default_layout
+from bit3.buffer import (
     Bit3Buffer, Bit3Error, LayoutMismatchError, OwnershipError, SeqLockTimeout,
 )
 from pfma.errors import ConfigError
@@ -136,7 +136,7 @@ def test_a_failed_role_claim_keeps_nothing(buf, shm_name):
     # steal only the service queue lock, then try the whole role from another attachment
     other.release()
     q = Bit3Buffer.attach(shm_name, readonly=False)
-    from ioservice.shm import _lock_byte
+    from bit3.buffer import _lock_byte
     _lock_byte(q._fd, default_layout().area("service_messages").index, True)
     with pytest.raises(OwnershipError, match="service_messages"):
         buf.claim("service", "svc2")
@@ -240,7 +240,7 @@ def test_snapshot_copy_is_independent(buf, shm_name):
 
 def _no_clock_no_yield(monkeypatch):
     """try_read must neither look at a clock nor yield the CPU (it is called every frame)."""
-    import ioservice.shm as shm
+    import bit3.buffer as shm
 
     def boom(*_a):
         raise AssertionError("try_read waited (clock or sched_yield)")
@@ -250,7 +250,7 @@ def _no_clock_no_yield(monkeypatch):
 
 
 def test_try_read_of_a_stuck_odd_counter_fails_at_once_and_keeps_the_record(buf, shm_name, monkeypatch):
-    from ioservice.shm import TRY_READ_ATTEMPTS
+    from bit3.buffer import TRY_READ_ATTEMPTS
     buf.claim("controller", "ctl")
     w = buf.writer("commands")
     w.record["arm_request"] = 1
@@ -296,7 +296,7 @@ class _MovingCounter:
 
 
 def test_try_read_refuses_a_copy_during_which_the_counter_changed(buf, shm_name, monkeypatch):
-    from ioservice.shm import TRY_READ_ATTEMPTS
+    from bit3.buffer import TRY_READ_ATTEMPTS
     buf.claim("service", "svc")
     w = buf.writer("inputs")
     w.record["frame"] = 1

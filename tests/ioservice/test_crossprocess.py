@@ -9,8 +9,8 @@ import os
 import numpy as np
 import pytest
 
-from ioservice.client import Client
-from ioservice.shm import Bit3Buffer, OwnershipError, SeqLockTimeout
+from bit3.client import Client
+from bit3.buffer import Bit3Buffer, OwnershipError, SeqLockTimeout
 from tests.ioservice import _workers
 
 N_READS = 20_000

@@ -11,14 +11,14 @@ from pathlib import Path
 import pytest
 
 from bench.independent_reader import IndependentReader, LayoutMismatch, SAMPLE_TIMES, ServiceStalled, measure
-from ioservice.simrig import SimRig
+from sim.rig import SimRig
 
 READER = Path(__file__).resolve().parents[2] / "bench" / "independent_reader.py"
 
 
 @pytest.fixture(scope="module")
 def published_layout():
-    out = subprocess.run([sys.executable, "-m", "pfma", "layout", "--json"], capture_output=True,
+    out = subprocess.run([sys.executable, "-m", "tools.cli", "layout", "--json"], capture_output=True,
                          text=True, check=True).stdout
     return json.loads(out)
 

@@ -3,10 +3,10 @@ import json
 import numpy as np
 import pytest
 
-from ioservice.layout import (
+from bit3.layout import (
     BUFFER_SIZE, CAPACITY, DOC_PATH, SEQ_BLOCK, build_layout, default_layout, layout_markdown,
 )
-from pfma.cli import main
+from tools.cli import main
 from pfma.errors import ConfigError
 from pfma.rack import DEFAULT_RACK, load_rack, parse_rack
 

@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from ioservice.client import Client
-from ioservice.layout import ServiceState, default_layout
-from ioservice.modbus_export import (
+from bit3.client import Client
+from bit3.layout import ServiceState, default_layout
+from tools.modbus_export import (
     CHANNELS_BASE, IDENT_BASE, MAP_DOC_PATH, MAP_VERSION, STATS_BASE, ModbusExport,
     ModbusExportError, map_row, modbus_map_markdown, parse_host_port, register_map,
     start_export_from_args,
 )
-from ioservice.shm import OwnershipError
+from bit3.buffer import OwnershipError
 from pfma.errors import ConfigError
 from tests.ioservice import _workers
 
@@ -391,4 +391,4 @@ def test_map_covers_every_field_without_overlap():
 def test_committed_map_doc_is_the_generated_one():
     assert MAP_DOC_PATH.read_text() == modbus_map_markdown(), (
         "docs/modbus-map.md is stale; regenerate with "
-        "ioservice.modbus_export.write_modbus_map_doc()")
+        "tools.modbus_export.write_modbus_map_doc()")

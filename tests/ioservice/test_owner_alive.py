@@ -8,8 +8,8 @@ process.
 import os
 from dataclasses import replace
 
-from ioservice.layout import default_layout
-from ioservice.shm import Bit3Buffer, open_shm
+from bit3.layout import default_layout
+from bit3.buffer import Bit3Buffer, open_shm
 from tests.ioservice import _workers
 
 

@@ -1,14 +1,14 @@
-"""ioservice.ring.FrameRing and the recorder reading from it (simulated time)."""
+"""bit3.ring.FrameRing and the recorder reading from it (simulated time)."""
 
 import struct
 import uuid
 
 import pytest
 
-from ioservice.client import Client
-from ioservice.recorder import InputsCapture, Recorder, read_frames
-from ioservice.ring import HEADER, FrameRing, RingError
-from ioservice.simrig import SimRig
+from bit3.client import Client
+from tools.recording.recorder import InputsCapture, Recorder, read_frames
+from bit3.ring import HEADER, FrameRing, RingError
+from sim.rig import SimRig
 
 
 @pytest.fixture
@@ -77,7 +77,7 @@ def test_ring_file_has_the_buffer_segment_mode(name):
     import os
     import stat
 
-    from ioservice.ring import ring_path
+    from bit3.ring import ring_path
     FrameRing.create(name, body_size=8, layout_hash=b"aaaaaaaa").close()
     assert stat.S_IMODE(os.stat(ring_path(name)).st_mode) == 0o600
     FrameRing.create(name, body_size=8, layout_hash=b"aaaaaaaa").close()  # replaced: still 0600

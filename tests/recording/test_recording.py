@@ -22,11 +22,11 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from ioservice.recorder import RAW_TOPIC, Recorder, decode_raw, recover
-from ioservice.shm import Bit3Buffer
-from pfma.cli.replay import replay_through_fakes, republish
-from pfma.cli.scope import ScopeCapture, load, render, save
-from ioservice.simrig import SimRig as Rig
+from tools.recording.recorder import RAW_TOPIC, Recorder, decode_raw, recover
+from bit3.buffer import Bit3Buffer
+from tools.cli.replay import replay_through_fakes, republish
+from tools.cli.scope import ScopeCapture, load, render, save
+from sim.rig import SimRig as Rig
 
 REPO = Path(__file__).resolve().parents[2]
 OFFSET_NS = 1_700_000_000_000_000_000
@@ -179,8 +179,8 @@ def test_truncated_file_is_made_whole(rig, tmp_path):
 _CHILD = r"""
 import sys, time, uuid
 sys.path.insert(0, sys.argv[2])
-from ioservice.simrig import SimRig as Rig
-from ioservice.recorder import Recorder
+from sim.rig import SimRig as Rig
+from tools.recording.recorder import Recorder
 rig = Rig(name="pfma-kill-" + uuid.uuid4().hex[:8])
 rec = Recorder(rig.reader, sys.argv[1], rack=rig.world.rack_config, flush_every_s=1e9)
 n = [0]
@@ -260,7 +260,7 @@ def test_replay_round_trip_is_byte_identical(rig, tmp_path):
     _record(rig, first, 0.5).close()
     name = "pfma-rep-" + uuid.uuid4().hex[:8]
     buf = Bit3Buffer.create(name, rig.reader.layout)
-    from ioservice.client import Client
+    from bit3.client import Client
     reader = Client.attach(name)
     try:
         second = tmp_path / "b.mcap"
@@ -293,7 +293,7 @@ def test_replay_through_the_fakes_matches_the_recording(rig, tmp_path):
 
 def test_record_cli_waits_with_a_message_and_gives_up(tmp_path):
     name = "pfma-none-" + uuid.uuid4().hex[:8]
-    p = subprocess.run([sys.executable, "-m", "pfma", "record", str(tmp_path / "x.mcap"), "--buffer", name,
+    p = subprocess.run([sys.executable, "-m", "tools.cli", "record", str(tmp_path / "x.mcap"), "--buffer", name,
                         "--wait", "0.5"], cwd=REPO, capture_output=True, text=True, timeout=30)
     assert p.returncode == 1
     assert f"waiting for service on /dev/shm/{name}" in p.stderr

@@ -18,12 +18,12 @@ import time
 import uuid
 from pathlib import Path
 
-from ioservice.recorder import read_frames, read_metadata
-from ioservice.ring import FrameRing
-from ioservice.shm import Bit3Buffer
+from tools.recording.recorder import read_frames, read_metadata
+from bit3.ring import FrameRing
+from bit3.buffer import Bit3Buffer
 
 REPO = Path(__file__).resolve().parents[2]
-_RECORD = ("import sys; import pfma.cli.record as r; r.STALE_S = 3600.0; from pfma.cli import main; "
+_RECORD = ("import sys; import tools.cli.record as r; r.STALE_S = 3600.0; from tools.cli import main; "
            "sys.exit(main(['record', sys.argv[1], '--buffer', sys.argv[2]]))")
 
 
@@ -65,7 +65,7 @@ def _wait_for_frames(name: str, n: int) -> None:
 
 
 def _serve(name: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "pfma", "serve", "--buffer", name, "--duration", "120"],
+    return subprocess.Popen([sys.executable, "-m", "tools.cli", "serve", "--buffer", name, "--duration", "120"],
                             cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 

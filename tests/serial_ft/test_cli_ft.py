@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pfma.cli import main
+from tools.cli import main
 
 
 def test_pfma_ft_fake_polls_and_prints_forces(capsys):
@@ -33,7 +33,7 @@ def test_pfma_ft_stops_cleanly_on_ctrl_c():
     import subprocess
     import sys
 
-    p = subprocess.Popen([sys.executable, "-m", "pfma", "ft", "--port", "fake", "--stream", "--checksum",
+    p = subprocess.Popen([sys.executable, "-m", "tools.cli", "ft", "--port", "fake", "--stream", "--checksum",
                           "--interval", "0.02"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:

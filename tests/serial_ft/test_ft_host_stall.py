@@ -13,7 +13,7 @@ from __future__ import annotations
 import pytest
 
 from drivers.serial_ft import protocol as P
-from ioservice.simrig import SimRig
+from sim.rig import SimRig
 
 RECORD_S = P.record_bytes("binary", True) * P.BITS_PER_CHAR / 19200  # 7.29 ms on the wire
 STALLS = ((0.5, 0.020), (1.0, 0.060))  # (simulated time it starts, length)

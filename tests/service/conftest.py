@@ -1,8 +1,8 @@
-"""The simulated-time rig for service tests (``ioservice.simrig.SimRig``)."""
+"""The simulated-time rig for service tests (``sim.rig.SimRig``)."""
 
 import pytest
 
-from ioservice.simrig import SimRig
+from sim.rig import SimRig
 
 
 @pytest.fixture

@@ -12,12 +12,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ioservice.layout import CMD_ABSENT, CMD_FOREIGN, CMD_REFUSED, CMD_STALE, ServiceState
+from bit3.layout import CMD_ABSENT, CMD_FOREIGN, CMD_REFUSED, CMD_STALE, ServiceState
 from ioservice.service import (
     DAC_CLIPPED, DAC_FORCED_SAFE, FAULT_COMMAND, FAULT_FOREIGN, FAULT_NONE, FAULT_WATCHDOG, IoService,
 )
-from ioservice.shm import Bit3Buffer
-from ioservice.simrig import SimRig
+from bit3.buffer import Bit3Buffer
+from sim.rig import SimRig
 from pfma.errors import ConfigError
 from pfma.rack import CommandPolicy, load_rack
 
@@ -296,7 +296,7 @@ def test_an_absurd_rate_written_over_modbus_is_refused_too(rig):
     to 9.995 V."""
     from pymodbus.client import ModbusTcpClient
 
-    from ioservice.modbus_export import ModbusExport, map_row, register_map
+    from tools.modbus_export import ModbusExport, map_row, register_map
     ROWS = register_map(rig.layout)
     DT = ModbusTcpClient.DATATYPE
     rig.run_frames(4)  # the service has seen the (still empty) command area
@@ -338,7 +338,7 @@ def test_the_input_age_can_be_set_per_service_and_is_checked_against_the_watchdo
 
 
 def test_pfma_stats_shows_what_the_service_made_of_the_commands(rig):
-    from pfma.cli import stats as stats_cli
+    from tools.cli import stats as stats_cli
     ctl = armed(rig)
     ctl.frames_old = 4  # 5 frames old at the service
     rig.run_frames(3)

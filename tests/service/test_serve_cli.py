@@ -4,10 +4,10 @@ import multiprocessing
 import uuid
 from dataclasses import replace
 
-from ioservice.client import Client
-from ioservice.layout import ServiceState, default_layout
-from ioservice.shm import Bit3Buffer
-from pfma.cli import main
+from bit3.client import Client
+from bit3.layout import ServiceState, default_layout
+from bit3.buffer import Bit3Buffer
+from tools.cli import main
 from tests.ioservice import _workers
 
 

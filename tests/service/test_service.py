@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from ioservice.layout import ServiceState
+from bit3.layout import ServiceState
 from ioservice.service import DAC_FORCED_SAFE, FAULT_INPUTS, FAULT_WATCHDOG
 
 P = 1 / 320
@@ -166,9 +166,9 @@ def test_ft_start_dialogue_garbled_by_lost_characters_is_retried():
     loaded host that polled the line late) garble a reply; the service asks again and the
     sensor streams at 80 Hz, instead of running without F/T."""
     from fakes.world import FakeWorld
-    from ioservice.client import Client
+    from bit3.client import Client
     from ioservice.service import IoService
-    from ioservice.shm import Bit3Buffer
+    from bit3.buffer import Bit3Buffer
     from ioservice.ticking import TickingClock
     from pfma.clock import SimClock
     import uuid

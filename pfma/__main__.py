@@ -1,5 +1,0 @@
-import sys
-
-from pfma.cli import main
-
-sys.exit(main())

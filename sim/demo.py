@@ -1,0 +1,122 @@
+"""A tiny demonstration controller for ``make run``: arms the simulated arm,
+swings the wrist roll and shoulder yaw slowly back and forth and holds the other
+joints at their start pose (a position loop on the resolver angles, so the shoulder
+pitch does not sag under residual gravity with a zero rate command).
+
+It is an ordinary commanding process: it claims the Bit3 buffer's command area,
+writes joint rate commands and current limits once per service frame (320 Hz, right
+after each new input snapshot, stamped with its frame so the service sees fresh commands:
+docs/safety.md), and disarms (rates 0, limits 0, arm request off) when it ends. The real controller
+layers replace it.
+
+Run: ``python -m sim.demo --buffer pfma --duration 30``
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+from bit3.client import Client
+
+#: current limits while armed (A): enough to release the brakes and hold the arm
+DEMO_CURRENT_LIMIT_A = (5.0, 5.0, 5.0, 2.5, 2.5, 2.5, 0.0)
+#: joint rate amplitude (rad/s) and period (s) of the swing, per command-area joint
+SWING = {"wrist_roll": (0.8, 6.0), "shoulder_yaw": (0.05, 10.0)}  # WR: above its Coulomb friction
+#: the hold loop of the other joints: rate = -k (q - q0), clipped to +-HOLD_MAX_RATE_RAD_S
+HOLD_GAIN_1_S = 2.0
+HOLD_MAX_RATE_RAD_S = 0.1  # well under every joint's rate limit (0.4 rad/s at the shoulder)
+#: seconds after the arm request before any joint moves (rates must be 0 when arming)
+ARM_SETTLE_S = 0.5
+
+
+def hold_rate(q: float, q0: float, k: float = HOLD_GAIN_1_S,
+              max_rate: float = HOLD_MAX_RATE_RAD_S) -> float:
+    """Rate (rad/s) pulling the resolver angle ``q`` back to ``q0``; the error is taken
+    around ``q0`` (the resolvers read 0..2 pi, so 6.28 is next to 0.0)."""
+    err = math.remainder(q - q0, 2 * math.pi)
+    return max(-max_rate, min(max_rate, -k * err))
+
+
+def frame_rates(t: float, joints, q, q0) -> list[float]:
+    """The demo's joint rate commands ``t`` s after its arm request, per command-area joint
+    (``joints``), from the resolver angles ``q`` and the start pose ``q0`` (None: no angle)."""
+    if t <= ARM_SETTLE_S:
+        return [0.0] * len(joints)
+    out = []
+    for name, qi, q0i in zip(joints, q, q0):
+        if name in SWING:
+            amp, per = SWING[name]
+            out.append(amp * math.sin(2 * math.pi * (t - ARM_SETTLE_S) / per))
+        elif qi is None or q0i is None:
+            out.append(0.0)
+        else:
+            out.append(hold_rate(qi, q0i))
+    return out
+
+
+def joint_angles(snap, joints) -> list[float | None]:
+    """Resolver angle (rad) of each command-area joint (``<joint>_angle``), None if absent."""
+    out = []
+    for name in joints:
+        try:
+            out.append(float(snap.value(f"{name}_angle")))
+        except KeyError:
+            out.append(None)
+    return out
+
+
+def run(buffer: str = "pfma", duration_s: float = 30.0, wait_s: float = 10.0) -> int:
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            c = Client.attach(buffer, writer="commands", owner="demo-controller")
+            break
+        except Exception as err:  # the service may not have created the buffer yet
+            if time.monotonic() > deadline:
+                print(f"demo controller: cannot attach to Bit3 buffer {buffer!r}: {err}", file=sys.stderr)
+                return 1
+            time.sleep(0.1)
+    joints = list(c.layout.joint_names)
+    rates = [0.0] * len(joints)
+    frame = 0
+    q0 = None
+    try:
+        # power-up sequence (pfma-model 8.4): rate 0 V first, then raise the current limits
+        # a new arm request: the service never re-arms on a request it has already seen
+        c.write_commands(joint_rate_rad_s=rates, current_limit_a=DEMO_CURRENT_LIMIT_A,
+                         arm_request=1, rearm_counter=int(c.command["rearm_counter"]) + 1)
+        t0 = time.monotonic()
+        while (now := time.monotonic()) - t0 < duration_s:
+            if not c.changed("inputs"):  # locked to the service: one write per new frame
+                time.sleep(0.0002)
+                continue
+            snap = c.read_inputs()
+            frame = snap.frame
+            q = joint_angles(snap, joints)
+            if q0 is None:
+                q0 = q  # the start pose the hold loop keeps
+            rates = frame_rates(now - t0, joints, q, q0)
+            c.write_commands(joint_rate_rad_s=rates, current_limit_a=DEMO_CURRENT_LIMIT_A,
+                             arm_request=1, inputs_frame=frame)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        c.write_commands(joint_rate_rad_s=[0.0] * len(joints), current_limit_a=[0.0] * 7, arm_request=0,
+                         inputs_frame=frame)
+        c.close()
+    return 0
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--buffer", default="pfma")
+    p.add_argument("--duration", type=float, default=30.0)
+    a = p.parse_args(argv)
+    return run(a.buffer, a.duration)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,132 @@
+"""The system simulator: fake rack, I/O service and controller in one process, in
+simulated time, deterministic.
+
+IRSS report 2.4.4: a non-real-time simulator of the whole multi-rate system in which
+"task execution can be performed one line at a time", with a complete world model,
+so that "virtually all of the non time related bugs" are rung out before the robot is
+turned on, and compensators can be designed against a plant model. Here:
+
+* :class:`fakes.world.FakeWorld` (the simulated arm, boards, F/T sensor, CRL master)
+  on a :class:`pfma.clock.SimClock`;
+* the real :class:`ioservice.service.IoService` on a private Bit3 buffer, its frame
+  loop on the same clock (a :class:`ioservice.ticking.TickingClock` advancing the world
+  between frames);
+* the real :class:`controller.runtime.ControllerRuntime`, its minor frame run right
+  after every service frame (the lock of the controller's frame to the service's).
+
+:meth:`SystemSimulator.step` advances whole minor frames; nothing else moves time.
+Halting the simulator halts everything (as IRSS's halt stopped the frame interrupts);
+:meth:`step` with ``frames=1`` is the single step. Two simulators built the same way
+and driven the same way produce identical traces.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from controller.frames import FrameConfig
+from controller.layers import Request
+from controller.runtime import ControllerRuntime
+from ioservice.schedule import Schedule
+from sim.rig import SimRig
+
+
+class SystemSimulator:
+    """The whole stack in simulated time.
+
+    :param frames: controller frame configuration; the service runs at its frame rate
+    :param profile: shortcut for ``FrameConfig.profile(profile)``
+    :param name: Bit3 shared-memory name (default: a private random one)
+    :param wm_name: world-model shared-memory name (None: private memory)
+    :param require_ft: a stale F/T link is a Data Acquisition fault
+    :param world_kw: extra keyword arguments for :class:`fakes.world.FakeWorld`
+    """
+
+    def __init__(self, *, frames: FrameConfig | None = None, profile: str | None = None,
+                 name: str | None = None, wm_name: str | None = None, require_ft: bool = True,
+                 trace_frames: int = 4096, **world_kw) -> None:
+        if frames is None:
+            frames = FrameConfig.profile(profile) if profile else FrameConfig()
+        self.frames = frames
+        self.rig = SimRig(name=name, prefix="pfma-sim-",
+                          service_kw={"schedule": Schedule(frame_rate_hz=frames.frame_rate_hz)}, **world_kw)
+        self.name, self.clock, self.world, self.svc = self.rig.name, self.rig.clock, self.rig.world, self.rig.svc
+        self.rt = None
+        try:
+            self.client = self.rig.controller(owner="controller")
+            self.rt = ControllerRuntime(self.client, frames=frames, wm_name=wm_name, clock=self.clock,
+                                        require_ft=require_ft, trace_frames=trace_frames)
+        except BaseException:
+            self.rig.close()
+            raise
+        self.controller_enabled = True  #: False: the service runs alone (controller "dead")
+        #: optional pattern: service frame number -> controller steps after it (0 skips the
+        #: frame: a missed frame; 2 or more: a burst on the same inputs); None = 1 each
+        self.controller_steps: Callable[[int], int] | None = None
+        self.service_frames = 0
+
+        def controller_frame(info) -> None:  # right after each service frame
+            self.service_frames += 1
+            if not self.controller_enabled:
+                return
+            n = 1 if self.controller_steps is None else int(self.controller_steps(self.svc_frame()))
+            for _ in range(n):
+                self.rt.step()
+        self.rig.after_frame.append(controller_frame)
+
+    # --- running -------------------------------------------------------------------------
+    @property
+    def period_s(self) -> float:
+        return self.frames.period_s
+
+    def step(self, frames: int = 1) -> None:
+        """Advance ``frames`` minor frames (service frame, then controller frame, each)."""
+        self.svc.loop.run(frames=frames, freeze_gc=False)
+
+    def run_until(self, predicate, max_frames: int) -> int:
+        """Step one frame at a time until ``predicate()`` is true; returns the frames run.
+
+        :raises TimeoutError: not true after ``max_frames``
+        """
+        for n in range(1, max_frames + 1):
+            self.step(1)
+            if predicate():
+                return n
+        raise TimeoutError(f"condition not met within {max_frames} frames "
+                           f"({max_frames * self.period_s * 1e3:.1f} ms simulated)")
+
+    def power_up(self, max_frames: int = 1000) -> int:
+        """Request POWER UP and run until every layer is START UP COMPLETE; frames taken."""
+        from controller.decision import Status
+        self.rt.request(Request.POWER_UP)
+        return self.run_until(lambda: self.rt.all_status(Status.START_UP_COMPLETE), max_frames)
+
+    # --- looking -------------------------------------------------------------------------
+    def svc_frame(self) -> int:
+        """The service frame number of the newest inputs published."""
+        return int(self.client.header().frame)
+
+    def dac_volts(self) -> np.ndarray:
+        """What the DAC board drives right now (all channels), volts."""
+        return np.asarray(self.world.bus["dac"].output_volts_all(), dtype=float)
+
+    def joint_angles_rad(self) -> np.ndarray:
+        """True joint angles of the simulated arm in command-area joint order."""
+        from controller.params import JOINT_NAMES
+        from fakes.arm_params import AXES
+        q = self.world.sim.true_state().q
+        stems = [a.stem for a in AXES]
+        return np.array([q[stems.index(n)] for n in JOINT_NAMES], dtype=float)
+
+    def close(self) -> None:
+        if self.rt is not None:
+            self.rt.close()
+        self.rig.close()
+
+    def __enter__(self) -> "SystemSimulator":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

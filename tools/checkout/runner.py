@@ -1,0 +1,594 @@
+"""The scripted checkout: every channel of the rack, one PASS/FAIL row each.
+
+Groups, in order (``[checkout] groups``; each is a method ``_group_<name>``):
+
+``resolvers``  each resolver valid (status bits clear) and quiet (peak-to-peak counts);
+``adc``        each ADC channel inside its idle range (per signal group) and quiet;
+``links``      F/T and CRL serial links: record rate, bad records, resyncs, status;
+``hand``       CAE axes and discretes, one operator action each ("deflect CAE up");
+``pio``        user I/F box inputs, each operated alone (walking bit);
+``matrix``     matrix-switcher routes written, read back as applied by the service;
+``joints``     per joint an open-loop polarity and scaling test: arm with a low current
+               limit, command a small rate each way, check tach and resolver, stop.
+
+Before the groups a preflight checks the service state and every board's status and
+error counter. Operator actions go through the target's ``stimulus`` on the
+simulated rack; on a real rack the operator is prompted and the checkout waits (with
+a time-out) for the input to change. Outputs are made safe (rates 0, current limits
+0, disarmed) however a joint test ends.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Callable
+
+import numpy as np
+
+from tools.checkout.config import CheckoutConfig
+from tools.checkout.report import FAIL, PASS, SKIP, Report, Result
+from tools.checkout.target import ServiceLost, Target
+from bit3.layout import (
+    BOARD_FAULT, BOARD_OK, CHANNEL_BUS_ERROR, LINK_FAULT, LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_LOSS_OF_SIGNAL,
+    RTD_NO_REFERENCE, ServiceState,
+)
+from pfma.errors import PfmaError
+
+#: rtd_status bits (bit3.layout)
+RTD_BITS = {RTD_LOSS_OF_SIGNAL: "loss of signal", RTD_NO_REFERENCE: "no reference",
+            CHANNEL_BUS_ERROR: "board read failed"}
+LINK_BITS = {LINK_OPEN: "open", LINK_SYNCED: "synced", LINK_FAULT: "fault", LINK_STALE: "stale"}
+BOARD_BITS = {BOARD_OK: "ok", 2: "init", BOARD_FAULT: "fault"}
+#: a tach whose samples span less than this fraction of the commanded rate while the
+#: resolver shows the joint moving is reported as dead or stuck rather than reversed
+STUCK_TACH_FRACTION = 0.1
+
+GROUP_TITLES = {
+    "resolvers": "resolvers valid and quiet",
+    "adc": "ADC channels inside their idle ranges",
+    "links": "serial links: rate and errors",
+    "hand": "hand controller axes and discretes (operator)",
+    "pio": "user I/F box inputs (operator)",
+    "matrix": "matrix switcher outputs",
+    "joints": "open-loop polarity and scaling, per joint",
+}
+
+
+def bits_text(value: int, names: dict[int, str]) -> str:
+    """``"loss of signal|no reference"``; unknown bits as hex; ``"clear"`` for 0."""
+    if not value:
+        return "clear"
+    parts = [n for b, n in names.items() if value & b]
+    rest = value & ~sum(names)
+    if rest:
+        parts.append(f"0x{rest:X}")
+    return "|".join(parts)
+
+
+def _wrap(x: np.ndarray | float, period: float):
+    return (np.asarray(x) + period / 2) % period - period / 2
+
+
+class StopRun(Exception):
+    """First failure and no ``keep_going``."""
+
+
+class Checkout:
+    """One checkout run against a :class:`Target`.
+
+    :param keep_going: continue after a failure (``-k``)
+    :param only: groups to run (default: ``[checkout] groups``)
+    :param interactive: prompt an operator on a real rack; False skips operator steps there
+    :param say: where progress and prompts go (default ``print``)
+    """
+
+    def __init__(self, target: Target, config: CheckoutConfig, *, keep_going: bool = False,
+                 only: list[str] | None = None, interactive: bool = True,
+                 say: Callable[[str], None] = print) -> None:
+        self.t = target
+        self.cfg = config
+        self.keep_going = keep_going
+        groups = list(config.get("checkout", "groups"))
+        if only:
+            unknown = [g for g in only if g not in groups]
+            if unknown:
+                raise PfmaError(f"unknown checkout group(s) {unknown}; groups: {', '.join(groups)}")
+            groups = [g for g in groups if g in only]
+        self.groups = groups
+        self.interactive = interactive
+        self.say = say
+        self.lay = target.layout
+        self.poll_s = config.num("checkout", "poll_s")
+        self.report = Report(target.describe(), target.rack.name, groups, config=config.as_dict(),
+                             config_source=config.source)
+        self.interrupted = False
+        self._capture: dict[str, np.ndarray] | None = None
+        self._group = "service"
+
+    # ------------------------------------------------------------------ plumbing
+    def record(self, group: str, channel: str, check: str, ok: bool | None, measured=None,
+               low=None, high=None, units: str = "", detail: str = "") -> Result:
+        """Add one row (ok None = SKIP); stop the run on a failure unless ``keep_going``."""
+        status = SKIP if ok is None else (PASS if ok else FAIL)
+        r = Result(group, channel, check, status, measured, low, high, units, detail)
+        self.report.results.append(r)
+        self.say(r.line())
+        if status == FAIL and not self.keep_going:
+            raise StopRun(f"first failure: {channel} ({check}); -k keeps going")
+        return r
+
+    def inputs(self):
+        return self.t.inputs()
+
+    def value(self, signal: str) -> float:
+        return float(self.t.inputs().value(signal))
+
+    def volts(self, signal: str) -> float:
+        return float(self.t.inputs().channel(signal)["adc_volts"])
+
+    def operate(self, prompt: str, stimulate: Callable, cond: Callable[[], bool]) -> bool | None:
+        """One operator action: the stimulus does it on the simulated rack, an operator on a
+        real one. True = seen, False = timed out, None = skipped (non-interactive, no stimulus)."""
+        st = self.t.stimulus
+        if st is not None:
+            self.say(f"    [stimulus] {prompt}")
+            stimulate(st)
+            timeout = self.cfg.num("checkout", "stimulus_timeout_s")
+        elif not self.interactive:
+            return None
+        else:
+            timeout = self.cfg.num("checkout", "operator_timeout_s")
+            self.say(f">>> OPERATOR: {prompt}  (waiting up to {timeout:.0f} s)")
+        return self.t.wait_until(cond, timeout, self.poll_s)
+
+    # ------------------------------------------------------------------ run
+    def run(self) -> Report:
+        rep = self.report
+        wall0 = time.perf_counter()
+        t0 = self.t.now()
+        try:
+            self.say(f"pfma checkout: {self.t.describe()}; groups: {', '.join(self.groups)}; "
+                     f"tolerances: {self.cfg.source}")
+            self._preflight()
+            for g in self.groups:
+                self._group = g
+                self.say(f"== {g}: {GROUP_TITLES[g]}")
+                getattr(self, f"_group_{g}")()
+        except StopRun as stop:
+            rep.stopped_early = str(stop)
+        except ServiceLost as err:
+            rep.stopped_early = str(err)
+            self._record_quiet(self._group, "service", "publishing", False, detail=str(err))
+        except PfmaError as err:
+            rep.stopped_early = f"{type(err).__name__}: {err}"
+            self._record_quiet(self._group, self._group, "ran", False, detail=str(err))
+        except KeyboardInterrupt:
+            rep.stopped_early = "interrupted by the operator"
+            self.interrupted = True
+        finally:
+            try:
+                if self.t.stimulus is not None:
+                    self.t.stimulus.release()
+            finally:
+                self.t.release_commands()
+            rep.duration_s = time.perf_counter() - wall0
+            rep.target_time_s = self.t.now() - t0
+        return rep
+
+    def _record_quiet(self, *args, **kw) -> None:
+        try:
+            self.record(*args, **kw)
+        except StopRun:
+            pass
+
+    # ------------------------------------------------------------------ preflight
+    def _preflight(self) -> None:
+        """Service up, every board present and initialised, no errors while settling."""
+        s = self.inputs()
+        boards = [c for c in self.lay.channels if c.kind == "board"]
+        before = {c.name: int(s.board_errors[c.slot]) for c in boards}
+        self.t.wait(self.cfg.num("checkout", "settle_s"))
+        s = self.inputs()
+        state = ServiceState(s.service_state)
+        self.record("service", "service", "state", state not in (ServiceState.STARTING, ServiceState.STOPPED),
+                    state.name, detail="the I/O service must be running")
+        for c in boards:
+            st = int(s.board_status[c.slot])
+            new = int(s.board_errors[c.slot]) - before[c.name]
+            ok = bool(st & BOARD_OK) and not st & BOARD_FAULT and new == 0
+            addr = int(s.board_last_error_addr[c.slot])
+            self.record("service", c.name, "board status", ok, new, None, 0, "errors",
+                        f"status {bits_text(st, BOARD_BITS)}" +
+                        (f", last error at A16 0x{addr:04X}" if addr else ""))
+
+    # ------------------------------------------------------------------ idle capture
+    def capture(self) -> dict[str, np.ndarray]:
+        """N input samples at the resolver/ADC rate, shared by the resolver and ADC groups."""
+        if self._capture is None:
+            n = int(self.cfg.num("capture", "samples"))
+            dt = self.cfg.num("capture", "interval_s")
+            keys = ("rtd_counts", "rtd_angle_rad", "rtd_status", "adc_counts", "adc_volts",
+                    "adc_value", "adc_status")
+            rows: dict[str, list] = {k: [] for k in keys}
+            for _ in range(n):
+                self.t.wait(dt)
+                s = self.inputs()
+                for k in keys:
+                    rows[k].append(np.array(s[k], copy=True))
+            self._capture = {k: np.array(v) for k, v in rows.items()}
+        return self._capture
+
+    # ------------------------------------------------------------------ resolvers
+    def _group_resolvers(self) -> None:
+        from drivers.rtd.registers import VMIVME4940
+        lsb = VMIVME4940.constants["lsb_rad"]
+        cap = self.capture()
+        spares = bool(self.cfg.get("resolvers", "check_spares"))
+        max_noise = self.cfg.num("resolvers", "max_noise_counts")
+        must = int(self.cfg.num("resolvers", "status_must_be"))
+        for c in (c for c in self.lay.channels if c.kind == "rtd"):
+            if c.spare and not spares:
+                self.record("resolvers", c.name, "valid", None, detail="spare channel, not cabled")
+                continue
+            status = int(np.bitwise_or.reduce(cap["rtd_status"][:, c.slot]))
+            self.record("resolvers", c.name, "valid (status bits)", status == must, status, must, must,
+                        "bits", f"{bits_text(status, RTD_BITS)} (board {c.board} ch {c.channel})")
+            ang = np.unwrap(cap["rtd_angle_rad"][:, c.slot])
+            pp = float((ang.max() - ang.min()) / lsb)
+            self.record("resolvers", c.name, "noise (peak-peak)", pp <= max_noise, round(pp, 2), 0,
+                        max_noise, "counts",
+                        f"mean {float(np.mean(cap['rtd_angle_rad'][:, c.slot])):.4f} rad over "
+                        f"{len(ang)} samples")
+
+    # ------------------------------------------------------------------ ADC
+    def _group_adc(self) -> None:
+        cap = self.capture()
+        spares = bool(self.cfg.get("adc", "check_spares"))
+        max_noise = self.cfg.num("adc", "max_noise_counts")
+        for c in (c for c in self.lay.channels if c.kind == "adc"):
+            if c.spare and not spares:
+                self.record("adc", c.name, "idle", None, detail="spare channel not checked")
+                continue
+            g = self.cfg.adc_group(c.name)
+            where = f"board {c.board} ch {c.channel}"
+            status = int(np.bitwise_or.reduce(cap["adc_status"][:, c.slot]))
+            if status:
+                self.record("adc", c.name, "read", False, status, 0, 0, "bits",
+                            f"ADC read failed ({where})")
+                continue
+            if g is None:
+                self.record("adc", c.name, "idle", None, detail=f"no [[adc.group]] matches ({where})")
+            else:
+                key, units = ("adc_value", c.units) if g["quantity"] == "value" else ("adc_volts", "V")
+                x = cap[key][:, c.slot]
+                lo, hi = float(g["low"]), float(g["high"])
+                mean = float(np.mean(x))
+                worst = float(x[np.argmax(np.abs(x - (lo + hi) / 2))])
+                ok = bool(np.all((x >= lo) & (x <= hi)))
+                self.record("adc", c.name, f"idle: {g['name']}", ok, round(mean, 5), lo, hi, units,
+                            f"worst sample {worst:.4g} {units}; {float(np.mean(cap['adc_volts'][:, c.slot])):.4f} V "
+                            f"({where})")
+            counts = cap["adc_counts"][:, c.slot].astype(int)
+            pp = int(counts.max() - counts.min())
+            self.record("adc", c.name, "noise (peak-peak)", pp <= max_noise, pp, 0, max_noise, "counts",
+                        f"{len(counts)} samples ({where})")
+
+    # ------------------------------------------------------------------ links
+    def _group_links(self) -> None:
+        links = [c for c in self.lay.channels if c.kind == "link"]
+        conf = self.cfg.get("links")
+        todo = [c for c in links if isinstance(conf.get(c.name), dict)]
+        for c in links:
+            if c not in todo:
+                self.record("links", c.name, "link", None, detail="no [links.<name>] table: not checked")
+        if not todo:
+            return
+        s = self.inputs()
+        t0 = self.t.now()
+        base = {c.name: (int(s.link_records[c.slot]), int(s.link_bad[c.slot]), int(s.link_resyncs[c.slot]))
+                for c in todo}
+        self.t.wait(self.cfg.num("links", "window_s"))
+        s = self.inputs()
+        dt = self.t.now() - t0
+        for c in todo:
+            lc = conf[c.name]
+            r0, b0, y0 = base[c.name]
+            rate = (int(s.link_records[c.slot]) - r0) / dt if dt > 0 else 0.0
+            bad = int(s.link_bad[c.slot]) - b0
+            resyncs = int(s.link_resyncs[c.slot]) - y0
+            status = int(s.link_status[c.slot])
+            mn = float(lc.get("min_rate_hz", 0.0))
+            self.record("links", c.name, "record rate", rate >= mn, round(rate, 2), mn, None, "records/s",
+                        f"over {dt:.2f} s; service figure {float(s.link_rate_hz[c.slot]):.1f}/s")
+            mb = int(lc.get("max_bad", 0))
+            self.record("links", c.name, "bad records", bad <= mb, bad, 0, mb, "records", f"over {dt:.2f} s")
+            my = int(lc.get("max_resyncs", 0))
+            self.record("links", c.name, "resyncs", resyncs <= my, resyncs, 0, my, "", f"over {dt:.2f} s")
+            if lc.get("require_synced", True):
+                ok = bool(status & LINK_OPEN and status & LINK_SYNCED) and not status & (LINK_FAULT | LINK_STALE)
+                self.record("links", c.name, "link status", ok, status, None, None, "bits",
+                            bits_text(status, LINK_BITS) + f"; age {float(s.link_age_s[c.slot]) * 1e3:.0f} ms")
+            if c.name == "ft_sensor" and "max_status" in lc:
+                st = int(s.ft_status)
+                self.record("links", c.name, "sensor status word", st <= int(lc["max_status"]), st, 0,
+                            int(lc["max_status"]), "bits",
+                            f"F = {np.round(np.asarray(s.ft_force_n), 2).tolist()} N")
+
+    # ------------------------------------------------------------------ hand controller
+    def _hc(self):
+        s = self.inputs()
+        i = self.lay.slot("hc", "cae")
+        return s.hc_axes[i].copy(), int(s.hc_buttons[i]), bool(s.hc_valid[i])
+
+    def _group_hand(self) -> None:
+        h = self.cfg.get("hand")
+        thr = float(h["deflect_threshold_v"])
+        tol = float(h["centre_tolerance_v"])
+        on_v = float(h["discrete_on_v"])
+        stim_v = float(h["stimulus_volts"])
+        axes = [a["signal"] for a in h["axes"]]
+        names = {c.name for c in self.lay.channels if c.kind == "adc"}
+        for a in h["axes"]:
+            sig, d = a["signal"], int(a.get("direction", 1))
+            if sig not in names:
+                self.record("hand", sig, "deflect", None, detail="not in this rack")
+                continue
+            seen = self.operate(a["prompt"], lambda st, s_=sig, v=d * stim_v: st.cae_axis(s_, v),
+                                lambda s_=sig, d_=d: d_ * self.volts(s_) >= thr)
+            if seen is None:
+                self.record("hand", sig, "deflect", None, detail="operator step skipped (non-interactive)")
+                continue
+            v = self.volts(sig)
+            others = {o: self.volts(o) for o in axes if o != sig and o in names}
+            moved = {o: x for o, x in others.items() if abs(x) > tol}
+            hc, _, valid = self._hc()
+            detail = (f"hand-controller slot cae: axes {np.round(hc, 3).tolist()} (valid {valid})"
+                      + (f"; ALSO MOVED: {', '.join(f'{o} {x:+.2f} V' for o, x in moved.items())}" if moved else ""))
+            lo, hi = (thr, None) if d > 0 else (None, -thr)
+            self.record("hand", sig, "deflect " + ("+" if d > 0 else "-"), bool(seen) and not moved,
+                        round(v, 3), lo, hi, "V", detail if seen else "no deflection seen; " + detail)
+            back = self.operate(f"Release the CAE stick ({sig})", lambda st, s_=sig: st.cae_axis(s_, 0.0),
+                                lambda s_=sig: abs(self.volts(s_)) <= tol)
+            self.record("hand", sig, "return to centre", bool(back), round(self.volts(sig), 3), -tol, tol, "V")
+        for dsc in h["discretes"]:
+            sig = dsc["signal"]
+            if sig not in names:
+                self.record("hand", sig, "press", None, detail="not in this rack")
+                continue
+            seen = self.operate(dsc["prompt"], lambda st, s_=sig: st.cae_discrete(s_, True),
+                                lambda s_=sig: self.volts(s_) >= on_v)
+            if seen is None:
+                self.record("hand", sig, "press", None, detail="operator step skipped (non-interactive)")
+                continue
+            _, buttons, _ = self._hc()
+            self.record("hand", sig, "press", bool(seen), round(self.volts(sig), 3), on_v, None, "V",
+                        f"hand-controller buttons 0x{buttons:X}")
+            off = self.operate(f"Release {sig}", lambda st, s_=sig: st.cae_discrete(s_, False),
+                               lambda s_=sig: self.volts(s_) < on_v)
+            self.record("hand", sig, "release", bool(off), round(self.volts(sig), 3), None, on_v, "V")
+
+    # ------------------------------------------------------------------ PIO inputs
+    def _group_pio(self) -> None:
+        idle = int(self.cfg.num("pio", "idle_word"))
+        nbits = int(self.cfg.num("pio", "bits"))
+        ports = sorted((c for c in self.lay.channels if c.kind == "pio" and c.name.startswith("user_if_box_inputs")),
+                       key=lambda c: c.channel)
+        if not ports:
+            self.record("pio", "user_if_box_inputs", "inputs", None, detail="not in this rack")
+            return
+
+        def word() -> int:
+            return int(self.inputs().pio_user_inputs)
+
+        w = word()
+        self.record("pio", "user_if_box_inputs", "idle word", w == idle, f"0x{w:04X}", None, None, "bits",
+                    f"expected 0x{idle:04X}")
+        for k in range(nbits):
+            want = idle ^ (1 << k)
+            port = ports[min(k // 8, len(ports) - 1)]
+            ch = f"{port.name}.{k % 8}"
+            seen = self.operate(f"Operate user I/F input {k} alone (bit {k} to {(want >> k) & 1})",
+                                lambda st, w_=want: st.user_inputs(w_), lambda w_=want: word() == w_)
+            if seen is None:
+                self.record("pio", ch, "operate", None, detail="operator step skipped (non-interactive)")
+                continue
+            got = word()
+            back = self.operate(f"Return user I/F input {k}", lambda st: st.user_inputs(idle),
+                                lambda: word() == idle) if seen else False
+            self.record("pio", ch, "operate and return", bool(seen and back), f"0x{got:04X}", None, None, "bits",
+                        f"expected 0x{want:04X} then 0x{idle:04X}" + ("" if seen else
+                        f"; bits that differ: 0x{got ^ want:04X}"))
+
+    # ------------------------------------------------------------------ matrix switcher
+    def _group_matrix(self) -> None:
+        try:
+            c = self.lay.channel("matrix_switcher_route", "inputs")
+        except KeyError:
+            self.record("matrix", "matrix_switcher_route", "routes", None, detail="not in this rack")
+            return
+        board = self.lay.slot("board", c.board)
+        cmd = self.t.commander()
+        timeout = self.cfg.num("matrix", "timeout_s")
+        for route in self.cfg.get("matrix", "routes"):
+            route = int(route)
+            s = self.inputs()
+            err0 = int(s.board_errors[board])
+            cmd.set(matrix_route=route)
+
+            def applied(r=route) -> bool:
+                x = self.inputs()
+                return int(x.matrix_route) == r and int(x.pio_port_bits[c.slot]) == r
+
+            ok = self.t.wait_until(applied, timeout, self.poll_s)
+            s = self.inputs()
+            errs = int(s.board_errors[board]) - err0
+            got = int(s.matrix_route)
+            msgs = [m.text for m in self.t.reader.messages() if m.code == 141][-1:]
+            self.record("matrix", c.name, f"route 0x{route:02X}", ok and errs == 0, f"0x{got:02X}", None, None,
+                        "bits", f"requested 0x{route:02X}; {errs} new board errors on {c.board}"
+                        + (f"; {msgs[0]}" if msgs and not ok else ""))
+
+    # ------------------------------------------------------------------ joints
+    def _group_joints(self) -> None:
+        names = {c.name for c in self.lay.channels}
+        for j in self.lay.joint_names:
+            tach, angle, limit = f"{j}_rate", f"{j}_angle", f"{j}_current_limit"
+            missing = [s for s in (tach, angle) if s not in names]
+            if missing or limit not in self.lay.current_limit_names:
+                self.record("joints", j, "open-loop test", None,
+                            detail=f"no {', '.join(missing) or limit} channel in this rack")
+                continue
+            self._open_loop(j, tach, angle, limit)
+
+    def _stop_outputs(self, cmd, n_joints: int, n_limits: int) -> None:
+        cmd.set(joint_rate_rad_s=[0.0] * n_joints, current_limit_a=[0.0] * n_limits, arm_request=0)
+
+    def _open_loop(self, j: str, tach: str, angle: str, limit: str) -> None:
+        cfg = self.cfg
+        jn = list(self.lay.joint_names)
+        ji = jn.index(j)
+        li = list(self.lay.current_limit_names).index(limit)
+        n_lim = len(self.lay.current_limit_names)
+        fs_v = float(cfg.joint(j, "dac_full_scale_v"))
+        i_max = fs_v * float(self.t.rack.channel(limit).scale)
+        i_lim = float(cfg.joint(j, "current_limit_fraction")) * i_max
+        rate = cfg.joint(j, "rate_rad_s")
+        if not rate:  # a fraction of the full-scale rate: 10 V x the command channel's scale
+            rate = float(cfg.joint(j, "rate_fraction")) * fs_v * float(self.t.rack.channel(f"{j}_command").scale)
+        rate = float(rate)
+        move_s = float(cfg.joint(j, "move_s"))
+        lag = float(cfg.joint(j, "travel_lag_s"))
+        r_lo, r_hi = (float(x) for x in cfg.joint(j, "rate_ratio"))
+        agree = float(cfg.joint(j, "tach_resolver_tolerance"))
+        max_factor = float(cfg.joint(j, "max_travel_factor"))
+        dt = self.cfg.num("capture", "interval_s")
+        # the joint's motor-current monitor must respond while the joint is driven: a dead
+        # ADC input reads a constant (0 V passes the idle range) and only shows here
+        current = f"{j}_motor_current"
+        try:
+            self.lay.channel(current)
+        except KeyError:  # a rack without that monitor
+            current = ""
+        # peak-to-peak it must reach, a fraction of the test's current limit (the simulated
+        # arm reaches the limit itself while accelerating)
+        min_current = float(cfg.joint(j, "min_current_fraction")) * i_lim
+        cmd = self.t.commander()
+        rates = [0.0] * len(jn)
+        limits = [0.0] * n_lim
+        try:
+            cmd.keepalive = True
+            cmd.set(joint_rate_rad_s=rates, current_limit_a=limits, arm_request=0)
+            self.t.wait(0.05)
+            rc = int(cmd.record["rearm_counter"]) + 1
+            limits[li] = i_lim
+            cmd.set(joint_rate_rad_s=rates, current_limit_a=limits, arm_request=1, rearm_counter=rc)
+            armed = self.t.wait_until(lambda: self.inputs().service_state == ServiceState.ARMED,
+                                      float(cfg.joint(j, "arm_timeout_s")), self.poll_s)
+            if not armed:
+                st = ServiceState(self.inputs().service_state).name
+                last = [m.text for m in self.t.reader.messages()][-2:]
+                self.record("joints", j, "arm", False, st, detail=f"service did not arm; messages: {last}")
+                return
+            self.t.wait(float(cfg.joint(j, "brake_release_s")))
+            signs = (1, -1) if cfg.joint(j, "bidirectional") else (1,)
+            for sign in signs:
+                v = sign * rate
+                tag = "+" if sign > 0 else "-"
+                a_prev = self.value(angle)
+                travel = 0.0
+                tach_integral = 0.0
+                expected = v * (move_s - lag)
+                t0 = t_prev = self.t.now()
+                x_prev = self.value(tach)
+                rates[ji] = v
+                cmd.set(joint_rate_rad_s=rates)
+                samples: list[tuple[float, float]] = []
+                currents: list[float] = []
+                runaway = ""
+                while self.t.now() - t0 < move_s:
+                    self.t.wait(dt)
+                    s = self.inputs()
+                    now = self.t.now()
+                    a = float(s.value(angle))
+                    x = float(s.value(tach))
+                    travel += float(_wrap(a - a_prev, 2 * math.pi))
+                    tach_integral += 0.5 * (x + x_prev) * (now - t_prev)
+                    a_prev, x_prev, t_prev = a, x, now
+                    samples.append((now - t0, x))
+                    if current:
+                        currents.append(float(s.value(current)))
+                    if abs(travel) > max_factor * abs(expected):
+                        runaway = (f"runaway: {travel:+.4f} rad after {now - t0:.2f} s, more than "
+                                   f"{max_factor:g} x the expected {expected:+.4f} rad; outputs made safe")
+                        self._stop_outputs(cmd, len(jn), n_lim)
+                        break
+                rates[ji] = 0.0
+                if not runaway:
+                    cmd.set(joint_rate_rad_s=rates)
+                ts = np.array([t for t, _ in samples])
+                xs = np.array([x for _, x in samples])
+                win = xs[ts >= ts[-1] * (1.0 - float(cfg.joint(j, "tach_window")))] if len(xs) else xs
+                mean_tach = float(np.mean(win)) if len(win) else math.nan
+                t_lo, t_hi = sorted((v * r_lo, v * r_hi))
+                # a tach that does not change while the joint is driven is dead or stuck, not
+                # reversed (a dead input held at a few mV would otherwise read "reversed")
+                swing = float(np.ptp(xs)) if len(xs) else 0.0
+                travelled = abs(travel) >= r_lo * abs(expected)
+                stuck = travelled and swing < STUCK_TACH_FRACTION * abs(v)
+                diag = ""
+                if stuck:
+                    diag = (f"; TACH NOT RESPONDING (dead or stuck input: it moved {swing:.3g} rad/s "
+                            f"while the resolver travelled {travel:+.4f} rad)")
+                elif mean_tach * v < 0:
+                    diag = "; TACH POLARITY REVERSED"
+                self.record("joints", tach, f"open-loop rate {tag}", t_lo <= mean_tach <= t_hi and not runaway,
+                            round(mean_tach, 5), round(t_lo, 5), round(t_hi, 5), "rad/s",
+                            f"commanded {v:+.4g} rad/s at a {i_lim:.2f} A limit" + diag
+                            + (f"; {runaway}" if runaway else ""))
+                if current and not runaway:
+                    span = float(np.ptp(currents)) if currents else 0.0
+                    self.record("joints", current, f"motor current responds {tag}", span >= min_current,
+                                round(span, 4), round(min_current, 4), None, "A",
+                                f"peak-to-peak while driven at {v:+.4g} rad/s (limit {i_lim:.2f} A)"
+                                + ("" if span >= min_current else
+                                   "; MOTOR CURRENT NOT RESPONDING (dead input or amplifier monitor)"))
+                x_lo, x_hi = sorted((expected * r_lo, expected * r_hi))
+                self.record("joints", angle, f"open-loop travel {tag}", x_lo <= travel <= x_hi and not runaway,
+                            round(travel, 5), round(x_lo, 5), round(x_hi, 5), "rad",
+                            f"{move_s:g} s at {v:+.4g} rad/s" + ("; RESOLVER MOVED THE WRONG WAY"
+                                                                 if travel * v < 0 else ""))
+                ratio = tach_integral / travel if travel else math.nan
+                self.record("joints", tach, f"tach/resolver scale {tag}", abs(ratio - 1) <= agree,
+                            round(ratio, 4), round(1 - agree, 4), round(1 + agree, 4), "1",
+                            f"tach integral {tach_integral:+.5f} rad vs resolver travel {travel:+.5f} rad")
+                if runaway:
+                    return
+                self.t.wait(float(cfg.joint(j, "pause_s")))
+            self.t.wait(float(cfg.joint(j, "stop_s")))
+            mx = float(cfg.joint(j, "max_stopped_rate"))
+            still = self.value(tach)
+            self.record("joints", tach, "stopped (servo)", abs(still) <= mx, round(still, 5), -mx, mx,
+                        "rad/s", "rate command 0, current limit on")
+            limits[li] = 0.0
+            cmd.set(joint_rate_rad_s=rates, current_limit_a=limits)
+            self.t.wait(float(cfg.joint(j, "brake_s")))
+            a0 = self.value(angle)
+            self.t.wait(float(cfg.joint(j, "brake_s")))
+            creep = float(_wrap(self.value(angle) - a0, 2 * math.pi))
+            mc = float(cfg.joint(j, "max_brake_creep_rad"))
+            self.record("joints", angle, "held by brake", abs(creep) <= mc, round(creep, 6), -mc, mc, "rad",
+                        f"current limit 0 for {2 * float(cfg.joint(j, 'brake_s')):g} s")
+            self._stop_outputs(cmd, len(jn), n_lim)
+            safe = self.t.wait_until(lambda: self.inputs().service_state == ServiceState.SAFE,
+                                     float(cfg.joint(j, "arm_timeout_s")), self.poll_s)
+            self.record("joints", j, "disarm", safe, ServiceState(self.inputs().service_state).name,
+                        detail="rates 0, current limits 0 (brakes set), arm request cleared")
+        finally:
+            try:
+                self._stop_outputs(cmd, len(jn), n_lim)
+                self.t.wait(0.02)
+            except PfmaError:
+                pass  # the service is gone: its watchdog has made the outputs safe
+            finally:
+                cmd.keepalive = False

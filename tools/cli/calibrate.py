@@ -1,0 +1,185 @@
+"""``pfma calibrate``: guided calibration procedures and calibration files.
+
+Procedures (each with progress, operator prompts, pass/fail against its stated
+tolerances, a least-squares fit with residuals, a PNG plot and the drift against the
+previous calibration; a passing run saves the next version of the file)::
+
+    pfma calibrate adc|current-offsets|tach|resolver|dac-rate|cae|ft-bias|ft-payload|ft-matrix
+                   [--rack fake] [--buffer NAME] [--file CAL] [--operator NAME] [--non-interactive]
+
+``--rack fake`` (default when no ``--buffer`` is given) runs on the simulated rack in
+simulated time, with a simulated operator; ``--buffer NAME`` attaches to a running
+service (``pfma serve``) and asks a person at the terminal.
+
+Files::
+
+    pfma calibrate show [--file CAL]             every channel's conversion and provenance
+    pfma calibrate diff [--file CAL] [--from A] [--to B]   (default: previous vs current)
+    pfma calibrate history [--file CAL]          every kept version with date, operator, hash
+    pfma calibrate init [--file CAL]             version 0 from the rack's nominal scales
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from pfma.errors import CalibrationError
+
+DEFAULT_FILE = "pfma-calibration.json"
+FILE_VERBS = ("show", "diff", "history", "init")
+
+
+def add_parser(sub):
+    from calibration.procedures import PROCEDURES
+    p = sub.add_parser("calibrate", help="guided calibration procedures; show/diff/history of calibration files",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("what", choices=list(PROCEDURES) + list(FILE_VERBS), metavar="PROCEDURE|show|diff|history|init",
+                   help="procedure (" + ", ".join(PROCEDURES) + ") or file command")
+    p.add_argument("--from", dest="v_from", type=int, default=None, metavar="A", help="diff: older version")
+    p.add_argument("--to", dest="v_to", type=int, default=None, metavar="B", help="diff: newer version (default current)")
+    p.add_argument("--rack", default=None, help="fake (simulated rack) or a rack TOML (default: fake)")
+    p.add_argument("--buffer", default=None, help="Bit3 buffer of a running service (live rack)")
+    p.add_argument("--file", default=DEFAULT_FILE, help=f"calibration file (default {DEFAULT_FILE})")
+    p.add_argument("--operator", default="", help="operator name for the provenance")
+    p.add_argument("--non-interactive", action="store_true", help="do not wait for the operator at prompts")
+    p.add_argument("--plots", default=None, help="directory for PNG plots (default: next to the file)")
+    p.add_argument("--joints", default=None, help="comma-separated joints (tach, resolver, dac-rate)")
+    p.add_argument("--signals", default=None, help="comma-separated ADC signals (adc, current-offsets)")
+    p.add_argument("--index", default=None, metavar="JOINT=RAD,...",
+                   help="resolver: known index positions (default: the DH zero of every joint, assumed)")
+    p.add_argument("--save-failed", action="store_true", help="save the result even when a check failed")
+    return p
+
+
+def _rack(args):
+    from pfma.rack import load_rack
+    return load_rack(None if args.rack in (None, "fake", "default") else args.rack)
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, list):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]" if len(v) <= 6 and not any(
+            isinstance(x, list) for x in v) else f"({len(v)} rows)"
+    return str(v)
+
+
+def _show(cal, out) -> None:
+    from calibration.files import calibration_hash
+    print(f"calibration {cal.describe()}, created {cal.created}, {cal.data['software_version']}, "
+          f"hash {calibration_hash(cal).hex()}", file=out)
+    print(f"{'signal':32s} {'dev':4s} {'units':6s} {'scale':>12s} {'offset':>12s}  method / date / operator / rms",
+          file=out)
+    for sig, e in cal.channels.items():
+        p = e["provenance"]
+        rms = p.get("rms_residual")
+        print(f"{sig:32s} {e['device']:4s} {e['units']:6s} {e['scale']:12.6g} {e['offset']:12.6g}  "
+              f"{p['method']} / {p['date']} / {p['operator']}" + (f" / {rms:.3g}" if rms is not None else ""),
+              file=out)
+    if cal.cae:
+        print("CAE hand controller:", file=out)
+        for axis, e in cal.cae.items():
+            print(f"  {axis:6s} centre {e['centre_v']:+.4f} V  deadband {e['deadband_v']:.4f} V  "
+                  f"span {e['span_v']:.4f} V  sign {e['sign']:+d}  ({e['provenance']['method']}, "
+                  f"{e['provenance']['date']})", file=out)
+    if cal.ft:
+        ft = cal.ft
+        print("F/T sensor:", file=out)
+        print(f"  bias counts {_fmt(ft['bias_counts'])}", file=out)
+        print("  matrix (counts -> N, N*m):", file=out)
+        for row in ft["matrix"]:
+            print("    " + " ".join(f"{x:+.6g}" for x in row), file=out)
+        print(f"  payload {ft['payload_mass_kg']:.4f} kg at {_fmt(ft['payload_com_m'])} m", file=out)
+        for k, p in ft.get("provenance", {}).items():
+            if isinstance(p, dict) and "method" in p:
+                print(f"  {k}: {p['method']} / {p['date']} / {p.get('operator', '')}", file=out)
+
+
+def _file_verb(args, out) -> int:
+    from calibration import files
+    path = Path(args.file)
+    if args.what == "init":
+        rack = _rack(args)
+        if path.exists():
+            raise CalibrationError(f"{path} exists; procedures update it (history is kept)")
+        cal = files.save_calibration(files.nominal_calibration(rack, args.operator), path, rack=rack)
+        print(f"wrote {cal.describe()}", file=out)
+        return 0
+    if args.what == "show":
+        _show(files.load_calibration(path), out)
+        return 0
+    if args.what == "history":
+        hist = files.history(path)
+        if not hist:
+            raise CalibrationError(f"no calibration at {path}")
+        for c in hist:
+            methods = sorted({e["provenance"]["method"] for e in c.channels.values()})
+            print(f"v{c.version:<4d} {c.created}  hash {c.hash().hex()}  {c.path}  methods: "
+                  f"{'; '.join(methods)}", file=out)
+        return 0
+    # diff
+    hist = files.history(path)
+    if args.v_from is not None or args.v_to is not None:
+        b = files.load_version(path, args.v_to) if args.v_to is not None else files.load_calibration(path)
+        a = files.load_version(path, args.v_from) if args.v_from is not None else hist[max(0, hist.index(
+            next(c for c in hist if c.version == b.version)) - 1)]
+    else:
+        if len(hist) < 2:
+            raise CalibrationError(f"{path}: only {len(hist)} version(s); nothing to compare")
+        a, b = hist[-2], hist[-1]
+    rows = files.diff(a, b)
+    print(f"diff v{a.version} -> v{b.version}: {len(rows)} change(s)", file=out)
+    for r in rows:
+        ch = r["change"]
+        print(f"  {r['entry']:44s} {_fmt(r['old']):>14s} -> {_fmt(r['new']):<14s}"
+              + (f" ({ch:+.4g})" if isinstance(ch, float) else "")
+              + (f"  [{r['method']}]" if r.get("method") else ""), file=out)
+    return 0
+
+
+def run(args, out=None) -> int:
+    out = out or sys.stdout
+    if args.what in FILE_VERBS:
+        return _file_verb(args, out)
+    from calibration import files
+    from calibration.procedures import Context, run_procedure
+    from calibration.session import ConsoleOperator, LiveSession, SimSession
+    rack = _rack(args)
+    path = Path(args.file)
+    if not path.exists():  # version 0 = the nominal scales, so history starts there
+        files.save_calibration(files.nominal_calibration(rack, args.operator), path, rack=rack)
+        print(f"pfma calibrate: created {path} (version 0, nominal scales)", file=out)
+    cal = files.load_calibration(path, rack)
+    options = {}
+    if args.joints:
+        options["joints"] = [j.strip() for j in args.joints.split(",") if j.strip()]
+    if args.signals:
+        options["signals"] = [s.strip() for s in args.signals.split(",") if s.strip()]
+    if args.index:
+        try:
+            options["index_rad"] = {k.strip(): float(v) for k, v in (kv.split("=") for kv in args.index.split(","))}
+        except ValueError:
+            raise CalibrationError(f"--index {args.index!r}: expected JOINT=RAD,... e.g. wrist_roll=0.5") from None
+    plot_dir = Path(args.plots) if args.plots else path.parent / (path.stem + "-plots")
+    rig = None
+    if args.buffer:
+        session = LiveSession(args.buffer, rack=None if args.rack in (None, "fake", "default") else args.rack)
+        operator = ConsoleOperator(out, interactive=not args.non_interactive)
+    else:
+        from sim.calibration import SimOperator, SimRig
+        rig = SimRig(calibration=cal)
+        session = SimSession(rig)
+        operator = SimOperator(rig.world, out=out)
+        operator.show = lambda text: print(text, file=out, flush=True)
+        print("pfma calibrate: simulated rack, simulated time, simulated operator", file=out)
+    try:
+        ctx = Context(session, operator, cal, rack, plot_dir, operator_name=args.operator, options=options)
+        res = run_procedure(args.what, ctx, save_to=path, save_failed=args.save_failed)
+    finally:
+        session.close()
+        if rig is not None:
+            rig.close()
+    return 0 if res.passed else 1

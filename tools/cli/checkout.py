@@ -1,0 +1,83 @@
+"""``pfma checkout``: scripted per-channel checkout of the rack with a report.
+
+Without ``--buffer`` it starts its own simulated rack and I/O service in this process
+in simulated time (deterministic, a few seconds); operator steps are done by the fake
+rack's stimulus. With ``--buffer NAME`` it checks the rack behind a running service in
+real time and prompts the operator ("deflect CAE up") for the hand controller and the
+user I/F box (``--non-interactive`` skips those steps). The logic lives in
+``tools.checkout``; tolerances in ``tools/checkout/checkout_default.toml`` (``--config``
+overrides them). Exit code 0 only when every check passed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from tools.checkout.config import GROUPS
+
+
+def add_parser(sub):
+    p = sub.add_parser("checkout", help="scripted per-channel checkout with a JSON/HTML report",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--rack", default="fake",
+                   help="fake (the IRSS rack, default) or a rack TOML; with --buffer: the rack the service runs")
+    p.add_argument("--buffer", default=None, metavar="NAME",
+                   help="check a running service's rack through its Bit3 buffer (real time)")
+    p.add_argument("--non-interactive", action="store_true",
+                   help="no operator prompts: on a real rack operator steps are skipped")
+    p.add_argument("-k", "--keep-going", action="store_true", help="do not stop at the first failure")
+    p.add_argument("--json", metavar="FILE", help="write the JSON report")
+    p.add_argument("--html", metavar="FILE", help="write the standalone HTML report")
+    p.add_argument("--only", nargs="+", choices=GROUPS, metavar="GROUP",
+                   help=f"run only these groups ({', '.join(GROUPS)})")
+    p.add_argument("--config", metavar="FILE", help="tolerances merged over tools/checkout/checkout_default.toml")
+    p.add_argument("--wait", type=float, default=30.0, metavar="S",
+                   help="with --buffer: wait this long for the service (0 = forever; default 30)")
+    p.add_argument("--sim-fault", action="append", default=[], metavar="SPEC",
+                   help="simulated rack only: inject a fault first (tach-reversed:JOINT, "
+                        "adc-dead:SIGNAL=VOLTS, resolver-los:SIGNAL, ft-noise); repeatable")
+    p.add_argument("-q", "--quiet", action="store_true", help="print only failures and the summary")
+    return p
+
+
+def run(args) -> int:
+    from tools.checkout import Checkout, LiveTarget, load_checkout_config, make_sim_target
+    from tools.checkout.connect import attach_waiting
+    from pfma.rack import load_rack
+
+    cfg = load_checkout_config(args.config)
+    rack_path = None if args.rack in ("fake", "default") else args.rack
+    if args.buffer:
+        if args.sim_fault:
+            print("pfma checkout: --sim-fault needs the simulated rack (no --buffer)", file=sys.stderr)
+            return 2
+        client = attach_waiting(args.buffer, rack_path, wait_s=args.wait)
+        target = LiveTarget(client, load_rack(rack_path),
+                            service_timeout_s=cfg.num("checkout", "service_timeout_s"))
+        interactive = not args.non_interactive
+    else:
+        target = make_sim_target(rack_path)
+        interactive = False  # the stimulus acts for the operator
+    try:
+        for spec in args.sim_fault:
+            print(f"pfma checkout: injected fault: {target.inject_fault(spec)}")
+
+        def say(line: str) -> None:
+            if not args.quiet or line.startswith(("FAIL", ">>>")):
+                print(line, flush=True)
+        chk = Checkout(target, cfg, keep_going=args.keep_going, only=args.only,
+                       interactive=interactive, say=say)
+        report = chk.run()
+    finally:
+        target.close()
+    print()
+    for line in report.summary_lines():
+        print(line)
+    if args.json:
+        print(f"JSON report: {report.write_json(args.json)}")
+    if args.html:
+        print(f"HTML report: {report.write_html(args.html)}")
+    if chk.interrupted:
+        return 130
+    return 0 if report.passed else 1

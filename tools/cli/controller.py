@@ -1,0 +1,490 @@
+"""``pfma controller``: run the seven-layer controller against a running I/O service, or
+the whole system in the simulator; halt, single-step, trace, messages.
+
+Examples::
+
+    pfma controller --sim --power-up --duration 0.5 --trace --changes
+    pfma controller --sim --halt            # single-step: Enter = one minor frame, ? = help
+    pfma controller --sim --power-up --step 40
+    pfma controller --buffer pfma --power-up --duration 10     # against ``pfma serve``
+    pfma controller --tables                # the decision tables and the scheduling table
+
+The trace has one line per minor frame: for every layer ``COMMAND>STATUS rN`` (the
+command it receives, the status its decision table decided, the table row that
+decided; ``*`` marks a change) and the Data Acquisition hardware-check bits.
+"""
+
+from __future__ import annotations
+
+import gc
+import sys
+import time
+
+HELP = """single-step commands (IRSS halt / manual interrupt):
+  Enter or s      one minor frame          s N   N minor frames
+  c               continue to the end      q     quit
+  p / d / r       request POWER UP / POWER DOWN / ERROR RESET
+  m               the last 100 messages    t     the layers' statuses
+  ?               this help"""
+
+
+def add_parser(sub):
+    p = sub.add_parser("controller", help="run the IRSS-layered controller (live service or --sim)",
+                       description=__doc__.split("\n\n")[0])
+    p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name of the service (default pfma)")
+    p.add_argument("--sim", action="store_true", help="simulate the whole system (fake rack + service) "
+                                                     "in simulated time instead")
+    p.add_argument("--wm", default="pfma_wm", help="world-model shared-memory name for `pfma wm` "
+                                                  "(default pfma_wm; 'none' = private)")
+    p.add_argument("--profile", default="layers", help="rate profile: layers (default) or overview")
+    p.add_argument("--power-up", action="store_true", help="request POWER UP at start")
+    p.add_argument("--duration", type=float, default=None,
+                   help="seconds to run (simulated with --sim: default 1; live: until Ctrl-C)")
+    p.add_argument("--halt", action="store_true", help="start halted; single-step from the keyboard")
+    p.add_argument("--step", type=int, default=None, metavar="N",
+                   help="run N minor frames one at a time, printing each frame's trace, then stop")
+    p.add_argument("--trace", action="store_true", help="print the per-frame trace")
+    p.add_argument("--changes", action="store_true", help="trace only frames in which a status changed")
+    p.add_argument("--messages", type=int, default=30, metavar="N", help="messages shown at the end (30)")
+    p.add_argument("--no-ft", action="store_true", help="a stale F/T link is not a fault")
+    p.add_argument("--tables", action="store_true", help="print the decision tables and the schedule")
+    p.add_argument("--realtime", action="store_true",
+                   help="SCHED_FIFO priority 49 pinned to CPU 0 (needs privileges; pfma serve --realtime takes the last CPU)")
+    _add_motion_arguments(p)
+    _add_path_arguments(p)
+    return p
+
+
+# --- motion: teleoperation, force control, time delay (Cartesian engine, issue 6) -------------
+def _add_motion_arguments(p) -> None:
+    g = p.add_argument_group("teleoperation, force control, time delay (Cartesian engine)")
+    g.add_argument("--teleop", choices=("cae", "crl", "hid"), default=None,
+                   help="teleoperate from this hand controller (cart.mode 1; deadman required)")
+    g.add_argument("--hc-frame", choices=("world", "tool"), default="world",
+                   help="hand-controller rates in the world (default) or the tool frame")
+    g.add_argument("--vernier", action="store_true", help="vernier rates (0.03 m/s, 0.05 rad/s)")
+    g.add_argument("--impedance", choices=("on", "off"), default=None,
+                   help="impedance control on (zeroes the F/T sensor first) or off")
+    g.add_argument("--delay", type=float, default=None, metavar="S",
+                   help="synthetic round-trip delay in seconds, split equally up/down (0..8)")
+    g.add_argument("--jitter", type=float, default=None, metavar="F",
+                   help="synthetic delay jitter fraction per packet (e.g. 0.1; order preserved)")
+    g.add_argument("--demo-stick", action="store_true",
+                   help="--sim only: move the simulated CAE stick (deadman, +x 1 s, +z 1 s, release)")
+    g.add_argument("--demo-wall", type=float, default=None, metavar="M",
+                   help="--sim only: a stiff virtual wall M metres in front of the tool (+x, world)")
+
+
+def _motion_settings(args) -> dict:
+    """World-model user variables the motion flags set (empty: none given)."""
+    from controller.teleop import HC_SOURCES
+    out: dict = {}
+    if args.teleop is not None:
+        out.update({"cart.mode": 1, "cart.hc_source": HC_SOURCES.index(args.teleop)})
+    if args.teleop is not None or args.hc_frame != "world":
+        out["cart.hc_frame"] = 1 if args.hc_frame == "tool" else 0
+    if args.vernier:
+        out["cart.vernier"] = True
+    if args.impedance is not None:
+        out["force.enable"] = args.impedance == "on"
+    if args.delay is not None:
+        out["delay.round_trip_s"] = args.delay
+    if args.jitter is not None:
+        out["delay.jitter"] = args.jitter
+    return out
+
+
+def _setup_motion(d, args) -> None:
+    """Apply the motion flags (user writes, applied at the next frames) and the sim demos."""
+    if (args.demo_stick or args.demo_wall is not None) and d.sim is None:
+        raise SystemExit("pfma controller: --demo-stick and --demo-wall need --sim")
+    settings = _motion_settings(args)
+    if args.demo_stick and "cart.mode" not in settings:
+        settings.update({"cart.mode": 1, "cart.hc_source": 0})
+    wm = d.rt.wm
+    for name, value in settings.items():
+        wm.set_user(name, value, wm.access_key)
+    if settings:
+        d.frame()  # applied at this frame's communications segment
+        print("motion settings: " + ", ".join(f"{k}={v}" for k, v in settings.items()))
+    if args.demo_wall is not None:
+        from controller.kinematics import fk
+        from fakes.environment import Wall
+        p, _ = fk(d.sim.joint_angles_rad())
+        x = float(p[0]) + args.demo_wall
+        d.sim.world.sim.environment.add(Wall(point_m=(x, 0.0, 0.0), normal=(-1.0, 0.0, 0.0)))
+        print(f"virtual wall at x = {x:.3f} m (normal -x, 2e4 N/m)")
+    if args.demo_stick:
+        world, t0 = d.sim.world, [None]
+
+        def stick(rec) -> None:
+            from controller.decision import Status
+            if d.rt.status("updown") != Status.START_UP_COMPLETE:
+                return
+            if t0[0] is None:
+                t0[0] = rec.t_s
+            t = rec.t_s - t0[0]
+            if t < 1.0:  # CAE axis order: up/down, forward/backward, right/left, yaw, pitch, roll
+                world.set_cae([0.0, 5.25, 0, 0, 0, 0], (True, False, False))
+            elif t < 2.0:
+                world.set_cae([5.25, 0.0, 0, 0, 0, 0], (True, False, False))
+            else:
+                world.set_cae([0.0] * 6, (False, False, False))
+        d.rt.on_frame.append(stick)
+
+
+def _motion_summary(d) -> str:
+    v = d.rt.wm.get_task_inputs(("cart.pos_cmd_m", "cart.cmd_valid", "force.state", "force.wrench_n",
+                                 "teleop.reflect_enabled"))
+    p = v["cart.pos_cmd_m"]
+    w = v["force.wrench_n"]
+    line = (f"Cartesian command ({p[0]:+.4f}, {p[1]:+.4f}, {p[2]:+.4f}) m valid={bool(v['cart.cmd_valid'])}  "
+            f"force state {int(v['force.state'])} F ({w[0]:+.2f}, {w[1]:+.2f}, {w[2]:+.2f}) N  "
+            f"reflection {'on' if v['teleop.reflect_enabled'] else 'off'}")
+    if d.sim is not None:
+        from controller.kinematics import fk
+        t, _ = fk(d.sim.joint_angles_rad())
+        line += f"\ntool (true) ({t[0]:+.4f}, {t[1]:+.4f}, {t[2]:+.4f}) m"
+    return line
+
+
+# --- paths: record and play back (Multi-Segment Path Planner, issue 6) -------------------------
+def _add_path_arguments(p) -> None:
+    g = p.add_argument_group("path record and playback (Multi-Segment Path Planner; files: pfma path)")
+    x = g.add_mutually_exclusive_group()
+    x.add_argument("--record", metavar="NAME", default=None,
+                   help="record path NAME once powered up, until the end of the run (teach points with "
+                        "--teach-every or `pfma wm set msp.teach`; continuous capture unless --no-capture)")
+    x.add_argument("--play", metavar="NAME", default=None,
+                   help="play path NAME back once powered up (cart.mode 2)")
+    g.add_argument("--path-dir", default=None, metavar="DIR",
+                   help="path directory (default $PFMA_PATH_DIR or ~/.local/share/pfma/paths)")
+    g.add_argument("--teach-every", type=float, default=None, metavar="S",
+                   help="while recording, store a teach point every S seconds")
+    g.add_argument("--no-capture", action="store_true", help="record teach points only")
+    g.add_argument("--record-command", action="store_true",
+                   help="record the Cartesian command instead of the measured tool pose (playback then "
+                        "repeats the recorded motion, servo errors included)")
+    g.add_argument("--speed", type=float, default=None, metavar="F", help="playback speed factor (msp.speed_scale)")
+
+
+def _setup_paths(d, args) -> None:
+    """Path store, path id, and a frame hook that starts recording/playback once powered up."""
+    if args.record is None and args.play is None:
+        return
+    from controller.decision import Status
+    from controller.paths import MspMode, PathStore
+    store = PathStore(args.path_dir)
+    msp = d.rt.by_key["msp"]
+    msp.store = store
+    wm, key = d.rt.wm, d.rt.wm.access_key
+    if args.record is not None:
+        path = store.load(args.record) if store.exists(args.record) else store.new(args.record,
+                                                                                   note="pfma controller --record")
+        settings = {"msp.path_id": path.id, "msp.capture": not args.no_capture,
+                    "msp.record_source": 1 if args.record_command else 0}
+        start = {"msp.mode": MspMode.RECORD}
+        print(f"recording into path {path.name} (id {path.id}) in {store.dir}")
+    else:
+        path = store.load(args.play)
+        settings = {"msp.path_id": path.id}
+        if args.speed is not None:
+            settings["msp.speed_scale"] = args.speed
+        start = {"cart.mode": 2, "msp.mode": MspMode.PLAY}
+        print(f"playing path {path.name} (id {path.id}, {len(path.points)} points) from {store.dir}")
+    for name, value in settings.items():
+        wm.set_user(name, value, key)
+    state = {"started": None, "teach_t": None}
+
+    def hook(rec) -> None:
+        if state["started"] is None:
+            if d.rt.status("updown") == Status.START_UP_COMPLETE:
+                for name, value in start.items():
+                    wm.set_user(name, value, key)
+                state["started"] = state["teach_t"] = rec.t_s
+            return
+        if args.record is not None and args.teach_every and rec.t_s - state["teach_t"] >= args.teach_every:
+            state["teach_t"] = rec.t_s
+            wm.set_user("msp.teach", int(wm.get("msp.teach")) + 1, key)
+    d.rt.on_frame.append(hook)
+    d.path_state = state
+
+
+def _finish_paths(d, args) -> None:
+    """End a recording (saved), report a playback."""
+    if args.record is None and args.play is None:
+        return
+    from controller.paths import MspMode, MspResult
+    wm = d.rt.wm
+    if getattr(d, "path_state", {}).get("started") is None:
+        print("path: never powered up (use --power-up); nothing recorded or played")
+        return
+    if args.record is not None:
+        n = int(wm.get("msp.finished"))
+        wm.set_user("msp.mode", MspMode.IDLE, wm.access_key)
+        for _ in range(64):  # the planner runs at 20 Hz: a few of its periods
+            d.frame()
+            if int(wm.get("msp.finished")) > n:
+                break
+        d.rt.by_key["msp"].wait_saved()
+        for _ in range(4):
+            d.frame()
+        saved = d.rt.by_key["msp"].last_saved
+        res = MspResult.NAMES.get(int(wm.get("msp.result")), "?")
+        if saved is not None:
+            print(f"path {saved.name}: {len(saved.points)} points, {saved.length_m:.3f} m, revision {saved.revision} "
+                  f"({res})")
+        else:
+            print(f"path {args.record}: not saved ({res})")
+    else:
+        v = wm.get_task_inputs(("msp.state", "msp.segment", "msp.segments", "msp.result", "msp.finished"))
+        if int(v["msp.state"]) == MspMode.PLAY:
+            print(f"path {args.play}: still playing, segment {int(v['msp.segment'])} of {int(v['msp.segments'])} "
+                  f"(run longer: --duration)")
+        else:
+            print(f"path {args.play}: playback ended ({MspResult.NAMES.get(int(v['msp.result']), '?')})")
+
+
+def _print_tables(profile: str) -> int:
+    from controller.decision import BOTTOM_TABLE, LAYER_TABLE, describe
+    from controller.frames import FrameConfig
+    print(describe(LAYER_TABLE))
+    print()
+    print(describe(BOTTOM_TABLE))
+    print()
+    print(FrameConfig.profile(profile).validate().describe())
+    return 0
+
+
+def _status_line(rt) -> str:
+    from controller.decision import status_text
+    return "  ".join(f"{l.short.strip()}={status_text(s)}" for l, s in zip(rt.layers, rt.statuses().values()))
+
+
+class LivePacer:
+    """Paces a live controller to the service's frames, by the service's hot-loop rules.
+
+    Absolute deadlines: the service publishes frame k + 1 at about ``t_s(k) + period``
+    (``inputs.t_s`` is the service's frame time on the same CLOCK_MONOTONIC host clock), so
+    the pacer sleeps to :data:`LEAD_S` before that, then polls ``client.changed("inputs")``
+    every :data:`POLL_S` until the frame is there (at most :data:`GIVE_UP_PERIODS` periods
+    past it: the runtime's stale-service check then reports a service that stopped). A
+    controller that woke late steps at once on the newest frame; the runtime counts the
+    frames in between as missed and catches their tasks up. Nothing is allocated per frame
+    here (floats only). After start-up :meth:`freeze_gc` moves everything allocated so far
+    out of the collector's reach and turns automatic collection off; young generations are
+    collected in the slack before a frame (:data:`GC_EVERY_FRAMES`), never a full one.
+    """
+
+    #: wake this long before the service's next frame time, then poll (assumed: more than
+    #: the host's usual sleep overshoot, less than the service's publish delay)
+    LEAD_S = 0.3e-3
+    POLL_S = 50e-6
+    GIVE_UP_PERIODS = 4
+    GC_EVERY_FRAMES = 64
+    GC_MIN_SLACK_S = 1.5e-3
+
+    def __init__(self, client, period_s: float) -> None:
+        self.client = client
+        self.period_s = period_s
+        self.t_next = -1.0  # expected time of the next service frame (-1: not known yet)
+        self.frames = 0
+        self.gave_up = 0  #: waits that ended without a new frame
+        self.gc_frozen = False
+
+    def wait(self) -> None:
+        c, mono = self.client, time.monotonic
+        if c.changed("inputs"):
+            return  # already published (we are late): step on the newest frame now
+        now = mono()
+        t_next = self.t_next if self.t_next > 0 else now
+        slack = t_next - self.LEAD_S - now
+        if self.gc_frozen and slack > self.GC_MIN_SLACK_S and self.frames % self.GC_EVERY_FRAMES == 0:
+            gc.collect(1)  # young generations only, in the slack before the frame
+            now = mono()
+            slack = t_next - self.LEAD_S - now
+        if slack > 0:
+            time.sleep(slack)
+        give_up = t_next + self.GIVE_UP_PERIODS * self.period_s
+        while not c.changed("inputs"):
+            if mono() > give_up:
+                self.gave_up += 1
+                break
+            time.sleep(self.POLL_S)
+
+    def stepped(self, t_frame_s: float) -> None:
+        """The controller ran on the service frame of time ``t_frame_s``: the next is due a
+        period later (absolute, so no drift accumulates)."""
+        self.t_next = t_frame_s + self.period_s
+        self.frames += 1
+
+    def freeze_gc(self) -> None:
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+        self.gc_frozen = True
+
+    def release_gc(self) -> None:
+        if self.gc_frozen:
+            gc.enable()
+            gc.unfreeze()
+            self.gc_frozen = False
+
+
+class _Driver:
+    """Steps either a SystemSimulator or a runtime paced by a live service."""
+
+    def __init__(self, args) -> None:
+        from controller.frames import FrameConfig
+        self.args = args
+        frames = FrameConfig.profile(args.profile)
+        wm_name = None if args.wm in ("none", "") else args.wm
+        self.sim = None
+        self.client = None
+        if args.sim:
+            from sim.system import SystemSimulator
+            self.sim = SystemSimulator(frames=frames, wm_name=wm_name, require_ft=not args.no_ft)
+            self.rt = self.sim.rt
+            self.sim.step(10)  # the service's first frames (links open)
+        else:
+            from controller.runtime import ControllerRuntime
+            from bit3.client import Client
+            from pfma.clock import MonotonicClock
+            self.client = Client.attach(args.buffer, writer="commands", owner="pfma-controller")
+            self.rt = ControllerRuntime(self.client, frames=frames, wm_name=wm_name, clock=MonotonicClock(),
+                                        require_ft=not args.no_ft)
+            self.pacer = LivePacer(self.client, frames.period_s)
+            if args.realtime:
+                from ioservice.loop import realtime_setup
+                # the service pins itself to the last CPU (pfma serve --realtime); the
+                # controller takes the first, one priority below it
+                for w in realtime_setup(cpu=0, fifo_priority=49):
+                    print(f"pfma controller: {w}", file=sys.stderr)
+            gc.collect()  # what start-up allocated is not collected inside the first frames
+            gc.freeze()
+        self.printed_header = False
+
+    @property
+    def period_s(self) -> float:
+        return self.rt.frames.period_s
+
+    def frame(self) -> None:
+        if self.sim is not None:
+            self.sim.step(1)
+            return
+        self.pacer.wait()  # locked to the service: its next frame, on absolute deadlines
+        self.rt.step()
+        snap = self.rt.daq.snapshot
+        self.pacer.stepped(float(snap.t_s))
+        if not self.pacer.gc_frozen and self.pacer.frames == self.FREEZE_AFTER_FRAMES:
+            self.pacer.freeze_gc()  # start-up allocations done: no collector pauses in frames
+
+    #: live frames run before the garbage collector is frozen (imports, first allocations)
+    FREEZE_AFTER_FRAMES = 32
+
+    def show(self, rec) -> None:
+        if not self.args.trace and self.args.step is None and not self.args.halt:
+            return
+        if self.args.changes and not any(l.changed for l in rec.layers):
+            return
+        if not self.printed_header:
+            print(self.rt.header())
+            self.printed_header = True
+        print(self.rt.format_frame(rec), flush=True)
+
+    def close(self) -> None:
+        from controller.decision import Status
+        rt = self.rt
+        if self.sim is None and rt.status("updown") not in (Status.SHUT_DOWN, Status.ERROR):
+            from controller.layers import Request
+            try:  # leave the arm safe: power down in order before letting go of the buffer
+                rt.request(Request.POWER_DOWN)
+                t_end = time.monotonic() + 2.0
+                while time.monotonic() < t_end and not rt.all_status(Status.SHUT_DOWN):
+                    self.frame()
+            except Exception as err:  # noqa: BLE001
+                print(f"pfma controller: power down on exit: {err}", file=sys.stderr)
+        if self.sim is not None:
+            self.sim.close()
+        else:
+            self.pacer.release_gc()
+            rt.close()
+            self.client.close()
+
+
+def _interactive(d: _Driver, budget: int) -> None:
+    from controller.layers import Request
+    print(HELP)
+    run = 0
+    while run < budget:
+        try:
+            line = input(f"[frame {d.rt.frame}] > ").strip()
+        except EOFError:
+            return
+        cmd, _, arg = line.partition(" ")
+        if cmd in ("", "s"):
+            n = int(arg) if arg.strip().isdigit() else 1
+            for _ in range(min(n, budget - run)):
+                d.frame()
+                run += 1
+        elif cmd == "c":
+            while run < budget:
+                d.frame()
+                run += 1
+        elif cmd == "q":
+            return
+        elif cmd in ("p", "d", "r"):
+            kind = {"p": Request.POWER_UP, "d": Request.POWER_DOWN, "r": Request.ERROR_RESET}[cmd]
+            print(f"request {d.rt.request(kind)}: {Request.NAMES[kind]} (applied at the next frame)")
+        elif cmd == "m":
+            print(d.rt.messages.format())
+        elif cmd == "t":
+            print(_status_line(d.rt))
+        else:
+            print(HELP)
+
+
+def run(args) -> int:
+    if args.tables:
+        return _print_tables(args.profile)
+    from controller.layers import Request
+    try:
+        d = _Driver(args)
+    except FileNotFoundError as err:
+        print(f"pfma controller: no service buffer {args.buffer!r} ({err}); start `pfma serve` or use --sim",
+              file=sys.stderr)
+        return 1
+    d.rt.on_frame.append(d.show)
+    try:
+        _setup_motion(d, args)
+        _setup_paths(d, args)
+        if args.power_up:
+            d.rt.request(Request.POWER_UP)
+        if args.duration is not None:
+            budget = int(round(args.duration / d.period_s))
+        elif args.sim:
+            budget = int(round(1.0 / d.period_s))
+        else:
+            budget = sys.maxsize
+        if args.step is not None:
+            budget = min(budget, args.step)
+        if args.halt:
+            if not args.sim:
+                print("note: halting a controller on a live service lets its watchdog trip the "
+                      "outputs safe (15 ms); single steps then run on the latest inputs", file=sys.stderr)
+            _interactive(d, budget)
+        else:
+            for _ in range(budget):
+                d.frame()
+        _finish_paths(d, args)
+        print(_status_line(d.rt))
+        if _motion_settings(args) or args.demo_stick or args.demo_wall is not None:
+            print(_motion_summary(d))
+        if args.messages:
+            print(f"--- last {args.messages} messages ---")
+            print(d.rt.messages.format(args.messages))
+    except KeyboardInterrupt:
+        print()
+    finally:
+        d.close()
+    return 0

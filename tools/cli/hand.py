@@ -1,0 +1,226 @@
+"""``pfma hand --source cae|crl|hid``: print a hand controller's live state.
+
+Each line is one :class:`drivers.crl.HandControllerState` (axes -1..1 in the
+hand-controller frame: x forward, y left, z up; roll/pitch/yaw right-handed).
+
+- ``cae``: the CAE rate controller on the A/D board. ``--port fake`` (default) runs the
+  driver on a fresh fake rack whose ADC inputs follow a gently moving simulated stick
+  (deadman pressed after 0.5 s); any other ``--port`` is a register bus URL
+  (``modbus://HOST:PORT``, ``file:PATH``).
+- ``crl``: the CRL force-reflecting master on a serial port (``--port /dev/ttyUSB0``,
+  ``socket://...``). ``--port fake`` (default) runs ``fakes.crl.FakeCrlMaster`` behind a
+  real pty, and the tool sends it a gentle spring force, so both directions are live.
+  The CRL framing is a PLACEHOLDER (drivers/crl/crl_codec.py).
+- ``hid``: a 3Dconnexion SpaceMouse (hidapi, hidraw backend). ``--port auto`` (default)
+  opens the first one found and falls back to a fake device, saying so; ``--port fake``
+  forces the fake; ``--port /dev/hidrawN`` opens that node. The deadman is the left button.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+from pfma.clock import MonotonicClock
+
+POLL_S = 0.02  # the drivers are polled at the CRL frame rate (50 Hz)
+
+
+def add_parser(sub):
+    p = sub.add_parser("hand", help="print a hand controller's live state",
+                       description=__doc__.split("\n\n", 1)[1],
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--source", required=True, choices=("cae", "crl", "hid"), help="which controller")
+    p.add_argument("--port", default=None,
+                   help="cae: bus URL or fake (default); crl: serial URL or fake (default); "
+                        "hid: auto (default), fake or a /dev/hidraw path")
+    p.add_argument("--count", type=int, default=None, help="stop after N lines")
+    p.add_argument("--duration", type=float, default=None, help="stop after S seconds")
+    p.add_argument("--rate-hz", type=float, default=10.0, help="lines per second (default 10)")
+    p.add_argument("--rack", default="fake", help="rack TOML (default: the IRSS report's tables)")
+    p.add_argument("--json", action="store_true", help="one JSON object per line")
+    return p
+
+
+def _wave(t_s: float, k: int, amp: float = 0.6) -> float:
+    return amp * math.sin(2 * math.pi * t_s / (4.0 + 1.3 * k))
+
+
+class _Source:
+    """poll() -> state; extra() -> text after the state; close()."""
+
+    header = ""
+
+    def poll(self):
+        raise NotImplementedError
+
+    def extra(self) -> str:
+        return ""
+
+    def close(self) -> None:
+        pass
+
+
+class _Cae(_Source):
+    def __init__(self, args, clock) -> None:
+        from drivers.adc import Dvme611
+        from drivers.crl.cae import CAE_AXES, CAE_DISCRETES, CaeHandController
+        from pfma.rack import load_rack
+
+        rack = load_rack(args.rack)
+        board = rack.board(rack.channel("cae_up_down").board)
+        port = args.port or "fake"
+        self.fake_adc = None
+        if port in ("fake", "fake://"):
+            from fakes.rack import FakeRack
+
+            self.bus = FakeRack.from_config(rack)
+            self.fake_adc = self.bus[board.name]
+            self.header = f"CAE on a fake rack: {board.name} @0x{board.base:04X}, simulated stick"
+        else:
+            from tools.cli.reg import open_cli_bus
+
+            self.bus = open_cli_bus(port, rack)
+            self.header = f"CAE on {port}: {board.name} @0x{board.base:04X}"
+        self.adc = Dvme611(self.bus, board.base, name=board.name)
+        self.cae = CaeHandController(rack=rack, clock=clock)
+        self.axis_channels = [rack.channel(s).channel for s, _, _ in CAE_AXES]
+        self.deadman_channel = rack.channel(CAE_DISCRETES[0][0]).channel
+        self.clock, self.t0 = clock, clock.now()
+
+    def poll(self):
+        if self.fake_adc is not None:
+            t = self.clock.now() - self.t0
+            for k, ch in enumerate(self.axis_channels):
+                self.fake_adc.set_input_volts(ch, 10.0 * _wave(t, k))
+            self.fake_adc.set_input_volts(self.deadman_channel, 5.0 if t > 0.5 else 0.0)
+        return self.cae.read(self.adc.read_volts)
+
+    def close(self) -> None:
+        from tools.cli.reg import close_bus
+
+        close_bus(self.bus)
+
+
+class _Crl(_Source):
+    def __init__(self, args, clock) -> None:
+        from drivers.crl import CrlHandController
+
+        port = args.port or "fake"
+        self.fake = self.pty = None
+        self.clock, self.t0 = clock, clock.now()
+        if port == "fake":
+            from fakes.crl import FakeCrlMaster, gentle_axes
+            from fakes.pty import PtyDevice
+
+            self.fake = FakeCrlMaster(axes_fn=gentle_axes)
+            self.pty = PtyDevice(self.fake).start()
+            port = self.pty.port_name
+            self.header = f"CRL: fake master on pty {port} (placeholder framing), spring force sent back"
+        else:
+            self.header = f"CRL on {port} (placeholder framing), zero force frames sent"
+        self.drv = CrlHandController.open(port, clock)
+
+    def poll(self):
+        if self.fake is not None:
+            self.fake.deadman = self.clock.now() - self.t0 > 0.5
+        st = self.drv.update()
+        if self.fake is not None:  # a soft spring towards the centre, only on the fake
+            self.drv.send_force(tuple(-20.0 * a for a in st.axes[:3]), tuple(-1.0 * a for a in st.axes[3:]))
+        else:
+            self.drv.send_force((0.0,) * 3, (0.0,) * 3, enable=False)
+        return st
+
+    def extra(self) -> str:
+        s = self.drv.link_stats()
+        txt = f" | ok {s['frames_ok']} bad {s['frames_bad']} lost {s['frames_lost']} trips {s['watchdog_trips']}"
+        if self.fake is not None:
+            f = self.fake.displayed_force_n
+            txt += f" | display F=({f[0]:+5.1f},{f[1]:+5.1f},{f[2]:+5.1f}) N"
+        return txt
+
+    def close(self) -> None:
+        self.drv.close()
+        if self.pty is not None:
+            self.pty.stop()
+
+
+class _Hid(_Source):
+    def __init__(self, args, clock) -> None:
+        from drivers.crl import HidSpaceMouse
+
+        port = args.port or "auto"
+        self.fake = None
+        self.clock, self.t0 = clock, clock.now()
+        if port == "auto":
+            try:
+                self.sm = HidSpaceMouse(clock=clock)
+                found = self.sm.enumerate()
+            except (ImportError, OSError) as err:
+                print(f"pfma hand: hidapi unavailable ({err})", file=sys.stderr)
+                found = []
+            if found:
+                self.header = f"SpaceMouse {found[0].get('product_string') or ''} at {found[0].get('path')!r}"
+                return
+            print("pfma hand: no SpaceMouse found; using a FAKE device (fakes.hid.FakeHidDevice)",
+                  file=sys.stderr)
+            port = "fake"
+        if port == "fake":
+            from fakes.hid import FakeHidDevice
+
+            self.fake = FakeHidDevice()
+            self.sm = HidSpaceMouse(opener=self.fake, clock=clock)
+            self.header = "SpaceMouse: FAKE device (no hardware), simulated puck"
+        else:
+            self.sm = HidSpaceMouse(path=port, clock=clock)
+            self.header = f"SpaceMouse at {port}"
+
+    def poll(self):
+        if self.fake is not None:
+            t = self.clock.now() - self.t0
+            w = [int(350 * _wave(t, k)) for k in range(6)]
+            self.fake.set_axes(w[:3], w[3:])
+            self.fake.set_buttons(1 if t > 0.5 else 0)
+        return self.sm.update()
+
+    def close(self) -> None:
+        self.sm.close()
+
+
+SOURCES = {"cae": _Cae, "crl": _Crl, "hid": _Hid}
+
+
+def run(args) -> int:
+    if args.rate_hz <= 0:
+        print("pfma hand: --rate-hz must be positive", file=sys.stderr)
+        return 2
+    clock = MonotonicClock()
+    source = SOURCES[args.source](args, clock)
+    try:
+        if not args.json:
+            print(f"# {source.header}")
+        t0 = clock.now()
+        next_poll = next_print = t0
+        lines = 0
+        while True:
+            now = clock.now()
+            if args.duration is not None and now - t0 >= args.duration:
+                break
+            state = source.poll()
+            if now >= next_print:
+                if args.json:
+                    print(json.dumps(state.as_dict()))
+                else:
+                    print(state.format() + source.extra())
+                sys.stdout.flush()
+                lines += 1
+                next_print += 1.0 / args.rate_hz
+                if args.count is not None and lines >= args.count:
+                    break
+            next_poll += POLL_S
+            clock.sleep_until(next_poll)
+    finally:
+        source.close()
+    return 0

@@ -1,0 +1,168 @@
+"""``pfma read SIGNAL...``: read channels by signal name, in engineering units.
+
+Signal names, scales and units come from the rack file (``pfma channels``). RTD
+angles are radians; analog inputs are ``scale * volts + offset``; the DAC is
+write-only, so its value is the driver's shadow (what this process last wrote,
+the board's reset value when nothing was); PIO ports are the port byte.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from tools.cli import add_bus_arguments
+from tools.cli.reg import UsageError, close_bus, open_cli_bus
+from pfma.errors import PfmaError
+from pfma.rack import load_rack
+from drivers.rackio import RackIO
+
+READ_NOTE = ("Without --bus the values come from the I/O service running on --buffer (start it "
+             "with `pfma serve`); with no live service there the command says so and exits 1. "
+             "--bus URL reads the registers instead; --bus fake reads a fresh simulated rack in its "
+             "power-up state (every line says so).")
+
+
+def add_parser(sub):
+    p = sub.add_parser("read", help="read channels by signal name (engineering units)",
+                       description=__doc__.split("\n\n")[1] + "\n\n" + READ_NOTE,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("signals", nargs="+", metavar="SIGNAL", help="signal name(s), see `pfma channels`")
+    p.add_argument("--json", action="store_true", help="one JSON list with an object per signal")
+    add_bus_arguments(p)
+    p.set_defaults(bus=None)  # None: the running service's buffer; registers only with an explicit --bus
+    p.add_argument("--buffer", default="pfma",
+                   help="read the latest values the service running on this Bit3 buffer published "
+                        "(default pfma; the service must be running: `pfma serve`). With --bus the "
+                        "registers are read instead (--bus fake: the simulated rack)")
+    return p
+
+
+def no_service(name: str) -> str | None:
+    """Why no live service publishes Bit3 buffer ``name`` (None: one does).
+
+    Decided from the service's claim lock (:meth:`Bit3Buffer.owner_alive`), so for a
+    buffer of any layout; the message is one line a tool prints before exiting 1.
+    """
+    from bit3.buffer import Bit3Buffer
+    path = f"/dev/shm/{name}"
+    alive, who = Bit3Buffer.owner_alive(name)
+    if alive:
+        return None
+    if who.startswith("no buffer"):
+        return (f"no service buffer {path}: no I/O service runs on buffer {name!r}; start one "
+                f"with `pfma serve --buffer {name}` (in another terminal), or check --buffer")
+    return f"service on {path} is not running ({_last_frame(name)}{who})"
+
+
+def _last_frame(name: str) -> str:
+    """``"last frame N at t=T s; "`` from the buffer's header, or "" when it cannot be read."""
+    import struct
+
+    from bit3.layout import MAGIC, ServiceState
+    from bit3.buffer import _header_offsets
+    try:
+        with open(f"/dev/shm/{name}", "rb") as f:
+            head = f.read(1024)
+        if head[:8] != MAGIC:
+            return ""
+        h = _header_offsets()
+        frame = struct.unpack_from("<Q", head, h["frame"])[0]
+        t_s = struct.unpack_from("<d", head, h["frame_t_s"])[0]
+        state = struct.unpack_from("<I", head, h["service_state"])[0]
+    except (OSError, KeyError, struct.error):
+        return ""
+    how = "it stopped; " if state == ServiceState.STOPPED else ""
+    return f"{how}last frame {frame} at t={t_s:.3f} s; "
+
+
+def _service_client(name: str, rack: str | None):
+    """A read-only client of the live service on buffer ``name``.
+
+    :raises PfmaError: no live service there (the message says why), or its layout differs
+    """
+    from bit3.client import Client
+    from pfma.errors import PfmaError
+    why = no_service(name)
+    if why is not None:
+        raise PfmaError(why)
+    return Client.attach(name, rack=rack)
+
+
+def _read_buffer(client, signals, as_json: bool) -> int:
+    snap = client.read_inputs()
+    rows, failures = [], 0
+    for signal in signals:
+        row: dict = {"signal": signal}
+        try:
+            entry = next(e for e in client.layout.channels if e.name == signal and e.area == "inputs")
+            value = snap.value(signal)
+            value = value.tolist() if hasattr(value, "tolist") else value
+            row.update(board=entry.board, channel=entry.channel, value=value, units=entry.units,
+                       note=f"from the service (frame {snap.frame})")
+        except StopIteration:
+            failures += 1
+            row["error"] = f"no channel named {signal!r} in the service's Bit3 layout"
+            if not as_json:
+                print(f"pfma read: {signal}: {row['error']}", file=sys.stderr)
+        rows.append(row)
+    if as_json:
+        print(json.dumps(rows, indent=1))
+    else:
+        for row in rows:
+            if "error" not in row:
+                v = row["value"]
+                shown = f"{v:.6g}" if isinstance(v, float) else str(v)
+                print(f"{row['signal']:32} {shown:>14} {row['units']:6} {row['board']} ch {row['channel']}  "
+                      f"{row['note']}")
+    return 1 if failures else 0
+
+
+def run(args) -> int:
+    if args.bus is None:
+        client = _service_client(args.buffer, None if args.rack in ("fake", "default") else args.rack)
+        try:
+            return _read_buffer(client, args.signals, args.json)
+        finally:
+            client.close()
+    simulated = args.bus.removeprefix("spy+") in ("fake", "fake://", "")
+    rack = load_rack(args.rack)
+    try:
+        bus = open_cli_bus(args.bus, rack)
+    except UsageError as err:
+        print(f"pfma read: {err}", file=sys.stderr)
+        return 2
+    io = RackIO(bus, rack)
+    rows: list[dict] = []
+    failures = 0
+    try:
+        for signal in args.signals:
+            row: dict = {"signal": signal}
+            try:
+                ch = io.channel(signal)
+                row.update(board=ch.board, channel=ch.channel, address=ch.address)
+                r = io.read_signal(signal)
+                row.update(value=r.value, units=r.units, raw=r.raw, note=r.note)
+                if simulated:
+                    row["source"] = "simulated rack"
+            except PfmaError as err:
+                failures += 1
+                row["error"] = str(err)
+                if not args.json:
+                    print(f"pfma read: {signal}: {err}", file=sys.stderr)
+            rows.append(row)
+    finally:
+        close_bus(bus)
+    if args.json:
+        print(json.dumps(rows, indent=1))
+    else:
+        for row in rows:
+            if "error" in row:
+                continue
+            value = row["value"]
+            shown = f"{value:.6g}" if isinstance(value, float) else f"{value} (0x{value:02X})"
+            sim = "(simulated rack) " if simulated else ""
+            print(f"{row['signal']:32} {shown:>14} {row['units']:6} raw {row['raw']:<6} "
+                  f"{row['board']} ch {row['channel']}  {sim}{row['note']}".rstrip())
+    return 1 if failures else 0

@@ -1,0 +1,269 @@
+"""``pfma record``: lossless MCAP recording of a running service's Bit3 buffer.
+
+    pfma record FILE.mcap [--buffer NAME] [--duration S] [--json-every N]
+    pfma record recover BROKEN.mcap [-o FIXED.mcap]
+    pfma record info FILE.mcap
+
+Every inputs frame is written raw (``/pfma/inputs_raw``, lossless) and as JSON channels
+Foxglove plots (``/pfma/joints``, ``/pfma/adc``, ...); see docs/recording.md. The
+recorder waits with a message while no service is up, and when the service stops or
+is restarted it goes back to waiting and continues the same file as a new session
+(frame numbers start again; counters stay per recording). A buffer with another
+layout (another rack file) ends the recording with an error: that is a different
+recording. Ctrl-C, SIGTERM or ``--duration`` end it cleanly with the counters and the
+MCAP summary written. A killed recorder loses at most ``--flush-s`` (0.25 s); ``pfma
+record recover`` makes such a file whole.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import signal
+import sys
+import time
+
+from pfma.rack import load_rack
+
+#: no new frame for this long: look whether the service is still there
+STALE_S = 1.0
+#: sleep between polls when nothing changed (a 1 kHz frame is 1 ms)
+POLL_SLEEP_S = 0.0004
+
+
+def _ring(buffer: str, client):
+    """The service's frame ring of this buffer and layout, or None (then the inputs area
+    itself is polled, and a reader descheduled for a frame period misses that frame)."""
+    from bit3.ring import FrameRing, RingError
+    try:
+        return FrameRing.attach(buffer, client.layout.hash)
+    except RingError:
+        return None
+
+
+def add_parser(sub):
+    p = sub.add_parser("record", help="record every frame of the buffer to MCAP (also: recover, info)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("target", nargs="+", metavar="FILE.mcap | recover BROKEN.mcap | info FILE.mcap")
+    p.add_argument("-o", "--output", default=None, help="recover: output file (default BROKEN-recovered.mcap)")
+    p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
+    p.add_argument("--rack", default="fake", help="rack TOML the service runs (default: the IRSS rack)")
+    p.add_argument("--duration", type=float, default=None, help="seconds to record (default: until Ctrl-C)")
+    p.add_argument("--json-every", type=int, default=1,
+                   help="JSON channels for every Nth frame (1 = native rate; the raw stream is always complete)")
+    p.add_argument("--flush-s", type=float, default=0.25, help="close a chunk at least this often (s)")
+    p.add_argument("--wait", type=float, default=None, help="give up when no service comes within S seconds")
+    p.add_argument("--quiet", action="store_true", help="only the final summary")
+    return p
+
+
+def run(args) -> int:
+    verb = args.target[0]
+    if verb == "recover":
+        return _recover(args)
+    if verb == "info":
+        return _info(args)
+    if len(args.target) != 1:
+        print("pfma record: one output file, or 'recover FILE' / 'info FILE'", file=sys.stderr)
+        return 2
+    return record(args.target[0], buffer=args.buffer, rack_arg=args.rack, duration_s=args.duration,
+                  json_every=args.json_every, flush_s=args.flush_s, wait_s=args.wait, quiet=args.quiet)
+
+
+def _recover(args) -> int:
+    from tools.recording.recorder import recover
+    from tools.cli import check_mcap
+    from pfma.errors import PfmaError
+    if len(args.target) != 2:
+        print("pfma record: usage: pfma record recover BROKEN.mcap [-o FIXED.mcap]", file=sys.stderr)
+        return 2
+    check_mcap(args.target[1], summary=False)  # missing / empty / not an MCAP: nothing written
+    try:
+        rep = recover(args.target[1], args.output)
+    except ValueError as err:  # the output is the input
+        raise PfmaError(str(err)) from err
+    print(rep.describe())
+    if not rep.messages:
+        raise PfmaError(f"{args.target[1]}: no message recoverable"
+                        f"{' (' + rep.stopped_by + ')' if rep.stopped_by else ''}")
+    return 0
+
+
+def _info(args) -> int:
+    from tools.recording.recorder import read_metadata
+    from tools.cli import check_mcap, mcap_errors
+    if len(args.target) != 2:
+        print("pfma record: usage: pfma record info FILE.mcap", file=sys.stderr)
+        return 2
+    path = args.target[1]
+    s = check_mcap(path)  # raises naming the file: missing, not an MCAP, damaged, unfinished
+    st = s.statistics
+    dur = (st.message_end_time - st.message_start_time) / 1e9
+    print(f"{path}: {st.message_count} messages, {st.chunk_count} chunks, {dur:.3f} s, "
+          f"{st.attachment_count} attachments, {st.metadata_count} metadata")
+    for cid, n in sorted(st.channel_message_counts.items()):
+        ch = s.channels[cid]
+        print(f"  {ch.topic:22} {n:9d}  {n / dur if dur > 0 else 0:8.1f}/s  {ch.message_encoding}")
+    with mcap_errors(path):
+        meta = read_metadata(path)
+    summ = meta.get("pfma.recorder.summary")
+    if summ:
+        keys = ("frames_recorded", "recorder_missed", "service_skipped", "frame_gaps",
+                "window_service_frames", "window_recorded", "window_service_dropped",
+                "messages_missed", "sessions", "lossless")
+        print("  recorder: " + ", ".join(f"{k}={summ.get(k)}" for k in keys))
+    return 0
+
+
+def _say(quiet: bool):
+    def say(text: str) -> None:
+        if not quiet:
+            print(f"pfma record: {text}", file=sys.stderr, flush=True)
+    return say
+
+
+def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_s: float | None = None,
+           json_every: int = 1, flush_s: float = 0.25, wait_s: float | None = None,
+           quiet: bool = False) -> int:
+    """The recording loop (see the module docstring); returns the exit code."""
+    from bit3.layout import ServiceState, build_layout, default_layout
+    from tools.recording.recorder import InputsCapture, Recorder, buffer_replaced, wait_for_service
+    from bit3.buffer import LayoutMismatchError, SeqLockTimeout
+    # the capture thread must get the GIL within a fraction of a frame while this one
+    # compresses or encodes (the default switch interval is 5 ms, longer than a frame)
+    sys.setswitchinterval(0.0005)
+    rack = load_rack(rack_arg)
+    layout = default_layout() if rack_arg in ("fake", "default") else build_layout(rack)
+    say = _say(quiet)
+    stop = {"flag": False}
+
+    def handler(signum, _frame):
+        stop["flag"] = True
+    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    t_end = None if duration_s is None else time.monotonic() + duration_s
+
+    def done() -> bool:
+        return stop["flag"] or (t_end is not None and time.monotonic() >= t_end)
+
+    def wait(remaining):
+        """(the service's client or None, True when its layout is another recording's)."""
+        try:
+            return wait_for_service(buffer, layout, timeout_s=remaining, say=say, stop=done), False
+        except LayoutMismatchError as err:
+            print(f"pfma record: {err}; this recording ends here (a different rack or "
+                  f"layout is a different recording)", file=sys.stderr)
+            return None, True
+
+    rec = None
+    err_code = 0
+    try:
+        while not done():
+            remaining = None if t_end is None else max(0.0, t_end - time.monotonic())
+            if wait_s is not None and rec is None:
+                remaining = wait_s if remaining is None else min(wait_s, remaining)
+            client, mismatch = wait(remaining)
+            if mismatch:
+                err_code = 1
+                break
+            if client is None:
+                if rec is None and not stop["flag"] and wait_s is not None:
+                    print(f"pfma record: no service on /dev/shm/{buffer} within {wait_s:g} s; "
+                          "nothing recorded", file=sys.stderr)
+                    err_code = 1
+                break
+            if rec is None:
+                rec = Recorder(client, path, rack=rack, json_every=json_every, flush_every_s=flush_s,
+                               meta={"command": " ".join(sys.argv)})
+                say(f"recording /dev/shm/{buffer} to {path} (Ctrl-C ends it)")
+            else:
+                rec.attach(client)
+                say(f"service back: recording continues as session {rec.counters.sessions}")
+            gc.collect()
+            gc.freeze()  # long-lived objects out of the collector's way: short GC pauses
+            idle_since = time.monotonic()
+            warned = False
+            capture = InputsCapture(client, ring=_ring(buffer, client)).start()  # every publish
+            while not done():
+                try:
+                    n = capture.drain(rec)
+                    rec.poll(inputs=False)
+                except SeqLockTimeout as e:  # the service died mid-write
+                    say(f"{e}")
+                    n = 0
+                if capture.replaced_note is not None:
+                    # a restarted service made a new frame ring and the capture moved to it:
+                    # the new service's frames follow in the queue; start their session first
+                    say(capture.replaced_note)
+                    capture.replaced_note = None
+                    if not buffer_replaced(client) and client.buffer.owner("inputs").alive:
+                        continue  # this session's client already is the new service's (it made
+                        # its buffer before its ring, and we attached in between)
+                    rec.flush()
+                    remaining = None if t_end is None else max(0.0, t_end - time.monotonic())
+                    new, mismatch = wait(remaining)
+                    if mismatch:
+                        err_code = 1
+                        stop["flag"] = True
+                        break
+                    if new is None:
+                        break
+                    rec.client = None
+                    client.close()
+                    client = capture.client = new
+                    rec.attach(client)
+                    say(f"service restarted: recording continues as session {rec.counters.sessions}")
+                    idle_since = time.monotonic()
+                    continue
+                if capture.error is not None:
+                    if isinstance(capture.error, SeqLockTimeout):
+                        say(f"{capture.error}")
+                    else:
+                        raise capture.error
+                    capture.stop()  # the thread has ended; this closes its ring
+                    capture.drain(rec)
+                    capture = InputsCapture(client, ring=_ring(buffer, client)).start()
+                now = time.monotonic()
+                if n:
+                    idle_since = now
+                    warned = False
+                    continue
+                if now - idle_since > STALE_S:
+                    gone = buffer_replaced(client) or not client.buffer.owner("inputs").alive \
+                        or client.service_state == ServiceState.STOPPED
+                    if gone:
+                        say(f"service on /dev/shm/{buffer} stopped after frame "
+                            f"{rec.counters.last_frame}; waiting for it to come back")
+                        rec.flush()
+                        break
+                    if not warned:
+                        say(f"service pid {client.buffer.owner('inputs').pid} is alive but has "
+                            f"published no frame for {now - idle_since:.1f} s")
+                        warned = True
+                time.sleep(POLL_SLEEP_S)
+            capture.stop()
+            capture.drain(rec)
+            rec.poll(inputs=False)
+            rec.client = None
+            client.close()
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        gc.unfreeze()
+        if rec is not None:
+            c = rec.close()
+            print(_summary_line(path, c), flush=True)
+        elif not err_code:
+            print(f"pfma record: no service came up on /dev/shm/{buffer}; nothing recorded", file=sys.stderr)
+            err_code = 1
+    return err_code
+
+
+def _summary_line(path: str, c) -> str:
+    tc = json.loads(c.topic_counts)
+    return (f"pfma record: {path}: {c.frames_recorded} frames (frames {c.first_frame}..{c.last_frame}), "
+            f"{c.messages_total} messages in {len(tc)} topics, {c.wall_s:.1f} s; recorder missed "
+            f"{c.recorder_missed}, service skipped {c.service_skipped} (stats window: service ran "
+            f"{c.window_service_frames}, recorded {c.window_recorded}, service dropped "
+            f"{c.window_service_dropped}); messages missed {c.messages_missed}; sessions "
+            f"{c.sessions}; {'LOSSLESS' if c.lossless else 'NOT LOSSLESS'}")

@@ -1,0 +1,291 @@
+"""``pfma serve``: run the data-acquisition service (the main job).
+
+On the simulated rack (``--rack fake``, the default) the register-level fakes,
+the arm model, the F/T sensor and the CRL hand controller run in this process in
+real time; on hardware, ``--rack FILE.toml --bus URL`` names the rack and the bus.
+The Bit3 buffer is POSIX shared memory ``/dev/shm/NAME``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import subprocess
+import sys
+import threading
+
+from bit3.layout import ServiceState, build_layout, default_layout
+from ioservice.schedule import Schedule
+from bit3.buffer import Bit3Buffer, Bit3Error
+from ioservice.ticking import TickingClock
+from pfma.clock import MonotonicClock
+from pfma.rack import load_rack
+
+
+def add_parser(sub):
+    p = sub.add_parser("serve", help="run the data-acquisition service",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--rack", default="fake", help="fake (simulated rack, default) or a rack TOML")
+    p.add_argument("--bus", default=None, help="register bus for a real rack (modbus://H:P, file:PATH)")
+    p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
+    p.add_argument("--duration", type=float, default=None, help="seconds to run (default: until Ctrl-C)")
+    p.add_argument("--modbus", default=None, metavar="HOST:PORT", help="export the buffer over Modbus TCP")
+    p.add_argument("--modbus-writes", action="store_true", help="let Modbus clients write the command area")
+    p.add_argument("--frame-rate", type=float, default=320.0, help="minor-frame rate (320 default; 1000 fast)")
+    p.add_argument("--schedule", default=None, metavar="FILE.toml",
+                   help="acquisition schedule: a [schedule] table (frame_rate_hz, tasks.NAME = {divider, phase})")
+    p.add_argument("--ft-port", default=None, metavar="URL",
+                   help="F/T sensor on a pyserial URL (/dev/ttyUSB0, socket://host:port) instead of "
+                        "MVME400 port A")
+    p.add_argument("--watchdog-ms", type=float, default=15.0, help="command heartbeat time-out (15 ms)")
+    p.add_argument("--max-input-age", type=int, default=None, metavar="FRAMES",
+                   help="drive rate channels only from commands computed from inputs at most FRAMES "
+                        "minor frames old (default: the rack file's [commands] max_input_age_frames, 4); "
+                        "must fit the watchdog")
+    p.add_argument("--live", action="store_true", help="print a live channel view twice a second")
+    p.add_argument("--demo", action="store_true",
+                   help="also start the demo controller (a separate process) that arms and swings the arm")
+    p.add_argument("--realtime", action="store_true", help="try SCHED_FIFO and a pinned CPU (needs privileges)")
+    p.add_argument("--calibration", default=None, metavar="FILE",
+                   help="calibration file (pfma calibrate ...) applied at start; default: nominal scales")
+    return p
+
+
+#: short labels of the command-area joints in the live view (layout.joint_names order)
+JOINT_ABBREV = {"shoulder_pitch": "SP", "shoulder_yaw": "SY", "elbow_pitch": "EP",
+                "wrist_yaw": "WY", "wrist_pitch": "WP", "wrist_roll": "WR"}
+#: the live view's leading columns: time since start, frame, service state
+_LIVE_LEAD = "{:>8} {:>7} {:<8}"
+
+
+def _wrap_pi(a: float) -> float:
+    """An angle (rad) wrapped to (-pi, pi]: the resolvers read 0..2 pi, so a joint near 0
+    would jump between ~0 and ~2 pi."""
+    w = math.remainder(a, 2 * math.pi)  # [-pi, pi]
+    return math.pi if w <= -math.pi else w
+
+
+def _joint_label(name: str) -> str:
+    return JOINT_ABBREV.get(name) or "".join(w[0] for w in name.split("_")).upper()[:3]
+
+
+def _live_header(joints) -> list[str]:
+    """The column names, printed once above the live view's two-line updates."""
+    return ["live view: t = s since the service started; joint angles in deg, (-180, 180]",
+            _LIVE_LEAD.format("t[s]", "frame", "state") + " "
+            + " ".join(f"{_joint_label(j):>7}" for j in joints) + "  deg",
+            "  F/T force Fx Fy Fz [N]; device rates [Hz]; frame work time p50 [us]"]
+
+
+def _live_lines(t_since_start_s: float, frame: int, state: str, angles_rad, force_n,
+                rates_hz, work_p50_us: float) -> list[str]:
+    """One live-view update (two lines, each <= 80 columns); ``angles_rad`` in the
+    command-area joint order of :func:`_live_header`."""
+    q = " ".join(f"{math.degrees(_wrap_pi(a)):+7.1f}" for a in angles_rad)
+    work = f"{work_p50_us:.0f} us" if math.isfinite(work_p50_us) else "--"
+    r = "/".join(f"{x:.0f}" for x in rates_hz[:4])
+    return [_LIVE_LEAD.format(f"{t_since_start_s:.2f}", frame, state) + " " + q,
+            f"  F[N] {force_n[0]:+6.1f} {force_n[1]:+6.1f} {force_n[2]:+6.1f}  "
+            f"rtd/adc/dac/ft {r} Hz  work p50 {work}"]
+
+
+def _live_message(m, t_start_s: float) -> str:
+    """A service or controller message, its time since start, its text whole (a Bit3
+    queue entry holds 56 bytes of text: nothing is cut beyond that)."""
+    return (f"  > {m.t_s - t_start_s:9.2f} {m.queue.removesuffix('_messages')} "
+            f"{m.severity.name} src={m.source} code={m.code}: {m.text}")
+
+
+def _live_view(buffer_name: str, stop: threading.Event, rack) -> None:
+    from bit3.client import Client
+    try:
+        c = Client.attach(buffer_name, rack=None if rack.source.endswith("rack_default.toml") else rack.source)
+    except Bit3Error as err:
+        print(f"live view: {err}", file=sys.stderr)
+        return
+    joints = list(c.layout.joint_names)
+    have = {ch.name for ch in c.layout.channels}
+    joints = [j for j in joints if f"{j}_angle" in have]
+    t_start = None
+    try:
+        print("\n".join(_live_header(joints)), flush=True)
+        while not stop.wait(0.5):
+            s = c.read_inputs()
+            st = c.read_stats()
+            if s.t_s == 0.0 and s.frame == 0:
+                continue  # no frame published yet
+            if t_start is None:  # the service's start: its frame 0 (if the viewer came late)
+                t_start = s.t_s - s.frame * (st.period_s if st.period_s > 0 else 1 / 320)
+            lines = _live_lines(s.t_s - t_start, s.frame, ServiceState(s.service_state).name,
+                                [s.value(f"{j}_angle") for j in joints], s.ft_force_n,
+                                st.device_rate_hz, st.work_p50_us)
+            print("\n".join(lines), flush=True)
+            for m in c.new_messages():
+                print(_live_message(m, t_start), flush=True)
+    finally:
+        c.close()
+
+
+def run(args) -> int:
+    from ioservice.service import LIVE_TICK_S, IoService
+    from ioservice.loop import realtime_setup
+    if args.schedule:
+        import tomllib
+        from pfma.errors import ConfigError
+        try:
+            with open(args.schedule, "rb") as f:
+                schedule = Schedule.from_config(tomllib.load(f).get("schedule", {}))
+        except (OSError, tomllib.TOMLDecodeError) as err:
+            raise ConfigError(f"schedule file {args.schedule}: {err}") from err
+    else:
+        schedule = Schedule() if args.frame_rate == 320.0 else Schedule.scaled(args.frame_rate)
+    if args.rack != "fake" and args.bus is None:
+        print(f"pfma serve: --rack {args.rack} needs --bus: the rack's register bus "
+              f"(modbus://HOST:PORT, file:PATH), or --bus fake to run it on the simulated "
+              f"rack's registers", file=sys.stderr)
+        return 2
+    rack = load_rack(args.rack)
+    layout = default_layout() if args.rack in ("fake", "default") else build_layout(rack)
+    base = MonotonicClock()
+    clock = TickingClock(base, tick_s=LIVE_TICK_S)
+    world = None
+    if args.rack == "fake" and args.bus in (None, "fake"):
+        from fakes.world import FakeWorld
+        world = FakeWorld(rack, clock=base)
+        bus = world.bus
+        clock.hooks.append(world.tick)
+    else:
+        from drivers.bus import open_bus
+        from pfma.errors import PfmaError
+        try:
+            bus = open_bus(args.bus)
+        except (PfmaError, OSError) as err:
+            print(f"pfma serve: cannot open the bus {args.bus}: {err}", file=sys.stderr)
+            return 1
+    if args.realtime:
+        for w in realtime_setup(cpu=os.cpu_count() - 1 if os.cpu_count() else None):
+            print(f"pfma serve: {w}", file=sys.stderr)
+    _replace_stale(args.buffer)
+    buf = Bit3Buffer.create(args.buffer, layout)
+    try:
+        svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3,
+                        max_input_age_frames=args.max_input_age,
+                        calibration=getattr(args, "calibration", None), ft_port=args.ft_port)
+    except BaseException:
+        buf.close(unlink=True)  # a service that could not start leaves no buffer behind
+        raise
+    failed = _failed_boards(svc, buf, layout)
+    if failed and len(failed) == len(_boards(layout)):
+        first = _why_unreachable(bus, svc, layout) or failed[0]
+        try:
+            svc.stop("no board answered at start")
+        finally:
+            buf.close(unlink=True)
+            close = getattr(bus, "close", None)
+            if close is not None:
+                close()
+        print(f"pfma serve: cannot reach the boards on {args.bus or 'the simulated rack'}: every "
+              f"board failed to initialise; first: {first}", file=sys.stderr)
+        return 1
+    for f in failed:
+        print(f"pfma serve: {f}", file=sys.stderr)
+    from bit3.ring import FrameRing
+    svc.ring = FrameRing.create(args.buffer, layout.area("inputs").body_size, layout.hash)
+    if world is not None:
+        # drain the serial FIFOs on both sides of the arm model's step (130 us typical,
+        # 0.6 ms at p99), so the step and a late wake-up do not add up to an overrun
+        clock.hooks[:] = [svc.serial_tick, world.tick, svc.serial_tick]
+    for e in svc.init_errors:
+        print(f"pfma serve: {e}", file=sys.stderr)
+    svc.install_signal_handlers()
+    export = None
+    if args.modbus:
+        from tools.modbus_export import start_export_from_args
+        export = start_export_from_args(args.buffer, args.modbus, args.modbus_writes)
+        print(f"pfma serve: Modbus TCP export on {args.modbus}"
+              f"{' (command writes allowed)' if args.modbus_writes else ' (read-only)'}")
+    stop = threading.Event()
+    viewer = demo = None
+    on = "the simulated rack" if world else (
+        f"{args.bus} (simulated registers)" if args.bus.removeprefix("spy+") in ("fake", "fake://")
+        else args.bus)
+    print(f"pfma serve: {rack.name} on {on}, buffer "
+          f"/dev/shm/{args.buffer}, {schedule.frame_rate_hz:g} Hz frames; Ctrl-C stops "
+          f"(outputs go to 0 V)", flush=True)
+    if args.live:
+        viewer = threading.Thread(target=_live_view, args=(args.buffer, stop, rack), daemon=True)
+        viewer.start()
+    if args.demo:
+        demo = subprocess.Popen([sys.executable, "-m", "sim.demo", "--buffer", args.buffer,
+                                 "--duration", str(args.duration or 3600)])
+    try:
+        svc.run(duration_s=args.duration)
+    finally:
+        stop.set()
+        if demo is not None:
+            demo.terminate()
+            demo.wait(5)
+        if viewer is not None:
+            viewer.join(2)
+        if export is not None:
+            export.stop()
+        s = svc.publish_stats()
+        loop = s["loop"]
+        print(f"pfma serve: stopped after {loop['frames']} frames, {loop['dropped']} dropped, "
+              f"{loop['overruns']} overruns; work p50 {loop['work_s']['p50'] * 1e6:.0f} us, "
+              f"p99 {loop['work_s']['p99'] * 1e6:.0f} us; wake latency p50 "
+              f"{loop['wake_latency_s']['p50'] * 1e6:.0f} us; device rates "
+              + ", ".join(f"{k} {v['rate_hz']:.1f} Hz" for k, v in s["devices"].items() if v["samples"]))
+        buf.release()
+        buf.close()
+        svc.ring.close()
+        FrameRing.unlink(args.buffer)
+    return 0
+
+
+def _boards(layout) -> list:
+    return [c for c in layout.channels if c.kind == "board"]
+
+
+def _failed_boards(svc, buf, layout) -> list[str]:
+    """One line per board whose initialisation failed (its ``board_status`` FAULT bit),
+    with the service's message about it when there is one."""
+    from bit3.layout import BOARD_FAULT
+    status = svc.inputs.record["board_status"]
+    texts = [m.text for m in buf.queue("service_messages").read(0)]
+    out = []
+    for c in _boards(layout):
+        if int(status[c.slot]) & BOARD_FAULT:
+            said = next((t for t in texts if t.startswith(f"{c.name}:")), None)
+            out.append(said or f"{c.name}: init failed")
+    return out
+
+
+def _why_unreachable(bus, svc, layout) -> str | None:
+    """The full text of the first board's failure (the message queue keeps 56 bytes): one
+    read of the word it failed at, made only when no board answered at all."""
+    from pfma.errors import PfmaError
+    board = _boards(layout)[0]
+    addr = int(svc.inputs.record["board_last_error_addr"][board.slot]) & 0xFFFE
+    if not addr:
+        return None
+    try:
+        bus.read16(addr)
+    except PfmaError as err:
+        return f"{board.name}: {err}"
+    return None
+
+
+def _replace_stale(name: str) -> None:
+    """Remove buffer ``name`` when its service is provably gone (its claim lock is free),
+    whatever the buffer's layout; refuse, touching nothing, while that service lives.
+
+    :raises Bit3Error: the buffer's service is alive (or the buffer cannot be inspected)
+    """
+    alive, who = Bit3Buffer.owner_alive(name)
+    if alive:
+        raise Bit3Error(f"Bit3 buffer /dev/shm/{name} is in use: {who}. This service leaves it "
+                        f"alone; stop that service first, or run this one on another buffer "
+                        f"with --buffer OTHER")
+    Bit3Buffer.unlink(name)

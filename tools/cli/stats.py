@@ -1,0 +1,134 @@
+"""``pfma stats``: measured rates per device, loop latency percentiles, overruns and
+error counters of a running service, read from its Bit3 buffer; and the controller's
+frame timing and missed frames (Bit3 ``controller_stats``) when a controller is attached."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from bit3.layout import CMD_STATUS_NAMES, DEVICE_GROUPS, ServiceState
+
+
+def add_parser(sub):
+    p = sub.add_parser("stats", help="service statistics from the Bit3 buffer")
+    p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
+    p.add_argument("--json", action="store_true", help="one JSON object")
+    return p
+
+
+def collect(client) -> dict:
+    st = client.read_stats()
+    s = client.read_inputs()
+    lay = client.layout
+    out = {
+        "service_state": ServiceState(s.service_state).name,
+        "frame": st.frame, "frames": st.frames, "dropped_frames": st.dropped_frames,
+        "overruns": st.overruns, "stall_events": st.stall_events,
+        "frame_rate_hz": st.rate_hz, "period_s": st.period_s,
+        "wake_latency_us": {n: getattr(st, f"wake_latency_{n}_us") for n in ("p50", "p99", "p999", "max")},
+        "work_us": {n: getattr(st, f"work_{n}_us") for n in ("p50", "p99", "max")},
+        "cpu_percent": st.cpu_percent, "gc_gen2": st.gc_gen2,
+        "devices": {g: {"rate_hz": float(st.device_rate_hz[lay.slot("device", g)]),
+                        "samples": int(st.device_samples[lay.slot("device", g)]),
+                        "errors": int(st.device_errors[lay.slot("device", g)])} for g in DEVICE_GROUPS},
+        "boards": {c.name: {"status": int(s.board_status[c.slot]), "errors": int(s.board_errors[c.slot])}
+                   for c in lay.channels if c.kind == "board"},
+        "links": {c.name: {"records": int(s.link_records[c.slot]), "bad": int(s.link_bad[c.slot]),
+                           "resyncs": int(s.link_resyncs[c.slot]), "rate_hz": float(s.link_rate_hz[c.slot])}
+                  for c in lay.channels if c.kind == "link"},
+    }
+    status = int(s.command_status)
+    writer = client.owners().get("commands")
+    out["commands"] = {  # what the service made of the command area (docs/safety.md)
+        "writer": writer.name if writer is not None and writer.alive else None,
+        "fault_code": int(s.fault_code), "watchdog_tripped": bool(s.watchdog_tripped),
+        "inputs_frame": int(s.command_inputs_frame), "input_age_frames": int(s.command_input_age_frames),
+        "status": [n for b, n in CMD_STATUS_NAMES.items() if status & b],
+        "stale_frames": int(s.stale_commands), "absent_frames": int(s.absent_commands),
+        "refused": int(s.refused_commands), "foreign_writes": int(s.foreign_writes),
+        "last_host_stall_s": float(s.host_stall_s), "last_host_stall_t_s": float(s.host_stall_t_s),
+    }
+    out["controller"] = collect_controller(client)
+    return out
+
+
+#: controller_stats fields shown by ``pfma stats`` (all of them go into ``--json``)
+CONTROLLER_FIELDS = ("frame", "frames", "missed_frames", "missed_events", "missed_run", "longest_missed_run",
+                     "max_missed_run", "missed_task_slots", "overruns", "period_s", "rate_hz",
+                     "wake_latency_p50_us", "wake_latency_p99_us", "wake_latency_max_us",
+                     "work_p50_us", "work_p99_us", "work_max_us", "cpu_percent", "gc_gen2")
+
+
+def collect_controller(client) -> dict | None:
+    """The controller's own statistics (Bit3 ``controller_stats``), or None when no live
+    controller holds the area or it has not published yet."""
+    try:
+        owner = client.owners().get("controller_stats")
+        if owner is None or not owner.alive:
+            return None
+        cs = client.read("controller_stats")
+    except Exception:  # noqa: BLE001 - an older buffer without the area
+        return None
+    if not cs.frames:
+        return None
+    out = {"owner": owner.name, "pid": owner.pid}
+    out.update({f: cs[f] for f in CONTROLLER_FIELDS})
+    return out
+
+
+def format_controller(c: dict | None) -> str:
+    if c is None:
+        return "controller: no controller attached"
+    return "\n".join([
+        f"controller {c['owner']} (pid {c['pid']}): frame {c['frame']}  {c['rate_hz']:.1f} Hz  "
+        f"frames {c['frames']}  overruns {c['overruns']}  cpu {c['cpu_percent']:.1f} %  gen2 GCs {c['gc_gen2']}",
+        f"  missed frames {c['missed_frames']} in {c['missed_events']} events  last run {c['missed_run']}  "
+        f"longest run {c['longest_missed_run']} (fault above {c['max_missed_run']})  "
+        f"task slots caught up {c['missed_task_slots']}",
+        f"  wake latency us: p50 {c['wake_latency_p50_us']:.0f}  p99 {c['wake_latency_p99_us']:.0f}  "
+        f"max {c['wake_latency_max_us']:.0f}",
+        f"  frame work us:   p50 {c['work_p50_us']:.0f}  p99 {c['work_p99_us']:.0f}  max {c['work_max_us']:.0f}",
+    ])
+
+
+def run(args) -> int:
+    from bit3.client import Client
+    from bit3.buffer import Bit3Error
+    from tools.cli.read import no_service
+    why = no_service(args.buffer)
+    if why is not None:  # a dead service's last statistics are not a live service's
+        print(f"pfma stats: {why}", file=sys.stderr)
+        return 1
+    try:
+        c = Client.attach(args.buffer)
+    except (Bit3Error, FileNotFoundError) as err:
+        print(f"pfma stats: no service buffer {args.buffer!r}: {err}", file=sys.stderr)
+        return 1
+    try:
+        d = collect(c)
+    finally:
+        c.close()
+    if args.json:
+        print(json.dumps(d, indent=1))
+        return 0
+    print(f"state {d['service_state']}  frame {d['frame']}  {d['frame_rate_hz']:.1f} Hz  "
+          f"dropped {d['dropped_frames']}  overruns {d['overruns']}  stalls {d['stall_events']}  "
+          f"cpu {d['cpu_percent']:.1f} %  gen2 GCs {d['gc_gen2']}")
+    w, k = d["wake_latency_us"], d["work_us"]
+    print(f"wake latency us: p50 {w['p50']:.0f}  p99 {w['p99']:.0f}  p99.9 {w['p999']:.0f}  max {w['max']:.0f}")
+    print(f"frame work us:   p50 {k['p50']:.0f}  p99 {k['p99']:.0f}  max {k['max']:.0f}")
+    print("devices: " + ", ".join(f"{g} {v['rate_hz']:.1f} Hz ({v['errors']} errors)"
+                                  for g, v in d["devices"].items() if v["samples"]))
+    print("boards:  " + ", ".join(f"{b} status {v['status']} errors {v['errors']}" for b, v in d["boards"].items()))
+    print("links:   " + ", ".join(f"{n} {v['records']} records {v['bad']} bad {v['resyncs']} resyncs "
+                                  f"{v['rate_hz']:.1f}/s" for n, v in d["links"].items()))
+    cm = d["commands"]
+    stall = (f"  last host stall {cm['last_host_stall_s'] * 1e3:.0f} ms at t={cm['last_host_stall_t_s']:.1f} s"
+             if cm["last_host_stall_s"] > 0 else "")
+    age = f"age {cm['input_age_frames']} frames" if cm["writer"] else "no command writer attached"
+    print(f"commands: {age}  status {'+'.join(cm['status']) or 'ok'}  "
+          f"stale {cm['stale_frames']} frames  absent {cm['absent_frames']}  refused {cm['refused']}  "
+          f"foreign writes {cm['foreign_writes']}{'  WATCHDOG TRIPPED' if cm['watchdog_tripped'] else ''}{stall}")
+    print(format_controller(d["controller"]))
+    return 0

@@ -1,0 +1,69 @@
+"""``pfma watch SIGNAL...``: a few values of a running service, one line per sample.
+
+Signals are rack channels (``elbow_pitch_angle``), boards, links, hand controllers
+(``cae``) or input-area fields (``ft_force_n``, ``ft_force_n[2]``, ``service_state``).
+``--rate`` lines per second (default 30), ``--count`` lines then exit. Waits for
+the service with a message every few seconds (``--wait``) and reattaches when it
+restarts; with no live service on the buffer at start (and no ``--wait``) it says so
+and exits 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+
+def add_parser(sub):
+    p = sub.add_parser("watch", help="a few values at ~30 Hz, one line each",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("signals", nargs="+", metavar="SIGNAL")
+    p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
+    p.add_argument("--rack", default=None, help="rack TOML the service runs (default: the IRSS rack)")
+    p.add_argument("--rate", type=float, default=30.0, help="lines per second (default 30)")
+    p.add_argument("--count", type=int, default=0, help="stop after N lines (default: until Ctrl-C)")
+    p.add_argument("--wait", type=float, default=None, metavar="S",
+                   help="wait this long for the service at start (0 = forever) and after it goes "
+                        "away; default: no service at start is an error (exit 1), one that goes "
+                        "away is waited for 30 s")
+    return p
+
+
+def run(args) -> int:
+    from tools.checkout.connect import ServiceLink
+    from tools.checkout.view import resolve_signals, watch_line
+    from bit3.buffer import Bit3Error
+    from pfma.errors import ConfigError
+    if args.rate <= 0:
+        raise ConfigError(f"--rate must be positive, not {args.rate}")
+    from tools.cli.read import no_service
+    from pfma.errors import PfmaError
+    if args.wait is None:
+        why = no_service(args.buffer)
+        if why is not None:
+            raise PfmaError(why)  # main prints it on one line, exit 1
+    link = ServiceLink(args.buffer, args.rack, wait_s=30.0 if args.wait is None else args.wait)
+    try:
+        client = link.client()
+        signals = resolve_signals(client.layout, args.signals)
+        period = 1.0 / args.rate
+        t_next = time.monotonic()
+        n = 0
+        while not args.count or n < args.count:
+            client = link.client()
+            try:
+                line = watch_line(client.read_inputs(), signals)
+            except Bit3Error as err:  # e.g. a service killed in the middle of a write
+                link.invalidate(str(err))
+                continue
+            print(line, flush=True)
+            n += 1
+            t_next += period
+            delay = t_next - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                t_next = time.monotonic()  # fell behind: do not burst to catch up
+        return 0
+    finally:
+        link.close()
