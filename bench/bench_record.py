@@ -18,7 +18,8 @@ import time
 import uuid
 from pathlib import Path
 
-from tools.recording.recorder import read_metadata, recover
+from tools.recording.reader import read_metadata
+from tools.recording.recover import recover
 
 
 def _cpu_s(pid: int) -> float:

@@ -221,7 +221,7 @@ def _trips(messages: list[dict]) -> list[dict]:
 
 def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = False) -> dict:
     from bit3.client import Client
-    from tools.recording.recorder import read_metadata
+    from tools.recording.reader import read_metadata
 
     py = sys.executable
     name = "pfma-stack-" + uuid.uuid4().hex[:6]

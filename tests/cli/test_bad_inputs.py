@@ -25,7 +25,7 @@ OFFSET_NS = 1_700_000_000_000_000_000
 @pytest.fixture(scope="module")
 def files(tmp_path_factory) -> dict[str, Path]:
     """Name -> path of every input the table refers to."""
-    from tools.recording.recorder import Recorder
+    from tools.recording.writer import Recorder
     from sim.rig import SimRig
 
     d = tmp_path_factory.mktemp("bad_inputs")

@@ -6,7 +6,7 @@ import uuid
 import pytest
 
 from bit3.client import Client
-from tools.recording.recorder import InputsCapture, Recorder, read_frames
+from tools.recording import InputsCapture, Recorder, read_frames
 from bit3.ring import HEADER, FrameRing, RingError
 from sim.rig import SimRig
 

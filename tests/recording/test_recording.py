@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from tools.recording.recorder import RAW_TOPIC, Recorder, decode_raw, recover
+from tools.recording import RAW_TOPIC, Recorder, decode_raw, recover
 from bit3.buffer import Bit3Buffer
 from tools.cli.replay import replay_through_fakes, republish
 from tools.cli.scope import ScopeCapture, load, render, save
@@ -180,7 +180,7 @@ _CHILD = r"""
 import sys, time, uuid
 sys.path.insert(0, sys.argv[2])
 from sim.rig import SimRig as Rig
-from tools.recording.recorder import Recorder
+from tools.recording.writer import Recorder
 rig = Rig(name="pfma-kill-" + uuid.uuid4().hex[:8])
 rec = Recorder(rig.reader, sys.argv[1], rack=rig.world.rack_config, flush_every_s=1e9)
 n = [0]

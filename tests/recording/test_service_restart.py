@@ -18,7 +18,7 @@ import time
 import uuid
 from pathlib import Path
 
-from tools.recording.recorder import read_frames, read_metadata
+from tools.recording.reader import read_frames, read_metadata
 from bit3.ring import FrameRing
 from bit3.buffer import Bit3Buffer
 

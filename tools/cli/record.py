@@ -72,7 +72,7 @@ def run(args) -> int:
 
 
 def _recover(args) -> int:
-    from tools.recording.recorder import recover
+    from tools.recording.recover import recover
     from tools.cli import check_mcap
     from pfma.errors import PfmaError
     if len(args.target) != 2:
@@ -91,7 +91,7 @@ def _recover(args) -> int:
 
 
 def _info(args) -> int:
-    from tools.recording.recorder import read_metadata
+    from tools.recording.reader import read_metadata
     from tools.cli import check_mcap, mcap_errors
     if len(args.target) != 2:
         print("pfma record: usage: pfma record info FILE.mcap", file=sys.stderr)
@@ -128,7 +128,8 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
            quiet: bool = False) -> int:
     """The recording loop (see the module docstring); returns the exit code."""
     from bit3.layout import ServiceState, build_layout, default_layout
-    from tools.recording.recorder import InputsCapture, Recorder, buffer_replaced, wait_for_service
+    from tools.attach import buffer_replaced, wait_for_service
+    from tools.recording import InputsCapture, Recorder
     from bit3.buffer import LayoutMismatchError, SeqLockTimeout
     # the capture thread must get the GIL within a fraction of a frame while this one
     # compresses or encodes (the default switch interval is 5 ms, longer than a frame)

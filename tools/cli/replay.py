@@ -30,7 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tools.recording.recorder import RAW_TOPIC, read_frames, read_metadata
+from tools.recording.reader import read_frames, read_metadata
+from tools.recording.schema import RAW_TOPIC
 
 
 def add_parser(sub):
@@ -238,7 +239,7 @@ def run(args) -> int:
         return 0 if rep.frames_compared and not rep.mismatches else 1
     import signal
     from bit3.layout import build_layout, default_layout
-    from tools.recording.recorder import service_status
+    from tools.attach import service_status
     from bit3.buffer import Bit3Buffer
     layout = default_layout() if args.rack in ("fake", "default") else build_layout(load_rack(args.rack))
     c, _why = service_status(args.buffer, layout)

@@ -288,7 +288,8 @@ def run(args) -> int:
         print("pfma scope: name at least one signal (or --open CAPTURE.mcap)", file=sys.stderr)
         return 2
     from bit3.layout import build_layout, default_layout
-    from tools.recording.recorder import epoch_offset_ns, wait_for_service
+    from tools.attach import wait_for_service
+    from tools.recording.schema import epoch_offset_ns
     from pfma.rack import load_rack
     layout = default_layout() if args.rack in ("fake", "default") else build_layout(load_rack(args.rack))
     try:

@@ -1,0 +1,176 @@
+"""The capture thread: every inputs publish (or every frame of the service's frame ring)
+copied into a queue the recorder's writing thread empties."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from bit3.client import Client, Snapshot
+
+if TYPE_CHECKING:
+    from tools.recording.writer import Recorder
+
+#: idle polls of the capture thread between two looks whether its frame ring was replaced
+#: (one ``stat``; 50 polls of 0.2 ms: about every 10 ms while no frame comes)
+RING_CHECK_POLLS = 50
+
+
+@dataclass(frozen=True)
+class RingSwitch:
+    """Queued by :class:`InputsCapture` between the last frame of a replaced ring and the
+    first of the new one; :meth:`InputsCapture.drain` stops there and sets ``replaced_note``."""
+
+    note: str
+
+
+class InputsCapture:
+    """Copies every inputs publish into a queue from its own thread, so the recorder's
+    slow moments (closing and compressing a chunk, flushing the file, encoding JSON; 2-4
+    ms measured) no longer make it miss a 3.125 ms frame. With the service's frame ring
+    (``bit3.ring``) it reads the ring instead and may itself be descheduled for up
+    to n_slots - 1 frames without a loss. The writing thread empties the
+    queue with :meth:`drain`. Run the process with a short GIL switch interval
+    (``sys.setswitchinterval(0.0005)``) so this thread gets in while the other one works.
+
+    :param client: the recorder's read-only client (this thread is the only one that
+        reads its inputs area)
+    :param poll_s: sleep between polls when nothing new was published
+    :param max_queue: snapshots held at most (about 2.6 s at 320 Hz); beyond it the newest
+        are not queued, and the recorder counts them as missed
+
+    A restarted service replaces the ring file (``bit3.ring``): the thread notices it
+    (:meth:`check_ring`), takes what the old ring still holds, attaches the new ring and
+    reads it from its first frame. The switch is a :class:`RingSwitch` in the queue:
+    :meth:`drain` stops there and sets :attr:`replaced_note`, so the recorder can start
+    the new session (``Recorder.attach`` with the new service's client) before the new
+    ring's frames.
+    """
+
+    def __init__(self, client: Client, poll_s: float = 0.0002, max_queue: int = 8192,
+                 ring=None) -> None:
+        self.client = client
+        self.poll_s = poll_s
+        self.max_queue = max_queue
+        #: an attached ``bit3.ring.FrameRing`` of the same layout: frames are taken
+        #: from it (up to n_slots - 1 behind) instead of from the single inputs area;
+        #: the capture owns it (``stop`` closes it)
+        self.ring = ring
+        self._inputs_dtype = client.layout.area("inputs").body_dtype
+        self.ring_lost = 0  #: frames overwritten in the ring before this thread read them
+        self._ring_k: int | None = None  # next ring frame to take
+        self.ring_reattached = 0  #: replaced rings this capture moved on from
+        #: set by :meth:`drain` when it reached a ring switch (the caller clears it)
+        self.replaced_note: str | None = None
+        self.queue: deque = deque()
+        self.error: BaseException | None = None  #: what stopped the thread (e.g. SeqLockTimeout)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="pfma-record-capture", daemon=True)
+
+    def start(self) -> "InputsCapture":
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        c, q, sleep, stop = self.client, self.queue, time.sleep, self._stop
+        try:
+            if self.ring is not None:
+                self._run_ring()
+                return
+            while not stop.is_set():
+                if c.changed("inputs"):
+                    snap = c.read_inputs()
+                    if snap.seq and len(q) < self.max_queue:
+                        q.append(snap.copy())
+                else:
+                    sleep(self.poll_s)
+        except BaseException as err:  # noqa: BLE001 - handed to the writing thread
+            self.error = err
+
+    def _run_ring(self) -> None:
+        self._ring_k = self.ring.count()  # frames already in the ring are history
+        idle = 0
+        while not self._stop.is_set():
+            if self.take_from_ring():
+                idle = 0
+                continue
+            idle += 1
+            if idle % RING_CHECK_POLLS == 0 and self.check_ring():
+                continue
+            time.sleep(self.poll_s)
+
+    def check_ring(self) -> bool:
+        """If the ring's file was replaced (the service restarted), take what the old ring
+        still holds, attach the new ring, queue a :class:`RingSwitch` and read the new ring
+        from its first frame; returns True when it switched. A ring that was removed, or
+        whose replacement is not there yet or has another layout, is kept: the recorder's
+        own checks on the buffer decide what happens then."""
+        from bit3.ring import FrameRing, RingError
+        old = self.ring
+        if old is None or not old.replaced():
+            return False
+        try:
+            new = FrameRing.attach(old.buffer_name, old.layout_hash)
+        except RingError:
+            return False
+        self.take_from_ring()  # the old ring's memory stays valid: finish it
+        self.queue.append(RingSwitch(
+            f"frame ring {old.path} was replaced (service restarted?): the old ring ended after "
+            f"{old.count()} frames; reading the new ring from its first frame"))
+        self.ring, self._ring_k = new, 0
+        self.ring_reattached += 1
+        old.close()
+        return True
+
+    def take_from_ring(self) -> int:
+        """Queue every whole frame the ring holds beyond the last one taken; returns how
+        many were queued (the thread calls it; tests call it in simulated time)."""
+        ring, q = self.ring, self.queue
+        if self._ring_k is None:
+            self._ring_k = ring.count()
+        layout, dtype = self.client.layout, self._inputs_dtype
+        k, n, taken = self._ring_k, ring.count(), 0
+        if n - k >= ring.n_slots:  # fell a whole ring behind: those frames are gone
+            self.ring_lost += n - k - (ring.n_slots - 1)
+            k = n - (ring.n_slots - 1)
+        while k < n:
+            data = ring.read(k)
+            k += 1
+            if data is None or len(q) >= self.max_queue:
+                self.ring_lost += 1  # the gap in the sequence numbers counts it as missed
+                continue
+            # seq: even and +2 per frame, as the buffer's own counter
+            q.append(Snapshot(np.ndarray((), dtype, buffer=data), "inputs", layout, 2 * k))
+            taken += 1
+        self._ring_k = k
+        return taken
+
+    @property
+    def alive(self) -> bool:
+        return self._thread.is_alive()
+
+    def stop(self) -> None:
+        """End the thread and close the ring (queued snapshots stay for :meth:`drain`)."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(2.0)
+        if self.ring is not None and not self._thread.is_alive():
+            self.ring.close()
+
+    def drain(self, rec: "Recorder") -> int:
+        """Write every queued snapshot up to a ring switch (then :attr:`replaced_note` is
+        set and the rest stays queued for the next call); returns frames written."""
+        n = 0
+        q = self.queue
+        while q:
+            snap = q.popleft()
+            if type(snap) is RingSwitch:  # the frames after it are the new service's
+                self.replaced_note = snap.note
+                return n
+            n += rec.feed_inputs(snap)
+        return n

@@ -1,0 +1,363 @@
+"""The recorder: every published frame of a buffer into an MCAP file (see the package
+docstring for the channels, the time stamps and the counters that prove nothing was lost)."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections import defaultdict
+from pathlib import Path
+from typing import IO, Callable
+
+import numpy as np
+from mcap.writer import CompressionType, Writer
+
+from bit3.client import Client
+from bit3.layout import Layout
+from tools.recording.schema import (
+    CHUNK_SIZE, COUNTERS_EVERY_S, FLUSH_EVERY_S, LIBRARY, PROFILE, RAW_ENCODING, RAW_SCHEMA, RAW_SCHEMA_ENCODING,
+    RAW_TOPIC, _ns, epoch_offset_ns, raw_schema,
+)
+from tools.recording.topics import RecorderCounters, _dumps, _Topics
+
+#: recent recorded frame numbers kept to count frames before a stats snapshot
+_RING = 4096
+
+
+def epoch_offset_ns_default() -> int:
+    return epoch_offset_ns()
+
+
+# ----------------------------------------------------------------------------------------
+# the recorder
+
+
+class Recorder:
+    """Writes every frame of a buffer to an MCAP file. Not thread-safe; call :meth:`poll`
+    at least once per frame period (the CLI loop does; tests call it from the rig).
+
+    :param client: a read-only :class:`Client` on the buffer (see :meth:`attach`)
+    :param out: file path or binary stream
+    :param rack: the rack configuration (for the ``pfma channels --json`` metadata)
+    :param epoch_offset_ns: added to service-clock ns for log_time (default: Unix - monotonic)
+    :param json_every: write the JSON device channels for every Nth sample (1 = all)
+    :param flush_every_s: close the chunk and flush at least this often (wall time)
+    :param wall: wall-time source for flushing and the counters channel
+    """
+
+    def __init__(self, client: Client | None, out: str | Path | IO[bytes], *, rack=None,
+                 epoch_offset_ns: int | None = None, json_every: int = 1,
+                 flush_every_s: float = FLUSH_EVERY_S, chunk_size: int = CHUNK_SIZE,
+                 compression: CompressionType = CompressionType.ZSTD,
+                 wall: Callable[[], float] = time.monotonic, layout: Layout | None = None,
+                 meta: dict[str, str] | None = None) -> None:
+        if client is None and layout is None:
+            raise ValueError("Recorder needs a client or a layout")
+        self.layout = layout or client.layout
+        self.rack = rack
+        self.offset_ns = epoch_offset_ns if epoch_offset_ns is not None else epoch_offset_ns_default()
+        self.json_every = max(1, int(json_every))
+        self.flush_every_s = flush_every_s
+        self.wall = wall
+        self.counters = RecorderCounters()
+        self.topic_counts: dict[str, int] = defaultdict(int)
+        self._own_file = not hasattr(out, "write")
+        self._f = open(out, "wb") if self._own_file else out
+        self.path = str(out) if self._own_file else getattr(out, "name", "<stream>")
+        self.w = Writer(self._f, chunk_size=chunk_size, compression=compression)
+        self.w.start(profile=PROFILE, library=LIBRARY)
+        self.t = _Topics(self.layout)
+        self._ch: dict[str, int] = {}
+        self._schema_raw = raw_schema(self.layout)
+        self._raw_len = self._schema_raw["stored_bytes"]
+        sid = self.w.register_schema(RAW_SCHEMA, RAW_SCHEMA_ENCODING,
+                                     json.dumps(self._schema_raw).encode())
+        self._ch[RAW_TOPIC] = self.w.register_channel(RAW_TOPIC, RAW_ENCODING, sid,
+                                                      {"area": "inputs", "layout_hash": self.layout.hash_hex})
+        for topic, schema in self.t.schemas().items():
+            schema = {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": topic, **schema}
+            sid = self.w.register_schema("pfma" + topic.replace("/", ".")[5:], "jsonschema",
+                                         json.dumps(schema).encode())
+            self._ch[topic] = self.w.register_channel(topic, "json", sid, {})
+        self._meta_extra = dict(meta or {})
+        self._wrote_meta = False
+        self.client: Client | None = None
+        self._t0_wall = wall()
+        self._last_flush = self._t0_wall
+        self._last_counters = self._t0_wall
+        self._ring = np.full(_RING, -1, dtype=np.int64)
+        self._ring_i = 0
+        self._win_acc = (0, 0, 0)
+        self._win_new = False
+        self._closed = False
+        self._log_ns = self.offset_ns
+        if client is not None:
+            self.attach(client)
+
+    # --- session management ---
+    def attach(self, client: Client) -> None:
+        """Start recording from a (new) client: a new session (service start or restart)."""
+        if client.layout.hash != self.layout.hash:
+            raise ValueError(f"recorder: buffer layout {client.layout.hash_hex} differs from the "
+                             f"recording's {self.layout.hash_hex}")
+        self.client = client
+        self.counters.sessions += 1
+        t_frame = client.header().frame_t_s  # the service's newest frame: messages recorded
+        if t_frame > 0:  # before the first frame (a command area never written) are stamped
+            self._log_ns = _ns(t_frame, self.offset_ns)  # there, not at host boot (t = 0)
+        self._last_seq = -1
+        self._last_frame = -1
+        self._last_t = {}
+        self._json_n = 0
+        self._stats_first = None  # (frame, frames, dropped, recorded_before)
+        self._links_key = b""
+        self._boards_key = b""
+        self._msg_cursor = {"service": None, "controller": None}
+        if not self._wrote_meta:
+            self._write_metadata(client)
+        # skip messages posted before the recording (they are history, not this recording)...
+        for q in self._msg_cursor:
+            try:
+                self._msg_cursor[q] = client.buffer.queue(q + "_messages").head_seq
+            except Exception:  # noqa: BLE001 - an unclaimed queue reads as 0
+                self._msg_cursor[q] = 0
+        self._new_window()
+
+    def _write_metadata(self, client: Client) -> None:
+        hdr = client.header()
+        lay = self.layout
+        self.w.add_metadata("pfma.recording", {
+            "epoch_offset_ns": str(self.offset_ns),
+            "log_time": "service clock t_s * 1e9 + epoch_offset_ns (Unix ns)",
+            "buffer": client.buffer.name, "host": os.uname().nodename, "pid": str(os.getpid()),
+            "started_unix_ns": str(time.time_ns()), "json_every": str(self.json_every),
+            "flush_every_s": str(self.flush_every_s), "raw_topic": RAW_TOPIC,
+            "raw_encoding": RAW_ENCODING, **self._meta_extra})
+        self.w.add_metadata("pfma.layout", {
+            "hash": lay.hash_hex, "version": str(lay.version), "rack": lay.rack_name,
+            "buffer_layout_hash": hdr.layout_hash.hex(), "size": str(lay.size)})
+        self.w.add_metadata("pfma.calibration", {"hash": hdr.calibration_hash.hex()})
+        now = time.time_ns()
+        self.w.add_attachment(now, now, "bit3-layout.json", "application/json",
+                              json.dumps(lay.as_json()).encode())
+        if self.rack is not None:
+            chans = [c.as_dict() for c in self.rack.channels()]
+            self.w.add_metadata("pfma.rack", {"name": self.rack.name, "source": str(self.rack.source),
+                                              "channels": str(len(chans))})
+            self.w.add_attachment(now, now, "rack-channels.json", "application/json",
+                                  json.dumps(chans).encode())
+        self._wrote_meta = True
+
+    # --- writing ---
+    def _put(self, topic: str, t_ns: int, payload: bytes) -> None:
+        n = self.topic_counts[topic]
+        self.w.add_message(self._ch[topic], t_ns, payload, t_ns, n & 0xFFFFFFFF)
+        self.topic_counts[topic] = n + 1
+        self.counters.messages_total += 1
+
+    def poll(self, inputs: bool = True) -> int:
+        """Read what changed since the last call and write it; returns frames written (0/1).
+
+        :param inputs: False when an :class:`InputsCapture` thread reads the inputs area
+            (its snapshots go through :meth:`feed_inputs`)
+        """
+        c = self.client
+        n = 0
+        if c is not None:
+            if inputs and c.changed("inputs"):
+                n = self._inputs(c.read_inputs())
+            if c.changed("commands"):
+                self._commands(c.read_commands())
+            if c.changed("stats"):
+                self._stats(c.read_stats())
+            self._messages()
+        now = self.wall()
+        if now - self._last_counters >= COUNTERS_EVERY_S:
+            self._last_counters = now
+            self.write_counters()
+        if now - self._last_flush >= self.flush_every_s:
+            self._last_flush = now
+            self.w.flush()
+        return n
+
+    def feed_inputs(self, snap) -> int:
+        """Write one inputs snapshot captured elsewhere (a private copy, in publish order);
+        returns frames written (0/1). Publishes the capture never saw show as
+        ``recorder_missed`` from the sequence numbers, as with :meth:`poll`."""
+        return self._inputs(snap)
+
+    def _inputs(self, snap) -> int:
+        r = snap.record
+        seq = snap.seq
+        if seq == 0:  # never published (a buffer the service has not written yet)
+            return 0
+        frame = int(r["frame"])
+        t_s = float(r["t_s"])
+        cnt = self.counters
+        consecutive = self._last_seq < 0 or seq - self._last_seq == 2
+        if self._last_seq >= 0 and seq - self._last_seq > 2:
+            cnt.recorder_missed += (seq - self._last_seq) // 2 - 1
+        self._last_seq = seq
+        head = {"t_s": t_s, "frame": frame}
+        t_ns = _ns(t_s, self.offset_ns)
+        self._log_ns = t_ns
+        if frame == self._last_frame:  # the same frame published again (stop: STOPPED state)
+            cnt.republished += 1
+            self._put("/pfma/status", t_ns, _dumps(self.t.status(r, head)))
+            return 0
+        if self._last_frame >= 0:
+            if frame < self._last_frame:  # the service restarted on the same buffer
+                self.counters.sessions += 1
+                self._new_window()
+            elif frame > self._last_frame + 1:
+                gap = frame - self._last_frame - 1
+                cnt.frame_gaps += gap
+                if consecutive:
+                    cnt.service_skipped += gap
+        self._last_frame = frame
+        if self._session_first < 0:
+            self._session_first = frame
+        if cnt.first_frame < 0:
+            cnt.first_frame = frame
+        cnt.last_frame = frame
+        cnt.frames_recorded += 1
+        self._ring[self._ring_i % _RING] = frame
+        self._ring_i += 1
+        self._put(RAW_TOPIC, t_ns, self._raw_bytes(snap.record))
+        self._put("/pfma/status", t_ns, _dumps(self.t.status(r, head)))
+        self._json_n += 1
+        if self._json_n % self.json_every:
+            return 1
+        lt = self._last_t
+        for topic, tf, fn in (("/pfma/joints", "t_rtd_s", self.t.joints),
+                              ("/pfma/adc", "t_adc_s", self.t.adc),
+                              ("/pfma/dac", "t_dac_s", self.t.dac),
+                              ("/pfma/ft", "ft_t_s", self.t.ft),
+                              ("/pfma/pio", "t_pio_s", self.t.pio)):
+            ts = float(r[tf])
+            if ts != lt.get(tf) and ts > 0:
+                lt[tf] = ts
+                self._put(topic, _ns(ts, self.offset_ns), _dumps(fn(r, {"t_s": ts, "frame": frame})))
+        hk = r["hc_t_s"].tobytes()
+        if hk != lt.get("hc"):
+            lt["hc"] = hk
+            self._put("/pfma/hand", t_ns, _dumps(self.t.hand(r, head)))
+        bk = self.t.boards_key(r)
+        if bk != self._boards_key:
+            self._boards_key = bk
+            self._put("/pfma/boards", t_ns, _dumps(self.t.boards(r, head)))
+        lk = self.t.links_key(r)
+        if lk != self._links_key:
+            self._links_key = lk
+            self._put("/pfma/links", t_ns, _dumps(self.t.links(r, head)))
+        return 1
+
+    def _raw_bytes(self, record: np.ndarray) -> bytes:
+        """The stored part of the body, from the snapshot's private copy (one copy)."""
+        base = record.base
+        if isinstance(base, (bytearray, bytes)):
+            return bytes(memoryview(base)[:self._raw_len])
+        return record.tobytes()[:self._raw_len]
+
+    def _commands(self, snap) -> None:
+        d = snap.as_dict()
+        self.counters.commands_recorded += 1
+        self._put("/pfma/commands", _ns(float(d.get("t_s", 0.0)), self.offset_ns) if d.get("t_s")
+                  else self._log_ns, _dumps(d))
+
+    def _stats(self, snap) -> None:
+        d = snap.as_dict()
+        cnt = self.counters
+        cnt.stats_snapshots += 1
+        self._put("/pfma/stats", _ns(float(d["t_s"]), self.offset_ns), _dumps(d))
+        k, frames, dropped = int(d["frame"]), int(d["frames"]), int(d["dropped_frames"])
+        # frames recorded with frame number < k
+        before = self._ring_i - int(np.count_nonzero(self._ring >= k))
+        first = self._stats_first
+        if first is None:
+            # a baseline needs every frame >= k to be recordable: k at or after our first frame
+            if self._session_first >= 0 and k >= self._session_first:
+                self._stats_first = (k, frames, dropped, before)
+            return
+        k1, f1, d1, b1 = first
+        if k <= k1:
+            return
+        a = self._win_acc
+        if cnt.window_first_frame < 0 or self._win_new:
+            cnt.window_first_frame = k1
+            self._win_new = False
+        cnt.window_last_frame = k
+        cnt.window_service_frames = a[0] + frames - f1
+        cnt.window_recorded = a[1] + before - b1
+        cnt.window_service_dropped = a[2] + dropped - d1
+
+    def _new_window(self) -> None:
+        """A new service session: keep the finished window's counts, start a new window."""
+        cnt = self.counters
+        self._win_acc = (cnt.window_service_frames, cnt.window_recorded, cnt.window_service_dropped)
+        self._win_new = True
+        self._stats_first = None
+        self._session_first = -1
+        self._ring[:] = -1
+
+    def _messages(self) -> None:
+        c = self.client
+        for q in ("service", "controller"):
+            cur = self._msg_cursor[q]
+            try:
+                head = c.buffer.queue(q + "_messages").head_seq
+            except Exception:  # noqa: BLE001
+                continue
+            if head == cur:
+                continue
+            if head < cur:  # a new buffer (service restart): start over
+                cur = 0
+            got = c.messages(cur, q)
+            if got and got[0].seq > cur + 1:
+                self.counters.messages_missed += got[0].seq - cur - 1
+            for m in got:
+                self._put("/pfma/messages", _ns(m.t_s, self.offset_ns), _dumps({
+                    "queue": q, "seq": m.seq, "t_s": m.t_s, "severity": m.severity.name,
+                    "code": m.code, "source": m.source, "text": m.text}))
+            self._msg_cursor[q] = got[-1].seq if got else head
+
+    def _finish_counters(self) -> RecorderCounters:
+        cnt = self.counters
+        cnt.wall_s = self.wall() - self._t0_wall
+        cnt.topic_counts = json.dumps(dict(self.topic_counts))
+        window_ok = cnt.window_recorded == cnt.window_service_frames
+        cnt.lossless = cnt.recorder_missed == 0 and window_ok and cnt.messages_missed == 0
+        return cnt
+
+    def write_counters(self) -> RecorderCounters:
+        """Write the counters on ``/pfma/recorder`` now."""
+        cnt = self._finish_counters()
+        self._put("/pfma/recorder", self._log_ns, _dumps(cnt.as_dict()))
+        cnt.topic_counts = json.dumps(dict(self.topic_counts))
+        return cnt
+
+    def flush(self) -> None:
+        self.w.flush()
+
+    def close(self) -> RecorderCounters:
+        """Final poll, counters, summary metadata, MCAP summary; closes the file (idempotent)."""
+        if self._closed:
+            return self.counters
+        try:
+            if self.client is not None:
+                try:
+                    self.poll()
+                except Exception:  # noqa: BLE001 - a vanished buffer must not lose the file
+                    pass
+            cnt = self.write_counters()
+            self.w.flush()
+            self.w.add_metadata("pfma.recorder.summary", {k: str(v) for k, v in cnt.as_dict().items()})
+            self.w.finish()
+        finally:
+            self._closed = True
+            if self._own_file:
+                self._f.close()
+            else:
+                self._f.flush()
+        return self.counters
