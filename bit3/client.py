@@ -61,6 +61,11 @@ class Snapshot:
         self._layout = layout
         self._names = frozenset(record.dtype.names)
 
+    @property
+    def layout(self) -> Layout:
+        """The layout this snapshot was read with (channel names and roles)."""
+        return self._layout
+
     def __getattr__(self, name: str) -> Any:
         if name.startswith("_"):
             raise AttributeError(name)

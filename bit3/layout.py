@@ -43,7 +43,7 @@ from __future__ import annotations
 import enum
 import hashlib
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property, lru_cache
 from pathlib import Path
 
@@ -176,13 +176,20 @@ class ChannelEntry:
     board: str = ""
     channel: int = -1
     spare: bool = False
+    #: the rack channel's role (``pfma.rack`` keys joint, quantity); not part of the layout
+    #: hash: it says what a slot means, not where it is
+    joint: str = ""
+    quantity: str = ""
 
-    def as_dict(self) -> dict:
-        return {"name": self.name, "kind": self.kind, "area": self.area, "slot": self.slot,
-                "units": self.units,
-                "label": self.label, "board": self.board, "channel": self.channel,
-                "spare": self.spare,
-                "fields": [{"field": f, "index": i, "offset": o} for f, i, o in self.fields]}
+    def as_dict(self, roles: bool = False) -> dict:
+        d = {"name": self.name, "kind": self.kind, "area": self.area, "slot": self.slot,
+             "units": self.units,
+             "label": self.label, "board": self.board, "channel": self.channel,
+             "spare": self.spare,
+             "fields": [{"field": f, "index": i, "offset": o} for f, i, o in self.fields]}
+        if roles and self.quantity:
+            d["joint"], d["quantity"] = self.joint, self.quantity
+        return d
 
 
 @dataclass(frozen=True)
@@ -286,11 +293,32 @@ class Layout:
                 "hash": self.hash.hex(), "rack": self.rack_name,
                 "areas": [a.as_dict() for a in self.areas],
                 "fields": [f.as_dict() for f in self.fields],
-                "channels": [c.as_dict() for c in self.channels]}
+                "channels": [c.as_dict(roles=True) for c in self.channels]}
 
     @property
     def hash_hex(self) -> str:
         return self.hash.hex()
+
+    @cached_property
+    def _role_index(self) -> dict[tuple[str, str, str], ChannelEntry]:
+        index: dict[tuple[str, str, str], ChannelEntry] = {}
+        for c in self.channels:
+            if c.quantity:
+                index.setdefault((c.kind, c.joint, c.quantity), c)
+        return index
+
+    def joint_entry(self, kind: str, joint: str, quantity: str) -> ChannelEntry:
+        """The entry of one group carrying ``quantity`` of ``joint`` (the rack's channel
+        roles), e.g. ``joint_entry("rtd", "elbow_pitch", "angle")``."""
+        try:
+            return self._role_index[(kind, joint, quantity)]
+        except KeyError:
+            raise KeyError(f"no {kind} entry carries the {quantity} of joint {joint!r} in the Bit3 "
+                           f"layout (rack {self.rack_name}: channel keys joint, quantity)") from None
+
+    def joint_slot(self, kind: str, joint: str, quantity: str) -> int:
+        """Slot of :meth:`joint_entry`."""
+        return self.joint_entry(kind, joint, quantity).slot
 
 
 # ----------------------------------------------------------------------------------------
@@ -492,9 +520,9 @@ def _stats(area: AreaSpec) -> tuple[_Record, list[ChannelEntry]]:
 def _commands(area: AreaSpec, rack: RackConfig) -> tuple[_Record, list[ChannelEntry], tuple, tuple]:
     """Command area; joint order and limit order come from the rack's DAC channels."""
     dac = [c for b in rack.boards_of("dac") for c in b.channels if not c.spare]
-    joints = [c for c in dac if c.units == "rad/s"]
-    limits = [c for c in dac if "current_limit" in c.signal]
-    grippers = [c for c in dac if "gripper" in c.signal and c not in limits]
+    joints = [c for c in dac if c.quantity == "rate_command"]
+    limits = [c for c in dac if c.quantity == "current_limit"]
+    grippers = [c for c in dac if c.quantity == "gripper_command"]
     if len(joints) > N_JOINTS or len(limits) > N_CURRENT_LIMITS or len(grippers) > 1:
         raise ConfigError(f"Bit3 layout: rack {rack.name} has {len(joints)} rate, {len(limits)} "
                           f"current-limit and {len(grippers)} gripper DAC channels; the command "
@@ -532,7 +560,7 @@ def _commands(area: AreaSpec, rack: RackConfig) -> tuple[_Record, list[ChannelEn
     for i, c in enumerate(limits):
         entries.append(ChannelEntry(c.signal, "command", area.name, i, c.units, c.label,
                                     (("current_limit_a", i, cl + 8 * i),), c.board, c.channel))
-    return (r, entries, tuple(c.signal.removesuffix("_command") for c in joints),
+    return (r, entries, tuple(c.joint for c in joints),
             tuple(c.signal for c in limits))
 
 
@@ -664,6 +692,9 @@ def build_layout(rack: RackConfig | None = None) -> Layout:
                                records[a.name].dtype() if a.name in records else None)
                       for a in areas)
     fields = tuple(f for a in areas if a.name in records for f in records[a.name].specs)
+    roles = {c.signal: (c.joint, c.quantity) for c in rack.channels() if c.quantity}
+    channels = [replace(e, joint=roles[e.name][0], quantity=roles[e.name][1])
+                if e.board and e.name in roles else e for e in channels]
     lay = Layout(rack.name, out_areas, fields, tuple(channels), joints, limits)
     digest = hashlib.sha256(json.dumps(lay.canonical(), sort_keys=True,
                                        separators=(",", ":")).encode()).digest()[:8]

@@ -34,8 +34,6 @@ import numpy as np
 from bit3.layout import ServiceState
 from pfma.errors import CalibrationError
 
-#: joints in DH order (pfma-model 8.1), by the rack's signal stem
-JOINTS = ("shoulder_yaw", "shoulder_pitch", "elbow_pitch", "wrist_pitch", "wrist_yaw", "wrist_roll")
 #: current limits while a procedure moves joints, A (command order of the layout's
 #: current_limit_names: SP SY EP WY WP WR GR); the service tests' values, brakes released
 MOVE_CURRENT_LIMIT_A = {"shoulder_pitch": 5.0, "shoulder_yaw": 5.0, "elbow_pitch": 5.0, "wrist_yaw": 2.5,
@@ -170,7 +168,7 @@ class Session:
         """
         if self._ctl is None:
             self._ctl = self._controller()
-        limits = [MOVE_CURRENT_LIMIT_A.get(n.removesuffix("_current_limit"), 0.0)
+        limits = [MOVE_CURRENT_LIMIT_A.get(self.layout.channel(n, "commands").joint, 0.0)
                   for n in self.layout.current_limit_names]
         self._rearm += 1
         rec = self._ctl.command

@@ -94,8 +94,6 @@ ARM_TIMEOUT_S = 0.2
 #: disarming anyway (assumed: the servo's 0.5 s safe stop plus margin)
 SHUTDOWN_WAIT_S = 1.0
 #: boards whose faults matter to the controller (the rest are reported only)
-REQUIRED_BOARDS = ("rtd1", "rtd2", "adc", "dac")
-FT_BOARD = "sio"
 
 
 class DataAcquisitionLayer(Layer):
@@ -119,15 +117,22 @@ class DataAcquisitionLayer(Layer):
         if self.joint_order != tuple(j.name for j in JOINTS):
             raise ValueError(f"Bit3 command joints {self.joint_order} differ from controller.params "
                              f"{tuple(j.name for j in JOINTS)}")
-        self.rtd_slots = np.array([lay.slot("rtd", f"{j}_angle") for j in self.joint_order], dtype=np.intp)
-        self.tach_slots = np.array([lay.slot("adc", f"{j}_rate") for j in self.joint_order], dtype=np.intp)
+        # the joints' channels by their role in the rack (channel keys joint, quantity)
+        angles = [lay.joint_entry("rtd", j, "angle") for j in self.joint_order]
+        tachs = [lay.joint_entry("adc", j, "rate") for j in self.joint_order]
+        rates = [lay.joint_entry("dac", j, "rate_command") for j in self.joint_order]
+        self.rtd_slots = np.array([e.slot for e in angles], dtype=np.intp)
+        self.tach_slots = np.array([e.slot for e in tachs], dtype=np.intp)
         self.centre = np.array([j.centre_rad for j in JOINTS])
-        boards = [c.name for c in lay.channels if c.kind == "board"]
-        need = [b for b in REQUIRED_BOARDS if b in boards] + ([FT_BOARD] if require_ft and FT_BOARD in boards else [])
+        ft = next((c for c in lay.channels if c.kind == "link" and c.quantity == "force_torque"), None)
+        # the boards the servo depends on: those carrying the joints' angles, tachs and rate
+        # commands, and the F/T sensor's serial board when force sensing is required
+        need = list(dict.fromkeys(e.board for e in angles + tachs + rates))
+        if require_ft and ft is not None:
+            need.append(ft.board)
         self.board_slots = np.array([lay.slot("board", b) for b in need], dtype=np.intp)
         self.board_names = need
-        self.ft_slot = lay.slot("link", "ft_sensor") if any(
-            c.kind == "link" and c.name == "ft_sensor" for c in lay.channels) else None
+        self.ft_slot = ft.slot if ft is not None else None
         self.monitoring = False  #: faults count once initialised
         self.fault_bits = 0
         self.fault_detail = ""

@@ -11,22 +11,14 @@ section 2: "can't read the VMIC 4100"), so its value is the driver's shadow.
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
 
+from drivers.catalog import board_kind, resolve
 from pfma.errors import BoardError, ConfigError
 from pfma.rack import BoardConfig, Channel, RackConfig
 
-__all__ = ["RackIO", "Reading", "DRIVERS"]
+__all__ = ["RackIO", "Reading"]
 
-#: device class -> "module:Driver"; constructor (bus, base, name=board name)
-DRIVERS: dict[str, str] = {
-    "rtd": "drivers.rtd.vmivme4940:Vmivme4940",
-    "adc": "drivers.adc.dvme611:Dvme611",
-    "dac": "drivers.dac.vmivme4100:Vmivme4100",
-    "pio": "drivers.pio.mvme410:Mvme410",
-    "serial": "drivers.mvme400:Mvme400",
-}
 
 
 @dataclass(frozen=True)
@@ -79,12 +71,9 @@ class RackIO:
                               f"known: {known}") from None
 
     def _build(self, cfg: BoardConfig):
-        target = DRIVERS.get(cfg.device)
-        if target is None:
-            raise ConfigError(f"board {cfg.name}: no driver for device class {cfg.device!r}")
-        module_name, _, cls_name = target.partition(":")
+        target = board_kind(cfg.kind).driver
         try:
-            cls = getattr(importlib.import_module(module_name), cls_name)
+            cls = resolve(target)
         except (ImportError, AttributeError) as err:
             raise BoardError(f"board {cfg.name} ({cfg.kind} at A16 0x{cfg.base:04X}): driver "
                              f"{target} is not available: {err}") from err

@@ -29,8 +29,7 @@ class AxisParams:
 
     name: str  #: short name: SY, SP, EP, WP, WY, WR, GR
     label: str  #: long name
-    stem: str  #: signal stem in the rack config: "<stem>_command", "<stem>_angle" ...
-    adc_stem: str  #: stem of the ADC monitor signals "<adc_stem>_motor_current", "<adc_stem>_rate"
+    joint: str  #: the rack configuration's joint name (channel key ``joint``)
     hard_lo: float  #: hard stop, rad (gripper: m)
     hard_hi: float  #: hard stop, rad (gripper: m)
     soft_lo: float  #: software limit (information only; the controller enforces it)
@@ -66,22 +65,22 @@ class AxisParams:
 #: The seven axes. Columns per pfma-model.md 8.2 (limits, N, omega_fs, K_t, I_max) and
 #: 8.3 (inertia, friction); counterbalance on J2-J4 (8.3); brakes on the six joints (IRSS 3.6).
 AXES: tuple[AxisParams, ...] = (
-    AxisParams("SY", "Shoulder Yaw", "shoulder_yaw", "shoulder_yaw", -150 * DEG, 150 * DEG,
+    AxisParams("SY", "Shoulder Yaw", "shoulder_yaw", -150 * DEG, 150 * DEG,
                -145 * DEG, 145 * DEG, 200, 0.40, 0.12, 10.0, 40.0, 8.0, 20.0, False, True),
-    AxisParams("SP", "Shoulder Pitch", "shoulder_pitch", "shoulder_pitch", -30 * DEG, 120 * DEG,
+    AxisParams("SP", "Shoulder Pitch", "shoulder_pitch", -30 * DEG, 120 * DEG,
                -25 * DEG, 115 * DEG, 200, 0.40, 0.12, 10.0, 40.0, 8.0, 20.0, True, True),
-    AxisParams("EP", "Elbow Pitch", "elbow_pitch", "elbow_pitch", -150 * DEG, 10 * DEG,
+    AxisParams("EP", "Elbow Pitch", "elbow_pitch", -150 * DEG, 10 * DEG,
                -145 * DEG, 5 * DEG, 150, 0.50, 0.12, 10.0, 12.0, 8.0, 20.0, True, True),
-    AxisParams("WP", "Wrist Pitch", "wrist_pitch", "wrist_pitch", -110 * DEG, 110 * DEG,
+    AxisParams("WP", "Wrist Pitch", "wrist_pitch", -110 * DEG, 110 * DEG,
                -105 * DEG, 105 * DEG, 100, 1.00, 0.06, 5.0, 0.6, 1.0, 2.0, True, True),
-    AxisParams("WY", "Wrist Yaw", "wrist_yaw", "wrist_yaw", -110 * DEG, 110 * DEG,
+    AxisParams("WY", "Wrist Yaw", "wrist_yaw", -110 * DEG, 110 * DEG,
                -105 * DEG, 105 * DEG, 100, 1.00, 0.06, 5.0, 0.6, 1.0, 2.0, False, True),
-    AxisParams("WR", "Wrist Roll", "wrist_roll", "wrist_roll", -180 * DEG, 180 * DEG,
+    AxisParams("WR", "Wrist Roll", "wrist_roll", -180 * DEG, 180 * DEG,
                -175 * DEG, 175 * DEG, 60, 2.00, 0.06, 5.0, 0.08, 1.0, 2.0, False, True),
     # assumed (simulator): gripper jaw opening 0..0.10 m, 0.05 m/s at 10 V, 40 N/A
     # (N = 500 rotor rad per m of jaw travel), 5 A (the rack's 0.5 A/V scale), 20 kg reflected
     # mass (lead screw), friction 2 N + 20 N*s/m; no brake, no resolver, no gravity.
-    AxisParams("GR", "Gripper", "gripper", "end_effector", 0.0, 0.10, 0.005, 0.095,
+    AxisParams("GR", "Gripper", "gripper", 0.0, 0.10, 0.005, 0.095,
                500, 0.05, 0.10, 5.0, 20.0, 2.0, 20.0, False, False, has_angle=False),
 )
 

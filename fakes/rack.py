@@ -9,28 +9,18 @@ so a driver polling a busy bit sees simulated time pass.
 
 from __future__ import annotations
 
-import importlib
 
 from drivers.bus import check_value
+from drivers.catalog import board_kind, resolve
 from drivers.registers import register_name
 from fakes.board import FakeBoard, NoAnswer
 from pfma.clock import Clock, SimClock
 from pfma.errors import BusError
 from pfma.rack import RackConfig, load_rack
 
-#: board kind -> "module:FakeClass"
-FAKES: dict[str, str] = {
-    "vmivme4940": "fakes.rtd:FakeVmivme4940",
-    "vmivme4100": "fakes.dac:FakeVmivme4100",
-    "dvme611": "fakes.adc:FakeDvme611",
-    "mvme400": "fakes.mvme400:FakeMvme400",
-    "mvme410": "fakes.mvme410:FakeMvme410",
-}
-
-
 def fake_class(kind: str) -> type[FakeBoard]:
-    module_name, _, cls = FAKES[kind].partition(":")
-    return getattr(importlib.import_module(module_name), cls)
+    """The register-level fake of a board kind (the catalogue's ``fake`` column)."""
+    return resolve(board_kind(kind).fake)
 
 
 class FakeRack:

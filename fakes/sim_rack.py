@@ -36,8 +36,8 @@ CAE_AXIS_SIGNALS = ("cae_up_down", "cae_forward_backward", "cae_right_left", "ca
 CAE_DISCRETE_SIGNALS = ("cae_discrete_1", "cae_discrete_2", "cae_discrete_3")
 #: Voltage of a closed CAE discrete given as a bool (assumed: TTL-level switch to +5 V).
 CAE_DISCRETE_HIGH_V = 5.0
-#: Monitor signals of the manually indexed shoulder roll: held at 0 V.
-IDLE_SIGNALS = ("shoulder_roll_rate", "shoulder_roll_motor_current")
+#: Joints whose monitors read 0 V: the manually indexed shoulder roll (no servo, no motor).
+IDLE_JOINTS = ("shoulder_roll",)
 
 _TWO_PI = 2.0 * math.pi
 
@@ -90,21 +90,23 @@ class SimulatedRack:
         c = self.config.channel(signal)
         return c.board, c.channel
 
+    def _role(self, joint: str, quantity: str) -> tuple[str, int]:
+        c = self.config.joint_channel(joint, quantity)
+        return c.board, c.channel
+
     def _wire(self) -> None:
-        """Look up every channel the simulator touches, by signal name."""
-        self.command = [self._where(f"{a.stem}_command") for a in AXES]
-        self.current_limit = [self._where(f"{a.stem}_current_limit") for a in AXES]
-        self.angle = {i: self._where(f"{a.stem}_angle") for i, a in enumerate(AXES) if a.has_angle}
-        self.rate = [self._where(f"{a.adc_stem}_rate") for a in AXES]
-        self.motor_current = [self._where(f"{a.adc_stem}_motor_current") for a in AXES]
+        """Look up every channel the simulator touches: a joint's by its role (the rack's
+        channel keys joint, quantity), the hand controller's by signal name."""
+        command = {a.joint: "gripper_command" if a.name == "GR" else "rate_command" for a in AXES}
+        self.command = [self._role(a.joint, command[a.joint]) for a in AXES]
+        self.current_limit = [self._role(a.joint, "current_limit") for a in AXES]
+        self.angle = {i: self._role(a.joint, "angle") for i, a in enumerate(AXES) if a.has_angle}
+        self.rate = [self._role(a.joint, "rate") for a in AXES]
+        self.motor_current = [self._role(a.joint, "motor_current") for a in AXES]
         self.cae_axes = [self._where(s) for s in CAE_AXIS_SIGNALS]
         self.cae_discretes = [self._where(s) for s in CAE_DISCRETE_SIGNALS]
-        self.idle = []
-        for s in IDLE_SIGNALS:
-            try:
-                self.idle.append(self._where(s))
-            except KeyError:
-                pass
+        self.idle = [(c.board, c.channel) for j in IDLE_JOINTS for q in ("rate", "motor_current")
+                     if (c := self.config.find(j, q)) is not None]
         self._adc: dict[str, _AdcBoardMap] = {}
         for role, chans in (("rate", self.rate), ("cur", self.motor_current)):
             for axis, (board, ch) in enumerate(chans):

@@ -277,12 +277,14 @@ class IoService:
         self._dac_zeros = [0.0] * n
         self._dac_forced_safe = [DAC_FORCED_SAFE] * n
         sig = {c.signal: c.channel for c in chans}
-        # command-area order (layout.joints / layout.limits) -> DAC channel
-        self._cmd_rate_list = [sig[j + "_command"] for j in self.layout.joint_names]
+        # command-area order (layout.joint_names / current_limit_names) -> DAC channel, by the
+        # rack's channel roles (quantity rate_command / current_limit / gripper_command)
+        self._cmd_rate_list = [self.layout.joint_entry("dac", j, "rate_command").channel
+                               for j in self.layout.joint_names]
         self._cmd_limit_list = [sig[s] for s in self.layout.current_limit_names]
         self._dac_is_limit = [ch in self._cmd_limit_list for ch in range(n)]
         self._dac_is_rate = [ch in self._cmd_rate_list for ch in range(n)]
-        grip = [c.channel for c in chans if "gripper" in c.signal and "current_limit" not in c.signal]
+        grip = [c.channel for c in chans if c.quantity == "gripper_command"]
         self._cmd_gripper_ch = grip[0] if grip else None
         if self._cmd_gripper_ch is not None:
             self._dac_is_rate[self._cmd_gripper_ch] = True  # a motor command too: 0 V when stale

@@ -7,7 +7,6 @@ Invalid configuration is refused with a :class:`ConfigError` naming file and lin
 
 from __future__ import annotations
 
-import importlib
 import math
 import re
 import tomllib
@@ -18,17 +17,26 @@ from pfma.errors import ConfigError
 
 DEFAULT_RACK = Path(__file__).with_name("rack_default.toml")
 
-#: board kind -> (device class, channel count, "module:DESCRIPTION" of its register table)
-KINDS: dict[str, tuple[str, int, str]] = {
-    "vmivme4940": ("rtd", 4, "drivers.rtd.registers:VMIVME4940"),
-    "vmivme4100": ("dac", 16, "drivers.dac.registers:VMIVME4100"),
-    "dvme611": ("adc", 32, "drivers.adc.registers:DVME611"),
-    "mvme400": ("serial", 2, "drivers.mvme400.registers:MVME400"),
-    "mvme410": ("pio", 4, "drivers.pio.registers:MVME410"),
-}
 DEFAULT_DIRECTION = {"rtd": "in", "adc": "in", "dac": "out", "serial": "in"}
 BOARD_KEYS = {"name", "kind", "device", "base", "rate_hz", "title", "channels"}
-CHANNEL_KEYS = {"ch", "signal", "label", "units", "direction", "spare", "scale", "offset", "baud", "limit"}
+CHANNEL_KEYS = {"ch", "signal", "label", "units", "direction", "spare", "scale", "offset", "baud", "limit",
+                "joint", "quantity"}
+#: what a channel measures or commands (the channel key ``quantity``), and the device class
+#: that can carry it. Every quantity but the hand controller's belongs to one joint (key
+#: ``joint``); tools and the service find a joint's channels by (joint, quantity), never by
+#: the signal's name.
+QUANTITIES: dict[str, str] = {
+    "angle": "rtd",  # resolver angle, rad
+    "rate": "adc",  # filtered tachometer
+    "motor_current": "adc",  # amplifier current monitor
+    "rate_command": "dac",  # a joint's rate command (the Bit3 command area's joint order)
+    "current_limit": "dac",  # an amplifier's current limit (brake released above ~0.5 V)
+    "gripper_command": "dac",  # the gripper's drive command
+    "hand_controller": "adc",  # a CAE hand-controller axis or discrete (no joint)
+    "force_torque": "serial",  # the wrist force/torque sensor's line (no joint)
+}
+#: ``[arm]`` keys: ``joints`` = the servoed arm joints, base to tool (the one joint list)
+ARM_KEYS = {"joints"}
 #: ``[commands]`` keys: how the service judges the command area (see :class:`CommandPolicy`)
 COMMANDS_KEYS = {"max_input_age_frames", "limit_margin"}
 #: ``[bit3]`` keys: the Bit3 shared-memory window (IRSS report 3.4.3)
@@ -37,14 +45,21 @@ BIT3_SIZE = 32768  #: the Bit3 adapter's 32 KiB window
 SIGNAL_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
+def _catalog():
+    """The board catalogue (:mod:`drivers.catalog`): the one place the ground floor looks up.
+
+    A rack file names board kinds; whether a kind exists, how many channels it has, how
+    much A16 space it decodes and which bit rates it offers are the catalogue's facts.
+    The import is deferred and is the only import of ``pfma`` from a higher package (the
+    import-linter layers contract names it as its one exception).
+    """
+    from drivers import catalog
+    return catalog
+
+
 def board_description(kind: str):
-    """The register table (``BoardDescription``) of a board kind."""
-    try:
-        target = KINDS[kind][2]
-    except KeyError:
-        raise ConfigError(f"unknown board kind {kind!r}; known: {', '.join(sorted(KINDS))}") from None
-    module_name, _, attr = target.partition(":")
-    return getattr(importlib.import_module(module_name), attr)
+    """The register table (``BoardDescription``) of a board kind (:mod:`drivers.catalog`)."""
+    return _catalog().board_kind(kind).description()
 
 
 @dataclass(frozen=True)
@@ -70,6 +85,8 @@ class Channel:
     #: rack's ``[commands] limit_margin``; beyond it the service refuses the command and
     #: makes the outputs safe. None: the DAC's full range (10 V x scale).
     limit: float | None = None
+    joint: str = ""  #: the joint this channel belongs to ("" for none), e.g. "elbow_pitch"
+    quantity: str = ""  #: what it carries (:data:`QUANTITIES`), "" for none
 
     def as_dict(self) -> dict:
         d = {
@@ -85,6 +102,10 @@ class Channel:
             d["baud"] = self.baud
         if self.limit is not None:
             d["limit"] = self.limit
+        if self.quantity:
+            d["quantity"] = self.quantity
+        if self.joint:
+            d["joint"] = self.joint
         return d
 
 
@@ -132,6 +153,8 @@ class RackConfig:
     bit3: dict = field(default_factory=dict)
     source: str = "<default>"
     commands: CommandPolicy = field(default_factory=CommandPolicy)
+    #: the servoed arm joints, base to tool (``[arm] joints``): the one joint list
+    joints: tuple[str, ...] = ()
 
     def channels(self) -> list[Channel]:
         return [c for b in self.boards for c in b.channels]
@@ -150,6 +173,24 @@ class RackConfig:
 
     def boards_of(self, device: str) -> list[BoardConfig]:
         return [b for b in self.boards if b.device == device]
+
+    def find(self, joint: str, quantity: str) -> Channel | None:
+        """The channel carrying ``quantity`` of ``joint`` (None when the rack has none)."""
+        for c in self.channels():
+            if c.joint == joint and c.quantity == quantity:
+                return c
+        return None
+
+    def joint_channel(self, joint: str, quantity: str) -> Channel:
+        """Like :meth:`find`, but a missing channel is a KeyError naming joint and quantity."""
+        c = self.find(joint, quantity)
+        if c is None:
+            raise KeyError(f"rack {self.name} ({self.source}) has no {quantity} channel for joint {joint!r}")
+        return c
+
+    def with_quantity(self, quantity: str) -> list[Channel]:
+        """Every channel carrying ``quantity``, in rack order (boards, then channels)."""
+        return [c for c in self.channels() if c.quantity == quantity]
 
 
 class _Lines:
@@ -267,12 +308,6 @@ def _is_int(v) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
 
 
-def _serial_rates() -> tuple[float, ...]:
-    """The bit rates the MVME400's baud generator offers (``drivers.mvme400`` table)."""
-    from drivers.mvme400.registers import BAUD_CODES
-    return tuple(sorted(BAUD_CODES.values()))
-
-
 def _section_key_line(text: str, section: str, key: str | None = None) -> int | None:
     """Line of ``[section]`` (or of ``key = ...`` inside it) in TOML text."""
     header = None
@@ -311,12 +346,13 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
     boards_raw = data.get("board")
     if not isinstance(boards_raw, list) or not boards_raw:
         fail("no [[board]] entries")
-    unknown_top = set(data) - {"rack", "bit3", "board", "commands"}
+    unknown_top = set(data) - {"rack", "bit3", "board", "commands", "arm"}
     if unknown_top:
         fail(f"unknown top-level section(s): {', '.join(sorted(unknown_top))}")
 
     boards: list[BoardConfig] = []
     signals: dict[str, tuple[int, int]] = {}
+    roles: dict[tuple[str, str], str] = {}  # (joint, quantity) -> signal
     for bi, b in enumerate(boards_raw):
         if not isinstance(b, dict):
             fail(f"board entry {bi + 1} is not a table", bi)
@@ -329,10 +365,12 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
         name, kind = b["name"], b["kind"]
         if not isinstance(name, str) or not name:
             fail(f"board name must be a string, not {name!r}", bi, key="name")
-        if not isinstance(kind, str) or kind not in KINDS:
-            fail(f"board {name}: unknown device kind {kind!r}; known: {', '.join(sorted(KINDS))}", bi,
+        catalog = _catalog().CATALOG
+        if not isinstance(kind, str) or kind not in catalog:
+            fail(f"board {name}: unknown device kind {kind!r}; known: {', '.join(sorted(catalog))}", bi,
                  key="kind")
-        device, n_channels, _ = KINDS[kind]
+        entry = catalog[kind]
+        device, n_channels = entry.device, entry.channels
         if b.get("device", device) != device:
             fail(f"board {name}: kind {kind} is a {device} board, not {b['device']!r}", bi, key="device")
         base = b["base"]
@@ -341,7 +379,7 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
         if base % 2:
             fail(f"board {name}: base 0x{base:04X} is odd; the boards' 16-bit registers need an "
                  f"even A16 base", bi, key="base")
-        window = board_description(kind).window
+        window = entry.window
         if base + window > 0x10000:
             fail(f"board {name}: window 0x{base:04X}+0x{window:X} runs past the A16 space", bi, key="base")
         for other in boards:
@@ -395,7 +433,7 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
             if baud is not None:
                 if device != "serial":
                     fail(f"board {name}: channel {ch}: 'baud' applies to serial channels only", bi, ci)
-                rates = _serial_rates()
+                rates = entry.serial_rates()
                 if not _is_number(baud) or baud not in rates:
                     fail(f"board {name}: channel {ch} baud {baud!r} is not a rate the {kind} offers "
                          f"({', '.join(f'{r:g}' for r in rates)})", bi, ci)
@@ -409,11 +447,29 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
                         not math.isfinite(limit) or limit <= 0:
                     fail(f"board {name}: channel {ch} limit must be a positive number, not {limit!r}", bi, ci)
                 limit = float(limit)
+            quantity, joint = c.get("quantity", ""), c.get("joint", "")
+            if quantity and QUANTITIES.get(quantity) is None:
+                fail(f"board {name}: channel {ch} quantity {quantity!r} is not one of "
+                     f"{', '.join(QUANTITIES)}", bi, ci)
+            if quantity and QUANTITIES[quantity] != device:
+                fail(f"board {name}: channel {ch}: a {device} channel cannot carry {quantity!r} "
+                     f"(a {QUANTITIES[quantity]} quantity)", bi, ci)
+            if not isinstance(joint, str) or (joint and not SIGNAL_RE.match(joint)):
+                fail(f"board {name}: channel {ch} joint {joint!r} is not a snake_case name", bi, ci)
+            if joint and not quantity:
+                fail(f"board {name}: channel {ch} names joint {joint!r} but no quantity", bi, ci)
+            if quantity and quantity not in ("hand_controller", "force_torque") and not joint:
+                fail(f"board {name}: channel {ch} quantity {quantity!r} needs the joint it belongs to", bi, ci)
+            if joint:
+                if (joint, quantity) in roles:
+                    fail(f"joint {joint!r} has two {quantity} channels ({roles[(joint, quantity)]} "
+                         f"and {sig})", bi, ci)
+                roles[(joint, quantity)] = sig
             chans.append(Channel(
                 device=device, board=name, kind=kind, address=base, channel=ch, signal=sig,
                 label=str(c["label"]), units=str(c["units"]), direction=direction, rate_hz=rate,
                 spare=bool(c.get("spare", False)), scale=scale, offset=float(c.get("offset", 0.0)),
-                baud=c.get("baud"), limit=limit))
+                baud=c.get("baud"), limit=limit, joint=joint, quantity=quantity))
         missing = sorted(set(range(n_channels)) - seen)
         if missing:
             fail(f"board {name}: channel(s) {', '.join(map(str, missing))} not listed "
@@ -423,7 +479,35 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
                                   rate_hz=rate, title=str(b.get("title", kind)), channels=tuple(chans)))
     return RackConfig(name=str(rack.get("name", "rack")), boards=tuple(boards),
                       bit3=_bit3(data.get("bit3", {}), text, source), source=source,
-                      commands=_command_policy(data.get("commands", {}), fail))
+                      commands=_command_policy(data.get("commands", {}), fail),
+                      joints=_arm_joints(data.get("arm", {}), roles, text, source))
+
+
+def _arm_joints(raw, roles: dict[tuple[str, str], str], text: str, source: str) -> tuple[str, ...]:
+    """Validate ``[arm] joints``: distinct names, each with an angle, a rate, a rate
+    command and a current-limit channel in the rack (what the service and the controller
+    need of a servoed joint)."""
+    def fail(msg: str, key: str | None = None):
+        line = _section_key_line(text, "arm", key)
+        raise ConfigError(f"{source}:{line}: {msg}" if line else f"{source}: {msg}")
+
+    if not isinstance(raw, dict):
+        fail("[arm] must be a table")
+    extra = set(raw) - ARM_KEYS
+    if extra:
+        fail(f"[arm]: unknown key(s) {', '.join(sorted(extra))}; known: {', '.join(sorted(ARM_KEYS))}",
+             sorted(extra)[0])
+    joints = raw.get("joints", [])
+    if not isinstance(joints, list) or not all(isinstance(j, str) and SIGNAL_RE.match(j) for j in joints):
+        fail(f"[arm] joints must be a list of snake_case joint names, not {joints!r}", "joints")
+    if len(set(joints)) != len(joints):
+        fail(f"[arm] joints lists a joint twice: {joints!r}", "joints")
+    for j in joints:
+        missing = [q for q in ("angle", "rate", "rate_command", "current_limit") if (j, q) not in roles]
+        if missing:
+            fail(f"[arm] joint {j!r} has no {', '.join(missing)} channel (channel keys joint = {j!r}, "
+                 f"quantity = ...)", "joints")
+    return tuple(joints)
 
 
 def _command_policy(raw, fail) -> CommandPolicy:

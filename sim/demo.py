@@ -58,13 +58,16 @@ def frame_rates(t: float, joints, q, q0) -> list[float]:
 
 
 def joint_angles(snap, joints) -> list[float | None]:
-    """Resolver angle (rad) of each command-area joint (``<joint>_angle``), None if absent."""
+    """Resolver angle (rad) of each command-area joint (its rack channel of quantity
+    ``angle``), None if the rack has none."""
     out = []
     for name in joints:
         try:
-            out.append(float(snap.value(f"{name}_angle")))
+            entry = snap.layout.joint_entry("rtd", name, "angle")
         except KeyError:
             out.append(None)
+            continue
+        out.append(float(snap.value(entry.name)))
     return out
 
 

@@ -117,7 +117,7 @@ class SystemSimulator:
         from controller.params import JOINT_NAMES
         from fakes.arm_params import AXES
         q = self.world.sim.true_state().q
-        stems = [a.stem for a in AXES]
+        stems = [a.joint for a in AXES]
         return np.array([q[stems.index(n)] for n in JOINT_NAMES], dtype=float)
 
     def close(self) -> None:

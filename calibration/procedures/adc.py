@@ -32,7 +32,7 @@ COLOURS = ("blue", "red", "green", "orange", "purple", "black")
 def default_signals(ctx: Context) -> list[str]:
     """ADC channels the arm does not drive: the CAE inputs and the spares."""
     return [c.signal for c in ctx.rack.channels()
-            if c.device == "adc" and (c.spare or c.signal.startswith("cae_"))]
+            if c.device == "adc" and (c.spare or c.quantity == "hand_controller")]
 
 
 def run(ctx: Context) -> ProcedureResult:

@@ -28,7 +28,7 @@ MAX_NOISE_V = 3 * LSB_V
 
 def run(ctx: Context) -> ProcedureResult:
     signals = list(ctx.options.get("signals") or [c.signal for c in ctx.rack.channels()
-                                                  if c.device == "adc" and c.signal.endswith("_motor_current")])
+                                                  if c.device == "adc" and c.quantity == "motor_current"])
     res = ProcedureResult(NAME, tolerances={"resolution": f"{LSB_V * 1e3:.1f} mV",
                                             "offset": f"<= {MAX_OFFSET_V} V", "noise": f"<= {MAX_NOISE_V * 1e3:.1f} mV rms"})
     ctx.progress(0, 2, "amplifiers disabled?")

@@ -70,7 +70,7 @@ def _check_service_calibration(ctx: Context) -> None:
 def expected_loop_gain(joint: str) -> float:
     """Steady-state velocity / command of the nominal proportional rate loop with viscous
     friction (pfma-model 8.3/8.4): ``k K_w / (b + k K_w)``, k = K_a N eta K_t."""
-    i = next(n for n, a in enumerate(AXES) if a.stem == joint)
+    i = next(n for n, a in enumerate(AXES) if a.joint == joint)
     a = AXES[i]
     k = NOMINAL.k_a()[i] * a.torque_per_amp
     return k * a.k_w / (a.viscous + k * a.k_w)
@@ -112,7 +112,7 @@ def run(ctx: Context) -> ProcedureResult:
         cmd, vel = cmd[moving], vel[moving]
         a_mat = np.column_stack([cmd, np.ones_like(cmd), np.sign(cmd)])
         f = F.design(a_mat, vel, ("gain", "null", "friction"), f"DAC-to-rate {j}")
-        sig = f"{j}_command"
+        sig = ctx.rack.joint_channel(j, "rate_command").signal
         e = ctx.calibration.channel(sig)
         s0, off0 = float(e["scale"]), float(e["offset"])
         scale, offset = f["gain"] * s0, f["null"] + f["gain"] * off0

@@ -34,7 +34,6 @@ from calibration.kinematics import GRAVITY_M_S2, gravity_in_sensor
 from calibration.plot import Series, plot_fit
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name
 from calibration.procedures.motion import COUNTS_PER_REV
-from calibration.session import JOINTS
 
 RANGE_N, RANGE_NM = 133.0, 11.3  #: pfma-model 8.7 (Lord-type "30/100", assumed)
 DEG = math.pi / 180
@@ -107,10 +106,10 @@ def _angles(ctx: Context, rtd_counts: np.ndarray) -> np.ndarray:
     """Calibrated joint angles (DH order) from raw resolver counts (mean over samples)."""
     layout = ctx.session.layout
     q = []
-    for j in JOINTS:
-        c = rtd_counts[:, layout.slot("rtd", f"{j}_angle")].astype(float)
+    for j in ctx.rack.joints:
+        c = rtd_counts[:, layout.joint_slot("rtd", j, "angle")].astype(float)
         raw = float(np.mean(np.unwrap(c * (2 * np.pi / COUNTS_PER_REV))))
-        e = ctx.calibration.channel(f"{j}_angle")
+        e = ctx.calibration.channel(ctx.rack.joint_channel(j, "angle").signal)
         q.append((e["scale"] * raw + e["offset"]))
     return np.array(q)
 

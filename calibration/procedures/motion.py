@@ -30,15 +30,15 @@ class Leg:
 
 def full_scale_rad_s(ctx: Context, joint: str) -> float:
     """Joint rate at a 10 V command, from the rack's nominal command scale (rad/s per V)."""
-    return 10.0 * abs(ctx.rack.channel(f"{joint}_command").scale)
+    return 10.0 * abs(ctx.rack.joint_channel(joint, "rate_command").scale)
 
 
 def run_legs(ctx: Context, joints: list[str], fractions: list[float], settle_s: float = 0.4,
              measure_s: float = 0.8) -> list[Leg]:
     """Arm, run one leg per fraction of full-scale rate (all joints at once), disarm."""
     layout = ctx.session.layout
-    rtd_slots = {j: layout.slot("rtd", f"{j}_angle") for j in joints}
-    adc_slots = {j: layout.slot("adc", f"{j}_rate") for j in joints}
+    rtd_slots = {j: layout.joint_slot("rtd", j, "angle") for j in joints}
+    adc_slots = {j: layout.joint_slot("adc", j, "rate") for j in joints}
     legs = []
     ctx.operator.prompt("motion.clear", f"The arm will move joints {', '.join(joints)} slowly "
                         f"(up to {max(abs(f) for f in fractions):.0%} of full-scale rate); keep clear")

@@ -21,7 +21,6 @@ import numpy as np
 from calibration.plot import Series, plot_fit
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name
 from calibration.procedures.motion import COUNTS_PER_REV, LSB_RAD
-from calibration.session import JOINTS
 from calibration import fit as F
 
 NAME = "resolver"
@@ -34,7 +33,7 @@ def _wrap_pi(x: float) -> float:
 
 
 def run(ctx: Context) -> ProcedureResult:
-    joints = list(ctx.options.get("joints") or JOINTS)
+    joints = list(ctx.options.get("joints") or ctx.rack.joints)
     index = dict(ctx.options.get("index_rad") or {})
     res = ProcedureResult(NAME, tolerances={"offset": f"+-{LSB_RAD * 1e6:.0f} urad (1 LSB)",
                                             "spread": f"<= {MAX_SPREAD_RAD * 1e6:.0f} urad",
@@ -45,17 +44,17 @@ def run(ctx: Context) -> ProcedureResult:
         ctx.progress(k, len(joints), f"{j}")
         target = float(index.get(j, 0.0))
         ctx.operator.prompt("resolver.index", f"Move {j.replace('_', ' ')} to its index mark "
-                            f"({math.degrees(target):+.2f} deg) and hold it", axis=JOINTS.index(j),
+                            f"({math.degrees(target):+.2f} deg) and hold it", axis=ctx.rack.joints.index(j),
                             joint=j, index_rad=target)
         ctx.session.wait(0.05)
         smp = ctx.session.collect(ctx.options.get("average_s", 0.1), ("rtd_counts",), key="t_rtd_s")
-        counts = smp["rtd_counts"][:, layout.slot("rtd", f"{j}_angle")].astype(float)
+        counts = smp["rtd_counts"][:, layout.joint_slot("rtd", j, "angle")].astype(float)
         ang = np.unwrap(counts * (2 * np.pi / COUNTS_PER_REV))
         ang -= 2 * np.pi * np.round((np.mean(ang) - target) / (2 * np.pi))  # nearest the index
         raw = float(np.mean(ang))
         offset = _wrap_pi(raw - target)
         f = F.mean_offset(ang - target, what=f"resolver {j}")
-        sig = f"{j}_angle"
+        sig = ctx.rack.joint_channel(j, "angle").signal
         res.fits[sig] = f
         res.channels[sig] = {"scale": 1.0, "offset": 0.0 - offset,
                              "provenance": ctx.provenance("resolver reading at index mark", f,

@@ -20,7 +20,6 @@ from calibration import fit as F
 from calibration.plot import Series, plot_fit
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name
 from calibration.procedures.motion import full_scale_rad_s, run_legs
-from calibration.session import JOINTS
 
 NAME = "tach"
 LSB_V = 20.0 / 4096
@@ -31,7 +30,7 @@ COLOURS = ("blue", "red", "green", "orange", "purple", "black")
 
 
 def run(ctx: Context) -> ProcedureResult:
-    joints = list(ctx.options.get("joints") or JOINTS)
+    joints = list(ctx.options.get("joints") or ctx.rack.joints)
     legs = run_legs(ctx, joints, list(ctx.options.get("fractions") or FRACTIONS))
     res = ProcedureResult(NAME, tolerances={"residual": "<= 1 % of max tach volts + 2 LSB",
                                             "k": f"within {NOMINAL_BAND:.0%} of nominal K_w"})
@@ -46,7 +45,7 @@ def run(ctx: Context) -> ProcedureResult:
         vel, tach = vel[moving], tach[moving]
         f = F.linear(vel, tach, what=f"tach {j}")
         k, c = f["gain"], f["offset"]
-        sig = f"{j}_rate"
+        sig = ctx.rack.joint_channel(j, "rate").signal
         k_nom = 10.0 / full_scale_rad_s(ctx, j)
         res.fits[sig] = f
         res.channels[sig] = {"scale": 1.0 / k, "offset": -c / k,

@@ -75,8 +75,8 @@ def test_tach_scale_per_joint_and_service_rates(cal):
                                        adc_offset_v={"elbow_pitch_rate": 0.02}))
     res = _run(cal, "tach")
     for i, a in enumerate(AXES[:6]):
-        truth = a.k_w * (1 + tach_err[i]) * (1.02 if a.stem == "elbow_pitch" else 1.0)
-        assert res.found[f"{a.stem}_rate"]["k_v_per_rad_s"] == pytest.approx(truth, rel=0.005), a.stem
+        truth = a.k_w * (1 + tach_err[i]) * (1.02 if a.joint == "elbow_pitch" else 1.0)
+        assert res.found[f"{a.joint}_rate"]["k_v_per_rad_s"] == pytest.approx(truth, rel=0.005), a.joint
     assert res.found["elbow_pitch_rate"]["c_v"] == pytest.approx(0.02, abs=0.004)
     # the service now reports the true joint rate on a moving joint
     cal.session.arm()

@@ -100,7 +100,7 @@ def test_healthy_rack_passes_with_json_and_html_reports(tmp_path, capsys):
 
 def test_reversed_tach_fails_naming_the_tach_and_leaves_outputs_safe(sim, cfg):
     err = [0.0] * len(AXES)
-    err[[a.stem for a in AXES].index("wrist_yaw")] = -2.0  # tach volts = -K_w qdot
+    err[[a.joint for a in AXES].index("wrist_yaw")] = -2.0  # tach volts = -K_w qdot
     sim.world.sim.set_errors(SimErrors(tach_scale_error=tuple(err)))
     rep, lines = run(sim, cfg)
     f = first_failure(rep)

@@ -129,8 +129,8 @@ def test_duplicate_channel_line_with_keys_in_any_order():
 
 
 def test_duplicate_channel_line_with_two_entries_on_one_line():
-    text = _text_with('units = "rad" },\n  { ch = 1, signal = "wrist_yaw_angle"',
-                      'units = "rad" }, { ch = 1, signal = "wrist_yaw_angle"')
+    text = _text_with('quantity = "angle" },\n  { ch = 1, signal = "wrist_yaw_angle"',
+                      'quantity = "angle" }, { ch = 1, signal = "wrist_yaw_angle"')
     text = text.replace('{ ch = 3, signal = "wrist_roll_angle"', '{ ch = 1, signal = "wrist_roll_angle"', 1)
     with pytest.raises(ConfigError) as exc:
         parse_rack(text, "rack.toml")
@@ -233,3 +233,49 @@ def test_non_utf8_rack_file_names_file_and_line(tmp_path):
 def test_default_rack_bit3_section_is_read():
     assert load_rack().bit3 == {"size": 32768, "computational_window": (0x01ED0000, 0x01ED7FFF),
                                 "io_window": (0x800000, 0x807FFF)}
+
+
+# -- channel roles: which joint a channel belongs to and what it carries ----------------
+
+def test_every_servoed_joint_has_its_channels_by_role_matching_the_seed_wording():
+    rack = load_rack()
+    assert rack.joints == ("shoulder_yaw", "shoulder_pitch", "elbow_pitch", "wrist_pitch", "wrist_yaw",
+                           "wrist_roll")
+    for j in rack.joints:
+        words = j.replace("_", " ").title()  # the seed's label wording, e.g. "Elbow Pitch"
+        assert rack.joint_channel(j, "angle").label == words
+        assert rack.joint_channel(j, "rate").label == f"{words} Rate"
+        assert rack.joint_channel(j, "motor_current").label == f"{words} Motor Current"
+        assert rack.joint_channel(j, "rate_command").label == f"{words} Command"
+        assert rack.joint_channel(j, "current_limit").label == f"{words} Current Limit"
+    # the gripper's ADC monitors carry the seed's "End Effector" wording
+    assert rack.joint_channel("gripper", "rate").label == "End Effector Rate"
+    assert rack.joint_channel("gripper", "gripper_command").label == "Gripper Command"
+    assert [c.label for c in rack.with_quantity("hand_controller")] == SEED_ADC[16:25]
+    assert rack.find("shoulder_roll", "angle") is None  # indexed by hand: no resolver
+
+
+def test_layout_joint_order_comes_from_the_rate_command_roles_not_the_signal_names():
+    from bit3.layout import build_layout
+    text = _text_with('signal = "wrist_roll_command",', 'signal = "wr_cmd",')
+    lay = build_layout(parse_rack(text, "rack.toml"))
+    assert lay.joint_names[-1] == "wrist_roll"
+    assert lay.joint_entry("dac", "wrist_roll", "rate_command").name == "wr_cmd"
+
+
+@pytest.mark.parametrize("old,new,words", [
+    ('quantity = "angle" },\n  { ch = 1, signal = "wrist_yaw_angle"',
+     'quantity = "volts" },\n  { ch = 1, signal = "wrist_yaw_angle"', "quantity 'volts' is not one of"),
+    ('joint = "elbow_pitch", quantity = "angle"', 'joint = "elbow_pitch", quantity = "rate"',
+     "a rtd channel cannot carry 'rate'"),
+    ('joint = "wrist_yaw", quantity = "angle"', 'joint = "elbow_pitch", quantity = "angle"',
+     "joint 'elbow_pitch' has two angle channels"),
+    ('joint = "wrist_yaw", quantity = "angle"', 'quantity = "angle"', "needs the joint it belongs to"),
+    ('joint = "wrist_yaw", quantity = "angle"', 'joint = "wrist_yaw"', "names joint 'wrist_yaw' but no quantity"),
+    ('"wrist_roll"]', '"wrist_roll", "gripper"]', "joint 'gripper' has no angle, rate_command channel"),
+    ('joints = ["shoulder_yaw",', 'joints = ["shoulder_yaw", "shoulder_yaw",', "lists a joint twice"),
+])
+def test_bad_channel_roles_are_refused_naming_the_line(old, new, words):
+    with pytest.raises(ConfigError, match=words) as exc:
+        parse_rack(_text_with(old, new), "rack.toml")
+    assert "rack.toml:" in str(exc.value)

@@ -431,15 +431,15 @@ class Checkout:
 
     # ------------------------------------------------------------------ joints
     def _group_joints(self) -> None:
-        names = {c.name for c in self.lay.channels}
+        rack = self.t.rack
         for j in self.lay.joint_names:
-            tach, angle, limit = f"{j}_rate", f"{j}_angle", f"{j}_current_limit"
-            missing = [s for s in (tach, angle) if s not in names]
-            if missing or limit not in self.lay.current_limit_names:
+            roles = {q: rack.find(j, q) for q in ("rate", "angle", "current_limit")}
+            missing = [q for q, c in roles.items() if c is None]
+            if missing or roles["current_limit"].signal not in self.lay.current_limit_names:
                 self.record("joints", j, "open-loop test", None,
-                            detail=f"no {', '.join(missing) or limit} channel in this rack")
+                            detail=f"no {' or '.join(missing) or 'current_limit'} channel for {j} in this rack")
                 continue
-            self._open_loop(j, tach, angle, limit)
+            self._open_loop(j, roles["rate"].signal, roles["angle"].signal, roles["current_limit"].signal)
 
     def _stop_outputs(self, cmd, n_joints: int, n_limits: int) -> None:
         cmd.set(joint_rate_rad_s=[0.0] * n_joints, current_limit_a=[0.0] * n_limits, arm_request=0)
@@ -455,7 +455,7 @@ class Checkout:
         i_lim = float(cfg.joint(j, "current_limit_fraction")) * i_max
         rate = cfg.joint(j, "rate_rad_s")
         if not rate:  # a fraction of the full-scale rate: 10 V x the command channel's scale
-            rate = float(cfg.joint(j, "rate_fraction")) * fs_v * float(self.t.rack.channel(f"{j}_command").scale)
+            rate = float(cfg.joint(j, "rate_fraction")) * fs_v * float(self.t.rack.joint_channel(j, "rate_command").scale)
         rate = float(rate)
         move_s = float(cfg.joint(j, "move_s"))
         lag = float(cfg.joint(j, "travel_lag_s"))
@@ -465,7 +465,8 @@ class Checkout:
         dt = self.cfg.num("capture", "interval_s")
         # the joint's motor-current monitor must respond while the joint is driven: a dead
         # ADC input reads a constant (0 V passes the idle range) and only shows here
-        current = f"{j}_motor_current"
+        found = self.t.rack.find(j, "motor_current")
+        current = found.signal if found else f"{j} motor current"
         try:
             self.lay.channel(current)
         except KeyError:  # a rack without that monitor

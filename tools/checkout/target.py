@@ -191,7 +191,7 @@ class SimTarget(Target):
         kind, _, arg = spec.partition(":")
         try:
             if kind == "tach-reversed":
-                stems = [a.stem for a in AXES]
+                stems = [a.joint for a in AXES]
                 if arg not in stems:
                     raise ConfigError(f"--sim-fault {spec}: no joint {arg!r}; joints: {', '.join(stems)}")
                 err = list(self.world.sim.errors.tach_scale_error)

@@ -14,7 +14,8 @@ import sys
 from drivers.registers import BoardDescription
 from tools.cli import add_bus_arguments
 from pfma.errors import PfmaError
-from pfma.rack import KINDS, board_description, load_rack
+from drivers.catalog import CATALOG as KINDS
+from pfma.rack import board_description, load_rack
 
 
 def add_parser(sub):
@@ -34,7 +35,7 @@ def _kinds(selector: str | None, rack) -> list[str]:
         return list(KINDS)
     if selector in KINDS:
         return [selector]
-    by_device = [k for k, (device, _, _) in KINDS.items() if device == selector]
+    by_device = [k for k, b in KINDS.items() if b.device == selector]
     if by_device:
         return by_device
     for b in rack.boards:

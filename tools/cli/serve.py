@@ -104,9 +104,8 @@ def _live_view(buffer_name: str, stop: threading.Event, rack) -> None:
     except Bit3Error as err:
         print(f"live view: {err}", file=sys.stderr)
         return
-    joints = list(c.layout.joint_names)
-    have = {ch.name for ch in c.layout.channels}
-    joints = [j for j in joints if f"{j}_angle" in have]
+    angles = {ch.joint: ch.name for ch in c.layout.channels if ch.kind == "rtd" and ch.quantity == "angle"}
+    joints = [j for j in c.layout.joint_names if j in angles]
     t_start = None
     try:
         print("\n".join(_live_header(joints)), flush=True)
@@ -118,7 +117,7 @@ def _live_view(buffer_name: str, stop: threading.Event, rack) -> None:
             if t_start is None:  # the service's start: its frame 0 (if the viewer came late)
                 t_start = s.t_s - s.frame * (st.period_s if st.period_s > 0 else 1 / 320)
             lines = _live_lines(s.t_s - t_start, s.frame, ServiceState(s.service_state).name,
-                                [s.value(f"{j}_angle") for j in joints], s.ft_force_n,
+                                [s.value(angles[j]) for j in joints], s.ft_force_n,
                                 st.device_rate_hz, st.work_p50_us)
             print("\n".join(lines), flush=True)
             for m in c.new_messages():
