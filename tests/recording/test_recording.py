@@ -24,8 +24,8 @@ from mcap.reader import make_reader
 
 from tools.recording import RAW_TOPIC, Recorder, decode_raw, recover
 from bit3.buffer import Bit3Buffer
-from tools.cli.replay import replay_through_fakes, republish
-from tools.cli.scope import ScopeCapture, load, render, save
+from tools.replay import replay_through_fakes, republish
+from tools.scope import ScopeCapture, load, render, save
 from sim.rig import SimRig as Rig
 
 REPO = Path(__file__).resolve().parents[2]

@@ -1,0 +1,205 @@
+"""Playing a recording back: re-published into a Bit3 buffer, or through the fakes.
+
+:func:`republish` claims the service role of a buffer the caller created and publishes
+the recorded inputs frames (``/pfma/inputs_raw``, byte for byte), the recorded
+statistics and messages at the recorded pace (or as fast as possible), so tools run
+against a recording as against a live service.
+
+:func:`replay_through_fakes` (regression) builds the simulated rack (FakeWorld) on a
+private buffer, runs a real IoService on it in simulated time with the same frame
+numbers as the recording, and before each frame sets the fake boards' physical inputs
+from the recorded frame: resolver angles (RTD boards), ADC input volts (ADC boards), the
+user I/F box bits (PIO). Then it compares what the service publishes with what was
+recorded, per channel (RTD counts, ADC counts, PIO bits; exact). The F/T sensor, the CRL
+hand controller and the DAC (which follows the controller's commands) are not driven, so
+they are not compared. The verb is ``pfma replay`` (:mod:`tools.cli.replay`).
+"""
+
+from __future__ import annotations
+
+import time
+import uuid
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tools.recording.reader import read_frames, read_metadata
+from tools.recording.schema import RAW_TOPIC
+
+# ----------------------------------------------------------------------------------------
+# re-publish
+
+
+def republish(path: str, buffer, *, speed: float = 1.0, fast: bool = False,
+              sleep=time.sleep, now=time.monotonic, stop=lambda: False) -> int:
+    """Publish a recording's frames into ``buffer`` (a Bit3Buffer that the caller created);
+    returns the frames published. The service role is claimed here."""
+    from bit3.layout import ServiceState
+    buffer.claim("service", "pfma-replay")
+    w_in = buffer.writer("inputs")
+    w_st = buffer.writer("stats")
+    q = buffer.queue("service_messages")
+    st_names = set(w_st.record.dtype.names)
+    n = 0
+    t_wall0 = t_rec0 = None
+    for topic, t_ns, val in read_frames(path, (RAW_TOPIC, "/pfma/stats", "/pfma/messages")):
+        if stop():
+            break
+        if not fast:
+            if t_wall0 is None:
+                t_wall0, t_rec0 = now(), t_ns
+            due = t_wall0 + (t_ns - t_rec0) / 1e9 / max(speed, 1e-6)
+            dt = due - now()
+            if dt > 0:
+                sleep(dt)
+        if topic == RAW_TOPIC:
+            raw = val.tobytes()
+            w_in.raw[:len(raw)] = raw
+            w_in.publish()
+            try:
+                st = ServiceState(int(val["service_state"]))
+            except ValueError:
+                st = ServiceState.FAULT
+            buffer.set_service_state(st)
+            buffer.set_frame(int(val["frame"]), float(val["t_s"]))
+            n += 1
+        elif topic == "/pfma/stats":
+            rec = w_st.record
+            for k, v in val.items():
+                if k in st_names and v is not None:
+                    rec[k] = v
+            w_st.publish()
+        else:
+            q.post(val.get("text", ""), severity=_sev(val.get("severity")), code=int(val.get("code", 0)),
+                   source=int(val.get("source", 0)), t_s=float(val.get("t_s", 0.0)))
+    return n
+
+
+def _sev(name) -> int:
+    from bit3.layout import Severity
+    try:
+        return int(Severity[name]) if isinstance(name, str) else int(name or 1)
+    except (KeyError, ValueError):
+        return int(Severity.INFO)
+
+
+# ----------------------------------------------------------------------------------------
+# through the fakes
+
+
+@dataclass
+class ChannelDiff:
+    compared: int = 0
+    mismatched: int = 0
+    max_abs: float = 0.0
+    first_frame: int = -1
+
+
+@dataclass
+class FakeReplayReport:
+    frames_recorded: int = 0
+    frames_compared: int = 0
+    channels: dict[str, ChannelDiff] = field(default_factory=dict)
+
+    @property
+    def mismatches(self) -> dict[str, ChannelDiff]:
+        return {k: v for k, v in self.channels.items() if v.mismatched}
+
+    def describe(self) -> str:
+        bad = self.mismatches
+        lines = [f"replay through the fakes: {self.frames_compared} of {self.frames_recorded} recorded "
+                 f"frames compared, {len(self.channels)} channels, {len(bad)} with mismatches"]
+        for name, d in sorted(bad.items()):
+            lines.append(f"  MISMATCH {name}: {d.mismatched}/{d.compared} frames, max |diff| "
+                         f"{d.max_abs:g}, first at frame {d.first_frame}")
+        return "\n".join(lines)
+
+
+def replay_through_fakes(path: str, *, rack=None, max_frames: int | None = None) -> FakeReplayReport:
+    """Drive a simulated rack from a recording and compare the service's output (see module doc)."""
+    from fakes.world import FakeWorld
+    from bit3.layout import build_layout, default_layout
+    from ioservice.service import IoService
+    from bit3.buffer import Bit3Buffer
+    from ioservice.ticking import TickingClock
+    from pfma.clock import SimClock
+    from pfma.errors import ConfigError
+    from pfma.rack import load_rack
+    rack = rack or load_rack()
+    layout = default_layout() if rack.source.endswith("rack_default.toml") else build_layout(rack)
+    frames: dict[int, np.ndarray] = {}
+    for _, _, rec in read_frames(path, (RAW_TOPIC,)):
+        frames[int(rec["frame"])] = rec
+        if max_frames is not None and len(frames) >= max_frames:
+            break
+    meta = read_metadata(path).get("pfma.layout", {})
+    if meta.get("hash") and meta["hash"] != layout.hash_hex:
+        raise ConfigError(f"the recording's layout {meta['hash']} is not this rack's "
+                         f"{layout.hash_hex}; give --rack")
+    rep = FakeReplayReport(frames_recorded=len(frames))
+    if not frames:
+        return rep
+    order = sorted(frames)
+    first, last = order[0], order[-1]
+    name = "pfma-replay-" + uuid.uuid4().hex[:8]
+    clock = SimClock()
+    world = FakeWorld(rack, clock=clock)
+    tclock = TickingClock(clock)
+    tclock.hooks.append(world.tick)
+    buf = Bit3Buffer.create(name, layout)
+    try:
+        svc = IoService(rack, world.bus, buf, tclock, schedule=None)
+        tclock.hooks.append(svc.serial_tick)
+        chans = [c for c in layout.channels if c.area == "inputs" and not c.spare]
+        rtd = [(c.name, c.slot, c.board, c.channel) for c in chans if c.kind == "rtd"]
+        adc_boards: dict[str, list[tuple[int, int]]] = defaultdict(list)
+        for c in chans:
+            if c.kind == "adc":
+                adc_boards[c.board].append((c.channel, c.slot))
+        pio = [(c.name, c.slot) for c in chans if c.kind == "pio" and c.name.startswith("user_if_box")]
+        body = svc.frame
+
+        def drive(rec: np.ndarray) -> None:
+            for _, slot, board, ch in rtd:
+                world.bus[board].set_counts(ch, int(rec["rtd_counts"][slot]))
+            for board, pairs in adc_boards.items():
+                fake = world.bus[board]
+                v = np.array(fake.input_volts if hasattr(fake, "input_volts") else np.zeros(32), dtype=float)
+                for ch, slot in pairs:
+                    v[ch] = float(rec["adc_volts"][slot])
+                fake.set_inputs_volts(v)
+            world.set_user_inputs(int(rec["pio_user_inputs"]))
+
+        def compare(out: np.ndarray, rec: np.ndarray, frame: int) -> None:
+            rep.frames_compared += 1
+            items = [(n, "rtd_counts", s) for n, _s, *_ in rtd for s in (_s,)]
+            items += [(c.name, "adc_counts", c.slot) for c in chans if c.kind == "adc"]
+            items += [(n, "pio_port_bits", s) for n, s in pio]
+            for name_, fld, slot in items:
+                a, b = float(out[fld][slot]), float(rec[fld][slot])
+                d = rep.channels.setdefault(f"{name_}.{fld}", ChannelDiff())
+                d.compared += 1
+                if a != b:
+                    d.mismatched += 1
+                    d.max_abs = max(d.max_abs, abs(a - b))
+                    if d.first_frame < 0:
+                        d.first_frame = frame
+
+        def frame_body(info) -> None:
+            rec = frames.get(info.index)
+            if rec is not None:
+                drive(rec)
+            body(info)
+            if rec is not None and info.index >= first + 8:  # one major frame to settle
+                compare(svc.inputs.record, rec, info.index)
+
+        svc.loop.body = frame_body
+        svc.loop.t0 = clock.now() - first * svc.schedule.period_s
+        svc.loop.k = first
+        svc.loop.run(frames=last - first + 1, freeze_gc=False)
+        svc.stop()
+    finally:
+        buf.close()
+        Bit3Buffer.unlink(name)
+    return rep
