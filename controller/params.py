@@ -97,8 +97,6 @@ SAFE_STOP_TIMEOUT_S = 0.5
 #: 8.4 amplifier rate loop: lambda (rad/s) and the 10 Hz tach filter time constant (s)
 RATE_LOOP_LAMBDA = 40.0
 TACH_TAU_S = 1.0 / (2.0 * math.pi * 10.0)
-#: 8.4 resolver LSB (65,536 counts per revolution)
-RESOLVER_LSB_RAD = 2.0 * math.pi / 65536.0
 
 
 def joint(name: str) -> JointFacts:

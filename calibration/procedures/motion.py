@@ -3,8 +3,8 @@
 Each leg commands a slow constant rate per joint through the command area, waits for
 the rate loop and the 10 Hz tach filter to settle, then samples every resolver/ADC
 frame: the joint velocity is the least-squares slope of the unwrapped resolver angle
-(14-bit, 65536/4 counts per revolution: ``drivers.rtd.registers``), the tach reading
-is the mean raw ADC volts of the joint's ``<joint>_rate`` channel.
+(counts per revolution: ``drivers.rtd.registers`` counts_per_rev), the tach reading
+is the mean raw ADC volts of the joint's tach channel (quantity ``rate``).
 """
 
 from __future__ import annotations
