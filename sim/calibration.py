@@ -8,7 +8,7 @@ offset) is what the procedures must find; the rack's own truth errors (ADC/DAC g
 and offset, resolver offsets, tach scale, payload) are set on the simulated rack with
 ``world.sim.set_errors(SimErrors(...))``.
 
-:class:`SimRig` is the simulated-time rig ``pfma calibrate --rack fake`` runs on
+:class:`CalibrationRig` is the simulated-time rig ``pfma calibrate --rack fake`` runs on
 (``sim.rig.SimRig`` with the calibration passed to the service).
 """
 
@@ -147,7 +147,7 @@ class SimOperator:
         return None
 
 
-class SimRig(_BaseSimRig):
+class CalibrationRig(_BaseSimRig):
     """Simulated rack + service + reader on one SimClock (``pfma calibrate --rack fake``).
 
     :param calibration: passed to the service (path or loaded calibration)

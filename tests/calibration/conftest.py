@@ -9,7 +9,7 @@ from calibration.files import nominal_calibration, save_calibration
 from calibration.procedures import Context
 from calibration.session import SimSession
 from sim.calibration import SimOperator
-from sim.calibration import SimRig as Rig
+from sim.calibration import CalibrationRig as Rig
 
 
 class CalRig:

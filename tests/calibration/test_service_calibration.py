@@ -11,7 +11,7 @@ from calibration import files
 from bit3.buffer import Bit3Buffer
 from tools.cli import build_parser
 from pfma.errors import CalibrationError
-from sim.calibration import SimRig as Rig
+from sim.calibration import CalibrationRig as Rig
 
 
 def _cal(tmp_path, rack, scale=2.0):

@@ -169,8 +169,8 @@ def run(args, out=None) -> int:
         session = LiveSession(args.buffer, rack=None if args.rack in (None, "fake", "default") else args.rack)
         operator = ConsoleOperator(out, interactive=not args.non_interactive)
     else:
-        from sim.calibration import SimOperator, SimRig
-        rig = SimRig(calibration=cal)
+        from sim.calibration import CalibrationRig, SimOperator
+        rig = CalibrationRig(calibration=cal)
         session = SimSession(rig)
         operator = SimOperator(rig.world, out=out)
         operator.show = lambda text: print(text, file=out, flush=True)
