@@ -7,7 +7,7 @@ import uuid
 import pytest
 
 from tools.checkout import Checkout, LiveTarget
-from tools.checkout.connect import ServiceLink, attach_waiting
+from tools.attach import ServiceLink, attach_waiting
 from bit3.client import Client
 from tools.cli import main
 from pfma.errors import PfmaTimeoutError

@@ -35,10 +35,9 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    from tools.checkout.connect import ServiceLink
+    from tools.attach import ServiceLink, no_service
     from tools.checkout.view import monitor_lines
     from bit3.buffer import Bit3Error
-    from tools.cli.read import no_service
     from pfma.errors import PfmaError
     if args.wait is None:
         why = no_service(args.buffer)

@@ -12,6 +12,7 @@ import argparse
 import json
 import sys
 
+from tools.attach import no_service
 from tools.cli import add_bus_arguments
 from tools.cli.reg import UsageError, close_bus, open_cli_bus
 from pfma.errors import PfmaError
@@ -37,44 +38,6 @@ def add_parser(sub):
                         "(default pfma; the service must be running: `pfma serve`). With --bus the "
                         "registers are read instead (--bus fake: the simulated rack)")
     return p
-
-
-def no_service(name: str) -> str | None:
-    """Why no live service publishes Bit3 buffer ``name`` (None: one does).
-
-    Decided from the service's claim lock (:meth:`Bit3Buffer.owner_alive`), so for a
-    buffer of any layout; the message is one line a tool prints before exiting 1.
-    """
-    from bit3.buffer import Bit3Buffer
-    path = f"/dev/shm/{name}"
-    alive, who = Bit3Buffer.owner_alive(name)
-    if alive:
-        return None
-    if who.startswith("no buffer"):
-        return (f"no service buffer {path}: no I/O service runs on buffer {name!r}; start one "
-                f"with `pfma serve --buffer {name}` (in another terminal), or check --buffer")
-    return f"service on {path} is not running ({_last_frame(name)}{who})"
-
-
-def _last_frame(name: str) -> str:
-    """``"last frame N at t=T s; "`` from the buffer's header, or "" when it cannot be read."""
-    import struct
-
-    from bit3.layout import MAGIC, ServiceState
-    from bit3.buffer import _header_offsets
-    try:
-        with open(f"/dev/shm/{name}", "rb") as f:
-            head = f.read(1024)
-        if head[:8] != MAGIC:
-            return ""
-        h = _header_offsets()
-        frame = struct.unpack_from("<Q", head, h["frame"])[0]
-        t_s = struct.unpack_from("<d", head, h["frame_t_s"])[0]
-        state = struct.unpack_from("<I", head, h["service_state"])[0]
-    except (OSError, KeyError, struct.error):
-        return ""
-    how = "it stopped; " if state == ServiceState.STOPPED else ""
-    return f"{how}last frame {frame} at t={t_s:.3f} s; "
 
 
 def _service_client(name: str, rack: str | None):

@@ -95,7 +95,7 @@ def format_controller(c: dict | None) -> str:
 def run(args) -> int:
     from bit3.client import Client
     from bit3.buffer import Bit3Error
-    from tools.cli.read import no_service
+    from tools.attach import no_service
     why = no_service(args.buffer)
     if why is not None:  # a dead service's last statistics are not a live service's
         print(f"pfma stats: {why}", file=sys.stderr)

@@ -30,13 +30,12 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    from tools.checkout.connect import ServiceLink
+    from tools.attach import ServiceLink, no_service
     from tools.checkout.view import resolve_signals, watch_line
     from bit3.buffer import Bit3Error
     from pfma.errors import ConfigError
     if args.rate <= 0:
         raise ConfigError(f"--rate must be positive, not {args.rate}")
-    from tools.cli.read import no_service
     from pfma.errors import PfmaError
     if args.wait is None:
         why = no_service(args.buffer)
