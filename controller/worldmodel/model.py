@@ -1,0 +1,528 @@
+"""The world model itself (:class:`WorldModel`): creating and attaching the segment,
+reading, queued posts and the communications segment, the header.
+
+**IRSS queue logic in Python.** IRSS posted into a temporary queue that the
+communications-frame interrupt flushed; the COMM-INTERRUPT and IN-COMM-FRAME flags kept
+an interrupt from flushing a half-written queue entry, or from missing one written but
+not yet marked valid. Here a post is validated and converted into a private array
+*first*, then inserted into the pending queue under a ``threading.Lock`` in one step
+(an entry is never half there). :meth:`WorldModel.communications_segment` sets
+:attr:`WorldModel.in_comm_frame`, swaps the whole pending queue for an empty one under
+the same lock (the COMM-INTERRUPT moment), applies the swapped batch under the sequence
+lock, and clears the flag. A post that arrives while a segment is flushing therefore
+lands in the new queue and goes out with the *next* segment (counted in
+``stats()["deferred_posts"]``); it is never lost and never half applied. Readers in the
+owning process pend on a lock during the flush (IRSS: accesses "pend until the end of
+the communications frame"); readers in other processes retry on the sequence lock.
+"""
+
+from __future__ import annotations
+
+import difflib
+import hashlib
+import hmac
+import os
+import struct
+import threading
+import time
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+
+from bit3.buffer import open_shm, pid_alive
+from bit3.layout import SEQ_BLOCK  # the SeqLock counter block before the body
+from controller.worldmodel.requests import UserRequestRing
+from controller.worldmodel.segment import (
+    APPLIED, FORMAT_VERSION, HEADER_FIELDS, HEADER_SIZE, MAGIC, READ_TIMEOUT_S, REJECTED, REQUEST_SLOTS,
+    ModelInfo, _Layout, _WMSeqLock, decode, list_segments,
+)
+from controller.worldmodel.spec import AREAS, VarSpec, WorldModelError, coerce
+from pfma.clock import MonotonicClock
+
+#: the access key a model gets when none is given and PFMA_WM_KEY is not set
+DEFAULT_ACCESS_KEY = "pfma"
+#: environment variable overriding the default access key (creator and ``pfma wm set``)
+ACCESS_KEY_ENV = "PFMA_WM_KEY"
+#: shared-memory name the controller runtime and ``pfma wm`` use when none is given
+DEFAULT_NAME = "pfma_wm"
+
+
+class WorldModel(UserRequestRing):
+    """The world model. Use :meth:`create` (the owner) or :meth:`attach` (inspection)."""
+
+    def __init__(self) -> None:  # use create()/attach()
+        self._views: list[memoryview] = []
+        self._closer = None
+        self._shm = None
+        self._fd = -1
+        self.name: str | None = None
+        self.readonly = True
+        self._qlock = threading.Lock()          # the pending-post queue
+        self._comm_lock = threading.Lock()      # held during a communications segment
+        self._req_tlock = threading.Lock()      # in-process side of the request-ring lock
+        self._queue: dict[int, bytes] = {}
+        self._in_comm = False
+        self._flush_thread = 0
+        self._stats = {"frames": 0, "posts": 0, "posts_applied": 0, "deferred_posts": 0,
+                       "user_applied": 0, "user_rejected": 0}
+        self._key = ""
+        self.clock = MonotonicClock()
+
+    # --- opening ---------------------------------------------------------------------
+
+    @classmethod
+    def create(cls, specs: Iterable[VarSpec], name: str | None = None, clock=None, *,
+               access_key: str | None = None, owner: str = "controller") -> "WorldModel":
+        """Build the model, every variable at its initial value.
+
+        :param name: POSIX shared-memory name (``/dev/shm/<name>``) so tools can inspect it
+            while it runs, or ``None`` for private in-process memory (tests, simulation)
+        :param access_key: key for user writes; default ``$PFMA_WM_KEY`` or
+            :data:`DEFAULT_ACCESS_KEY`
+        :param owner: the owning process's name, shown by tools and in errors
+        :raises WorldModelError: duplicate names, invalid specs, or ``name`` in use by a
+            running owner (a dead owner's segment is replaced)
+        """
+        specs = tuple(specs)
+        for s in specs:
+            if not isinstance(s, VarSpec):
+                raise WorldModelError(f"world model: {s!r} is not a VarSpec")
+        seen: dict[str, VarSpec] = {}
+        for s in specs:
+            if s.name in seen:
+                raise WorldModelError(f"world model: variable {s.name!r} defined twice (writers "
+                                      f"{seen[s.name].writer!r} and {s.writer!r}); one name, one writer")
+            seen[s.name] = s
+        specs = tuple(sorted(specs, key=lambda s: AREAS.index(s.area)))  # stable within areas
+        lay = _Layout.build(specs, name, owner)
+        self = cls()
+        self.name = name
+        self.readonly = False
+        self.clock = clock or MonotonicClock()
+        if name is None:
+            mem = bytearray(lay.total_size)
+            self._closer = lambda: None
+        else:
+            shm = cls._create_shm(name, lay.total_size)
+            self._shm, self._fd, self._closer = shm, shm._fd, shm.close
+            mem = shm.buf
+        self._root = memoryview(mem)
+        try:
+            self._setup(specs, lay, writable=True)
+            self._initialise(lay, owner)
+            self.access_key = access_key if access_key is not None else \
+                os.environ.get(ACCESS_KEY_ENV) or DEFAULT_ACCESS_KEY
+            self._root[0:8] = MAGIC  # last: no magic = not initialised yet
+        except BaseException:
+            self.close()
+            if name is not None:
+                cls.remove_segment(name)
+            raise
+        return self
+
+    @classmethod
+    def _create_shm(cls, name: str, size: int):
+        try:
+            return open_shm(name, create=True, size=size)
+        except FileExistsError:
+            pass
+        try:
+            info = cls.attach(name).close_after(lambda m: m.info())
+        except WorldModelError as err:
+            raise WorldModelError(f"world model {name!r}: /dev/shm/{name} exists but cannot be "
+                                  f"read ({err}); remove it with WorldModel.remove_segment({name!r}) "
+                                  f"if no process uses it") from None
+        if info.owner_alive:
+            raise WorldModelError(f"world model {name!r} already exists, owned by {info.owner!r} "
+                                  f"(pid {info.owner_pid}, running); one writer per world model")
+        cls.remove_segment(name)  # its owner is dead: replace it
+        return open_shm(name, create=True, size=size)
+
+    @classmethod
+    def attach(cls, name: str = DEFAULT_NAME) -> "WorldModel":
+        """Attach to a running model for inspection: reads, the header, and user requests
+        (:meth:`set_user`); posting is refused. Names and types come from the JSON stored
+        in the segment, so no controller code is needed.
+        """
+        try:
+            shm = open_shm(name, create=False)
+        except FileNotFoundError:
+            others = list_segments()
+            hint = f" (world models here: {', '.join(others)})" if others else ""
+            raise WorldModelError(f"no world model {name!r} (/dev/shm/{name}); is the controller "
+                                  f"running?{hint}") from None
+        self = cls()
+        self.name = name
+        self._shm, self._fd, self._closer = shm, shm._fd, shm.close
+        self._root = memoryview(shm.buf)
+        try:
+            specs, lay = decode(self._root, name)
+            self._setup(specs, lay, writable=False)
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def close_after(self, fn):
+        """``fn(self)``, then :meth:`close` (one-shot reads)."""
+        try:
+            return fn(self)
+        finally:
+            self.close()
+
+    def _setup(self, specs: tuple[VarSpec, ...], lay: _Layout, writable: bool) -> None:
+        self._specs = specs
+        self._lay = lay
+        self._index = {s.name: i for i, s in enumerate(specs)}
+        data = self._root if writable else self._root.toreadonly()
+        if data is not self._root:
+            self._views.append(data)
+        self._lock = _WMSeqLock(data, lay.seq_offset, lay.body_size,
+                                f"{self.name or 'private'}", READ_TIMEOUT_S)
+        self._body = data[lay.seq_offset + SEQ_BLOCK:lay.seq_offset + SEQ_BLOCK + lay.body_size]
+        self._views.append(self._body)
+        # the request ring is writable from every attachment (pfma wm set)
+        self._req = self._root[lay.req_offset:lay.req_offset + REQUEST_SLOTS * lay.req_slot_size]
+        self._views.append(self._req)
+        self._words = {k: self._word(k) for k in ("powered_up", "owner_pid", "frame", "frame_t_s",
+                                                  "req_next_id", "user_applied", "user_rejected")}
+
+    def _word(self, fld: str) -> memoryview:
+        off, fmt = HEADER_FIELDS[fld]
+        v = self._root[off:off + struct.calcsize(fmt)].cast(fmt)
+        self._views.append(v)
+        return v
+
+    def _initialise(self, lay: _Layout, owner: str) -> None:
+        mv = self._root
+        mv[:] = bytes(len(mv))
+
+        def put(fld: str, value) -> None:
+            off, fmt = HEADER_FIELDS[fld]
+            struct.pack_into("<" + fmt, mv, off, value)
+
+        put("version", FORMAT_VERSION)
+        put("header_size", HEADER_SIZE)
+        put("total_size", lay.total_size)
+        put("spec_offset", lay.spec_offset)
+        put("spec_len", len(lay.spec_json))
+        put("spec_hash", lay.spec_hash)
+        put("req_offset", lay.req_offset)
+        put("req_slots", REQUEST_SLOTS)
+        put("req_slot_size", lay.req_slot_size)
+        put("seq_offset", lay.seq_offset)
+        put("body_size", lay.body_size)
+        put("owner_pid", os.getpid())
+        put("created_ns", time.time_ns())
+        put("lock_byte", HEADER_FIELDS["lock_byte"][0])
+        put("owner_name", owner.encode()[:32])
+        mv[lay.spec_offset:lay.spec_offset + len(lay.spec_json)] = lay.spec_json
+        for s, o in zip(self._specs, lay.offsets):  # rule 4: valid from the start
+            self._body[o:o + s.nbytes] = coerce(s, s.initial).tobytes()
+        self._words["frame_t_s"][0] = self.clock.now()
+
+    # --- the variable table ------------------------------------------------------------
+
+    @property
+    def specs(self) -> tuple[VarSpec, ...]:
+        """Every variable, grouped by area in :data:`AREAS` order."""
+        return self._specs
+
+    def names(self) -> tuple[str, ...]:
+        return tuple(s.name for s in self._specs)
+
+    def spec(self, name: str) -> VarSpec:
+        """The variable's spec; :class:`WorldModelError` (with close matches) if unknown."""
+        i = self._index.get(name)
+        if i is None:
+            close = difflib.get_close_matches(name, self._index, n=3)
+            hint = f"; did you mean {', '.join(close)}?" if close else ""
+            raise WorldModelError(f"no variable {name!r} in world model "
+                                  f"{self.name or 'private'}{hint}")
+        return self._specs[i]
+
+    def variables_of(self, writer: str) -> tuple[str, ...]:
+        """Names of the variables ``writer`` owns."""
+        return tuple(s.name for s in self._specs if s.writer == writer)
+
+    # --- reading -------------------------------------------------------------------------
+
+    def _decode_value(self, i: int, raw) -> Any:
+        s = self._specs[i]
+        a = np.frombuffer(raw, s.np_dtype, count=s.count)
+        return a[0] if s.shape == () else a.reshape(s.shape).copy()
+
+    def _read(self, fn):
+        if self.readonly:
+            return fn()
+        if self._in_comm and self._flush_thread == threading.get_ident():
+            raise WorldModelError(f"world model {self.name or 'private'}: read during its own "
+                                  f"communications segment (the model is locked out)")
+        with self._comm_lock:  # pend until the end of a communications segment
+            return fn()
+
+    def get(self, name: str) -> Any:
+        """A consistent copy of one variable: a numpy scalar, or a new array."""
+        i = self._index.get(name)
+        if i is None:
+            self.spec(name)
+        s, o = self._specs[i], self._lay.offsets[i]
+        buf = bytearray(s.nbytes)
+        self._read(lambda: self._lock.read_part_into(memoryview(buf), o))
+        return self._decode_value(i, buf)
+
+    def get_task_inputs(self, names: Iterable[str]) -> dict[str, Any]:
+        """Several variables from one consistent copy (all from the same frame)."""
+        idx = []
+        for n in names:
+            i = self._index.get(n)
+            if i is None:
+                self.spec(n)
+            idx.append(i)
+        frame = {}
+        snap = bytearray(self._lay.body_size)  # per call: thread-safe
+
+        def grab() -> None:
+            self._lock.read_into(memoryview(snap))
+            for i in idx:
+                o = self._lay.offsets[i]
+                frame[self._specs[i].name] = self._decode_value(i, snap[o:o + self._specs[i].nbytes])
+
+        self._read(grab)
+        return frame
+
+    def snapshot(self) -> dict[str, Any]:
+        """Every variable from one consistent copy."""
+        return self.get_task_inputs(self.names())
+
+    def get_state_variable(self, name: str) -> int:
+        """A short integer state variable (layer command/status) as a Python int."""
+        s = self.spec(name)
+        if not s.is_state:
+            raise WorldModelError(f"world-model variable {name!r} is {s.type_text}, not an integer "
+                                  f"state variable; use get()")
+        return int(self.get(name))
+
+    # --- posting -------------------------------------------------------------------------
+
+    def _require_owner(self, what: str) -> None:
+        if self.readonly:
+            info = self.info()
+            raise WorldModelError(f"world model {self.name!r} is attached read-only here; {what} "
+                                  f"belongs to its owner {info.owner!r} (pid {info.owner_pid})")
+
+    def _check_writer(self, writer: str, name: str) -> int:
+        i = self._index.get(name)
+        if i is None:
+            self.spec(name)
+        owner = self._specs[i].writer
+        if writer != owner:
+            raise WorldModelError(f"world-model variable {name!r} is written only by {owner!r}; "
+                                  f"{writer!r} may read it but not post it (one writer per variable)")
+        return i
+
+    def post_task_outputs(self, writer: str, values: Mapping[str, Any]) -> None:
+        """Queue ``values`` (name -> value) for the next communications segment.
+
+        All-or-nothing: every value is checked before any is queued. A later post of the
+        same variable before the segment replaces the earlier one (fresh data wins).
+
+        :raises WorldModelError: ``writer`` is not a variable's one writer (names the owner)
+        :raises WorldModelValueError: (also a ValueError) wrong shape/type, out of range,
+            not finite
+        """
+        self._require_owner("posting")
+        staged = []
+        for name, value in values.items():
+            i = self._check_writer(writer, name)
+            staged.append((i, coerce(self._specs[i], value).tobytes()))
+        with self._qlock:
+            if self._in_comm:
+                self._stats["deferred_posts"] += len(staged)
+            for i, raw in staged:
+                self._queue[i] = raw
+            self._stats["posts"] += len(staged)
+
+    def post_state_variable(self, writer: str, name: str, value: int) -> None:
+        """Queue one integer state variable (layer command or status)."""
+        s = self.spec(name)
+        if not s.is_state:
+            raise WorldModelError(f"world-model variable {name!r} is {s.type_text}, not an integer "
+                                  f"state variable; use post_task_outputs()")
+        self.post_task_outputs(writer, {name: value})
+
+    @property
+    def pending(self) -> int:
+        """Variables queued for the next communications segment."""
+        return len(self._queue)
+
+    @property
+    def in_comm_frame(self) -> bool:
+        """True while a communications segment is flushing (IRSS IN-COMM-FRAME)."""
+        return self._in_comm
+
+    def communications_segment(self) -> int:
+        """Apply every queued post, then pending user requests, at once under the sequence
+        lock; count the frame. Returns the number of variables written."""
+        self._require_owner("the communications segment")
+        with self._comm_lock:
+            self._flush_thread = threading.get_ident()
+            self._in_comm = True  # IN-COMM-FRAME: new posts go to the next segment
+            try:
+                with self._qlock:  # COMM-INTERRUPT: take the whole queue in one step
+                    batch, self._queue = self._queue, {}
+                requests = self._pending_requests()
+                body, offs = self._body, self._lay.offsets
+                applied: list[tuple[int, int, str]] = []
+                frame = self._words["frame"][0] + 1
+                self._lock.begin()
+                try:
+                    for i, raw in batch.items():
+                        body[offs[i]:offs[i] + len(raw)] = raw
+                    for slot, i, raw in requests:
+                        ok, msg = self._check_request(slot, i, raw)
+                        if ok:
+                            body[offs[i]:offs[i] + len(raw)] = raw
+                        applied.append((slot, ok, msg))
+                    self._words["frame_t_s"][0] = self.clock.now()
+                    self._words["frame"][0] = frame
+                finally:
+                    self._lock.end()
+            finally:
+                self._in_comm = False
+                self._flush_thread = 0
+        n_user = 0
+        for slot, ok, msg in applied:  # results after the data is visible
+            n_user += ok
+            self._finish_request(slot, APPLIED if ok else REJECTED, frame,
+                                 f"applied at frame {frame}" if ok else msg)
+        self._stats["frames"] += 1
+        self._stats["posts_applied"] += len(batch)
+        return len(batch) + n_user
+
+    @property
+    def read_retries(self) -> int:
+        """Reads of this attachment that met a segment in progress and retried."""
+        return self._lock.retries
+
+    def stats(self) -> dict[str, int]:
+        """Counters of this process: frames, posts, posts_applied, deferred_posts,
+        user_applied, user_rejected."""
+        return dict(self._stats)
+
+    # --- header --------------------------------------------------------------------------
+
+    @property
+    def frame(self) -> int:
+        """Communications segments completed."""
+        return self._words["frame"][0]
+
+    @property
+    def powered_up(self) -> bool:
+        """System power-up complete (START UP COMPLETE); protected variables are locked."""
+        return bool(self._words["powered_up"][0])
+
+    @powered_up.setter
+    def powered_up(self, value: bool) -> None:
+        self._require_owner("powered_up")
+        self._words["powered_up"][0] = 1 if value else 0
+
+    @property
+    def access_key(self) -> str:
+        """The key user writes need (owner only: the segment stores only a salted hash)."""
+        self._require_owner("the access key")
+        return self._key
+
+    @access_key.setter
+    def access_key(self, key: str) -> None:
+        self._require_owner("the access key")
+        if not isinstance(key, str) or not key:
+            raise WorldModelError("world-model access key must be a non-empty string")
+        salt = os.urandom(16)
+        o1, o2 = HEADER_FIELDS["key_salt"][0], HEADER_FIELDS["key_hash"][0]
+        self._root[o1:o1 + 16] = salt
+        self._root[o2:o2 + 32] = hashlib.sha256(salt + key.encode()).digest()
+        self._key = key
+
+    def _key_hash(self, key: str) -> bytes:
+        o = HEADER_FIELDS["key_salt"][0]
+        return hashlib.sha256(bytes(self._root[o:o + 16]) + key.encode()).digest()
+
+    def check_key(self, key: str | None) -> bool:
+        """``key`` is this model's access key."""
+        if not key:
+            return False
+        o = HEADER_FIELDS["key_hash"][0]
+        return hmac.compare_digest(self._key_hash(key), bytes(self._root[o:o + 32]))
+
+    def info(self) -> ModelInfo:
+        mv = self._root
+
+        def get(fld: str):
+            off, fmt = HEADER_FIELDS[fld]
+            return struct.unpack_from("<" + fmt, mv, off)[0]
+
+        pid = get("owner_pid")
+        return ModelInfo(
+            name=self.name, owner=get("owner_name").rstrip(b"\0").decode(errors="replace"),
+            owner_pid=pid, owner_alive=pid > 0 and pid_alive(pid), frame=self.frame,
+            frame_t_s=get("frame_t_s"), powered_up=self.powered_up, created_ns=get("created_ns"),
+            n_variables=len(self._specs), total_size=get("total_size"),
+            spec_hash=get("spec_hash").hex(), user_applied=get("user_applied"),
+            user_rejected=get("user_rejected"))
+
+    # --- closing -------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Unmap (the owner's segment stays until :meth:`unlink`)."""
+        if self._closer is None:
+            return
+        if not self.readonly and self._shm is not None:
+            try:
+                self._words["owner_pid"][0] = 0  # no owner any more: tools say so
+            except (KeyError, ValueError, AttributeError):
+                pass
+        lk = getattr(self, "_lock", None)
+        if lk is not None:
+            lk.release()
+        for v in reversed(self._views):
+            v.release()
+        self._views.clear()
+        root = getattr(self, "_root", None)
+        if root is not None:
+            root.release()
+        closer, self._closer = self._closer, None
+        closer()
+
+    def unlink(self) -> bool:
+        """Remove this model's shared-memory name (owner; after or instead of close)."""
+        if self.name is None:
+            return False
+        return self.remove_segment(self.name)
+
+    @staticmethod
+    def remove_segment(name: str) -> bool:
+        """Remove POSIX shared memory ``name``; False if it did not exist."""
+        from multiprocessing import shared_memory
+        try:
+            shared_memory._posixshmem.shm_unlink("/" + name)  # no tracker round trip
+        except FileNotFoundError:
+            return False
+        return True
+
+    def __del__(self) -> None:
+        if getattr(self, "_closer", None) is not None:
+            try:
+                self.close()
+            except Exception:
+                pass
+
+    def __enter__(self) -> "WorldModel":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return (f"<WorldModel {self.name or 'private'} {'ro' if self.readonly else 'owner'} "
+                f"{len(self._specs)} variables frame={self.frame}>")

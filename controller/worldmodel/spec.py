@@ -1,0 +1,272 @@
+"""World-model variable specifications: :class:`VarSpec`, the areas, who may set a
+variable (``VarSpec.user``), and the value check every post and user write goes through.
+
+Rules kept here (IRSS report 2.2.2 rules 3 and 4, 2.3.6 areas):
+
+- every variable has a name, an area (:data:`AREAS`), a numpy dtype and shape, units, a
+  doc string and exactly one writer (report rule 3);
+- every variable holds a valid value from creation on (rule 4); every posted value is
+  checked by :func:`coerce` (shape, dtype range, finite floats) before it is queued;
+- a user-interface write is allowed only for variables that declare it (``VarSpec.user``:
+  task outputs, layer commands and statuses never, control-law parameters only while
+  powered down, requests always).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import numpy as np
+
+from pfma.errors import PfmaError
+
+#: the report's world-model areas (2.3.6: task input/output, task internal status, command
+#: input, status output, control flags, response output, error reports). The report says
+#: "8 separate areas" but names seven kinds; its task input/output is counted twice there.
+AREAS = ("task_io", "task_status", "command_input", "status_output", "control_flags",
+         "response_output", "error_reports")
+
+#: who may set a variable through :meth:`WorldModel.set_user` / ``pfma wm set`` (``VarSpec.user``)
+USER_NEVER, USER_POWERED_DOWN, USER_ALWAYS = "never", "powered_down", "always"
+USER_MODES = (USER_NEVER, USER_POWERED_DOWN, USER_ALWAYS)
+#: writer names that stand for the user interface: only their variables may be user-set (a
+#: user write of a variable a task or table posts would give it a second writer, rule 3)
+USER_WRITERS = ("user", "user_interface")
+#: areas users may set (if the writer is the user interface); the default ``user`` of a
+#: user-written variable there. Task status, status output, response output and error
+#: reports describe what a task did: never user-set.
+USER_AREAS = {"command_input": USER_ALWAYS, "task_io": USER_ALWAYS, "control_flags": USER_POWERED_DOWN}
+#: what a variable of each area is, in a refusal ("... is an output of task servo")
+_AREA_ROLE = {"task_io": "an output of task", "task_status": "a status of task",
+              "command_input": "a layer command posted by", "status_output": "a status posted by",
+              "control_flags": "a control flag posted by", "response_output": "a response posted by",
+              "error_reports": "an error report posted by"}
+
+_NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_.\-]{0,63}$")
+
+
+class WorldModelError(PfmaError):
+    """A world-model rule was broken (unknown variable, second writer, key, read-only ...)."""
+
+
+class WorldModelValueError(WorldModelError, ValueError):
+    """A value does not fit its variable (shape, type, range, not finite)."""
+
+
+
+def _freeze(v: Any) -> Any:
+    """Lists -> tuples, numpy -> Python scalars (hashable, JSON-round-trip equal)."""
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    elif isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, (list, tuple)):
+        return tuple(_freeze(x) for x in v)
+    return v
+
+
+def _dtype(text: str, where: str) -> np.dtype:
+    try:
+        dt = np.dtype(text)
+    except TypeError as err:
+        raise WorldModelError(f"{where}: dtype {text!r} is not a numpy dtype ({err})") from None
+    if dt.kind not in "biuf" or dt.fields is not None or dt.subdtype is not None:
+        raise WorldModelError(f"{where}: dtype {text!r} is not a plain number/bool type "
+                              f"(use f4, f8, i1..i8, u1..u8 or b1)")
+    if not dt.isnative:
+        raise WorldModelError(f"{where}: dtype {text!r} is not in this machine's byte order")
+    return dt
+
+
+@dataclass(frozen=True)
+class VarSpec:
+    """One world-model variable.
+
+    :param name: unique name (letters, digits, ``_ . -``; up to 64 characters)
+    :param area: one of :data:`AREAS`
+    :param dtype: numpy type string (``"f8"``, ``"i4"``, ``"u2"``, ``"i2"``, ``"b1"``, ...)
+    :param shape: ``()`` for a scalar, else the array shape
+    :param writer: the one task or layer allowed to post it
+    :param initial: its valid value from creation on
+    :param units: e.g. ``"rad"``, ``"N"``, ``"rad/s"`` (empty for counts, states, flags)
+    :param protected: control-law parameter etc.: no user write while powered up (the
+        same as ``user="powered_down"``; kept equal to ``user == "powered_down"``)
+    :param doc: one line for someone reading ``pfma wm list``
+    :param user: who may set it with a keyed user write (:meth:`WorldModel.set_user`):
+        ``"never"`` (a task or table posts it), ``"powered_down"`` (control-law parameter),
+        ``"always"`` (a request or an operator setting safe live). Default (``""``): derived
+        from the writer and area, see :func:`default_user`. Only a variable whose writer is
+        the user interface (:data:`USER_WRITERS`) in an area of :data:`USER_AREAS` may be
+        anything but ``"never"``.
+    """
+
+    name: str
+    area: str
+    dtype: str
+    shape: tuple = ()
+    writer: str = ""
+    initial: Any = 0
+    units: str = ""
+    protected: bool = False
+    doc: str = ""
+    user: str = ""
+
+    def __post_init__(self) -> None:
+        where = f"world-model variable {self.name!r}"
+        if not isinstance(self.name, str) or not _NAME_RE.match(self.name):
+            raise WorldModelError(f"{where}: bad name (letters, digits, '_', '.', '-'; "
+                                  f"starts with a letter; at most 64 characters)")
+        if self.area not in AREAS:
+            raise WorldModelError(f"{where}: area {self.area!r} is not one of {', '.join(AREAS)}")
+        dt = _dtype(self.dtype, where)
+        object.__setattr__(self, "dtype", dt.str[1:])  # canonical: "f8", "i2", "b1"
+        shape = (self.shape,) if isinstance(self.shape, int) else tuple(self.shape)
+        if any((not isinstance(n, (int, np.integer))) or n < 1 for n in shape):
+            raise WorldModelError(f"{where}: shape {self.shape!r} must be positive integers")
+        object.__setattr__(self, "shape", tuple(int(n) for n in shape))
+        if not isinstance(self.writer, str) or not self.writer.strip():
+            raise WorldModelError(f"{where}: needs exactly one writer (a task or layer name)")
+        try:
+            value = coerce(self, self.initial)
+        except WorldModelValueError as err:
+            raise WorldModelError(f"{where}: initial value is not valid (report rule 4: every "
+                                  f"variable holds a valid value after initialisation): {err}") from None
+        object.__setattr__(self, "initial", _freeze(value))
+        user = self.user or default_user(self.area, self.writer, bool(self.protected))
+        if user not in USER_MODES:
+            raise WorldModelError(f"{where}: user {self.user!r} is not one of {', '.join(USER_MODES)}")
+        if self.protected and user != USER_POWERED_DOWN:
+            raise WorldModelError(f"{where}: protected=True means user='powered_down', not {user!r}")
+        if user != USER_NEVER and (self.writer not in USER_WRITERS or self.area not in USER_AREAS):
+            raise WorldModelError(
+                f"{where}: user={user!r} (or protected=True) needs the user interface as its one "
+                f"writer ({' or '.join(map(repr, USER_WRITERS))}) in area "
+                f"{', '.join(USER_AREAS)}; it is {self.area} written by {self.writer!r}, and a user "
+                f"write would give it a second writer")
+        object.__setattr__(self, "user", user)
+        object.__setattr__(self, "protected", user == USER_POWERED_DOWN)
+        # derived once: the controller reads variables thousands of times a second
+        object.__setattr__(self, "_np_dtype", np.dtype(self.dtype))
+        object.__setattr__(self, "_count", int(np.prod(self.shape, dtype=np.int64)))
+
+    @property
+    def np_dtype(self) -> np.dtype:
+        return self._np_dtype
+
+    @property
+    def count(self) -> int:
+        """Number of elements (1 for a scalar)."""
+        return self._count
+
+    @property
+    def nbytes(self) -> int:
+        return self._count * self._np_dtype.itemsize
+
+    @property
+    def type_text(self) -> str:
+        """``"f8"``, ``"f8[6]"``, ``"f8[3,3]"``."""
+        return self.dtype + (f"[{','.join(map(str, self.shape))}]" if self.shape else "")
+
+    @property
+    def is_state(self) -> bool:
+        """An integer scalar: usable with get/post_state_variable."""
+        return self.shape == () and self.np_dtype.kind in "iu"
+
+    def user_refusal(self, powered_up: bool) -> str | None:
+        """Why a user may not set this variable now, or None if one may."""
+        if self.user == USER_ALWAYS or (self.user == USER_POWERED_DOWN and not powered_up):
+            return None
+        if self.user == USER_POWERED_DOWN:
+            return (f"{self.name} is protected: it may be set only while powered down "
+                    f"(the system is powered up)")
+        if self.writer in USER_WRITERS:
+            return f"{self.name} (writer {self.writer}) is declared user='never'; users may not set it"
+        return f"{self.name} is {_AREA_ROLE[self.area]} {self.writer}; users may not set it"
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "area": self.area, "dtype": self.dtype, "shape": list(self.shape),
+                "writer": self.writer, "initial": _jsonable(self.initial), "units": self.units,
+                "protected": self.protected, "doc": self.doc, "user": self.user}
+
+    @classmethod
+    def from_json(cls, d: Mapping) -> "VarSpec":
+        protected = bool(d.get("protected", False))
+        user = d.get("user")
+        if user is None:  # a table written before "user" existed: today's rule, never an error
+            user = default_user(d["area"], d["writer"], protected, strict=False)
+            protected = user == USER_POWERED_DOWN
+        return cls(name=d["name"], area=d["area"], dtype=d["dtype"], shape=tuple(d["shape"]),
+                   writer=d["writer"], initial=d["initial"], units=d.get("units", ""),
+                   protected=protected, doc=d.get("doc", ""), user=user)
+
+
+def default_user(area: str, writer: str, protected: bool = False, *, strict: bool = True) -> str:
+    """The ``user`` of a variable that does not declare one.
+
+    ``"never"`` unless the writer is the user interface (:data:`USER_WRITERS`) and the area
+    is in :data:`USER_AREAS`; there ``protected=True`` gives ``"powered_down"``, otherwise the
+    area's default (requests in command_input and task_io: ``"always"``; parameters in
+    control_flags: ``"powered_down"``). ``protected=True`` on any other variable is an error
+    (``strict``) or ``"never"`` (reading an old segment's table).
+    """
+    if writer in USER_WRITERS and area in USER_AREAS:
+        return USER_POWERED_DOWN if protected else USER_AREAS[area]
+    if protected and strict:
+        return USER_POWERED_DOWN  # refused by VarSpec with the reason
+    return USER_NEVER
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, tuple):
+        return [_jsonable(x) for x in v]
+    return v
+
+
+def _where(spec: VarSpec) -> str:
+    """The variable as named in error messages (built only when one is raised)."""
+    return f"world-model variable {spec.name!r} ({spec.type_text}" + (f" {spec.units})" if spec.units else ")")
+
+
+def coerce(spec: VarSpec, value: Any) -> np.ndarray:
+    """``value`` as a C-contiguous array of the variable's dtype and shape.
+
+    :raises WorldModelValueError: wrong shape, a non-number, an integer out of range or a
+        fractional/bool value for an integer, a non-finite float
+    """
+    dt = np.dtype(spec.dtype)
+    try:
+        a = np.asarray(value)
+    except (ValueError, TypeError) as err:  # ragged lists
+        raise WorldModelValueError(f"{_where(spec)}: {value!r} is not a regular array ({err})") from None
+    if a.shape != spec.shape:
+        got = "a scalar" if a.shape == () else f"shape {a.shape}"
+        want = "a scalar" if spec.shape == () else f"shape {spec.shape}"
+        raise WorldModelValueError(f"{_where(spec)}: {got} given, {want} expected")
+    k = a.dtype.kind
+    if k not in "biuf":
+        raise WorldModelValueError(f"{_where(spec)}: {value!r} is not a number (numpy kind {k!r})")
+    if dt.kind == "b":
+        if k != "b" and not (k in "iu" and bool(np.all((a == 0) | (a == 1)))):
+            raise WorldModelValueError(f"{_where(spec)}: boolean variable needs true/false or 0/1, got {value!r}")
+        return np.array(a, dtype=dt, order="C")
+    if k == "b":
+        raise WorldModelValueError(f"{_where(spec)}: a boolean given for a {dt.name} variable")
+    if dt.kind in "iu":
+        if k == "f":
+            raise WorldModelValueError(f"{_where(spec)}: a float given for an integer variable ({value!r})")
+        if a.size:
+            info = np.iinfo(dt)
+            lo, hi = int(a.min()), int(a.max())
+            if lo < info.min or hi > info.max:
+                raise WorldModelValueError(f"{_where(spec)}: {lo if lo < info.min else hi} is outside "
+                                           f"{dt.name} range [{info.min}, {info.max}]")
+        return np.array(a, dtype=dt, order="C")
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = np.array(a, dtype=dt, order="C")
+    if not bool(np.all(np.isfinite(out))):
+        bad = (a if a.shape == () else a[~np.isfinite(out)][0]).item()
+        raise WorldModelValueError(f"{_where(spec)}: value {bad!r} is not finite as {dt.name}")
+    return out
+
