@@ -250,7 +250,7 @@ class SimTarget(Target):
 class LiveTarget(Target):
     """A running service's buffer, in real time.
 
-    :param client: a read-only client (from :func:`tools.checkout.connect.attach_waiting`)
+    :param client: a read-only client (from :func:`tools.attach.attach_waiting`)
     :param rack: the rack configuration the service runs (scales, I_max)
     :param service_timeout_s: no new frame for this long raises :class:`ServiceLost`
     :param heartbeat_s: command heartbeat period while ``keepalive`` is on (< 15 ms watchdog)

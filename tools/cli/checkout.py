@@ -43,7 +43,7 @@ def add_parser(sub):
 
 def run(args) -> int:
     from tools.checkout import Checkout, LiveTarget, load_checkout_config, make_sim_target
-    from tools.checkout.connect import attach_waiting
+    from tools.attach import attach_waiting
     from pfma.rack import load_rack
 
     cfg = load_checkout_config(args.config)
