@@ -91,7 +91,7 @@ class _Topics:
                                   "watchdog_tripped": _int(), "command_heartbeat": _int(),
                                   "command_age_s": _num("s")}, "service state, every frame")
         s["/pfma/joints"] = _obj({**_HEAD, **per(self.g_rtd[2], lambda c: {
-            "angle_rad": _num("rad"), "counts": _int("RDC counts, 65536 per turn"),
+            "angle_rad": _num("rad"), "counts": _int("RDC counts as the driver returns them (drivers.rtd.registers: counts_per_rev per turn)"),
             "status": _int("bits")})}, "resolvers (RTD), at their sample rate")
         s["/pfma/adc"] = _obj({**_HEAD, **per(self.g_adc[2], lambda c: {
             "counts": _int("raw 12-bit code"), "volts": _num("V"), "value": _num(c.units),
