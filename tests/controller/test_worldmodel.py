@@ -1,4 +1,4 @@
-"""World model (controller/worldmodel.py): IRSS rules 3 and 4, the queued posts and the
+"""World model (controller/worldmodel/): IRSS rules 3 and 4, the queued posts and the
 communications segment, keyed user writes, shared memory read from other processes.
 
 Children are spawned processes; the parent waits on events/pipes with time-outs, never
