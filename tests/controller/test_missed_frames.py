@@ -20,7 +20,6 @@ from controller.servo import ERR_MISSED, LeadLag
 from sim.system import SystemSimulator
 from bit3.client import Client
 from bit3.layout import CMD_FOREIGN, CMD_REFUSED, CMD_STALE
-from tests.controller._rt_support import powered, sim  # noqa: F401 (fixtures)
 
 S = Status
 RATE_CHANNELS = slice(0, 6)  # DAC channels 0..5: the joint rate commands (rack_default.toml)

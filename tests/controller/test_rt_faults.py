@@ -7,7 +7,6 @@ import pytest
 from controller.daq_layer import FAULT_BOARD, FAULT_FT, FAULT_RESOLVER, FAULT_TACH
 from controller.decision import Status
 from controller.layers import Request, Response
-from tests.controller._rt_support import powered, sim  # noqa: F401 (fixtures)
 
 S = Status
 RATE_CHANNELS = slice(0, 6)  # DAC channels 0..5: the joint rate commands (rack_default.toml)

@@ -7,7 +7,6 @@ from controller.decision import Status
 from controller.layers import Request, Response
 from sim.system import SystemSimulator
 from controller.worldmodel import WorldModelError
-from tests.controller._rt_support import powered, sim  # noqa: F401 (fixtures)
 
 S = Status
 ORDER = ("updown", "msp", "trajectory", "cartesian", "joint", "servo", "daq")

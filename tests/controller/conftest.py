@@ -1,4 +1,4 @@
-"""Shared fixtures of the controller-runtime tests: a whole simulated system."""
+"""Shared fixtures of the controller tests: a whole simulated system (`sim`), powered up (`powered`)."""
 
 import pytest
 
