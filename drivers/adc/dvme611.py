@@ -23,6 +23,7 @@ _BUSY = BUSY.mask
 _CH = 0x1F
 _AUTOINC = AUTOINC.mask
 _CODE = 0x0FFF
+_RANGE_VOLTS = DVME611.constants["range_volts"]  #: default bipolar range (assumed +-10 V, R3)
 
 
 class Dvme611:
@@ -31,7 +32,8 @@ class Dvme611:
     :param bus: any object with ``read16``/``write16`` on absolute A16 addresses
     :param base: board base address (0xC000 in the PFMA rack)
     :param name: board name for messages (default ``dvme611@0xBASE``)
-    :param range_volts: bipolar input range, +-range_volts offset binary
+    :param range_volts: bipolar input range, +-range_volts offset binary (default: the
+        register table's ``range_volts``)
     :param max_polls: CSR reads allowed per conversion before giving up (BoardError)
     :param min_wait_s: after ``max_polls`` reads without EOC, keep polling until this much
         wall-clock time has passed (0 = give up after exactly ``max_polls`` reads); one last
@@ -42,7 +44,7 @@ class Dvme611:
     description = DVME611
     n_channels = N_CHANNELS
 
-    def __init__(self, bus, base: int, name: str | None = None, *, range_volts: float = 10.0,
+    def __init__(self, bus, base: int, name: str | None = None, *, range_volts: float = _RANGE_VOLTS,
                  max_polls: int = 64, min_wait_s: float = 50e-6, timer=time.perf_counter) -> None:
         if not range_volts > 0:
             raise ValueError(f"range_volts must be positive, not {range_volts!r}")
@@ -151,19 +153,27 @@ class Dvme611:
         return out
 
     # -- volts --------------------------------------------------------------------------------
-    def volts_from_counts(self, counts):
-        """Offset binary code(s) to volts: V = (code - 2048) * LSB."""
-        return (counts - self.zero_code) * self.lsb_volts
+    def volts_from_counts(self, counts, out: np.ndarray | None = None):
+        """Offset binary code(s) to volts: V = (code - 2048) * LSB (the one place this
+        board's coding is applied; zero code and LSB follow the register table's
+        ``full_scale_counts`` and the range).
+
+        :param counts: one code (returns a float) or an integer array of codes
+        :param out: a float array as long as ``counts`` to fill in place (no allocation:
+            the service converts every scan this way); returned
+        """
+        if out is None:
+            return (counts - self.zero_code) * self.lsb_volts
+        return np.multiply(np.subtract(counts, self.zero_code, out=out, casting="unsafe"), self.lsb_volts,
+                           out=out)
 
     def read_volts(self, channel: int) -> float:
         """Convert one channel; returns volts."""
-        return (self.read_counts(channel) - self.zero_code) * self.lsb_volts
+        return self.volts_from_counts(self.read_counts(channel))
 
     def scan_volts(self, out: np.ndarray | None = None) -> np.ndarray:
         """Scan all 32 channels; returns volts (fills ``out`` if given, a float array of 32)."""
         counts = self.scan(self._counts)
         if out is None:
             out = np.empty(N_CHANNELS)
-        np.subtract(counts, self.zero_code, out=out, casting="unsafe")
-        out *= self.lsb_volts
-        return out
+        return self.volts_from_counts(counts, out=out)

@@ -19,6 +19,7 @@ from drivers.registers import check_channel
 from pfma.errors import BusError
 
 _MAX_CODE = DATA_MASK
+_RANGE_VOLTS = VMIVME4100.constants["range_volts"]  #: default bipolar range (assumed +-10 V, R2)
 
 
 class Vmivme4100:
@@ -28,12 +29,13 @@ class Vmivme4100:
     :param base: board base address (0xD000 in the PFMA rack)
     :param name: board name for messages (default ``vmivme4100@0xBASE``)
     :param range_volts: the board's bipolar range jumper, +-range_volts offset binary
+        (default: the register table's ``range_volts``)
     """
 
     description = VMIVME4100
     n_channels = N_CHANNELS
 
-    def __init__(self, bus, base: int, name: str | None = None, *, range_volts: float = 10.0) -> None:
+    def __init__(self, bus, base: int, name: str | None = None, *, range_volts: float = _RANGE_VOLTS) -> None:
         if not range_volts > 0:
             raise ValueError(f"range_volts must be positive, not {range_volts!r}")
         self.bus = bus

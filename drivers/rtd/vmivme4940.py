@@ -65,6 +65,17 @@ class Vmivme4940:
         """Angle counts (0 .. counts_per_rev-1) in a channel word, per the ANGLE field."""
         return (word >> self._shift) & self._mask
 
+    def angle_from_counts(self, counts: int) -> float:
+        """Angle counts to radians, 0 <= angle < 2*pi (natural binary; ``lsb_rad`` from the
+        register table's constants)."""
+        return counts * self.lsb_rad
+
+    def angles_from_counts(self, counts) -> list[float]:
+        """:meth:`angle_from_counts` of several channels, as a list (for the four values of
+        a board a list comprehension beats numpy's per-call cost in the service's frame)."""
+        lsb = self.lsb_rad
+        return [c * lsb for c in counts]
+
     # -- readings -------------------------------------------------------------------
     def read_counts(self) -> tuple[int, int, int, int]:
         """The four channels' angles in counts (0..16383 for 14 bits)."""
@@ -89,16 +100,15 @@ class Vmivme4940:
 
         :param out: optional preallocated float array of length 4 to fill
         """
-        counts = self.read_counts()
+        angles = self.angles_from_counts(self.read_counts())
         if out is None:
             out = np.empty(N_CHANNELS)
-        out[:] = counts
-        out *= self.lsb_rad
+        out[:] = angles
         return out
 
     def read_angle_rad(self, channel: int) -> float:
         """One channel's angle in radians, 0 <= angle < 2*pi."""
-        return self.read_channel_counts(channel) * self.lsb_rad
+        return self.angle_from_counts(self.read_channel_counts(channel))
 
     def status(self) -> RtdStatus:
         """Read and decode STATUS."""
