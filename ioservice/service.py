@@ -9,6 +9,13 @@ the Bit3 buffer's input area (one seqlocked copy per frame); commands are taken
 from its command area; ``ioservice.safety.OutputGuard`` decides whether they may
 reach the DAC.
 
+The device work is done by one task object per device class (``ioservice.tasks``:
+RtdTask, AdcTask, DacTask, FtTask, HandTask, PioTask), each wired once at start and run
+in the frames the schedule gives it; :meth:`IoService.frame` runs the command path
+(:meth:`IoService._task_dac`: freshness, limits, refusals, watchdog, safety guard, then
+the DAC task's conversion and write) and then the input tasks due. The drivers do every
+count <-> unit conversion; the tasks apply the rack's scales and the calibration.
+
 Serial lines are drained between frames by the ``TickingClock`` hook
 (:meth:`IoService.serial_tick`), at the start and end of each frame and between its
 tasks when the frame runs long: their FIFOs are 3 characters deep and fill in
@@ -37,6 +44,9 @@ from bit3.layout import (  # noqa: F401 - the status bits are re-exported for ol
 from ioservice.loop import FrameInfo, FrameLoop, LoopStats
 from ioservice.safety import OutputGuard
 from ioservice.schedule import MINOR_FRAMES_PER_MAJOR, Schedule
+from ioservice.tasks import (  # noqa: F401 - the F/T and brake constants are re-exported
+    BRAKE_RELEASE_V, FT_START_ATTEMPTS, FT_STALE_S, AdcTask, DacTask, FtTask, HandTask, PioTask, RtdTask,
+)
 from bit3.buffer import Bit3Buffer
 from pfma.clock import Clock
 from pfma.errors import ConfigError, PfmaError
@@ -52,14 +62,6 @@ FAULT_COMMAND, FAULT_FOREIGN = 5, 6
 _NO_WRITER = 0x100
 #: consecutive failing samples of an input board before the outputs are made safe
 INPUT_FAULT_FRAMES = 3
-#: F/T record older than this is flagged stale: 8 F/T periods. Assumed: long enough to
-#: ride through a development VM's 10-50 ms host stalls (each costs a burst of lost bytes
-#: on the 3-deep FIFO), short enough that a dead sensor stops force control within 0.1 s.
-FT_STALE_S = 0.1
-#: attempts at the F/T start-up dialogue (mode, checksum, stream) before the link is
-#: reported faulty: one lost character garbles a reply, and on a loaded host the 3-deep
-#: MVME400 FIFO can overrun during the dialogue
-FT_START_ATTEMPTS = 3
 #: serial FIFO drains (``IoService.serial_tick``) closer together than this are skipped: at
 #: 19200 baud the MVME400's 3-character Rx FIFO takes 1.56 ms to fill, so with a drain at
 #: each task boundary a task may take up to about 1.1 ms (a 32-channel ADC scan on a busy
@@ -74,8 +76,6 @@ LIVE_TICK_S = 0.0004
 #: again in this many following minor frames, so the record is published a frame or two
 #: late instead of a whole F/T period (12.5 ms) late
 FT_RETRY_FRAMES = 2
-#: current-limit volts above which the amplifier releases the brake (pfma-model 8.4, assumed)
-BRAKE_RELEASE_V = 0.5
 #: a gap this long with no frame and no hook tick of the service is a host stall (the
 #: machine, or this process, did not run): recorded in ``inputs.host_stall_s`` and named
 #: as the cause of a watchdog trip or stale command it explains. Assumed: 10 ms, well
@@ -96,7 +96,6 @@ class _DeviceCounter:
     rate_hz: float = 0.0
 
 
-_TWO_PI = 2.0 * math.pi
 #: statistics asked for by a frame are published between frames; if no sleep long enough
 #: for the clock's hooks comes within this many frames, the frame publishes them itself
 STATS_MAX_DEFER_FRAMES = 16
@@ -175,23 +174,28 @@ class IoService:
         self._devices = {g: _DeviceCounter() for g in ("rtd", "adc", "dac", "ft", "pio", "crl", "hid")}
         self._board_fail_run: dict[str, int] = {}
         self.init_errors: list[str] = []  #: full texts of start-up problems (messages are cut to 56 bytes)
+        self.rtd = RtdTask(self)
+        self.adc = AdcTask(self)
+        self.dac = DacTask(self)
+        self.ft = FtTask(self)
+        self.hand = HandTask(self)
+        self.pio = PioTask(self)
         self._build_tasks()
-        self._wire_rtd()
-        self._wire_adc()
-        self._wire_dac()
-        self._wire_pio()
-        self._ft = self._crl = self._cae = None
-        self._ft_latest = None
-        self._ft_retry = 0  # frames left in which a missed F/T slot is tried again
-        self._crl_latest = None
+        self.rtd.wire()
+        self.adc.wire()
+        self.dac.wire()
+        self._outputs_enabled = False
+        # Outputs start disconnected and at 0 V: write the zeros, keep P3 off.
+        self._init_board(self.dac.cfg, self.dac.drv.disable_outputs)
+        self.pio.wire()
         self._mvme400 = None
         self._last_drain = -math.inf  # clock time of the last serial FIFO drain
         self._ft_url = ft_port
         if serial:
             self._wire_serial()
         if ft_port is not None:
-            self._wire_ft_url()
-        self._wire_cae()
+            self.ft.wire_url(ft_port)
+        self.hand.wire_cae(self.adc)
         self._apply_calibration_extras()  # calibration: resolver offsets, CAE, F/T, header hash
         self._cpu0 = self._cpu_s()
         self._wall0 = clock.now()
@@ -206,8 +210,13 @@ class IoService:
 
     # ------------------------------------------------------------------ set-up
     def _build_tasks(self) -> None:
+        """The input tasks in run order, each with its schedule bit: a frame runs those whose
+        bit is in its mask (its own schedule entry, those of frames just dropped, the F/T
+        retry)."""
         table = self.schedule.frame_table()
-        names = ("rtd", "adc", "ft", "hand", "pio")  # inputs, in run order
+        tasks = (self.rtd, self.adc, self.ft, self.hand, self.pio)  # inputs, in run order
+        names = tuple(t.name for t in tasks)
+        self._input_tasks = tuple((1 << i, t) for i, t in enumerate(tasks))
         self._frame_tasks = tuple(tuple(n for n in names if n in frame) for frame in table)
         self._frame_masks = tuple(sum(1 << i for i, n in enumerate(names) if n in frame)
                                   for frame in table)
@@ -239,177 +248,55 @@ class IoService:
         self._v["board_status"][slot] = BOARD_OK | BOARD_INIT
         return True
 
-    def _wire_rtd(self) -> None:
-        self._rtd = []
-        for cfg in self.rack.boards_of("rtd"):
-            drv = self.io.driver(cfg)
-            slots = self._span("rtd", cfg.channels)
-            self._rtd.append((cfg, drv, slots, self._board_slot(cfg.name)))
-            self._init_board(cfg, drv.status)
-
-    def _wire_adc(self) -> None:
-        self._adc = []
-        for cfg in self.rack.boards_of("adc"):
-            drv = self.io.driver(cfg)
-            chans = sorted(cfg.channels, key=lambda c: c.channel)
-            slots = self._span("adc", chans)
-            scale = np.array([c.scale for c in chans])
-            offset = np.array([c.offset for c in chans])
-            counts = np.zeros(len(chans), dtype=np.int64)
-            volts = np.zeros(len(chans))
-            self._adc.append((cfg, drv, slots, scale, offset, counts, volts, self._board_slot(cfg.name)))
-            self._init_board(cfg, lambda d=drv: d.read_counts(0))
-
-    def _wire_dac(self) -> None:
-        dacs = self.rack.boards_of("dac")
-        if len(dacs) != 1:
-            raise PfmaError(f"rack {self.rack.name}: the service drives exactly one DAC board, "
-                            f"found {len(dacs)}")
-        cfg = dacs[0]
-        self._dac_cfg = cfg
-        self._dac = self.io.driver(cfg)
-        n = len(cfg.channels)
-        chans = sorted(cfg.channels, key=lambda c: c.channel)
-        self._dac_slots = self._span("dac", chans)
-        self._dac_n = n
-        self._dac_scale_l = [c.scale for c in chans]  # volts = (engineering - offset) / scale
-        self._dac_offset_l = [c.offset for c in chans]
-        self._dac_zeros = [0.0] * n
-        self._dac_forced_safe = [DAC_FORCED_SAFE] * n
-        sig = {c.signal: c.channel for c in chans}
-        # command-area order (layout.joint_names / current_limit_names) -> DAC channel, by the
-        # rack's channel roles (quantity rate_command / current_limit / gripper_command)
-        self._cmd_rate_list = [self.layout.joint_entry("dac", j, "rate_command").channel
-                               for j in self.layout.joint_names]
-        self._cmd_limit_list = [sig[s] for s in self.layout.current_limit_names]
-        self._dac_is_limit = [ch in self._cmd_limit_list for ch in range(n)]
-        self._dac_is_rate = [ch in self._cmd_rate_list for ch in range(n)]
-        grip = [c.channel for c in chans if c.quantity == "gripper_command"]
-        self._cmd_gripper_ch = grip[0] if grip else None
-        if self._cmd_gripper_ch is not None:
-            self._dac_is_rate[self._cmd_gripper_ch] = True  # a motor command too: 0 V when stale
-        self._set_dac_limits(chans)
-        self._dac_board_slot = self._board_slot(cfg.name)
-        self._outputs_enabled = False
-        # Outputs start disconnected and at 0 V: write the zeros, keep P3 off.
-        self._init_board(cfg, self._dac.disable_outputs)
-
-    def _set_dac_limits(self, chans) -> None:
-        """Per DAC channel: the engineering limit a command is refused beyond (``limit``
-        in the rack file, default the DAC's full range), the saturation volts within it,
-        and the names the refusal message uses."""
-        r = self._dac.range_volts
-        m = 1.0 + self.policy.limit_margin
-        self._dac_limit = []  # engineering limit per channel (rates: |x|, current limits: 0..x)
-        self._dac_refuse = []  # limit x (1 + margin)
-        self._dac_sat_v = []  # saturation volts: the DAC range or the limit, whichever is lower
-        for c in chans:
-            full = r * abs(c.scale)
-            lim = c.limit if c.limit is not None else full
-            self._dac_limit.append(lim)
-            self._dac_refuse.append(lim * m)
-            self._dac_sat_v.append(min(r, lim / abs(c.scale)) if c.scale else 0.0)
-        self._dac_names = [c.signal for c in chans]
-        self._dac_units = [c.units for c in chans]
-
-    def _wire_pio(self) -> None:
-        self._pio_in = []
-        self._pio_out = None
-        self._matrix_applied = -1
-        for cfg in self.rack.boards_of("pio"):
-            drv = self.io.driver(cfg)
-            dirs = ["in"] * 4
-            for c in cfg.channels:
-                dirs[c.channel] = c.direction
-            slots = {c.channel: self.layout.slot("pio", c.signal) for c in cfg.channels}
-            if self._init_board(cfg, lambda d=drv, dd=dirs: d.configure(dd)):
-                if any(c.signal == "matrix_switcher_route" for c in cfg.channels):
-                    self._pio_out = (cfg, drv, slots)
-                if any(c.signal.startswith("user_if_box_inputs") for c in cfg.channels):
-                    self._pio_in.append((cfg, drv, slots))
-
-    def _start_ft(self, port, baud: int, where: str) -> None:
-        """Binary records with checksum, streamed (QS); then only non-blocking reads."""
-        from drivers.serial_ft.ftsensor import FtSensor
-        ft = FtSensor(port, clock=self.clock, baud=baud)
-        err = None
-        for attempt in range(1, FT_START_ATTEMPTS + 1):
-            try:
-                ft.set_mode("binary")
-                ft.set_checksum(True)
-                ft.start_stream(rate_hz=self.schedule.rate_hz("ft"))
-                port.timeout = 0  # from now on only non-blocking reads, between frames
-                # an MVME400 port: serial_tick drains it, and decodes as soon as a record is
-                # complete (its time stamp is then its arrival, and after lost characters
-                # the link is synced again at the first whole record, not at the next F/T slot)
-                self._ft_in_tick = hasattr(port, "autopoll")
-                if self._ft_in_tick:
-                    port.autopoll = False
-                self._ft = ft
-                if attempt > 1:
-                    self.post(Severity.WARNING, 122, f"F/T sensor on {where}: streaming after "
-                              f"{attempt} attempts ({str(err)[:40]})")
-                return
-            except PfmaError as e:
-                # A reply garbled by characters lost on a 3-deep FIFO (a host that did not
-                # poll the line in time) is transient: ask again, the sensor answers anew.
-                err = e
-                try:  # the sensor may be streaming already (a garbled QS echo): CR stops it
-                    ft.streaming = True
-                    ft.stop_stream()
-                except PfmaError:
-                    pass
-        self.init_errors.append(str(err))
-        self.post(Severity.ERROR, 120, f"F/T sensor on {where}: not streaming: {err}")
-        self._v["link_status"][self.layout.slot("link", "ft_sensor")] = LINK_FAULT
-
-    def _wire_ft_url(self) -> None:
-        """The F/T sensor on a pyserial URL (USB-serial adapter, terminal server) instead of
-        the MVME400: the kernel's or the server's buffer holds the bytes between frames."""
-        import serial
-        try:
-            port = serial.serial_for_url(self._ft_url, baudrate=19200, timeout=0.05)
-        except (serial.SerialException, ValueError) as err:
-            self.init_errors.append(f"F/T port {self._ft_url}: {err}")
-            self.post(Severity.ERROR, 121, f"F/T port {self._ft_url}: {err}")
-            return
-        self._start_ft(port, 19200, self._ft_url)
-
     def _wire_serial(self) -> None:
-        from drivers.crl.crl import CrlHandController
+        """The MVME400: both ports at their rack baud rates; the F/T sensor (the rack's
+        force_torque channel, unless on a URL) and the CRL hand controller on their ports.
+        Its FIFOs are drained by :meth:`serial_tick`."""
         boards = self.rack.boards_of("serial")
         if not boards:
             return
         cfg = boards[0]
         ch = {c.signal: c for c in cfg.channels}
+        ft_ch = next((c for c in cfg.channels if c.quantity == "force_torque"), None)
         drv = self.io.driver(cfg)
         bauds = [int(ch_.baud or 19200) for ch_ in sorted(cfg.channels, key=lambda c: c.channel)]
         if not self._init_board(cfg, lambda: drv.init(baud_a=bauds[0], baud_b=bauds[1])):
             return
         self._mvme400 = (cfg, drv)
-        if "ft_sensor" in ch and self._ft_url is None:
-            port = drv.port(ch["ft_sensor"].channel, timeout=0.05)
-            self._start_ft(port, bauds[ch["ft_sensor"].channel], f"{cfg.name} port {ch['ft_sensor'].channel}")
-        if "crl_hand_controller" in ch:
-            port = drv.port(ch["crl_hand_controller"].channel, timeout=0, write_queue=True)
-            port.autopoll = False  # serial_tick drains the FIFO; decoding reads the buffer
-            self._crl = CrlHandController(port, self.clock)
-            self._crl_tx = 0
+        if ft_ch is not None and self._ft_url is None:
+            port = drv.port(ft_ch.channel, timeout=0.05)
+            self.ft.start(port, bauds[ft_ch.channel], f"{cfg.name} port {ft_ch.channel}")
+        if "crl_hand_controller" in ch:  # no rack quantity for the CRL line: by its signal
+            self.hand.attach_crl(drv.port(ch["crl_hand_controller"].channel, timeout=0, write_queue=True))
 
-    def _wire_cae(self) -> None:
-        from drivers.crl.cae import CaeHandController
-        try:
-            self._cae = CaeHandController(rack=self.rack, clock=self.clock)
-        except (PfmaError, KeyError) as err:
-            self.post(Severity.WARNING, 130, f"CAE hand controller not available: {err}")
-            return
-        # where the CAE channels sit among the ADC board's scanned volts
-        sigs = ("cae_up_down", "cae_forward_backward", "cae_right_left", "cae_yaw", "cae_pitch",
-                "cae_roll", "cae_discrete_1", "cae_discrete_2", "cae_discrete_3")
-        chans = [self.rack.channel(s) for s in sigs]
-        board = chans[0].board
-        self._cae_adc = next(i for i, a in enumerate(self._adc) if a[0].name == board)
-        self._cae_idx = np.array([c.channel for c in chans], dtype=np.intp)
+    # -- private names older code and tests reach (the state is the tasks')
+    @property
+    def _ft(self):
+        return self.ft.ft
+
+    @_ft.setter
+    def _ft(self, ft) -> None:
+        self.ft.ft = ft
+
+    @property
+    def _ft_in_tick(self) -> bool:
+        return self.ft.in_tick
+
+    @_ft_in_tick.setter
+    def _ft_in_tick(self, on: bool) -> None:
+        self.ft.in_tick = on
+
+    @property
+    def _dac_n(self) -> int:
+        return self.dac.n
+
+    @property
+    def _dac_sat_v(self) -> list[float]:
+        return self.dac.sat_v
+
+    @property
+    def _dac_is_limit(self) -> list[bool]:
+        return self.dac.is_limit
 
     # ------------------------------------------------------------------ messages and state
     def post(self, severity: int, code: int, text: str) -> None:
@@ -454,34 +341,28 @@ class IoService:
     # ------------------------------------------------------------------ the frame
     def frame(self, info: FrameInfo) -> None:
         """One minor frame: the DAC first (commands and the watchdog checked at a fixed,
-        short time after the wake-up, before the variable input work), then the inputs due
-        in this frame (and in frames just dropped), then one consistent publish of the
+        short time after the wake-up, before the variable input work), then the input tasks
+        due in this frame (and in frames just dropped), then one consistent publish of the
         input area."""
         k = info.index
         self.serial_tick()  # the 3-deep serial FIFOs: drain on both sides of the work
         mask = self._frame_masks[k % MINOR_FRAMES_PER_MAJOR]
         for j in range(1, min(info.missed, MINOR_FRAMES_PER_MAJOR) + 1):
             mask |= self._frame_masks[(k - j) % MINOR_FRAMES_PER_MAJOR]
+        ft = self.ft
         if mask & 4:
-            self._ft_retry = FT_RETRY_FRAMES
-        elif self._ft_retry:  # the last F/T slot found nothing new: look again
-            self._ft_retry -= 1
+            ft.retry = FT_RETRY_FRAMES
+        elif ft.retry:  # the last F/T slot found nothing new: look again
+            ft.retry -= 1
             mask |= 4
         self._note_alive(info.t_wake)
         try:
             self._task_dac(k)
-            if mask & 1:
-                self._task_rtd()
-                self._drain_if_due()  # a slow input scan must not overrun the FIFOs
-            if mask & 2:
-                self._task_adc()
-                self._drain_if_due()
-            if mask & 4:
-                self._task_ft()
-            if mask & 8:
-                self._task_hand()
-            if mask & 16:
-                self._task_pio()
+            for bit, task in self._input_tasks:
+                if mask & bit:
+                    task.run(k)
+                    if task.drain_after:
+                        self._drain_if_due()  # a slow input scan must not overrun the FIFOs
         except Exception as err:  # noqa: BLE001 - a fault we cannot explain: outputs safe
             self.fault_code = FAULT_UNEXPECTED
             self.guard.trip(f"unexpected {type(err).__name__} in frame {k}: {err}", code=FAULT_UNEXPECTED)
@@ -497,163 +378,22 @@ class IoService:
         elif self._stats_due_k is not None and k - self._stats_due_k >= STATS_MAX_DEFER_FRAMES:
             self.publish_stats()  # no idle time for a while (overloaded): do it here
 
+    # one input task on its own, outside the frame (``bench/bench_service.py`` times them)
     def _task_rtd(self) -> None:
-        v = self._v
-        t_ok = None
-        for cfg, drv, slots, bslot in self._rtd:
-            t = self.clock.now()
-            try:
-                counts = drv.read_counts()
-                status = drv.status()
-            except PfmaError as err:
-                self._input_failed(cfg.name, "rtd", err)
-                v["rtd_status"][slots] |= CHANNEL_BUS_ERROR
-                continue
-            # four values: plain Python beats numpy's per-call cost
-            v["rtd_counts"][slots] = counts
-            lsb = drv.lsb_rad
-            cal = self._rtd_cal.get(cfg.name)
-            if cal is None:
-                v["rtd_angle_rad"][slots] = [c * lsb for c in counts]
-            else:  # calibration: (scale * raw + offset) mod 2 pi
-                v["rtd_angle_rad"][slots] = [(c * lsb * k + off) % _TWO_PI
-                                             for c, k, off in zip(counts, *cal, strict=True)]
-            ref = 0 if status.reference_present else RTD_NO_REFERENCE
-            v["rtd_status"][slots] = [int(f) | ref for f in status.faults]
-            self._input_ok(cfg.name, bslot)
-            v["t_rtd_s"][...] = t
-            t_ok = t
-        if t_ok is not None:
-            self._sampled("rtd", t_ok)
+        self.rtd.run(self.loop.k)
 
     def _task_adc(self) -> None:
-        v = self._v
-        for cfg, drv, slots, scale, offset, counts, volts, bslot in self._adc:
-            t = self.clock.now()
-            try:
-                drv.scan(counts)
-            except PfmaError as err:
-                self._input_failed(cfg.name, "adc", err)
-                v["adc_status"][slots] |= CHANNEL_BUS_ERROR
-                continue
-            np.multiply(np.subtract(counts, drv.zero_code, out=volts, casting="unsafe"), drv.lsb_volts, out=volts)
-            v["adc_counts"][slots] = counts
-            v["adc_volts"][slots] = volts
-            v["adc_value"][slots] = volts * scale + offset
-            v["adc_status"][slots] = 0
-            self._input_ok(cfg.name, bslot)
-            v["t_adc_s"][...] = t
-            self._sampled("adc", t)
+        self.adc.run(self.loop.k)
 
     def _task_ft(self) -> None:
-        self._decode_serial()
-        ft = self._ft
-        if ft is None:
-            return
-        v = self._v
-        slot = self.layout.slot("link", "ft_sensor")
-        r = self._ft_latest
-        st = ft.stats()
-        v["link_records"][slot] = st.records
-        v["link_bad"][slot] = st.bad_records
-        v["link_resyncs"][slot] = st.resyncs
-        v["link_rate_hz"][slot] = st.rate_hz
-        v["link_age_s"][slot] = -1.0 if st.age_s is None else st.age_s
-        stale = st.age_s is None or st.age_s > FT_STALE_S
-        v["link_status"][slot] = LINK_OPEN | (LINK_STALE if stale else LINK_SYNCED)
-        if r is not None and r.t_s != v["ft_t_s"][()]:
-            self._ft_retry = 0  # this F/T period has its record
-            v["ft_counts"][:] = r.counts
-            v["ft_force_n"][:] = r.force_n
-            v["ft_torque_nm"][:] = r.torque_nm
-            if self._ft_cal is not None:  # calibration: wrench = matrix @ (counts - bias)
-                w = self._ft_cal.wrench(r.counts)
-                v["ft_force_n"][:] = w[:3]
-                v["ft_torque_nm"][:] = w[3:]
-            v["ft_status"][...] = r.status
-            v["ft_t_s"][...] = r.t_s
-            v["t_ft_s"][...] = r.t_s
-            self._sampled("ft", r.t_s)
-
-    def _put_hand(self, name: str, s) -> None:
-        v = self._v
-        i = self.layout.slot("hc", name)
-        v["hc_axes"][i] = s.axes
-        v["hc_deadman"][i] = s.deadman
-        v["hc_valid"][i] = s.valid
-        v["hc_fault"][i] = s.fault
-        v["hc_buttons"][i] = s.buttons
-        v["hc_t_s"][i] = s.t_s
+        self.ft.run(self.loop.k)
 
     def _task_hand(self) -> None:
-        if self._crl is not None and self._ft is None:
-            self._decode_serial()
-        if self._cae is not None and self._adc:
-            volts = self._adc[self._cae_adc][6]
-            self._put_hand("cae", self._cae.from_volts(volts[self._cae_idx].tolist(),
-                                                        t_s=float(self._v["t_adc_s"][()])))
-        if self._crl is not None:
-            self._send_crl_force()
-        if self._crl_latest is not None:
-            self._put_hand("crl", self._crl_latest)
-            stats = self._crl.link_stats()
-            slot = self.layout.slot("link", "crl_hand_controller")
-            v = self._v
-            v["link_records"][slot] = stats["frames_ok"]
-            v["link_bad"][slot] = stats["frames_bad"]
-            v["link_resyncs"][slot] = stats["resyncs"]
-            v["link_status"][slot] = LINK_OPEN | (LINK_FAULT if stats["tripped"] else LINK_SYNCED)
-            v["link_rate_hz"][slot] = stats["rate_hz"]
-            v["link_age_s"][slot] = stats["age_s"]
-            self._sampled("crl", self._crl_latest.t_s)
-
-    def _send_crl_force(self) -> None:
-        """Force reflection to the CRL at half the hand-controller rate (40 Hz; its
-        placeholder protocol's watchdog is 60 ms): the command area's force while armed and
-        enabled, zero and disabled otherwise. Queued: the bytes leave between frames."""
-        self._crl_tx ^= 1
-        if not self._crl_tx:
-            return
-        c = self.commands.record
-        live = self.guard.state == ServiceState.ARMED and bool(c["crl_reflect_enable"])
-        f = tuple(float(x) for x in c["crl_reflect_force_n"]) if live else (0.0, 0.0, 0.0)
-        t = tuple(float(x) for x in c["crl_reflect_torque_nm"]) if live else (0.0, 0.0, 0.0)
-        try:
-            self._crl.send_force(f, t, enable=live)
-        except (PfmaError, ValueError) as err:
-            self._devices["crl"].errors += 1
-            if self._devices["crl"].errors == 1:
-                self.post(Severity.ERROR, 142, f"CRL force reflection: {err}")
+        self.hand.run(self.loop.k)
 
     def _task_pio(self) -> None:
-        v = self._v
-        t = self.clock.now()
-        for cfg, drv, slots in self._pio_in:
-            try:
-                word = drv.read_user_inputs()
-            except PfmaError as err:
-                self._input_failed(cfg.name, "pio", err)
-                continue
-            v["pio_user_inputs"][...] = word
-            v["pio_port_bits"][slots[0]] = word & 0xFF
-            v["pio_port_bits"][slots[1]] = word >> 8
-            self._input_ok(cfg.name, self._board_slot(cfg.name))
-            v["t_pio_s"][...] = t
-            self._sampled("pio", t)
-        if self._pio_out is not None:
-            route = int(self.commands.record["matrix_route"])
-            if route != self._matrix_applied:
-                cfg, drv, slots = self._pio_out
-                try:
-                    drv.write_matrix_route(route)
-                    self._matrix_applied = route
-                    v["matrix_route"][...] = route
-                    v["pio_port_bits"][slots[0]] = route & 0xFF
-                    self.post(Severity.INFO, 140, f"matrix switcher route 0x{route:02X}")
-                except (PfmaError, ValueError) as err:
-                    self._count_board_error(cfg.name, err)
-                    self._matrix_applied = route  # do not retry every frame; posted once
-                    self.post(Severity.ERROR, 141, f"{cfg.name}: matrix route 0x{route:02X} failed: {err}")
+        self.pio.run(self.loop.k)
+
 
     # ------------------------------------------------------------------ the command path
     def _fetch_command(self) -> int:
@@ -702,18 +442,19 @@ class IoService:
         """The first command value that is not finite or beyond its limit (x (1 + margin)),
         as a message giving field, value and limit; None when every value is acceptable."""
         isfinite = math.isfinite
+        dac = self.dac
         for ch, e in enumerate(eng):
-            lim = self._dac_refuse[ch]
+            lim = dac.refuse[ch]
             if not isfinite(e):
                 bad = True
-            elif self._dac_is_limit[ch]:
-                bad = e > lim or e < -self.policy.limit_margin * self._dac_limit[ch]
+            elif dac.is_limit[ch]:
+                bad = e > lim or e < -self.policy.limit_margin * dac.limit[ch]
             else:
                 bad = e > lim or e < -lim
             if bad:
-                lo = "0.." if self._dac_is_limit[ch] else "+-"
-                return (f"refused {self._dac_names[ch]}={e:.4g} {self._dac_units[ch]}, "
-                        f"limit {lo}{self._dac_limit[ch]:g}")
+                lo = "0.." if dac.is_limit[ch] else "+-"
+                return (f"refused {dac.names[ch]}={e:.4g} {dac.units[ch]}, "
+                        f"limit {lo}{dac.limit[ch]:g}")
         c = self.commands.record
         for f in ("crl_reflect_force_n", "crl_reflect_torque_nm"):
             if not all(isfinite(x) for x in c[f].tolist()):
@@ -727,7 +468,10 @@ class IoService:
             self.post(severity, 171, text)
 
     def _task_dac(self, k: int = 0) -> None:
+        """The command path, first in every frame: fetch and check the command, update the
+        safety guard, and have the DAC task convert and write it (or the safe zeros)."""
         v = self._v
+        dac = self.dac
         status = self._fetch_command()
         c = self.commands.record
         refusal = None
@@ -747,14 +491,14 @@ class IoService:
             refusal = f"refused write by pid {int(c['writer_pid'])}: owner pid {pid}"
         status &= CMD_ABSENT | CMD_FOREIGN  # _NO_WRITER is not published: no command yet
         # engineering command per DAC channel, in plain Python (16 values)
-        eng = [0.0] * self._dac_n
+        eng = [0.0] * dac.n
         rates = c["joint_rate_rad_s"].tolist()
-        for ch, x in zip(self._cmd_rate_list, rates):
+        for ch, x in zip(dac.rate_list, rates):
             eng[ch] = x
-        for ch, x in zip(self._cmd_limit_list, c["current_limit_a"].tolist()):
+        for ch, x in zip(dac.limit_list, c["current_limit_a"].tolist()):
             eng[ch] = x
-        if self._cmd_gripper_ch is not None:
-            eng[self._cmd_gripper_ch] = float(c["gripper"])
+        if dac.gripper_ch is not None:
+            eng[dac.gripper_ch] = float(c["gripper"])
         if refusal is None:
             refusal = self._check_limits(eng)
             if refusal is not None:
@@ -790,7 +534,7 @@ class IoService:
             self._apply_safe()
             return
         if not self._outputs_enabled:
-            self._dac.enable_outputs()  # the shadow holds the zeros written while safe
+            dac.drv.enable_outputs()  # the shadow holds the zeros written while safe
             self._outputs_enabled = True
         stale = age < 0 or age > self.policy.max_input_age_frames
         if stale:
@@ -800,54 +544,16 @@ class IoService:
                                       f"{self.policy.max_input_age_frames}{self._stall_note()}")
         self._cmd_episode &= status | CMD_REFUSED | CMD_FOREIGN
         v["command_status"][...] = status
-        r = self._dac.range_volts
-        volts, st_out = [], []
-        for ch, e in enumerate(eng):
-            k_ = self._dac_scale_l[ch]
-            if stale and self._dac_is_rate[ch]:
-                volts.append(0.0)
-                st_out.append(DAC_FORCED_SAFE)
-                eng[ch] = 0.0
-                continue
-            x = (e - self._dac_offset_l[ch]) / k_ if k_ else 0.0
-            st = 0
-            sat = self._dac_sat_v[ch] if self._dac_sat_v[ch] > 0 else r
-            if self._dac_is_limit[ch] and x < 0.0:
-                st, x = DAC_CLIPPED, 0.0  # a current limit within the margin below 0: brakes set
-            elif x > sat or x < -sat:  # within the refusal margin: saturate, say so
-                st, x = DAC_CLIPPED, (sat if x > sat else -sat)
-            volts.append(x)
-            st_out.append(st)
+        volts, st_out = dac.volts(eng, stale)
         self._write_dac(volts, st_out, eng)
 
     def _apply_safe(self) -> None:
         if self.state == ServiceState.ARMED or self.guard.state == ServiceState.FAULT:
             self.set_state(self.guard.state)
-        self._write_dac(self._dac_zeros, self._dac_forced_safe, self._dac_zeros)
+        self._write_dac(self.dac.zeros, self.dac.forced_safe, self.dac.zeros)
 
     def _write_dac(self, volts: list[float], status: list[int], eng: list[float]) -> None:
-        v = self._v
-        t = self.clock.now()
-        try:
-            self._dac.write_volts_all(volts, clamp=True)
-        except PfmaError as err:
-            self._count_board_error(self._dac_cfg.name, err)
-            self._devices["dac"].errors += 1
-            self.fault_code = FAULT_DAC
-            self.guard.trip(f"DAC write failed: {err}", code=FAULT_DAC)
-            return
-        slots = self._dac_slots
-        v["dac_counts"][slots] = self._dac.shadow_counts
-        v["dac_volts"][slots] = self._dac.shadow_volts
-        v["dac_value"][slots] = eng
-        v["dac_status"][slots] = status
-        v["outputs_enabled"][...] = self._outputs_enabled and self.guard.state == ServiceState.ARMED
-        v["brakes_released"][...] = self._outputs_enabled and \
-            any(volts[ch] > BRAKE_RELEASE_V for ch in self._cmd_limit_list)
-        v["t_dac_s"][...] = t
-        self._sampled("dac", t)
-        if self.guard.state != self.state and self.state not in (ServiceState.STOPPED,):
-            self.set_state(self.guard.state)
+        self.dac.write(volts, status, eng)
 
     def _publish(self, info: FrameInfo) -> None:
         v = self._v
@@ -878,8 +584,8 @@ class IoService:
             drv.poll()
         except PfmaError as err:
             self._count_board_error(cfg.name, err)
-        ft = self._ft
-        if ft is not None and self._ft_in_tick:
+        ft = self.ft.ft
+        if ft is not None and self.ft.in_tick:
             try:
                 due = ft.record_due()  # a length check on the software buffer: no bus access
             except PfmaError:
@@ -894,12 +600,9 @@ class IoService:
 
     def _decode_serial(self, hand: bool = True) -> None:
         try:
-            if self._ft is not None:
-                recs = self._ft.read_records()
-                if recs:
-                    self._ft_latest = recs[-1]
-            if hand and self._crl is not None:
-                self._crl_latest = self._crl.update()
+            self.ft.decode()
+            if hand:
+                self.hand.decode()
         except PfmaError as err:
             if self._mvme400 is not None:
                 self._count_board_error(self._mvme400[0].name, err)
@@ -1000,24 +703,19 @@ class IoService:
             return
         self.guard.stop(reason)
         try:
-            self._dac.disable_outputs()
+            self.dac.drv.disable_outputs()
         except PfmaError as err:
             self.post(Severity.ERROR, 150, f"could not disable DAC outputs: {err}")
         self._outputs_enabled = False
-        slots = self._dac_slots
-        self._v["dac_counts"][slots] = self._dac.shadow_counts
-        self._v["dac_volts"][slots] = self._dac.shadow_volts
-        self._v["dac_value"][slots] = 0.0
-        self._v["outputs_enabled"][...] = 0
-        self._v["brakes_released"][...] = 0
+        self.dac.publish_stopped()
         self.set_state(ServiceState.STOPPED)
         self.publish_stats()
         self.inputs.publish()
         if self.ring is not None:
             self.ring.write(self.inputs.raw)
-        if self._ft is not None:
+        if self.ft.ft is not None:
             try:
-                self._ft.stop_stream()
+                self.ft.ft.stop_stream()
             except PfmaError:
                 pass
         self.post(Severity.INFO, 151, f"{reason} (pid {os.getpid()})")
@@ -1028,19 +726,13 @@ class IoService:
     # and F/T sections and the header hash are applied here.
     def _apply_calibration_extras(self) -> None:
         from calibration.files import cae_calibration, calibration_hash, ft_calibration
-        self._rtd_cal = {}
-        for cfg, _drv, _slots, _b in self._rtd:
-            chans = sorted(self.rack.board(cfg.name).channels, key=lambda c: c.channel)
-            scale = np.array([c.scale for c in chans])
-            offset = np.array([c.offset for c in chans])
-            if np.any(scale != 1.0) or np.any(offset != 0.0):
-                self._rtd_cal[cfg.name] = (scale.tolist(), offset.tolist())  # per channel
+        self.rtd.calibrate(self.rack)
         cal = self.calibration
-        self._ft_cal = ft_calibration(cal) if cal is not None else None
-        if self._cae is not None:
+        self.ft.cal = ft_calibration(cal) if cal is not None else None
+        if self.hand.cae is not None:
             from drivers.crl.cae import CaeCalibration
             cae = cae_calibration(cal) if cal is not None else None
-            self._cae.calibration = cae if cae is not None else CaeCalibration()
+            self.hand.cae.calibration = cae if cae is not None else CaeCalibration()
         self.buf.set_calibration_hash(calibration_hash(cal) if cal is not None else bytes(8))
 
     def reload_calibration(self, calibration) -> None:
@@ -1055,14 +747,8 @@ class IoService:
                             "(the calibration in force is unchanged)")
         rack, cal = _calibrated_rack(self.rack, calibration)
         self.rack, self.calibration = rack, cal
-        for cfg, _drv, _slots, scale, offset, *_ in self._adc:
-            chans = sorted(rack.board(cfg.name).channels, key=lambda c: c.channel)
-            scale[:] = [c.scale for c in chans]
-            offset[:] = [c.offset for c in chans]
-        chans = sorted(rack.board(self._dac_cfg.name).channels, key=lambda c: c.channel)
-        self._dac_scale_l = [c.scale for c in chans]
-        self._dac_offset_l = [c.offset for c in chans]
-        self._set_dac_limits(chans)
+        self.adc.calibrate(rack)
+        self.dac.calibrate(rack)
         self._apply_calibration_extras()
         self.post(Severity.INFO, 160, f"calibration v{cal.version} loaded ({cal.hash().hex()})")
 

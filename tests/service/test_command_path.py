@@ -354,12 +354,12 @@ def test_a_long_frame_of_the_service_itself_is_not_called_a_host_stall(rig, monk
     """Only time in which the service could not run is a host stall: a frame whose own work
     takes 12 ms (a slow bus) is an overrun, not a stall of the host."""
     armed(rig)
-    slow = rig.svc._task_rtd
+    slow = rig.svc.rtd.run
 
-    def slow_rtd():
-        slow()
+    def slow_rtd(k=0):
+        slow(k)
         rig.clock.advance(0.012)  # the service itself busy for 12 ms in this frame
-    monkeypatch.setattr(rig.svc, "_task_rtd", slow_rtd)
+    monkeypatch.setattr(rig.svc.rtd, "run", slow_rtd)
     rig.run_frames(4)
     assert rig.reader.read_inputs().host_stall_s == 0.0
     assert not any(t.startswith("host stall") for t in texts(rig))

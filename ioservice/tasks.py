@@ -1,0 +1,570 @@
+"""The service's device tasks: one object per device class of the rack.
+
+Each task is wired once at start (``wire``: its boards, drivers, buffer slots and
+calibration looked up from the rack configuration and the Bit3 layout) and run by
+:meth:`ioservice.service.IoService.frame` in the minor frames the schedule gives it
+(``run(k)``, k = the frame index). A task reaches the service it belongs to for the
+shared bookkeeping: the input area's value views (``svc._v``), the clock, board and device
+counters, messages.
+
+- :class:`RtdTask`: the resolver boards (angles, status) at 160 Hz
+- :class:`AdcTask`: the A/D boards (32-channel scans, engineering values) at 160 Hz
+- :class:`DacTask`: the DAC board: its channels' roles, limits and conversion of the
+  engineering commands to volts, and the write; the command path that decides what is
+  written (freshness, refusals, watchdog, safety guard) is the service's
+- :class:`FtTask`: the F/T sensor line (start-up dialogue, decoding, link status) at 80 Hz
+- :class:`HandTask`: the CRL (serial) and CAE (A/D) hand controllers at 80 Hz
+- :class:`PioTask`: the parallel ports (user inputs, matrix switcher route) at 40 Hz
+
+Count <-> unit conversions are the drivers' (``drivers/<board>``); the tasks apply only
+the rack's engineering scales and the calibration.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bit3.layout import (
+    CHANNEL_BUS_ERROR, DAC_CLIPPED, DAC_FORCED_SAFE, LINK_FAULT, LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_NO_REFERENCE,
+    ServiceState, Severity,
+)
+from pfma.errors import PfmaError
+
+#: F/T record older than this is flagged stale: 8 F/T periods. Assumed: long enough to
+#: ride through a development VM's 10-50 ms host stalls (each costs a burst of lost bytes
+#: on the 3-deep FIFO), short enough that a dead sensor stops force control within 0.1 s.
+FT_STALE_S = 0.1
+#: attempts at the F/T start-up dialogue (mode, checksum, stream) before the link is
+#: reported faulty: one lost character garbles a reply, and on a loaded host the 3-deep
+#: MVME400 FIFO can overrun during the dialogue
+FT_START_ATTEMPTS = 3
+#: current-limit volts above which the amplifier releases the brake (pfma-model 8.4, assumed)
+BRAKE_RELEASE_V = 0.5
+
+_TWO_PI = 2.0 * math.pi
+
+
+def _by_channel(channels):
+    return sorted(channels, key=lambda c: c.channel)
+
+
+class RtdTask:
+    """Resolver boards: per board (config, driver, input-area slots, board slot), and the
+    calibration per board that has one ((scale, offset) lists per channel)."""
+
+    name = "rtd"
+    drain_after = True  # a slow input scan must not overrun the serial FIFOs
+
+    def __init__(self, svc) -> None:
+        self.svc = svc
+        self.boards: list[tuple] = []
+        self.cal: dict[str, tuple[list[float], list[float]]] = {}
+
+    def wire(self) -> None:
+        svc = self.svc
+        self.boards = []
+        for cfg in svc.rack.boards_of("rtd"):
+            drv = svc.io.driver(cfg)
+            slots = svc._span("rtd", cfg.channels)
+            self.boards.append((cfg, drv, slots, svc._board_slot(cfg.name)))
+            svc._init_board(cfg, drv.status)
+
+    def calibrate(self, rack) -> None:
+        """Calibration: angle = (scale * raw + offset) mod 2 pi, per channel, for the boards
+        whose channels are not nominal."""
+        self.cal = {}
+        for cfg, _drv, _slots, _b in self.boards:
+            chans = _by_channel(rack.board(cfg.name).channels)
+            scale = np.array([c.scale for c in chans])
+            offset = np.array([c.offset for c in chans])
+            if np.any(scale != 1.0) or np.any(offset != 0.0):
+                self.cal[cfg.name] = (scale.tolist(), offset.tolist())
+
+    def run(self, k: int = 0) -> None:
+        svc = self.svc
+        v = svc._v
+        t_ok = None
+        for cfg, drv, slots, bslot in self.boards:
+            t = svc.clock.now()
+            try:
+                counts = drv.read_counts()
+                status = drv.status()
+            except PfmaError as err:
+                svc._input_failed(cfg.name, "rtd", err)
+                v["rtd_status"][slots] |= CHANNEL_BUS_ERROR
+                continue
+            v["rtd_counts"][slots] = counts
+            angles = drv.angles_from_counts(counts)  # four values: plain Python lists
+            cal = self.cal.get(cfg.name)
+            if cal is None:
+                v["rtd_angle_rad"][slots] = angles
+            else:  # calibration: (scale * raw + offset) mod 2 pi
+                v["rtd_angle_rad"][slots] = [(a * k_ + off) % _TWO_PI
+                                             for a, k_, off in zip(angles, *cal, strict=True)]
+            ref = 0 if status.reference_present else RTD_NO_REFERENCE
+            v["rtd_status"][slots] = [int(f) | ref for f in status.faults]
+            svc._input_ok(cfg.name, bslot)
+            v["t_rtd_s"][...] = t
+            t_ok = t
+        if t_ok is not None:
+            svc._sampled("rtd", t_ok)
+
+
+class AdcTask:
+    """A/D boards: per board (config, driver, slots, engineering scale and offset arrays,
+    the counts and volts arrays a scan fills in place, board slot)."""
+
+    name = "adc"
+    drain_after = True
+
+    def __init__(self, svc) -> None:
+        self.svc = svc
+        self.boards: list[tuple] = []
+
+    def wire(self) -> None:
+        svc = self.svc
+        self.boards = []
+        for cfg in svc.rack.boards_of("adc"):
+            drv = svc.io.driver(cfg)
+            chans = _by_channel(cfg.channels)
+            slots = svc._span("adc", chans)
+            scale = np.array([c.scale for c in chans])
+            offset = np.array([c.offset for c in chans])
+            counts = np.zeros(len(chans), dtype=np.int64)
+            volts = np.zeros(len(chans))
+            self.boards.append((cfg, drv, slots, scale, offset, counts, volts, svc._board_slot(cfg.name)))
+            svc._init_board(cfg, lambda d=drv: d.read_counts(0))
+
+    def calibrate(self, rack) -> None:
+        """New engineering scales and offsets (in place: the arrays are the task's)."""
+        for cfg, _drv, _slots, scale, offset, *_ in self.boards:
+            chans = _by_channel(rack.board(cfg.name).channels)
+            scale[:] = [c.scale for c in chans]
+            offset[:] = [c.offset for c in chans]
+
+    def volts_of(self, board: str) -> np.ndarray | None:
+        """The volts array the scans of ``board`` fill (None for no such A/D board)."""
+        return next((b[6] for b in self.boards if b[0].name == board), None)
+
+    def run(self, k: int = 0) -> None:
+        svc = self.svc
+        v = svc._v
+        for cfg, drv, slots, scale, offset, counts, volts, bslot in self.boards:
+            t = svc.clock.now()
+            try:
+                drv.scan(counts)
+            except PfmaError as err:
+                svc._input_failed(cfg.name, "adc", err)
+                v["adc_status"][slots] |= CHANNEL_BUS_ERROR
+                continue
+            drv.volts_from_counts(counts, out=volts)
+            v["adc_counts"][slots] = counts
+            v["adc_volts"][slots] = volts
+            v["adc_value"][slots] = volts * scale + offset
+            v["adc_status"][slots] = 0
+            svc._input_ok(cfg.name, bslot)
+            v["t_adc_s"][...] = t
+            svc._sampled("adc", t)
+
+
+class DacTask:
+    """The DAC board: config, driver, slots; per channel (plain lists: 16 values are cheaper
+    in Python than in numpy) the engineering scale and offset, the command-area role (rate
+    command, current limit, gripper), the limit a command is refused beyond and the
+    saturation volts; the all-zero and all-forced-safe rows written while safe."""
+
+    name = "dac"
+
+    def __init__(self, svc) -> None:
+        self.svc = svc
+
+    def wire(self) -> None:
+        svc = self.svc
+        dacs = svc.rack.boards_of("dac")
+        if len(dacs) != 1:
+            raise PfmaError(f"rack {svc.rack.name}: the service drives exactly one DAC board, "
+                            f"found {len(dacs)}")
+        cfg = dacs[0]
+        self.cfg = cfg
+        self.drv = svc.io.driver(cfg)
+        n = len(cfg.channels)
+        chans = _by_channel(cfg.channels)
+        self.slots = svc._span("dac", chans)
+        self.n = n
+        self.scale_l = [c.scale for c in chans]  # volts = (engineering - offset) / scale
+        self.offset_l = [c.offset for c in chans]
+        self.zeros = [0.0] * n
+        self.forced_safe = [DAC_FORCED_SAFE] * n
+        # command-area order (layout.joint_names; the rack's current_limit channels in rack
+        # order, as the layout's current_limit_names) -> DAC channel, by the rack's channel
+        # roles (quantity rate_command / current_limit / gripper_command)
+        self.rate_list = [svc.layout.joint_entry("dac", j, "rate_command").channel
+                          for j in svc.layout.joint_names]
+        self.limit_list = [c.channel for c in cfg.channels if not c.spare and c.quantity == "current_limit"]
+        self.is_limit = [ch in self.limit_list for ch in range(n)]
+        self.is_rate = [ch in self.rate_list for ch in range(n)]
+        grip = [c.channel for c in chans if c.quantity == "gripper_command"]
+        self.gripper_ch = grip[0] if grip else None
+        if self.gripper_ch is not None:
+            self.is_rate[self.gripper_ch] = True  # a motor command too: 0 V when stale
+        self.set_limits(chans)
+        self.board_slot = svc._board_slot(cfg.name)
+
+    def set_limits(self, chans) -> None:
+        """Per DAC channel: the engineering limit a command is refused beyond (``limit``
+        in the rack file, default the DAC's full range), the saturation volts within it,
+        and the names the refusal message uses."""
+        r = self.drv.range_volts
+        m = 1.0 + self.svc.policy.limit_margin
+        self.limit = []  # engineering limit per channel (rates: |x|, current limits: 0..x)
+        self.refuse = []  # limit x (1 + margin)
+        self.sat_v = []  # saturation volts: the DAC range or the limit, whichever is lower
+        for c in chans:
+            full = r * abs(c.scale)
+            lim = c.limit if c.limit is not None else full
+            self.limit.append(lim)
+            self.refuse.append(lim * m)
+            self.sat_v.append(min(r, lim / abs(c.scale)) if c.scale else 0.0)
+        self.names = [c.signal for c in chans]
+        self.units = [c.units for c in chans]
+
+    def calibrate(self, rack) -> None:
+        chans = _by_channel(rack.board(self.cfg.name).channels)
+        self.scale_l = [c.scale for c in chans]
+        self.offset_l = [c.offset for c in chans]
+        self.set_limits(chans)
+
+    def volts(self, eng: list[float], stale: bool) -> tuple[list[float], list[int]]:
+        """(volts, dac_status) per channel for engineering commands ``eng``: the rack's
+        scale and offset, saturated at the channel's limit (DAC_CLIPPED); a current limit
+        below 0 is 0 V (brakes set); while ``stale`` the motor commands are 0 V
+        (DAC_FORCED_SAFE, and their ``eng`` entry set to 0)."""
+        r = self.drv.range_volts
+        scale_l, offset_l, sat_v, is_limit, is_rate = self.scale_l, self.offset_l, self.sat_v, \
+            self.is_limit, self.is_rate
+        volts, st_out = [], []
+        for ch, e in enumerate(eng):
+            k_ = scale_l[ch]
+            if stale and is_rate[ch]:
+                volts.append(0.0)
+                st_out.append(DAC_FORCED_SAFE)
+                eng[ch] = 0.0
+                continue
+            x = (e - offset_l[ch]) / k_ if k_ else 0.0
+            st = 0
+            sat = sat_v[ch] if sat_v[ch] > 0 else r
+            if is_limit[ch] and x < 0.0:
+                st, x = DAC_CLIPPED, 0.0  # a current limit within the margin below 0: brakes set
+            elif x > sat or x < -sat:  # within the refusal margin: saturate, say so
+                st, x = DAC_CLIPPED, (sat if x > sat else -sat)
+            volts.append(x)
+            st_out.append(st)
+        return volts, st_out
+
+    def write(self, volts: list[float], status: list[int], eng: list[float]) -> None:
+        """Write the volts (the driver converts to codes) and publish codes, volts, values,
+        status, the outputs and brakes flags; a failed write trips the guard."""
+        svc = self.svc
+        v = svc._v
+        t = svc.clock.now()
+        drv = self.drv
+        try:
+            drv.write_volts_all(volts, clamp=True)
+        except PfmaError as err:
+            from ioservice import service as _service  # the fault codes
+            svc._count_board_error(self.cfg.name, err)
+            svc._devices["dac"].errors += 1
+            svc.fault_code = _service.FAULT_DAC
+            svc.guard.trip(f"DAC write failed: {err}", code=_service.FAULT_DAC)
+            return
+        slots = self.slots
+        v["dac_counts"][slots] = drv.shadow_counts
+        v["dac_volts"][slots] = drv.shadow_volts
+        v["dac_value"][slots] = eng
+        v["dac_status"][slots] = status
+        enabled = svc._outputs_enabled
+        v["outputs_enabled"][...] = enabled and svc.guard.state == ServiceState.ARMED
+        v["brakes_released"][...] = enabled and \
+            any(volts[ch] > BRAKE_RELEASE_V for ch in self.limit_list)
+        v["t_dac_s"][...] = t
+        svc._sampled("dac", t)
+        if svc.guard.state != svc.state and svc.state not in (ServiceState.STOPPED,):
+            svc.set_state(svc.guard.state)
+
+    def publish_stopped(self) -> None:
+        """After the outputs were disabled: the shadow (0 V) and no outputs, no brakes."""
+        v = self.svc._v
+        slots = self.slots
+        v["dac_counts"][slots] = self.drv.shadow_counts
+        v["dac_volts"][slots] = self.drv.shadow_volts
+        v["dac_value"][slots] = 0.0
+        v["outputs_enabled"][...] = 0
+        v["brakes_released"][...] = 0
+
+
+class FtTask:
+    """The F/T sensor: its ``FtSensor`` (None without one), whether the line is decoded in
+    the serial drain (``in_tick``: an MVME400 port), the latest record, the calibration
+    (``calibration.files.FtCalibration`` or None), and the frames left in which a missed
+    F/T slot is tried again (``retry``, counted down by the service's frame)."""
+
+    name = "ft"
+    drain_after = False
+
+    def __init__(self, svc) -> None:
+        self.svc = svc
+        self.ft = None
+        self.in_tick = False
+        self.latest = None
+        self.cal = None
+        self.retry = 0
+
+    def start(self, port, baud: int, where: str) -> None:
+        """Binary records with checksum, streamed (QS); then only non-blocking reads."""
+        from drivers.serial_ft.ftsensor import FtSensor
+        svc = self.svc
+        ft = FtSensor(port, clock=svc.clock, baud=baud)
+        err = None
+        for attempt in range(1, FT_START_ATTEMPTS + 1):
+            try:
+                ft.set_mode("binary")
+                ft.set_checksum(True)
+                ft.start_stream(rate_hz=svc.schedule.rate_hz("ft"))
+                port.timeout = 0  # from now on only non-blocking reads, between frames
+                # an MVME400 port: serial_tick drains it, and decodes as soon as a record is
+                # complete (its time stamp is then its arrival, and after lost characters
+                # the link is synced again at the first whole record, not at the next F/T slot)
+                self.in_tick = hasattr(port, "autopoll")
+                if self.in_tick:
+                    port.autopoll = False
+                self.ft = ft
+                if attempt > 1:
+                    svc.post(Severity.WARNING, 122, f"F/T sensor on {where}: streaming after "
+                             f"{attempt} attempts ({str(err)[:40]})")
+                return
+            except PfmaError as e:
+                # A reply garbled by characters lost on a 3-deep FIFO (a host that did not
+                # poll the line in time) is transient: ask again, the sensor answers anew.
+                err = e
+                try:  # the sensor may be streaming already (a garbled QS echo): CR stops it
+                    ft.streaming = True
+                    ft.stop_stream()
+                except PfmaError:
+                    pass
+        svc.init_errors.append(str(err))
+        svc.post(Severity.ERROR, 120, f"F/T sensor on {where}: not streaming: {err}")
+        svc._v["link_status"][svc.layout.slot("link", "ft_sensor")] = LINK_FAULT
+
+    def wire_url(self, url: str) -> None:
+        """The F/T sensor on a pyserial URL (USB-serial adapter, terminal server) instead of
+        the MVME400: the kernel's or the server's buffer holds the bytes between frames."""
+        import serial
+        svc = self.svc
+        try:
+            port = serial.serial_for_url(url, baudrate=19200, timeout=0.05)
+        except (serial.SerialException, ValueError) as err:
+            svc.init_errors.append(f"F/T port {url}: {err}")
+            svc.post(Severity.ERROR, 121, f"F/T port {url}: {err}")
+            return
+        self.start(port, 19200, url)
+
+    def decode(self) -> None:
+        """Decode what the line's buffer holds; keep the newest record (PfmaError passes)."""
+        if self.ft is not None:
+            recs = self.ft.read_records()
+            if recs:
+                self.latest = recs[-1]
+
+    def run(self, k: int = 0) -> None:
+        svc = self.svc
+        svc._decode_serial()
+        ft = self.ft
+        if ft is None:
+            return
+        v = svc._v
+        slot = svc.layout.slot("link", "ft_sensor")
+        r = self.latest
+        st = ft.stats()
+        v["link_records"][slot] = st.records
+        v["link_bad"][slot] = st.bad_records
+        v["link_resyncs"][slot] = st.resyncs
+        v["link_rate_hz"][slot] = st.rate_hz
+        v["link_age_s"][slot] = -1.0 if st.age_s is None else st.age_s
+        stale = st.age_s is None or st.age_s > FT_STALE_S
+        v["link_status"][slot] = LINK_OPEN | (LINK_STALE if stale else LINK_SYNCED)
+        if r is not None and r.t_s != v["ft_t_s"][()]:
+            self.retry = 0  # this F/T period has its record
+            v["ft_counts"][:] = r.counts
+            v["ft_force_n"][:] = r.force_n
+            v["ft_torque_nm"][:] = r.torque_nm
+            if self.cal is not None:  # calibration: wrench = matrix @ (counts - bias)
+                w = self.cal.wrench(r.counts)
+                v["ft_force_n"][:] = w[:3]
+                v["ft_torque_nm"][:] = w[3:]
+            v["ft_status"][...] = r.status
+            v["ft_t_s"][...] = r.t_s
+            v["t_ft_s"][...] = r.t_s
+            svc._sampled("ft", r.t_s)
+
+
+class HandTask:
+    """The hand controllers: the CRL on the MVME400 (its ``CrlHandController``, the latest
+    state, the force-reflection half-rate toggle) and the CAE on the A/D board (its
+    ``CaeHandController``, the volts array of its A/D board and the indices of its nine
+    channels in it, found by the rack's ``hand_controller`` quantity)."""
+
+    name = "hand"
+    drain_after = False
+
+    def __init__(self, svc) -> None:
+        self.svc = svc
+        self.crl = None
+        self.crl_latest = None
+        self.crl_tx = 0
+        self.cae = None
+        self.cae_volts = None
+        self.cae_idx = None
+
+    def attach_crl(self, port) -> None:
+        from drivers.crl.crl import CrlHandController
+        port.autopoll = False  # serial_tick drains the FIFO; decoding reads the buffer
+        self.crl = CrlHandController(port, self.svc.clock)
+        self.crl_tx = 0
+
+    def decode(self) -> None:
+        if self.crl is not None:
+            self.crl_latest = self.crl.update()
+
+    def wire_cae(self, adc: AdcTask) -> None:
+        from drivers.crl.cae import CaeHandController
+        svc = self.svc
+        try:
+            self.cae = CaeHandController(rack=svc.rack, clock=svc.clock)
+        except (PfmaError, KeyError) as err:
+            svc.post(Severity.WARNING, 130, f"CAE hand controller not available: {err}")
+            return
+        # where the CAE channels sit among the ADC board's scanned volts (the rack's
+        # hand_controller channels, in channel order: up/down, forward/backward,
+        # right/left, yaw, pitch, roll, discretes 1-3)
+        chans = _by_channel(svc.rack.with_quantity("hand_controller"))
+        if not chans:
+            return
+        self.cae_volts = adc.volts_of(chans[0].board)
+        self.cae_idx = np.array([c.channel for c in chans], dtype=np.intp)
+
+    def _put(self, name: str, s) -> None:
+        svc = self.svc
+        v = svc._v
+        i = svc.layout.slot("hc", name)
+        v["hc_axes"][i] = s.axes
+        v["hc_deadman"][i] = s.deadman
+        v["hc_valid"][i] = s.valid
+        v["hc_fault"][i] = s.fault
+        v["hc_buttons"][i] = s.buttons
+        v["hc_t_s"][i] = s.t_s
+
+    def run(self, k: int = 0) -> None:
+        svc = self.svc
+        if self.crl is not None and svc.ft.ft is None:
+            svc._decode_serial()
+        if self.cae is not None and self.cae_volts is not None:
+            self._put("cae", self.cae.from_volts(self.cae_volts[self.cae_idx].tolist(),
+                                                 t_s=float(svc._v["t_adc_s"][()])))
+        if self.crl is not None:
+            self.send_force()
+        if self.crl_latest is not None:
+            self._put("crl", self.crl_latest)
+            stats = self.crl.link_stats()
+            slot = svc.layout.slot("link", "crl_hand_controller")
+            v = svc._v
+            v["link_records"][slot] = stats["frames_ok"]
+            v["link_bad"][slot] = stats["frames_bad"]
+            v["link_resyncs"][slot] = stats["resyncs"]
+            v["link_status"][slot] = LINK_OPEN | (LINK_FAULT if stats["tripped"] else LINK_SYNCED)
+            v["link_rate_hz"][slot] = stats["rate_hz"]
+            v["link_age_s"][slot] = stats["age_s"]
+            svc._sampled("crl", self.crl_latest.t_s)
+
+    def send_force(self) -> None:
+        """Force reflection to the CRL at half the hand-controller rate (40 Hz; its
+        placeholder protocol's watchdog is 60 ms): the command area's force while armed and
+        enabled, zero and disabled otherwise. Queued: the bytes leave between frames."""
+        self.crl_tx ^= 1
+        if not self.crl_tx:
+            return
+        svc = self.svc
+        c = svc.commands.record
+        live = svc.guard.state == ServiceState.ARMED and bool(c["crl_reflect_enable"])
+        f = tuple(float(x) for x in c["crl_reflect_force_n"]) if live else (0.0, 0.0, 0.0)
+        t = tuple(float(x) for x in c["crl_reflect_torque_nm"]) if live else (0.0, 0.0, 0.0)
+        try:
+            self.crl.send_force(f, t, enable=live)
+        except (PfmaError, ValueError) as err:
+            svc._devices["crl"].errors += 1
+            if svc._devices["crl"].errors == 1:
+                svc.post(Severity.ERROR, 142, f"CRL force reflection: {err}")
+
+
+class PioTask:
+    """The parallel ports: the boards with user inputs (config, driver, slots per port),
+    the board with the matrix switcher output, and the route last applied. The PIO
+    channels carry no rack quantity: they are found by their signal names."""
+
+    name = "pio"
+    drain_after = False
+
+    def __init__(self, svc) -> None:
+        self.svc = svc
+        self.inputs: list[tuple] = []
+        self.out = None
+        self.matrix_applied = -1
+
+    def wire(self) -> None:
+        svc = self.svc
+        self.inputs = []
+        self.out = None
+        self.matrix_applied = -1
+        for cfg in svc.rack.boards_of("pio"):
+            drv = svc.io.driver(cfg)
+            dirs = ["in"] * 4
+            for c in cfg.channels:
+                dirs[c.channel] = c.direction
+            slots = {c.channel: svc.layout.slot("pio", c.signal) for c in cfg.channels}
+            if svc._init_board(cfg, lambda d=drv, dd=dirs: d.configure(dd)):
+                if any(c.signal == "matrix_switcher_route" for c in cfg.channels):
+                    self.out = (cfg, drv, slots)
+                if any(c.signal.startswith("user_if_box_inputs") for c in cfg.channels):
+                    self.inputs.append((cfg, drv, slots, svc._board_slot(cfg.name)))
+
+    def run(self, k: int = 0) -> None:
+        svc = self.svc
+        v = svc._v
+        t = svc.clock.now()
+        for cfg, drv, slots, bslot in self.inputs:
+            try:
+                word = drv.read_user_inputs()
+            except PfmaError as err:
+                svc._input_failed(cfg.name, "pio", err)
+                continue
+            v["pio_user_inputs"][...] = word
+            v["pio_port_bits"][slots[0]] = word & 0xFF
+            v["pio_port_bits"][slots[1]] = word >> 8
+            svc._input_ok(cfg.name, bslot)
+            v["t_pio_s"][...] = t
+            svc._sampled("pio", t)
+        if self.out is not None:
+            route = int(svc.commands.record["matrix_route"])
+            if route != self.matrix_applied:
+                cfg, drv, slots = self.out
+                try:
+                    drv.write_matrix_route(route)
+                    self.matrix_applied = route
+                    v["matrix_route"][...] = route
+                    v["pio_port_bits"][slots[0]] = route & 0xFF
+                    svc.post(Severity.INFO, 140, f"matrix switcher route 0x{route:02X}")
+                except (PfmaError, ValueError) as err:
+                    svc._count_board_error(cfg.name, err)
+                    self.matrix_applied = route  # do not retry every frame; posted once
+                    svc.post(Severity.ERROR, 141, f"{cfg.name}: matrix route 0x{route:02X} failed: {err}")
