@@ -39,19 +39,26 @@ import time
 import weakref
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Literal
 
 import numpy as np
 
 from bit3.layout import (
     AREA_MAP, BUFFER_SIZE, LAYOUT_VERSION, MAGIC, MESSAGE_DTYPE, MESSAGE_QUEUE_LEN, MESSAGE_TEXT_BYTES,
     OWNER_DTYPE, OWNER_NAME_BYTES, WRITER_ROLES, AreaSpec, Layout, ServiceState,
-    Severity, _header, default_layout, resolve_role,
+    Severity, _header, default_layout, resolve_role, struct_field, struct_names,
 )
 from bit3.seqlock import (  # noqa: F401  (the errors and constants are part of the buffer's API)
     DEFAULT_READ_TIMEOUT_S, TRY_READ_ATTEMPTS, Bit3Error, LayoutMismatchError, OwnershipError, SeqLock,
     SeqLockTimeout,
 )
 
+
+if TYPE_CHECKING:
+    from multiprocessing.shared_memory import SharedMemory
+
+#: struct formats of the single header/queue words (:meth:`Bit3Buffer._word`)
+WordFormat = Literal["Q", "I", "i", "d"]
 
 _F_OFD_SETLK = getattr(fcntl, "F_OFD_SETLK", None)  # Linux >= 3.15, Python >= 3.9
 _F_OFD_GETLK = getattr(fcntl, "F_OFD_GETLK", None)
@@ -119,7 +126,8 @@ def _open_shm(name: str, create: bool, size: int = BUFFER_SIZE):
                                           track=False)
     shm = shared_memory.SharedMemory(name, create=create, size=size if create else 0)
     from multiprocessing import resource_tracker
-    resource_tracker.unregister(shm._name, "shared_memory")  # see module docstring
+    # _name: the "/name" the tracker registered (typeshed lists only the public name)
+    resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
     return shm
 
 
@@ -269,18 +277,18 @@ class MessageQueue:
         self.area = area
         self._lock = lock
         self._reader = AreaReader(buf, area, lock)
-        self._entries_off = area.body_dtype.fields["entries"][1]
+        self._entries_off = struct_field(area.body_dtype, "entries")[1]
         self._entry_raw = bytearray(MESSAGE_DTYPE.itemsize)
         self._entry_mv = memoryview(self._entry_raw)
         self._entry = np.ndarray((), MESSAGE_DTYPE, buffer=self._entry_raw)
         self._body = lock._body  # in-place posting, under begin()/end()
-        self._head = None
+        self._head: memoryview[Any] | None = None  #: head_seq word, once claimed (post)
         self._now = buf.clock_now
 
     def _attach_writer(self, buf: "Bit3Buffer") -> None:
         off = self.area.body_offset
-        self._head = buf._word(off + self.area.body_dtype.fields["head_seq"][1], "Q")
-        buf._word(off + self.area.body_dtype.fields["capacity"][1], "I")[0] = MESSAGE_QUEUE_LEN
+        self._head = buf._word(off + struct_field(self.area.body_dtype, "head_seq")[1], "Q")
+        buf._word(off + struct_field(self.area.body_dtype, "capacity")[1], "I")[0] = MESSAGE_QUEUE_LEN
 
     def post(self, text: str, severity: Severity | int = Severity.INFO, code: int = 0,
              source: int = 0, t_s: float | None = None) -> int:
@@ -337,6 +345,8 @@ class MessageQueue:
 class Bit3Buffer:
     """The 32 KB buffer. Use :meth:`create`, :meth:`attach` or :meth:`from_file`."""
 
+    _shm: SharedMemory  #: set by create/attach only (close() tests hasattr)
+
     def __init__(self, mem, layout: Layout, *, name: str, fd: int, readonly: bool,
                  closer, clock_now=time.monotonic) -> None:
         if len(mem) != BUFFER_SIZE:
@@ -353,7 +363,7 @@ class Bit3Buffer:
         mv = memoryview(mem)
         self._mv = mv.toreadonly() if readonly else mv
         self._root = mv
-        self._views: list[memoryview] = []
+        self._views: list[memoryview[Any]] = []
         self._locks: dict[str, SeqLock] = {}
         self._claimed: dict[str, str] = {}  # area -> owner name
         self._writers: dict[str, AreaWriter] = {}
@@ -361,10 +371,19 @@ class Bit3Buffer:
         self._owner_views: dict[str, tuple[memoryview, memoryview, memoryview]] = {}
         self._hdr_off = {f.name: f.offset for f in layout.fields if f.area == "header"}
         me = weakref.ref(self)
+
+        def owner_of(area: str) -> Callable[[], str]:
+            def lookup() -> str:
+                buf = me()
+                if buf is None:  # the buffer is gone: SeqLock reports the writer as "?"
+                    raise Bit3Error("Bit3 buffer closed")
+                return buf.owner(area).describe()
+            return lookup
+
         for a in layout.areas:
             if a.seqlocked:
                 lk = self._locks[a.name] = SeqLock(self._mv, a.offset, a.body_size, a.name)
-                lk.owner_lookup = lambda n=a.name: me().owner(n).describe()
+                lk.owner_lookup = owner_of(a.name)
 
     # --- opening ---------------------------------------------------------------------
 
@@ -467,13 +486,13 @@ class Bit3Buffer:
         :returns: ``(alive, description)``; the description names the owner (name, pid)
             from the header's owner record when the segment is a Bit3 buffer
         """
-        from multiprocessing import shared_memory
+        import _posixshmem  # the C module multiprocessing.shared_memory uses on POSIX
         path = f"/dev/shm/{name}"
         index = next((i for i, a in enumerate(AREA_MAP) if a[0] == area and a[3]), None)
         if index is None:
             raise Bit3Error(f"Bit3 area {area!r} has no owner (no writer role writes it)")
         try:
-            fd = shared_memory._posixshmem.shm_open("/" + name, os.O_RDONLY, mode=0o600)
+            fd = _posixshmem.shm_open("/" + name, os.O_RDONLY, mode=0o600)
         except FileNotFoundError:
             return False, f"no buffer {path}"
         except OSError as err:
@@ -505,14 +524,14 @@ class Bit3Buffer:
     @staticmethod
     def unlink(name: str = "pfma") -> bool:
         """Remove POSIX shared memory ``name``; False if it did not exist."""
-        from multiprocessing import shared_memory
+        import _posixshmem  # the C module multiprocessing.shared_memory uses on POSIX
         try:
             shm = _open_shm(name, create=False)
         except FileNotFoundError:
             return False
         shm.close()
         try:
-            shared_memory._posixshmem.shm_unlink("/" + name)  # no tracker round trip
+            _posixshmem.shm_unlink("/" + name)  # no tracker round trip
         except FileNotFoundError:
             return False
         return True
@@ -560,7 +579,7 @@ class Bit3Buffer:
 
     # --- low-level words -------------------------------------------------------------
 
-    def _word(self, offset: int, fmt: str) -> memoryview:
+    def _word(self, offset: int, fmt: WordFormat) -> memoryview[Any]:
         """A 1-element typed view (aligned single load/store) of the buffer."""
         size = struct.calcsize(fmt)
         if offset % size:
@@ -570,7 +589,7 @@ class Bit3Buffer:
         return v
 
     def _owner_offset(self, index: int, fld: str) -> int:
-        return self._hdr_off["owners"] + index * OWNER_DTYPE.itemsize + OWNER_DTYPE.fields[fld][1]
+        return self._hdr_off["owners"] + index * OWNER_DTYPE.itemsize + struct_field(OWNER_DTYPE, fld)[1]
 
     # --- header ------------------------------------------------------------------------
 
@@ -670,7 +689,7 @@ class Bit3Buffer:
         off = self._hdr_off["calibration_hash"]
         self._mv[off:off + 8] = digest[:8]
 
-    def _word_cached(self, field: str, fmt: str) -> memoryview:
+    def _word_cached(self, field: str, fmt: WordFormat) -> memoryview[Any]:
         key = "_w_" + field
         v = self.__dict__.get(key)
         if v is None:
@@ -729,13 +748,13 @@ class Bit3Buffer:
         try:
             s = seq[0]
             seq[0] = s + 1 + (s & 1)
-            struct.pack_into("<iI", self._mv, base + OWNER_DTYPE.fields["pid"][1], pid, 1 if pid else 0)
-            no = base + OWNER_DTYPE.fields["name"][1]
+            struct.pack_into("<iI", self._mv, base + struct_field(OWNER_DTYPE, "pid")[1], pid, 1 if pid else 0)
+            no = base + struct_field(OWNER_DTYPE, "name")[1]
             self._mv[no:no + OWNER_NAME_BYTES] = name.ljust(OWNER_NAME_BYTES, b"\0")
-            cns = base + OWNER_DTYPE.fields["claimed_ns"][1]
+            cns = base + struct_field(OWNER_DTYPE, "claimed_ns")[1]
             # the claim token (owner_pid_token): strictly increasing, also within one clock tick
             struct.pack_into("<Q", self._mv, cns, max(time.time_ns(), struct.unpack_from("<Q", self._mv, cns)[0] + 1))
-            struct.pack_into("<I", self._mv, base + OWNER_DTYPE.fields["takeovers"][1], takeovers)
+            struct.pack_into("<I", self._mv, base + struct_field(OWNER_DTYPE, "takeovers")[1], takeovers)
             seq[0] = s + 2 + (s & 1)
         finally:
             seq.release()
@@ -785,7 +804,7 @@ class Bit3Buffer:
         q = self._queues.get(area)
         if q is None:
             a = self.layout.area(area)
-            if a.body_dtype is None or "entries" not in a.body_dtype.names:
+            if a.body_dtype is None or "entries" not in struct_names(a.body_dtype):
                 raise Bit3Error(f"Bit3 area {area!r} is not a message queue")
             q = self._queues[area] = MessageQueue(self, a, self._locks[area])
         if area in self._claimed and q._head is None:

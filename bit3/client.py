@@ -25,12 +25,12 @@ Snapshots are preallocated: ``read_inputs()`` refreshes and returns the same
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Literal
 
 import numpy as np
 
 from bit3.layout import (
-    Layout, ServiceState, Severity, build_layout, default_layout, resolve_role,
+    Layout, ServiceState, Severity, build_layout, default_layout, resolve_role, struct_names,
 )
 from bit3.buffer import (
     DEFAULT_READ_TIMEOUT_S, AreaReader, Bit3Buffer, Bit3Error, HeaderInfo, Message, OwnerInfo,
@@ -59,7 +59,7 @@ class Snapshot:
         self.area = area
         self.seq = seq  #: sequence number of the copy (even)
         self._layout = layout
-        self._names = frozenset(record.dtype.names)
+        self._names = frozenset(struct_names(record.dtype))
 
     @property
     def layout(self) -> Layout:
@@ -105,7 +105,7 @@ class Snapshot:
 
     def as_dict(self) -> dict[str, Any]:
         out = {}
-        for n in self.record.dtype.names:
+        for n in struct_names(self.record.dtype):
             v = self.record[n]
             out[n] = v.item() if v.ndim == 0 else v.tolist()
         return out
@@ -135,7 +135,7 @@ class Client:
         self._snaps: dict[str, Snapshot] = {}
         self._cursor = {q: 0 for q in QUEUES.values()}
         self._cmd = None
-        self._frame_word = None
+        self._frame_word: memoryview[Any] | None = None  #: header frame word (writers)
         self._closed_loop = False
         if role == "controller":
             self._cmd = buf.writer("commands")
@@ -147,7 +147,7 @@ class Client:
             self._frame_word = buf._word(buf._hdr_off["frame"], "Q")
 
     @classmethod
-    def attach(cls, name: str = "pfma", writer: str | bool | None = False,
+    def attach(cls, name: str = "pfma", writer: str | Literal[False] | None = False,
                owner: str | None = None, *, rack: str | Path | None = None,
                layout: Layout | None = None, path: str | Path | None = None,
                clock_now: Callable[[], float] | None = None,
@@ -177,6 +177,7 @@ class Client:
             lk.timeout_s = timeout_s
         try:
             if role:
+                assert owner  # checked above: a writer needs an owner
                 buf.claim(role, owner)
             return cls(buf, role, owner, clock_now)
         except BaseException:
@@ -311,6 +312,7 @@ class Client:
         hb = int(rec["heartbeat"]) + 1
         rec["heartbeat"] = hb
         if not self._closed_loop:  # an open-loop writer: its setpoint is as new as the inputs
+            assert self._frame_word is not None  # set with the command writer _writer_check found
             rec["inputs_frame"] = self._frame_word[0]
         rec["t_s"] = self._now()
         w.publish()

@@ -564,6 +564,25 @@ def _commands(area: AreaSpec, rack: RackConfig) -> tuple[_Record, list[ChannelEn
             tuple(c.signal for c in limits))
 
 
+def struct_field(dt: np.dtype | None, name: str) -> tuple[np.dtype, int]:
+    """(dtype, byte offset) of field ``name`` of the structured dtype ``dt``.
+
+    numpy types ``dtype.fields`` as optional (None for a plain dtype); every record dtype
+    here is structured, so a plain one is a programming error (TypeError, as before).
+    """
+    fields = None if dt is None else dt.fields
+    if fields is None:
+        raise TypeError(f"{dt!r} is not a structured dtype")
+    return fields[name][0], fields[name][1]
+
+
+def struct_names(dt: np.dtype) -> tuple[str, ...]:
+    """The field names of the structured dtype ``dt`` (see :func:`struct_field`)."""
+    if dt.names is None:
+        raise TypeError(f"{dt!r} is not a structured dtype")
+    return dt.names
+
+
 #: one message-queue entry (80 bytes)
 MESSAGE_DTYPE = np.dtype({
     "names": ["seq", "t_s", "severity", "source", "code", "text"],
@@ -726,6 +745,12 @@ def _md_dtype(d: str) -> str:
     return d.lstrip("|")  # "|" (byte order not applicable) would split a markdown table cell
 
 
+def _md_record(dt: np.dtype) -> str:
+    """``name type @+offset, ...`` of a structured record dtype."""
+    return ", ".join(f"{n} {_md_dtype(struct_field(dt, n)[0].str)} @+{struct_field(dt, n)[1]}"
+                     for n in struct_names(dt))
+
+
 def _shape(s: tuple[int, ...]) -> str:
     return "" if not s else "[" + ",".join(map(str, s)) + "]"
 
@@ -801,15 +826,9 @@ def layout_markdown(layout: Layout | None = None) -> str:
             "Service states: " + ", ".join(f"{s.value} {s.name}" for s in ServiceState) + ". "
             "Severities: " + ", ".join(f"{s.value} {s.name}" for s in Severity) + ".", ""]
     out += ["## Header records", "",
-            "`area_table[i]` (32 B): " + ", ".join(
-                f"{n} {_md_dtype(AREA_ENTRY_DTYPE.fields[n][0].str)} @+{AREA_ENTRY_DTYPE.fields[n][1]}"
-                for n in AREA_ENTRY_DTYPE.names) + ".", "",
-            "`owners[i]` (80 B, i = area index): " + ", ".join(
-                f"{n} {_md_dtype(OWNER_DTYPE.fields[n][0].str)} @+{OWNER_DTYPE.fields[n][1]}"
-                for n in OWNER_DTYPE.names) + ".", "",
-            f"Message `entries[i]` ({MESSAGE_DTYPE.itemsize} B): " + ", ".join(
-                f"{n} {_md_dtype(MESSAGE_DTYPE.fields[n][0].str)} @+{MESSAGE_DTYPE.fields[n][1]}"
-                for n in MESSAGE_DTYPE.names) + ".", ""]
+            "`area_table[i]` (32 B): " + _md_record(AREA_ENTRY_DTYPE) + ".", "",
+            "`owners[i]` (80 B, i = area index): " + _md_record(OWNER_DTYPE) + ".", "",
+            f"Message `entries[i]` ({MESSAGE_DTYPE.itemsize} B): " + _md_record(MESSAGE_DTYPE) + ".", ""]
     for a in lay.areas:
         fl = [f for f in lay.fields if f.area == a.name]
         if not fl:

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import os
 import time
+from typing import Callable
 
 from bit3.layout import SEQ_BLOCK
 from pfma.errors import PfmaError, PfmaTimeoutError
@@ -84,7 +85,8 @@ class SeqLock:
         self.body_size = body_size
         self.retries = 0  #: failed read attempts (torn or in-progress), for statistics
         self.timeout_s = timeout_s
-        self.owner_lookup = None  #: callable -> "name (pid N)" of the writer, for error messages
+        #: callable -> "name (pid N)" of the writer, for error messages
+        self.owner_lookup: Callable[[], str] | None = None
 
     @property
     def seq(self) -> int:

@@ -13,7 +13,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from drivers.bus import RegisterBus
 from drivers.catalog import board_kind, resolve
+from pfma.clock import Clock
 from pfma.errors import BoardError, ConfigError
 from pfma.rack import BoardConfig, Channel, RackConfig
 
@@ -43,7 +45,7 @@ class RackIO:
     :param clock: passed to drivers that wait (the serial board); None: their default
     """
 
-    def __init__(self, bus, rack: RackConfig, clock=None) -> None:
+    def __init__(self, bus: RegisterBus, rack: RackConfig, clock: Clock | None = None) -> None:
         self.bus = bus
         self.rack = rack
         self.clock = clock

@@ -12,6 +12,7 @@ import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NoReturn
 
 from pfma.errors import ConfigError
 
@@ -321,7 +322,8 @@ def _section_key_line(text: str, section: str, key: str | None = None) -> int | 
                 if key is None:
                     return n
             continue
-        if header is not None and re.match(rf"^{re.escape(key)}\s*=", s):
+        # key is a str here: with key=None the function returned at the header line
+        if header is not None and re.match(rf"^{re.escape(key)}\s*=", s):  # type: ignore[type-var]
             return n
     return header
 
@@ -335,7 +337,7 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
     lines = _Lines(text)
 
     def fail(msg: str, board: int | None = None, channel: int | None = None,
-             key: str | None = None):
+             key: str | None = None) -> NoReturn:
         line = lines.of(board, channel, key) if board is not None else None
         where = f"{source}:{line}" if line else source
         raise ConfigError(f"{where}: {msg}")

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from typing import Callable
 from urllib.parse import parse_qsl, urlsplit
 
 from pymodbus.client import ModbusTcpClient
@@ -108,7 +109,8 @@ class ModbusTcpBus:
                            reason=f"no reply from gateway {self.gateway} within {self.timeout:g} s") from err
         if rr.isError():
             code = getattr(rr, "exception_code", None)
-            reason = EXCEPTION_REASONS.get(code, f"gateway exception {code}")
+            reason = (EXCEPTION_REASONS.get(code, f"gateway exception {code}") if isinstance(code, int)
+                      else f"gateway exception {code}")
             raise BusError(addr, width, op, reason=reason) from ModbusException(str(rr))
         return rr
 
@@ -197,7 +199,7 @@ def open_modbus_bus(url: str, **kwargs) -> ModbusTcpBus:
         raise ValueError(f"bus URL {url!r} needs a host and a port: modbus://HOST:PORT")
     if parts.path not in ("", "/"):
         raise ValueError(f"bus URL {url!r}: unexpected path {parts.path!r}")
-    parsers = {"unit": lambda v: int(v, 0), "timeout": float}
+    parsers: dict[str, Callable[[str], int | float]] = {"unit": lambda v: int(v, 0), "timeout": float}
     opts: dict = {}
     for key, value in parse_qsl(parts.query, keep_blank_values=True):
         if key not in parsers:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import threading
-from typing import Callable
+from typing import Callable, cast
 
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import SimDevice
@@ -54,7 +54,10 @@ class ModbusServerThread:
             await self._server.serve_forever(background=True)
             if self._server.transport is None:  # pymodbus logs the bind error and returns
                 raise OSError(f"could not listen on {self.host}:{self.port}")
-            self.port = self._server.transport.sockets[0].getsockname()[1]
+            # pymodbus types transport as BaseTransport; a listening TCP server holds the
+            # asyncio.Server that loop.create_server returned
+            listener = cast(asyncio.Server, self._server.transport)
+            self.port = listener.sockets[0].getsockname()[1]
             self._ready.set()
             await self._server.serving  # resolved by shutdown()
 

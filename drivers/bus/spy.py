@@ -10,6 +10,10 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from drivers.bus import RegisterBus
 
 __all__ = ["SpyBus", "Access", "open_spy_bus"]
 
@@ -41,7 +45,8 @@ class SpyBus:
     :param keep: keep at most this many accesses in :attr:`log` (None: all)
     """
 
-    def __init__(self, bus, *, logger: logging.Logger | None = _log, keep: int | None = 100_000) -> None:
+    def __init__(self, bus: RegisterBus, *, logger: logging.Logger | None = _log,
+                 keep: int | None = 100_000) -> None:
         self.bus = bus
         self.logger = logger
         self.keep = keep

@@ -16,7 +16,7 @@ itself when the link comes back.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Sequence
 
 from drivers.crl import crl_codec as codec
 from drivers.crl.state import HandControllerState, safe_state
@@ -167,7 +167,7 @@ class CrlHandController:
         return codec.counts_to_pose(self._last_frame.axes_counts)
 
     # -- transmit -----------------------------------------------------------------
-    def send_force(self, force_n: tuple[float, float, float], torque_nm: tuple[float, float, float],
+    def send_force(self, force_n: Sequence[float], torque_nm: Sequence[float],
                    enable: bool = True) -> codec.ForceFrame:
         """Send one force-reflection frame; return the frame actually sent.
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass, field
+from typing import Callable
 
 SOF = 0x7E  #: start-of-frame byte (R8)
 FRAME_LEN = 16  #: bytes per frame, both directions (8.6)
@@ -92,7 +93,7 @@ class ForceFrame:
     def enabled(self) -> bool:
         return bool(self.flags & FLAG_FORCE_ENABLE)
 
-    def wrench(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    def wrench(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
         """(force_n, torque_nm) in engineering units."""
         return counts_to_wrench(self.wrench_counts)
 
@@ -231,6 +232,7 @@ class FrameDecoder:
     _last_seq: int | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
+        self._decode: Callable[[bytes], MasterFrame | ForceFrame]
         if self.kind == "master":
             self._reserved, self._decode = BUTTONS_RESERVED, decode_master_frame
         elif self.kind == "force":

@@ -67,7 +67,7 @@ class HandControllerState:
         return self.axes[AXES.index(name)]
 
     def as_dict(self) -> dict:
-        d = {name: a for name, a in zip(AXES, self.axes)}
+        d: dict[str, object] = {name: a for name, a in zip(AXES, self.axes)}
         d.update(deadman=self.deadman, buttons=self.buttons, source=self.source, t_s=self.t_s,
                  valid=self.valid, fault=self.fault, reason=self.reason)
         return d

@@ -75,7 +75,7 @@ class Mvme400:
         self._ctrl = (base + r("SIO_CTRL_A").offset, base + r("SIO_CTRL_B").offset)
         self.lock = threading.RLock()
         self._pa = 0x00
-        self._baud_codes = [None, None]
+        self._baud_codes: list[int | None] = [None, None]  #: per channel; None before init
         self._ports: dict[int, Mvme400Port] = {}
         self.initialised = False
 
@@ -177,7 +177,7 @@ class Mvme400:
         with self.lock:
             self.pia.configure("a", PIA_DDRA)
             self.pia.configure("b", PIA_DDRB)
-            self._baud_codes = codes
+            self._baud_codes = list(codes)
             self._write_baud()
             self._pa = 0x00
             self.pia.write_port("a", self._pa)

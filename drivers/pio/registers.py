@@ -16,6 +16,8 @@ Sources (copied from /work/shared/reference/hardware-registers.md, sections 0, 5
 
 from __future__ import annotations
 
+from typing import TypedDict
+
 from drivers.registers import BoardDescription, Field, Register
 
 # -- MC6821 control register (CRA / CRB) bits: sourced, MAME 6821pia.cpp ------------------
@@ -84,7 +86,21 @@ PORTS = {0: (0, "a"), 1: (0, "b"), 2: (1, "a"), 3: (1, "b")}
 # -- Matrix switcher on pio_video port 0: ONE table, ASSUMED (wiring drawings 849IRS20800
 # are not public; the seed names only "an output interface for the Matrix Switcher").
 # 3 cameras -> 2 monitors; a 2-bit source code per monitor.
-MATRIX_SWITCHER = {
+class MatrixSwitcherTable(TypedDict):
+    """The keys of ``MATRIX_SWITCHER`` and their types (a plain dict at run time)."""
+
+    port: int
+    monitor_fields: dict[int, Field]
+    source_codes: dict[int, str]
+    unused_bits: int
+    strobe: str
+    latch_edge: str
+    ack: str
+    ack_delay_s: float
+    ack_polls: int
+
+
+MATRIX_SWITCHER: MatrixSwitcherTable = {
     "port": 0,  #: MVME410 port carrying the route byte (PIA1 port A, all outputs)
     "monitor_fields": {1: Field("monitor_1_source", 0, 2), 2: Field("monitor_2_source", 2, 2)},
     "source_codes": {0: "no source (blank)", 1: "camera 1", 2: "camera 2", 3: "camera 3"},

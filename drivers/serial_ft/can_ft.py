@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import struct
 import time
-from typing import Any
+from typing import TYPE_CHECKING
 
 from pfma.clock import Clock, MonotonicClock
 from pfma.errors import ConfigError, LinkError, PfmaTimeoutError
@@ -23,6 +23,9 @@ from .ftsensor import FtReading, LinkStats
 from .protocol import (CAN_BASE_ID, CAN_LAYOUT, CAN_NODE_STRIDE, MAX_NODE_ID, NOMINAL,  # noqa: F401
                        OP_BIAS, OP_CLEAR_BIAS, OP_READ, OP_UNBIAS, STATUS_CODES, CanFrameLayout,
                        frame_id, node_base_id)
+
+if TYPE_CHECKING:
+    import can  # python-can, imported by whoever opens the bus
 
 
 class CanFtSensor:
@@ -35,7 +38,7 @@ class CanFtSensor:
     :param clock: timestamps; :param timeout_s: bound on each reply
     """
 
-    def __init__(self, bus: Any, node_id: int, cpf: float = NOMINAL.cpf, cpt: float = NOMINAL.cpt,
+    def __init__(self, bus: can.BusABC, node_id: int, cpf: float = NOMINAL.cpf, cpt: float = NOMINAL.cpt,
                  clock: Clock | None = None, timeout_s: float = 0.1, rate_window_s: float = 1.0) -> None:
         if not (cpf > 0 and cpt > 0):
             raise ConfigError(f"CAN F/T node {node_id}: cpf and cpt must be > 0 (got {cpf}, {cpt})")
@@ -113,7 +116,7 @@ class CanFtSensor:
             raise LinkError(f"F/T on {self.name}: send failed: {err}") from err
         return self._tag
 
-    def _recv(self, deadline: float, what: str) -> Any:
+    def _recv(self, deadline: float, what: str) -> can.Message:
         import can
 
         while True:
@@ -144,6 +147,7 @@ class CanFtSensor:
 
     def _accept(self, status: int, c: tuple[int, ...]) -> FtReading:
         t = self.clock.now()
+        # ignore: c is a tuple[int, ...] of exactly 6 counts (the forces and torques frames)
         r = FtReading(status=status, counts=tuple(c),  # type: ignore[arg-type]
                       force_n=(c[0] / self.cpf, c[1] / self.cpf, c[2] / self.cpf),
                       torque_nm=(c[3] / self.cpt, c[4] / self.cpt, c[5] / self.cpt), t_s=t, seq=self._seq)

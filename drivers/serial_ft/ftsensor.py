@@ -406,6 +406,7 @@ class FtSensor:
     def _accept(self, rec: tuple[int, tuple[int, ...]]) -> FtReading:
         status, c = rec
         t = self.clock.now()
+        # ignore: the decoder yields a tuple[int, ...] of exactly 6 counts (one per record field)
         reading = FtReading(status=status, counts=c,  # type: ignore[arg-type]
                             force_n=(c[0] / self.cpf, c[1] / self.cpf, c[2] / self.cpf),
                             torque_nm=(c[3] / self.cpt, c[4] / self.cpt, c[5] / self.cpt),
