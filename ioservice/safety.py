@@ -27,17 +27,10 @@ Rules (issue "data-acquisition service", item 3; MVME 104 watchdog 15 ms, IRSS 3
 
 from __future__ import annotations
 
-from enum import IntEnum
-
+from bit3.layout import ServiceState  # the states as the Bit3 header publishes them
 from pfma.clock import Clock
 
-
-class ServiceState(IntEnum):
-    STARTING = 0
-    SAFE = 1  #: outputs at 0 V, not armed
-    ARMED = 2  #: commands applied to the DAC
-    FAULT = 3  #: tripped; 0 V until an explicit re-arm
-    STOPPED = 4  #: service stopped; outputs 0 V and disconnected
+__all__ = ["OutputGuard", "ServiceState"]
 
 
 class OutputGuard:
@@ -58,11 +51,11 @@ class OutputGuard:
         self.trips = 0
         self.refusals = 0  #: commands refused while they would have driven the arm
         self.reason = ""
-        self._hb = None  # last heartbeat counter seen
+        self._hb: int | None = None  # last heartbeat counter seen
         self._hb_t = -1e300  # when it last changed (service clock)
-        self._arm_request_used = None  # arm_request value that armed or was refused last
+        self._arm_request_used: int | None = None  # arm_request value that armed or was refused last
         self._ever_seen = False
-        self._pending_notice = None
+        self._pending_notice: int | None = None
 
     def heartbeat_age_s(self) -> float:
         return self.clock.now() - self._hb_t

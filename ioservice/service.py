@@ -29,6 +29,7 @@ register offset itself.
 from __future__ import annotations
 
 import math
+from typing import Any
 import os
 import resource
 import signal
@@ -45,12 +46,12 @@ from ioservice.loop import FrameInfo, FrameLoop, LoopStats
 from ioservice.safety import OutputGuard
 from ioservice.schedule import MINOR_FRAMES_PER_MAJOR, Schedule
 from ioservice.tasks import (  # noqa: F401 - the F/T and brake constants are re-exported
-    BRAKE_RELEASE_V, FT_START_ATTEMPTS, FT_STALE_S, AdcTask, DacTask, FtTask, HandTask, PioTask, RtdTask,
+    BRAKE_RELEASE_V, FT_START_ATTEMPTS, FT_STALE_S, AdcTask, DacTask, FtTask, HandTask, InputTask, PioTask, RtdTask,
 )
 from bit3.buffer import Bit3Buffer
 from pfma.clock import Clock
 from pfma.errors import ConfigError, PfmaError
-from pfma.rack import RackConfig
+from pfma.rack import BoardConfig, RackConfig
 from drivers.rackio import RackIO
 
 #: fault codes (inputs.fault_code)
@@ -155,11 +156,11 @@ class IoService:
         self.commands = buffer.reader("commands")
         self.queue = buffer.queue("service_messages")
         self.guard = OutputGuard(clock, watchdog_s, post=self._post_guard)
-        self._hb_ok = None  # heartbeat of the last command written by the claim holder
-        self._hb_seen = None  # heartbeat in the command record at the last good read
+        self._hb_ok: int | None = None  # heartbeat of the last command written by the claim holder
+        self._hb_seen: int | None = None  # heartbeat in the command record at the last good read
         self._refusals_seen = 0
         self._cmd_episode = 0  # command_status bits already announced by a message
-        self._last_alive = None  # clock time the service last ran (frame or hook tick)
+        self._last_alive: float | None = None  # clock time the service last ran (frame or hook tick)
         self._stall_s = 0.0  # the latest host stall and when it ended
         self._stall_end = -math.inf
         self._guard_state = self.guard.state
@@ -169,7 +170,7 @@ class IoService:
         self.state = ServiceState.STARTING
         self.fault_code = FAULT_NONE
         self._rec = self.inputs.record
-        self._v = {name: self.inputs.record[name] for name in self.inputs.record.dtype.names}
+        self._v = {name: self.inputs.record[name] for name in self.inputs.record.dtype.names or ()}
         self._stats_rec = self.stats_writer.record
         self._devices = {g: _DeviceCounter() for g in ("rtd", "adc", "dac", "ft", "pio", "crl", "hid")}
         self._board_fail_run: dict[str, int] = {}
@@ -188,7 +189,7 @@ class IoService:
         # Outputs start disconnected and at 0 V: write the zeros, keep P3 off.
         self._init_board(self.dac.cfg, self.dac.drv.disable_outputs)
         self.pio.wire()
-        self._mvme400 = None
+        self._mvme400: tuple[BoardConfig, Any] | None = None  # (board, driver) of the serial board
         self._last_drain = -math.inf  # clock time of the last serial FIFO drain
         self._ft_url = ft_port
         if serial:
@@ -201,7 +202,7 @@ class IoService:
         self._wall0 = clock.now()
         self.stats_every = max(1, int(round(self.schedule.frame_rate_hz / 2)))  # twice a second
         self._stats_between_frames = False  # True while run() has idle_tick on the clock
-        self._stats_due_k = None  # frame that asked for statistics not yet published
+        self._stats_due_k: int | None = None  # frame that asked for statistics not yet published
         self.set_state(ServiceState.SAFE)
         self.post(Severity.INFO, 100, f"service started: {rack.name}, "
                   f"{self.schedule.frame_rate_hz:g} Hz frames, watchdog {watchdog_s * 1e3:g} ms")
@@ -214,7 +215,7 @@ class IoService:
         bit is in its mask (its own schedule entry, those of frames just dropped, the F/T
         retry)."""
         table = self.schedule.frame_table()
-        tasks = (self.rtd, self.adc, self.ft, self.hand, self.pio)  # inputs, in run order
+        tasks: tuple[InputTask, ...] = (self.rtd, self.adc, self.ft, self.hand, self.pio)  # inputs, in run order
         names = tuple(t.name for t in tasks)
         self._input_tasks = tuple((1 << i, t) for i, t in enumerate(tasks))
         self._frame_tasks = tuple(tuple(n for n in names if n in frame) for frame in table)

@@ -23,6 +23,7 @@ the rack's engineering scales and the calibration.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -31,6 +32,12 @@ from bit3.layout import (
     ServiceState, Severity,
 )
 from pfma.errors import PfmaError
+
+if TYPE_CHECKING:
+    from calibration.files import FtCalibration
+    from drivers.crl.cae import CaeHandController
+    from drivers.crl.crl import CrlHandController
+    from drivers.serial_ft.ftsensor import FtSensor
 
 #: F/T record older than this is flagged stale: 8 F/T periods. Assumed: long enough to
 #: ride through a development VM's 10-50 ms host stalls (each costs a burst of lost bytes
@@ -48,6 +55,16 @@ _TWO_PI = 2.0 * math.pi
 
 def _by_channel(channels):
     return sorted(channels, key=lambda c: c.channel)
+
+
+class InputTask(Protocol):
+    """What the frame loop needs of an input task: its schedule name, whether the serial
+    FIFOs are drained right after it (a long scan), and the per-frame work."""
+
+    name: str
+    drain_after: bool
+
+    def run(self, k: int = 0) -> None: ...
 
 
 class RtdTask:
@@ -315,10 +332,10 @@ class FtTask:
 
     def __init__(self, svc) -> None:
         self.svc = svc
-        self.ft = None
+        self.ft: FtSensor | None = None
         self.in_tick = False
-        self.latest = None
-        self.cal = None
+        self.latest: Any = None  #: the newest decoded F/T record
+        self.cal: FtCalibration | None = None
         self.retry = 0
 
     def start(self, port, baud: int, where: str) -> None:
@@ -420,12 +437,12 @@ class HandTask:
 
     def __init__(self, svc) -> None:
         self.svc = svc
-        self.crl = None
-        self.crl_latest = None
+        self.crl: CrlHandController | None = None
+        self.crl_latest: Any = None  #: the newest CRL state
         self.crl_tx = 0
-        self.cae = None
-        self.cae_volts = None
-        self.cae_idx = None
+        self.cae: CaeHandController | None = None
+        self.cae_volts: np.ndarray | None = None
+        self.cae_idx: np.ndarray | None = None
 
     def attach_crl(self, port) -> None:
         from drivers.crl.crl import CrlHandController
@@ -474,7 +491,7 @@ class HandTask:
                                                  t_s=float(svc._v["t_adc_s"][()])))
         if self.crl is not None:
             self.send_force()
-        if self.crl_latest is not None:
+        if self.crl_latest is not None and self.crl is not None:
             self._put("crl", self.crl_latest)
             stats = self.crl.link_stats()
             slot = svc.layout.slot("link", "crl_hand_controller")
@@ -492,7 +509,7 @@ class HandTask:
         placeholder protocol's watchdog is 60 ms): the command area's force while armed and
         enabled, zero and disabled otherwise. Queued: the bytes leave between frames."""
         self.crl_tx ^= 1
-        if not self.crl_tx:
+        if not self.crl_tx or self.crl is None:
             return
         svc = self.svc
         c = svc.commands.record
@@ -518,7 +535,7 @@ class PioTask:
     def __init__(self, svc) -> None:
         self.svc = svc
         self.inputs: list[tuple] = []
-        self.out = None
+        self.out: tuple[Any, Any, dict] | None = None  #: (board, driver, slots) of the matrix switcher
         self.matrix_applied = -1
 
     def wire(self) -> None:

@@ -19,6 +19,10 @@ class Clock(Protocol):
         """Block (or, simulated, jump) until ``now() >= t``."""
         ...
 
+    def advance(self, dt: float) -> None:
+        """Simulated: move time on by ``dt``; real: nothing (time passes by itself)."""
+        ...
+
 
 class MonotonicClock:
     """The real monotonic clock (``time.monotonic``)."""

@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 from drivers.adc.registers import AUTOINC, BUSY, CSR, DATA, DVME611, EOC, N_CHANNELS, START
+from drivers.bus import RegisterBus
 from drivers.registers import check_channel, register_name
 from pfma.errors import BoardError, BusError
 
@@ -44,7 +45,7 @@ class Dvme611:
     description = DVME611
     n_channels = N_CHANNELS
 
-    def __init__(self, bus, base: int, name: str | None = None, *, range_volts: float = _RANGE_VOLTS,
+    def __init__(self, bus: RegisterBus, base: int, name: str | None = None, *, range_volts: float = _RANGE_VOLTS,
                  max_polls: int = 64, min_wait_s: float = 50e-6, timer=time.perf_counter) -> None:
         if not range_volts > 0:
             raise ValueError(f"range_volts must be positive, not {range_volts!r}")

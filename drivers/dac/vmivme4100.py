@@ -15,6 +15,7 @@ import numpy as np
 
 from drivers.dac.registers import (CTRL_MASK, DATA_MASK, DISABLE_WORD, ENABLE_WORD, N_CHANNELS,
                                    P3_ENABLE, VMIVME4100)
+from drivers.bus import RegisterBus
 from drivers.registers import check_channel
 from pfma.errors import BusError
 
@@ -35,7 +36,7 @@ class Vmivme4100:
     description = VMIVME4100
     n_channels = N_CHANNELS
 
-    def __init__(self, bus, base: int, name: str | None = None, *, range_volts: float = _RANGE_VOLTS) -> None:
+    def __init__(self, bus: RegisterBus, base: int, name: str | None = None, *, range_volts: float = _RANGE_VOLTS) -> None:
         if not range_volts > 0:
             raise ValueError(f"range_volts must be positive, not {range_volts!r}")
         self.bus = bus

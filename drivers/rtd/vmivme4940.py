@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.bus import RegisterBus
 from drivers.registers import check_channel, register_name
 from drivers.rtd.registers import ANGLE, CONTROL, N_CHANNELS, STATUS, VMIVME4940
 from pfma.errors import BusError
@@ -19,7 +20,7 @@ from pfma.errors import BusError
 class RtdStatus:
     """Decoded STATUS word."""
 
-    faults: tuple[bool, bool, bool, bool]  #: per channel: loss of signal or BIT fail
+    faults: tuple[bool, ...]  #: per channel (N_CHANNELS): loss of signal or BIT fail
     reference_present: bool  #: 400 Hz reference seen
     raw: int  #: the STATUS word as read
 
@@ -40,7 +41,7 @@ class Vmivme4940:
     description = VMIVME4940
     n_channels = N_CHANNELS
 
-    def __init__(self, bus, base: int, name: str | None = None) -> None:
+    def __init__(self, bus: RegisterBus, base: int, name: str | None = None) -> None:
         self.bus = bus
         self.base = base
         self.name = name or f"{VMIVME4940.kind}@0x{base:04X}"
