@@ -1,27 +1,12 @@
-import multiprocessing
-import os
-import uuid
+"""The simulated-time rig for service tests (``sim.rig.SimRig``)."""
 
 import pytest
 
-from bit3.buffer import Bit3Buffer
+from sim.rig import SimRig
 
 
 @pytest.fixture
-def shm_name():
-    """A unique POSIX shared-memory name, removed after the test."""
-    name = f"pfma_t{os.getpid()}_{uuid.uuid4().hex[:8]}"
-    yield name
-    Bit3Buffer.unlink(name)
-
-
-@pytest.fixture
-def buf(shm_name):
-    b = Bit3Buffer.create(shm_name)
-    yield b
-    b.close()
-
-
-@pytest.fixture(scope="session")
-def mp():
-    return multiprocessing.get_context("spawn")
+def rig():
+    r = SimRig(prefix="pfma-test-")
+    yield r
+    r.close()

@@ -20,7 +20,7 @@ from tools.modbus_export import (
 )
 from bit3.buffer import OwnershipError
 from pfma.errors import ConfigError
-from tests.ioservice import _workers
+from tests.bit3 import _workers
 
 DT = ModbusTcpClient.DATATYPE
 ROWS = register_map()
@@ -185,7 +185,7 @@ def test_unmapped_addresses_and_other_function_codes_are_exceptions(mb):
 
 def test_multi_register_reads_are_never_torn(buf, shm_name, mp):
     """A writer in another process publishes inputs frames flat out, every 8-byte word
-    of the body = the frame number (tests/ioservice/_workers.py); every 124-register
+    of the body = the frame number (tests/bit3/_workers.py); every 124-register
     read (31 float64 elements of adc_volts/adc_value, decoded as their 8-byte pattern)
     through the export must show one frame only."""
     first = map_row(ROWS, "adc_volts").address

@@ -22,7 +22,7 @@ from tools.recording.reader import read_frames, read_metadata
 from bit3.ring import FrameRing
 from bit3.buffer import Bit3Buffer
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 _RECORD = ("import sys; import tools.cli.record as r; r.STALE_S = 3600.0; from tools.cli import main; "
            "sys.exit(main(['record', sys.argv[1], '--buffer', sys.argv[2]]))")
 

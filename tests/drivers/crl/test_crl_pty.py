@@ -1,6 +1,6 @@
 """CrlHandController against FakeCrlMaster over a REAL pty.
 
-Most tests step the link in simulated time (tests/crl/simline.py: the test moves the
+Most tests step the link in simulated time (tests/drivers/crl/simline.py: the test moves the
 bytes, a SimClock drives the watchdog), so they are deterministic. One test runs the
 fake free in real time behind fakes.pty.PtyDevice, waiting on data with deadlines.
 """
@@ -19,7 +19,7 @@ from drivers.crl import crl_codec as codec
 from fakes.crl import FakeCrlMaster
 from pfma.clock import MonotonicClock, SimClock
 from pfma.errors import LinkError
-from tests.crl.simline import SimPtyLink
+from tests.drivers.crl.simline import SimPtyLink
 
 DT = codec.FRAME_PERIOD_S
 

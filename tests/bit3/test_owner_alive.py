@@ -10,7 +10,7 @@ from dataclasses import replace
 
 from bit3.layout import default_layout
 from bit3.buffer import Bit3Buffer, open_shm
-from tests.ioservice import _workers
+from tests.bit3 import _workers
 
 
 def test_missing_and_foreign_segments_are_not_alive(shm_name):

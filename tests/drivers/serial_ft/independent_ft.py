@@ -1,9 +1,9 @@
 """An INDEPENDENT emulation of the Lord/ATI F/T controller serial protocol on a real pty.
 
 Written only from the protocol facts below (copied from
-/work/shared/reference/hardware-registers.md section 7 and its R7 notes, and from
+the hardware-registers reference notes section 7 and its R7 notes, and from
 docs/ft-protocol.md); it shares no code with the project's fake (fakes/ft_sensor.py)
-nor with ``drivers.serial_ft.protocol``. Tests never read /work/shared at run time.
+nor with ``drivers.serial_ft.protocol``. Tests never read anything outside the repository at run time.
 
 Protocol facts used (quoted/condensed from the sources)
 ------------------------------------------------------

@@ -11,7 +11,7 @@ import pytest
 
 from bit3.client import Client
 from bit3.buffer import Bit3Buffer, OwnershipError, SeqLockTimeout
-from tests.ioservice import _workers
+from tests.bit3 import _workers
 
 N_READS = 20_000
 

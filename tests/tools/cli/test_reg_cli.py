@@ -13,7 +13,7 @@ from tools.cli import main
 from pfma.clock import SimClock
 from pfma.rack import load_rack
 from drivers.rackio import RackIO
-from tests.bus.tinybus import free_port, quiet_pymodbus
+from tests.drivers.bus.tinybus import free_port, quiet_pymodbus
 
 
 @pytest.fixture

@@ -10,7 +10,7 @@ from drivers.bus import open_bus
 from drivers.bus.modbus import ModbusTcpBus, open_modbus_bus
 from fakes.modbus_gateway import ModbusGateway
 from pfma.errors import AlignmentError, BusError
-from tests.bus.tinybus import TinyBus, free_port, quiet_pymodbus
+from tests.drivers.bus.tinybus import TinyBus, free_port, quiet_pymodbus
 
 
 @pytest.fixture

@@ -35,7 +35,7 @@ from drivers.bus.modbus import ModbusTcpBus
 from fakes.modbus_gateway import ModbusGateway
 from pfma.clock import SimClock
 from pfma.errors import BusError
-from tests.bus.tinybus import quiet_pymodbus
+from tests.drivers.bus.tinybus import quiet_pymodbus
 
 DEAD = 0x8000  # no board in the default rack, outside the device-file window
 

@@ -91,7 +91,7 @@ def test_replacing_the_ring_never_pulls_the_memory_from_under_a_reader(name, mp)
     whole, and the reader sees the replacement and attaches B."""
     import signal
 
-    from tests.ioservice import _workers
+    from tests.bit3 import _workers
     a = FrameRing.create(name, body_size=100, layout_hash=b"aaaaaaaa")
     for k in range(10):
         a.write(bytes([k]) * 100)

@@ -8,7 +8,7 @@ from bit3.client import Client
 from bit3.layout import ServiceState, default_layout
 from bit3.buffer import Bit3Buffer
 from tools.cli import main
-from tests.ioservice import _workers
+from tests.bit3 import _workers
 
 
 def test_serve_runs_and_leaves_a_stopped_safe_buffer(capsys):

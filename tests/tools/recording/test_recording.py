@@ -1,4 +1,4 @@
-"""Recorder, recover, scope and replay on the simulated-time rig (tests/service/conftest.py).
+"""Recorder, recover, scope and replay on the simulated-time rig (tests/ioservice/conftest.py).
 
 Recordings are read back independently with ``mcap.reader.make_reader`` and decoded from
 the schema stored in the file, not with the recorder's own state.
@@ -28,7 +28,7 @@ from tools.replay import replay_through_fakes, republish
 from tools.scope import ScopeCapture, load, render, save
 from sim.rig import SimRig as Rig
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 OFFSET_NS = 1_700_000_000_000_000_000
 
 

@@ -16,7 +16,7 @@ from bit3.layout import default_layout
 from bit3.buffer import Bit3Buffer
 from tools.cli import main
 from pfma.errors import PfmaError
-from tests.ioservice import _workers
+from tests.bit3 import _workers
 
 READERS = [
     ["read", "elbow_pitch_angle"],
@@ -118,7 +118,7 @@ def test_read_fake_rack_json_says_simulated(capsys):
 
 
 def test_serve_rack_file_without_bus_is_refused(name, capsys):
-    rack = os.path.join(os.path.dirname(__file__), "..", "..", "pfma", "rack_default.toml")
+    rack = os.path.join(os.path.dirname(__file__), "..", "..", "..", "pfma", "rack_default.toml")
     assert main(["serve", "--rack", rack, "--duration", "0.1", "--buffer", name]) == 2
     err = capsys.readouterr().err
     assert "needs --bus" in err and "--bus fake" in err

@@ -1,4 +1,4 @@
-"""FtSensor against an INDEPENDENT F/T controller emulation (tests/serial_ft/independent_ft.py)
+"""FtSensor against an INDEPENDENT F/T controller emulation (tests/drivers/serial_ft/independent_ft.py)
 on a real pty at 19200 baud 8N1, written from the protocol documents only (not from
 fakes/ft_sensor.py, which this file neither reads nor imports).
 
