@@ -6,7 +6,7 @@ the host sent, ``transmit(max_bytes)`` returns what is ready on the wire (at mos
 controller's own time (internal sampling). The same object runs behind
 ``fakes.pty.PtyDevice`` (a real pty) or on the fake MVME400 serial channel.
 
-Protocol facts: /work/shared/reference/hardware-registers.md section 7 and R7, via
+Protocol facts: the hardware-registers reference notes section 7 and R7, via
 the shared table ``drivers.serial_ft.protocol`` (fakes may import protocol tables,
 as they import ``registers.py`` tables; never a driver).
 """

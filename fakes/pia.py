@@ -1,7 +1,7 @@
 """Register-level fake of one Motorola MC6821 PIA (a chip, not a board).
 
 Semantics follow ``mamedev/mame: src/devices/machine/6821pia.cpp`` as summarised in
-/work/shared/reference/hardware-registers.md section 5 and R5:
+the hardware-registers reference notes section 5 and R5:
 
 - RS0/RS2 reach DDRx when CRx b2 = 0, the peripheral data register when b2 = 1;
 - CRx b7 (IRQx1) is set by the active C1 edge (CRx b1: 1 rising, 0 falling), CRx b6

@@ -6,7 +6,7 @@ A thread owns the pty master: it feeds host bytes to the model, advances the mod
 in real time and writes at most ``baud / 10`` bytes per second (8N1), paced on
 absolute deadlines, so the driver under test sees wire-rate data.
 
-pty pitfalls handled here (/work/shared/reference/packages.md section 1): both ends
+pty pitfalls handled here (the packages reference notes section 1): both ends
 are set raw at once (no echo before the driver opens), the slave fd stays open for
 the device's lifetime (no EIO on the master), and ``disconnect()`` closes the master
 so the driver's read raises like a pulled USB adapter.

@@ -1,6 +1,6 @@
 """The controller's world model: the IRSS "blackboard" of named, typed variables.
 
-Source: IRSS report (/work/shared/seeds/000_02a18717a950f150.txt) sections 2.2.2 (world
+Source: IRSS report (Martin Marietta, IRSS Phase II final report) sections 2.2.2 (world
 model rules 1-4), 2.2.3 (communications segment, world model locked out while it is
 updated), 2.3.5 "Access Tools" (get-task-inputs, get-state-variable, post-task-outputs,
 post-state-variable; asynchronous user-interface access) and 2.3.6 (areas; "Assurance of

@@ -3,7 +3,7 @@
 Sources: the IRSS report section 3.4.2 (32 single-ended multiplexed channels, 12-bit
 successive approximation, 4 us per conversion, A16 0xC000-0xC0FF, i.e. a 256-byte
 window). No public register map exists (hardware-registers.md section 3): every offset
-and bit below is the shared model R3 of ``shared/reference/hardware-registers.md``,
+and bit below is the shared model R3 of `the hardware-registers reference notes`,
 ASSUMED, and kept here so the lab can correct it against Datel document
 VME-DVME-611/612 in one edit. Driver (``drivers.adc.dvme611``) and fake
 (``fakes.adc``) both read this table.

@@ -1,7 +1,7 @@
 """Motorola MVME400 dual RS-232C serial module: one uPD7201 MPSC + one MC6821 (baud select).
 
 Shared by ``drivers.mvme400`` and ``fakes.mvme400``. Facts copied from
-/work/shared/reference/hardware-registers.md section 4 and R4, whose sources are:
+the hardware-registers reference notes section 4 and R4, whose sources are:
 
 - ``bios.c``: CP/M-68K BIOS for the Motorola VME/10, "Driver for MVME400 Dual RS-232C
   Serial Port Module" (Motorola/DRI, c. 1984; repository not resolved): register layout,

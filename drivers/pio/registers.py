@@ -3,7 +3,7 @@
 Shared by the drivers (``drivers.pio.pia6821``, ``drivers.pio.mvme410``,
 ``drivers.mvme400``) and the fakes (``fakes.pia``, ``fakes.mvme410``).
 
-Sources (copied from /work/shared/reference/hardware-registers.md, sections 0, 5, R5):
+Sources (copied from the hardware-registers reference notes, sections 0, 5, R5):
 
 - MC6821 programming model: ``mamedev/mame: src/devices/machine/6821pia.cpp``.
 - MVME410 PIA1 layout (+0x01 PRA/DDRA, +0x03 CRA, +0x05 PRB/DDRB, +0x07 CRB) and the

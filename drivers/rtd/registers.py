@@ -3,7 +3,7 @@
 Sources: the IRSS report (section 3.4.2: "four 14 bit resolver to digital converters
 each", bases 0x0100 and 0x0200). No public register map exists (hardware-registers.md
 section 1), so the whole map below is the shared model R1 of
-``shared/reference/hardware-registers.md``: ASSUMED, and kept here so the lab can
+`the hardware-registers reference notes`: ASSUMED, and kept here so the lab can
 correct it against the VMIVME-4940 Instruction Manual in one edit. The driver
 (``drivers.rtd.vmivme4940``) and the fake (``fakes.rtd``) both read this table.
 

@@ -5,7 +5,7 @@ Shared by the driver (``drivers.serial_ft.ftsensor``) and the fake controller
 (``fakes.ft_sensor``), as ``registers.py`` tables are for boards. Every assumption
 about the protocol is in :data:`ASSUMPTIONS` and in ``docs/ft-protocol.md``.
 
-Sources (copied from /work/shared/reference/hardware-registers.md section 7 and R7):
+Sources (copied from the hardware-registers reference notes section 7 and R7):
 ATI F/T Controller command summary as used by public drivers (mrrocpp
 ``src/edp/ati3084/edp_s.cc``, ``KonstantinosAng/ATI-FT-Gamma: FTsensor3.py``).
 """
@@ -81,7 +81,7 @@ ASSUMPTIONS: tuple[str, ...] = (
 class NominalSensor:
     """Scale and range of the nominal wrist sensor. ALL VALUES ASSUMED.
 
-    Range from /work/shared/reference/pfma-model.md section 8.7 (Lord-type "30/100":
+    Range from the pfma-model reference notes section 8.7 (Lord-type "30/100":
     +-133 N, +-11.3 N.m, 12-bit effective resolution, overload flag at 110 % FS).
     The counts-per-unit factors are calibration-specific on a real controller; these
     are chosen so that full scale is about 2^11 counts (12-bit resolution) and
