@@ -2,7 +2,7 @@
 
 Each task is wired once at start (``wire``: its boards, drivers, buffer slots and
 calibration looked up from the rack configuration and the Bit3 layout) and run by
-:meth:`ioservice.service.IoService.frame` in the minor frames the schedule gives it
+the service's frame in the minor frames the schedule gives it
 (``run(k)``, k = the frame index). A task reaches the service it belongs to for the
 shared bookkeeping: the input area's value views (``svc._v``), the clock, board and device
 counters, messages.
@@ -350,7 +350,7 @@ class FtTask:
                 ft.set_checksum(True)
                 ft.start_stream(rate_hz=svc.schedule.rate_hz("ft"))
                 port.timeout = 0  # from now on only non-blocking reads, between frames
-                # an MVME400 port: serial_tick drains it, and decodes as soon as a record is
+                # an MVME400 port: the service's serial tick drains it, and decodes as soon as a record is
                 # complete (its time stamp is then its arrival, and after lost characters
                 # the link is synced again at the first whole record, not at the next F/T slot)
                 self.in_tick = hasattr(port, "autopoll")
@@ -446,7 +446,7 @@ class HandTask:
 
     def attach_crl(self, port) -> None:
         from drivers.crl.crl import CrlHandController
-        port.autopoll = False  # serial_tick drains the FIFO; decoding reads the buffer
+        port.autopoll = False  # the service's serial tick drains the FIFO; decoding reads the buffer
         self.crl = CrlHandController(port, self.svc.clock)
         self.crl_tx = 0
 
