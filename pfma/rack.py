@@ -481,7 +481,7 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
                                   rate_hz=rate, title=str(b.get("title", kind)), channels=tuple(chans)))
     return RackConfig(name=str(rack.get("name", "rack")), boards=tuple(boards),
                       bit3=_bit3(data.get("bit3", {}), text, source), source=source,
-                      commands=_command_policy(data.get("commands", {}), fail),
+                      commands=_command_policy(data.get("commands", {}), text, source),
                       joints=_arm_joints(data.get("arm", {}), roles, text, source))
 
 
@@ -489,16 +489,7 @@ def _arm_joints(raw, roles: dict[tuple[str, str], str], text: str, source: str) 
     """Validate ``[arm] joints``: distinct names, each with an angle, a rate, a rate
     command and a current-limit channel in the rack (what the service and the controller
     need of a servoed joint)."""
-    def fail(msg: str, key: str | None = None):
-        line = _section_key_line(text, "arm", key)
-        raise ConfigError(f"{source}:{line}: {msg}" if line else f"{source}: {msg}")
-
-    if not isinstance(raw, dict):
-        fail("[arm] must be a table")
-    extra = set(raw) - ARM_KEYS
-    if extra:
-        fail(f"[arm]: unknown key(s) {', '.join(sorted(extra))}; known: {', '.join(sorted(ARM_KEYS))}",
-             sorted(extra)[0])
+    fail = _section(raw, "arm", ARM_KEYS, text, source)
     joints = raw.get("joints", [])
     if not isinstance(joints, list) or not all(isinstance(j, str) and SIGNAL_RE.match(j) for j in joints):
         fail(f"[arm] joints must be a list of snake_case joint names, not {joints!r}", "joints")
@@ -512,18 +503,31 @@ def _arm_joints(raw, roles: dict[tuple[str, str], str], text: str, source: str) 
     return tuple(joints)
 
 
-def _command_policy(raw, fail) -> CommandPolicy:
+def _section(raw, section: str, known: set[str], text: str, source: str):
+    """Check that ``[section]`` is a table with only ``known`` keys; return its ``fail(msg,
+    key=None)``, which raises a ConfigError naming the file and the line of the section (or
+    of ``key`` in it)."""
+    def fail(msg: str, key: str | None = None):
+        line = _section_key_line(text, section, key)
+        raise ConfigError(f"{source}:{line}: {msg}" if line else f"{source}: {msg}")
+
     if not isinstance(raw, dict):
-        fail("[commands] must be a table")
-    extra = set(raw) - COMMANDS_KEYS
+        fail(f"[{section}] must be a table")
+    extra = set(raw) - known
     if extra:
-        fail(f"[commands]: unknown key(s) {', '.join(sorted(extra))}; known: {', '.join(sorted(COMMANDS_KEYS))}")
+        fail(f"[{section}]: unknown key(s) {', '.join(sorted(extra))}; known: {', '.join(sorted(known))}",
+             sorted(extra)[0])
+    return fail
+
+
+def _command_policy(raw, text: str, source: str) -> CommandPolicy:
+    fail = _section(raw, "commands", COMMANDS_KEYS, text, source)
     age = raw.get("max_input_age_frames", CommandPolicy.max_input_age_frames)
     if isinstance(age, bool) or not isinstance(age, int) or not 1 <= age <= 64:
-        fail(f"[commands] max_input_age_frames must be an integer 1..64, not {age!r}")
+        fail(f"[commands] max_input_age_frames must be an integer 1..64, not {age!r}", "max_input_age_frames")
     margin = raw.get("limit_margin", CommandPolicy.limit_margin)
     if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin <= 0.5:
-        fail(f"[commands] limit_margin must be a number 0..0.5, not {margin!r}")
+        fail(f"[commands] limit_margin must be a number 0..0.5, not {margin!r}", "limit_margin")
     return CommandPolicy(int(age), float(margin))
 
 
@@ -531,16 +535,7 @@ def _command_policy(raw, fail) -> CommandPolicy:
 def _bit3(raw, text: str, source: str) -> dict:
     """Validate ``[bit3]``: ``size`` (32768, the adapter's window) and ``*_window`` keys,
     each ``[lo, hi]`` integers with ``hi - lo + 1 == size``."""
-    def fail(msg: str, key: str | None = None):
-        line = _section_key_line(text, "bit3", key)
-        raise ConfigError(f"{source}:{line}: {msg}" if line else f"{source}: {msg}")
-
-    if not isinstance(raw, dict):
-        fail("[bit3] must be a table")
-    extra = set(raw) - BIT3_KEYS
-    if extra:
-        fail(f"[bit3]: unknown key(s) {', '.join(sorted(extra))}; known: {', '.join(sorted(BIT3_KEYS))}",
-             sorted(extra)[0])
+    fail = _section(raw, "bit3", BIT3_KEYS, text, source)
     size = raw.get("size", BIT3_SIZE)
     if not _is_int(size) or size != BIT3_SIZE:
         fail(f"[bit3] size must be {BIT3_SIZE} (the Bit3 window, bytes), not {size!r}", "size")
