@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibration import fit as F
-from calibration.plot import Series, plot_fit
+from calibration.plot import Panel, Series, plot_fit, residual_panel
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name, require
 
 NAME = "adc"
@@ -78,8 +78,11 @@ def run(ctx: Context) -> ProcedureResult:
         res.check(f"{sig} gain - 1", f["gain"] - 1.0, GAIN_LIMIT)
         res.check(f"{sig} offset", f["offset"], OFFSET_LIMIT_V, "V")
         c = COLOURS[i % len(COLOURS)]
-        panels_pts += [Series(refs, readings[:, i], "points", c),
+        panels_pts += [Series(refs, readings[:, i], "points", c, sig),
                        Series(refs, (refs - f["offset"]) / f["gain"], "line", c)]
-        panels_res.append(Series(refs, f.residuals, "points", c))
-    res.plots.append(plot_fit(plot_name(ctx, NAME, "fit"), [panels_pts, panels_res]))
+        panels_res.append(Series(refs, f.residuals, "points", c, sig))
+    res.plots.append(plot_fit(plot_name(ctx, NAME, "fit"), [
+        Panel(panels_pts, "ADC reading vs reference voltage (points), fitted line", "reference (V)",
+              "ADC reading (V)"),
+        residual_panel(panels_res, "fit", "V", "reference (V)")], title="ADC gain and offset"))
     return finish(ctx, res)

@@ -22,9 +22,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibration.plot import Series, plot_fit
+from calibration.plot import Panel, Series, plot_fit
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name
 from drivers.crl.cae import CAE_AXES
+
+COLOURS_CYCLE = ("blue", "red", "green", "orange", "purple", "black")
 
 NAME = "cae"
 LSB_V = 20.0 / 4096
@@ -96,7 +98,11 @@ def run(ctx: Context) -> ProcedureResult:
         res.check(f"{sig} rest noise", float(np.max(np.array(noise)[:, i])), 3 * LSB_V, "V")
         if axis in prev:
             pass  # drift is reported by finish()
-        pts.append(Series(np.array([-1, 0, 1]) + 4 * i, np.array([minus, 0.0, plus]), "points"))
+        pts.append(Series(np.array([-1, 0, 1]) + 4 * i, np.array([minus, 0.0, plus]), "points",
+                          COLOURS_CYCLE[i % len(COLOURS_CYCLE)], sig))
     res.cae = cae_update
-    res.plots.append(plot_fit(plot_name(ctx, NAME, "sweep"), [pts]))
+    res.plots.append(plot_fit(plot_name(ctx, NAME, "sweep"), [
+        Panel(pts, "stick at full minus, rest and full plus, per axis (4 units apart)",
+              "axis: deflection -1, 0, +1", "volts from null (V)", zero_line=True)],
+        title="CAE hand controller sweep"))
     return finish(ctx, res)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibration import fit as F
-from calibration.plot import Series, plot_fit
+from calibration.plot import Panel, Series, plot_fit
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name
 from bit3.layout import ServiceState
 from pfma.errors import CalibrationError
@@ -57,7 +57,9 @@ def run(ctx: Context) -> ProcedureResult:
         res.found[sig] = {"offset_v": f["mean"]}
         res.check(f"{sig} offset", f["mean"], MAX_OFFSET_V, "V")
         res.check(f"{sig} noise rms", f.rms, MAX_NOISE_V, "V")
-        series.append(Series(np.full(len(volts), i), volts[:, i], "points"))
+        series.append(Series(np.full(len(volts), i), volts[:, i], "points", "blue"))
     ctx.progress(2, 2, "done")
-    res.plots.append(plot_fit(plot_name(ctx, NAME, "offsets"), [series]))
+    res.plots.append(plot_fit(plot_name(ctx, NAME, "offsets"), [
+        Panel(series, "monitor volts with the amplifiers disabled: " + ", ".join(f"{i} {s}" for i, s in enumerate(signals)),
+              "channel (index)", "monitor (V)", zero_line=True)], title="Motor-current monitor offsets"))
     return finish(ctx, res)

@@ -42,7 +42,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibration import fit as F
-from calibration.plot import Series, plot_fit
+from calibration.plot import Panel, Series, plot_fit, residual_panel
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name
 from calibration.procedures.motion import run_legs
 from fakes.arm_params import AXES, NOMINAL
@@ -132,7 +132,10 @@ def run(ctx: Context) -> ProcedureResult:
         res.check(f"{sig} DAC gain - 1 (fit gain {f['gain']:.4f} / loop gain {loop:.4f})", dac_gain - 1.0,
                   DAC_GAIN_BAND)
         col = COLOURS[i % len(COLOURS)]
-        pts += [Series(cmd, vel, "points", col), Series(cmd, a_mat @ f.coef, "line", col)]
-        resid.append(Series(cmd, f.residuals, "points", col))
-    res.plots.append(plot_fit(plot_name(ctx, NAME, "fit"), [pts, resid]))
+        pts += [Series(cmd, vel, "points", col, j), Series(cmd, a_mat @ f.coef, "line", col)]
+        resid.append(Series(cmd, f.residuals, "points", col, j))
+    res.plots.append(plot_fit(plot_name(ctx, NAME, "fit"), [
+        Panel(pts, "joint velocity (resolver) vs rate command (points), fit with friction", "command (rad/s)",
+              "velocity (rad/s)"),
+        residual_panel(resid, "fit", "rad/s", "command (rad/s)")], title="DAC-to-rate calibration"))
     return finish(ctx, res)

@@ -31,9 +31,12 @@ import numpy as np
 from calibration import fit as F
 from calibration.files import FtCalibration, ft_calibration, nominal_ft
 from calibration.kinematics import GRAVITY_M_S2, gravity_in_sensor
-from calibration.plot import Series, plot_fit
+from calibration.plot import Panel, Series, plot_fit, residual_panel
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name
 from calibration.procedures.motion import COUNTS_PER_REV
+
+#: the F/T channels in the order the sensor reports them (ft_counts, the 6x6 matrix rows)
+AXIS_NAMES = ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
 
 RANGE_N, RANGE_NM = 133.0, 11.3  #: pfma-model 8.7 (Lord-type "30/100", assumed)
 DEG = math.pi / 180
@@ -87,9 +90,10 @@ def run_bias(ctx: Context) -> ProcedureResult:
                                   residuals=[f.rms for f in fits], samples=len(counts))
     res.ft = _ft_section(ft, **prov)
     res.found["bias_counts"] = mean
-    res.plots.append(plot_fit(plot_name(ctx, "ft-bias", "counts"),
-                              [[Series(np.arange(len(counts)), counts[:, i], "line", c)
-                                for i, c in enumerate(("blue", "red", "green", "orange", "purple", "black"))]]))
+    res.plots.append(plot_fit(plot_name(ctx, "ft-bias", "counts"), [
+        Panel([Series(np.arange(len(counts)), counts[:, i], "line", c, AXIS_NAMES[i])
+               for i, c in enumerate(("blue", "red", "green", "orange", "purple", "black"))],
+              "gauge counts, sensor unloaded", "sample", "counts")], title="F/T bias"))
     return finish(ctx, res)
 
 
@@ -179,10 +183,12 @@ def run_payload(ctx: Context) -> ProcedureResult:
                                      check_mass_kg=check_kg, check_seen_kg=seen_kg)
     res.ft = _ft_section(new, **prov)
     gz = g[:, 2]
-    res.plots.append(plot_fit(plot_name(ctx, "ft-payload", "fit"),
-                              [[Series(gz, w[:, 2], "points", "blue"),
-                                Series(gz, mass * gz + offset[2], "line", "red")],
-                               [Series(np.arange(ff.residuals.size), ff.residuals, "points", "blue")]]))
+    res.plots.append(plot_fit(plot_name(ctx, "ft-payload", "fit"), [
+        Panel([Series(gz, w[:, 2], "points", "blue", "measured Fz"),
+               Series(gz, mass * gz + offset[2], "line", "red", f"fit: {mass:.3f} kg")],
+              "sensor Fz vs gravity along the sensor z axis", "g_z (m/s^2)", "Fz (N)"),
+        residual_panel([Series(np.arange(ff.residuals.size), ff.residuals, "points", "blue")], "force fit", "N",
+                       "pose sample")], title="F/T payload"))
     return finish(ctx, res)
 
 
@@ -240,9 +246,11 @@ def run_matrix(ctx: Context) -> ProcedureResult:
     prov["bias"] = prov["matrix"]
     res.ft = _ft_section(new, **prov)
     res.found.update(matrix=m, bias_counts=bias)
-    res.plots.append(plot_fit(plot_name(ctx, "ft-matrix", "residuals"),
-                              [[Series(y[:, i], (a @ f.coef)[:, i], "points", col)
-                                for i, col in enumerate(("blue", "red", "green", "orange", "purple", "black"))],
-                               [Series(np.arange(len(y)), f.residuals[:, i], "points", col)
-                                for i, col in enumerate(("blue", "red", "green", "orange", "purple", "black"))]]))
+    colours = ("blue", "red", "green", "orange", "purple", "black")
+    res.plots.append(plot_fit(plot_name(ctx, "ft-matrix", "residuals"), [
+        Panel([Series(y[:, i], (a @ f.coef)[:, i], "points", col, AXIS_NAMES[i]) for i, col in enumerate(colours)],
+              "fitted vs applied fixture load (N and N*m)", "applied load (N, N*m)", "fitted load (N, N*m)"),
+        residual_panel([Series(np.arange(len(y)), f.residuals[:, i], "points", col, AXIS_NAMES[i])
+                        for i, col in enumerate(colours)], "matrix fit", "N, N*m", "load case")],
+        title="F/T 6x6 matrix"))
     return finish(ctx, res)

@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from calibration.plot import Series, plot_fit
+from calibration.plot import Panel, Series, plot_fit
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name
 from calibration.procedures.motion import COUNTS_PER_REV, LSB_RAD
 from calibration import fit as F
@@ -65,5 +65,8 @@ def run(ctx: Context) -> ProcedureResult:
         found.append(offset)
         idx_list.append(k)
     ctx.progress(len(joints), len(joints), "done")
-    res.plots.append(plot_fit(plot_name(ctx, NAME, "offsets"), [[Series(np.array(idx_list), np.array(found))]]))
+    res.plots.append(plot_fit(plot_name(ctx, NAME, "offsets"), [
+        Panel([Series(np.array(idx_list), np.array(found), "points", "blue", "resolver offset")],
+              "resolver offset at the index mark: " + ", ".join(f"{k} {j}" for k, j in enumerate(joints)),
+              "joint (index)", "offset (rad)", zero_line=True)], title="Resolver offsets"))
     return finish(ctx, res)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibration import fit as F
-from calibration.plot import Series, plot_fit
+from calibration.plot import Panel, Series, plot_fit, residual_panel
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name
 from calibration.procedures.motion import full_scale_rad_s, run_legs
 
@@ -56,7 +56,9 @@ def run(ctx: Context) -> ProcedureResult:
         res.check(f"{sig} max residual", f.max_abs, 0.01 * float(np.max(np.abs(tach))) + 2 * LSB_V, "V")
         res.check(f"{sig} k / K_w nominal - 1", k / k_nom - 1.0, NOMINAL_BAND)
         col = COLOURS[i % len(COLOURS)]
-        pts += [Series(vel, tach, "points", col), Series(vel, k * vel + c, "line", col)]
-        resid.append(Series(vel, f.residuals, "points", col))
-    res.plots.append(plot_fit(plot_name(ctx, NAME, "fit"), [pts, resid]))
+        pts += [Series(vel, tach, "points", col, j), Series(vel, k * vel + c, "line", col)]
+        resid.append(Series(vel, f.residuals, "points", col, j))
+    res.plots.append(plot_fit(plot_name(ctx, NAME, "fit"), [
+        Panel(pts, "tach volts vs joint velocity (resolver), fitted line", "velocity (rad/s)", "tach (V)"),
+        residual_panel(resid, "fit", "V", "velocity (rad/s)")], title="Tachometer scale"))
     return finish(ctx, res)

@@ -1,13 +1,12 @@
 """Calibration files: versions, history, hash, validation naming the field, consumers."""
 
 import json
-import zlib
 
 import numpy as np
 import pytest
 
 from calibration import files
-from calibration.plot import Series, plot_fit, read_png_size
+from calibration.plot import Panel, Series, figure, plot_fit, read_png_size, residual_panel
 from pfma.errors import CalibrationError
 from pfma.rack import load_rack
 
@@ -92,14 +91,19 @@ def test_consumers_apply_to_rack_cae_ft(tmp_path, rack):
     assert np.allclose(ft.wrench([16, 0, 0, 200, 0, 0]), [1, 0, 0, 1, 0, 0])
 
 
-def test_png_plot_is_a_valid_png(tmp_path):
+def test_png_plot_is_a_valid_png_with_titles_labels_units_and_legend(tmp_path):
     x = np.linspace(-1, 1, 9)
-    p = plot_fit(tmp_path / "p.png", [[Series(x, 2 * x, "points"), Series(x, 2 * x, "line", "red")],
-                                      [Series(x, 0 * x)]])
+    panels = [Panel([Series(x, 2 * x, "points", "blue", "wrist_roll"), Series(x, 2 * x, "line", "red")],
+                    "tach vs velocity", "velocity (rad/s)", "tach (V)"),
+              residual_panel([Series(x, 0.01 * x, "points", "blue", "wrist_roll")], "fit", "V", "velocity (rad/s)")]
+    p = plot_fit(tmp_path / "p.png", panels, title="Tachometer scale")
     assert read_png_size(p) == (640, 480)
-    data = p.read_bytes()
-    idat = data.index(b"IDAT")
-    n = int.from_bytes(data[idat - 4:idat], "big")
-    raw = zlib.decompress(data[idat + 4: idat + 4 + n])
-    assert len(raw) == 480 * (1 + 640 * 3)
-    assert raw.count(b"\xff") < len(raw)  # something was drawn
+    fig = figure(panels, "Tachometer scale")
+    top, bottom = fig.axes
+    assert fig.get_suptitle() == "Tachometer scale"
+    assert (top.get_title(), top.get_xlabel(), top.get_ylabel()) == ("tach vs velocity", "velocity (rad/s)", "tach (V)")
+    assert [t.get_text() for t in top.get_legend().get_texts()] == ["wrist_roll"]  # unlabelled fit line: no entry
+    # the residual panel states its scale and units, and draws its zero line
+    assert bottom.get_title() == "fit residuals (largest 0.01 V)"
+    assert bottom.get_ylabel() == "residual (V)"
+    assert any(list(line.get_ydata()) == [0.0, 0.0] for line in bottom.get_lines())
