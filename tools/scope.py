@@ -24,6 +24,8 @@ import numpy as np
 
 from bit3.layout import Layout
 
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")  # plotext ends lines with a colour reset even without colour
+
 SCOPE_TOPIC = "/pfma/scope"
 _TRIG = re.compile(r"^\s*([A-Za-z_][\w\[\]]*)\s*([<>])\s*([-+0-9.eE]+)\s*$")
 _ELEM = re.compile(r"^([A-Za-z_]\w*)\[(\d+)\]$")
@@ -208,8 +210,65 @@ def load(path: str | Path) -> Capture:
     return cap
 
 
-def render(cap: Capture, rows: int = 20, width: int = 64, height: int = 8) -> str:
-    """A table (decimated to ``rows``) and one text plot per signal; t relative to the trigger."""
+def _signal_arrays(cap: Capture, t0: float) -> tuple[np.ndarray, np.ndarray]:
+    """Time relative to ``t0`` in ms, and the values (NaN where a sample had none)."""
+    return (np.array(cap.t_s, dtype=float) - t0) * 1e3, np.array(cap.values, dtype=float).reshape(len(cap.t_s), -1)
+
+
+def text_plots(cap: Capture, t0: float, width: int = 72, height: int = 12) -> str:
+    """One terminal plot per signal (plotext, braille dots, no colour), the trigger a vertical
+    line at t = 0."""
+    import plotext as plt
+
+    t_ms, arr = _signal_arrays(cap, t0)
+    blocks = []
+    for j, name in enumerate(cap.signals):
+        ok = np.isfinite(arr[:, j])
+        if not ok.any():
+            blocks.append(f"{name}: no samples")
+            continue
+        unit = cap.units[j] if j < len(cap.units) else ""
+        plt.clear_figure()
+        plt.plotsize(width, height)
+        plt.theme("clear")
+        plt.plot(t_ms[ok].tolist(), arr[ok, j].tolist(), marker="braille")
+        if math.isfinite(cap.trigger_t_s):
+            plt.vline(0.0)
+        plt.title(f"{name} [{unit}]")
+        plt.xlabel("t - trigger (ms)" if math.isfinite(cap.trigger_t_s) else "t (ms)")
+        blocks.append(_ANSI.sub("", plt.build()).rstrip())
+    return "\n\n".join(blocks)
+
+
+def save_png(cap: Capture, path: str | Path) -> Path:
+    """The capture as a PNG (matplotlib, Agg): one panel per signal with its units, the trigger
+    marked; written beside the capture's MCAP by ``pfma scope``."""
+    from matplotlib.figure import Figure
+
+    n = max(1, len(cap.signals))
+    t0 = cap.trigger_t_s if math.isfinite(cap.trigger_t_s) else (cap.t_s[0] if cap.t_s else 0.0)
+    t_ms, arr = _signal_arrays(cap, t0)
+    fig = Figure(figsize=(8, 2.2 * n), dpi=100)
+    axes = fig.subplots(n, 1, squeeze=False, sharex=True)[:, 0]
+    for j, ax in enumerate(axes):
+        if j < len(cap.signals):
+            unit = cap.units[j] if j < len(cap.units) else ""
+            ax.plot(t_ms, arr[:, j], "-", lw=1.0, color="tab:blue")
+            ax.set_ylabel(f"{cap.signals[j]}\n({unit})", fontsize=8)
+        if math.isfinite(cap.trigger_t_s):
+            ax.axvline(0.0, color="tab:red", lw=0.8, ls="--", label="trigger")
+        ax.grid(True, lw=0.3, alpha=0.5)
+        ax.tick_params(labelsize=7)
+    axes[-1].set_xlabel("t - trigger (ms)" if math.isfinite(cap.trigger_t_s) else "t (ms)", fontsize=8)
+    fig.suptitle(f"pfma scope: {len(cap.t_s)} samples, trigger {cap.trigger or '(none: immediate)'}", fontsize=10)
+    fig.tight_layout()
+    p = Path(path)
+    fig.savefig(p, format="png")
+    return p
+
+
+def render(cap: Capture, rows: int = 20, width: int = 72, height: int = 12) -> str:
+    """A table (decimated to ``rows``) and one terminal plot per signal; t relative to the trigger."""
     out = []
     n = len(cap.t_s)
     t0 = cap.trigger_t_s if math.isfinite(cap.trigger_t_s) else (cap.t_s[0] if n else 0.0)
@@ -227,29 +286,7 @@ def render(cap: Capture, rows: int = 20, width: int = 64, height: int = 8) -> st
         mark = "*" if i == ti else " "
         out.append(f"{(cap.t_s[i] - t0) * 1e3:11.2f}{mark} {cap.frames[i]:8d} "
                    + " ".join(f"{v:16.6g}" for v in cap.values[i]))
-    arr = np.array(cap.values, dtype=float)
-    for j, s in enumerate(cap.signals):
-        col = arr[:, j]
-        ok = np.isfinite(col)
-        if not ok.any():
-            continue
-        lo, hi = float(col[ok].min()), float(col[ok].max())
-        span = hi - lo if hi > lo else 1.0
-        grid = [[" "] * width for _ in range(height)]
-        for x in range(width):
-            k = min(n - 1, int(x * n / width))
-            if ok[k]:
-                y = int(round((col[k] - lo) / span * (height - 1)))
-                grid[height - 1 - y][x] = "*"
-        if ti >= 0:
-            x = min(width - 1, int(ti * width / n))
-            for row in grid:
-                if row[x] == " ":
-                    row[x] = "|"
-        unit = cap.units[j] if j < len(cap.units) else ""
-        out.append(f"\n{s} [{unit}]  min {lo:.6g}  max {hi:.6g}")
-        out += [f"{hi if r == 0 else (lo if r == height - 1 else ''):>12.6}|" + "".join(row)
-                if r in (0, height - 1) else f"{'':>12}|" + "".join(row) for r, row in enumerate(grid)]
+    out += ["", text_plots(cap, t0, width=width, height=height)]
     return "\n".join(out)
 
 

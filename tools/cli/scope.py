@@ -17,12 +17,14 @@ channel ``/pfma/scope`` ({t_s, frame, <signal>: value}) that Foxglove plots and
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import argparse
 import signal
 import sys
 import time
 
-from tools.scope import ScopeCapture, capture_live, load, render, save
+from tools.scope import ScopeCapture, capture_live, load, render, save, save_png
 
 
 def add_parser(sub):
@@ -86,8 +88,10 @@ def run(args) -> int:
             return 130
         n = save(sc.capture, args.output, epoch_offset_ns=epoch_offset_ns(),
                  meta={"buffer": args.buffer, "layout_hash": layout.hash_hex})
+        png = save_png(sc.capture, Path(args.output).with_suffix(".png"))
         print(render(sc.capture, rows=args.rows))
-        print(f"pfma scope: {n} samples saved to {args.output} (reopen: pfma scope --open {args.output})")
+        print(f"pfma scope: {n} samples saved to {args.output}, plot {png} "
+              f"(reopen: pfma scope --open {args.output})")
         return 0
     finally:
         signal.signal(signal.SIGINT, old)

@@ -25,7 +25,7 @@ from mcap.reader import make_reader
 from tools.recording import RAW_TOPIC, Recorder, decode_raw, recover
 from bit3.buffer import Bit3Buffer
 from tools.replay import replay_through_fakes, republish
-from tools.scope import ScopeCapture, load, render, save
+from tools.scope import ScopeCapture, load, render, save, save_png
 from sim.rig import SimRig as Rig
 
 REPO = Path(__file__).resolve().parents[3]
@@ -252,7 +252,11 @@ def test_scope_trigger_and_pre_trigger_on_a_step(rig, tmp_path):
     back = load(out)
     assert back.frames == cap.frames and back.trigger_frame == cap.trigger_frame
     assert back.values == cap.values
-    assert "adc_spare_25" in render(back)
+    text = render(back)
+    assert "adc_spare_25 [V]" in text and "t - trigger (ms)" in text  # the terminal plot's title and axis
+    assert "\x1b[" not in text  # no colour codes in a log
+    png = save_png(back, tmp_path / "cap.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 2000
 
 
 def test_replay_round_trip_is_byte_identical(rig, tmp_path):
