@@ -32,11 +32,20 @@ class Result:
         return self.status == PASS
 
     def limits_text(self) -> str:
-        if self.low is None and self.high is None:
+        """The pass band in words: ``0.5 .. 2 V``, ``<= 0.01 V``, ``>= 3 V`` (an open side,
+        None or infinite, is not printed as a number)."""
+        lo = None if self.low is None or not math.isfinite(self.low) else _num(self.low)
+        hi = None if self.high is None or not math.isfinite(self.high) else _num(self.high)
+        units = f" {self.units}" if self.units and self.units != "1" else ""
+        if lo is None and hi is None:
             return ""
-        lo = "-inf" if self.low is None else _num(self.low)
-        hi = "+inf" if self.high is None else _num(self.high)
-        return f"[{lo}, {hi}]"
+        if lo is None:
+            return f"<= {hi}{units}"
+        if hi is None:
+            return f">= {lo}{units}"
+        if lo == hi:
+            return f"= {lo}{units}"
+        return f"{lo} .. {hi}{units}"
 
     def measured_text(self) -> str:
         return "" if self.measured is None else _num(self.measured)

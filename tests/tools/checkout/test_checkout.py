@@ -214,3 +214,14 @@ def test_unknown_fault_spec_and_group_are_refused(sim, cfg):
         sim.inject_fault("tach-reversed:knee")
     with pytest.raises(PfmaError, match="unknown checkout group"):
         Checkout(sim, cfg, only=["teleport"])
+
+
+def test_limits_read_as_words_with_units_never_as_infinities():
+    from tools.checkout.report import Result
+    assert Result("g", "c", "k", "PASS", 1.0, None, 0.01, "V").limits_text() == "<= 0.01 V"
+    assert Result("g", "c", "k", "PASS", 1.0, float("-inf"), 0.0, "V").limits_text() == "<= 0 V"
+    assert Result("g", "c", "k", "PASS", 1.0, 3.0, None, "rad/s").limits_text() == ">= 3 rad/s"
+    assert Result("g", "c", "k", "PASS", 1.0, 0.5, 2.0, "A").limits_text() == "0.5 .. 2 A"
+    assert Result("g", "c", "k", "PASS", 1, 0x40, 0x40, "1").limits_text() == "= 64"
+    line = Result("resolvers", "elbow_pitch_angle", "noise", "PASS", 1.0, None, 2.0, "counts").line()
+    assert "inf" not in line and "<= 2 counts" in line
