@@ -12,10 +12,16 @@ Every fake offers:
 - ``inject(fault, **kw)`` / ``clear(fault)`` for named faults; ``"no_answer"`` is
   common to all boards and makes every access a bus error;
 - ``traffic``: a log of ``(op, width, offset, value)`` tuples that tests compare
-  with init sequences (``fakes.testing``).
+  with init sequences (``fakes.testing``);
+- ``read_block16/write_block16``: consecutive words in ONE call (the rack routes a bus
+  block transfer here). The default loops over :meth:`read16`/:meth:`write16`, so every
+  word has its register's side effects and its traffic entry; a board may override
+  them with a cheaper slice where its model allows (same result word for word).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable, Sequence
 
 from drivers.registers import BoardDescription
 from pfma.clock import Clock, SimClock
@@ -27,6 +33,7 @@ class NoAnswer(Exception):
     def __init__(self, reason: str = "no answer") -> None:
         super().__init__(reason)
         self.reason = reason
+        self.offset: int | None = None  #: the failing word's offset, set by the block transfers
 
 
 class FakeBoard:
@@ -102,6 +109,41 @@ class FakeBoard:
             self._write8(offset + 1, value & 0xFF)
         else:
             self._write16(offset, value & 0xFFFF)
+
+    def read_block16(self, offset: int, n: int, tick: Callable[[], None] | None = None) -> list[int]:
+        """``n`` words from ``offset`` on, each exactly as :meth:`read16` (its side effects,
+        its traffic entry). ``tick`` (the rack's per-access charge of simulated time) is
+        called before each word, as before each single access. A word the board does not
+        decode raises :class:`NoAnswer` with ``offset`` set to that word's offset; the
+        words before it were read."""
+        r16, words = self.read16, []
+        off = offset
+        try:
+            for off in range(offset, offset + 2 * n, 2):
+                if tick is not None:
+                    tick()
+                words.append(r16(off))
+        except NoAnswer as err:
+            err.offset = off
+            raise
+        return words
+
+    def write_block16(self, offset: int, words: Sequence[int],
+                      tick: Callable[[], None] | None = None) -> None:
+        """Write ``words`` from ``offset`` on, each exactly as :meth:`write16` (``tick``
+        before each); a word the board does not decode raises :class:`NoAnswer` with its
+        ``offset``."""
+        w16 = self.write16
+        off = offset
+        try:
+            for i, value in enumerate(words):
+                off = offset + 2 * i
+                if tick is not None:
+                    tick()
+                w16(off, value)
+        except NoAnswer as err:
+            err.offset = off
+            raise
 
     # -- to be implemented by boards -------------------------------------------
     def _read8(self, offset: int) -> int:

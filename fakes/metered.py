@@ -53,7 +53,8 @@ def _metered(op: str):
 
 
 class MeteredBus:
-    """Forwards ``read8/read16/write8/write16`` to ``bus`` and sums the time they take.
+    """Forwards ``read8/read16/write8/write16`` and the block transfers to ``bus`` and sums
+    the time they take (a block is one access in :attr:`accesses`).
 
     :param bus: the bus to measure (a ``FakeRack``); other attributes pass through
     """
@@ -61,7 +62,7 @@ class MeteredBus:
     def __init__(self, bus) -> None:
         self.bus = bus
         self.sim_s = 0.0  #: seconds spent inside the wrapped bus since creation
-        self.accesses = 0  #: register accesses forwarded
+        self.accesses = 0  #: bus calls forwarded (a block transfer counts once)
 
     def __getattr__(self, name):
         return getattr(self.bus, name)
@@ -73,3 +74,5 @@ class MeteredBus:
     read16 = _metered("read16")
     write8 = _metered("write8")
     write16 = _metered("write16")
+    read_block16 = _metered("read_block16")
+    write_block16 = _metered("write_block16")

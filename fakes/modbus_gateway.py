@@ -5,14 +5,21 @@ default), run in a background thread with its own event loop, so a real
 ``ModbusTcpBus`` (or any Modbus tool) talks to it over loopback TCP.
 
 Mapping, the same as ``drivers.bus.modbus``: holding register N is the 16-bit word
-at A16 address 2N. Every register of a request is forwarded to the hosted bus
-(``read16``/``write16`` at 2N), one at a time and only the requested ones, because
-reads of real registers have side effects. A ``BusError`` from the hosted bus
+at A16 address 2N. The registers of a request are forwarded to the hosted bus as ONE
+block transfer (``read_block16``/``write_block16`` at 2N; a hosted bus without them gets
+``read16``/``write16`` one at a time), only the requested ones and in address order,
+because reads of real registers have side effects. A ``BusError`` from the hosted bus
 answers Modbus exception 2 (ILLEGAL_ADDRESS, "no board answered"); any other error
 answers exception 4 (DEVICE_FAILURE). Input registers (fc 4) read the same words.
-Function codes other than 3, 4, 6 and 16 answer exception 1 (ILLEGAL_FUNCTION); the
-echo of a write (pymodbus reads the written block back for fc 6) never reaches the
+Function code 23 (read/write multiple registers) is served too: pymodbus's
+``SimDevice`` runs its write half, then its read half, through the same action.
+Function codes other than 3, 4, 6, 16 and 23 answer exception 1 (ILLEGAL_FUNCTION);
+the echo of a write (pymodbus reads the written block back for fc 6) never reaches the
 hosted bus.
+
+``silent = True`` makes the gateway stop answering: requests are received and counted
+but get no reply until ``silent`` is cleared or the gateway stops (a gateway whose VME
+side hangs).
 
 pymodbus 3.16: the supported way to serve live objects is ``SimDevice(action=...)``
 (legacy datablock subclasses are deep-copied and silently ignored); ``id=0`` is the
@@ -34,6 +41,7 @@ __all__ = ["ModbusGateway"]
 
 _READS = {3, 4}
 _WRITES = {6, 16}
+_READ_WRITE = 23  # write half (values given), then read half (no values)
 
 
 class ModbusGateway:
@@ -53,16 +61,25 @@ class ModbusGateway:
         self.reply_delay_s = reply_delay_s
         #: held while the hosted bus is accessed; take it to touch the bus from another thread
         self.lock = threading.Lock()
-        self.requests = 0
+        self.requests = 0  #: register requests received (fc 6 and fc 23 count once)
+        self.function_codes: list[int] = []  #: function code of each request, in order
+        self.silent = False  #: received requests get no reply while set
+        self._stopping = threading.Event()
         self._server: ModbusServerThread | None = None
 
     # -- the action pymodbus calls for every register request --------------------------
     async def _action(self, function_code: int, start_address: int, address: int, count: int,
                       current_registers: list[int], set_values) -> ExcCodes | None:
-        self.requests += 1
+        # one count per request: not the echo read-back of fc 6, not the read half of fc 23
+        second_call = set_values is None and (function_code in _WRITES or function_code == _READ_WRITE)
+        if not second_call:
+            self.requests += 1
+            self.function_codes.append(function_code)
+        while self.silent and not self._stopping.is_set():
+            await asyncio.sleep(0.005)  # a hung gateway: no reply (the client times out)
         if self.reply_delay_s:
             await asyncio.sleep(self.reply_delay_s)
-        if function_code not in _READS | _WRITES:
+        if function_code not in _READS | _WRITES | {_READ_WRITE}:
             return ExcCodes.ILLEGAL_FUNCTION
         if function_code in _WRITES and set_values is None:
             # pymodbus reads the block back to echo a write (fc 6); never read the hosted
@@ -71,17 +88,30 @@ class ModbusGateway:
         off = address - start_address
         try:
             with self.lock:
-                if function_code in _READS:
-                    for i in range(count):
-                        current_registers[off + i] = self.bus.read16(2 * (address + i)) & 0xFFFF
+                if set_values is None:  # fc 3, 4 and the read half of fc 23
+                    words = self._read(2 * address, count)
+                    current_registers[off:off + count] = [w & 0xFFFF for w in words]
                 else:
-                    for i, value in enumerate(set_values):
-                        self.bus.write16(2 * (address + i), int(value) & 0xFFFF)
+                    self._write(2 * address, [int(v) & 0xFFFF for v in set_values])
         except BusError:
             return ExcCodes.ILLEGAL_ADDRESS
         except Exception:  # noqa: BLE001 - any other failure of the hosted bus is a device failure
             return ExcCodes.DEVICE_FAILURE
         return None
+
+    def _read(self, addr: int, count: int) -> list[int]:
+        block = getattr(self.bus, "read_block16", None)
+        if block is not None:
+            return block(addr, count)
+        return [self.bus.read16(addr + 2 * i) for i in range(count)]
+
+    def _write(self, addr: int, words: list[int]) -> None:
+        block = getattr(self.bus, "write_block16", None)
+        if block is not None:
+            block(addr, words)
+        else:
+            for i, w in enumerate(words):
+                self.bus.write16(addr + 2 * i, w)
 
     # -- server thread -----------------------------------------------------------------------
     def _device(self) -> SimDevice:
@@ -93,6 +123,7 @@ class ModbusGateway:
         """Start listening; returns once the port is bound."""
         if self._server is not None:
             raise RuntimeError("gateway already started")
+        self._stopping.clear()
         server = ModbusServerThread(self._device, self.host, self.port,
                                     name=f"modbus-gateway-{self.port}", error=RuntimeError)
         self.port = server.start(timeout_s)
@@ -102,6 +133,7 @@ class ModbusGateway:
     def stop(self, timeout_s: float = 5.0) -> None:
         """Shut the server down and join its thread (the port can be re-bound at once)."""
         if self._server is not None:
+            self._stopping.set()  # release requests held by ``silent``
             self._server.stop(timeout_s)
             self._server = None
 

@@ -5,12 +5,19 @@ the board whose window holds the address, turns a board's ``NoAnswer`` into a
 ``BusError`` naming board, register and address, and charges each access
 ``access_time_s`` of simulated time (a VME short-I/O cycle is about a microsecond),
 so a driver polling a busy bit sees simulated time pass.
+
+A block transfer (``read_block16``/``write_block16``) is ONE call into each board it
+covers (``FakeBoard.read_block16``): every word keeps its register's side effects and
+is charged ``access_time_s`` just before it is accessed, exactly as the same words read
+one by one; only the Python cost is one call per board instead of one per word.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from functools import partial
 
-from drivers.bus import check_value
+from drivers.bus import check_block, check_value, check_words
 from drivers.catalog import board_kind, resolve
 from drivers.registers import register_name
 from fakes.board import FakeBoard, NoAnswer
@@ -94,6 +101,54 @@ class FakeRack:
     def _fail(self, err: NoAnswer, board: FakeBoard, off: int, addr: int, width: int, op: str):
         raise BusError(addr, width, op, board.name, register_name(board.description, off),
                        err.reason) from None
+
+    def _span(self, addr: int, op: str) -> tuple[FakeBoard, int, int]:
+        """The board decoding ``addr`` (no charge), its base and its window's end; a BusError
+        (after charging the one access nobody answers) when no board decodes it."""
+        hit = self._pages.get(addr >> 4)
+        if hit is not None:
+            board, base = hit
+            return board, base, base + board.description.window
+        for b0, b1, board in self._map:
+            if b0 <= addr < b1:
+                return board, b0, b1
+        if self._charge:
+            self.clock.advance(self.access_time_s)
+        raise BusError(addr, 16, op, reason="no board decodes this address")
+
+    def _tick(self):
+        return partial(self.clock.advance, self.access_time_s) if self._charge else None
+
+    def read_block16(self, addr: int, n: int) -> list[int]:
+        """``n`` words from ``addr`` on: one call per board covered, each word charged and
+        with its side effects as a single read; BusError names the first word nobody answered."""
+        check_block(addr, n, "read")
+        tick, out, a, end = self._tick(), [], addr, addr + 2 * n
+        while a < end:
+            board, base, b_end = self._span(a, "read")
+            k = (min(end, b_end) - a) >> 1
+            try:
+                out += board.read_block16(a - base, k, tick)
+            except NoAnswer as err:
+                off = err.offset if err.offset is not None else a - base
+                self._fail(err, board, off, base + off, 16, "read")
+            a += 2 * k
+        return out
+
+    def write_block16(self, addr: int, words: Sequence[int]) -> None:
+        """Write ``words`` from ``addr`` on (all checked first): one call per board covered."""
+        values = check_words(addr, words)
+        tick, a, i = self._tick(), addr, 0
+        while i < len(values):
+            board, base, b_end = self._span(a, "write")
+            k = min(len(values) - i, (b_end - a) >> 1)
+            try:
+                board.write_block16(a - base, values[i:i + k], tick)
+            except NoAnswer as err:
+                off = err.offset if err.offset is not None else a - base
+                self._fail(err, board, off, base + off, 16, "write")
+            a += 2 * k
+            i += k
 
     def read8(self, addr: int) -> int:
         board, off = self._find(addr, 8, "read")

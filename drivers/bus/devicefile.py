@@ -24,7 +24,9 @@ Byte order: the file is assumed *address invariant* (the bridge's default; byte 
 VME address A is at file offset A), so a 16-bit word is assembled big-endian from
 its two bytes. Each 16-bit access is one native 16-bit load or store (via a
 ``memoryview`` cast), so the bridge issues one D16 cycle, never two D8 cycles:
-that matters for registers whose reads have side effects.
+that matters for registers whose reads have side effects. A block transfer
+(``read_block16``/``write_block16``) is one slice of the same word view: one native
+16-bit load or store per word, in address order, in one Python call.
 
 **What this backend cannot do:** an access to an address *inside* the window that
 no board answers ends, on a real bridge, either in all-ones data (a PCI master
@@ -37,13 +39,16 @@ the mapped window raise :class:`BusError` here. Probe new boards with
 from __future__ import annotations
 
 import fcntl
+from array import array
 import mmap
 import os
 import struct
 import sys
 from urllib.parse import parse_qsl, urlsplit
 
-from drivers.bus import check_addr, check_value
+from collections.abc import Sequence
+
+from drivers.bus import check_addr, check_block, check_value, check_words
 from pfma.errors import AlignmentError, BusError, LinkError
 
 __all__ = ["DeviceFileBus", "open_devicefile_bus", "vme_user_set_master"]
@@ -134,6 +139,37 @@ class DeviceFileBus:
         self._live(addr, 16, "write")
         self._words[i >> 1] = ((value & 0xFF) << 8) | (value >> 8) if _SWAP else value
 
+    def _block(self, addr: int, n: int, op: str) -> int:
+        """Word index of a checked block inside the window; BusError naming the first word
+        outside it (before any access)."""
+        i = addr - self.base
+        end = self.base + self.size
+        if not 0 <= i < self.size:
+            raise BusError(addr, 16, op, reason=f"outside the mapped window 0x{self.base:04X}-"
+                           f"0x{end - 1:04X} of {self.path}")
+        if addr + 2 * n > end:
+            raise BusError(end, 16, op, reason=f"block from 0x{addr:04X} ({n} words) leaves the "
+                           f"mapped window 0x{self.base:04X}-0x{end - 1:04X} of {self.path}")
+        self._live(addr, 16, op)
+        return i >> 1
+
+    def read_block16(self, addr: int, n: int) -> list[int]:
+        """The ``n`` big-endian words from even A16 ``addr`` on: one slice of the window."""
+        check_block(addr, n, "read")
+        j = self._block(addr, n, "read")
+        words = self._words[j:j + n].tolist()
+        if _SWAP:
+            return [((v & 0xFF) << 8) | (v >> 8) for v in words]
+        return words
+
+    def write_block16(self, addr: int, words: Sequence[int]) -> None:
+        """Write ``words`` (all checked first) from even A16 ``addr`` on: one slice store."""
+        values = check_words(addr, words)
+        j = self._block(addr, len(values), "write")
+        if _SWAP:
+            values = [((v & 0xFF) << 8) | (v >> 8) for v in values]
+        self._words[j:j + len(values)] = memoryview(array("H", values))
+
     # -- lifetime ---------------------------------------------------------------------
     def describe(self) -> str:
         return (f"device file {self.path}: A16 0x{self.base:04X}-0x{self.base + self.size - 1:04X} "
@@ -188,10 +224,22 @@ def open_devicefile_bus(url: str, **kwargs) -> DeviceFileBus:
 VME_A16 = 0x1
 VME_SCT = 0x1
 VME_SUPER = 0x1000
+VME_USER = 0x2000
 VME_DATA = 0x8000
 VME_D16 = 0x2
 _VME_MASTER = struct.Struct("=IQQIII")  # struct vme_master, __packed: enable, vme_addr, size, aspace, cycle, dwidth
-_VME_SET_MASTER = (1 << 30) | (_VME_MASTER.size << 16) | (0xAE << 8) | 4  # _IOW(0xAE, 4, struct vme_master)
+
+
+def _iow(type_: int, nr: int, size: int, machine: str | None = None) -> int:
+    """Linux's ``_IOW(type, nr, size)``: the "write" direction is 1 << 30 on most
+    architectures, 4 << 29 on PowerPC, MIPS, SPARC and Alpha (most VME SBCs with a Tsi148
+    or Universe II are PowerPC)."""
+    m = os.uname().machine if machine is None else machine
+    write = 4 << 29 if m.startswith(("ppc", "powerpc", "mips", "sparc", "alpha")) else 1 << 30
+    return write | (size << 16) | (type_ << 8) | nr
+
+
+_VME_SET_MASTER = _iow(0xAE, 4, _VME_MASTER.size)  # _IOW(VME_IOC_MAGIC, 4, struct vme_master)
 
 
 def vme_user_set_master(path: str, *, vme_addr: int = 0, size: int = 0x10000,

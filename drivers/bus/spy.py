@@ -3,12 +3,15 @@
 ``open_bus("spy+modbus://10.0.0.5:502")`` wraps the Modbus bus; every access is
 appended to :attr:`SpyBus.log` as a :class:`Access` and, when a logger is given (the
 URL form uses ``drivers.bus.spy``), logged at DEBUG level. Failed accesses are
-recorded with their error and re-raised unchanged.
+recorded with their error and re-raised unchanged. A block transfer is ONE access line
+(op ``"read"``/``"write"``, width 16, ``count`` words, ``words`` the values), so
+counting the log's entries counts bus transactions.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -27,13 +30,21 @@ class Access:
     op: str  #: "read" or "write"
     width: int  #: 8 or 16
     addr: int  #: absolute A16 address
-    value: int | None  #: value read or written (None when a read failed)
+    value: int | None  #: value read or written (None when a read failed; a block's first word)
     error: str | None = None  #: the exception's message, when the access failed
+    words: tuple[int, ...] | None = None  #: a block transfer's words (None for a single access)
+    count: int = 1  #: words transferred (a block's length)
+    block: bool = False  #: True for a block transfer (``read_block16``/``write_block16``)
 
     def __str__(self) -> str:
         arrow = "->" if self.op == "read" else "<-"
-        shown = "----" if self.value is None else f"0x{self.value:0{self.width // 4}X}"
-        text = f"{self.op}{self.width:<2} 0x{self.addr:04X} {arrow} {shown}"
+        if self.block:
+            shown = ("----" if self.words is None
+                     else " ".join(f"0x{w:04X}" for w in self.words))
+            text = f"{self.op}B{self.count:<3} 0x{self.addr:04X} {arrow} {shown}"
+        else:
+            shown = "----" if self.value is None else f"0x{self.value:0{self.width // 4}X}"
+            text = f"{self.op}{self.width:<2} 0x{self.addr:04X} {arrow} {shown}"
         return f"{text}  !! {self.error}" if self.error else text
 
 
@@ -87,6 +98,27 @@ class SpyBus:
 
     def write16(self, addr: int, value: int) -> None:
         self._write(self.bus.write16, addr, value, 16)
+
+    def read_block16(self, addr: int, n: int) -> list[int]:
+        """One block read, recorded as one access with its words."""
+        try:
+            words = self.bus.read_block16(addr, n)
+        except Exception as err:
+            self._record(Access("read", 16, addr, None, str(err), None,
+                                n if isinstance(n, int) else 0, True))
+            raise
+        self._record(Access("read", 16, addr, words[0] if words else None, None, tuple(words), n, True))
+        return words
+
+    def write_block16(self, addr: int, words: Sequence[int]) -> None:
+        """One block write, recorded as one access with its words."""
+        shown = tuple(words)
+        try:
+            self.bus.write_block16(addr, shown)
+        except Exception as err:
+            self._record(Access("write", 16, addr, None, str(err), shown, len(shown), True))
+            raise
+        self._record(Access("write", 16, addr, shown[0] if shown else None, None, shown, len(shown), True))
 
     def clear(self) -> None:
         self.log.clear()

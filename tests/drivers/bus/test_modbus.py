@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import socket
+import threading
 
 import pytest
 
 from drivers.bus import open_bus
-from drivers.bus.modbus import ModbusTcpBus, open_modbus_bus
+from drivers.bus.modbus import DEFAULT_TIMEOUT_S, ModbusTcpBus, open_modbus_bus
 from fakes.modbus_gateway import ModbusGateway
 from pfma.errors import AlignmentError, BusError
 from tests.drivers.bus.tinybus import TinyBus, free_port, quiet_pymodbus
@@ -65,8 +66,6 @@ def test_block_read_reads_only_the_requested_registers_in_order(bus, tiny):
         tiny.words[0xC040 + 2 * i] = 0x100 + i
     assert bus.read_block16(0xC040, 4) == [0x100, 0x101, 0x102, 0x103]
     assert [a for op, a, _ in tiny.log] == [0xC040, 0xC042, 0xC044, 0xC046]
-    with pytest.raises(ValueError):
-        bus.read_block16(0xC040, 126)  # Modbus limit
 
 
 def test_any_unit_id_is_answered(gateway, tiny):
@@ -127,6 +126,70 @@ def test_slow_gateway_times_out_then_recovers(gateway, tiny):
             b.read16(0xD000)
         gateway.reply_delay_s = 0.0
         assert b.read16(0xD000) == 0x4100  # a fresh connection; the late reply is never seen
+
+
+def test_default_timeout_is_one_minor_frame():
+    assert DEFAULT_TIMEOUT_S == 1.0 / 320.0  # 3.125 ms at 320 Hz
+    b = open_bus("modbus://127.0.0.1:1502")
+    assert b.timeout == DEFAULT_TIMEOUT_S and ModbusTcpBus("127.0.0.1", 1502).timeout == DEFAULT_TIMEOUT_S
+    b.close()
+
+
+def _wait_for(predicate) -> None:
+    """Wait (bounded, generously) for the server thread to have counted what it received;
+    the assertions that follow are on counts, never on time."""
+    done = threading.Event()
+    for _ in range(500):
+        if predicate():
+            return
+        done.wait(0.01)
+
+
+def _five_accesses(b) -> list[str]:
+    """read16, a 300-word block read (3 requests if answered), a 250-word block write,
+    write16, read8: each must fail; returns the messages."""
+    errors = []
+    for access in (lambda: b.read16(0x1000), lambda: b.read_block16(0x1000, 300),
+                   lambda: b.write_block16(0x1000, [1] * 250), lambda: b.write16(0x1000, 2),
+                   lambda: b.read8(0x1001)):
+        with pytest.raises(BusError) as info:
+            access()
+        errors.append(str(info.value))
+    return errors
+
+
+def test_a_gateway_that_stops_answering_costs_one_request_per_access(gateway):
+    """A real pymodbus server that receives requests and never replies: every access sends
+    exactly one request (a block stops at its first unanswered request), waits one timeout
+    (the default: one minor frame) and reconnects at most once; no retries, no storm."""
+    gateway.silent = True
+    with ModbusTcpBus("127.0.0.1", gateway.port) as b:
+        errors = _five_accesses(b)
+        assert b.requests == 5 and b.connects == 5  # one request, one (re)connect per access
+    assert all(f"no reply from gateway 127.0.0.1:{gateway.port} within 0.003125 s" in e for e in errors)
+    _wait_for(lambda: gateway.requests >= 5)
+    assert gateway.requests == 5
+
+
+def test_a_gateway_that_answers_again_is_used_again(gateway, tiny):
+    tiny.words[0x1000] = 0x1234
+    with ModbusTcpBus("127.0.0.1", gateway.port, timeout=0.2) as b:
+        assert b.read16(0x1000) == 0x1234 and b.connects == 1
+        gateway.silent = True
+        with pytest.raises(BusError, match="no reply"):
+            b.read16(0x1000)
+        gateway.silent = False
+        assert b.read16(0x1000) == 0x1234  # one reconnect, and the late reply is never seen
+        assert b.read_block16(0x1000, 2) == [0x1234, 0]
+        assert (b.requests, b.connects) == (4, 2)  # the connection is kept while it works
+
+
+def test_a_gateway_that_is_gone_costs_one_connect_attempt_per_access():
+    port = free_port()
+    with quiet_pymodbus(), ModbusTcpBus("127.0.0.1", port) as b:
+        errors = _five_accesses(b)
+        assert (b.connects, b.requests) == (5, 0)
+    assert all("unreachable" in e for e in errors)
 
 
 def test_gateway_down_is_a_clear_bus_error():

@@ -38,6 +38,13 @@ class TinyBus:
         self.log.append(("w", addr, value))
         self.words[addr] = value
 
+    def read_block16(self, addr: int, n: int) -> list[int]:
+        return [self.read16(addr + 2 * i) for i in range(n)]
+
+    def write_block16(self, addr: int, words) -> None:
+        for i, w in enumerate(words):
+            self.write16(addr + 2 * i, w)
+
     def read8(self, addr: int) -> int:
         word = self.read16(addr & ~1)
         return word & 0xFF if addr & 1 else word >> 8
