@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pfma.errors import ConfigError
+from pfma.errors import ConfigError, did_you_mean
 from pfma.rack import RackConfig, load_rack
 
 MAGIC = b"PFMABIT3"
@@ -253,7 +253,8 @@ class Layout:
         if c is not None:
             return c
         raise KeyError(f"no channel {name!r}{' in area ' + area if area else ''} in the Bit3 "
-                       f"layout (rack {self.rack_name})")
+                       f"layout (rack {self.rack_name})"
+                       + did_you_mean(name, {c.name for c in self.channels if area is None or c.area == area}))
 
     @cached_property
     def _channel_index(self) -> dict[tuple[str, str | None], ChannelEntry]:
@@ -277,7 +278,8 @@ class Layout:
             return self._slot_index[(kind, name)]
         except KeyError:
             raise KeyError(f"no {kind} entry named {name!r} in the Bit3 layout "
-                           f"(rack {self.rack_name})") from None
+                           f"(rack {self.rack_name})"
+                           + did_you_mean(name, [c.name for c in self.channels if c.kind == kind])) from None
 
     def canonical(self) -> dict:
         """The JSON-able description the hash is taken over (no docs)."""

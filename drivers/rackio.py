@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from drivers.bus import RegisterBus
 from drivers.catalog import board_kind, resolve
 from pfma.clock import Clock
-from pfma.errors import BoardError, ConfigError
+from pfma.errors import BoardError, ConfigError, did_you_mean
 from pfma.rack import BoardConfig, Channel, RackConfig
 
 __all__ = ["RackIO", "Reading"]
@@ -87,8 +87,9 @@ class RackIO:
         try:
             return self.rack.channel(signal)
         except KeyError:
+            hint = did_you_mean(signal, (c.signal for c in self.rack.channels())) or "; see `pfma channels`"
             raise ConfigError(f"no channel named {signal!r} in rack {self.rack.name} "
-                              f"({self.rack.source}); see `pfma channels`") from None
+                              f"({self.rack.source}){hint}") from None
 
     def read_signal(self, signal: str) -> Reading:
         """Read one channel by signal name, in engineering units.

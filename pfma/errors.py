@@ -2,6 +2,16 @@
 
 from __future__ import annotations
 
+import difflib
+from collections.abc import Iterable
+
+
+def did_you_mean(name: str, known: Iterable[str], n: int = 3, cutoff: float = 0.6) -> str:
+    """``"; did you mean a, b?"`` for the known names closest to a mistyped ``name``, or ""
+    (every tool's message for an unknown signal, board, field or variable ends with it)."""
+    close = difflib.get_close_matches(name, list(known), n=n, cutoff=cutoff)
+    return f"; did you mean {', '.join(close)}?" if close else ""
+
 
 class PfmaError(Exception):
     """Base of every error this project raises on purpose."""

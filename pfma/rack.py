@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NoReturn
 
-from pfma.errors import ConfigError
+from pfma.errors import ConfigError, did_you_mean
 
 DEFAULT_RACK = Path(__file__).with_name("rack_default.toml")
 
@@ -164,7 +164,8 @@ class RackConfig:
         for c in self.channels():
             if c.signal == signal:
                 return c
-        raise KeyError(f"no channel named {signal!r} in rack {self.name} ({self.source})")
+        raise KeyError(f"no channel named {signal!r} in rack {self.name} ({self.source})"
+                       + did_you_mean(signal, (c.signal for c in self.channels())))
 
     def board(self, name: str) -> BoardConfig:
         for b in self.boards:

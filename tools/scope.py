@@ -23,6 +23,7 @@ from typing import Callable
 import numpy as np
 
 from bit3.layout import Layout
+from pfma.errors import did_you_mean
 
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")  # plotext ends lines with a colour reset even without colour
 
@@ -66,7 +67,10 @@ def resolve(layout: Layout, name: str) -> SignalRef:
     try:
         spec = layout.field(fname, "inputs")
     except KeyError:
-        raise KeyError(f"scope: no rack channel or inputs field {name!r} (see pfma layout --channels)") from None
+        known = [c.name for c in layout.channels if c.area == "inputs"] + [f.name for f in layout.fields
+                                                                            if f.area == "inputs"]
+        raise KeyError(f"scope: no rack channel or inputs field {name!r}"
+                       + (did_you_mean(name, known) or " (see pfma layout --channels)")) from None
     if spec.shape and idx is None:
         raise KeyError(f"scope: field {fname} has shape {list(spec.shape)}; give an element, e.g. {fname}[0]")
     if len(spec.shape) > 1 or (idx is not None and not spec.shape):

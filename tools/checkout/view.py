@@ -6,7 +6,6 @@ and redraw.
 
 from __future__ import annotations
 
-import difflib
 import fnmatch
 import math
 import re
@@ -18,7 +17,7 @@ from bit3.layout import (
     BOARD_FAULT, BOARD_INIT, BOARD_OK, CHANNEL_BUS_ERROR, DAC_CLIPPED, DAC_FORCED_SAFE, DEVICE_GROUPS, LINK_FAULT,
     LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_LOSS_OF_SIGNAL, RTD_NO_REFERENCE, ServiceState,
 )
-from pfma.errors import PfmaError
+from pfma.errors import PfmaError, did_you_mean
 
 RTD_BITS = {RTD_LOSS_OF_SIGNAL: "LOS", RTD_NO_REFERENCE: "NOREF", CHANNEL_BUS_ERROR: "BUSERR"}
 ADC_BITS = {CHANNEL_BUS_ERROR: "BUSERR"}
@@ -173,10 +172,9 @@ def resolve_signals(layout, names: list[str]) -> list[tuple[str, Getter, str]]:
             else:
                 out.append((name, lambda s, b=base: s[b], f.units))
             continue
-        close = difflib.get_close_matches(name, list(channels) + list(fields), n=4, cutoff=0.5)
         raise PfmaError(f"watch: no channel or input field {name!r}"
-                        + (f"; did you mean {', '.join(close)}?" if close else
-                           "; `pfma channels` lists the rack's channels"))
+                        + (did_you_mean(name, list(channels) + list(fields), n=4, cutoff=0.5)
+                           or "; `pfma channels` lists the rack's channels"))
     return out
 
 

@@ -62,7 +62,10 @@ def run(args) -> int:
     layout = default_layout() if args.rack in ("fake", "default") else build_layout(load_rack(args.rack))
     try:
         sc = ScopeCapture(layout, args.signals, args.trigger, args.pre, args.post)
-    except (KeyError, ValueError) as err:
+    except KeyError as err:  # an unknown signal: exit 1, as read and watch
+        print(f"pfma scope: {err.args[0] if err.args else err}", file=sys.stderr)
+        return 1
+    except ValueError as err:  # a malformed trigger
         print(f"pfma scope: {err.args[0] if err.args else err}", file=sys.stderr)
         return 2
     stop = {"flag": False}

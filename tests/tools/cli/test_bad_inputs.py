@@ -127,6 +127,10 @@ ROWS = [
         ("{odd_base}:", "is odd")),
     # --- names and usage -------------------------------------------------------------------
     Row("read-unknown-signal", ("read", "--bus", "fake", "no_such_signal"), 1, ("no_such_signal",)),
+    # a mistyped signal: exit 1 and the close matches, in every verb that takes signal names
+    Row("read-typo-signal", ("read", "--bus", "fake", "elbow_pitch_angel"), 1,
+        ("elbow_pitch_angel", "did you mean elbow_pitch_angle")),
+    Row("scope-typo-signal", ("scope", "wrist_roll_rat"), 1, ("wrist_roll_rat", "did you mean wrist_roll_rate")),
     Row("replay-no-file", ("replay",), 2, ("required",)),
     Row("replay-bad-speed", ("replay", "{good}", "--speed", "fast"), 2, ("--speed", "'fast'")),
     Row("record-info-no-file", ("record", "info"), 2, ("usage: pfma record info FILE.mcap",)),
