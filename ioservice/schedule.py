@@ -135,3 +135,80 @@ class Schedule:
             d = max(divs) if divs else 1
             slots[name] = TaskSlot(d, slot.phase % d)
         return cls(frame_rate_hz=frame_rate_hz, slots=slots)
+
+
+# -------------------------------------------------------------------- what the bus can keep
+#: share of a minor frame that the frame's bus work may take: the rest is the frame's own
+#: computing and publishing (about 0.1-0.3 ms at 320 Hz) and the wake-up latency (p99 up to
+#: ~0.85 ms on a shared VM). Assumed: 0.75
+BUS_SHARE = 0.75
+#: the tasks that touch the register bus (F/T and hand controller decode what the serial
+#: drain has already read; ``publish`` writes shared memory only)
+BUS_TASKS = ("dac", "rtd", "adc", "pio")
+
+
+class BusTooSlow(ConfigError):
+    """The register bus cannot do a frame's work within the frame (the message has the figures)."""
+
+
+def frame_costs(schedule: Schedule, task_cost_s: dict[str, float], every_frame_s: float = 0.0) -> list[float]:
+    """Bus time (s) of each minor frame of the major frame: the costs of the tasks it runs,
+    plus ``every_frame_s`` (the serial drains at its start and end)."""
+    return [every_frame_s + sum(task_cost_s.get(t, 0.0) for t in frame) for frame in schedule.frame_table()]
+
+
+def busiest_frame(schedule: Schedule, task_cost_s: dict[str, float],
+                  every_frame_s: float = 0.0) -> tuple[float, tuple[str, ...]]:
+    """(bus time, task names) of the frame with the most bus work."""
+    costs = frame_costs(schedule, task_cost_s, every_frame_s)
+    k = max(range(len(costs)), key=costs.__getitem__)
+    return costs[k], tuple(t for t in schedule.frame_table()[k] if task_cost_s.get(t))
+
+
+def fits(schedule: Schedule, task_cost_s: dict[str, float], every_frame_s: float = 0.0) -> bool:
+    """True when every frame's bus work takes at most BUS_SHARE of the period."""
+    return busiest_frame(schedule, task_cost_s, every_frame_s)[0] <= BUS_SHARE * schedule.period_s
+
+
+def input_rate_hz(schedule: Schedule) -> float:
+    """The slower of the resolver and ADC rates (what a slower schedule gives up first)."""
+    return min(schedule.rate_hz(t) for t in ("rtd", "adc") if t in schedule.slots)
+
+
+def describe_rates(schedule: Schedule) -> str:
+    """``resolvers 160 Hz, ADC 160 Hz, DAC 320 Hz in 320 Hz frames``."""
+    names = {"rtd": "resolvers", "adc": "ADC", "dac": "DAC"}
+    return (", ".join(f"{names[t]} {schedule.rate_hz(t):g} Hz" for t in names if t in schedule.slots)
+            + f" in {schedule.frame_rate_hz:g} Hz frames")
+
+
+def slower_schedules(base: Schedule, max_period_s: float) -> list[Schedule]:
+    """The schedules a slow bus may fall back to, best first: the frame rate halved (down to
+    a period of ``max_period_s``, the command watchdog), the resolver and ADC dividers
+    multiplied, and the ADC moved to the frame after the resolvers (so one frame does not
+    carry both). Best = the highest resolver/ADC rate, then the highest DAC rate, then the
+    fewest changes."""
+    out: dict[tuple, tuple[tuple, Schedule]] = {}
+    rate = base.frame_rate_hz
+    level = 0
+    while 1.0 / rate <= max_period_s + 1e-12 and rate >= 1.0:
+        frame_base = base if level == 0 else Schedule.scaled(rate)
+        for mult in (1, 2, 4, 8):
+            for split in (False, True):
+                if "rtd" not in frame_base.slots or "adc" not in frame_base.slots:
+                    continue
+                d = frame_base.slots["rtd"].divider * mult
+                if d > MINOR_FRAMES_PER_MAJOR or MINOR_FRAMES_PER_MAJOR % d or (split and d == 1):
+                    continue
+                p = frame_base.slots["rtd"].phase % d
+                slots = dict(frame_base.slots)
+                slots["rtd"] = TaskSlot(d, p)
+                slots["adc"] = TaskSlot(d, (p + 1) % d if split else p)
+                s = Schedule(frame_rate_hz=rate, slots=slots)
+                key = (s.frame_rate_hz, tuple(sorted((n, x.divider, x.phase) for n, x in slots.items())))
+                rank = (input_rate_hz(s), s.rate_hz("dac"), -level, -mult, not split)
+                if key not in out:
+                    out[key] = (rank, s)
+        rate /= 2
+        level += 1
+    return [s for _rank, s in sorted(out.values(), key=lambda rs: rs[0], reverse=True)]

@@ -44,7 +44,10 @@ from bit3.layout import (  # noqa: F401 - the status bits are re-exported for ol
 )
 from ioservice.loop import FrameInfo, FrameLoop, LoopStats
 from ioservice.safety import OutputGuard
-from ioservice.schedule import MINOR_FRAMES_PER_MAJOR, Schedule
+from ioservice.schedule import (
+    BUS_SHARE, BUS_TASKS, MINOR_FRAMES_PER_MAJOR, BusTooSlow, Schedule, busiest_frame, describe_rates, fits,
+    slower_schedules,
+)
 from ioservice.tasks import (  # noqa: F401 - the F/T and brake constants are re-exported
     BRAKE_RELEASE_V, FT_START_ATTEMPTS, FT_STALE_S, AdcTask, DacTask, FtTask, HandTask, InputTask, PioTask, RtdTask,
 )
@@ -85,6 +88,18 @@ HOST_STALL_S = 0.010
 #: a stall is named in trips and stale-command messages for this long after it ended (the
 #: time a controller needs to see new inputs and answer: two watchdog periods, assumed)
 STALL_BLAME_S = 0.030
+#: no register transaction has succeeded for this long (every board failing: a gateway that
+#: stopped answering, a bus adapter gone): the bus is lost and the service stops, its outputs
+#: already safe (the first failed DAC write tripped the guard). Assumed: 0.5 s, long enough
+#: to ride through a gateway's reconnect, short enough that a dead bus ends a run promptly
+BUS_LOST_S = 0.5
+#: start-up measurement of the bus: each task's transactions are timed this many times and
+#: the median is kept (one slow request does not condemn the bus, nor one fast one acquit it)
+BUS_PROBE_REPEATS = 5
+#: the MVME400's receive FIFO: 3 characters, full 1.56 ms after the last drain at 19200
+#: baud (10 bits a character). Over a register gateway every drain is a network round
+#: trip, so the serial lines are not opened there (the F/T may come from a local port)
+SERIAL_FIFO_FILL_S = 3 * 10 / 19200
 
 
 @dataclass
@@ -118,12 +133,15 @@ class IoService:
     :param max_input_age_frames: rate channels are driven only from commands computed from
         inputs at most this many frames old (default: the rack file's ``[commands]``, 4);
         refused with a ConfigError if it exceeds the watchdog
+    :param bus_name: how messages name the bus (``modbus://HOST:PORT``); default: the bus's
+        own ``describe()``, or its type
     """
 
     def __init__(self, rack: RackConfig, bus, buffer: Bit3Buffer, clock: Clock, *,
                  schedule: Schedule | None = None, watchdog_s: float = 0.015,
                  owner: str = "pfma-ioservice", serial: bool = True, calibration=None,
-                 ft_port: str | None = None, max_input_age_frames: int | None = None) -> None:
+                 ft_port: str | None = None, max_input_age_frames: int | None = None,
+                 bus_name: str | None = None) -> None:
         self.calibration = None  # calibration: the loaded calibration in force (None = nominal)
         if calibration is not None:
             rack, self.calibration = _calibrated_rack(rack, calibration)
@@ -132,6 +150,12 @@ class IoService:
         self.buf = buffer
         self.clock = clock
         self.schedule = schedule or Schedule()
+        self.watchdog_s = watchdog_s
+        self.bus_name = bus_name or _bus_name(bus)
+        #: a register gateway's ``HOST:PORT`` (a bus with a ``gateway`` attribute, as
+        #: ``drivers.bus.modbus.ModbusTcpBus``), None for a local bus
+        gateway = getattr(bus, "gateway", None)
+        self.gateway: str | None = gateway if isinstance(gateway, str) else None
         self.layout = buffer.layout
         self.policy = rack.commands
         if max_input_age_frames is not None:  # overrides the rack file's [commands] value
@@ -175,6 +199,12 @@ class IoService:
         self._devices = {g: _DeviceCounter() for g in ("rtd", "adc", "dac", "ft", "pio", "crl", "hid")}
         self._board_fail_run: dict[str, int] = {}
         self.init_errors: list[str] = []  #: full texts of start-up problems (messages are cut to 56 bytes)
+        self.notes: list[str] = []  #: full texts of start-up decisions the user should know of
+        self._bus_ok_t = clock.now()  # the last register transaction that succeeded
+        self._bus_failed = False  # a register transaction failed in the current frame
+        self._last_bus_error: Exception | None = None
+        self.bus_lost: str | None = None  #: why the run ended because the bus stopped answering
+        self.shed_tasks = 0  #: input tasks skipped by frames already late on a failing bus
         self.rtd = RtdTask(self)
         self.adc = AdcTask(self)
         self.dac = DacTask(self)
@@ -192,7 +222,9 @@ class IoService:
         self._mvme400: tuple[BoardConfig, Any] | None = None  # (board, driver) of the serial board
         self._last_drain = -math.inf  # clock time of the last serial FIFO drain
         self._ft_url = ft_port
-        if serial:
+        if serial and self.gateway is not None and self.rack.boards_of("serial"):
+            self._serial_over_gateway(ft_port)
+        elif serial:
             self._wire_serial()
         if ft_port is not None:
             self.ft.wire_url(ft_port)
@@ -270,6 +302,19 @@ class IoService:
         if "crl_hand_controller" in ch:  # no rack quantity for the CRL line: by its signal
             self.hand.attach_crl(drv.port(ch["crl_hand_controller"].channel, timeout=0, write_queue=True))
 
+    def _serial_over_gateway(self, ft_port: str | None) -> None:
+        """Say once that the MVME400's lines are not opened over a register gateway, and where
+        the F/T comes from instead."""
+        ft = (f"F/T sensor from {ft_port}" if ft_port is not None
+              else "no F/T sensor (give it a local port: pfma serve --ft-port URL)")
+        text = (f"serial lines cannot cross the register gateway {self.gateway}: the MVME400's "
+                f"3-character FIFO fills in {SERIAL_FIFO_FILL_S * 1e3:.2f} ms at 19200 baud and "
+                f"each drain would be a network round trip; running with {ft} and without the "
+                f"CRL hand controller")
+        self.notes.append(text)
+        self.post(Severity.WARNING, 123, "serial not over gateway: " + ("F/T on local port" if ft_port
+                                                                         else "no F/T, no CRL"))
+
     # -- private names older code and tests reach (the state is the tasks')
     @property
     def _ft(self):
@@ -312,6 +357,8 @@ class IoService:
         self._v["service_state"][...] = int(state)
 
     def _count_board_error(self, board: str, err: Exception) -> None:
+        self._bus_failed = True
+        self._last_bus_error = err
         slot = self._board_slot(board)
         self._v["board_errors"][slot] += 1
         self._v["board_status"][slot] |= BOARD_FAULT
@@ -330,6 +377,7 @@ class IoService:
             self.guard.trip(f"{board} failed {run} samples in a row: {err}", code=FAULT_INPUTS)
 
     def _input_ok(self, board: str, slot: int) -> None:
+        self._bus_ok_t = self.clock.now()
         if self._board_fail_run.get(board):
             self._board_fail_run[board] = 0
             self._v["board_status"][slot] = BOARD_OK | BOARD_INIT
@@ -357,10 +405,17 @@ class IoService:
             ft.retry -= 1
             mask |= 4
         self._note_alive(info.t_wake)
+        self._bus_failed = False
+        late = info.t_wake + self.schedule.period_s  # a frame's work past this overruns
         try:
             self._task_dac(k)
             for bit, task in self._input_tasks:
                 if mask & bit:
+                    if self._bus_failed and self.clock.now() > late:
+                        # the bus is failing (each access may wait out its timeout) and the
+                        # frame is already over its period: no more bus work in this frame
+                        self.shed_tasks += 1
+                        continue
                     task.run(k)
                     if task.drain_after:
                         self._drain_if_due()  # a slow input scan must not overrun the FIFOs
@@ -368,6 +423,8 @@ class IoService:
             self.fault_code = FAULT_UNEXPECTED
             self.guard.trip(f"unexpected {type(err).__name__} in frame {k}: {err}", code=FAULT_UNEXPECTED)
             self._apply_safe()
+        if self._bus_failed and self.bus_lost is None:
+            self._check_bus_lost()
         self._publish(info)
         self.serial_tick()
         self._last_alive = self.clock.now()  # a long frame is the service's own work, not a stall
@@ -378,6 +435,116 @@ class IoService:
                 self.publish_stats()
         elif self._stats_due_k is not None and k - self._stats_due_k >= STATS_MAX_DEFER_FRAMES:
             self.publish_stats()  # no idle time for a while (overloaded): do it here
+
+    def _check_bus_lost(self) -> None:
+        """After a frame with a failed transaction: if none has succeeded for BUS_LOST_S, the
+        bus is lost: the guard trips (if the failed DAC writes have not tripped it already),
+        one message names the bus, and the loop ends after this frame."""
+        silent = self.clock.now() - self._bus_ok_t
+        if silent <= BUS_LOST_S:
+            return
+        self.bus_lost = (f"the bus {self.bus_name} stopped answering: no register transaction "
+                         f"succeeded for {silent:.2f} s (last error: {self._last_bus_error}); "
+                         f"outputs made safe, service stopping")
+        self.post(Severity.ERROR, 152, f"bus lost: {self.bus_name}"[:56])
+        self.fault_code = FAULT_DAC if self.fault_code == FAULT_NONE else self.fault_code
+        # outputs: the DAC write of this frame has already failed (and tripped the guard);
+        # stop() disables them once more on the way out; no third attempt in this frame
+        self.guard.trip(f"bus {self.bus_name} lost", code=FAULT_DAC)
+        self.loop.stop()
+
+    # ------------------------------------------------------------------ what the bus can keep
+    def measure_bus(self, repeats: int = BUS_PROBE_REPEATS) -> tuple[dict[str, float], float]:
+        """Time one run of each bus task's transactions (the tasks' ``probe``: the same reads
+        and writes as a frame, nothing published), ``repeats`` times on the service's clock.
+        Returns (task -> median seconds, seconds of serial drains in every frame).
+
+        The DAC probe writes the shadow's codes (0 V while the outputs are disconnected, as
+        they are until the first arm)."""
+        tasks: dict[str, Any] = {"dac": self.dac, "rtd": self.rtd, "adc": self.adc, "pio": self.pio}
+        now = self.clock.now
+        out: dict[str, float] = {}
+        for name in BUS_TASKS:
+            times = []
+            for _ in range(repeats):
+                t0 = now()
+                tasks[name].probe()
+                times.append(now() - t0)
+            out[name] = float(np.median(times))
+        every = 0.0
+        if self._mvme400 is not None:  # the drains at the start and end of every frame
+            drv = self._mvme400[1]
+            times = []
+            for _ in range(repeats):
+                t0 = now()
+                try:
+                    drv.poll()
+                except PfmaError:
+                    pass
+                times.append(now() - t0)
+            every = 2 * float(np.median(times))
+        return out, every
+
+    def fit_schedule(self, slow: bool = False, repeats: int = BUS_PROBE_REPEATS) -> str | None:
+        """Measure the bus (:meth:`measure_bus`) and check that every frame of the schedule
+        gets its bus work done within BUS_SHARE of the period.
+
+        :param slow: when the schedule cannot be kept, run the best slower one that can
+            (``ioservice.schedule.slower_schedules``) instead of refusing
+        :returns: None when the schedule stands; the message naming the slower schedule
+            when ``slow`` chose one
+        :raises BusTooSlow: the schedule cannot be kept (and ``slow`` is off, or no slower
+            schedule fits either); the message gives the figures per task and per frame
+        """
+        cost, every = self.measure_bus(repeats)
+        sched = self.schedule
+        if fits(sched, cost, every):
+            return None
+        options = slower_schedules(sched, self.watchdog_s)
+        better = next((s for s in options if fits(s, cost, every)), None)
+        frame_s, names = busiest_frame(sched, cost, every)
+        figures = ("per task " + ", ".join(f"{t} {cost[t] * 1e3:.2f} ms" for t in BUS_TASKS if t in cost)
+                   + (f", serial drains {every * 1e3:.2f} ms" if every else "")
+                   + f"; the busiest frame ({'+'.join(names) or 'nothing'}) needs {frame_s * 1e3:.2f} ms "
+                   f"of the bus, {BUS_SHARE:.0%} of a {sched.period_s * 1e3:.3f} ms frame is "
+                   f"{BUS_SHARE * sched.period_s * 1e3:.2f} ms")
+        if not slow or better is None:
+            if better is not None:
+                hint = f"; --schedule slow would run {describe_rates(better)}"
+            else:
+                hint = (f"; no slower schedule fits either (frames are at most the "
+                        f"{self.watchdog_s * 1e3:g} ms command watchdog, --watchdog-ms)")
+            raise BusTooSlow(f"the bus {self.bus_name} cannot keep the schedule of "
+                             f"{describe_rates(sched)}: {figures}{hint}")
+        self.reschedule(better)
+        b_s, b_names = busiest_frame(better, cost, every)
+        text = (f"running {describe_rates(better)} over {self.bus_name}: the bus costs "
+                f"{b_s * 1e3:.2f} ms in the busiest frame ({'+'.join(b_names)}) of "
+                f"{better.period_s * 1e3:.3f} ms (it could not keep {describe_rates(sched)}: "
+                f"{frame_s * 1e3:.2f} ms)")
+        self.post(Severity.WARNING, 102, f"slow bus: rtd {better.rate_hz('rtd'):g} Hz, "
+                                         f"dac {better.rate_hz('dac'):g} Hz")
+        return text
+
+    def reschedule(self, schedule: Schedule) -> None:
+        """Run ``schedule`` instead (before :meth:`run`): the frame period, the task table, the
+        statistics interval; the command age limit is lowered to what fits the watchdog.
+
+        :raises ConfigError: a frame period longer than the command watchdog
+        """
+        fit = int(self.watchdog_s / schedule.period_s + 1e-9)
+        if fit < 1:
+            raise ConfigError(f"a {schedule.frame_rate_hz:g} Hz schedule has frames longer than "
+                              f"the {self.watchdog_s * 1e3:g} ms command watchdog")
+        if self.policy.max_input_age_frames > fit:
+            from dataclasses import replace
+            self.policy = replace(self.policy, max_input_age_frames=fit)
+        self.schedule = schedule
+        self.loop.period_s = schedule.period_s
+        self._build_tasks()
+        self.stats_every = max(1, int(round(schedule.frame_rate_hz / 2)))
+        for diff in schedule.check_documented_rates():
+            self.post(Severity.WARNING, 101, f"schedule differs from the report: {diff}")
 
     # one input task on its own, outside the frame (``bench/bench_service.py`` times them)
     def _task_rtd(self) -> None:
@@ -752,6 +919,16 @@ class IoService:
         self.dac.calibrate(rack)
         self._apply_calibration_extras()
         self.post(Severity.INFO, 160, f"calibration v{cal.version} loaded ({cal.hash().hex()})")
+
+
+def _bus_name(bus) -> str:
+    describe = getattr(bus, "describe", None)
+    if callable(describe):
+        try:
+            return str(describe())
+        except Exception:  # noqa: BLE001 - a name for messages only
+            pass
+    return type(bus).__name__
 
 
 def _calibrated_rack(rack: RackConfig, calibration):

@@ -18,6 +18,12 @@ counters, messages.
 
 Count <-> unit conversions are the drivers' (``drivers/<board>``); the tasks apply only
 the rack's engineering scales and the calibration.
+
+The tasks that touch the register bus (resolvers, A/D, DAC, parallel ports) also have a
+``probe()``: the same transactions as a run, nothing published and no counter moved,
+which the service times at start to learn what a frame costs on its bus. A failed
+transaction in a probe is timed like any other (the time a failure takes is what a frame
+pays for it).
 """
 
 from __future__ import annotations
@@ -88,6 +94,15 @@ class RtdTask:
             self.boards.append((cfg, drv, slots, svc._board_slot(cfg.name)))
             svc._init_board(cfg, drv.status)
 
+    def probe(self) -> None:
+        """The run's transactions (counts and status of each board), nothing published."""
+        for _cfg, drv, _slots, _bslot in self.boards:
+            try:
+                drv.read_counts()
+                drv.status()
+            except PfmaError:
+                pass
+
     def calibrate(self, rack) -> None:
         """Calibration: angle = (scale * raw + offset) mod 2 pi, per channel, for the boards
         whose channels are not nominal."""
@@ -153,6 +168,14 @@ class AdcTask:
             volts = np.zeros(len(chans))
             self.boards.append((cfg, drv, slots, scale, offset, counts, volts, svc._board_slot(cfg.name)))
             svc._init_board(cfg, lambda d=drv: d.read_counts(0))
+
+    def probe(self) -> None:
+        """The run's transactions (one scan of each board into a scratch array)."""
+        for _cfg, drv, _slots, _scale, _offset, counts, *_ in self.boards:
+            try:
+                drv.scan(counts.copy())
+            except PfmaError:
+                pass
 
     def calibrate(self, rack) -> None:
         """New engineering scales and offsets (in place: the arrays are the task's)."""
@@ -247,6 +270,15 @@ class DacTask:
         self.names = [c.signal for c in chans]
         self.units = [c.units for c in chans]
 
+    def probe(self) -> None:
+        """The run's transaction: all 16 channels written, with the codes they hold (0 V
+        while the outputs are disconnected, as at start)."""
+        drv = self.drv
+        try:
+            drv.write_volts_all(list(drv.shadow_volts), clamp=True)
+        except PfmaError:
+            pass
+
     def calibrate(self, rack) -> None:
         chans = _by_channel(rack.board(self.cfg.name).channels)
         self.scale_l = [c.scale for c in chans]
@@ -296,6 +328,7 @@ class DacTask:
             svc.fault_code = _service.FAULT_DAC
             svc.guard.trip(f"DAC write failed: {err}", code=_service.FAULT_DAC)
             return
+        svc._bus_ok_t = t
         slots = self.slots
         v["dac_counts"][slots] = drv.shadow_counts
         v["dac_volts"][slots] = drv.shadow_volts
@@ -554,6 +587,15 @@ class PioTask:
                     self.out = (cfg, drv, slots)
                 if any(c.signal.startswith("user_if_box_inputs") for c in cfg.channels):
                     self.inputs.append((cfg, drv, slots, svc._board_slot(cfg.name)))
+
+    def probe(self) -> None:
+        """The run's transactions: the user inputs of each input board (the matrix route is
+        written only when it changes: not every run)."""
+        for _cfg, drv, _slots, _bslot in self.inputs:
+            try:
+                drv.read_user_inputs()
+            except PfmaError:
+                pass
 
     def run(self, k: int = 0) -> None:
         svc = self.svc

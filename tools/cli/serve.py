@@ -4,6 +4,13 @@ On the simulated rack (``--rack fake``, the default) the register-level fakes,
 the arm model, the F/T sensor and the CRL hand controller run in this process in
 real time; on hardware, ``--rack FILE.toml --bus URL`` names the rack and the bus.
 The Bit3 buffer is POSIX shared memory ``/dev/shm/NAME``.
+
+At start the service times one frame's bus work on its bus (the resolver, A/D, DAC and
+parallel-port transactions); a schedule the bus cannot keep is refused with the figures,
+unless ``--schedule slow`` lets it run the best slower schedule that fits, which it names.
+Over a Modbus gateway (``--bus modbus://HOST:PORT``, e.g. ``pfma gateway``) the serial
+lines are not opened: the F/T comes from ``--ft-port URL`` or is absent. A bus that stops
+answering makes the outputs safe and ends the run with exit status 1.
 """
 
 from __future__ import annotations
@@ -33,8 +40,10 @@ def add_parser(sub):
     p.add_argument("--modbus", default=None, metavar="HOST:PORT", help="export the buffer over Modbus TCP")
     p.add_argument("--modbus-writes", action="store_true", help="let Modbus clients write the command area")
     p.add_argument("--frame-rate", type=float, default=320.0, help="minor-frame rate (320 default; 1000 fast)")
-    p.add_argument("--schedule", default=None, metavar="FILE.toml",
-                   help="acquisition schedule: a [schedule] table (frame_rate_hz, tasks.NAME = {divider, phase})")
+    p.add_argument("--schedule", default=None, metavar="FILE.toml|slow",
+                   help="acquisition schedule: a [schedule] table (frame_rate_hz, tasks.NAME = {divider, "
+                        "phase}); or slow: if the bus cannot keep the schedule, run the best slower one "
+                        "it can (named at start) instead of refusing to start")
     p.add_argument("--ft-port", default=None, metavar="URL",
                    help="F/T sensor on a pyserial URL (/dev/ttyUSB0, socket://host:port) instead of "
                         "MVME400 port A")
@@ -129,7 +138,8 @@ def _live_view(buffer_name: str, stop: threading.Event, rack) -> None:
 def run(args) -> int:
     from ioservice.service import LIVE_TICK_S, IoService
     from ioservice.loop import realtime_setup
-    if args.schedule:
+    slow = args.schedule == "slow"
+    if args.schedule and not slow:
         import tomllib
         from pfma.errors import ConfigError
         try:
@@ -170,7 +180,8 @@ def run(args) -> int:
     try:
         svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3,
                         max_input_age_frames=args.max_input_age,
-                        calibration=getattr(args, "calibration", None), ft_port=args.ft_port)
+                        calibration=getattr(args, "calibration", None), ft_port=args.ft_port,
+                        bus_name=None if world is not None else args.bus)
     except BaseException:
         buf.close(unlink=True)  # a service that could not start leaves no buffer behind
         raise
@@ -181,14 +192,28 @@ def run(args) -> int:
             svc.stop("no board answered at start")
         finally:
             buf.close(unlink=True)
-            close = getattr(bus, "close", None)
-            if close is not None:
-                close()
+            _close_bus(bus)
         print(f"pfma serve: cannot reach the boards on {args.bus or 'the simulated rack'}: every "
               f"board failed to initialise; first: {first}", file=sys.stderr)
         return 1
     for f in failed:
         print(f"pfma serve: {f}", file=sys.stderr)
+    for note in svc.notes:
+        print(f"pfma serve: {note}", file=sys.stderr)
+    from ioservice.schedule import BusTooSlow
+    try:
+        slower = svc.fit_schedule(slow=slow)
+    except BusTooSlow as err:
+        try:
+            svc.stop("the bus cannot keep the schedule")
+        finally:
+            buf.close(unlink=True)
+            _close_bus(bus)
+        print(f"pfma serve: {err}", file=sys.stderr)
+        return 1
+    if slower is not None:
+        print(f"pfma serve: {slower}", flush=True)
+    schedule = svc.schedule
     from bit3.ring import FrameRing
     svc.ring = FrameRing.create(args.buffer, layout.area("inputs").body_size, layout.hash)
     if world is not None:
@@ -240,7 +265,17 @@ def run(args) -> int:
         buf.close()
         svc.ring.close()
         FrameRing.unlink(args.buffer)
+        _close_bus(bus)
+    if svc.bus_lost is not None:
+        print(f"pfma serve: {svc.bus_lost}", file=sys.stderr)
+        return 1
     return 0
+
+
+def _close_bus(bus) -> None:
+    close = getattr(bus, "close", None)
+    if close is not None:
+        close()
 
 
 def _boards(layout) -> list:
