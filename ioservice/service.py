@@ -93,9 +93,10 @@ STALL_BLAME_S = 0.030
 #: already safe (the first failed DAC write tripped the guard). Assumed: 0.5 s, long enough
 #: to ride through a gateway's reconnect, short enough that a dead bus ends a run promptly
 BUS_LOST_S = 0.5
-#: start-up measurement of the bus: each task's transactions are timed this many times and
-#: the median is kept (one slow request does not condemn the bus, nor one fast one acquit it)
-BUS_PROBE_REPEATS = 5
+#: start-up measurement of the bus: each task's transactions are timed this many times, in
+#: rounds, and the median is kept (a burst of host load in a few rounds does not condemn the
+#: bus, nor a few fast rounds acquit it). Assumed: 11 (about 0.1 s over a loopback gateway)
+BUS_PROBE_REPEATS = 11
 #: the MVME400's receive FIFO: 3 characters, full 1.56 ms after the last drain at 19200
 #: baud (10 bits a character). Over a register gateway every drain is a network round
 #: trip, so the serial lines are not opened there (the F/T may come from a local port)
@@ -203,7 +204,7 @@ class IoService:
         self._bus_ok_t = clock.now()  # the last register transaction that succeeded
         self._bus_failed = False  # a register transaction failed in the current frame
         self._last_bus_error: Exception | None = None
-        self.bus_lost: str | None = None  #: why the run ended because the bus stopped answering
+        self.bus_lost: str | None = None  #: the bus stopped answering: why the run ended, or how it ended
         self.shed_tasks = 0  #: input tasks skipped by frames already late on a failing bus
         self.rtd = RtdTask(self)
         self.adc = AdcTask(self)
@@ -443,15 +444,25 @@ class IoService:
         silent = self.clock.now() - self._bus_ok_t
         if silent <= BUS_LOST_S:
             return
-        self.bus_lost = (f"the bus {self.bus_name} stopped answering: no register transaction "
-                         f"succeeded for {silent:.2f} s (last error: {self._last_bus_error}); "
-                         f"outputs made safe, service stopping")
+        self.bus_lost = self._bus_silence(silent) + "; outputs made safe, service stopping"
         self.post(Severity.ERROR, 152, f"bus lost: {self.bus_name}"[:56])
         self.fault_code = FAULT_DAC if self.fault_code == FAULT_NONE else self.fault_code
         # outputs: the DAC write of this frame has already failed (and tripped the guard);
         # stop() disables them once more on the way out; no third attempt in this frame
         self.guard.trip(f"bus {self.bus_name} lost", code=FAULT_DAC)
         self.loop.stop()
+
+    def _bus_silence(self, silent: float) -> str:
+        return (f"the bus {self.bus_name} stopped answering: no register transaction succeeded "
+                f"for {silent:.2f} s (last error: {self._last_bus_error})")
+
+    def _check_bus_at_end(self) -> None:
+        """A run that ends (its duration, Ctrl-C) while the bus has not answered for longer
+        than the command watchdog, before BUS_LOST_S, is reported all the same."""
+        silent = self.clock.now() - self._bus_ok_t
+        if self.bus_lost is None and self._bus_failed and silent > self.watchdog_s:
+            self.bus_lost = self._bus_silence(silent) + " when the run ended; outputs made safe"
+            self.post(Severity.ERROR, 152, f"bus lost: {self.bus_name}"[:56])
 
     # ------------------------------------------------------------------ what the bus can keep
     def measure_bus(self, repeats: int = BUS_PROBE_REPEATS) -> tuple[dict[str, float], float]:
@@ -463,26 +474,22 @@ class IoService:
         they are until the first arm)."""
         tasks: dict[str, Any] = {"dac": self.dac, "rtd": self.rtd, "adc": self.adc, "pio": self.pio}
         now = self.clock.now
-        out: dict[str, float] = {}
-        for name in BUS_TASKS:
-            times = []
-            for _ in range(repeats):
+        serial = self._mvme400[1] if self._mvme400 is not None else None
+        times: dict[str, list[float]] = {name: [] for name in (*BUS_TASKS, "serial")}
+        for _ in range(repeats):  # round by round: a burst of host load hits every task alike
+            for name in BUS_TASKS:
                 t0 = now()
                 tasks[name].probe()
-                times.append(now() - t0)
-            out[name] = float(np.median(times))
-        every = 0.0
-        if self._mvme400 is not None:  # the drains at the start and end of every frame
-            drv = self._mvme400[1]
-            times = []
-            for _ in range(repeats):
+                times[name].append(now() - t0)
+            if serial is not None:  # the drains at the start and end of every frame
                 t0 = now()
                 try:
-                    drv.poll()
+                    serial.poll()
                 except PfmaError:
                     pass
-                times.append(now() - t0)
-            every = 2 * float(np.median(times))
+                times["serial"].append(now() - t0)
+        out = {name: float(np.median(times[name])) for name in BUS_TASKS}
+        every = 2 * float(np.median(times["serial"])) if serial is not None else 0.0
         return out, every
 
     def fit_schedule(self, slow: bool = False, repeats: int = BUS_PROBE_REPEATS) -> str | None:
@@ -853,6 +860,7 @@ class IoService:
         try:
             return self.loop.run(frames=frames, duration_s=duration_s)
         finally:
+            self._check_bus_at_end()
             if hook is not None and self.idle_tick in hook:
                 hook.remove(self.idle_tick)
             self._stats_between_frames = False

@@ -186,7 +186,7 @@ def run(args) -> int:
         buf.close(unlink=True)  # a service that could not start leaves no buffer behind
         raise
     failed = _failed_boards(svc, buf, layout)
-    if failed and len(failed) == len(_boards(layout)):
+    if failed and len(failed) == len(_initialised_boards(svc, layout)):
         first = _why_unreachable(bus, svc, layout) or failed[0]
         try:
             svc.stop("no board answered at start")
@@ -280,6 +280,13 @@ def _close_bus(bus) -> None:
 
 def _boards(layout) -> list:
     return [c for c in layout.channels if c.kind == "board"]
+
+
+def _initialised_boards(svc, layout) -> list:
+    """The boards the service tried to initialise (over a gateway the serial board is not)."""
+    from bit3.layout import BOARD_FAULT, BOARD_INIT
+    status = svc.inputs.record["board_status"]
+    return [c for c in _boards(layout) if int(status[c.slot]) & (BOARD_FAULT | BOARD_INIT)]
 
 
 def _failed_boards(svc, buf, layout) -> list[str]:
