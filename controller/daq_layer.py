@@ -71,6 +71,8 @@ if TYPE_CHECKING:  # pragma: no cover
     from controller.context import LayerContext
     from bit3.client import Client
 
+_PI, _TAU = math.pi, 2 * math.pi
+
 FAULT_RESOLVER, FAULT_TACH, FAULT_FT, FAULT_BOARD, FAULT_SERVICE, FAULT_STALE = 1, 2, 4, 8, 16, 32
 FAULT_COMMAND = 64
 FAULT_NAMES = {FAULT_RESOLVER: "resolver", FAULT_TACH: "tach ADC", FAULT_FT: "F/T link",
@@ -124,6 +126,8 @@ class DataAcquisitionLayer(Layer):
         self.rtd_slots = np.array([e.slot for e in angles], dtype=np.intp)
         self.tach_slots = np.array([e.slot for e in tachs], dtype=np.intp)
         self.centre = np.array([j.centre_rad for j in JOINTS])
+        self._joint_centres = tuple((k, float(c)) for k, c in zip(self.rtd_slots.tolist(), self.centre.tolist()))
+        self._acq: dict = {}  # the acquire post, refilled every frame (same keys, same order)
         ft = next((c for c in lay.channels if c.kind == "link" and c.quantity == "force_torque"), None)
         # the boards the servo depends on: those carrying the joints' angles, tachs and rate
         # commands, and the F/T sensor's serial board when force sensing is required
@@ -153,6 +157,7 @@ class DataAcquisitionLayer(Layer):
         self._svc_msg_seq = 0  # newest service message looked at for a refusal's reason
         self._zeros = np.zeros(N_JOINTS)
         self._zero_limits = np.zeros(N_CURRENT_LIMITS)
+        self._zero3 = np.zeros(3)
         if getattr(client, "role", None) == "controller":
             # a claimed command area the service has never seen written looks like a foreign
             # writer's: publish a safe command (0 rates, 0 limits, no arm request) at once
@@ -200,19 +205,25 @@ class DataAcquisitionLayer(Layer):
         else:
             self._same_frames = 0
             self._last_frame = frame
-        ang = snap.rtd_angle_rad[self.rtd_slots]
-        q = self.centre + np.mod(ang - self.centre + math.pi, 2 * math.pi) - math.pi
-        qdot = snap.adc_value[self.tach_slots]
-        st = int(snap.service_state)
-        rt.wm.post_task_outputs("daq", {
-            "daq.joint_angle_rad": q, "daq.joint_rate_rad_s": qdot,
-            "daq.ft_force_n": snap.ft_force_n, "daq.ft_torque_nm": snap.ft_torque_nm,
-            "daq.hc_axes": snap.hc_axes[:len(HAND_CONTROLLERS)],
-            "daq.hc_deadman": snap.hc_deadman[:len(HAND_CONTROLLERS)].astype(bool),
-            "daq.service_frame": frame, "daq.service_state": st,
-            "daq.brakes_released": bool(snap.brakes_released),
-            "daq.outputs_enabled": bool(snap.outputs_enabled),
-        })
+        rec = snap.record  # the client's preallocated copy: fields read directly, not by name lookup
+        # unwrapped to each joint's range in plain Python (six floats: cheaper than numpy's
+        # small-array calls; Python's float % is numpy's mod, so the values are the same)
+        ang = rec["rtd_angle_rad"].tolist()
+        q = [c + (ang[k] - c + _PI) % _TAU - _PI for k, c in self._joint_centres]
+        st = int(rec["service_state"])
+        nh = len(HAND_CONTROLLERS)
+        out = self._acq
+        out["daq.joint_angle_rad"] = q
+        out["daq.joint_rate_rad_s"] = rec["adc_value"][self.tach_slots]
+        out["daq.ft_force_n"] = rec["ft_force_n"]
+        out["daq.ft_torque_nm"] = rec["ft_torque_nm"]
+        out["daq.hc_axes"] = rec["hc_axes"][:nh]
+        out["daq.hc_deadman"] = rec["hc_deadman"][:nh].astype(bool)
+        out["daq.service_frame"] = frame
+        out["daq.service_state"] = st
+        out["daq.brakes_released"] = bool(rec["brakes_released"])
+        out["daq.outputs_enabled"] = bool(rec["outputs_enabled"])
+        rt.wm.post_task_outputs("daq", out)
         self.ft_in_use = self._force_in_use(rt)
         bits, detail = self.check(snap, st)
         if self._ft_warning:
@@ -263,16 +274,17 @@ class DataAcquisitionLayer(Layer):
     def check(self, snap, service_state: int) -> tuple[int, str]:
         """The hardware checks of one snapshot: (fault bits, description)."""
         bits, why = 0, []
-        rs = snap.rtd_status[self.rtd_slots]
-        if np.any(rs):
+        rec = snap.record
+        rs = rec["rtd_status"][self.rtd_slots]
+        if rs.any():
             bits |= FAULT_RESOLVER
             why += [f"{self.joint_order[i]} resolver status 0x{int(rs[i]):X}" for i in np.nonzero(rs)[0]]
-        ts = snap.adc_status[self.tach_slots]
-        if np.any(ts & CHANNEL_BUS_ERROR):
+        ts = rec["adc_status"][self.tach_slots]
+        if (ts & CHANNEL_BUS_ERROR).any():
             bits |= FAULT_TACH
             why.append("tach ADC sample failed")
         if self.require_ft and self.ft_slot is not None:
-            ls = int(snap.link_status[self.ft_slot])
+            ls = int(rec["link_status"][self.ft_slot])
             bad = bool(ls & (LINK_STALE | LINK_FAULT) or not ls)
             self._ft_bad_run = self._ft_bad_run + 1 if bad else 0
             if self._ft_bad_run >= FT_BAD_FRAMES:
@@ -286,8 +298,8 @@ class DataAcquisitionLayer(Layer):
                     self._ft_warning = what
             elif not bad:
                 self._ft_warned = False
-        bs = snap.board_status[self.board_slots]
-        if np.any(bs & BOARD_FAULT):
+        bs = rec["board_status"][self.board_slots]
+        if (bs & BOARD_FAULT).any():
             bits |= FAULT_BOARD
             why += [f"board {self.board_names[i]} fault (errors {int(snap.board_errors[self.board_slots[i]])})"
                     for i in np.nonzero(bs & BOARD_FAULT)[0]]
@@ -306,9 +318,12 @@ class DataAcquisitionLayer(Layer):
 
     def _command_check(self, snap) -> str:
         """The service's verdict on our commands: '' when it took them, else its reason."""
-        cs = int(snap.command_status) & COMMAND_FAULT_STATUS
-        counts = [int(snap[f]) for f, _ in COMMAND_COUNTERS]
+        rec = snap.record
+        cs = int(rec["command_status"]) & COMMAND_FAULT_STATUS
+        counts = [int(rec[f]) for f, _ in COMMAND_COUNTERS]
         last, self._cmd_counts = self._cmd_counts, counts
+        if not cs and (last is None or counts == last):  # the healthy frame: nothing refused, no counter up
+            return ""
         up = [(n, c - c0) for (_, n), c, c0 in zip(COMMAND_COUNTERS, counts, last or counts) if c > c0]
         if not cs and not up:
             return ""
@@ -388,8 +403,9 @@ class DataAcquisitionLayer(Layer):
             return {}
         v = rt.wm.get_task_inputs(self._REFLECT)
         on = status == Status.START_UP_COMPLETE and bool(v["teleop.reflect_enabled"])
-        return {"crl_reflect_force_n": v["teleop.reflect_force_n"] if on else np.zeros(3),
-                "crl_reflect_torque_nm": v["teleop.reflect_torque_nm"] if on else np.zeros(3),
+        zero = self._zero3  # write_commands copies it into the command record
+        return {"crl_reflect_force_n": v["teleop.reflect_force_n"] if on else zero,
+                "crl_reflect_torque_nm": v["teleop.reflect_torque_nm"] if on else zero,
                 "crl_reflect_enable": int(on)}
 
     # --- sequence tasks ------------------------------------------------------------------

@@ -57,6 +57,8 @@ class Response:
     NAMES = {0: "NONE", 1: "IN PROGRESS", 2: "COMPLETE", 3: "REFUSED", 4: "FAILED"}
 
 
+_NO_SUBORDINATE = int(Status.NO_SUBORDINATE)
+
 SEQ_ACTIONS = {Action.INIT: "init", Action.STARTUP: "startup", Action.SHUTDOWN: "shutdown",
                Action.SAFE: "safe", Action.RESET: "reset"}
 
@@ -88,15 +90,18 @@ class Layer:
         self.last = (0, 0, 0, 0, False, 0)  # command, status, sub, task, fault, rid
         self.decided = int(Status.SHUT_DOWN)  # the status the table decided last
         self.periodic: dict[str, Callable[["LayerContext"], None]] = {}
+        # the state variables' names, built once (the table reads them every minor frame)
+        self._v_command, self._v_status = f"{self.key}.command", f"{self.key}.status"
+        self._v_row, self._v_task = f"{self.key}.row", f"{self.key}.task"
 
     # --- names ---------------------------------------------------------------------------
     @property
     def v_command(self) -> str:
-        return f"{self.key}.command"
+        return self._v_command
 
     @property
     def v_status(self) -> str:
-        return f"{self.key}.status"
+        return self._v_status
 
     def command_writer(self) -> str:
         """Who writes this layer's command: the layer above."""
@@ -130,17 +135,18 @@ class Layer:
     def run_table(self, rt: "LayerContext") -> None:
         """Read command, own status and the subordinate's status; decide; post."""
         wm = rt.wm
-        c = wm.get_state_variable(self.v_command)
-        s = wm.get_state_variable(self.v_status)
-        b = wm.get_state_variable(self.subordinate.v_status) if self.subordinate is not None \
-            else int(Status.NO_SUBORDINATE)
+        get = wm.get_state_variable
+        sub = self.subordinate
+        c = get(self._v_command)
+        s = get(self._v_status)
+        b = get(sub._v_status) if sub is not None else _NO_SUBORDINATE
         t = int(self.task_state)
         f = self.fault
         out = self.table.decide(c, s, b, t, f)
         self.last = (c, s, b, t, f, out.rid)
         self.decided = int(out.next_status)
         if out.next_status != s:
-            wm.post_state_variable(self.key, self.v_status, int(out.next_status))
+            wm.post_state_variable(self.key, self._v_status, int(out.next_status))
             lvl = Level.ERROR if out.next_status == Status.ERROR else Level.INFO
             why = out.note
             if out.next_status == Status.ERROR and f and self.fault_text:
@@ -157,7 +163,7 @@ class Layer:
                 rt.post(self.key, Level.DEBUG, f"command {self.subordinate.title}: "
                                                f"{command_text(out.command_down)}")
         if out.rid != rt.last_rid.get(self.key):
-            wm.post_state_variable(self.key, f"{self.key}.row", out.rid)
+            wm.post_state_variable(self.key, self._v_row, out.rid)
             rt.last_rid[self.key] = out.rid
         if out.action != Action.NONE:
             self._act(rt, out.action)
@@ -173,7 +179,7 @@ class Layer:
         self._post_mailbox(rt)
 
     def _post_mailbox(self, rt: "LayerContext") -> None:
-        rt.wm.post_state_variable(self.key, f"{self.key}.task", int(self.task_kind) * 10 + int(self.task_state))
+        rt.wm.post_state_variable(self.key, self._v_task, int(self.task_kind) * 10 + int(self.task_state))
 
     # --- sequence tasks ------------------------------------------------------------------
     def run_sequence(self, rt: "LayerContext") -> None:

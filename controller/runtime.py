@@ -82,6 +82,9 @@ STATS_PUBLISH_S = 0.5
 TIMING_RING = 1024
 #: the servo's periodic task (its slot defines the servo period)
 SERVO_TASK = "servo_control"
+#: distinct per-layer trace records kept for reuse (they repeat frame after frame; a
+#: LayerTrace is immutable, so one object serves every frame with the same values)
+LAYER_TRACE_CACHE = 4096
 
 
 class FrameTiming:
@@ -258,6 +261,8 @@ class ControllerRuntime:
         if problems:
             raise ScheduleError("controller schedule: " + "; ".join(problems))
         self._table = tuple(tuple((t.name, impl[t.name]) for t in frame) for frame in self.frames.table())
+        self._table_names = tuple(tuple(n for n, _ in frame) for frame in self._table)
+        self._lt_cache: dict[tuple, LayerTrace] = {}
         self._impl = impl
         self._order = tuple(t.name for t in self.frames.tasks)  # catch-up runs in schedule order
         self._per_major = sum(len(fr) for fr in self._table)
@@ -319,18 +324,19 @@ class ControllerRuntime:
         daq_status = self._decided(self.daq)
         for l in self.layers:
             l.run_sequence(self)
-        due = self._table[f % MINOR_FRAMES_PER_MAJOR]
+        slot = f % MINOR_FRAMES_PER_MAJOR
+        due = self._table[slot]
+        ran = self._table_names[slot]  # every due task runs (one that raises has run too)
         if catch:
             names = set(catch).union(n for n, _ in due)
             due = tuple((n, self._impl[n]) for n in self._order if n in names)
-        ran = []
+            ran = tuple(n for n, _ in due)
         for name, fn in due:
             try:
                 fn(self)
             except Exception as err:  # noqa: BLE001 - a task error is its layer's fault
                 layer = next(l for l in self.layers if name in l.periodic)
                 layer.set_fault(self, 90, f"task {name} raised {type(err).__name__}: {err}")
-            ran.append(name)
         # output last, after a second communications segment: the rates leave in the frame
         # whose inputs they were computed from (the service sees them 1-2 frames old, not 2-3)
         self.wm.communications_segment()
@@ -338,14 +344,26 @@ class ControllerRuntime:
         self.frames_run += 1
         cost = time.perf_counter() - t0
         self._time_frame(cost)
-        rec = FrameTrace(self.frame, self.now - self.t0, tuple(
-            LayerTrace(l.last[0], self._decided(l), l.last[5], int(l.task_kind) * 10 + int(l.task_state),
-                       l.key in self._changed) for l in self.layers),
-            self.daq.fault_bits, tuple(ran), cost)
+        rec = FrameTrace(self.frame, self.now - self.t0, self._layer_traces(), self.daq.fault_bits, ran, cost)
         self.trace.append(rec)
         for fn in self.on_frame:
             fn(rec)
         return rec
+
+    def _layer_traces(self) -> tuple[LayerTrace, ...]:
+        """Each layer's trace record of this frame (reused from earlier frames with the same values)."""
+        cache, changed = self._lt_cache, self._changed
+        out = []
+        for l in self.layers:
+            last = l.last
+            key = (l.key, last[0], l.decided, last[5], int(l.task_kind) * 10 + int(l.task_state), l.key in changed)
+            lt = cache.get(key)
+            if lt is None:
+                if len(cache) >= LAYER_TRACE_CACHE:
+                    cache.clear()
+                lt = cache[key] = LayerTrace(*key[1:])
+            out.append(lt)
+        return tuple(out)
 
     def _clock_now(self) -> float:
         return self.clock.now() if self.clock is not None else time.monotonic()

@@ -18,14 +18,14 @@ the communications frame"); readers in other processes retry on the sequence loc
 
 from __future__ import annotations
 
-import difflib
 import hashlib
 import hmac
+import math
 import os
 import struct
 import threading
 import time
-from typing import Any, Iterable, Mapping
+from typing import Any, Iterable, Mapping, NamedTuple
 
 import numpy as np
 
@@ -38,6 +38,7 @@ from controller.worldmodel.segment import (
 )
 from controller.worldmodel.spec import AREAS, VarSpec, WorldModelError, coerce
 from pfma.clock import MonotonicClock
+from pfma.errors import did_you_mean
 
 #: the access key a model gets when none is given and PFMA_WM_KEY is not set
 DEFAULT_ACCESS_KEY = "pfma"
@@ -45,6 +46,81 @@ DEFAULT_ACCESS_KEY = "pfma"
 ACCESS_KEY_ENV = "PFMA_WM_KEY"
 #: shared-memory name the controller runtime and ``pfma wm`` use when none is given
 DEFAULT_NAME = "pfma_wm"
+#: distinct name tuples whose read plan :meth:`WorldModel.get_task_inputs` keeps (the
+#: layers' constant tuples; a caller building new tuples every time is not cached past this)
+PLAN_CACHE = 256
+#: numpy (kind, itemsize) -> struct code, for scalars read and written without numpy
+_STRUCT_CODE = {("f", 8): "d", ("f", 4): "f", ("i", 1): "b", ("i", 2): "h", ("i", 4): "i", ("i", 8): "q",
+                ("u", 1): "B", ("u", 2): "H", ("u", 4): "I", ("u", 8): "Q", ("b", 1): "?"}
+
+
+class _Hot(NamedTuple):
+    """What the owner's hot paths need of one variable, derived once from its spec.
+
+    The fast paths (plain ``struct`` for scalars, the array's own bytes for arrays of the
+    variable's dtype and shape) give exactly the bytes and values :func:`coerce` and
+    :meth:`WorldModel._decode_value` give; anything they do not cover goes the general way
+    (which also raises the errors)."""
+    writer: str
+    offset: int
+    dtype: np.dtype
+    count: int
+    shape: tuple
+    kind: str  #: numpy kind of the variable: f, i, u, b
+    scalar: struct.Struct | None  #: the scalar's struct (None: an array, or no struct code)
+    vector: struct.Struct | None  #: a 1-D f8 array's struct (packs a tuple or list of floats)
+    lo: int  #: integer range (0, 0 for other kinds)
+    hi: int
+    is_state: bool
+    f8: bool
+
+
+def _hot(s: VarSpec, offset: int) -> _Hot:
+    dt = s.np_dtype
+    order = ">" if dt.str[0] == ">" else "<"
+    code = _STRUCT_CODE.get((dt.kind, dt.itemsize))
+    scalar = struct.Struct(order + code) if code and s.shape == () else None
+    f8 = dt.kind == "f" and dt.itemsize == 8
+    vector = struct.Struct(f"{order}{s.shape[0]}d") if f8 and len(s.shape) == 1 else None
+    lo, hi = (int(np.iinfo(dt).min), int(np.iinfo(dt).max)) if dt.kind in "iu" else (0, 0)
+    return _Hot(s.writer, offset, dt, s.count, tuple(s.shape), dt.kind, scalar, vector, lo, hi, s.is_state, f8)
+
+
+def _fast_raw(h: _Hot, value: Any) -> bytes | None:
+    """``coerce(spec, value).tobytes()`` for the common valid cases without numpy (a Python
+    or numpy scalar of the variable's kind, a finite f8; an array of the variable's dtype
+    and shape, finite; a tuple or list of floats for a 1-D f8 variable), else None: the
+    caller then calls :func:`coerce`, which converts the rest and raises on the invalid."""
+    t = type(value)
+    st = h.scalar
+    if st is not None:
+        k = h.kind
+        if k == "f":
+            if h.f8 and (t is float or t is np.float64) and math.isfinite(value):
+                return st.pack(value)
+        elif k == "b":
+            if t is bool or t is np.bool_:
+                return b"\x01" if value else b"\x00"
+        elif (t is int or (isinstance(value, int) and t is not bool)) and h.lo <= value <= h.hi:
+            return st.pack(value)  # an int or IntEnum (numpy takes both as integers)
+        return None
+    if t is np.ndarray:
+        if value.dtype != h.dtype or value.shape != h.shape:
+            return None
+        # a sum of finite floats is finite unless it overflows (then: the general way); any
+        # inf or nan makes it non-finite
+        if h.kind == "f" and not math.isfinite(sum(value.ravel().tolist())):
+            return None
+        return value.tobytes()
+    vec = h.vector
+    if vec is not None and (t is tuple or t is list) and len(value) == h.count:
+        for x in value:
+            if type(x) is not float:
+                return None
+        if not math.isfinite(sum(value)):
+            return None
+        return vec.pack(*value)
+    return None
 
 
 class WorldModel(UserRequestRing):
@@ -184,6 +260,13 @@ class WorldModel(UserRequestRing):
         # the request ring is writable from every attachment (pfma wm set)
         self._req = self._root[lay.req_offset:lay.req_offset + REQUEST_SLOTS * lay.req_slot_size]
         self._views.append(self._req)
+        # the request slots' state words as one view (aligned 4-byte loads), scanned by
+        # every communications segment without building a view per slot
+        self._req_words = self._req.cast("I")
+        self._views.append(self._req_words)
+        self._req_step = lay.req_slot_size // 4
+        self._hot = tuple(_hot(s, o) for s, o in zip(specs, lay.offsets))
+        self._plans: dict[tuple, tuple[tuple[str, int], ...]] = {}
         self._words = {k: self._word(k) for k in ("powered_up", "owner_pid", "frame", "frame_t_s",
                                                   "req_next_id", "user_applied", "user_rejected")}
 
@@ -235,10 +318,8 @@ class WorldModel(UserRequestRing):
         """The variable's spec; :class:`WorldModelError` (with close matches) if unknown."""
         i = self._index.get(name)
         if i is None:
-            close = difflib.get_close_matches(name, self._index, n=3)
-            hint = f"; did you mean {', '.join(close)}?" if close else ""
             raise WorldModelError(f"no variable {name!r} in world model "
-                                  f"{self.name or 'private'}{hint}")
+                                  f"{self.name or 'private'}{did_you_mean(name, self._index)}")
         return self._specs[i]
 
     def variables_of(self, writer: str) -> tuple[str, ...]:
@@ -261,11 +342,31 @@ class WorldModel(UserRequestRing):
         with self._comm_lock:  # pend until the end of a communications segment
             return fn()
 
+    def _owner_guard(self) -> None:
+        """The owner's own read during its communications segment is refused (as in :meth:`_read`)."""
+        if self._in_comm and self._flush_thread == threading.get_ident():
+            raise WorldModelError(f"world model {self.name or 'private'}: read during its own "
+                                  f"communications segment (the model is locked out)")
+
+    def _value_at(self, i: int) -> Any:
+        """Variable ``i`` straight from the body (the owner, holding the segment lock: the
+        body changes only in a communications segment, which holds that lock too). The
+        same values and types as :meth:`_decode_value`, without a copy of the body."""
+        h = self._hot[i]
+        if h.scalar is not None:
+            return h.dtype.type(h.scalar.unpack_from(self._body, h.offset)[0])
+        a = np.frombuffer(self._body, h.dtype, h.count, h.offset)
+        return a[0] if h.shape == () else a.reshape(h.shape).copy()
+
     def get(self, name: str) -> Any:
         """A consistent copy of one variable: a numpy scalar, or a new array."""
         i = self._index.get(name)
         if i is None:
             self.spec(name)
+        if not self.readonly:
+            self._owner_guard()
+            with self._comm_lock:  # pend until the end of a communications segment
+                return self._value_at(i)
         s, o = self._specs[i], self._lay.offsets[i]
         buf = bytearray(s.nbytes)
         self._read(lambda: self._lock.read_part_into(memoryview(buf), o))
@@ -273,6 +374,14 @@ class WorldModel(UserRequestRing):
 
     def get_task_inputs(self, names: Iterable[str]) -> dict[str, Any]:
         """Several variables from one consistent copy (all from the same frame)."""
+        if not self.readonly:
+            plan = self._plans.get(names) if type(names) is tuple else None  # type: ignore[call-overload]
+            if plan is None:
+                plan = self._plan(names)
+            self._owner_guard()
+            value = self._value_at
+            with self._comm_lock:  # pend until the end of a communications segment: consistent
+                return {n: value(i) for n, i in plan}
         idx = []
         for n in names:
             i = self._index.get(n)
@@ -291,12 +400,32 @@ class WorldModel(UserRequestRing):
         self._read(grab)
         return frame
 
+    def _plan(self, names: Iterable[str]) -> tuple[tuple[str, int], ...]:
+        """(name, index) of ``names`` (unknown names raise), kept for a tuple of names."""
+        plan = []
+        for n in names:
+            i = self._index.get(n)
+            if i is None:
+                self.spec(n)
+            plan.append((n, i))
+        out = tuple(plan)
+        if type(names) is tuple and len(self._plans) < PLAN_CACHE:
+            self._plans[names] = out
+        return out
+
     def snapshot(self) -> dict[str, Any]:
         """Every variable from one consistent copy."""
         return self.get_task_inputs(self.names())
 
     def get_state_variable(self, name: str) -> int:
         """A short integer state variable (layer command/status) as a Python int."""
+        i = self._index.get(name)
+        if i is not None and not self.readonly:
+            h = self._hot[i]
+            if h.is_state and h.scalar is not None:
+                self._owner_guard()
+                with self._comm_lock:
+                    return h.scalar.unpack_from(self._body, h.offset)[0]
         s = self.spec(name)
         if not s.is_state:
             raise WorldModelError(f"world-model variable {name!r} is {s.type_text}, not an integer "
@@ -333,9 +462,16 @@ class WorldModel(UserRequestRing):
         """
         self._require_owner("posting")
         staged = []
+        index, hot, fast = self._index, self._hot, _fast_raw
         for name, value in values.items():
-            i = self._check_writer(writer, name)
-            staged.append((i, coerce(self._specs[i], value).tobytes()))
+            i = index.get(name)
+            if i is None or hot[i].writer != writer:
+                i = self._check_writer(writer, name)  # raises, naming the owner
+            raw = fast(hot[i], value)
+            staged.append((i, raw if raw is not None else coerce(self._specs[i], value).tobytes()))
+        self._enqueue(staged)
+
+    def _enqueue(self, staged: list[tuple[int, bytes]]) -> None:
         with self._qlock:
             if self._in_comm:
                 self._stats["deferred_posts"] += len(staged)
@@ -345,6 +481,14 @@ class WorldModel(UserRequestRing):
 
     def post_state_variable(self, writer: str, name: str, value: int) -> None:
         """Queue one integer state variable (layer command or status)."""
+        i = self._index.get(name)
+        if i is not None and not self.readonly:
+            h = self._hot[i]
+            if h.is_state and h.writer == writer:
+                raw = _fast_raw(h, value)
+                if raw is not None:
+                    self._enqueue([(i, raw)])
+                    return
         s = self.spec(name)
         if not s.is_state:
             raise WorldModelError(f"world-model variable {name!r} is {s.type_text}, not an integer "

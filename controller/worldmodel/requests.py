@@ -142,13 +142,10 @@ class UserRequestRing:
     def _pending_requests(self) -> list[tuple[int, int, bytes]]:
         """(slot, variable index, value bytes) of every pending request, oldest first."""
         out = []
+        words, step = self._req_words, self._req_step  # each slot's state word, one view
         for k in range(REQUEST_SLOTS):
-            st = self._slot_state(k)
-            try:
-                if st[0] != PENDING:
-                    continue
-            finally:
-                st.release()
+            if words[k * step] != PENDING:
+                continue
             i = self._slot_get(k, "var_index")
             n = self._slot_get(k, "nbytes")
             base = k * self._lay.req_slot_size + SLOT_HEADER
