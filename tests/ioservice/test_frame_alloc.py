@@ -1,0 +1,97 @@
+"""The I/O service's frame allocates nothing that survives it (issue 16 item 6).
+
+The whole system runs powered up in the system simulator (the service ARMED, driving
+the DAC from the controller's commands: every task of the service's frame at work).
+After a warm-up traced from its start, 1,000 service frames run under ``tracemalloc``;
+the net growth of the memory allocated while ``ioservice/`` or ``bit3/`` code was on the
+stack, leaving out what the controller's frame and the fake boards allocate (the rig
+calls both from inside the service's loop), must be about zero. Objects replaced every
+frame (the latest F/T record, the hand controllers' latest state) make a few hundred
+bytes of noise either way; a per-frame list append of one float would be about 32 KB.
+"""
+
+from __future__ import annotations
+
+import gc
+import os
+import tracemalloc
+
+import pytest
+
+import bit3
+import controller
+import fakes
+import ioservice
+from controller.decision import Status
+from sim.system import SystemSimulator
+
+FRAMES = 1000
+#: frames of the demonstration that the check can fail (shorter: it only has to exceed the limit)
+LEAK_FRAMES = 400
+TRACED_WARMUP = 100
+#: net growth allowed over FRAMES frames (noise of replaced objects; measured 0.1-0.8 KB)
+ALLOWED_BYTES = 4096
+
+
+def _under(pkg) -> str:
+    """A filename pattern for a package's own files (its directory: these tests live in
+    tests/ioservice/, which a pattern like */ioservice/* would match too)."""
+    return os.path.join(os.path.dirname(pkg.__file__), "*")
+
+
+SERVICE = [tracemalloc.Filter(True, _under(ioservice), all_frames=True),
+           tracemalloc.Filter(True, _under(bit3), all_frames=True),
+           tracemalloc.Filter(False, _under(controller), all_frames=True),
+           tracemalloc.Filter(False, _under(fakes), all_frames=True)]
+
+
+def _growth(sim: SystemSimulator, frames: int, filters) -> tuple[int, int, list]:
+    gc.collect()
+    tracemalloc.start(8)
+    try:
+        sim.step(TRACED_WARMUP)
+        gc.collect()
+        before = tracemalloc.take_snapshot().filter_traces(filters)
+        sim.step(frames)
+        gc.collect()
+        after = tracemalloc.take_snapshot().filter_traces(filters)
+    finally:
+        tracemalloc.stop()
+    diff = after.compare_to(before, "lineno")
+    top = sorted(diff, key=lambda d: -d.size_diff)[:5]
+    return sum(d.size_diff for d in diff), sum(d.count_diff for d in diff), top
+
+
+@pytest.fixture
+def running():
+    sim = SystemSimulator(trace_frames=16)
+    try:
+        sim.step(10)
+        sim.power_up(400)
+        sim.step(200)
+        assert sim.rt.all_status(Status.START_UP_COMPLETE)
+        yield sim
+    finally:
+        sim.close()
+
+
+def test_service_frame_allocates_nothing_that_survives(running):
+    grown, objects, top = _growth(running, FRAMES, SERVICE)
+    assert grown <= ALLOWED_BYTES, (f"service frames kept {grown} B ({objects} objects) over {FRAMES} frames; "
+                                    f"largest: " + "; ".join(map(str, top)))
+
+
+def test_the_check_sees_a_per_frame_append_in_the_service(running):
+    """A service task that appends one float per frame to a list is caught (the check can fail)."""
+    kept: list[float] = []
+    svc = running.svc
+    publish = svc._publish
+
+    def leaky_publish(info) -> None:
+        publish(info)
+        kept.append(svc.clock.now() * 1.5)  # a new float every frame, kept
+
+    svc._publish = leaky_publish
+    grown, _, _ = _growth(running, LEAK_FRAMES, SERVICE)
+    assert kept
+    assert grown > 2 * ALLOWED_BYTES  # ~32 B a frame: ~13 KB
