@@ -2,7 +2,12 @@
 
 Conversions take ``conversion_time_s`` (4 us) of model time on ``self.clock``; a
 driver polling CSR through a :class:`fakes.rack.FakeRack` (1 us per access) sees BUSY
-for a few reads, then EOC. Physical side: :meth:`FakeDvme611.set_input_volts`,
+for a few reads, then EOC. The scan mode (START with b0 = 1, R3 as assumed in the
+register table) converts channels 0..31 in turn: channel k is sampled at
+``t0 + k * 4 us`` and lands in SCAN[k] at ``t0 + (k+1) * 4 us``; BUSY until
+``t0 + 128 us``, then EOC. Samples are taken lazily but at their own time: the physical
+side's setters first settle every sample whose time has come, so a later input change
+never reaches an earlier channel. Physical side: :meth:`FakeDvme611.set_input_volts`,
 :meth:`set_inputs_volts`. Faults: ``busy_stuck``, ``stuck_bit`` and ``no_answer``.
 Optional noise: ``noise_counts`` (standard deviation in counts, default 0) drawn from
 a seeded generator (``seed_noise``).
@@ -14,8 +19,10 @@ import math
 
 import numpy as np
 
+from collections.abc import Callable
+
 from drivers.adc.registers import (AUTOINC, BOARD_ID, BUSY, CSR, DATA, DVME611, EOC, IE,
-                                   N_CHANNELS, SCAN, START)
+                                   N_CHANNELS, SCAN, SCAN_CMD, START)
 from fakes.board import FakeBoard, NoAnswer
 from fakes.testing import StuckBits
 
@@ -38,7 +45,8 @@ class FakeDvme611(FakeBoard):
         self._rng = np.random.default_rng(0)
         self._inputs = np.zeros(N_CHANNELS)
         self._stuck = StuckBits(DVME611)
-        self.conversions = 0  #: number of START strobes seen
+        self.conversions = 0  #: number of START strobes seen (a scan is one)
+        self.scans = 0  #: number of scans started (START with b0 = 1)
         self.reset()
 
     def reset(self) -> None:
@@ -49,6 +57,8 @@ class FakeDvme611(FakeBoard):
         self._busy_until: float | None = None
         self._pending = (0, 0)  # (channel, code) of the conversion in progress
         self._scan = [0] * N_CHANNELS
+        self._scan_t0: float | None = None  # start of the scan in progress
+        self._scan_codes: list[int] = []  # codes sampled so far in the scan in progress
 
     def seed_noise(self, seed: int) -> None:
         """Restart the noise generator from ``seed`` (deterministic tests)."""
@@ -59,6 +69,7 @@ class FakeDvme611(FakeBoard):
         """Voltage at one input (clipped to the range when converted)."""
         if not 0 <= channel < N_CHANNELS:
             raise ValueError(f"{self.name}: channel {channel} out of range 0..{N_CHANNELS - 1}")
+        self._update()  # samples due before this change see the old input
         self._inputs[channel] = volts
 
     def set_inputs_volts(self, volts) -> None:
@@ -66,6 +77,7 @@ class FakeDvme611(FakeBoard):
         v = np.asarray(volts, dtype=float)
         if v.shape != (N_CHANNELS,):
             raise ValueError(f"{self.name}: need {N_CHANNELS} input voltages, got shape {v.shape}")
+        self._update()  # samples due before this change see the old inputs
         self._inputs[:] = v
 
     @property
@@ -101,22 +113,50 @@ class FakeDvme611(FakeBoard):
         return self._busy_until is not None or "busy_stuck" in self.faults
 
     def _update(self) -> None:
-        """Finish the conversion in progress if its time is up."""
+        """Take the samples and finish the conversions whose time has come."""
         if self._busy_until is None or "busy_stuck" in self.faults:
             return
-        if self.clock.now() >= self._busy_until:
+        now = self.clock.now()
+        if self._scan_t0 is not None:
+            self._scan_progress(now)
+            return
+        if now >= self._busy_until:
             ch, code = self._pending
             self.data = code
             self._scan[ch] = code
             self.eoc = True
             self._busy_until = None
 
-    def _start(self) -> None:
+    def _scan_progress(self, now: float) -> None:
+        """A scan: sample channel k at t0 + k*T, land it in SCAN[k] at t0 + (k+1)*T."""
+        t0, tc, codes = self._scan_t0, self.conversion_time_s, self._scan_codes
+        assert t0 is not None
+        done = min(N_CHANNELS, int((now - t0) / tc + 1e-9))  # conversions finished
+        sampled = min(N_CHANNELS, done + 1)  # the one in progress has its sample too
+        while len(codes) < sampled:
+            codes.append(self.code_for_volts(float(self._inputs[len(codes)])))
+        self._scan[:done] = codes[:done]
+        if done == N_CHANNELS:
+            self.data = codes[-1]
+            self.eoc = True
+            self._busy_until = None
+            self._scan_t0 = None
+
+    def _start(self, value: int = 0) -> None:
+        self._update()
+        self.eoc = False
+        self.conversions += 1
+        if value & SCAN_CMD.mask:
+            self.scans += 1
+            self._scan_t0 = self.clock.now()
+            self._scan_codes = []
+            self._busy_until = self._scan_t0 + N_CHANNELS * self.conversion_time_s
+            self._scan_progress(self._scan_t0)  # channel 0 is sampled now
+            return
+        self._scan_t0 = None
         ch = self.csr & 0x1F
         self._pending = (ch, self.code_for_volts(float(self._inputs[ch])))
         self._busy_until = self.clock.now() + self.conversion_time_s
-        self.eoc = False
-        self.conversions += 1
 
     # -- bus side -----------------------------------------------------------------------------
     def _read16(self, offset: int) -> int:
@@ -135,6 +175,7 @@ class FakeDvme611(FakeBoard):
         elif offset == BOARD_ID.offset:
             word = BOARD_ID.reset
         elif SCAN.offset <= offset < _SCAN_END:
+            self._update()  # a scan in progress lands its finished channels
             word = self._scan[(offset - SCAN.offset) >> 1]
         else:
             raise NoAnswer("offset not decoded by the DVME-611 (assumed map R3)")
@@ -145,8 +186,25 @@ class FakeDvme611(FakeBoard):
             self._update()
             self.csr = value & _CSR_STORED
         elif offset == START.offset:
-            self._start()
+            self._start(value)
         elif offset in (DATA.offset, BOARD_ID.offset) or SCAN.offset <= offset < _SCAN_END:
             return  # read-only: writes ignored (assumed)
         else:
             raise NoAnswer("offset not decoded by the DVME-611 (assumed map R3)")
+
+    def read_block16(self, offset: int, n: int, tick: Callable[[], None] | None = None) -> list[int]:
+        """A block wholly inside SCAN while no conversion runs is a slice of the buffer
+        (SCAN reads have no side effects and nothing changes it between the words); any
+        other block is word by word (FakeBoard)."""
+        end = offset + 2 * n
+        if (SCAN.offset <= offset and end <= _SCAN_END and not self.faults and not self._stuck
+                and self._busy_until is None):
+            if tick is not None:
+                for _ in range(n):
+                    tick()
+            i = (offset - SCAN.offset) >> 1
+            words = self._scan[i:i + n]
+            if self.log_traffic:
+                self.traffic.extend(("r", 16, offset + 2 * k, w) for k, w in enumerate(words))
+            return list(words)
+        return super().read_block16(offset, n, tick)

@@ -6,6 +6,12 @@ polled with a bounded number of CSR reads, so a dead converter raises
 ``max_polls`` reads **and** at least ``min_wait_s`` of wall-clock time: a board (or
 a model of one) whose 4 us conversion runs on real time must not be declared stuck
 just because the polls came faster than 4 us apart.
+
+A 32-channel scan takes the fewest bus transactions the register table allows: with
+the table's ``scan_mode`` (R3, assumed) one START write with the SCAN bit, EOC polls
+(bounded by 32 x ``max_polls`` reads and 32 x ``min_wait_s``: a scan is 32 conversions)
+and ONE block read of the SCAN buffer; without it, the per-channel auto-increment
+sequence (CSR once, then START, EOC polls and DATA per channel).
 """
 
 from __future__ import annotations
@@ -14,7 +20,8 @@ import time
 
 import numpy as np
 
-from drivers.adc.registers import AUTOINC, BUSY, CSR, DATA, DVME611, EOC, N_CHANNELS, START
+from drivers.adc.registers import (AUTOINC, BUSY, CSR, DATA, DVME611, EOC, N_CHANNELS, SCAN,
+                                   SCAN_CMD, START)
 from drivers.bus import RegisterBus
 from drivers.registers import check_channel, register_name
 from pfma.errors import BoardError, BusError
@@ -65,23 +72,28 @@ class Dvme611:
         self._csr = base + CSR.offset
         self._start = base + START.offset
         self._data = base + DATA.offset
+        self._scan = base + SCAN.offset
         self._counts = np.zeros(N_CHANNELS, dtype=np.int64)
 
     # -- errors / validation ----------------------------------------------------------
-    def _bus_error(self, err: BusError, channel: int | None) -> BusError:
+    def _bus_error(self, err: BusError, channel: int | None, what: str | None = None) -> BusError:
         reg = register_name(DVME611, err.addr - self.base)
         if channel is not None:
             reg = f"{reg} (channel {channel})"
+        elif what:
+            reg = f"{reg} ({what})"
         return err.with_context(self.name, reg)
 
     def _check_channel(self, channel: int) -> int:
         return check_channel(self.name, self.base, channel, N_CHANNELS)
 
-    def _no_eoc(self, channel: int, csr: int, polls: int) -> BoardError:
+    def _no_eoc(self, channel: int | None, csr: int, polls: int, scale: int = 1) -> BoardError:
         what = "busy stuck" if csr & _BUSY else "no EOC"
-        waited = f" and {self.min_wait_s * 1e6:g} us" if self.min_wait_s else ""
+        waited = f" and {self.min_wait_s * scale * 1e6:g} us" if self.min_wait_s else ""
+        doing = f"converting channel {channel}" if channel is not None else \
+            f"scanning channels 0..{N_CHANNELS - 1}"
         return BoardError(
-            f"{self.name}: {what} converting channel {channel}: CSR at A16 0x{self._csr:04X} "
+            f"{self.name}: {what} {doing}: CSR at A16 0x{self._csr:04X} "
             f"= 0x{csr:04X} after {polls} polls{waited}")
 
     # -- conversion ---------------------------------------------------------------------
@@ -116,12 +128,13 @@ class Dvme611:
             raise self._bus_error(err, ch) from err
         return codes
 
-    def _wait_eoc_slow(self, channel: int, csr: int) -> int:
-        """``max_polls`` reads saw no EOC: poll on until ``min_wait_s`` has passed, then fail."""
-        polls = self.max_polls
+    def _wait_eoc_slow(self, channel: int | None, csr: int, scale: int = 1) -> int:
+        """``max_polls`` (x ``scale``: 32 for a scan) reads saw no EOC: poll on until
+        ``min_wait_s`` (x ``scale``) has passed, then fail."""
+        polls = self.max_polls * scale
         if self.min_wait_s > 0:
             timer = self._timer
-            deadline = timer() + self.min_wait_s
+            deadline = timer() + self.min_wait_s * scale
             while True:
                 expired = timer() >= deadline  # checked BEFORE the read: the
                 csr = self.bus.read16(self._csr)  # last read always follows the deadline
@@ -130,7 +143,7 @@ class Dvme611:
                     return csr
                 if expired:
                     break
-        raise self._no_eoc(channel, csr, polls)
+        raise self._no_eoc(channel, csr, polls, scale)
 
     def read_counts(self, channel: int) -> int:
         """Convert one channel; returns the 12-bit code (offset binary).
@@ -143,15 +156,54 @@ class Dvme611:
         ch = self._check_channel(channel)
         return self._convert_run(ch, (ch,))[0]  # CSR: single mode on ch, gain x1, no interrupt
 
+    @property
+    def scan_mode(self) -> bool:
+        """Whether :meth:`scan` uses the board's scan mode: the register table says
+        (``DVME611.constants["scan_mode"]``), read at each scan."""
+        return bool(DVME611.constants.get("scan_mode", False))
+
     def scan(self, out: np.ndarray | None = None) -> np.ndarray:
-        """Convert all 32 channels in auto-increment mode; returns their codes.
+        """Convert all 32 channels; returns their codes. With the table's ``scan_mode``:
+        one START (SCAN), EOC polls, one block read of SCAN; else the per-channel
+        auto-increment sequence.
 
         :param out: optional preallocated integer array of length 32 to fill
+        :raises BoardError: no end of scan within the bound (or auto-increment out of step)
+        :raises BusError: naming the board and register
         """
         if out is None:
             out = np.empty(N_CHANNELS, dtype=np.int64)
-        out[:] = self._convert_run(_AUTOINC, range(N_CHANNELS))  # from channel 0
+        if self.scan_mode:
+            self.start_scan()
+            out[:] = self.read_scan()
+        else:
+            out[:] = self._convert_run(_AUTOINC, range(N_CHANNELS))  # from channel 0
         return out
+
+    def start_scan(self) -> None:
+        """Start a scan of all 32 channels (scan mode: one START write with the SCAN bit;
+        128 us of conversions follow). :meth:`read_scan` collects it, so a caller may do
+        other work while the board converts."""
+        try:
+            self.bus.write16(self._start, SCAN_CMD.mask)
+        except BusError as err:
+            raise self._bus_error(err, None, "scan") from err
+
+    def read_scan(self) -> list[int]:
+        """Wait for the end of the scan started by :meth:`start_scan` (bounded EOC polls),
+        then read all 32 results with ONE block read of SCAN; returns the codes."""
+        r16, csr_addr, csr = self.bus.read16, self._csr, 0
+        try:
+            for _ in range(self.max_polls * N_CHANNELS):
+                csr = r16(csr_addr)
+                if csr & _EOC:
+                    break
+            else:
+                self._wait_eoc_slow(None, csr, N_CHANNELS)
+            words = self.bus.read_block16(self._scan, N_CHANNELS)
+        except BusError as err:
+            raise self._bus_error(err, None, "scan") from err
+        return [w & _CODE for w in words]
 
     # -- volts --------------------------------------------------------------------------------
     def volts_from_counts(self, counts, out: np.ndarray | None = None):

@@ -26,8 +26,12 @@ EOC = Field("eoc", lsb=15, doc="(read-only) end of conversion; cleared by START 
 CSR = Register(name="CSR", offset=0x00, width=16, access="rw", reset=0x0000,
                fields=(CH_FIELD, AUTOINC, GAIN, BUSY, IE, EOC),
                doc="control/status", source=_R3)
-START = Register(name="START", offset=0x02, width=16, access="w",
-                 doc="any write starts a conversion on the CSR channel (busy for 4 us, then EOC)",
+SCAN_CMD = Field("scan", lsb=0, doc="1 = scan: convert channels 0..31 in turn into SCAN (32 x 4 us); "
+                 "0 = one conversion on the CSR channel")
+START = Register(name="START", offset=0x02, width=16, access="w", fields=(SCAN_CMD,),
+                 doc="a write starts a conversion: with b0 = 0 on the CSR channel (busy for 4 us, "
+                     "then EOC); with b0 = 1 (SCAN) a scan of all 32 channels (busy for 32 x 4 us, "
+                     "EOC at the end)",
                  source=_R3)
 DATA = Register(name="DATA", offset=0x04, width=16, access="r",
                 fields=(Field("code", lsb=0, bits=12, doc="offset binary for bipolar ranges"),),
@@ -36,7 +40,9 @@ DATA = Register(name="DATA", offset=0x04, width=16, access="r",
 BOARD_ID = Register(name="BOARD_ID", offset=0x06, width=16, access="r", reset=0x0611,
                     doc="constant 0x0611: a fake aid only, the driver must not rely on it", source=_R3)
 SCAN = Register(name="SCAN", offset=0x40, width=16, access="r", count=N_CHANNELS,
-                doc="last result per channel (for a future scan mode)", source=_R3)
+                doc="last result per channel (written by every conversion, single or scan); "
+                    "reads have no side effects, so one block read returns a whole scan",
+                source=_R3)
 
 DVME611 = BoardDescription(
     kind="dvme611",
@@ -53,6 +59,10 @@ DVME611 = BoardDescription(
         "coding": "offset_binary",  # assumed (R3): V = -range + 2*range*code/4096
         "lsb_volts": 20.0 / 4096,  # 4.883 mV at +-10 V
         "board_id": 0x0611,  # assumed (R3), fake aid only
+        # assumed (R3): the board has the scan mode (START b0); the driver scans with one
+        # START, EOC polls and one block read of SCAN. False: the per-channel
+        # auto-increment sequence (START, EOC, DATA per channel), for a board without it.
+        "scan_mode": True,
     },
     assumptions=(
         "Register map (CSR 0x00, START 0x02, DATA 0x04, BOARD_ID 0x06, SCAN 0x40-0x7E) is the "
@@ -63,6 +73,12 @@ DVME611 = BoardDescription(
         "Reading DATA while busy returns the previous result and neither clears EOC nor "
         "advances the auto-increment channel.",
         "The input is sampled when START is written; the result appears 4 us later.",
+        "Scan mode: a START write with b0 = 1 converts channels 0..31 in turn, 4 us each: "
+        "channel k is sampled 4k us after the START and its result is in SCAN[k] 4 us later; "
+        "BUSY for the whole 32 x 4 us = 128 us, EOC at the end; DATA then holds channel 31's "
+        "result; the CSR channel and auto-increment bits are left alone. START with b0 = 0 is "
+        "the single conversion as before (the register table's constant scan_mode says "
+        "whether the driver uses it).",
         "Only D16 accesses are decoded; 8-bit accesses get no answer (bus error). Offsets in "
         "the window that hold no register are not decoded (bus error); a read of START "
         "returns 0 and writes to read-only registers are ignored.",

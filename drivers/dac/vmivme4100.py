@@ -130,22 +130,41 @@ class Vmivme4100:
         self._write_codes(codes)
 
     def _write_codes(self, codes: list[int]) -> None:
-        """Write every channel; on a bus error keep going (fail safe), then raise the first."""
-        w16, addr, first = self.bus.write16, self._addr, None
-        written = [True] * N_CHANNELS
-        for ch in range(N_CHANNELS):
+        """Write every channel as ONE block write of DAC[0..15] (consecutive words at
+        offsets 0x00-0x1E, D15 = 0: R2).
+
+        Fail safe on a bus error: the words before the failing one went out (the block
+        contract), so the channels after it are written as a further block, and so on; every
+        channel that answers gets its code, then the first error is raised. A block that
+        fails at its very first word is not retried word by word: nothing of it reached
+        the board, so the bus or the board is gone and sixteen more attempts (over a
+        gateway that stopped answering, sixteen more timeouts) would change nothing.
+        """
+        first: BusError | None = None
+        written = [False] * N_CHANNELS
+        start = 0
+        while start < N_CHANNELS:
             try:
-                w16(addr[ch], codes[ch])
+                self.bus.write_block16(self._addr[start], codes[start:])
             except BusError as err:
-                written[ch] = False
-                first = first or self._bus_error(err, ch)
+                failed = (err.addr - self._addr[0]) // 2
+                if not start <= failed < N_CHANNELS:
+                    failed = start
+                written[start:failed] = [True] * (failed - start)
+                first = first or self._bus_error(err, failed)
+                if failed == start:
+                    break
+                start = failed + 1
+            else:
+                written[start:] = [True] * (N_CHANNELS - start)
+                break
         if first is None:
             self._shadow[:] = codes
-        else:
-            for ch in range(N_CHANNELS):
-                if written[ch]:
-                    self._shadow[ch] = codes[ch]
-            raise first
+            return
+        for ch in range(N_CHANNELS):
+            if written[ch]:
+                self._shadow[ch] = codes[ch]
+        raise first
 
     def zero_all(self) -> None:
         """Drive every channel to 0 V."""

@@ -47,6 +47,10 @@ class Vmivme4940:
         self.name = name or f"{VMIVME4940.kind}@0x{base:04X}"
         self._ch_addr = tuple(base + VMIVME4940.reg(f"CH{n}").offset for n in range(N_CHANNELS))
         self._status_addr = base + STATUS.offset
+        # R1: CH0..CH3 and STATUS are consecutive words, so one block reads them all;
+        # a table that moves STATUS away gets two transactions instead (checked, not assumed)
+        self._one_block = (self._ch_addr == tuple(self._ch_addr[0] + 2 * n for n in range(N_CHANNELS))
+                           and self._status_addr == self._ch_addr[0] + 2 * N_CHANNELS)
         self._control_addr = base + CONTROL.offset
         self._shift = ANGLE.lsb
         self._mask = (1 << ANGLE.bits) - 1
@@ -79,13 +83,27 @@ class Vmivme4940:
 
     # -- readings -------------------------------------------------------------------
     def read_counts(self) -> tuple[int, int, int, int]:
-        """The four channels' angles in counts (0..16383 for 14 bits)."""
-        r16, c = self.bus.read16, self.counts_from_word
-        a0, a1, a2, a3 = self._ch_addr
+        """The four channels' angles in counts (0..16383 for 14 bits): ONE block read of
+        CH0..CH3 (consecutive words at 0x00-0x06, R1)."""
+        c = self.counts_from_word
         try:
-            return (c(r16(a0)), c(r16(a1)), c(r16(a2)), c(r16(a3)))
+            w0, w1, w2, w3 = self.bus.read_block16(self._ch_addr[0], N_CHANNELS)
         except BusError as err:
             raise self._bus_error(err) from err
+        return (c(w0), c(w1), c(w2), c(w3))
+
+    def read_counts_status(self) -> tuple[tuple[int, int, int, int], RtdStatus]:
+        """The four angles in counts and the decoded STATUS from ONE block read of
+        CH0..CH3 and STATUS (five consecutive words at 0x00-0x08, R1): the board's whole
+        reading in one bus transaction."""
+        if not self._one_block:
+            return self.read_counts(), self.status()
+        c = self.counts_from_word
+        try:
+            w0, w1, w2, w3, status = self.bus.read_block16(self._ch_addr[0], N_CHANNELS + 1)
+        except BusError as err:
+            raise self._bus_error(err) from err
+        return (c(w0), c(w1), c(w2), c(w3)), self._decode_status(status)
 
     def read_channel_counts(self, channel: int) -> int:
         """One channel's angle in counts."""
@@ -117,6 +135,10 @@ class Vmivme4940:
             word = self.bus.read16(self._status_addr)
         except BusError as err:
             raise self._bus_error(err) from err
+        return self._decode_status(word)
+
+    @staticmethod
+    def _decode_status(word: int) -> RtdStatus:
         return RtdStatus(faults=tuple(bool(word >> n & 1) for n in range(N_CHANNELS)),
                          reference_present=bool(word >> 4 & 1), raw=word)
 

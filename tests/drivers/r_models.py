@@ -13,7 +13,9 @@ from the fakes where R1-R5 leave room:
   anything else, 8-bit access to a word board, 16-bit access to an odd-byte board
   included, is a bare ``BusError(addr, width, op)`` that names no board: the drivers
   must add the board and register themselves;
-- the matrix switcher acknowledges at once, inside the CRA write that ends the strobe.
+- the matrix switcher acknowledges at once, inside the CRA write that ends the strobe;
+- block transfers are plain loops of single accesses (no cheaper path anywhere), and the
+  ADC's scan mode is written here from its R3 description, not from ``fakes.adc``.
 
 Physical side: attributes (``rtd1.angle``, ``adc.volts``, ``pia.pins``...), the
 ``Sio`` peer (``peer_send``/``peer_recv``) and the clock (``pfma.clock.SimClock``).
@@ -90,18 +92,45 @@ class Dac:
 
 # -- R3: DVME-611B -----------------------------------------------------------------------
 class Adc:
+    """R3 with its scan mode: START with b0 = 1 converts channel k (sampled at 4k us after
+    the START) into SCAN[k] (word at 0x40 + 2k) at 4(k+1) us; busy 128 us, then EOC, DATA =
+    channel 31. A sample is taken the first time the model is touched after its time (the
+    tests set ``volts`` before they scan)."""
+
     def __init__(self, clock) -> None:
         self.clock = clock
         self.volts = [0.0] * 32
         self.stuck_busy = False
         self.ch = self.autoinc = self.ie = self.eoc = 0
         self.result = 0
+        self.scan_buf = [0] * 32
         self._due: float | None = None
-        self._pending = 0
+        self._pending = self._pending_ch = 0
+        self._scan_from: float | None = None  # START time of a scan in progress
+        self._taken: list[int] = []  # the scan's samples so far, channel order
+
+    def _code(self, ch: int) -> int:
+        v = min(10.0, max(-10.0, self.volts[ch]))
+        return min(4095, int(math.floor((v + 10.0) / 20.0 * 4096)))
 
     def _run(self) -> None:
-        if self._due is not None and not self.stuck_busy and self.clock.now() >= self._due:
+        if self.stuck_busy:
+            return
+        now = self.clock.now()
+        if self._scan_from is not None:
+            for k in range(len(self._taken), 32):
+                if now < self._scan_from + k * 4e-6:
+                    break
+                self._taken.append(self._code(k))
+            for k, code in enumerate(self._taken):
+                if now >= self._scan_from + (k + 1) * 4e-6:
+                    self.scan_buf[k] = code
+            if now >= self._scan_from + 32 * 4e-6:
+                self._scan_from, self._due, self.result, self.eoc = None, None, self._taken[31], 1
+            return
+        if self._due is not None and now >= self._due:
             self._due, self.result, self.eoc = None, self._pending, 1
+            self.scan_buf[self._pending_ch] = self._pending
 
     def read16(self, off: int) -> int:
         self._run()
@@ -117,17 +146,23 @@ class Adc:
             return self.result
         if off == 6:
             return 0x0611
+        if 0x40 <= off < 0x80:
+            return self.scan_buf[(off - 0x40) // 2]
         raise NoDecode
 
     def write16(self, off: int, value: int) -> None:
         self._run()
         if off == 0:
             self.ch, self.autoinc, self.ie = value & 0x1F, value >> 5 & 1, value >> 14 & 1
+        elif off == 2 and value & 1:  # scan
+            self._scan_from, self._taken = self.clock.now(), []
+            self._due, self.eoc = self._scan_from + 32 * 4e-6, 0
+            self._run()  # channel 0 is sampled at once
         elif off == 2:
-            v = min(10.0, max(-10.0, self.volts[self.ch]))
-            self._pending = min(4095, int(math.floor((v + 10.0) / 20.0 * 4096)))
+            self._pending, self._pending_ch = self._code(self.ch), self.ch
+            self._scan_from = None
             self._due, self.eoc = self.clock.now() + 4e-6, 0
-        elif off not in (4, 6):
+        elif off not in (4, 6) and not 0x40 <= off < 0x80:
             raise NoDecode
 
 
@@ -352,7 +387,7 @@ class RModelRack:
         self.sio, self.pio_video, self.pio_user = Mvme400(clock), Mvme410(), Mvme410()
         self._map = [  # base, size, board, 16-bit board?
             (0x0100, 0x0C, self.rtd1, True), (0x0200, 0x0C, self.rtd2, True),
-            (0xD000, 0x20, self.dac, True), (0xC000, 0x08, self.adc, True),
+            (0xD000, 0x20, self.dac, True), (0xC000, 0x80, self.adc, True),
             (0x0000, 0x10, self.sio, False), (0x0020, 0x10, self.pio_video, False),
             (0x0040, 0x10, self.pio_user, False),
         ]
@@ -387,3 +422,24 @@ class RModelRack:
 
     def write16(self, addr: int, value: int) -> None:
         self._do(addr, 16, "write", value)
+
+    # block transfers: consecutive words, each one access of the model (no cheaper path),
+    # checked as the contract says; the first word nobody answers is named
+    def read_block16(self, addr: int, n: int) -> list[int]:
+        if type(n) is not int or n < 1 or not 0 <= addr <= 0x10000 - 2 * n:
+            raise ValueError(f"read_block16 0x{addr:04X}: bad block of {n!r} words")
+        if addr % 2:
+            raise BusError(addr, 16, "read")
+        return [self.read16(addr + 2 * i) for i in range(n)]
+
+    def write_block16(self, addr: int, words) -> None:
+        words = list(words)
+        if not words or not 0 <= addr <= 0x10000 - 2 * len(words):
+            raise ValueError(f"write_block16 0x{addr:04X}: bad block of {len(words)} words")
+        for i, w in enumerate(words):
+            if type(w) is not int or not 0 <= w < 0x10000:
+                raise ValueError(f"write_block16 0x{addr + 2 * i:04X}: bad value {w!r}")
+        if addr % 2:
+            raise BusError(addr, 16, "write")
+        for i, w in enumerate(words):
+            self.write16(addr + 2 * i, w)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from drivers.adc import Dvme611
+from drivers.adc.registers import DVME611
 from fakes.adc import FakeDvme611
 from fakes.rack import FakeRack
 from fakes.testing import assert_register_writes, fake_rack_of_kinds
@@ -18,6 +19,13 @@ from pfma.errors import BoardError, BusError
 BASE = 0xC000
 LSB = 20.0 / 4096
 EOC, BUSY = 0x8000, 0x0100
+
+
+@pytest.fixture
+def per_channel(monkeypatch):
+    """The register table of a board without the scan mode: the driver scans channel by
+    channel (START, EOC, DATA with auto-increment), the fallback sequence."""
+    monkeypatch.setitem(DVME611.constants, "scan_mode", False)
 
 
 @pytest.fixture
@@ -53,6 +61,7 @@ def test_offset_binary_clip_and_floor(rig, volts, code):
     assert adc.read_counts(0) == code
 
 
+@pytest.mark.usefixtures("per_channel")
 def test_scan_32_channels_auto_increment(rig):
     rack, fake, adc = rig
     v = np.linspace(-9.87, 9.93, 32)
@@ -84,6 +93,7 @@ def test_single_read_after_scan_leaves_auto_increment(rig):
     assert fake.csr == 9  # single mode again
 
 
+@pytest.mark.usefixtures("per_channel")
 def test_busy_stuck_raises_board_error_not_hang(rig):
     rack, fake, adc = rig
     fake.inject("busy_stuck")
@@ -122,6 +132,7 @@ def test_stuck_data_bit_visible(rig):
     assert adc.read_counts(2) == 0x001
 
 
+@pytest.mark.usefixtures("per_channel")
 def test_bus_error_names_board_register_address(rig):
     rack, fake, adc = rig
     fake.inject("no_answer")
@@ -218,7 +229,15 @@ class MiniAdc:
     def write8(self, addr: int, value: int) -> None:
         raise BusError(addr, 8, "write")
 
+    def read_block16(self, addr: int, n: int) -> list[int]:
+        return [self.read16(addr + 2 * i) for i in range(n)]
 
+    def write_block16(self, addr: int, words) -> None:
+        for i, w in enumerate(words):
+            self.write16(addr + 2 * i, w)
+
+
+@pytest.mark.usefixtures("per_channel")
 def test_driver_needs_only_the_register_model():
     codes = [(n * 131) % 4096 for n in range(32)]
     adc = Dvme611(MiniAdc(0xC000, codes), 0xC000, name="mini")
@@ -227,6 +246,7 @@ def test_driver_needs_only_the_register_model():
     assert adc.read_volts(0) == pytest.approx(-10.0)
 
 
+@pytest.mark.usefixtures("per_channel")
 def test_auto_increment_out_of_step_is_board_error():
     class NoIncrement(MiniAdc):
         def read16(self, addr):
@@ -236,3 +256,46 @@ def test_auto_increment_out_of_step_is_board_error():
     adc = Dvme611(NoIncrement(0xC000, range(32)), 0xC000, name="mini")
     with pytest.raises(BoardError, match=r"mini: CSR at A16 0xC000 selects channel 0, expected 1"):
         adc.scan()
+
+
+# -- the scan mode (R3 as assumed: START b0 = 1, results in SCAN) ---------------------------
+def test_scan_mode_is_one_start_and_one_block_of_scan(rig):
+    rack, fake, adc = rig
+    v = np.linspace(-9.87, 9.93, 32)
+    fake.set_inputs_volts(v)
+    t0 = rack.clock.now()
+    got = adc.scan_volts()
+    assert np.all(np.abs(got - v) <= LSB)
+    assert [(off, val) for op, w, off, val in fake.traffic if op == "w"] == [(0x02, 0x0001)]
+    assert [off for op, w, off, val in fake.traffic if op == "r" and off >= 0x40] == \
+        list(range(0x40, 0x80, 2))  # every SCAN word once, in order
+    assert rack.clock.now() - t0 >= 32 * 4e-6  # the scan took its model time
+    assert fake.scans == 1
+
+
+def test_scan_mode_errors_name_the_scan(rig):
+    rack, fake, adc = rig
+    fake.inject("busy_stuck")
+    exact = Dvme611(rack, BASE, name="adc", min_wait_s=0)
+    with pytest.raises(BoardError, match=r"adc: busy stuck scanning channels 0..31: CSR at A16 "
+                                         r"0xC000 = 0x0100 after 2048 polls$"):
+        exact.scan()
+    fake.clear()
+    fake.inject("no_answer")
+    with pytest.raises(BusError, match=r"write16 adc START \(scan\) at A16 0xC002"):
+        adc.scan()
+
+
+def test_scan_block_error_names_the_scan_word():
+    class NoScan:  # the SCAN buffer does not answer
+        def __init__(self, bus):
+            self.bus = bus
+            self.read16, self.write16 = bus.read16, bus.write16
+
+        def read_block16(self, addr, n):
+            raise BusError(addr, 16, "read")
+
+    rack = FakeRack(clock=SimClock())
+    rack.add(BASE, FakeDvme611(name="adc", clock=rack.clock))
+    with pytest.raises(BusError, match=r"read16 adc SCAN\[0\] \(scan\) at A16 0xC040"):
+        Dvme611(NoScan(rack), BASE, name="adc").scan()

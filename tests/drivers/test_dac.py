@@ -162,6 +162,13 @@ class _FailOne:
             raise BusError(addr, 16, "write")
         self.bus.write16(addr, value)
 
+    def read_block16(self, addr: int, n: int) -> list[int]:
+        return [self.read16(addr + 2 * i) for i in range(n)]
+
+    def write_block16(self, addr: int, words) -> None:
+        for i, w in enumerate(words):
+            self.write16(addr + 2 * i, w)
+
 
 def test_disable_is_fail_safe_on_a_bus_error(rig):
     rack, fake, dac = rig
@@ -220,6 +227,13 @@ class MiniDac:
 
     def write8(self, addr: int, value: int) -> None:
         raise BusError(addr, 8, "write")
+
+    def read_block16(self, addr: int, n: int) -> list[int]:
+        return [self.read16(addr + 2 * i) for i in range(n)]
+
+    def write_block16(self, addr: int, words) -> None:
+        for i, w in enumerate(words):
+            self.write16(addr + 2 * i, w)
 
 
 def test_driver_needs_only_the_register_model():

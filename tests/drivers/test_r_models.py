@@ -107,6 +107,41 @@ def test_adc_stuck_busy_still_bounded(rack):
     assert 50 <= timer.calls <= 53  # the wall-clock bound, not a hang
 
 
+def test_adc_scan_mode_against_the_independent_model(rack):
+    """The table's scan mode on the second model: one START with b0 = 1, polls until the
+    128 us scan ends (model time moves only with the driver's timer), one block of SCAN."""
+    from drivers.adc.registers import DVME611
+
+    assert DVME611.constants["scan_mode"]
+    rack.adc.volts[:] = [9.5 - 0.6 * ch for ch in range(32)]
+    timer = PollTimer(rack.clock)
+    adc = Dvme611(rack, 0xC000, name="adc", timer=timer)
+    expected = [int(math.floor((v + 10) / 20 * 4096)) for v in rack.adc.volts]
+    assert adc.scan().tolist() == expected
+    assert rack.adc.scan_buf == expected and rack.adc.ch == 0  # CSR channel left alone
+    assert timer.calls >= 128  # the driver waited the whole scan on its (wall) timer
+
+
+def test_adc_per_channel_fallback_against_the_independent_model(rack, monkeypatch):
+    from drivers.adc.registers import DVME611
+
+    monkeypatch.setitem(DVME611.constants, "scan_mode", False)
+    rack.adc.volts[:] = [-3.0 + 0.2 * ch for ch in range(32)]
+    adc = Dvme611(rack, 0xC000, name="adc", timer=PollTimer(rack.clock))
+    expected = [int(math.floor((v + 10) / 20 * 4096)) for v in rack.adc.volts]
+    assert adc.scan().tolist() == expected
+    assert rack.adc.ch == 0 and rack.adc.autoinc  # 32 DATA reads went round to channel 0
+
+
+def test_adc_scan_stuck_busy_still_bounded(rack):
+    timer = PollTimer(rack.clock)
+    adc = Dvme611(rack, 0xC000, name="adc", timer=timer, min_wait_s=50e-6)
+    rack.adc.stuck_busy = True
+    with pytest.raises(BoardError, match=r"adc: busy stuck scanning channels 0..31"):
+        adc.scan()
+    assert 32 * 50 <= timer.calls <= 32 * 50 + 3  # 32 conversions' wall-clock bound
+
+
 # -- R5 -----------------------------------------------------------------------------------
 def test_pio_user_inputs_and_ports(rack):
     user = Mvme410(rack, 0x0040, name="pio_user")

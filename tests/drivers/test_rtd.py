@@ -217,6 +217,13 @@ class MiniRdc:
     def write8(self, addr: int, value: int) -> None:
         raise BusError(addr, 8, "write")
 
+    def read_block16(self, addr: int, n: int) -> list[int]:
+        return [self.read16(addr + 2 * i) for i in range(n)]
+
+    def write_block16(self, addr: int, words) -> None:
+        for i, w in enumerate(words):
+            self.write16(addr + 2 * i, w)
+
 
 def test_driver_needs_only_the_register_model():
     bus = MiniRdc(0x0200)

@@ -270,3 +270,76 @@ def test_fake_rack_from_config_uses_these_fakes(whole):
     assert isinstance(rack["rtd1"], FakeVmivme4940) and isinstance(rack["rtd2"], FakeVmivme4940)
     assert isinstance(rack["dac"], FakeVmivme4100) and isinstance(rack["adc"], FakeDvme611)
     assert rack.read16(0xC006) == 0x0611 and rack.read16(0xD000) == 0
+
+
+# -- the ADC's scan mode (START b0 = 1, R3 as assumed) -----------------------------------------
+def _code(volts: float) -> int:
+    return math.floor((volts + 10.0) / (20 / 4096))
+
+
+def test_adc_scan_mode_timing_busy_eoc_and_results():
+    clock = SimClock()
+    adc = FakeDvme611(clock=clock)
+    adc.set_inputs_volts(np.linspace(-8.0, 8.0, 32))
+    adc.write16(0x00, 0x0025)  # channel 5, auto-increment: left alone by the scan
+    adc.write16(0x02, 0x0001)
+    assert adc.read16(0x00) == 0x0125  # BUSY, no EOC
+    clock.advance(4e-6 * 3)
+    assert adc.read16(0x40 + 2 * 2) == _code(np.linspace(-8.0, 8.0, 32)[2])  # SCAN[2] at 12 us
+    assert adc.read16(0x40 + 2 * 3) == 0  # SCAN[3] lands at 16 us
+    clock.advance(4e-6 * 29 - 1e-9)
+    assert adc.read16(0x00) & 0x8100 == 0x0100  # still busy just before 128 us
+    clock.advance(2e-9)
+    assert adc.read16(0x00) == 0x8025  # EOC, channel and auto-increment unchanged
+    v = np.linspace(-8.0, 8.0, 32)
+    assert [adc.read16(0x40 + 2 * k) for k in range(32)] == [_code(x) for x in v]
+    assert adc.read16(0x04) == _code(v[31]) and adc.scans == 1 and adc.conversions == 1
+
+
+def test_adc_scan_samples_each_channel_at_its_own_conversion_time():
+    """Channel k is sampled 4k us after START: an input change at 10 us reaches channels
+    3..31 (sampled at 12 us on) but not 0..2 (sampled at 0, 4, 8 us)."""
+    clock = SimClock()
+    adc = FakeDvme611(clock=clock)
+    adc.set_inputs_volts(np.full(32, -5.0))
+    adc.write16(0x02, 0x0001)
+    clock.advance(10e-6)
+    adc.set_inputs_volts(np.full(32, 5.0))
+    clock.advance(200e-6)
+    got = [adc.read16(0x40 + 2 * k) for k in range(32)]
+    assert got == [_code(-5.0)] * 3 + [_code(5.0)] * 29
+
+
+def test_adc_scan_block_read_through_the_rack(rack):
+    adc = rack["adc"]
+    adc.set_inputs_volts(np.linspace(-1.0, 1.0, 32))
+    rack.write16(0xC002, 0x0001)
+    rack.clock.advance(200e-6)
+    t0, before = rack.clock.now(), len(adc.traffic)
+    words = rack.read_block16(0xC040, 32)
+    assert words == [_code(x) for x in np.linspace(-1.0, 1.0, 32)]
+    assert rack.clock.now() - t0 == pytest.approx(32 * rack.access_time_s)  # per word
+    assert [(op, off) for op, _, off, _ in adc.traffic[before:]] == [("r", 0x40 + 2 * k) for k in range(32)]
+
+
+def test_adc_scan_block_read_while_busy_is_word_by_word(rack):
+    """During a scan each word is read at its own time: words of channels finished by then
+    hold the new results, the rest the old ones."""
+    adc = rack["adc"]
+    adc.set_inputs_volts(np.full(32, 3.0))
+    rack.write16(0xC002, 0x0001)  # 1 us per access: the block starts at t0 + 1 us
+    words = rack.read_block16(0xC040, 32)  # word k read at t0 + (k + 2) us
+    done = [k for k in range(32) if (k + 2) * 1e-6 >= (k + 1) * 4e-6]
+    assert done == [] and words == [0] * 32
+    rack.clock.advance(60e-6)
+    words = rack.read_block16(0xC040, 32)
+    assert words[:10] == [_code(3.0)] * 10 and words[-1] == 0
+
+
+def test_adc_busy_stuck_scan_never_ends():
+    clock = SimClock()
+    adc = FakeDvme611(clock=clock)
+    adc.inject("busy_stuck")
+    adc.write16(0x02, 0x0001)
+    clock.advance(1e-3)
+    assert adc.read16(0x00) & 0x8100 == 0x0100
