@@ -138,12 +138,18 @@ def test_slower_schedules_keep_input_rates_first_then_the_dac_rate():
 
 
 # -- start-up measurement ----------------------------------------------------------------
-def _slow_request_s(make_rig) -> float:
-    """A request cost that makes the DAC write and the resolver reads alone take 3.2 ms: more
-    than a 320 Hz frame's bus share, whatever the A/D adds (its driver polls for the end of
-    the conversion, so its request count depends on how long each request takes)."""
+def _slow_request_s(make_rig, target_s: float = 0.004) -> float:
+    """A request cost that makes the busiest 320 Hz frame (DAC, resolvers, A/D) take about
+    ``target_s``: more than the frame's bus share, less than a 160 Hz frame's. Found in a
+    few deterministic rounds, because the A/D driver polls for the end of its conversion
+    (its request count falls as each request takes longer) and because how many requests a
+    task makes is the drivers' business (blocks or single words)."""
     n = _frame_requests(make_rig())
-    return 0.0032 / (n["dac"] + n["rtd"])
+    c = target_s / (n["dac"] + n["rtd"] + n["adc"])
+    for _ in range(4):
+        cost, _ = make_rig(cost_s=c).svc.measure_bus(repeats=3)
+        c *= target_s / (cost["dac"] + cost["rtd"] + cost["adc"])
+    return c
 
 
 def test_measurement_times_each_tasks_requests_on_the_service_clock(make_rig):
