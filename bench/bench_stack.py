@@ -389,6 +389,21 @@ def _print(rep: dict) -> None:
             print(f"    ... {len(rep['messages']) - 40} more (--json has them all)")
 
 
+def figures(minutes: float = 0.5, realtime: bool = False) -> dict:
+    """The whole stack for ``minutes`` (real time): its headline figures (the full report is
+    ``run(as_json=True)``). ``minutes`` and ``run_s`` name the duration."""
+    with tempfile.TemporaryDirectory(prefix="pfma-bench-stack-") as d:
+        rep = measure(minutes, Path(d), realtime=realtime)
+    procs = rep.get("processes", {})
+    return {"minutes": minutes, "run_s": rep.get("run_s"), "realtime": realtime,
+            "service_start_s": rep.get("service_start_s"),
+            "cpu_percent": {k: p.get("cpu_percent") for k, p in procs.items()},
+            "service_stats": rep.get("service_stats"), "controller_stats": rep.get("controller_stats"),
+            "ft_link": rep.get("ft_link"), "host_stalls": rep.get("host_stalls"), "recorder": rep.get("recorder"),
+            "trips": len(rep.get("trips", [])), "layers_in_error": rep.get("layers_in_error", []),
+            "warnings_errors": len(rep.get("messages", [])), "errors": rep["errors"]}
+
+
 def run(seconds: float | None = None, minutes: float = 10.0, as_json: bool = False, realtime: bool = False) -> dict:
     """Run the stack; ``seconds`` (``pfma bench --seconds``) overrides ``minutes`` when given."""
     if seconds is not None:

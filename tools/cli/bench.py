@@ -1,13 +1,24 @@
 """``pfma bench``: run the benchmarks in ``bench/`` and print their figures.
 
 Benchmarks print measurements; they never assert. Each ``bench/bench_<name>.py``
-module has ``run(seconds=...)``. ``stack`` (the whole stack for ``--minutes``, default 10)
-runs only when named, and is the one that prints ``--json``.
+module has ``run(seconds=...)`` (its text report). ``stack`` (the whole stack for
+``--minutes``, default 10) runs only when named.
+
+``pfma bench --json`` runs the set :data:`JSON_SET` and prints ONE JSON object, a key per
+benchmark, from each module's ``figures()`` (a dict; no printed text is parsed):
+``service`` (the service on the simulated rack at 320 Hz, the fakes metered out),
+``controller`` (the minor-frame cost in the system simulator), ``stack`` (the whole stack
+for ``--minutes``, default 0.5 here; it names its duration) and ``modbus`` (the service
+over a loopback Modbus gateway; ``{"skipped": why}`` where that cannot run). Names after
+``--json`` pick from that set; ``pfma bench stack --json`` alone prints the stack's full
+report, as before.
 """
 
 from __future__ import annotations
 
 import importlib
+import json
+import math
 import pkgutil
 import sys
 
@@ -21,36 +32,89 @@ def _names() -> list[str]:
 
 #: benchmarks that run only when named (long)
 ON_REQUEST = ("stack",)
+#: what ``pfma bench --json`` measures, in this order
+JSON_SET = ("service", "controller", "stack", "modbus")
+#: ``--minutes`` of the stack when none is given: text report / --json set
+STACK_MINUTES = 10.0
+STACK_MINUTES_JSON = 0.5
 
 
 def add_parser(sub):
     p = sub.add_parser("bench", help="run benchmarks (loop latency, buffer, service) and print figures")
     p.add_argument("names", nargs="*", help=f"which benchmarks (default: all): {', '.join(_names())}")
     p.add_argument("--seconds", type=float, default=None, help="seconds per measured run (default 5)")
-    p.add_argument("--minutes", type=float, default=10.0,
-                   help="stack: minutes the whole stack runs (default 10; 0.05 for a quick check)")
-    p.add_argument("--json", action="store_true", help="stack: print the report as JSON")
+    p.add_argument("--minutes", type=float, default=None,
+                   help=f"stack: minutes the whole stack runs (default {STACK_MINUTES:g}; with --json "
+                        f"{STACK_MINUTES_JSON:g}; 0.05 for a quick check)")
+    p.add_argument("--json", action="store_true",
+                   help=f"print one JSON object with the figures of {', '.join(JSON_SET)} "
+                        f"(`pfma bench stack --json`: the stack's full report)")
     p.add_argument("--realtime", action="store_true",
                    help="stack: run the service and the controller with --realtime (SCHED_FIFO, pinned CPUs)")
     return p
 
 
+def _finite(x):
+    """JSON has no inf/nan: such a figure is written as null."""
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    return x
+
+
+def _json_set(names: list[str], args) -> int:
+    seconds = 5.0 if args.seconds is None else args.seconds
+    minutes = STACK_MINUTES_JSON if args.minutes is None else args.minutes
+    out: dict = {"seconds": seconds}
+    failed = False
+    for name in names:
+        mod = importlib.import_module(f"bench.bench_{name}")
+        try:
+            if name == "stack":
+                out[name] = mod.figures(minutes=minutes, realtime=args.realtime)
+                failed |= bool(out[name]["errors"])
+            else:
+                out[name] = mod.figures(seconds=seconds)
+                failed |= "error" in out[name]
+        except Exception as err:  # noqa: BLE001 - the object says which benchmark failed, never a traceback
+            out[name] = {"error": f"{type(err).__name__}: {err}"}
+            failed = True
+    print(json.dumps(_finite(out), indent=1))
+    return 1 if failed else 0
+
+
 def run(args) -> int:
-    names = args.names or [n for n in _names() if n not in ON_REQUEST]
-    unknown = set(names) - set(_names())
+    if args.seconds is not None and args.seconds <= 0:
+        print(f"pfma bench: --seconds {args.seconds:g}: must be positive", file=sys.stderr)
+        return 2
+    if args.minutes is not None and args.minutes < 0:
+        print(f"pfma bench: --minutes {args.minutes:g}: must not be negative", file=sys.stderr)
+        return 2
+    known = _names()
+    unknown = set(args.names) - set(known)
     if unknown:
-        print(f"unknown benchmark(s): {', '.join(sorted(unknown))}; known: {', '.join(_names())}")
+        print(f"pfma bench: unknown benchmark(s): {', '.join(sorted(unknown))}; known: {', '.join(known)}",
+              file=sys.stderr)
         return 2
-    if args.json and names != ["stack"]:
-        print("--json is for `pfma bench stack` alone", file=sys.stderr)
-        return 2
+    if args.json and args.names != ["stack"]:
+        names = args.names or list(JSON_SET)
+        other = [n for n in names if n not in JSON_SET]
+        if other:
+            print(f"pfma bench: --json measures {', '.join(JSON_SET)}; not {', '.join(other)}", file=sys.stderr)
+            return 2
+        return _json_set(names, args)
+    names = args.names or [n for n in known if n not in ON_REQUEST]
     seconds = 5.0 if args.seconds is None else args.seconds
     for name in names:
         mod = importlib.import_module(f"bench.bench_{name}")
         if name == "stack":
             if not args.json:
                 print(f"== bench {name} ==")
-            rep = mod.run(seconds=args.seconds, minutes=args.minutes, as_json=args.json, realtime=args.realtime)
+            minutes = STACK_MINUTES if args.minutes is None else args.minutes
+            rep = mod.run(seconds=args.seconds, minutes=minutes, as_json=args.json, realtime=args.realtime)
             if rep.get("errors") and args.json:
                 return 1
             continue
