@@ -64,6 +64,7 @@ class ModbusGateway:
         self.requests = 0  #: register requests received (fc 6 and fc 23 count once)
         self.function_codes: list[int] = []  #: function code of each request, in order
         self.silent = False  #: received requests get no reply while set
+        self._counted = threading.Condition()
         self._stopping = threading.Event()
         self._server: ModbusServerThread | None = None
 
@@ -73,8 +74,10 @@ class ModbusGateway:
         # one count per request: not the echo read-back of fc 6, not the read half of fc 23
         second_call = set_values is None and (function_code in _WRITES or function_code == _READ_WRITE)
         if not second_call:
-            self.requests += 1
-            self.function_codes.append(function_code)
+            with self._counted:
+                self.requests += 1
+                self.function_codes.append(function_code)
+                self._counted.notify_all()
         while self.silent and not self._stopping.is_set():
             await asyncio.sleep(0.005)  # a hung gateway: no reply (the client times out)
         if self.reply_delay_s:
@@ -98,6 +101,14 @@ class ModbusGateway:
         except Exception:  # noqa: BLE001 - any other failure of the hosted bus is a device failure
             return ExcCodes.DEVICE_FAILURE
         return None
+
+    def wait_requests(self, n: int, timeout_s: float = 5.0) -> int:
+        """Block until the server thread has received at least ``n`` requests (or
+        ``timeout_s`` passed); returns the count. For tests: a client that timed out has
+        sent its request, but the server thread may not have counted it yet."""
+        with self._counted:
+            self._counted.wait_for(lambda: self.requests >= n, timeout_s)
+            return self.requests
 
     def _read(self, addr: int, count: int) -> list[int]:
         block = getattr(self.bus, "read_block16", None)

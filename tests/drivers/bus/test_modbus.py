@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import socket
-import threading
 
 import pytest
 
@@ -135,16 +134,6 @@ def test_default_timeout_is_one_minor_frame():
     b.close()
 
 
-def _wait_for(predicate) -> None:
-    """Wait (bounded, generously) for the server thread to have counted what it received;
-    the assertions that follow are on counts, never on time."""
-    done = threading.Event()
-    for _ in range(500):
-        if predicate():
-            return
-        done.wait(0.01)
-
-
 def _five_accesses(b) -> list[str]:
     """read16, a 300-word block read (3 requests if answered), a 250-word block write,
     write16, read8: each must fail; returns the messages."""
@@ -167,8 +156,7 @@ def test_a_gateway_that_stops_answering_costs_one_request_per_access(gateway):
         errors = _five_accesses(b)
         assert b.requests == 5 and b.connects == 5  # one request, one (re)connect per access
     assert all(f"no reply from gateway 127.0.0.1:{gateway.port} within 0.003125 s" in e for e in errors)
-    _wait_for(lambda: gateway.requests >= 5)
-    assert gateway.requests == 5
+    assert gateway.wait_requests(5) == 5  # the server got exactly one request per access
 
 
 def test_a_gateway_that_answers_again_is_used_again(gateway, tiny):
