@@ -284,7 +284,8 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
                                                            "work_p99_us", "cpu_percent"))
             rep["controller_stats"] = _area(client, "controller_stats",
                                             ("frames", "missed_frames", "missed_events", "longest_missed_run",
-                                             "missed_task_slots", "overruns", "rate_hz", "cpu_percent"))
+                                             "missed_task_slots", "overruns", "rate_hz", "cpu_percent",
+                                             "work_p50_us", "work_p99_us"))
     except Exception as err:  # noqa: BLE001 - the report, never a traceback
         rep["errors"].append(f"{type(err).__name__}: {err}")
     finally:

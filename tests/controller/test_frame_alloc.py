@@ -40,7 +40,7 @@ LEAK_FRAMES = 400
 TRACED_WARMUP = 100
 TRACE_FRAMES = 16
 #: net growth allowed over FRAMES frames (noise of replaced objects: floats come and go from
-#: the interpreter's free list untraced; measured 0.1-2.3 KB with a 64-frame trace ring)
+#: the interpreter's free list untraced; measured 0.5 KB with this 16-frame trace ring)
 ALLOWED_BYTES = 4096
 #: allocations that happened while the package's code was on the stack (its directory,
 #: not a pattern: this test's own file lives in tests/controller/)

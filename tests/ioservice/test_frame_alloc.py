@@ -29,7 +29,7 @@ FRAMES = 1000
 #: frames of the demonstration that the check can fail (shorter: it only has to exceed the limit)
 LEAK_FRAMES = 400
 TRACED_WARMUP = 100
-#: net growth allowed over FRAMES frames (noise of replaced objects; measured 0.1-0.8 KB)
+#: net growth allowed over FRAMES frames (noise of replaced objects; measured 0.4 KB)
 ALLOWED_BYTES = 4096
 
 
