@@ -98,8 +98,7 @@ class RtdTask:
         """The run's transactions (counts and status of each board), nothing published."""
         for _cfg, drv, _slots, _bslot in self.boards:
             try:
-                drv.read_counts()
-                drv.status()
+                drv.read_counts_status()
             except PfmaError:
                 pass
 
@@ -121,8 +120,7 @@ class RtdTask:
         for cfg, drv, slots, bslot in self.boards:
             t = svc.clock.now()
             try:
-                counts = drv.read_counts()
-                status = drv.status()
+                counts, status = drv.read_counts_status()  # one bus transaction per board
             except PfmaError as err:
                 svc._input_failed(cfg.name, "rtd", err)
                 v["rtd_status"][slots] |= CHANNEL_BUS_ERROR

@@ -205,23 +205,25 @@ def test_slow_input_scans_do_not_overrun_the_serial_fifos(rig, monkeypatch, drai
     """A host that makes the resolver board read take 0.6 ms and the 32-channel ADC scan 1.0 ms
     (a busy VM) must not cost F/T records: the 3-deep MVME400 FIFO fills in 1.56 ms at 19200
     baud, so the service drains it between the tasks of a long frame. Without those drains
-    (the False case) characters are lost in every record and the link never re-syncs."""
-    slow = {"adc": 1.0e-3 / 64, "rtd1": 0.6e-3 / 5}  # per read16: 64 per ADC scan, 5 per resolver read
+    (the False case) characters are lost in every record and the link never re-syncs.
+    Each board reading is one block transfer (the resolver board's 4 angles + STATUS, the
+    ADC's SCAN buffer after its scan): the slow host is charged on those blocks."""
+    slow = {"adc": 1.0e-3, "rtd1": 0.6e-3}  # per block read: one per ADC scan, one per resolver read
     accesses = dict.fromkeys(slow, 0)
     for name, cost in slow.items():
         board = rig.world.bus[name]
-        inner = board.read16
+        inner = board.read_block16
 
-        def slow_read16(offset, _inner=inner, _name=name, _cost=cost):
+        def slow_block(offset, n, tick=None, _inner=inner, _name=name, _cost=cost):
             rig.clock.advance(_cost)
             accesses[_name] += 1
-            return _inner(offset)
+            return _inner(offset, n, tick)
 
-        monkeypatch.setattr(board, "read16", slow_read16)
+        monkeypatch.setattr(board, "read_block16", slow_block)
     if not drain_inside_frame:
         monkeypatch.setattr(rig.svc, "_drain_if_due", lambda: None)
     rig.run(2.0)
-    assert accesses == {"adc": 64 * 320, "rtd1": 5 * 320}  # 2 s of scans at 160 Hz, all slowed
+    assert accesses == {"adc": 320, "rtd1": 320}  # 2 s of scans at 160 Hz, all slowed
     s = rig.reader.read_inputs()
     link = rig.reader.layout.slot("link", "ft_sensor")
     if drain_inside_frame:

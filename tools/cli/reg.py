@@ -43,13 +43,21 @@ class UsageError(Exception):
     """Bad command-line input found after parsing (exit code 2, message on stderr)."""
 
 
+#: Reply time-out of a Modbus gateway for the interactive tools (reg, read, hand): a person
+#: is waiting, not a 320 Hz frame, so a loaded host's slow reply is not an error. The
+#: service keeps the bus's default, one minor frame. ``?timeout=S`` in the URL wins.
+INTERACTIVE_MODBUS_TIMEOUT_S = 0.5
+
+
 def open_cli_bus(url: str, rack: RackConfig):
     """Open ``--bus``; the fake rack (also behind ``spy+``) is built from ``--rack``.
 
     :raises UsageError: for a malformed bus URL
     """
     inner = url[4:] if url.startswith("spy+") else url
-    kwargs = {"rack": rack} if inner in ("fake", "fake://", "") else {}
+    kwargs: dict = {"rack": rack} if inner in ("fake", "fake://", "") else {}
+    if inner.startswith("modbus://") and "timeout=" not in inner:
+        kwargs["timeout"] = INTERACTIVE_MODBUS_TIMEOUT_S
     try:
         return open_bus(url, **kwargs)
     except ValueError as err:
