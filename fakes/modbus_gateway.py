@@ -51,10 +51,13 @@ class ModbusGateway:
     :param host: address to listen on (loopback by default)
     :param port: TCP port, 0 for an ephemeral one (see :attr:`port` after start)
     :param reply_delay_s: answer each request this late (simulates a slow gateway)
+    :param log_function_codes: keep every request's function code in :attr:`function_codes`
+        (tests count them); a long-running gateway (``pfma gateway``) turns it off, or the
+        list would grow without bound
     """
 
     def __init__(self, bus, host: str = "127.0.0.1", port: int = 0, *,
-                 reply_delay_s: float = 0.0) -> None:
+                 reply_delay_s: float = 0.0, log_function_codes: bool = True) -> None:
         self.bus = bus
         self.host = host
         self.port = port
@@ -62,7 +65,8 @@ class ModbusGateway:
         #: held while the hosted bus is accessed; take it to touch the bus from another thread
         self.lock = threading.Lock()
         self.requests = 0  #: register requests received (fc 6 and fc 23 count once)
-        self.function_codes: list[int] = []  #: function code of each request, in order
+        self.function_codes: list[int] = []  #: function code of each request, in order (if logged)
+        self._log_codes = log_function_codes
         self.silent = False  #: received requests get no reply while set
         self._counted = threading.Condition()
         self._stopping = threading.Event()
@@ -76,7 +80,8 @@ class ModbusGateway:
         if not second_call:
             with self._counted:
                 self.requests += 1
-                self.function_codes.append(function_code)
+                if self._log_codes:
+                    self.function_codes.append(function_code)
                 self._counted.notify_all()
         while self.silent and not self._stopping.is_set():
             await asyncio.sleep(0.005)  # a hung gateway: no reply (the client times out)

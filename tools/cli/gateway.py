@@ -81,7 +81,7 @@ def run(args) -> int:
     rack = load_rack(args.rack)
     clock = MonotonicClock()
     world = FakeWorld(rack, clock=clock)
-    gateway = ModbusGateway(world.bus, host=host, port=port)
+    gateway = ModbusGateway(world.bus, host=host, port=port, log_function_codes=False)  # runs for hours
     try:
         gateway.start()
     except RuntimeError:
