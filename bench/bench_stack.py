@@ -214,9 +214,12 @@ def _layers_in_error(messages: list[dict]) -> list[dict]:
 
 
 def _trips(messages: list[dict]) -> list[dict]:
-    """Service messages that name a watchdog/safety trip or a fault."""
+    """Service messages that name a watchdog/safety trip or a fault (not the orderly stop's
+    "outputs safe: service stopped" notice, which every run ends with)."""
+    from ioservice.safety import STOP_CODE
     words = ("watchdog", "trip", "safe", "fault", "refused", "stale")
-    return [m for m in messages if m["queue"] == "service" and any(w in m["text"].lower() for w in words)]
+    return [m for m in messages if m["queue"] == "service" and m["code"] != STOP_CODE
+            and any(w in m["text"].lower() for w in words)]
 
 
 def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = False) -> dict:

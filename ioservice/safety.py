@@ -30,7 +30,10 @@ from __future__ import annotations
 from bit3.layout import ServiceState  # the states as the Bit3 header publishes them
 from pfma.clock import Clock
 
-__all__ = ["OutputGuard", "ServiceState"]
+__all__ = ["OutputGuard", "ServiceState", "STOP_CODE"]
+
+#: message code of the orderly stop's notice ("outputs safe: service stopped"): not a trip
+STOP_CODE = 10
 
 
 class OutputGuard:
@@ -150,4 +153,4 @@ class OutputGuard:
     def stop(self, reason: str = "service stopped") -> None:
         self.state = ServiceState.STOPPED
         self.reason = reason
-        self.post(1, 10, f"outputs safe: {reason}")
+        self.post(1, STOP_CODE, f"outputs safe: {reason}")

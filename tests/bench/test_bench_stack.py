@@ -27,3 +27,11 @@ def test_short_stack_bench_reports_and_stops_every_process():
     assert set(rep["ft_link"]) >= {"records", "bad", "resyncs", "max_age_ms"}
     assert all({"queue", "severity", "text"} <= set(m) for m in rep["messages"])
     assert out.returncode == (1 if rep["errors"] else 0)
+
+
+def test_the_orderly_stop_notice_is_not_counted_as_a_trip():
+    from bench.bench_stack import _trips
+    from ioservice.safety import STOP_CODE
+    stop = {"queue": "service", "code": STOP_CODE, "text": "outputs safe: service stopped"}
+    trip = {"queue": "service", "code": 1, "text": "outputs safe: stale heartbeat (no new command for 16 ms)"}
+    assert _trips([stop, trip]) == [trip]
