@@ -16,7 +16,6 @@ values and types, and the same errors for what they hand on.
 
 from __future__ import annotations
 
-import gc
 import math
 import os
 import tracemalloc
@@ -29,16 +28,12 @@ from controller.decision import Status
 from controller.worldmodel import VarSpec, WorldModel, WorldModelValueError
 from controller.worldmodel.model import _fast_raw
 from controller.worldmodel.spec import coerce
-from sim.system import SystemSimulator
+from tests._alloc import TRACED_WARMUP, growth, running_system
 
 #: frames measured (the issue's figure)
 FRAMES = 1000
 #: frames of the demonstration that the check can fail (shorter: it only has to exceed the limit)
 LEAK_FRAMES = 400
-#: frames run under tracing before the first snapshot: longer than the trace ring below,
-#: so every record the ring holds was allocated (and traced) in the warm-up
-TRACED_WARMUP = 100
-TRACE_FRAMES = 16
 #: net growth allowed over FRAMES frames (noise of replaced objects: floats come and go from
 #: the interpreter's free list untraced; measured 0.5 KB with this 16-frame trace ring)
 ALLOWED_BYTES = 4096
@@ -47,39 +42,13 @@ ALLOWED_BYTES = 4096
 CONTROLLER = [tracemalloc.Filter(True, os.path.join(os.path.dirname(controller.__file__), "*"), all_frames=True)]
 
 
-def _growth(sim: SystemSimulator, frames: int, filters) -> tuple[int, int, list]:
-    """(bytes, objects, top lines) the traced memory matching ``filters`` grew by over ``frames``."""
-    gc.collect()
-    tracemalloc.start(8)
-    try:
-        sim.step(TRACED_WARMUP)
-        gc.collect()
-        before = tracemalloc.take_snapshot().filter_traces(filters)
-        sim.step(frames)
-        gc.collect()
-        after = tracemalloc.take_snapshot().filter_traces(filters)
-    finally:
-        tracemalloc.stop()
-    diff = after.compare_to(before, "lineno")
-    top = sorted(diff, key=lambda d: -d.size_diff)[:5]
-    return sum(d.size_diff for d in diff), sum(d.count_diff for d in diff), top
-
-
 @pytest.fixture
 def running():
-    sim = SystemSimulator(trace_frames=TRACE_FRAMES)
-    try:
-        sim.step(10)
-        sim.power_up(400)
-        sim.step(200)  # settled: servo, Cartesian engine and force layer all in their periodic work
-        assert sim.rt.all_status(Status.START_UP_COMPLETE)
-        yield sim
-    finally:
-        sim.close()
+    yield from running_system()
 
 
 def test_controller_frame_allocates_nothing_that_survives(running):
-    grown, objects, top = _growth(running, FRAMES, CONTROLLER)
+    grown, objects, top = growth(running, FRAMES, CONTROLLER)
     assert grown <= ALLOWED_BYTES, (f"controller frames kept {grown} B ({objects} objects) over {FRAMES} frames; "
                                     f"largest: " + "; ".join(map(str, top)))
 
@@ -95,7 +64,7 @@ def test_the_check_sees_a_per_frame_append(running):
         kept.append(rt.now * 1.5)  # a new float object every frame, kept
 
     servo.run_table = leaky_table  # type: ignore[method-assign]
-    grown, _, _ = _growth(running, LEAK_FRAMES, CONTROLLER)
+    grown, _, _ = growth(running, LEAK_FRAMES, CONTROLLER)
     assert len(kept) == TRACED_WARMUP + LEAK_FRAMES
     assert grown > 2 * ALLOWED_BYTES  # ~32 B a frame: ~13 KB
 

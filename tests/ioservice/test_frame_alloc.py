@@ -12,7 +12,6 @@ bytes of noise either way; a per-frame list append of one float would be about 3
 
 from __future__ import annotations
 
-import gc
 import os
 import tracemalloc
 
@@ -22,13 +21,11 @@ import bit3
 import controller
 import fakes
 import ioservice
-from controller.decision import Status
-from sim.system import SystemSimulator
+from tests._alloc import growth, running_system
 
 FRAMES = 1000
 #: frames of the demonstration that the check can fail (shorter: it only has to exceed the limit)
 LEAK_FRAMES = 400
-TRACED_WARMUP = 100
 #: net growth allowed over FRAMES frames (noise of replaced objects; measured 0.4 KB)
 ALLOWED_BYTES = 4096
 
@@ -45,38 +42,13 @@ SERVICE = [tracemalloc.Filter(True, _under(ioservice), all_frames=True),
            tracemalloc.Filter(False, _under(fakes), all_frames=True)]
 
 
-def _growth(sim: SystemSimulator, frames: int, filters) -> tuple[int, int, list]:
-    gc.collect()
-    tracemalloc.start(8)
-    try:
-        sim.step(TRACED_WARMUP)
-        gc.collect()
-        before = tracemalloc.take_snapshot().filter_traces(filters)
-        sim.step(frames)
-        gc.collect()
-        after = tracemalloc.take_snapshot().filter_traces(filters)
-    finally:
-        tracemalloc.stop()
-    diff = after.compare_to(before, "lineno")
-    top = sorted(diff, key=lambda d: -d.size_diff)[:5]
-    return sum(d.size_diff for d in diff), sum(d.count_diff for d in diff), top
-
-
 @pytest.fixture
 def running():
-    sim = SystemSimulator(trace_frames=16)
-    try:
-        sim.step(10)
-        sim.power_up(400)
-        sim.step(200)
-        assert sim.rt.all_status(Status.START_UP_COMPLETE)
-        yield sim
-    finally:
-        sim.close()
+    yield from running_system()
 
 
 def test_service_frame_allocates_nothing_that_survives(running):
-    grown, objects, top = _growth(running, FRAMES, SERVICE)
+    grown, objects, top = growth(running, FRAMES, SERVICE)
     assert grown <= ALLOWED_BYTES, (f"service frames kept {grown} B ({objects} objects) over {FRAMES} frames; "
                                     f"largest: " + "; ".join(map(str, top)))
 
@@ -92,6 +64,6 @@ def test_the_check_sees_a_per_frame_append_in_the_service(running):
         kept.append(svc.clock.now() * 1.5)  # a new float every frame, kept
 
     svc._publish = leaky_publish
-    grown, _, _ = _growth(running, LEAK_FRAMES, SERVICE)
+    grown, _, _ = growth(running, LEAK_FRAMES, SERVICE)
     assert kept
     assert grown > 2 * ALLOWED_BYTES  # ~32 B a frame: ~13 KB
