@@ -24,6 +24,7 @@ Snapshots are preallocated: ``read_inputs()`` refreshes and returns the same
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any, Callable, Iterable, Literal
 
@@ -121,6 +122,26 @@ class Snapshot:
 _STAMPS = ("heartbeat", "t_s", "writer_pid", "writer_token")
 
 
+def _check_finite(key: str, value: Any) -> None:
+    """Bit3Error unless every float or complex number in ``value`` is finite: what
+    ``np.all(np.isfinite(np.asarray(value)))`` decides for a value numpy reads as float or
+    complex, with the common cases (a Python or float64 scalar, an int, a float64 array)
+    decided without building an array."""
+    t = type(value)
+    if t is float or t is np.float64:
+        ok = math.isfinite(value)
+    elif t is int or t is bool:
+        return
+    elif t is np.ndarray and value.dtype.kind == "f":
+        ok = bool(np.isfinite(value).all()) if value.size > 16 else \
+            all(map(math.isfinite, value.ravel().tolist()))
+    else:
+        arr = np.asarray(value)
+        ok = arr.dtype.kind not in "fc" or bool(np.all(np.isfinite(arr)))
+    if not ok:
+        raise Bit3Error(f"command {key} = {value!r} is not finite")
+
+
 class Client:
     """Attach to the buffer as a reader, or as the writer of one role's areas."""
 
@@ -137,6 +158,8 @@ class Client:
         self._cmd = None
         self._frame_word: memoryview[Any] | None = None  #: header frame word (writers)
         self._closed_loop = False
+        #: write_commands key -> (field, index or None), resolved once per key
+        self._targets: dict[str, tuple[str, int | None]] = {}
         if role == "controller":
             self._cmd = buf.writer("commands")
             claim = buf.owner("commands")
@@ -269,16 +292,21 @@ class Client:
         """
         w = self._writer_check()
         rec = w.record
-        names = rec.dtype.names
-        backup = rec.copy()  # all or nothing: a bad key or value leaves the record unchanged
+        # all or nothing: a bad key or value leaves the record unchanged. The record is a
+        # view of the writer's ``raw`` bytes, so one bytes copy of the body is the undo
+        # (cheaper than a structured-record copy; same effect)
+        src = w._src
+        backup = bytes(src)
         if "inputs_frame" in fields:
             self._closed_loop = True  # from now on the writer says which inputs it used
+        targets = self._targets
         try:
             for key, value in fields.items():
-                target, idx = self._command_target(key, names)
-                arr = np.asarray(value)
-                if arr.dtype.kind in "fc" and not np.all(np.isfinite(arr)):
-                    raise Bit3Error(f"command {key} = {value!r} is not finite")
+                hit = targets.get(key)
+                if hit is None:
+                    hit = targets[key] = self._command_target(key, rec.dtype.names)
+                target, idx = hit
+                _check_finite(key, value)
                 try:
                     if idx is None:
                         rec[target] = value
@@ -287,7 +315,7 @@ class Client:
                 except (ValueError, TypeError, OverflowError) as err:
                     raise Bit3Error(f"command {key} = {value!r}: {err}") from err
         except BaseException:
-            rec[...] = backup
+            src[:] = backup
             raise
         return self.publish_commands()
 
