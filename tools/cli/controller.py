@@ -34,8 +34,9 @@ def add_parser(sub):
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name of the service (default pfma)")
     p.add_argument("--sim", action="store_true", help="simulate the whole system (fake rack + service) "
                                                      "in simulated time instead")
-    p.add_argument("--wm", default="pfma_wm", help="world-model shared-memory name for `pfma wm` "
-                                                  "(default pfma_wm; 'none' = private)")
+    p.add_argument("--wm", "--name", dest="wm", default="pfma_wm", metavar="NAME",
+                   help="world-model shared-memory name for `pfma wm` (default pfma_wm; 'none' = "
+                        "private); --name is an alias, as in `pfma wm`")
     p.add_argument("--profile", default="layers", help="rate profile: layers (default) or overview")
     p.add_argument("--power-up", action="store_true", help="request POWER UP at start")
     p.add_argument("--duration", type=float, default=None,

@@ -3,17 +3,17 @@
 Each line is one :class:`drivers.crl.HandControllerState` (axes -1..1 in the
 hand-controller frame: x forward, y left, z up; roll/pitch/yaw right-handed).
 
-- ``cae``: the CAE rate controller on the A/D board. ``--port fake`` (default) runs the
+- ``cae``: the CAE rate controller on the A/D board. ``--bus fake`` (default) runs the
   driver on a fresh fake rack whose ADC inputs follow a gently moving simulated stick
-  (deadman pressed after 0.5 s); any other ``--port`` is a register bus URL
+  (deadman pressed after 0.5 s); any other ``--bus`` is a register bus URL
   (``modbus://HOST:PORT``, ``file:PATH``).
-- ``crl``: the CRL force-reflecting master on a serial port (``--port /dev/ttyUSB0``,
-  ``socket://...``). ``--port fake`` (default) runs ``fakes.crl.FakeCrlMaster`` behind a
+- ``crl``: the CRL force-reflecting master on a serial port (``--bus /dev/ttyUSB0``,
+  ``socket://...``). ``--bus fake`` (default) runs ``fakes.crl.FakeCrlMaster`` behind a
   real pty, and the tool sends it a gentle spring force, so both directions are live.
   The CRL framing is a PLACEHOLDER (drivers/crl/crl_codec.py).
-- ``hid``: a 3Dconnexion SpaceMouse (hidapi, hidraw backend). ``--port auto`` (default)
-  opens the first one found and falls back to a fake device, saying so; ``--port fake``
-  forces the fake; ``--port /dev/hidrawN`` opens that node. The deadman is the left button.
+- ``hid``: a 3Dconnexion SpaceMouse (hidapi, hidraw backend). ``--bus auto`` (default)
+  opens the first one found and falls back to a fake device, saying so; ``--bus fake``
+  forces the fake; ``--bus /dev/hidrawN`` opens that node. The deadman is the left button.
 """
 
 from __future__ import annotations
@@ -33,14 +33,16 @@ def add_parser(sub):
                        description=__doc__.split("\n\n", 1)[1],
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--source", required=True, choices=("cae", "crl", "hid"), help="which controller")
-    p.add_argument("--port", default=None,
-                   help="cae: bus URL or fake (default); crl: serial URL or fake (default); "
+    p.add_argument("--bus", default=None,
+                   help="cae: register bus URL or fake (default); crl: serial URL or fake (default); "
                         "hid: auto (default), fake or a /dev/hidraw path")
+    p.add_argument("--port", dest="port_alias", default=None, metavar="URL",
+                   help="deprecated alias of --bus (still works; says so once on stderr)")
     p.add_argument("--count", type=int, default=None, help="stop after N lines")
     p.add_argument("--duration", type=float, default=None, help="stop after S seconds")
     p.add_argument("--rate-hz", type=float, default=10.0, help="lines per second (default 10)")
     p.add_argument("--rack", default="fake", help="rack TOML (default: the IRSS report's tables)")
-    p.add_argument("--json", action="store_true", help="one JSON object per line")
+    p.add_argument("--json", action="store_true", help="one JSON object per line (JSON lines)")
     return p
 
 
@@ -71,7 +73,7 @@ class _Cae(_Source):
 
         rack = load_rack(args.rack)
         board = rack.board(rack.channel("cae_up_down").board)
-        port = args.port or "fake"
+        port = args.bus or "fake"
         self.fake_adc = None
         if port in ("fake", "fake://"):
             from fakes.rack import FakeRack
@@ -108,7 +110,7 @@ class _Crl(_Source):
     def __init__(self, args, clock) -> None:
         from drivers.crl import CrlHandController
 
-        port = args.port or "fake"
+        port = args.bus or "fake"
         self.fake = self.pty = None
         self.clock, self.t0 = clock, clock.now()
         if port == "fake":
@@ -151,7 +153,7 @@ class _Hid(_Source):
     def __init__(self, args, clock) -> None:
         from drivers.crl import HidSpaceMouse
 
-        port = args.port or "auto"
+        port = args.bus or "auto"
         self.fake = None
         self.clock, self.t0 = clock, clock.now()
         if port == "auto":
@@ -196,6 +198,13 @@ def run(args) -> int:
     if args.rate_hz <= 0:
         print("pfma hand: --rate-hz must be positive", file=sys.stderr)
         return 2
+    if args.port_alias is not None:
+        if args.bus is not None and args.bus != args.port_alias:
+            print(f"pfma hand: --port {args.port_alias} and --bus {args.bus} disagree; "
+                  f"give --bus only", file=sys.stderr)
+            return 2
+        print("pfma hand: --port is deprecated; use --bus (same meaning)", file=sys.stderr)
+        args.bus = args.port_alias
     clock = MonotonicClock()
     source = SOURCES[args.source](args, clock)
     try:

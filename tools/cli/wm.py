@@ -1,9 +1,9 @@
 """``pfma wm``: browse a running controller's world model, and ask it for user writes.
 
-    pfma wm list [--area A] [--filter TEXT] [--name WM] [--json]
-    pfma wm get NAME... [--json] [--name WM]
-    pfma wm set NAME VALUE [--key KEY] [--wait S] [--name WM]
-    pfma wm requests [--name WM]
+    pfma wm list [--area A] [--filter TEXT] [--wm WM] [--json]
+    pfma wm get NAME... [--json] [--wm WM]
+    pfma wm set NAME VALUE [--key KEY] [--wait S] [--wm WM]
+    pfma wm requests [--wm WM]
 
 Everything is decoded from the variable table stored (as JSON) in the shared-memory
 segment, so this needs no controller code. ``set`` checks the request here: unknown
@@ -32,8 +32,9 @@ def add_parser(sub):
     from controller.worldmodel import AREAS, DEFAULT_NAME, ACCESS_KEY_ENV
 
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--name", default=os.environ.get("PFMA_WM", DEFAULT_NAME),
-                        help=f"world-model shared-memory name (default $PFMA_WM or {DEFAULT_NAME})")
+    common.add_argument("--wm", "--name", dest="name", metavar="NAME", default=os.environ.get("PFMA_WM", DEFAULT_NAME),
+                        help=f"world-model shared-memory name (default $PFMA_WM or {DEFAULT_NAME}); "
+                             f"--name is an alias, as in `pfma controller`")
     p = sub.add_parser("wm", help="browse the controller's world model; user writes with a key",
                        description="Browse a running controller's world model (read from its "
                                    "shared memory), and ask its owner for keyed user writes.")
