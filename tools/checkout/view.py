@@ -66,78 +66,158 @@ def matches(filter_text: str | None, *names: str) -> bool:
     return any(f in n.lower() for n in names if n)
 
 
-def monitor_lines(client, filter_text: str | None = None, messages: int = 5) -> list[str]:
-    """Every channel of the input area, one line each, with a header and the last messages."""
+#: the terminal the monitor is drawn for: every line of its view fits this width
+MONITOR_WIDTH = 80
+#: the row layout (name, value, units, rate, then status and detail in what is left)
+ROW_HEADER = f"{'name':28} {'value':>9} {'units':5} {'rate':>5} status / detail"
+
+
+def clip(text: str, width: int) -> str:
+    """``text`` cut to ``width`` columns, the cut marked with ``~``."""
+    return text if len(text) <= width else text[:width - 1] + "~"
+
+
+def monitor_data(client, filter_text: str | None = None, messages: int = 5) -> dict[str, Any]:
+    """The monitor's snapshot as data: the service header, one dict per input channel
+    (name, kind, value, units, raw, status, rate_hz, where, spare) and the last messages.
+    ``pfma monitor --once --json`` prints it; :func:`monitor_lines` draws it."""
     s = client.read_inputs()
     st = client.read_stats()
     lay = client.layout
     dev_rate = {g: float(st.device_rate_hz[lay.slot("device", g)]) for g in DEVICE_GROUPS}
     hdr = client.header()
-    state = ServiceState(s.service_state).name
-    out = [
-        f"pfma monitor  buffer {client.buffer.name}  rack {hdr.rack_name}  state {state}  "
-        f"frame {s.frame}  t {s.t_s:.3f} s  fault {s.fault_code}",
-        f"outputs {'ENABLED' if s.outputs_enabled else 'off'}  brakes {'released' if s.brakes_released else 'set'}  "
-        f"watchdog {'TRIPPED' if s.watchdog_tripped else 'ok'}  command heartbeat {s.command_heartbeat} "
-        f"(age {s.command_age_s * 1e3:.1f} ms)  frames {st.rate_hz:.1f} Hz  dropped {st.dropped_frames}  "
-        f"overruns {st.overruns}",
-        "rates: " + "  ".join(f"{g} {dev_rate[g]:.1f} Hz/{int(st.device_errors[lay.slot('device', g)])} err"
-                              for g in DEVICE_GROUPS if int(st.device_samples[lay.slot('device', g)])),
-        "",
-        f"{'name':30s} {'kind':5s} {'value':>14s} {'units':6s} {'raw':30s} {'status':14s} {'rate Hz':>8s}  where",
-    ]
-    rows = []
+    out: dict[str, Any] = {
+        "buffer": client.buffer.name, "rack": hdr.rack_name, "state": ServiceState(s.service_state).name,
+        "frame": int(s.frame), "t_s": float(s.t_s), "fault_code": int(s.fault_code),
+        "outputs_enabled": bool(s.outputs_enabled), "brakes_released": bool(s.brakes_released),
+        "watchdog_tripped": bool(s.watchdog_tripped), "command_heartbeat": int(s.command_heartbeat),
+        "command_age_s": float(s.command_age_s), "frame_rate_hz": float(st.rate_hz),
+        "dropped_frames": int(st.dropped_frames), "overruns": int(st.overruns),
+        "devices": {g: {"rate_hz": dev_rate[g], "errors": int(st.device_errors[lay.slot("device", g)])}
+                    for g in DEVICE_GROUPS if int(st.device_samples[lay.slot("device", g)])},
+    }
+    rows: list[dict[str, Any]] = []
     for c in lay.channels:
         if c.area != "inputs" or not matches(filter_text, c.name, c.label, c.kind, c.board):
             continue
         i = c.slot
         where = f"{c.board}/{c.channel}" if c.channel >= 0 else c.board
         rate = dev_rate.get(KIND_DEVICE.get(c.kind, ""), float("nan"))
+        value: Any
         if c.kind == "rtd":
-            val, raw = fmt(s.rtd_angle_rad[i]), f"{int(s.rtd_counts[i])} counts {math.degrees(s.rtd_angle_rad[i]):.2f} deg"
+            value = float(s.rtd_angle_rad[i])
+            raw = f"{int(s.rtd_counts[i])} cnt {math.degrees(s.rtd_angle_rad[i]):.1f} deg"
             stat = bits(int(s.rtd_status[i]), RTD_BITS)
         elif c.kind == "adc":
-            val, raw = fmt(s.adc_value[i]), f"{s.adc_volts[i]:+.4f} V {int(s.adc_counts[i])} counts"
+            value, raw = float(s.adc_value[i]), f"{s.adc_volts[i]:+.3f} V {int(s.adc_counts[i])} cnt"
             stat = bits(int(s.adc_status[i]), ADC_BITS)
         elif c.kind == "dac":
-            val, raw = fmt(s.dac_value[i]), f"{s.dac_volts[i]:+.4f} V {int(s.dac_counts[i])} counts"
+            value, raw = float(s.dac_value[i]), f"{s.dac_volts[i]:+.3f} V {int(s.dac_counts[i])} cnt"
             stat = bits(int(s.dac_status[i]), DAC_BITS)
         elif c.kind == "pio":
             b = int(s.pio_port_bits[i])
-            val, raw, stat = f"0x{b:02X}", f"{b:08b}", "-"
+            value, raw, stat = b, f"{b:08b}", "-"
         elif c.kind == "board":
-            val = str(int(s.board_errors[i]))
+            value = int(s.board_errors[i])
             addr = int(s.board_last_error_addr[i])
-            raw = f"errors; last at A16 0x{addr:04X}" if addr else "errors"
+            raw = f"last error at A16 0x{addr:04X}" if addr else ""
             stat, rate, where = bits(int(s.board_status[i]), BOARD_BITS), float("nan"), c.board
         elif c.kind == "link":
-            val = fmt(s.link_records[i])
+            value = int(s.link_records[i])
             raw = (f"bad {int(s.link_bad[i])} resyncs {int(s.link_resyncs[i])} "
                    f"age {s.link_age_s[i] * 1e3:.0f} ms")
             stat, rate = bits(int(s.link_status[i]), LINK_BITS), float(s.link_rate_hz[i])
         elif c.kind == "hc":
-            val = fmt(np.round(s.hc_axes[i], 3))
-            raw = f"buttons 0x{int(s.hc_buttons[i]):X}"
+            value = [round(float(x), 3) for x in s.hc_axes[i]]
+            raw = f"btn 0x{int(s.hc_buttons[i]):X}"
             flags = [n for n, on in (("VALID", s.hc_valid[i]), ("DEADMAN", s.hc_deadman[i]),
                                      ("FAULT", s.hc_fault[i])) if on]
             stat, rate = "|".join(flags) or "-", dev_rate.get(HC_DEVICE.get(c.name, ""), float("nan"))
         else:
             continue
         units = "recs" if c.kind == "link" else ("err" if c.kind == "board" else c.units)
-        rate_s = "" if math.isnan(rate) else f"{rate:.1f}"
-        label = c.name + (" (spare)" if c.spare else "")
-        rows.append(f"{label:30s} {c.kind:5s} {val:>14s} {units:6s} {raw:30s} {stat:14s} {rate_s:>8s}  {where}")
+        rows.append({"name": c.name, "kind": c.kind, "value": value, "units": units, "raw": raw,
+                     "status": stat, "rate_hz": rate, "where": where, "spare": bool(c.spare)})
     for name, units in (("ft_force_n", "N"), ("ft_torque_nm", "N*m")):
         if matches(filter_text, name, "ft force torque"):
-            rows.append(f"{name:30s} {'ft':5s} {fmt(np.round(s[name], 3)):>14s} {units:6s} "
-                        f"{'status 0x%X t %.3f s' % (int(s.ft_status), s.ft_t_s):30s} {'-':14s} "
-                        f"{dev_rate['ft']:>8.1f}  sio")
-    out += rows if rows else [f"(no channel matches {filter_text!r})"]
-    if messages:
-        msgs = client.messages()[-messages:]
-        if msgs:
-            out += ["", "messages:"] + [f"  {m.format()}" for m in msgs]
+            rows.append({"name": name, "kind": "ft", "value": [round(float(x), 3) for x in s[name]],
+                         "units": units, "raw": f"status 0x{int(s.ft_status):X} t {s.ft_t_s:.3f} s",
+                         "status": "-", "rate_hz": dev_rate["ft"], "where": "sio", "spare": False})
+    out["channels"] = rows
+    out["messages"] = [{"t_s": float(m.t_s), "queue": m.queue, "seq": int(m.seq), "severity": m.severity.name,
+                        "source": m.source, "code": int(m.code), "text": m.text}
+                       for m in (client.messages()[-messages:] if messages else [])]
     return out
+
+
+def monitor_header(d: dict[str, Any], width: int = MONITOR_WIDTH) -> list[str]:
+    """The service's state in lines of at most ``width`` columns."""
+    import textwrap
+    rates = "  ".join(f"{g} {v['rate_hz']:.0f}/{v['errors']}" for g, v in d["devices"].items())
+    lines = [
+        f"pfma monitor  buffer {d['buffer']}  rack {d['rack']}  state {d['state']}",
+        f"frame {d['frame']}  t {d['t_s']:.3f} s  fault {d['fault_code']}  "
+        f"outputs {'ENABLED' if d['outputs_enabled'] else 'off'}  "
+        f"brakes {'released' if d['brakes_released'] else 'set'}  "
+        f"watchdog {'TRIPPED' if d['watchdog_tripped'] else 'ok'}",
+        f"heartbeat {d['command_heartbeat']} (age {d['command_age_s'] * 1e3:.1f} ms)  "
+        f"frames {d['frame_rate_hz']:.1f} Hz  dropped {d['dropped_frames']}  overruns {d['overruns']}",
+    ]
+    lines += textwrap.wrap("device Hz/errors: " + rates, width) if rates else []
+    return [clip(x, width) for x in lines]
+
+
+def monitor_row(r: dict[str, Any], width: int = MONITOR_WIDTH) -> str:
+    """One channel in ``width`` columns: name, value, units, rate, status, detail."""
+    v = r["value"]
+    if isinstance(v, list):  # a vector (hand-controller axes, F/T): the detail column shows it
+        vec = "[" + " ".join(f"{x:+.2f}" for x in v) + "]"
+        val, detail = "", (f"{vec} {r['raw']}" if r["kind"] == "ft" else f"{r['raw']} {vec}")
+    elif r["kind"] == "pio":
+        val, detail = f"0x{v:02X}", r["raw"]
+    else:
+        val, detail = fmt(v), r["raw"]
+    if r["kind"] not in ("board", "link", "ft", "hc"):
+        detail = f"{r['where']} {detail}"
+    rate = "" if math.isnan(r["rate_hz"]) else f"{r['rate_hz']:.1f}"
+    name = r["name"] + (" (spare)" if r["spare"] else "")
+    return clip(f"{name:28} {val:>9} {r['units']:5} {rate:>5} {r['status']} {detail}".rstrip(), width)
+
+
+def monitor_lines(client, filter_text: str | None = None, messages: int = 5,
+                  width: int = MONITOR_WIDTH) -> list[str]:
+    """Every channel of the input area, one line each of at most ``width`` columns, with a
+    header, the column names and the last messages (``pfma monitor --once``)."""
+    d = monitor_data(client, filter_text, messages)
+    rows = [monitor_row(r, width) for r in d["channels"]] or [f"(no channel matches {filter_text!r})"]
+    out = monitor_header(d, width) + ["", clip(ROW_HEADER, width)] + rows
+    if d["messages"]:
+        out += ["", "messages:"] + [clip("  " + message_text(m), width) for m in d["messages"]]
+    return out
+
+
+def message_text(m: dict[str, Any]) -> str:
+    return f"{m['t_s']:.3f} {m['severity']} {m['source']}: {m['text']}"
+
+
+def monitor_screen(d: dict[str, Any], page: int, height: int, width: int = MONITOR_WIDTH,
+                   messages: int = 3) -> tuple[list[str], int]:
+    """The live monitor's screen: at most ``height`` lines of at most ``width`` columns.
+
+    The header and the column names stay at the top, the last ``messages`` messages and a
+    footer at the bottom; the channel rows between them are shown one page at a time.
+    Returns the lines and the number of pages (``page`` is taken modulo it).
+    """
+    head = monitor_header(d, width) + [clip(ROW_HEADER, width)]
+    msgs = [clip("  " + message_text(m), width) for m in d["messages"][-messages:]] if messages else []
+    rows = [monitor_row(r, width) for r in d["channels"]] or ["(no channel matches the filter)"]
+    room = max(1, height - len(head) - len(msgs) - 1)
+    pages = max(1, math.ceil(len(rows) / room))
+    page %= pages
+    body = rows[page * room:(page + 1) * room]
+    footer = clip(f"-- page {page + 1}/{pages}, rows {page * room + 1}-{page * room + len(body)} of "
+                  f"{len(rows)}  space/n next  p previous  q quit --", width)
+    return head + body + [""] * (room - len(body)) + msgs + [footer], pages
 
 
 # ---------------------------------------------------------------------------------- watch
@@ -184,3 +264,11 @@ def watch_line(snapshot, signals: list[tuple[str, Getter, str]]) -> str:
     for label, get, units in signals:
         parts.append(f"{label}={fmt(get(snapshot))}" + (f" {units}" if units else ""))
     return "  ".join(parts)
+
+
+def watch_record(snapshot, signals: list[tuple[str, Getter, str]]) -> dict[str, Any]:
+    """One sample as data (``pfma watch --json``, one JSON line each): ``t_s``, ``frame``,
+    ``values`` by signal and their ``units``."""
+    return {"t_s": float(snapshot.t_s), "frame": int(snapshot.frame),
+            "values": {label: get(snapshot) for label, get, _ in signals},
+            "units": {label: units for label, _, units in signals}}

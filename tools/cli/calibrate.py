@@ -50,6 +50,7 @@ def add_parser(sub):
     p.add_argument("--index", default=None, metavar="JOINT=RAD,...",
                    help="resolver: known index positions (default: the DH zero of every joint, assumed)")
     p.add_argument("--save-failed", action="store_true", help="save the result even when a check failed")
+    p.add_argument("--json", action="store_true", help="show, history, diff: one JSON document")
     return p
 
 
@@ -100,6 +101,11 @@ def _show(cal, out) -> None:
 
 def _file_verb(args, out) -> int:
     from calibration import files
+    from tools.cli.output import print_json
+    args.json = getattr(args, "json", False)  # callers that build the namespace themselves
+    if args.json and args.what == "init":
+        print("pfma calibrate: --json is for show, history and diff (init writes a file)", file=sys.stderr)
+        return 2
     path = Path(args.file)
     if args.what == "init":
         rack = _rack(args)
@@ -109,12 +115,22 @@ def _file_verb(args, out) -> int:
         print(f"wrote {cal.describe()}", file=out)
         return 0
     if args.what == "show":
-        _show(files.load_calibration(path), out)
+        cal = files.load_calibration(path)
+        if args.json:
+            print_json({"file": str(path), "version": cal.version, "created": cal.created,
+                        "hash": files.calibration_hash(cal).hex(), "calibration": cal.data}, file=out)
+            return 0
+        _show(cal, out)
         return 0
     if args.what == "history":
         hist = files.history(path)
         if not hist:
             raise CalibrationError(f"no calibration at {path}")
+        if args.json:
+            print_json([{"version": c.version, "created": c.created, "hash": c.hash().hex(), "path": c.path,
+                         "methods": sorted({e["provenance"]["method"] for e in c.channels.values()})}
+                        for c in hist], file=out)
+            return 0
         for c in hist:
             methods = sorted({e["provenance"]["method"] for e in c.channels.values()})
             print(f"v{c.version:<4d} {c.created}  hash {c.hash().hex()}  {c.path}  methods: "
@@ -131,6 +147,9 @@ def _file_verb(args, out) -> int:
             raise CalibrationError(f"{path}: only {len(hist)} version(s); nothing to compare")
         a, b = hist[-2], hist[-1]
     rows = files.diff(a, b)
+    if args.json:
+        print_json({"file": str(path), "from": a.version, "to": b.version, "changes": rows}, file=out)
+        return 0
     print(f"diff v{a.version} -> v{b.version}: {len(rows)} change(s)", file=out)
     for r in rows:
         ch = r["change"]
@@ -144,6 +163,10 @@ def run(args, out=None) -> int:
     out = out or sys.stdout
     if args.what in FILE_VERBS:
         return _file_verb(args, out)
+    if getattr(args, "json", False):
+        print(f"pfma calibrate: --json is for show, history and diff, not for the {args.what} procedure "
+              f"(its report is the calibration file: pfma calibrate show --json)", file=sys.stderr)
+        return 2
     from calibration import files
     from calibration.procedures import Context, run_procedure
     from calibration.session import ConsoleOperator, LiveSession, SimSession

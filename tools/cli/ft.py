@@ -6,6 +6,9 @@ Examples::
     pfma ft --port fake --stream --count 20  # QS streaming through the reader thread
     pfma ft --port /dev/ttyS1 --ascii        # a real controller on a serial port
     pfma ft bias --port fake                 # SB, then show one reading
+    pfma ft --port fake --count 5 --json     # JSON lines: one object per reading, then a summary
+
+``--port`` here is the F/T controller's serial line (a pyserial URL), not a register bus.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from contextlib import ExitStack
 
 from drivers.serial_ft.ftsensor import FtReader, FtReading, FtSensor, open_ft
 from drivers.serial_ft.protocol import NOMINAL
+from tools.cli.output import print_json
 
 ACTIONS = {"read": None, "bias": "bias", "unbias": "unbias", "clear-bias": "clear_bias"}
 
@@ -41,6 +45,9 @@ def add_parser(sub):
     p.add_argument("--count", type=int, default=None, help="stop after N printed readings")
     p.add_argument("--duration", type=float, default=None, help="stop after S seconds")
     p.add_argument("--interval", type=float, default=0.1, help="print period in seconds (default 0.1)")
+    p.add_argument("--json", action="store_true",
+                   help="JSON lines: one object per reading (type reading), then one summary (type summary); "
+                        "notes go to stderr")
     p.add_argument("--cpf", type=float, default=NOMINAL.cpf, help=f"counts per N (default {NOMINAL.cpf:g}, assumed)")
     p.add_argument("--cpt", type=float, default=NOMINAL.cpt,
                    help=f"counts per N.m (default {NOMINAL.cpt:g}, assumed)")
@@ -56,6 +63,11 @@ def _line(r: FtReading, sensor: FtSensor) -> str:
             f"bad {s.bad_records} resync {s.resyncs} age {age} in {s.bytes_in} B")
 
 
+def _note(args: argparse.Namespace, text: str) -> None:
+    """An informational line: stdout for people, stderr under --json (stdout is the JSON)."""
+    print(text, file=sys.stderr if args.json else sys.stdout)
+
+
 def run(args: argparse.Namespace) -> int:
     with ExitStack() as stack:
         url = args.port
@@ -65,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
 
             dev = stack.enter_context(PtyDevice(FakeFtController(load_fn=gentle_load), baud=args.baud))
             url = dev.port_name
-            print(f"fake F/T controller on {url} ({args.baud} baud 8N1, gentle varying load)")
+            _note(args, f"fake F/T controller on {url} ({args.baud} baud 8N1, gentle varying load)")
         sensor = open_ft(url, args.baud, cpf=args.cpf, cpt=args.cpt)
         stack.callback(sensor.close)
         sensor.set_mode(args.mode)
@@ -74,10 +86,10 @@ def run(args: argparse.Namespace) -> int:
         if args.average is not None:
             sensor.set_average(args.average)
         limit = FtSensor.max_rate_hz(args.mode, args.baud, sensor.checksum_on)
-        print(f"{args.mode} records, line limit {limit:.1f} records/s; cpf {sensor.cpf:g}/N, cpt {sensor.cpt:g}/N.m")
+        _note(args, f"{args.mode} records, line limit {limit:.1f} records/s; cpf {sensor.cpf:g}/N, cpt {sensor.cpt:g}/N.m")
         if ACTIONS[args.action]:
             getattr(sensor, ACTIONS[args.action])()
-            print(f"{args.action}: done")
+            _note(args, f"{args.action}: done")
             if args.count is None and args.duration is None:
                 args.count = 1
         return _show(args, sensor, stack)
@@ -108,12 +120,21 @@ def _show(args: argparse.Namespace, sensor: FtSensor, stack: ExitStack) -> int:
             else:
                 r = sensor.poll()
             if r is not None:
-                print(_line(r, sensor), flush=True)
+                if args.json:
+                    print_json({"type": "reading", "seq": r.seq, "t_s": r.t_s, "status": r.status,
+                                "force_n": r.force_n, "torque_nm": r.torque_nm, "counts": r.counts,
+                                "link": sensor.stats()}, line=True)
+                else:
+                    print(_line(r, sensor), flush=True)
                 printed += 1
             time.sleep(max(0.0, t_next - time.monotonic()))  # a CLI print period, not a test wait
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
     s = sensor.stats()
+    if args.json:
+        print_json({"type": "summary", "records": s.records, "bad_records": s.bad_records, "resyncs": s.resyncs,
+                    "bytes_in": s.bytes_in, "bytes_discarded": s.bytes_discarded}, line=True)
+        return 0
     print(f"records {s.records}  bad {s.bad_records}  resyncs {s.resyncs}  bytes in {s.bytes_in}  "
           f"discarded {s.bytes_discarded}")
     return 0

@@ -1,18 +1,26 @@
 """``pfma monitor``: live view of every channel of a running service (halmeter for all).
 
 Each rack channel, board, link and hand controller with its engineering value and
-units, raw value, status bits and measured rate, plus the service state, frame
-rate, link counters and the latest messages. Redrawn twice a second with plain ANSI
-codes; ``--filter`` keeps channels whose name, label, kind or board contains the
-text (or matches a shell pattern such as ``wrist_*``); ``--once`` prints one
-snapshot and exits (scripts, tests). Waits for the service with a message every few
-seconds (``--wait``) and reattaches when it restarts; with no live service on the
-buffer at start (and no ``--wait``) it says so and exits 1.
+units, measured rate, status bits and detail (where it is, raw value), plus the
+service state, frame rate, device rates and the latest messages. Every line fits 80
+columns. The live view redraws twice a second and fits the terminal: the header and
+the column names stay at the top, the channel rows are shown a page at a time (space
+or n: next page, p: previous, q: quit; the page also advances by itself every
+``--page-s`` seconds). ``--filter`` keeps channels whose name, label, kind or board
+contains the text (or matches a shell pattern such as ``wrist_*``); ``--once`` prints
+one plain snapshot and exits (scripts, tests); ``--once --json`` prints it as one JSON
+document. Waits for the service with a message every few seconds (``--wait``) and
+reattaches when it restarts; with no live service on the buffer at start (and no
+``--wait``) it says so at once and exits 1, as ``pfma stats`` does.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
+import select
+import shutil
 import sys
 import time
 
@@ -26,7 +34,10 @@ def add_parser(sub):
     p.add_argument("--rack", default=None, help="rack TOML the service runs (default: the IRSS rack)")
     p.add_argument("--filter", default=None, metavar="TEXT", help="only channels matching TEXT")
     p.add_argument("--once", action="store_true", help="print one snapshot and exit")
+    p.add_argument("--json", action="store_true", help="with --once: the snapshot as one JSON document")
     p.add_argument("--interval", type=float, default=0.5, help="redraw period, s (default 0.5)")
+    p.add_argument("--page-s", type=float, default=5.0, metavar="S",
+                   help="live view: turn to the next page of channels every S seconds (0 = only by key)")
     p.add_argument("--wait", type=float, default=None, metavar="S",
                    help="wait this long for the service at start (0 = forever) and after it goes "
                         "away; default: no service at start is an error (exit 1), one that goes "
@@ -34,11 +45,38 @@ def add_parser(sub):
     return p
 
 
+@contextlib.contextmanager
+def _keys():
+    """Single key presses from a terminal's stdin (a function returning one key or "");
+    on a pipe, a function that never has a key."""
+    if not sys.stdin.isatty():
+        yield lambda: ""
+        return
+    import termios
+    import tty
+    fd = sys.stdin.fileno()
+    old = termios.tcgetattr(fd)
+    tty.setcbreak(fd)
+
+    def key() -> str:
+        ready, _, _ = select.select([fd], [], [], 0)
+        return os.read(fd, 1).decode(errors="replace") if ready else ""
+    try:
+        yield key
+    finally:
+        termios.tcsetattr(fd, termios.TCSADRAIN, old)
+
+
 def run(args) -> int:
     from tools.attach import ServiceLink, no_service
-    from tools.checkout.view import monitor_lines
+    from tools.checkout.view import monitor_data, monitor_lines, monitor_screen
+    from tools.cli.output import print_json, usage_error
     from bit3.buffer import Bit3Error
     from pfma.errors import PfmaError
+    if args.json and not args.once:
+        return usage_error("monitor", "--json prints one snapshot: give it with --once")
+    if args.interval <= 0:
+        return usage_error("monitor", f"--interval must be positive, not {args.interval}")
     if args.wait is None:
         why = no_service(args.buffer)
         if why is not None:
@@ -46,16 +84,31 @@ def run(args) -> int:
     link = ServiceLink(args.buffer, args.rack, wait_s=30.0 if args.wait is None else args.wait)
     try:
         if args.once:
-            print("\n".join(monitor_lines(link.client(), args.filter)))
+            if args.json:
+                print_json(monitor_data(link.client(), args.filter))
+            else:
+                print("\n".join(monitor_lines(link.client(), args.filter)))
             return 0
-        while True:
-            try:
-                lines = monitor_lines(link.client(), args.filter)
-            except Bit3Error as err:  # e.g. a service killed in the middle of a write
-                link.invalidate(str(err))
-                continue
-            sys.stdout.write(CLEAR + "\n".join(lines) + "\n")
-            sys.stdout.flush()
-            time.sleep(args.interval)
+        page, pages, t_page = 0, 1, time.monotonic()
+        with _keys() as key:
+            while True:
+                k = key()
+                if k in ("q", "Q"):
+                    return 0
+                now = time.monotonic()
+                if k in (" ", "n") or (args.page_s > 0 and now - t_page >= args.page_s):
+                    page, t_page = (page + 1) % pages, now
+                elif k == "p":
+                    page, t_page = (page - 1) % pages, now
+                size = shutil.get_terminal_size((80, 24))
+                try:
+                    d = monitor_data(link.client(), args.filter)
+                except Bit3Error as err:  # e.g. a service killed in the middle of a write
+                    link.invalidate(str(err))
+                    continue
+                lines, pages = monitor_screen(d, page, size.lines, min(size.columns, 80) if size.columns else 80)
+                sys.stdout.write(CLEAR + "\n".join(lines))
+                sys.stdout.flush()
+                time.sleep(args.interval)
     finally:
         link.close()

@@ -55,6 +55,7 @@ def add_parser(sub):
     p.add_argument("--flush-s", type=float, default=0.25, help="close a chunk at least this often (s)")
     p.add_argument("--wait", type=float, default=None, help="give up when no service comes within S seconds")
     p.add_argument("--quiet", action="store_true", help="only the final summary")
+    p.add_argument("--json", action="store_true", help="info: one JSON document (topics, counts, recorder summary)")
     return p
 
 
@@ -100,18 +101,28 @@ def _info(args) -> int:
     s = check_mcap(path)  # raises naming the file: missing, not an MCAP, damaged, unfinished
     st = s.statistics
     dur = (st.message_end_time - st.message_start_time) / 1e9
-    print(f"{path}: {st.message_count} messages, {st.chunk_count} chunks, {dur:.3f} s, "
-          f"{st.attachment_count} attachments, {st.metadata_count} metadata")
+    topics = []
     for cid, n in sorted(st.channel_message_counts.items()):
         ch = s.channels[cid]
-        print(f"  {ch.topic:22} {n:9d}  {n / dur if dur > 0 else 0:8.1f}/s  {ch.message_encoding}")
+        topics.append({"topic": ch.topic, "messages": n, "rate_hz": n / dur if dur > 0 else 0.0,
+                       "encoding": ch.message_encoding})
     with mcap_errors(path):
         meta = read_metadata(path)
     summ = meta.get("pfma.recorder.summary")
+    keys = ("frames_recorded", "recorder_missed", "service_skipped", "frame_gaps",
+            "window_service_frames", "window_recorded", "window_service_dropped",
+            "messages_missed", "sessions", "lossless")
+    if args.json:
+        from tools.cli.output import print_json
+        print_json({"file": path, "messages": st.message_count, "chunks": st.chunk_count, "duration_s": dur,
+                    "attachments": st.attachment_count, "metadata": st.metadata_count, "topics": topics,
+                    "recorder": {k: summ.get(k) for k in keys} if summ else None})
+        return 0
+    print(f"{path}: {st.message_count} messages, {st.chunk_count} chunks, {dur:.3f} s, "
+          f"{st.attachment_count} attachments, {st.metadata_count} metadata")
+    for t in topics:
+        print(f"  {t['topic']:22} {t['messages']:9d}  {t['rate_hz']:8.1f}/s  {t['encoding']}")
     if summ:
-        keys = ("frames_recorded", "recorder_missed", "service_skipped", "frame_gaps",
-                "window_service_frames", "window_recorded", "window_service_dropped",
-                "messages_missed", "sessions", "lossless")
         print("  recorder: " + ", ".join(f"{k}={summ.get(k)}" for k in keys))
     return 0
 

@@ -18,6 +18,7 @@ import sys
 from drivers.bus import open_bus
 from drivers.registers import BoardDescription, Register
 from tools.cli import add_bus_arguments
+from tools.cli.output import add_json_flag, print_json
 from pfma.errors import BusError
 from pfma.rack import BoardConfig, RackConfig, board_description, load_rack
 
@@ -146,6 +147,10 @@ def cmd_read(args, rack: RackConfig) -> int:
         raise with_rack_context(err, rack) from err
     finally:
         close_bus(bus)
+    if args.json:
+        print_json({"addr": args.addr, "width": width, "where": where, "value": value,
+                    "fields": {f.name: f.get(value) for f in reg.fields} if reg is not None and reg.fields else {}})
+        return 0
     print(f"read{width} 0x{args.addr:04X} {where}: {_fmt(value, width)}{_fields(reg, value)}")
     return 0
 
@@ -184,7 +189,9 @@ def cmd_dump(args, rack: RackConfig) -> int:
         known = ", ".join(x.name for x in rack.boards)
         raise UsageError(f"no board named {args.board!r} in rack {rack.name}; known: {known}") from None
     desc = board_description(b.kind)
-    print(f"{b.name}: {desc.title} at A16 0x{b.base:04X} (window 0x{desc.window:X}, {desc.byte_lanes} lanes)")
+    rows: list[dict] = []
+    if not args.json:
+        print(f"{b.name}: {desc.title} at A16 0x{b.base:04X} (window 0x{desc.window:X}, {desc.byte_lanes} lanes)")
     failures = 0
     bus = open_cli_bus(args.bus, rack)
     try:
@@ -198,12 +205,21 @@ def cmd_dump(args, rack: RackConfig) -> int:
                     value = bus.read8(addr) if reg.width == 8 else bus.read16(addr)
                 except BusError as err:
                     failures += 1
-                    print(f"  0x{addr:04X} {name:<12} read{reg.width:<2} --  {err.reason}")
+                    rows.append({"addr": addr, "register": name, "width": reg.width, "value": None,
+                                 "error": err.reason})
+                    if not args.json:
+                        print(f"  0x{addr:04X} {name:<12} read{reg.width:<2} --  {err.reason}")
                     continue
-                print(f"  0x{addr:04X} {name:<12} read{reg.width:<2} {_fmt(value, reg.width)}"
+                rows.append({"addr": addr, "register": name, "width": reg.width, "value": value,
+                             "fields": {f.name: f.get(value) for f in reg.fields}})
+                if not args.json:
+                    print(f"  0x{addr:04X} {name:<12} read{reg.width:<2} {_fmt(value, reg.width)}"
                       f"{_fields(reg, value)}")
     finally:
         close_bus(bus)
+    if args.json:
+        print_json({"board": b.name, "kind": b.kind, "base": b.base, "title": desc.title, "registers": rows,
+                    "failures": failures})
     return 1 if failures else 0
 
 
@@ -218,6 +234,7 @@ def add_parser(sub):
     r.add_argument("--width", type=parse_width, default=None,
                    help="8 or 16 (default: the register table's width, else 16 even / 8 odd)")
     add_bus_arguments(r)
+    add_json_flag(r)
     r.set_defaults(_reg=cmd_read)
 
     w = verbs.add_parser("write", help="write one register (needs --yes-i-know)", epilog=FAKE_NOTE)
@@ -233,6 +250,7 @@ def add_parser(sub):
     d = verbs.add_parser("dump", help="read every readable register of one board", epilog=FAKE_NOTE)
     d.add_argument("board", metavar="BOARD", help="board name from the rack file, e.g. rtd1")
     add_bus_arguments(d)
+    add_json_flag(d)
     d.set_defaults(_reg=cmd_dump)
     return p
 

@@ -40,6 +40,8 @@ def add_parser(sub):
     p.add_argument("--timeout", type=float, default=None, help="give up when no trigger within S seconds")
     p.add_argument("--open", metavar="CAPTURE.mcap", default=None, help="print a saved capture")
     p.add_argument("--rows", type=int, default=20, help="--open: table rows (decimated)")
+    p.add_argument("--json", action="store_true",
+                   help="--open: the whole capture (every sample) as one JSON document")
     return p
 
 
@@ -50,8 +52,19 @@ def run(args) -> int:
         check_mcap(args.open)
         with mcap_errors(args.open):
             cap = load(args.open)
+        if args.json:
+            from tools.cli.output import print_json
+            print_json({"file": args.open, "signals": cap.signals, "units": cap.units, "trigger": cap.trigger,
+                        "trigger_t_s": cap.trigger_t_s, "trigger_frame": cap.trigger_frame,
+                        "pre_s": cap.pre_s, "post_s": cap.post_s, "samples": len(cap.t_s),
+                        "t_s": cap.t_s, "frames": cap.frames,
+                        "values": {sig: [row[j] for row in cap.values] for j, sig in enumerate(cap.signals)}})
+            return 0
         print(render(cap, rows=args.rows))
         return 0
+    if args.json:
+        print("pfma scope: --json prints a saved capture: give it with --open CAPTURE.mcap", file=sys.stderr)
+        return 2
     if not args.signals:
         print("pfma scope: name at least one signal (or --open CAPTURE.mcap)", file=sys.stderr)
         return 2

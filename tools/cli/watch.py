@@ -2,7 +2,8 @@
 
 Signals are rack channels (``elbow_pitch_angle``), boards, links, hand controllers
 (``cae``) or input-area fields (``ft_force_n``, ``ft_force_n[2]``, ``service_state``).
-``--rate`` lines per second (default 30), ``--count`` lines then exit. Waits for
+``--rate`` lines per second (default 30), ``--count`` lines then exit; ``--json`` prints
+each sample as one JSON object per line (JSON lines: ``t_s``, ``frame``, ``values``, ``units``). Waits for
 the service with a message every few seconds (``--wait``) and reattaches when it
 restarts; with no live service on the buffer at start (and no ``--wait``) it says so
 and exits 1.
@@ -22,6 +23,7 @@ def add_parser(sub):
     p.add_argument("--rack", default=None, help="rack TOML the service runs (default: the IRSS rack)")
     p.add_argument("--rate", type=float, default=30.0, help="lines per second (default 30)")
     p.add_argument("--count", type=int, default=0, help="stop after N lines (default: until Ctrl-C)")
+    p.add_argument("--json", action="store_true", help="one JSON object per sample (JSON lines)")
     p.add_argument("--wait", type=float, default=None, metavar="S",
                    help="wait this long for the service at start (0 = forever) and after it goes "
                         "away; default: no service at start is an error (exit 1), one that goes "
@@ -31,11 +33,12 @@ def add_parser(sub):
 
 def run(args) -> int:
     from tools.attach import ServiceLink, no_service
-    from tools.checkout.view import resolve_signals, watch_line
+    from tools.checkout.view import resolve_signals, watch_line, watch_record
+    from tools.cli.output import print_json
     from bit3.buffer import Bit3Error
-    from pfma.errors import ConfigError
+    from tools.cli.output import usage_error
     if args.rate <= 0:
-        raise ConfigError(f"--rate must be positive, not {args.rate}")
+        return usage_error("watch", f"--rate must be positive, not {args.rate}")
     from pfma.errors import PfmaError
     if args.wait is None:
         why = no_service(args.buffer)
@@ -51,11 +54,14 @@ def run(args) -> int:
         while not args.count or n < args.count:
             client = link.client()
             try:
-                line = watch_line(client.read_inputs(), signals)
+                snap = client.read_inputs()
+                if args.json:
+                    print_json(watch_record(snap, signals), line=True)
+                else:
+                    print(watch_line(snap, signals), flush=True)
             except Bit3Error as err:  # e.g. a service killed in the middle of a write
                 link.invalidate(str(err))
                 continue
-            print(line, flush=True)
             n += 1
             t_next += period
             delay = t_next - time.monotonic()

@@ -32,15 +32,24 @@ def test_monitor_once_shows_every_channel_with_units_status_and_links(rig, capsy
     assert "messages:" in out and "service started" in out
 
 
+def _row_names(out: str) -> list[str]:
+    """The channel names of a monitor snapshot: the rows between the column header and the
+    blank line before the messages."""
+    lines = out.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("name ")) + 1
+    rows = lines[start:]
+    rows = rows[:rows.index("")] if "" in rows else rows
+    return [r.split()[0] for r in rows]
+
+
 def test_monitor_filter(rig, capsys):
     rig.run(0.2)
     assert main(["monitor", "--buffer", rig.name, "--once", "--filter", "wrist"]) == 0
-    rows = [line for line in capsys.readouterr().out.splitlines()[5:] if line and not line.startswith(" ")]
-    names = [r.split()[0] for r in rows if not r.startswith("messages")]
+    names = _row_names(capsys.readouterr().out)
     assert names and all("wrist" in n for n in names)
     assert "wrist_roll_angle" in names and "shoulder_yaw_angle" not in names
     assert main(["monitor", "--buffer", rig.name, "--once", "--filter", "*_motor_current"]) == 0
-    names = [r.split()[0] for r in capsys.readouterr().out.splitlines()[5:] if r and r[0] != " "]
+    names = _row_names(capsys.readouterr().out)
     assert "elbow_pitch_motor_current" in names and "elbow_pitch_rate" not in names
 
 
