@@ -179,6 +179,8 @@ class IoService:
         self.ring = None
         self.stats_writer = buffer.writer("stats")
         self.commands = buffer.reader("commands")
+        #: views of the command record's fields (the record is the reader's, refreshed in place)
+        self._cv = {name: self.commands.record[name] for name in self.commands.record.dtype.names or ()}
         self.queue = buffer.queue("service_messages")
         self.guard = OutputGuard(clock, watchdog_s, post=self._post_guard)
         self._hb_ok: int | None = None  # heartbeat of the last command written by the claim holder
@@ -580,7 +582,7 @@ class IoService:
         ``_hb_ok``: a foreign write never feeds the watchdog."""
         if not self.commands.try_read():
             return CMD_ABSENT
-        c = self.commands.record
+        c = self._cv
         pid, token = self.buf.owner_pid_token("commands")
         body_pid = int(c["writer_pid"])
         if pid <= 0 or body_pid == 0:  # nobody holds the claim, or the holder has not written yet
@@ -618,21 +620,21 @@ class IoService:
         as a message giving field, value and limit; None when every value is acceptable."""
         isfinite = math.isfinite
         dac = self.dac
-        for ch, e in enumerate(eng):
-            lim = dac.refuse[ch]
+        neg_margin = -self.policy.limit_margin
+        for ch, (e, lim, is_lim) in enumerate(zip(eng, dac.refuse, dac.is_limit)):
             if not isfinite(e):
                 bad = True
-            elif dac.is_limit[ch]:
-                bad = e > lim or e < -self.policy.limit_margin * dac.limit[ch]
+            elif is_lim:
+                bad = e > lim or e < neg_margin * dac.limit[ch]
             else:
                 bad = e > lim or e < -lim
             if bad:
-                lo = "0.." if dac.is_limit[ch] else "+-"
+                lo = "0.." if is_lim else "+-"
                 return (f"refused {dac.names[ch]}={e:.4g} {dac.units[ch]}, "
                         f"limit {lo}{dac.limit[ch]:g}")
-        c = self.commands.record
+        c = self._cv
         for f in ("crl_reflect_force_n", "crl_reflect_torque_nm"):
-            if not all(isfinite(x) for x in c[f].tolist()):
+            if not all(map(isfinite, c[f].tolist())):
                 return f"refused {f} not finite"
         return None
 
@@ -648,7 +650,7 @@ class IoService:
         v = self._v
         dac = self.dac
         status = self._fetch_command()
-        c = self.commands.record
+        c = self._cv
         refusal = None
         hb_now = int(c["heartbeat"])
         new_write = self._hb_seen is not None and hb_now != self._hb_seen

@@ -91,6 +91,10 @@ def check_words(addr: int, words: Sequence[int]) -> list[int]:
     access (:func:`check_block` and :func:`check_value` for each, naming its address)."""
     values = list(words)
     check_block(addr, len(values), "write")
+    # the common case in one pass: every word a plain int in 0..0xFFFF (bool, numpy
+    # integers and bad words go word by word, for their conversion or their message)
+    if all(type(v) is int and 0 <= v <= 0xFFFF for v in values):
+        return values
     return [check_value(addr + 2 * i, v, 16) for i, v in enumerate(values)]
 
 

@@ -121,10 +121,20 @@ class Vmivme4100:
         """Write 16 voltages, channel 0 first (all validated before anything is written)."""
         if len(volts) != N_CHANNELS:
             raise ValueError(f"{self.name}: need {N_CHANNELS} voltages, got {len(volts)}")
-        code, codes = self.code_from_volts, []
+        # code_from_volts inlined for the in-range values (this runs every frame); anything
+        # else (out of range, NaN, not a number) goes through it for its clamp or its error
+        r, cpv = self.range_volts, self._counts_per_volt
+        codes = []
         for ch in range(N_CHANNELS):
             try:
-                codes.append(code(float(volts[ch]), clamp=clamp))
+                x = volts[ch]
+                if type(x) is not float:
+                    x = float(x)
+                if -r <= x <= r:
+                    c = int(round((x + r) * cpv))
+                    codes.append(_MAX_CODE if c > _MAX_CODE else c)
+                else:
+                    codes.append(self.code_from_volts(x, clamp=clamp))
             except ValueError as err:
                 raise ValueError(f"{err} (channel {ch}, A16 0x{self._addr[ch]:04X})") from None
         self._write_codes(codes)
