@@ -750,19 +750,20 @@ class IoService:
         decoded here as soon as its buffer can complete a record (``FtSensor.record_due``);
         the hand controller in its task. A drain within ``SERIAL_MIN_GAP_S`` of the previous
         one is skipped: the FIFO cannot have filled, and every drain costs register accesses."""
-        if self._mvme400 is None:
+        m = self._mvme400
+        if m is None:
             return
         t = self.clock.now()
         if t - self._last_drain < SERIAL_MIN_GAP_S:
             return
         self._last_drain = t
-        cfg, drv = self._mvme400
         try:
-            drv.poll()
+            m[1].poll()
         except PfmaError as err:
-            self._count_board_error(cfg.name, err)
-        ft = self.ft.ft
-        if ft is not None and self.ft.in_tick:
+            self._count_board_error(m[0].name, err)
+        fts = self.ft
+        ft = fts.ft
+        if ft is not None and fts.in_tick:
             try:
                 due = ft.record_due()  # a length check on the software buffer: no bus access
             except PfmaError:

@@ -33,6 +33,8 @@ from pfma.clock import Clock, MonotonicClock
 from pfma.errors import BoardError, BoardInitError, BusError, LinkError, PfmaTimeoutError
 
 CHANNEL_NAMES = ("A", "B")
+#: the RR1 bits that mark a received character as damaged
+_RR1_ERRORS = RR1_RX_OVERRUN | RR1_PARITY_ERROR | RR1_FRAMING_ERROR
 
 __all__ = ["Mvme400", "Mvme400Port", "LinkStats", "max_poll_interval_s"]
 
@@ -253,7 +255,11 @@ class Mvme400:
 
     def poll(self) -> int:
         """Drain the Rx FIFO of every port created so far; returns characters moved."""
-        return sum(p.poll() for p in self._ports.values() if p.is_open)
+        moved = 0
+        for p in self._ports.values():  # a plain loop: this runs thousands of times a second
+            if p.is_open:
+                moved += p.poll()
+        return moved
 
 
 class Mvme400Port:
@@ -331,20 +337,22 @@ class Mvme400Port:
         Per character: RR0 b0, then RR1 (errors), then the data register; an error in
         RR1 is counted and cleared with WR0 error reset (0x30).
         """
-        self._check_open()
+        if not self.is_open:
+            self._check_open()
         b = self.board
         ch = self.channel
+        buf, stats = self._buf, self.stats
         now = b.clock.now()
-        if self._last_poll_t is not None:
-            self.stats.max_poll_gap_s = max(self.stats.max_poll_gap_s, now - self._last_poll_t)
+        last = self._last_poll_t
+        if last is not None and now - last > stats.max_poll_gap_s:
+            stats.max_poll_gap_s = now - last
         self._last_poll_t = now
         moved = 0
         # the same register sequence as read_register/read_data/write_register, with the
         # bus calls bound once: this runs several times per frame in the service
         read8, write8 = b.bus.read8, b.bus.write8
         ctrl, data = b._ctrl[ch], b._data[ch]
-        errors = RR1_RX_OVERRUN | RR1_PARITY_ERROR | RR1_FRAMING_ERROR
-        buf, stats = self._buf, self.stats
+        errors = _RR1_ERRORS
         with b.lock:
             try:
                 # bounded: a stuck RR0 b0 cannot hang the caller
