@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import operator
 from dataclasses import dataclass, field
+from functools import cached_property
 
 
 @dataclass(frozen=True)
@@ -20,8 +21,9 @@ class Field:
     bits: int = 1  #: width in bits
     doc: str = ""
 
-    @property
+    @cached_property
     def mask(self) -> int:
+        """The field's bits in place (computed once: drivers and fakes test it per access)."""
         return ((1 << self.bits) - 1) << self.lsb
 
     def get(self, word: int) -> int:
