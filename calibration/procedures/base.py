@@ -34,6 +34,12 @@ class Context:
     options: dict = field(default_factory=dict)
 
     def progress(self, i: int, n: int, text: str) -> None:
+        """Step ``i`` of ``n``. An operator with a ``progress(i, n, text)`` method draws it
+        itself (``pfma calibrate`` on a terminal: a rich bar); otherwise one plain line."""
+        draw = getattr(self.operator, "progress", None)
+        if callable(draw):
+            draw(i, n, text)
+            return
         width = 20
         done = int(round(width * i / max(1, n)))
         self.operator.show(f"[{'#' * done}{'.' * (width - done)}] {i}/{n} {text}")

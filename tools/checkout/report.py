@@ -140,6 +140,30 @@ class Report:
         p.write_text(json.dumps(self.as_dict(), indent=1, allow_nan=False) + "\n")
         return p
 
+    def summary_table(self):
+        """The summary for a terminal (rich): counts, the failures as a table, the result.
+        The same facts as :meth:`summary_lines`, which a pipe gets."""
+        from rich import box
+        from rich.console import Group
+        from rich.table import Table
+        from rich.text import Text
+        parts: list = [Text(f"checkout of {self.target}: {self.count(PASS)} passed, {self.count(FAIL)} failed, "
+                            f"{self.count(SKIP)} skipped in {self.target_time_s:.1f} s "
+                            f"({self.duration_s:.1f} s wall)")]
+        if self.stopped_early:
+            parts.append(Text(f"stopped early: {self.stopped_early}", style="yellow"))
+        if self.failures():
+            t = Table(title="FAILED", title_justify="left", box=box.SIMPLE_HEAD, title_style="bold red")
+            for col in ("channel", "group", "check", "measured", "limits", "detail"):
+                t.add_column(col, overflow="fold")
+            for r in self.failures():
+                t.add_row(r.channel, r.group, r.check, f"{r.measured_text()} {r.units}".strip(),
+                          r.limits_text(), r.detail)
+            parts.append(t)
+        parts.append(Text("RESULT: PASS" if self.passed else "RESULT: FAIL",
+                          style="bold green" if self.passed else "bold red"))
+        return Group(*parts)
+
     def html(self) -> str:
         """One self-contained HTML page (inline CSS, no scripts, no external resources)."""
         e = html.escape

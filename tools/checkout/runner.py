@@ -81,12 +81,16 @@ class Checkout:
     :param only: groups to run (default: ``[checkout] groups``)
     :param interactive: prompt an operator on a real rack; False skips operator steps there
     :param say: where progress and prompts go (default ``print``)
+    :param progress: called with (groups started, groups, text) as each group starts and
+        once at the end (``pfma checkout`` draws a bar with it on a terminal)
     """
 
     def __init__(self, target: Target, config: CheckoutConfig, *, keep_going: bool = False,
                  only: list[str] | None = None, interactive: bool = True,
-                 say: Callable[[str], None] = print) -> None:
+                 say: Callable[[str], None] = print,
+                 progress: Callable[[int, int, str], None] | None = None) -> None:
         self.t = target
+        self.progress = progress
         self.cfg = config
         self.keep_going = keep_going
         groups = list(config.get("checkout", "groups"))
@@ -151,10 +155,14 @@ class Checkout:
             self.say(f"pfma checkout: {self.t.describe()}; groups: {', '.join(self.groups)}; "
                      f"tolerances: {self.cfg.source}")
             self._preflight()
-            for g in self.groups:
+            for k, g in enumerate(self.groups):
                 self._group = g
                 self.say(f"== {g}: {GROUP_TITLES[g]}")
+                if self.progress is not None:
+                    self.progress(k, len(self.groups), f"{g}: {GROUP_TITLES[g]}")
                 getattr(self, f"_group_{g}")()
+            if self.progress is not None:
+                self.progress(len(self.groups), len(self.groups), "done")
         except StopRun as stop:
             rep.stopped_early = str(stop)
         except ServiceLost as err:

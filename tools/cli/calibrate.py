@@ -72,14 +72,14 @@ def _show(cal, out) -> None:
     from calibration.files import calibration_hash
     print(f"calibration {cal.describe()}, created {cal.created}, {cal.data['software_version']}, "
           f"hash {calibration_hash(cal).hex()}", file=out)
-    print(f"{'signal':32s} {'dev':4s} {'units':6s} {'scale':>12s} {'offset':>12s}  method / date / operator / rms",
-          file=out)
+    from tools.cli.output import print_table, table
+    t = table("signal", "dev", "units", "scale>", "offset>", "method / date / operator / rms", file=out)
     for sig, e in cal.channels.items():
         p = e["provenance"]
         rms = p.get("rms_residual")
-        print(f"{sig:32s} {e['device']:4s} {e['units']:6s} {e['scale']:12.6g} {e['offset']:12.6g}  "
-              f"{p['method']} / {p['date']} / {p['operator']}" + (f" / {rms:.3g}" if rms is not None else ""),
-              file=out)
+        t.add_row(sig, e["device"], e["units"], f"{e['scale']:.6g}", f"{e['offset']:.6g}",
+                  f"{p['method']} / {p['date']} / {p['operator']}" + (f" / {rms:.3g}" if rms is not None else ""))
+    print_table(t, out)
     if cal.cae:
         print("CAE hand controller:", file=out)
         for axis, e in cal.cae.items():
@@ -131,10 +131,12 @@ def _file_verb(args, out) -> int:
                          "methods": sorted({e["provenance"]["method"] for e in c.channels.values()})}
                         for c in hist], file=out)
             return 0
+        from tools.cli.output import print_table, table
+        t = table("#", "created", "hash", "file", "methods", file=out)
         for c in hist:
             methods = sorted({e["provenance"]["method"] for e in c.channels.values()})
-            print(f"v{c.version:<4d} {c.created}  hash {c.hash().hex()}  {c.path}  methods: "
-                  f"{'; '.join(methods)}", file=out)
+            t.add_row(f"v{c.version}", c.created, c.hash().hex(), str(c.path), "; ".join(methods))
+        print_table(t, out)
         return 0
     # diff
     hist = files.history(path)
@@ -160,6 +162,7 @@ def _file_verb(args, out) -> int:
 
 
 def run(args, out=None) -> int:
+    from tools.cli.output import ProgressBars, is_terminal
     out = out or sys.stdout
     if args.what in FILE_VERBS:
         return _file_verb(args, out)
@@ -198,11 +201,30 @@ def run(args, out=None) -> int:
         operator = SimOperator(rig.world, out=out)
         operator.show = lambda text: print(text, file=out, flush=True)
         print("pfma calibrate: simulated rack, simulated time, simulated operator", file=out)
+    bars = None
+    if is_terminal(out):  # a bar on a terminal; a pipe keeps the plain [###...] lines
+        bars = ProgressBars(out)
+        _draw_progress(operator, bars)
     try:
         ctx = Context(session, operator, cal, rack, plot_dir, operator_name=args.operator, options=options)
         res = run_procedure(args.what, ctx, save_to=path, save_failed=args.save_failed)
     finally:
+        if bars is not None:
+            bars.close()
         session.close()
         if rig is not None:
             rig.close()
     return 0 if res.passed else 1
+
+
+def _draw_progress(operator, bars) -> None:
+    """The operator's progress becomes ``bars``; its lines print above the bar, and the bar
+    leaves the screen while the operator is asked something (the keyboard is read)."""
+    show, prompt = operator.show, operator.prompt
+    operator.progress = bars.update
+    operator.show = lambda text: bars.say(text) if bars._bar is not None else show(text)
+
+    def asked(step, text, **params):
+        bars.pause()
+        return prompt(step, text, **params)
+    operator.prompt = asked

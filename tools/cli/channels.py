@@ -1,10 +1,11 @@
-"""``pfma channels``: the rack's channel map (from the rack TOML)."""
+"""``pfma channels``: the rack's channel map (from the rack TOML): a table, or ``--json``."""
 
 from __future__ import annotations
 
 import json
 
 from pfma.rack import load_rack
+from tools.cli.output import print_table, table
 
 
 def add_parser(sub):
@@ -20,8 +21,9 @@ def run(args) -> int:
     if args.json:
         print(json.dumps([c.as_dict() for c in chans], indent=1))
         return 0
-    print(f"{'device':6} {'addr':6} {'ch':>2}  {'signal':32} {'dir':3} {'rate':>5}  {'units':6} label")
+    t = table("device", "addr", "ch>", "signal", "dir", "Hz>", "units", "label")
     for c in chans:
-        print(f"{c.device:6} 0x{c.address:04X} {c.channel:2d}  {c.signal:32} {c.direction:3} "
-              f"{c.rate_hz:5g}  {c.units:6} {c.label}{'  (spare)' if c.spare else ''}")
+        t.add_row(c.device, f"0x{c.address:04X}", str(c.channel), c.signal, c.direction, f"{c.rate_hz:g}",
+                  c.units, c.label + ("  (spare)" if c.spare else ""))
+    print_table(t)
     return 0

@@ -27,7 +27,9 @@ def add_parser(sub):
     p.add_argument("--non-interactive", action="store_true",
                    help="no operator prompts: on a real rack operator steps are skipped")
     p.add_argument("-k", "--keep-going", action="store_true", help="do not stop at the first failure")
-    p.add_argument("--json", metavar="FILE", help="write the JSON report")
+    p.add_argument("--json", metavar="FILE", nargs="?", const="-",
+                   help="write the JSON report to FILE; --json alone prints it on stdout as one "
+                        "JSON document (progress and the summary then go to stderr)")
     p.add_argument("--html", metavar="FILE", help="write the standalone HTML report")
     p.add_argument("--only", nargs="+", choices=GROUPS, metavar="GROUP",
                    help=f"run only these groups ({', '.join(GROUPS)})")
@@ -59,25 +61,38 @@ def run(args) -> int:
     else:
         target = make_sim_target(rack_path)
         interactive = False  # the stimulus acts for the operator
+    from tools.cli.output import ProgressBars, console, is_terminal, print_json
+    text = sys.stderr if args.json == "-" else sys.stdout  # stdout is the JSON document then
+    bars = ProgressBars(text) if is_terminal(text) else None
     try:
         for spec in args.sim_fault:
-            print(f"pfma checkout: injected fault: {target.inject_fault(spec)}")
+            print(f"pfma checkout: injected fault: {target.inject_fault(spec)}", file=text)
 
         def say(line: str) -> None:
             if not args.quiet or line.startswith(("FAIL", ">>>")):
-                print(line, flush=True)
+                if bars is not None:
+                    bars.say(line)
+                else:
+                    print(line, file=text, flush=True)
         chk = Checkout(target, cfg, keep_going=args.keep_going, only=args.only,
-                       interactive=interactive, say=say)
+                       interactive=interactive, say=say, progress=bars.update if bars is not None else None)
         report = chk.run()
     finally:
+        if bars is not None:
+            bars.close()
         target.close()
-    print()
-    for line in report.summary_lines():
-        print(line)
-    if args.json:
-        print(f"JSON report: {report.write_json(args.json)}")
+    print(file=text)
+    if bars is not None:
+        console(text).print(report.summary_table())
+    else:
+        for line in report.summary_lines():
+            print(line, file=text)
+    if args.json == "-":
+        print_json(report.as_dict())
+    elif args.json:
+        print(f"JSON report: {report.write_json(args.json)}", file=text)
     if args.html:
-        print(f"HTML report: {report.write_html(args.html)}")
+        print(f"HTML report: {report.write_html(args.html)}", file=text)
     if chk.interrupted:
         return 130
     return 0 if report.passed else 1

@@ -8,10 +8,12 @@ The rules, written once here (docs/checkout.md and docs/calibration.md point her
 - Assumption (named once): a non-finite number (NaN, inf: a rate not yet measured, an
   empty percentile) is written as JSON ``null``, so every document is strict JSON that any
   parser reads, not Python's ``NaN`` extension.
-- Tables go through :func:`table` / :func:`print_table`: rich draws a box on a terminal;
+- Tables go through :func:`table` / :func:`print_table`: rich writes the column names in bold on a terminal;
   on a pipe or a captured stream (scripts, tests, ``| grep``) the same table is written
-  without a box, without colour and at a fixed width of :data:`PLAIN_WIDTH` columns, so the
-  plain output is stable and each row stays on one line.
+  without colour, without trailing blanks and at a fixed width of
+  :data:`PLAIN_WIDTH` columns, so the plain output is stable and each row stays on one line.
+- Progress: :class:`ProgressBars` draws a bar on a terminal (calibration procedures, the
+  checkout); on a pipe the plain step lines are printed as before.
 - Exit codes: usage errors 2 (argparse, a bad option value), runtime failures 1 (no
   service, a failed read, a failed check); :data:`USAGE` and :data:`FAILURE`.
 """
@@ -104,30 +106,30 @@ def console(file: IO[str] | None = None, *, stderr: bool = False):
 
 def table(*columns: str, title: str | None = None, file: IO[str] | None = None):
     """A rich Table with these column headers (a header ending in ``>`` is right-aligned:
-    ``"rate>"``); boxed on a terminal, unboxed on a pipe."""
-    from rich import box
+    ``"rate>"``). On a narrow terminal the last
+    column (the free text: label, provenance) wraps; the others never do."""
     from rich.table import Table
-    t = Table(title=title, box=box.SIMPLE_HEAD if is_terminal(file) else None,
+    t = Table(title=title, box=None, header_style="bold" if is_terminal(file) else "",
               show_edge=False, pad_edge=False, title_justify="left", highlight=False)
-    for c in columns:
+    for k, c in enumerate(columns):
         right = c.endswith(">")
-        t.add_column(c.rstrip(">"), justify="right" if right else "left", no_wrap=True)
+        last = k == len(columns) - 1
+        t.add_column(c.rstrip(">"), justify="right" if right else "left", no_wrap=not last,
+                     overflow="fold" if last else "ellipsis")
     return t
 
 
 def print_table(t, file: IO[str] | None = None) -> None:
-    console(file).print(t, crop=False, overflow="ignore")
-
-
-def progress(file: IO[str] | None = None):
-    """A rich Progress bar on a terminal; None on a pipe (callers then print their plain
-    progress lines, unchanged)."""
+    """``t`` on ``file`` (default stdout); on a pipe without the trailing blanks rich pads
+    its rows with."""
     f = file or sys.stdout
-    if not is_terminal(f):
-        return None
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TimeElapsedColumn(), console=console(f), transient=False)
+    if is_terminal(f):
+        console(f).print(t, crop=False, overflow="ignore")
+        return
+    import io
+    buf = io.StringIO()
+    console(buf).print(t, crop=False, overflow="ignore")
+    f.write("".join(line.rstrip() + "\n" for line in buf.getvalue().splitlines()))
 
 
 def usage_error(verb: str, text: str) -> int:
@@ -135,3 +137,42 @@ def usage_error(verb: str, text: str) -> int:
     value argparse cannot check (``--rate 0``, ``--json`` without ``--once``)."""
     print(f"pfma {verb}: {text}", file=sys.stderr)
     return USAGE
+
+
+class ProgressBars:
+    """Progress of a long job (a calibration procedure, a checkout) as a rich bar on a
+    terminal. ``update(i, n, text)`` moves the bar (i of n done); ``say(text)`` prints a
+    line above it; ``pause()`` takes the bar off the screen before the program reads from
+    the keyboard (the next ``update`` draws a new one); ``close()`` at the end.
+
+    Only for a terminal: on a pipe callers keep their plain, line-per-step output.
+    """
+
+    def __init__(self, file: IO[str] | None = None) -> None:
+        self.file = file or sys.stdout
+        self.console = console(self.file)
+        self._bar: Any = None
+        self._task: Any = None
+
+    def update(self, i: int, n: int, text: str) -> None:
+        if self._bar is None:
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+            self._bar = Progress(BarColumn(), MofNCompleteColumn(), TextColumn("{task.description}"),
+                                 TimeElapsedColumn(), console=self.console, transient=False)
+            self._bar.start()
+            self._task = self._bar.add_task(text, total=max(1, n))
+        self._bar.update(self._task, completed=i, total=max(1, n), description=text)
+        if i >= n:
+            self.pause()
+
+    def say(self, text: str) -> None:
+        (self._bar.console if self._bar is not None else self.console).print(
+            text, markup=False, highlight=False, crop=False, overflow="ignore")
+
+    def pause(self) -> None:
+        if self._bar is not None:
+            self._bar.stop()
+            self._bar = self._task = None
+
+    def close(self) -> None:
+        self.pause()

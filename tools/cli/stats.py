@@ -118,11 +118,20 @@ def run(args) -> int:
     w, k = d["wake_latency_us"], d["work_us"]
     print(f"wake latency us: p50 {w['p50']:.0f}  p99 {w['p99']:.0f}  p99.9 {w['p999']:.0f}  max {w['max']:.0f}")
     print(f"frame work us:   p50 {k['p50']:.0f}  p99 {k['p99']:.0f}  max {k['max']:.0f}")
-    print("devices: " + ", ".join(f"{g} {v['rate_hz']:.1f} Hz ({v['errors']} errors)"
-                                  for g, v in d["devices"].items() if v["samples"]))
-    print("boards:  " + ", ".join(f"{b} status {v['status']} errors {v['errors']}" for b, v in d["boards"].items()))
-    print("links:   " + ", ".join(f"{n} {v['records']} records {v['bad']} bad {v['resyncs']} resyncs "
-                                  f"{v['rate_hz']:.1f}/s" for n, v in d["links"].items()))
+    from tools.cli.output import print_table, table
+    t = table("device", "rate Hz>", "samples>", "errors>", title="devices")
+    for g, v in d["devices"].items():
+        if v["samples"]:
+            t.add_row(g, f"{v['rate_hz']:.1f}", str(v["samples"]), str(v["errors"]))
+    print_table(t)
+    t = table("board", "status>", "errors>", title="boards")
+    for b, v in d["boards"].items():
+        t.add_row(b, str(v["status"]), str(v["errors"]))
+    print_table(t)
+    t = table("link", "records>", "bad>", "resyncs>", "rate /s>", title="links")
+    for n, v in d["links"].items():
+        t.add_row(n, str(v["records"]), str(v["bad"]), str(v["resyncs"]), f"{v['rate_hz']:.1f}")
+    print_table(t)
     cm = d["commands"]
     stall = (f"  last host stall {cm['last_host_stall_s'] * 1e3:.0f} ms at t={cm['last_host_stall_t_s']:.1f} s"
              if cm["last_host_stall_s"] > 0 else "")

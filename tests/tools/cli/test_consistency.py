@@ -8,6 +8,7 @@ Verbs run in-process through :func:`tools.cli.main` against the simulated-time r
 
 from __future__ import annotations
 
+import io
 import json
 import uuid
 from dataclasses import dataclass
@@ -75,6 +76,7 @@ VERBS = [
     Verb("calibrate-show", ("calibrate", "show", "--file", "{cal}", "--json"), check="calibration"),
     Verb("calibrate-history", ("calibrate", "history", "--file", "{cal}", "--json")),
     Verb("calibrate-diff", ("calibrate", "diff", "--file", "{cal}", "--json"), check="changes"),
+    Verb("checkout", ("checkout", "--non-interactive", "--only", "adc", "--json"), check="results"),
     Verb("ft", ("ft", "--port", "fake", "--count", "2", "--interval", "0.01", "--json"), lines=True,
          check="type"),
     Verb("hand", ("hand", "--source", "hid", "--bus", "fake", "--count", "2", "--rate-hz", "100", "--json"),
@@ -233,3 +235,37 @@ def test_every_verb_that_reads_has_json():
     missing = [" ".join(v) for v in reading if "--json" not in _options(v)]
     assert not missing, missing
 
+
+
+class _Terminal(io.StringIO):
+    """A captured stream that says it is a terminal (rich then draws bars and colours)."""
+
+    def isatty(self) -> bool:
+        return True
+
+
+@pytest.mark.parametrize("terminal", [False, True])
+def test_calibration_progress_is_a_bar_on_a_terminal_and_plain_lines_on_a_pipe(tmp_path, terminal):
+    from tools.cli import calibrate
+    args = build_parser().parse_args(["calibrate", "current-offsets", "--file", str(tmp_path / "c.json"),
+                                      "--non-interactive"])
+    out = _Terminal() if terminal else io.StringIO()
+    assert calibrate.run(args, out=out) == 0
+    text = out.getvalue()
+    assert "PASSED" in text and "saved" in text  # the procedure's own lines either way
+    if terminal:
+        assert "\u2501" in text and "[####" not in text  # rich's bar, not the plain one
+    else:
+        assert "[####################] " in text and "\x1b[" not in text  # plain and uncoloured
+
+
+def test_tables_on_a_pipe_are_plain_one_row_per_line(capsys):
+    assert main(["channels"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    from pfma.rack import load_rack
+    chans = load_rack("fake").channels()
+    assert len(lines) == 1 + len(chans)  # a header and one line per channel: nothing wraps
+    assert lines[0].split()[:4] == ["device", "addr", "ch", "signal"]
+    assert all(line == line.rstrip() and "\x1b[" not in line for line in lines)
+    for line, c in zip(lines[1:], chans):
+        assert line.split()[3] == c.signal
