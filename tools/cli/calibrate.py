@@ -175,10 +175,6 @@ def run(args, out=None) -> int:
     from calibration.session import ConsoleOperator, LiveSession, SimSession
     rack = _rack(args)
     path = Path(args.file)
-    if not path.exists():  # version 0 = the nominal scales, so history starts there
-        files.save_calibration(files.nominal_calibration(rack, args.operator), path, rack=rack)
-        print(f"pfma calibrate: created {path} (version 0, nominal scales)", file=out)
-    cal = files.load_calibration(path, rack)
     options = {}
     if args.joints:
         options["joints"] = [j.strip() for j in args.joints.split(",") if j.strip()]
@@ -189,6 +185,11 @@ def run(args, out=None) -> int:
             options["index_rad"] = {k.strip(): float(v) for k, v in (kv.split("=") for kv in args.index.split(","))}
         except ValueError:
             raise CalibrationError(f"--index {args.index!r}: expected JOINT=RAD,... e.g. wrist_roll=0.5") from None
+    _check_names(rack, options)  # before anything is written
+    if not path.exists():  # version 0 = the nominal scales, so history starts there
+        files.save_calibration(files.nominal_calibration(rack, args.operator), path, rack=rack)
+        print(f"pfma calibrate: created {path} (version 0, nominal scales)", file=out)
+    cal = files.load_calibration(path, rack)
     plot_dir = Path(args.plots) if args.plots else path.parent / (path.stem + "-plots")
     rig = None
     if args.buffer:
@@ -215,6 +216,22 @@ def run(args, out=None) -> int:
         if rig is not None:
             rig.close()
     return 0 if res.passed else 1
+
+
+def _check_names(rack, options: dict) -> None:
+    """Refuse an unknown ``--signals`` or ``--joints`` name with the closest known ones
+    (one message, exit 1), before anything runs."""
+    from pfma.errors import did_you_mean
+    signals = [c.signal for c in rack.channels()]
+    joints = sorted({c.joint for c in rack.channels() if c.joint})
+    for s in options.get("signals", []):
+        if s not in signals:
+            raise CalibrationError(f"--signals: no channel named {s!r} in rack {rack.name}"
+                                   + (did_you_mean(s, signals) or "; `pfma channels` lists them"))
+    for j in options.get("joints", []):
+        if j not in joints:
+            raise CalibrationError(f"--joints: no joint named {j!r} in rack {rack.name}"
+                                   + (did_you_mean(j, joints) or f"; joints: {', '.join(joints)}"))
 
 
 def _draw_progress(operator, bars) -> None:

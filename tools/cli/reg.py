@@ -186,8 +186,10 @@ def cmd_dump(args, rack: RackConfig) -> int:
     try:
         b = rack.board(args.board)
     except KeyError:
-        known = ", ".join(x.name for x in rack.boards)
-        raise UsageError(f"no board named {args.board!r} in rack {rack.name}; known: {known}") from None
+        from pfma.errors import did_you_mean
+        names = [x.name for x in rack.boards]
+        raise UsageError(f"no board named {args.board!r} in rack {rack.name}"
+                         + (did_you_mean(args.board, names) or f"; known: {', '.join(names)}")) from None
     desc = board_description(b.kind)
     rows: list[dict] = []
     if not args.json:

@@ -269,3 +269,22 @@ def test_tables_on_a_pipe_are_plain_one_row_per_line(capsys):
     assert all(line == line.rstrip() and "\x1b[" not in line for line in lines)
     for line, c in zip(lines[1:], chans):
         assert line.split()[3] == c.signal
+
+
+@pytest.mark.parametrize("argv, typo, meant, code", [
+    (("read", "--bus", "fake", "elbow_pitch_angel"), "elbow_pitch_angel", "elbow_pitch_angle", 1),
+    (("watch", "elbow_pitch_angel", "--buffer", "{buffer}", "--count", "1"), "elbow_pitch_angel",
+     "elbow_pitch_angle", 1),
+    (("scope", "wrist_roll_rat"), "wrist_roll_rat", "wrist_roll_rate", 1),
+    (("calibrate", "adc", "--signals", "cae_up_dwn", "--file", "{tmp}/c.json"), "cae_up_dwn", "cae_up_down", 1),
+    (("calibrate", "tach", "--joints", "elbow_pich", "--file", "{tmp}/c.json"), "elbow_pich", "elbow_pitch", 1),
+    (("reg", "dump", "rtd3"), "rtd3", "rtd1", 2),
+])
+def test_every_name_a_user_types_gets_did_you_mean(argv, typo, meant, code, world, tmp_path, capsys):
+    w = dict(world, tmp=tmp_path)
+    assert main(_fill(argv, w)) == code
+    err = capsys.readouterr().err
+    lines = err.splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert typo in lines[0] and "did you mean" in lines[0] and meant in lines[0]
+    assert not (tmp_path / "c.json").exists()  # refused before anything was written
