@@ -124,9 +124,10 @@ def run(args) -> int:
         if v["samples"]:
             t.add_row(g, f"{v['rate_hz']:.1f}", str(v["samples"]), str(v["errors"]))
     print_table(t)
-    t = table("board", "status>", "errors>", title="boards")
+    from tools.checkout.view import BOARD_BITS, bits
+    t = table("board", "status", "errors>", title="boards")
     for b, v in d["boards"].items():
-        t.add_row(b, str(v["status"]), str(v["errors"]))
+        t.add_row(b, f"{v['status']} {bits(v['status'], BOARD_BITS)}", str(v["errors"]))
     print_table(t)
     t = table("link", "records>", "bad>", "resyncs>", "rate /s>", title="links")
     for n, v in d["links"].items():
