@@ -62,7 +62,7 @@ RUN_ALONE = (
     f"mkdir -p out && {PFMA} layout --json > out/layout.json",
     f"{PFMA} ft --port fake --stream --count 20",
     f"{PFMA} hand --source cae --count 20",
-    f"{PFMA} hand --source crl --port fake --count 20",
+    f"{PFMA} hand --source crl --bus fake --count 20",
     "mkdir -p out",
     f"{PFMA} checkout --rack fake --non-interactive --json out/checkout.json --html out/checkout.html",
     f"{PFMA} calibrate adc --rack fake --file out/pfma-cal.json --non-interactive",
