@@ -54,6 +54,7 @@ def available() -> str | None:
 
 def figures(seconds: float = 5.0) -> dict:
     """The service over a loopback gateway for ``seconds`` (after it publishes frames)."""
+    from bench.independent_reader import IndependentReader, measure
     from bit3.buffer import Bit3Buffer
     from bit3.client import Client
 
@@ -95,7 +96,13 @@ def figures(seconds: float = 5.0) -> dict:
         st0 = client.read_stats()  # the client's preallocated copy: the counters are taken now
         n0 = {k: int(st0[k]) for k in ("frames", "overruns", "dropped_frames")}
         cpu_s0, cpu_g0, t0 = _cpu_s(svc.pid), _cpu_s(gw.pid), time.monotonic()
-        time.sleep(seconds)
+        # meanwhile, the refresh rates as a reader that shares no code with the project sees
+        # them (bench/independent_reader.py: stdlib only, layout from the published JSON)
+        reader = IndependentReader(client.layout.as_json(), f"/dev/shm/{name}")
+        try:
+            seen = measure(reader, lambda: time.sleep(0.0002), seconds)
+        finally:
+            reader.close()
         wall = time.monotonic() - t0
         cpu_s, cpu_g = _cpu_s(svc.pid) - cpu_s0, _cpu_s(gw.pid) - cpu_g0
         st = client.read_stats()
@@ -105,6 +112,7 @@ def figures(seconds: float = 5.0) -> dict:
         return {"seconds": round(wall, 2), "url": url,
                 "frame_rate_hz": round(1.0 / period, 2) if period > 0 else None,
                 "rates_hz": {k: round(v, 2) for k, v in rates.items()},
+                "independent_reader_hz": {g: round(seen[f"t_{g}_s"], 2) for g in ("rtd", "adc", "dac")},
                 "work_p50_us": float(st.work_p50_us), "work_p99_us": float(st.work_p99_us),
                 "frames": int(st.frames) - n0["frames"], "overruns": int(st.overruns) - n0["overruns"],
                 "dropped": int(st.dropped_frames) - n0["dropped_frames"],

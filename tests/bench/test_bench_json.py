@@ -37,6 +37,9 @@ def test_bench_json_prints_one_object_with_every_benchmark():
         assert _positive(mb["frame_rate_hz"]) and _positive(mb["work_p50_us"]) and _positive(mb["work_p99_us"])
         assert set(mb["rates_hz"]) == {"rtd", "adc", "dac"}
         assert all(_positive(v) for v in mb["rates_hz"].values())
+        # the independent (stdlib-only) reader saw the inputs refresh (no speed asserted)
+        assert set(mb["independent_reader_hz"]) == {"rtd", "adc", "dac"}
+        assert all(_positive(v) for v in mb["independent_reader_hz"].values())
         assert mb["url"].startswith("modbus://127.0.0.1:")  # loopback only
     assert out.returncode == (1 if rep["stack"]["errors"] else 0)
 
