@@ -145,10 +145,10 @@ class Vmivme4100:
 
         Fail safe on a bus error: the words before the failing one went out (the block
         contract), so the channels after it are written as a further block, and so on; every
-        channel that answers gets its code, then the first error is raised. A block that
-        fails at its very first word is not retried word by word: nothing of it reached
-        the board, so the bus or the board is gone and sixteen more attempts (over a
-        gateway that stopped answering, sixteen more timeouts) would change nothing.
+        channel that answers gets its code, then the first error is raised. Only when no
+        word of this write has reached the board yet does a failure end it: the bus or the
+        board is gone, and sixteen more attempts (over a gateway that stopped answering,
+        sixteen more timeouts) would change nothing.
         """
         first: BusError | None = None
         written = [False] * N_CHANNELS
@@ -162,7 +162,7 @@ class Vmivme4100:
                     failed = start
                 written[start:failed] = [True] * (failed - start)
                 first = first or self._bus_error(err, failed)
-                if failed == start:
+                if not any(written):
                     break
                 start = failed + 1
             else:

@@ -153,12 +153,12 @@ def test_bus_error_names_board_register_address(rig):
 class _FailOne:
     """A bus that loses writes to one address (a flaky slot), else forwards."""
 
-    def __init__(self, bus, bad: int) -> None:
-        self.bus, self.bad = bus, bad
+    def __init__(self, bus, *bad: int) -> None:
+        self.bus, self.bad = bus, set(bad)
         self.read16, self.read8, self.write8 = bus.read16, bus.read8, bus.write8
 
     def write16(self, addr: int, value: int) -> None:
-        if addr == self.bad:
+        if addr in self.bad:
             raise BusError(addr, 16, "write")
         self.bus.write16(addr, value)
 
@@ -179,6 +179,18 @@ def test_disable_is_fail_safe_on_a_bus_error(rig):
         flaky.disable_outputs()
     assert not fake.outputs_connected  # the control word still went out
     assert np.all(np.delete(fake.codes, 3) == 0x800)
+
+
+def test_zeroing_reaches_every_answering_channel_past_two_adjacent_bad_slots(rig):
+    """Once the board has answered, a failing word is skipped and the write goes on: two
+    lost slots in a row must not leave the channels after them at their old voltage."""
+    rack, fake, dac = rig
+    dac.enable_outputs()
+    dac.write_volts_all(np.full(16, 3.0))
+    flaky = Vmivme4100(_FailOne(rack, BASE + 6, BASE + 8), BASE, name="dac")
+    with pytest.raises(BusError, match=r"dac DAC\[3\] at A16 0xD006"):
+        flaky.zero_all()
+    assert np.all(np.delete(fake.codes, [3, 4]) == 0x800)
 
 
 def test_stuck_latch_bit_shows_on_output(rig):
