@@ -447,7 +447,7 @@ class IoService:
         if silent <= BUS_LOST_S:
             return
         self.bus_lost = self._bus_silence(silent) + "; outputs made safe, service stopping"
-        self.post(Severity.ERROR, 152, f"bus lost: {self.bus_name}"[:56])
+        self.post(Severity.ERROR, 152, f"bus lost: {self.bus_name}")  # the queue cuts at 56 bytes
         self.fault_code = FAULT_DAC if self.fault_code == FAULT_NONE else self.fault_code
         # outputs: the DAC write of this frame has already failed (and tripped the guard);
         # stop() disables them once more on the way out; no third attempt in this frame
@@ -464,7 +464,7 @@ class IoService:
         silent = self.clock.now() - self._bus_ok_t
         if self.bus_lost is None and self._bus_failed and silent > self.watchdog_s:
             self.bus_lost = self._bus_silence(silent) + " when the run ended; outputs made safe"
-            self.post(Severity.ERROR, 152, f"bus lost: {self.bus_name}"[:56])
+            self.post(Severity.ERROR, 152, f"bus lost: {self.bus_name}")  # the queue cuts at 56 bytes
 
     # ------------------------------------------------------------------ what the bus can keep
     def measure_bus(self, repeats: int = BUS_PROBE_REPEATS) -> tuple[dict[str, float], float]:
