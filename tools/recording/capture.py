@@ -17,8 +17,15 @@ if TYPE_CHECKING:
     from tools.recording.writer import Recorder
 
 #: idle polls of the capture thread between two looks whether its frame ring was replaced
-#: (one ``stat``; 50 polls of 0.2 ms: about every 10 ms while no frame comes)
+#: (one ``stat``; about every 10 ms while no frame comes without a ring, every 0.5 s with one)
 RING_CHECK_POLLS = 50
+#: sleep between polls without a frame ring: the single inputs area keeps only the newest
+#: frame, so every publish must be caught (a 1 kHz frame is 1 ms)
+AREA_POLL_S = 0.0002
+#: sleep between polls of the frame ring: the ring keeps n_slots - 1 frames (255: 0.8 s at
+#: 320 Hz), so a poll every 10 ms loses nothing and wakes the process ~100 times a second
+#: instead of ~5000 (measured: the recorder's CPU is mostly its wake-ups; docs/deployment.md)
+RING_POLL_S = 0.01
 
 
 @dataclass(frozen=True)
@@ -40,7 +47,8 @@ class InputsCapture:
 
     :param client: the recorder's read-only client (this thread is the only one that
         reads its inputs area)
-    :param poll_s: sleep between polls when nothing new was published
+    :param poll_s: sleep between polls when nothing new was published (default
+        :data:`RING_POLL_S` with a ring, :data:`AREA_POLL_S` without)
     :param max_queue: snapshots held at most (about 2.6 s at 320 Hz); beyond it the newest
         are not queued, and the recorder counts them as missed
 
@@ -52,10 +60,10 @@ class InputsCapture:
     ring's frames.
     """
 
-    def __init__(self, client: Client, poll_s: float = 0.0002, max_queue: int = 8192,
+    def __init__(self, client: Client, poll_s: float | None = None, max_queue: int = 8192,
                  ring=None) -> None:
         self.client = client
-        self.poll_s = poll_s
+        self.poll_s = poll_s if poll_s is not None else (AREA_POLL_S if ring is None else RING_POLL_S)
         self.max_queue = max_queue
         #: an attached ``bit3.ring.FrameRing`` of the same layout: frames are taken
         #: from it (up to n_slots - 1 behind) instead of from the single inputs area;
