@@ -1,7 +1,11 @@
 """Fake F/T sensor node on a CAN bus (project-defined layout, see docs/ft-protocol.md).
 
 Runs as a python-can ``Listener`` under a ``Notifier`` on its own bus object (e.g. a
-second ``virtual`` bus on the same channel). Answers only the identifiers it owns.
+second ``virtual`` bus on the same channel), answering as frames arrive (a thread); or,
+without a Notifier, answers what is waiting on its bus when told to (:meth:`pump`): on
+python-can's ``virtual`` interface a send lands in the other buses' queues at once, so a
+simulated-time test that pumps the node between service frames is deterministic.
+Answers only the identifiers it owns.
 Reuses ``FtTransducer`` (load -> counts, bias stack) from ``fakes.ft_sensor``.
 """
 
@@ -50,6 +54,17 @@ class FakeCanFtNode(can.Listener):
         if self._notifier is not None:
             n, self._notifier = self._notifier, None
             n.stop()
+
+    def pump(self) -> int:
+        """Answer every frame waiting on the node's bus now (no Notifier: the caller's
+        thread); returns how many frames were read."""
+        if self._notifier is not None:
+            raise RuntimeError("pump() on a node whose Notifier reads the bus (one consumer per bus)")
+        n = 0
+        while (msg := self.bus.recv(timeout=0)) is not None:
+            n += 1
+            self.on_message_received(msg)
+        return n
 
     def __enter__(self) -> "FakeCanFtNode":
         return self.start()

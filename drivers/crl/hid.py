@@ -14,7 +14,16 @@ injectable, so tests run on :class:`fakes.hid.FakeHidBackend`.
 
 Unplug and re-plug: a read error marks the device disconnected (state invalid, fault,
 deadman released) and the driver retries enumerate/open every ``retry_s`` seconds of
-its clock, without restarting anything.
+its clock, without restarting anything. A caller that must not wait on enumerate/open
+(the I/O service's frame: hidapi's enumerate walks udev) calls ``update(connect=False)``
+and leaves the re-connection to another thread (:meth:`HidSpaceMouse.connect`, see
+``ioservice.tasks.HandTask``).
+
+Staleness: a SpaceMouse sends a report only when the puck or a button changes, so a
+quiet device is not a stale one; the data are current while the device is open, and
+stale (invalid, deadman released) from the first failed read on (ASSUMED: the kernel
+fails the hidraw read at once on an unplug, as hidapi's ``read error`` on an unplugged
+device shows in the packages reference notes).
 """
 
 from __future__ import annotations
@@ -24,6 +33,7 @@ import sys
 from typing import Any, Iterable
 
 from drivers.crl.state import HandControllerState, clamp_unit, safe_state
+from drivers.ratewindow import RateWindow
 from pfma.clock import Clock, MonotonicClock
 
 VENDOR_3DCONNEXION = 0x256F  #: packages.md 5
@@ -73,7 +83,11 @@ def parse_report(report: bytes | list[int]) -> dict:
     return {}
 
 
-def _default_opener() -> Any:
+def default_opener() -> Any:
+    """hidapi's ``hidraw`` module on Linux (non-exclusive), else its ``hid`` module.
+
+    :raises ImportError: hidapi is not installed
+    """
     if sys.platform.startswith("linux"):
         try:
             import hidraw  # hidapi's kernel-hidraw module (non-exclusive)
@@ -84,6 +98,9 @@ def _default_opener() -> Any:
     import hid
 
     return hid
+
+
+_default_opener = default_opener  # older name
 
 
 def _is_spacemouse(info: dict, vendor_ids: tuple[int, ...], product_id: int | None) -> bool:
@@ -120,7 +137,7 @@ class HidSpaceMouse:
         self.vendor_ids = (vendor_id,) if isinstance(vendor_id, int) else tuple(vendor_id)
         self.product_id = product_id
         self.path = path.encode() if isinstance(path, str) else path
-        self.opener = opener if opener is not None else _default_opener()
+        self.opener = opener if opener is not None else default_opener()
         self.clock = clock if clock is not None else MonotonicClock()
         self.full_scale_counts = float(full_scale_counts)
         self.retry_s = retry_s
@@ -135,6 +152,7 @@ class HidSpaceMouse:
         self.last_error = ""
         self._counts = [0] * 6  # device x, y, z, rx, ry, rz
         self._buttons = 0
+        self._rate = RateWindow(1.0)  # reports per second over the last second
         self.t_last_report_s = self.clock.now()  #: clock time of the last report (or connect)
         self._next_try = self.clock.now()
         self._state = safe_state("hid", self._next_try, "not connected")
@@ -183,7 +201,6 @@ class HidSpaceMouse:
             except (OSError, ValueError):
                 pass
             return False
-        self.device, self.device_path = dev, path
         try:
             self.product = product or dev.get_product_string() or "SpaceMouse"
         except (OSError, ValueError, AttributeError):
@@ -193,6 +210,10 @@ class HidSpaceMouse:
         self.t_last_report_s = now
         self.connects += 1
         self.last_error = ""
+        # the device last: a frame that calls update(connect=False) while another thread
+        # connects sees either no device or a fully set-up one
+        self.device_path = path
+        self.device = dev
         return True
 
     def _disconnect(self, why: str) -> None:
@@ -205,13 +226,26 @@ class HidSpaceMouse:
         except (OSError, ValueError):
             pass
 
-    def update(self) -> HandControllerState:
+    @property
+    def reconnect_due(self) -> bool:
+        """Disconnected, and ``retry_s`` has passed since the last attempt."""
+        return self.device is None and self.clock.now() >= self._next_try
+
+    def rate_hz(self, now: float | None = None) -> float:
+        """Reports per second over the last second (0 for a puck at rest: it reports only
+        on change)."""
+        return self._rate.rate_hz(self.clock.now() if now is None else now)
+
+    def update(self, connect: bool = True) -> HandControllerState:
         """Read every pending report (non-blocking) and return the current state.
+
+        :param connect: while disconnected, try enumerate/open here when ``retry_s`` has
+            passed; False leaves that to the caller (another thread calling :meth:`connect`)
 
         Never raises for device trouble; unplugged -> invalid state with ``fault=True``.
         """
         now = self.clock.now()
-        if self.device is None and not (now >= self._next_try and self.connect()):
+        if self.device is None and not (connect and now >= self._next_try and self.connect()):
             self._state = safe_state("hid", now, self.last_error or "not connected")
             return self._state
         for _ in range(MAX_REPORTS_PER_UPDATE):
@@ -231,6 +265,7 @@ class HidSpaceMouse:
             return
         self.reports += 1
         self.t_last_report_s = now
+        self._rate.mark(now)
         if "translation" in parsed:
             self._counts[0:3] = parsed["translation"]
         if "rotation" in parsed:

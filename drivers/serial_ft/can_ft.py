@@ -7,16 +7,27 @@ two data frames; this PROJECT-DEFINED layout keeps that shape. Its one table, ``
 change both when the real node's layout is known.
 
 Identifiers are 11-bit: ``base = 0x100 + 0x10 * node_id`` (node 0..15).
+
+Two ways to read: :meth:`CanFtSensor.read` (request, then wait up to ``timeout_s`` for
+the answer: tools, tests) and :meth:`CanFtSensor.read_records` (never waits: collect the
+answer to the previous request, send the next; the I/O service's F/T slot, where a
+record then arrives one F/T period after its request).
+
+The service names a CAN F/T by URL, ``can://INTERFACE/CHANNEL[?node=N&bitrate=B]``
+(python-can's interface names: ``can://socketcan/can0``, ``can://virtual/ft``;
+:func:`parse_can_url`, :func:`open_can_url`).
 """
 
 from __future__ import annotations
 
 import struct
 import time
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+from urllib.parse import parse_qsl, urlsplit
 
 from pfma.clock import Clock, MonotonicClock
-from pfma.errors import ConfigError, LinkError, PfmaTimeoutError
+from pfma.errors import ConfigError, LinkError, PfmaTimeoutError, did_you_mean
 from drivers.ratewindow import RateWindow
 
 from .ftsensor import FtReading, LinkStats
@@ -26,6 +37,93 @@ from .protocol import (CAN_BASE_ID, CAN_LAYOUT, CAN_NODE_STRIDE, MAX_NODE_ID, NO
 
 if TYPE_CHECKING:
     import can  # python-can, imported by whoever opens the bus
+
+#: the URL form of a CAN F/T (``pfma serve --ft``)
+CAN_URL_FORM = "can://INTERFACE/CHANNEL[?node=N&bitrate=BPS]"
+#: node id when the URL names none
+DEFAULT_NODE_ID = 0
+
+
+class CanUrlError(ConfigError):
+    """A ``can://`` URL that is not of the form :data:`CAN_URL_FORM` (a usage mistake)."""
+
+
+def is_can_url(url: str) -> bool:
+    """True for a ``can:`` URL (anything else is a pyserial URL or device path)."""
+    return url[:4].lower() == "can:"
+
+
+@dataclass(frozen=True)
+class CanUrl:
+    """A parsed ``can://`` URL."""
+
+    interface: str  #: python-can interface name (socketcan, virtual, pcan, ...)
+    channel: str  #: its channel (can0, vcan0, a virtual channel name, PCAN_USBBUS1, ...)
+    node_id: int = DEFAULT_NODE_ID
+    bitrate: int | None = None  #: passed to ``can.Bus`` when given (socketcan ignores it)
+
+
+def parse_can_url(url: str) -> CanUrl:
+    """``can://INTERFACE/CHANNEL[?node=N&bitrate=BPS]`` -> :class:`CanUrl` (no python-can
+    needed: the form only).
+
+    :raises CanUrlError: not of that form, or a node id / bit rate that is not a number
+        in range
+    """
+    try:
+        parts = urlsplit(url)
+        query = parse_qsl(parts.query, keep_blank_values=True, strict_parsing=bool(parts.query))
+    except ValueError as err:
+        raise CanUrlError(f"{url!r} is not a URL of the form {CAN_URL_FORM}: {err}") from err
+    iface, channel = parts.netloc, parts.path.removeprefix("/")
+    if parts.scheme.lower() != "can" or not url[4:].startswith("//") or not iface or not channel:
+        raise CanUrlError(f"{url!r} is not of the form {CAN_URL_FORM} (e.g. can://socketcan/can0, "
+                          f"can://virtual/ft)")
+    node, bitrate = DEFAULT_NODE_ID, None
+    for key, value in query:
+        if key == "node":
+            if not value.isdigit() or int(value) > MAX_NODE_ID:
+                raise CanUrlError(f"{url}: node={value!r}: a CAN F/T node id is 0..{MAX_NODE_ID}")
+            node = int(value)
+        elif key == "bitrate":
+            if not value.isdigit() or int(value) == 0:
+                raise CanUrlError(f"{url}: bitrate={value!r}: a bit rate is a positive whole "
+                                  f"number of bit/s (e.g. 1000000)")
+            bitrate = int(value)
+        else:
+            raise CanUrlError(f"{url}: unknown option {key!r} (known: node, bitrate)")
+    return CanUrl(iface, channel, node, bitrate)
+
+
+def open_can_url(url: str, clock: Clock | None = None, timeout_s: float = 0.1) -> "CanFtSensor":
+    """Open the CAN bus a ``can://`` URL names and the F/T node on it (the sensor owns the
+    bus: :meth:`CanFtSensor.close` shuts it down).
+
+    :raises CanUrlError: a malformed URL
+    :raises ConfigError: python-can is not installed, or it has no such interface
+    :raises LinkError: the interface could not open the channel (no such device, no
+        permission, the vendor library missing)
+    """
+    spec = parse_can_url(url)
+    try:
+        import can
+        from can.interfaces import VALID_INTERFACES
+    except ImportError as err:
+        raise ConfigError(f"{url}: python-can is not installed ({err}); pip install python-can") from err
+    if spec.interface not in VALID_INTERFACES:
+        raise ConfigError(f"{url}: python-can has no interface {spec.interface!r}"
+                          f"{did_you_mean(spec.interface, VALID_INTERFACES)} (known: "
+                          f"{', '.join(sorted(VALID_INTERFACES))})")
+    kw: dict[str, Any] = {} if spec.bitrate is None else {"bitrate": spec.bitrate}
+    try:
+        bus = can.Bus(interface=spec.interface, channel=spec.channel, **kw)
+    except (can.CanError, OSError, ValueError, ImportError, NotImplementedError) as err:
+        raise LinkError(f"{url}: cannot open CAN channel {spec.channel!r} on {spec.interface}: "
+                        f"{err or type(err).__name__}") from err
+    sensor = CanFtSensor(bus, spec.node_id, clock=clock, timeout_s=timeout_s)
+    sensor.owns_bus = True
+    sensor.url = url
+    return sensor
 
 
 class CanFtSensor:
@@ -59,6 +157,14 @@ class CanFtSensor:
         self._frames_in = 0
         self._rate = RateWindow(rate_window_s)
         self.name = f"CAN node {node_id} (ids 0x{self.base_id:03X}..0x{self.base_id + 3:03X})"
+        self.url = ""  #: the can:// URL it was opened from (open_can_url), else ""
+        self.owns_bus = False  #: close() shuts the bus down (open_can_url opened it)
+        self.streaming = False  #: the serial driver's flag; nothing streams on this request/response link
+        self.errors = 0  #: send/receive failures, unanswered requests, bad pairs of read_records
+        self.last_error = ""  #: what the last of those was
+        self._pending: int | None = None  # tag of the request read_records waits on
+        self._pending_t = 0.0
+        self._forces: tuple | None = None  # the forces frame of the answer being paired
 
     def read(self) -> FtReading:
         """Request one record; pair the forces and torques frames by seq and tag.
@@ -67,21 +173,78 @@ class CanFtSensor:
         :raises LinkError: the bus failed
         """
         tag = self._request(OP_READ)
-        forces = None
+        self._forces = None
         deadline = time.monotonic() + self.timeout_s
         while True:
-            msg = self._recv(deadline, "read")
-            if msg.arbitration_id == self.base_id + CAN_LAYOUT["forces"].offset and len(msg.data) == 8:
-                forces = struct.unpack(CAN_LAYOUT["forces"].struct_fmt, bytes(msg.data))
-            elif msg.arbitration_id == self.base_id + CAN_LAYOUT["torques"].offset and len(msg.data) == 8:
-                tx, ty, tz, seq, rtag = struct.unpack(CAN_LAYOUT["torques"].struct_fmt, bytes(msg.data))
-                if rtag != tag:
-                    continue  # a late answer to an earlier request
-                if forces is None or forces[4] != seq or forces[3] not in STATUS_CODES:
-                    self._bad += 1
-                    raise LinkError(f"F/T on {self.name}: forces/torques frames do not pair "
-                                    f"(seq {seq}, forces {forces}); record discarded")
-                return self._accept(forces[3], forces[:3] + (tx, ty, tz))
+            r = self._take(self._recv(deadline, "read"), tag)
+            if r is not None:
+                return r
+
+    def read_records(self) -> list[FtReading]:
+        """Never waits: the records whose answers have arrived since the last call, then
+        the next read request (unless one is outstanding and younger than ``timeout_s`` of
+        the clock). Called once per F/T slot, a record arrives one slot after its request.
+
+        Never raises for link trouble: an unanswered request counts as a bad record, a
+        mis-paired answer likewise, a send/receive failure in :attr:`errors` (with
+        :attr:`last_error`); the caller sees the link go stale.
+        """
+        import can
+
+        out: list[FtReading] = []
+        while True:
+            try:
+                msg = self.bus.recv(timeout=0)
+            except can.CanError as err:
+                self._fail(f"receive failed: {err}")
+                break
+            if msg is None:
+                break
+            if msg.is_extended_id or not self.base_id < msg.arbitration_id <= self.base_id + 3:
+                continue
+            self._frames_in += 1
+            if self._pending is None:
+                continue  # an answer nobody waits for any more
+            try:
+                r = self._take(msg, self._pending)
+            except LinkError as err:
+                self._fail(str(err))
+                self._pending = None
+                continue
+            if r is not None:
+                out.append(r)
+                self._pending = None
+        now = self.clock.now()
+        if self._pending is not None and now - self._pending_t > self.timeout_s:
+            self._bad += 1  # unanswered: ask again
+            self._fail(f"no answer within {self.timeout_s:g} s")
+            self._pending = None
+        if self._pending is None:
+            try:
+                self._pending = self._request(OP_READ)
+                self._pending_t = now
+                self._forces = None
+            except LinkError as err:
+                self._fail(str(err))
+        return out
+
+    def record_due(self) -> bool:
+        """The serial driver's "a record is waiting" check: never here (records are taken
+        in :meth:`read_records` at the F/T slot)."""
+        return False
+
+    def stop_stream(self) -> list[FtReading]:
+        """Nothing streams on this request/response link: a request still outstanding is
+        forgotten (its answer is ignored)."""
+        self._pending = None
+        return []
+
+    def close(self) -> None:
+        """Shut the bus down when this sensor opened it (:func:`open_can_url`)."""
+        self._pending = None
+        if self.owns_bus:
+            self.owns_bus = False
+            self.bus.shutdown()
 
     def bias(self) -> int:
         """Push the current reading onto the node's bias stack; returns the stack depth."""
@@ -104,6 +267,33 @@ class CanFtSensor:
                          bytes_in=self._frames_in * 8)
 
     # -- internals ----------------------------------------------------------------------
+    def _take(self, msg: can.Message, tag: int) -> FtReading | None:
+        """One frame of this node's answer to request ``tag``: the forces frame is kept, the
+        torques frame completes the record (a torques frame of another tag is a late answer
+        to an earlier request: ignored).
+
+        :raises LinkError: the torques frame does not pair with the forces frame
+        """
+        if msg.arbitration_id == self.base_id + CAN_LAYOUT["forces"].offset and len(msg.data) == 8:
+            self._forces = struct.unpack(CAN_LAYOUT["forces"].struct_fmt, bytes(msg.data))
+        elif msg.arbitration_id == self.base_id + CAN_LAYOUT["torques"].offset and len(msg.data) == 8:
+            tx, ty, tz, seq, rtag = struct.unpack(CAN_LAYOUT["torques"].struct_fmt, bytes(msg.data))
+            if rtag != tag:
+                return None
+            forces, self._forces = self._forces, None
+            if forces is None or forces[4] != seq or forces[3] not in STATUS_CODES:
+                self._bad += 1
+                raise LinkError(f"F/T on {self.name}: forces/torques frames do not pair "
+                                f"(seq {seq}, forces {forces}); record discarded")
+            return self._accept(forces[3], forces[:3] + (tx, ty, tz))
+        return None
+
+    def _fail(self, text: str) -> None:
+        """Count a link error of :meth:`read_records`; :attr:`last_error` says what, without
+        the node's name (the caller names the node)."""
+        self.errors += 1
+        self.last_error = text.removeprefix(f"F/T on {self.name}").lstrip(": ")
+
     def _request(self, opcode: int) -> int:
         import can  # python-can; only needed when a CAN node is used
 

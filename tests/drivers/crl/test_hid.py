@@ -185,3 +185,40 @@ def test_real_spacemouse_smoke():
     assert sm.connected, sm.last_error
     assert st.valid and not st.fault and all(-1.0 <= a <= 1.0 for a in st.axes)
     sm.close()
+
+
+def test_update_without_connect_leaves_reopening_to_the_caller(clock):
+    """The service's frame reads with ``connect=False``; its thread calls ``connect()``."""
+    fake = FakeHidDevice()
+    sm = HidSpaceMouse(opener=fake, clock=clock, retry_s=1.0)
+    st = sm.update(connect=False)
+    assert st.fault and not sm.connected and fake.opens == 0 and sm.reconnect_due
+    assert sm.connect() and not sm.reconnect_due
+    fake.set_buttons(1)
+    assert sm.update(connect=False).active
+    fake.unplug()
+    assert sm.update(connect=False).fault and not sm.reconnect_due  # retry_s not yet passed
+    fake.replug()
+    clock.advance(5.0)
+    assert sm.reconnect_due and sm.update(connect=False).fault and fake.opens == 1  # never here
+    assert sm.connect() and sm.update(connect=False).valid and sm.connects == 2
+
+
+def test_report_rate_over_the_last_second(clock):
+    fake = FakeHidDevice(combined=True)
+    sm = HidSpaceMouse(opener=fake, clock=clock)
+    sm.update()
+    assert sm.rate_hz() == 0.0
+    for k in range(11):  # one report every 0.1 s
+        fake.set_axes((k, 0, 0))
+        sm.update()
+        clock.advance(0.1)
+    assert sm.rate_hz(clock.now() - 0.1) == pytest.approx(10.0)
+    clock.advance(2.0)
+    assert sm.rate_hz() == 0.0  # a puck at rest reports nothing
+
+
+def test_default_opener_is_hidapi():
+    from drivers.crl.hid import default_opener
+    opener = default_opener()  # hidapi is a dependency of the project
+    assert callable(opener.enumerate) and callable(opener.device)
