@@ -10,7 +10,9 @@ Every fake offers:
 
 - physical-side hooks (per board: set a resolver angle, an ADC input voltage ...);
 - ``inject(fault, **kw)`` / ``clear(fault)`` for named faults; ``"no_answer"`` is
-  common to all boards and makes every access a bus error;
+  common to all boards and makes every access a bus error (``no_answer`` with
+  ``offset=N``: only accesses to the 16-bit word holding byte offset N go unanswered, as
+  a register whose decode or data path has failed; repeat for more registers);
 - ``traffic``: a log of ``(op, width, offset, value)`` tuples that tests compare
   with init sequences (``fakes.testing``);
 - ``read_block16/write_block16``: consecutive words in ONE call (the rack routes a bus
@@ -56,7 +58,24 @@ class FakeBoard:
         known = ("no_answer",) + tuple(getattr(self, "FAULTS", ()))
         if fault not in known:
             raise ValueError(f"{self.name}: unknown fault {fault!r}; known: {', '.join(known)}")
+        if fault == "no_answer":
+            params = self._no_answer_params(params)
         self.faults[fault] = params
+
+    def _no_answer_params(self, params: dict) -> dict:
+        """``no_answer`` alone: the whole board (``{}``); with ``offset=N``: the word holding
+        byte N joins the unanswered words (``{"words": frozenset}``); whole-board wins."""
+        if "offset" not in params:
+            return {}
+        off = int(params["offset"])
+        if not 0 <= off < self.description.window:
+            raise ValueError(f"{self.name}: offset 0x{off:X} outside the board's "
+                             f"0x{self.description.window:X}-byte window")
+        prev = self.faults.get("no_answer")
+        if prev is not None and "words" not in prev:
+            return prev  # the whole board is silent already
+        words = prev["words"] if prev is not None else frozenset()
+        return {"words": words | {off & ~1}}
 
     def clear(self, fault: str | None = None) -> None:
         """Clear one fault, or all of them."""
@@ -68,7 +87,11 @@ class FakeBoard:
     # -- bus side -----------------------------------------------------------
     def _check(self, offset: int, width: int) -> None:
         if self.faults and "no_answer" in self.faults:
-            raise NoAnswer("board does not answer (injected fault)")
+            words = self.faults["no_answer"].get("words")
+            if words is None:
+                raise NoAnswer("board does not answer (injected fault)")
+            if offset & ~1 in words:
+                raise NoAnswer("register does not answer (injected fault)")
         if not 0 <= offset < self.description.window:
             raise NoAnswer("outside the board's decoded window")
         if self.description.byte_lanes == "odd" and width == 8 and offset % 2 == 0:

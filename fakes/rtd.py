@@ -102,8 +102,15 @@ class FakeVmivme4940(FakeBoard):
                 self._stuck.add(**params)
             super().inject(fault, **params)
 
-    def clear(self, fault: str | None = None) -> None:
-        """Clear one fault (all its channels/bits), or every fault."""
+    def clear(self, fault: str | None = None, channel: int | None = None) -> None:
+        """Clear one fault (all its channels/bits), or every fault; ``clear("loss_of_signal",
+        channel=n)`` restores one channel's signal (the others stay frozen)."""
+        if fault == "loss_of_signal" and channel is not None:
+            self._check_channel(channel)
+            self._los_frozen.pop(channel, None)
+            if self._los_frozen:
+                self.faults[fault] = {"channels": sorted(self._los_frozen)}
+                return
         super().clear(fault)
         if fault in (None, "stuck_bit"):
             self._stuck.clear()
