@@ -147,6 +147,11 @@ class FakeStimulus:
         self.world.set_cae(self._axes, tuple(self._discretes))
 
 
+def _fault_kinds() -> list[tuple[str, str]]:
+    from sim.faults import KINDS
+    return list(KINDS.values())
+
+
 class SimTarget(Target):
     """The simulated rack and the I/O service in this process, in simulated time.
 
@@ -170,54 +175,23 @@ class SimTarget(Target):
         reader = self.rig.reader
         super().__init__(reader, rack, f"simulated rack {rack.name!r} (in-process service, simulated time)")
         self.stimulus = FakeStimulus(self.world)
+        self._faults = None  # a sim.faults.FaultSet, made by the first inject_fault
 
-    #: fault specs :meth:`inject_fault` understands (``pfma checkout --sim-fault``)
-    FAULTS = {
-        "tach-reversed:JOINT": "the joint's tachometer reads -1 x its rate (SimErrors tach scale)",
-        "adc-dead:SIGNAL=VOLTS": "an ADC input stuck at VOLTS whatever it is fed (gain 0, offset)",
-        "resolver-los:SIGNAL": "loss of signal on the resolver channel of SIGNAL",
-        "ft-noise": "garbage bytes on the F/T line every ~300 bytes (bad records)",
-    }
+    #: fault specs :meth:`inject_fault` understands (``pfma checkout --sim-fault``): every
+    #: kind of :mod:`sim.faults` (``pfma fault list``), the four the checkout always had among them
+    FAULTS = {syntax: meaning for syntax, meaning in _fault_kinds()}
 
     def inject_fault(self, spec: str) -> str:
-        """Inject one fault into the simulated rack from a spec (see :attr:`FAULTS`).
+        """Inject one fault into the simulated rack from a spec (:mod:`sim.faults`, the same
+        grammar as ``pfma serve --fault`` and ``pfma fault inject``).
 
         :returns: a one-line description
-        :raises ConfigError: for an unknown spec or signal
+        :raises ConfigError: for an unknown spec, board, signal or register (did you mean)
         """
-        from dataclasses import replace
-        from fakes.arm_params import AXES
-        from pfma.errors import ConfigError
-        kind, _, arg = spec.partition(":")
-        try:
-            if kind == "tach-reversed":
-                stems = [a.joint for a in AXES]
-                if arg not in stems:
-                    raise ConfigError(f"--sim-fault {spec}: no joint {arg!r}; joints: {', '.join(stems)}")
-                err = list(self.world.sim.errors.tach_scale_error)
-                err[stems.index(arg)] = -2.0  # tach volts = K_w (1 + e) qdot = -K_w qdot
-                self.world.sim.set_errors(replace(self.world.sim.errors, tach_scale_error=tuple(err)))
-                return f"tachometer of {arg} reversed"
-            if kind == "adc-dead":
-                sig, _, volts = arg.partition("=")
-                e = self.world.sim.errors
-                gains, offsets = dict(e.adc_gain_error), dict(e.adc_offset_v)
-                gains[sig], offsets[sig] = -1.0, float(volts or 0.0)
-                self.world.sim.set_errors(replace(e, adc_gain_error=gains, adc_offset_v=offsets))
-                return f"ADC input {sig} dead at {offsets[sig]:g} V"
-            if kind == "resolver-los":
-                ch = self.rack.channel(arg)
-                if ch.device != "rtd":
-                    raise ConfigError(f"--sim-fault {spec}: {arg} is not a resolver channel")
-                self.world.bus[ch.board].inject("loss_of_signal", channel=ch.channel)
-                return f"loss of signal on {arg} ({ch.board} channel {ch.channel})"
-            if kind == "ft-noise":
-                for k in range(400):
-                    self.world.ft.inject_noise(b"\x55\xaa\x13", after_bytes=300 * k)
-                return "noise bursts on the F/T line"
-        except (KeyError, ValueError) as err:
-            raise ConfigError(f"--sim-fault {spec}: {err}") from err
-        raise ConfigError(f"--sim-fault {spec}: unknown fault; known: {', '.join(self.FAULTS)}")
+        if self._faults is None:
+            from sim.faults import FaultSet
+            self._faults = FaultSet(self.world)
+        return self._faults.inject(spec, since=self.now()).description
 
     def now(self) -> float:
         return self.clock.now()
