@@ -98,6 +98,14 @@ class ServiceState(enum.IntEnum):
     ARMED = 2     # outputs follow the command area
     FAULT = 3     # a fault forced the outputs safe; needs a re-arm request
     STOPPED = 4
+    HALTED = 5    # the controller is halted (single-stepping) and holds the outputs safe
+    #              (0 V, brakes set) with a live heartbeat: not a fault; needs a re-arm request
+
+
+#: ``commands.mode`` value of a halted controller (IRSS halt / single step, docs/console.md):
+#: it keeps writing (a fresh heartbeat) 0 rates, 0 current limits and no arm request, and the
+#: service reports HALTED instead of SAFE; any other value is informational
+MODE_HALTED = 2
 
 
 class Severity(enum.IntEnum):

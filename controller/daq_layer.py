@@ -64,7 +64,7 @@ from controller.servo import ERR_NO_OUTPUT
 from controller.worldmodel import VarSpec
 from bit3.layout import (
     BOARD_FAULT, CHANNEL_BUS_ERROR, CMD_FOREIGN, CMD_REFUSED, CMD_STALE, CMD_STATUS_NAMES, HAND_CONTROLLERS, HC_AXES,
-    LINK_FAULT, LINK_STALE, ServiceState,
+    LINK_FAULT, LINK_STALE, MODE_HALTED, ServiceState,
 )
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -163,6 +163,8 @@ class DataAcquisitionLayer(Layer):
             # writer's: publish a safe command (0 rates, 0 limits, no arm request) at once
             client.write_commands(joint_rate_rad_s=self._zeros, current_limit_a=self._zero_limits, arm_request=0,
                                   controller_frame=0)
+        #: the runtime is halted (docs/console.md): every write is the halted safe command
+        self.halted = False
         self.stale_outputs = 0  #: frames whose servo output was not of the current servo period
         self.catch_up_zeros = 0  #: frames with 0 rates while a missed servo slot was caught up
         self.sent_input_frame = -1  #: inputs_frame of the last write
@@ -304,7 +306,8 @@ class DataAcquisitionLayer(Layer):
             why += [f"board {self.board_names[i]} fault (errors {int(snap.board_errors[self.board_slots[i]])})"
                     for i in np.nonzero(bs & BOARD_FAULT)[0]]
         if service_state in (ServiceState.FAULT, ServiceState.STOPPED) or \
-                (self.arm_request and self._phase == 2 and service_state != ServiceState.ARMED):
+                (self.arm_request and self._phase == 2 and service_state != ServiceState.ARMED
+                 and not (self.halted and service_state == ServiceState.HALTED)):
             bits |= FAULT_SERVICE
             why.append(f"service {ServiceState(service_state).name}")
         if self._same_frames >= STALE_FRAMES:
@@ -360,6 +363,9 @@ class DataAcquisitionLayer(Layer):
         otherwise the rates are 0 and, unless this frame catches up a missed servo slot or
         the servo already has a fault, it is one (code 13)."""
         frame = rt.frame
+        if self.halted:  # a single step while halted: the outputs stay in the halted safe state
+            self.hold_output(frame)
+            return
         rates, stamp = self._zeros, frame
         if status == Status.SHUT_DOWN:
             limits = self._zero_limits
@@ -390,6 +396,36 @@ class DataAcquisitionLayer(Layer):
                                    inputs_frame=stamp, controller_frame=self.writes, **reflect)
         self.sent_input_frame = stamp
         self.writes += 1
+
+    # --- halted (IRSS halt / single step, docs/console.md) ---------------------------------
+    def hold_acquire(self, rt: "LayerContext"):
+        """Between frames while halted: read the service's newest inputs (not posted: the
+        world model keeps the halted frame's values) so that the hold follows the service's
+        frames and a later step does not count the halted frames as missed or stale.
+        Returns the snapshot."""
+        snap = self.client.read_inputs()
+        self.snapshot = snap
+        self._last_frame = int(snap.frame)
+        self._same_frames = 0
+        return snap
+
+    def hold_output(self, frame: int, resume: bool = False) -> None:
+        """The halted safe command with a new heartbeat: 0 rates, 0 current limits (brakes
+        set), no CRL force, ``mode`` HALTED and no arm request; the service holds HALTED
+        without a watchdog trip. ``resume``: the resume's command instead (mode cleared, and
+        if this layer had armed the outputs, an arm request with its ``rearm_counter``, which
+        the runtime has made new; still 0 rates and limits)."""
+        self.client.write_commands(joint_rate_rad_s=self._zeros, current_limit_a=self._zero_limits,
+                                   arm_request=self.arm_request if resume else 0, rearm_counter=self.rearm_counter,
+                                   mode=0 if resume else MODE_HALTED, inputs_frame=frame,
+                                   controller_frame=self.writes, **self._no_reflection())
+        self.sent_input_frame = frame
+        self.writes += 1
+
+    def _no_reflection(self) -> dict:
+        if "crl_reflect_enable" not in (self.client.command.dtype.names or ()):
+            return {}
+        return {"crl_reflect_force_n": self._zero3, "crl_reflect_torque_nm": self._zero3, "crl_reflect_enable": 0}
 
     _REFLECT = ("teleop.reflect_force_n", "teleop.reflect_torque_nm", "teleop.reflect_enabled")
 

@@ -45,7 +45,15 @@ class Request:
     POWER_UP = 1
     POWER_DOWN = 2
     ERROR_RESET = 3
-    NAMES = {0: "NONE", 1: "POWER UP", 2: "POWER DOWN", 3: "ERROR RESET"}
+    #: the debug window's frame control (report 2.2.8, docs/console.md): acted on by the
+    #: runtime between frames, answered by System Up/Down like the others; ``ui.request_arg``
+    #: is STEP's frame count and RESUME's re-arm (1 = re-arm the outputs)
+    HALT = 4
+    STEP = 5
+    RESUME = 6
+    NAMES = {0: "NONE", 1: "POWER UP", 2: "POWER DOWN", 3: "ERROR RESET", 4: "HALT", 5: "SINGLE STEP",
+             6: "RESUME"}
+    DEBUG = (4, 5, 6)
 
 
 class Response:
@@ -58,6 +66,8 @@ class Response:
 
 
 _NO_SUBORDINATE = int(Status.NO_SUBORDINATE)
+#: bytes of ``ui.response_text`` (the answer in words)
+RESPONSE_TEXT_BYTES = 160
 
 SEQ_ACTIONS = {Action.INIT: "init", Action.STARTUP: "startup", Action.SHUTDOWN: "shutdown",
                Action.SAFE: "safe", Action.RESET: "reset"}
@@ -261,6 +271,10 @@ class UpDownLayer(Layer):
                         "(acted on when ui.request_seq changes)"),
             VarSpec("ui.request_seq", "command_input", "i4", (), "user", 0,
                     doc="user request number: increment to make a new request"),
+            VarSpec("ui.request_arg", "command_input", "i4", (), "user", 0,
+                    doc="argument of the request: SINGLE STEP's frame count, RESUME's re-arm (1)"),
+            VarSpec("ui.response_text", "response_output", "u1", (RESPONSE_TEXT_BYTES,), "updown_requests",
+                    [0] * RESPONSE_TEXT_BYTES, doc="the answer in words (UTF-8, zero-padded)"),
             VarSpec("ui.response", "response_output", "i2", (), "updown_requests", 0,
                     doc="answer to the request ui.response_seq: 1 IN PROGRESS 2 COMPLETE 3 REFUSED 4 FAILED"),
             VarSpec("ui.response_seq", "response_output", "i4", (), "updown_requests", 0,
@@ -268,7 +282,11 @@ class UpDownLayer(Layer):
         ]
 
     def _respond(self, rt, seq: int, code: int, text: str) -> None:
-        rt.wm.post_task_outputs("updown_requests", {"ui.response": code, "ui.response_seq": seq})
+        raw = text.encode()[:RESPONSE_TEXT_BYTES]
+        words = np.zeros(RESPONSE_TEXT_BYTES, dtype=np.uint8)
+        words[:len(raw)] = np.frombuffer(raw, dtype=np.uint8)
+        rt.wm.post_task_outputs("updown_requests", {"ui.response": code, "ui.response_seq": seq,
+                                                    "ui.response_text": words})
         lvl = Level.WARNING if code in (Response.REFUSED, Response.FAILED) else Level.INFO
         rt.post(self.key, lvl, f"request {seq}: {text} -> {Response.NAMES[code]}")
 
@@ -277,10 +295,29 @@ class UpDownLayer(Layer):
             self._cmd = cmd
             rt.wm.post_task_outputs("updown_requests", {"updown.command": int(cmd)})
 
+    def debug_requests(self, rt) -> None:
+        """A new HALT, SINGLE STEP or RESUME request (``Request.DEBUG``): handed to the
+        runtime's frame control (``rt.debug_request``) and answered here. Called by the
+        runtime after each communications segment, halted or not (the request task does not
+        run while halted); other requests are left to the request task."""
+        v = rt.wm.get_task_inputs(("ui.request", "ui.request_seq", "ui.request_arg"))
+        seq, req = int(v["ui.request_seq"]), int(v["ui.request"])
+        if seq == self._seen_seq or req not in Request.DEBUG:
+            return
+        self._seen_seq = seq
+        code, text = rt.debug_request(req, int(v["ui.request_arg"]), seq)
+        self._respond(rt, seq, code, f"{Request.NAMES[req]}: {text}")
+
+    def answer(self, rt, seq: int, code: int, text: str) -> None:
+        """A later answer to request ``seq`` (a step run finished, a re-arm armed or not)."""
+        self._respond(rt, seq, code, text)
+
     def requests_task(self, rt: "LayerContext") -> None:
         wm = rt.wm
         v = wm.get_task_inputs(("ui.request", "ui.request_seq", "updown.status"))
         seq, req, st = int(v["ui.request_seq"]), int(v["ui.request"]), Status(int(v["updown.status"]))
+        if seq != self._seen_seq and req in Request.DEBUG:
+            self._seen_seq = seq  # the runtime's frame control takes these (debug_requests)
         if seq != self._seen_seq:
             self._seen_seq = seq
             name = Request.NAMES.get(req, f"request {req}")

@@ -44,10 +44,20 @@ area (when this controller holds the command area).
 
 Visibility: :attr:`trace` keeps a record of every frame (each layer's command,
 status, deciding row and mailbox; :func:`format_trace`), :attr:`messages` the layers'
-messages (50 per source, the last 100 merged by time). IRSS's halt is simply not
-calling :meth:`step` (no frame interrupts); a single step is one call (the simulator's
-``step(1)`` runs one service frame and one controller frame; ``pfma controller --halt``
-single-steps from the keyboard).
+messages (50 per source, the last 100 merged by time).
+
+Halt, single step, resume on a running system (docs/console.md): the controller's process
+calls :meth:`tick` once per service frame. Running, a tick is :meth:`step`. Halted (a
+``Request.HALT`` through the world model's request protocol, answered by System Up/Down),
+a tick is :meth:`hold`: no decision tables, no tasks, the world model keeps the halted
+frame's values, controller time stands still, and Data Acquisition writes the halted safe
+command (0 rates, 0 current limits, ``mode`` HALTED) with a new heartbeat, so the service
+holds HALTED (0 V, brakes set) and its watchdog never trips. ``Request.STEP`` with N runs
+exactly N whole minor frames (one per service frame, outputs still held safe) and
+publishes their trace in ``runtime.step_trace``. ``Request.RESUME`` needs the re-arm
+argument (1): the outputs are re-armed with a new arm request (0 rates) and the frames
+go on at the next servo slot; without it the resume is refused with a message.
+``pfma controller --halt`` (at launch) still single-steps from the keyboard.
 """
 
 from __future__ import annotations
@@ -70,7 +80,7 @@ from controller.paths import MultiSegmentLayer
 from controller.trajectory import TrajectoryLayer
 from controller.servo import ERR_MISSED, ServoLayer
 from controller.worldmodel import VarSpec, WorldModel
-from bit3.layout import Severity
+from bit3.layout import ServiceState, Severity
 
 #: frames kept in the trace by default (about 6 s at 320 Hz)
 TRACE_FRAMES = 2048
@@ -82,6 +92,14 @@ STATS_PUBLISH_S = 0.5
 TIMING_RING = 1024
 #: the servo's periodic task (its slot defines the servo period)
 SERVO_TASK = "servo_control"
+#: bytes of ``runtime.step_trace`` (the trace of the last single-step run, UTF-8): the
+#: header and about 45 frame lines; a longer run keeps its last lines
+STEP_TRACE_BYTES = 8192
+#: most frames one SINGLE STEP request may run (assumed: 10 s at 320 Hz; longer is a resume)
+MAX_STEP_FRAMES = 3200
+#: service frames a resume waits for the service to arm before it fails (0.2 s at 320 Hz,
+#: as Data Acquisition's start-up waits ARM_TIMEOUT_S)
+RESUME_ARM_FRAMES = 64
 #: distinct per-layer trace records kept for reuse (they repeat frame after frame; a
 #: LayerTrace is immutable, so one object serves every frame with the same values)
 LAYER_TRACE_CACHE = 4096
@@ -135,6 +153,14 @@ def runtime_specs() -> list[VarSpec]:
                 doc="wake latency after the service's frame time: p50 p99 max"),
         VarSpec("runtime.work_us", "task_status", "f8", (3,), w, [0.0] * 3, "us",
                 doc="controller frame work (host time): p50 p99 max"),
+        VarSpec("runtime.halted", "status_output", "b1", (), w, False,
+                doc="halted (IRSS halt): no frames run, outputs held in the service's HALTED state"),
+        VarSpec("runtime.steps_left", "status_output", "i4", (), w, 0,
+                doc="single-step frames still to run"),
+        VarSpec("runtime.step_frames", "status_output", "i8", (), w, 0,
+                doc="frames run by single steps since the start"),
+        VarSpec("runtime.step_trace", "response_output", "u1", (STEP_TRACE_BYTES,), w, [0] * STEP_TRACE_BYTES,
+                doc="trace of the last single-step run (UTF-8 text, zero-padded)"),
     ]
 
 
@@ -211,6 +237,17 @@ class ControllerRuntime:
         self.on_frame: list[Callable[[FrameTrace], None]] = []
         self._request_seq = 0
         self._goal_seq = 0
+        # halt, single step, resume (docs/console.md)
+        self.halted = False
+        self.steps_left = 0
+        self.step_frames = 0  #: frames run by single steps
+        self.holds = 0  #: ticks spent halted (halted safe command written, no frame run)
+        self.halt_offset_s = 0.0  #: clock time spent halted (controller time stands still)
+        self._raw_now = self.now  # clock time of the latest tick
+        self._step_seq = 0  # request being served by single steps (0: none)
+        self._step_lines: list[str] = []
+        self._resume_seq = 0  # resume request being served (0: none)
+        self._resume_ticks = 0
         self._changed: set[str] = set()
         # missed frames
         self.prev_frame = -1  #: service frame of the previous step (-1: none yet)
@@ -297,7 +334,8 @@ class ControllerRuntime:
     def step(self) -> FrameTrace:
         """Run one minor frame (also the single step while halted)."""
         t0 = time.perf_counter()
-        self.now = self._clock_now()
+        self._raw_now = raw = self._clock_now()
+        self.now = raw - self.halt_offset_s
         self._changed.clear()
         self.frame = f = self.daq.acquire(self)
         prev = self.prev_frame
@@ -319,6 +357,7 @@ class ControllerRuntime:
         else:
             self.servo_catch_up = False
         self.wm.communications_segment()
+        self.updown.debug_requests(self)
         for l in self.layers:
             l.run_table(self)
         daq_status = self._decided(self.daq)
@@ -412,10 +451,11 @@ class ControllerRuntime:
     def _time_frame(self, cost_s: float) -> None:
         """Record this step's wake latency, work and overrun; publish the statistics when due."""
         snap = self.daq.snapshot
-        t_frame = float(snap.t_s) if snap is not None else self.now
+        raw = self._raw_now  # clock time (not controller time, which stands still while halted)
+        t_frame = float(snap.t_s) if snap is not None else raw
         period = self.frames.period_s
         end = self._clock_now()
-        wake_us = (self.now - t_frame) * 1e6
+        wake_us = (raw - t_frame) * 1e6
         self.timing.add(wake_us, cost_s * 1e6)
         # overrun: the work ended after the next service frame was due, or it was already published
         if end > t_frame + period or self.client.changed("inputs"):
@@ -468,11 +508,150 @@ class ControllerRuntime:
         """The status the layer's table decided this frame (posted, visible next frame)."""
         return layer.decided
 
+    # --- halt, single step, resume (IRSS debug window; docs/console.md) ---------------------
+    def tick(self) -> "FrameTrace | None":
+        """What the controller does after each service frame: a minor frame (:meth:`step`)
+        while running or single-stepping, else :meth:`hold`. Returns the frame's trace
+        record (None for a hold)."""
+        if not self.halted:
+            return self.step()
+        if self.steps_left > 0 and not self._resume_seq:
+            self.steps_left -= 1
+            rec = self.step()
+            self.step_frames += 1
+            self._step_lines.append(format_frame(rec))
+            if self.steps_left == 0:
+                self._finish_steps()
+            return rec
+        return self.hold()
+
+    def hold(self) -> "FrameTrace | None":
+        """One halted tick: apply user requests (a SINGLE STEP or RESUME arrives this way),
+        note the service's frame (frames while halted are neither missed nor stale) and write
+        the halted safe command with a new heartbeat. While a resume re-arms, write its
+        command instead, and run the first frame once the service is ARMED at a servo slot."""
+        raw = self._clock_now()
+        snap = self.daq.hold_acquire(self)
+        f = int(snap.frame)
+        self.frame = f
+        self.prev_frame = max(self.prev_frame, f)
+        self.wm.communications_segment()
+        self.updown.debug_requests(self)
+        if self._resume_seq and self._resume_tick(snap, f):
+            return self.step()  # resumed: this tick is the first frame again (controller time goes on)
+        if not self._resume_seq:
+            self.daq.hold_output(f)
+        self.holds += 1
+        self.halt_offset_s += raw - self._raw_now
+        self._raw_now = raw
+        return None
+
+    def debug_request(self, kind: int, arg: int, seq: int) -> tuple[int, str]:
+        """Act on a HALT / SINGLE STEP / RESUME request (System Up/Down passes them here);
+        returns the answer (Response code, text)."""
+        if kind == Request.HALT:
+            if self.halted:
+                return Response.COMPLETE, f"already halted (frame {self.frame})"
+            self.halted = self.daq.halted = True
+            self._post_halt_state()
+            self.post("runtime", Level.INFO, f"halted after frame {self.frame}: outputs held safe (0 V, brakes set)")
+            return Response.COMPLETE, f"halted after frame {self.frame}: outputs 0 V, brakes set (service HALTED)"
+        if kind == Request.STEP:
+            n = arg if arg else 1
+            if not self.halted:
+                return Response.REFUSED, "not halted: halt first"
+            if self._resume_seq:
+                return Response.REFUSED, "a resume is in progress"
+            if self._step_seq:
+                return Response.REFUSED, f"{self.steps_left} frame(s) of request {self._step_seq} still to run"
+            if not 1 <= n <= MAX_STEP_FRAMES:
+                return Response.REFUSED, f"{n} frames: 1..{MAX_STEP_FRAMES} per request"
+            self.steps_left, self._step_seq, self._step_lines = n, seq, []
+            self._post_halt_state()
+            return Response.IN_PROGRESS, f"{n} frame(s) from the next service frame"
+        if kind == Request.RESUME:
+            if not self.halted:
+                return Response.REFUSED, "not halted"
+            if self._step_seq:
+                return Response.REFUSED, f"{self.steps_left} single-step frame(s) still to run"
+            if arg != 1:
+                return Response.REFUSED, ("resume needs an explicit re-arm (pfma controller resume --rearm; "
+                                          "console: A then R)")
+            if self._resume_seq:
+                return Response.IN_PROGRESS, f"already resuming (request {self._resume_seq})"
+            if self.daq.arm_request:
+                self.daq.rearm_counter += 1  # a new arm request: the service arms only on a new number
+            self._resume_seq, self._resume_ticks = seq, 0
+            return Response.IN_PROGRESS, "re-arming the outputs" if self.daq.arm_request else "leaving halt"
+        return Response.REFUSED, f"not a frame-control request: {kind}"
+
+    def _resume_tick(self, snap, f: int) -> bool:
+        """Write the resume's command; True when the frames may go on (the service armed,
+        if this controller had armed it, and this frame is a servo slot)."""
+        armed = int(snap.service_state) == ServiceState.ARMED
+        need_arm = bool(self.daq.arm_request)
+        seen = self._resume_ticks > 0  # the service has had a frame with the resume's command
+        if seen and (armed or not need_arm) and (
+                not self._has_servo or not need_arm or self.frames.last_slot(SERVO_TASK, f) == f):
+            seq, self._resume_seq = self._resume_seq, 0
+            self.halted = self.daq.halted = False
+            self._post_halt_state()
+            what = "outputs re-armed" if need_arm else "outputs were not armed"
+            self.updown.answer(self, seq, Response.COMPLETE, f"RESUME: resumed at frame {f} ({what})")
+            self.post("runtime", Level.INFO, f"resumed at frame {f} ({what})")
+            return True
+        if self._resume_ticks > RESUME_ARM_FRAMES:
+            seq, self._resume_seq = self._resume_seq, 0
+            st = int(snap.service_state)
+            why = ServiceState(st).name if st in ServiceState._value2member_map_ else str(st)
+            self.updown.answer(self, seq, Response.FAILED, f"RESUME: the service did not arm within "
+                                                           f"{RESUME_ARM_FRAMES} frames (state {why}); still halted")
+            self.post("runtime", Level.WARNING, f"resume failed: service {why} after {RESUME_ARM_FRAMES} frames")
+            self.daq.hold_output(f)
+            return False
+        self._resume_ticks += 1
+        self.daq.hold_output(f, resume=True)
+        return False
+
+    def _finish_steps(self) -> None:
+        seq, self._step_seq = self._step_seq, 0
+        lines = self._step_lines
+        text = self.header() + "\n" + "\n".join(lines)
+        raw = text.encode()
+        if len(raw) > STEP_TRACE_BYTES:  # keep the last lines that fit, say so
+            keep = list(lines)
+            while keep and len((self.header() + f"\n({len(lines) - len(keep)} earlier lines not kept)\n"
+                                + "\n".join(keep)).encode()) > STEP_TRACE_BYTES:
+                keep.pop(0)
+            raw = (self.header() + f"\n({len(lines) - len(keep)} earlier lines not kept)\n"
+                   + "\n".join(keep)).encode()
+        buf = np.zeros(STEP_TRACE_BYTES, dtype=np.uint8)
+        buf[:len(raw)] = np.frombuffer(raw, dtype=np.uint8)
+        self.wm.post_task_outputs("runtime", {"runtime.step_trace": buf})
+        self._post_halt_state()
+        self.updown.answer(self, seq, Response.COMPLETE, f"SINGLE STEP: {len(lines)} frame(s) run, last {self.frame}")
+
+    def _post_halt_state(self) -> None:
+        self.wm.post_task_outputs("runtime", {"runtime.halted": self.halted, "runtime.steps_left": self.steps_left,
+                                              "runtime.step_frames": self.step_frames})
+
+    def release_halt(self) -> None:
+        """Leave a halt without re-arming (the process is ending): the mode is cleared and
+        no arm request is made, so the service goes from HALTED to SAFE (0 V, brakes set)."""
+        if not self.halted:
+            return
+        self.daq.arm_request = 0
+        self.daq.hold_output(max(self.frame, 0), resume=True)
+        self.halted = self.daq.halted = False
+        self.steps_left, self._step_seq, self._resume_seq = 0, 0, 0
+
     # --- user requests (asynchronous, request/response) -------------------------------------
-    def request(self, kind: int) -> int:
-        """Post a user request to System Up/Down (``Request.POWER_UP`` ...); returns its
-        number. The answer appears in ``ui.response`` / ``ui.response_seq``."""
+    def request(self, kind: int, arg: int = 0) -> int:
+        """Post a user request to System Up/Down (``Request.POWER_UP`` ...; ``arg``:
+        ``ui.request_arg``, SINGLE STEP's frames or RESUME's re-arm); returns its number.
+        The answer appears in ``ui.response`` / ``ui.response_seq`` / ``ui.response_text``."""
         self._request_seq = max(self._request_seq, int(self.wm.get("ui.request_seq"))) + 1
+        self.wm.set_user("ui.request_arg", int(arg), self._key)
         self.wm.set_user("ui.request", int(kind), self._key)
         self.wm.set_user("ui.request_seq", self._request_seq, self._key)
         return self._request_seq

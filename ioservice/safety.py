@@ -20,6 +20,13 @@ Rules (issue "data-acquisition service", item 3; MVME 104 watchdog 15 ms, IRSS 3
   (:meth:`OutputGuard.refuse`): ARMED -> SAFE (0 V, brakes set) with a message naming
   the field, the value and the limit (or the writer), never clipped and obeyed. An arm
   request with such a command is refused the same way. Re-arming needs a new request.
+- **Halting** (IRSS halt / single step, docs/console.md): a halted controller keeps writing
+  (a fresh heartbeat) 0 rates, 0 current limits and no arm request, with
+  ``commands.mode`` = :data:`bit3.layout.MODE_HALTED`. The guard then holds **HALTED**
+  (outputs 0 V, brakes set, named in the header and ``pfma stats``): not a fault and not a
+  trip. Leaving HALTED needs an arm request with a new number (the re-arm), or the mode
+  cleared (-> SAFE). A heartbeat that goes stale while HALTED is a watchdog FAULT like any
+  other: the controller that was holding the halt is gone.
 - The heartbeat is judged on the **service's** clock: the service notes when it
   last saw the heartbeat counter change, so the two processes' clocks never need to
   agree.
@@ -30,10 +37,12 @@ from __future__ import annotations
 from bit3.layout import ServiceState  # the states as the Bit3 header publishes them
 from pfma.clock import Clock
 
-__all__ = ["OutputGuard", "ServiceState", "STOP_CODE"]
+__all__ = ["OutputGuard", "ServiceState", "STOP_CODE", "HALT_CODE"]
 
 #: message code of the orderly stop's notice ("outputs safe: service stopped"): not a trip
 STOP_CODE = 10
+#: message code of the halt's notices (halted by the controller, halt released): not a trip
+HALT_CODE = 11
 
 
 class OutputGuard:
@@ -64,7 +73,7 @@ class OutputGuard:
         return self.clock.now() - self._hb_t
 
     def update(self, heartbeat: int, arm_enable: bool, arm_request: int, rates_zero: bool,
-               refusal: str | None = None, stall_note: str = "") -> bool:
+               refusal: str | None = None, stall_note: str = "", halted: bool = False) -> bool:
         """Feed this frame's command-area values; return True when commands may drive the DAC.
 
         :param refusal: why this frame's command must not drive the arm (a field beyond its
@@ -72,6 +81,8 @@ class OutputGuard:
             the arm request is refused
         :param stall_note: appended to a heartbeat trip's reason when the service itself
             was stalled during the heartbeat's age (names the host stall as the cause)
+        :param halted: the command area says the controller is halted (``mode`` =
+            ``MODE_HALTED``): ARMED or SAFE -> HALTED while the heartbeat is fresh
         """
         now = self.clock.now()
         if heartbeat != self._hb:
@@ -85,11 +96,17 @@ class OutputGuard:
             elif refusal is not None:
                 self.refuse(refusal)
             elif not arm_enable:
-                self.state = ServiceState.SAFE
-                self.post(0, 2, "disarmed by command")
+                if halted:
+                    self._halt()
+                else:
+                    self.state = ServiceState.SAFE
+                    self.post(0, 2, "disarmed by command")
             return self.state == ServiceState.ARMED
+        if self.state == ServiceState.HALTED and not fresh:
+            self.trip(self._stale_text(now - self._hb_t, stall_note) + " (halted)", code=1)
+            return False
         if arm_enable and arm_request != self._arm_request_used and self.state in (
-                ServiceState.SAFE, ServiceState.FAULT):
+                ServiceState.SAFE, ServiceState.FAULT, ServiceState.HALTED) and not halted:
             if not fresh:
                 # keep the request pending: a controller that is starting up may arm as
                 # soon as its heartbeat is seen to move; say so once
@@ -108,7 +125,18 @@ class OutputGuard:
                 self.reason = ""
                 self.post(0, 5, "armed")
                 return True
+        if halted and fresh and self.state == ServiceState.SAFE:
+            self._halt()
+        elif not halted and self.state == ServiceState.HALTED:
+            self.state = ServiceState.SAFE
+            self.post(0, HALT_CODE, "halt released: outputs stay safe until an arm request")
         return False
+
+    def _halt(self) -> None:
+        """ARMED or SAFE -> HALTED: outputs 0 V, brakes set; not a fault."""
+        self.state = ServiceState.HALTED
+        self.reason = "controller halted"
+        self.post(0, HALT_CODE, "halted by the controller: outputs 0 V, brakes set")
 
     def check_between_frames(self, heartbeat: int, stall_note: str = "") -> bool:
         """Between frames: note ``heartbeat``; trip when ARMED and it is older than the

@@ -16,7 +16,9 @@ turned on, and compensators can be designed against a plant model. Here:
 
 :meth:`SystemSimulator.step` advances whole minor frames; nothing else moves time.
 Halting the simulator halts everything (as IRSS's halt stopped the frame interrupts);
-:meth:`step` with ``frames=1`` is the single step. Two simulators built the same way
+:meth:`step` with ``frames=1`` is the single step. Halting the controller alone
+(``Request.HALT``, docs/console.md) leaves the service running: the controller then holds
+the outputs in the service's HALTED state every frame (:meth:`ControllerRuntime.tick`). Two simulators built the same way
 and driven the same way produce identical traces.
 """
 
@@ -73,7 +75,7 @@ class SystemSimulator:
                 return
             n = 1 if self.controller_steps is None else int(self.controller_steps(self.svc_frame()))
             for _ in range(n):
-                self.rt.step()
+                self.rt.tick()  # a minor frame, or the halted hold (docs/console.md)
         self.rig.after_frame.append(controller_frame)
 
     # --- running -------------------------------------------------------------------------
@@ -102,6 +104,25 @@ class SystemSimulator:
         from controller.decision import Status
         self.rt.request(Request.POWER_UP)
         return self.run_until(lambda: self.rt.all_status(Status.START_UP_COMPLETE), max_frames)
+
+    def request(self, kind: int, arg: int = 0, max_frames: int = 400) -> tuple[int, str]:
+        """Post a user request (``Request.*``) and run frames until System Up/Down answers
+        it with anything but IN PROGRESS (or ``max_frames``); returns (Response code, text)."""
+        from controller.layers import Response
+        seq = self.rt.request(kind, arg)
+        code, text = Response.NONE, ""
+        for _ in range(max_frames):
+            self.step(1)
+            got, code, text = self.response()
+            if got == seq and code != Response.IN_PROGRESS:
+                break
+        return code, text
+
+    def response(self) -> tuple[int, int, str]:
+        """(request number answered, Response code, the answer in words)."""
+        v = self.rt.wm.get_task_inputs(("ui.response_seq", "ui.response", "ui.response_text"))
+        text = bytes(v["ui.response_text"]).rstrip(b"\0").decode(errors="replace")
+        return int(v["ui.response_seq"]), int(v["ui.response"]), text
 
     # --- looking -------------------------------------------------------------------------
     def svc_frame(self) -> int:
