@@ -12,8 +12,10 @@ counters, messages.
 - :class:`DacTask`: the DAC board: its channels' roles, limits and conversion of the
   engineering commands to volts, and the write; the command path that decides what is
   written (freshness, refusals, watchdog, safety guard) is the service's
-- :class:`FtTask`: the F/T sensor line (start-up dialogue, decoding, link status) at 80 Hz
-- :class:`HandTask`: the CRL (serial) and CAE (A/D) hand controllers at 80 Hz
+- :class:`FtTask`: the F/T sensor (serial line: start-up dialogue, decoding; or a CAN node)
+  and its link status at 80 Hz
+- :class:`HandTask`: the CRL (serial), CAE (A/D) and USB HID (SpaceMouse) hand
+  controllers at 80 Hz
 - :class:`PioTask`: the parallel ports (user inputs, matrix switcher route) at 40 Hz
 
 Count <-> unit conversions are the drivers' (``drivers/<board>``); the tasks apply only
@@ -29,6 +31,7 @@ pays for it).
 from __future__ import annotations
 
 import math
+import threading
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -43,6 +46,8 @@ if TYPE_CHECKING:
     from calibration.files import FtCalibration
     from drivers.crl.cae import CaeHandController
     from drivers.crl.crl import CrlHandController
+    from drivers.crl.hid import HidSpaceMouse
+    from drivers.serial_ft.can_ft import CanFtSensor
     from drivers.serial_ft.ftsensor import FtSensor
 
 #: F/T record older than this is flagged stale: 8 F/T periods. Assumed: long enough to
@@ -55,6 +60,9 @@ FT_STALE_S = 0.1
 FT_START_ATTEMPTS = 3
 #: current-limit volts above which the amplifier releases the brake (pfma-model 8.4, assumed)
 BRAKE_RELEASE_V = 0.5
+#: seconds between attempts to re-open an unplugged USB HID hand controller (its reconnect
+#: thread; assumed: a person re-plugging a cable does not notice a second)
+HID_RETRY_S = 1.0
 
 _TWO_PI = 2.0 * math.pi
 
@@ -363,11 +371,16 @@ class FtTask:
 
     def __init__(self, svc) -> None:
         self.svc = svc
-        self.ft: FtSensor | None = None
+        self.ft: FtSensor | CanFtSensor | None = None
         self.in_tick = False
         self.latest: Any = None  #: the newest decoded F/T record
         self.cal: FtCalibration | None = None
         self.retry = 0
+        #: why the F/T URL given to :meth:`wire_url` could not be opened (None: opened, or none given)
+        self.open_error: str | None = None
+        self.can: CanFtSensor | None = None  #: the F/T when it is a CAN node (``self.ft`` too)
+        self._can_errors = 0  # CAN link errors already seen
+        self._can_quiet = False  # a CAN trouble message is out; no other until a record arrives
 
     def start(self, port, baud: int, where: str) -> None:
         """Binary records with checksum, streamed (QS); then only non-blocking reads."""
@@ -406,17 +419,62 @@ class FtTask:
         svc._v["link_status"][svc.layout.slot("link", "ft_sensor")] = LINK_FAULT
 
     def wire_url(self, url: str) -> None:
-        """The F/T sensor on a pyserial URL (USB-serial adapter, terminal server) instead of
-        the MVME400: the kernel's or the server's buffer holds the bytes between frames."""
+        """The F/T sensor on a URL instead of the MVME400: ``can://INTERFACE/CHANNEL``
+        (python-can, :func:`drivers.serial_ft.can_ft.open_can_url`: the CAN node) or else a
+        pyserial URL (USB-serial adapter, terminal server: the kernel's or the server's
+        buffer holds the bytes between frames). A URL that cannot be opened is posted and
+        kept in :attr:`open_error` (``pfma serve`` then refuses to run)."""
+        from drivers.serial_ft.can_ft import is_can_url
+        if is_can_url(url):
+            self._wire_can(url)
+            return
         import serial
-        svc = self.svc
         try:
             port = serial.serial_for_url(url, baudrate=19200, timeout=0.05)
         except (serial.SerialException, ValueError) as err:
-            svc.init_errors.append(f"F/T port {url}: {err}")
-            svc.post(Severity.ERROR, 121, f"F/T port {url}: {err}")
+            self._open_failed(url, str(err))
             return
         self.start(port, 19200, url)
+
+    def _open_failed(self, url: str, why: str) -> None:
+        svc = self.svc
+        self.open_error = f"F/T {why}" if why.startswith(url) else f"F/T port {url}: {why}"
+        svc.init_errors.append(self.open_error)
+        svc.post(Severity.ERROR, 121, self.open_error)
+        svc._v["link_status"][svc.layout.slot("link", "ft_sensor")] = LINK_FAULT
+
+    def _wire_can(self, url: str) -> None:
+        """The F/T node on a CAN bus: request/response, so nothing to start; each F/T slot
+        collects the answer to the previous slot's request and sends the next
+        (``CanFtSensor.read_records``: never waits), decoded in the slot, not in the serial
+        tick. The record's time is when the slot took it: one F/T period (12.5 ms) after
+        the request, well inside FT_STALE_S."""
+        from drivers.serial_ft.can_ft import open_can_url
+        svc = self.svc
+        try:
+            ft = open_can_url(url, clock=svc.clock)
+        except PfmaError as err:
+            self._open_failed(url, str(err))
+            return
+        self.ft = ft
+        self.in_tick = False
+        self.can = ft
+        svc.post(Severity.INFO, 124, f"F/T on CAN node {ft.node_id}")
+
+    def _can_trouble(self, ft: CanFtSensor) -> None:
+        """A CAN request unanswered, an answer that did not pair, a send or receive that
+        failed: posted once per episode (until a record arrives again)."""
+        self._can_errors = ft.errors
+        if not self._can_quiet:
+            self._can_quiet = True
+            self.svc.post(Severity.WARNING, 125, f"F/T CAN node {ft.node_id}: {ft.last_error}")
+
+    def close(self) -> None:
+        """Release what :meth:`wire_url` opened on a CAN bus (the serial ports are closed
+        with their boards or by their owners)."""
+        from drivers.serial_ft.can_ft import CanFtSensor
+        if isinstance(self.ft, CanFtSensor):
+            self.ft.close()
 
     def decode(self) -> None:
         """Decode what the line's buffer holds; keep the newest record (PfmaError passes)."""
@@ -442,8 +500,13 @@ class FtTask:
         v["link_age_s"][slot] = -1.0 if st.age_s is None else st.age_s
         stale = st.age_s is None or st.age_s > FT_STALE_S
         v["link_status"][slot] = LINK_OPEN | (LINK_STALE if stale else LINK_SYNCED)
+        can = self.can
+        if can is not None and can.errors != self._can_errors:
+            v["link_errors"][slot] = can.errors
+            self._can_trouble(can)
         if r is not None and r.t_s != v["ft_t_s"][()]:
             self.retry = 0  # this F/T period has its record
+            self._can_quiet = False
             v["ft_counts"][:] = r.counts
             v["ft_force_n"][:] = r.force_n
             v["ft_torque_nm"][:] = r.torque_nm
@@ -459,9 +522,11 @@ class FtTask:
 
 class HandTask:
     """The hand controllers: the CRL on the MVME400 (its ``CrlHandController``, the latest
-    state, the force-reflection half-rate toggle) and the CAE on the A/D board (its
+    state, the force-reflection half-rate toggle), the CAE on the A/D board (its
     ``CaeHandController``, the volts array of its A/D board and the indices of its nine
-    channels in it, found by the rack's ``hand_controller`` quantity)."""
+    channels in it, found by the rack's ``hand_controller`` quantity) and the USB HID
+    SpaceMouse (its ``HidSpaceMouse``, wired by :meth:`wire_hid`; a thread re-opens it
+    after an unplug, so the frame never waits on hidapi's enumerate or open)."""
 
     name = "hand"
     drain_after = False
@@ -474,6 +539,65 @@ class HandTask:
         self.cae: CaeHandController | None = None
         self.cae_volts: np.ndarray | None = None
         self.cae_idx: np.ndarray | None = None
+        self.hid: HidSpaceMouse | None = None
+        self.hid_label = "HID hand controller"  #: how messages name it ("simulated ..." for a fake)
+        self.hid_up = False  #: the HID was connected at the last run (messages on a change)
+        self._hid_inline = True  # reconnect inside update() (no thread: simulated time)
+        self._hid_stop = threading.Event()
+        self._hid_thread: threading.Thread | None = None
+        #: set by the reconnect thread each time it re-opens the device
+        self.hid_reconnected = threading.Event()
+
+    def wire_hid(self, sm: HidSpaceMouse, where: str, *, simulated: bool = False,
+                 thread: bool = True) -> bool:
+        """The USB HID hand controller in the ``hid`` slot and the ``hid_hand_controller``
+        link: opened once here (not in a frame), then read without waiting in each hand
+        slot (``update(connect=False)``). After an unplug the slot is invalid, faulted, the
+        deadman released (a controller cannot take a stale command) and a message posted;
+        ``thread`` re-opens the device from a thread every ``sm.retry_s`` seconds (False:
+        ``update`` re-opens it inline: a fake on a simulated clock, where that costs
+        nothing and stays deterministic).
+
+        :param where: the device's name in messages (path, or "fake SpaceMouse")
+        :param simulated: a fake: messages say "simulated"
+        :returns: the device opened now (else the slot says why, and the thread keeps trying)
+        """
+        svc = self.svc
+        self.hid = sm
+        self.hid_label = "simulated HID hand controller" if simulated else "HID hand controller"
+        self._hid_inline = not thread
+        up = sm.connected or sm.connect()
+        self.hid_up = up
+        kind = "SIMULATED: a fake device, no hardware" if simulated else sm.product or "SpaceMouse"
+        if up:
+            svc.notes.append(f"{self.hid_label}: {where} ({kind})")
+            svc.post(Severity.INFO, 131, f"{self.hid_label}: {where}"[:56])
+        else:
+            svc.init_errors.append(f"{self.hid_label} {where}: {sm.last_error}")
+            svc.post(Severity.ERROR, 132, f"{self.hid_label}: not open: {sm.last_error}")
+        if thread:
+            self._hid_stop.clear()
+            self._hid_thread = threading.Thread(target=self._hid_reconnect_loop, name="pfma-hid-reconnect",
+                                                daemon=True)
+            self._hid_thread.start()
+        return up
+
+    def _hid_reconnect_loop(self) -> None:
+        """The reconnect thread: while the HID is unplugged, one enumerate/open attempt every
+        ``retry_s`` seconds (hidapi's calls wait on udev and the kernel, not the frame)."""
+        sm = self.hid
+        while sm is not None and not self._hid_stop.wait(sm.retry_s):
+            if not sm.connected and sm.connect():
+                self.hid_reconnected.set()
+
+    def close(self) -> None:
+        """Stop the HID reconnect thread and close the device (idempotent)."""
+        self._hid_stop.set()
+        if self._hid_thread is not None:
+            self._hid_thread.join(5.0)
+            self._hid_thread = None
+        if self.hid is not None:
+            self.hid.close()
 
     def attach_crl(self, port) -> None:
         from drivers.crl.crl import CrlHandController
@@ -534,6 +658,39 @@ class HandTask:
             v["link_rate_hz"][slot] = stats["rate_hz"]
             v["link_age_s"][slot] = stats["age_s"]
             svc._sampled("crl", self.crl_latest.t_s)
+        if self.hid is not None:
+            self.run_hid()
+
+    def run_hid(self) -> None:
+        """Every pending report of the HID (non-blocking reads), into the ``hid`` slot; its
+        link: records = reports, errors = disconnects, resyncs = re-opens, age = since the
+        last report (a puck at rest reports nothing: a growing age is not staleness while
+        the device is open), status open+synced, or fault+stale while unplugged."""
+        svc = self.svc
+        sm = self.hid
+        if sm is None:
+            return
+        s = sm.update(connect=self._hid_inline)
+        self._put("hid", s)
+        v = svc._v
+        slot = svc.layout.slot("link", "hid_hand_controller")
+        now = s.t_s
+        v["link_records"][slot] = sm.reports
+        v["link_errors"][slot] = sm.disconnects
+        v["link_resyncs"][slot] = max(0, sm.connects - 1)
+        v["link_rate_hz"][slot] = sm.rate_hz(now)
+        v["link_age_s"][slot] = now - sm.t_last_report_s
+        up = sm.connected
+        v["link_status"][slot] = LINK_OPEN | LINK_SYNCED if up else LINK_FAULT | LINK_STALE
+        if up:
+            svc._sampled("hid", now)
+        if up != self.hid_up:
+            self.hid_up = up
+            if up:
+                svc.post(Severity.INFO, 134, f"{self.hid_label} reconnected")
+            else:
+                svc._devices["hid"].errors += 1
+                svc.post(Severity.ERROR, 133, f"{self.hid_label} lost: slot invalid")
 
     def send_force(self) -> None:
         """Force reflection to the CRL at half the hand-controller rate (40 Hz; its

@@ -9,8 +9,17 @@ At start the service times one frame's bus work on its bus (the resolver, A/D, D
 parallel-port transactions); a schedule the bus cannot keep is refused with the figures,
 unless ``--schedule slow`` lets it run the best slower schedule that fits, which it names.
 Over a Modbus gateway (``--bus modbus://HOST:PORT``, e.g. ``pfma gateway``) the serial
-lines are not opened: the F/T comes from ``--ft-port URL`` or is absent. A bus that stops
+lines are not opened: the F/T comes from ``--ft URL`` or is absent. A bus that stops
 answering makes the outputs safe and ends the run with exit status 1.
+
+Devices beside the rack (docs/devices.md):
+  --ft URL       the F/T sensor on a pyserial URL (/dev/ttyUSB0, socket://host:port) or
+                 on CAN, can://INTERFACE/CHANNEL[?node=N&bitrate=BPS] with python-can's
+                 interface names (can://socketcan/can0, can://virtual/ft); --ft-port is
+                 the same option. An F/T URL that cannot be opened: exit 1.
+  --hid SOURCE   the USB 6-axis (SpaceMouse, hidapi) in the hand-controller slot "hid":
+                 auto (the first one hidapi lists; exit 1 when none), fake (a SIMULATED
+                 device, said so at start and in the messages) or /dev/hidrawN.
 """
 
 from __future__ import annotations
@@ -44,9 +53,13 @@ def add_parser(sub):
                    help="acquisition schedule: a [schedule] table (frame_rate_hz, tasks.NAME = {divider, "
                         "phase}); or slow: if the bus cannot keep the schedule, run the best slower one "
                         "it can (named at start) instead of refusing to start")
-    p.add_argument("--ft-port", default=None, metavar="URL",
-                   help="F/T sensor on a pyserial URL (/dev/ttyUSB0, socket://host:port) instead of "
-                        "MVME400 port A")
+    p.add_argument("--ft", "--ft-port", dest="ft_port", action="append", default=None, metavar="URL",
+                   help="F/T sensor on a pyserial URL (/dev/ttyUSB0, socket://host:port) or on CAN "
+                        "(can://INTERFACE/CHANNEL[?node=N], python-can names: can://socketcan/can0) "
+                        "instead of MVME400 port A")
+    p.add_argument("--hid", default=None, metavar="auto|fake|/dev/hidrawN",
+                   help="USB 6-axis hand controller (SpaceMouse) in the buffer's hid slot: the first "
+                        "found, a simulated one, or that hidraw node")
     p.add_argument("--watchdog-ms", type=float, default=15.0, help="command heartbeat time-out (15 ms)")
     p.add_argument("--max-input-age", type=int, default=None, metavar="FRAMES",
                    help="drive rate channels only from commands computed from inputs at most FRAMES "
@@ -154,6 +167,12 @@ def run(args) -> int:
               f"(modbus://HOST:PORT, file:PATH), or --bus fake to run it on the simulated "
               f"rack's registers", file=sys.stderr)
         return 2
+    try:
+        ft_url = _ft_url(args.ft_port)
+        hid = _open_hid(args.hid)
+    except _Refused as err:
+        print(f"pfma serve: {err}", file=sys.stderr)
+        return err.status
     rack = load_rack(args.rack)
     layout = default_layout() if args.rack in ("fake", "default") else build_layout(rack)
     base = MonotonicClock()
@@ -180,22 +199,23 @@ def run(args) -> int:
     try:
         svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3,
                         max_input_age_frames=args.max_input_age,
-                        calibration=getattr(args, "calibration", None), ft_port=args.ft_port,
+                        calibration=getattr(args, "calibration", None), ft_port=ft_url,
                         bus_name=None if world is not None else args.bus)
     except BaseException:
         buf.close(unlink=True)  # a service that could not start leaves no buffer behind
+        if hid is not None:
+            hid[0].close()
         raise
+    if svc.ft.open_error is not None:
+        return _refuse(svc, buf, bus, "the F/T could not be opened", svc.ft.open_error)
+    if hid is not None and not svc.hand.wire_hid(*hid[:2], simulated=hid[2]):
+        return _refuse(svc, buf, bus, "the HID could not be opened", f"--hid {args.hid}: {hid[0].last_error}")
     failed = _failed_boards(svc, buf, layout)
     if failed and len(failed) == len(_initialised_boards(svc, layout)):
         first = _why_unreachable(bus, svc, layout) or failed[0]
-        try:
-            svc.stop("no board answered at start")
-        finally:
-            buf.close(unlink=True)
-            _close_bus(bus)
-        print(f"pfma serve: cannot reach the boards on {args.bus or 'the simulated rack'}: every "
-              f"board failed to initialise; first: {first}", file=sys.stderr)
-        return 1
+        return _refuse(svc, buf, bus, "no board answered at start",
+                       f"cannot reach the boards on {args.bus or 'the simulated rack'}: every "
+                       f"board failed to initialise; first: {first}")
     for f in failed:
         print(f"pfma serve: {f}", file=sys.stderr)
     for note in svc.notes:
@@ -204,13 +224,7 @@ def run(args) -> int:
     try:
         slower = svc.fit_schedule(slow=slow)
     except BusTooSlow as err:
-        try:
-            svc.stop("the bus cannot keep the schedule")
-        finally:
-            buf.close(unlink=True)
-            _close_bus(bus)
-        print(f"pfma serve: {err}", file=sys.stderr)
-        return 1
+        return _refuse(svc, buf, bus, "the bus cannot keep the schedule", str(err))
     if slower is not None:
         print(f"pfma serve: {slower}", flush=True)
     schedule = svc.schedule
@@ -265,11 +279,103 @@ def run(args) -> int:
         buf.close()
         svc.ring.close()
         FrameRing.unlink(args.buffer)
+        svc.hand.close()
+        svc.ft.close()
         _close_bus(bus)
     if svc.bus_lost is not None:
         print(f"pfma serve: {svc.bus_lost}", file=sys.stderr)
         return 1
     return 0
+
+
+class _Refused(Exception):
+    """A device flag the service cannot run with: the message, and the exit status (2 for
+    a usage mistake, 1 when the device is missing)."""
+
+    def __init__(self, status: int, text: str) -> None:
+        super().__init__(text)
+        self.status = status
+
+
+def _ft_url(given: list[str] | None) -> str | None:
+    """The one F/T URL of ``--ft``/``--ft-port`` (given twice, the same). A ``can://`` URL
+    is checked here: its form (exit 2), python-can and the interface name (exit 1); the
+    channel is opened by the service (``FtTask.wire_url``)."""
+    urls = list(dict.fromkeys(given or ()))
+    if len(urls) > 1:
+        raise _Refused(2, f"--ft/--ft-port given twice with different URLs ({', '.join(urls)}); give one")
+    if not urls:
+        return None
+    url = urls[0]
+    from drivers.serial_ft.can_ft import CanUrlError, is_can_url, parse_can_url
+    if is_can_url(url):
+        try:
+            spec = parse_can_url(url)
+        except CanUrlError as err:
+            raise _Refused(2, f"--ft: {err}") from None
+        try:
+            import can.interfaces
+        except ImportError as err:
+            raise _Refused(1, f"--ft {url}: python-can is not installed ({err}); pip install python-can") from None
+        from pfma.errors import did_you_mean
+        known = can.interfaces.VALID_INTERFACES
+        if spec.interface not in known:
+            raise _Refused(1, f"--ft {url}: python-can has no interface {spec.interface!r}"
+                              f"{did_you_mean(spec.interface, known)} (known: {', '.join(sorted(known))})")
+    return url
+
+
+def _open_hid(source: str | None):
+    """``--hid``: None, or (HidSpaceMouse, where, simulated), not yet opened (the service's
+    hand task opens it). ``auto`` needs hidapi and a SpaceMouse that hidapi lists now;
+    ``fake`` is ``fakes.hid.FakeHidDevice`` (its puck at rest, no button pressed: it
+    never commands motion); a path must exist."""
+    if source is None:
+        return None
+    from drivers.crl import hid as hidmod
+    if source == "fake":
+        from fakes.hid import FakeHidDevice
+        return hidmod.HidSpaceMouse(opener=FakeHidDevice()), "fake SpaceMouse", True
+    if source != "auto" and not source.startswith("/"):
+        raise _Refused(2, f"--hid {source}: expected auto (the first SpaceMouse hidapi finds), "
+                          f"fake (a simulated one) or a device path such as /dev/hidraw0")
+    try:
+        opener = hidmod.default_opener()
+    except ImportError as err:
+        raise _Refused(1, f"--hid {source}: hidapi is not installed ({err}); pip install hidapi, "
+                          f"or run with --hid fake") from None
+    if source != "auto":
+        if not os.path.exists(source):
+            raise _Refused(1, f"--hid {source}: no such device (is the SpaceMouse plugged in? "
+                              f"ls /dev/hidraw*)")
+        return hidmod.HidSpaceMouse(path=source, opener=opener), source, False
+    sm = hidmod.HidSpaceMouse(opener=opener)
+    try:
+        found = sm.enumerate()
+    except (OSError, ValueError) as err:
+        raise _Refused(1, f"--hid auto: hidapi could not list the USB HID devices: {err}") from None
+    if not found:
+        vids = "/".join(f"0x{v:04X}" for v in sm.vendor_ids)
+        raise _Refused(1, f"--hid auto: no SpaceMouse found (hidapi lists no device of vendor {vids}); "
+                          f"plug one in (and allow /dev/hidraw* in a udev rule), give its "
+                          f"/dev/hidrawN, or run with --hid fake")
+    path = found[0].get("path")
+    where = path.decode(errors="replace") if isinstance(path, bytes) else str(path)
+    return sm, where, False
+
+
+def _refuse(svc, buf, bus, why: str, text: str) -> int:
+    """A service built but unable to run: stopped (outputs safe), its buffer removed, what it
+    opened closed; ``text`` on stderr; exit status 1."""
+    try:
+        svc.stop(why)
+    finally:
+        buf.close(unlink=True)
+        svc.hand.close()
+        svc.ft.close()
+        _close_bus(bus)
+    print(f"pfma serve: {text}", file=sys.stderr)
+    return 1
 
 
 def _close_bus(bus) -> None:
