@@ -1,0 +1,511 @@
+"""``pfma fault``: inject and clear faults in a running simulated rack.
+
+``pfma serve`` on the simulated rack (``--rack fake``) opens a control endpoint beside
+its Bit3 buffer: the Unix-domain stream socket ``/dev/shm/NAME.faults`` (mode 0600, as
+the buffer; removed when the service stops; a stale one, left by a killed service, is
+recognised and replaced). ``pfma fault`` talks to it with one line of JSON each way::
+
+    pfma fault inject resolver-los:shoulder_pitch_angle     # --buffer NAME (default pfma)
+    pfma fault list --active [--json]
+    pfma fault clear resolver-los:shoulder_pitch_angle      # or: pfma fault clear all
+    pfma fault list                                          # every kind, no service needed
+
+The service applies a request between two frames, in its loop's thread (the only thread
+that touches the fakes), and posts every fault it injects or clears in its message queue
+(codes 180 and 181), so ``pfma monitor`` and ``pfma stats`` show that a fault is
+simulated. A service on a real rack has no endpoint: ``pfma fault`` then says so and
+exits 1. A bad spec exits 2 with the closest names. Specs: ``pfma fault list``,
+docs/faults.md.
+
+For ``pfma serve``: :func:`add_serve_fault_args` adds ``--fault SPEC`` (repeatable) and
+``--scenario FILE``; :func:`install_serve_faults` applies them and opens the endpoint.
+"""
+
+from __future__ import annotations
+
+import argparse
+import atexit
+import errno
+import json
+import os
+import queue
+import socket
+import stat
+import sys
+import threading
+from typing import Any
+
+from pfma.errors import ConfigError, PfmaError
+
+#: message codes the service posts (``service_messages``)
+MSG_FAULT_ON, MSG_FAULT_OFF, MSG_SCENARIO_STEP_FAILED = 180, 181, 182
+#: how long a request waits for the loop to take it (the loop takes it before its next
+#: frame: 3.1 ms at 320 Hz; a stopped or stalled loop answers nothing)
+REPLY_TIMEOUT_S = 2.0
+#: the longest request line accepted (a spec is a few dozen bytes)
+MAX_REQUEST_BYTES = 4096
+#: the one message for a buffer with no fault endpoint
+NO_ENDPOINT = "service {name} runs a real rack (or none): faults are only for the simulated rack"
+
+
+def socket_path(buffer: str) -> str:
+    """The control endpoint of the service on Bit3 buffer ``buffer`` (beside the buffer
+    ``/dev/shm/NAME`` and its ring ``/dev/shm/NAME.ring``)."""
+    return f"/dev/shm/{buffer}.faults"
+
+
+# ----------------------------------------------------------------------------- the verb
+def add_parser(sub):
+    p = sub.add_parser("fault", help="inject/clear faults in a running simulated rack",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    cmds = p.add_subparsers(dest="fault_cmd", metavar="inject|clear|list", required=True)
+    for name, helptext in (("inject", "inject a fault (a spec, see: pfma fault list)"),
+                           ("clear", "clear an active fault (its spec) or all of them (all)"),
+                           ("list", "every fault kind; with --active the faults in force")):
+        c = cmds.add_parser(name, help=helptext, description=helptext)
+        if name != "list":
+            c.add_argument("spec", metavar="SPEC" if name == "inject" else "SPEC|all")
+        else:
+            c.add_argument("--active", action="store_true",
+                           help="the faults in force in the service (needs a running simulated rack)")
+        c.add_argument("--buffer", default="pfma", help="the service's Bit3 buffer (default pfma)")
+        c.add_argument("--json", action="store_true", help="print one JSON document")
+    return p
+
+
+def run(args) -> int:
+    from sim.faults import KINDS, parse_fault
+    cmd = args.fault_cmd
+    if cmd == "list" and not args.active:
+        if args.json:
+            _print_json([{"kind": k, "syntax": s, "meaning": m} for k, (s, m) in KINDS.items()])
+        else:
+            from sim.faults import kinds_help
+            print("\n".join(kinds_help()))
+        return 0
+    spec = getattr(args, "spec", None)
+    if spec is not None and not (cmd == "clear" and spec.strip() == "all"):
+        try:
+            parse_fault(spec)  # the simulated rack is the default rack: check before asking
+        except ConfigError as err:
+            print(f"pfma fault: {err}", file=sys.stderr)
+            return 2
+    req: dict[str, Any] = {"op": cmd}
+    if spec is not None:
+        req["spec"] = spec
+    try:
+        reply = request(args.buffer, req)
+    except NoEndpoint as err:
+        print(f"pfma fault: {err}", file=sys.stderr)
+        return 1
+    if not reply.get("ok"):
+        print(f"pfma fault: {reply.get('error', 'the service refused the request')}", file=sys.stderr)
+        return int(reply.get("exit", 1))
+    if args.json:
+        _print_json(reply)
+        return 0
+    faults = reply.get("faults", [])
+    if cmd == "list":
+        if not faults:
+            print(f"no simulated fault active in service {args.buffer}")
+        for f in faults:
+            print(f"{f['spec']}  (since frame {f['since']})  {f['description']}")
+    else:
+        verb = "injected" if cmd == "inject" else "cleared"
+        if not faults:
+            print(f"pfma fault: no fault was active in service {args.buffer}")
+        for f in faults:
+            print(f"pfma fault: {verb} {f['spec']}: {f['description']}")
+    return 0
+
+
+def _print_json(obj) -> None:
+    print(json.dumps(obj, indent=1))
+
+
+# ----------------------------------------------------------------------------- the client
+class NoEndpoint(PfmaError):
+    """The buffer has no live fault endpoint (a real rack's service, or none)."""
+
+
+def request(buffer: str, req: dict, timeout_s: float = REPLY_TIMEOUT_S + 3.0) -> dict:
+    """Send one request to the service on ``buffer``; its reply.
+
+    :raises NoEndpoint: no endpoint, or a stale one (its service is gone)
+    """
+    path = socket_path(buffer)
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        s.settimeout(timeout_s)
+        try:
+            s.connect(path)
+        except FileNotFoundError:
+            raise NoEndpoint(NO_ENDPOINT.format(name=buffer)) from None
+        except ConnectionRefusedError:
+            raise NoEndpoint(NO_ENDPOINT.format(name=buffer) + f" (the control socket {path} is "
+                             f"stale: the service that made it is gone)") from None
+        except PermissionError:
+            raise NoEndpoint(f"service {buffer}: no permission to use its control socket {path} "
+                             f"(mode 0600: it runs as another user)") from None
+        s.sendall(json.dumps(req).encode() + b"\n")
+        data = _read_line(s)
+    except (TimeoutError, socket.timeout):
+        raise NoEndpoint(f"service {buffer} did not answer within {timeout_s:g} s "
+                         f"(its loop is not running?)") from None
+    except OSError as err:
+        raise NoEndpoint(f"service {buffer}: control socket {path}: {err.strerror or err}") from None
+    finally:
+        s.close()
+    try:
+        reply = json.loads(data)
+    except ValueError:
+        raise NoEndpoint(f"service {buffer}: unreadable reply {data[:60]!r}") from None
+    if not isinstance(reply, dict):
+        raise NoEndpoint(f"service {buffer}: unreadable reply {data[:60]!r}")
+    return reply
+
+
+def _read_line(s: socket.socket) -> bytes:
+    buf = b""
+    while b"\n" not in buf and len(buf) <= MAX_REQUEST_BYTES * 16:
+        chunk = s.recv(4096)
+        if not chunk:
+            break
+        buf += chunk
+    return buf.split(b"\n", 1)[0]
+
+
+# ----------------------------------------------------------------------------- the service side
+class _Pending:
+    """A request waiting for the loop, and its reply."""
+
+    def __init__(self, req: dict) -> None:
+        self.req = req
+        self.reply: dict | None = None
+        self.done = threading.Event()
+        self.lock = threading.Lock()
+        self.abandoned = False  # the endpoint gave up waiting: the loop must not act on it
+
+
+class FaultController:
+    """The faults of one simulated service: applied only in the loop's thread, just before
+    a frame (:meth:`on_frame`, installed by :meth:`install` around the loop's body).
+
+    :param svc: the :class:`ioservice.service.IoService`
+    :param world: its :class:`fakes.world.FakeWorld`
+    :param say: where lines for the operator go (stdout by default; None: nowhere)
+    """
+
+    def __init__(self, svc, world, say=lambda line: print(line, flush=True)) -> None:
+        from sim.faults import FaultSet
+        self.svc = svc
+        self.world = world
+        self.faults = FaultSet(world)
+        self.requests: queue.SimpleQueue[_Pending] = queue.SimpleQueue()
+        self.scenario = None  # a sim.scenario.ScenarioRunner
+        self.say = say
+        self.frame = 0
+
+    def install(self) -> None:
+        """Run :meth:`on_frame` before every frame of the service's loop."""
+        body = self.svc.loop.body
+
+        def frame(info) -> None:
+            self.on_frame(info.index)
+            body(info)
+        self.svc.loop.body = frame
+
+    def on_frame(self, k: int) -> None:
+        """Between frames: the scenario's steps due, then the queued requests."""
+        self.frame = k
+        try:
+            if self.scenario is not None:
+                self.scenario.on_frame(k)
+            while True:
+                try:
+                    p = self.requests.get_nowait()
+                except queue.Empty:
+                    break
+                with p.lock:
+                    if p.abandoned:
+                        continue
+                    p.reply = self.handle(p.req)
+                p.done.set()
+        except Exception as err:  # noqa: BLE001 - a fault tool must never stop the service
+            self.svc.post(_severity("ERROR"), MSG_SCENARIO_STEP_FAILED, f"fault control: {err}")
+
+    def handle(self, req: dict) -> dict:
+        """One request (``op`` inject, clear, list) -> reply (``ok``, ``faults`` or ``error``,
+        ``exit``: 2 for a bad spec, 1 for a refusal)."""
+        from sim.faults import parse_fault
+        op = req.get("op")
+        spec = req.get("spec")
+        try:
+            if op == "list":
+                return {"ok": True, "faults": self.faults.listing()}
+            if op not in ("inject", "clear") or not isinstance(spec, str):
+                return {"ok": False, "exit": 2, "error": f"bad request {req!r}"}
+            if not (op == "clear" and spec.strip() == "all"):
+                try:
+                    parse_fault(spec, self.faults.rack)
+                except ConfigError as err:
+                    return {"ok": False, "exit": 2, "error": str(err)}
+            if op == "inject":
+                done = [self.inject(spec)]
+            else:
+                done = self.clear(spec)
+            return {"ok": True, "faults": [_fault_dict(f, self.frame) for f in done]}
+        except ConfigError as err:  # already active, not active
+            return {"ok": False, "exit": 1, "error": str(err)}
+
+    def inject(self, spec: str):
+        f = self.faults.inject(spec, since=self.frame)
+        self._posted(MSG_FAULT_ON, "simulated fault on", f, "injected")
+        return f
+
+    def clear(self, spec: str):
+        done = self.faults.clear(spec)
+        for f in done:
+            self._posted(MSG_FAULT_OFF, "simulated fault off", f, "cleared")
+        return done
+
+    def _posted(self, code: int, head: str, fault, verb: str) -> None:
+        sev = _severity("WARNING" if code == MSG_FAULT_ON else "INFO")
+        self.svc.post(sev, code, f"{head}: {fault.spec}")  # the queue keeps 56 bytes
+        if self.say is not None:
+            self.say(f"pfma serve: frame {self.frame}: {verb} simulated fault {fault.spec}: "
+                     f"{fault.description}")
+
+    def scenario_step(self, step, done, err) -> None:
+        """A scenario step ran (``ScenarioRunner.say``)."""
+        if err is not None:
+            self.svc.post(_severity("ERROR"), MSG_SCENARIO_STEP_FAILED,
+                          f"scenario step failed: {step.action} {step.spec}")
+            if self.say is not None:
+                self.say(f"pfma serve: frame {self.frame}: scenario step {step.as_text()} failed: {err}")
+            return
+        for f in done:
+            if step.action == "inject":
+                self._posted(MSG_FAULT_ON, "simulated fault on", f, "injected")
+            else:
+                self._posted(MSG_FAULT_OFF, "simulated fault off", f, "cleared")
+
+
+def _severity(name: str) -> int:
+    from bit3.layout import Severity
+    return int(Severity[name])
+
+
+def _fault_dict(f, frame: int) -> dict:
+    return {"spec": f.spec, "kind": f.kind, "description": f.description, "since": frame}
+
+
+class FaultEndpoint:
+    """The control socket: a small thread accepts connections, reads one JSON line, queues
+    it for the loop (:class:`FaultController`) and writes the reply back. It touches no fake.
+
+    :param path: the socket's path (:func:`socket_path`)
+    :param controller: where requests are queued
+    """
+
+    def __init__(self, path: str, controller: FaultController) -> None:
+        self.path = path
+        self.controller = controller
+        self._sock: socket.socket | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._ino: int | None = None
+
+    def start(self) -> None:
+        """Bind (replacing a stale socket; refusing a live one), mode 0600, listen, serve.
+
+        :raises PfmaError: the path is a live endpoint or not a socket
+        """
+        _remove_stale(self.path)
+        s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            s.bind(self.path)
+            os.chmod(self.path, 0o600)  # before listen(): nobody can connect until then
+            s.listen(8)
+        except OSError as err:
+            s.close()
+            raise PfmaError(f"fault control socket {self.path}: {err.strerror or err}") from None
+        self._ino = os.stat(self.path).st_ino
+        self._sock = s
+        self._thread = threading.Thread(target=self._serve, name="pfma-fault-endpoint", daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        assert self._sock is not None
+        while not self._stop.is_set():
+            try:
+                conn, _ = self._sock.accept()
+            except OSError:
+                return  # closed
+            with conn:
+                try:
+                    self._one(conn)
+                except OSError:
+                    pass  # the client went away
+
+    def _one(self, conn: socket.socket) -> None:
+        conn.settimeout(REPLY_TIMEOUT_S)
+        try:
+            line = _read_line(conn)
+        except (TimeoutError, socket.timeout):
+            return
+        try:
+            req = json.loads(line)
+            if not isinstance(req, dict):
+                raise ValueError("not an object")
+        except ValueError:
+            reply: dict = {"ok": False, "exit": 2, "error": f"not a JSON request line: {line[:60]!r}"}
+        else:
+            p = _Pending(req)
+            self.controller.requests.put(p)
+            if not p.done.wait(REPLY_TIMEOUT_S):
+                with p.lock:
+                    if p.reply is None:
+                        p.abandoned = True
+                reply = p.reply or {"ok": False, "exit": 1,
+                                    "error": f"the service loop took no request for {REPLY_TIMEOUT_S:g} s "
+                                             f"(stopped or stalled); nothing was changed"}
+            else:
+                reply = p.reply or {"ok": False, "exit": 1, "error": "no reply"}
+        conn.sendall(json.dumps(reply).encode() + b"\n")
+
+    def close(self) -> None:
+        """Stop serving and remove the socket (only if it is still ours). Idempotent."""
+        self._stop.set()
+        s, self._sock = self._sock, None
+        if s is not None:
+            try:
+                s.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            s.close()
+        if self._thread is not None:
+            self._thread.join(REPLY_TIMEOUT_S + 1.0)
+            self._thread = None
+        try:
+            if self._ino is not None and os.stat(self.path).st_ino == self._ino:
+                os.unlink(self.path)
+        except FileNotFoundError:
+            pass
+        self._ino = None
+
+
+def _remove_stale(path: str) -> None:
+    """Remove ``path`` if it is a socket nobody listens on; refuse a live one or a non-socket."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if not stat.S_ISSOCK(st.st_mode):
+        raise PfmaError(f"fault control socket {path}: exists and is not a socket; remove it")
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        probe.settimeout(1.0)
+        probe.connect(path)
+    except OSError as err:
+        if err.errno in (errno.ECONNREFUSED, errno.ENOENT):
+            try:
+                os.unlink(path)  # stale: its service is gone
+            except FileNotFoundError:
+                pass
+            return
+        raise PfmaError(f"fault control socket {path}: {err.strerror or err}") from None
+    finally:
+        probe.close()
+    raise PfmaError(f"fault control socket {path} is in use by a live service")
+
+
+# ----------------------------------------------------------------------------- pfma serve
+def _spec_arg(text: str) -> str:
+    """argparse type of ``--fault``: the spec checked against the simulated rack's (default) rack."""
+    from sim.faults import parse_fault
+    try:
+        parse_fault(text)
+    except ConfigError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    return text
+
+
+def _scenario_arg(path: str):
+    """argparse type of ``--scenario``: the file loaded and checked (file, line, field named)."""
+    from sim.scenario import load_scenario
+    try:
+        return load_scenario(path)
+    except ConfigError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    except OSError as err:
+        raise argparse.ArgumentTypeError(f"scenario {path}: {err.strerror or err}") from None
+
+
+def add_serve_fault_args(parser: argparse.ArgumentParser) -> None:
+    """``--fault SPEC`` (repeatable) and ``--scenario FILE`` for ``pfma serve``; both are
+    checked while the arguments are parsed (a bad one exits 2 before anything starts)."""
+    parser.add_argument("--fault", action="append", default=[], metavar="SPEC", type=_spec_arg,
+                        help="simulated rack only: inject this fault from the first frame "
+                             "(repeatable; kinds: pfma fault list)")
+    parser.add_argument("--scenario", default=None, metavar="FILE", type=_scenario_arg,
+                        help="simulated rack only: run this fault scenario (TOML [[step]] at_s, "
+                             "inject/clear) on the loop's frame time, e.g. scenarios/ft-unplug.toml")
+
+
+def install_serve_faults(args, svc, world) -> None:
+    """After the service is built and before its loop runs: inject ``--fault`` specs, schedule
+    the ``--scenario`` steps on the loop's frames, and open the control endpoint
+    (:func:`socket_path`), removed when the service stops and at exit.
+
+    On a real rack (``world`` None) nothing is opened; ``--fault``/``--scenario`` there
+    print one message and exit 2 (``SystemExit``).
+    """
+    specs = list(getattr(args, "fault", None) or [])
+    scenario = getattr(args, "scenario", None)
+    if world is None:
+        if specs or scenario is not None:
+            print("pfma serve: --fault and --scenario need the simulated rack (--rack fake, no --bus)",
+                  file=sys.stderr)
+            raise SystemExit(2)
+        return
+    from sim.faults import parse_fault
+    from sim.scenario import ScenarioRunner, load_scenario
+    rack = world.rack_config
+    try:
+        faults = [parse_fault(s, rack) for s in specs]
+        if isinstance(scenario, str):
+            scenario = load_scenario(scenario, rack)
+    except ConfigError as err:
+        print(f"pfma serve: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
+    except OSError as err:
+        print(f"pfma serve: scenario {scenario}: {err.strerror or err}", file=sys.stderr)
+        raise SystemExit(2) from None
+    ctl = FaultController(svc, world)
+    for f in faults:
+        try:
+            ctl.inject(f.spec)
+        except ConfigError as err:  # the same fault twice
+            print(f"pfma serve: --fault {f.spec}: {err}", file=sys.stderr)
+            raise SystemExit(2) from None
+    if scenario is not None:
+        ctl.scenario = ScenarioRunner(scenario, ctl.faults, svc.schedule.frame_rate_hz,
+                                      say=ctl.scenario_step)
+        print(f"pfma serve: scenario {scenario.name}: {len(scenario.steps)} steps"
+              + (f" ({scenario.description})" if scenario.description else ""), flush=True)
+    ctl.install()
+    buffer = getattr(args, "buffer", None) or svc.buf.name
+    endpoint = FaultEndpoint(socket_path(buffer), ctl)
+    endpoint.start()
+    atexit.register(endpoint.close)
+    stop = svc.stop
+
+    def stop_and_close(*a, **kw):
+        try:
+            return stop(*a, **kw)
+        finally:
+            endpoint.close()
+    svc.stop = stop_and_close
+    print(f"pfma serve: fault control on {endpoint.path} (pfma fault inject|clear|list "
+          f"--buffer {buffer})", flush=True)
