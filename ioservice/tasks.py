@@ -60,9 +60,6 @@ FT_STALE_S = 0.1
 FT_START_ATTEMPTS = 3
 #: current-limit volts above which the amplifier releases the brake (pfma-model 8.4, assumed)
 BRAKE_RELEASE_V = 0.5
-#: seconds between attempts to re-open an unplugged USB HID hand controller (its reconnect
-#: thread; assumed: a person re-plugging a cable does not notice a second)
-HID_RETRY_S = 1.0
 
 _TWO_PI = 2.0 * math.pi
 
