@@ -138,8 +138,10 @@ def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
                 ctl.write_commands(joint_rate_rad_s=rates)
             arm_s[0] += time.perf_counter() - t0
 
-        # the serial drains around the arm model's step, as pfma serve does
-        clock.hooks[:] = [svc.serial_tick, arm_tick, ctl_tick, svc.serial_tick]
+        # as pfma serve does: the serial drain every tick, the arm model once per frame just
+        # before it (TickingClock.pre_deadline_hooks)
+        clock.hooks[:] = [svc.serial_tick, ctl_tick]
+        clock.pre_deadline_hooks[:] = [arm_tick]
         body = svc.loop.body
         rows: list[tuple[float, float]] = []
         mark: dict = {}

@@ -85,6 +85,11 @@ FT_RETRY_FRAMES = 2
 #: as the cause of a watchdog trip or stale command it explains. Assumed: 10 ms, well
 #: above the wake-up jitter of a shared VM (p99 ~0.85 ms) and below the 15 ms watchdog
 HOST_STALL_S = 0.010
+#: between frames the command heartbeat is checked at most this often (the hooks tick
+#: every ``LIVE_TICK_S`` for the serial FIFOs; the watchdog is 15 ms, so a check every
+#: 1 ms makes the reaction to a dead controller the watchdog plus at most 1 ms plus a
+#: tick, and costs ~900 command reads a second instead of ~2200)
+HEARTBEAT_CHECK_S = 0.001
 #: a stall is named in trips and stale-command messages for this long after it ended (the
 #: time a controller needs to see new inputs and answer: two watchdog periods, assumed)
 STALL_BLAME_S = 0.030
@@ -238,6 +243,7 @@ class IoService:
         self.stats_every = max(1, int(round(self.schedule.frame_rate_hz / 2)))  # twice a second
         self._stats_between_frames = False  # True while run() has idle_tick on the clock
         self._stats_due_k: int | None = None  # frame that asked for statistics not yet published
+        self._last_hb_check = -math.inf  # clock time of idle_tick's last heartbeat check
         self.set_state(ServiceState.SAFE)
         self.post(Severity.INFO, 100, f"service started: {rack.name}, "
                   f"{self.schedule.frame_rate_hz:g} Hz frames, watchdog {watchdog_s * 1e3:g} ms")
@@ -796,14 +802,18 @@ class IoService:
         """Between frames (a TickingClock hook that :meth:`run` installs, every 0.4 ms of
         sleep when live):
 
-        - while ARMED, the command heartbeat is checked, and a stale one drives the DAC to
-          0 V at once rather than at the next frame (the reaction to a dead controller is
-          then the watchdog plus one tick, not plus one frame and a late wake-up);
+        - while ARMED, the command heartbeat is checked (at most every
+          ``HEARTBEAT_CHECK_S``), and a stale one drives the DAC to 0 V at once rather than
+          at the next frame (the reaction to a dead controller is then the watchdog plus at
+          most 1 ms and a tick, not plus one frame and a late wake-up);
         - the statistics a frame asked for are published (percentiles over the 4096-frame
           window cost about 1 ms, a periodic work spike inside a frame).
         """
-        self._note_alive(self.clock.now())
-        if self.guard.state == ServiceState.ARMED and self.state == ServiceState.ARMED:
+        now = self.clock.now()
+        self._note_alive(now)
+        if self.guard.state == ServiceState.ARMED and self.state == ServiceState.ARMED \
+                and now - self._last_hb_check >= HEARTBEAT_CHECK_S:
+            self._last_hb_check = now
             self._fetch_command()  # only a good command's heartbeat counts (_hb_ok)
             hb = self._hb_ok if self._hb_ok is not None else -1
             if self.guard.check_between_frames(hb, stall_note=self._stall_note()):

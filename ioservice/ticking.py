@@ -8,6 +8,12 @@ frame) without a reader thread competing for the GIL, and the simulated rack
 uses it to advance the arm between frames. No hook runs at the deadline itself,
 so a frame starts as soon as its deadline passes.
 
+``pre_deadline_hooks`` run once per sleep, at the first tick within ``pre_deadline_s`` of
+its end (or at once when the sleep is shorter): work needed once per frame, just before
+it, such as stepping the simulated arm so the frame reads its state at most about
+``pre_deadline_s`` old (``pfma serve`` on the simulated rack). The ordinary hooks run
+right after them (the service's serial drain, so a long step does not overrun a FIFO).
+
 Works the same over the real monotonic clock and a ``SimClock`` (deterministic).
 """
 
@@ -25,12 +31,16 @@ class TickingClock:
     :param tick_s: longest stretch between hook calls while sleeping
     """
 
-    def __init__(self, base: Clock, tick_s: float = 0.0007) -> None:
+    def __init__(self, base: Clock, tick_s: float = 0.0007, pre_deadline_s: float | None = None) -> None:
         if tick_s <= 0:
             raise ValueError("tick_s must be positive")
         self.base = base
         self.tick_s = tick_s
         self.hooks: list[Callable[[float], None]] = []
+        self.pre_deadline_hooks: list[Callable[[float], None]] = []
+        #: how long before a sleep's end its pre-deadline hooks run (default: two ticks,
+        #: so a hook of up to about one tick does not make the frame late)
+        self.pre_deadline_s = 2 * tick_s if pre_deadline_s is None else pre_deadline_s
         self.simulated = getattr(base, "simulated", False)
 
     def now(self) -> float:
@@ -47,8 +57,15 @@ class TickingClock:
 
     def sleep_until(self, t: float) -> None:
         base, tick = self.base, self.tick_s
+        pre_due = bool(self.pre_deadline_hooks)
         while True:
             now = base.now()
+            if pre_due and t - now <= self.pre_deadline_s:
+                pre_due = False  # once per sleep
+                for hook in self.pre_deadline_hooks:
+                    hook(now)
+                self.tick()  # the ordinary hooks right after (a serial drain after a long step)
+                continue
             if now + tick >= t:
                 base.sleep_until(t)
                 return
