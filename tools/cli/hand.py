@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 import math
 import sys
 
@@ -219,6 +220,9 @@ def run(args) -> int:
                 break
             state = source.poll()
             if now >= next_print:
+                # shown as seconds since this command started (the driver stamps its clock's
+                # time: on the host's monotonic clock that is the machine's uptime)
+                state = replace(state, t_s=state.t_s - t0)
                 if args.json:
                     print(json.dumps(state.as_dict()))
                 else:

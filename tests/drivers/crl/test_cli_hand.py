@@ -41,3 +41,14 @@ def test_hid_fake_port_and_duration(capsys):
 def test_bad_source_is_a_usage_error():
     with pytest.raises(SystemExit):
         main(["hand", "--source", "joystick"])
+
+
+def test_hand_times_are_seconds_since_the_command_started(capsys):
+    """t= (and the JSON t_s) count from the start of the command, not the host's uptime."""
+    import json
+
+    from tools.cli import main
+    assert main(["hand", "--source", "cae", "--count", "3", "--rate-hz", "50", "--json"]) == 0
+    ts = [json.loads(line)["t_s"] for line in capsys.readouterr().out.splitlines()]
+    assert len(ts) == 3
+    assert 0.0 <= ts[0] < 1.0 and ts == sorted(ts)
