@@ -243,6 +243,7 @@ def test_serve_ft_on_can_virtual_end_to_end(capsys):
 
 
 @pytest.mark.parametrize("url, status, text", [
+    ("", 2, "--ft: an empty URL"),
     ("can://virtual", 2, "is not of the form can://INTERFACE/CHANNEL"),
     ("can:virtual/ft", 2, "is not of the form can://INTERFACE/CHANNEL"),
     ("can://virtual/ft?node=16", 2, "a CAN F/T node id is 0..15"),

@@ -307,6 +307,8 @@ def _ft_url(given: list[str] | None) -> str | None:
     if not urls:
         return None
     url = urls[0]
+    if not url.strip():
+        raise _Refused(2, "--ft: an empty URL (a serial port such as /dev/ttyUSB0, or can://INTERFACE/CHANNEL)")
     from drivers.serial_ft.can_ft import CanUrlError, is_can_url, parse_can_url
     if is_can_url(url):
         try:
