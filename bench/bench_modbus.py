@@ -52,6 +52,10 @@ def available() -> str | None:
     return None
 
 
+#: longest wait for the service's next statistics publication after a short measurement
+STATS_WAIT_S = 3.0
+
+
 def figures(seconds: float = 5.0) -> dict:
     """The service over a loopback gateway for ``seconds`` (after it publishes frames)."""
     from bench.independent_reader import IndependentReader, measure
@@ -105,6 +109,12 @@ def figures(seconds: float = 5.0) -> dict:
             reader.close()
         wall = time.monotonic() - t0
         cpu_s, cpu_g = _cpu_s(svc.pid) - cpu_s0, _cpu_s(gw.pid) - cpu_g0
+        # the service publishes its statistics about once a second: a short run waits (at most
+        # STATS_WAIT_S) for a publication made after the measurement started
+        t_stats = time.monotonic() + STATS_WAIT_S
+        while int(client.read_stats()["frames"]) == n0["frames"] and time.monotonic() < t_stats \
+                and svc.poll() is None:
+            time.sleep(0.05)
         st = client.read_stats()
         lay = client.layout
         rates = {g: float(st.device_rate_hz[lay.slot("device", g)]) for g in ("rtd", "adc", "dac")}
