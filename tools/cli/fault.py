@@ -229,7 +229,10 @@ class FaultController:
                 with p.lock:
                     if p.abandoned:
                         continue
-                    p.reply = self.handle(p.req)
+                    try:
+                        p.reply = self.handle(p.req)
+                    except Exception as err:  # noqa: BLE001 - answered, never raised into the loop
+                        p.reply = {"ok": False, "exit": 1, "error": f"{type(err).__name__}: {err}"}
                 p.done.set()
         except Exception as err:  # noqa: BLE001 - a fault tool must never stop the service
             self.svc.post(_severity("ERROR"), MSG_SCENARIO_STEP_FAILED, f"fault control: {err}")

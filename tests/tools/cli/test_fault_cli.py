@@ -283,3 +283,17 @@ def test_end_to_end_with_a_serve_process():
     assert proc.returncode == 0, err
     assert "injected simulated fault ft-unplugged" in out and "Traceback" not in err
     assert not os.path.exists(path)  # removed at exit
+
+
+def test_an_unexpected_error_is_answered_and_the_loop_runs_on(served, monkeypatch):
+    from sim.faults import FaultSet
+    install_serve_faults(serve_args(served.name), served.svc, served.world)
+
+    def boom(self, spec, since=None):
+        raise RuntimeError("boom")
+    monkeypatch.setattr(FaultSet, "inject", boom)
+    reply = while_stepping(served, lambda: request(served.name, {"op": "inject", "spec": "ft-noise"}))
+    assert reply == {"ok": False, "exit": 1, "error": "RuntimeError: boom"}
+    k = served.svc.loop.k
+    served.run_frames(3)
+    assert served.svc.loop.k == k + 3
