@@ -259,6 +259,7 @@ class UpDownLayer(Layer):
     def __init__(self) -> None:
         super().__init__()
         self._seen_seq = 0
+        self._answered_seq = 0  # newest request answered in ui.response
         self._active = Request.NONE
         self._active_seq = 0
         self._cmd = Command.NONE
@@ -282,12 +283,18 @@ class UpDownLayer(Layer):
         ]
 
     def _respond(self, rt, seq: int, code: int, text: str) -> None:
+        lvl = Level.WARNING if code in (Response.REFUSED, Response.FAILED) else Level.INFO
+        if seq < self._answered_seq:
+            # a later request was answered already: the one response slot keeps the newest
+            # request's answer (this one is a message only)
+            rt.post(self.key, lvl, f"request {seq}: {text} -> {Response.NAMES[code]}")
+            return
+        self._answered_seq = seq
         raw = text.encode()[:RESPONSE_TEXT_BYTES]
         words = np.zeros(RESPONSE_TEXT_BYTES, dtype=np.uint8)
         words[:len(raw)] = np.frombuffer(raw, dtype=np.uint8)
         rt.wm.post_task_outputs("updown_requests", {"ui.response": code, "ui.response_seq": seq,
                                                     "ui.response_text": words})
-        lvl = Level.WARNING if code in (Response.REFUSED, Response.FAILED) else Level.INFO
         rt.post(self.key, lvl, f"request {seq}: {text} -> {Response.NAMES[code]}")
 
     def _command(self, rt, cmd: Command) -> None:

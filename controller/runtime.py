@@ -576,7 +576,7 @@ class ControllerRuntime:
                 return Response.REFUSED, f"{self.steps_left} single-step frame(s) still to run"
             if arg != 1:
                 return Response.REFUSED, ("resume needs an explicit re-arm (pfma controller resume --rearm; "
-                                          "console: A then R)")
+                                          "console: a, then r)")
             if self._resume_seq:
                 return Response.IN_PROGRESS, f"already resuming (request {self._resume_seq})"
             if self.daq.arm_request:

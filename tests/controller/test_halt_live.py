@@ -162,3 +162,68 @@ def test_frame_control_requests_are_not_system_updown_commands(powered, kind):
     powered.step(5)
     texts = [m.text for m in powered.rt.messages.recent(50, source="updown")]
     assert not any("unknown request" in t for t in texts)
+
+
+# --- pfma controller halt | step [N] | resume --rearm ---------------------------------------
+@pytest.fixture
+def shm_powered(monkeypatch):
+    """A powered-up simulated system whose world model is in shared memory; the CLI's
+    real-time wait for an answer steps the simulator one frame per poll (deterministic)."""
+    from controller.worldmodel import WorldModel
+    from sim.system import SystemSimulator
+    from tests.controller import _wm_support as sup
+    import tools.console.control as control
+    monkeypatch.delenv("PFMA_WM_KEY", raising=False)
+    name = sup.unique_name()
+    s = SystemSimulator(wm_name=name)
+    s.step(10)
+    s.power_up(max_frames=400)
+    monkeypatch.setattr(control.time, "sleep", lambda _s: s.step(1))
+    yield s, name
+    s.close()
+    WorldModel.remove_segment(name)
+
+
+def _pfma(capsys, *argv):
+    from tools.cli import main
+    rc = main(list(argv))
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def test_cli_halt_step_resume_on_a_running_controller(shm_powered, capsys):
+    sim, name = shm_powered
+    rc, out, err = _pfma(capsys, "controller", "halt", "--wm", name)
+    assert rc == 0 and err == "" and "HALT: halted after frame" in out and "-> COMPLETE" in out
+    sim.step(30)
+    assert _state(sim) == ServiceState.HALTED and sim.svc.guard.trips == 0
+    before = sim.rt.frames_run
+    rc, out, err = _pfma(capsys, "controller", "step", "3", "--wm", name)
+    assert rc == 0 and err == ""
+    lines = out.splitlines()
+    assert "SINGLE STEP: 3 frame(s) run" in lines[0]
+    assert lines[1].split()[:2] == ["frame", "t"] and len(lines) == 5  # answer, header, 3 frames
+    assert sim.rt.frames_run - before == 3
+    rc, out, err = _pfma(capsys, "controller", "resume", "--wm", name)
+    assert rc == 1 and "explicit re-arm" in out and "-> REFUSED" in out
+    rc, out, err = _pfma(capsys, "controller", "resume", "--rearm", "--wm", name)
+    assert rc == 0 and "re-armed" in out
+    sim.step(10)
+    assert _state(sim) == ServiceState.ARMED and not sim.rt.halted
+
+
+def test_cli_frame_control_without_a_controller_is_one_message(capsys):
+    rc, out, err = _pfma(capsys, "controller", "halt", "--wm", "pfma_wm_nobody_here")
+    assert rc == 1 and out == ""
+    assert err.startswith("pfma controller halt: no world model 'pfma_wm_nobody_here'")
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("argv, says", [
+    (("halt", "5"), "takes no frame count"),
+    (("step", "0"), "N must be 1.."),
+    (("step", "--rearm"), "--rearm belongs to resume"),
+])
+def test_cli_frame_control_usage_mistakes_exit_2(capsys, argv, says):
+    rc, out, err = _pfma(capsys, "controller", *argv, "--wm", "pfma_wm_nobody_here")
+    assert rc == 2 and says in err and "Traceback" not in err

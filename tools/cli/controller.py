@@ -8,6 +8,9 @@ Examples::
     pfma controller --sim --power-up --step 40
     pfma controller --buffer pfma --power-up --duration 10     # against ``pfma serve``
     pfma controller --tables                # the decision tables and the scheduling table
+    pfma controller halt --wm pfma_wm       # a running controller: hold the outputs HALTED
+    pfma controller step 5                  # ... run exactly 5 minor frames, print their trace
+    pfma controller resume --rearm          # ... re-arm the outputs and go on
 
 The trace has one line per minor frame: for every layer ``COMMAND>STATUS rN`` (the
 command it receives, the status its decision table decided, the table row that
@@ -31,6 +34,15 @@ HELP = """single-step commands (IRSS halt / manual interrupt):
 def add_parser(sub):
     p = sub.add_parser("controller", help="run the IRSS-layered controller (live service or --sim)",
                        description=__doc__.split("\n\n")[0])
+    p.add_argument("action", nargs="?", choices=("halt", "step", "resume"), default=None,
+                   help="frame control of a RUNNING controller (its --wm): halt (outputs held in the "
+                        "service's HALTED state, 0 V, brakes set), step [N] (exactly N minor frames, "
+                        "their trace printed), resume (needs --rearm)")
+    p.add_argument("frames", nargs="?", type=int, default=None, metavar="N",
+                   help="step: minor frames to run (default 1)")
+    p.add_argument("--rearm", action="store_true", help="resume: re-arm the outputs (required)")
+    p.add_argument("--key", default=None,
+                   help="halt/step/resume: world-model access key (default $PFMA_WM_KEY or the default key)")
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name of the service (default pfma)")
     p.add_argument("--sim", action="store_true", help="simulate the whole system (fake rack + service) "
                                                      "in simulated time instead")
@@ -374,7 +386,7 @@ class _Driver:
             self.sim.step(1)
             return
         self.pacer.wait()  # locked to the service: its next frame, on absolute deadlines
-        self.rt.step()
+        self.rt.tick()  # a minor frame, or the halted hold (pfma controller halt|step|resume)
         snap = self.rt.daq.snapshot
         self.pacer.stepped(float(snap.t_s))
         if not self.pacer.gc_frozen and self.pacer.frames == self.FREEZE_AFTER_FRAMES:
@@ -396,7 +408,10 @@ class _Driver:
     def close(self) -> None:
         from controller.decision import Status
         rt = self.rt
-        if self.sim is None and rt.status("updown") not in (Status.SHUT_DOWN, Status.ERROR):
+        if rt.halted:  # outputs already held safe: let the service go SAFE (no re-arm, no power down)
+            rt.release_halt()
+            print("pfma controller: was halted; outputs left safe (0 V, brakes set)", file=sys.stderr)
+        elif self.sim is None and rt.status("updown") not in (Status.SHUT_DOWN, Status.ERROR):
             from controller.layers import Request
             try:  # leave the arm safe: power down in order before letting go of the buffer
                 rt.request(Request.POWER_DOWN)
@@ -445,7 +460,51 @@ def _interactive(d: _Driver, budget: int) -> None:
             print(HELP)
 
 
+def _frame_control(args) -> int:
+    """``pfma controller halt|step [N]|resume --rearm``: one request to the running
+    controller through its world model; prints the answer (and a step's trace)."""
+    from controller.runtime import MAX_STEP_FRAMES
+    from tools.console.control import ControlError, ControllerLink, Request
+    if args.frames is not None and args.action != "step":
+        print(f"pfma controller {args.action}: takes no frame count (only step N does)", file=sys.stderr)
+        return 2
+    if args.rearm and args.action != "resume":
+        print(f"pfma controller {args.action}: --rearm belongs to resume", file=sys.stderr)
+        return 2
+    n = 1 if args.frames is None else args.frames
+    if args.action == "step" and not 1 <= n <= MAX_STEP_FRAMES:
+        print(f"pfma controller step: N must be 1..{MAX_STEP_FRAMES} (got {n}); longer is a resume",
+              file=sys.stderr)
+        return 2
+    if args.wm in ("none", ""):
+        print(f"pfma controller {args.action}: needs the running controller's world model (--wm NAME)",
+              file=sys.stderr)
+        return 2
+    kind = {"halt": Request.HALT, "step": Request.STEP, "resume": Request.RESUME}[args.action]
+    arg = n if args.action == "step" else int(args.rearm)
+    try:
+        link = ControllerLink.attach(args.wm, args.key)
+        try:
+            seq = link.submit(kind, arg)
+            # a step waits its frames (at most 1 kHz) on top of a second for the answer
+            a = link.wait(seq, timeout_s=2.0 + (n / 300.0 if args.action == "step" else 0.0))
+            print(a.line())
+            if args.action == "step" and a.ok:
+                print(link.step_trace())
+        finally:
+            link.close()
+    except ControlError as err:
+        print(f"pfma controller {args.action}: {err}", file=sys.stderr)
+        return 1
+    return 0 if a.ok else 1
+
+
 def run(args) -> int:
+    if args.action is not None:
+        return _frame_control(args)
+    if args.frames is not None:
+        print("pfma controller: a frame count belongs to `pfma controller step N`", file=sys.stderr)
+        return 2
     if args.tables:
         return _print_tables(args.profile)
     from controller.layers import Request

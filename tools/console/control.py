@@ -1,0 +1,126 @@
+"""Requests to a running controller through its world model's request/response protocol
+(``ui.request``, ``ui.request_arg``, ``ui.request_seq`` -> ``ui.response``,
+``ui.response_text``, ``ui.response_seq``; System Up/Down answers, docs/console.md).
+
+Used by ``pfma controller halt|step|resume`` and by the console. The link never blocks on
+its own: :meth:`ControllerLink.answer` is polled (the CLI waits in real time, the console
+at its refresh, a test in simulated frames).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+
+from controller.layers import Request, Response
+from controller.worldmodel import WorldModel, WorldModelError
+from controller.worldmodel.model import ACCESS_KEY_ENV, DEFAULT_ACCESS_KEY
+
+__all__ = ["Answer", "ControllerLink", "ControlError", "Request", "Response", "access_key"]
+
+
+class ControlError(Exception):
+    """A request that could not be made or was not answered (one clear message)."""
+
+
+@dataclass(frozen=True)
+class Answer:
+    seq: int
+    code: int  #: Response.*
+    text: str
+
+    @property
+    def done(self) -> bool:
+        return self.code not in (Response.NONE, Response.IN_PROGRESS)
+
+    @property
+    def ok(self) -> bool:
+        return self.code == Response.COMPLETE
+
+    def line(self) -> str:
+        return f"request {self.seq}: {self.text or Request.NAMES.get(self.code, '?')} -> {Response.NAMES[self.code]}"
+
+
+def access_key(key: str | None) -> str:
+    """The key user requests carry: ``--key``, else ``$PFMA_WM_KEY``, else the default key
+    the controller itself uses when it was started without one (assumed: an operator at the
+    console of a controller started without a key need not type one; docs/console.md)."""
+    return key or os.environ.get(ACCESS_KEY_ENV) or DEFAULT_ACCESS_KEY
+
+
+class ControllerLink:
+    """Requests to the controller owning ``wm`` (attached read-only, or the owner itself in
+    a simulator)."""
+
+    def __init__(self, wm: WorldModel, key: str | None = None) -> None:
+        self.wm = wm
+        self.key = access_key(key)
+        self._seq = 0
+
+    @classmethod
+    def attach(cls, name: str, key: str | None = None) -> "ControllerLink":
+        """Attach to world model ``name``; one clear :class:`ControlError` when there is no
+        controller (no segment, or its owner is not running)."""
+        try:
+            wm = WorldModel.attach(name)
+        except WorldModelError as err:
+            raise ControlError(str(err)) from None
+        info = wm.info()
+        if not info.owner_alive:
+            wm.close()
+            raise ControlError(f"world model {name!r}: its controller {info.owner!r} (pid {info.owner_pid}) "
+                               f"is not running")
+        return cls(wm, key)
+
+    def submit(self, kind: int, arg: int = 0) -> int:
+        """Post request ``kind`` (``Request.*``) with ``arg``; returns its number."""
+        try:
+            self._seq = max(self._seq, int(self.wm.get("ui.request_seq"))) + 1
+            self.wm.set_user("ui.request_arg", int(arg), self.key)
+            self.wm.set_user("ui.request", int(kind), self.key)
+            self.wm.set_user("ui.request_seq", self._seq, self.key)
+        except WorldModelError as err:
+            raise ControlError(str(err)) from None
+        return self._seq
+
+    def answer(self, seq: int) -> Answer | None:
+        """The answer to request ``seq`` so far (None: not answered yet)."""
+        v = self.wm.get_task_inputs(("ui.response_seq", "ui.response", "ui.response_text"))
+        if int(v["ui.response_seq"]) != seq:
+            return None
+        return Answer(seq, int(v["ui.response"]), _text(v["ui.response_text"]))
+
+    def wait(self, seq: int, timeout_s: float, poll_s: float = 0.005) -> Answer:
+        """Poll (real time) until request ``seq`` is answered with more than IN PROGRESS.
+
+        :raises ControlError: not answered within ``timeout_s``
+        """
+        end = time.monotonic() + timeout_s
+        last = None
+        while time.monotonic() < end:
+            a = self.answer(seq)
+            if a is not None:
+                last = a
+                if a.done:
+                    return a
+            time.sleep(poll_s)
+        info = self.wm.info()
+        state = f"last answer: {last.line()}" if last else "no answer"
+        alive = "" if info.owner_alive else f"; its controller (pid {info.owner_pid}) is not running"
+        raise ControlError(f"request {seq}: {state} within {timeout_s:g} s{alive}")
+
+    def halted(self) -> bool:
+        return bool(self.wm.get("runtime.halted"))
+
+    def step_trace(self) -> str:
+        """The trace of the last single-step run (header and one line per frame)."""
+        return _text(self.wm.get("runtime.step_trace"))
+
+    def close(self) -> None:
+        if self.wm.readonly:
+            self.wm.close()
+
+
+def _text(words) -> str:
+    return bytes(words).rstrip(b"\0").decode(errors="replace")
