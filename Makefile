@@ -12,8 +12,10 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -q -e '.[test]'
 	touch $(STAMP)
 
+# on a terminal: the whole simulated system (rack, service, controller flying a demo path)
+# with the operator console (q or Ctrl-C stops everything, outputs 0 V); else the plain line view
 run: $(STAMP)
-	$(BIN)/pfma serve --rack fake --live --demo
+	@if [ -t 1 ]; then $(BIN)/pfma console --sim; else $(BIN)/pfma serve --rack fake --live --demo; fi
 
 test: $(STAMP)
 	$(BIN)/python -m pytest

@@ -10,6 +10,10 @@ docs/safety.md), and disarms (rates 0, limits 0, arm request off) when it ends. 
 layers replace it.
 
 Run: ``python -m sim.demo --buffer pfma --duration 30``
+
+:func:`demo_goal` is the short demo path the real controller flies in ``make run`` (the
+console over the system simulator, docs/console.md): joint goals through the Joint
+Planner, a few poses around the start pose, one every :data:`DEMO_GOAL_EVERY_S`.
 """
 
 from __future__ import annotations
@@ -30,6 +34,26 @@ HOLD_GAIN_1_S = 2.0
 HOLD_MAX_RATE_RAD_S = 0.1  # well under every joint's rate limit (0.4 rad/s at the shoulder)
 #: seconds after the arm request before any joint moves (rates must be 0 when arming)
 ARM_SETTLE_S = 0.5
+
+
+#: the demo path of ``make run``: joint offsets (rad, command-area joint name -> offset) from
+#: the start pose, visited in turn and repeated (small: well inside every joint's range)
+DEMO_PATH: tuple[dict[str, float], ...] = (
+    {"shoulder_yaw": 0.25, "wrist_roll": 0.6},
+    {"shoulder_yaw": 0.25, "elbow_pitch": 0.15, "wrist_roll": -0.6},
+    {"shoulder_yaw": -0.2, "wrist_pitch": -0.2},
+    {},
+)
+#: seconds between two goals of the demo path (the Joint Planner needs ~2 s per move)
+DEMO_GOAL_EVERY_S = 4.0
+
+
+def demo_goal(joints, q0, t: float) -> tuple[int, list[float]]:
+    """The demo path's goal ``t`` s after power up: (index of the pose, joint angles in
+    the order of ``joints``) from the start pose ``q0``."""
+    k = int(t // DEMO_GOAL_EVERY_S) % len(DEMO_PATH)
+    off = DEMO_PATH[k]
+    return k, [float(q) + off.get(name, 0.0) for name, q in zip(joints, q0)]
 
 
 def hold_rate(q: float, q0: float, k: float = HOLD_GAIN_1_S,

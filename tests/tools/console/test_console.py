@@ -1,0 +1,227 @@
+"""The operator console (issue 18 items 1, 3, 6; docs/console.md) against the system
+simulator in simulated time: Textual's ``App.run_test()`` with Pilot key presses. The
+console's timer is off (``auto_refresh=False``): a test steps the simulator, then
+redraws the areas itself, so nothing depends on the wall clock."""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import pytest
+
+from bit3.client import Client
+from bit3.layout import ServiceState
+from controller.decision import Status
+from sim.system import SystemSimulator
+from tools.console import view
+from tools.console.app import ConsoleApp, MessagesScreen
+from tools.console.control import ControllerLink
+
+SIZE = (180, 50)
+
+
+@pytest.fixture
+def sim():
+    s = SystemSimulator()
+    s.step(10)
+    yield s
+    s.close()
+
+
+@pytest.fixture
+def console(sim):
+    client = Client.attach(sim.name, layout=sim.rig.layout)  # a reader: the console claims nothing
+    app = ConsoleApp(view.Sources(client, sim.rt.wm, rack="simulated"), ControllerLink(sim.rt.wm),
+                     auto_refresh=False)
+    yield app
+    client.close()
+
+
+def _run(app, body):
+    async def go():
+        async with app.run_test(size=SIZE) as pilot:
+            await body(pilot)
+    asyncio.run(go())
+
+
+def _frames(sim, app, n: int) -> None:
+    """n simulated frames, then one console refresh (what the 10 Hz timer does)."""
+    sim.step(n)
+    app.refresh_areas()
+
+
+def test_five_areas_titled_as_the_report_names_them(console):
+    async def body(pilot):
+        titles = [str(w.border_title) for w in console.query(".area")]
+        assert titles == ["Local Status", "World Status", "Messages", "Local Commands", "Global Commands"]
+        assert len(console.query(".area")) == 5  # one widget per area
+        assert console.area_text("world").startswith("SIMULATED RACK")
+    _run(console, body)
+
+
+def test_power_up_from_the_global_commands(sim, console):
+    async def body(pilot):
+        assert "SHUT DOWN" in console.area_text("local")
+        await pilot.press("u")
+        _frames(sim, console, 300)
+        assert sim.rt.all_status(Status.START_UP_COMPLETE)
+        local = console.area_text("local")
+        assert local.count("START UP COMPLETE") >= 7
+        assert "service ARMED" in console.area_text("world")
+        assert "POWER UP: START UP COMPLETE -> COMPLETE" in console.area_text("global")
+        assert "request 1: POWER UP sent" in console.area_text("messages")
+    _run(console, body)
+
+
+def test_halt_step_resume_from_the_console(sim, console):
+    async def body(pilot):
+        sim.power_up(max_frames=400)
+        _frames(sim, console, 20)
+        await pilot.press("h")
+        _frames(sim, console, 40)
+        world = console.area_text("world")
+        ctl = next(ln for ln in world.splitlines() if ln.startswith("controller ("))
+        assert "service HALTED" in world and "HALTED" in ctl
+        assert "brakes set" in world and "watchdog ok" in world
+        assert np.all(sim.dac_volts() == 0.0) and sim.svc.guard.trips == 0
+        before = sim.rt.frames_run
+        await pilot.press("s")
+        _frames(sim, console, 20)
+        assert sim.rt.frames_run - before == 1
+        assert "SINGLE STEP: 1 frame(s) run" in console.area_text("global")
+        assert "trace " in console.area_text("messages")  # the step's trace lines
+        before = sim.rt.frames_run
+        await pilot.press("S")
+        _frames(sim, console, 40)
+        assert sim.rt.frames_run - before == 10
+        await pilot.press("r")  # no re-arm given
+        _frames(sim, console, 10)
+        assert "explicit re-arm" in console.area_text("global") and "REFUSED" in console.area_text("global")
+        assert sim.rt.halted
+        await pilot.press("a")
+        await pilot.pause()
+        assert "[RE-ARM GIVEN]" in console.area_text("global")
+        await pilot.press("r")
+        _frames(sim, console, 30)
+        assert "resumed at frame" in console.area_text("global")
+        assert "[RE-ARM GIVEN]" not in console.area_text("global")  # one re-arm, one resume
+        assert not sim.rt.halted
+        assert ServiceState(int(sim.client.read_inputs().service_state)) == ServiceState.ARMED
+        assert sim.rt.all_status(Status.START_UP_COMPLETE)
+    _run(console, body)
+
+
+def test_arrows_move_between_layers(console):
+    async def body(pilot):
+        assert console.area_text("local").splitlines()[0].startswith("> System Up/Down")
+        await pilot.press("right", "right")
+        await pilot.pause()
+        local = console.area_text("local")
+        assert local.splitlines()[2].startswith("> Trajectory Planner")
+        assert "Trajectory Planner: command" in console.area_text("commands")
+        await pilot.press("up", "up", "up")
+        await pilot.pause()
+        assert console.area_text("local").splitlines()[6].startswith("> Data Acquisition")
+        assert "hardware checks:" in console.area_text("local")
+    _run(console, body)
+
+
+def test_not_yet_commands_say_so(console):
+    async def body(pilot):
+        await pilot.press("c", "v")
+        await pilot.pause()
+        msgs = console.area_text("messages")
+        assert "record start/stop: not yet" in msgs and "camera routes: not yet" in msgs
+    _run(console, body)
+
+
+def test_messages_screen_shows_the_last_100_time_ordered(sim, console):
+    async def body(pilot):
+        await pilot.press("u")
+        _frames(sim, console, 200)
+        await pilot.press("m")
+        await pilot.pause()
+        assert isinstance(console.screen, MessagesScreen)
+        lines = console.screen.text.splitlines()
+        times = [float(ln.split()[0]) for ln in lines]
+        assert times == sorted(times) and 3 <= len(lines) <= view.MESSAGES_KEPT
+        await pilot.press("escape")
+        await pilot.pause()
+        assert not isinstance(console.screen, MessagesScreen)
+    _run(console, body)
+
+
+def test_the_console_claims_nothing(sim, console):
+    async def body(pilot):
+        await pilot.press("u", "h")
+        _frames(sim, console, 50)
+    _run(console, body)
+    owners = sim.client.owners()
+    assert owners["commands"].pid == owners["inputs"].pid  # still the simulator's controller
+    assert owners["commands"].name == "controller"
+
+
+def test_a_live_buffer_that_does_not_say_is_not_called_real(sim):
+    client = Client.attach(sim.name, layout=sim.rig.layout)
+    try:
+        text = view.world_status(view.Sources(client, sim.rt.wm).read(), "unknown")
+    finally:
+        client.close()
+    assert text.startswith("rack: unknown") and "real hardware" not in text
+
+
+# --- pfma console: no service, no controller -------------------------------------------------
+def _pfma(capsys, *argv):
+    from tools.cli import main
+    rc = main(list(argv))
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def test_no_service_is_one_message_and_exit_1(capsys):
+    rc, out, err = _pfma(capsys, "console", "--buffer", "pfma_console_nobody")
+    assert rc == 1 and out == "" and "Traceback" not in err
+    assert err.startswith("pfma console: no service buffer /dev/shm/pfma_console_nobody")
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_no_controller_is_one_message_and_exit_1(sim, capsys):
+    rc, out, err = _pfma(capsys, "console", "--buffer", sim.name, "--wm", "pfma_console_no_wm")
+    assert rc == 1 and out == "" and "Traceback" not in err
+    assert err.startswith("pfma console: no world model 'pfma_console_no_wm'")
+    assert len(err.strip().splitlines()) == 1
+
+
+# --- make run: the whole simulated system -----------------------------------------------------
+def test_simulated_system_flies_the_demo_path_and_stops_at_0_v():
+    """What `make run` runs behind the console (stepped here by hand, not by its thread)."""
+    from tools.console.simrun import SimulatedSystem
+    system = SimulatedSystem()
+    try:
+        sim = system.sim
+        q0 = sim.joint_angles_rad().copy()
+        for _ in range(500):  # 6.25 s simulated: powered up, first pose reached
+            sim.step(4)
+            system._fly()
+        assert sim.rt.all_status(Status.START_UP_COMPLETE)
+        assert np.abs(sim.joint_angles_rad() - q0).max() > 0.1  # it flies
+        volts = system.stop()
+        assert np.all(volts == 0.0)
+        assert ServiceState(int(sim.client.read_inputs().service_state)) == ServiceState.STOPPED
+        assert sim.svc.guard.trips == 0
+    finally:
+        system.close()
+
+
+def test_simulated_system_stops_safe_while_halted():
+    from controller.layers import Request
+    from tools.console.simrun import SimulatedSystem
+    system = SimulatedSystem(demo=False)
+    try:
+        system.sim.power_up(max_frames=400)
+        assert system.sim.request(Request.HALT)[0] == 2
+        volts = system.stop()
+        assert np.all(volts == 0.0) and system.sim.svc.guard.trips == 0
+    finally:
+        system.close()

@@ -1,0 +1,93 @@
+"""``pfma console``: the operator console (IRSS primary display) over the live system.
+
+Examples::
+
+    pfma console                         # the service on buffer pfma, the controller's pfma_wm
+    pfma console --buffer pfma --wm pfma_wm
+    pfma console --sim                   # the whole simulated system in this process (make run)
+
+Five areas (Local Status, World Status, Messages, Local Commands, Global Commands),
+refreshed at 10 Hz; keys send power up/down, error reset, halt, single step, re-arm and
+resume to System Up/Down through the world model's request protocol. docs/console.md.
+"""
+
+from __future__ import annotations
+
+import sys
+
+
+def add_parser(sub):
+    p = sub.add_parser("console", help="the operator console: five areas over the live system, "
+                                       "power up/down, halt/step/resume",
+                       description=__doc__.split("\n\n")[0])
+    p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name of the service (default pfma)")
+    p.add_argument("--wm", "--name", dest="wm", default="pfma_wm", metavar="NAME",
+                   help="the controller's world-model name (default pfma_wm)")
+    p.add_argument("--key", default=None, help="world-model access key (default $PFMA_WM_KEY or the default key)")
+    p.add_argument("--sim", action="store_true",
+                   help="run the whole simulated system here (simulated rack, service, controller powered up "
+                        "flying a demo path) and show it; q or Ctrl-C stops everything, outputs 0 V")
+    p.add_argument("--no-demo", action="store_true", help="--sim: power up but fly no demo path")
+    return p
+
+
+def run(args) -> int:
+    if args.sim:
+        return _run_sim(args)
+    from bit3.client import Client
+    from tools.attach import no_service
+    from tools.console.control import ControlError, ControllerLink
+    from tools.console.view import Sources
+    why = no_service(args.buffer)
+    if why is not None:
+        print(f"pfma console: {why}", file=sys.stderr)
+        return 1
+    try:
+        link = ControllerLink.attach(args.wm, args.key)
+    except ControlError as err:
+        print(f"pfma console: {err}; start the controller (`pfma controller --buffer {args.buffer} "
+              f"--wm {args.wm}`)", file=sys.stderr)
+        return 1
+    try:
+        client = Client.attach(args.buffer)
+    except Exception as err:  # noqa: BLE001 - one clear message, never a traceback
+        link.close()
+        print(f"pfma console: cannot read buffer {args.buffer!r}: {err}", file=sys.stderr)
+        return 1
+    try:
+        # the buffer does not say whether its boards are simulated: the console says so
+        _app(Sources(client, link.wm, rack="unknown"), link).run()
+    finally:
+        client.close()
+        link.close()
+    return 0
+
+
+def _app(sources, link, on_tick=None):
+    from tools.console.app import ConsoleApp
+    return ConsoleApp(sources, link, on_tick=on_tick)
+
+
+def _run_sim(args) -> int:
+    from bit3.client import Client
+    from tools.console.control import ControllerLink
+    from tools.console.simrun import SimulatedSystem
+    from tools.console.view import Sources
+    system = SimulatedSystem(demo=not args.no_demo)
+    client = Client.attach(system.name, layout=system.sim.rig.layout)
+    sources = Sources(client, system.sim.rt.wm, rack="simulated")
+    sources.speed = lambda: system.speed
+    app = _app(sources, ControllerLink(system.sim.rt.wm, args.key))
+    system.start()
+    try:
+        app.run()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        volts = system.stop()
+        client.close()
+        system.close()
+    top = float(abs(volts).max()) if len(volts) else 0.0
+    print(f"pfma console: simulated system stopped; DAC outputs {top:.3f} V max (service stopped, outputs "
+          f"disconnected)")
+    return 0

@@ -1,0 +1,109 @@
+"""The whole simulated system for ``make run`` / ``pfma console --sim``: the system
+simulator (simulated rack, the real I/O service, the real controller) run in a thread,
+paced to the wall clock, the controller powered up and flying the short demo path
+(:func:`sim.demo.demo_goal`) through the Joint Planner; the console reads it like a live
+system.
+
+Assumed (docs/console.md): simulated time follows the wall clock when the host is fast
+enough and falls behind otherwise (never ahead); the console shows the ratio. The
+simulated service's watchdog runs on simulated time, so a slow host never trips it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from controller.decision import Status
+from controller.layers import Request
+from sim.demo import demo_goal
+from sim.system import SystemSimulator
+
+#: simulated frames run per lock of the pacing loop (a few: the console's reads interleave)
+FRAMES_PER_SLICE = 4
+#: simulated seconds the orderly stop waits for SHUT DOWN before stopping the service anyway
+STOP_POWER_DOWN_S = 2.0
+
+
+class SimulatedSystem:
+    """The system simulator stepped in a background thread at (at most) wall-clock speed."""
+
+    def __init__(self, *, demo: bool = True, power_up: bool = True) -> None:
+        self.sim = SystemSimulator()
+        self.sim.step(10)  # the service's first frames (links open)
+        self.demo = demo
+        self.lock = threading.Lock()  # held while frames run (the sim is not thread-safe itself)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._q0: list[float] | None = None
+        self._t_up: float | None = None
+        self._pose = -1
+        self.speed = 1.0  #: simulated seconds per wall second over the last second
+        if power_up:
+            self.sim.rt.request(Request.POWER_UP)
+
+    @property
+    def name(self) -> str:
+        return self.sim.name
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="pfma-sim", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        sim = self.sim
+        wall0, sim0 = time.monotonic(), sim.clock.now()
+        mark_w, mark_s = wall0, sim0
+        while not self._stop.is_set():
+            ahead = (sim.clock.now() - sim0) - (time.monotonic() - wall0)
+            if ahead > 0:
+                time.sleep(min(ahead, 0.01))
+                continue
+            with self.lock:
+                sim.step(FRAMES_PER_SLICE)
+                self._fly()
+            now = time.monotonic()
+            if now - mark_w >= 1.0:
+                self.speed = (sim.clock.now() - mark_s) / (now - mark_w)
+                mark_w, mark_s = now, sim.clock.now()
+
+    def _fly(self) -> None:
+        """The demo path: a new joint goal every few seconds once START UP COMPLETE."""
+        rt = self.sim.rt
+        if not self.demo or rt.halted or rt.status("updown") != Status.START_UP_COMPLETE:
+            return
+        t = self.sim.clock.now()
+        if self._q0 is None:
+            self._q0 = [float(v) for v in rt.wm.get("daq.joint_angle_rad")]
+            self._t_up = t
+        from controller.params import JOINT_NAMES
+        k, goal = demo_goal(JOINT_NAMES, self._q0, t - (self._t_up or t))
+        if k != self._pose:
+            self._pose = k
+            rt.set_joint_goal(goal)
+
+    def stop(self) -> np.ndarray:
+        """Stop the frames, power down in order (halted: release the halt), stop the
+        service (outputs 0 V and disconnected); returns the DAC's volts afterwards."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        sim = self.sim
+        with self.lock:
+            rt = sim.rt
+            if rt.halted:
+                rt.release_halt()
+            elif rt.status("updown") not in (Status.SHUT_DOWN, Status.ERROR):
+                rt.request(Request.POWER_DOWN)
+                try:
+                    sim.run_until(lambda: rt.all_status(Status.SHUT_DOWN), int(STOP_POWER_DOWN_S / sim.period_s))
+                except TimeoutError:
+                    pass  # the service stop below makes the outputs safe anyway
+            sim.svc.stop("make run ended")
+            volts = sim.dac_volts()
+        return volts
+
+    def close(self) -> None:
+        self.sim.close()

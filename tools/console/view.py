@@ -1,0 +1,265 @@
+"""What the console shows: one reading of the live system and the text of each area.
+
+The console reads only, outside every loop: the service's Bit3 buffer as a reader (no
+claim) and the controller's world model (attached read-only, or the simulator's own
+model); it writes nothing but user requests into the world model's request ring
+(:mod:`tools.console.control`). Every area is rendered here as plain text, so the Textual
+app has one widget per area (docs/console.md) and the text can be tested without a
+terminal.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from bit3.layout import DEVICE_GROUPS, HAND_CONTROLLERS, ServiceState, Severity
+from controller.cartesian import CartesianLayer
+from controller.daq_layer import FAULT_NAMES, DataAcquisitionLayer
+from controller.decision import Command, Status, status_text
+from controller.layers import JointPlannerLayer, UpDownLayer
+from controller.params import JOINT_NAMES
+from controller.paths import MultiSegmentLayer
+from controller.servo import ServoLayer
+from controller.trajectory import TrajectoryLayer
+
+#: the seven IRSS layers, highest first: (world-model key, the report's title)
+LAYERS: tuple[tuple[str, str], ...] = tuple((c.key, c.title) for c in (
+    UpDownLayer, MultiSegmentLayer, TrajectoryLayer, CartesianLayer, JointPlannerLayer, ServoLayer,
+    DataAcquisitionLayer))
+#: the five areas of the primary display, titled as the IRSS report names them (2.2.8)
+AREAS = ("Local Status", "World Status", "Messages", "Local Commands", "Global Commands")
+#: messages kept by the console (the Messages screen shows them all, time-ordered)
+MESSAGES_KEPT = 100
+#: messages per source in the Messages area
+RECENT_PER_SOURCE = 3
+#: the Global Commands, their keys and what each sends (None: not yet built)
+GLOBAL_COMMANDS: tuple[tuple[str, str, str | None], ...] = (
+    ("u", "power up", "POWER UP"),
+    ("d", "power down", "POWER DOWN"),
+    ("e", "error reset", "ERROR RESET"),
+    ("h", "halt", "HALT"),
+    ("s", "single step (1 frame; S: 10)", "SINGLE STEP"),
+    ("a", "re-arm (for the next resume)", None),
+    ("r", "resume (needs a first)", "RESUME"),
+    ("c", "record start/stop", None),
+    ("v", "camera routes", None),
+)
+NOT_YET = {"c": "record start/stop: not yet (issue 18 item 5: pfma record --wm)",
+           "v": "camera routes: not yet (issue 18 item 4: user I/F box -> matrix switcher)"}
+_TASK_KIND = {1: "init", 2: "startup", 3: "shutdown", 4: "safe", 5: "reset"}
+_TASK_STATE = {0: "idle", 1: "running", 2: "done", 3: "failed"}
+
+
+@dataclass
+class ConsoleMessage:
+    t_s: float
+    source: str
+    level: str
+    text: str
+
+
+@dataclass
+class Reading:
+    """One reading of the live system (everything the areas show)."""
+
+    service_state: str = "?"
+    frame: int = 0
+    t_s: float = 0.0
+    inputs: Any = None  #: the service's input snapshot
+    stats: Any = None  #: the service's statistics snapshot
+    wm: dict = field(default_factory=dict)  #: world-model values by name
+    controller_alive: bool = False
+    controller_owner: str = ""
+
+
+class Sources:
+    """Where the console reads: a Bit3 reader client, the world model, and what the rack is.
+
+    :param client: a :class:`bit3.client.Client` (a reader; never a writer)
+    :param wm: the controller's world model (attached, or the simulator's own)
+    :param rack: "simulated" (the boards are fakes: said on every screen), "real", or
+        "unknown" (the buffer does not say; said too)
+    """
+
+    def __init__(self, client, wm, rack: str = "unknown") -> None:
+        self.client = client
+        self.wm = wm
+        self.rack = rack
+        self.layout = client.layout
+        names = set(wm.names())
+        self.layer_vars = tuple(f"{k}.{f}" for k, _ in LAYERS for f in ("command", "status", "row", "task", "error")
+                                if f"{k}.{f}" in names)
+        extra = ("runtime.halted", "runtime.steps_left", "runtime.step_frames", "runtime.frames", "runtime.rate_hz",
+                 "runtime.missed_frames", "daq.fault_bits", "daq.joint_angle_rad", "daq.joint_rate_rad_s",
+                 "ui.response_seq", "ui.response", "ui.response_text")
+        self.wm_vars = self.layer_vars + tuple(n for n in extra if n in names)
+        self.messages: deque[ConsoleMessage] = deque(maxlen=MESSAGES_KEPT)
+        #: simulated seconds per wall second (``pfma console --sim``), or None (a live system)
+        self.speed: Callable[[], float] | None = None
+        self._seq = {"service": 0, "controller": 0}
+
+    def read(self) -> Reading:
+        c = self.client
+        snap = c.read_inputs()
+        r = Reading(inputs=snap, stats=c.read_stats())
+        st = int(snap.service_state)
+        r.service_state = ServiceState(st).name if st in ServiceState._value2member_map_ else str(st)
+        r.frame, r.t_s = int(snap.frame), float(snap.t_s)
+        r.wm = dict(self.wm.get_task_inputs(self.wm_vars))
+        info = self.wm.info()
+        r.controller_alive, r.controller_owner = bool(info.owner_alive), info.owner
+        self._read_messages()
+        return r
+
+    def _read_messages(self) -> None:
+        for q in ("service", "controller"):
+            for m in self.client.messages(self._seq[q], q):
+                self._seq[q] = max(self._seq[q], int(m.seq))
+                sev = Severity(int(m.severity)).name if int(m.severity) in Severity._value2member_map_ else "?"
+                src, text = ("service", m.text) if q == "service" else _split_source(m.text)
+                self.messages.append(ConsoleMessage(float(m.t_s), src, sev, text))
+
+    def note(self, t_s: float, level: str, text: str) -> None:
+        """A message of the console itself (request answers, refusals, 'not yet')."""
+        self.messages.append(ConsoleMessage(t_s, "console", level, text))
+
+
+def _split_source(text: str) -> tuple[str, str]:
+    """The controller forwards ``"<layer>: <text>"`` (cut to the queue's 56 bytes)."""
+    src, sep, rest = text.partition(": ")
+    return (src, rest) if sep and " " not in src else ("controller", text)
+
+
+# --- the areas' text ---------------------------------------------------------------------------
+def _enum(enum_cls, v: int) -> str:
+    try:
+        return enum_cls(v).name.replace("_", " ")
+    except ValueError:
+        return str(v)
+
+
+def rack_line(rack: str) -> str:
+    return {"simulated": "SIMULATED RACK: the boards, the arm and the sensors are fakes",
+            "real": "rack: real hardware"}.get(rack, "rack: unknown (the service does not say if its boards "
+                                                    "are simulated)")
+
+
+def local_status(r: Reading, selected: int) -> str:
+    """One line per layer (state, command, subordinate's state, row, task, error), the
+    selected one marked and detailed."""
+    lines = []
+    w = r.wm
+    for i, (k, title) in enumerate(LAYERS):
+        st = int(w.get(f"{k}.status", -1))
+        cmd = int(w.get(f"{k}.command", 0))
+        sub = f"{LAYERS[i + 1][0]}.status" if i + 1 < len(LAYERS) else None
+        sub_st = status_text(int(w[sub])) if sub and sub in w else "-"
+        mark = ">" if i == selected else " "
+        lines.append(f"{mark} {title:<27} {status_text(st):<22} cmd {_enum(Command, cmd):<13} sub {sub_st}")
+    k, title = LAYERS[selected]
+    task = int(w.get(f"{k}.task", 0))
+    err = int(w.get(f"{k}.error", 0))
+    lines.append("")
+    lines.append(f"{title}: row {int(w.get(f'{k}.row', 0))}, sequence task "
+                 f"{_TASK_KIND.get(task // 10, '-')} {_TASK_STATE.get(task % 10, '?')}, "
+                 f"last error {err if err else 'none'}")
+    if k == "daq":
+        bits = int(w.get("daq.fault_bits", 0))
+        lines.append("hardware checks: " + (", ".join(n for b, n in FAULT_NAMES.items() if bits & b) or "clear"))
+    lines.append("<- -> layer")
+    return "\n".join(lines)
+
+
+def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
+    s, st = r.inputs, r.stats
+    lay = s.layout
+    halted = bool(r.wm.get("runtime.halted", False))
+    lines = [rack_line(rack) + ("" if speed is None else f"  (simulated time x{speed:.2f} of real time)"),
+             f"service {r.service_state:<8} frame {r.frame:<9} t {r.t_s:9.3f} s  "
+             f"{float(st.rate_hz):6.1f} Hz  fault code {int(s.fault_code)}",
+             f"outputs {'LIVE' if int(s.outputs_enabled) else 'safe (0 V)'}  brakes "
+             f"{'released' if int(s.brakes_released) else 'set'}  watchdog "
+             f"{'TRIPPED' if int(s.watchdog_tripped) else 'ok'} (command age {float(s.command_age_s) * 1e3:.1f} ms)",
+             "device rates: " + "  ".join(f"{g} {float(st.device_rate_hz[lay.slot('device', g)]):.0f}"
+                                          for g in DEVICE_GROUPS) + " Hz"]
+    ctl = (f"controller ({r.controller_owner or '?'}): "
+           + ("NOT RUNNING" if not r.controller_alive else
+              ("HALTED" + (f", {int(r.wm.get('runtime.steps_left', 0))} step(s) to run" if
+                           int(r.wm.get('runtime.steps_left', 0)) else "") if halted else "running"))
+           + f"  {float(r.wm.get('runtime.rate_hz', 0.0)):.0f} Hz  frames {int(r.wm.get('runtime.frames', 0))}"
+           + f"  missed {int(r.wm.get('runtime.missed_frames', 0))}")
+    lines.append(ctl)
+    q = r.wm.get("daq.joint_angle_rad")
+    qd = r.wm.get("daq.joint_rate_rad_s")
+    if q is not None and qd is not None:
+        lines.append("joint  " + " ".join(f"{n[:11]:>11}" for n in JOINT_NAMES))
+        lines.append("rad    " + " ".join(f"{float(v):>+11.4f}" for v in q))
+        lines.append("rad/s  " + " ".join(f"{float(v):>+11.4f}" for v in qd))
+    f, t = s.ft_force_n, s.ft_torque_nm
+    lines.append(f"F/T  F ({float(f[0]):+7.2f}, {float(f[1]):+7.2f}, {float(f[2]):+7.2f}) N  "
+                 f"T ({float(t[0]):+6.3f}, {float(t[1]):+6.3f}, {float(t[2]):+6.3f}) N*m")
+    hc = "  ".join(f"{n} {'DEADMAN' if bool(s.hc_deadman[i]) else 'released'}"
+                   for i, n in enumerate(HAND_CONTROLLERS))
+    lines.append(f"hand controllers: {hc}")
+    lines.append("camera routes: not yet (issue 18 item 4)")
+    return "\n".join(lines)
+
+
+def messages_area(msgs, per_source: int = RECENT_PER_SOURCE) -> str:
+    """The ``per_source`` newest messages of every source, grouped by source."""
+    by: dict[str, list[ConsoleMessage]] = {}
+    for m in msgs:
+        by.setdefault(m.source, []).append(m)
+    lines = []
+    for src in sorted(by, key=lambda s: (s != "console", s != "service", s)):
+        for m in by[src][-per_source:]:
+            lines.append(_msg_line(m))
+    return "\n".join(lines) if lines else "(no messages yet)"
+
+
+def messages_screen(msgs) -> str:
+    """The last 100, time-ordered."""
+    ordered = sorted(msgs, key=lambda m: m.t_s)
+    return "\n".join(_msg_line(m) for m in ordered) if ordered else "(no messages yet)"
+
+
+def _msg_line(m: ConsoleMessage) -> str:
+    return f"{m.t_s:10.3f} {m.source:<11} {m.level:<7} {m.text}"
+
+
+def local_commands(r: Reading, selected: int, wm) -> str:
+    """The selected layer's command and the variables a user may set in it (read-only here)."""
+    k, title = LAYERS[selected]
+    lines = [f"{title}: command {_enum(Command, int(r.wm.get(f'{k}.command', 0)))} "
+             f"(sent by {'the user requests' if k == 'updown' else LAYERS[selected - 1][1]})"]
+    settable = [s for s in wm.specs if s.name.startswith(f"{k}.") and s.user != "never"]
+    for s in settable[:8]:
+        when = "any time" if s.user == "always" else "powered down only"
+        lines.append(f"  {s.name:<28} {s.type_text:<8} {when}")
+    if len(settable) > 8:
+        lines.append(f"  ... {len(settable) - 8} more (pfma wm list)")
+    if not settable:
+        lines.append("  (no user-settable variables)")
+    lines.append("modify: pfma wm set NAME VALUE --key KEY (the debug window: not yet)")
+    lines.append("up/down: layer tree")
+    return "\n".join(lines)
+
+
+def global_commands(r: Reading, rearm: bool, last: str) -> str:
+    lines = []
+    for key, what, _ in GLOBAL_COMMANDS:
+        extra = ""
+        if key == "a":
+            extra = "  [RE-ARM GIVEN]" if rearm else ""
+        elif key in NOT_YET:
+            extra = "  (not yet)"
+        lines.append(f"{key}  {what}{extra}")
+    lines.append("m  messages (last 100)   q  quit")
+    lines.append(f"last answer: {last or '-'}")
+    return "\n".join(lines)
+
+
+def status_name(v: int) -> str:
+    return status_text(v) if v in Status._value2member_map_ else str(v)
