@@ -297,3 +297,12 @@ def test_an_unexpected_error_is_answered_and_the_loop_runs_on(served, monkeypatc
     k = served.svc.loop.k
     served.run_frames(3)
     assert served.svc.loop.k == k + 3
+
+
+def test_checkout_sim_fault_takes_the_same_specs(capsys):
+    from tools.checkout.target import SimTarget
+    assert {"tach-reversed:JOINT", "adc-dead:SIGNAL=VOLTS", "ft-noise"} <= set(SimTarget.FAULTS)
+    rc = main(["checkout", "--non-interactive", "-q", "--only", "links", "--sim-fault", "serial-drop:ft_sensor"])
+    out = capsys.readouterr().out
+    assert rc == 1 and "injected fault: 3 bytes lost every 300 on ft_sensor" in out
+    assert "FAILED: ft_sensor (links, bad records)" in out
