@@ -40,6 +40,41 @@ class MessagesScreen(ModalScreen):
         yield Static(self.text, id="all-messages", markup=False)
 
 
+class BrowserScreen(ModalScreen):
+    """The world model by area, live and read-only (issue 18 item 2's browser; modifying
+    needs ``pfma wm set`` with the key). Left/right: area, pgup/pgdn: page."""
+
+    BINDINGS = [Binding("escape,w,q", "app.pop_screen", "close"),
+                Binding("left", "area(-1)", "area"), Binding("right", "area(1)", "area"),
+                Binding("pageup", "page(-1)", "page"), Binding("pagedown", "page(1)", "page")]
+
+    def __init__(self, wm) -> None:
+        super().__init__()
+        self.wm = wm
+        self.area = 0
+        self.page = 0
+
+    def compose(self) -> ComposeResult:
+        yield Static("", id="browser", markup=False)
+
+    def on_mount(self) -> None:
+        self.redraw()
+
+    def redraw(self) -> None:
+        self.query_one("#browser", Static).update(view.wm_browser(self.wm, self.area, self.page))
+
+    def text(self) -> str:
+        return str(self.query_one("#browser", Static).render())
+
+    def action_area(self, d: int) -> None:
+        self.area, self.page = self.area + d, 0
+        self.redraw()
+
+    def action_page(self, d: int) -> None:
+        self.page += d
+        self.redraw()
+
+
 class ConsoleApp(App):
     """The primary display over the live system.
 
@@ -69,6 +104,7 @@ class ConsoleApp(App):
         Binding("r", "resume", "resume"),
         Binding("c", "not_yet('c')", "record"), Binding("v", "not_yet('v')", "cameras"),
         Binding("m", "messages", "messages"),
+        Binding("w", "browser", "world model"),
         Binding("q", "quit", "quit"),
         Binding("ctrl+c", "quit", "quit", show=False, priority=True),
     ]
@@ -111,6 +147,8 @@ class ConsoleApp(App):
     def refresh_areas(self) -> None:
         """Read the system once and redraw the five areas (the 10 Hz tick)."""
         self.refreshes += 1
+        if isinstance(self.screen, BrowserScreen):  # the browser is live too (10 Hz)
+            self.screen.redraw()
         try:
             r = self.reading = self.sources.read()
             self.read_error = ""
@@ -188,6 +226,9 @@ class ConsoleApp(App):
     def action_not_yet(self, key: str) -> None:
         self._note("INFO", view.NOT_YET[key])
         self.refresh_areas()
+
+    def action_browser(self) -> None:
+        self.push_screen(BrowserScreen(self.sources.wm))
 
     def action_messages(self) -> None:
         self.push_screen(MessagesScreen(view.messages_screen(self.sources.messages)))

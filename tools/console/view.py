@@ -256,10 +256,56 @@ def global_commands(r: Reading, rearm: bool, last: str) -> str:
         elif key in NOT_YET:
             extra = "  (not yet)"
         lines.append(f"{key}  {what}{extra}")
-    lines.append("m  messages (last 100)   q  quit")
+    lines.append("m  messages (last 100)   w  world model (read-only)   q  quit")
     lines.append(f"last answer: {last or '-'}")
     return "\n".join(lines)
 
 
 def status_name(v: int) -> str:
     return status_text(v) if v in Status._value2member_map_ else str(v)
+
+
+# --- the world-model browser (issue 18 item 2, read-only) --------------------------------------
+#: rows of the browser per page
+BROWSER_ROWS = 30
+
+
+def browser_names(wm, area: str) -> tuple[str, ...]:
+    """The world-model variables of one area (report 2.3.6), in the model's order."""
+    return tuple(s.name for s in wm.specs if s.area == area)
+
+
+def _value_text(spec, v, width: int = 70) -> str:
+    import numpy as np
+    a = np.asarray(v)
+    if spec.dtype == "u1" and a.ndim == 1 and a.size > 16:  # a text field (zero-padded UTF-8)
+        text = bytes(a).rstrip(b"\0").decode(errors="replace").replace("\n", " | ")
+        out = repr(text)
+    elif a.ndim == 0:
+        out = f"{a.item():.6g}" if spec.dtype.startswith("f") else str(a.item())
+    else:
+        out = np.array2string(a, precision=4, separator=" ", max_line_width=10_000, threshold=24,
+                              suppress_small=True).replace("\n", "")
+    return out if len(out) <= width else out[:width - 3] + "..."
+
+
+def wm_browser(wm, area_index: int, page: int) -> str:
+    """One page of one world-model area, live values, who writes each and who may set it."""
+    from controller.worldmodel.spec import AREAS as WM_AREAS
+    area = WM_AREAS[area_index % len(WM_AREAS)]
+    names = browser_names(wm, area)
+    pages = max(1, -(-len(names) // BROWSER_ROWS))
+    page = page % pages
+    shown = names[page * BROWSER_ROWS:(page + 1) * BROWSER_ROWS]
+    values = wm.get_task_inputs(shown) if shown else {}
+    tabs = "  ".join(f"[{a}]" if a == area else a for a in WM_AREAS)
+    lines = [f"world model {wm.name or '(private)'}, read-only: {tabs}",
+             f"area {area}: {len(names)} variables, page {page + 1}/{pages}   <- -> area  pgup/pgdn page  "
+             f"Escape/w close",
+             f"{'NAME':<30} {'TYPE':<9} {'WRITER':<18} {'USER':<13} VALUE"]
+    for n in shown:
+        s = wm.spec(n)
+        lines.append(f"{n:<30} {s.type_text:<9} {s.writer:<18} {s.user:<13} {_value_text(s, values[n])}")
+    if not shown:
+        lines.append("(no variables in this area)")
+    return "\n".join(lines)

@@ -225,3 +225,32 @@ def test_simulated_system_stops_safe_while_halted():
         assert np.all(volts == 0.0) and system.sim.svc.guard.trips == 0
     finally:
         system.close()
+
+
+def test_world_model_browser_by_area_live_and_read_only(sim, console):
+    from tools.console.app import BrowserScreen
+
+    async def body(pilot):
+        await pilot.press("w")
+        await pilot.pause()
+        scr = console.screen
+        assert isinstance(scr, BrowserScreen)
+        text = scr.text()
+        assert "area task_io:" in text and "read-only" in text
+        rows = text.splitlines()[3:]
+        assert 1 <= len(rows) <= 30 and all(sim.rt.wm.spec(r.split()[0]).area == "task_io" for r in rows)
+        await pilot.press("right")
+        await pilot.pause()
+        assert "area task_status:" in scr.text()
+        row = next(ln for ln in scr.text().splitlines() if ln.startswith("runtime.frames "))
+        sim.step(200)
+        sim.rt.publish_stats()
+        sim.step(2)
+        console.refresh_areas()  # the 10 Hz tick redraws the browser too
+        await pilot.pause()
+        row2 = next(ln for ln in scr.text().splitlines() if ln.startswith("runtime.frames "))
+        assert row2 != row and int(row2.split()[-1]) >= 200  # live
+        await pilot.press("escape")
+        await pilot.pause()
+        assert not isinstance(console.screen, BrowserScreen)
+    _run(console, body)
