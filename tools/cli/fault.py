@@ -221,11 +221,9 @@ class FaultController:
         try:
             if self.scenario is not None:
                 self.scenario.on_frame(k)
-            while True:
-                try:
-                    p = self.requests.get_nowait()
-                except queue.Empty:
-                    break
+            requests = self.requests
+            while not requests.empty():  # the usual frame: one cheap check, nothing queued
+                p = requests.get_nowait()
                 with p.lock:
                     if p.abandoned:
                         continue
