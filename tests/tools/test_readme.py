@@ -57,6 +57,7 @@ RUN_ALONE = (
     f"{PFMA} read --bus fake elbow_pitch_angle",
     f"{PFMA} layout --json",
     f"{PFMA} serve --duration 5 --modbus 127.0.0.1:5020",
+    f"{PFMA} serve --duration 2 --hid fake",
     f"{PFMA} bench loop --seconds 1",
     f"{PFMA} bench stack --minutes 0.1 --realtime",
     f"mkdir -p out && {PFMA} layout --json > out/layout.json",
