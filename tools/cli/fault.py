@@ -460,7 +460,8 @@ def install_serve_faults(args, svc, world) -> None:
     (:func:`socket_path`), removed when the service stops and at exit.
 
     On a real rack (``world`` None) nothing is opened; ``--fault``/``--scenario`` there
-    print one message and exit 2 (``SystemExit``).
+    print one message and exit 2 (``SystemExit``). An endpoint that cannot be opened (a
+    buffer name too long for a socket path) is named and the service runs without it.
     """
     specs = list(getattr(args, "fault", None) or [])
     scenario = getattr(args, "scenario", None)
@@ -498,7 +499,12 @@ def install_serve_faults(args, svc, world) -> None:
     ctl.install()
     buffer = getattr(args, "buffer", None) or svc.buf.name
     endpoint = FaultEndpoint(socket_path(buffer), ctl)
-    endpoint.start()
+    try:
+        endpoint.start()
+    except PfmaError as err:  # e.g. a buffer name too long for a socket path: run without it
+        print(f"pfma serve: no fault control endpoint ({err}); pfma fault cannot reach this "
+              f"service, --fault and --scenario still apply", file=sys.stderr)
+        return
     atexit.register(endpoint.close)
     stop = svc.stop
 

@@ -306,3 +306,13 @@ def test_checkout_sim_fault_takes_the_same_specs(capsys):
     out = capsys.readouterr().out
     assert rc == 1 and "injected fault: 3 bytes lost every 300 on ft_sensor" in out
     assert "FAILED: ft_sensor (links, bad records)" in out
+
+
+def test_a_buffer_name_too_long_for_a_socket_runs_without_the_endpoint(capsys):
+    name = "pfma-fcli-" + "x" * 100  # /dev/shm/NAME.faults beyond the 108-byte socket path
+    with SimRig(name=name) as rig:
+        install_serve_faults(serve_args(name, ["ft-noise"]), rig.svc, rig.world)
+        assert "no fault control endpoint" in capsys.readouterr().err
+        assert rig.world.ft._noise_every is not None  # --fault applied all the same
+    assert main(["fault", "list", "--active", "--buffer", name]) == 1
+    assert "Traceback" not in capsys.readouterr().err
