@@ -124,6 +124,7 @@ class ConsoleApp(App):
         self.reading: view.Reading | None = None
         self.read_error = ""
         self.refreshes = 0
+        self._shown: dict[str, str] = {}  # the text each area shows
 
     def compose(self) -> ComposeResult:
         with Grid():
@@ -154,15 +155,23 @@ class ConsoleApp(App):
             self.read_error = ""
         except Exception as err:  # noqa: BLE001 - the display says what it cannot read, it does not die
             self.read_error = f"cannot read the system: {type(err).__name__}: {err}"
-            self.query_one("#world", Static).update(self.read_error)
+            self._set("world", self.read_error)
             return
         self._follow_answer()
-        self.query_one("#local", Static).update(view.local_status(r, self.selected))
+        self._set("local", view.local_status(r, self.selected))
         speed = self.sources.speed() if self.sources.speed is not None else None
-        self.query_one("#world", Static).update(view.world_status(r, self.sources.rack, speed))
-        self.query_one("#messages", Static).update(view.messages_area(self.sources.messages))
-        self.query_one("#commands", Static).update(view.local_commands(r, self.selected, self.sources.wm))
-        self.query_one("#global", Static).update(view.global_commands(r, self.rearm, self.last_answer))
+        self._set("world", view.world_status(r, self.sources.rack, speed))
+        self._set("messages", view.messages_area(self.sources.messages))
+        self._set("commands", view.local_commands(r, self.selected, self.sources.wm))
+        self._set("global", view.global_commands(r, self.rearm, self.last_answer))
+
+    def _set(self, key: str, text: str) -> None:
+        """Redraw an area only when its text changed, without a layout pass (the grid fixes
+        every area's size; its text never does)."""
+        if self._shown.get(key) == text:
+            return
+        self._shown[key] = text
+        self.query_one(f"#{key}", Static).update(text, layout=False)
 
     def area_text(self, key: str) -> str:
         """The text an area shows now (``local``, ``world``, ``messages``, ``commands``, ``global``)."""
