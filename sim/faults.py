@@ -22,7 +22,7 @@ spec                                      what the hardware does
 ``serial-disconnect:LINE``                the far end goes silent (it neither sends nor hears)
 ``ft-unplugged``                          the F/T sensor's cable pulled from its MVME400 port
 ``hand-unplugged``                        the CRL hand controller's cable pulled (and a USB
-                                          6-axis, when the world has one)
+                                          6-axis: :func:`attach_usb_hand_controller`)
 ``tach-reversed:JOINT``                   the tachometer reads -1 x the joint rate
 ``adc-dead:SIGNAL=VOLTS``                 an A/D input stuck at VOLTS whatever it is fed
 ``ft-noise``                              = ``serial-noise:`` the F/T line (the checkout's name)
@@ -290,6 +290,18 @@ def _parse_los(spec: str, arg: str, rack: RackConfig) -> Fault:
 _UNPLUGGED: "weakref.WeakKeyDictionary[Any, dict[str, Any]]" = weakref.WeakKeyDictionary()
 
 
+#: a USB 6-axis hand controller's fake (``fakes.hid.FakeHidDevice``) per world: the other
+#: hand controller ``hand-unplugged`` pulls (the world itself has only the serial ones)
+_USB_HAND: "weakref.WeakKeyDictionary[Any, Any]" = weakref.WeakKeyDictionary()
+
+
+def attach_usb_hand_controller(world, device) -> None:
+    """Tell the faults of ``world`` about a simulated USB 6-axis (anything with
+    ``unplug()``/``replug()``, e.g. ``fakes.hid.FakeHidDevice``): ``hand-unplugged`` then
+    pulls its cable too."""
+    _USB_HAND[world] = device
+
+
 def _serial_lines(rack: RackConfig) -> dict[str, tuple[str, int]]:
     """signal -> (serial board, channel) of every serial line of the rack."""
     return {c.signal: (b.name, c.channel) for b in rack.boards_of("serial") for c in b.channels}
@@ -378,8 +390,8 @@ class _Unplugged(Fault):
         if peer.device is not None:
             _UNPLUGGED.setdefault(world, {})[self.line] = peer.device
             peer.attach(None)
-        hid = getattr(world, "hid", None) if self.hid else None
-        if hid is not None and hasattr(hid, "unplug"):
+        hid = _USB_HAND.get(world) if self.hid else None
+        if hid is not None:
             hid.unplug()
 
     def clear(self, world) -> None:
@@ -387,8 +399,8 @@ class _Unplugged(Fault):
         dev = _UNPLUGGED.get(world, {}).pop(self.line, None)
         if dev is not None:
             world.bus[board].peer(ch).attach(dev)
-        hid = getattr(world, "hid", None) if self.hid else None
-        if hid is not None and hasattr(hid, "replug"):
+        hid = _USB_HAND.get(world) if self.hid else None
+        if hid is not None:
             hid.replug()
 
 
@@ -626,4 +638,4 @@ def _board_parts(f: Fault) -> Iterable[_BoardFault]:
             yield from _board_parts(p)
 
 
-__all__ = ["Active", "Fault", "FaultSet", "KINDS", "kinds_help", "parse_fault"]
+__all__ = ["Active", "Fault", "FaultSet", "KINDS", "attach_usb_hand_controller", "kinds_help", "parse_fault"]

@@ -485,6 +485,10 @@ def install_serve_faults(args, svc, world) -> None:
         print(f"pfma serve: scenario {scenario}: {err.strerror or err}", file=sys.stderr)
         raise SystemExit(2) from None
     ctl = FaultController(svc, world)
+    usb = getattr(getattr(getattr(svc, "hand", None), "hid", None), "opener", None)
+    if hasattr(usb, "unplug") and hasattr(usb, "replug"):  # --hid fake: hand-unplugged pulls it too
+        from sim.faults import attach_usb_hand_controller
+        attach_usb_hand_controller(world, usb)
     for f in faults:
         try:
             ctl.inject(f.spec)

@@ -316,3 +316,23 @@ def test_a_buffer_name_too_long_for_a_socket_runs_without_the_endpoint(capsys):
         assert rig.world.ft._noise_every is not None  # --fault applied all the same
     assert main(["fault", "list", "--active", "--buffer", name]) == 1
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_hand_unplugged_also_pulls_a_simulated_usb_six_axis(served, capsys):
+    """``pfma serve --hid fake``: the service's HID slot holds a HidSpaceMouse on a
+    FakeHidDevice; install_serve_faults hands that fake to the faults."""
+    from drivers.crl.hid import HidSpaceMouse
+    from fakes.hid import FakeHidDevice
+    dev = FakeHidDevice()
+    assert served.svc.hand.wire_hid(HidSpaceMouse(opener=dev, clock=served.clock), "fake SpaceMouse",
+                                    simulated=True, thread=False)
+    install_serve_faults(serve_args(served.name), served.svc, served.world)
+    hid = served.layout.slot("hc", "hid")
+    served.run(0.3)
+    assert served.reader.read_inputs().hc_valid[hid]
+    rc, out, _ = cli(served, capsys, "inject", "hand-unplugged")
+    served.run(0.5)
+    assert rc == 0 and not dev.plugged and not served.reader.read_inputs().hc_valid[hid]
+    rc, out, _ = cli(served, capsys, "clear", "hand-unplugged")
+    served.run(2.0)  # the driver retries the open every second of the service's clock
+    assert rc == 0 and dev.plugged and served.reader.read_inputs().hc_valid[hid]
