@@ -78,7 +78,7 @@ from controller.layers import JointPlannerLayer, Layer, Request, Response, UpDow
 from controller.messages import Level, Message, MessageBoard
 from controller.paths import MultiSegmentLayer
 from controller.trajectory import TrajectoryLayer
-from controller.servo import ERR_MISSED, ServoLayer
+from controller.servo import ERR_MISSED, ERR_NO_OUTPUT, ServoLayer
 from controller.worldmodel import VarSpec, WorldModel
 from bit3.layout import ServiceState, Severity
 
@@ -100,6 +100,8 @@ MAX_STEP_FRAMES = 3200
 #: service frames a resume waits for the service to arm before it fails (0.2 s at 320 Hz,
 #: as Data Acquisition's start-up waits ARM_TIMEOUT_S)
 RESUME_ARM_FRAMES = 64
+#: servo faults that are events (a missed period, an output too old): cleared by an error reset
+SERVO_EVENT_FAULTS = (ERR_MISSED, ERR_NO_OUTPUT)
 #: distinct per-layer trace records kept for reuse (they repeat frame after frame; a
 #: LayerTrace is immutable, so one object serves every frame with the same values)
 LAYER_TRACE_CACHE = 4096
@@ -358,6 +360,8 @@ class ControllerRuntime:
             self.servo_catch_up = False
         self.wm.communications_segment()
         self.updown.debug_requests(self)
+        if self.servo.fault and self.servo.error_code in SERVO_EVENT_FAULTS:
+            self._reset_servo_event()
         for l in self.layers:
             l.run_table(self)
         daq_status = self._decided(self.daq)
@@ -406,6 +410,16 @@ class ControllerRuntime:
 
     def _clock_now(self) -> float:
         return self.clock.now() if self.clock is not None else time.monotonic()
+
+    def _reset_servo_event(self) -> None:
+        """A missed servo period (ERR_MISSED, raised here) or a servo output too old to send
+        (ERR_NO_OUTPUT, Data Acquisition) is an event, not a condition that lasts: nothing
+        would ever clear the flag, and the decision tables run an error reset only once the
+        fault is gone, so ERROR RESET hung with the servo in ERROR. The flag is cleared when
+        the servo's command is ERROR RESET (the table then resets it like any layer)."""
+        if self.wm.get_state_variable(f"{self.servo.key}.command") == Command.ERROR_RESET:
+            self.post(self.servo.key, Level.INFO, f"error reset: fault {self.servo.error_code} was an event; cleared")
+            self.servo.clear_fault(self)
 
     # --- missed frames -------------------------------------------------------------------
     def _missed(self, prev: int, f: int, missed: int) -> frozenset[str]:

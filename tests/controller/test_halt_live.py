@@ -227,3 +227,23 @@ def test_cli_frame_control_without_a_controller_is_one_message(capsys):
 def test_cli_frame_control_usage_mistakes_exit_2(capsys, argv, says):
     rc, out, err = _pfma(capsys, "controller", *argv, "--wm", "pfma_wm_nobody_here")
     assert rc == 2 and says in err and "Traceback" not in err
+
+
+# --- found while halting a live controller on a loaded host ------------------------------------
+def test_error_reset_after_a_missed_servo_period_shuts_down_and_powers_up_again(powered):
+    """A servo fault for missed periods (code 12) is an event: nothing cleared its flag and
+    the tables reset a layer only once its fault is gone, so ERROR RESET hung with the servo
+    in ERROR (seen live: a third process starting on a 2-core host)."""
+    from controller.servo import ERR_MISSED
+    sim, rt = powered, powered.rt
+    sim.controller_steps = lambda f: 0 if f % 100 < 3 else 1  # 3 frames missed (9 ms: no watchdog trip)
+    sim.step(100)
+    sim.controller_steps = None
+    sim.step(300)
+    assert rt.status("servo") == S.ERROR and rt.servo.error_code == ERR_MISSED
+    assert sim.svc.guard.trips == 0
+    code, text = sim.request(Request.ERROR_RESET, max_frames=600)
+    assert code == Response.COMPLETE, text
+    assert rt.all_status(S.SHUT_DOWN)
+    sim.power_up(max_frames=400)
+    assert rt.all_status(S.START_UP_COMPLETE)
