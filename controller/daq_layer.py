@@ -29,7 +29,8 @@ bit    meaning
        WARNING says the force data are not valid and the arm goes on (disable the
        check entirely with ``require_ft=False``)
 8      a board the controller needs reports a fault (bus error, init failure)
-16     the service is in FAULT or STOPPED, or not ARMED while it should be
+16     the service is STOPPED, or in FAULT while this layer requests the outputs, or not
+       ARMED while it should be
 32     the service has not published a new frame for ``STALE_FRAMES`` frames
 64     the service refused this controller's command: its ``command_status``
        shows stale inputs (rates driven at 0 V because the command was computed
@@ -305,7 +306,10 @@ class DataAcquisitionLayer(Layer):
             bits |= FAULT_BOARD
             why += [f"board {self.board_names[i]} fault (errors {int(snap.board_errors[self.board_slots[i]])})"
                     for i in np.nonzero(bs & BOARD_FAULT)[0]]
-        if service_state in (ServiceState.FAULT, ServiceState.STOPPED) or \
+        # a service in FAULT matters while this layer wants the outputs; once it has withdrawn
+        # its arm request (the safe task), the latched FAULT only waits for the next arm
+        # request (power up's start-up task): else an error reset could never finish
+        if service_state == ServiceState.STOPPED or (service_state == ServiceState.FAULT and self.arm_request) or \
                 (self.arm_request and self._phase == 2 and service_state != ServiceState.ARMED
                  and not (self.halted and service_state == ServiceState.HALTED)):
             bits |= FAULT_SERVICE
@@ -446,11 +450,13 @@ class DataAcquisitionLayer(Layer):
 
     # --- sequence tasks ------------------------------------------------------------------
     def seq_init(self, rt: "LayerContext") -> TaskState:
-        """Wait (at most INIT_TIMEOUT_S) for a SAFE service with clean hardware checks."""
+        """Wait (at most INIT_TIMEOUT_S) for a SAFE service with clean hardware checks (or
+        one still in FAULT from before an error reset: the start-up's new arm request is its
+        explicit re-arm)."""
         if self.task_frames == 0:
             self._t_phase = rt.now
         st = int(self.snapshot.service_state) if self.snapshot is not None else -1
-        if st == ServiceState.SAFE and not self.fault_bits:
+        if st in (ServiceState.SAFE, ServiceState.FAULT) and not self.fault_bits:
             self.monitoring = True
             return TaskState.DONE
         if rt.now - self._t_phase > INIT_TIMEOUT_S:

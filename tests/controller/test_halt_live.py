@@ -247,3 +247,22 @@ def test_error_reset_after_a_missed_servo_period_shuts_down_and_powers_up_again(
     assert rt.all_status(S.SHUT_DOWN)
     sim.power_up(max_frames=400)
     assert rt.all_status(S.START_UP_COMPLETE)
+
+
+def test_error_reset_after_a_watchdog_trip_then_power_up_rearms(powered):
+    """The service's FAULT is latched until a new arm request; Data Acquisition counted it as
+    a fault even after withdrawing its own arm request, so ERROR RESET never finished and
+    power up could not come."""
+    from ioservice.service import FAULT_WATCHDOG
+    sim, rt = powered, powered.rt
+    sim.controller_enabled = False
+    sim.step(WATCHDOG_FRAMES + 3)  # the controller stops: the watchdog trips
+    sim.controller_enabled = True
+    assert _state(sim) == ServiceState.FAULT and sim.svc.fault_code == FAULT_WATCHDOG
+    sim.run_until(lambda: rt.status("updown") == S.ERROR, 100)
+    sim.step(400)  # safe tasks finished
+    code, text = sim.request(Request.ERROR_RESET, max_frames=600)
+    assert code == Response.COMPLETE, text
+    assert rt.all_status(S.SHUT_DOWN) and _state(sim) == ServiceState.FAULT  # latched until re-armed
+    sim.power_up(max_frames=400)
+    assert rt.all_status(S.START_UP_COMPLETE) and _state(sim) == ServiceState.ARMED
