@@ -186,7 +186,7 @@ class DataAcquisitionLayer(Layer):
             VarSpec("daq.hc_deadman", "task_io", "b1", (nh,), w, [False] * nh, doc="hand-controller deadman"),
             VarSpec("daq.service_frame", "task_io", "i8", (), w, 0, doc="service frame of the inputs"),
             VarSpec("daq.service_state", "status_output", "i2", (), w, 0,
-                    doc="I/O service state (0 STARTING 1 SAFE 2 ARMED 3 FAULT 4 STOPPED)"),
+                    doc="I/O service state (0 STARTING 1 SAFE 2 ARMED 3 FAULT 4 STOPPED 5 HALTED)"),
             VarSpec("daq.brakes_released", "task_io", "b1", (), w, False, doc="the service sees a current limit "
                     "above the brake release level with outputs live"),
             VarSpec("daq.outputs_enabled", "task_io", "b1", (), w, False, doc="the DAC drives the arm"),
