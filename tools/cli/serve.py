@@ -37,6 +37,7 @@ from bit3.buffer import Bit3Buffer, Bit3Error
 from ioservice.ticking import TickingClock
 from pfma.clock import MonotonicClock
 from pfma.rack import load_rack
+from tools.cli.fault import add_serve_fault_args, install_serve_faults
 
 
 def add_parser(sub):
@@ -71,6 +72,7 @@ def add_parser(sub):
     p.add_argument("--realtime", action="store_true", help="try SCHED_FIFO and a pinned CPU (needs privileges)")
     p.add_argument("--calibration", default=None, metavar="FILE",
                    help="calibration file (pfma calibrate ...) applied at start; default: nominal scales")
+    add_serve_fault_args(p)
     return p
 
 
@@ -231,9 +233,12 @@ def run(args) -> int:
     from bit3.ring import FrameRing
     svc.ring = FrameRing.create(args.buffer, layout.area("inputs").body_size, layout.hash)
     if world is not None:
-        # drain the serial FIFOs on both sides of the arm model's step (130 us typical,
-        # 0.6 ms at p99), so the step and a late wake-up do not add up to an overrun
-        clock.hooks[:] = [svc.serial_tick, world.tick, svc.serial_tick]
+        # the arm model steps once per frame, 0.4-0.8 ms before it (TickingClock
+        # pre-deadline hooks; 1 ms integration substeps inside), so the frame reads the arm
+        # at most ~0.8 ms old; the serial FIFOs are drained every tick and right after the
+        # step (so a long step and a late wake-up do not add up to an overrun)
+        clock.hooks[:] = [svc.serial_tick]
+        clock.pre_deadline_hooks[:] = [world.tick]
     for e in svc.init_errors:
         print(f"pfma serve: {e}", file=sys.stderr)
     svc.install_signal_handlers()
@@ -258,6 +263,7 @@ def run(args) -> int:
         demo = subprocess.Popen([sys.executable, "-m", "sim.demo", "--buffer", args.buffer,
                                  "--duration", str(args.duration or 3600)])
     try:
+        install_serve_faults(args, svc, world)
         svc.run(duration_s=args.duration)
     finally:
         stop.set()

@@ -216,44 +216,13 @@ def test_scenario_scheduled_on_the_loops_frames_and_posted(served, capsys):
 
 
 # -- end to end: a real `pfma serve` process ----------------------------------------------------------
-#: ``pfma serve`` with the fault flags: until tools/cli/serve.py calls add_serve_fault_args
-#: and install_serve_faults itself, the child adds them around serve's own code
-CHILD = r"""
-import sys
-import tools.cli.serve as serve
-if "install_serve_faults" not in open(serve.__file__).read():
-    import fakes.world
-    import ioservice.service
-    from tools.cli.fault import add_serve_fault_args, install_serve_faults
-    seen = {}
-    add0, run0, world0, svc_run0 = (serve.add_parser, serve.run, fakes.world.FakeWorld.__init__,
-                                    ioservice.service.IoService.run)
-    def add_parser(sub):
-        p = add0(sub)
-        add_serve_fault_args(p)
-        return p
-    def run(args):
-        seen["args"] = args
-        return run0(args)
-    def world_init(self, *a, **kw):
-        world0(self, *a, **kw)
-        seen["world"] = self
-    def svc_run(self, *a, **kw):
-        install_serve_faults(seen["args"], self, seen.get("world"))
-        return svc_run0(self, *a, **kw)
-    serve.add_parser, serve.run = add_parser, run
-    fakes.world.FakeWorld.__init__ = world_init
-    ioservice.service.IoService.run = svc_run
-from tools.cli import main
-sys.exit(main(["serve"] + sys.argv[1:]))
-"""
 
 
 def test_end_to_end_with_a_serve_process():
     name = "pfma-fcli-e2e-" + uuid.uuid4().hex[:6]
     path = socket_path(name)
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen([sys.executable, "-c", CHILD, "--buffer", name, "--duration", "30",
+    proc = subprocess.Popen([sys.executable, "-m", "tools.cli", "serve", "--buffer", name, "--duration", "30",
                              "--fault", "resolver-los:wrist_yaw_angle"],
                             cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
