@@ -37,8 +37,9 @@ def add_parser(sub):
     p.add_argument("--wait", type=float, default=30.0, metavar="S",
                    help="with --buffer: wait this long for the service (0 = forever; default 30)")
     p.add_argument("--sim-fault", action="append", default=[], metavar="SPEC",
-                   help="simulated rack only: inject a fault first (tach-reversed:JOINT, "
-                        "adc-dead:SIGNAL=VOLTS, resolver-los:SIGNAL, ft-noise); repeatable")
+                   help="simulated rack only: inject a fault first, any spec of `pfma fault list` "
+                        "(e.g. tach-reversed:JOINT, adc-dead:SIGNAL=VOLTS, resolver-los:SIGNAL, "
+                        "ft-noise, bus-error:BOARD); repeatable; docs/faults.md")
     p.add_argument("-q", "--quiet", action="store_true", help="print only failures and the summary")
     return p
 
@@ -59,6 +60,16 @@ def run(args) -> int:
                             service_timeout_s=cfg.num("checkout", "service_timeout_s"))
         interactive = not args.non_interactive
     else:
+        if args.sim_fault:  # a bad spec is a usage mistake: exit 2 before anything is built
+            from pfma.errors import ConfigError
+            from sim.faults import parse_fault
+            rack = load_rack(rack_path)
+            for spec in args.sim_fault:
+                try:
+                    parse_fault(spec, rack)
+                except ConfigError as err:
+                    print(f"pfma checkout: --sim-fault {err}", file=sys.stderr)
+                    return 2
         target = make_sim_target(rack_path)
         interactive = False  # the stimulus acts for the operator
     from tools.cli.output import ProgressBars, console, is_terminal, print_json

@@ -136,6 +136,13 @@ ROWS = [
     Row("record-info-no-file", ("record", "info"), 2, ("usage: pfma record info FILE.mcap",)),
     Row("record-recover-no-file", ("record", "recover"), 2, ("usage: pfma record recover",)),
     Row("unknown-verb", ("no-such-verb",), 2, ("invalid choice",)),
+    # --- fault specs: the same grammar and exit code wherever one is taken ------------------
+    Row("serve-bad-fault", ("serve", "--duration", "1", "--fault", "resolver-lo:x"), 2,
+        ("resolver-lo", "did you mean resolver-los")),
+    Row("checkout-bad-sim-fault", ("checkout", "-q", "--sim-fault", "bus-error:no_board"), 2,
+        ("--sim-fault", "no_board")),
+    Row("fault-bad-spec", ("fault", "inject", "stuck-bit:adc", "--buffer", "pfma-bad-nobody"), 2,
+        ("stuck-bit",)),
 ]
 
 
