@@ -243,6 +243,9 @@ class IoService:
         self.stats_every = max(1, int(round(self.schedule.frame_rate_hz / 2)))  # twice a second
         self._stats_between_frames = False  # True while run() has idle_tick on the clock
         self._stats_due_k: int | None = None  # frame that asked for statistics not yet published
+        #: boards whose last transaction failed (BOARD_FAULT set); one that answers again is
+        #: back to OK (``_board_answered``, ``_input_ok``)
+        self.faulted_boards: set[str] = set()
         self._last_hb_check = -math.inf  # clock time of idle_tick's last heartbeat check
         self.set_state(ServiceState.SAFE)
         self.post(Severity.INFO, 100, f"service started: {rack.name}, "
@@ -373,6 +376,18 @@ class IoService:
         self._v["board_status"][slot] |= BOARD_FAULT
         self._v["board_last_error_addr"][slot] = getattr(err, "addr", 0) or 0
         self._v["board_last_error_t_s"][slot] = self.clock.now()
+        self.faulted_boards.add(board)
+
+    def _board_answered(self, board: str) -> None:
+        """A board in :attr:`faulted_boards` answered a whole transaction again (a DAC
+        write-all, a serial drain, a matrix route): an initialised board's status goes back
+        to OK (its error count and last error stay). Callers test ``faulted_boards`` first,
+        so a healthy frame pays one set test."""
+        if board in self.faulted_boards:
+            self.faulted_boards.discard(board)
+            slot = self._board_slot(board)
+            if self._v["board_status"][slot] & BOARD_INIT:
+                self._v["board_status"][slot] = BOARD_OK | BOARD_INIT
 
     def _input_failed(self, board: str, group: str, err: Exception) -> None:
         self._count_board_error(board, err)
@@ -390,6 +405,7 @@ class IoService:
         if self._board_fail_run.get(board):
             self._board_fail_run[board] = 0
             self._v["board_status"][slot] = BOARD_OK | BOARD_INIT
+            self.faulted_boards.discard(board)
 
     def _sampled(self, group: str, t: float) -> None:
         d = self._devices[group]
@@ -767,6 +783,9 @@ class IoService:
             m[1].poll()
         except PfmaError as err:
             self._count_board_error(m[0].name, err)
+        else:
+            if self.faulted_boards:
+                self._board_answered(m[0].name)
         fts = self.ft
         ft = fts.ft
         if ft is not None and fts.in_tick:

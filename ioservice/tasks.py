@@ -332,6 +332,8 @@ class DacTask:
             svc.guard.trip(f"DAC write failed: {err}", code=_service.FAULT_DAC)
             return
         svc._bus_ok_t = t
+        if svc.faulted_boards:
+            svc._board_answered(self.cfg.name)
         slots = self.slots
         v["dac_counts"][slots] = drv.shadow_counts
         v["dac_volts"][slots] = drv.shadow_volts
@@ -772,6 +774,8 @@ class PioTask:
                 try:
                     drv.write_matrix_route(route)
                     self.matrix_applied = route
+                    if svc.faulted_boards:
+                        svc._board_answered(cfg.name)
                     v["matrix_route"][...] = route
                     v["pio_port_bits"][slots[0]] = route & 0xFF
                     svc.post(Severity.INFO, 140, f"matrix switcher route 0x{route:02X}")
