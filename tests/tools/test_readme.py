@@ -58,6 +58,8 @@ RUN_ALONE = (
     f"{PFMA} layout --json",
     f"{PFMA} serve --duration 5 --modbus 127.0.0.1:5020",
     f"{PFMA} serve --duration 2 --hid fake",
+    f"{PFMA} fault list",
+    f"{PFMA} serve --duration 3 --scenario scenarios/ft-unplug.toml",
     f"{PFMA} bench loop --seconds 1",
     f"{PFMA} bench stack --minutes 0.1 --realtime",
     f"mkdir -p out && {PFMA} layout --json > out/layout.json",
@@ -80,6 +82,8 @@ RUN_ALONE = (
 RUN_WITH_SERVICE = (
     f"{PFMA} stats",
     f"{PFMA} read elbow_pitch_angle",
+    f"{PFMA} fault inject resolver-los:shoulder_pitch_angle",
+    f"{PFMA} fault clear all",
     f"{PFMA} monitor --once",
     f"{PFMA} watch elbow_pitch_angle --count 30",
     f"{PFMA} record out/run.mcap --duration 3",
