@@ -308,6 +308,12 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
             client.close()
         for p in procs.values():
             p.close()
+        # a stopped service and controller leave their segments for tools to read; a
+        # benchmark's are its own (a new name per run): remove them
+        from bit3.buffer import Bit3Buffer
+        from controller.worldmodel import WorldModel
+        Bit3Buffer.unlink(name)
+        WorldModel.remove_segment(name + "-wm")
     rep["processes"] = {k: p.report() for k, p in procs.items()}
     for k, p in procs.items():
         if p.died is not None:

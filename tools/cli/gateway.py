@@ -75,9 +75,15 @@ def run(args) -> int:
 
     # pymodbus logs a failed bind at error level; the one message below says it instead
     logging.getLogger("pymodbus").addHandler(logging.NullHandler())
+    # usage mistakes: one line, exit 2 (as argparse's own)
     if args.duration is not None and args.duration <= 0:
-        raise PfmaError(f"--duration {args.duration:g}: must be positive")
-    host, port = parse_listen(args.listen)
+        print(f"pfma gateway: --duration {args.duration:g}: must be positive", file=sys.stderr)
+        return 2
+    try:
+        host, port = parse_listen(args.listen)
+    except PfmaError as err:
+        print(f"pfma gateway: {err}", file=sys.stderr)
+        return 2
     rack = load_rack(args.rack)
     clock = MonotonicClock()
     world = FakeWorld(rack, clock=clock)

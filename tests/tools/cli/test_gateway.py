@@ -87,6 +87,6 @@ def test_gateway_on_a_busy_port_is_one_message_and_exit_1(capsys):
                                           ("127.0.0.1:http", "is not a number"),
                                           ("127.0.0.1:70000", "not 0..65535")])
 def test_a_bad_listen_address_is_one_message(listen, says, capsys):
-    assert main(["gateway", "--listen", listen, "--duration", "1"]) == 1
+    assert main(["gateway", "--listen", listen, "--duration", "1"]) == 2  # a usage mistake
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and says in err and err.startswith("pfma gateway: ")
