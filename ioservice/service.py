@@ -42,6 +42,7 @@ from bit3.layout import (  # noqa: F401 - the status bits are re-exported for ol
     DAC_CLIPPED, DAC_FORCED_SAFE, LINK_FAULT, LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_NO_REFERENCE, ServiceState,
     Severity,
 )
+from bit3.layout import MODE_HALTED  # HALTED (issue 18): the halted controller's command-area mode
 from ioservice.loop import FrameInfo, FrameLoop, LoopStats
 from ioservice.safety import OutputGuard
 from ioservice.schedule import (
@@ -704,7 +705,8 @@ class IoService:
                 status |= CMD_REFUSED
         hb = self._hb_ok if self._hb_ok is not None else -1
         live = self.guard.update(hb, bool(c["arm_request"]), int(c["rearm_counter"]),
-                                 not any(rates), refusal=refusal, stall_note=self._stall_note())
+                                 not any(rates), refusal=refusal, stall_note=self._stall_note(),
+                                 halted=int(c["mode"]) == MODE_HALTED)  # HALTED (issue 18): a halted controller
         if self.guard.refusals != self._refusals_seen:  # one refusal, one message (the guard's)
             self._refusals_seen = self.guard.refusals
             v["refused_commands"] += 1
