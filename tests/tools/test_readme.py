@@ -45,7 +45,7 @@ SHELL_BLOCKS = ("sh", "bash", "shell")
 
 #: commands not run here, each with its reason
 NOT_RUN = {
-    "make run": "interactive: runs until Ctrl-C",
+    "make run": "interactive: the console on a terminal, runs until q or Ctrl-C",
     "make test": "this test suite",
     f"{PFMA} ft --port /dev/ttyUSB0 --binary --checksum --stream": "lab hardware: an F/T sensor on /dev/ttyUSB0",
 }
