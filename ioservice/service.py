@@ -206,6 +206,9 @@ class IoService:
         self._v = {name: self.inputs.record[name] for name in self.inputs.record.dtype.names or ()}
         self._stats_rec = self.stats_writer.record
         self._devices = {g: _DeviceCounter() for g in ("rtd", "adc", "dac", "ft", "pio", "crl", "hid")}
+        #: boards whose last transaction failed (BOARD_FAULT set); one that answers again is
+        #: back to OK (``_board_answered``, ``_input_ok``)
+        self.faulted_boards: set[str] = set()
         self._board_fail_run: dict[str, int] = {}
         self.init_errors: list[str] = []  #: full texts of start-up problems (messages are cut to 56 bytes)
         self.notes: list[str] = []  #: full texts of start-up decisions the user should know of
@@ -244,9 +247,6 @@ class IoService:
         self.stats_every = max(1, int(round(self.schedule.frame_rate_hz / 2)))  # twice a second
         self._stats_between_frames = False  # True while run() has idle_tick on the clock
         self._stats_due_k: int | None = None  # frame that asked for statistics not yet published
-        #: boards whose last transaction failed (BOARD_FAULT set); one that answers again is
-        #: back to OK (``_board_answered``, ``_input_ok``)
-        self.faulted_boards: set[str] = set()
         self._last_hb_check = -math.inf  # clock time of idle_tick's last heartbeat check
         self.set_state(ServiceState.SAFE)
         self.post(Severity.INFO, 100, f"service started: {rack.name}, "
