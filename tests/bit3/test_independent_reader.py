@@ -35,7 +35,7 @@ def test_independent_reader_sees_the_documented_rates(published_layout):
     try:
         r = IndependentReader(published_layout, f"/dev/shm/{rig.name}")
         try:
-            res = measure(r, lambda: rig.svc.loop.run(frames=1), seconds=3.0)
+            res = measure(r, lambda: rig.run_frames(1), seconds=3.0)
         finally:
             r.close()
     finally:
@@ -65,7 +65,7 @@ def test_a_service_that_stops_mid_measurement_is_reported_not_waited_for(publish
     def step():
         wall[0] += 0.01
         if frames[0] < 320:  # 1 s of frames, then the service is gone
-            rig.svc.loop.run(frames=1)
+            rig.run_frames(1)
             frames[0] += 1
 
     try:
