@@ -54,7 +54,7 @@ from ioservice.tasks import (  # noqa: F401 - the F/T and brake constants are re
 )
 from bit3.buffer import Bit3Buffer
 from pfma.clock import Clock
-from pfma.errors import ConfigError, PfmaError
+from pfma.errors import BusError, ConfigError, PfmaError
 from pfma.rack import BoardConfig, RackConfig
 from drivers.rackio import RackIO
 
@@ -91,6 +91,10 @@ HOST_STALL_S = 0.010
 #: 1 ms makes the reaction to a dead controller the watchdog plus at most 1 ms plus a
 #: tick, and costs ~900 command reads a second instead of ~2200)
 HEARTBEAT_CHECK_S = 0.001
+#: attempts at a board's start-up transactions before it is marked FAULT (bus errors only;
+#: an unreachable gateway is not tried again). Assumed: 3, enough for a time-out on a
+#: loaded host, few enough that a missing board costs three bus time-outs
+INIT_ATTEMPTS = 3
 #: a stall is named in trips and stale-command messages for this long after it ended (the
 #: time a controller needs to see new inputs and answer: two watchdog periods, assumed)
 STALL_BLAME_S = 0.030
@@ -283,16 +287,34 @@ class IoService:
         return slots
 
     def _init_board(self, cfg, action) -> bool:
+        """Run a board's start-up ``action``; a bus error is tried again up to
+        ``INIT_ATTEMPTS`` times in all (a gateway's one-frame time-out on a loaded host failed
+        whole boards at start that then worked), except an unreachable gateway; a board that
+        needed more than one attempt is named in :attr:`notes`."""
         slot = self._board_slot(cfg.name)
-        try:
-            action()
-        except PfmaError as err:
-            self._v["board_status"][slot] = BOARD_FAULT
-            self._count_board_error(cfg.name, err)
-            self.post(Severity.ERROR, 110, f"{cfg.name}: init failed: {err}")
-            return False
-        self._v["board_status"][slot] = BOARD_OK | BOARD_INIT
-        return True
+        first: BusError | None = None
+        for attempt in range(1, INIT_ATTEMPTS + 1):
+            try:
+                action()
+            except BusError as err:
+                if attempt < INIT_ATTEMPTS and "unreachable" not in err.reason:
+                    first = first or err
+                    continue
+                return self._init_failed(cfg.name, slot, err)
+            except PfmaError as err:
+                return self._init_failed(cfg.name, slot, err)
+            if attempt > 1:
+                self.notes.append(f"{cfg.name}: answered its start-up on attempt {attempt} of "
+                                  f"{INIT_ATTEMPTS} (first: {first})")
+            self._v["board_status"][slot] = BOARD_OK | BOARD_INIT
+            return True
+        return False  # not reached: the last attempt returns
+
+    def _init_failed(self, board: str, slot: int, err: PfmaError) -> bool:
+        self._v["board_status"][slot] = BOARD_FAULT
+        self._count_board_error(board, err)
+        self.post(Severity.ERROR, 110, f"{board}: init failed: {err}")
+        return False
 
     def _wire_serial(self) -> None:
         """The MVME400: both ports at their rack baud rates; the F/T sensor (the rack's
