@@ -1,6 +1,7 @@
 """``pfma record``: lossless MCAP recording of a running service's Bit3 buffer.
 
     pfma record FILE.mcap [--buffer NAME] [--duration S] [--json-every N]
+                          [--wm NAME --var PATTERN[@RATE] [--var ...]]
     pfma record recover BROKEN.mcap [-o FIXED.mcap]
     pfma record info FILE.mcap
 
@@ -13,6 +14,15 @@ layout (another rack file) ends the recording with an error: that is a different
 recording. Ctrl-C, SIGTERM or ``--duration`` end it cleanly with the counters and the
 MCAP summary written. A killed recorder loses at most ``--flush-s`` (0.25 s); ``pfma
 record recover`` makes such a file whole.
+
+With ``--wm NAME --var PATTERN[@RATE]`` the chosen variables of the controller's world
+model (glob patterns over variable names: ``servo.*``, ``*.status``; RATE in Hz, default
+every controller frame) go into the same file as ``/pfma/wm/<area>`` JSON topics on the
+same time axis (tools/recording/wm.py). The world model is attached read-only. While it
+is not there the recorder waits for it (``--wait`` bounds this too); a pattern that
+matches nothing or a bad rate is a usage mistake (exit 2, nothing recorded). A controller
+that stops mid-recording is said once; the Bit3 topics go on, and the world-model topics
+continue when it comes back.
 """
 
 from __future__ import annotations
@@ -61,6 +71,11 @@ def add_parser(sub):
     p.add_argument("--wait", type=float, default=None, help="give up when no service comes within S seconds")
     p.add_argument("--quiet", action="store_true", help="only the final summary")
     p.add_argument("--json", action="store_true", help="info: one JSON document (topics, counts, recorder summary)")
+    p.add_argument("--wm", default=None, metavar="NAME",
+                   help="also record variables of this world model (the controller's --wm; read-only)")
+    p.add_argument("--var", action="append", default=[], metavar="PATTERN[@RATE]",
+                   help="world-model variables to record: a glob over names (servo.*, ui.state, "
+                        "*.status), optionally @RATE in Hz (default: every controller frame); repeatable")
     return p
 
 
@@ -73,8 +88,23 @@ def run(args) -> int:
     if len(args.target) != 1:
         print("pfma record: one output file, or 'recover FILE' / 'info FILE'", file=sys.stderr)
         return 2
+    from tools.recording.wm import WmUsageError, parse_var
+    try:
+        if args.var and not args.wm:
+            raise WmUsageError("--var needs --wm NAME (the world model the controller runs: "
+                               "`pfma controller --wm NAME`)")
+        if args.wm is not None and not args.var:
+            raise WmUsageError(f"--wm {args.wm} needs at least one --var PATTERN[@RATE] "
+                               f"(e.g. --var 'servo.*'; `pfma wm list --wm {args.wm}` lists the variables)")
+        if args.wm is not None and not args.wm.strip():
+            raise WmUsageError("--wm needs a world-model name (e.g. --wm pfma_wm)")
+        patterns = [parse_var(v) for v in args.var]
+    except WmUsageError as err:
+        print(f"pfma record: {err}", file=sys.stderr)
+        return 2
     return record(args.target[0], buffer=args.buffer, rack_arg=args.rack, duration_s=args.duration,
-                  json_every=args.json_every, flush_s=args.flush_s, wait_s=args.wait, quiet=args.quiet)
+                  json_every=args.json_every, flush_s=args.flush_s, wait_s=args.wait, quiet=args.quiet,
+                  wm_name=args.wm, patterns=patterns)
 
 
 def _recover(args) -> int:
@@ -119,17 +149,33 @@ def _info(args) -> int:
             "messages_missed", "sessions", "lossless")
     if args.json:
         from tools.cli.output import print_json
+        wm, wsum = meta.get("pfma.wm"), meta.get("pfma.wm.summary")
         print_json({"file": path, "messages": st.message_count, "chunks": st.chunk_count, "duration_s": dur,
                     "attachments": st.attachment_count, "metadata": st.metadata_count, "topics": topics,
-                    "recorder": {k: summ.get(k) for k in keys} if summ else None})
+                    "recorder": {k: summ.get(k) for k in keys} if summ else None,
+                    "world_model": None if not wm else {
+                        "name": wm.get("name"), "patterns": json.loads(wm.get("patterns", "[]")),
+                        "variables": json.loads(wm.get("variables", "[]")),
+                        "summary": {k: wsum.get(k) for k in _WM_KEYS} if wsum else None}})
         return 0
     print(f"{path}: {st.message_count} messages, {st.chunk_count} chunks, {dur:.3f} s, "
           f"{st.attachment_count} attachments, {st.metadata_count} metadata")
+    width = max([22] + [len(t["topic"]) for t in topics])
     for t in topics:
-        print(f"  {t['topic']:22} {t['messages']:9d}  {t['rate_hz']:8.1f}/s  {t['encoding']}")
+        print(f"  {t['topic']:{width}} {t['messages']:9d}  {t['rate_hz']:8.1f}/s  {t['encoding']}")
     if summ:
         print("  recorder: " + ", ".join(f"{k}={summ.get(k)}" for k in keys))
+    wm, wsum = meta.get("pfma.wm"), meta.get("pfma.wm.summary")
+    if wm:
+        nvars = len(json.loads(wm.get("variables", "[]")))
+        print(f"  world model {wm.get('name')!r}: {nvars} variables from "
+              f"{', '.join(json.loads(wm.get('patterns', '[]')))}"
+              + (": " + ", ".join(f"{k}={wsum.get(k)}" for k in _WM_KEYS) if wsum else ""))
     return 0
+
+
+#: the ``pfma.wm.summary`` counters ``info`` prints
+_WM_KEYS = ("samples", "frames_seen", "frames_unseen", "torn_reads", "sessions", "went_away")
 
 
 def _say(quiet: bool):
@@ -139,9 +185,44 @@ def _say(quiet: bool):
     return say
 
 
+def _frame_rate_hz(client) -> tuple[float, str]:
+    """The service's frame rate (the cap of every-frame world-model samples) and where it
+    came from: its statistics area's nominal period, else the schedule's default."""
+    try:
+        period = float(client.read_stats().as_dict().get("period_s") or 0.0)
+    except Exception:  # noqa: BLE001 - no statistics published yet
+        period = 0.0
+    if period > 0:
+        return 1.0 / period, "the service's statistics (period_s)"
+    from ioservice.schedule import Schedule
+    return Schedule().frame_rate_hz, "the schedule's default (no statistics published yet)"
+
+
+def _open_wm(wm_name: str, patterns, *, wait_s, t_end, say, done):
+    """(the sampler's world model and its first selection, exit code): waits for the world
+    model like for the service; a pattern that matches nothing is a usage mistake (2)."""
+    from tools.recording.wm import WmUsageError, select, wait_for_wm
+    remaining = None if t_end is None else max(0.0, t_end - time.monotonic())
+    if wait_s is not None:
+        remaining = wait_s if remaining is None else min(wait_s, remaining)
+    wm, why = wait_for_wm(wm_name, timeout_s=remaining, say=say, stop=done)
+    if wm is None:
+        limit = f" within {remaining:g} s" if remaining is not None else ""
+        print(f"pfma record: no running world model /dev/shm/{wm_name}{limit} ({why}); "
+              f"nothing recorded", file=sys.stderr)
+        return None, 1
+    try:
+        select(wm.specs, patterns, wm_name=wm_name)
+    except WmUsageError as err:
+        wm.close()
+        print(f"pfma record: {err}; nothing recorded", file=sys.stderr)
+        return None, 2
+    return wm, 0
+
+
 def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_s: float | None = None,
            json_every: int = 1, flush_s: float = 0.25, wait_s: float | None = None,
-           quiet: bool = False) -> int:
+           quiet: bool = False, wm_name: str | None = None, patterns=()) -> int:
     """The recording loop (see the module docstring); returns the exit code."""
     from bit3.layout import ServiceState, build_layout, default_layout
     from tools.attach import buffer_replaced, wait_for_service
@@ -174,6 +255,13 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
 
     rec = None
     err_code = 0
+    wm = None
+    if wm_name is not None:
+        wm, code = _open_wm(wm_name, patterns, wait_s=wait_s, t_end=t_end, say=say, done=done)
+        if wm is None:
+            for s, h in old.items():
+                signal.signal(s, h)
+            return code
     try:
         while not done():
             remaining = None if t_end is None else max(0.0, t_end - time.monotonic())
@@ -190,8 +278,18 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
                     err_code = 1
                 break
             if rec is None:
+                sampler = None
+                if wm is not None:
+                    from tools.recording.wm import WmSampler, select
+                    rate, source = _frame_rate_hz(client)
+                    chosen = select(wm.specs, patterns, wm_name=wm_name or "", frame_rate_hz=rate)
+                    sampler = WmSampler(wm, chosen, patterns=patterns, frame_rate_hz=rate, say=say)
+                    wm = None  # the sampler (and then the recorder) owns it
+                    say(f"world model /dev/shm/{wm_name}: {len(chosen)} variables in "
+                        f"{len(sampler.topics())} topics (every-frame samples capped at {rate:g} Hz, "
+                        f"from {source})")
                 rec = Recorder(client, path, rack=rack, json_every=json_every, flush_every_s=flush_s,
-                               meta={"command": " ".join(sys.argv)})
+                               meta={"command": " ".join(sys.argv)}, wm=sampler)
                 say(f"recording /dev/shm/{buffer} to {path} (Ctrl-C ends it)")
             else:
                 rec.attach(client)
@@ -267,13 +365,24 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
         for s, h in old.items():
             signal.signal(s, h)
         gc.unfreeze()
+        if wm is not None:  # never handed to a recorder
+            wm.close()
         if rec is not None:
             c = rec.close()
             print(_summary_line(path, c), flush=True)
+            if rec.wm is not None:
+                print(_wm_line(rec.wm), flush=True)
         elif not err_code:
             print(f"pfma record: no service came up on /dev/shm/{buffer}; nothing recorded", file=sys.stderr)
             err_code = 1
     return err_code
+
+
+def _wm_line(sampler) -> str:
+    c = sampler.counters
+    return (f"pfma record: world model {sampler.name!r}: {c.samples} samples of "
+            f"{len(sampler.variables)} variables on {len(c.messages)} topics; controller frames not "
+            f"seen {c.frames_unseen}, went away {c.went_away}, sessions {c.sessions}")
 
 
 def _summary_line(path: str, c) -> str:

@@ -8,7 +8,7 @@ import os
 import time
 from collections import defaultdict
 from pathlib import Path
-from typing import IO, Callable
+from typing import IO, TYPE_CHECKING, Callable
 
 import numpy as np
 from mcap.writer import CompressionType, Writer
@@ -20,6 +20,9 @@ from tools.recording.schema import (
     RAW_TOPIC, _ns, epoch_offset_ns, raw_schema,
 )
 from tools.recording.topics import RecorderCounters, _dumps, _Topics
+
+if TYPE_CHECKING:
+    from tools.recording.wm import WmSampler
 
 #: recent recorded frame numbers kept to count frames before a stats snapshot
 _RING = 4096
@@ -44,6 +47,8 @@ class Recorder:
     :param json_every: write the JSON device channels for every Nth sample (1 = all)
     :param flush_every_s: close the chunk and flush at least this often (wall time)
     :param wall: wall-time source for flushing and the counters channel
+    :param wm: chosen world-model variables (``/pfma/wm/<area>`` topics, sampled from
+        :meth:`poll`; :mod:`tools.recording.wm`); the recorder closes it
     """
 
     def __init__(self, client: Client | None, out: str | Path | IO[bytes], *, rack=None,
@@ -51,7 +56,7 @@ class Recorder:
                  flush_every_s: float = FLUSH_EVERY_S, chunk_size: int = CHUNK_SIZE,
                  compression: CompressionType = CompressionType.ZSTD,
                  wall: Callable[[], float] = time.monotonic, layout: Layout | None = None,
-                 meta: dict[str, str] | None = None) -> None:
+                 meta: dict[str, str] | None = None, wm: "WmSampler | None" = None) -> None:
         if client is None and layout is None:
             raise ValueError("Recorder needs a client or a layout")
         self.layout = layout or client.layout
@@ -75,11 +80,14 @@ class Recorder:
                                      json.dumps(self._schema_raw).encode())
         self._ch[RAW_TOPIC] = self.w.register_channel(RAW_TOPIC, RAW_ENCODING, sid,
                                                       {"area": "inputs", "layout_hash": self.layout.hash_hex})
-        for topic, schema in self.t.schemas().items():
+        self.wm = wm
+        wm_topics = wm.topics() if wm is not None else {}
+        for topic, schema in {**self.t.schemas(), **wm_topics}.items():
             schema = {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": topic, **schema}
             sid = self.w.register_schema("pfma" + topic.replace("/", ".")[5:], "jsonschema",
                                          json.dumps(schema).encode())
-            self._ch[topic] = self.w.register_channel(topic, "json", sid, {})
+            self._ch[topic] = self.w.register_channel(
+                topic, "json", sid, {"world_model": wm.name} if topic in wm_topics and wm else {})
         self._meta_extra = dict(meta or {})
         self._wrote_meta = False
         self.client: Client | None = None
@@ -138,6 +146,8 @@ class Recorder:
             "hash": lay.hash_hex, "version": str(lay.version), "rack": lay.rack_name,
             "buffer_layout_hash": hdr.layout_hash.hex(), "size": str(lay.size)})
         self.w.add_metadata("pfma.calibration", {"hash": hdr.calibration_hash.hex()})
+        if self.wm is not None:
+            self.w.add_metadata("pfma.wm", self.wm.metadata())
         now = time.time_ns()
         self.w.add_attachment(now, now, "bit3-layout.json", "application/json",
                               json.dumps(lay.as_json()).encode())
@@ -150,6 +160,10 @@ class Recorder:
         self._wrote_meta = True
 
     # --- writing ---
+    def put(self, topic: str, t_ns: int, payload: bytes) -> None:
+        """Write one message on a registered topic (log time = publish time = ``t_ns``)."""
+        self._put(topic, t_ns, payload)
+
     def _put(self, topic: str, t_ns: int, payload: bytes) -> None:
         n = self.topic_counts[topic]
         self.w.add_message(self._ch[topic], t_ns, payload, t_ns, n & 0xFFFFFFFF)
@@ -172,6 +186,8 @@ class Recorder:
             if c.changed("stats"):
                 self._stats(c.read_stats())
             self._messages()
+        if self.wm is not None:  # the world model at its requested rates, from this loop
+            self.wm.poll(self)
         now = self.wall()
         if now - self._last_counters >= COUNTERS_EVERY_S:
             self._last_counters = now
@@ -350,12 +366,22 @@ class Recorder:
                     self.poll()
                 except Exception:  # noqa: BLE001 - a vanished buffer must not lose the file
                     pass
+            if self.wm is not None and self.client is None:  # the final poll above did not reach it
+                try:
+                    self.wm.poll(self)
+                except Exception:  # noqa: BLE001 - a vanished world model must not lose the file
+                    pass
             cnt = self.write_counters()
             self.w.flush()
             self.w.add_metadata("pfma.recorder.summary", {k: str(v) for k, v in cnt.as_dict().items()})
+            if self.wm is not None:
+                self.w.add_metadata("pfma.wm.summary", {k: json.dumps(v) if isinstance(v, dict) else str(v)
+                                                        for k, v in self.wm.counters.as_dict().items()})
             self.w.finish()
         finally:
             self._closed = True
+            if self.wm is not None:
+                self.wm.close()
             if self._own_file:
                 self._f.close()
             else:
