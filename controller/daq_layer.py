@@ -63,6 +63,7 @@ from controller.messages import Level
 from controller.params import JOINTS, N_CURRENT_LIMITS, N_JOINTS
 from controller.servo import ERR_NO_OUTPUT
 from controller.worldmodel import VarSpec
+from drivers.pio.routes import box_selections, route_text, set_monitor
 from bit3.layout import (
     BOARD_FAULT, CHANNEL_BUS_ERROR, CMD_FOREIGN, CMD_REFUSED, CMD_STALE, CMD_STATUS_NAMES, HAND_CONTROLLERS, HC_AXES,
     LINK_FAULT, LINK_STALE, MODE_HALTED, ServiceState,
@@ -169,6 +170,15 @@ class DataAcquisitionLayer(Layer):
         self.stale_outputs = 0  #: frames whose servo output was not of the current servo period
         self.catch_up_zeros = 0  #: frames with 0 rates while a missed servo slot was caught up
         self.sent_input_frame = -1  #: inputs_frame of the last write
+        # camera routes (docs/cameras.md): this layer is the one writer of commands.matrix_route;
+        # it starts from what the command area holds (0, both monitors blank, on a new buffer)
+        self.route = int(client.command["matrix_route"])  #: the route this layer commands
+        self._route_dirty = False  # the route changed: the next write carries it
+        self._box_word = -1  # the user I/F box word last looked at
+        self._box_sel: tuple[int | None, ...] = (None, None)  # each monitor's box selection
+        self._route_req_seq = 0  # the newest console route request applied (updown.route_request_seq)
+        self._route_applied = -1  # the service's applied route last posted
+        self._has_route_req: bool | None = None
 
     def specs(self) -> list[VarSpec]:
         z6 = [0.0] * N_JOINTS
@@ -190,6 +200,13 @@ class DataAcquisitionLayer(Layer):
             VarSpec("daq.brakes_released", "task_io", "b1", (), w, False, doc="the service sees a current limit "
                     "above the brake release level with outputs live"),
             VarSpec("daq.outputs_enabled", "task_io", "b1", (), w, False, doc="the DAC drives the arm"),
+            VarSpec("daq.user_inputs", "task_io", "i4", (), w, 0, "bits",
+                    doc="the user I/F box's 16 input bits (docs/cameras.md: closed switch = 0)"),
+            VarSpec("daq.camera_route", "task_io", "i4", (), w, 0, "bits",
+                    doc="matrix switcher route this layer commands (commands.matrix_route; "
+                        "drivers/pio/routes.py)"),
+            VarSpec("daq.camera_route_applied", "task_io", "i4", (), w, -1, "bits",
+                    doc="route the service has applied to the switcher (inputs.matrix_route)"),
             VarSpec("daq.fault_bits", "error_reports", "i4", (), w, 0,
                     doc="hardware checks: 1 resolver 2 tach ADC 4 F/T 8 board 16 service state 32 service stale "
                         "64 command refused/stale at the service"),
@@ -228,6 +245,7 @@ class DataAcquisitionLayer(Layer):
         out["daq.outputs_enabled"] = bool(rec["outputs_enabled"])
         rt.wm.post_task_outputs("daq", out)
         self.ft_in_use = self._force_in_use(rt)
+        self._camera_routes(rt, rec)
         bits, detail = self.check(snap, st)
         if self._ft_warning:
             rt.post(self.key, Level.WARNING, f"{self._ft_warning}: force data not valid (force control off: "
@@ -248,6 +266,55 @@ class DataAcquisitionLayer(Layer):
         elif self.fault and not bits:
             self.clear_fault(rt)  # the flag follows the hardware; ERROR itself is latched by the table
         return frame
+
+    # --- camera routes (docs/cameras.md) ------------------------------------------------------
+    def _camera_routes(self, rt: "LayerContext", rec) -> None:
+        """The user I/F box's switches and the console's route requests -> the route this
+        layer writes to ``commands.matrix_route`` (with the next command write). A box
+        selection acts when it changes (drivers/pio/routes.py); a console request arrives
+        from System Up/Down's request task (``updown.route_request``)."""
+        word = int(rec["pio_user_inputs"])
+        route = self.route
+        if word != self._box_word:
+            first = self._box_word < 0
+            self._box_word = word
+            sel = box_selections(word)
+            for m, (cam, was) in enumerate(zip(sel, self._box_sel), 1):
+                if cam is not None and cam != was:
+                    route = set_monitor(route, m, cam)
+            self._box_sel = sel
+            rt.wm.post_task_outputs("daq", {"daq.user_inputs": word, "daq.camera_route": self.route} if first
+                                    else {"daq.user_inputs": word})
+            if route != self.route:
+                self._set_route(rt, route, "user I/F box")
+        if self._has_route_req is None:
+            self._has_route_req = "updown.route_request_seq" in set(rt.wm.names())
+        if self._has_route_req:
+            seq = int(rt.wm.get("updown.route_request_seq"))
+            if seq != self._route_req_seq:
+                self._route_req_seq = seq
+                monitor, camera = divmod(int(rt.wm.get("updown.route_request")), 16)
+                try:
+                    self._set_route(rt, set_monitor(self.route, monitor, camera), f"console request {seq}")
+                except ValueError as err:  # System Up/Down checked it; a bad one is a message, not a crash
+                    rt.post(self.key, Level.WARNING, f"console request {seq}: {err}")
+        applied = int(rec["matrix_route"])
+        if applied != self._route_applied:
+            self._route_applied = applied
+            rt.wm.post_task_outputs("daq", {"daq.camera_route_applied": applied})
+
+    def _set_route(self, rt: "LayerContext", route: int, why: str) -> None:
+        self.route = route
+        self._route_dirty = True
+        rt.wm.post_task_outputs("daq", {"daq.camera_route": route})
+        rt.post(self.key, Level.INFO, f"camera route {route_text(route)} ({why})")
+
+    def _route_field(self, fields: dict) -> dict:
+        """``fields`` plus ``matrix_route`` when the route changed since the last write."""
+        if not self._route_dirty:
+            return fields
+        self._route_dirty = False
+        return {**fields, "matrix_route": self.route}
 
     def status_value(self, rt) -> int:
         return rt.wm.get_state_variable(self.v_status)
@@ -397,7 +464,7 @@ class DataAcquisitionLayer(Layer):
         reflect = self._reflection(rt, status)
         self.client.write_commands(joint_rate_rad_s=rates, current_limit_a=limits,
                                    arm_request=self.arm_request, rearm_counter=self.rearm_counter,
-                                   inputs_frame=stamp, controller_frame=self.writes, **reflect)
+                                   inputs_frame=stamp, controller_frame=self.writes, **self._route_field(reflect))
         self.sent_input_frame = stamp
         self.writes += 1
 
@@ -422,7 +489,7 @@ class DataAcquisitionLayer(Layer):
         self.client.write_commands(joint_rate_rad_s=self._zeros, current_limit_a=self._zero_limits,
                                    arm_request=self.arm_request if resume else 0, rearm_counter=self.rearm_counter,
                                    mode=0 if resume else MODE_HALTED, inputs_frame=frame,
-                                   controller_frame=self.writes, **self._no_reflection())
+                                   controller_frame=self.writes, **self._route_field(self._no_reflection()))
         self.sent_input_frame = frame
         self.writes += 1
 

@@ -35,6 +35,8 @@ from controller.messages import Level
 from controller.params import JOINTS, N_JOINTS
 from controller.quat import q_angle
 from controller.worldmodel import VarSpec
+from drivers.pio.registers import decode_matrix_route
+from drivers.pio.routes import camera_name, parse_route_request, route_text
 
 if TYPE_CHECKING:  # pragma: no cover
     from controller.context import LayerContext
@@ -51,8 +53,11 @@ class Request:
     HALT = 4
     STEP = 5
     RESUME = 6
+    #: camera routing (docs/cameras.md): ``ui.request_arg`` = monitor * 16 + camera (0 = blank);
+    #: System Up/Down hands it to Data Acquisition, the one writer of ``commands.matrix_route``
+    ROUTE = 7
     NAMES = {0: "NONE", 1: "POWER UP", 2: "POWER DOWN", 3: "ERROR RESET", 4: "HALT", 5: "SINGLE STEP",
-             6: "RESUME"}
+             6: "RESUME", 7: "CAMERA ROUTE"}
     DEBUG = (4, 5, 6)
 
 
@@ -68,6 +73,9 @@ class Response:
 _NO_SUBORDINATE = int(Status.NO_SUBORDINATE)
 #: bytes of ``ui.response_text`` (the answer in words)
 RESPONSE_TEXT_BYTES = 160
+#: time a CAMERA ROUTE request waits for the service to report the route applied before its
+#: answer is FAILED (assumed: the service writes the route at its 40 Hz PIO rate, 25 ms; ten of those)
+ROUTE_TIMEOUT_S = 0.25
 
 SEQ_ACTIONS = {Action.INIT: "init", Action.STARTUP: "startup", Action.SHUTDOWN: "shutdown",
                Action.SAFE: "safe", Action.RESET: "reset"}
@@ -263,17 +271,23 @@ class UpDownLayer(Layer):
         self._active = Request.NONE
         self._active_seq = 0
         self._cmd = Command.NONE
+        self._route: tuple[int, int, int, float] | None = None  # (seq, monitor, camera, t0) being followed
         self.periodic["updown_requests"] = self.requests_task
 
     def specs(self) -> list[VarSpec]:
         return self.state_specs() + [
             VarSpec("ui.request", "command_input", "i2", (), "user", 0,
-                    doc="user request to System Up/Down: 1 POWER UP 2 POWER DOWN 3 ERROR RESET "
-                        "(acted on when ui.request_seq changes)"),
+                    doc="user request to System Up/Down: 1 POWER UP 2 POWER DOWN 3 ERROR RESET 4 HALT "
+                        "5 SINGLE STEP 6 RESUME 7 CAMERA ROUTE (acted on when ui.request_seq changes)"),
             VarSpec("ui.request_seq", "command_input", "i4", (), "user", 0,
                     doc="user request number: increment to make a new request"),
             VarSpec("ui.request_arg", "command_input", "i4", (), "user", 0,
-                    doc="argument of the request: SINGLE STEP's frame count, RESUME's re-arm (1)"),
+                    doc="argument of the request: SINGLE STEP's frame count, RESUME's re-arm (1), "
+                        "CAMERA ROUTE's monitor * 16 + camera (0 = blank)"),
+            VarSpec("updown.route_request", "task_io", "i4", (), "updown_requests", 0,
+                    doc="the newest CAMERA ROUTE request for Data Acquisition: monitor * 16 + camera"),
+            VarSpec("updown.route_request_seq", "task_io", "i4", (), "updown_requests", 0,
+                    doc="its request number (Data Acquisition applies it when this changes)"),
             VarSpec("ui.response_text", "response_output", "u1", (RESPONSE_TEXT_BYTES,), "updown_requests",
                     [0] * RESPONSE_TEXT_BYTES, doc="the answer in words (UTF-8, zero-padded)"),
             VarSpec("ui.response", "response_output", "i2", (), "updown_requests", 0,
@@ -319,6 +333,34 @@ class UpDownLayer(Layer):
         """A later answer to request ``seq`` (a step run finished, a re-arm armed or not)."""
         self._respond(rt, seq, code, text)
 
+    def _route_request(self, rt, seq: int, arg: int) -> None:
+        """A CAMERA ROUTE request: any system state (the cameras are not the arm). Handed to
+        Data Acquisition through ``updown.route_request``; answered COMPLETE once the service
+        reports the monitor's new source applied, FAILED after ROUTE_TIMEOUT_S."""
+        name = Request.NAMES[Request.ROUTE]
+        try:
+            monitor, camera = parse_route_request(arg)
+        except ValueError as err:
+            self._respond(rt, seq, Response.REFUSED, f"{name}: {err}")
+            return
+        rt.wm.post_task_outputs("updown_requests", {"updown.route_request": arg, "updown.route_request_seq": seq})
+        self._route = (seq, monitor, camera, rt.now)
+        self._respond(rt, seq, Response.IN_PROGRESS, f"{name}: monitor {monitor} <- {camera_name(camera)}")
+
+    def _follow_route(self, rt) -> None:
+        assert self._route is not None
+        seq, monitor, camera, t0 = self._route
+        name = Request.NAMES[Request.ROUTE]
+        applied = int(rt.wm.get("daq.camera_route_applied"))
+        if applied >= 0 and decode_matrix_route(applied)[monitor - 1] == camera:
+            self._route = None
+            self._respond(rt, seq, Response.COMPLETE, f"{name}: applied by the service: {route_text(applied)}")
+        elif rt.now - t0 > ROUTE_TIMEOUT_S:
+            self._route = None
+            self._respond(rt, seq, Response.FAILED, f"{name}: monitor {monitor} <- {camera_name(camera)} not "
+                                                    f"applied by the service within {ROUTE_TIMEOUT_S} s (its "
+                                                    f"messages say why)")
+
     def requests_task(self, rt: "LayerContext") -> None:
         wm = rt.wm
         v = wm.get_task_inputs(("ui.request", "ui.request_seq", "updown.status"))
@@ -347,6 +389,8 @@ class UpDownLayer(Layer):
                                                              f"COMPLETE (report 2.2.6)")
                 else:
                     self._respond(rt, seq, Response.REFUSED, f"{name}: system is {status_text(st)}")
+            elif req == Request.ROUTE:
+                self._route_request(rt, seq, int(wm.get("ui.request_arg")))
             elif req == Request.ERROR_RESET:
                 if st == Status.ERROR:
                     self._active, self._active_seq = req, seq
@@ -356,6 +400,8 @@ class UpDownLayer(Layer):
                     self._respond(rt, seq, Response.REFUSED, f"{name}: system is {status_text(st)}, not ERROR")
             else:
                 self._respond(rt, seq, Response.REFUSED, f"unknown request {req}")
+        if self._route is not None:
+            self._follow_route(rt)
         # follow the active request synchronously with the real-time system
         a = self._active
         if a == Request.NONE:

@@ -16,6 +16,7 @@ import numpy as np
 
 from bit3.buffer import MESSAGE_DTYPE  # noqa: F401  (documented message fields)
 from bit3.layout import HC_AXES, Layout, ServiceState
+from drivers.pio.registers import decode_matrix_route
 
 def _clean(x: Any) -> Any:
     """NaN/inf -> None (JSON has no NaN; Foxglove refuses it)."""
@@ -108,7 +109,10 @@ class _Topics:
             "fault": _int(), "buttons": _int(), "t_s": _num("s")}) for c in self.g_hc[2]}},
             "hand controllers")
         s["/pfma/pio"] = _obj({**_HEAD, "user_inputs": _int("16 bits"), "matrix_route": _int(),
-                               **{c.name: _int("8-bit port") for c in self.g_pio[2]}}, "PIA ports")
+                               "monitor_1_camera": _int("0 = blank"), "monitor_2_camera": _int("0 = blank"),
+                               **{c.name: _int("8-bit port") for c in self.g_pio[2]}},
+                              "PIA ports; the applied matrix switcher route and each monitor's camera "
+                              "(docs/cameras.md)")
         s["/pfma/boards"] = _obj({**_HEAD, **{c.name: _obj({
             "status": _int("bits"), "errors": _int(), "last_error_addr": _int("A16"),
             "last_error_t_s": _num("s")}) for c in self.g_board[2]}}, "board status and errors")
@@ -191,8 +195,10 @@ class _Topics:
 
     def pio(self, r, head) -> dict:
         n, s, _ = self.g_pio
-        return {**head, "user_inputs": int(r["pio_user_inputs"]), "matrix_route": int(r["matrix_route"]),
-                **dict(zip(n, r["pio_port_bits"][s].tolist()))}
+        route = int(r["matrix_route"])
+        m1, m2 = decode_matrix_route(route)
+        return {**head, "user_inputs": int(r["pio_user_inputs"]), "matrix_route": route,
+                "monitor_1_camera": m1, "monitor_2_camera": m2, **dict(zip(n, r["pio_port_bits"][s].tolist()))}
 
     def boards(self, r, head) -> dict:
         n, s, _ = self.g_board
