@@ -18,6 +18,7 @@ from textual.containers import Grid
 from textual.screen import ModalScreen
 from textual.widgets import Footer, Static
 
+from drivers.pio.routes import MONITORS, route_request_arg
 from tools.console import view
 from tools.console.control import Answer, ControlError, ControllerLink, Request, Response
 
@@ -75,6 +76,45 @@ class BrowserScreen(ModalScreen):
         self.redraw()
 
 
+class CameraScreen(ModalScreen):
+    """Camera routes (docs/cameras.md): ``1`` ``2`` ``3`` put that camera on the selected
+    monitor, ``0`` blanks it, up/down/tab select the monitor; each key sends one CAMERA
+    ROUTE request (Data Acquisition applies it). Live at the console's refresh."""
+
+    BINDINGS = [Binding("escape,v,q", "app.pop_screen", "close"),
+                Binding("up", "monitor(-1)", "monitor"), Binding("down,tab", "monitor(1)", "monitor"),
+                Binding("1", "camera(1)", "camera 1"), Binding("2", "camera(2)", "camera 2"),
+                Binding("3", "camera(3)", "camera 3"), Binding("0", "camera(0)", "blank")]
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.monitor = MONITORS[0]
+
+    def compose(self) -> ComposeResult:
+        yield Static("", id="cameras", markup=False)
+
+    def on_mount(self) -> None:
+        self.redraw()
+
+    def redraw(self) -> None:
+        app = self.app
+        assert isinstance(app, ConsoleApp)
+        self.query_one("#cameras", Static).update(view.camera_screen(app.reading, self.monitor, app.last_answer))
+
+    def text(self) -> str:
+        return str(self.query_one("#cameras", Static).render())
+
+    def action_monitor(self, d: int) -> None:
+        self.monitor = MONITORS[(MONITORS.index(self.monitor) + d) % len(MONITORS)]
+        self.redraw()
+
+    def action_camera(self, camera: int) -> None:
+        app = self.app
+        assert isinstance(app, ConsoleApp)
+        app._send(Request.ROUTE, route_request_arg(self.monitor, camera))
+        self.redraw()
+
+
 class ConsoleApp(App):
     """The primary display over the live system.
 
@@ -102,7 +142,7 @@ class ConsoleApp(App):
         Binding("s", "step(1)", "step"), Binding("S", "step(10)", "10 steps", show=False),
         Binding("a", "rearm", "re-arm"),
         Binding("r", "resume", "resume"),
-        Binding("c", "not_yet('c')", "record"), Binding("v", "not_yet('v')", "cameras"),
+        Binding("c", "not_yet('c')", "record"), Binding("v", "cameras", "cameras"),
         Binding("m", "messages", "messages"),
         Binding("w", "browser", "world model"),
         Binding("q", "quit", "quit"),
@@ -164,6 +204,8 @@ class ConsoleApp(App):
         self._set("messages", view.messages_area(self.sources.messages))
         self._set("commands", view.local_commands(r, self.selected, self.sources.wm))
         self._set("global", view.global_commands(r, self.rearm, self.last_answer))
+        if isinstance(self.screen, CameraScreen):  # the camera routes are live too
+            self.screen.redraw()
 
     def _set(self, key: str, text: str) -> None:
         """Redraw an area only when its text changed, without a layout pass (the grid fixes
@@ -235,6 +277,11 @@ class ConsoleApp(App):
     def action_not_yet(self, key: str) -> None:
         self._note("INFO", view.NOT_YET[key])
         self.refresh_areas()
+
+    def action_cameras(self) -> None:
+        if self.link is None:
+            self._note("WARNING", "read-only console: no controller to route the cameras")
+        self.push_screen(CameraScreen())
 
     def action_browser(self) -> None:
         self.push_screen(BrowserScreen(self.sources.wm))

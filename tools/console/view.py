@@ -23,6 +23,8 @@ from controller.params import JOINT_NAMES
 from controller.paths import MultiSegmentLayer
 from controller.servo import ServoLayer
 from controller.trajectory import TrajectoryLayer
+from drivers.pio.registers import decode_matrix_route
+from drivers.pio.routes import MONITORS, camera_name, route_text
 
 #: the seven IRSS layers, highest first: (world-model key, the report's title)
 LAYERS: tuple[tuple[str, str], ...] = tuple((c.key, c.title) for c in (
@@ -44,10 +46,9 @@ GLOBAL_COMMANDS: tuple[tuple[str, str, str | None], ...] = (
     ("a", "re-arm (for the next resume)", None),
     ("r", "resume (needs a first)", "RESUME"),
     ("c", "record start/stop", None),
-    ("v", "camera routes", None),
+    ("v", "camera routes (1 2 3: camera, 0: blank, per monitor)", "CAMERA ROUTE"),
 )
-NOT_YET = {"c": "record start/stop: not yet (issue 18 item 5: pfma record --wm)",
-           "v": "camera routes: not yet (issue 18 item 4: user I/F box -> matrix switcher)"}
+NOT_YET = {"c": "record start/stop: not yet (issue 18 item 5: pfma record --wm)"}
 _TASK_KIND = {1: "init", 2: "startup", 3: "shutdown", 4: "safe", 5: "reset"}
 _TASK_STATE = {0: "idle", 1: "running", 2: "done", 3: "failed"}
 
@@ -92,7 +93,7 @@ class Sources:
         self.layer_vars = tuple(f"{k}.{f}" for k, _ in LAYERS for f in ("command", "status", "row", "task", "error")
                                 if f"{k}.{f}" in names)
         extra = ("runtime.halted", "runtime.steps_left", "runtime.step_frames", "runtime.frames", "runtime.rate_hz",
-                 "runtime.missed_frames", "daq.fault_bits", "daq.joint_angle_rad", "daq.joint_rate_rad_s",
+                 "runtime.missed_frames", "daq.fault_bits", "daq.joint_angle_rad", "daq.joint_rate_rad_s", "daq.camera_route",
                  "ui.response_seq", "ui.response", "ui.response_text")
         self.wm_vars = self.layer_vars + tuple(n for n in extra if n in names)
         self.messages: deque[ConsoleMessage] = deque(maxlen=MESSAGES_KEPT)
@@ -203,7 +204,31 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
     hc = "  ".join(f"{n} {'DEADMAN' if bool(s.hc_deadman[i]) else 'released'}"
                    for i, n in enumerate(HAND_CONTROLLERS))
     lines.append(f"hand controllers: {hc}")
-    lines.append("camera routes: not yet (issue 18 item 4)")
+    lines.append(camera_routes_line(r))
+    return "\n".join(lines)
+
+
+def camera_routes_line(r: Reading) -> str:
+    """The route the service has applied to the matrix switcher, by name, and the one the
+    controller asks for when it differs (not yet applied, or the switcher did not answer)."""
+    applied = int(r.inputs.matrix_route)
+    line = f"camera routes: {route_text(applied)}"
+    asked = r.wm.get("daq.camera_route")
+    if asked is not None and r.controller_alive and int(asked) != applied:
+        line += f"  (controller asks {route_text(int(asked))})"
+    return line
+
+
+def camera_screen(r: Reading | None, monitor: int, last: str) -> str:
+    """The camera-routes screen (``v``): the applied route per monitor, the selected one."""
+    lines = ["Camera routes: the user I/F box's switches or the keys here (docs/cameras.md)", ""]
+    cams = decode_matrix_route(int(r.inputs.matrix_route)) if r is not None else (None,) * len(MONITORS)
+    for m, cam in zip(MONITORS, cams):
+        lines.append(f"{'>' if m == monitor else ' '} monitor {m}: {'?' if cam is None else camera_name(cam)}")
+    if r is not None:
+        lines += ["", camera_routes_line(r)]
+    lines += ["", "1 2 3  that camera on the selected monitor   0  blank it",
+              "up/down, tab  select the monitor   v, Escape  close", f"last answer: {last or '-'}"]
     return "\n".join(lines)
 
 
