@@ -34,6 +34,7 @@ from bit3.layout import (
     RTD_NO_REFERENCE, ServiceState,
 )
 from pfma.errors import PfmaError
+from drivers.pio.routes import ALL_ROUTES, route_text
 
 #: rtd_status bits (bit3.layout)
 RTD_BITS = {RTD_LOSS_OF_SIGNAL: "loss of signal", RTD_NO_REFERENCE: "no reference",
@@ -410,6 +411,11 @@ class Checkout:
 
     # ------------------------------------------------------------------ matrix switcher
     def _group_matrix(self) -> None:
+        """Every route of the switch-to-route table (drivers/pio/routes.py, named in words),
+        then the configured port-line patterns that are not routes: each written, strobed and
+        acknowledged (the service applies a route only after the switcher's acknowledge), and
+        read back as applied; on the fake switcher also its latched byte and one new
+        acknowledge. The route from before the group is put back at the end."""
         try:
             c = self.lay.channel("matrix_switcher_route", "inputs")
         except KeyError:
@@ -418,24 +424,44 @@ class Checkout:
         board = self.lay.slot("board", c.board)
         cmd = self.t.commander()
         timeout = self.cfg.num("matrix", "timeout_s")
-        for route in self.cfg.get("matrix", "routes"):
-            route = int(route)
-            s = self.inputs()
-            err0 = int(s.board_errors[board])
-            cmd.set(matrix_route=route)
+        switcher = _fake_switcher(self.t, c.board)
+        patterns = [int(r) for r in self.cfg.get("matrix", "routes") if int(r) not in ALL_ROUTES]
+        before = int(self.inputs().matrix_route)
+        # the service writes a route only when it changes: start after the route applied now,
+        # so every route is a change (and the last one is the route from before, when it is one)
+        k = ALL_ROUTES.index(before) + 1 if before in ALL_ROUTES else 0
+        try:
+            for route in list(ALL_ROUTES[k:] + ALL_ROUTES[:k]) + patterns:
+                name = f"route {route_text(route)}" if route in ALL_ROUTES else f"port lines 0x{route:02X}"
+                self._matrix_one(c, board, cmd, timeout, switcher, route, name)
+        finally:
+            cmd.set(matrix_route=before)
+            self.t.wait_until(lambda: int(self.inputs().matrix_route) == before, timeout, self.poll_s)
 
-            def applied(r=route) -> bool:
-                x = self.inputs()
-                return int(x.matrix_route) == r and int(x.pio_port_bits[c.slot]) == r
+    def _matrix_one(self, c, board: int, cmd, timeout: float, switcher, route: int, name: str) -> None:
+        s = self.inputs()
+        err0 = int(s.board_errors[board])
+        acks0 = switcher.acks if switcher is not None else 0
+        cmd.set(matrix_route=route)
 
-            ok = self.t.wait_until(applied, timeout, self.poll_s)
-            s = self.inputs()
-            errs = int(s.board_errors[board]) - err0
-            got = int(s.matrix_route)
+        def applied(r=route) -> bool:
+            x = self.inputs()
+            return int(x.matrix_route) == r and int(x.pio_port_bits[c.slot]) == r
+
+        ok = self.t.wait_until(applied, timeout, self.poll_s)
+        s = self.inputs()
+        errs = int(s.board_errors[board]) - err0
+        got = int(s.matrix_route)
+        detail = f"0x{route:02X} written; {errs} new board errors on {c.board}"
+        if not ok:
             msgs = [m.text for m in self.t.reader.messages() if m.code == 141][-1:]
-            self.record("matrix", c.name, f"route 0x{route:02X}", ok and errs == 0, f"0x{got:02X}", None, None,
-                        "bits", f"requested 0x{route:02X}; {errs} new board errors on {c.board}"
-                        + (f"; {msgs[0]}" if msgs and not ok else ""))
+            detail += f"; not applied within {timeout:g} s" + (f": {msgs[0]}" if msgs else "")
+        if switcher is not None:
+            latched, acks = switcher.route, switcher.acks - acks0
+            ok = ok and latched == route and acks >= 1
+            detail += (f"; fake switcher latched {'nothing' if latched is None else f'0x{latched:02X}'}, "
+                       f"{acks} acknowledge(s)")
+        self.record("matrix", c.name, name, ok and errs == 0, f"0x{got:02X}", None, None, "bits", detail)
 
     # ------------------------------------------------------------------ joints
     def _group_joints(self) -> None:
@@ -601,3 +627,15 @@ class Checkout:
                 pass  # the service is gone: its watchdog has made the outputs safe
             finally:
                 cmd.keepalive = False
+
+
+def _fake_switcher(target: Target, board: str):
+    """The fake matrix switcher behind ``board`` when the target is the simulated rack
+    (None on real hardware: there the service's applied read-back is the check)."""
+    world = getattr(target, "world", None)
+    if world is None:
+        return None
+    try:
+        return getattr(world.bus[board], "switcher", None)
+    except KeyError:
+        return None
