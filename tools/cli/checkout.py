@@ -15,6 +15,7 @@ import argparse
 import sys
 
 from tools.checkout.config import GROUPS
+from tools.cli.args import nonneg_float
 
 
 def add_parser(sub):
@@ -34,7 +35,7 @@ def add_parser(sub):
     p.add_argument("--only", nargs="+", choices=GROUPS, metavar="GROUP",
                    help=f"run only these groups ({', '.join(GROUPS)})")
     p.add_argument("--config", metavar="FILE", help="tolerances merged over tools/checkout/checkout_default.toml")
-    p.add_argument("--wait", type=float, default=30.0, metavar="S",
+    p.add_argument("--wait", type=nonneg_float, default=30.0, metavar="S",
                    help="with --buffer: wait this long for the service (0 = forever; default 30)")
     p.add_argument("--sim-fault", action="append", default=[], metavar="SPEC",
                    help="simulated rack only: inject a fault first, any spec of `pfma fault list` "

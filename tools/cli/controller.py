@@ -22,6 +22,7 @@ from __future__ import annotations
 import gc
 import sys
 import time
+from tools.cli.args import nonneg_float, nonneg_int, positive_float, positive_int
 
 HELP = """single-step commands (IRSS halt / manual interrupt):
   Enter or s      one minor frame          s N   N minor frames
@@ -51,14 +52,14 @@ def add_parser(sub):
                         "private); --name is an alias, as in `pfma wm`")
     p.add_argument("--profile", default="layers", help="rate profile: layers (default) or overview")
     p.add_argument("--power-up", action="store_true", help="request POWER UP at start")
-    p.add_argument("--duration", type=float, default=None,
+    p.add_argument("--duration", type=positive_float, default=None,
                    help="seconds to run (simulated with --sim: default 1; live: until Ctrl-C)")
     p.add_argument("--halt", action="store_true", help="start halted; single-step from the keyboard")
-    p.add_argument("--step", type=int, default=None, metavar="N",
+    p.add_argument("--step", type=positive_int, default=None, metavar="N",
                    help="run N minor frames one at a time, printing each frame's trace, then stop")
     p.add_argument("--trace", action="store_true", help="print the per-frame trace")
     p.add_argument("--changes", action="store_true", help="trace only frames in which a status changed")
-    p.add_argument("--messages", type=int, default=30, metavar="N", help="messages shown at the end (30)")
+    p.add_argument("--messages", type=nonneg_int, default=30, metavar="N", help="messages shown at the end (30)")
     p.add_argument("--no-ft", action="store_true", help="a stale F/T link is not a fault")
     p.add_argument("--tables", action="store_true", help="print the decision tables and the schedule")
     p.add_argument("--realtime", action="store_true",
@@ -78,9 +79,9 @@ def _add_motion_arguments(p) -> None:
     g.add_argument("--vernier", action="store_true", help="vernier rates (0.03 m/s, 0.05 rad/s)")
     g.add_argument("--impedance", choices=("on", "off"), default=None,
                    help="impedance control on (zeroes the F/T sensor first) or off")
-    g.add_argument("--delay", type=float, default=None, metavar="S",
+    g.add_argument("--delay", type=nonneg_float, default=None, metavar="S",
                    help="synthetic round-trip delay in seconds, split equally up/down (0..8)")
-    g.add_argument("--jitter", type=float, default=None, metavar="F",
+    g.add_argument("--jitter", type=nonneg_float, default=None, metavar="F",
                    help="synthetic delay jitter fraction per packet (e.g. 0.1; order preserved)")
     g.add_argument("--demo-stick", action="store_true",
                    help="--sim only: move the simulated CAE stick (deadman, +x 1 s, +z 1 s, release)")
@@ -172,13 +173,13 @@ def _add_path_arguments(p) -> None:
                    help="play path NAME back once powered up (cart.mode 2)")
     g.add_argument("--path-dir", default=None, metavar="DIR",
                    help="path directory (default $PFMA_PATH_DIR or ~/.local/share/pfma/paths)")
-    g.add_argument("--teach-every", type=float, default=None, metavar="S",
+    g.add_argument("--teach-every", type=positive_float, default=None, metavar="S",
                    help="while recording, store a teach point every S seconds")
     g.add_argument("--no-capture", action="store_true", help="record teach points only")
     g.add_argument("--record-command", action="store_true",
                    help="record the Cartesian command instead of the measured tool pose (playback then "
                         "repeats the recorded motion, servo errors included)")
-    g.add_argument("--speed", type=float, default=None, metavar="F", help="playback speed factor (msp.speed_scale)")
+    g.add_argument("--speed", type=positive_float, default=None, metavar="F", help="playback speed factor (msp.speed_scale)")
 
 
 def _setup_paths(d, args) -> None:

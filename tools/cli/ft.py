@@ -22,6 +22,7 @@ from contextlib import ExitStack
 from drivers.serial_ft.ftsensor import FtReader, FtReading, FtSensor, open_ft
 from drivers.serial_ft.protocol import NOMINAL
 from tools.cli.output import print_json
+from tools.cli.args import positive_float, positive_int
 
 ACTIONS = {"read": None, "bias": "bias", "unbias": "unbias", "clear-bias": "clear_bias"}
 
@@ -33,18 +34,18 @@ def add_parser(sub):
     p.add_argument("action", nargs="?", choices=sorted(ACTIONS), default="read",
                    help="read (default), bias (SB), unbias (SU) or clear-bias (SZ)")
     p.add_argument("--port", default="fake", help="pyserial URL or 'fake' (default: fake)")
-    p.add_argument("--baud", type=int, default=19200, help="line rate, 8N1 (default 19200)")
+    p.add_argument("--baud", type=positive_int, default=19200, help="line rate, 8N1 (default 19200)")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--binary", dest="mode", action="store_const", const="binary", help="binary records (default)")
     mode.add_argument("--ascii", dest="mode", action="store_const", const="ascii", help="ASCII records")
     p.set_defaults(mode="binary")
     p.add_argument("--checksum", action="store_true", help="binary records with checksum (CD E; algorithm assumed)")
     p.add_argument("--stream", action="store_true", help="stream (QS) through the reader thread instead of Ctrl-T polls")
-    p.add_argument("--rate", type=float, default=80.0, help="rate the rack needs, checked against the line (Hz)")
-    p.add_argument("--average", type=int, default=None, help="SA n: controller moving average over n samples")
-    p.add_argument("--count", type=int, default=None, help="stop after N printed readings")
-    p.add_argument("--duration", type=float, default=None, help="stop after S seconds")
-    p.add_argument("--interval", type=float, default=0.1, help="print period in seconds (default 0.1)")
+    p.add_argument("--rate", type=positive_float, default=80.0, help="rate the rack needs, checked against the line (Hz)")
+    p.add_argument("--average", type=positive_int, default=None, help="SA n: controller moving average over n samples")
+    p.add_argument("--count", type=positive_int, default=None, help="stop after N printed readings")
+    p.add_argument("--duration", type=positive_float, default=None, help="stop after S seconds")
+    p.add_argument("--interval", type=positive_float, default=0.1, help="print period in seconds (default 0.1)")
     p.add_argument("--json", action="store_true",
                    help="JSON lines: one object per reading (type reading), then one summary (type summary); "
                         "notes go to stderr")

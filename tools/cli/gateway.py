@@ -24,6 +24,7 @@ import sys
 import threading
 
 from pfma.errors import PfmaError
+from tools.cli.args import positive_float
 
 #: the listen address when none is given
 DEFAULT_LISTEN = "127.0.0.1:5020"
@@ -38,7 +39,7 @@ def add_parser(sub):
                    help="rack to simulate: fake (the IRSS report's tables, default) or a rack TOML")
     p.add_argument("--listen", default=DEFAULT_LISTEN, metavar="HOST:PORT",
                    help=f"address to answer on (default {DEFAULT_LISTEN}; port 0 = any free port)")
-    p.add_argument("--duration", type=float, default=None, help="seconds to run (default: until Ctrl-C)")
+    p.add_argument("--duration", type=positive_float, default=None, help="seconds to run (default: until Ctrl-C)")
     return p
 
 
@@ -75,11 +76,7 @@ def run(args) -> int:
 
     # pymodbus logs a failed bind at error level; the one message below says it instead
     logging.getLogger("pymodbus").addHandler(logging.NullHandler())
-    # usage mistakes: one line, exit 2 (as argparse's own)
-    if args.duration is not None and args.duration <= 0:
-        print(f"pfma gateway: --duration {args.duration:g}: must be positive", file=sys.stderr)
-        return 2
-    try:
+    try:  # a bad --listen is a usage mistake: one line, exit 2 (as argparse's own)
         host, port = parse_listen(args.listen)
     except PfmaError as err:
         print(f"pfma gateway: {err}", file=sys.stderr)

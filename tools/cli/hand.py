@@ -25,6 +25,7 @@ import math
 import sys
 
 from pfma.clock import MonotonicClock
+from tools.cli.args import positive_float, positive_int
 
 POLL_S = 0.02  # the drivers are polled at the CRL frame rate (50 Hz)
 
@@ -39,9 +40,9 @@ def add_parser(sub):
                         "hid: auto (default), fake or a /dev/hidraw path")
     p.add_argument("--port", dest="port_alias", default=None, metavar="URL",
                    help="deprecated alias of --bus (still works; says so once on stderr)")
-    p.add_argument("--count", type=int, default=None, help="stop after N lines")
-    p.add_argument("--duration", type=float, default=None, help="stop after S seconds")
-    p.add_argument("--rate-hz", type=float, default=10.0, help="lines per second (default 10)")
+    p.add_argument("--count", type=positive_int, default=None, help="stop after N lines")
+    p.add_argument("--duration", type=positive_float, default=None, help="stop after S seconds")
+    p.add_argument("--rate-hz", type=positive_float, default=10.0, help="lines per second (default 10)")
     p.add_argument("--rack", default="fake", help="rack TOML (default: the IRSS report's tables)")
     p.add_argument("--json", action="store_true", help="one JSON object per line (JSON lines)")
     return p

@@ -23,6 +23,7 @@ import select
 import shutil
 import sys
 import time
+from tools.cli.args import nonneg_float, positive_float
 
 CLEAR = "\x1b[H\x1b[2J"
 
@@ -35,10 +36,10 @@ def add_parser(sub):
     p.add_argument("--filter", default=None, metavar="TEXT", help="only channels matching TEXT")
     p.add_argument("--once", action="store_true", help="print one snapshot and exit")
     p.add_argument("--json", action="store_true", help="with --once: the snapshot as one JSON document")
-    p.add_argument("--interval", type=float, default=0.5, help="redraw period, s (default 0.5)")
-    p.add_argument("--page-s", type=float, default=5.0, metavar="S",
+    p.add_argument("--interval", type=positive_float, default=0.5, help="redraw period, s (default 0.5)")
+    p.add_argument("--page-s", type=positive_float, default=5.0, metavar="S",
                    help="live view: turn to the next page of channels every S seconds (0 = only by key)")
-    p.add_argument("--wait", type=float, default=None, metavar="S",
+    p.add_argument("--wait", type=nonneg_float, default=None, metavar="S",
                    help="wait this long for the service at start (0 = forever) and after it goes "
                         "away; default: no service at start is an error (exit 1), one that goes "
                         "away is waited for 30 s")

@@ -25,6 +25,7 @@ import argparse
 import sys
 
 from tools.replay import replay_through_fakes, republish
+from tools.cli.args import positive_float, positive_int
 
 
 def add_parser(sub):
@@ -32,12 +33,12 @@ def add_parser(sub):
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("file", help="recording (pfma record)")
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name to publish into (default pfma)")
-    p.add_argument("--speed", type=float, default=1.0, help="playback speed factor (1 = recorded pace)")
+    p.add_argument("--speed", type=positive_float, default=1.0, help="playback speed factor (1 = recorded pace)")
     p.add_argument("--fast", action="store_true", help="as fast as possible")
     p.add_argument("--loop", action="store_true", help="start again at the end (until Ctrl-C)")
     p.add_argument("--through-fakes", action="store_true",
                    help="drive the simulated rack from the recording, run the service, compare")
-    p.add_argument("--frames", type=int, default=None, help="--through-fakes: at most N frames")
+    p.add_argument("--frames", type=positive_int, default=None, help="--through-fakes: at most N frames")
     p.add_argument("--rack", default="fake", help="rack TOML of the recording")
     return p
 

@@ -25,6 +25,7 @@ import sys
 import time
 
 from tools.scope import ScopeCapture, capture_live, load, render, save, save_png
+from tools.cli.args import nonneg_float, positive_float, positive_int
 
 
 def add_parser(sub):
@@ -32,14 +33,14 @@ def add_parser(sub):
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("signals", nargs="*", help="rack channels or inputs fields (field[i])")
     p.add_argument("--trigger", default=None, help="'SIGNAL>VALUE' or 'SIGNAL<VALUE' (rising into the condition)")
-    p.add_argument("--pre", type=float, default=0.1, help="seconds kept before the trigger (0.1)")
-    p.add_argument("--post", type=float, default=0.5, help="seconds captured after the trigger (0.5)")
+    p.add_argument("--pre", type=nonneg_float, default=0.1, help="seconds kept before the trigger (0.1)")
+    p.add_argument("--post", type=positive_float, default=0.5, help="seconds captured after the trigger (0.5)")
     p.add_argument("-o", "--output", default="capture.mcap", help="capture file (capture.mcap)")
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
     p.add_argument("--rack", default="fake", help="rack TOML the service runs")
-    p.add_argument("--timeout", type=float, default=None, help="give up when no trigger within S seconds")
+    p.add_argument("--timeout", type=positive_float, default=None, help="give up when no trigger within S seconds")
     p.add_argument("--open", metavar="CAPTURE.mcap", default=None, help="print a saved capture")
-    p.add_argument("--rows", type=int, default=20, help="--open: table rows (decimated)")
+    p.add_argument("--rows", type=positive_int, default=20, help="--open: table rows (decimated)")
     p.add_argument("--json", action="store_true",
                    help="--open: the whole capture (every sample) as one JSON document")
     return p

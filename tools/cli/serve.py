@@ -38,6 +38,7 @@ from ioservice.ticking import TickingClock
 from pfma.clock import MonotonicClock
 from pfma.rack import load_rack
 from tools.cli.fault import add_serve_fault_args, install_serve_faults
+from tools.cli.args import float_in, positive_float, positive_int
 
 
 def add_parser(sub):
@@ -46,10 +47,10 @@ def add_parser(sub):
     p.add_argument("--rack", default="fake", help="fake (simulated rack, default) or a rack TOML")
     p.add_argument("--bus", default=None, help="register bus for a real rack (modbus://H:P, file:PATH)")
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
-    p.add_argument("--duration", type=float, default=None, help="seconds to run (default: until Ctrl-C)")
+    p.add_argument("--duration", type=positive_float, default=None, help="seconds to run (default: until Ctrl-C)")
     p.add_argument("--modbus", default=None, metavar="HOST:PORT", help="export the buffer over Modbus TCP")
     p.add_argument("--modbus-writes", action="store_true", help="let Modbus clients write the command area")
-    p.add_argument("--frame-rate", type=float, default=320.0, help="minor-frame rate (320 default; 1000 fast)")
+    p.add_argument("--frame-rate", type=float_in(1.0, 5000.0, "Hz"), default=320.0, help="minor-frame rate (320 default; 1000 fast)")
     p.add_argument("--schedule", default=None, metavar="FILE.toml|slow",
                    help="acquisition schedule: a [schedule] table (frame_rate_hz, tasks.NAME = {divider, "
                         "phase}); or slow: if the bus cannot keep the schedule, run the best slower one "
@@ -61,8 +62,8 @@ def add_parser(sub):
     p.add_argument("--hid", default=None, metavar="auto|fake|/dev/hidrawN",
                    help="USB 6-axis hand controller (SpaceMouse) in the buffer's hid slot: the first "
                         "found, a simulated one, or that hidraw node")
-    p.add_argument("--watchdog-ms", type=float, default=15.0, help="command heartbeat time-out (15 ms)")
-    p.add_argument("--max-input-age", type=int, default=None, metavar="FRAMES",
+    p.add_argument("--watchdog-ms", type=positive_float, default=15.0, help="command heartbeat time-out (15 ms)")
+    p.add_argument("--max-input-age", type=positive_int, default=None, metavar="FRAMES",
                    help="drive rate channels only from commands computed from inputs at most FRAMES "
                         "minor frames old (default: the rack file's [commands] max_input_age_frames, 4); "
                         "must fit the watchdog")

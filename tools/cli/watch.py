@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from tools.cli.args import nonneg_float, nonneg_int, positive_float
 
 
 def add_parser(sub):
@@ -21,10 +22,10 @@ def add_parser(sub):
     p.add_argument("signals", nargs="+", metavar="SIGNAL")
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
     p.add_argument("--rack", default=None, help="rack TOML the service runs (default: the IRSS rack)")
-    p.add_argument("--rate", type=float, default=30.0, help="lines per second (default 30)")
-    p.add_argument("--count", type=int, default=0, help="stop after N lines (default: until Ctrl-C)")
+    p.add_argument("--rate", type=positive_float, default=30.0, help="lines per second (default 30)")
+    p.add_argument("--count", type=nonneg_int, default=0, help="stop after N lines (default: until Ctrl-C)")
     p.add_argument("--json", action="store_true", help="one JSON object per sample (JSON lines)")
-    p.add_argument("--wait", type=float, default=None, metavar="S",
+    p.add_argument("--wait", type=nonneg_float, default=None, metavar="S",
                    help="wait this long for the service at start (0 = forever) and after it goes "
                         "away; default: no service at start is an error (exit 1), one that goes "
                         "away is waited for 30 s")

@@ -24,6 +24,7 @@ import sys
 import time
 
 import numpy as np
+from tools.cli.args import nonneg_float
 
 WAIT_POLL_S = 0.002
 
@@ -52,7 +53,7 @@ def add_parser(sub):
     s.add_argument("var", metavar="NAME")
     s.add_argument("value", metavar="VALUE", help="JSON value: 1.5, 3, true, [1, 2, 3]")
     s.add_argument("--key", default=None, help=f"access key (default ${ACCESS_KEY_ENV})")
-    s.add_argument("--wait", type=float, default=2.0, metavar="S",
+    s.add_argument("--wait", type=nonneg_float, default=2.0, metavar="S",
                    help="wait up to S seconds for the owner to apply it (0: just queue; default 2)")
     r = wsub.add_parser("requests", parents=[common], help="the user-request ring and each outcome")
     r.add_argument("--json", action="store_true", help="one JSON object")

@@ -136,6 +136,23 @@ ROWS = [
     Row("record-info-no-file", ("record", "info"), 2, ("usage: pfma record info FILE.mcap",)),
     Row("record-recover-no-file", ("record", "recover"), 2, ("usage: pfma record recover",)),
     Row("unknown-verb", ("no-such-verb",), 2, ("invalid choice",)),
+    # --- numbers out of their range: usage mistakes, refused before anything runs ------------
+    *[Row(f"range-{'-'.join(argv[:2])}", argv, 2, (flag, says))
+      for argv, flag, says in [
+          (("serve", "--duration", "-1"), "--duration", "greater than 0"),
+          (("serve", "--frame-rate", "0"), "--frame-rate", "outside 1..5000 Hz"),
+          (("serve", "--watchdog-ms", "-3"), "--watchdog-ms", "greater than 0"),
+          (("serve", "--max-input-age", "0"), "--max-input-age", "1 or more"),
+          (("hand", "--source", "cae", "--count", "-1"), "--count", "1 or more"),
+          (("controller", "--sim", "--speed", "0"), "--speed", "greater than 0"),
+          (("controller", "--sim", "--delay", "-1"), "--delay", "not be negative"),
+          (("controller", "--sim", "--duration", "nan"), "--duration", "not a finite number"),
+          (("monitor", "--once", "--page-s", "-1"), "--page-s", "greater than 0"),
+          (("watch", "elbow_pitch_angle", "--count", "-2"), "--count", "not be negative"),
+          (("scope", "elbow_pitch_angle", "--post", "0"), "--post", "greater than 0"),
+          (("gateway", "--duration", "0"), "--duration", "greater than 0"),
+          (("ft", "--interval", "0"), "--interval", "greater than 0"),
+      ]],
     # --- fault specs: the same grammar and exit code wherever one is taken ------------------
     Row("serve-bad-fault", ("serve", "--duration", "1", "--fault", "resolver-lo:x"), 2,
         ("resolver-lo", "did you mean resolver-los")),

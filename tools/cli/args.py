@@ -1,0 +1,62 @@
+"""argparse types for the numbers the verbs take: a value out of its range is a usage
+mistake, reported by argparse as ``pfma VERB: error: argument --FLAG: ...`` with exit 2
+before anything starts (never a run that does nothing, or a late exit 1)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from typing import Callable
+
+
+def _number(kind: Callable[[str], float], text: str) -> float:
+    try:
+        value = kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not {'a whole number' if kind is int else 'a number'}") \
+            from None
+    if isinstance(value, float) and not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0 (durations, rates, speeds)."""
+    v = _number(float, text)
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"{text} must be greater than 0")
+    return v
+
+
+def nonneg_float(text: str) -> float:
+    """A finite number >= 0 (waits where 0 has a meaning, delays)."""
+    v = _number(float, text)
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"{text} must not be negative")
+    return v
+
+
+def positive_int(text: str) -> int:
+    """A whole number >= 1 (counts, frames)."""
+    v = int(_number(int, text))
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"{text} must be 1 or more")
+    return v
+
+
+def nonneg_int(text: str) -> int:
+    """A whole number >= 0 (counts where 0 means 'no limit')."""
+    v = int(_number(int, text))
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"{text} must not be negative")
+    return v
+
+
+def float_in(lo: float, hi: float, unit: str = "") -> Callable[[str], float]:
+    """A finite number in [lo, hi]."""
+    def check(text: str) -> float:
+        v = _number(float, text)
+        if not lo <= v <= hi:
+            raise argparse.ArgumentTypeError(f"{text} outside {lo:g}..{hi:g}{(' ' + unit) if unit else ''}")
+        return v
+    return check
