@@ -78,6 +78,7 @@ KINDS: dict[str, tuple[str, str]] = {
     "tach-reversed": ("tach-reversed:JOINT", "the joint's tachometer reads -1 x its rate"),
     "adc-dead": ("adc-dead:SIGNAL=VOLTS", "an A/D input stuck at VOLTS whatever it is fed"),
     "ft-noise": ("ft-noise", "garbage bursts on the F/T line (= serial-noise on the F/T line)"),
+    "switcher-silent": ("switcher-silent", "the matrix video switcher never acknowledges a route (its strobe handshake)"),
 }
 
 
@@ -511,6 +512,17 @@ def _parse_adc_dead(spec: str, arg: str, rack: RackConfig) -> Fault:
     return _ErrorsFault(spec, ("adc-dead", sig), f"ADC input {sig} dead at {v:g} V", change)
 
 
+def _parse_switcher_silent(spec: str, arg: str, rack: RackConfig) -> Fault:
+    if arg:
+        raise _fail(spec, "takes no argument (the rack has one matrix switcher)")
+    for b in rack.boards_of("pio"):
+        if any(c.signal == "matrix_switcher_route" for c in b.channels):
+            return _BoardFault(spec, ("switcher-silent", b.name),
+                               f"matrix switcher on {b.name} silent: no route acknowledged",
+                               b.name, "switcher_silent", {})
+    raise _fail(spec, f"rack {rack.name} has no matrix_switcher_route channel")
+
+
 _PARSERS: dict[str, Callable[[str, str, RackConfig], Fault]] = {
     "bus-error": _parse_bus_error,
     "stuck-bit": _parse_stuck_bit,
@@ -525,6 +537,7 @@ _PARSERS: dict[str, Callable[[str, str, RackConfig], Fault]] = {
     "tach-reversed": _parse_tach,
     "adc-dead": _parse_adc_dead,
     "ft-noise": _parse_ft_noise,
+    "switcher-silent": _parse_switcher_silent,
 }
 assert set(_PARSERS) == set(KINDS)
 

@@ -386,3 +386,20 @@ def test_steps_at_the_same_time_run_in_file_order():
     assert [(s.at_s, s.action, s.spec) for s in sc.steps] == [
         (0.5, "inject", "ft-unplugged"), (1.0, "inject", "ft-noise"), (1.0, "clear", "ft-noise")]
     assert np.array_equal([s.frame(320.0) for s in sc.steps], [160, 320, 320])
+
+
+def test_switcher_silent_route_is_not_acknowledged_and_named_once_then_recovers(rig):
+    """The matrix switcher latches the route byte but never acknowledges (its strobe
+    handshake): the service names the failed route once; cleared, the next route works."""
+    ctl = rig.controller()
+    fs = FaultSet(rig.world)
+    fs.inject("switcher-silent")
+    ctl.write_commands(matrix_route=0x21)
+    rig.run(0.5)
+    failed = [t for m in rig.reader.messages() if m.code == 141 for t in [m.text]]
+    assert len(failed) == 1 and "0x21" in failed[0], failed
+    assert int(inputs(rig).matrix_route) != 0x21  # not reported as applied
+    fs.clear("switcher-silent")
+    ctl.write_commands(matrix_route=0x12)
+    rig.run(0.5)
+    assert int(inputs(rig).matrix_route) == 0x12
