@@ -142,8 +142,8 @@ def request(buffer: str, req: dict, timeout_s: float = REPLY_TIMEOUT_S + 3.0) ->
         except FileNotFoundError:
             raise NoEndpoint(NO_ENDPOINT.format(name=buffer)) from None
         except ConnectionRefusedError:
-            raise NoEndpoint(NO_ENDPOINT.format(name=buffer) + f" (the control socket {path} is "
-                             f"stale: the service that made it is gone)") from None
+            raise NoEndpoint(f"service {buffer} is not running: its fault control socket {path} is "
+                             f"stale: the service that made it is gone") from None
         except PermissionError:
             raise NoEndpoint(f"service {buffer}: no permission to use its control socket {path} "
                              f"(mode 0600: it runs as another user)") from None
