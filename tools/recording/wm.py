@@ -401,6 +401,7 @@ class WmSampler:
         self._last_new = self.wall()
         self._stale_said = False
         self._next_retry = 0.0
+        self._next_check = 0.0
 
     def topics(self) -> dict[str, dict]:
         """``/pfma/wm/<area>`` -> JSON schema, for the recorder to register."""
@@ -433,7 +434,9 @@ class WmSampler:
             self._went_away("its memory is gone")
             return 0
         if frame == self._last_frame:
-            if self.wall() - self._last_new > STALE_S:
+            now = self.wall()
+            if now - self._last_new > STALE_S and now >= self._next_check:
+                self._next_check = now + STALE_S  # one look a second while nothing comes
                 self._check_alive()
             return 0
         if frame < self._last_frame:  # the same segment reused by a new owner
