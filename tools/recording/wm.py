@@ -154,14 +154,18 @@ def select(specs: Sequence["VarSpec"], patterns: Iterable[VarPattern], *, wm_nam
         if r is not None and frame_rate_hz and r >= frame_rate_hz:
             r = None
         for n in hits:
-            if n in rate and (rate[n] is None or (r is not None and rate[n] >= r)):  # type: ignore[operator]
-                continue
-            rate[n] = r
+            if n not in rate or _faster(r, rate[n]):
+                rate[n] = r
     if bad:
         raise WmUsageError("; ".join(_no_match(p, names, specs, wm_name) for p in bad)
                            + f" (`pfma wm list --wm {wm_name or 'NAME'}` lists the variables)")
     return [WmVar(s.name, s.area, s.dtype, tuple(s.shape), s.units, s.writer, s.doc, rate[s.name])
             for s in specs if s.name in rate]
+
+
+def _faster(a: float | None, b: float | None) -> bool:
+    """Rate ``a`` samples more often than ``b`` (None = every frame, the fastest)."""
+    return b is not None and (a is None or a > b)
 
 
 def _no_match(p: VarPattern, names: list[str], specs: Sequence["VarSpec"], wm_name: str) -> str:
@@ -394,7 +398,6 @@ class WmSampler:
         self.wm = wm
         self.counters.sessions += 1
         self._shm = _shm_id(wm.name) if wm.name else None
-        self._created_ns = wm.info().created_ns
         self._last_frame = -1
         self._due: dict[float | None, float] = {}
         self._last_every_t: float | None = None

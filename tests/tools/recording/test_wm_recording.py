@@ -239,6 +239,47 @@ def test_controller_going_away_and_coming_back(sim, tmp_path):
     assert summ["went_away"] == "1" and summ["sessions"] == "2"
 
 
+def test_a_quiet_owner_is_noted_and_one_with_other_variables_is_not_taken(tmp_path):
+    name = "pfma-wmback-" + uuid.uuid4().hex[:8]
+
+    def make(shape):
+        return WorldModel.create([VarSpec("x.v", "task_io", "f8", shape, writer="x", initial=[0.0] * shape[0])],
+                                 name=name)
+    owner = make((3,))
+    wall, notes = _Wall(), []
+    ro = WorldModel.attach(name)
+    smp = WmSampler(ro, select(ro.specs, [parse_var("x.v")]), say=notes.append, wall=wall)
+    rec = Recorder(None, tmp_path / "back.mcap", layout=_layout(), epoch_offset_ns=OFFSET_NS, wm=smp, wall=wall)
+    try:
+        for _ in range(4):  # the owner lives but runs no segment (a halted controller)
+            wall.t += STALE_S
+            rec.poll()
+        assert [n for n in notes if "no new frame" in n and "halted?" in n] == notes and len(notes) == 1
+        owner.close()
+        WorldModel.remove_segment(name)
+        owner = make((2,))  # a controller with another shape of x.v
+        for _ in range(4):
+            wall.t += STALE_S
+            rec.poll()
+        assert sum("went away" in n for n in notes) == 1
+        assert sum("variables differ" in n for n in notes) == 1  # said once, though tried each second
+        owner.close()
+        WorldModel.remove_segment(name)
+        owner = make((3,))
+        owner.post_task_outputs("x", {"x.v": [1.0, 2.0, 3.0]})
+        owner.communications_segment()
+        wall.t += RETRY_S
+        rec.poll()
+        rec.poll()
+        assert sum("is back (owner" in n for n in notes) == 1
+        rec.close()
+    finally:
+        owner.close()
+        WorldModel.remove_segment(name)
+    vals = [d["x"]["v"] for t, _, d in _messages(tmp_path / "back.mcap") if t == "/pfma/wm/task_io"]
+    assert vals[0] == [0.0, 0.0, 0.0] and vals[-1] == [1.0, 2.0, 3.0]
+
+
 def test_info_lists_and_recover_keeps_the_world_model_topics(sim, tmp_path, capsys):
     path = tmp_path / "full.mcap"
     rec = Recorder(sim.rig.reader, path, epoch_offset_ns=OFFSET_NS, wm=_sampler(sim, ["servo.*"]),
