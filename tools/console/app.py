@@ -14,9 +14,9 @@ from typing import Callable
 
 from textual.app import App, ComposeResult
 from textual.binding import Binding
-from textual.containers import Grid
+from textual.containers import Grid, Vertical
 from textual.screen import ModalScreen
-from textual.widgets import Footer, Static
+from textual.widgets import Footer, Input, Static
 
 from drivers.pio.routes import MONITORS, route_request_arg
 from tools.console import view
@@ -42,18 +42,22 @@ class MessagesScreen(ModalScreen):
 
 
 class BrowserScreen(ModalScreen):
-    """The world model by area, live and read-only (issue 18 item 2's browser; modifying
-    needs ``pfma wm set`` with the key). Left/right: area, pgup/pgdn: page."""
+    """The world model by area, live (issue 18 item 2's browser). Left/right: area,
+    pgup/pgdn: page, up/down: variable, Enter/``e``: modify it where the ownership rules
+    let a user (the code path of ``pfma wm set``, with the console's access key)."""
 
     BINDINGS = [Binding("escape,w,q", "app.pop_screen", "close"),
                 Binding("left", "area(-1)", "area"), Binding("right", "area(1)", "area"),
-                Binding("pageup", "page(-1)", "page"), Binding("pagedown", "page(1)", "page")]
+                Binding("up", "row(-1)", "variable"), Binding("down", "row(1)", "variable"),
+                Binding("pageup", "page(-1)", "page"), Binding("pagedown", "page(1)", "page"),
+                Binding("enter,e", "edit", "modify")]
 
     def __init__(self, wm) -> None:
         super().__init__()
         self.wm = wm
         self.area = 0
         self.page = 0
+        self.row = 0
 
     def compose(self) -> ComposeResult:
         yield Static("", id="browser", markup=False)
@@ -61,19 +65,111 @@ class BrowserScreen(ModalScreen):
     def on_mount(self) -> None:
         self.redraw()
 
+    def on_screen_resume(self) -> None:  # back from the editor: its outcome or refusal
+        self.redraw()
+
+    def _rows(self) -> int:
+        from controller.worldmodel.spec import AREAS as WM_AREAS
+        names = view.browser_names(self.wm, WM_AREAS[self.area % len(WM_AREAS)])
+        pages = max(1, -(-len(names) // view.BROWSER_ROWS))
+        return max(1, len(names[(self.page % pages) * view.BROWSER_ROWS:][:view.BROWSER_ROWS]))
+
     def redraw(self) -> None:
-        self.query_one("#browser", Static).update(view.wm_browser(self.wm, self.area, self.page))
+        self.row %= self._rows()
+        status = self.app.write_status if isinstance(self.app, ConsoleApp) else ""
+        self.query_one("#browser", Static).update(view.wm_browser(self.wm, self.area, self.page, self.row, status))
 
     def text(self) -> str:
         return str(self.query_one("#browser", Static).render())
 
+    def selected(self) -> str | None:
+        return view.browser_selected(self.wm, self.area, self.page, self.row)
+
     def action_area(self, d: int) -> None:
-        self.area, self.page = self.area + d, 0
+        self.area, self.page, self.row = self.area + d, 0, 0
         self.redraw()
 
     def action_page(self, d: int) -> None:
-        self.page += d
+        self.page, self.row = self.page + d, 0
         self.redraw()
+
+    def action_row(self, d: int) -> None:
+        self.row = (self.row + d) % self._rows()
+        self.redraw()
+
+    def action_edit(self) -> None:
+        name = self.selected()
+        app = self.app
+        if name is not None and isinstance(app, ConsoleApp):
+            app.begin_edit(name)
+        self.redraw()
+
+
+class EditScreen(ModalScreen):
+    """Type a value for one variable (or one element of a vector), Enter to check it,
+    Enter again to confirm and send it; Escape cancels. The value is read as ``pfma wm
+    set`` reads VALUE (JSON, or numbers separated by commas/spaces)."""
+
+    BINDINGS = [Binding("escape", "cancel", "cancel")]
+    CSS = "EditScreen { align: center middle; } #edit { width: 100; height: auto; border: round $accent; }"
+
+    def __init__(self, name: str, spec, current, index: int | None = None) -> None:
+        super().__init__()
+        self.var = name
+        self.spec = spec
+        self.current = current
+        self.index = index
+        self.confirm: str | None = None  # the text checked and shown for confirmation
+
+    def compose(self) -> ComposeResult:
+        from tools.cli.wm import format_value
+        now = self.current if self.index is None else self.current[self.index]
+        with Vertical(id="edit"):
+            yield Static(self._info(format_value(self.current)), id="edit-info", markup=False)
+            yield Input(value=format_value(now), id="edit-value")
+            yield Static("Enter: check the value   Escape: cancel", id="edit-status", markup=False)
+
+    def _info(self, now: str) -> str:
+        s = self.spec
+        what = f"{self.var}[{self.index}]" if self.index is not None else self.var
+        when = "any time" if s.user == "always" else "only while powered down"
+        return (f"modify {what}  ({s.type_text}{' ' + s.units if s.units else ''}; written by {s.writer}; "
+                f"users may set it {when})\nnow: {now}\n{s.doc}")
+
+    def full_text(self, text: str) -> str:
+        """The value to send: the typed text, or the vector with the element replaced."""
+        if self.index is None:
+            return text
+        import json
+
+        from tools.cli.wm import parse_value
+        v = parse_value(text)
+        vec = [x.item() if hasattr(x, "item") else x for x in list(self.current)]
+        vec[self.index] = v
+        return json.dumps(vec)
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        from controller.worldmodel import WorldModelError, coerce
+        from tools.cli.wm import format_value, parse_value
+        text = event.value.strip()
+        status = self.query_one("#edit-status", Static)
+        app = self.app
+        assert isinstance(app, ConsoleApp)
+        if self.confirm is not None and text == self.confirm:
+            app.user_write(self.var, self.full_text(text))
+            self.app.pop_screen()
+            return
+        try:
+            value = coerce(self.spec, parse_value(self.full_text(text)))
+        except WorldModelError as err:  # the value check of pfma wm set: shown here, nothing sent
+            self.confirm = None
+            status.update(f"not sent: {err}")
+            return
+        self.confirm = text
+        status.update(f"set {self.var} = {format_value(value)}?  Enter: confirm and send   Escape: cancel")
+
+    def action_cancel(self) -> None:
+        self.app.pop_screen()
 
 
 class CameraScreen(ModalScreen):
@@ -165,6 +261,8 @@ class ConsoleApp(App):
         self.read_error = ""
         self.refreshes = 0
         self._shown: dict[str, str] = {}  # the text each area shows
+        self.writes: dict[int, str] = {}  # user writes waiting for the owner's verdict: id -> variable
+        self.write_status = ""  # the last write's outcome or refusal (the browser and parameters show it)
 
     def compose(self) -> ComposeResult:
         with Grid():
@@ -188,6 +286,7 @@ class ConsoleApp(App):
     def refresh_areas(self) -> None:
         """Read the system once and redraw the five areas (the 10 Hz tick)."""
         self.refreshes += 1
+        self._follow_writes()
         if isinstance(self.screen, BrowserScreen):  # the browser is live too (10 Hz)
             self.screen.redraw()
         try:
@@ -241,6 +340,58 @@ class ConsoleApp(App):
     def _note(self, level: str, text: str) -> None:
         t = float(self.reading.t_s) if self.reading is not None else 0.0
         self.sources.note(t, level, text)
+
+    # --- keyed user writes (the debug window) ---------------------------------------------
+    def begin_edit(self, name: str, index: int | None = None) -> bool:
+        """Open the editor for ``name`` (element ``index`` of a vector) if the ownership rules
+        let a user set it now; else say why in Messages and the screen. True if opened."""
+        from pfma.errors import PfmaError
+        if self.link is None:
+            return self._refuse(name, "read-only console: no controller to send writes to")
+        try:
+            spec = self.link.may_set(name)  # the rule `pfma wm set` applies
+            current = self.link.wm.get(name)
+        except PfmaError as err:
+            return self._refuse(name, str(err))
+        self.push_screen(EditScreen(name, spec, current, index))
+        return True
+
+    def _refuse(self, name: str, why: str) -> bool:
+        self.write_status = f"{name}: refused: {why}"
+        self._note("WARNING", self.write_status)
+        return False
+
+    def user_write(self, name: str, text: str) -> int | None:
+        """Send one keyed user write (:meth:`ControllerLink.write`); the outcome follows at
+        the refresh (Messages and :attr:`write_status`)."""
+        from pfma.errors import PfmaError
+        if self.link is None:
+            self._refuse(name, "read-only console: no controller to send writes to")
+            return None
+        try:
+            rid = self.link.write(name, text)
+        except PfmaError as err:
+            self._refuse(name, str(err))
+            return None
+        self.writes[rid] = name
+        self.write_status = f"{name}: write #{rid} = {text} sent; the controller applies it at its next frame"
+        self._note("INFO", self.write_status)
+        return rid
+
+    def _follow_writes(self) -> None:
+        if not self.writes or self.link is None:
+            return
+        for rid in list(self.writes):
+            o = self.link.outcome(rid)
+            if o is None:
+                continue
+            name = self.writes.pop(rid)
+            if o.applied:
+                from tools.cli.wm import format_value
+                self.write_status = f"{name} = {format_value(self.link.wm.get(name))} (write #{rid}, {o.result})"
+                self._note("INFO", self.write_status)
+            else:
+                self._refuse(name, f"write #{rid} rejected by the controller: {o.result}")
 
     # --- actions ------------------------------------------------------------------------
     def action_layer(self, d: int) -> None:

@@ -17,7 +17,7 @@ from controller.layers import Request, Response
 from controller.worldmodel import WorldModel, WorldModelError
 from controller.worldmodel.model import ACCESS_KEY_ENV, DEFAULT_ACCESS_KEY
 
-__all__ = ["Answer", "ControllerLink", "ControlError", "Request", "Response", "access_key"]
+__all__ = ["Answer", "ControllerLink", "ControlError", "Request", "Response", "WriteOutcome", "access_key"]
 
 
 class ControlError(Exception):
@@ -110,6 +110,32 @@ class ControllerLink:
         alive = "" if info.owner_alive else f"; its controller (pid {info.owner_pid}) is not running"
         raise ControlError(f"request {seq}: {state} within {timeout_s:g} s{alive}")
 
+    # --- keyed user writes (the debug window; the code path of `pfma wm set`) ------------------
+    def may_set(self, name: str):
+        """The variable's spec if a user may set it now; else :class:`WorldModelError` with
+        the ownership rule's reason (``WorldModel.check_user_settable``, as ``pfma wm set``)."""
+        return self.wm.check_user_settable(name)
+
+    def write(self, name: str, text: str) -> int:
+        """Ask the owner to set ``name`` to ``text`` (a ``pfma wm set`` VALUE: JSON, or numbers
+        separated by commas/spaces) with this link's key; returns the request id. The rule,
+        the key and the value are checked by ``WorldModel.set_user``, the call ``pfma wm set``
+        makes, and again by the owner when it applies the request.
+
+        :raises WorldModelError: why not (not user-settable, powered up, key, value, ring full)
+        """
+        from tools.cli.wm import parse_value  # VALUE as `pfma wm set` reads it
+        return int(self.wm.set_user(name, parse_value(text), self.key))
+
+    def outcome(self, rid: int) -> "WriteOutcome | None":
+        """The owner's verdict on write ``rid`` once it has one (None while pending)."""
+        r = self.wm.request(rid)
+        if r is None:
+            return WriteOutcome(rid, "?", False, "its slot was reused before the outcome was read")
+        if r.state not in ("applied", "rejected"):
+            return None
+        return WriteOutcome(rid, r.variable, r.state == "applied", r.result)
+
     def halted(self) -> bool:
         return bool(self.wm.get("runtime.halted"))
 
@@ -120,6 +146,16 @@ class ControllerLink:
     def close(self) -> None:
         if self.wm.readonly:
             self.wm.close()
+
+
+@dataclass(frozen=True)
+class WriteOutcome:
+    """What the owner did with a user write: applied (at frame N) or rejected (why)."""
+
+    rid: int
+    variable: str
+    applied: bool
+    result: str
 
 
 def _text(words) -> str:

@@ -267,7 +267,7 @@ def local_commands(r: Reading, selected: int, wm) -> str:
         lines.append(f"  ... {len(settable) - 8} more (pfma wm list)")
     if not settable:
         lines.append("  (no user-settable variables)")
-    lines.append("modify: pfma wm set NAME VALUE --key KEY (the debug window: not yet)")
+    lines.append("modify: w (the world-model browser: Enter on a variable)")
     lines.append("up/down: layer tree")
     return "\n".join(lines)
 
@@ -281,7 +281,7 @@ def global_commands(r: Reading, rearm: bool, last: str) -> str:
         elif key in NOT_YET:
             extra = "  (not yet)"
         lines.append(f"{key}  {what}{extra}")
-    lines.append("m  messages (last 100)   w  world model (read-only)   q  quit")
+    lines.append("m  messages (last 100)   w  world model (Enter: modify)   q  quit")
     lines.append(f"last answer: {last or '-'}")
     return "\n".join(lines)
 
@@ -290,7 +290,7 @@ def status_name(v: int) -> str:
     return status_text(v) if v in Status._value2member_map_ else str(v)
 
 
-# --- the world-model browser (issue 18 item 2, read-only) --------------------------------------
+# --- the world-model browser (issue 18 item 2) --------------------------------------
 #: rows of the browser per page
 BROWSER_ROWS = 30
 
@@ -314,8 +314,10 @@ def _value_text(spec, v, width: int = 70) -> str:
     return out if len(out) <= width else out[:width - 3] + "..."
 
 
-def wm_browser(wm, area_index: int, page: int) -> str:
-    """One page of one world-model area, live values, who writes each and who may set it."""
+def wm_browser(wm, area_index: int, page: int, cursor: int = 0, status: str = "") -> str:
+    """One page of one world-model area, live values, who writes each and who may set it;
+    ``>`` marks the variable under the cursor (Enter/``e`` modifies it), ``status`` is the
+    last write's outcome or refusal."""
     from controller.worldmodel.spec import AREAS as WM_AREAS
     area = WM_AREAS[area_index % len(WM_AREAS)]
     names = browser_names(wm, area)
@@ -324,13 +326,25 @@ def wm_browser(wm, area_index: int, page: int) -> str:
     shown = names[page * BROWSER_ROWS:(page + 1) * BROWSER_ROWS]
     values = wm.get_task_inputs(shown) if shown else {}
     tabs = "  ".join(f"[{a}]" if a == area else a for a in WM_AREAS)
-    lines = [f"world model {wm.name or '(private)'}, read-only: {tabs}",
+    power = "powered up" if wm.powered_up else "powered down"
+    lines = [f"world model {wm.name or '(private)'} ({power}): {tabs}",
              f"area {area}: {len(names)} variables, page {page + 1}/{pages}   <- -> area  pgup/pgdn page  "
-             f"Escape/w close",
-             f"{'NAME':<30} {'TYPE':<9} {'WRITER':<18} {'USER':<13} VALUE"]
-    for n in shown:
+             f"up/down select  Enter/e modify (USER rule, access key)  Escape/w close",
+             f"  {'NAME':<30} {'TYPE':<9} {'WRITER':<18} {'USER':<13} VALUE"]
+    for k, n in enumerate(shown):
         s = wm.spec(n)
-        lines.append(f"{n:<30} {s.type_text:<9} {s.writer:<18} {s.user:<13} {_value_text(s, values[n])}")
+        mark = ">" if k == cursor else " "
+        lines.append(f"{mark} {n:<30} {s.type_text:<9} {s.writer:<18} {s.user:<13} {_value_text(s, values[n])}")
     if not shown:
         lines.append("(no variables in this area)")
+    lines.append(status or "")
     return "\n".join(lines)
+
+
+def browser_selected(wm, area_index: int, page: int, cursor: int) -> str | None:
+    """The variable under the browser's cursor (None on an empty area)."""
+    from controller.worldmodel.spec import AREAS as WM_AREAS
+    names = browser_names(wm, WM_AREAS[area_index % len(WM_AREAS)])
+    pages = max(1, -(-len(names) // BROWSER_ROWS))
+    shown = names[(page % pages) * BROWSER_ROWS:(page % pages + 1) * BROWSER_ROWS]
+    return shown[cursor % len(shown)] if shown else None

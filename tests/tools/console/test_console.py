@@ -228,7 +228,7 @@ def test_simulated_system_stops_safe_while_halted():
         system.close()
 
 
-def test_world_model_browser_by_area_live_and_read_only(sim, console):
+def test_world_model_browser_by_area_and_live(sim, console):
     from tools.console.app import BrowserScreen
 
     async def body(pilot):
@@ -237,19 +237,20 @@ def test_world_model_browser_by_area_live_and_read_only(sim, console):
         scr = console.screen
         assert isinstance(scr, BrowserScreen)
         text = scr.text()
-        assert "area task_io:" in text and "read-only" in text
-        rows = text.splitlines()[3:]
-        assert 1 <= len(rows) <= 30 and all(sim.rt.wm.spec(r.split()[0]).area == "task_io" for r in rows)
+        assert "area task_io:" in text and "Enter/e modify" in text
+        rows = text.splitlines()[3:-1]  # then the last write's status line
+        assert 1 <= len(rows) <= 30 and all(sim.rt.wm.spec(r[2:].split()[0]).area == "task_io" for r in rows)
+        assert rows[0].startswith("> ") and not any(r.startswith(">") for r in rows[1:])  # the cursor
         await pilot.press("right")
         await pilot.pause()
         assert "area task_status:" in scr.text()
-        row = next(ln for ln in scr.text().splitlines() if ln.startswith("runtime.frames "))
+        row = next(ln for ln in scr.text().splitlines() if ln[2:].startswith("runtime.frames "))
         sim.step(200)
         sim.rt.publish_stats()
         sim.step(2)
         console.refresh_areas()  # the 10 Hz tick redraws the browser too
         await pilot.pause()
-        row2 = next(ln for ln in scr.text().splitlines() if ln.startswith("runtime.frames "))
+        row2 = next(ln for ln in scr.text().splitlines() if ln[2:].startswith("runtime.frames "))
         assert row2 != row and int(row2.split()[-1]) >= 200  # live
         await pilot.press("escape")
         await pilot.pause()

@@ -1,0 +1,144 @@
+"""The console's debug window (issue 18 item 2, docs/console.md "The debug window"): keyed
+writes from the world-model browser, the parameter-modification display, live menus from
+TOML and the force displays. Pilot key presses on the system simulator in simulated time
+(the console's timer is off; a test steps the simulator and redraws)."""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import pytest
+
+from bit3.client import Client
+from controller.worldmodel.spec import AREAS as WM_AREAS
+from sim.system import SystemSimulator
+from tools.console import view
+from tools.console.app import BrowserScreen, ConsoleApp, EditScreen
+from tools.console.control import ControllerLink
+
+SIZE = (180, 50)
+
+
+@pytest.fixture
+def sim():
+    s = SystemSimulator()
+    s.step(10)
+    yield s
+    s.close()
+
+
+@pytest.fixture
+def console(sim):
+    client = Client.attach(sim.name, layout=sim.rig.layout)  # a reader: the console claims nothing
+    app = ConsoleApp(view.Sources(client, sim.rt.wm, rack="simulated"), ControllerLink(sim.rt.wm),
+                     auto_refresh=False)
+    yield app
+    client.close()
+
+
+def _run(app, body):
+    async def go():
+        async with app.run_test(size=SIZE) as pilot:
+            await body(pilot)
+    asyncio.run(go())
+
+
+def _frames(sim, app, n: int) -> None:
+    sim.step(n)
+    app.refresh_areas()
+
+
+async def _browse_to(pilot, app, name: str) -> BrowserScreen:
+    """``w``, then right to the variable's area and down to its row (keys only)."""
+    await pilot.press("w")
+    await pilot.pause()
+    scr = app.screen
+    assert isinstance(scr, BrowserScreen)
+    spec = app.sources.wm.spec(name)
+    await pilot.press(*["right"] * WM_AREAS.index(spec.area))
+    names = view.browser_names(app.sources.wm, spec.area)
+    k = names.index(name)
+    await pilot.press(*["pagedown"] * (k // view.BROWSER_ROWS), *["down"] * (k % view.BROWSER_ROWS))
+    await pilot.pause()
+    assert scr.selected() == name
+    assert f"> {name} " in scr.text()
+    return scr
+
+
+async def _type(pilot, text: str) -> None:
+    await pilot.press("home", "ctrl+k", *text)
+
+
+# --- (a) modify from the world-model browser -----------------------------------------------------
+def test_a_permitted_write_lands_in_the_world_model(sim, console):
+    async def body(pilot):
+        scr = await _browse_to(pilot, console, "msp.speed_scale")
+        await pilot.press("enter")
+        await pilot.pause()
+        assert isinstance(console.screen, EditScreen)
+        await _type(pilot, "0.25")
+        await pilot.press("enter")  # check: nothing sent yet
+        await pilot.pause()
+        assert "set msp.speed_scale = 0.25?" in str(console.screen.query_one("#edit-status").render())
+        assert not console.writes
+        await pilot.press("enter")  # confirm
+        await pilot.pause()
+        assert console.screen is scr and len(console.writes) == 1
+        _frames(sim, console, 2)
+        await pilot.pause()
+        assert float(sim.rt.wm.get("msp.speed_scale")) == 0.25
+        assert "msp.speed_scale = 0.25 (write #" in scr.text()
+        assert "msp.speed_scale = 0.25 (write #" in console.area_text("messages")
+    _run(console, body)
+
+
+def test_a_forbidden_write_is_refused_with_the_rules_reason(sim, console):
+    async def body(pilot):
+        before = sim.rt.wm.get("servo.q_cmd_rad").copy()
+        scr = await _browse_to(pilot, console, "servo.q_cmd_rad")
+        await pilot.press("e")
+        await pilot.pause()
+        assert console.screen is scr  # no editor: refused at once
+        why = "servo.q_cmd_rad is an output of task joint; users may not set it"
+        assert why in scr.text()
+        console.refresh_areas()
+        assert why in console.area_text("messages")
+        _frames(sim, console, 2)
+        assert np.array_equal(sim.rt.wm.get("servo.q_cmd_rad"), before)
+    _run(console, body)
+
+
+def test_a_bad_value_is_named_in_the_editor_and_nothing_is_sent(sim, console):
+    async def body(pilot):
+        await _browse_to(pilot, console, "joint.goal_rad")
+        await pilot.press("enter")
+        await _type(pilot, "1,2")
+        await pilot.press("enter")
+        await pilot.pause()
+        status = str(console.screen.query_one("#edit-status").render())
+        assert status.startswith("not sent:") and "shape (2,) given, shape (6,) expected" in status
+        assert not console.writes
+        await pilot.press("escape")
+        await pilot.pause()
+        assert isinstance(console.screen, BrowserScreen)
+    _run(console, body)
+
+
+def test_a_wrong_key_is_refused_by_the_write_path(sim):
+    client = Client.attach(sim.name, layout=sim.rig.layout)
+    app = ConsoleApp(view.Sources(client, sim.rt.wm, rack="simulated"), ControllerLink(sim.rt.wm, key="wrong"),
+                     auto_refresh=False)
+
+    async def body(pilot):
+        await _browse_to(pilot, app, "msp.speed_scale")
+        await pilot.press("enter")
+        await _type(pilot, "0.5")
+        await pilot.press("enter", "enter")
+        await pilot.pause()
+        assert "wrong or missing access key" in app.screen.text()
+        assert not app.writes
+    try:
+        _run(app, body)
+    finally:
+        client.close()
