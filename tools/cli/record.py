@@ -205,7 +205,11 @@ def _open_wm(wm_name: str, patterns, *, wait_s, t_end, say, done):
     remaining = None if t_end is None else max(0.0, t_end - time.monotonic())
     if wait_s is not None:
         remaining = wait_s if remaining is None else min(wait_s, remaining)
-    wm, why = wait_for_wm(wm_name, timeout_s=remaining, say=say, stop=done)
+    try:
+        wm, why = wait_for_wm(wm_name, timeout_s=remaining, say=say, stop=done)
+    except WmUsageError as err:
+        print(f"pfma record: {err}; nothing recorded", file=sys.stderr)
+        return None, 2
     if wm is None:
         limit = f" within {remaining:g} s" if remaining is not None else ""
         print(f"pfma record: no running world model /dev/shm/{wm_name}{limit} ({why}); "

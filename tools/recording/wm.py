@@ -291,12 +291,18 @@ def _attach(name: str) -> "WorldModel":
 
 def wm_problem(name: str) -> tuple["WorldModel | None", str]:
     """``(attached model, "")`` when a live controller owns world model ``name``, else
-    ``(None, why)`` (the why names the world models on this host, with a did-you-mean)."""
+    ``(None, why)`` (the why names the world models on this host, with a did-you-mean).
+
+    :raises WmUsageError: ``name`` is a Bit3 buffer (waiting would never end)"""
     from controller.worldmodel import WorldModelError, list_segments
     try:
         wm = _attach(name)
     except WorldModelError as err:
         text = str(err)
+        if "no magic" in text and _is_bit3_buffer(name):
+            raise WmUsageError(f"/dev/shm/{name} is a Bit3 buffer (the service's --buffer), not a "
+                               f"world model; --wm names the controller's world model (`pfma "
+                               f"controller --wm NAME`, default pfma_wm)") from None
         if "no world model" in text:
             others = list_segments()
             hint = did_you_mean(name, others)
@@ -312,6 +318,15 @@ def wm_problem(name: str) -> tuple["WorldModel | None", str]:
             else f"its owner {info.owner!r} closed it"
         return None, f"world model /dev/shm/{name} exists but {who}"
     return wm, ""
+
+
+def _is_bit3_buffer(name: str) -> bool:
+    from bit3.layout import MAGIC
+    try:
+        with open(f"/dev/shm/{name}", "rb") as f:
+            return f.read(len(MAGIC)) == MAGIC
+    except OSError:
+        return False
 
 
 def wait_for_wm(name: str, *, timeout_s: float | None = None, say: Callable[[str], None] = print,

@@ -333,11 +333,17 @@ def test_patterns_that_match_nothing_name_the_close_ones(sim):
 
 @pytest.fixture
 def live_wm():
-    """A world model owned by this (running) process: the recorder's usage checks happen
-    against it before any service is looked for."""
+    """A world model owned by this (running) process, and a Bit3 buffer: the recorder's
+    usage checks happen against them before any service is looked for."""
+    from bit3.buffer import Bit3Buffer
+    from bit3.layout import default_layout
     name = "pfma-wmcli-" + uuid.uuid4().hex[:8]
-    wm = WorldModel.create([VarSpec("servo.error_rad", "task_status", "f8", (6,), writer="servo", initial=[0.0] * 6)], name=name)
+    wm = WorldModel.create([VarSpec("servo.error_rad", "task_status", "f8", (6,), writer="servo",
+                                    initial=[0.0] * 6)], name=name)
+    buf = Bit3Buffer.create(name + "-buf", default_layout())
     yield name
+    buf.close()
+    Bit3Buffer.unlink(name + "-buf")
     wm.close()
     WorldModel.remove_segment(name)
 
@@ -348,11 +354,12 @@ def live_wm():
     (["--wm", "{wm}", "--var", "servo.*@fast"], 2, "bad rate 'fast'"),
     (["--wm", "{wm}", "--var", "servo.eror_rad"], 2, "did you mean servo.error_rad?"),
     (["--wm", "{wm}x", "--var", "servo.*", "--wait", "0.3"], 1, "did you mean {wm}?"),
+    (["--wm", "{buf}", "--var", "servo.*"], 2, "is a Bit3 buffer (the service's --buffer), not a world model"),
 ])
 def test_bad_inputs_exit_with_one_message(live_wm, tmp_path, capsys, extra, code, words):
     out = tmp_path / "x.mcap"
     args = ["record", str(out), "--buffer", "pfma-none-" + uuid.uuid4().hex[:8], "--wait", "0.3",
-            *[a.format(wm=live_wm) for a in extra]]
+            *[a.format(wm=live_wm, buf=live_wm + "-buf") for a in extra]]
     assert main(args) == code
     err = capsys.readouterr().err
     assert words.format(wm=live_wm) in err, err
