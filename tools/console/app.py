@@ -19,7 +19,7 @@ from textual.screen import ModalScreen
 from textual.widgets import Footer, Input, Static
 
 from drivers.pio.routes import MONITORS, route_request_arg
-from tools.console import view
+from tools.console import debug, view
 from tools.console.control import Answer, ControlError, ControllerLink, Request, Response
 
 #: refresh rate of the areas (the issue's 10 Hz)
@@ -102,6 +102,65 @@ class BrowserScreen(ModalScreen):
         app = self.app
         if name is not None and isinstance(app, ConsoleApp):
             app.begin_edit(name)
+        self.redraw()
+
+
+class ParamScreen(ModalScreen):
+    """The parameter-modification display: the servo compensators and limits (every
+    world-model variable users may set only while powered down) by joint, live. Enter/``e``
+    edits the selected value through the same write path as the browser; while powered up
+    the ownership rule refuses it and the reason is shown."""
+
+    BINDINGS = [Binding("escape,p,q", "app.pop_screen", "close"),
+                Binding("up", "row(-1)", "parameter"), Binding("down", "row(1)", "parameter"),
+                Binding("left", "col(-1)", "joint"), Binding("right", "col(1)", "joint"),
+                Binding("enter,e", "edit", "edit")]
+
+    def __init__(self, wm) -> None:
+        super().__init__()
+        self.wm = wm
+        self.names = debug.param_names(wm)
+        self.row = 0
+        self.col = 0
+
+    def compose(self) -> ComposeResult:
+        yield Static("", id="params", markup=False)
+
+    def on_mount(self) -> None:
+        self.redraw()
+
+    def on_screen_resume(self) -> None:
+        self.redraw()
+
+    def redraw(self) -> None:
+        status = self.app.write_status if isinstance(self.app, ConsoleApp) else ""
+        self.query_one("#params", Static).update(debug.params_display(self.wm, self.row, self.col, status))
+
+    def text(self) -> str:
+        return str(self.query_one("#params", Static).render())
+
+    def selected(self) -> tuple[str, int | None] | None:
+        if not self.names:
+            return None
+        n = self.names[self.row]
+        return n, (self.col if self.wm.spec(n).shape else None)
+
+    def action_row(self, d: int) -> None:
+        if self.names:
+            self.row = (self.row + d) % len(self.names)
+            self.col = min(self.col, debug.param_columns(self.wm, self.names[self.row]) - 1)
+        self.redraw()
+
+    def action_col(self, d: int) -> None:
+        if self.names:
+            self.col = (self.col + d) % debug.param_columns(self.wm, self.names[self.row])
+        self.redraw()
+
+    def action_edit(self) -> None:
+        sel = self.selected()
+        app = self.app
+        if sel is not None and isinstance(app, ConsoleApp):
+            app.begin_edit(*sel)
         self.redraw()
 
 
@@ -241,6 +300,7 @@ class ConsoleApp(App):
         Binding("c", "not_yet('c')", "record"), Binding("v", "cameras", "cameras"),
         Binding("m", "messages", "messages"),
         Binding("w", "browser", "world model"),
+        Binding("p", "params", "parameters"),
         Binding("q", "quit", "quit"),
         Binding("ctrl+c", "quit", "quit", show=False, priority=True),
     ]
@@ -287,7 +347,7 @@ class ConsoleApp(App):
         """Read the system once and redraw the five areas (the 10 Hz tick)."""
         self.refreshes += 1
         self._follow_writes()
-        if isinstance(self.screen, BrowserScreen):  # the browser is live too (10 Hz)
+        if isinstance(self.screen, (BrowserScreen, ParamScreen)):  # live too (10 Hz)
             self.screen.redraw()
         try:
             r = self.reading = self.sources.read()
@@ -436,6 +496,9 @@ class ConsoleApp(App):
 
     def action_browser(self) -> None:
         self.push_screen(BrowserScreen(self.sources.wm))
+
+    def action_params(self) -> None:
+        self.push_screen(ParamScreen(self.sources.wm))
 
     def action_messages(self) -> None:
         self.push_screen(MessagesScreen(view.messages_screen(self.sources.messages)))

@@ -267,7 +267,7 @@ def local_commands(r: Reading, selected: int, wm) -> str:
         lines.append(f"  ... {len(settable) - 8} more (pfma wm list)")
     if not settable:
         lines.append("  (no user-settable variables)")
-    lines.append("modify: w (the world-model browser: Enter on a variable)")
+    lines.append("modify: w (world model: Enter on a variable), p (parameters, powered down only)")
     lines.append("up/down: layer tree")
     return "\n".join(lines)
 
@@ -281,7 +281,7 @@ def global_commands(r: Reading, rearm: bool, last: str) -> str:
         elif key in NOT_YET:
             extra = "  (not yet)"
         lines.append(f"{key}  {what}{extra}")
-    lines.append("m  messages (last 100)   w  world model (Enter: modify)   q  quit")
+    lines.append("m  messages   w  world model (Enter: modify)   p  parameters (powered down)   q  quit")
     lines.append(f"last answer: {last or '-'}")
     return "\n".join(lines)
 

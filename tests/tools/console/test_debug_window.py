@@ -142,3 +142,48 @@ def test_a_wrong_key_is_refused_by_the_write_path(sim):
         _run(app, body)
     finally:
         client.close()
+
+
+# --- (b) the parameter-modification display ----------------------------------------------------
+def test_parameter_edit_refused_powered_up_and_accepted_powered_down(sim, console):
+    from controller.layers import Request
+    from tools.console.app import ParamScreen
+
+    async def body(pilot):
+        sim.power_up(max_frames=400)
+        assert sim.rt.wm.powered_up
+        kp0 = sim.rt.wm.get("servo.kp_per_s").copy()
+        await pilot.press("p")
+        await pilot.pause()
+        scr = console.screen
+        assert isinstance(scr, ParamScreen)
+        text = scr.text()
+        assert text.splitlines()[1].startswith("LOCKED: the system is powered up")
+        assert "servo compensators" in text and "servo limits" in text
+        assert scr.names[:3] == ("servo.kp_per_s", "servo.tau_z_s", "servo.tau_p_s")
+        await pilot.press("right", "right")  # joint 2 (elbow_pitch)
+        await pilot.press("enter")
+        await pilot.pause()
+        assert console.screen is scr  # no editor
+        why = "servo.kp_per_s is protected: it may be set only while powered down (the system is powered up)"
+        assert why in scr.text()
+        console.refresh_areas()
+        assert why in console.area_text("messages")
+        assert sim.request(Request.POWER_DOWN)[0] == 2  # COMPLETE: shut down
+        assert not sim.rt.wm.powered_up
+        console.refresh_areas()
+        await pilot.pause()
+        assert scr.text().splitlines()[1].startswith("EDITABLE")
+        assert "[" + f"{kp0[2]:.6g}" + "]" in scr.text()  # the selected cell
+        await pilot.press("enter")
+        await pilot.pause()
+        assert isinstance(console.screen, EditScreen)
+        await _type(pilot, "9.5")
+        await pilot.press("enter", "enter")
+        await pilot.pause()
+        _frames(sim, console, 2)
+        await pilot.pause()
+        kp = sim.rt.wm.get("servo.kp_per_s")
+        assert kp[2] == 9.5 and np.array_equal(np.delete(kp, 2), np.delete(kp0, 2))  # one joint changed
+        assert "servo.kp_per_s = " in scr.text() and "applied at frame" in scr.text()
+    _run(console, body)
