@@ -147,8 +147,8 @@ class _Watch:
                 _ = err
                 continue
             for m in got:
-                if self.cursor[q] and m.seq > self.cursor[q] + 1:
-                    self.lost[q] += m.seq - self.cursor[q] - 1
+                if self.cursor[q] and m.first_seq > self.cursor[q] + 1:  # a long message takes several
+                    self.lost[q] += m.first_seq - self.cursor[q] - 1
                 self.cursor[q] = max(self.cursor[q], m.seq)
                 sev = m.severity.name if hasattr(m.severity, "name") else str(m.severity)
                 self.counts[q][sev] = self.counts[q].get(sev, 0) + 1

@@ -44,7 +44,8 @@ from typing import TYPE_CHECKING, Any, Callable, Literal
 import numpy as np
 
 from bit3.layout import (
-    AREA_MAP, BUFFER_SIZE, LAYOUT_VERSION, MAGIC, MESSAGE_DTYPE, MESSAGE_QUEUE_LEN, MESSAGE_TEXT_BYTES,
+    AREA_MAP, BUFFER_SIZE, LAYOUT_VERSION, MAGIC, MESSAGE_CONTINUES, MESSAGE_DTYPE, MESSAGE_MAX_ENTRIES,
+    MESSAGE_QUEUE_LEN, MESSAGE_TEXT_BYTES,
     OWNER_DTYPE, OWNER_NAME_BYTES, WRITER_ROLES, AreaSpec, Layout, ServiceState,
     Severity, _header, default_layout, resolve_role, struct_field, struct_names,
 )
@@ -254,16 +255,40 @@ class Message:
     """One message-queue entry."""
 
     queue: str
-    seq: int
+    seq: int  #: sequence number of its last entry (read on from here: ``read(since_seq=seq)``)
     t_s: float
     severity: Severity
     source: int
     code: int
-    text: str
+    text: str  #: the whole text (a long message takes several entries, joined here)
+    first_seq: int = 0  #: sequence number of its first entry (== seq for a one-entry message)
 
     def format(self) -> str:
         return (f"{self.t_s:12.6f} {self.queue:<20} #{self.seq:<6} {self.severity.name:<7} "
                 f"src={self.source} code={self.code} {self.text}")
+
+
+def _char_cut(raw: bytes, at: int) -> int:
+    """The largest cut <= ``at`` that is not inside a UTF-8 character of ``raw``."""
+    while 0 < at < len(raw) and (raw[at] & 0xC0) == 0x80:
+        at -= 1
+    return at
+
+
+def split_text(raw: bytes) -> list[bytes]:
+    """UTF-8 ``raw`` in entry-sized pieces, cut only between characters; at most
+    ``MESSAGE_MAX_ENTRIES`` pieces, the last ending "~" when the text was longer."""
+    size = MESSAGE_TEXT_BYTES
+    pieces: list[bytes] = []
+    while len(raw) > size and len(pieces) <= MESSAGE_MAX_ENTRIES:
+        cut = _char_cut(raw, size)
+        pieces.append(raw[:cut])
+        raw = raw[cut:]
+    pieces.append(raw)
+    if len(pieces) > MESSAGE_MAX_ENTRIES:
+        last = pieces[MESSAGE_MAX_ENTRIES - 1]
+        pieces = pieces[:MESSAGE_MAX_ENTRIES - 1] + [last[:_char_cut(last, size - 1)] + b"~"]
+    return pieces
 
 
 class MessageQueue:
@@ -292,25 +317,31 @@ class MessageQueue:
 
     def post(self, text: str, severity: Severity | int = Severity.INFO, code: int = 0,
              source: int = 0, t_s: float | None = None) -> int:
-        """Append a message (text is cut to 56 bytes of UTF-8); returns its sequence number."""
+        """Append a message, whole: a text longer than one entry's 56 bytes of UTF-8 takes
+        the next entries too (at most ``MESSAGE_MAX_ENTRIES``; beyond, it is cut and ends
+        "~"), written in one sequence-lock section; returns the sequence number of its last
+        entry."""
         if self._head is None:
             raise Bit3Error(f"Bit3 area {self.area.name}: not claimed by this attachment; "
                             f"only its owner may post")
-        raw = text.encode("utf-8", "replace")[:MESSAGE_TEXT_BYTES]
-        n = self._head[0] + 1
+        pieces = split_text(text.encode("utf-8", "replace"))
+        n0 = self._head[0]
         e = self._entry
-        e["seq"] = n
         e["t_s"] = self._now() if t_s is None else t_s
-        e["severity"] = int(severity)
         e["source"] = source
         e["code"] = code
-        e["text"] = raw
-        off = self._entries_off + ((n - 1) % MESSAGE_QUEUE_LEN) * MESSAGE_DTYPE.itemsize
+        last = len(pieces) - 1
         self._lock.begin()
-        self._body[off:off + MESSAGE_DTYPE.itemsize] = self._entry_mv
-        self._head[0] = n
+        for i, raw in enumerate(pieces):
+            n = n0 + 1 + i
+            e["seq"] = n
+            e["severity"] = int(severity) | (MESSAGE_CONTINUES if i < last else 0)
+            e["text"] = raw
+            off = self._entries_off + ((n - 1) % MESSAGE_QUEUE_LEN) * MESSAGE_DTYPE.itemsize
+            self._body[off:off + MESSAGE_DTYPE.itemsize] = self._entry_mv
+        self._head[0] = n0 + len(pieces)
         self._lock.end()
-        return n
+        return n0 + len(pieces)
 
     def read(self, since_seq: int = 0) -> list[Message]:
         """Messages newer than ``since_seq`` still in the ring, oldest first."""
@@ -320,16 +351,27 @@ class MessageQueue:
         first = max(since_seq + 1, head - MESSAGE_QUEUE_LEN + 1, 1)
         out = []
         entries = rec["entries"]
+        parts: list[bytes] = []  # the pieces of a message whose last entry is still to come
+        start = first
         for s in range(first, head + 1):
             e = entries[(s - 1) % MESSAGE_QUEUE_LEN]
             if int(e["seq"]) != s:  # cannot happen with a stable copy; be strict anyway
+                parts = []
+                continue
+            if not parts:
+                start = s
+            parts.append(bytes(e["text"]))
+            sev_byte = int(e["severity"])
+            if sev_byte & MESSAGE_CONTINUES and s < head:
                 continue
             try:
-                sev = Severity(int(e["severity"]))
+                sev = Severity(sev_byte & ~MESSAGE_CONTINUES)
             except ValueError:
                 sev = Severity.ERROR
-            out.append(Message(self.area.name, s, float(e["t_s"]), sev, int(e["source"]),
-                               int(e["code"]), bytes(e["text"]).decode("utf-8", "replace")))
+            first_e = entries[(start - 1) % MESSAGE_QUEUE_LEN]
+            out.append(Message(self.area.name, s, float(first_e["t_s"]), sev, int(first_e["source"]),
+                               int(first_e["code"]), b"".join(parts).decode("utf-8", "replace"), start))
+            parts = []
         return out
 
     @property

@@ -65,6 +65,13 @@ MAX_AREAS = 8
 #: processor and are effectively a circular buffer" (IRSS report, user interface section).
 MESSAGE_QUEUE_LEN = 50
 MESSAGE_TEXT_BYTES = 56
+#: a message longer than one entry's text continues in the next entries of its queue: every
+#: entry of a message but its last has this bit set in its severity byte
+#: (``bit3.buffer.MessageQueue`` posts and joins them; a message's entries are written in
+#: one sequence-lock section, so a reader sees all or none of them)
+MESSAGE_CONTINUES = 0x80
+#: entries one message may take (4 x 56 = 224 bytes of UTF-8); a longer text is cut, ending "~"
+MESSAGE_MAX_ENTRIES = 4
 OWNER_NAME_BYTES = 32
 
 #: slot capacities of the per-channel groups (spare room beyond the default rack)

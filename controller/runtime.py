@@ -319,10 +319,14 @@ class ControllerRuntime:
         return self.messages.post(source, level, text, self.now - self.t0, self.frame)
 
     def _forward(self, m: Message) -> None:
-        if m.level >= Level.WARNING and getattr(self.client, "role", None) == "controller":
+        """Every layer's message, whole, into the Bit3 controller message queue (a long text
+        takes several entries: ``bit3.buffer.MessageQueue``), where tools and the console
+        read it."""
+        if getattr(self.client, "role", None) == "controller":
             try:
-                self.client.post_message(f"{m.source}: {m.text}"[:56],
-                                         Severity.ERROR if m.level >= Level.ERROR else Severity.WARNING)
+                self.client.post_message(f"{m.source}: {m.text}",
+                                         Severity.ERROR if m.level >= Level.ERROR else
+                                         Severity.WARNING if m.level >= Level.WARNING else Severity.INFO)
             except Exception:  # noqa: BLE001 - messages never stop the controller
                 pass
 

@@ -330,8 +330,8 @@ class Recorder:
             if head < cur:  # a new buffer (service restart): start over
                 cur = 0
             got = c.messages(cur, q)
-            if got and got[0].seq > cur + 1:
-                self.counters.messages_missed += got[0].seq - cur - 1
+            if got and got[0].first_seq > cur + 1:  # a long message takes several entries
+                self.counters.messages_missed += got[0].first_seq - cur - 1
             for m in got:
                 self._put("/pfma/messages", _ns(m.t_s, self.offset_ns), _dumps({
                     "queue": q, "seq": m.seq, "t_s": m.t_s, "severity": m.severity.name,
