@@ -153,7 +153,7 @@ class OutputGuard:
         return False
 
     def _stale_text(self, age_s: float, stall_note: str) -> str:
-        """The trip reason, short enough for a 56-byte message with its prefix."""
+        """The trip reason, short enough for one 56-byte queue entry with its prefix."""
         if stall_note:
             return f"stale heartbeat {age_s * 1e3:.0f}>{self.watchdog_s * 1e3:.0f} ms{stall_note}"
         return f"stale heartbeat {age_s * 1e3:.1f}>{self.watchdog_s * 1e3:.0f} ms"

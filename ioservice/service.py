@@ -214,7 +214,7 @@ class IoService:
         #: back to OK (``_board_answered``, ``_input_ok``)
         self.faulted_boards: set[str] = set()
         self._board_fail_run: dict[str, int] = {}
-        self.init_errors: list[str] = []  #: full texts of start-up problems (messages are cut to 56 bytes)
+        self.init_errors: list[str] = []  #: full texts of start-up problems (messages keep up to 224 bytes)
         self.notes: list[str] = []  #: full texts of start-up decisions the user should know of
         self._bus_ok_t = clock.now()  # the last register transaction that succeeded
         self._bus_failed = False  # a register transaction failed in the current frame
@@ -492,7 +492,7 @@ class IoService:
         if silent <= BUS_LOST_S:
             return
         self.bus_lost = self._bus_silence(silent) + "; outputs made safe, service stopping"
-        self.post(Severity.ERROR, 152, f"bus lost: {self.bus_name}")  # the queue cuts at 56 bytes
+        self.post(Severity.ERROR, 152, f"bus lost: {self.bus_name}")
         self.fault_code = FAULT_DAC if self.fault_code == FAULT_NONE else self.fault_code
         # outputs: the DAC write of this frame has already failed (and tripped the guard);
         # stop() disables them once more on the way out; no third attempt in this frame
@@ -509,7 +509,7 @@ class IoService:
         silent = self.clock.now() - self._bus_ok_t
         if self.bus_lost is None and self._bus_failed and silent > self.watchdog_s:
             self.bus_lost = self._bus_silence(silent) + " when the run ended; outputs made safe"
-            self.post(Severity.ERROR, 152, f"bus lost: {self.bus_name}")  # the queue cuts at 56 bytes
+            self.post(Severity.ERROR, 152, f"bus lost: {self.bus_name}")
 
     # ------------------------------------------------------------------ what the bus can keep
     def measure_bus(self, repeats: int = BUS_PROBE_REPEATS) -> tuple[dict[str, float], float]:

@@ -272,7 +272,7 @@ class FaultController:
 
     def _posted(self, code: int, head: str, fault, verb: str) -> None:
         sev = _severity("WARNING" if code == MSG_FAULT_ON else "INFO")
-        self.svc.post(sev, code, f"{head}: {fault.spec}")  # the queue keeps 56 bytes
+        self.svc.post(sev, code, f"{head}: {fault.spec}")
         if self.say is not None:
             self.say(f"pfma serve: frame {self.frame}: {verb} simulated fault {fault.spec}: "
                      f"{fault.description}")

@@ -116,8 +116,8 @@ def _live_lines(t_since_start_s: float, frame: int, state: str, angles_rad, forc
 
 
 def _live_message(m, t_start_s: float) -> str:
-    """A service or controller message, its time since start, its text whole (a Bit3
-    queue entry holds 56 bytes of text: nothing is cut beyond that)."""
+    """A service or controller message, its time since start, its text whole (a long text
+    takes several Bit3 queue entries, joined by the reader)."""
     return (f"  > {m.t_s - t_start_s:9.2f} {m.queue.removesuffix('_messages')} "
             f"{m.severity.name} src={m.source} code={m.code}: {m.text}")
 

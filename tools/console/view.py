@@ -128,7 +128,7 @@ class Sources:
 
 
 def _split_source(text: str) -> tuple[str, str]:
-    """The controller forwards ``"<layer>: <text>"`` (cut to the queue's 56 bytes)."""
+    """The controller forwards ``"<layer>: <text>"`` (whole: a long text takes several queue entries)."""
     src, sep, rest = text.partition(": ")
     return (src, rest) if sep and " " not in src else ("controller", text)
 
