@@ -461,6 +461,60 @@ def _interactive(d: _Driver, budget: int) -> None:
             print(HELP)
 
 
+def _interactive_live(d: _Driver, budget: int) -> None:
+    """``--halt`` on a live service: the controller halts at its first frame (the service
+    holds HALTED: 0 V, brakes set, no watchdog trip) and goes on ticking with the service
+    while a thread reads the keyboard; each command is acted on between service frames
+    through the same requests as ``pfma controller halt|step|resume`` (``c`` resumes with a
+    re-arm)."""
+    import queue
+    import threading
+    from controller.layers import Request
+    lines: queue.SimpleQueue[str | None] = queue.SimpleQueue()
+
+    def read_keyboard() -> None:
+        while True:
+            try:
+                lines.put(input())
+            except (EOFError, OSError):
+                lines.put(None)
+                return
+    threading.Thread(target=read_keyboard, name="pfma-controller-keyboard", daemon=True).start()
+    print(HELP)
+    d.rt.request(Request.HALT)
+    prompt = True
+    for _ in range(budget):
+        d.frame()  # halted: the hold writes the halted command; a STEP request runs its frames
+        if prompt and d.rt.halted and not d.rt.steps_left:
+            print(f"[frame {d.rt.frame}] > ", end="", flush=True)
+            prompt = False
+        try:
+            line = lines.get_nowait()
+        except queue.Empty:
+            continue
+        if line is None:
+            return
+        prompt = True
+        cmd, _, arg = line.strip().partition(" ")
+        if cmd in ("", "s"):
+            n = int(arg) if arg.strip().isdigit() else 1
+            print(f"request {d.rt.request(Request.STEP, n)}: SINGLE STEP {n}")
+        elif cmd == "c":
+            print(f"request {d.rt.request(Request.RESUME, 1)}: RESUME with re-arm (runs on)")
+            prompt = False
+        elif cmd == "q":
+            return
+        elif cmd in ("p", "d", "r"):
+            kind = {"p": Request.POWER_UP, "d": Request.POWER_DOWN, "r": Request.ERROR_RESET}[cmd]
+            print(f"request {d.rt.request(kind)}: {Request.NAMES[kind]} (applied at the next step)")
+        elif cmd == "m":
+            print(d.rt.messages.format())
+        elif cmd == "t":
+            print(_status_line(d.rt))
+        else:
+            print(HELP)
+
+
 def _frame_control(args) -> int:
     """``pfma controller halt|step [N]|resume --rearm``: one request to the running
     controller through its world model; prints the answer (and a step's trace)."""
@@ -529,10 +583,9 @@ def run(args) -> int:
             budget = sys.maxsize
         if args.step is not None:
             budget = min(budget, args.step)
-        if args.halt:
-            if not args.sim:
-                print("note: halting a controller on a live service lets its watchdog trip the "
-                      "outputs safe (15 ms); single steps then run on the latest inputs", file=sys.stderr)
+        if args.halt and not args.sim:
+            _interactive_live(d, budget)
+        elif args.halt:
             _interactive(d, budget)
         else:
             for _ in range(budget):
