@@ -5,6 +5,7 @@ Examples::
     pfma console                         # the service on buffer pfma, the controller's pfma_wm
     pfma console --buffer pfma --wm pfma_wm
     pfma console --sim                   # the whole simulated system in this process (make run)
+    pfma console --sim --menu examples/console-menu.toml    # with live menus (key l)
 
 Five areas (Local Status, World Status, Messages, Local Commands, Global Commands),
 refreshed at 10 Hz; keys send power up/down, error reset, halt, single step, re-arm and
@@ -28,12 +29,30 @@ def add_parser(sub):
                    help="run the whole simulated system here (simulated rack, service, controller powered up "
                         "flying a demo path) and show it; q or Ctrl-C stops everything, outputs 0 V")
     p.add_argument("--no-demo", action="store_true", help="--sim: power up but fly no demo path")
+    p.add_argument("--menu", metavar="FILE.toml", default=None,
+                   help="live menus (key l): named pages of world-model variables with a format each and a refresh "
+                        "rate (examples/console-menu.toml); a mistake is named with file, line and field, exit 2")
     return p
 
 
+def _load_menu(args):
+    """The --menu file read and checked (not yet against the model); None without --menu.
+    :raises MenuError: the file's mistake (the caller prints it, exit 2)"""
+    if not args.menu:
+        return None
+    from tools.console.menu import load
+    return load(args.menu)
+
+
 def run(args) -> int:
+    from tools.console.menu import MenuError
+    try:
+        menu = _load_menu(args)
+    except MenuError as err:
+        print(f"pfma console: {err}", file=sys.stderr)
+        return 2
     if args.sim:
-        return _run_sim(args)
+        return _run_sim(args, menu)
     from bit3.client import Client
     from tools.attach import no_service
     from tools.console.control import ControlError, ControllerLink
@@ -55,29 +74,42 @@ def run(args) -> int:
         print(f"pfma console: cannot read buffer {args.buffer!r}: {err}", file=sys.stderr)
         return 1
     try:
+        if menu is not None:
+            menu.check(link.wm)
         # the buffer does not say whether its boards are simulated: the console says so
-        _app(Sources(client, link.wm, rack="unknown"), link).run()
+        _app(Sources(client, link.wm, rack="unknown"), link, menu=menu).run()
+    except MenuError as err:
+        print(f"pfma console: {err}", file=sys.stderr)
+        return 2
     finally:
         client.close()
         link.close()
     return 0
 
 
-def _app(sources, link, on_tick=None):
+def _app(sources, link, on_tick=None, menu=None):
     from tools.console.app import ConsoleApp
-    return ConsoleApp(sources, link, on_tick=on_tick)
+    return ConsoleApp(sources, link, on_tick=on_tick, menu=menu)
 
 
-def _run_sim(args) -> int:
+def _run_sim(args, menu=None) -> int:
     from bit3.client import Client
     from tools.console.control import ControllerLink
     from tools.console.simrun import SimulatedSystem
     from tools.console.view import Sources
+    from tools.console.menu import MenuError
     system = SimulatedSystem(demo=not args.no_demo)
+    if menu is not None:
+        try:
+            menu.check(system.sim.rt.wm)
+        except MenuError as err:
+            system.close()
+            print(f"pfma console: {err}", file=sys.stderr)
+            return 2
     client = Client.attach(system.name, layout=system.sim.rig.layout)
     sources = Sources(client, system.sim.rt.wm, rack="simulated")
     sources.speed = lambda: system.speed
-    app = _app(sources, ControllerLink(system.sim.rt.wm, args.key))
+    app = _app(sources, ControllerLink(system.sim.rt.wm, args.key), menu=menu)
     system.start()
     try:
         app.run()

@@ -164,6 +164,52 @@ class ParamScreen(ModalScreen):
         self.redraw()
 
 
+class MenuScreen(ModalScreen):
+    """The user's live menus (``pfma console --menu FILE.toml``): one page at a time, each
+    refreshed at its own rate (every :meth:`MenuPage.every`-th console refresh)."""
+
+    BINDINGS = [Binding("escape,l,q", "app.pop_screen", "close"),
+                Binding("left", "page(-1)", "page"), Binding("right,tab", "page(1)", "page")]
+
+    def __init__(self, menu, wm) -> None:
+        super().__init__()
+        self.menu = menu
+        self.wm = wm
+        self.index = 0
+        self.ticks = 0
+        self.draws = 0  #: page redraws (tests: the refresh rate)
+        self._names: tuple[str, ...] = ()
+
+    def compose(self) -> ComposeResult:
+        yield Static("", id="menu", markup=False)
+
+    def on_mount(self) -> None:
+        self.redraw()
+
+    def tick(self) -> None:
+        """One console refresh: redraw the page when its rate says so."""
+        self.ticks += 1
+        if self.ticks % self.menu.pages[self.index].every(REFRESH_HZ) == 0:
+            self.redraw()
+
+    def redraw(self) -> None:
+        from tools.console.menu import page_text
+        page = self.menu.pages[self.index]
+        if len(self._names) != len(page.vars) or self._names[0] != page.vars[0].name:
+            self._names = tuple(v.name for v in page.vars)  # one tuple per page: the model caches its plan
+        self.draws += 1
+        self.query_one("#menu", Static).update(page_text(self.menu, self.index, self.wm.get_task_inputs(self._names),
+                                                         self.wm), layout=False)
+
+    def text(self) -> str:
+        return str(self.query_one("#menu", Static).render())
+
+    def action_page(self, d: int) -> None:
+        self.index = (self.index + d) % len(self.menu.pages)
+        self._names, self.ticks = (), 0
+        self.redraw()
+
+
 class EditScreen(ModalScreen):
     """Type a value for one variable (or one element of a vector), Enter to check it,
     Enter again to confirm and send it; Escape cancels. The value is read as ``pfma wm
@@ -301,13 +347,16 @@ class ConsoleApp(App):
         Binding("m", "messages", "messages"),
         Binding("w", "browser", "world model"),
         Binding("p", "params", "parameters"),
+        Binding("l", "menu", "menus"),
         Binding("q", "quit", "quit"),
         Binding("ctrl+c", "quit", "quit", show=False, priority=True),
     ]
 
     def __init__(self, sources: view.Sources, link: ControllerLink | None, *, auto_refresh: bool = True,
-                 on_tick: Callable[[], None] | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+                 on_tick: Callable[[], None] | None = None, clock: Callable[[], float] = time.monotonic,
+                 menu=None) -> None:
         super().__init__()
+        self.menu = menu  #: the live menus (tools.console.menu.Menu, checked against the model) or None
         self.sources = sources
         self.link = link
         self.auto = auto_refresh
@@ -349,6 +398,8 @@ class ConsoleApp(App):
         self._follow_writes()
         if isinstance(self.screen, (BrowserScreen, ParamScreen)):  # live too (10 Hz)
             self.screen.redraw()
+        elif isinstance(self.screen, MenuScreen):  # at the page's own rate
+            self.screen.tick()
         try:
             r = self.reading = self.sources.read()
             self.read_error = ""
@@ -499,6 +550,13 @@ class ConsoleApp(App):
 
     def action_params(self) -> None:
         self.push_screen(ParamScreen(self.sources.wm))
+
+    def action_menu(self) -> None:
+        if self.menu is None:
+            self._note("INFO", "no live menus: start the console with --menu FILE.toml (examples/console-menu.toml)")
+            self.refresh_areas()
+            return
+        self.push_screen(MenuScreen(self.menu, self.sources.wm))
 
     def action_messages(self) -> None:
         self.push_screen(MessagesScreen(view.messages_screen(self.sources.messages)))

@@ -187,3 +187,97 @@ def test_parameter_edit_refused_powered_up_and_accepted_powered_down(sim, consol
         assert kp[2] == 9.5 and np.array_equal(np.delete(kp, 2), np.delete(kp0, 2))  # one joint changed
         assert "servo.kp_per_s = " in scr.text() and "applied at frame" in scr.text()
     _run(console, body)
+
+
+# --- (c) live menus from TOML ------------------------------------------------------------------
+EXAMPLE = __import__("pathlib").Path(__file__).resolve().parents[3] / "examples" / "console-menu.toml"
+
+
+def test_the_example_menu_loads_and_its_pages_show_live_at_their_rates(sim):
+    from tools.console import menu as menus
+    from tools.console.app import MenuScreen
+    m = menus.load(EXAMPLE)
+    m.check(sim.rt.wm)
+    assert [p.name for p in m.pages] == ["Joints", "Servo", "Layers"]
+    client = Client.attach(sim.name, layout=sim.rig.layout)
+    app = ConsoleApp(view.Sources(client, sim.rt.wm, rack="simulated"), ControllerLink(sim.rt.wm),
+                     auto_refresh=False, menu=m)
+
+    async def body(pilot):
+        await pilot.press("l")
+        await pilot.pause()
+        scr = app.screen
+        assert isinstance(scr, MenuScreen)
+        assert scr.text().startswith("PFMA arm: [Joints]  Servo  Layers")
+        q = sim.rt.wm.get("daq.joint_angle_rad")
+        assert "measured angle   " + "  ".join(f"{float(x):+.4f}" for x in q) + "  rad" in scr.text()
+        await pilot.press("right", "right")  # Layers, 5 Hz: every second console refresh
+        await pilot.pause()
+        assert "[Layers]" in scr.text()
+        frames0 = scr.text().splitlines()[-1]
+        draws = scr.draws
+        _frames(sim, app, 50)
+        assert scr.draws == draws and scr.text().splitlines()[-1] == frames0  # not yet its turn
+        app.refresh_areas()
+        assert scr.draws == draws + 1
+        assert scr.text().splitlines()[-1] == f"controller frames      {int(sim.rt.wm.get('runtime.frames'))}"
+        draws = scr.draws
+        await pilot.press("left")  # Servo, 2 Hz: drawn at once, then every fifth
+        for _ in range(10):
+            app.refresh_areas()
+        assert scr.draws == draws + 1 + 2
+    try:
+        _run(app, body)
+    finally:
+        client.close()
+
+
+BAD_MENUS = [  # (file text, line, field named, words of the message)
+    ('[[page]]\nname = "a"\nrefresh_hz = 20\n[[page.var]]\nname = "runtime.frames"\n',
+     3, "page 1 refresh_hz", "not a rate in (0, 10] Hz"),
+    ('[[page]]\nname = "a"\n[[page.var]]\nname = "runtime.frames"\n\n[[page.var]]\nname = "x"\nformat = ".3q"\n',
+     8, "page 1 var 2 format", "is not a format spec"),
+    ('[[page]]\nname = "a"\n[[page.var]]\nname = "runtime.frames"\ncolour = "red"\n',
+     5, "page 1 var 1 colour", "unknown field"),
+    ('title = "t"\n[[page]]\nname = "a"\n', 2, "page 1 var", "a page needs variables"),
+    ('[[page]]\nname = "a"\nrefresh_hz = \n', 3, "TOML", "Invalid value"),
+]
+
+
+@pytest.mark.parametrize("text,line,field,words", BAD_MENUS)
+def test_a_bad_menu_file_exits_2_naming_file_line_and_field(tmp_path, capsys, text, line, field, words):
+    from tools.cli import main
+    f = tmp_path / "bad.toml"
+    f.write_text(text)
+    rc = main(["console", "--menu", str(f), "--buffer", "pfma_console_menu_nobody"])  # before any service check
+    out, err = capsys.readouterr()
+    assert rc == 2 and out == "" and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert err.startswith(f"pfma console: {f}:{line}: {field}: ") and words in err
+
+
+def test_a_menu_variable_the_model_lacks_exits_2_before_the_console_starts(tmp_path, capsys):
+    from tools.cli import main
+    f = tmp_path / "typo.toml"
+    f.write_text('[[page]]\nname = "a"\n\n[[page.var]]\nname = "runtime.frame"\nformat = "d"\n')
+    rc = main(["console", "--sim", "--menu", str(f)])  # the simulated system is built, checked, closed
+    out, err = capsys.readouterr()
+    assert rc == 2 and "Traceback" not in err
+    assert err.startswith(f"pfma console: {f}:5: page 1 var 1 name: no variable 'runtime.frame' in the world "
+                          f"model; did you mean runtime.frames")
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_a_format_that_does_not_fit_the_variable_is_named(sim, tmp_path):
+    from tools.console import menu as menus
+    f = tmp_path / "m.toml"
+    f.write_text('[[page]]\nname = "a"\n[[page.var]]\nname = "daq.joint_angle_rad"\nformat = "d"\n')
+    with pytest.raises(menus.MenuError) as e:
+        menus.load(f).check(sim.rt.wm)
+    assert str(e.value).startswith(f"{f}:5: page 1 var 1 format: 'd' does not format a f8 value")
+
+
+def test_a_missing_menu_file_is_one_message_exit_2(tmp_path, capsys):
+    from tools.cli import main
+    rc = main(["console", "--menu", str(tmp_path / "none.toml")])
+    _out, err = capsys.readouterr()
+    assert rc == 2 and err.startswith(f"pfma console: --menu {tmp_path / 'none.toml'}: cannot read it")
