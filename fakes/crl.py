@@ -52,6 +52,9 @@ class ReceivedForce:
         return self.frame.wrench()[1]
 
 
+#: frames of ground truth a fake CRL master keeps, each way (newest first out)
+HISTORY_KEEP = 20_000
+
 class FakeCrlMaster(FaultyLine):
     """Byte-stream model of the CRL force-reflecting hand controller.
 
@@ -70,10 +73,11 @@ class FakeCrlMaster(FaultyLine):
         self.axes_counts: tuple[int, ...] = (0,) * 6
         self.buttons = 0
         self._rx = codec.FrameDecoder("force")
-        self.sent_frames: deque[SentMasterFrame] = deque(maxlen=100_000)  #: ground truth
+        self.sent_frames: deque[SentMasterFrame] = deque(maxlen=HISTORY_KEEP)  #: ground truth (newest)
         self.frames_sent = 0
         self.frames_skipped = 0  #: frames not queued because the line was still busy
-        self.received: list[ReceivedForce] = []  #: good force frames, in order
+        #: good force frames, in order (the newest HISTORY_KEEP: 40 Hz for hours must not grow)
+        self.received: deque[ReceivedForce] = deque(maxlen=HISTORY_KEEP)
         self.displayed_force_n: tuple[float, ...] = (0.0,) * 3  #: what the motors display now
         self.displayed_torque_nm: tuple[float, ...] = (0.0,) * 3
         self._t_last_force = None

@@ -11,6 +11,8 @@ Reuses ``FtTransducer`` (load -> counts, bias stack) from ``fakes.ft_sensor``.
 
 from __future__ import annotations
 
+from collections import deque
+
 import struct
 from typing import Any
 
@@ -37,7 +39,8 @@ class FakeCanFtNode(can.Listener):
         self.transducer = FtTransducer(sensor, load_fn)
         self.clock = clock
         self.seq = 0
-        self.sent: list[tuple[int, tuple[int, ...]]] = []  #: ground truth (status, counts)
+        #: ground truth (status, counts), the newest 20,000 (a node answering for hours must not grow)
+        self.sent: deque[tuple[int, tuple[int, ...]]] = deque(maxlen=20_000)
         self.mute_replies = 0  #: fault: ignore this many requests
         self.break_pairing = 0  #: fault: send this many replies with mismatched seq
         self._notifier: can.Notifier | None = None

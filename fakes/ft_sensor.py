@@ -28,6 +28,9 @@ LoadFn = Callable[[float], tuple[Vec3, Vec3]]  # t_s -> (force_n, torque_nm)
 BIAS_DEPTH = 3  #: sourced: "3-level bias buffer" (ATI command summary)
 
 
+#: records of ground truth a fake F/T controller keeps (newest first out)
+HISTORY_KEEP = 20_000
+
 class FtTransducer:
     """Load -> counts, with the controller's moving average and 3-deep bias stack.
 
@@ -127,10 +130,12 @@ class FakeFtController(FaultyLine):
         self._pending = False  # a new sample is waiting for the line
         self._line = bytearray()
         self._init_line()
-        self.sent_records: deque[SentRecord] = deque(maxlen=200_000)  #: ground truth
+        #: ground truth: the newest records sent (bounded: ~2.5 min of a streaming line, so a
+        #: long-running simulated rack does not grow; the tests compare far fewer)
+        self.sent_records: deque[SentRecord] = deque(maxlen=HISTORY_KEEP)
         self.records_sent = 0
         self.skipped_samples = 0  #: samples overwritten because the line was busy
-        self.commands: list[str] = []  #: command log
+        self.commands: list[str] = []  #: command log (the host's commands: a handful per session)
 
     # -- load ---------------------------------------------------------------------------
     def set_load(self, force_n: Vec3, torque_nm: Vec3) -> None:

@@ -130,3 +130,19 @@ def test_stall_and_disconnect():
     m.disconnect()
     m.receive(b"SZ\r")
     assert w.run(0.05) == b""
+
+
+def test_ground_truth_history_is_bounded(monkeypatch):
+    """A simulated rack runs for hours: the fake keeps the newest HISTORY_KEEP records of
+    ground truth, not every record since start (memory did grow ~250 MB an hour)."""
+    import fakes.ft_sensor as ft
+    monkeypatch.setattr(ft, "HISTORY_KEEP", 50)
+    m = FakeFtController()
+    w = Wire(m)
+    m.receive(b"CD B\r")
+    w.run(0.02)
+    m.receive(b"QS\r")
+    w.run(2.0)  # ~270 records on the line at 19200 baud
+    assert m.records_sent > 200
+    assert len(m.sent_records) == 50
+    assert m.sent_records[-1].index == m.records_sent - 1  # the newest kept
