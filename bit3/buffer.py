@@ -291,6 +291,38 @@ def split_text(raw: bytes) -> list[bytes]:
     return pieces
 
 
+def decode_messages(queue: str, rec: np.ndarray, since_seq: int = 0) -> list[Message]:
+    """The messages newer than ``since_seq`` in a consistent copy ``rec`` of a message-queue
+    body (what :meth:`MessageQueue.read` returns; also for a copy that came from elsewhere,
+    e.g. the body bytes the Zenoh bridge publishes)."""
+    head = int(rec["head_seq"])
+    first = max(since_seq + 1, head - MESSAGE_QUEUE_LEN + 1, 1)
+    out = []
+    entries = rec["entries"]
+    parts: list[bytes] = []  # the pieces of a message whose last entry is still to come
+    start = first
+    for s in range(first, head + 1):
+        e = entries[(s - 1) % MESSAGE_QUEUE_LEN]
+        if int(e["seq"]) != s:  # cannot happen with a stable copy; be strict anyway
+            parts = []
+            continue
+        if not parts:
+            start = s
+        parts.append(bytes(e["text"]))
+        sev_byte = int(e["severity"])
+        if sev_byte & MESSAGE_CONTINUES and s < head:
+            continue
+        try:
+            sev = Severity(sev_byte & ~MESSAGE_CONTINUES)
+        except ValueError:
+            sev = Severity.ERROR
+        first_e = entries[(start - 1) % MESSAGE_QUEUE_LEN]
+        out.append(Message(queue, s, float(first_e["t_s"]), sev, int(first_e["source"]),
+                           int(first_e["code"]), b"".join(parts).decode("utf-8", "replace"), start))
+        parts = []
+    return out
+
+
 class MessageQueue:
     """A 50-entry circular message queue area (like each IRSS processor card's).
 
@@ -346,33 +378,7 @@ class MessageQueue:
     def read(self, since_seq: int = 0) -> list[Message]:
         """Messages newer than ``since_seq`` still in the ring, oldest first."""
         self._reader.read()
-        rec = self._reader.record
-        head = int(rec["head_seq"])
-        first = max(since_seq + 1, head - MESSAGE_QUEUE_LEN + 1, 1)
-        out = []
-        entries = rec["entries"]
-        parts: list[bytes] = []  # the pieces of a message whose last entry is still to come
-        start = first
-        for s in range(first, head + 1):
-            e = entries[(s - 1) % MESSAGE_QUEUE_LEN]
-            if int(e["seq"]) != s:  # cannot happen with a stable copy; be strict anyway
-                parts = []
-                continue
-            if not parts:
-                start = s
-            parts.append(bytes(e["text"]))
-            sev_byte = int(e["severity"])
-            if sev_byte & MESSAGE_CONTINUES and s < head:
-                continue
-            try:
-                sev = Severity(sev_byte & ~MESSAGE_CONTINUES)
-            except ValueError:
-                sev = Severity.ERROR
-            first_e = entries[(start - 1) % MESSAGE_QUEUE_LEN]
-            out.append(Message(self.area.name, s, float(first_e["t_s"]), sev, int(first_e["source"]),
-                               int(first_e["code"]), b"".join(parts).decode("utf-8", "replace"), start))
-            parts = []
-        return out
+        return decode_messages(self.area.name, self._reader.record, since_seq)
 
     @property
     def head_seq(self) -> int:

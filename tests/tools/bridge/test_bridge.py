@@ -1,0 +1,179 @@
+"""The Bit3 areas over Zenoh (issue 19 item 1): a bridge on a simulated service, remote
+peers on tcp/127.0.0.1 with a free port. The service runs in simulated time; only the
+link's delivery is waited for, bounded (``until``)."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from bit3.layout import ServiceState
+from bit3.seqlock import OwnershipError
+from sim.rig import SimRig
+from tools.bridge.bridge import Bridge
+from tools.bridge.remote import RemoteBuffer, RemoteCommander
+from tools.bridge.session import open_session
+
+pytest.importorskip("zenoh")
+
+WAIT_S = 5.0  # bound of every wait for the link (a failure, not a timing assert)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def until(cond, what: str) -> None:
+    end = time.monotonic() + WAIT_S
+    while not cond():
+        if time.monotonic() > end:
+            raise AssertionError(f"not within {WAIT_S} s: {what}")
+        time.sleep(0.002)
+
+
+@pytest.fixture
+def link():
+    """(rig, bridge, session_factory): a bridge with a command writer on a SimRig,
+    listening on loopback; the factory opens remote peers connected to it."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    rig = SimRig(prefix="pfma-test-bridge-")
+    here = open_session(listen=[endpoint])
+    sessions = [here]
+    bridge = Bridge(here, rig.name, rig.reader, commander=rig.controller("bridge"))
+
+    def peer():
+        s = open_session(connect=[endpoint])
+        sessions.append(s)
+        return s
+    try:
+        yield rig, bridge, peer
+    finally:
+        bridge.close()
+        for s in reversed(sessions):
+            s.close()
+        rig.close()
+
+
+def settle(rig, bridge, remote) -> None:
+    """Frames until the remote subscriber's declaration has reached the bridge (bodies
+    published before that are not delivered): bounded like every wait here."""
+    until(lambda: (step(rig, bridge), remote.received("inputs") > 0)[1], "a first inputs body")
+
+
+def step(rig, bridge, frames: int = 1) -> None:
+    for _ in range(frames):
+        rig.run_frames(1)
+        bridge.poll()
+
+
+def test_remote_read_equals_local_read(link):
+    rig, bridge, peer = link
+    remote = RemoteBuffer(peer(), rig.name)
+    settle(rig, bridge, remote)
+    for _ in range(5):
+        n = remote.received("inputs")
+        step(rig, bridge)
+        until(lambda: remote.received("inputs") > n, "the next inputs body")
+        local = rig.reader.read_inputs()
+        snap = remote.read_inputs()
+        assert snap.frame == local.frame
+        assert bytes(snap.record.tobytes()) == bytes(local.record.tobytes())
+        assert snap.elbow_pitch_angle == local.elbow_pitch_angle  # decoded by channel name
+    assert remote.layout.hash_hex == rig.layout.hash_hex
+    # the message queue arrives and decodes like a local read
+    until(lambda: remote.received("controller_messages") > 0, "the bridge's message")
+    assert [m.text for m in remote.messages(queue="controller")] == \
+        [m.text for m in rig.reader.messages(queue="controller")][:len(remote.messages(queue="controller"))]
+    remote.close()
+
+
+def _arm(cmd: RemoteCommander, rig, bridge) -> None:
+    joints = len(rig.layout.joint_names)
+    cmd.write_commands(joint_rate_rad_s=[0.0] * joints, current_limit_a=[1.0] * len(rig.layout.current_limit_names),
+                       arm_request=1, rearm_counter=1)
+
+
+def _deliver(rig, bridge, cmd_write, what: str) -> None:
+    """One command write delivered to the bridge, then one frame."""
+    before = bridge.applied
+    cmd_write()
+    until(lambda: bridge._pending is not None or bridge.applied > before, what)
+    step(rig, bridge)
+    assert bridge.applied == before + 1, what
+
+
+def test_a_remote_commander_drives_the_service_and_its_loss_trips_the_watchdog(link):
+    rig, bridge, peer = link
+    s = peer()
+    remote = RemoteBuffer(s, rig.name)
+    cmd = RemoteCommander(remote, "ops-laptop")
+    until(lambda: bridge.holder == "ops-laptop", "the bridge sees the writer's token")
+    settle(rig, bridge, remote)
+    _deliver(rig, bridge, lambda: _arm(cmd, rig, bridge), "the arm request")
+    rate = [0.0] * len(rig.layout.joint_names)
+    rate[2] = 0.2
+    for _ in range(3):
+        _deliver(rig, bridge, lambda: cmd.write_commands(joint_rate_rad_s=rate), "a rate command")
+    s_in = rig.reader.read_inputs()
+    assert ServiceState(s_in.service_state) is ServiceState.ARMED
+    dac = np.abs(s_in.dac_value).max()
+    assert dac > 0.01  # the DAC follows the rate command
+
+    # the remote commander's link is cut: nothing new reaches the bridge, no heartbeat
+    s.close()
+    frames = int(np.ceil(rig.svc.guard.watchdog_s * rig.svc.schedule.frame_rate_hz)) + 1
+    step(rig, bridge, frames + 1)
+    s_in = rig.reader.read_inputs()
+    assert ServiceState(s_in.service_state) is ServiceState.FAULT and s_in.watchdog_tripped
+    assert np.abs(s_in.dac_value).max() == 0.0
+
+    # a writer back on a new link with the same arm request: nothing jumps (needs a re-arm)
+    until(lambda: bridge.holder is None, "the lost writer's token gone")
+    remote2 = RemoteBuffer(peer(), rig.name)
+    cmd2 = RemoteCommander(remote2, "ops-laptop")
+    until(lambda: bridge.holder == "ops-laptop", "the writer's token back")
+    cmd2.write_commands(joint_rate_rad_s=rate, current_limit_a=[1.0] * len(rig.layout.current_limit_names),
+                        arm_request=1, rearm_counter=1)
+    until(lambda: bridge._pending is not None, "the old command again")
+    step(rig, bridge, 3)
+    s_in = rig.reader.read_inputs()
+    assert ServiceState(s_in.service_state) is ServiceState.FAULT
+    assert np.abs(s_in.dac_value).max() == 0.0
+
+
+def test_a_second_remote_writer_is_refused_naming_the_first(link):
+    rig, bridge, peer = link
+    first = RemoteCommander(RemoteBuffer(peer(), rig.name), "ops-laptop")
+    until(lambda: bridge.holder == "ops-laptop", "the first writer's token")
+    with pytest.raises(OwnershipError, match="held by remote writer 'ops-laptop'"):
+        RemoteCommander(RemoteBuffer(peer(), rig.name), "intruder")
+    first.close()
+
+
+def test_the_bridge_writes_only_the_holders_commands(link):
+    """Two writers that both got past the check (a race): the bridge writes only the
+    first token's bodies and says once whose it refused."""
+    rig, bridge, peer = link
+    a = RemoteCommander(RemoteBuffer(peer(), rig.name), "first")
+    until(lambda: bridge.holder == "first", "the first writer's token")
+    b_remote = RemoteBuffer(peer(), rig.name)
+    b = RemoteCommander.__new__(RemoteCommander)  # skips the token check: the race
+    b.remote, b.owner, b._heartbeat = b_remote, "second", 0
+    b._token = b_remote.session.liveliness().declare_token(f"pfma/{rig.name}/writer/commands/second")
+    b._pub = b_remote.session.declare_publisher(f"pfma/{rig.name}/commands/set")
+    b.raw = bytearray(a.raw)
+    b.command = np.ndarray((), a.command.dtype, buffer=b.raw)
+    until(lambda: len(bridge.writers) == 2, "both tokens")
+    b.write_commands(arm_request=1, rearm_counter=5)
+    until(lambda: bridge._pending is not None, "the second writer's body")
+    step(rig, bridge)
+    assert bridge.applied == 0 and bridge.refused == {"second": 1}
+    texts = [m.text for m in rig.reader.messages(queue="controller")]
+    assert any("commands from 'second' refused" in t and "'first'" in t for t in texts)
+    a.close()
+    b.close()

@@ -1,0 +1,170 @@
+"""The bridge: a local Bit3 buffer's areas on Zenoh, and the command area back from one
+remote writer (docs/bridge.md).
+
+It runs in its own process (``pfma bridge``), outside the service's frame loop: it polls
+each area's sequence number and, when it changed, takes a consistent copy through the
+area's seqlock reader and publishes the body bytes as they are in shared memory. Rates
+follow the areas: inputs and commands every frame, message queues when they change,
+the statistics areas at most once a second.
+
+With a command writer (``--commands``) it claims the Bit3 command area as a controller
+does, and writes the body the holder of the remote writer's liveliness token publishes,
+stamping its own claim, heartbeat and time. No body received -> no new heartbeat -> the
+service's watchdog (unchanged) drives 0 V.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any, Callable
+
+from bit3.buffer import AreaReader
+from bit3.client import Client
+from bit3.layout import Layout, Severity
+from tools.bridge.session import key
+
+#: areas published (header: host-local pids and locks, its service state is in inputs;
+#: spare: reserved zero)
+AREAS = ("inputs", "stats", "commands", "service_messages", "controller_messages",
+         "controller_stats")
+#: the smallest interval between two publications of an area, s (others: on every change).
+#: Assumption: 1 s for the statistics, which the service refreshes about that often.
+MIN_PERIOD_S = {"stats": 1.0, "controller_stats": 1.0}
+#: command fields the bridge stamps itself (the remote's values are not copied)
+STAMPED = ("heartbeat", "t_s", "writer_pid", "writer_token", "inputs_frame")
+
+
+def layout_document(layout: Layout) -> bytes:
+    """What ``pfma/<buffer>/layout`` answers: the layout JSON (with its hash)."""
+    return json.dumps(layout.as_json(), sort_keys=True).encode()
+
+
+class Bridge:
+    """Publishes ``reader``'s buffer on ``session``; with ``commander`` (a :class:`Client`
+    holding the command area) takes remote commands.
+
+    :param now: the clock of the statistics' rate cap (the buffer's clock by default)
+    """
+
+    def __init__(self, session: Any, name: str, reader: Client, *, commander: Client | None = None,
+                 now: Callable[[], float] | None = None) -> None:
+        self.session = session
+        self.name = name
+        self.client = reader
+        self.layout = reader.layout
+        self.commander = commander
+        self._now = now or reader.buffer.clock_now
+        self._readers: dict[str, AreaReader] = {a: reader.buffer.reader(a) for a in AREAS}
+        self._pubs = {a: session.declare_publisher(key(name, a)) for a in AREAS}
+        self._last_pub = {a: -float("inf") for a in AREAS}
+        self.published = {a: 0 for a in AREAS}  #: bodies published, by area
+        doc = layout_document(self.layout)
+        self._layout_q = session.declare_queryable(key(name, "layout"),
+                                                   lambda q: q.reply(q.key_expr, doc))
+        session.put(key(name, "layout"), doc)
+        self._entities: list[Any] = []
+        #: remote writers by the order their tokens appeared; the first is the holder
+        self.writers: list[str] = []
+        self._pending: tuple[str, bytes] | None = None  #: newest (sender, body) not yet written
+        self.applied = 0  #: remote bodies written to the command area
+        self.refused: dict[str, int] = {}  #: bodies from a writer that is not the holder
+        self._said: set[str] = set()
+        self._holder_said = ""
+        if commander is not None:
+            self._body_size = self.layout.area("commands").body_size
+            self._entities.append(session.declare_subscriber(key(name, "commands", "set"), self._on_set))
+            self._entities.append(session.liveliness().declare_subscriber(
+                key(name, "writer", "commands", "*"), self._on_token, history=True))
+            # who holds the command area, as this bridge sees it: a new writer asks first
+            # (peers connected only to the bridge do not see each other's tokens)
+            self._entities.append(session.declare_queryable(
+                key(name, "writer", "commands"),
+                lambda q: q.reply(q.key_expr, json.dumps({"holder": self.holder,
+                                                          "writers": self.writers}).encode())))
+
+    # --- callbacks (Zenoh's threads): never block, only note -----------------------------
+
+    def _on_set(self, sample: Any) -> None:
+        sender = sample.attachment.to_bytes().decode("utf-8", "replace") if sample.attachment else ""
+        self._pending = (sender, sample.payload.to_bytes())
+
+    def _on_token(self, sample: Any) -> None:
+        owner = str(sample.key_expr).rsplit("/", 1)[-1]
+        writers = list(self.writers)
+        if str(sample.kind).endswith("PUT"):
+            if owner not in writers:
+                writers.append(owner)
+        elif owner in writers:
+            writers.remove(owner)
+        self.writers = writers  # one assignment: the poller sees the old or the new list
+
+    # --- the poll --------------------------------------------------------------------------
+
+    @property
+    def holder(self) -> str | None:
+        """The remote writer whose commands are written (the first live token)."""
+        w = self.writers
+        return w[0] if w else None
+
+    def poll(self) -> int:
+        """Write a pending remote command body, then publish every area that changed
+        (stats at their cap). Returns the number of bodies published."""
+        if self.commander is not None:
+            self._apply_commands()
+        n = 0
+        t = self._now()
+        for area, r in self._readers.items():
+            if not r.changed() or t - self._last_pub[area] < MIN_PERIOD_S.get(area, 0.0):
+                continue
+            r.read()
+            self._pubs[area].put(bytes(r.raw))
+            self._last_pub[area] = t
+            self.published[area] += 1
+            n += 1
+        return n
+
+    def _apply_commands(self) -> None:
+        assert self.commander is not None
+        holder = self.holder
+        if holder != self._holder_said:
+            self._holder_said = holder or ""
+            self._post(f"bridge: remote command writer {holder!r} holds the command area"
+                       if holder else "bridge: no remote command writer", Severity.INFO)
+        got, self._pending = self._pending, None
+        if got is None:
+            return
+        sender, body = got
+        if sender != holder:
+            self.refused[sender] = self.refused.get(sender, 0) + 1
+            if sender not in self._said:
+                self._said.add(sender)
+                self._post(f"bridge: commands from {sender!r} refused: the command area is held "
+                           f"by remote writer {holder!r}", Severity.WARNING)
+            return
+        if len(body) != self._body_size:
+            self.refused[sender] = self.refused.get(sender, 0) + 1
+            self._post(f"bridge: a command body of {len(body)} bytes from {sender!r} refused "
+                       f"(the layout's is {self._body_size})", Severity.WARNING)
+            return
+        import numpy as np
+        rec = self.commander.command
+        remote = np.frombuffer(body, dtype=rec.dtype, count=1)[0]
+        for f in rec.dtype.names or ():
+            if f not in STAMPED:
+                rec[f] = remote[f]
+        # the remote said which inputs it used; the service judges their age (unchanged)
+        self.commander.write_commands(inputs_frame=int(remote["inputs_frame"]))
+        self.applied += 1
+
+    def _post(self, text: str, severity: Severity) -> None:
+        if self.commander is not None:
+            self.commander.post_message(text, severity)
+
+    def close(self) -> None:
+        for e in self._entities:
+            e.undeclare()
+        self._entities.clear()
+        for p in self._pubs.values():
+            p.undeclare()
+        self._pubs.clear()
+        self._layout_q.undeclare()
