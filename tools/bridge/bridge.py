@@ -126,14 +126,21 @@ class Bridge:
     def _apply_commands(self) -> None:
         assert self.commander is not None
         holder = self.holder
-        if holder != self._holder_said:
-            self._holder_said = holder or ""
+        if (holder or "") != self._holder_said:  # said once per change of holder
+            left, self._holder_said = self._holder_said, holder or ""
             self._post(f"bridge: remote command writer {holder!r} holds the command area"
-                       if holder else "bridge: no remote command writer", Severity.INFO)
+                       if holder else f"bridge: remote command writer {left!r} gone (token "
+                       f"withdrawn or its link lost); no remote command writer", Severity.INFO)
         got, self._pending = self._pending, None
         if got is None:
             return
         sender, body = got
+        if holder is None:
+            # no token seen yet: a writer's first body may overtake its token; keep the
+            # newest body until a token decides (a body without a token is never written)
+            if self._pending is None:
+                self._pending = got
+            return
         if sender != holder:
             self.refused[sender] = self.refused.get(sender, 0) + 1
             if sender not in self._said:

@@ -60,11 +60,18 @@ class RemoteBuffer:
         self._sub = session.declare_subscriber(key(name, "*"), self._on_body)
 
     def _fetch_layout(self) -> dict:
-        for reply in self.session.get(key(self.name, "layout"), timeout=self.timeout_s):
-            if reply.ok is not None:
-                return json.loads(reply.ok.payload.to_bytes())
-        raise Bit3Error(f"no bridge publishes buffer {self.name!r} (no answer on "
-                        f"{key(self.name, 'layout')} within {self.timeout_s:g} s)")
+        """The bridge's layout, asked again until ``timeout_s`` (a bridge or a link that
+        comes up a little later is waited for, bounded)."""
+        end = time.monotonic() + self.timeout_s
+        while True:
+            left = end - time.monotonic()
+            for reply in self.session.get(key(self.name, "layout"), timeout=max(0.05, min(0.5, left))):
+                if reply.ok is not None:
+                    return json.loads(reply.ok.payload.to_bytes())
+            if time.monotonic() >= end:
+                raise Bit3Error(f"no bridge publishes buffer {self.name!r} (no answer on "
+                                f"{key(self.name, 'layout')} within {self.timeout_s:g} s)")
+            time.sleep(0.05)
 
     def _on_body(self, sample: Any) -> None:
         area = str(sample.key_expr).rsplit("/", 1)[-1]

@@ -1,0 +1,114 @@
+"""`pfma bridge` end to end: a real `pfma serve` process, a `pfma bridge --commands`
+process, a remote commander process on tcp/127.0.0.1 that is SIGKILLed. Nothing here is
+timed: every wait is bounded polling for a state."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bit3.buffer import Bit3Buffer
+from bit3.client import Client
+from bit3.layout import ServiceState
+from tests.tools.bridge.test_bridge import free_port
+from tools.cli import main
+
+pytest.importorskip("zenoh")
+
+ROOT = Path(__file__).resolve().parents[3]
+ENV = dict(os.environ, PYTHONPATH=str(ROOT))
+WAIT_S = 20.0
+
+
+def pfma_proc(*argv: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "tools.cli", *argv], cwd=ROOT, env=ENV,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def until(cond, what: str, procs=()) -> None:
+    end = time.monotonic() + WAIT_S
+    while not cond():
+        for p in procs:
+            if p.poll() is not None:
+                raise AssertionError(f"{what}: {p.args[3:5]} exited: {p.communicate()}")
+        if time.monotonic() > end:
+            raise AssertionError(f"not within {WAIT_S} s: {what}")
+        time.sleep(0.01)
+
+
+COMMANDER = textwrap.dedent("""
+    import sys, time
+    from tools.bridge.remote import RemoteBuffer, RemoteCommander
+    from tools.bridge.session import open_session
+    endpoint, name = sys.argv[1], sys.argv[2]
+    remote = RemoteBuffer(open_session(connect=[endpoint]), name, timeout_s=20)
+    remote.wait("inputs", timeout_s=20)
+    cmd = RemoteCommander(remote, "far-commander")
+    n = len(remote.layout.joint_names)
+    cmd.write_commands(joint_rate_rad_s=[0.0] * n, arm_request=1, rearm_counter=1,
+                       current_limit_a=[1.0] * len(remote.layout.current_limit_names))
+    print("armed", flush=True)
+    while True:  # a keep-alive every 2 ms until killed
+        cmd.write_commands()
+        time.sleep(0.002)
+""")
+
+
+def test_a_killed_remote_commander_trips_the_services_watchdog():
+    name = "pfma-bridge-e2e-" + uuid.uuid4().hex[:6]
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    # a 300 ms watchdog: a loaded CI host must not trip it while the commander lives
+    serve = pfma_proc("serve", "--buffer", name, "--duration", "60", "--watchdog-ms", "300")
+    procs = [serve]
+    try:
+        until(lambda: Bit3Buffer.owner_alive(name)[0], "the service up", procs)
+        bridge = pfma_proc("bridge", "--buffer", name, "--listen", endpoint, "--commands")
+        procs.append(bridge)
+        commander = subprocess.Popen([sys.executable, "-c", COMMANDER, endpoint, name], cwd=ROOT, env=ENV,
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        procs.append(commander)
+        with Client.attach(name) as c:
+            until(lambda: ServiceState(c.read_inputs().service_state) is ServiceState.ARMED,
+                  "armed by the remote commander", procs)
+            assert c.owners()["commands"].name == "pfma-bridge"
+            commander.kill()  # SIGKILL: no goodbye
+            commander.communicate(timeout=10)
+            procs.remove(commander)
+            until(lambda: ServiceState(c.read_inputs().service_state) is ServiceState.FAULT,
+                  "the watchdog trip", procs)
+            s = c.read_inputs()
+            assert s.watchdog_tripped and np.abs(s.dac_value).max() == 0.0
+            texts = [m.text for m in c.messages(queue="controller")]
+            assert any("'far-commander' holds the command area" in t for t in texts), texts
+            until(lambda: any("'far-commander' gone" in m.text for m in c.messages(queue="controller")),
+                  "the bridge says the writer left (its session's close or the lease)", procs)
+            texts = [m.text for m in c.messages(queue="controller")]
+            assert sum(t.startswith("bridge:") for t in texts) == 2, texts  # said once each
+    finally:
+        for p in reversed(procs):
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        outs = [p.communicate(timeout=30) for p in procs]
+        Bit3Buffer.unlink(name)
+    for p, (out, err) in zip(procs, outs):
+        assert "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("argv, code, words", [
+    (["bridge", "--listen", "127.0.0.1:7447"], 2, "is not tcp/HOST:PORT"),
+    (["bridge", "--buffer", "a/b"], 2, "may hold only letters"),
+    (["bridge", "--buffer", "pfma-no-such-bridge-buffer"], 1, "no I/O service runs on buffer"),
+])
+def test_bad_bridge_input_is_one_message(argv, code, words, capsys):
+    assert main(argv) == code
+    err = capsys.readouterr().err
+    assert words in err and "Traceback" not in err and err.count("\n") == 1
