@@ -57,7 +57,25 @@ class RemoteBuffer:
         self._snaps: dict[str, Snapshot] = {}
         self._seen: dict[str, int] = {a: 0 for a in AREAS}
         self._cursor = {q: 0 for q in QUEUES.values()}
+        self._own_session = False
         self._sub = session.declare_subscriber(key(name, "*"), self._on_body)
+
+    @classmethod
+    def connect(cls, endpoint: str, name: str, *, rack: str | Path | None = None,
+                timeout_s: float = DEFAULT_TIMEOUT_S) -> "RemoteBuffer":
+        """Open a peer session connected to ``endpoint`` (``tcp/HOST:PORT``) that this
+        object owns and closes. Close it (``with``) before the interpreter exits: with
+        zenoh 1.10.2 a process that exits with a connected session and a subscriber
+        still open does not terminate (seen here)."""
+        from tools.bridge.session import open_session
+        session = open_session(connect=[endpoint])
+        try:
+            r = cls(session, name, rack=rack, timeout_s=timeout_s)
+        except BaseException:
+            session.close()
+            raise
+        r._own_session = True
+        return r
 
     def _fetch_layout(self) -> dict:
         """The bridge's layout, asked again until ``timeout_s`` (a bridge or a link that
@@ -153,6 +171,8 @@ class RemoteBuffer:
         if self._sub is not None:
             self._sub.undeclare()
             self._sub = None
+            if self._own_session:
+                self.session.close()
 
     def __enter__(self) -> "RemoteBuffer":
         return self
