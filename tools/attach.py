@@ -15,6 +15,10 @@ while a server is still starting (anchors.md 4.3 and 11, item 8). The rules here
   :func:`buffer_replaced` tells a long-running reader (``pfma record``) the same.
 - :func:`no_service` is the one-line refusal of a reader started with no live service
   (``pfma read``, ``stats``, ``watch``, ``monitor``), decided without attaching.
+- A buffer named ``zenoh://HOST:PORT/NAME`` is read through a ``pfma bridge`` on that
+  host (docs/bridge.md): :func:`attach_reader` and :class:`ServiceLink` return a
+  :class:`tools.bridge.remote.RemoteBuffer` (the Client read API); :func:`no_service`
+  leaves the decision to the attach, which asks the bridge.
 
 Two families of tools word this differently, and each keeps its words (:class:`Words`):
 the live views and the checkout speak of "the I/O service on buffer 'pfma'"
@@ -275,6 +279,44 @@ def buffer_replaced(client: Client) -> bool:
         b.close()
 
 
+#: a buffer name read through a bridge: zenoh://HOST:PORT/NAME
+REMOTE_PREFIX = "zenoh://"
+
+
+def remote_target(name: str) -> tuple[str, str] | None:
+    """``("tcp/HOST:PORT", NAME)`` for ``zenoh://HOST:PORT/NAME``; None for a shared-memory name.
+
+    :raises PfmaError: a zenoh:// name of another shape
+    """
+    if not name.startswith(REMOTE_PREFIX):
+        return None
+    from pfma.errors import PfmaError
+    where, _, buffer = name[len(REMOTE_PREFIX):].partition("/")
+    host, _, port = where.rpartition(":")
+    if not host or not port.isdigit() or not buffer:
+        raise PfmaError(f"--buffer {name!r}: a remote buffer is zenoh://HOST:PORT/NAME "
+                        f"(e.g. zenoh://127.0.0.1:7447/pfma)")
+    return f"tcp/{host}:{port}", buffer
+
+
+def attach_reader(name: str, rack: str | None = None):
+    """A read-only reader of buffer ``name``: a :class:`Client` on shared memory (refused
+    with :func:`no_service`'s line when no live service is there), or a RemoteBuffer for
+    ``zenoh://HOST:PORT/NAME``.
+
+    :raises PfmaError: no live service, no bridge answering, or another layout
+    """
+    target = remote_target(name)
+    if target is not None:
+        from tools.bridge.remote import RemoteBuffer
+        return RemoteBuffer.connect(*target, rack=rack)
+    from pfma.errors import PfmaError
+    why = no_service(name)
+    if why is not None:
+        raise PfmaError(why)
+    return Client.attach(name, rack=rack)
+
+
 class ServiceLink:
     """A read-only attachment that reattaches when the service goes away and comes back.
 
@@ -297,6 +339,9 @@ class ServiceLink:
         self._shm: tuple[int, int] | None = None
 
     def _attach(self) -> Client:
+        if remote_target(self.name) is not None:  # through a bridge: its own waits and errors
+            self._client = attach_reader(self.name, self.rack)
+            return self._client
         self._client = attach_waiting(self.name, self.rack, wait_s=self.wait_s, notice_s=self.notice_s,
                                       say=self.say, sleep=self.sleep)
         self._shm = _shm_id(self.name)
@@ -306,6 +351,8 @@ class ServiceLink:
         """The live client (attaching or reattaching first when needed)."""
         if self._client is None:
             return self._attach()
+        if remote_target(self.name) is not None:
+            return self._client
         why = None
         sid = _shm_id(self.name)
         if sid != self._shm:
@@ -343,6 +390,8 @@ def no_service(name: str) -> str | None:
     buffer of any layout; the message is one line a tool prints before exiting 1.
     """
     from bit3.buffer import Bit3Buffer
+    if remote_target(name) is not None:
+        return None  # a remote buffer: the attach asks its bridge (attach_reader)
     path = f"/dev/shm/{name}"
     alive, who = Bit3Buffer.owner_alive(name)
     if alive:

@@ -58,6 +58,13 @@ class Bridge:
         self._pubs = {a: session.declare_publisher(key(name, a)) for a in AREAS}
         self._last_pub = {a: -float("inf") for a in AREAS}
         self.published = {a: 0 for a in AREAS}  #: bodies published, by area
+        #: the newest body of each area, answered to a late joiner's query (a message queue
+        #: may not change for hours)
+        self._last: dict[str, bytes] = {}
+        for a, r in self._readers.items():
+            r.read()
+            self._last[a] = bytes(r.raw)
+        self._area_q = [session.declare_queryable(key(name, a), self._on_query) for a in AREAS]
         doc = layout_document(self.layout)
         self._layout_q = session.declare_queryable(key(name, "layout"),
                                                    lambda q: q.reply(q.key_expr, doc))
@@ -88,6 +95,12 @@ class Bridge:
         sender = sample.attachment.to_bytes().decode("utf-8", "replace") if sample.attachment else ""
         self._pending = (sender, sample.payload.to_bytes())
 
+    def _on_query(self, query: Any) -> None:
+        area = str(query.key_expr).rsplit("/", 1)[-1]
+        body = self._last.get(area)
+        if body is not None:
+            query.reply(query.key_expr, body)
+
     def _on_token(self, sample: Any) -> None:
         owner = str(sample.key_expr).rsplit("/", 1)[-1]
         writers = list(self.writers)
@@ -117,7 +130,8 @@ class Bridge:
             if not r.changed() or t - self._last_pub[area] < MIN_PERIOD_S.get(area, 0.0):
                 continue
             r.read()
-            self._pubs[area].put(bytes(r.raw))
+            body = self._last[area] = bytes(r.raw)
+            self._pubs[area].put(body)
             self._last_pub[area] = t
             self.published[area] += 1
             n += 1
@@ -175,3 +189,6 @@ class Bridge:
             p.undeclare()
         self._pubs.clear()
         self._layout_q.undeclare()
+        for q in self._area_q:
+            q.undeclare()
+        self._area_q.clear()

@@ -16,9 +16,11 @@ from typing import Any
 
 import numpy as np
 
-from bit3.buffer import Message, decode_messages
+from types import SimpleNamespace
+
+from bit3.buffer import HeaderInfo, Message, decode_messages
 from bit3.client import QUEUES, Snapshot
-from bit3.layout import Layout, build_layout, default_layout
+from bit3.layout import MAGIC, Layout, ServiceState, build_layout, default_layout
 from bit3.seqlock import Bit3Error, LayoutMismatchError, OwnershipError
 from pfma.rack import load_rack
 from tools.bridge.bridge import AREAS, STAMPED
@@ -58,6 +60,8 @@ class RemoteBuffer:
         self._seen: dict[str, int] = {a: 0 for a in AREAS}
         self._cursor = {q: 0 for q in QUEUES.values()}
         self._own_session = False
+        #: what tools print as the buffer's name (``client.buffer.name``)
+        self.buffer = SimpleNamespace(name=name)
         self._sub = session.declare_subscriber(key(name, "*"), self._on_body)
 
     @classmethod
@@ -112,10 +116,20 @@ class RemoteBuffer:
                                 f"{self.timeout_s if timeout_s is None else timeout_s:g} s")
             time.sleep(_POLL_S)
 
+    def _ask(self, area: str) -> None:
+        """Ask the bridge for the newest body of ``area`` (a late joiner: the area may not
+        change again for a long time)."""
+        for reply in self.session.get(key(self.name, area), timeout=self.timeout_s):
+            if reply.ok is not None and not self._counts[area]:
+                self._bodies[area] = reply.ok.payload.to_bytes()
+                self._counts[area] += 1
+
     def read(self, area: str) -> Snapshot:
-        """The newest body received (waits for the first one, bounded)."""
+        """The newest body received (the first one asked of the bridge, bounded)."""
         if area not in self._counts:
             raise Bit3Error(f"area {area!r} is not published by the bridge; areas: {', '.join(AREAS)}")
+        if not self._counts[area]:
+            self._ask(area)
         if not self._counts[area]:
             self.wait(area)
         snap = self._snaps.get(area)
@@ -146,6 +160,17 @@ class RemoteBuffer:
     @property
     def service_state(self) -> int:
         return int(self.read_inputs().service_state)
+
+    def header(self) -> HeaderInfo:
+        """The header as far as the bridge publishes it: layout, rack, and the service
+        state and frame from the newest inputs body; owners, calibration hash and
+        creation time are not published (empty, 0)."""
+        snap = self.read_inputs()
+        pub = self.published_layout
+        return HeaderInfo(MAGIC, int(pub.get("version", 0)), int(pub.get("size", 0)),
+                          bytes.fromhex(pub.get("hash", "")), b"", 0,
+                          ServiceState(snap.service_state), int(snap.frame), float(snap.t_s),
+                          str(pub.get("rack", "")), ())
 
     def owners(self) -> dict:
         """Owner slots are host-local (pids): not published; empty."""
