@@ -14,7 +14,7 @@ from typing import Callable
 
 from textual.app import App, ComposeResult
 from textual.binding import Binding
-from textual.containers import Grid, Vertical
+from textual.containers import Grid, Horizontal, Vertical
 from textual.screen import ModalScreen
 from textual.widgets import Footer, Input, Static
 
@@ -26,6 +26,16 @@ from tools.console.control import Answer, ControlError, ControllerLink, Request,
 REFRESH_HZ = 10.0
 #: frames one capital-S single step runs
 BIG_STEP = 10
+
+
+class DebugDisplay(ModalScreen):
+    """A debug-window display: it covers the five areas, which are not redrawn while it is
+    open (their cost would double the refresh's), and are redrawn when it closes."""
+
+    def on_unmount(self) -> None:
+        app = self.app
+        if isinstance(app, ConsoleApp) and app.is_running:
+            app.call_later(app.refresh_areas)
 
 
 class MessagesScreen(ModalScreen):
@@ -41,7 +51,7 @@ class MessagesScreen(ModalScreen):
         yield Static(self.text, id="all-messages", markup=False)
 
 
-class BrowserScreen(ModalScreen):
+class BrowserScreen(DebugDisplay):
     """The world model by area, live (issue 18 item 2's browser). Left/right: area,
     pgup/pgdn: page, up/down: variable, Enter/``e``: modify it where the ownership rules
     let a user (the code path of ``pfma wm set``, with the console's access key)."""
@@ -105,7 +115,7 @@ class BrowserScreen(ModalScreen):
         self.redraw()
 
 
-class ParamScreen(ModalScreen):
+class ParamScreen(DebugDisplay):
     """The parameter-modification display: the servo compensators and limits (every
     world-model variable users may set only while powered down) by joint, live. Enter/``e``
     edits the selected value through the same write path as the browser; while powered up
@@ -164,7 +174,7 @@ class ParamScreen(ModalScreen):
         self.redraw()
 
 
-class MenuScreen(ModalScreen):
+class MenuScreen(DebugDisplay):
     """The user's live menus (``pfma console --menu FILE.toml``): one page at a time, each
     refreshed at its own rate (every :meth:`MenuPage.every`-th console refresh)."""
 
@@ -208,6 +218,77 @@ class MenuScreen(ModalScreen):
         self.index = (self.index + d) % len(self.menu.pages)
         self._names, self.ticks = (), 0
         self.redraw()
+
+
+class ForceScreen(DebugDisplay):
+    """The force displays: a time plot of the F/T force and torque (textual-plotext) and a
+    pseudo-3D view of the force vector, from the service's inputs area (Bit3), live."""
+
+    BINDINGS = [Binding("escape,f,q", "app.pop_screen", "close")]
+    CSS = """
+    ForceScreen Horizontal { height: 1fr; }
+    ForceScreen #ft-plots { width: 1fr; }
+    ForceScreen #ft-vector { width: 68; height: 100%; border: round $accent; padding: 0 1; }
+    ForceScreen #ft-help { height: 2; }
+    """
+
+    def __init__(self, history: "debug.FtHistory") -> None:
+        super().__init__()
+        self.history = history
+        self.series: dict[str, list[float]] = {}  #: what the plots were last given (tests)
+        self._seen = -1  # the record the plots show
+        self._drawn = -1  # the record the vector view shows
+        self._ticks = 0
+
+    def compose(self) -> ComposeResult:
+        from textual_plotext import PlotextPlot
+        with Horizontal():
+            with Vertical(id="ft-plots"):
+                yield PlotextPlot(id="ft-force")
+                yield PlotextPlot(id="ft-torque")
+            yield Static("", id="ft-vector", markup=False)
+        yield Static("", id="ft-help", markup=False)
+
+    def on_mount(self) -> None:
+        self.redraw()
+
+    def redraw(self) -> None:
+        from textual_plotext import PlotextPlot
+        h = self.history
+        if h.count == self._drawn:
+            return  # no new F/T record since the last drawing
+        self._drawn = h.count
+        f, m = (h.f[-1], h.m[-1]) if h.f else ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+        self.query_one("#ft-vector", Static).update(debug.vector_view(f, m, h.full_scale_n()), layout=False)
+        self._ticks += 1
+        if self._seen >= 0 and self._ticks % debug.FT_PLOT_EVERY:
+            return  # the plots: every FT_PLOT_EVERY-th drawing (plotext is the expensive part)
+        self._seen = h.count
+        t_now = h.t[-1] if h.t else 0.0
+        t = [x - t_now for x in h.t]
+        self.series = {"t": t}
+        for wid, vals, names, unit in (("#ft-force", h.f, ("Fx", "Fy", "Fz"), "N"),
+                                       ("#ft-torque", h.m, ("Tx", "Ty", "Tz"), "N*m")):
+            plot = self.query_one(wid, PlotextPlot)
+            plt = plot.plt
+            plt.clear_data()
+            plt.clear_figure()
+            plt.title(f"{'force' if unit == 'N' else 'torque'} ({unit}), the last {debug.FT_HISTORY_S:g} s")
+            plt.xlabel("s (0: now)")
+            for k, name in enumerate(names):
+                ys = [v[k] for v in vals]
+                self.series[name] = ys
+                if ys:
+                    plt.plot(t, ys, label=name, marker="braille")
+            plt.xlim(-debug.FT_HISTORY_S, 0.0)
+            plot.refresh()
+        self.query_one("#ft-help", Static).update(
+            f"F/T from the service's inputs (ft_force_n, ft_torque_nm), sampled at the console's refresh: "
+            f"{len(h.t)} samples; plots redrawn at {REFRESH_HZ / debug.FT_PLOT_EVERY:g} Hz, the vector at "
+            f"{REFRESH_HZ:g} Hz   Escape/f close", layout=False)
+
+    def text(self) -> str:
+        return str(self.query_one("#ft-vector", Static).render())
 
 
 class EditScreen(ModalScreen):
@@ -316,6 +397,10 @@ class CameraScreen(ModalScreen):
         self.redraw()
 
 
+#: the debug-window displays that cover the five areas (not redrawn while one is open)
+COVERING = (BrowserScreen, ParamScreen, MenuScreen, ForceScreen)
+
+
 class ConsoleApp(App):
     """The primary display over the live system.
 
@@ -348,6 +433,7 @@ class ConsoleApp(App):
         Binding("w", "browser", "world model"),
         Binding("p", "params", "parameters"),
         Binding("l", "menu", "menus"),
+        Binding("f", "force", "force"),
         Binding("q", "quit", "quit"),
         Binding("ctrl+c", "quit", "quit", show=False, priority=True),
     ]
@@ -370,6 +456,7 @@ class ConsoleApp(App):
         self.read_error = ""
         self.refreshes = 0
         self._shown: dict[str, str] = {}  # the text each area shows
+        self.ft = debug.FtHistory()  # the F/T values seen: the force displays' history
         self.writes: dict[int, str] = {}  # user writes waiting for the owner's verdict: id -> variable
         self.write_status = ""  # the last write's outcome or refusal (the browser and parameters show it)
 
@@ -396,10 +483,11 @@ class ConsoleApp(App):
         """Read the system once and redraw the five areas (the 10 Hz tick)."""
         self.refreshes += 1
         self._follow_writes()
-        if isinstance(self.screen, (BrowserScreen, ParamScreen)):  # live too (10 Hz)
-            self.screen.redraw()
-        elif isinstance(self.screen, MenuScreen):  # at the page's own rate
-            self.screen.tick()
+        scr = self.screen
+        if isinstance(scr, (BrowserScreen, ParamScreen)):  # the world model is live there too (10 Hz)
+            scr.redraw()
+        elif isinstance(scr, MenuScreen):  # at the page's own rate
+            scr.tick()
         try:
             r = self.reading = self.sources.read()
             self.read_error = ""
@@ -408,6 +496,11 @@ class ConsoleApp(App):
             self._set("world", self.read_error)
             return
         self._follow_answer()
+        self.ft.add(r.inputs)
+        if isinstance(scr, ForceScreen):
+            scr.redraw()
+        if isinstance(scr, COVERING):  # a debug display covers the areas: redrawn when it closes
+            return
         self._set("local", view.local_status(r, self.selected))
         speed = self.sources.speed() if self.sources.speed is not None else None
         self._set("world", view.world_status(r, self.sources.rack, speed))
@@ -557,6 +650,9 @@ class ConsoleApp(App):
             self.refresh_areas()
             return
         self.push_screen(MenuScreen(self.menu, self.sources.wm))
+
+    def action_force(self) -> None:
+        self.push_screen(ForceScreen(self.ft))
 
     def action_messages(self) -> None:
         self.push_screen(MessagesScreen(view.messages_screen(self.sources.messages)))

@@ -281,7 +281,7 @@ def global_commands(r: Reading, rearm: bool, last: str) -> str:
         elif key in NOT_YET:
             extra = "  (not yet)"
         lines.append(f"{key}  {what}{extra}")
-    lines.append("m  messages   w  world model (Enter: modify)   p  parameters (powered down)   l  menus   q  quit")
+    lines.append("m  messages  w  world model (Enter: modify)  p  parameters  l  menus  f  force  q  quit")
     lines.append(f"last answer: {last or '-'}")
     return "\n".join(lines)
 

@@ -89,6 +89,8 @@ def test_a_permitted_write_lands_in_the_world_model(sim, console):
         await pilot.pause()
         assert float(sim.rt.wm.get("msp.speed_scale")) == 0.25
         assert "msp.speed_scale = 0.25 (write #" in scr.text()
+        await pilot.press("escape")  # the areas are redrawn when the display closes
+        await pilot.pause()
         assert "msp.speed_scale = 0.25 (write #" in console.area_text("messages")
     _run(console, body)
 
@@ -102,7 +104,8 @@ def test_a_forbidden_write_is_refused_with_the_rules_reason(sim, console):
         assert console.screen is scr  # no editor: refused at once
         why = "servo.q_cmd_rad is an output of task joint; users may not set it"
         assert why in scr.text()
-        console.refresh_areas()
+        await pilot.press("escape")
+        await pilot.pause()
         assert why in console.area_text("messages")
         _frames(sim, console, 2)
         assert np.array_equal(sim.rt.wm.get("servo.q_cmd_rad"), before)
@@ -167,8 +170,7 @@ def test_parameter_edit_refused_powered_up_and_accepted_powered_down(sim, consol
         assert console.screen is scr  # no editor
         why = "servo.kp_per_s is protected: it may be set only while powered down (the system is powered up)"
         assert why in scr.text()
-        console.refresh_areas()
-        assert why in console.area_text("messages")
+        assert why in view.messages_area(console.sources.messages)  # the Messages area's text once shown
         assert sim.request(Request.POWER_DOWN)[0] == 2  # COMPLETE: shut down
         assert not sim.rt.wm.powered_up
         console.refresh_areas()
@@ -281,3 +283,34 @@ def test_a_missing_menu_file_is_one_message_exit_2(tmp_path, capsys):
     rc = main(["console", "--menu", str(tmp_path / "none.toml")])
     _out, err = capsys.readouterr()
     assert rc == 2 and err.startswith(f"pfma console: --menu {tmp_path / 'none.toml'}: cannot read it")
+
+
+# --- (d) the force displays ----------------------------------------------------------------------
+def test_the_force_view_shows_the_simulated_ft_values(sim, console):
+    from tools.console.app import ForceScreen
+
+    async def body(pilot):
+        _frames(sim, console, 40)
+        sim.world.ft.set_load((12.0, -4.0, 30.0), (0.5, -0.25, 0.125))  # the fake sensor's load
+        for _ in range(5):
+            _frames(sim, console, 40)  # 5 console refreshes, a new F/T record each
+        await pilot.press("f")
+        await pilot.pause()
+        scr = console.screen
+        assert isinstance(scr, ForceScreen)
+        inp = sim.client.read_inputs()
+        f, m = inp.ft_force_n, inp.ft_torque_nm
+        assert np.allclose(f, (12.0, -4.0, 30.0), atol=0.1) and np.allclose(m, (0.5, -0.25, 0.125), atol=0.01)
+        text = scr.text()
+        assert f"F ({float(f[0]):+8.2f}, {float(f[1]):+8.2f}, {float(f[2]):+8.2f}) N" in text
+        assert f"T ({float(m[0]):+8.3f}, {float(m[1]):+8.3f}, {float(m[2]):+8.3f}) N*m" in text
+        assert "an axis is 50 N" in text  # |F| 32.6 N: auto-scaled to 50
+        canvas = "".join(text.splitlines()[:16])
+        assert any(0x2800 < ord(ch) <= 0x28FF for ch in canvas) and "F" in canvas  # the vector, labelled
+        assert scr.series["Fz"][-1] == float(f[2]) and scr.series["Tx"][-1] == float(m[0])
+        assert scr.series["Fz"][0] != scr.series["Fz"][-1]  # the history: before and after the load
+        assert scr.series["t"][-1] == 0.0 and all(a < b for a, b in zip(scr.series["t"], scr.series["t"][1:]))
+        draws = scr.series
+        console.refresh_areas()  # no new F/T record: no new drawing
+        assert scr.series is draws
+    _run(console, body)

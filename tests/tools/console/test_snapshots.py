@@ -1,5 +1,6 @@
 """Snapshot tests of the console's screens (issue 18 item 7; pytest-textual-snapshot): the
-primary display powered up, halted, the messages screen and the world-model browser, over
+primary display powered up, halted, the messages screen, the world-model browser, the
+parameter display and the force displays, over
 the system simulator in simulated time (the same frames give the same text). Update after
 an intended change with ``pytest tests/tools/console --snapshot-update`` and look at the
 SVGs."""
@@ -60,3 +61,14 @@ def test_messages_screen(rig, snap_compare):
 def test_world_model_browser(rig, snap_compare):
     sim, app = rig
     assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 300, ("u", "w")))
+
+
+def test_parameter_display(rig, snap_compare):
+    sim, app = rig
+    assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 300, ("u", "p")))
+
+
+def test_force_displays(rig, snap_compare):
+    sim, app = rig
+    sim.world.ft.set_load((12.0, -4.0, 30.0), (0.5, -0.25, 0.125))
+    assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 40, ("u", "u", "u", "u", "f")))
