@@ -24,7 +24,7 @@ POLL_S = 0.0005
 
 def add_parser(sub):
     p = sub.add_parser("bridge", help="publish the Bit3 areas on Zenoh (and take remote commands)",
-                       description=__doc__.split("\n\n")[1],
+                       description=__doc__.split("\n\n")[1].replace("``", ""),
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
     p.add_argument("--listen", action="append", metavar="tcp/HOST:PORT",

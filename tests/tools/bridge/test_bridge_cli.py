@@ -112,3 +112,17 @@ def test_bad_bridge_input_is_one_message(argv, code, words, capsys):
     assert main(argv) == code
     err = capsys.readouterr().err
     assert words in err and "Traceback" not in err and err.count("\n") == 1
+
+
+def test_bridge_commands_refused_while_a_local_controller_holds_the_area(capsys):
+    """--commands claims the command area as a controller does: a live local controller
+    refuses it, named, one line, exit 1; without --commands the bridge runs beside it."""
+    from sim.rig import SimRig
+    with SimRig(prefix="pfma-test-bridge-cli-") as rig:
+        rig.controller("local-ctl")
+        ep = f"tcp/127.0.0.1:{free_port()}"
+        assert main(["bridge", "--buffer", rig.name, "--listen", ep, "--commands", "--duration", "0.1"]) == 1
+        err = capsys.readouterr().err
+        assert "'local-ctl'" in err and "Traceback" not in err and err.count("\n") == 1
+        assert main(["bridge", "--buffer", rig.name, "--listen", ep, "--duration", "0.1"]) == 0
+        assert "(read-only)" in capsys.readouterr().err
