@@ -1,10 +1,13 @@
-"""The operator console: a Textual app with the IRSS primary display's five areas.
+"""The operator console: a Textual app with the IRSS primary display's five areas and the
+debug window's displays (world-model browser and keyed writes, parameters, live menus,
+force displays).
 
 Few widgets (docs/console.md, the new-dependencies notes: one widget rendering all its
 values costs a tenth of many small ones): each area is one :class:`textual.widgets.Static`
 whose text :mod:`tools.console.view` renders; a timer refreshes them at
 :data:`REFRESH_HZ`. Keys send the Global Commands through the world model's request
-protocol (:class:`tools.console.control.ControllerLink`); nothing else is written.
+protocol (:class:`tools.console.control.ControllerLink`), and the debug window's edits
+are keyed user writes through the same ring ``pfma wm set`` uses; nothing else is written.
 """
 
 from __future__ import annotations
