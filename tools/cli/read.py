@@ -12,7 +12,6 @@ import argparse
 import json
 import sys
 
-from tools.attach import no_service
 from tools.cli import add_bus_arguments
 from tools.cli.reg import UsageError, close_bus, open_cli_bus
 from pfma.errors import PfmaError
@@ -45,12 +44,8 @@ def _service_client(name: str, rack: str | None):
 
     :raises PfmaError: no live service there (the message says why), or its layout differs
     """
-    from bit3.client import Client
-    from pfma.errors import PfmaError
-    why = no_service(name)
-    if why is not None:
-        raise PfmaError(why)
-    return Client.attach(name, rack=rack)
+    from tools.attach import attach_reader
+    return attach_reader(name, rack)  # shared memory, or zenoh://HOST:PORT/NAME through a bridge
 
 
 def _read_buffer(client, signals, as_json: bool) -> int:

@@ -93,15 +93,14 @@ def format_controller(c: dict | None) -> str:
 
 
 def run(args) -> int:
-    from bit3.client import Client
     from bit3.buffer import Bit3Error
-    from tools.attach import no_service
-    why = no_service(args.buffer)
-    if why is not None:  # a dead service's last statistics are not a live service's
-        print(f"pfma stats: {why}", file=sys.stderr)
+    from pfma.errors import PfmaError
+    from tools.attach import attach_reader
+    try:  # a dead service's last statistics are not a live service's: refused, saying why
+        c = attach_reader(args.buffer)  # shared memory, or zenoh://HOST:PORT/NAME via a bridge
+    except PfmaError as err:
+        print(f"pfma stats: {err}", file=sys.stderr)
         return 1
-    try:
-        c = Client.attach(args.buffer)
     except (Bit3Error, FileNotFoundError) as err:
         print(f"pfma stats: no service buffer {args.buffer!r}: {err}", file=sys.stderr)
         return 1

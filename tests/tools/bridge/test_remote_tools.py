@@ -78,3 +78,20 @@ def test_a_bad_remote_name_is_one_message(url, words, capsys):
     assert main(["monitor", "--once", "--buffer", url]) == 1
     err = capsys.readouterr().err
     assert words in err and "Traceback" not in err and err.count("\n") == 1
+
+
+def test_pfma_read_and_stats_with_a_zenoh_buffer(served, capsys):
+    rig, url = served
+    assert main(["read", "--buffer", url, "elbow_pitch_angle", "--json"]) == 0
+    out = capsys.readouterr().out
+    assert "elbow_pitch_angle" in out
+    assert main(["stats", "--buffer", url, "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["service_state"] in ("SAFE", "ARMED", "FAULT", "HALTED") and set(d["devices"])
+
+
+def test_pfma_stats_with_no_bridge_is_one_message(capsys):
+    from tests.tools.bridge.test_bridge import free_port as port
+    assert main(["stats", "--buffer", f"zenoh://127.0.0.1:{port()}/pfma"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("pfma stats: ") and "Traceback" not in err
