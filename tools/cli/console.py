@@ -77,7 +77,11 @@ def run(args) -> int:
         if menu is not None:
             menu.check(link.wm)
         # the buffer does not say whether its boards are simulated: the console says so
-        _app(Sources(client, link.wm, rack="unknown"), link, menu=menu).run()
+        app = _app(Sources(client, link.wm, rack="unknown"), link, menu=menu)
+        try:
+            app.run()
+        finally:
+            app.stop_recording()
     except MenuError as err:
         print(f"pfma console: {err}", file=sys.stderr)
         return 2
@@ -116,6 +120,7 @@ def _run_sim(args, menu=None) -> int:
     except KeyboardInterrupt:
         pass
     finally:
+        app.stop_recording()  # before the service it records stops
         volts = system.stop()
         client.close()
         system.close()

@@ -12,6 +12,7 @@ are keyed user writes through the same ring ``pfma wm set`` uses; nothing else i
 
 from __future__ import annotations
 
+import sys
 import time
 from typing import Callable
 
@@ -22,6 +23,7 @@ from textual.screen import ModalScreen
 from textual.widgets import Footer, Input, Static
 
 from drivers.pio.routes import MONITORS, route_request_arg
+from tools.console.recording import ConsoleRecording
 from tools.console import debug, view
 from tools.console.control import Answer, ControlError, ControllerLink, Request, Response
 
@@ -431,7 +433,7 @@ class ConsoleApp(App):
         Binding("s", "step(1)", "step"), Binding("S", "step(10)", "10 steps", show=False),
         Binding("a", "rearm", "re-arm"),
         Binding("r", "resume", "resume"),
-        Binding("c", "not_yet('c')", "record"), Binding("v", "cameras", "cameras"),
+        Binding("c", "record", "record"), Binding("v", "cameras", "cameras"),
         Binding("m", "messages", "messages"),
         Binding("w", "browser", "world model"),
         Binding("p", "params", "parameters"),
@@ -462,6 +464,7 @@ class ConsoleApp(App):
         self.ft = debug.FtHistory()  # the F/T values seen: the force displays' history
         self.writes: dict[int, str] = {}  # user writes waiting for the owner's verdict: id -> variable
         self.write_status = ""  # the last write's outcome or refusal (the browser and parameters show it)
+        self.recording: ConsoleRecording | None = None  # ``c``: a pfma record process, made at the first press
 
     def compose(self) -> ComposeResult:
         with Grid():
@@ -635,6 +638,24 @@ class ConsoleApp(App):
     def action_not_yet(self, key: str) -> None:
         self._note("INFO", view.NOT_YET[key])
         self.refresh_areas()
+
+    def action_record(self) -> None:
+        """``c``: start or stop a ``pfma record`` of this system (tools/console/recording.py)."""
+        if self.recording is None:
+            buffer = getattr(getattr(self.sources.client, "buffer", None), "name", None)
+            if not buffer:
+                self._note("WARNING", "record: this console's buffer has no name a recorder can attach")
+                self.refresh_areas()
+                return
+            self.recording = ConsoleRecording(buffer, getattr(self.sources.wm, "name", None))
+        rec = self.recording
+        self._note("INFO", rec.stop() if rec.active else rec.start())
+        self.refresh_areas()
+
+    def stop_recording(self) -> None:
+        """End a recording the console started (the console is closing)."""
+        if self.recording is not None and self.recording.active:
+            print(f"pfma console: {self.recording.stop()}", file=sys.stderr)
 
     def action_cameras(self) -> None:
         if self.link is None:

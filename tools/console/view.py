@@ -48,7 +48,7 @@ GLOBAL_COMMANDS: tuple[tuple[str, str, str | None], ...] = (
     ("c", "record start/stop", None),
     ("v", "camera routes (1 2 3: camera, 0: blank, per monitor)", "CAMERA ROUTE"),
 )
-NOT_YET = {"c": "record start/stop: not yet (issue 18 item 5: pfma record --wm)"}
+NOT_YET: dict[str, str] = {}  #: keys whose command is not built yet: their text
 _TASK_KIND = {1: "init", 2: "startup", 3: "shutdown", 4: "safe", 5: "reset"}
 _TASK_STATE = {0: "idle", 1: "running", 2: "done", 3: "failed"}
 
