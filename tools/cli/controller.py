@@ -430,7 +430,6 @@ class _Driver:
 
 
 def _interactive(d: _Driver, budget: int) -> None:
-    from controller.layers import Request
     print(HELP)
     run = 0
     while run < budget:
@@ -450,15 +449,24 @@ def _interactive(d: _Driver, budget: int) -> None:
                 run += 1
         elif cmd == "q":
             return
-        elif cmd in ("p", "d", "r"):
-            kind = {"p": Request.POWER_UP, "d": Request.POWER_DOWN, "r": Request.ERROR_RESET}[cmd]
-            print(f"request {d.rt.request(kind)}: {Request.NAMES[kind]} (applied at the next frame)")
-        elif cmd == "m":
-            print(d.rt.messages.format())
-        elif cmd == "t":
-            print(_status_line(d.rt))
-        else:
+        elif not _shared_command(d, cmd, "the next frame"):
             print(HELP)
+
+
+def _shared_command(d: _Driver, cmd: str, applied: str) -> bool:
+    """The single-step commands both keyboard loops take alike (p/d/r requests, m, t);
+    False for any other command."""
+    from controller.layers import Request
+    if cmd in ("p", "d", "r"):
+        kind = {"p": Request.POWER_UP, "d": Request.POWER_DOWN, "r": Request.ERROR_RESET}[cmd]
+        print(f"request {d.rt.request(kind)}: {Request.NAMES[kind]} (applied at {applied})")
+    elif cmd == "m":
+        print(d.rt.messages.format())
+    elif cmd == "t":
+        print(_status_line(d.rt))
+    else:
+        return False
+    return True
 
 
 def _interactive_live(d: _Driver, budget: int) -> None:
@@ -504,14 +512,7 @@ def _interactive_live(d: _Driver, budget: int) -> None:
             prompt = False
         elif cmd == "q":
             return
-        elif cmd in ("p", "d", "r"):
-            kind = {"p": Request.POWER_UP, "d": Request.POWER_DOWN, "r": Request.ERROR_RESET}[cmd]
-            print(f"request {d.rt.request(kind)}: {Request.NAMES[kind]} (applied at the next step)")
-        elif cmd == "m":
-            print(d.rt.messages.format())
-        elif cmd == "t":
-            print(_status_line(d.rt))
-        else:
+        elif not _shared_command(d, cmd, "the next step"):
             print(HELP)
 
 

@@ -5,26 +5,13 @@ simulated time (the console's timer is off; a test redraws after stepping)."""
 
 from __future__ import annotations
 
-import asyncio
 
-import pytest
 
-from bit3.client import Client
 from drivers.pio.routes import switch_word
-from sim.system import SystemSimulator
 from tools.console import view
 from tools.console.app import CameraScreen, ConsoleApp
 from tools.console.control import ControllerLink
-
-SIZE = (180, 50)
-
-
-@pytest.fixture
-def sim():
-    s = SystemSimulator()
-    s.step(10)
-    yield s
-    s.close()
+from tests.tools.console._pilot import frames, run_app
 
 
 def _app(sim, client, link: bool = True) -> ConsoleApp:
@@ -32,47 +19,28 @@ def _app(sim, client, link: bool = True) -> ConsoleApp:
                       ControllerLink(sim.rt.wm) if link else None, auto_refresh=False)
 
 
-@pytest.fixture
-def reader(sim):
-    client = Client.attach(sim.name, layout=sim.rig.layout)  # a reader: the console claims nothing
-    yield client
-    client.close()
-
-
-def _run(app, body):
-    async def go():
-        async with app.run_test(size=SIZE) as pilot:
-            await body(pilot)
-    asyncio.run(go())
-
-
-def _frames(sim, app, n: int) -> None:
-    sim.step(n)
-    app.refresh_areas()
-
-
 def test_route_a_camera_from_the_console(sim, reader):
     app = _app(sim, reader)
     sw = sim.world.bus["pio_video"].switcher
 
     async def body(pilot):
-        _frames(sim, app, 24)
+        frames(sim, app, 24)
         assert "camera routes: monitor 1: blank, monitor 2: blank" in app.area_text("world")
         await pilot.press("v")
         assert isinstance(app.screen, CameraScreen)
         assert "> monitor 1: blank" in app.screen.text()
         await pilot.press("2")  # camera 2 on monitor 1
-        _frames(sim, app, 24)
+        frames(sim, app, 24)
         assert sw.monitors == (2, 0)
         assert "> monitor 1: camera 2" in app.screen.text()
         await pilot.press("down", "3")  # camera 3 on monitor 2
-        _frames(sim, app, 24)
+        frames(sim, app, 24)
         assert sw.monitors == (2, 3)
         assert "> monitor 2: camera 3" in app.screen.text()
         assert ("CAMERA ROUTE: applied by the service: monitor 1: camera 2, monitor 2: camera 3 -> COMPLETE"
                 in app.screen.text())
         await pilot.press("0")  # blank monitor 2
-        _frames(sim, app, 24)
+        frames(sim, app, 24)
         assert sw.monitors == (2, 0)
         await pilot.press("escape")
         assert not isinstance(app.screen, CameraScreen)
@@ -80,7 +48,7 @@ def test_route_a_camera_from_the_console(sim, reader):
         assert "camera routes: monitor 1: camera 2, monitor 2: blank" in app.area_text("world")
         assert "CAMERA ROUTE sent" in app.area_text("messages")
         assert "not yet" not in app.area_text("global").split("v  camera routes")[1].splitlines()[0]
-    _run(app, body)
+    run_app(app, body)
 
 
 def test_world_status_names_a_box_route_and_what_the_controller_asks(sim, reader):
@@ -88,14 +56,14 @@ def test_world_status_names_a_box_route_and_what_the_controller_asks(sim, reader
 
     async def body(pilot):
         sim.world.set_user_inputs(switch_word(2, 1))
-        _frames(sim, app, 24)
+        frames(sim, app, 24)
         assert "camera routes: monitor 1: blank, monitor 2: camera 1" in app.area_text("world")
         sim.world.bus["pio_video"].inject("switcher_silent")
         sim.world.set_user_inputs(switch_word(1, 3))
-        _frames(sim, app, 24)
+        frames(sim, app, 24)
         assert ("camera routes: monitor 1: blank, monitor 2: camera 1  (controller asks monitor 1: camera 3, "
                 "monitor 2: camera 1)") in app.area_text("world")
-    _run(app, body)
+    run_app(app, body)
 
 
 def test_read_only_console_says_it_cannot_route(sim, reader):
@@ -107,4 +75,4 @@ def test_read_only_console_says_it_cannot_route(sim, reader):
         assert "read-only console: no controller to route the cameras" in texts
         assert "read-only console: no controller to send requests to" in texts
         assert sim.world.bus["pio_video"].switcher.route in (None, 0)
-    _run(app, body)
+    run_app(app, body)

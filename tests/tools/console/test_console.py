@@ -7,50 +7,15 @@ from __future__ import annotations
 
 import time
 
-import asyncio
 
 import numpy as np
-import pytest
 
 from bit3.client import Client
 from bit3.layout import ServiceState
 from controller.decision import Status
-from sim.system import SystemSimulator
 from tools.console import view
-from tools.console.app import ConsoleApp, MessagesScreen
-from tools.console.control import ControllerLink
-
-SIZE = (180, 50)
-
-
-@pytest.fixture
-def sim():
-    s = SystemSimulator()
-    s.step(10)
-    yield s
-    s.close()
-
-
-@pytest.fixture
-def console(sim):
-    client = Client.attach(sim.name, layout=sim.rig.layout)  # a reader: the console claims nothing
-    app = ConsoleApp(view.Sources(client, sim.rt.wm, rack="simulated"), ControllerLink(sim.rt.wm),
-                     auto_refresh=False)
-    yield app
-    client.close()
-
-
-def _run(app, body):
-    async def go():
-        async with app.run_test(size=SIZE) as pilot:
-            await body(pilot)
-    asyncio.run(go())
-
-
-def _frames(sim, app, n: int) -> None:
-    """n simulated frames, then one console refresh (what the 10 Hz timer does)."""
-    sim.step(n)
-    app.refresh_areas()
+from tools.console.app import MessagesScreen
+from tests.tools.console._pilot import frames, run_app
 
 
 def test_five_areas_titled_as_the_report_names_them(console):
@@ -59,29 +24,29 @@ def test_five_areas_titled_as_the_report_names_them(console):
         assert titles == ["Local Status", "World Status", "Messages", "Local Commands", "Global Commands"]
         assert len(console.query(".area")) == 5  # one widget per area
         assert console.area_text("world").startswith("SIMULATED RACK")
-    _run(console, body)
+    run_app(console, body)
 
 
 def test_power_up_from_the_global_commands(sim, console):
     async def body(pilot):
         assert "SHUT DOWN" in console.area_text("local")
         await pilot.press("u")
-        _frames(sim, console, 300)
+        frames(sim, console, 300)
         assert sim.rt.all_status(Status.START_UP_COMPLETE)
         local = console.area_text("local")
         assert local.count("START UP COMPLETE") >= 7
         assert "service ARMED" in console.area_text("world")
         assert "POWER UP: START UP COMPLETE -> COMPLETE" in console.area_text("global")
         assert "request 1: POWER UP sent" in console.area_text("messages")
-    _run(console, body)
+    run_app(console, body)
 
 
 def test_halt_step_resume_from_the_console(sim, console):
     async def body(pilot):
         sim.power_up(max_frames=400)
-        _frames(sim, console, 20)
+        frames(sim, console, 20)
         await pilot.press("h")
-        _frames(sim, console, 40)
+        frames(sim, console, 40)
         world = console.area_text("world")
         ctl = next(ln for ln in world.splitlines() if ln.startswith("controller ("))
         assert "service HALTED" in world and "HALTED" in ctl
@@ -89,29 +54,29 @@ def test_halt_step_resume_from_the_console(sim, console):
         assert np.all(sim.dac_volts() == 0.0) and sim.svc.guard.trips == 0
         before = sim.rt.frames_run
         await pilot.press("s")
-        _frames(sim, console, 20)
+        frames(sim, console, 20)
         assert sim.rt.frames_run - before == 1
         assert "SINGLE STEP: 1 frame(s) run" in console.area_text("global")
         assert "trace " in console.area_text("messages")  # the step's trace lines
         before = sim.rt.frames_run
         await pilot.press("S")
-        _frames(sim, console, 40)
+        frames(sim, console, 40)
         assert sim.rt.frames_run - before == 10
         await pilot.press("r")  # no re-arm given
-        _frames(sim, console, 10)
+        frames(sim, console, 10)
         assert "explicit re-arm" in console.area_text("global") and "REFUSED" in console.area_text("global")
         assert sim.rt.halted
         await pilot.press("a")
         await pilot.pause()
         assert "[RE-ARM GIVEN]" in console.area_text("global")
         await pilot.press("r")
-        _frames(sim, console, 30)
+        frames(sim, console, 30)
         assert "resumed at frame" in console.area_text("global")
         assert "[RE-ARM GIVEN]" not in console.area_text("global")  # one re-arm, one resume
         assert not sim.rt.halted
         assert ServiceState(int(sim.client.read_inputs().service_state)) == ServiceState.ARMED
         assert sim.rt.all_status(Status.START_UP_COMPLETE)
-    _run(console, body)
+    run_app(console, body)
 
 
 def test_arrows_move_between_layers(console):
@@ -126,7 +91,7 @@ def test_arrows_move_between_layers(console):
         await pilot.pause()
         assert console.area_text("local").splitlines()[6].startswith("> Data Acquisition")
         assert "hardware checks:" in console.area_text("local")
-    _run(console, body)
+    run_app(console, body)
 
 
 def test_record_starts_and_stops_a_recorder_of_this_system(console, tmp_path, monkeypatch):
@@ -149,13 +114,13 @@ def test_record_starts_and_stops_a_recorder_of_this_system(console, tmp_path, mo
         assert not rec.active
         assert f"recording stopped: {rec.path}" in console.area_text("messages")
         assert read_metadata(tmp_path / rec.path)  # a whole file, summary written
-    _run(console, body)
+    run_app(console, body)
 
 
 def test_messages_screen_shows_the_last_100_time_ordered(sim, console):
     async def body(pilot):
         await pilot.press("u")
-        _frames(sim, console, 200)
+        frames(sim, console, 200)
         await pilot.press("m")
         await pilot.pause()
         assert isinstance(console.screen, MessagesScreen)
@@ -165,14 +130,14 @@ def test_messages_screen_shows_the_last_100_time_ordered(sim, console):
         await pilot.press("escape")
         await pilot.pause()
         assert not isinstance(console.screen, MessagesScreen)
-    _run(console, body)
+    run_app(console, body)
 
 
 def test_the_console_claims_nothing(sim, console):
     async def body(pilot):
         await pilot.press("u", "h")
-        _frames(sim, console, 50)
-    _run(console, body)
+        frames(sim, console, 50)
+    run_app(console, body)
     owners = sim.client.owners()
     assert owners["commands"].pid == owners["inputs"].pid  # still the simulator's controller
     assert owners["commands"].name == "controller"
@@ -270,4 +235,4 @@ def test_world_model_browser_by_area_and_live(sim, console):
         await pilot.press("escape")
         await pilot.pause()
         assert not isinstance(console.screen, BrowserScreen)
-    _run(console, body)
+    run_app(console, body)

@@ -5,48 +5,16 @@ TOML and the force displays. Pilot key presses on the system simulator in simula
 
 from __future__ import annotations
 
-import asyncio
 
 import numpy as np
 import pytest
 
 from bit3.client import Client
 from controller.worldmodel.spec import AREAS as WM_AREAS
-from sim.system import SystemSimulator
 from tools.console import view
 from tools.console.app import BrowserScreen, ConsoleApp, EditScreen
 from tools.console.control import ControllerLink
-
-SIZE = (180, 50)
-
-
-@pytest.fixture
-def sim():
-    s = SystemSimulator()
-    s.step(10)
-    yield s
-    s.close()
-
-
-@pytest.fixture
-def console(sim):
-    client = Client.attach(sim.name, layout=sim.rig.layout)  # a reader: the console claims nothing
-    app = ConsoleApp(view.Sources(client, sim.rt.wm, rack="simulated"), ControllerLink(sim.rt.wm),
-                     auto_refresh=False)
-    yield app
-    client.close()
-
-
-def _run(app, body):
-    async def go():
-        async with app.run_test(size=SIZE) as pilot:
-            await body(pilot)
-    asyncio.run(go())
-
-
-def _frames(sim, app, n: int) -> None:
-    sim.step(n)
-    app.refresh_areas()
+from tests.tools.console._pilot import frames, run_app
 
 
 async def _browse_to(pilot, app, name: str) -> BrowserScreen:
@@ -85,14 +53,14 @@ def test_a_permitted_write_lands_in_the_world_model(sim, console):
         await pilot.press("enter")  # confirm
         await pilot.pause()
         assert console.screen is scr and len(console.writes) == 1
-        _frames(sim, console, 2)
+        frames(sim, console, 2)
         await pilot.pause()
         assert float(sim.rt.wm.get("msp.speed_scale")) == 0.25
         assert "msp.speed_scale = 0.25 (write #" in scr.text()
         await pilot.press("escape")  # the areas are redrawn when the display closes
         await pilot.pause()
         assert "msp.speed_scale = 0.25 (write #" in console.area_text("messages")
-    _run(console, body)
+    run_app(console, body)
 
 
 def test_a_forbidden_write_is_refused_with_the_rules_reason(sim, console):
@@ -107,9 +75,9 @@ def test_a_forbidden_write_is_refused_with_the_rules_reason(sim, console):
         await pilot.press("escape")
         await pilot.pause()
         assert why in console.area_text("messages")
-        _frames(sim, console, 2)
+        frames(sim, console, 2)
         assert np.array_equal(sim.rt.wm.get("servo.q_cmd_rad"), before)
-    _run(console, body)
+    run_app(console, body)
 
 
 def test_a_bad_value_is_named_in_the_editor_and_nothing_is_sent(sim, console):
@@ -125,7 +93,7 @@ def test_a_bad_value_is_named_in_the_editor_and_nothing_is_sent(sim, console):
         await pilot.press("escape")
         await pilot.pause()
         assert isinstance(console.screen, BrowserScreen)
-    _run(console, body)
+    run_app(console, body)
 
 
 def test_a_wrong_key_is_refused_by_the_write_path(sim):
@@ -142,7 +110,7 @@ def test_a_wrong_key_is_refused_by_the_write_path(sim):
         assert "wrong or missing access key" in app.screen.text()
         assert not app.writes
     try:
-        _run(app, body)
+        run_app(app, body)
     finally:
         client.close()
 
@@ -183,12 +151,12 @@ def test_parameter_edit_refused_powered_up_and_accepted_powered_down(sim, consol
         await _type(pilot, "9.5")
         await pilot.press("enter", "enter")
         await pilot.pause()
-        _frames(sim, console, 2)
+        frames(sim, console, 2)
         await pilot.pause()
         kp = sim.rt.wm.get("servo.kp_per_s")
         assert kp[2] == 9.5 and np.array_equal(np.delete(kp, 2), np.delete(kp0, 2))  # one joint changed
         assert "servo.kp_per_s = " in scr.text() and "applied at frame" in scr.text()
-    _run(console, body)
+    run_app(console, body)
 
 
 # --- (c) live menus from TOML ------------------------------------------------------------------
@@ -218,7 +186,7 @@ def test_the_example_menu_loads_and_its_pages_show_live_at_their_rates(sim):
         assert "[Layers]" in scr.text()
         frames0 = scr.text().splitlines()[-1]
         draws = scr.draws
-        _frames(sim, app, 50)
+        frames(sim, app, 50)
         assert scr.draws == draws and scr.text().splitlines()[-1] == frames0  # not yet its turn
         app.refresh_areas()
         assert scr.draws == draws + 1
@@ -229,7 +197,7 @@ def test_the_example_menu_loads_and_its_pages_show_live_at_their_rates(sim):
             app.refresh_areas()
         assert scr.draws == draws + 1 + 2
     try:
-        _run(app, body)
+        run_app(app, body)
     finally:
         client.close()
 
@@ -290,10 +258,10 @@ def test_the_force_view_shows_the_simulated_ft_values(sim, console):
     from tools.console.app import ForceScreen
 
     async def body(pilot):
-        _frames(sim, console, 40)
+        frames(sim, console, 40)
         sim.world.ft.set_load((12.0, -4.0, 30.0), (0.5, -0.25, 0.125))  # the fake sensor's load
         for _ in range(5):
-            _frames(sim, console, 40)  # 5 console refreshes, a new F/T record each
+            frames(sim, console, 40)  # 5 console refreshes, a new F/T record each
         await pilot.press("f")
         await pilot.pause()
         scr = console.screen
@@ -313,4 +281,4 @@ def test_the_force_view_shows_the_simulated_ft_values(sim, console):
         draws = scr.series
         console.refresh_areas()  # no new F/T record: no new drawing
         assert scr.series is draws
-    _run(console, body)
+    run_app(console, body)
