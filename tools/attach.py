@@ -257,7 +257,9 @@ def attach_waiting(name: str = "pfma", rack: str | None = None, *, wait_s: float
     return c
 
 
-def _shm_id(name: str) -> tuple[int, int] | None:
+def shm_id(name: str) -> tuple[int, int] | None:
+    """(inode, device) of ``/dev/shm/NAME``, or None: a segment replaced under the same name
+    (a restarted service or controller) has another."""
     try:
         st = os.stat(f"/dev/shm/{name}")
     except OSError:
@@ -344,7 +346,7 @@ class ServiceLink:
             return self._client
         self._client = attach_waiting(self.name, self.rack, wait_s=self.wait_s, notice_s=self.notice_s,
                                       say=self.say, sleep=self.sleep)
-        self._shm = _shm_id(self.name)
+        self._shm = shm_id(self.name)
         return self._client
 
     def client(self) -> Client:
@@ -354,7 +356,7 @@ class ServiceLink:
         if remote_target(self.name) is not None:
             return self._client
         why = None
-        sid = _shm_id(self.name)
+        sid = shm_id(self.name)
         if sid != self._shm:
             why = "its shared memory was removed or re-created"
         else:

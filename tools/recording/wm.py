@@ -54,7 +54,6 @@ from __future__ import annotations
 import fnmatch
 import json
 import math
-import os
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field
@@ -63,6 +62,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Sequence
 import numpy as np
 
 from pfma.errors import PfmaError, did_you_mean
+from tools.attach import shm_id as _shm_id
 from tools.recording.schema import _ns
 
 if TYPE_CHECKING:
@@ -354,14 +354,6 @@ def wait_for_wm(name: str, *, timeout_s: float | None = None, say: Callable[[str
         if stop() or (timeout_s is not None and t - t0 >= timeout_s):
             return None, why
         sleep(poll_s)
-
-
-def _shm_id(name: str) -> tuple[int, int] | None:
-    try:
-        st = os.stat(f"/dev/shm/{name}")
-    except OSError:
-        return None
-    return st.st_ino, st.st_dev
 
 
 class WmSampler:
