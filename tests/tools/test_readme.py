@@ -52,16 +52,16 @@ NOT_RUN = {
 
 #: commands that need nothing running (the `serve` lines need the buffer free)
 RUN_ALONE = (
-    f"{PFMA} serve --duration 5",
+    f"{PFMA} serve --duration 3",
     f"{PFMA} read elbow_pitch_angle",  # no service: its documented exit 1 (EXIT_CODES)
     f"{PFMA} read --bus fake elbow_pitch_angle",
     f"{PFMA} layout --json",
-    f"{PFMA} serve --duration 5 --modbus 127.0.0.1:5020",
+    f"{PFMA} serve --duration 3 --modbus 127.0.0.1:5020",
     f"{PFMA} serve --duration 2 --hid fake",
     f"{PFMA} fault list",
     f"{PFMA} serve --duration 3 --scenario scenarios/ft-unplug.toml",
     f"{PFMA} bench loop --seconds 1",
-    f"{PFMA} bench stack --minutes 0.1 --realtime",
+    f"{PFMA} bench stack --minutes 0.05 --realtime",
     f"mkdir -p out && {PFMA} layout --json > out/layout.json",
     f"{PFMA} ft --port fake --stream --count 20",
     f"{PFMA} hand --source cae --count 20",
@@ -88,14 +88,14 @@ RUN_WITH_SERVICE = (
     f"{PFMA} watch elbow_pitch_angle --count 30",
     f"{PFMA} record out/run.mcap --duration 3",
     f"{PFMA} scope wrist_roll_rate elbow_pitch_angle -o out/capture.mcap",
-    ".venv/bin/python bench/independent_reader.py out/layout.json --seconds 5",
+    ".venv/bin/python bench/independent_reader.py out/layout.json --seconds 2",
 )
 
 #: (command, with service?) -> (exit statuses allowed, the words of the README's comment that say so)
 EXIT_CODES = {
     (f"{PFMA} read elbow_pitch_angle", False): ({1}, "no service: an error, exit 1"),
     # a measurement of this host's timing: a loaded host misses the 1 % band, documented
-    (".venv/bin/python bench/independent_reader.py out/layout.json --seconds 5", True):
+    (".venv/bin/python bench/independent_reader.py out/layout.json --seconds 2", True):
         ({0, 1}, "exit 1 if one is off by more than 1 %"),
 }
 
@@ -146,7 +146,7 @@ def test_parser_reads_commands_comments_and_continuations():
 
 def test_every_readme_command_is_classified_once():
     commands = [c for c, _ in readme_commands(README.read_text())]
-    assert "make run" in commands and f"{PFMA} serve --duration 5" in commands  # the parser found the blocks
+    assert "make run" in commands and f"{PFMA} serve --duration 3" in commands  # the parser found the blocks
     classified = set(RUN_ALONE) | set(RUN_WITH_SERVICE) | set(NOT_RUN)
     unclassified = [c for c in commands if c not in classified]
     assert not unclassified, f"README commands in no table of {__name__}: {unclassified}"

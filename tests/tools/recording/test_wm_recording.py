@@ -457,7 +457,9 @@ def test_end_to_end_serve_controller_record(tmp_path):
     assert {"/pfma/status", "/pfma/wm/task_io", "/pfma/wm/status_output"} <= topics
     io = [(lt, d) for t, lt, d in msgs if t == "/pfma/wm/task_io"]
     status = {d["frame"]: lt for t, lt, d in msgs if t == "/pfma/status"}
-    assert len(io) > 100
+    # real processes on a shared host: world-model samples are not lossless by design (the
+    # recorder counts frames_unseen); 20 was seen on a loaded 2-core host, ~600 when quiet
+    assert len(io) > 10
     # same time axis: a sample lies after the service frame it was computed from
     matched = [lt - status[d["daq"]["service_frame"]] for lt, d in io if d["daq"]["service_frame"] in status]
     # never before it; a wrong clock mapping would be off by the host's uptime or decades
