@@ -35,6 +35,7 @@ import sys
 import time
 
 from pfma.rack import load_rack
+from tools.cli.args import nonneg_float, positive_float, positive_int
 
 #: no new frame for this long: look whether the service is still there
 STALE_S = 1.0
@@ -64,11 +65,11 @@ def add_parser(sub):
     p.add_argument("-o", "--output", default=None, help="recover: output file (default BROKEN-recovered.mcap)")
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
     p.add_argument("--rack", default="fake", help="rack TOML the service runs (default: the IRSS rack)")
-    p.add_argument("--duration", type=float, default=None, help="seconds to record (default: until Ctrl-C)")
-    p.add_argument("--json-every", type=int, default=1,
+    p.add_argument("--duration", type=positive_float, default=None, help="seconds to record (default: until Ctrl-C)")
+    p.add_argument("--json-every", type=positive_int, default=1,
                    help="JSON channels for every Nth frame (1 = native rate; the raw stream is always complete)")
-    p.add_argument("--flush-s", type=float, default=0.25, help="close a chunk at least this often (s)")
-    p.add_argument("--wait", type=float, default=None, help="give up when no service comes within S seconds")
+    p.add_argument("--flush-s", type=positive_float, default=0.25, help="close a chunk at least this often (s)")
+    p.add_argument("--wait", type=nonneg_float, default=None, help="give up when no service comes within S seconds")
     p.add_argument("--quiet", action="store_true", help="only the final summary")
     p.add_argument("--json", action="store_true", help="info: one JSON document (topics, counts, recorder summary)")
     p.add_argument("--wm", default=None, metavar="NAME",

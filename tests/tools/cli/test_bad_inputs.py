@@ -152,6 +152,8 @@ ROWS = [
           (("scope", "elbow_pitch_angle", "--post", "0"), "--post", "greater than 0"),
           (("gateway", "--duration", "0"), "--duration", "greater than 0"),
           (("ft", "--interval", "0"), "--interval", "greater than 0"),
+          (("record", "out/x.mcap", "--duration", "-2"), "--duration", "greater than 0"),
+          (("record", "out/x.mcap", "--flush-s", "0"), "--flush-s", "greater than 0"),
       ]],
     # --- fault specs: the same grammar and exit code wherever one is taken ------------------
     Row("serve-bad-fault", ("serve", "--duration", "1", "--fault", "resolver-lo:x"), 2,
