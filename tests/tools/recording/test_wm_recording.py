@@ -9,6 +9,8 @@ the same frames. One end-to-end test runs the real processes.
 
 from __future__ import annotations
 
+from tests.tools.recording.test_service_restart import _wait_for as _wait_line
+
 import json
 import os
 import queue
@@ -379,16 +381,6 @@ def _pump(stream, q: queue.Queue) -> None:
     q.put(None)
 
 
-def _wait_line(q: queue.Queue, text: str, seen: list[str], timeout_s: float = 60.0) -> None:
-    while True:
-        try:
-            line = q.get(timeout=timeout_s)
-        except queue.Empty:
-            raise AssertionError(f"no {text!r} within {timeout_s} s:\n{''.join(seen)}") from None
-        assert line is not None, f"stream ended before {text!r}:\n{''.join(seen)}"
-        seen.append(line)
-        if text in line:
-            return
 
 
 def test_end_to_end_serve_controller_record(tmp_path):
