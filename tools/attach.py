@@ -301,17 +301,23 @@ def remote_target(name: str) -> tuple[str, str] | None:
     return f"tcp/{host}:{port}", buffer
 
 
-def attach_reader(name: str, rack: str | None = None):
+def attach_reader(name: str, rack: str | None = None, *, every_frame: bool = False,
+                  timeout_s: float | None = None):
     """A read-only reader of buffer ``name``: a :class:`Client` on shared memory (refused
     with :func:`no_service`'s line when no live service is there), or a RemoteBuffer for
     ``zenoh://HOST:PORT/NAME``.
 
+    :param every_frame: a remote reader keeps every inputs body in order and
+        ``changed``/``read_inputs`` step through them (the scope, the recorder), as a
+        local reader polling fast enough sees every publish
+    :param timeout_s: how long a remote reader waits for its bridge (default: RemoteBuffer's)
     :raises PfmaError: no live service, no bridge answering, or another layout
     """
     target = remote_target(name)
     if target is not None:
-        from tools.bridge.remote import RemoteBuffer
-        return RemoteBuffer.connect(*target, rack=rack)
+        from tools.bridge.remote import DEFAULT_TIMEOUT_S, RemoteBuffer
+        return RemoteBuffer.connect(*target, rack=rack, queue_inputs=every_frame,
+                                    timeout_s=DEFAULT_TIMEOUT_S if timeout_s is None else timeout_s)
     from pfma.errors import PfmaError
     why = no_service(name)
     if why is not None:

@@ -16,6 +16,7 @@ service's watchdog (unchanged) drives 0 V.
 from __future__ import annotations
 
 import json
+import struct
 from typing import Any, Callable
 
 from bit3.buffer import AreaReader
@@ -32,6 +33,20 @@ AREAS = ("inputs", "stats", "commands", "service_messages", "controller_messages
 MIN_PERIOD_S = {"stats": 1.0, "controller_stats": 1.0}
 #: command fields the bridge stamps itself (the remote's values are not copied)
 STAMPED = ("heartbeat", "t_s", "writer_pid", "writer_token", "inputs_frame")
+#: every published body carries, as its Zenoh attachment, the area's sequence counter at
+#: the copy (8 bytes, little-endian): the service bumps it by 2 per publish, so a far side
+#: that sees a jump of more than 2 knows publishes were lost on the way (at the bridge or
+#: on the link) and a frame-number jump with a step of 2 is a frame the service skipped
+SEQ = struct.Struct("<Q")
+
+
+def seq_of(sample: Any) -> int | None:
+    """The area sequence number a bridge attached to ``sample`` (None: none attached)."""
+    a = sample.attachment
+    if a is None:
+        return None
+    b = a.to_bytes()
+    return SEQ.unpack(b)[0] if len(b) == SEQ.size else None
 
 
 def layout_document(layout: Layout) -> bytes:
@@ -58,12 +73,15 @@ class Bridge:
         self._pubs = {a: session.declare_publisher(key(name, a)) for a in AREAS}
         self._last_pub = {a: -float("inf") for a in AREAS}
         self.published = {a: 0 for a in AREAS}  #: bodies published, by area
-        #: the newest body of each area, answered to a late joiner's query (a message queue
-        #: may not change for hours)
-        self._last: dict[str, bytes] = {}
+        #: publishes of the inputs area this bridge did not see (its poll came after the
+        #: next one: sequence jumps; the far side sees them as a gap too)
+        self.missed = 0
+        #: the newest body of each area and its sequence number, answered to a late
+        #: joiner's query (a message queue may not change for hours)
+        self._last: dict[str, tuple[bytes, int]] = {}
         for a, r in self._readers.items():
-            r.read()
-            self._last[a] = bytes(r.raw)
+            seq = r.read()
+            self._last[a] = (bytes(r.raw), seq)
         self._area_q = [session.declare_queryable(key(name, a), self._on_query) for a in AREAS]
         doc = layout_document(self.layout)
         self._layout_q = session.declare_queryable(key(name, "layout"),
@@ -97,9 +115,9 @@ class Bridge:
 
     def _on_query(self, query: Any) -> None:
         area = str(query.key_expr).rsplit("/", 1)[-1]
-        body = self._last.get(area)
-        if body is not None:
-            query.reply(query.key_expr, body)
+        last = self._last.get(area)  # one read: the body and its number together
+        if last is not None:
+            query.reply(query.key_expr, last[0], attachment=SEQ.pack(last[1]))
 
     def _on_token(self, sample: Any) -> None:
         owner = str(sample.key_expr).rsplit("/", 1)[-1]
@@ -129,9 +147,13 @@ class Bridge:
         for area, r in self._readers.items():
             if not r.changed() or t - self._last_pub[area] < MIN_PERIOD_S.get(area, 0.0):
                 continue
-            r.read()
-            body = self._last[area] = bytes(r.raw)
-            self._pubs[area].put(body)
+            prev = self._last[area][1]
+            seq = r.read()
+            if area == "inputs" and prev > 0 and seq - prev > 2:
+                self.missed += (seq - prev) // 2 - 1
+            body = bytes(r.raw)
+            self._last[area] = (body, seq)
+            self._pubs[area].put(body, attachment=SEQ.pack(seq))
             self._last_pub[area] = t
             self.published[area] += 1
             n += 1

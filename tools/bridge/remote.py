@@ -11,23 +11,25 @@ from __future__ import annotations
 
 import json
 import time
+from collections import deque
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
-
-from types import SimpleNamespace
 
 from bit3.buffer import HeaderInfo, Message, decode_messages
 from bit3.client import QUEUES, Snapshot
 from bit3.layout import MAGIC, Layout, ServiceState, build_layout, default_layout
 from bit3.seqlock import Bit3Error, LayoutMismatchError, OwnershipError
 from pfma.rack import load_rack
-from tools.bridge.bridge import AREAS, STAMPED
+from tools.bridge.bridge import AREAS, STAMPED, seq_of
 from tools.bridge.session import check_name, key
 
 #: how long a first body or the layout is waited for, s (bounded: then a clear error)
 DEFAULT_TIMEOUT_S = 5.0
+#: inputs bodies a ``queue_inputs`` reader may fall behind (about 25 s at 320 Hz)
+MAX_QUEUE = 8192
 _POLL_S = 0.002
 
 
@@ -40,10 +42,17 @@ class RemoteBuffer:
 
     The bridge's published layout (``pfma/<name>/layout``) decides: its hash must be the
     one this side builds from ``rack`` (the same rack file), or :class:`LayoutMismatchError`.
+
+    :param queue_inputs: keep every inputs body received, in order (at most ``max_queue``),
+        and let ``changed("inputs")``/``read_inputs()`` step through them one by one, as a
+        local reader polling fast enough sees every publish; each snapshot's ``seq`` is the
+        service's sequence number the bridge attached, so a gap in it is a lost publish.
+        Without it (the default) a read is the newest body.
     """
 
     def __init__(self, session: Any, name: str, *, rack: str | Path | None = None,
-                 timeout_s: float = DEFAULT_TIMEOUT_S) -> None:
+                 timeout_s: float = DEFAULT_TIMEOUT_S, queue_inputs: bool = False,
+                 max_queue: int = MAX_QUEUE) -> None:
         self.session = session
         self.name = check_name(name)
         self.timeout_s = timeout_s
@@ -54,19 +63,30 @@ class RemoteBuffer:
                 f"the bridge of {name} publishes layout {self.published_layout.get('hash')} "
                 f"(rack {self.published_layout.get('rack')}); this side builds "
                 f"{self.layout.hash_hex} (rack {self.layout.rack_name}): give the same --rack")
-        self._bodies: dict[str, bytes] = {}
+        #: the newest body of each area and the sequence number the bridge attached to it
+        #: (None from a bridge that attaches none): one tuple, replaced whole by the callback
+        self._bodies: dict[str, tuple[bytes, int | None]] = {}
         self._counts: dict[str, int] = {a: 0 for a in AREAS}
         self._snaps: dict[str, Snapshot] = {}
         self._seen: dict[str, int] = {a: 0 for a in AREAS}
+        #: the sequence number the bridge attached to the body each area's last read
+        #: returned (None: none attached; the snapshot's ``seq`` then counts bodies)
+        self.read_seq: dict[str, int | None] = {a: None for a in AREAS}
         self._cursor = {q: 0 for q in QUEUES.values()}
         self._own_session = False
-        #: what tools print as the buffer's name (``client.buffer.name``)
-        self.buffer = SimpleNamespace(name=name)
+        #: every inputs body in arrival order, for a tool that must see each frame (the
+        #: recorder, the scope): ``changed("inputs")``/``read_inputs()`` then step through it
+        self._queue: deque[tuple[bytes, int | None]] | None = deque() if queue_inputs else None
+        self.max_queue = max_queue
+        self.queue_dropped = 0  #: inputs bodies not queued (the reader fell max_queue behind)
+        #: what tools print as the buffer's name (``client.buffer.name``), and the message
+        #: queues' newest sequence numbers (``client.buffer.queue(area).head_seq``, the recorder)
+        self.buffer = SimpleNamespace(name=name, queue=self._queue_head)
         self._sub = session.declare_subscriber(key(name, "*"), self._on_body)
 
     @classmethod
     def connect(cls, endpoint: str, name: str, *, rack: str | Path | None = None,
-                timeout_s: float = DEFAULT_TIMEOUT_S) -> "RemoteBuffer":
+                timeout_s: float = DEFAULT_TIMEOUT_S, queue_inputs: bool = False) -> "RemoteBuffer":
         """Open a peer session connected to ``endpoint`` (``tcp/HOST:PORT``) that this
         object owns and closes. Close it (``with``) before the interpreter exits: with
         zenoh 1.10.2 a process that exits with a connected session and a subscriber
@@ -74,7 +94,7 @@ class RemoteBuffer:
         from tools.bridge.session import open_session
         session = open_session(connect=[endpoint])
         try:
-            r = cls(session, name, rack=rack, timeout_s=timeout_s)
+            r = cls(session, name, rack=rack, timeout_s=timeout_s, queue_inputs=queue_inputs)
         except BaseException:
             session.close()
             raise
@@ -98,7 +118,13 @@ class RemoteBuffer:
     def _on_body(self, sample: Any) -> None:
         area = str(sample.key_expr).rsplit("/", 1)[-1]
         if area in self._counts:
-            self._bodies[area] = sample.payload.to_bytes()
+            got = (sample.payload.to_bytes(), seq_of(sample))
+            self._bodies[area] = got
+            if area == "inputs" and self._queue is not None:
+                if len(self._queue) < self.max_queue:
+                    self._queue.append(got)
+                else:
+                    self.queue_dropped += 1
             self._counts[area] += 1
 
     # --- the read API of bit3.client.Client ----------------------------------------------
@@ -121,28 +147,54 @@ class RemoteBuffer:
         change again for a long time)."""
         for reply in self.session.get(key(self.name, area), timeout=self.timeout_s):
             if reply.ok is not None and not self._counts[area]:
-                self._bodies[area] = reply.ok.payload.to_bytes()
+                self._bodies[area] = (reply.ok.payload.to_bytes(), seq_of(reply.ok))
                 self._counts[area] += 1
 
     def read(self, area: str) -> Snapshot:
-        """The newest body received (the first one asked of the bridge, bounded)."""
+        """The newest body received (the first one asked of the bridge, bounded); with
+        ``queue_inputs``, the oldest inputs body not read yet while there is one."""
         if area not in self._counts:
             raise Bit3Error(f"area {area!r} is not published by the bridge; areas: {', '.join(AREAS)}")
+        if area == "inputs" and self._queue:
+            body, seq = self._queue.popleft()
+            n = self._counts[area] - len(self._queue)
+        else:
+            body, seq = self._newest(area)
+            n = self._counts[area]
+        snap = self._snap(area)
+        snap.record[...] = np.frombuffer(body, dtype=snap.record.dtype, count=1)[0]
+        snap.seq = 2 * n if seq is None else seq
+        self.read_seq[area] = seq
+        self._seen[area] = n
+        return snap
+
+    def _newest(self, area: str) -> tuple[bytes, int | None]:
         if not self._counts[area]:
             self._ask(area)
         if not self._counts[area]:
             self.wait(area)
-        snap = self._snaps.get(area)
+        return self._bodies[area]
+
+    def _snap(self, area: str, name: str | None = None) -> Snapshot:
+        key_ = name or area
+        snap = self._snaps.get(key_)
         if snap is None:
             spec = self.layout.area(area)
             assert spec.body_dtype is not None
-            snap = self._snaps[area] = Snapshot(np.zeros((), spec.body_dtype), area, self.layout)
-        n = self._counts[area]
-        body = self._bodies[area]
-        snap.record[...] = np.frombuffer(body, dtype=snap.record.dtype, count=1)[0]
-        snap.seq = 2 * n
-        self._seen[area] = n
+            snap = self._snaps[key_] = Snapshot(np.zeros((), spec.body_dtype), area, self.layout)
         return snap
+
+    def _peek(self, area: str) -> Snapshot:
+        """The newest body, decoded into a snapshot of its own (a queued inputs reader's
+        place in the queue does not move)."""
+        body, _ = self._newest(area)
+        snap = self._snap(area, area + "/peek")
+        snap.record[...] = np.frombuffer(body, dtype=snap.record.dtype, count=1)[0]
+        return snap
+
+    def _queue_head(self, area: str) -> SimpleNamespace:
+        """``buffer.queue(area).head_seq``: the newest message's sequence number."""
+        return SimpleNamespace(head_seq=int(self._peek(area).record["head_seq"]))
 
     def read_inputs(self) -> Snapshot:
         return self.read("inputs")
@@ -154,18 +206,21 @@ class RemoteBuffer:
         return self.read("commands")
 
     def changed(self, area: str = "inputs") -> bool:
-        """A body newer than the last ``read(area)`` has arrived."""
+        """A body newer than the last ``read(area)`` has arrived (with ``queue_inputs``:
+        an inputs body is waiting in the queue)."""
+        if area == "inputs" and self._queue is not None:
+            return bool(self._queue)
         return self._counts[area] != self._seen[area]
 
     @property
     def service_state(self) -> int:
-        return int(self.read_inputs().service_state)
+        return int(self._peek("inputs").record["service_state"])
 
     def header(self) -> HeaderInfo:
         """The header as far as the bridge publishes it: layout, rack, and the service
         state and frame from the newest inputs body; owners, calibration hash and
         creation time are not published (empty, 0)."""
-        snap = self.read_inputs()
+        snap = self._peek("inputs")
         pub = self.published_layout
         return HeaderInfo(MAGIC, int(pub.get("version", 0)), int(pub.get("size", 0)),
                           bytes.fromhex(pub.get("hash", "")), b"", 0,
@@ -262,7 +317,7 @@ class RemoteCommander:
                 raise Bit3Error(f"no command field or DAC command channel {k!r}") from None
             rec[c.fields[0][0]][c.fields[0][1]] = v
         if "inputs_frame" not in fields:
-            rec["inputs_frame"] = self.remote.read_inputs().frame if self.remote.received("inputs") else 0
+            rec["inputs_frame"] = int(self.remote._peek("inputs").frame) if self.remote.received("inputs") else 0
         self._heartbeat += 1
         rec["heartbeat"] = self._heartbeat
         rec["t_s"] = time.time()

@@ -21,7 +21,9 @@ def add_parser(sub):
     p = sub.add_parser("console", help="the operator console: five areas over the live system, "
                                        "power up/down, halt/step/resume",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name of the service (default pfma)")
+    p.add_argument("--buffer", default="pfma",
+                   help="Bit3 shared-memory name of the service (default pfma), or zenoh://HOST:PORT/NAME "
+                        "through a pfma bridge (docs/bridge.md; the world model --wm stays on this host)")
     p.add_argument("--wm", "--name", dest="wm", default="pfma_wm", metavar="NAME",
                    help="the controller's world-model name (default pfma_wm)")
     p.add_argument("--key", default=None, help="world-model access key (default $PFMA_WM_KEY or the default key)")
@@ -53,8 +55,7 @@ def run(args) -> int:
         return 2
     if args.sim:
         return _run_sim(args, menu)
-    from bit3.client import Client
-    from tools.attach import no_service
+    from tools.attach import attach_reader, no_service
     from tools.console.control import ControlError, ControllerLink
     from tools.console.view import Sources
     why = no_service(args.buffer)
@@ -67,8 +68,8 @@ def run(args) -> int:
         print(f"pfma console: {err}; start the controller (`pfma controller --buffer {args.buffer} "
               f"--wm {args.wm}`)", file=sys.stderr)
         return 1
-    try:
-        client = Client.attach(args.buffer)
+    try:  # shared memory, or zenoh://HOST:PORT/NAME through a bridge (the world model stays local)
+        client = attach_reader(args.buffer)
     except Exception as err:  # noqa: BLE001 - one clear message, never a traceback
         link.close()
         print(f"pfma console: cannot read buffer {args.buffer!r}: {err}", file=sys.stderr)
@@ -76,8 +77,8 @@ def run(args) -> int:
     try:
         if menu is not None:
             menu.check(link.wm)
-        # the buffer does not say whether its boards are simulated: the console says so
-        app = _app(Sources(client, link.wm, rack="unknown"), link, menu=menu)
+        # simulated or not: what the service's buffer says (its SIMULATED flag), every refresh
+        app = _app(Sources(client, link.wm), link, menu=menu)
         try:
             app.run()
         finally:

@@ -63,7 +63,9 @@ def add_parser(sub):
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("target", nargs="+", metavar="FILE.mcap | recover BROKEN.mcap | info FILE.mcap")
     p.add_argument("-o", "--output", default=None, help="recover: output file (default BROKEN-recovered.mcap)")
-    p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
+    p.add_argument("--buffer", default="pfma",
+                   help="Bit3 shared-memory name (default pfma), or zenoh://HOST:PORT/NAME through a "
+                        "pfma bridge (docs/bridge.md)")
     p.add_argument("--rack", default="fake", help="rack TOML the service runs (default: the IRSS rack)")
     p.add_argument("--duration", type=positive_float, default=None, help="seconds to record (default: until Ctrl-C)")
     p.add_argument("--json-every", type=positive_int, default=1,
@@ -103,9 +105,36 @@ def run(args) -> int:
     except WmUsageError as err:
         print(f"pfma record: {err}", file=sys.stderr)
         return 2
+    from tools.attach import remote_target
+    if remote_target(args.buffer) is not None:
+        if args.wm is not None:
+            print("pfma record: --wm records a world model on this host; with a remote --buffer "
+                  "(zenoh://...) record the world model where the controller runs", file=sys.stderr)
+            return 2
+        return _record_remote(args)
     return record(args.target[0], buffer=args.buffer, rack_arg=args.rack, duration_s=args.duration,
                   json_every=args.json_every, flush_s=args.flush_s, wait_s=args.wait, quiet=args.quiet,
                   wm_name=args.wm, patterns=patterns)
+
+
+def _record_remote(args) -> int:
+    """``--buffer zenoh://HOST:PORT/NAME``: the recording through a bridge (tools/bridge/record.py)."""
+    from tools.bridge.record import record_remote
+    sys.setswitchinterval(0.0005)  # as locally: the Zenoh threads get in while this one writes
+    stop = {"flag": False}
+
+    def handler(signum, _frame):
+        stop["flag"] = True
+    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    t_end = None if args.duration is None else time.monotonic() + args.duration
+    try:
+        return record_remote(args.target[0], args.buffer, rack_arg=args.rack, json_every=args.json_every,
+                             flush_s=args.flush_s, wait_s=args.wait, say=_say(args.quiet),
+                             done=lambda: stop["flag"] or (t_end is not None and time.monotonic() >= t_end),
+                             summary=_summary_line)
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
 
 
 def _recover(args) -> int:
@@ -157,7 +186,8 @@ def _info(args) -> int:
                     "world_model": None if not wm else {
                         "name": wm.get("name"), "patterns": json.loads(wm.get("patterns", "[]")),
                         "variables": json.loads(wm.get("variables", "[]")),
-                        "summary": {k: wsum.get(k) for k in _WM_KEYS} if wsum else None}})
+                        "summary": {k: wsum.get(k) for k in _WM_KEYS} if wsum else None},
+                    "link": _link(meta.get("pfma.link"))})
         return 0
     print(f"{path}: {st.message_count} messages, {st.chunk_count} chunks, {dur:.3f} s, "
           f"{st.attachment_count} attachments, {st.metadata_count} metadata")
@@ -172,7 +202,21 @@ def _info(args) -> int:
         print(f"  world model {wm.get('name')!r}: {nvars} variables from "
               f"{', '.join(json.loads(wm.get('patterns', '[]')))}"
               + (": " + ", ".join(f"{k}={wsum.get(k)}" for k in _WM_KEYS) if wsum else ""))
+    link = _link(meta.get("pfma.link"))
+    if link:
+        ranges = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in link["lost_ranges"]) or "none"
+        print(f"  remote source {link['source']}: {link['inputs_received']} inputs bodies, frames lost "
+              f"{link['frames_lost']} ({ranges}), service skipped {link['service_skipped']}")
     return 0
+
+
+def _link(meta: dict | None) -> dict | None:
+    """A remote recording's ``pfma.link`` metadata (tools/bridge/record.py), typed."""
+    if not meta:
+        return None
+    return {"source": meta.get("source"), "inputs_received": int(meta.get("inputs_received", 0)),
+            "frames_lost": int(meta.get("frames_lost", 0)), "lost_ranges": json.loads(meta.get("lost_ranges", "[]")),
+            "service_skipped": int(meta.get("service_skipped", 0)), "counted_from": meta.get("counted_from")}
 
 
 #: the ``pfma.wm.summary`` counters ``info`` prints

@@ -36,7 +36,9 @@ def add_parser(sub):
     p.add_argument("--pre", type=nonneg_float, default=0.1, help="seconds kept before the trigger (0.1)")
     p.add_argument("--post", type=positive_float, default=0.5, help="seconds captured after the trigger (0.5)")
     p.add_argument("-o", "--output", default="capture.mcap", help="capture file (capture.mcap)")
-    p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
+    p.add_argument("--buffer", default="pfma",
+                   help="Bit3 shared-memory name (default pfma), or zenoh://HOST:PORT/NAME through a "
+                        "pfma bridge (docs/bridge.md)")
     p.add_argument("--rack", default="fake", help="rack TOML the service runs")
     p.add_argument("--timeout", type=positive_float, default=None, help="give up when no trigger within S seconds")
     p.add_argument("--open", metavar="CAPTURE.mcap", default=None, help="print a saved capture")
@@ -70,7 +72,7 @@ def run(args) -> int:
         print("pfma scope: name at least one signal (or --open CAPTURE.mcap)", file=sys.stderr)
         return 2
     from bit3.layout import build_layout, default_layout
-    from tools.attach import wait_for_service
+    from tools.attach import attach_reader, remote_target, wait_for_service
     from tools.recording.schema import epoch_offset_ns
     from pfma.rack import load_rack
     layout = default_layout() if args.rack in ("fake", "default") else build_layout(load_rack(args.rack))
@@ -88,8 +90,12 @@ def run(args) -> int:
     t_start = time.monotonic()
     client = None
     try:
-        client = wait_for_service(args.buffer, layout, timeout_s=args.timeout, say=say,
-                                  stop=lambda: stop["flag"])
+        if remote_target(args.buffer) is not None:  # through a bridge: every frame queued
+            client = attach_reader(args.buffer, args.rack, every_frame=True,
+                                   timeout_s=min(args.timeout or 5.0, 5.0))
+        else:
+            client = wait_for_service(args.buffer, layout, timeout_s=args.timeout, say=say,
+                                      stop=lambda: stop["flag"])
         if client is None:
             say("no service; nothing captured")
             return 1

@@ -20,7 +20,9 @@ def add_parser(sub):
     p = sub.add_parser("watch", help="a few values at ~30 Hz, one line each",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("signals", nargs="+", metavar="SIGNAL")
-    p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
+    p.add_argument("--buffer", default="pfma",
+                   help="Bit3 shared-memory name (default pfma), or zenoh://HOST:PORT/NAME through a "
+                        "pfma bridge (docs/bridge.md)")
     p.add_argument("--rack", default=None, help="rack TOML the service runs (default: the IRSS rack)")
     p.add_argument("--rate", type=positive_float, default=30.0, help="lines per second (default 30)")
     p.add_argument("--count", type=nonneg_int, default=0, help="stop after N lines (default: until Ctrl-C)")
