@@ -157,6 +157,7 @@ class AdcTask:
     def __init__(self, svc) -> None:
         self.svc = svc
         self.boards: list[tuple] = []
+        self._started: dict[str, float] = {}  # boards whose scan start() began this frame: when
 
     def wire(self) -> None:
         svc = self.svc
@@ -191,13 +192,35 @@ class AdcTask:
         """The volts array the scans of ``board`` fill (None for no such A/D board)."""
         return next((b[6] for b in self.boards if b[0].name == board), None)
 
+    def start(self) -> None:
+        """At the start of a frame the ADC runs in: start each scan-mode board's scan, so its
+        128 us of conversions overlap the DAC and resolver work before :meth:`run` collects it
+        (instead of a busy wait on EOC inside the task). A board whose start fails, or one
+        that uses the per-channel sequence, does its whole scan in :meth:`run`."""
+        started, now = self._started, self.svc.clock.now
+        started.clear()
+        for b in self.boards:
+            drv = b[1]
+            if drv.scan_mode:
+                t = now()
+                try:
+                    drv.start_scan()
+                except PfmaError:
+                    continue  # run() tries the whole scan and reports its failure
+                started[b[0].name] = t  # the inputs are sampled from here on
+
     def run(self, k: int = 0) -> None:
         svc = self.svc
         v = svc._v
+        started = self._started
         for cfg, drv, slots, scale, offset, counts, volts, bslot in self.boards:
-            t = svc.clock.now()
+            t = started.pop(cfg.name, None)
             try:
-                drv.scan(counts)
+                if t is not None:
+                    counts[:] = drv.read_scan()
+                else:
+                    t = svc.clock.now()
+                    drv.scan(counts)
             except PfmaError as err:
                 svc._input_failed(cfg.name, "adc", err)
                 v["adc_status"][slots] |= CHANNEL_BUS_ERROR
