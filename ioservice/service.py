@@ -267,6 +267,7 @@ class IoService:
         tasks: tuple[InputTask, ...] = (self.rtd, self.adc, self.ft, self.hand, self.pio)  # inputs, in run order
         names = tuple(t.name for t in tasks)
         self._input_tasks = tuple((1 << i, t) for i, t in enumerate(tasks))
+        self._adc_bit = 1 << tasks.index(self.adc)
         self._frame_tasks = tuple(tuple(n for n in names if n in frame) for frame in table)
         self._frame_masks = tuple(sum(1 << i for i, n in enumerate(names) if n in frame)
                                   for frame in table)
@@ -456,6 +457,8 @@ class IoService:
         self._bus_failed = False
         late = info.t_wake + self.schedule.period_s  # a frame's work past this overruns
         try:
+            if mask & self._adc_bit:
+                self.adc.start()  # the scan converts while the DAC and resolvers run
             self._task_dac(k)
             for bit, task in self._input_tasks:
                 if mask & bit:
