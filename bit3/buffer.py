@@ -44,11 +44,13 @@ from typing import TYPE_CHECKING, Any, Callable, Literal
 import numpy as np
 
 from bit3.layout import (
-    AREA_MAP, BUFFER_SIZE, LAYOUT_VERSION, MAGIC, MESSAGE_CONTINUES, MESSAGE_DTYPE, MESSAGE_MAX_ENTRIES,
-    MESSAGE_QUEUE_LEN, MESSAGE_TEXT_BYTES,
-    OWNER_DTYPE, OWNER_NAME_BYTES, WRITER_ROLES, AreaSpec, Layout, ServiceState,
+    AREA_MAP, BUFFER_SIZE, LAYOUT_VERSION, MAGIC, MESSAGE_CONTINUED, MESSAGE_CONTINUES, MESSAGE_DTYPE,
+    MESSAGE_MAX_ENTRIES, MESSAGE_QUEUE_LEN, MESSAGE_SEVERITY_MASK, MESSAGE_TEXT_BYTES,
+    OWNER_DTYPE, OWNER_FLAG_CLAIMED, OWNER_FLAG_SIMULATED, OWNER_NAME_BYTES, WRITER_ROLES, AreaSpec, Layout,
+    ServiceState,
     Severity, _header, default_layout, resolve_role, struct_field, struct_names,
 )
+from bit3 import access
 from bit3.seqlock import (  # noqa: F401  (the errors and constants are part of the buffer's API)
     DEFAULT_READ_TIMEOUT_S, TRY_READ_ATTEMPTS, Bit3Error, LayoutMismatchError, OwnershipError, SeqLock,
     SeqLockTimeout,
@@ -81,6 +83,12 @@ class OwnerInfo:
     heartbeat: int
     heartbeat_t_s: float
     takeovers: int
+    flags: int = 0  #: ``OWNER_FLAG_*`` bits (bit3/layout.py)
+
+    @property
+    def simulated(self) -> bool:
+        """The claimer runs on the simulated rack (``OWNER_FLAG_SIMULATED``)."""
+        return bool(self.flags & OWNER_FLAG_SIMULATED)
 
     @property
     def alive(self) -> bool:
@@ -106,6 +114,20 @@ class HeaderInfo:
     frame_t_s: float
     rack_name: str
     owners: tuple[OwnerInfo, ...]
+
+    @property
+    def rack_kind(self) -> str:
+        """Whether the service's rack is simulated, from the ``inputs`` owner slot's flags:
+        ``"simulated"`` (the register-level fakes), ``"real"`` (a hardware bus: the service
+        cannot see what is behind it, so this is "not simulated by the service") or
+        ``"unknown"`` (no service has claimed the buffer, or the owner slots are not
+        available, as over the Zenoh bridge)."""
+        o = next((o for o in self.owners if o.area == "inputs"), None)
+        if o is None or o.pid <= 0:
+            return "unknown"
+        if o.flags & OWNER_FLAG_SIMULATED:
+            return "simulated"
+        return "real" if o.flags & OWNER_FLAG_CLAIMED else "unknown"
 
 
 def _pid_alive(pid: int) -> bool:
@@ -277,7 +299,8 @@ def _char_cut(raw: bytes, at: int) -> int:
 
 def split_text(raw: bytes) -> list[bytes]:
     """UTF-8 ``raw`` in entry-sized pieces, cut only between characters; at most
-    ``MESSAGE_MAX_ENTRIES`` pieces, the last ending "~" when the text was longer."""
+    ``MESSAGE_MAX_ENTRIES`` pieces (``MESSAGE_MAX_BYTES``, the bound stated in
+    bit3/layout.py), the last ending "~" when the text was longer."""
     size = MESSAGE_TEXT_BYTES
     pieces: list[bytes] = []
     while len(raw) > size and len(pieces) <= MESSAGE_MAX_ENTRIES:
@@ -294,26 +317,35 @@ def split_text(raw: bytes) -> list[bytes]:
 def decode_messages(queue: str, rec: np.ndarray, since_seq: int = 0) -> list[Message]:
     """The messages newer than ``since_seq`` in a consistent copy ``rec`` of a message-queue
     body (what :meth:`MessageQueue.read` returns; also for a copy that came from elsewhere,
-    e.g. the body bytes the Zenoh bridge publishes)."""
+    e.g. the body bytes the Zenoh bridge publishes). Only whole messages: the entries of a
+    message whose first entry the ring has already overwritten (``MESSAGE_CONTINUED`` on
+    the oldest entry read) are skipped, so the first message returned then starts after
+    ``since_seq + 1`` (its ``first_seq`` says where; the gap counts the entries lost)."""
     head = int(rec["head_seq"])
     first = max(since_seq + 1, head - MESSAGE_QUEUE_LEN + 1, 1)
     out = []
     entries = rec["entries"]
     parts: list[bytes] = []  # the pieces of a message whose last entry is still to come
     start = first
+    orphan = False  # inside a message whose beginning is gone: skipped up to its last entry
     for s in range(first, head + 1):
         e = entries[(s - 1) % MESSAGE_QUEUE_LEN]
         if int(e["seq"]) != s:  # cannot happen with a stable copy; be strict anyway
             parts = []
             continue
+        sev_byte = int(e["severity"])
         if not parts:
             start = s
+            orphan = bool(sev_byte & MESSAGE_CONTINUED)
+        if orphan:
+            if not sev_byte & MESSAGE_CONTINUES:
+                orphan = False  # its last entry: the next one starts a message
+            continue
         parts.append(bytes(e["text"]))
-        sev_byte = int(e["severity"])
         if sev_byte & MESSAGE_CONTINUES and s < head:
             continue
         try:
-            sev = Severity(sev_byte & ~MESSAGE_CONTINUES)
+            sev = Severity(sev_byte & MESSAGE_SEVERITY_MASK)
         except ValueError:
             sev = Severity.ERROR
         first_e = entries[(start - 1) % MESSAGE_QUEUE_LEN]
@@ -350,9 +382,9 @@ class MessageQueue:
     def post(self, text: str, severity: Severity | int = Severity.INFO, code: int = 0,
              source: int = 0, t_s: float | None = None) -> int:
         """Append a message, whole: a text longer than one entry's 56 bytes of UTF-8 takes
-        the next entries too (at most ``MESSAGE_MAX_ENTRIES``; beyond, it is cut and ends
-        "~"), written in one sequence-lock section; returns the sequence number of its last
-        entry."""
+        the next entries too (at most ``MESSAGE_MAX_ENTRIES``, ``MESSAGE_MAX_BYTES`` of
+        text; beyond, it is cut and ends "~"), written in one sequence-lock section; returns
+        the sequence number of its last entry."""
         if self._head is None:
             raise Bit3Error(f"Bit3 area {self.area.name}: not claimed by this attachment; "
                             f"only its owner may post")
@@ -367,7 +399,8 @@ class MessageQueue:
         for i, raw in enumerate(pieces):
             n = n0 + 1 + i
             e["seq"] = n
-            e["severity"] = int(severity) | (MESSAGE_CONTINUES if i < last else 0)
+            e["severity"] = (int(severity) | (MESSAGE_CONTINUES if i < last else 0)
+                             | (MESSAGE_CONTINUED if i > 0 else 0))
             e["text"] = raw
             off = self._entries_off + ((n - 1) % MESSAGE_QUEUE_LEN) * MESSAGE_DTYPE.itemsize
             self._body[off:off + MESSAGE_DTYPE.itemsize] = self._entry_mv
@@ -437,10 +470,14 @@ class Bit3Buffer:
 
     @classmethod
     def create(cls, name: str = "pfma", layout: Layout | None = None, *,
-               exist_ok: bool = False) -> "Bit3Buffer":
+               exist_ok: bool = False, group: str | int | None = None) -> "Bit3Buffer":
         """Create and initialise POSIX shared memory ``name`` (``/dev/shm/<name>``).
 
         With ``exist_ok`` an existing segment is attached writable instead (and must match).
+
+        :param group: None: mode 0600 (private to this user); a group name or gid: mode
+            0640 and that group, so its members can attach read-only (bit3/access.py)
+        :raises Bit3Error: unknown group, or this user is not a member of it (nothing left behind)
         """
         layout = layout or default_layout()
         try:
@@ -451,6 +488,12 @@ class Bit3Buffer:
                                 f"to it, or remove it with Bit3Buffer.unlink({name!r}) when no "
                                 f"process uses it") from None
             return cls.attach(name, readonly=False, layout=layout)
+        try:
+            access.apply_access(shm._fd, f"/dev/shm/{name}", group)
+        except BaseException:
+            shm.close()
+            Bit3Buffer.unlink(name)
+            raise
         buf = cls(shm.buf, layout, name=name, fd=shm._fd, readonly=False, closer=shm.close)
         buf._shm = shm
         buf._initialise()
@@ -459,15 +502,34 @@ class Bit3Buffer:
     @classmethod
     def attach(cls, name: str = "pfma", readonly: bool = True,
                layout: Layout | None = None) -> "Bit3Buffer":
-        """Attach to an existing segment; refused unless magic, version, size and hash match."""
+        """Attach to an existing segment; refused unless magic, version, size and hash match.
+
+        Read-only, a segment this user may only read (the group model, bit3/access.py) is
+        mapped read-only. No permission: :class:`~bit3.access.Bit3AccessError`, one message.
+        """
         layout = layout or default_layout()
+        missing = Bit3Error(f"no Bit3 buffer {name!r} (/dev/shm/{name}); is the I/O service running?")
         try:
             shm = _open_shm(name, create=False)
         except FileNotFoundError:
-            raise Bit3Error(f"no Bit3 buffer {name!r} (/dev/shm/{name}); is the I/O service "
-                            f"running?") from None
-        buf = cls(shm.buf, layout, name=name, fd=shm._fd, readonly=readonly, closer=shm.close)
-        buf._shm = shm
+            raise missing from None
+        except PermissionError:
+            if not readonly:
+                raise access.access_error(f"/dev/shm/{name}", writing=True) from None
+            try:
+                mm, fd = access.open_readonly(name)
+            except FileNotFoundError:
+                raise missing from None
+            except PermissionError:
+                raise access.access_error(f"/dev/shm/{name}", writing=False) from None
+
+            def closer() -> None:
+                mm.close()
+                os.close(fd)
+            buf = cls(mm, layout, name=name, fd=fd, readonly=True, closer=closer)
+        else:
+            buf = cls(shm.buf, layout, name=name, fd=shm._fd, readonly=readonly, closer=shm.close)
+            buf._shm = shm
         try:
             buf._verify()
         except BaseException:
@@ -654,7 +716,7 @@ class Bit3Buffer:
         rec = np.frombuffer(raw, OWNER_DTYPE)[0]
         return OwnerInfo(area, int(rec["pid"]), bytes(rec["name"]).decode("utf-8", "replace"),
                          int(rec["claimed_ns"]), int(rec["heartbeat"]), float(rec["heartbeat_t_s"]),
-                         int(rec["takeovers"]))
+                         int(rec["takeovers"]), int(rec["flags"]))
 
     def owner_pid_token(self, area: str) -> tuple[int, int]:
         """``(pid, token)`` of an area's owner, cheap enough for every frame: aligned loads
@@ -746,9 +808,12 @@ class Bit3Buffer:
 
     # --- ownership ---------------------------------------------------------------------
 
-    def claim(self, writer: str, owner: str) -> list[OwnerInfo]:
+    def claim(self, writer: str, owner: str, *, simulated: bool = False) -> list[OwnerInfo]:
         """Claim every area of a writer role (``"service"``/``"inputs"`` or
         ``"controller"``/``"commands"``) for ``owner``.
+
+        :param simulated: the claimer runs on the simulated rack: ``OWNER_FLAG_SIMULATED`` is
+            written in its owner slots with the claim (bit3/layout.py)
 
         :returns: the previous owners whose (dead) claims were taken over
         :raises OwnershipError: an area has a live owner (named in the message)
@@ -780,7 +845,8 @@ class Bit3Buffer:
                 prev = self.owner(area_name)
                 if prev.pid > 0:
                     previous.append(prev)
-                self._write_owner(a.index, os.getpid(), name, prev.takeovers + (prev.pid > 0))
+                self._write_owner(a.index, os.getpid(), name, prev.takeovers + (prev.pid > 0),
+                                  OWNER_FLAG_SIMULATED if simulated else 0)
                 self._claimed[area_name] = owner
                 lock = self._locks[area_name]
                 lock.take_over()
@@ -790,13 +856,16 @@ class Bit3Buffer:
             raise
         return previous
 
-    def _write_owner(self, index: int, pid: int, name: bytes, takeovers: int) -> None:
+    def _write_owner(self, index: int, pid: int, name: bytes, takeovers: int, flags: int = 0) -> None:
+        """One owner slot, under its counter; ``flags`` beside ``OWNER_FLAG_CLAIMED``, which a
+        claim (``pid`` > 0) always has and a release (``pid`` 0) clears with the rest."""
         base = self._owner_offset(index, "seq")
         seq = self._mv[base:base + 8].cast("Q")
         try:
             s = seq[0]
             seq[0] = s + 1 + (s & 1)
-            struct.pack_into("<iI", self._mv, base + struct_field(OWNER_DTYPE, "pid")[1], pid, 1 if pid else 0)
+            struct.pack_into("<iI", self._mv, base + struct_field(OWNER_DTYPE, "pid")[1], pid,
+                             (OWNER_FLAG_CLAIMED | flags) if pid else 0)
             no = base + struct_field(OWNER_DTYPE, "name")[1]
             self._mv[no:no + OWNER_NAME_BYTES] = name.ljust(OWNER_NAME_BYTES, b"\0")
             cns = base + struct_field(OWNER_DTYPE, "claimed_ns")[1]

@@ -70,9 +70,26 @@ MESSAGE_TEXT_BYTES = 56
 #: (``bit3.buffer.MessageQueue`` posts and joins them; a message's entries are written in
 #: one sequence-lock section, so a reader sees all or none of them)
 MESSAGE_CONTINUES = 0x80
-#: entries one message may take (4 x 56 = 224 bytes of UTF-8); a longer text is cut, ending "~"
-MESSAGE_MAX_ENTRIES = 4
+#: and every entry of a message but its first has this bit set: a reader whose window into
+#: the ring starts inside a message (its first entries already overwritten) knows the
+#: entry is not a message's beginning and skips the rest of that message
+MESSAGE_CONTINUED = 0x40
+#: the severity byte's bits that carry the severity itself (the rest: the two bits above)
+MESSAGE_SEVERITY_MASK = 0x3F
+#: entries one message may take: half the ring, so the ring always holds the newest message
+#: whole beside others (the bound, stated once: a message carries up to
+#: :data:`MESSAGE_MAX_BYTES` = 25 x 56 = 1400 bytes of UTF-8; a longer text is cut, ending "~")
+MESSAGE_MAX_ENTRIES = MESSAGE_QUEUE_LEN // 2
+MESSAGE_MAX_BYTES = MESSAGE_MAX_ENTRIES * MESSAGE_TEXT_BYTES
 OWNER_NAME_BYTES = 32
+#: ``owners[i].flags`` bits. CLAIMED: the slot holds a claim (written with the pid; clear
+#: once released). SIMULATED: the claimer runs on a simulated rack, the register-level fakes
+#: (the I/O service sets it in the slots of its areas when its register bus is the fake rack,
+#: directly or through a spy; clear for a hardware bus: a device file, a VME bridge, a Modbus
+#: gateway, whose far side the service cannot see). Readers: ``OwnerInfo.simulated``,
+#: ``HeaderInfo.rack_kind``.
+OWNER_FLAG_CLAIMED = 0x1
+OWNER_FLAG_SIMULATED = 0x2
 
 #: slot capacities of the per-channel groups (spare room beyond the default rack)
 CAPACITY = {
@@ -844,8 +861,26 @@ def layout_markdown(layout: Layout | None = None) -> str:
             "Severities: " + ", ".join(f"{s.value} {s.name}" for s in Severity) + ".", ""]
     out += ["## Header records", "",
             "`area_table[i]` (32 B): " + _md_record(AREA_ENTRY_DTYPE) + ".", "",
-            "`owners[i]` (80 B, i = area index): " + _md_record(OWNER_DTYPE) + ".", "",
-            f"Message `entries[i]` ({MESSAGE_DTYPE.itemsize} B): " + _md_record(MESSAGE_DTYPE) + ".", ""]
+            "`owners[i]` (80 B, i = area index): " + _md_record(OWNER_DTYPE) + ". "
+            f"`flags` bits: 0x{OWNER_FLAG_CLAIMED:x} CLAIMED (the slot holds a live or dead claim; "
+            f"0 once released), 0x{OWNER_FLAG_SIMULATED:x} SIMULATED (the claimer runs on the "
+            "simulated rack, the register-level fakes: the I/O service sets it in its three slots "
+            "when its register bus is the fake rack, directly or through a spy, and leaves it clear "
+            "for a hardware bus such as a device file, a VME bridge or a Modbus gateway, whose far "
+            "side it cannot see). The `inputs` slot answers whether the rack is simulated: "
+            "SIMULATED set, simulated; CLAIMED alone, a hardware bus; pid 0, unknown (no service).",
+            "",
+            f"Message `entries[i]` ({MESSAGE_DTYPE.itemsize} B): " + _md_record(MESSAGE_DTYPE) + ". "
+            f"A message longer than one entry's {MESSAGE_TEXT_BYTES} bytes of UTF-8 takes the next "
+            f"entries (cut only between characters), all written in one sequence-lock section; "
+            f"the `severity` byte's low bits (0x{MESSAGE_SEVERITY_MASK:02x}) are the severity, "
+            f"0x{MESSAGE_CONTINUES:02x} is set on every entry of a message but its last (the text "
+            f"goes on in the next entry) and 0x{MESSAGE_CONTINUED:02x} on every entry but its first "
+            "(a reader whose window starts inside a message skips the rest of it); `t_s`, "
+            "`source` and `code` are the same in every entry of a message. **The bound**: a "
+            f"message takes at most {MESSAGE_MAX_ENTRIES} entries (half the ring), so it carries "
+            f"up to {MESSAGE_MAX_BYTES} bytes of UTF-8; a longer text is cut there and ends \"~\".",
+            ""]
     for a in lay.areas:
         fl = [f for f in lay.fields if f.area == a.name]
         if not fl:

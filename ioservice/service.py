@@ -146,13 +146,16 @@ class IoService:
         refused with a ConfigError if it exceeds the watchdog
     :param bus_name: how messages name the bus (``modbus://HOST:PORT``); default: the bus's
         own ``describe()``, or its type
+    :param simulated: whether the rack is simulated (the register-level fakes), published as
+        ``OWNER_FLAG_SIMULATED`` in the service's owner slots of the Bit3 header so every
+        tool can say so; default (None): :func:`bus_is_simulated`
     """
 
     def __init__(self, rack: RackConfig, bus, buffer: Bit3Buffer, clock: Clock, *,
                  schedule: Schedule | None = None, watchdog_s: float = 0.015,
                  owner: str = "pfma-ioservice", serial: bool = True, calibration=None,
                  ft_port: str | None = None, max_input_age_frames: int | None = None,
-                 bus_name: str | None = None) -> None:
+                 bus_name: str | None = None, simulated: bool | None = None) -> None:
         self.calibration = None  # calibration: the loaded calibration in force (None = nominal)
         if calibration is not None:
             rack, self.calibration = _calibrated_rack(rack, calibration)
@@ -182,7 +185,9 @@ class IoService:
                               f"{self.policy.max_input_age_frames} ({age_s * 1e3:.2f} ms at "
                               f"{self.schedule.frame_rate_hz:g} Hz) exceeds the {watchdog_s * 1e3:g} ms "
                               f"command watchdog; lower it or raise the watchdog")
-        buffer.claim("service", owner)
+        #: the rack is simulated (published in the header's owner slots: HeaderInfo.rack_kind)
+        self.simulated = bus_is_simulated(bus) if simulated is None else bool(simulated)
+        buffer.claim("service", owner, simulated=self.simulated)
         self.inputs = buffer.writer("inputs")
         #: optional ``bit3.ring.FrameRing``: every published inputs body is also
         #: appended there (``pfma serve`` creates it for recorders)
@@ -214,7 +219,7 @@ class IoService:
         #: back to OK (``_board_answered``, ``_input_ok``)
         self.faulted_boards: set[str] = set()
         self._board_fail_run: dict[str, int] = {}
-        self.init_errors: list[str] = []  #: full texts of start-up problems (messages keep up to 224 bytes)
+        self.init_errors: list[str] = []  #: full texts of start-up problems (messages keep MESSAGE_MAX_BYTES)
         self.notes: list[str] = []  #: full texts of start-up decisions the user should know of
         self._bus_ok_t = clock.now()  # the last register transaction that succeeded
         self._bus_failed = False  # a register transaction failed in the current frame
@@ -986,6 +991,37 @@ class IoService:
         self.dac.calibrate(rack)
         self._apply_calibration_extras()
         self.post(Severity.INFO, 160, f"calibration v{cal.version} loaded ({cal.hash().hex()})")
+
+
+#: a bus whose class comes from this package is the simulated rack (see bus_is_simulated)
+FAKES_PACKAGE = "fakes"
+
+
+def bus_is_simulated(bus) -> bool:
+    """Whether a register bus is the simulated rack, for the header's SIMULATED flag.
+
+    ASSUMED (named once here; docs/console.md "Simulated or real"): a bus that says so with a
+    boolean class attribute ``simulated`` is believed; otherwise a bus whose class lives in
+    the ``fakes`` package (``fakes.rack.FakeRack`` and the simulated racks built on it: what
+    ``pfma serve --rack fake``, ``--bus fake`` and every simulation rig use) is simulated,
+    and so is a wrapper (``drivers.bus.spy.SpyBus``, its ``bus`` attribute) around one. Any
+    other bus is a hardware bus (device file, VME bridge, Modbus gateway): not simulated,
+    even if a simulator answers at its far side (``pfma gateway``), which the service cannot
+    see. The service does not import the fakes (docs/architecture.md); it only reads the
+    class's module name.
+    """
+    b = bus
+    for _ in range(4):  # a spy on a spy ...
+        said = getattr(type(b), "simulated", None)
+        if isinstance(said, bool):
+            return said
+        if type(b).__module__.partition(".")[0] == FAKES_PACKAGE:
+            return True
+        inner = vars(b).get("bus") if hasattr(b, "__dict__") else None
+        if inner is None or inner is b:
+            return False
+        b = inner
+    return False
 
 
 def _bus_name(bus) -> str:
