@@ -88,6 +88,7 @@ RUN_WITH_SERVICE = (
     f"{PFMA} watch elbow_pitch_angle --count 30",
     f"{PFMA} record out/run.mcap --duration 3",
     f"{PFMA} scope wrist_roll_rate elbow_pitch_angle -o out/capture.mcap",
+    f"{PFMA} foxglove --duration 2",
     ".venv/bin/python bench/independent_reader.py out/layout.json --seconds 2",
 )
 
@@ -215,6 +216,7 @@ def _service_up(proc: subprocess.Popen) -> None:
     pytest.fail(f"pfma serve did not come up within {SERVICE_UP_TIMEOUT_S:g} s")
 
 
+@pytest.mark.realtime
 def test_every_readme_command_runs_as_written():
     why = _refuse_to_disturb()
     if why:

@@ -57,6 +57,19 @@ def _obj(props: dict, desc: str = "") -> dict:
 
 _HEAD = {"t_s": _num("sample time, service clock (s)"), "frame": _int("service minor frame")}
 
+#: the device channels written when their group's sample time (an inputs field) changes:
+#: (topic, sample-time field, :class:`_Topics` encoder name); the recorder and the live
+#: Foxglove server (tools/foxglove.py) both go by it
+DEVICE_TOPICS = (("/pfma/joints", "t_rtd_s", "joints"), ("/pfma/adc", "t_adc_s", "adc"),
+                 ("/pfma/dac", "t_dac_s", "dac"), ("/pfma/ft", "ft_t_s", "ft"), ("/pfma/pio", "t_pio_s", "pio"))
+
+
+def json_schema(topic: str, schema: dict) -> tuple[str, bytes]:
+    """A JSON channel's schema as it is registered (MCAP and the live Foxglove server):
+    ``(schema name, JSON Schema document)``, e.g. ``pfma.joints`` for ``/pfma/joints``."""
+    doc = {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": topic, **schema}
+    return "pfma" + topic.replace("/", ".")[5:], json.dumps(doc).encode()
+
 
 class _Topics:
     """Builds the JSON messages of one inputs snapshot (index arrays precomputed)."""

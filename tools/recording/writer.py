@@ -19,7 +19,7 @@ from tools.recording.schema import (
     CHUNK_SIZE, COUNTERS_EVERY_S, FLUSH_EVERY_S, LIBRARY, PROFILE, RAW_ENCODING, RAW_SCHEMA, RAW_SCHEMA_ENCODING,
     RAW_TOPIC, _ns, epoch_offset_ns, raw_schema,
 )
-from tools.recording.topics import RecorderCounters, _dumps, _Topics
+from tools.recording.topics import DEVICE_TOPICS, RecorderCounters, _dumps, _Topics, json_schema
 
 if TYPE_CHECKING:
     from tools.recording.wm import WmSampler
@@ -73,6 +73,7 @@ class Recorder:
         self.w = Writer(self._f, chunk_size=chunk_size, compression=compression)
         self.w.start(profile=PROFILE, library=LIBRARY)
         self.t = _Topics(self.layout)
+        self._device_topics = tuple((topic, tf, getattr(self.t, enc)) for topic, tf, enc in DEVICE_TOPICS)
         self._ch: dict[str, int] = {}
         self._schema_raw = raw_schema(self.layout)
         self._raw_len = self._schema_raw["stored_bytes"]
@@ -83,9 +84,8 @@ class Recorder:
         self.wm = wm
         wm_topics = wm.topics() if wm is not None else {}
         for topic, schema in {**self.t.schemas(), **wm_topics}.items():
-            schema = {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": topic, **schema}
-            sid = self.w.register_schema("pfma" + topic.replace("/", ".")[5:], "jsonschema",
-                                         json.dumps(schema).encode())
+            name, doc = json_schema(topic, schema)
+            sid = self.w.register_schema(name, "jsonschema", doc)
             self._ch[topic] = self.w.register_channel(
                 topic, "json", sid, {"world_model": wm.name} if topic in wm_topics and wm else {})
         self._meta_extra = dict(meta or {})
@@ -246,11 +246,7 @@ class Recorder:
         if self._json_n % self.json_every:
             return 1
         lt = self._last_t
-        for topic, tf, fn in (("/pfma/joints", "t_rtd_s", self.t.joints),
-                              ("/pfma/adc", "t_adc_s", self.t.adc),
-                              ("/pfma/dac", "t_dac_s", self.t.dac),
-                              ("/pfma/ft", "ft_t_s", self.t.ft),
-                              ("/pfma/pio", "t_pio_s", self.t.pio)):
+        for topic, tf, fn in self._device_topics:
             ts = float(r[tf])
             if ts != lt.get(tf) and ts > 0:
                 lt[tf] = ts
