@@ -45,6 +45,20 @@ def test_link_loss_names_lost_frames_and_keeps_service_skips_apart():
 
 # --- a recording through a bridge, stepped frame by frame in simulated time ----------------
 
+class LossyRemote(RemoteBuffer):
+    """The subscriber's test double: drops the inputs bodies of the frames in ``drop`` (a
+    link losing them), passes everything else on."""
+
+    drop: set[int] = set()
+
+    def _on_body(self, sample) -> None:
+        if self.drop and str(sample.key_expr).endswith("/inputs"):
+            body = sample.payload.to_bytes()
+            if int(np.frombuffer(body, self.layout.area("inputs").body_dtype, count=1)[0]["frame"]) in self.drop:
+                return
+        super()._on_body(sample)
+
+
 @pytest.fixture
 def stepped():
     """(rig, bridge, remote): a read-only bridge on a SimRig and a queued RemoteBuffer on
@@ -54,7 +68,7 @@ def stepped():
     here = open_session(listen=[endpoint])
     bridge = Bridge(here, rig.name, rig.reader)
     far = open_session(connect=[endpoint])
-    remote = RemoteBuffer(far, rig.name, queue_inputs=True)
+    remote = LossyRemote(far, rig.name, queue_inputs=True)
     try:
         # the subscription reaches the bridge: frames until one body has arrived, then
         # start from an empty queue
@@ -72,6 +86,7 @@ def _frames(path) -> dict[int, bytes]:
     return {int(r["frame"]): r.tobytes() for _, _, r in read_frames(path, (RAW_TOPIC,))}
 
 
+@pytest.mark.realtime
 def test_a_stopped_bridge_and_dropped_samples_are_reported_with_their_frames(stepped, tmp_path):
     """Frames the bridge never saw (it was not polled: "stopped briefly") and bodies the
     subscriber dropped (a test double of the link losing them) are both named, exactly;
@@ -83,17 +98,7 @@ def test_a_stopped_bridge_and_dropped_samples_are_reported_with_their_frames(ste
     start = int(rig.reader.read_inputs().frame) + 1
     pause = set(range(start + 20, start + 25))   # the bridge is not polled: never published
     drop = {start + 40, start + 41, start + 60}  # published, lost on the way in
-    on_body = remote._on_body
-
-    def lossy(sample):  # the subscriber double: drops the inputs bodies of chosen frames
-        if str(sample.key_expr).endswith("/inputs"):
-            frame = int(np.frombuffer(sample.payload.to_bytes(), remote.layout.area("inputs").body_dtype,
-                                      count=1)[0]["frame"])
-            if frame in drop:
-                return
-        on_body(sample)
-    remote._sub.undeclare()
-    remote._sub = remote.session.declare_subscriber(f"pfma/{rig.name}/*", lossy)
+    remote.drop = drop
     for k in range(80):
         rig.run_frames(1)
         local.poll()
@@ -192,6 +197,7 @@ def test_pfma_record_and_scope_through_the_bridge(served, tmp_path, capsys):
     assert len(both) > 10 and all(a[f] == b[f] for f in both)
 
 
+@pytest.mark.realtime
 def test_watch_and_console_read_a_remote_buffer(monkeypatch, capsys):
     """``pfma watch`` and ``pfma console`` through a bridge: a late joiner asks each area
     once, so nothing here waits for frames (the simulator is stepped before)."""
