@@ -26,6 +26,9 @@ import time
 from tools.cli.args import nonneg_float, positive_float
 
 CLEAR = "\x1b[H\x1b[2J"
+#: the line under the header when the service's rack is simulated (its SIMULATED flag in the
+#: Bit3 header, ``HeaderInfo.rack_kind``); ``--json`` has ``rack_kind``
+SIMULATED_LINE = "SIMULATED RACK: the service's boards are the register-level fakes"
 
 
 def add_parser(sub):
@@ -85,10 +88,11 @@ def run(args) -> int:
     link = ServiceLink(args.buffer, args.rack, wait_s=30.0 if args.wait is None else args.wait)
     try:
         if args.once:
+            kind = link.client().header().rack_kind
             if args.json:
-                print_json(monitor_data(link.client(), args.filter))
+                print_json({**monitor_data(link.client(), args.filter), "rack_kind": kind})
             else:
-                print("\n".join(monitor_lines(link.client(), args.filter)))
+                print("\n".join(_with_rack(monitor_lines(link.client(), args.filter), kind)))
             return 0
         page, pages, t_page = 0, 1, time.monotonic()
         with _keys() as key:
@@ -104,12 +108,22 @@ def run(args) -> int:
                 size = shutil.get_terminal_size((80, 24))
                 try:
                     d = monitor_data(link.client(), args.filter)
+                    kind = link.client().header().rack_kind
                 except Bit3Error as err:  # e.g. a service killed in the middle of a write
                     link.invalidate(str(err))
                     continue
-                lines, pages = monitor_screen(d, page, size.lines, min(size.columns, 80) if size.columns else 80)
+                extra = len(_with_rack([""], kind)) - 1
+                lines, pages = monitor_screen(d, page, size.lines - extra,
+                                              min(size.columns, 80) if size.columns else 80)
+                lines = _with_rack(lines, kind)
                 sys.stdout.write(CLEAR + "\n".join(lines))
                 sys.stdout.flush()
                 time.sleep(args.interval)
     finally:
         link.close()
+
+
+def _with_rack(lines: list[str], rack_kind: str) -> list[str]:
+    """The monitor's lines with :data:`SIMULATED_LINE` under the first when the rack is
+    simulated (nothing is added for a hardware bus or an unknown rack: no claim is made)."""
+    return lines[:1] + [SIMULATED_LINE] + lines[1:] if rack_kind == "simulated" else lines

@@ -50,6 +50,7 @@ def _service_client(name: str, rack: str | None):
 
 def _read_buffer(client, signals, as_json: bool) -> int:
     snap = client.read_inputs()
+    simulated = client.header().rack_kind == "simulated"  # the service's SIMULATED flag
     rows, failures = [], 0
     for signal in signals:
         row: dict = {"signal": signal}
@@ -59,6 +60,8 @@ def _read_buffer(client, signals, as_json: bool) -> int:
             value = value.tolist() if hasattr(value, "tolist") else value
             row.update(board=entry.board, channel=entry.channel, value=value, units=entry.units,
                        note=f"from the service (frame {snap.frame})")
+            if simulated:
+                row["source"] = "simulated rack"
         except StopIteration:
             failures += 1
             row["error"] = f"no channel named {signal!r} in the service's Bit3 layout"
@@ -72,8 +75,9 @@ def _read_buffer(client, signals, as_json: bool) -> int:
             if "error" not in row:
                 v = row["value"]
                 shown = f"{v:.6g}" if isinstance(v, float) else str(v)
+                sim = "(simulated rack) " if simulated else ""
                 print(f"{row['signal']:32} {shown:>14} {row['units']:6} {row['board']} ch {row['channel']}  "
-                      f"{row['note']}")
+                      f"{sim}{row['note']}")
     return 1 if failures else 0
 
 

@@ -80,14 +80,16 @@ class Sources:
 
     :param client: a :class:`bit3.client.Client` (a reader; never a writer)
     :param wm: the controller's world model (attached, or the simulator's own)
-    :param rack: "simulated" (the boards are fakes: said on every screen), "real", or
-        "unknown" (the buffer does not say; said too)
+    :param rack: "simulated" (the boards are fakes: said on every screen), "real" (a
+        hardware bus), "unknown"; None (default): what the buffer says, read at every
+        refresh (the service's SIMULATED flag, :func:`rack_kind`)
     """
 
-    def __init__(self, client, wm, rack: str = "unknown") -> None:
+    def __init__(self, client, wm, rack: str | None = None) -> None:
         self.client = client
         self.wm = wm
-        self.rack = rack
+        self.rack = rack or "unknown"
+        self._rack_from_buffer = rack is None
         self.layout = client.layout
         names = set(wm.names())
         self.layer_vars = tuple(f"{k}.{f}" for k, _ in LAYERS for f in ("command", "status", "row", "task", "error")
@@ -103,6 +105,8 @@ class Sources:
 
     def read(self) -> Reading:
         c = self.client
+        if self._rack_from_buffer:
+            self.rack = rack_kind(c)
         snap = c.read_inputs()
         r = Reading(inputs=snap, stats=c.read_stats())
         st = int(snap.service_state)
@@ -141,10 +145,20 @@ def _enum(enum_cls, v: int) -> str:
         return str(v)
 
 
+def rack_kind(client) -> str:
+    """"simulated", "real" or "unknown": the SIMULATED flag the service publishes in its
+    owner slots of the Bit3 header (``HeaderInfo.rack_kind``; unknown when the header
+    cannot be read or has no owners, as over the Zenoh bridge)."""
+    try:
+        return str(client.header().rack_kind)
+    except Exception:  # noqa: BLE001 - a display: what cannot be read is unknown
+        return "unknown"
+
+
 def rack_line(rack: str) -> str:
     return {"simulated": "SIMULATED RACK: the boards, the arm and the sensors are fakes",
-            "real": "rack: real hardware"}.get(rack, "rack: unknown (the service does not say if its boards "
-                                                    "are simulated)")
+            "real": "rack: real (the service's register bus is hardware, not the simulated rack)"
+            }.get(rack, "rack: unknown (the buffer does not say whether its boards are simulated)")
 
 
 def local_status(r: Reading, selected: int) -> str:
