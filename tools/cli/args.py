@@ -36,6 +36,11 @@ def nonneg_float(text: str) -> float:
     return v
 
 
+def whole_number(text: str) -> int:
+    """Any whole number (a count whose range its verb checks with its own message)."""
+    return int(_number(int, text))
+
+
 def positive_int(text: str) -> int:
     """A whole number >= 1 (counts, frames)."""
     v = int(_number(int, text))
@@ -60,3 +65,22 @@ def float_in(lo: float, hi: float, unit: str = "") -> Callable[[str], float]:
             raise argparse.ArgumentTypeError(f"{text} outside {lo:g}..{hi:g}{(' ' + unit) if unit else ''}")
         return v
     return check
+
+
+def camera_number(text: str) -> int:
+    """A camera of the matrix switcher: 1..3, or 0 = blank the monitor (docs/cameras.md)."""
+    from drivers.pio.routes import BLANK, CAMERAS
+    v = int(_number(int, text))
+    if v != BLANK and v not in CAMERAS:
+        raise argparse.ArgumentTypeError(f"{text} is not a camera: {CAMERAS[0]}..{CAMERAS[-1]}, or {BLANK} to blank "
+                                         f"the monitor")
+    return v
+
+
+def monitor_number(text: str) -> int:
+    """A monitor of the matrix switcher: 1..2 (docs/cameras.md)."""
+    from drivers.pio.routes import MONITORS
+    v = int(_number(int, text))
+    if v not in MONITORS:
+        raise argparse.ArgumentTypeError(f"{text} is not a monitor: {MONITORS[0]}..{MONITORS[-1]}")
+    return v

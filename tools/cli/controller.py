@@ -11,6 +11,7 @@ Examples::
     pfma controller halt --wm pfma_wm       # a running controller: hold the outputs HALTED
     pfma controller step 5                  # ... run exactly 5 minor frames, print their trace
     pfma controller resume --rearm          # ... re-arm the outputs and go on
+    pfma controller route 2 1               # ... camera 2 on monitor 1 (0 blanks it)
 
 The trace has one line per minor frame: for every layer ``COMMAND>STATUS rN`` (the
 command it receives, the status its decision table decided, the table row that
@@ -19,10 +20,13 @@ decided; ``*`` marks a change) and the Data Acquisition hardware-check bits.
 
 from __future__ import annotations
 
+import argparse
 import gc
 import sys
 import time
-from tools.cli.args import nonneg_float, nonneg_int, positive_float, positive_int
+from tools.cli.args import (
+    camera_number, monitor_number, nonneg_float, nonneg_int, positive_float, positive_int, whole_number,
+)
 
 HELP = """single-step commands (IRSS halt / manual interrupt):
   Enter or s      one minor frame          s N   N minor frames
@@ -35,12 +39,15 @@ HELP = """single-step commands (IRSS halt / manual interrupt):
 def add_parser(sub):
     p = sub.add_parser("controller", help="run the IRSS-layered controller (live service or --sim)",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("action", nargs="?", choices=("halt", "step", "resume"), default=None,
-                   help="frame control of a RUNNING controller (its --wm): halt (outputs held in the "
+    p.add_argument("action", nargs="?", choices=("halt", "step", "resume", "route"), default=None,
+                   help="requests to a RUNNING controller (its --wm): halt (outputs held in the "
                         "service's HALTED state, 0 V, brakes set), step [N] (exactly N minor frames, "
-                        "their trace printed), resume (needs --rearm)")
-    p.add_argument("frames", nargs="?", type=int, default=None, metavar="N",
-                   help="step: minor frames to run (default 1)")
+                        "their trace printed), resume (needs --rearm), route CAMERA MONITOR (the "
+                        "console's CAMERA ROUTE: that camera on that monitor, 0 blanks it)")
+    p.add_argument("frames", nargs="?", default=None, metavar="N|CAMERA", action=_CountOrCamera,
+                   help="step: minor frames to run (default 1); route: the camera, 1..3 or 0 = blank")
+    p.add_argument("monitor", nargs="?", type=monitor_number, default=None, metavar="MONITOR",
+                   help="route: the monitor, 1..2")
     p.add_argument("--rearm", action="store_true", help="resume: re-arm the outputs (required)")
     p.add_argument("--key", default=None,
                    help="halt/step/resume: world-model access key (default $PFMA_WM_KEY or the default key)")
@@ -67,6 +74,23 @@ def add_parser(sub):
     _add_motion_arguments(p)
     _add_path_arguments(p)
     return p
+
+
+class _CountOrCamera(argparse.Action):
+    """The second positional, checked as what its action takes: ``route``'s CAMERA
+    (:func:`tools.cli.args.camera_number`), else ``step``'s whole number N (its range is
+    checked with the request); a bad one is argparse's usage error naming it, exit 2."""
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        if values is None:
+            setattr(namespace, self.dest, None)
+            return
+        route = getattr(namespace, "action", None) == "route"
+        try:
+            value = camera_number(values) if route else whole_number(values)
+        except argparse.ArgumentTypeError as err:
+            raise argparse.ArgumentError(None, f"argument {'CAMERA' if route else 'N'}: {err}") from None
+        setattr(namespace, self.dest, value)
 
 
 # --- motion: teleoperation, force control, time delay (Cartesian engine, issue 6) -------------
@@ -517,11 +541,19 @@ def _interactive_live(d: _Driver, budget: int) -> None:
 
 
 def _frame_control(args) -> int:
-    """``pfma controller halt|step [N]|resume --rearm``: one request to the running
-    controller through its world model; prints the answer (and a step's trace)."""
+    """``pfma controller halt|step [N]|resume --rearm|route CAMERA MONITOR``: one request to
+    the running controller through its world model; prints the answer (and a step's trace)."""
     from controller.runtime import MAX_STEP_FRAMES
     from tools.console.control import ControlError, ControllerLink, Request
-    if args.frames is not None and args.action != "step":
+    if args.action == "route":
+        if args.frames is None or args.monitor is None:
+            print("pfma controller route: needs CAMERA MONITOR (e.g. `route 2 1`: camera 2 on monitor 1; "
+                  "camera 0 blanks the monitor)", file=sys.stderr)
+            return 2
+    elif args.monitor is not None:
+        print(f"pfma controller {args.action}: takes no MONITOR (only route CAMERA MONITOR does)", file=sys.stderr)
+        return 2
+    if args.frames is not None and args.action not in ("step", "route"):
         print(f"pfma controller {args.action}: takes no frame count (only step N does)", file=sys.stderr)
         return 2
     if args.rearm and args.action != "resume":
@@ -536,8 +568,12 @@ def _frame_control(args) -> int:
         print(f"pfma controller {args.action}: needs the running controller's world model (--wm NAME)",
               file=sys.stderr)
         return 2
-    kind = {"halt": Request.HALT, "step": Request.STEP, "resume": Request.RESUME}[args.action]
-    arg = n if args.action == "step" else int(args.rearm)
+    kind = {"halt": Request.HALT, "step": Request.STEP, "resume": Request.RESUME, "route": Request.ROUTE}[args.action]
+    if args.action == "route":
+        from drivers.pio.routes import route_request_arg
+        arg = route_request_arg(args.monitor, args.frames)  # monitor * 16 + camera (docs/cameras.md)
+    else:
+        arg = n if args.action == "step" else int(args.rearm)
     try:
         link = ControllerLink.attach(args.wm, args.key)
         try:
@@ -558,8 +594,9 @@ def _frame_control(args) -> int:
 def run(args) -> int:
     if args.action is not None:
         return _frame_control(args)
-    if args.frames is not None:
-        print("pfma controller: a frame count belongs to `pfma controller step N`", file=sys.stderr)
+    if args.frames is not None or args.monitor is not None:
+        print("pfma controller: a frame count belongs to `pfma controller step N`, a camera and a monitor to "
+              "`pfma controller route CAMERA MONITOR`", file=sys.stderr)
         return 2
     if args.tables:
         return _print_tables(args.profile)
