@@ -1,9 +1,11 @@
 """Snapshot tests of the console's screens (issue 18 item 7; pytest-textual-snapshot): the
 primary display powered up, halted, the messages screen, the world-model browser, the
-parameter display and the force displays, over
-the system simulator in simulated time (the same frames give the same text). Update after
-an intended change with ``pytest tests/tools/console --snapshot-update`` and look at the
-SVGs."""
+parameter display, the force displays, the camera routes and a live menu from a TOML file,
+over the system simulator in simulated time (the same frames give the same text). The
+camera and menu tests also assert on the rendered text (what the terminal shows:
+``_pilot.screen_text``), so a wrong value fails by its words as well as by the SVG. Update
+after an intended change with ``pytest tests/tools/console --snapshot-update`` and look at
+the SVGs."""
 
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ from sim.system import SystemSimulator
 from tools.console import view
 from tools.console.app import ConsoleApp
 from tools.console.control import ControllerLink
+from tests.tools.console._pilot import screen_text
 
 SIZE = (180, 50)
 
@@ -72,3 +75,80 @@ def test_force_displays(rig, snap_compare):
     sim, app = rig
     sim.world.ft.set_load((12.0, -4.0, 30.0), (0.5, -0.25, 0.125))
     assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 40, ("u", "u", "u", "u", "f")))
+
+
+def test_camera_screen(rig, snap_compare):
+    """``v``, then camera 2 on monitor 1 and camera 3 on monitor 2: the route table as the
+    switcher applied it, the selected monitor, the answer; the World Status under it."""
+    sim, app = rig
+    switcher = sim.world.bus["pio_video"].switcher
+
+    async def run_before(pilot):
+        for keys in (("v",), ("2",), ("down", "3")):
+            await pilot.press(*keys)
+            sim.step(24)  # 75 ms: the service applies a route at its 40 Hz PIO rate
+            app.refresh_areas()
+        await pilot.pause()
+        assert switcher.monitors == (2, 3)
+        lines = [ln.rstrip() for ln in screen_text(app).splitlines()]
+        assert lines[:10] == [
+            "Camera routes: the user I/F box's switches or the keys here (docs/cameras.md)",
+            "",
+            "  monitor 1: camera 2",
+            "> monitor 2: camera 3",
+            "",
+            "camera routes: monitor 1: camera 2, monitor 2: camera 3",
+            "",
+            "1 2 3  that camera on the selected monitor   0  blank it",
+            "up/down, tab  select the monitor   v, Escape  close",
+            "last answer: request 2: CAMERA ROUTE: applied by the service: monitor 1: camera 2, monitor 2: camera 3 "
+            "-> COMPLETE",
+        ]
+        assert any("│ camera routes: monitor 1: camera 2, monitor 2: camera 3" in ln for ln in lines[10:])  # World Status
+    assert snap_compare(app, terminal_size=SIZE, run_before=run_before)
+
+
+MENU = "snapshot-menu.toml"  #: beside this file; loaded by a relative name, so the page shows the same path anywhere
+
+
+def test_live_menu(rig, snap_compare, monkeypatch):
+    """``--menu snapshot-menu.toml``, key ``l``: each variable's label, its values in its own
+    format and its units, live; the second page at its own rate; back to the first."""
+    from pathlib import Path
+
+    from tools.console import menu as menus
+    from tools.console.app import MenuScreen
+    sim, app = rig
+    monkeypatch.chdir(Path(__file__).parent)
+    app.menu = menus.load(MENU)  # what pfma console --menu does: read, then checked against the model
+    app.menu.check(sim.rt.wm)
+    wm = sim.rt.wm
+
+    async def run_before(pilot):
+        sim.step(300)
+        await pilot.press("l")
+        await pilot.pause()
+        assert isinstance(app.screen, MenuScreen)
+        sim.step(40)
+        app.refresh_areas()  # 10 Hz page: redrawn at this refresh
+        await pilot.pause()
+        lines = [ln.rstrip() for ln in screen_text(app).splitlines()]
+        q = wm.get("daq.joint_angle_rad")
+        assert lines[0] == "snapshot menu: [Joints]  Servo"
+        assert lines[1].startswith("page 1/2, refresh 10 Hz   <- -> / tab page   Escape/l close   (snapshot-menu.toml)")
+        assert lines[3] == "measured angle     " + "  ".join(f"{float(x):+.4f}" for x in q) + "  rad"
+        assert lines[4] == f"controller frames  {int(wm.get('runtime.frames'))}"
+        await pilot.press("right")
+        await pilot.pause()
+        lines = [ln.rstrip() for ln in screen_text(app).splitlines()]
+        assert lines[0] == "snapshot menu: Joints  [Servo]" and lines[1].startswith("page 2/2, refresh 2 Hz")
+        kp, cl = wm.get("servo.kp_per_s"), wm.get("servo.current_limit_a")
+        units_kp, units_cl = wm.spec("servo.kp_per_s").units, wm.spec("servo.current_limit_a").units
+        assert lines[3] == "gain K         " + "  ".join(f"{float(x):.2f}" for x in kp) + f"  {units_kp}"
+        assert lines[4] == "current limit  " + "  ".join(f"{float(x):.1f}" for x in cl) + f"  {units_cl}"
+        await pilot.press("left")
+        sim.step(40)
+        app.refresh_areas()
+        await pilot.pause()
+        assert screen_text(app).splitlines()[4].rstrip() == f"controller frames  {int(wm.get('runtime.frames'))}"
+    assert snap_compare(app, terminal_size=SIZE, run_before=run_before)
