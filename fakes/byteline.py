@@ -33,6 +33,27 @@ class FaultyLine:
         self.tx_count = 0  #: model bytes taken from the output queue (incl. dropped)
         self.noise_bytes_sent = 0
         self.bytes_dropped = 0
+        #: called after a fault is set or ended (the serial board's line model: the far end's
+        #: ``next_output_s`` may have changed)
+        self.on_line_change = None
+
+    def _line_changed(self) -> None:
+        if self.on_line_change is not None:
+            self.on_line_change()
+
+    def next_output_s(self) -> float | None:
+        """This end's own time before which :meth:`transmit` surely returns nothing (so the
+        serial board model need not ask it before then); None when it cannot say: output
+        already queued, a fault schedule active, stalled or disconnected. Lazy producers
+        say when their next output is due in :meth:`_quiet_until_s`."""
+        if self._tx or self._noise or self._drops or self._noise_every is not None \
+                or self._drop_every is not None or self.stalled or not self.connected:
+            return None
+        return self._quiet_until_s()
+
+    def _quiet_until_s(self) -> float | None:
+        """Lazy producers: when the next output is due (own time; inf: only after input)."""
+        return None
 
     def _refill(self) -> None:
         """Called when the output queue is empty (lazy producers put their next bytes)."""
@@ -96,11 +117,13 @@ class FaultyLine:
         """Insert ``data`` into the output after ``after_bytes`` more model bytes."""
         self._noise.append((self.tx_count + after_bytes, bytes(data)))
         self._noise.sort(key=lambda e: e[0])
+        self._line_changed()
 
     def drop_next(self, n: int, after_bytes: int = 0) -> None:
         """Lose ``n`` output bytes, starting after ``after_bytes`` more model bytes."""
         self._drops.append((self.tx_count + after_bytes, int(n)))
         self._drops.sort(key=lambda e: e[0])
+        self._line_changed()
 
     def noise_every(self, data: bytes, every_bytes: int) -> None:
         """Insert ``data`` after every ``every_bytes`` model bytes, from the next one on,
@@ -109,11 +132,13 @@ class FaultyLine:
             raise ValueError("noise_every needs data and every_bytes >= 1")
         self._noise_every = (bytes(data), int(every_bytes))
         self._next_noise_at = self.tx_count + int(every_bytes)
+        self._line_changed()
 
     def stop_noise(self) -> None:
         """End the noise: repeating and scheduled bursts not yet sent are dropped."""
         self._noise_every = None
         self._noise.clear()
+        self._line_changed()
 
     def drop_every(self, n: int, every_bytes: int) -> None:
         """Lose ``n`` output bytes after every ``every_bytes`` model bytes until
@@ -122,25 +147,31 @@ class FaultyLine:
             raise ValueError("drop_every needs n >= 1 and every_bytes >= 1")
         self._drop_every = (int(n), int(every_bytes))
         self._next_drop_at = self.tx_count + int(every_bytes)
+        self._line_changed()
 
     def stop_drops(self) -> None:
         """End the drops (scheduled ones not yet due are cancelled; a run in progress ends)."""
         self._drop_every = None
         self._drops.clear()
         self._drop_left = 0
+        self._line_changed()
 
     def stall(self, seconds: float = float("inf")) -> None:
         """Send nothing for ``seconds`` of the model's time (default: until :meth:`resume`)."""
         self._stall_until_s = self.t_s + seconds
+        self._line_changed()
 
     def resume(self) -> None:
         """End a stall now."""
         self._stall_until_s = -1.0
+        self._line_changed()
 
     def disconnect(self) -> None:
         """Go silent for good (a PtyDevice owner then closes the line)."""
         self.connected = False
+        self._line_changed()
 
     def reconnect(self) -> None:
         """Talk again after :meth:`disconnect` (the output queue carries on where it was)."""
         self.connected = True
+        self._line_changed()

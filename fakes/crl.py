@@ -118,6 +118,11 @@ class FakeCrlMaster(FaultyLine):
         return self.received[-1] if self.received else None
 
     # -- device interface -------------------------------------------------------------------
+    def _quiet_until_s(self) -> float | None:
+        """The next position frame (queued by :meth:`advance` when its time comes, within
+        the 1e-12 s it allows)."""
+        return self._next_frame_s - 1e-9
+
     def advance(self, dt_s: float) -> None:
         """Move the master's time; queue a position frame every frame period."""
         if dt_s < 0:

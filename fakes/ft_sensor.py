@@ -189,6 +189,13 @@ class FakeFtController(FaultyLine):
                 self._line += ch
                 self._tx += ch
 
+    def _quiet_until_s(self) -> float | None:
+        """Streaming: the next internal sample (a pending one goes out now); else only a
+        received character makes output (a command's echo and answer)."""
+        if not self.streaming:
+            return math.inf
+        return self.t_s if self._pending else self._next_sample_s
+
     def _refill(self) -> None:
         if self.streaming and self._pending:  # the newest sample, when the line is free
             self._tx += self._record(with_terminator=True)

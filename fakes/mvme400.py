@@ -89,8 +89,13 @@ class SerialPeer:
         """Put a protocol fake (``receive``/``transmit``, optional ``advance(dt_s)``) on the
         far end (None removes it)."""
         self._board._sync()
+        if self.device is not None and getattr(self.device, "on_line_change", None) is not None:
+            self.device.on_line_change = None
         self.device = device
         self._device_t = self._board.t
+        if device is not None and hasattr(device, "on_line_change"):
+            device.on_line_change = self._board._unquiet  # its faults change when it talks next
+        self._board._unquiet()
 
     def _advance_device(self, t: float) -> None:
         if t > self._device_t:
@@ -110,6 +115,7 @@ class SerialPeer:
         self._enqueue(bytes(data), self._board.t, error)
 
     def _enqueue(self, data: bytes, not_before: float, error: str | None = None) -> None:
+        self._board._unquiet()
         ct = self.char_time_s
         for value in data:
             start = max(self._line_free_t, not_before)
@@ -169,6 +175,7 @@ class FakeMvme400(FakeBoard):
     def __init__(self, name: str | None = None, clock: Clock | None = None) -> None:
         super().__init__(name, clock)
         self.t = self.clock.now()
+        self._quiet_until = -math.inf  # see _advance / _next_event_t
         self.pia = FakePia6821(f"{self.name}.PIA")
         self._ch = [_Channel(0), _Channel(1)]
         self._peers = [SerialPeer(self, 0), SerialPeer(self, 1)]
@@ -255,6 +262,7 @@ class FakeMvme400(FakeBoard):
         self._lines_changed()
 
     def _lines_changed(self) -> None:
+        self._unquiet()
         for c in self._ch:
             now = (self._cts_on(c.idx), self._dcd_on(c.idx))
             if now != self._lines_seen[c.idx]:
@@ -282,6 +290,13 @@ class FakeMvme400(FakeBoard):
     def _advance(self, t_to: float) -> None:
         if t_to <= self.t:
             return
+        if t_to < self._quiet_until:
+            # nothing can happen on either line before _quiet_until (no character arrives,
+            # none finishes or starts shifting out, neither far end has output due): only
+            # the board's time moves; the far ends catch up at the next event (their
+            # ``advance(dt)`` takes any dt in one call)
+            self.t = t_to
+            return
         t = self.t
         for c, peer in self._lines:
             queue = peer._queue
@@ -296,6 +311,42 @@ class FakeMvme400(FakeBoard):
                 continue
             self._advance_channel(c, peer, t_to)
         self.t = t_to
+        self._quiet_until = self._next_event_t()
+
+    def _next_event_t(self) -> float:
+        """Board time before which no line event can happen: the first queued character's
+        arrival, a transmission's end, or a far end's next output (from its optional
+        ``next_output_s()``: its own time before which ``transmit`` returns nothing, None
+        when it cannot say); -inf when that is not known, so every access runs the lines."""
+        q = math.inf
+        for c, peer in self._lines:
+            if c.tx_buf is not None and c.shifting is None:
+                return -math.inf  # a buffered character may start as soon as it is allowed
+            queue = peer._queue
+            if queue:
+                e = queue[0][0]
+            elif peer.device is not None:
+                hint = getattr(peer.device, "next_output_s", None)
+                n = hint() if hint is not None else None
+                if n is None:
+                    return -math.inf
+                e = peer._device_t + (n - peer.device.t_s)
+            else:
+                continue
+            if c.tx_done_t < e:
+                e = c.tx_done_t
+            if e < q:
+                q = e
+        for c in self._ch:
+            if c.tx_done_t < q:
+                q = c.tx_done_t
+        return q
+
+    def _unquiet(self) -> None:
+        """Something changed that the lines' next event depends on (a register write, a
+        fault, a far end attached or queued bytes): every access runs the lines again
+        until they have been run once."""
+        self._quiet_until = -math.inf
 
     def _advance_channel(self, c: _Channel, peer: SerialPeer, t_to: float) -> None:
         """Run one channel and its far end from ``self.t`` to ``t_to``, event by event.
@@ -474,6 +525,7 @@ class FakeMvme400(FakeBoard):
         t = self.clock.now()
         if t > self.t:
             self._advance(t)
+        self._quiet_until = -math.inf  # a write may load the Tx buffer or change a mode
         if offset in _PIA_RS:
             self.pia.write(_PIA_RS[offset], value)
             self._update_pia_inputs()

@@ -130,12 +130,25 @@ def test_buffered_character_starts_once_the_rate_is_programmed():
     assert t0 + CT <= arrived < t0 + CT + 3e-6
 
 
-def test_far_end_time_follows_every_access_while_its_line_is_busy():
+def test_far_end_time_catches_up_at_the_lines_next_event():
+    """While nothing can happen on the lines (a character on its way, none due) an access
+    moves only the board's time; the far end's time catches up in one step at the next
+    event, before it is asked for output, and then follows each access again."""
     b, clock = make_board()
     far = Recorder()
     b.peer(0).attach(far)
     b.peer(0).send(b"0123456789")  # line busy towards the board for 10 char times
+    t_sent = clock.now()
     for _ in range(200):
+        clock.advance(1e-6)
+        rr(b, 0, 0)
+        assert t_sent <= far.t_s <= clock.now()
+    assert far.t_s < clock.now()  # not moved on every access
+    while b.peer(0).pending:  # the characters arrive (read, so the FIFO never overruns)
+        clock.advance(CT / 4)
+        while rr(b, 0, 0) & 0x01:
+            b.read8(DATA[0])
+    for _ in range(20):  # the line is idle and the far end (no next_output_s) is asked each access
         clock.advance(1e-6)
         rr(b, 0, 0)
         assert far.t_s == pytest.approx(clock.now(), abs=1e-12)
