@@ -30,7 +30,12 @@ truncates the old one, whose pages a reader may still have mapped (a mapped page
 the end of a truncated file kills the reader with SIGBUS). The reader keeps reading its
 old ring -- which simply stops growing -- and sees the replacement with
 :meth:`FrameRing.replaced` (the path now names another file, or none), then attaches the
-new ring. The file is private to the user, mode 0600, like the Bit3 segment.
+new ring.
+
+**Mode.** The ring carries its buffer's mode and group (bit3/access.py): private 0600 by
+default, 0640 and the buffer's group in the lab PC's group model. :meth:`FrameRing.create`
+reads them from the buffer's shared-memory file, so a ring never lets in a reader the
+buffer keeps out (or keeps out a reader of the buffer).
 """
 
 from __future__ import annotations
@@ -40,12 +45,14 @@ import os
 import struct
 import uuid
 
+from bit3.access import PRIVATE_MODE, access_error, segment_access
+
 MAGIC = b"PFMARING"
 VERSION = 1
 HEADER = 64
 DEFAULT_SLOTS = 256
-#: the ring file's mode: the same as the Bit3 buffer's shared-memory segment
-MODE = 0o600
+#: the ring file's mode when its buffer does not exist (a ring alone, in tests): private
+MODE = PRIVATE_MODE
 _HDR = struct.Struct("<8sIIII8s")
 _U64 = struct.Struct("<Q")
 
@@ -81,16 +88,20 @@ class FrameRing:
                n_slots: int = DEFAULT_SLOTS) -> "FrameRing":
         """Create (or replace) the ring of ``buffer_name``: a new file, complete with its
         header, renamed over the path; an old ring file is never truncated (see the module
-        docstring), readers that map it keep valid memory."""
+        docstring), readers that map it keep valid memory. Its mode and group are the
+        buffer's (private 0600 when there is no buffer)."""
         if n_slots < 2 or body_size <= 0:
             raise ValueError(f"ring needs >= 2 slots and a body (got {n_slots}, {body_size})")
         slot = -(-(8 + body_size) // 64) * 64
         path = ring_path(buffer_name)
         size = HEADER + n_slots * slot
+        mode, gid = segment_access(buffer_name) or (MODE, -1)
         tmp = f"{path}.{os.getpid()}-{uuid.uuid4().hex[:8]}.new"
-        fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL, MODE)
+        fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL, PRIVATE_MODE)
         try:
-            os.fchmod(fd, MODE)  # whatever the umask
+            if gid != -1 and gid != os.fstat(fd).st_gid:
+                os.fchown(fd, -1, gid)  # before the mode: never readable by the wrong group
+            os.fchmod(fd, mode)  # whatever the umask
             os.ftruncate(fd, size)
             mm = mmap.mmap(fd, size, mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
             st = os.fstat(fd)
@@ -118,6 +129,8 @@ class FrameRing:
         path = ring_path(buffer_name)
         try:
             fd = os.open(path, os.O_RDONLY)
+        except PermissionError:
+            raise RingError(str(access_error(path, writing=False))) from None
         except OSError as err:
             raise RingError(f"no frame ring {path}: {err.strerror}") from None
         try:
