@@ -330,3 +330,72 @@ class RemoteCommander:
             self._token.undeclare()
             self._pub.undeclare()
             self._token = None
+
+
+class RemoteClient:
+    """The :class:`bit3.client.Client` API a controller uses, over a bridge started with
+    ``--commands``: reads from a :class:`RemoteBuffer` (the newest bodies), command writes
+    through a :class:`RemoteCommander` (the one remote writer). So
+    ``ControllerRuntime(RemoteClient.connect("tcp/rack:7447", "pfma", "ops-ctl"), ...)`` runs
+    the controller on another host, the service's watchdog and limits unchanged.
+
+    ``role`` is ``"remote"``: the controller then neither claims the Bit3 controller
+    statistics area nor posts to the controller message queue (both are the bridge's on
+    the rack; its own messages stay in its world model and log).
+    """
+
+    role = "remote"
+
+    def __init__(self, remote: RemoteBuffer, commander: RemoteCommander) -> None:
+        self.remote = remote
+        self.commander = commander
+        self.layout = remote.layout
+        self.buffer = remote.buffer
+
+    @classmethod
+    def connect(cls, endpoint: str, name: str, owner: str, *, rack: str | Path | None = None,
+                timeout_s: float = DEFAULT_TIMEOUT_S) -> "RemoteClient":
+        """Its own session to ``endpoint``; refused (:class:`OwnershipError`) while another
+        remote writer holds the command area."""
+        remote = RemoteBuffer.connect(endpoint, name, rack=rack, timeout_s=timeout_s)
+        try:
+            return cls(remote, RemoteCommander(remote, owner))
+        except BaseException:
+            remote.close()
+            raise
+
+    @property
+    def command(self) -> np.ndarray:
+        """The command record this side writes (``Client.command``)."""
+        return self.commander.command
+
+    def write_commands(self, **fields: Any) -> int:
+        return self.commander.write_commands(**fields)
+
+    def read_inputs(self) -> Snapshot:
+        return self.remote.read_inputs()
+
+    def read_stats(self) -> Snapshot:
+        return self.remote.read_stats()
+
+    def read_commands(self) -> Snapshot:
+        return self.remote.read_commands()
+
+    def changed(self, area: str = "inputs") -> bool:
+        return self.remote.changed(area)
+
+    def messages(self, since_seq: int = 0, queue: str = "service") -> list[Message]:
+        return self.remote.messages(since_seq, queue)
+
+    def header(self) -> HeaderInfo:
+        return self.remote.header()
+
+    def close(self) -> None:
+        self.commander.close()
+        self.remote.close()
+
+    def __enter__(self) -> "RemoteClient":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
