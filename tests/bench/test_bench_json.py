@@ -1,6 +1,7 @@
 """``pfma bench --json``: one JSON object with the figures of the service, the controller,
-the whole stack and the service over a loopback Modbus gateway. Tiny durations; the keys
-are checked and that the figures are finite and positive, never how fast anything is."""
+the whole stack, the service over a loopback Modbus gateway and the Zenoh bridge. Tiny
+durations; the keys are checked and that the figures are finite and positive, never how
+fast anything is."""
 
 import json
 import math
@@ -41,6 +42,14 @@ def test_bench_json_prints_one_object_with_every_benchmark():
         assert set(mb["independent_reader_hz"]) == {"rtd", "adc", "dac"}
         assert all(_positive(v) for v in mb["independent_reader_hz"].values())
         assert mb["url"].startswith("modbus://127.0.0.1:")  # loopback only
+    br = rep["bridge"]  # the Zenoh bridge on loopback beside shared memory (tools/bridge/latency.py)
+    if "skipped" in br:
+        assert isinstance(br["skipped"], str) and br["skipped"]
+    else:
+        assert "error" not in br, br
+        for path in ("shm", "bridge"):
+            assert _positive(br[path]["p50_us"]) and br[path]["p99_us"] >= br[path]["p50_us"]
+        assert 0 < br["delivered_percent"] <= 100 and br["bridge_cpu_percent"] >= 0
     assert out.returncode == (1 if rep["stack"]["errors"] else 0)
 
 
@@ -49,7 +58,7 @@ def test_bench_json_refuses_a_benchmark_it_does_not_measure():
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert out.stdout == ""
-    assert out.stderr.strip() == "pfma bench: --json measures service, controller, stack, modbus; not buffer"
+    assert out.stderr.strip() == "pfma bench: --json measures service, controller, stack, modbus, bridge; not buffer"
 
 
 def test_bench_unknown_name_is_one_message():

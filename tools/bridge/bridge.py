@@ -33,6 +33,9 @@ AREAS = ("inputs", "stats", "commands", "service_messages", "controller_messages
 MIN_PERIOD_S = {"stats": 1.0, "controller_stats": 1.0}
 #: command fields the bridge stamps itself (the remote's values are not copied)
 STAMPED = ("heartbeat", "t_s", "writer_pid", "writer_token", "inputs_frame")
+#: polls between two looks whether the frame ring was replaced (one ``stat``; ~0.5 s at
+#: the CLI's 0.5 ms poll)
+RING_CHECK_POLLS = 1000
 #: every published body carries, as its Zenoh attachment, the area's sequence counter at
 #: the copy (8 bytes, little-endian): the service bumps it by 2 per publish, so a far side
 #: that sees a jump of more than 2 knows publishes were lost on the way (at the bridge or
@@ -59,10 +62,16 @@ class Bridge:
     holding the command area) takes remote commands.
 
     :param now: the clock of the statistics' rate cap (the buffer's clock by default)
+    :param ring: the service's frame ring (``bit3.ring.FrameRing``, which ``pfma serve``
+        keeps): the inputs are then published from it, every frame in order, and the bridge
+        may be descheduled for up to ``n_slots - 1`` frames (0.8 s at 320 Hz) without losing
+        one; each body's sequence number is the ring's stamp of frame k, 2k + 2 (the area's
+        number for the same publish). Without it the inputs area is polled: a poll later
+        than the next frame misses that frame (counted in :attr:`missed`).
     """
 
     def __init__(self, session: Any, name: str, reader: Client, *, commander: Client | None = None,
-                 now: Callable[[], float] | None = None) -> None:
+                 now: Callable[[], float] | None = None, ring: Any = None) -> None:
         self.session = session
         self.name = name
         self.client = reader
@@ -76,12 +85,17 @@ class Bridge:
         #: publishes of the inputs area this bridge did not see (its poll came after the
         #: next one: sequence jumps; the far side sees them as a gap too)
         self.missed = 0
+        self.ring = None
+        self._ring_k = 0  # the next ring frame to publish
+        self._polls = 0
         #: the newest body of each area and its sequence number, answered to a late
         #: joiner's query (a message queue may not change for hours)
         self._last: dict[str, tuple[bytes, int]] = {}
         for a, r in self._readers.items():
             seq = r.read()
             self._last[a] = (bytes(r.raw), seq)
+        if ring is not None:
+            self.attach_ring(ring)
         self._area_q = [session.declare_queryable(key(name, a), self._on_query) for a in AREAS]
         doc = layout_document(self.layout)
         self._layout_q = session.declare_queryable(key(name, "layout"),
@@ -142,9 +156,11 @@ class Bridge:
         (stats at their cap). Returns the number of bodies published."""
         if self.commander is not None:
             self._apply_commands()
-        n = 0
+        n = self._publish_ring() if self.ring is not None else 0
         t = self._now()
         for area, r in self._readers.items():
+            if area == "inputs" and self.ring is not None:
+                continue
             if not r.changed() or t - self._last_pub[area] < MIN_PERIOD_S.get(area, 0.0):
                 continue
             prev = self._last[area][1]
@@ -157,6 +173,44 @@ class Bridge:
             self._last_pub[area] = t
             self.published[area] += 1
             n += 1
+        return n
+
+    def attach_ring(self, ring: Any) -> None:
+        """Publish the inputs from ``ring`` from now on, going on after the last frame
+        published from the area (the ring's stamp 2k + 2 is the area's sequence number of
+        frame k's publish: the numbering goes on without a gap or a repeat)."""
+        last_seq = self._last["inputs"][1]
+        self._ring_k = max(last_seq // 2, ring.count() - (ring.n_slots - 1), 0)
+        self.ring = ring
+
+    def _publish_ring(self) -> int:
+        """Publish every whole frame the ring holds beyond the last one published."""
+        ring, k = self.ring, self._ring_k
+        self._polls += 1
+        if self._polls % RING_CHECK_POLLS == 0 and ring.replaced():
+            # a restarted service made a new ring (and a new buffer, which this bridge's
+            # reader does not follow): from here on, the inputs area as without a ring
+            ring.close()
+            self.ring = None
+            return 0
+        count = ring.count()
+        if count - k >= ring.n_slots:  # fell a whole ring behind: those frames are gone
+            self.missed += count - k - (ring.n_slots - 1)
+            k = count - (ring.n_slots - 1)
+        n = 0
+        pub = self._pubs["inputs"]
+        while k < count:
+            body = ring.read(k)
+            k += 1
+            if body is None:  # overwritten while we were reading
+                self.missed += 1
+                continue
+            data = bytes(body)
+            self._last["inputs"] = (data, 2 * k)  # k is already the next frame: stamp 2(k-1)+2
+            pub.put(data, attachment=SEQ.pack(2 * k))
+            self.published["inputs"] += 1
+            n += 1
+        self._ring_k = k
         return n
 
     def _apply_commands(self) -> None:

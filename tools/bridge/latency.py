@@ -1,6 +1,7 @@
 """Area latency across the bridge on loopback beside shared memory, in the same run
-(issue 19's performance figures, quoted in docs/bridge.md). A measurement run by hand,
-not a test:
+(issue 19's performance figures, quoted in docs/bridge.md and docs/deployment.md).
+``pfma bench bridge`` (``bench/bench_bridge.py``, ``bridge.*`` in ``pfma bench --json``)
+runs :func:`measure`; by hand:
 
     .venv/bin/python -m tools.bridge.latency [SECONDS]
 
@@ -8,7 +9,9 @@ It starts a real-time ``pfma serve`` (320 Hz) and ``pfma bridge`` on tcp/127.0.0
 free port); a shared-memory reader process (polling every 0.2 ms) and a Zenoh subscriber
 process each note, for every inputs body, ``time.monotonic()`` at arrival minus the body's
 ``t_s`` (the frame's start on the service's monotonic clock). Also: the share of frames
-the bridge delivered, and the bridge process's CPU.
+the subscriber received in its window, the publishes the bridge itself missed (its poll
+came after the next frame) and the rest lost on the link (from the sequence numbers the
+bridge attaches), and the bridge process's CPU.
 """
 
 from __future__ import annotations
@@ -46,67 +49,132 @@ print(json.dumps({"lat": lat, "frames": frames}))
 ZENOH_READER = r'''
 import sys, time, json
 import numpy as np
+from tools.bridge.bridge import seq_of
 from tools.bridge.remote import RemoteBuffer
 r = RemoteBuffer.connect(sys.argv[1], sys.argv[2], timeout_s=20)
 got = []
 sub = r.session.declare_subscriber("pfma/%s/inputs" % sys.argv[2],
-                                   lambda smp: got.append((time.monotonic(), smp.payload.to_bytes())))
+                                   lambda smp: got.append((time.monotonic(), smp.payload.to_bytes(), seq_of(smp))))
+print("ready", flush=True)
 time.sleep(float(sys.argv[3]))
 sub.undeclare()
 r.close()
 dt = r.layout.area("inputs").body_dtype
-rec = [np.frombuffer(b, dtype=dt, count=1)[0] for _, b in list(got)]
-print(json.dumps({"lat": [t - float(x["t_s"]) for (t, _), x in zip(got, rec)],
-                  "frames": [int(x["frame"]) for x in rec]}))
+rec = [np.frombuffer(b, dtype=dt, count=1)[0] for _, b, _ in list(got)]
+print(json.dumps({"lat": [t - float(x["t_s"]) for (t, _, _), x in zip(got, rec)],
+                  "frames": [int(x["frame"]) for x in rec], "seqs": [s for _, _, s in got]}))
 '''
 
 
 def _cpu_s(pid: int) -> float:
-    f = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
-    return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
+    with open(f"/proc/{pid}/stat") as f:
+        parts = f.read().rsplit(")", 1)[1].split()
+    return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def _quantiles(x: list[float]) -> str:
+def _us(x: list[float]) -> dict:
     a = np.array(x) * 1e6
-    return (f"p50 {np.percentile(a, 50):.0f} us, p99 {np.percentile(a, 99):.0f} us, "
-            f"max {a.max():.0f} us (n={len(a)})")
+    if not len(a):
+        return {"p50_us": None, "p99_us": None, "max_us": None, "n": 0}
+    return {"p50_us": float(np.percentile(a, 50)), "p99_us": float(np.percentile(a, 99)),
+            "max_us": float(a.max()), "n": int(len(a))}
 
 
-def main(secs: float = 10.0) -> None:
+def _wait(cond, what: str, limit_s: float, procs=()) -> None:
+    end = time.monotonic() + limit_s
+    while not cond():
+        for p in procs:
+            if p.poll() is not None:
+                raise RuntimeError(f"{what}: {' '.join(p.args[2:5])} exited with {p.returncode}")
+        if time.monotonic() > end:
+            raise RuntimeError(f"{what}: not within {limit_s:g} s")
+        time.sleep(0.05)
+
+
+def measure(seconds: float = 10.0) -> dict:
+    """The figures of one run: ``shm`` and ``bridge`` latency quantiles (us); of the
+    service's inputs publishes in the subscriber's window, the share received
+    (``delivered_percent``, from the sequence numbers; ``frames_percent`` also counts frame
+    numbers the service itself skipped as missing); the publishes the bridge missed in its
+    whole run; the bridge's CPU (% of a core) over the window."""
+    from bit3.buffer import Bit3Buffer
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     name = "pfma-lat-" + uuid.uuid4().hex[:6]
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
-    def start(*argv: str, out=subprocess.PIPE) -> subprocess.Popen:
-        return subprocess.Popen([sys.executable, *argv], cwd=ROOT, env=env, stdout=out, text=True)
-    serve = start("-m", "tools.cli", "serve", "--buffer", name, "--duration", str(secs + 15),
+    def start(*argv: str, out=subprocess.PIPE, err=subprocess.DEVNULL) -> subprocess.Popen:
+        return subprocess.Popen([sys.executable, *argv], cwd=ROOT, env=env, stdout=out, stderr=err, text=True)
+    serve = start("-m", "tools.cli", "serve", "--buffer", name, "--duration", str(seconds + 60),
                   out=subprocess.DEVNULL)
+    procs = [serve]
     try:
-        time.sleep(3)  # the service up (a measurement: crude waits are fine here)
-        bridge = start("-m", "tools.cli", "bridge", "--buffer", name, "--listen", endpoint)
-        time.sleep(1.5)
-        zen = start("-c", ZENOH_READER, endpoint, name, str(secs))
-        time.sleep(1.5)
+        _wait(lambda: Bit3Buffer.owner_alive(name)[0], "the service up", 30, procs)
+        bridge = start("-m", "tools.cli", "bridge", "--buffer", name, "--listen", endpoint,
+                       err=subprocess.PIPE)
+        procs.append(bridge)
+        assert bridge.stderr is not None
+        said = bridge.stderr.readline()  # "pfma bridge: buffer ... on ...": it publishes
+        if not said.startswith("pfma bridge: buffer"):
+            raise RuntimeError(f"pfma bridge did not start: {said.strip()}")
+        zen = start("-c", ZENOH_READER, endpoint, name, str(seconds + 1.0), err=subprocess.PIPE)
+        procs.append(zen)
+        assert zen.stdout is not None
+        zen.stdout.readline()  # "ready": subscribed
+        time.sleep(0.5)  # the subscription reaches the bridge (a measurement: a crude wait is fine)
         c0, t0 = _cpu_s(bridge.pid), time.monotonic()
-        shm = start("-c", SHM_READER, name, str(secs - 3))
-        a = json.loads(shm.communicate()[0])
+        shm = start("-c", SHM_READER, name, str(seconds))
+        a = json.loads(shm.communicate(timeout=seconds + 60)[0])
         c1, t1 = _cpu_s(bridge.pid), time.monotonic()
-        b = json.loads(zen.communicate()[0])
+        out, err = zen.communicate(timeout=seconds + 60)
+        if zen.returncode:
+            raise RuntimeError(f"the Zenoh subscriber failed: {err.strip().splitlines()[-1:]}")
+        b = json.loads(out)
+        procs.remove(zen)
         bridge.send_signal(signal.SIGINT)
-        bridge.communicate(timeout=30)
+        bridge_said = bridge.communicate(timeout=30)[1].strip().splitlines()
+        procs.remove(bridge)
     finally:
-        serve.send_signal(signal.SIGINT)
-        serve.communicate(timeout=30)
-    seen = set(b["frames"])
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        for p in procs:
+            p.communicate(timeout=30)
+    frames, seqs = b["frames"], b["seqs"]
+    seen = set(frames)
     span = max(seen) - min(seen) + 1 if seen else 0
-    print("shared memory reader:", _quantiles(a["lat"]))
-    print("across the bridge   :", _quantiles(b["lat"]))
-    print(f"bridge delivered {len(seen)} of {span} frames in its window "
-          f"({100 * len(seen) / max(span, 1):.2f} %)")
-    print(f"bridge CPU over {t1 - t0:.1f} s: {100 * (c1 - c0) / (t1 - t0):.1f} % of a core")
-    print(f"host: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}")
+    gaps = [(s1 - s0) // 2 - 1 for s0, s1 in zip(seqs, seqs[1:]) if s0 is not None and s1 is not None]
+    lost = sum(g for g in gaps if g > 0)
+    missed = next((int(w) for line in bridge_said if "missed" in line
+                   for w, nxt in zip(line.split(), line.split()[1:]) if nxt == "publishes"), None)
+    return {"seconds": seconds, "rate_hz": 320.0, "shm": _us(a["lat"]), "bridge": _us(b["lat"]),
+            "frames_delivered": len(seen), "frames_window": span,
+            "delivered_percent": 100.0 * len(seen) / (len(seen) + lost) if seen else None,
+            "frames_percent": 100.0 * len(seen) / span if span else None,
+            "publishes_lost": lost, "bridge_missed_total": missed,
+            "bridge_cpu_percent": 100.0 * (c1 - c0) / (t1 - t0),
+            "host_cores": os.cpu_count(), "host_load_1min": os.getloadavg()[0]}
+
+
+def report(f: dict) -> str:
+    def q(d: dict) -> str:
+        return f"p50 {d['p50_us']:.0f} us, p99 {d['p99_us']:.0f} us, max {d['max_us']:.0f} us (n={d['n']})" \
+            if d["n"] else "no samples"
+    return "\n".join([
+        f"inputs area latency, pfma serve at {f['rate_hz']:g} Hz, {f['seconds']:g} s window:",
+        f"  shared memory reader: {q(f['shm'])}",
+        f"  across the bridge   : {q(f['bridge'])}",
+        f"  the subscriber received {f['delivered_percent'] or 0:.2f} % of the service's publishes in its window "
+        f"({f['publishes_lost']} lost: sequence gaps); {f['frames_delivered']} of {f['frames_window']} frame "
+        f"numbers ({f['frames_percent'] or 0:.2f} %: the rest the service skipped or were lost); "
+        f"the bridge missed {f['bridge_missed_total']} publishes in its whole run (polled too late)",
+        f"  bridge CPU {f['bridge_cpu_percent']:.1f} % of a core",
+        f"  host: {f['host_cores']} cores, load average {f['host_load_1min']:.2f}"])
+
+
+def main(secs: float = 10.0) -> None:
+    print(report(measure(secs)))
 
 
 if __name__ == "__main__":

@@ -8,8 +8,10 @@ module has ``run(seconds=...)`` (its text report). ``stack`` (the whole stack fo
 benchmark, from each module's ``figures()`` (a dict; no printed text is parsed):
 ``service`` (the service on the simulated rack at 320 Hz, the fakes metered out),
 ``controller`` (the minor-frame cost in the system simulator), ``stack`` (the whole stack
-for ``--minutes``, default 0.5 here; it names its duration) and ``modbus`` (the service
-over a loopback Modbus gateway; ``{"skipped": why}`` where that cannot run). Names after
+for ``--minutes``, default 0.5 here; it names its duration), ``modbus`` (the service
+over a loopback Modbus gateway; ``{"skipped": why}`` where that cannot run) and ``bridge``
+(inputs latency across ``pfma bridge`` on loopback beside shared memory, p50/p99, the share
+of publishes delivered, the bridge's CPU: tools/bridge/latency.py). Names after
 ``--json`` pick from that set; ``pfma bench stack --json`` alone prints the stack's full
 report, as before.
 """
@@ -33,7 +35,7 @@ def _names() -> list[str]:
 #: benchmarks that run only when named (long)
 ON_REQUEST = ("stack",)
 #: what ``pfma bench --json`` measures, in this order
-JSON_SET = ("service", "controller", "stack", "modbus")
+JSON_SET = ("service", "controller", "stack", "modbus", "bridge")
 #: ``--minutes`` of the stack when none is given: text report / --json set
 STACK_MINUTES = 10.0
 STACK_MINUTES_JSON = 0.5

@@ -20,6 +20,9 @@ from tools.cli.args import positive_float
 #: the reader loop's pause between polls, s. Assumption: 0.5 ms, well under the 3.1 ms
 #: frame at 320 Hz, so an inputs body leaves within about one poll of its publication.
 POLL_S = 0.0005
+#: polls between two looks for the service's frame ring while the bridge has none (a
+#: service still starting makes it after its buffer): about every 0.5 s
+RING_LOOK_POLLS = 1000
 
 
 def add_parser(sub):
@@ -64,19 +67,47 @@ def run(args) -> int:
         if args.commands:
             commander = Client.attach(args.buffer, writer="commands", owner=args.owner, rack=args.rack)
         session = open_session(listen=listen, connect=args.connect)
-        bridge = Bridge(session, args.buffer, reader, commander=commander, now=time.monotonic)
+        bridge = Bridge(session, args.buffer, reader, commander=commander, now=time.monotonic,
+                        ring=_ring(args.buffer, reader))
+        ring_gone = bridge.ring is not None
         print(f"pfma bridge: buffer {args.buffer} on {', '.join(listen + (args.connect or []))}"
               f"{' (remote commands on)' if commander else ' (read-only)'}", file=sys.stderr, flush=True)
         end = None if args.duration is None else time.monotonic() + args.duration
+        polls = 0
         while end is None or time.monotonic() < end:
             bridge.poll()
+            polls += 1
+            if bridge.ring is None and not polls % RING_LOOK_POLLS and not ring_gone:
+                ring = _ring(args.buffer, reader)  # a service that is still starting makes it later
+                if ring is not None:
+                    bridge.attach_ring(ring)
+                    ring_gone = True  # found once; a replaced ring later means a restarted service
             time.sleep(POLL_S)
         return 0
     finally:
         if bridge is not None:
+            if bridge.ring is not None:
+                bridge.ring.close()
+            print(f"pfma bridge: stopped; published {bridge.published['inputs']} inputs bodies, missed "
+                  f"{bridge.missed} publishes of the service (polled too late){_applied(bridge)}",
+                  file=sys.stderr, flush=True)
             bridge.close()
         if session is not None:
             session.close()
         if commander is not None:
             commander.close()
         reader.close()
+
+
+def _applied(bridge) -> str:
+    return f"; {bridge.applied} remote command bodies written" if bridge.commander is not None else ""
+
+
+def _ring(buffer: str, reader):
+    """The service's frame ring of this buffer and layout (``pfma serve`` keeps one), or
+    None: then the bridge polls the inputs area."""
+    from bit3.ring import FrameRing, RingError
+    try:
+        return FrameRing.attach(buffer, reader.layout.hash)
+    except RingError:
+        return None
