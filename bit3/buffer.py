@@ -50,7 +50,7 @@ from bit3.layout import (
     ServiceState,
     Severity, _header, default_layout, resolve_role, struct_field, struct_names,
 )
-from bit3 import access
+from bit3 import access, futex
 from bit3.seqlock import (  # noqa: F401  (the errors and constants are part of the buffer's API)
     DEFAULT_READ_TIMEOUT_S, TRY_READ_ATTEMPTS, Bit3Error, LayoutMismatchError, OwnershipError, SeqLock,
     SeqLockTimeout,
@@ -790,6 +790,39 @@ class Bit3Buffer:
         self._require("inputs")
         self._word_cached("frame_t_s", "d")[0] = t_s
         self._word_cached("frame", "Q")[0] = frame
+
+    # --- frame notification (bit3.futex) ------------------------------------------------
+
+    def _frame_addr(self) -> int:
+        """This mapping's address of the header frame counter's low 32-bit word (the futex
+        word; little-endian, 8-byte aligned). Taken through a numpy view released at once:
+        it holds no export of the mapping, so close() is unaffected."""
+        a = self.__dict__.get("_frame_word_addr")
+        if a is None:
+            view = np.frombuffer(self._mv, dtype=np.uint8, count=1, offset=self._hdr_off["frame"])
+            a = self.__dict__["_frame_word_addr"] = int(view.ctypes.data)
+            del view
+        return a
+
+    def frame_word(self) -> int:
+        """The low 32 bits of the header frame counter now (what :meth:`wait_frame` compares)."""
+        return int(self._word_cached("frame", "Q")[0]) & 0xFFFFFFFF
+
+    def wake_frame_waiters(self) -> int:
+        """After :meth:`set_frame`: wake every process waiting in :meth:`wait_frame` (one futex
+        wake); returns how many were waiting (-1 where futexes are not available)."""
+        if futex.AVAILABLE:
+            return futex.wake(self._frame_addr())
+        return -1
+
+    def wait_frame(self, seen_word: int, timeout_s: float) -> str:
+        """Sleep until the header frame counter's low word differs from ``seen_word`` (a
+        frame was published since) or ``timeout_s`` passes; returns ``bit3.futex`` WOKEN,
+        CHANGED or TIMED_OUT. Where futexes are not available: one sleep of ``timeout_s``."""
+        if not futex.AVAILABLE:
+            time.sleep(max(0.0, timeout_s))
+            return futex.TIMED_OUT
+        return futex.wait(self._frame_addr(), seen_word, timeout_s)
 
     def set_calibration_hash(self, digest: bytes) -> None:
         """Header calibration hash slot, 8 bytes (inputs owner only)."""

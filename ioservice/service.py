@@ -796,6 +796,7 @@ class IoService:
         if self.ring is not None:  # the history a stalled recorder catches up from
             self.ring.write(self.inputs.raw)
         self.buf.set_frame(info.index, info.t_wake)
+        self.buf.wake_frame_waiters()  # a live controller sleeps on the frame word (bit3.futex)
 
     # ------------------------------------------------------------------ between frames
     def serial_tick(self, now: float | None = None) -> None:
@@ -953,6 +954,7 @@ class IoService:
         self.inputs.publish()
         if self.ring is not None:
             self.ring.write(self.inputs.raw)
+        self.buf.wake_frame_waiters()  # a reader waiting for the next frame sees STOPPED now
         if self.ft.ft is not None:
             try:
                 self.ft.ft.stop_stream()
