@@ -23,6 +23,11 @@ is not there the recorder waits for it (``--wait`` bounds this too); a pattern t
 matches nothing or a bad rate is a usage mistake (exit 2, nothing recorded). A controller
 that stops mid-recording is said once; the Bit3 topics go on, and the world-model topics
 continue when it comes back.
+
+With ``--buffer zenoh://HOST:PORT/NAME`` it records a remote rack through its ``pfma
+bridge`` (docs/bridge.md): the same file, lossless when the link keeps up; frames lost
+on the way are named (the ``pfma.link`` metadata and the last line: "LOST 5 frames:
+frames 1220-1224"), apart from frames the service itself skipped.
 """
 
 from __future__ import annotations

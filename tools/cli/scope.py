@@ -1,7 +1,7 @@
 """``pfma scope``: capture signals at the native frame rate, with a trigger and a pre-trigger.
 
     pfma scope SIGNAL... [--trigger 'SIGNAL>VALUE' | 'SIGNAL<VALUE'] [--pre S] [--post S]
-               [-o capture.mcap] [--buffer NAME] [--timeout S]
+               [-o capture.mcap] [--buffer NAME | zenoh://HOST:PORT/NAME] [--timeout S]
     pfma scope --open capture.mcap
 
 A SIGNAL is a rack channel (``elbow_pitch_angle``, ``elbow_pitch_rate``: its engineering
