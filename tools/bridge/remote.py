@@ -79,9 +79,11 @@ class RemoteBuffer:
         self._queue: deque[tuple[bytes, int | None]] | None = deque() if queue_inputs else None
         self.max_queue = max_queue
         self.queue_dropped = 0  #: inputs bodies not queued (the reader fell max_queue behind)
-        #: what tools print as the buffer's name (``client.buffer.name``), and the message
-        #: queues' newest sequence numbers (``client.buffer.queue(area).head_seq``, the recorder)
-        self.buffer = SimpleNamespace(name=name, queue=self._queue_head)
+        #: what tools print as the buffer's name (``client.buffer.name``), the message
+        #: queues' newest sequence numbers (``client.buffer.queue(area).head_seq``, the
+        #: recorder) and, once connected by :meth:`connect`, ``url``: the
+        #: ``zenoh://HOST:PORT/NAME`` another tool would be given to read the same buffer
+        self.buffer = SimpleNamespace(name=name, queue=self._queue_head, url=None)
         self._sub = session.declare_subscriber(key(name, "*"), self._on_body)
 
     @classmethod
@@ -99,6 +101,7 @@ class RemoteBuffer:
             session.close()
             raise
         r._own_session = True
+        r.buffer.url = f"zenoh://{endpoint[len('tcp/'):]}/{name}"
         return r
 
     def _fetch_layout(self) -> dict:
