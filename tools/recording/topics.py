@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
+import orjson
 
 from bit3.buffer import MESSAGE_DTYPE  # noqa: F401  (documented message fields)
 from bit3.layout import HC_AXES, Layout, ServiceState
@@ -30,10 +31,21 @@ def _clean(x: Any) -> Any:
 
 
 def _dumps(obj: dict) -> bytes:
+    """Compact JSON; NaN and inf become null (orjson does that itself; the recorder encodes
+    about a thousand of these a second, ~10x cheaper than the standard library's)."""
     try:
-        return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
-    except ValueError:
-        return json.dumps(_clean(obj), separators=(",", ":")).encode()
+        return orjson.dumps(obj, option=orjson.OPT_SERIALIZE_NUMPY)
+    except TypeError:  # a type orjson does not take: the standard library, cleaned
+        return json.dumps(_clean(obj), separators=(",", ":"), default=_plain).encode()
+
+
+def _plain(x: Any) -> Any:
+    """numpy scalars and arrays as Python values (the fallback encoder's default)."""
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    raise TypeError(f"not JSON serializable: {type(x).__name__}")
 
 
 # ----------------------------------------------------------------------------------------
