@@ -12,7 +12,9 @@ frames it lost: each body carries the service's sequence number of the inputs ar
   own overrun, never published: counted as ``service_skipped``, as locally);
 - a sequence step of more than 2 is publishes lost between the service and this
   recorder (the bridge polled too late, the link dropped them, or this side's queue was
-  full): the missing frame numbers are the frame-number gap, written as ranges.
+  full): the missing frame numbers are the frame-number gap, written as ranges (a range
+  may also hold frames the service skipped inside it: the count is of publishes, and the
+  last line says how many of the range's numbers are such).
 
 :class:`LinkLoss` keeps that account; it goes into the MCAP metadata ``pfma.link``
 (``frames_lost``, ``lost_ranges`` as JSON ``[[first, last], ...]``) and the last lines
@@ -98,8 +100,11 @@ class LinkLoss:
         if not self.frames_lost:
             return (f"pfma record: link from {url}: no frame lost ({self.received} inputs bodies; "
                     f"service skipped {self.service_skipped})")
+        inside = sum(b - a + 1 for a, b in self.ranges) - self.frames_lost
+        within = (f"; {inside} frame numbers within those ranges the service itself skipped"
+                  if inside > 0 else "")
         return (f"pfma record: link from {url}: LOST {self.frames_lost} frames: frames "
-                f"{self.ranges_text()} (service skipped {self.service_skipped} more)")
+                f"{self.ranges_text()} (service skipped {self.service_skipped} more{within})")
 
 
 class RemoteRecording:

@@ -41,6 +41,12 @@ def test_link_loss_names_lost_frames_and_keeps_service_skips_apart():
         old.feed(None, frame)
     assert old.frames_lost == 2 and old.ranges == [[3, 4]] and not old.sequenced
     assert "frame counters only" in old.metadata("u")["counted_from"]
+    # a gap that also holds frames the service skipped: counted as publishes, said
+    mixed = LinkLoss()
+    for seq, frame in [(2, 1), (6, 5)]:  # one publish lost, frame numbers 2-4 missing
+        mixed.feed(seq, frame)
+    assert mixed.frames_lost == 1 and mixed.ranges == [[2, 4]]
+    assert "2 frame numbers within those ranges the service itself skipped" in mixed.line("u")
 
 
 # --- a recording through a bridge, stepped frame by frame in simulated time ----------------
