@@ -1115,10 +1115,12 @@ class ExportProcess:
     the acquisition loop's interpreter (the in-process export shared the service's GIL:
     issue 20 measured ~50 extra dropped frames per 10 s under a 1,800 request/s flood).
 
-    The process attaches to the buffer by name like any tool, lowers its priority by
-    :data:`EXPORT_NICE`, exits when its parent dies (``PR_SET_PDEATHSIG``) and stops
+    The process attaches to the buffer by name like any tool; it runs below the service
+    (time-sharing even under ``pfma serve --realtime``, off the service's pinned CPU, nice
+    :data:`EXPORT_NICE`), exits when its parent dies (``PR_SET_PDEATHSIG``) and stops
     cleanly on SIGTERM or SIGINT; its log lines (the refusal summaries) go to the
-    service's stderr.
+    service's stderr. Start it from a thread that lives as long as the service (the main
+    thread): Linux sends the parent-death signal when the *thread* that started it ends.
     """
 
     def __init__(self, buffer_name: str, host: str = "127.0.0.1", port: int = DEFAULT_PORT,
@@ -1218,6 +1220,29 @@ def _set_parent_death_signal() -> None:
         pass
 
 
+def _leave_the_service_alone(nice: int) -> None:
+    """Run below the service: an ordinary time-sharing process (a ``pfma serve --realtime``
+    parent's SCHED_FIFO is inherited by its children), off the CPU the service is pinned
+    to (when it is pinned to fewer CPUs than there are), ``nice`` steps down. Best effort."""
+    try:
+        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except (OSError, AttributeError):
+        pass
+    try:
+        pinned = os.sched_getaffinity(0)
+        others = set(range(os.cpu_count() or 1)) - pinned
+        if others and len(pinned) < (os.cpu_count() or 1):
+            os.sched_setaffinity(0, others)
+    except (OSError, AttributeError):
+        pass
+    if nice:
+        try:
+            os.nice(nice)
+        except OSError:
+            pass
+
+
 def main(argv: list[str] | None = None) -> int:
     """``python -m tools.modbus_export``: one export process (what ``pfma serve --modbus``
     starts). Prints ``modbus-export listening on HOST:PORT`` once it listens, or one
@@ -1250,11 +1275,7 @@ def main(argv: list[str] | None = None) -> int:
         _set_parent_death_signal()
         if os.getppid() != args.parent_pid:  # the parent died before the signal was armed
             return 0
-    if args.nice:
-        try:
-            os.nice(args.nice)
-        except OSError:
-            pass
+    _leave_the_service_alone(args.nice)
     export = None
     try:
         host, port = parse_host_port(args.listen)

@@ -425,3 +425,28 @@ def test_the_export_process_exits_when_its_service_is_killed(shm_name, service):
         if parent.poll() is None:
             parent.kill()
         parent.stdout.close()
+
+
+@pytest.mark.realtime
+@pytest.mark.skipif(os.geteuid() != 0 or (os.cpu_count() or 1) < 2,
+                    reason="SCHED_FIFO needs root; moving off the pinned CPU needs two CPUs")
+def test_the_export_process_runs_below_a_realtime_service(shm_name, service):
+    """Under ``pfma serve --realtime`` (SCHED_FIFO, pinned to the last CPU) the export
+    process does not inherit the real-time class or the CPU: time-sharing, nice +5,
+    on the other CPUs."""
+    last = (os.cpu_count() or 2) - 1
+    code = ("import os, time; from tools.modbus_export import start_export_from_args; "
+            f"os.sched_setaffinity(0, {{{last}}}); "
+            "os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10)); "
+            f"ex = start_export_from_args({shm_name!r}, '127.0.0.1:0', False); "
+            "print(ex.pid, os.getpriority(os.PRIO_PROCESS, 0), flush=True); time.sleep(60)")
+    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        pid, parent_nice = map(int, parent.stdout.readline().split())
+        assert os.sched_getscheduler(pid) == os.SCHED_OTHER
+        assert last not in os.sched_getaffinity(pid)
+        assert os.getpriority(os.PRIO_PROCESS, pid) == parent_nice + 5
+    finally:
+        parent.kill()  # the export follows its parent (PR_SET_PDEATHSIG)
+        parent.wait(WAIT_S)
+        parent.stdout.close()
