@@ -181,7 +181,11 @@ def _typename(v: Any) -> str:
 def _num(v: Any, field: str, source: str, *, nonzero: bool = False, minimum: float | None = None) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise _fail(field, f"expected a number, got {_typename(v)} {v!r}", source)
-    x = float(v)
+    try:
+        x = float(v)
+    except OverflowError:  # a JSON integer beyond float range
+        raise _fail(field, f"expected a finite number, got an integer of {len(str(abs(v)))} digits",
+                    source) from None
     if not math.isfinite(x):
         raise _fail(field, f"expected a finite number, got {v!r}", source)
     if nonzero and x == 0:
@@ -342,6 +346,12 @@ def parse_calibration(text: str, source: str = "<string>", rack: RackConfig | No
         raise CalibrationError(f"calibration {source}: not valid JSON (truncated or corrupt?): {err.msg} at line "
                                f"{err.lineno} column {err.colno}; file refused, the previous "
                                f"calibration stays in force") from err
+    except RecursionError:
+        raise CalibrationError(f"calibration {source}: not a calibration (arrays or objects nested too "
+                               f"deeply to read); file refused, the previous calibration stays in force") from None
+    except ValueError as err:  # an integer longer than Python converts (sys.get_int_max_str_digits)
+        raise CalibrationError(f"calibration {source}: not a calibration ({err}); file refused, the previous "
+                               f"calibration stays in force") from None
     return validate(data, rack=rack, source=source, path=path)
 
 

@@ -335,6 +335,8 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{source}: not valid TOML: {err}") from err
+    except RecursionError:
+        raise ConfigError(f"{source}: not a rack file: arrays or tables nested too deeply to read") from None
     lines = _Lines(text)
 
     def fail(msg: str, board: int | None = None, channel: int | None = None,

@@ -51,9 +51,6 @@ def test_pfma_channels_on_a_mutated_rack_file_exits_0_or_1_with_one_line(tmp_pat
         assert len(lines) == 1 and lines[0].startswith("pfma channels:") and str(path) in lines[0], out.err
 
 
-@pytest.mark.xfail(strict=True, raises=RecursionError,
-                   reason="pfma/rack.py parse_rack lets tomllib's RecursionError through (deeply "
-                          "nested arrays); found by this fuzzing, reported (issue 20 item 3)")
 def test_a_deeply_nested_rack_value_is_one_message():
     with pytest.raises(ConfigError, match=SOURCE):
         parse_rack(TEXT + "\nx = " + "[" * 5000 + "]" * 5000 + "\n", SOURCE)
