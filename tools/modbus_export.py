@@ -759,7 +759,7 @@ class _ServerThread:
             self._thread.join(timeout_s)
             self._thread = None
             err = self._error
-            why = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
+            why = os.strerror(err.errno) if isinstance(err, OSError) and err.errno else str(err)
             raise ModbusExportError(f"Modbus export cannot listen on {self.host}:{self.port}: {why}") from err
         return self.port
 
