@@ -269,6 +269,45 @@ def test_connections_over_the_limit_are_closed_and_the_others_served(service):
         ex.stop()
 
 
+def test_a_connection_flood_is_bounded_counted_and_said_in_one_line(service, caplog_export):
+    """40 connections at once against a limit of 8, then 60 connect-and-drop cycles as
+    fast as the client can (fewer than the listen backlog of 64: more only make the kernel
+    drop SYNs, which costs the test seconds and proves nothing of the export): 8 served,
+    32 closed by the export, the slots given back; one summary line at the first refusal
+    and one at stop; the export still answers."""
+    ex = start(service, max_connections=8)
+    try:
+        conns = [connect(ex) for _ in range(40)]
+        served, closed = [], []
+        for k, c in enumerate(conns):
+            try:
+                c.sendall(adu(read_ir(), tid=k))
+                c.settimeout(WAIT_S)
+                served.append(answer(c)[0] == k)
+            except (ConnectionError, OSError):
+                closed.append(k)
+        assert sum(served) == 8 and len(closed) == 32
+        for c in conns:
+            c.close()
+        for _ in range(60):
+            connect(ex).close()
+        over = "connections over the limit of 8 (closed)"
+        deadline = time.monotonic() + WAIT_S  # every one of the 100 seen, and every slot free
+        while (ex.connections_total + ex.refusals.total.get(over, 0) < 100
+               or ex.stats()["connections_open"]) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert ex.connections_total + ex.refusals.total[over] == 100
+        assert ex.refusals.total[over] >= 32
+        with connect(ex) as s:
+            s.sendall(adu(read_ir(), tid=7))
+            assert answer(s)[0] == 7
+    finally:
+        ex.stop()
+    lines = [r for r in caplog_export.records if "refused in the last" in r.getMessage()]
+    assert len(lines) == 2, [r.getMessage() for r in lines]
+    no_traceback(caplog_export)
+
+
 @pytest.mark.realtime
 def test_a_reader_that_takes_no_answers_is_held_to_its_buffers_and_then_gets_them_all(service):
     """40,000 pipelined 125-register reads (10 MB of answers) from a client that reads
