@@ -1256,11 +1256,17 @@ def main(argv: list[str] | None = None) -> int:
                    help=f"address to serve (default 127.0.0.1:{DEFAULT_PORT}; port 0: any free one)")
     p.add_argument("--writes", action="store_true", help="accept command writes (claims the controller role)")
     p.add_argument("--rack", default=None, help="rack TOML of the buffer (default: the default rack)")
-    p.add_argument("--max-connections", type=int, default=d.max_connections)
-    p.add_argument("--in-buffer-bytes", type=int, default=d.in_buffer_bytes)
-    p.add_argument("--out-buffer-bytes", type=int, default=d.out_buffer_bytes)
-    p.add_argument("--idle-timeout-s", type=float, default=d.idle_timeout_s)
-    p.add_argument("--summary-interval-s", type=float, default=d.summary_interval_s)
+    p.add_argument("--max-connections", type=int, default=d.max_connections,
+                   help=f"clients at once; one more is closed at once (default {d.max_connections})")
+    p.add_argument("--in-buffer-bytes", type=int, default=d.in_buffer_bytes,
+                   help=f"per connection: requests received, not yet answered (default {d.in_buffer_bytes})")
+    p.add_argument("--out-buffer-bytes", type=int, default=d.out_buffer_bytes,
+                   help=f"per connection: answers a slow reader has not taken (default {d.out_buffer_bytes})")
+    p.add_argument("--idle-timeout-s", type=float, default=d.idle_timeout_s,
+                   help=f"close a connection with no traffic for this long (default {d.idle_timeout_s:g})")
+    p.add_argument("--summary-interval-s", type=float, default=d.summary_interval_s,
+                   help=f"at most one log line about refused requests per interval "
+                        f"(default {d.summary_interval_s:g})")
     p.add_argument("--nice", type=int, default=0, help="lower this process's priority by N")
     p.add_argument("--parent-pid", type=int, default=None,
                    help="exit when this process (the service) is gone")
