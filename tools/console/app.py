@@ -16,10 +16,15 @@ import sys
 import time
 from typing import Callable
 
+from rich.cells import cell_len
+from rich.segment import Segment
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.containers import Grid, Horizontal, Vertical
+from textual.geometry import Region
 from textual.screen import ModalScreen
+from textual.strip import Strip
+from textual.widget import Widget
 from textual.widgets import Footer, Input, Static
 
 from drivers.pio.routes import MONITORS, route_request_arg
@@ -31,6 +36,53 @@ from tools.console.control import Answer, ControlError, ControllerLink, Request,
 REFRESH_HZ = 10.0
 #: frames one capital-S single step runs
 BIG_STEP = 10
+
+
+class LinesView(Widget):
+    """Lines of plain text drawn through Textual's line API: :meth:`show` repaints only the
+    lines whose text changed, without the parsing, wrapping and layout a ``Static`` does on
+    every update (the force display's vector view: about 2 ms per drawing instead of 5-6;
+    docs/console.md "Force displays"). Longer lines are cut at the widget's width."""
+
+    DEFAULT_CSS = "LinesView { height: auto; }"
+
+    def __init__(self, *, id: str | None = None) -> None:
+        super().__init__(id=id)
+        self.lines: list[str] = []
+        self._strips: dict[tuple[int, int], Strip] = {}  # (line, width) -> strip of the text shown
+
+    def show(self, text: str) -> None:
+        new = text.split("\n")
+        old, self.lines = self.lines, new
+        if len(new) != len(old):
+            self._strips.clear()
+            self.refresh(layout=True)
+            return
+        width = self.size.width
+        for y, (a, b) in enumerate(zip(old, new)):
+            if a != b:
+                self._strips.pop((y, width), None)
+                self.refresh(Region(0, y, width, 1))
+
+    def get_content_height(self, container, viewport, width: int) -> int:
+        return len(self.lines)
+
+    def render_line(self, y: int) -> Strip:
+        width = self.size.width
+        style = self.rich_style
+        if y >= len(self.lines):
+            return Strip.blank(width, style)
+        strip = self._strips.get((y, width))
+        if strip is None:
+            text = self.lines[y]
+            strip = Strip([Segment(text, style)], cell_len(text)).crop_extend(0, width, style)
+            if len(self._strips) > 4 * max(1, len(self.lines)):
+                self._strips.clear()  # widths that are no longer shown
+            self._strips[(y, width)] = strip
+        return strip
+
+    def text(self) -> str:
+        return "\n".join(self.lines)
 
 
 class DebugDisplay(ModalScreen):
@@ -242,8 +294,8 @@ class ForceScreen(DebugDisplay):
         self.history = history
         self.series: dict[str, list[float]] = {}  #: what the plots were last given (tests)
         self._seen = -1  # the record the plots show
-        self._drawn = -1  # the record the vector view shows
-        self._ticks = 0
+        self._drawn = -1  # the newest record redraw() has seen
+        self._ticks = 0  # refreshes that brought a new record
 
     def compose(self) -> ComposeResult:
         from textual_plotext import PlotextPlot
@@ -251,29 +303,38 @@ class ForceScreen(DebugDisplay):
             with Vertical(id="ft-plots"):
                 yield PlotextPlot(id="ft-force")
                 yield PlotextPlot(id="ft-torque")
-            yield Static("", id="ft-vector", markup=False)
+            yield LinesView(id="ft-vector")
         yield Static("", id="ft-help", markup=False)
 
     def on_mount(self) -> None:
         self.redraw()
 
     def redraw(self) -> None:
+        """At a console refresh: nothing without a new F/T record; with one, the vector view
+        every ``FT_VECTOR_EVERY``-th time (the lines whose text changed), the force plot
+        every ``FT_PLOT_EVERY``-th and the torque plot half a period later (one plotext
+        drawing at a time); everything at once when the display opens."""
         from textual_plotext import PlotextPlot
         h = self.history
         if h.count == self._drawn:
             return  # no new F/T record since the last drawing
         self._drawn = h.count
-        f, m = (h.f[-1], h.m[-1]) if h.f else ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-        self.query_one("#ft-vector", Static).update(debug.vector_view(f, m, h.full_scale_n()), layout=False)
+        first = self._seen < 0
         self._ticks += 1
-        if self._seen >= 0 and self._ticks % debug.FT_PLOT_EVERY:
-            return  # the plots: every FT_PLOT_EVERY-th drawing (plotext is the expensive part)
+        if first or self._ticks % debug.FT_VECTOR_EVERY == 0:
+            f, m = (h.f[-1], h.m[-1]) if h.f else ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+            self.query_one("#ft-vector", LinesView).show(debug.vector_view(f, m, h.full_scale_n()))
+        phase = self._ticks % debug.FT_PLOT_EVERY
+        plots = (("#ft-force", h.f, ("Fx", "Fy", "Fz"), "N"), ("#ft-torque", h.m, ("Tx", "Ty", "Tz"), "N*m"))
+        if not first:
+            if phase not in (0, debug.FT_PLOT_EVERY // 2):
+                return  # plotext is the expensive part
+            plots = plots[:1] if phase == 0 else plots[1:]
         self._seen = h.count
         t_now = h.t[-1] if h.t else 0.0
         t = [x - t_now for x in h.t]
-        self.series = {"t": t}
-        for wid, vals, names, unit in (("#ft-force", h.f, ("Fx", "Fy", "Fz"), "N"),
-                                       ("#ft-torque", h.m, ("Tx", "Ty", "Tz"), "N*m")):
+        self.series = {**self.series, "t": t}  # a new dict per drawing (tests: was anything drawn)
+        for wid, vals, names, unit in plots:
             plot = self.query_one(wid, PlotextPlot)
             plt = plot.plt
             plt.clear_data()
@@ -289,11 +350,11 @@ class ForceScreen(DebugDisplay):
             plot.refresh()
         self.query_one("#ft-help", Static).update(
             f"F/T from the service's inputs (ft_force_n, ft_torque_nm), sampled at the console's refresh: "
-            f"{len(h.t)} samples; plots redrawn at {REFRESH_HZ / debug.FT_PLOT_EVERY:g} Hz, the vector at "
-            f"{REFRESH_HZ:g} Hz   Escape/f close", layout=False)
+            f"{len(h.t)} samples; each plot redrawn at {REFRESH_HZ / debug.FT_PLOT_EVERY:g} Hz, the vector at "
+            f"{REFRESH_HZ / debug.FT_VECTOR_EVERY:g} Hz   Escape/f close", layout=False)
 
     def text(self) -> str:
-        return str(self.query_one("#ft-vector", Static).render())
+        return self.query_one("#ft-vector", LinesView).text()
 
 
 class EditScreen(ModalScreen):
@@ -490,9 +551,11 @@ class ConsoleApp(App):
         self.refreshes += 1
         self._follow_writes()
         scr = self.screen
-        if isinstance(scr, (BrowserScreen, ParamScreen)):  # the world model is live there too (10 Hz)
+        # a display pushed but not mounted yet (the timer can come between) draws itself in on_mount
+        ready = scr.is_mounted
+        if ready and isinstance(scr, (BrowserScreen, ParamScreen)):  # the world model is live there too (10 Hz)
             scr.redraw()
-        elif isinstance(scr, MenuScreen):  # at the page's own rate
+        elif ready and isinstance(scr, MenuScreen):  # at the page's own rate
             scr.tick()
         try:
             r = self.reading = self.sources.read()
@@ -503,7 +566,7 @@ class ConsoleApp(App):
             return
         self._follow_answer()
         self.ft.add(r.inputs)
-        if isinstance(scr, ForceScreen):
+        if ready and isinstance(scr, ForceScreen):
             scr.redraw()
         if isinstance(scr, COVERING):  # a debug display covers the areas: redrawn when it closes
             return
@@ -513,7 +576,7 @@ class ConsoleApp(App):
         self._set("messages", view.messages_area(self.sources.messages))
         self._set("commands", view.local_commands(r, self.selected, self.sources.wm))
         self._set("global", view.global_commands(r, self.rearm, self.last_answer))
-        if isinstance(self.screen, CameraScreen):  # the camera routes are live too
+        if isinstance(self.screen, CameraScreen) and self.screen.is_mounted:  # the camera routes are live too
             self.screen.redraw()
 
     def _set(self, key: str, text: str) -> None:

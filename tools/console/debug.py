@@ -82,9 +82,13 @@ def params_display(wm, row: int, col: int, status: str = "") -> str:
 FT_HISTORY_S = 30.0
 #: samples kept (the console samples at its 10 Hz refresh: 30 s)
 FT_HISTORY = 300
-#: the time plots are redrawn every this many console refreshes (1 Hz; the vector view at
-#: every refresh): plotext's drawing of two plots costs ~40 ms (docs/console.md)
-FT_PLOT_EVERY = 10
+#: each time plot is redrawn every this many console refreshes that brought a new F/T
+#: record (0.5 Hz), the torque plot half a period after the force plot: plotext's drawing of
+#: one plot costs ~35 ms with a full history, most of the force displays' cost
+#: (docs/console.md "Cost of the debug window")
+FT_PLOT_EVERY = 20
+#: the vector view is redrawn every this many such refreshes (10 Hz), only its changed lines
+FT_VECTOR_EVERY = 1
 #: the smallest axis length of the vector view (a sensor at rest shows its noise small)
 FT_MIN_SCALE_N = 10.0
 
@@ -201,4 +205,5 @@ def vector_view(force: Sequence[float], torque: Sequence[float], full_scale_n: f
     return (b.render() + "\n"
             + f"F ({float(force[0]):+8.2f}, {float(force[1]):+8.2f}, {float(force[2]):+8.2f}) N   |F| {mag:7.2f} N\n"
             + f"T ({float(torque[0]):+8.3f}, {float(torque[1]):+8.3f}, {float(torque[2]):+8.3f}) N*m |T| {tmag:7.3f} N*m\n"
-            + f"sensor frame; an axis is {full_scale_n:g} N; dashed: the negative axes, the shadow on x-y, the drop")
+            + f"sensor frame; an axis is {full_scale_n:g} N\n"
+            + "dashed: the negative axes, the shadow on x-y, the drop")

@@ -282,3 +282,55 @@ def test_the_force_view_shows_the_simulated_ft_values(sim, console):
         console.refresh_areas()  # no new F/T record: no new drawing
         assert scr.series is draws
     run_app(console, body)
+
+
+def test_the_force_display_draws_one_plot_at_a_time_and_only_changed_vector_lines(sim, console):
+    """The cost rules (docs/console.md "Force displays"): each plot every FT_PLOT_EVERY-th
+    refresh with a new F/T record, the torque plot half a period after the force plot; the
+    vector view repaints only the lines whose text changed (none for an unchanged force)."""
+    from tools.console import debug
+    from tools.console.app import ForceScreen, LinesView
+
+    async def body(pilot):
+        frames(sim, console, 40)
+        await pilot.press("f")
+        await pilot.pause()
+        scr = console.screen
+        assert isinstance(scr, ForceScreen)
+        drawn: list[tuple[int, str]] = []
+        for wid in ("#ft-force", "#ft-torque"):
+            plot = scr.query_one(wid)
+            real = plot.refresh
+            plot.refresh = lambda *a, _w=wid, _r=real, **k: (drawn.append((tick, _w)), _r(*a, **k))[1]
+        view_ = scr.query_one("#ft-vector", LinesView)
+        real_v = view_.refresh
+        repainted: list[int] = []
+        view_.refresh = lambda *regions, **k: (repainted.extend(r.y for r in regions), real_v(*regions, **k))[1]
+        sim.world.ft.set_load((5.0, 0.0, 10.0), (0.0, 0.0, 0.0))
+        n = 2 * debug.FT_PLOT_EVERY
+        for tick in range(1, n + 1):
+            frames(sim, console, 32)  # 0.1 s: a new F/T record every refresh
+        assert sorted(w for _, w in drawn) == ["#ft-force", "#ft-force", "#ft-torque", "#ft-torque"]
+        assert len({t for t, _ in drawn}) == 4  # never both plots at one refresh
+        assert repainted and len(repainted) < 20 * n  # some lines, not every line at every refresh
+        repainted.clear()
+        for tick in range(n + 1, n + 6):
+            frames(sim, console, 32)  # the same force again: the vector's text does not change
+        assert repainted == []
+        assert f"F ({5.0:+8.2f}, {0.0:+8.2f}, {10.0:+8.2f}) N" in scr.text()
+    run_app(console, body)
+
+
+def test_a_display_pushed_but_not_yet_mounted_is_not_redrawn_by_the_timer(sim, console):
+    """The 10 Hz timer can come between a key's push of a display and its mounting: the
+    display is left to draw itself when it mounts (it crashed the console with NoMatches)."""
+    from tools.console.app import ForceScreen
+
+    async def body(pilot):
+        frames(sim, console, 40)
+        console.push_screen(ForceScreen(console.ft))
+        assert isinstance(console.screen, ForceScreen) and not console.screen.is_mounted
+        frames(sim, console, 32)  # the timer's refresh, before the display is mounted
+        await pilot.pause()
+        assert console.screen.is_mounted and "F (" in console.screen.text()
+    run_app(console, body)
