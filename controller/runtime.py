@@ -42,6 +42,14 @@ published) in preallocated rings, and about every :data:`STATS_PUBLISH_S` publis
 (percentiles) into ``runtime.*`` world-model variables and the Bit3 ``controller_stats``
 area (when this controller holds the command area).
 
+A distributed controller (``local_layers``, :mod:`controller.distributed`): this runtime is
+one process's and runs only its layers' tables and tasks; :attr:`before_segment` imports the
+other processes' sections right before the first communications segment; without Data
+Acquisition the frame number comes from the inputs read-only and nothing is written to the
+Bit3 buffer; the other layers appear in the trace and :attr:`status_changes` as their
+sections bring them; halt and single step are refused. Without ``local_layers`` (one
+process) nothing of this runs.
+
 Visibility: :attr:`trace` keeps a record of every frame (each layer's command,
 status, deciding row and mailbox; :func:`format_trace`), :attr:`messages` the layers'
 messages (50 per source, the last 100 merged by time).
@@ -185,6 +193,27 @@ class FrameTrace:
     cost_s: float  #: host time the controller frame took (not deterministic)
 
 
+#: the layer keys, highest first (what a distributed controller's configuration names)
+LAYER_KEYS = ("updown", "msp", "trajectory", "cartesian", "joint", "servo", "daq")
+
+
+class _InputsOnly:
+    """A read-only Bit3 client as the Data Acquisition layer of a process that does not run
+    it sees it (a distributed controller, controller/distributed.py): the layout and a
+    private copy of the command record, no writer role (the layer is built for its
+    world-model variables only; it never acquires or writes there)."""
+
+    role = None
+
+    def __init__(self, client) -> None:
+        self._client = client
+        self.layout = client.layout
+        self.command = client.read_commands().record.copy()
+
+    def __getattr__(self, name: str):
+        return getattr(self._client, name)
+
+
 def build_layers(client, require_ft: bool = True) -> list[Layer]:
     """The seven layers, highest first, linked superior/subordinate."""
     layers: list[Layer] = [
@@ -212,15 +241,37 @@ class ControllerRuntime:
     :param require_ft: a stale F/T link is a hardware fault
     :param trace_frames: frames kept in :attr:`trace`
     :param forward_messages: copy WARNING and ERROR messages to the Bit3 controller queue
+    :param local_layers: a distributed controller's process (controller/distributed.py):
+        the keys of the layers this process runs (their tables, sequence and periodic
+        tasks); the others' variables are in the world model but written by other
+        processes. Without ``daq`` the client may be read-only: the frame comes from its
+        inputs, nothing is written to the Bit3 buffer. None (default): all seven, one process.
     """
 
     def __init__(self, client, *, frames: FrameConfig | None = None, wm_name: str | None = None,
                  clock=None, access_key: str | None = None, require_ft: bool = True,
-                 trace_frames: int = TRACE_FRAMES, forward_messages: bool = True) -> None:
+                 trace_frames: int = TRACE_FRAMES, forward_messages: bool = True,
+                 local_layers: Sequence[str] | None = None) -> None:
         self.frames = (frames or FrameConfig()).validate()
         self.client = client
         self.clock = clock
-        self.layers = build_layers(client, require_ft)
+        if local_layers is not None:
+            unknown = [k for k in local_layers if k not in LAYER_KEYS]
+            if unknown or not local_layers:
+                raise ValueError(f"local_layers {list(local_layers)}: layer keys are {', '.join(LAYER_KEYS)}")
+        #: a distributed controller's process (``local_layers`` given)
+        self.distributed = local_layers is not None
+        self.local_keys = frozenset(LAYER_KEYS if local_layers is None else local_layers)
+        self._has_daq = "daq" in self.local_keys
+        self.layers = build_layers(client if self._has_daq else _InputsOnly(client), require_ft)
+        #: the layers this process runs (all seven in one process), highest first
+        self.run_layers = tuple(l for l in self.layers if l.key in self.local_keys)
+        #: the others (a distributed controller): their state is read from the world model
+        self.remote_layers = tuple(l for l in self.layers if l.key not in self.local_keys)
+        self._remote_status: dict[str, int] = {l.key: int(Status.SHUT_DOWN) for l in self.remote_layers}
+        #: called right before each step's first communications segment (a distributed
+        #: controller's import of the other processes' sections)
+        self.before_segment: Callable[[], None] | None = None
         self.by_key = {l.key: l for l in self.layers}
         self.daq: DataAcquisitionLayer = self.by_key["daq"]  # type: ignore[assignment]
         self.servo: ServoLayer = self.by_key["servo"]  # type: ignore[assignment]
@@ -291,21 +342,23 @@ class ControllerRuntime:
     # --- set-up ----------------------------------------------------------------------------
     def _build_schedule(self) -> None:
         impl: dict[str, Callable] = {}
-        for l in self.layers:
+        for l in self.run_layers:
             impl.update(l.periodic)
+        remote = {n for l in self.remote_layers for n in l.periodic}  # another process runs them
         problems = [f"task {t.name} has no implementation in layer {t.layer}"
-                    for t in self.frames.tasks if t.name not in impl]
+                    for t in self.frames.tasks if t.name not in impl and t.name not in remote]
         problems += [f"task {n} of a layer is not in the schedule" for n in impl
                      if n not in {t.name for t in self.frames.tasks}]
         if problems:
             raise ScheduleError("controller schedule: " + "; ".join(problems))
-        self._table = tuple(tuple((t.name, impl[t.name]) for t in frame) for frame in self.frames.table())
+        self._table = tuple(tuple((t.name, impl[t.name]) for t in frame if t.name in impl)
+                            for frame in self.frames.table())
         self._table_names = tuple(tuple(n for n, _ in frame) for frame in self._table)
         self._lt_cache: dict[tuple, LayerTrace] = {}
         self._impl = impl
-        self._order = tuple(t.name for t in self.frames.tasks)  # catch-up runs in schedule order
+        self._order = tuple(t.name for t in self.frames.tasks if t.name in impl)  # catch-up: schedule order
         self._per_major = sum(len(fr) for fr in self._table)
-        self._has_servo = any(t.name == SERVO_TASK for t in self.frames.tasks)
+        self._has_servo = any(t.name == SERVO_TASK for t in self.frames.tasks) and SERVO_TASK in impl
         self._servo_div = self.frames.divider(self.frames.task(SERVO_TASK)) if self._has_servo else 1
 
     def task_period_s(self, name: str) -> float:
@@ -343,7 +396,7 @@ class ControllerRuntime:
         self._raw_now = raw = self._clock_now()
         self.now = raw - self.halt_offset_s
         self._changed.clear()
-        self.frame = f = self.daq.acquire(self)
+        self.frame = f = self.daq.acquire(self) if self._has_daq else self._inputs_frame()
         prev = self.prev_frame
         catch: frozenset[str] = frozenset()
         if f != prev:  # a repeated frame (no new inputs) keeps the servo period it had
@@ -362,14 +415,19 @@ class ControllerRuntime:
             self.prev_frame = max(prev, f)
         else:
             self.servo_catch_up = False
+        if self.before_segment is not None:
+            self.before_segment()
         self.wm.communications_segment()
-        self.updown.debug_requests(self)
+        if self.remote_layers:
+            self._observe_remote()
+        if "updown" in self.local_keys:
+            self.updown.debug_requests(self)
         if self.servo.fault and self.servo.error_code in SERVO_EVENT_FAULTS:
             self._reset_servo_event()
-        for l in self.layers:
+        for l in self.run_layers:
             l.run_table(self)
         daq_status = self._decided(self.daq)
-        for l in self.layers:
+        for l in self.run_layers:
             l.run_sequence(self)
         slot = f % MINOR_FRAMES_PER_MAJOR
         due = self._table[slot]
@@ -387,23 +445,57 @@ class ControllerRuntime:
         # output last, after a second communications segment: the rates leave in the frame
         # whose inputs they were computed from (the service sees them 1-2 frames old, not 2-3)
         self.wm.communications_segment()
-        self.daq.output(self, daq_status)
+        if self._has_daq:
+            self.daq.output(self, daq_status)
         self.frames_run += 1
         cost = time.perf_counter() - t0
         self._time_frame(cost)
-        rec = FrameTrace(self.frame, self.now - self.t0, self._layer_traces(), self.daq.fault_bits, ran, cost)
+        bits = self.daq.fault_bits if self._has_daq else int(self.wm.get("daq.fault_bits"))
+        rec = FrameTrace(self.frame, self.now - self.t0, self._layer_traces(), bits, ran, cost)
         self.trace.append(rec)
         for fn in self.on_frame:
             fn(rec)
         return rec
 
+    # --- a distributed controller's process (controller/distributed.py) ---------------------
+    def _inputs_frame(self) -> int:
+        """A process without Data Acquisition: the service frame of the newest inputs (read
+        only; the ``daq.*`` variables arrive with the Data Acquisition process's section)."""
+        snap = self.client.read_inputs()
+        self.daq.snapshot = snap  # the frame's time for the timing statistics
+        self.frame = int(snap.frame)
+        return self.frame
+
+    def _observe_remote(self) -> None:
+        """After the communications segment that imported the other processes' sections:
+        their layers' status changes (as this process sees them) go into
+        :attr:`status_changes` and the trace, and the protected variables follow System
+        Up/Down's status when another process runs it."""
+        wm = self.wm
+        for l in self.remote_layers:
+            new = wm.get_state_variable(l.v_status)
+            old = self._remote_status[l.key]
+            if new != old:
+                self._remote_status[l.key] = new
+                self.status_changes.append((self.frame, l.key, old, new))
+                self._changed.add(l.key)
+        if "updown" not in self.local_keys:
+            up = self._remote_status["updown"] != Status.SHUT_DOWN
+            if up != wm.powered_up:
+                wm.powered_up = up
+
     def _layer_traces(self) -> tuple[LayerTrace, ...]:
         """Each layer's trace record of this frame (reused from earlier frames with the same values)."""
         cache, changed = self._lt_cache, self._changed
         out = []
+        remote = self._remote_trace() if self.remote_layers else None
         for l in self.layers:
-            last = l.last
-            key = (l.key, last[0], l.decided, last[5], int(l.task_kind) * 10 + int(l.task_state), l.key in changed)
+            if remote is not None and l.key in remote:
+                key = remote[l.key] + (l.key in changed,)
+            else:
+                last = l.last
+                key = (l.key, last[0], l.decided, last[5], int(l.task_kind) * 10 + int(l.task_state),
+                       l.key in changed)
             lt = cache.get(key)
             if lt is None:
                 if len(cache) >= LAYER_TRACE_CACHE:
@@ -411,6 +503,19 @@ class ControllerRuntime:
                 lt = cache[key] = LayerTrace(*key[1:])
             out.append(lt)
         return tuple(out)
+
+    def _remote_trace(self) -> dict[str, tuple]:
+        """The other processes' layers in the trace: command, status, row and mailbox as
+        their sections brought them (the frame before, as a status climbs in one process)."""
+        names = self._remote_trace_names
+        if names is None:
+            names = self._remote_trace_names = tuple(f"{l.key}.{v}" for l in self.remote_layers
+                                                     for v in ("command", "status", "row", "task"))
+        v = self.wm.get_task_inputs(names)
+        return {l.key: (l.key, int(v[f"{l.key}.command"]), int(v[f"{l.key}.status"]), int(v[f"{l.key}.row"]),
+                        int(v[f"{l.key}.task"])) for l in self.remote_layers}
+
+    _remote_trace_names: tuple[str, ...] | None = None
 
     def _clock_now(self) -> float:
         return self.clock.now() if self.clock is not None else time.monotonic()
@@ -567,6 +672,9 @@ class ControllerRuntime:
     def debug_request(self, kind: int, arg: int, seq: int) -> tuple[int, str]:
         """Act on a HALT / SINGLE STEP / RESUME request (System Up/Down passes them here);
         returns the answer (Response code, text)."""
+        if self.distributed and kind in Request.DEBUG:
+            return Response.REFUSED, ("halt and single step are for a controller in one process; this one is "
+                                      "distributed (docs/controller.md, \"Distributing the layers\")")
         if kind == Request.HALT:
             if self.halted:
                 return Response.COMPLETE, f"already halted (frame {self.frame})"

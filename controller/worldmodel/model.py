@@ -25,7 +25,7 @@ import os
 import struct
 import threading
 import time
-from typing import Any, Iterable, Mapping, NamedTuple
+from typing import Any, Callable, Iterable, Mapping, NamedTuple
 
 import numpy as np
 
@@ -46,6 +46,10 @@ DEFAULT_ACCESS_KEY = "pfma"
 ACCESS_KEY_ENV = "PFMA_WM_KEY"
 #: shared-memory name the controller runtime and ``pfma wm`` use when none is given
 DEFAULT_NAME = "pfma_wm"
+#: a segment without magic and without an owner pid, older than this, was abandoned by a
+#: creator killed before it initialised the segment (assumed: creating one takes
+#: milliseconds; 2 s is far beyond a loaded host's scheduling delays)
+INIT_GRACE_S = 2.0
 #: distinct name tuples whose read plan :meth:`WorldModel.get_task_inputs` keeps (the
 #: layers' constant tuples; a caller building new tuples every time is not cached past this)
 PLAN_CACHE = 256
@@ -143,6 +147,11 @@ class WorldModel(UserRequestRing):
                        "user_applied": 0, "user_rejected": 0}
         self._key = ""
         self.clock = MonotonicClock()
+        # a distributed controller's sections (set_sections, set_importer): none in one process
+        self._process: str | None = None
+        self._remote: dict[int, str] = {}  # variable index -> the process whose section holds it
+        self._remote_models: dict[str, str] = {}  # process -> its world-model name
+        self._importer: Callable[[memoryview], None] | None = None
 
     # --- opening ---------------------------------------------------------------------
 
@@ -205,6 +214,9 @@ class WorldModel(UserRequestRing):
         try:
             info = cls.attach(name).close_after(lambda m: m.info())
         except WorldModelError as err:
+            if cls._abandoned(name):  # its creator died before initialising it: replace it
+                cls.remove_segment(name)
+                return open_shm(name, create=True, size=size)
             raise WorldModelError(f"world model {name!r}: /dev/shm/{name} exists but cannot be "
                                   f"read ({err}); remove it with WorldModel.remove_segment({name!r}) "
                                   f"if no process uses it") from None
@@ -213,6 +225,28 @@ class WorldModel(UserRequestRing):
                                   f"(pid {info.owner_pid}, running); one writer per world model")
         cls.remove_segment(name)  # its owner is dead: replace it
         return open_shm(name, create=True, size=size)
+
+    @staticmethod
+    def _abandoned(name: str) -> bool:
+        """Segment ``name`` has no magic (never initialised) and its creator is gone: the
+        owner pid in its header (written before the magic) names no running process, or
+        none was written and the file is older than :data:`INIT_GRACE_S` (a creator
+        initialises in milliseconds; a controller killed inside :meth:`create` leaves such a
+        segment, which would otherwise block every later controller of that name)."""
+        path = f"/dev/shm/{name}"
+        try:
+            with open(path, "rb") as f:
+                head = f.read(HEADER_SIZE)
+            age = time.time() - os.stat(path).st_mtime
+        except OSError:
+            return False
+        if head[0:8] == MAGIC:
+            return False  # initialised: not abandoned (attach failed for another reason)
+        off, fmt = HEADER_FIELDS["owner_pid"]
+        pid = struct.unpack_from("<" + fmt, head, off)[0] if len(head) >= off + 4 else 0
+        if pid > 0:
+            return not pid_alive(pid)
+        return age > INIT_GRACE_S
 
     @classmethod
     def attach(cls, name: str = DEFAULT_NAME) -> "WorldModel":
@@ -445,6 +479,11 @@ class WorldModel(UserRequestRing):
         if i is None:
             self.spec(name)
         owner = self._specs[i].writer
+        p = self._remote.get(i)
+        if p is not None:
+            raise WorldModelError(f"world-model variable {name!r} (writer {owner!r}) is in the section of "
+                                  f"process {p!r}; process {self._process!r} may read it but not post it (a "
+                                  f"task writes only its local section)")
         if writer != owner:
             raise WorldModelError(f"world-model variable {name!r} is written only by {owner!r}; "
                                   f"{writer!r} may read it but not post it (one writer per variable)")
@@ -521,6 +560,9 @@ class WorldModel(UserRequestRing):
                 frame = self._words["frame"][0] + 1
                 self._lock.begin()
                 try:
+                    imp = self._importer
+                    if imp is not None:  # a distributed controller: the other processes' sections
+                        imp(body)
                     for i, raw in batch.items():
                         body[offs[i]:offs[i] + len(raw)] = raw
                     for slot, i, raw in requests:
@@ -543,6 +585,89 @@ class WorldModel(UserRequestRing):
         self._stats["frames"] += 1
         self._stats["posts_applied"] += len(batch)
         return len(batch) + n_user
+
+    # --- a distributed controller's sections (controller/distributed.py) ---------------
+
+    def set_sections(self, process: str, remote: Mapping[str, str],
+                     models: Mapping[str, str] | None = None) -> None:
+        """Make this model process ``process``'s copy of a distributed controller's world
+        model (report 2.2.5: a task writes only its local section, it reads any section).
+        ``remote`` maps every variable another process's section holds to that process:
+        posting one is refused with a :class:`WorldModelError` naming the process, and so is
+        a user write (the importer overwrites the variable every frame). ``models`` gives
+        each process's world-model name for those messages."""
+        self._require_owner("the sections")
+        remote_i = {}
+        for name, proc in remote.items():
+            i = self._index.get(name)
+            if i is None:
+                self.spec(name)
+            remote_i[i] = proc
+        self._process, self._remote, self._remote_models = process, remote_i, dict(models or {})
+        # a remote variable's hot writer is "" (never a writer's name: VarSpec refuses an
+        # empty one), so every post of it leaves the fast path for _check_writer, which refuses
+        self._hot = tuple(h._replace(writer="") if i in remote_i else h for i, h in enumerate(self._hot))
+
+    def remote_owner(self, name: str) -> str | None:
+        """The process whose section holds ``name`` (None: this process's, or one process)."""
+        i = self._index.get(name)
+        return None if i is None else self._remote.get(i)
+
+    def _section_refusal(self, i: int) -> str | None:
+        """Why a user may not set variable ``i`` here: another process's section holds it."""
+        p = self._remote.get(i)
+        if p is None:
+            return None
+        where = self._remote_models.get(p)
+        there = f": set it in world model {where}" if where else " (distributed world model)"
+        return f"{self._specs[i].name} belongs to process {p}{there}"
+
+    def set_importer(self, fn: Callable[[memoryview], None] | None) -> None:
+        """``fn(body)`` runs inside every communications segment's locked update, before the
+        queued posts: it writes the other processes' sections into the body, so a reader
+        sees them and this process's posts from one segment (whole frames of every section)."""
+        self._require_owner("the importer")
+        self._importer = fn
+
+    def layout_signature(self) -> bytes:
+        """8 bytes naming the body's layout (every variable's name, type, shape and offset):
+        equal in two models exactly when the bytes of one mean the same in the other."""
+        doc = [[s.name, s.dtype, list(s.shape), o] for s, o in zip(self._specs, self._lay.offsets)]
+        return hashlib.sha256(repr((self._lay.body_size, doc)).encode()).digest()[:8]
+
+    def var_range(self, name: str) -> tuple[int, int]:
+        """(offset in the body, bytes) of variable ``name``."""
+        i = self._index.get(name)
+        if i is None:
+            self.spec(name)
+        return self._lay.offsets[i], self._specs[i].nbytes
+
+    @property
+    def body_size(self) -> int:
+        return self._lay.body_size
+
+    def read_body_into(self, buf, *, wait: bool = True) -> int:
+        """A consistent copy of the whole data body (``body_size`` bytes) into ``buf``; returns
+        the communications segments the owner had completed (read after the copy).
+
+        :param wait: False: an attached reader does not wait for a segment in progress (a
+            few copy attempts, then -1 with ``buf`` left as it was), so a process reading
+            another's model never spins on a writer that was descheduled mid-segment"""
+        mv = memoryview(buf)
+        if not self.readonly:
+            self._owner_guard()
+            with self._comm_lock:  # the body changes only in a communications segment
+                mv[:] = self._body
+                return self._words["frame"][0]
+        if wait:
+            self._lock.read_into(mv)
+        else:
+            scratch = self.__dict__.get("_scratch")
+            if scratch is None:
+                scratch = self.__dict__["_scratch"] = memoryview(bytearray(self._lay.body_size))
+            if self._lock.try_read_into(mv, scratch) < 0:
+                return -1
+        return self._words["frame"][0]
 
     @property
     def read_retries(self) -> int:

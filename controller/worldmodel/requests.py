@@ -81,7 +81,7 @@ class UserRequestRing:
         :raises WorldModelError: unknown variable, or why not (names the owner)
         """
         s = self.spec(name)
-        why = s.user_refusal(self.powered_up)
+        why = s.user_refusal(self.powered_up) or self._section_refusal(self._index[name])
         if why is not None:
             raise WorldModelError(why)
         return s
@@ -160,7 +160,7 @@ class UserRequestRing:
         if not 0 <= i < len(self._specs):
             return False, f"unknown variable index {i}"
         s = self._specs[i]
-        why = s.user_refusal(self.powered_up)
+        why = s.user_refusal(self.powered_up) or self._section_refusal(i)
         if why is not None:
             return False, why
         if len(raw) != s.nbytes:
