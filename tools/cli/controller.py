@@ -12,6 +12,9 @@ Examples::
     pfma controller step 5                  # ... run exactly 5 minor frames, print their trace
     pfma controller resume --rearm          # ... re-arm the outputs and go on
     pfma controller route 2 1               # ... camera 2 on monitor 1 (0 blanks it)
+    pfma controller --distribute examples/distributed.toml --process rack       # one process of a
+    pfma controller --distribute examples/distributed.toml --process planners --power-up   # distributed one
+    pfma controller --sim --distribute examples/distributed.toml --power-up     # all of it, simulated
 
 The trace has one line per minor frame: for every layer ``COMMAND>STATUS rN`` (the
 command it receives, the status its decision table decided, the table row that
@@ -56,9 +59,10 @@ def add_parser(sub):
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name of the service (default pfma)")
     p.add_argument("--sim", action="store_true", help="simulate the whole system (fake rack + service) "
                                                      "in simulated time instead")
-    p.add_argument("--wm", "--name", dest="wm", default="pfma_wm", metavar="NAME",
+    p.add_argument("--wm", "--name", dest="wm", default=None, metavar="NAME",
                    help="world-model shared-memory name for `pfma wm` (default pfma_wm; 'none' = "
-                        "private); --name is an alias, as in `pfma wm`")
+                        "private); --name is an alias, as in `pfma wm`. With --distribute: the base name "
+                        "(each process's world model is NAME.PROCESS; default the file's [distributed] wm)")
     p.add_argument("--profile", default="layers", help="rate profile: layers (default) or overview")
     p.add_argument("--power-up", action="store_true", help="request POWER UP at start")
     p.add_argument("--duration", type=positive_float, default=None,
@@ -73,6 +77,12 @@ def add_parser(sub):
     p.add_argument("--tables", action="store_true", help="print the decision tables and the schedule")
     p.add_argument("--realtime", action="store_true",
                    help="SCHED_FIFO priority 49 pinned to CPU 0 (needs privileges; pfma serve --realtime takes the last CPU)")
+    g = p.add_argument_group("distributed controller (docs/controller.md, \"Distributing the layers\")")
+    g.add_argument("--distribute", metavar="FILE", default=None,
+                   help="a TOML assigning the seven layers to processes (examples/distributed.toml)")
+    g.add_argument("--process", metavar="NAME", default=None,
+                   help="with --distribute: which process this is (it runs only that process's layers; "
+                        "the one with daq writes the Bit3 command area, the others read the inputs)")
     _add_motion_arguments(p)
     _add_path_arguments(p)
     return p
@@ -618,6 +628,10 @@ def _frame_control(args) -> int:
 
 
 def run(args) -> int:
+    if args.distribute is not None or args.process is not None:
+        return _run_distributed(args)
+    if args.wm is None:
+        args.wm = "pfma_wm"
     if args.action is not None:
         return _frame_control(args)
     if args.frames is not None or args.monitor is not None:
@@ -666,3 +680,317 @@ def run(args) -> int:
     finally:
         d.close()
     return 0
+
+
+# --- a distributed controller (issue 19 item 3; docs/controller.md "Distributing the layers") ----
+#: live seconds a process with --power-up waits for every other process's section before it
+#: gives up (assumed: long enough to start the processes by hand one after the other)
+DISTRIBUTED_WAIT_S = 10.0
+#: live seconds a process stopping waits for the layers to reach SHUT DOWN (as one process's does)
+DISTRIBUTED_STOP_S = 2.0
+
+
+def _distributed_unsupported(args) -> list[str]:
+    """Flags a distributed controller does not take (halt and single step stay with one
+    process; the motion and path flags set world-model variables: pfma wm set --name BASE.PROCESS)."""
+    flags = [("--halt", args.halt), ("--step", args.step is not None), ("--record", args.record is not None),
+             ("--play", args.play is not None), ("--teleop", args.teleop is not None),
+             ("--impedance", args.impedance is not None), ("--delay", args.delay is not None),
+             ("--jitter", args.jitter is not None), ("--vernier", args.vernier), ("--demo-stick", args.demo_stick),
+             ("--demo-wall", args.demo_wall is not None), ("--tables", args.tables),
+             ("--hc-frame", args.hc_frame != "world")]
+    return [f for f, on in flags if on]
+
+
+def _run_distributed(args) -> int:
+    """``pfma controller --distribute FILE --process NAME``: one process of a distributed
+    controller (or, with --sim, all of them in the distributed simulator)."""
+    from controller.distributed import DistributedConfigError, load_config
+    err = sys.stderr
+    if args.action is not None:
+        print(f"pfma controller {args.action}: not for a distributed controller (halt, step, resume and route "
+              f"need one process's controller)", file=err)
+        return 2
+    if args.distribute is None:
+        print("pfma controller: --process needs --distribute FILE (the file that assigns the layers to processes)",
+              file=err)
+        return 2
+    try:
+        config = load_config(args.distribute)
+    except DistributedConfigError as e:
+        for problem in e.problems:
+            print(f"pfma controller: {e.source}: {problem}", file=err)
+        return 2
+    bad = _distributed_unsupported(args)
+    if bad:
+        print(f"pfma controller --distribute: {', '.join(bad)} not with a distributed controller (set world-model "
+              f"variables with `pfma wm set --name BASE.PROCESS`; halt and single step need one process)", file=err)
+        return 2
+    if args.sim:  # --wm none: private memory (no `pfma wm` view)
+        return _run_distributed_sim(args, config, None if args.wm in ("none", "") else
+                                    args.wm or config.wm or "pfma_wm")
+    if args.wm in ("none", ""):
+        print("pfma controller --distribute: the processes find each other's world models by name: give --wm BASE "
+              "(not none)", file=err)
+        return 2
+    base = args.wm or config.wm or "pfma_wm"
+    if args.process is None:
+        print(f"pfma controller --distribute: which process is this? --process NAME (processes in "
+              f"{config.source}: {', '.join(config.names)}); --sim runs all of them simulated", file=err)
+        return 2
+    try:
+        spec = config.process(args.process)
+    except DistributedConfigError as e:
+        print(f"pfma controller: {e.problems[0]}", file=err)
+        return 2
+    if args.power_up and "updown" not in spec.layers:
+        print(f"pfma controller: --power-up goes to the process that runs updown (System Up/Down): "
+              f"{config.process_of('updown')}, not {spec.name}", file=err)
+        return 2
+    from tools.attach import remote_target
+    if "daq" in spec.layers and remote_target(args.buffer) is not None:
+        print(f"pfma controller: process {spec.name} runs daq, the one writer of the Bit3 command area: it needs "
+              f"the service's shared memory (--buffer NAME on the rack's host), not {args.buffer}", file=err)
+        return 2
+    try:
+        d = _DistributedDriver(args, config, spec.name, base)
+    except FileNotFoundError as e:
+        print(f"pfma controller: no service buffer {args.buffer!r} ({e}); start `pfma serve`", file=err)
+        return 1
+    except Exception as e:  # noqa: BLE001 - a PfmaError (no service, no bridge, world model in use): one line
+        from pfma.errors import PfmaError
+        if not isinstance(e, PfmaError):
+            raise
+        print(f"pfma controller: {e}", file=err)
+        return 1
+    return d.run()
+
+
+def _run_distributed_sim(args, config, base: str | None) -> int:
+    """``--sim --distribute FILE``: every process in the distributed simulator."""
+    from controller.decision import Status
+    from controller.frames import FrameConfig
+    from controller.layers import Request
+    from controller.worldmodel import WorldModelError
+    from sim.distributed import DistributedSimulator
+    if args.process is not None:
+        try:
+            config.process(args.process)
+        except Exception as e:  # noqa: BLE001 - DistributedConfigError
+            print(f"pfma controller: {e.problems[0]}", file=sys.stderr)  # type: ignore[attr-defined]
+            return 2
+    shown = args.process or config.process_of("updown")
+    try:
+        sim = DistributedSimulator(config, frames=FrameConfig.profile(args.profile), wm_base=base,
+                                   require_ft=not args.no_ft)
+    except WorldModelError as e:
+        print(f"pfma controller: {e}", file=sys.stderr)
+        return 1
+    with sim:
+        rt = sim.rt(shown)
+        printed = [False]
+
+        def show(rec) -> None:
+            if not args.trace or (args.changes and not any(lt.changed for lt in rec.layers)):
+                return
+            if not printed[0]:
+                print(f"process {shown} (layers {' '.join(config.process(shown).layers)}; the others as its "
+                      f"world model sees them)")
+                print(rt.header())
+                printed[0] = True
+            print(rt.format_frame(rec), flush=True)
+        rt.on_frame.append(show)
+        sim.step(10)  # the service's first frames (links open)
+        if args.power_up:
+            sim.top.request(Request.POWER_UP)
+        budget = int(round((args.duration if args.duration is not None else 1.0) / sim.period_s))
+        up_at = None
+        for n in range(budget):
+            sim.step(1)
+            if up_at is None and sim.all_status(Status.START_UP_COMPLETE):
+                up_at = n + 1
+        for p in config.processes:
+            line = "  ".join(f"{k}={Status(s).name}" for k, s in sim.statuses().items() if k in p.layers)
+            print(f"process {p.name}: {line}")
+        if args.power_up:
+            print(f"power-up: {'every layer START UP COMPLETE after ' + str(up_at) + ' frames' if up_at else 'not complete'}")
+        if args.messages:
+            print(f"--- last {args.messages} messages of process {shown} ---")
+            print(rt.messages.format(args.messages))
+    return 0
+
+
+class _PollPacer:
+    """Paces a process whose inputs come over a bridge (``zenoh://``): no futex, and the
+    service's frame times are another host's clock, so it polls for a new inputs body."""
+
+    POLL_S = 100e-6
+    GIVE_UP_S = 0.05  #: one wait at most (16 frames): the runtime's stale checks see the rest
+
+    def __init__(self, client) -> None:
+        self.client = client
+        self.frames = 0
+        self.gave_up = 0
+        self.gc_frozen = False
+
+    def wait(self) -> None:
+        end = time.monotonic() + self.GIVE_UP_S
+        while not self.client.changed("inputs"):
+            if time.monotonic() > end:
+                self.gave_up += 1
+                return
+            time.sleep(self.POLL_S)
+
+    def stepped(self, t_frame_s: float) -> None:
+        self.frames += 1
+
+    def freeze_gc(self) -> None:
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+        self.gc_frozen = True
+
+    def release_gc(self) -> None:
+        if self.gc_frozen:
+            gc.enable()
+            gc.unfreeze()
+            self.gc_frozen = False
+
+
+class _DistributedDriver:
+    """One live process of a distributed controller: its runtime paced by the service."""
+
+    def __init__(self, args, config, process: str, base: str) -> None:
+        from bit3.client import Client
+        from controller.distributed import DistributedProcess
+        from controller.frames import FrameConfig
+        from pfma.clock import MonotonicClock
+        from tools.attach import attach_reader
+        self.args, self.config, self.process, self.base = args, config, process, base
+        frames = FrameConfig.profile(args.profile)
+        self.spec = config.process(process)
+        self.link = None
+        self.dp = None
+        if "daq" in self.spec.layers:
+            self.client = Client.attach(args.buffer, writer="commands", owner=f"pfma-controller-{process}")
+        else:
+            self.client = attach_reader(args.buffer)
+        try:
+            sources = None
+            if config.transport == "zenoh":
+                from tools.wm_sections import ZenohLink
+                listen, connect = config.endpoints(process)
+                self.link = ZenohLink(config, process, base, listen=listen, connect=connect)
+                sources = self.link.sources
+            self.dp = DistributedProcess(config, process, self.client, wm_base=base, sources=sources, frames=frames,
+                                         clock=MonotonicClock(), require_ft=not args.no_ft)
+            if self.link is not None:
+                self.dp.rt.on_frame.append(self.link.publish)
+        except BaseException:
+            self.close()
+            raise
+        self.rt = self.dp.rt
+        self.pacer = LivePacer(self.client, frames.period_s) if isinstance(self.client, Client) \
+            else _PollPacer(self.client)
+        if args.realtime:
+            from ioservice.loop import realtime_setup
+            for w in realtime_setup(cpu=0, fifo_priority=49):
+                print(f"pfma controller: {w}", file=sys.stderr)
+        gc.collect()
+        gc.freeze()
+        self.printed_header = False
+
+    @property
+    def period_s(self) -> float:
+        return self.rt.frames.period_s
+
+    def frame(self) -> None:
+        self.pacer.wait()
+        self.rt.tick()
+        self.pacer.stepped(float(self.rt.daq.snapshot.t_s))
+        if not self.pacer.gc_frozen and self.pacer.frames == _Driver.FREEZE_AFTER_FRAMES:
+            self.pacer.freeze_gc()
+
+    def show(self, rec) -> None:
+        if not self.args.trace or (self.args.changes and not any(lt.changed for lt in rec.layers)):
+            return
+        if not self.printed_header:
+            print(self.rt.header())
+            self.printed_header = True
+        print(self.rt.format_frame(rec), flush=True)
+
+    def run(self) -> int:
+        from controller.layers import Request
+        args, imp = self.args, self.dp.importer
+        others = [p for p in self.config.names if p != self.process]
+        print(f"pfma controller: process {self.process} of {self.config.source}: layers "
+              f"{' '.join(self.spec.layers)}; world model {self.dp.wm_name}; the others' sections by "
+              f"{'Zenoh' if self.link is not None else 'shared memory'} from {', '.join(others)}", flush=True)
+        self.rt.on_frame.append(self.show)
+        budget = int(round(args.duration / self.period_s)) if args.duration is not None else sys.maxsize
+        code = 0
+        try:
+            powered = not args.power_up
+            wait_end = None
+            for _ in range(budget):
+                self.frame()
+                if not powered:
+                    # every other section seen, and this process past its first frames (imports,
+                    # first allocations, the collector frozen): then the request
+                    if imp.seen_all and self.pacer.frames > _Driver.FREEZE_AFTER_FRAMES:
+                        self.rt.request(Request.POWER_UP)
+                        powered = True
+                    elif not imp.seen_all:
+                        if wait_end is None:
+                            print(f"pfma controller: waiting for the sections of {', '.join(imp.missing())} "
+                                  f"before POWER UP", flush=True)
+                            wait_end = time.monotonic() + DISTRIBUTED_WAIT_S
+                        elif time.monotonic() > wait_end:
+                            names = ", ".join(self.config.wm_name(self.base, p) for p in imp.missing())
+                            print(f"pfma controller: no world-model section from {', '.join(imp.missing())} within "
+                                  f"{DISTRIBUTED_WAIT_S:g} s ({names}): start those processes first; no POWER UP",
+                                  file=sys.stderr)
+                            code = 1
+                            break
+            print(_status_line(self.rt))
+            if args.messages:
+                print(f"--- last {args.messages} messages ---")
+                print(self.rt.messages.format(args.messages))
+        except KeyboardInterrupt:
+            print()
+        finally:
+            self.stop()
+            self.close()
+        return code
+
+    def stop(self) -> None:
+        """Leave the arm safe before letting go. The process with System Up/Down powers the
+        whole system down in order (the others still running); another process, while the
+        system is up, stops its own layers (its layers next to another process's fault,
+        DistributedProcess.leave) and, with Data Acquisition, waits for the safe stop."""
+        from controller.decision import Status
+        from controller.layers import Request
+        rt = self.rt
+        t_end = time.monotonic() + DISTRIBUTED_STOP_S
+        try:
+            if "updown" in rt.local_keys:
+                if rt.status("updown") in (Status.SHUT_DOWN, Status.ERROR):
+                    return
+                rt.request(Request.POWER_DOWN)
+                while time.monotonic() < t_end and not rt.all_status(Status.SHUT_DOWN):
+                    self.frame()
+                return
+            if self.dp.leave():
+                while time.monotonic() < t_end and not self.dp.stopped():
+                    self.frame()
+        except Exception as e:  # noqa: BLE001
+            print(f"pfma controller: power down on exit: {e}", file=sys.stderr)
+
+    def close(self) -> None:
+        if getattr(self, "pacer", None) is not None:
+            self.pacer.release_gc()
+        if self.dp is not None:
+            self.dp.close()
+        if self.link is not None:
+            self.link.close()
+        self.client.close()
