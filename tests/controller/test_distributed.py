@@ -47,6 +47,18 @@ def test_the_example_file_is_two_processes():
     assert cfg.wm_name("base", "rack") == "base.rack"
 
 
+def test_zenoh_endpoints_link_every_pair_on_loopback_by_default():
+    cfg = parse_config({"distributed": {"transport": "zenoh"}, **THREE})
+    assert cfg.transport == "zenoh"
+    assert cfg.endpoints("top") == (("tcp/127.0.0.1:7460",), ())
+    assert cfg.endpoints("planners") == (("tcp/127.0.0.1:7461",), ("tcp/127.0.0.1:7460",))
+    assert cfg.endpoints("rack") == (("tcp/127.0.0.1:7462",), ("tcp/127.0.0.1:7460", "tcp/127.0.0.1:7461"))
+    given = parse_config({"process": {"planners": {"layers": ["updown", "msp", "trajectory", "cartesian"],
+                                                   "connect": ["tcp/10.0.0.2:7460"]},
+                                      "rack": {"layers": ["joint", "servo", "daq"], "listen": ["tcp/10.0.0.2:7460"]}}})
+    assert given.transport == "zenoh" and given.endpoints("planners") == ((), ("tcp/10.0.0.2:7460",))
+
+
 MISTAKES = [
     ({"process": {"a": {"layers": ["updown", "msp", "trajectory", "cartesian", "joint"]},
                   "b": {"layers": ["joint", "servo", "daq"]}}}, "layer joint is in processes a and b"),
