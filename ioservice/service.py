@@ -955,11 +955,7 @@ class IoService:
         if self.ring is not None:
             self.ring.write(self.inputs.raw)
         self.buf.wake_frame_waiters()  # a reader waiting for the next frame sees STOPPED now
-        if self.ft.ft is not None:
-            try:
-                self.ft.ft.stop_stream()
-            except PfmaError:
-                pass
+        self.ft.stop()
         self.post(Severity.INFO, 151, f"{reason} (pid {os.getpid()})")
 
     # ------------------------------------------------------------------ calibration

@@ -404,6 +404,27 @@ class FtTask:
         self._can_errors = 0  # CAN link errors already seen
         self._can_quiet = False  # a CAN trouble message is out; no other until a record arrives
 
+    def stop(self) -> None:
+        """End the stream (the service is stopping; outputs are already safe). The stop
+        dialogue reads with waits again: an MVME400 port polls its FIFO in its reads and
+        waits on the board's clock (on a simulated clock that moves the model on), any port
+        gets a read time-out, instead of the frames' non-blocking reads, which on the
+        simulated rack never saw the prompt and spun on the wall clock for the whole reply
+        time-out (0.5 s at every stop)."""
+        ft = self.ft
+        if ft is None:
+            return
+        port = getattr(ft, "port", None)
+        if port is not None:
+            if hasattr(port, "autopoll"):
+                port.autopoll = True
+            if getattr(port, "timeout", None) == 0:
+                port.timeout = 0.05
+        try:
+            ft.stop_stream()
+        except PfmaError:
+            pass
+
     def start(self, port, baud: int, where: str) -> None:
         """Binary records with checksum, streamed (QS); then only non-blocking reads."""
         from drivers.serial_ft.ftsensor import FtSensor
