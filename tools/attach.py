@@ -33,6 +33,7 @@ import sys
 import time
 from typing import Callable, TextIO
 
+from bit3.access import Bit3AccessError
 from bit3.buffer import Bit3Error, LayoutMismatchError
 from bit3.client import Client
 from bit3.layout import Layout, ServiceState
@@ -155,6 +156,7 @@ def service_status(name: str, layout: Layout | None = None, *, rack: str | None 
     """``(client, "")`` when a live service publishes on buffer ``name``, else
     ``(None, why)``. Layout mismatches raise (they do not go away by waiting).
 
+    A buffer this user may not open (:class:`bit3.access.Bit3AccessError`) raises too.
     Live means: the buffer exists, its layout matches, the inputs owner's process is
     running and the service state is not STOPPED (nor STARTING, in :data:`SERVICE_WORDS`).
     """
@@ -164,6 +166,8 @@ def service_status(name: str, layout: Layout | None = None, *, rack: str | None 
         if not (words.waits_uninitialised and "not initialised" in str(err)):
             raise
         return None, words.reason("uninitialised", err)
+    except Bit3AccessError:
+        raise  # no permission does not go away by waiting: one message now (bit3/access.py)
     except Bit3Error as err:
         return None, words.reason("no_buffer" if "no Bit3 buffer" in str(err) else "bit3", err)
     except FileNotFoundError as err:

@@ -134,7 +134,8 @@ def test_a_tool_on_a_buffer_it_may_not_read_says_so_in_one_line(name, capsys):
 
 @as_nobody
 @pytest.mark.realtime
-@pytest.mark.parametrize("argv", [["stats"], ["read", "elbow_pitch_angle"]], ids=["stats", "read"])
+@pytest.mark.parametrize("argv", [["stats"], ["read", "elbow_pitch_angle"], ["monitor"], ["watch", "elbow_pitch_angle"]],
+                         ids=["stats", "read", "monitor", "watch"])
 def test_a_tool_run_by_another_user_on_a_private_buffer_says_so_in_one_line(name, argv):
     b = Bit3Buffer.create(name)
     b.claim("service", "test-service")

@@ -75,6 +75,7 @@ def run(args) -> int:
     from tools.attach import ServiceLink, no_service
     from tools.checkout.view import monitor_data, monitor_lines, monitor_screen
     from tools.cli.output import print_json, usage_error
+    from bit3.access import Bit3AccessError
     from bit3.buffer import Bit3Error
     from pfma.errors import PfmaError
     if args.json and not args.once:
@@ -109,6 +110,8 @@ def run(args) -> int:
                 try:
                     d = monitor_data(link.client(), args.filter)
                     kind = link.client().header().rack_kind
+                except Bit3AccessError:
+                    raise  # no permission: one message now, not a reattach loop
                 except Bit3Error as err:  # e.g. a service killed in the middle of a write
                     link.invalidate(str(err))
                     continue

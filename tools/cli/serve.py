@@ -47,6 +47,10 @@ def add_parser(sub):
     p.add_argument("--rack", default="fake", help="fake (simulated rack, default) or a rack TOML")
     p.add_argument("--bus", default=None, help="register bus for a real rack (modbus://H:P, file:PATH)")
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
+    p.add_argument("--group", default=None, metavar="GROUP",
+                   help="make the buffer and its frame ring mode 0640 with this group, so its members "
+                        "(operators' accounts) can read them (default: 0600, this user only; "
+                        "docs/reliability.md, the pfma group model)")
     p.add_argument("--duration", type=positive_float, default=None, help="seconds to run (default: until Ctrl-C)")
     p.add_argument("--modbus", default=None, metavar="HOST:PORT", help="export the buffer over Modbus TCP")
     p.add_argument("--modbus-writes", action="store_true", help="let Modbus clients write the command area")
@@ -198,7 +202,14 @@ def run(args) -> int:
         for w in realtime_setup(cpu=os.cpu_count() - 1 if os.cpu_count() else None):
             print(f"pfma serve: {w}", file=sys.stderr)
     _replace_stale(args.buffer)
-    buf = Bit3Buffer.create(args.buffer, layout)
+    try:
+        buf = Bit3Buffer.create(args.buffer, layout, group=args.group)
+    except Bit3Error as err:  # an unknown group, or one this user is not in (nothing left behind)
+        _close_bus(bus)
+        if hid is not None:
+            hid[0].close()
+        print(f"pfma serve: {err}", file=sys.stderr)
+        return 2
     try:
         svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3,
                         max_input_age_frames=args.max_input_age,
@@ -244,26 +255,27 @@ def run(args) -> int:
         print(f"pfma serve: {e}", file=sys.stderr)
     svc.install_signal_handlers()
     export = None
-    if args.modbus:
-        from tools.modbus_export import start_export_from_args
-        export = start_export_from_args(args.buffer, args.modbus, args.modbus_writes)
-        print(f"pfma serve: Modbus TCP export on {args.modbus}"
-              f"{' (command writes allowed)' if args.modbus_writes else ' (read-only)'}")
     stop = threading.Event()
     viewer = demo = None
-    on = "the simulated rack" if world else (
-        f"{args.bus} (simulated registers)" if args.bus.removeprefix("spy+") in ("fake", "fake://")
-        else args.bus)
-    print(f"pfma serve: {rack.name} on {on}, buffer "
-          f"/dev/shm/{args.buffer}, {schedule.frame_rate_hz:g} Hz frames; Ctrl-C stops "
-          f"(outputs go to 0 V)", flush=True)
-    if args.live:
-        viewer = threading.Thread(target=_live_view, args=(args.buffer, stop, rack), daemon=True)
-        viewer.start()
-    if args.demo:
-        demo = subprocess.Popen([sys.executable, "-m", "sim.demo", "--buffer", args.buffer,
-                                 "--duration", str(args.duration or 3600)])
     try:
+        if args.modbus:  # inside the try: an export that cannot start leaves no buffer or ring behind
+            from tools.modbus_export import start_export_from_args
+            export = start_export_from_args(args.buffer, args.modbus, args.modbus_writes,
+                                            rack=None if args.rack == "fake" else args.rack)
+            print(f"pfma serve: Modbus TCP export on {args.modbus}"
+                  f"{' (command writes allowed)' if args.modbus_writes else ' (read-only)'}")
+        on = "the simulated rack" if world else (
+            f"{args.bus} (simulated registers)" if args.bus.removeprefix("spy+") in ("fake", "fake://")
+            else args.bus)
+        print(f"pfma serve: {rack.name} on {on}, buffer "
+              f"/dev/shm/{args.buffer}, {schedule.frame_rate_hz:g} Hz frames; Ctrl-C stops "
+              f"(outputs go to 0 V)", flush=True)
+        if args.live:
+            viewer = threading.Thread(target=_live_view, args=(args.buffer, stop, rack), daemon=True)
+            viewer.start()
+        if args.demo:
+            demo = subprocess.Popen([sys.executable, "-m", "sim.demo", "--buffer", args.buffer,
+                                     "--duration", str(args.duration or 3600)])
         install_serve_faults(args, svc, world)
         svc.run(duration_s=args.duration)
     finally:
