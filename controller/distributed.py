@@ -43,7 +43,8 @@ Assumptions (named once here, and in docs/controller.md "Distributing the layers
   itself for a missing output (``daq_layer``): across a process boundary they would be
   a frame older than the freshness rule allows;
 * :data:`SECTION_LOST_FRAMES`: a remote section whose owner has not completed a
-  communications segment for that many frames is lost; each local layer next to a layer
+  communications segment for that many service frames is lost (service frames, not this
+  process's steps: steps repeated on one frame while the service stalls do not count); each local layer next to a layer
   of that process (its superior or subordinate) gets fault :data:`ERR_SECTION_LOST` while
   it is not SHUT DOWN, so a lost planner brings the arm to a safe stop and a lost rack
   takes System Up/Down to ERROR;
@@ -448,7 +449,8 @@ class _Remote:
         self.buf = bytearray(section.size if source.packed else body_size)
         self.frame: int | None = None  #: the owner's segment count of the newest copy
         self.staged = False  #: a new copy waits for the next communications segment
-        self.still = 0  #: reads since the copy last changed
+        self.fresh = False  #: a new copy arrived since the last lost-check
+        self.since: int | None = None  #: service frame of the lost-check that saw the newest copy
         self.seen = False  #: a copy has arrived at least once
         self.lost = False
 
@@ -487,11 +489,18 @@ class Importer:
             why = r.source.problem()
             if why is not None:
                 self.rt.post("runtime", Level.ERROR, f"process {r.name}: {why}")
-            if frame is None or frame == r.frame:
-                r.still += 1
-            else:
-                r.frame, r.staged, r.still, r.seen = frame, True, 0, True
-            lost = r.still >= SECTION_LOST_FRAMES
+            if frame is not None and frame != r.frame:
+                r.frame, r.staged, r.fresh, r.seen = frame, True, True, True
+
+    def _update_lost(self) -> None:
+        """Lost: no new copy for :data:`SECTION_LOST_FRAMES` service frames (counted in the
+        service's frames, not in this process's steps: a burst of steps on one frame, while
+        the service stalls, is no time for the others to have run)."""
+        f = self.rt.frame
+        for r in self.remotes.values():
+            if r.fresh or r.since is None:
+                r.since, r.fresh = f, False
+            lost = f - r.since >= SECTION_LOST_FRAMES
             if lost != r.lost:
                 r.lost = lost
                 if lost:
@@ -517,6 +526,7 @@ class Importer:
         if not self.prefetched:
             self.fetch()
         self.prefetched = False
+        self._update_lost()
         self.check_lost()
 
     def check_lost(self) -> None:

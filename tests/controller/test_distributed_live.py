@@ -101,7 +101,10 @@ def test_two_processes_against_pfma_serve_power_up():
         assert _wait_for(lambda: _service_state(name) is not None, 15), "the service did not come up"
         rack = start("controller", "--distribute", str(EXAMPLE), "--process", "rack", "--buffer", name,
                      "--wm", base, "--duration", "30")
-        assert _wait_for(lambda: _statuses(f"{base}.rack") is not None, 10), "the rack process made no world model"
+        if not _wait_for(lambda: _statuses(f"{base}.rack") is not None or rack.poll() is not None, 20) \
+                or rack.poll() is not None:
+            rack.terminate()
+            pytest.fail(f"the rack process made no world model: {rack.communicate(timeout=10)[0]}")
         top = start("controller", "--distribute", str(EXAMPLE), "--process", "planners", "--buffer", name,
                     "--wm", base, "--power-up", "--duration", "30")
         # POWER UP answered COMPLETE: System Up/Down reached START UP COMPLETE, which each layer
