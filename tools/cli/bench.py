@@ -2,7 +2,10 @@
 
 Benchmarks print measurements; they never assert. Each ``bench/bench_<name>.py``
 module has ``run(seconds=...)`` (its text report). ``stack`` (the whole stack for
-``--minutes``, default 10) runs only when named.
+``--minutes``, default 10), ``chaos`` (the kill matrix: ``--trials`` per process kind,
+default 3, ``--seed``, ``--kinds``) and ``soak`` (the simulated stack flying a looping path
+for ``--minutes``, default 60) run only when named; ``pfma bench chaos --json`` and ``pfma
+bench soak --json`` print their whole report.
 
 ``pfma bench --json`` runs the set :data:`JSON_SET` and prints ONE JSON object, a key per
 benchmark, from each module's ``figures()`` (a dict; no printed text is parsed):
@@ -33,7 +36,11 @@ def _names() -> list[str]:
 
 
 #: benchmarks that run only when named (long)
-ON_REQUEST = ("stack",)
+ON_REQUEST = ("stack", "chaos", "soak")
+#: benchmarks named alone with ``--json``: their own whole report (not the JSON set)
+FULL_JSON = ("stack", "chaos", "soak")
+#: ``--minutes`` of the soak when none is given
+SOAK_MINUTES = 60.0
 #: what ``pfma bench --json`` measures, in this order
 JSON_SET = ("service", "controller", "stack", "modbus", "bridge")
 #: ``--minutes`` of the stack when none is given: text report / --json set
@@ -47,12 +54,18 @@ def add_parser(sub):
     p.add_argument("--seconds", type=float, default=None, help="seconds per measured run (default 5)")
     p.add_argument("--minutes", type=float, default=None,
                    help=f"stack: minutes the whole stack runs (default {STACK_MINUTES:g}; with --json "
-                        f"{STACK_MINUTES_JSON:g}; 0.05 for a quick check)")
+                        f"{STACK_MINUTES_JSON:g}; 0.05 for a quick check); soak: minutes (default {SOAK_MINUTES:g})")
     p.add_argument("--json", action="store_true",
                    help=f"print one JSON object with the figures of {', '.join(JSON_SET)} "
                         f"(`pfma bench stack --json`: the stack's full report)")
     p.add_argument("--realtime", action="store_true",
-                   help="stack: run the service and the controller with --realtime (SCHED_FIFO, pinned CPUs)")
+                   help="stack, chaos: run the service and the controller with --realtime (SCHED_FIFO, pinned CPUs)")
+    p.add_argument("--trials", type=int, default=None,
+                   help="chaos: trials per process kind (default 3; 100 for the full matrix)")
+    p.add_argument("--seed", type=int, default=None, help="chaos: the seed of the kill plan (default 20)")
+    p.add_argument("--kinds", default=None, metavar="KIND,...",
+                   help="chaos: which process kinds (default all: service, controller, recorder, console, "
+                        "bridge, gateway, export)")
     return p
 
 
@@ -95,13 +108,25 @@ def run(args) -> int:
     if args.minutes is not None and args.minutes < 0:
         print(f"pfma bench: --minutes {args.minutes:g}: must not be negative", file=sys.stderr)
         return 2
+    if getattr(args, "trials", None) is not None and args.trials <= 0:
+        print(f"pfma bench: --trials {args.trials}: must be positive", file=sys.stderr)
+        return 2
+    kinds = None
+    if getattr(args, "kinds", None):
+        from bench.bench_chaos import KINDS
+        kinds = tuple(k.strip() for k in args.kinds.split(",") if k.strip())
+        bad = [k for k in kinds if k not in KINDS]
+        if bad or not kinds:
+            print(f"pfma bench: --kinds {args.kinds}: unknown {', '.join(bad) or 'nothing'}; known: "
+                  f"{', '.join(KINDS)}", file=sys.stderr)
+            return 2
     known = _names()
     unknown = set(args.names) - set(known)
     if unknown:
         print(f"pfma bench: unknown benchmark(s): {', '.join(sorted(unknown))}; known: {', '.join(known)}",
               file=sys.stderr)
         return 2
-    if args.json and args.names != ["stack"]:
+    if args.json and not (len(args.names) == 1 and args.names[0] in FULL_JSON):
         names = args.names or list(JSON_SET)
         other = [n for n in names if n not in JSON_SET]
         if other:
@@ -119,6 +144,18 @@ def run(args) -> int:
             rep = mod.run(seconds=args.seconds, minutes=minutes, as_json=args.json, realtime=args.realtime)
             if rep.get("errors") and args.json:
                 return 1
+            continue
+        if name in ("chaos", "soak"):
+            if not args.json:
+                print(f"== bench {name} ==")
+            if name == "chaos":
+                rep = mod.run(trials=args.trials, seed=args.seed, as_json=args.json, realtime=args.realtime,
+                              **({"kinds": kinds} if kinds else {}))
+            else:
+                rep = mod.run(minutes=SOAK_MINUTES if args.minutes is None else args.minutes, as_json=args.json,
+                              realtime=args.realtime)
+            if not args.json:
+                print()
             continue
         print(f"== bench {name} ==")
         mod.run(seconds=seconds)

@@ -1,0 +1,1542 @@
+"""The kill matrix (issue 20 item 1): every process of the stack SIGKILLed or SIGSTOPped at a
+random point of its life, and what must hold afterwards checked in every trial.
+
+Process kinds (:data:`KINDS`) and the stack each trial runs (every process a subprocess of
+this venv's python, on a buffer named ``pfma-chaos-...``, unique per session):
+
+=========== =================================================================================
+service     ``pfma serve --rack fake --modbus 127.0.0.1:0`` + ``pfma controller --power-up
+            --play`` + ``pfma record``; the victim is the service
+controller  a service and a recorder; the victim is a controller flying a path
+recorder    a service and a controller; the victim is ``pfma record``
+console     a service and a controller; the victim is ``pfma console`` (the Textual console;
+            its output goes to a file, so nothing is a terminal)
+bridge      a service, ``pfma bridge --commands`` on tcp/127.0.0.1 and a controller runtime in
+            another process on a RemoteClient through it; the victim is the bridge (the
+            controller's link)
+gateway     ``pfma gateway`` (the simulated rack behind Modbus TCP), ``pfma serve --bus
+            modbus://...`` on it and a controller ``--no-ft``; the victim is the gateway
+export      ``pfma serve --modbus`` (its Modbus export runs in its own process) and a
+            controller; the victim is the export process
+=========== =================================================================================
+
+A trial (:class:`Trial`) is a kind, a phase of the victim's life (``start-up``: at a random
+time after its launch; ``running``: the stack up and the arm flying; ``shutting down``: after
+the victim was asked to stop with SIGINT, or SIGTERM for the export), an action (SIGKILL;
+SIGSTOP, then SIGCONT after a random hold; SIGSTOP, then SIGKILL) and its random times.
+:func:`plan` draws them from ``random.Random(f"{seed}/{kind}")``: trial *i* of a kind is the
+same whatever ``--trials`` and whatever other kinds run, so a failure is replayed by its seed.
+
+Checks (:class:`Outcome`, a name -> passed, detail):
+
+``outputs_safe``   (a) controller, bridge: when the service was ARMED when the victim went,
+                   the DAC outputs are 0 V (every channel, FAULT) within the watchdog plus one
+                   frame of the last heartbeat the service saw, measured on the service's own
+                   clock: the trip's time (its message's ``t_s``) minus the last heartbeat's
+                   (``t_s - command_age_s`` of the frame that published the trip, a bound
+                   that can only make the age look longer); every frame is read back from the
+                   service's frame ring, none is sampled. When it was not ARMED: 0 V and not
+                   ARMED in every frame after. For the gateway: FAULT and 0 V published
+                   within the watchdog plus one frame of the kill.
+``loss_reported``  (b) service: the controller says the service stopped publishing and
+                   commands 0 (rates, current limits, no arm request) in the lost segment
+``takeover``       (b) a new ``pfma serve`` on the same buffer name starts, and while the old
+                   controller goes on writing to its old segment the new service is never
+                   ARMED, nobody holds its command area and its outputs stay at 0 V (no
+                   second writer obeyed); for the gateway, a new gateway and service
+``export_gone``    (b) the killed service's Modbus export process exits with it
+``reattach``       (c) the recorder goes on as a new session on the new service and ``pfma
+                   read`` reads it; a new controller (recorder, console, bridge, export)
+                   attaches where the victim was and works (the controller re-arms the
+                   service, the recorder records frames, the console draws, the export
+                   answers a Modbus read, the remote controller arms through a new bridge)
+``unaffected``     killing a reader (recorder, console, export) does not trip the service
+``recoverable``    (e) a killed recorder's file: ``pfma record recover`` rewrites it and
+                   names the frames and gaps it recovered; the data lost is the time between
+                   the last recovered frame and the kill (docs/recording.md: less than the
+                   0.25 s flush period, plus what the recorder had not yet written)
+``resumed``        a stopped and continued process goes on (the recorder lossless when the
+                   hold was shorter than its frame ring)
+``no_leftovers``   (d) after every process stopped in order, /dev/shm holds no file of the
+                   session but the buffer and the world model a stopped service and
+                   controller leave for tools by design (the bench removes those), and no
+                   file any of the session's processes had mapped (zenoh's shared memory)
+``clean_exits``    no traceback in any process's output; every process stops on SIGINT
+
+Figures: trials, passes and failures (each with its cause) per kind; the trip ages and the
+kill-to-0 V times; the recorder's lost seconds.
+
+``pfma bench chaos [--trials N] [--seed S] [--kinds a,b]``: :data:`DEFAULT_TRIALS` trials
+per kind by default (a few minutes); ``--trials 100`` for the issue's full matrix (hours).
+Figures, never an assert (tests/chaos asserts).
+
+Assumptions (named once here): a process's start-up lasts at most :data:`START_WINDOW_S`
+(the start-up kill falls in that window after its launch; on a loaded host it may fall after
+the start-up is over, and the trial says what the victim had reached); the service's ring
+holds 256 frames (0.8 s at 320 Hz), read back :data:`SETTLE_S` after the kill.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import math
+import os
+import random
+import re
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import textwrap
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+ROOT = Path(__file__).resolve().parent.parent
+#: prefix of every buffer, world model and file this benchmark makes in /dev/shm
+PREFIX = "pfma-chaos-"
+KINDS = ("service", "controller", "recorder", "console", "bridge", "gateway", "export")
+PHASES = ("start-up", "running", "shutting down")
+ACTIONS = ("SIGKILL", "SIGSTOP+SIGCONT", "SIGSTOP+SIGKILL")
+#: how often each action is drawn (SIGKILL twice as often as each SIGSTOP variant)
+ACTION_WEIGHTS = (2, 1, 1)
+#: start-up phase: the kill falls this long at most after the victim's launch (s; assumed:
+#: a python process of this project imports and attaches in 1-3 s on the 2-vCPU VM)
+START_WINDOW_S = {"service": 3.0, "controller": 3.0, "recorder": 2.0, "console": 3.0,
+                  "bridge": 2.5, "gateway": 2.0, "export": 2.0}
+#: running phase: the kill falls this long after the stack is up (s)
+RUN_WINDOW_S = (0.1, 2.0)
+#: shutting-down phase: the kill falls this long after the stop request (s)
+STOP_WINDOW_S = (0.0, 0.4)
+#: SIGSTOP: held this long before the SIGCONT or SIGKILL (s); the longest is past the
+#: recorder's frame ring (0.8 s)
+HOLD_S = (0.005, 1.5)
+DEFAULT_TRIALS = 3
+DEFAULT_SEED = 20
+#: the service's command watchdog and frame rate (pfma serve's defaults, given explicitly)
+WATCHDOG_S = 0.015
+FRAME_RATE_HZ = 320.0
+#: what the recorder may lose when killed: its flush period (docs/recording.md, "Crash
+#: safety": less than --flush-s 0.25 s), plus the frames it had taken but not yet written,
+#: which the frame ring lets lag by at most 255 frames (0.8 s)
+RECORDER_FLUSH_S = 0.25
+RING_S = 255 / FRAME_RATE_HZ
+#: the gateway kind's service: a schedule the Modbus round trips on a loaded host can keep
+#: (``pfma serve`` refuses 320 Hz over the gateway when the bus is measured too slow)
+GATEWAY_SCHEDULE = ("--schedule", "slow")
+#: what ``pfma read`` reads in the reattach check (a rack channel of the default rack)
+READ_SIGNAL = "elbow_pitch_angle"
+#: a gateway silent this long stops the service (ioservice.service.BUS_LOST_S)
+BUS_LOST_S = 0.5
+#: after a kill: the frames are judged this long after it (s)
+SETTLE_S = 0.35
+#: the ring watch reads the service's frame ring this often (s), and keeps this many frames
+WATCH_POLL_S = 0.05
+WATCH_KEEP = 20 * 320
+#: waits for a state (a service publishing, a controller arming) give up after this (s)
+WAIT_S = 30.0
+#: each process must exit this long after SIGINT (then SIGKILL, and the trial says so)
+STOP_TIMEOUT_S = 15.0
+ARMED, FAULT = 2, 3  # bit3.layout.ServiceState (imported lazily)
+#: the service's command age limit (rack [commands] max_input_age_frames, default 4)
+MAX_INPUT_AGE_FRAMES = 4
+#: the service's watchdog trip message code (ioservice.safety.OutputGuard.trip(code=1))
+TRIP_CODE = 1
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One kill: which process, when in its life, how (all drawn by :func:`plan`)."""
+
+    kind: str
+    index: int
+    phase: str
+    action: str
+    at_s: float  #: the kill this long into the phase (s)
+    hold_s: float  #: SIGSTOP actions: the hold before SIGCONT/SIGKILL (s)
+
+    def describe(self) -> str:
+        hold = f", held {self.hold_s * 1e3:.0f} ms" if self.action != "SIGKILL" else ""
+        return f"{self.kind} #{self.index}: {self.action} {self.phase} +{self.at_s:.3f} s{hold}"
+
+
+def plan(seed: int, trials: int, kinds: tuple[str, ...] = KINDS) -> list[Trial]:
+    """The trials, reproducibly: trial i of a kind is drawn from ``Random(f"{seed}/{kind}")``
+    after trials 0..i-1, so it does not depend on ``trials`` or on the other kinds."""
+    out = []
+    for kind in kinds:
+        rng = random.Random(f"{seed}/{kind}")
+        for i in range(trials):
+            phase = rng.choice(PHASES)
+            action = rng.choices(ACTIONS, weights=ACTION_WEIGHTS)[0]
+            if phase == "start-up":
+                at = rng.uniform(0.0, START_WINDOW_S[kind])
+            elif phase == "running":
+                at = rng.uniform(*RUN_WINDOW_S)
+            else:
+                at = rng.uniform(*STOP_WINDOW_S)
+            hold = rng.uniform(*HOLD_S)
+            out.append(Trial(kind, i, phase, action, round(at, 4), round(hold, 4)))
+    return out
+
+
+@dataclass
+class Outcome:
+    """What one trial found: checks (name -> (passed, detail)), figures, notes."""
+
+    trial: Trial
+    checks: dict[str, tuple[bool, str]] = field(default_factory=dict)
+    figures: dict = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+
+    def check(self, name: str, ok: bool, detail: str = "") -> bool:
+        prev = self.checks.get(name)
+        if prev is not None and not prev[0]:  # a failed check stays failed, with its first cause
+            return ok
+        self.checks[name] = (bool(ok), detail)
+        return ok
+
+    @property
+    def passed(self) -> bool:
+        return all(ok for ok, _ in self.checks.values())
+
+    def failures(self) -> list[str]:
+        return [f"{name}: {detail}" for name, (ok, detail) in self.checks.items() if not ok]
+
+    def as_dict(self) -> dict:
+        return {"trial": self.trial.describe(), "kind": self.trial.kind, "index": self.trial.index,
+                "phase": self.trial.phase, "action": self.trial.action, "at_s": self.trial.at_s,
+                "hold_s": self.trial.hold_s, "passed": self.passed,
+                "checks": {k: {"ok": ok, "detail": d} for k, (ok, d) in self.checks.items()},
+                "figures": self.figures, "notes": self.notes, "seconds": round(self.seconds, 2)}
+
+
+# --------------------------------------------------------------------------- the frames
+
+
+def frame_rows(ring, dtype, since: int = 0, rate_slots: list[int] | None = None) -> tuple[list[dict], int, int]:
+    """The frames still whole in a service's frame ring from its ``since``-th publish on, as
+    dicts of the fields the checks read; the number of publishes already overwritten (lost to
+    us); the ring's publish count (the next ``since``).
+
+    :param rate_slots: the DAC slots of the rate channels (``rate_vmax``: their largest volts)
+    """
+    import numpy as np
+    n = ring.count()
+    first = max(since, n - (ring.n_slots - 1))
+    rows = []
+    for k in range(first, n):
+        data = ring.read(k)
+        if data is None:
+            continue
+        r = np.ndarray((), dtype, buffer=data)
+        rows.append({"frame": int(r["frame"]), "t_s": float(r["t_s"]), "state": int(r["service_state"]),
+                     "fault": int(r["fault_code"]), "hb": int(r["command_heartbeat"]),
+                     "age_s": float(r["command_age_s"]), "vmax": float(np.abs(r["dac_volts"]).max()),
+                     "in_frame": int(r["command_inputs_frame"]),
+                     "rate_vmax": float(np.abs(r["dac_volts"][rate_slots]).max()) if rate_slots else math.nan})
+    return rows, max(0, first - since), n
+
+
+def judge_outputs(rows: list[dict], messages: list, t_gone: float, *, watchdog_s: float = WATCHDOG_S,
+                  period_s: float = 1.0 / FRAME_RATE_HZ) -> tuple[bool, str, dict]:
+    """Check (a) on the frames around the moment ``t_gone`` a command writer went (killed or
+    stopped; the service's CLOCK_MONOTONIC, the host's).
+
+    ARMED at that moment: the first frame published after it that is not ARMED must have
+    every DAC channel at 0 V (FAULT by the watchdog, or SAFE when the writer's last command
+    disarmed); the time the outputs went to 0 V (the service's watchdog message, else that
+    frame's ``t_s``) minus the last heartbeat's time (``t_s - command_age_s`` of that frame:
+    the age was taken after the frame's wake-up, so this can only make the age look longer)
+    at most the watchdog plus one frame, and no frame after drives anything until the
+    service is ARMED again by a new arm request (none comes from a dead writer). Not ARMED:
+    every frame after is not ARMED and at 0 V. Returns (passed, detail, figures).
+
+    :param messages: the service's messages (``bit3.buffer.Message``: ``t_s``, ``code``, ``text``)
+    """
+    limit = watchdog_s + period_s
+    before = [r for r in rows if r["t_s"] <= t_gone]
+    after = [r for r in rows if r["t_s"] > t_gone]
+    if not before or not after:
+        return False, (f"the frame ring does not cover the kill ({len(before)} frames before, "
+                       f"{len(after)} after)"), {}
+    if before[-1]["state"] != ARMED:
+        bad = [r for r in after if r["state"] == ARMED or r["vmax"] > 0.0]
+        fig = {"armed_at_kill": False}
+        if bad:
+            r = bad[0]
+            return False, (f"not armed at the kill, yet frame {r['frame']} is "
+                           f"{'ARMED' if r['state'] == ARMED else 'state %d' % r['state']} with "
+                           f"{r['vmax']:.3f} V"), fig
+        return True, f"not armed at the kill (state {before[-1]['state']}); 0 V in all {len(after)} frames after", fig
+    off = next((r for r in after if r["state"] != ARMED), None)
+    if off is None:
+        return False, (f"still ARMED {after[-1]['t_s'] - t_gone:.3f} s after the kill "
+                       f"(frame {after[-1]['frame']}, {after[-1]['vmax']:.3f} V)"), {"armed_at_kill": True}
+    hb_t = off["t_s"] - off["age_s"]
+    trip = [m for m in messages if m.code == TRIP_CODE and "stale heartbeat" in m.text
+            and hb_t - 1e-3 <= m.t_s <= off["t_s"] + 1e-3]
+    t_trip = trip[-1].t_s if trip else off["t_s"]
+    age = t_trip - hb_t
+    fig = {"armed_at_kill": True, "trip_age_ms": round(age * 1e3, 2),
+           "kill_to_0v_ms": round((t_trip - t_gone) * 1e3, 2)}
+    text = trip[-1].text if trip else "(no watchdog message)"
+    if off["vmax"] != 0.0:
+        return False, (f"frame {off['frame']} left ARMED for state {off['state']} with {off['vmax']:.3f} V "
+                       f"({text})"), fig
+    later = [r for r in after if r["t_s"] > off["t_s"] and (r["vmax"] > 0.0 or r["state"] == ARMED)]
+    if later:
+        return False, f"frame {later[0]['frame']} after the trip has {later[0]['vmax']:.3f} V", fig
+    if age > limit:
+        why = "host stall named by the service" if "stall" in text else "late"
+        return False, (f"{why}: 0 V {age * 1e3:.1f} ms after the last heartbeat > watchdog + one frame "
+                       f"{limit * 1e3:.1f} ms ({text})"), fig
+    return True, f"0 V {age * 1e3:.1f} ms after the last heartbeat ({text})", fig
+
+
+class RingWatch:
+    """Every frame a service publishes, read from its frame ring by a thread every
+    :data:`WATCH_POLL_S` (the ring holds 0.8 s, so none is missed while this process runs
+    at least that often); the last :data:`WATCH_KEEP` frames are kept, and the time of the
+    last ARMED frame."""
+
+    def __init__(self, name: str, client) -> None:
+        import collections
+        import threading
+        from bit3.ring import FrameRing
+        self.ring = FrameRing.attach(name)
+        self.dtype = _inputs_dtype(client)
+        self.slots = _rate_slots(client)
+        self.rows: collections.deque = collections.deque(maxlen=WATCH_KEEP)
+        self.lost = 0  #: frames overwritten before this watch read them
+        self.last_armed_t = -math.inf
+        self._next = self.ring.count()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._run, name="chaos-ring-watch", daemon=True)
+        self._t.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(WATCH_POLL_S):
+            self.poll()
+
+    def poll(self) -> None:
+        with self._lock:
+            rows, lost, self._next = frame_rows(self.ring, self.dtype, self._next, self.slots)
+            self.lost += lost
+            if rows:
+                self.rows.extend(rows)
+                armed = [r["t_s"] for r in rows if r["state"] == ARMED]
+                if armed:
+                    self.last_armed_t = armed[-1]
+
+    def armed_since(self, t: float) -> bool:
+        self.poll()
+        return self.last_armed_t >= t
+
+    def window(self, t0: float, t1: float) -> list[dict]:
+        self.poll()
+        with self._lock:
+            return [r for r in self.rows if t0 <= r["t_s"] <= t1]
+
+    def close(self) -> None:
+        self._stop.set()
+        self._t.join(2.0)
+        self.ring.close()
+
+
+# --------------------------------------------------------------------------- processes
+
+
+def _env() -> dict:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
+    env.pop("COLUMNS", None)
+    env.pop("LINES", None)
+    return env
+
+
+def _default_sigint() -> None:
+    """In the child before exec: SIGINT back to default (a bench run as a background job)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def _shm_maps(pid: int) -> set[str]:
+    """The /dev/shm files process ``pid`` has mapped (from /proc/PID/maps)."""
+    out = set()
+    try:
+        with open(f"/proc/{pid}/maps") as f:
+            for line in f:
+                i = line.find("/dev/shm/")
+                if i >= 0:
+                    out.add(line[i:].strip().removesuffix(" (deleted)"))
+    except OSError:
+        pass
+    return out
+
+
+class Proc:
+    """One subprocess in its own process group, its output in a file."""
+
+    def __init__(self, role: str, argv: list[str], workdir: Path) -> None:
+        self.role = role
+        self.argv = argv
+        self.log_path = workdir / f"{role}-{uuid.uuid4().hex[:4]}.log"
+        self._log = open(self.log_path, "w")
+        self.p = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                  cwd=ROOT, env=_env(), start_new_session=True, preexec_fn=_default_sigint,
+                                  text=True)
+        self.t0 = time.monotonic()
+        self.stopped = False  #: SIGSTOPped and not continued
+        self.killed = False  #: SIGKILLed by the benchmark (its output may end anywhere)
+        self.exit_how = ""
+        self.maps: set[str] = set()
+        self.stop_t: float | None = None  #: when the trial asked it to stop (shutting-down phase)
+        self.ready_t: float | None = None  #: when it was seen up (its trial's ready condition)
+
+    @property
+    def pid(self) -> int:
+        return self.p.pid
+
+    def alive(self) -> bool:
+        return self.p.poll() is None
+
+    def note_maps(self) -> None:
+        if self.alive():
+            self.maps |= _shm_maps(self.pid)
+
+    def send(self, sig: int) -> float:
+        """Signal the process (not its group); the time it was sent (CLOCK_MONOTONIC)."""
+        self.note_maps()
+        t = time.monotonic()
+        try:
+            os.kill(self.pid, sig)
+        except ProcessLookupError:
+            return t
+        if sig == signal.SIGSTOP:
+            self.stopped = True
+        elif sig == signal.SIGCONT:
+            self.stopped = False
+        elif sig == signal.SIGKILL:
+            self.killed = True
+        return t
+
+    def stop(self, sig: int = signal.SIGINT, timeout_s: float = STOP_TIMEOUT_S) -> str:
+        """Ask it to stop (SIGCONT first if stopped); SIGKILL its group when it does not exit."""
+        if not self.alive():
+            self.exit_how = self.exit_how or f"had exited ({self.p.returncode})"
+            return self.exit_how
+        self.note_maps()
+        if self.stopped:
+            self.send(signal.SIGCONT)
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(self.pid, sig)
+        try:
+            rc = self.p.wait(timeout=timeout_s)
+            self.exit_how = f"{signal.Signals(sig).name} -> exit {rc}"
+        except subprocess.TimeoutExpired:
+            self.kill_group()
+            self.exit_how = f"needed SIGKILL ({timeout_s:g} s after {signal.Signals(sig).name})"
+        return self.exit_how
+
+    def wait_exit(self, timeout_s: float = 10.0) -> bool:
+        try:
+            self.p.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            return False
+        return True
+
+    def kill_group(self) -> None:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(self.pid, signal.SIGCONT)
+            os.killpg(self.pid, signal.SIGKILL)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.p.wait(timeout=10)
+
+    def text(self) -> str:
+        with contextlib.suppress(ValueError, OSError):
+            self._log.flush()
+        try:
+            return self.log_path.read_text(errors="replace")
+        except OSError:
+            return ""
+
+    def tail(self, n: int = 6) -> str:
+        return " | ".join(line.strip() for line in self.text().splitlines()[-n:])
+
+    def close(self) -> None:
+        if self.alive():
+            self.kill_group()
+        self._log.close()
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _until(cond: Callable[[], object], timeout_s: float = WAIT_S, must_live: tuple = (), poll_s: float = 0.01):
+    """Poll ``cond`` until it is truthy (returns its value); None on time-out or when one of
+    ``must_live`` exits."""
+    end = time.monotonic() + timeout_s
+    while True:
+        try:
+            v = cond()
+        except Exception:  # noqa: BLE001 - not there yet (a buffer being replaced, a torn read)
+            v = None
+        if v:
+            return v
+        if time.monotonic() > end or any(not p.alive() for p in must_live):
+            return None
+        time.sleep(poll_s)
+
+
+#: the bridge trials' far ends start their rearm counter at REARM_SEED x (trial + 1): a
+#: RemoteCommander starts its command record at 0, so every remote controller's first arm
+#: request carries counter 1, which the service ignores when its last arm used 1 (it takes
+#: an arm request only with a new counter). The session's last check (two remote
+#: controllers that do not seed it, one after the other) measures that defect; the seeded
+#: trials measure the rest
+REARM_SEED = 1000
+#: a controller runtime on a RemoteClient through ``pfma bridge --commands`` (the bridge
+#: kind's far end; one minor frame per inputs body received, a joint goal once started up;
+#: argv: endpoint, buffer, [rearm counter seed], [--realtime])
+REMOTE_CONTROLLER = textwrap.dedent("""
+    import signal, sys, time
+    stop, looping = [], []
+    def on_stop(*a):  # in the loop: finish the frame, close the session; before it: leave now
+        stop.append(1)
+        if not looping:
+            raise SystemExit(0)
+    signal.signal(signal.SIGTERM, on_stop)
+    signal.signal(signal.SIGINT, on_stop)
+    from controller.decision import Status
+    from controller.layers import Request
+    from controller.runtime import ControllerRuntime
+    from pfma.clock import MonotonicClock
+    from tools.bridge.remote import RemoteClient
+    if "--realtime" in sys.argv:  # as pfma controller --realtime: SCHED_FIFO on CPU 0
+        from ioservice.loop import realtime_setup
+        realtime_setup(cpu=0)
+    c = RemoteClient.connect(sys.argv[1], sys.argv[2], "chaos-remote-controller", timeout_s=30)
+    if len(sys.argv) > 3 and sys.argv[3].isdigit():  # the first arm request's counter - 1 (REARM_SEED)
+        c.command["rearm_counter"] = int(sys.argv[3])
+    c.remote.wait("inputs", timeout_s=30)
+    rt = ControllerRuntime(c, clock=MonotonicClock())
+    rt.request(Request.POWER_UP)
+    flying = False
+    looping.append(1)
+    while not stop:
+        if not c.changed("inputs"):
+            time.sleep(0.0002)
+            continue
+        rt.tick()
+        if not flying and rt.all_status(Status.START_UP_COMPLETE):
+            q = [float(v) for v in rt.wm.get("daq.joint_angle_rad")]
+            q[0] += 0.15
+            rt.set_joint_goal(q)
+            print("up", flush=True)
+            flying = True
+    rt.close()
+    c.close()
+    print("remote controller stopped", flush=True)
+""")
+
+
+def write_path(path_dir: Path, name: str = "chaos") -> str:
+    """A small closed square (4 cm) around the simulated arm's start tool pose, for
+    ``pfma controller --play``: the arm moves while a trial runs."""
+    from controller.paths import PathStore, make_point
+    x0, y0, z0 = 1.529, 0.0, -0.330  # the simulated arm's tool at its start pose (fk, m)
+    q = (0.5, 0.5, 0.5, 0.5)
+    pts = [make_point((x0 + dx, y0 + dy, z0), q, "teach")
+           for dx, dy in ((0.0, 0.0), (0.02, 0.0), (0.02, 0.02), (0.0, 0.02), (0.0, 0.0))]
+    store = PathStore(path_dir)
+    if not store.exists(name):
+        store.new(name, pts, note="pfma bench chaos/soak: a 2 cm square at the start pose")
+    return name
+
+
+class Session:
+    """The processes of one kind's trials on one buffer name (unique), and their cleanup."""
+
+    def __init__(self, kind: str, workdir: Path, realtime: bool = False) -> None:
+        self.kind = kind
+        self.realtime = realtime  #: the service and the controllers run with --realtime
+        self.rt_flag: tuple[str, ...] = ("--realtime",) if realtime else ()
+        self.name = f"{PREFIX}{kind[:4]}-{uuid.uuid4().hex[:6]}"
+        self.wm = self.name + "-wm"
+        self.workdir = workdir
+        self.procs: list[Proc] = []
+        self.path_dir = workdir / "paths"
+        self.path = write_path(self.path_dir)
+        self._client = None
+
+    # ---- starting
+    def start(self, role: str, argv: list[str]) -> Proc:
+        p = Proc(role, argv, self.workdir)
+        self.procs.append(p)
+        return p
+
+    def pfma(self, role: str, *args: str) -> Proc:
+        return self.start(role, [sys.executable, "-m", "tools.cli", *args])
+
+    def serve(self, *extra: str) -> Proc:
+        return self.pfma("service", "serve", "--rack", "fake", "--buffer", self.name, "--watchdog-ms",
+                         f"{WATCHDOG_S * 1e3:g}", *self.rt_flag, *extra)
+
+    def controller(self, *extra: str) -> Proc:
+        return self.pfma("controller", "controller", "--buffer", self.name, "--wm", self.wm, "--power-up",
+                         "--play", self.path, "--path-dir", str(self.path_dir), "--messages", "0",
+                         *self.rt_flag, *extra)
+
+    def recorder(self, path: Path) -> Proc:
+        return self.pfma("recorder", "record", str(path), "--buffer", self.name)
+
+    # ---- reading the buffer
+    def client(self, service: Proc | None = None, timeout_s: float = WAIT_S):
+        """A read-only client of the buffer published by ``service`` (by its pid), once it
+        publishes frames; None when it does not within ``timeout_s`` or exits."""
+        from bit3.client import Client
+
+        def attached():
+            c = self._client
+            if c is not None:
+                try:
+                    ok = (service is None or c.owners()["inputs"].pid == service.pid) and \
+                        c.read_inputs().frame > 2 and not _replaced(c, self.name)
+                except Exception:  # noqa: BLE001
+                    ok = False
+                if ok:
+                    return c
+                c.close()
+                self._client = None
+            c = Client.attach(self.name)
+            self._client = c
+            return None
+        return _until(attached, timeout_s, must_live=(service,) if service is not None else (), poll_s=0.05)
+
+    def ring(self):
+        from bit3.ring import FrameRing
+        return FrameRing.attach(self.name)
+
+    def armed(self, c) -> bool:
+        return c.read_inputs().service_state == ARMED
+
+    # ---- the end
+    def close(self, out: Outcome | None, order: tuple[str, ...]) -> None:
+        """Stop every process in ``order`` of roles (then the rest), SIGINT and wait; check
+        their output for tracebacks and /dev/shm for leftovers; remove what a stopped
+        service and controller leave by design."""
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+        for p in self.procs:
+            p.note_maps()
+        rank = {r: i for i, r in enumerate(order)}
+        for p in sorted(self.procs, key=lambda p: rank.get(p.role, -1)):
+            how = p.stop(signal.SIGTERM if p.role in ("remote", "export") else signal.SIGINT)
+            if out is not None and how.startswith("needed SIGKILL") and not p.killed:
+                out.check("clean_exits", False, f"{p.role} (pid {p.pid}) {how}; last output: {p.tail(3)}")
+        for p in self.procs:
+            p.close()
+            if out is not None and "Traceback (most recent call last)" in p.text():
+                tb = p.text().split("Traceback (most recent call last)", 1)[1].strip().splitlines()
+                out.check("clean_exits", False, f"traceback in {p.role}'s output: {tb[-1] if tb else '?'}")
+        if out is not None:
+            out.check("clean_exits", True, "every process stopped, no traceback")
+        self.check_leftovers(out)
+
+    def check_leftovers(self, out: Outcome | None) -> None:
+        from bit3.buffer import Bit3Buffer
+        from controller.worldmodel import WorldModel
+        mine = sorted(f for f in os.listdir("/dev/shm") if f.startswith(self.name))
+        by_design = {self.name, self.wm}
+        stale = [f for f in mine if f not in by_design]
+        left = {m: [p for p in self.procs if m in p.maps] for p in self.procs for m in p.maps
+                if not Path(m).name.startswith(self.name) and os.path.exists(m)}
+        gone_not = sorted(f"{m} (mapped by {', '.join(f'the {p.role}' for p in ps)})"
+                          for m, ps in left.items() if not m.endswith(".zenoh"))
+        zenoh = sorted(m for m in left if m.endswith(".zenoh"))
+        if out is not None and zenoh:  # zenoh's own: the next zenoh session removes stale ones
+            out.notes.append(f"zenoh shared-memory files still there after its processes stopped: "
+                             f"{', '.join(zenoh)} (zenoh removes them when a zenoh session next starts)")
+            out.figures["zenoh_files_left"] = len(zenoh)
+        if out is not None:
+            out.check("no_leftovers", not stale and not gone_not,
+                      "none" if not stale and not gone_not else
+                      f"left in /dev/shm: {', '.join(stale + gone_not)}")
+        for f in stale:  # ours: remove, so the next trial starts clean
+            with contextlib.suppress(OSError):
+                os.unlink(f"/dev/shm/{f}")
+        Bit3Buffer.unlink(self.name)
+        WorldModel.remove_segment(self.wm)
+
+
+def _replaced(client, name: str) -> bool:
+    """The name now maps another segment than ``client``'s (a new service replaced it)."""
+    try:
+        st = os.stat(f"/dev/shm/{name}")
+    except FileNotFoundError:
+        return True
+    try:
+        return os.fstat(client.buffer.fd).st_ino != st.st_ino
+    except (AttributeError, OSError):
+        return False
+
+
+def _signal_victim(p: Proc, trial: Trial) -> tuple[float, float]:
+    """The trial's action on the victim, now: returns (time it went, time it came back or
+    inf). SIGSTOP+SIGCONT: the process is continued after the hold (this call sleeps)."""
+    if trial.action == "SIGKILL":
+        t = p.send(signal.SIGKILL)
+        p.wait_exit()
+        return t, math.inf
+    t = p.send(signal.SIGSTOP)
+    time.sleep(trial.hold_s)
+    if trial.action == "SIGSTOP+SIGCONT":
+        return t, p.send(signal.SIGCONT)
+    p.send(signal.SIGKILL)
+    p.wait_exit()
+    return t, math.inf
+
+
+def _at_phase(trial: Trial, victim: Proc, ready: Callable[[], object], stop_sig: int = signal.SIGINT) -> str:
+    """Wait for the trial's moment in the victim's life; returns what it had reached."""
+    if trial.phase == "start-up":
+        time.sleep(max(0.0, trial.at_s - (time.monotonic() - victim.t0)))
+        if _safe(ready):
+            victim.ready_t = time.monotonic()
+            return "up"
+        return "starting"
+    got = _until(ready, WAIT_S, must_live=(victim,))
+    if not got:
+        return "never up"
+    victim.ready_t = time.monotonic()
+    if trial.phase == "running":
+        time.sleep(trial.at_s)
+        return "up"
+    victim.stop_t = time.monotonic()
+    with contextlib.suppress(ProcessLookupError):
+        os.kill(victim.pid, stop_sig)
+    time.sleep(trial.at_s)
+    return "stopping" if victim.alive() else "exited"
+
+
+def _safe(f: Callable[[], object]) -> object:
+    try:
+        return f()
+    except Exception:  # noqa: BLE001
+        return None
+
+
+def _service_messages(c) -> list:
+    try:
+        return c.messages(0, queue="service")
+    except Exception:  # noqa: BLE001
+        return []
+
+
+def _outputs_check(out: Outcome, watch: RingWatch, c, t_gone: float) -> None:
+    """Check (a) on every frame from 1 s before ``t_gone`` to SETTLE_S after it."""
+    time.sleep(max(0.0, t_gone + SETTLE_S - time.monotonic()))
+    rows = watch.window(t_gone - 1.0, t_gone + SETTLE_S)
+    ok, detail, fig = judge_outputs(rows, _service_messages(c), t_gone)
+    out.figures.update(fig)
+    out.check("outputs_safe", ok, detail)
+
+
+def _pfma_read(name: str) -> tuple[int, str]:
+    """``pfma read READ_SIGNAL --buffer NAME`` in this process: (exit code, output)."""
+    from tools.cli import main
+    buf_out, buf_err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(buf_out), contextlib.redirect_stderr(buf_err):
+        rc = main(["read", READ_SIGNAL, "--buffer", name])
+    return rc, (buf_out.getvalue() + buf_err.getvalue()).strip()
+
+
+# --------------------------------------------------------------------------- the kinds
+
+
+def _inputs_dtype(c):
+    return c.layout.area("inputs").body_dtype
+
+
+def _trial_service(trial: Trial, workdir: Path, out: Outcome, realtime: bool = False) -> None:
+    """The victim is the service (with its Modbus export child); a controller flying and a
+    recorder on it (running and shutting-down phases), a recorder waiting (start-up)."""
+    sess = Session("service", workdir, realtime)
+    rec_path = workdir / f"service-{trial.index}.mcap"
+    try:
+        svc = sess.serve("--modbus", "127.0.0.1:0")
+        rec = sess.recorder(rec_path)
+        ctl = None
+        if trial.phase != "start-up":
+            c = sess.client(svc)
+            if c is None:
+                out.check("setup", False, f"service never published: {svc.tail()}")
+                return
+            ctl = sess.controller()
+            if not _until(lambda: sess.armed(c), WAIT_S, must_live=(ctl, svc)):
+                out.check("setup", False, f"never ARMED: controller {ctl.tail(3)}")
+                return
+        export = None
+        reached = _at_phase(trial, svc, lambda: _child_of(svc.pid))
+        export_pid = _child_of(svc.pid)
+        if export_pid:
+            export = export_pid
+        out.notes.append(f"service {reached} at the {trial.action}")
+        old = sess._client
+        sess._client = None  # keep the old segment's client for the controller's side
+        t_gone, t_back = _signal_victim(svc, trial)
+        if trial.action == "SIGSTOP+SIGCONT":
+            _service_resumed(out, sess, svc, old, t_gone, t_back)
+            if old is not None:
+                old.close()
+            return
+        svc2 = sess.serve()  # a new service on the same name takes over (started at once)
+        # the service is dead: its export goes with it
+        if export is not None:
+            gone = _until(lambda: not _pid_alive(export), 5.0)
+            out.check("export_gone", bool(gone), "the Modbus export exited with its service" if gone else
+                      f"the Modbus export (pid {export}) still runs 5 s after its service died")
+        if ctl is not None and old is not None:
+            _controller_reports_loss(out, ctl, old)
+        c2 = sess.client(svc2)
+        if c2 is None:
+            out.check("takeover", False, f"the new service never published: {svc2.tail()}")
+            return
+        _no_second_writer(out, c2, ctl)
+        if old is not None:
+            old.close()
+        rc, text = _pfma_read(sess.name)
+        out.check("reattach", rc == 0 and READ_SIGNAL in text, f"pfma read: exit {rc}: {text[-200:]}")
+        said = _until(lambda: re.search(r"recording continues as session \d+|recording /dev/shm", rec.text()),
+                      15.0, must_live=(rec,))
+        out.check("reattach", bool(said), "the recorder goes on: " + (said.group(0) if said else
+                                                                         f"nothing in 15 s: {rec.tail(3)}"))
+    finally:
+        sess.close(out, order=("controller", "recorder", "service"))
+
+
+def _child_of(pid: int) -> int | None:
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as f:
+            kids = [int(x) for x in f.read().split()]
+    except OSError:
+        return None
+    for k in kids:
+        try:
+            with open(f"/proc/{k}/cmdline", "rb") as f:
+                if b"tools.modbus_export" in f.read():
+                    return k
+        except OSError:
+            continue
+    return None
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def _controller_reports_loss(out: Outcome, ctl: Proc, old) -> None:
+    """(b) The controller says the service stopped publishing and commands 0."""
+    def said():
+        return [m.text for m in old.messages(0, queue="controller") if "service not publishing" in m.text
+                or "fault 32" in m.text]
+    got = _until(said, 5.0, must_live=(ctl,))
+    if not got:
+        out.check("loss_reported", False, "the controller did not say the service stopped publishing within 5 s"
+                  + ("" if ctl.alive() else f" (it exited: {ctl.tail(3)})"))
+        return
+
+    def zero():
+        cmd = old.read_commands()
+        return (not int(cmd.arm_request) and not any(float(x) for x in cmd.joint_rate_rad_s)
+                and not any(float(x) for x in cmd.current_limit_a))
+    z = _until(zero, 2.0, must_live=(ctl,))
+    out.check("loss_reported", bool(z), f"{got[0]}; commands 0" if z else
+              f"{got[0]}; but its commands are not 0 (arm request, rates, current limits) 2 s later")
+
+
+def _no_second_writer(out: Outcome, c2, ctl: Proc | None, watch_s: float = 1.0) -> None:
+    """(b) While the old controller lives, the new service is never ARMED, its command area
+    has no claim and its outputs stay at 0 V."""
+    import numpy as np
+    end = time.monotonic() + watch_s
+    bad = None
+    while time.monotonic() < end and bad is None:
+        s = c2.read_inputs()
+        owner = c2.owners().get("commands")
+        if s.service_state == ARMED or float(np.abs(s.dac_volts).max()) > 0.0:
+            bad = f"the new service is state {s.service_state} with {float(np.abs(s.dac_volts).max()):.3f} V"
+        elif owner is not None and owner.pid > 0 and ctl is not None and owner.pid == ctl.pid:
+            bad = f"the old controller (pid {ctl.pid}) holds the new buffer's command area"
+        elif int(s.foreign_writes):
+            bad = f"foreign writes {int(s.foreign_writes)} at the new service"
+        time.sleep(0.01)
+    alive = "" if ctl is None else (" while the old controller goes on" if ctl.alive() else
+                                    " (the old controller had exited)")
+    out.check("takeover", bad is None, bad or f"the new service SAFE at 0 V, command area unclaimed{alive}")
+
+
+def _service_resumed(out: Outcome, sess: Session, svc: Proc, c, t_gone: float, t_back: float) -> None:
+    """A stopped and continued service publishes again and never drives a rate from a
+    command older than the age limit (its freshness rule, checked from outside)."""
+    if c is None:
+        c = sess.client(svc, timeout_s=10)
+    if c is None:
+        out.check("resumed", False, f"no buffer to read: {svc.tail()}")
+        return
+    k0 = c.read_inputs().frame
+    moved = _until(lambda: c.read_inputs().frame > k0 + 10, 10.0, must_live=(svc,))
+    if not moved:
+        out.check("resumed", False, f"the service did not publish again after SIGCONT: {svc.tail()}")
+        return
+    time.sleep(0.2)
+    rows, _, _ = frame_rows(sess.ring(), _inputs_dtype(c), 0, _rate_slots(c))
+    stale = [r for r in rows if r["t_s"] > t_back and r["state"] == ARMED and r["rate_vmax"] > 0.0
+             and r["frame"] - r["in_frame"] > MAX_INPUT_AGE_FRAMES]
+    out.check("resumed", not stale, "publishing again after a %.0f ms hold" % ((t_back - t_gone) * 1e3)
+              if not stale else f"frame {stale[0]['frame']} drove a command {stale[0]['frame'] - stale[0]['in_frame']} "
+                                "frames old")
+
+
+def _rate_slots(c) -> list[int]:
+    """The DAC slots of the joints' rate commands (the channels the freshness rule zeroes)."""
+    lay = c.layout
+    return [lay.joint_entry("dac", j, "rate_command").slot for j in lay.joint_names]
+
+
+def _trial_controller(trial: Trial, workdir: Path, out: Outcome, sess: Session, ctx: dict) -> None:
+    """The victim is a controller flying a path on a service that runs through all the
+    controller trials; the next controller must arm the service again."""
+    svc = ctx["service"]
+    c = sess.client(svc)
+    if c is None:
+        out.check("setup", False, f"service not publishing: {svc.tail()}")
+        return
+    watch = ctx.get("watch") or ctx.setdefault("watch", RingWatch(sess.name, c))
+    ctl = sess.controller()
+    reached = _at_phase(trial, ctl, lambda: watch.armed_since(ctl.t0))
+    out.notes.append(f"controller {reached} at the {trial.action}, service state {c.read_inputs().service_state}")
+    if reached == "never up":
+        out.check("reattach", False, f"the controller never armed the service: {ctl.tail(3)}")
+    elif trial.index > 0 or reached == "up":
+        out.check("reattach", True, "a new controller armed the service")
+    t_gone, t_back = _signal_victim(ctl, trial)
+    _outputs_check(out, watch, c, t_gone)
+    ctl.stop()
+
+
+def _trial_recorder(trial: Trial, workdir: Path, out: Outcome, sess: Session, ctx: dict) -> None:
+    """The victim is ``pfma record``; a service and a flying controller go on."""
+    svc = ctx["service"]
+    c = sess.client(svc)
+    if c is None:
+        out.check("setup", False, f"service not publishing: {svc.tail()}")
+        return
+    path = workdir / f"rec-{trial.index}.mcap"
+    rec = sess.recorder(path)
+    k0, t0 = c.read_inputs().frame, time.monotonic()
+    reached = _at_phase(trial, rec, lambda: "recording /dev/shm" in rec.text() and path.exists()
+                        and path.stat().st_size > 0)
+    out.notes.append(f"recorder {reached} at the {trial.action}")
+    if reached == "never up":
+        out.check("reattach", False, f"the recorder never started: {rec.tail(3)}")
+        return
+    t_gone, t_back = _signal_victim(rec, trial)
+    if trial.action == "SIGSTOP+SIGCONT":
+        time.sleep(0.5)
+        rec.stop()
+        _recorder_summary(out, rec, path, trial)
+    else:
+        _recoverable(out, sess, path, t_gone, reached, rec.ready_t)
+    _unaffected(out, c, k0, t0)
+
+
+def _trips_since(c, t0: float) -> list[str]:
+    """The service's trip messages ("outputs safe: ...") posted since ``t0``."""
+    return [m.text for m in _service_messages(c) if m.t_s >= t0 and m.text.startswith("outputs safe")]
+
+
+def _unaffected(out: Outcome, c, k0: int, t0: float) -> None:
+    """Killing a reader does not stop the service; a trip meanwhile is noted with its cause
+    (a reader cannot trip the service: it never writes; a loaded host can)."""
+    k = c.read_inputs().frame
+    trips = _trips_since(c, t0)
+    out.check("unaffected", k > k0, f"the service went on (frame {k0} -> {k})")
+    if trips:
+        out.notes.append(f"{len(trips)} service trips during the trial (not the victim's: it never writes): "
+                         f"{trips[-1]}")
+
+
+def _recorder_summary(out: Outcome, rec: Proc, path: Path, trial: Trial) -> None:
+    from tools.recording.reader import read_metadata
+    try:
+        s = read_metadata(path).get("pfma.recorder.summary", {})
+    except Exception as err:  # noqa: BLE001
+        out.check("resumed", False, f"the continued recorder's file has no summary: {type(err).__name__}: {err}")
+        return
+    missed = int(s.get("recorder_missed", -1))
+    out.figures["recorder_missed"] = missed
+    if trial.hold_s < RING_S - 0.2:
+        out.check("resumed", missed == 0, f"held {trial.hold_s:.2f} s < its ring: recorder_missed {missed}")
+    else:
+        out.check("resumed", missed >= 0, f"held {trial.hold_s:.2f} s: recorder_missed {missed}, lossless "
+                                          f"{s.get('lossless')} (said, not hidden)")
+
+
+def _recoverable(out: Outcome, sess: Session, path: Path, t_gone: float, reached: str,
+                 t_ready: float | None) -> None:
+    """(e) ``pfma record recover`` on the killed recorder's file: it rewrites it and names
+    the frames and gaps it recovered, or (a file cut before its first chunk) says in one
+    clear message that nothing is recoverable; what was lost is at most the flush period
+    plus what the recorder had taken but not written (its ring)."""
+    from tools.cli import main
+    bound = RECORDER_FLUSH_S + RING_S
+    recorded_for = t_gone - t_ready if t_ready is not None else 0.0  # it recorded at most this long
+    if not path.exists() or path.stat().st_size == 0:
+        out.check("recoverable", reached != "up" or recorded_for <= bound,
+                  f"killed {reached} {recorded_for:.2f} s after it started: no file written "
+                  f"({'absent' if not path.exists() else 'empty'})")
+        return
+    fixed = path.with_name(path.stem + "-fixed.mcap")
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+        rc = main(["record", "recover", str(path), "-o", str(fixed)])
+    text = buf.getvalue().strip()
+    if "Traceback" in text:
+        out.check("recoverable", False, f"recover printed a traceback: {text[-300:]}")
+        return
+    if rc != 0:  # a file cut before its first chunk: one clear message, exit 1
+        ok = "no message recoverable" in text and recorded_for <= bound
+        out.check("recoverable", ok, f"killed {reached} {recorded_for:.2f} s after it started recording: recover "
+                  f"exit {rc}: {text.splitlines()[-1]}" + ("" if ok else f" (recorded for more than {bound:.2f} s)"))
+        return
+    m = re.search(r"recovered (\d+) messages \((\d+) frames, (\d+) frame gaps\)", text)
+    if not m:
+        out.check("recoverable", False, f"recover did not name what it recovered: {text[:300]}")
+        return
+    last_t = _last_frame_t(fixed)
+    lost = t_gone - last_t if last_t is not None else recorded_for
+    out.figures["recorder_lost_s"] = round(lost, 3)
+    ok = lost <= bound
+    out.check("recoverable", ok, f"{m.group(0)}; lost the last {lost:.3f} s before the kill"
+              + ("" if ok else f" > {bound:.2f} s (flush period + ring)"))
+
+
+def _last_frame_t(path: Path) -> float | None:
+    """t_s of the last raw inputs frame in a (whole) recording."""
+    from mcap.reader import make_reader
+    from tools.recording.schema import RAW_TOPIC
+    last = None
+    with open(path, "rb") as f:
+        for _schema, _ch, msg in make_reader(f).iter_messages(topics=[RAW_TOPIC]):
+            last = msg
+    if last is None:
+        return None
+    from tools.recording.reader import read_metadata
+    try:
+        off = int(read_metadata(path).get("pfma.recording", {}).get("epoch_offset_ns", 0))
+    except Exception:  # noqa: BLE001
+        off = 0
+    return (last.log_time - off) / 1e9
+
+
+def _trial_console(trial: Trial, workdir: Path, out: Outcome, sess: Session, ctx: dict) -> None:
+    """The victim is ``pfma console`` (its Textual display written to a file)."""
+    svc = ctx["service"]
+    c = sess.client(svc)
+    if c is None:
+        out.check("setup", False, f"service not publishing: {svc.tail()}")
+        return
+    con = sess.pfma("console", "console", "--buffer", sess.name, "--wm", sess.wm)
+    k0, t0 = c.read_inputs().frame, time.monotonic()
+    reached = _at_phase(trial, con, lambda: "Local Status" in con.text())
+    out.notes.append(f"console {reached} at the {trial.action}")
+    if reached == "never up":
+        out.check("reattach", False, f"the console never drew: {con.tail(2)[-300:]}")
+    elif trial.index > 0 or reached == "up":
+        out.check("reattach", True, "a new console drew its areas")
+    _signal_victim(con, trial)
+    time.sleep(0.3)
+    _unaffected(out, c, k0, t0)
+    con.stop()
+
+
+def _trial_export(trial: Trial, workdir: Path, out: Outcome, sess: Session, ctx: dict) -> None:
+    """The victim is the Modbus export process: first ``pfma serve --modbus``'s own, then
+    the one this benchmark started in its place (``python -m tools.modbus_export``)."""
+    svc = ctx["service"]
+    c = sess.client(svc)
+    if c is None:
+        out.check("setup", False, f"service not publishing: {svc.tail()}")
+        return
+    k0, t0 = c.read_inputs().frame, time.monotonic()
+    cur = ctx.get("export")
+    if trial.phase == "start-up" or cur is None:
+        victim = _start_export(sess)
+        ready = (lambda: _modbus_port(victim) is not None)
+    else:
+        victim = cur
+        ready = (lambda: True)
+    reached = _at_phase(trial, victim, ready, stop_sig=signal.SIGTERM)
+    out.notes.append(f"export {reached} at the {trial.action}")
+    port = _modbus_port(victim)
+    _signal_victim(victim, trial)
+    if trial.action == "SIGSTOP+SIGCONT" and victim.alive():
+        ans = _modbus_read(port) if port else None
+        out.check("resumed", ans is not None or reached != "up",
+                  "answers again after SIGCONT" if ans is not None else f"no answer after SIGCONT ({reached})")
+        ctx["export"] = victim
+    else:
+        new = _start_export(sess)
+        p = _until(lambda: _modbus_port(new), 20.0, must_live=(new,))
+        ans = _modbus_read(p) if p else None
+        out.check("reattach", ans is not None, f"a new export answers a Modbus read (port {p})" if ans is not None
+                  else f"the new export does not answer: {new.tail(3)}")
+        ctx["export"] = new
+    _unaffected(out, c, k0, t0)
+
+
+class _Adopted(Proc):
+    """A process this benchmark did not start (the service's export child), seen as a Proc."""
+
+    def __init__(self, role: str, pid: int, port: int | None = None) -> None:  # no Popen
+        self.role = role
+        self.port = port
+        self.argv = []
+        self._pid = pid
+        self.t0 = time.monotonic()
+        self.stopped = self.killed = False
+        self.exit_how = ""
+        self.maps = set()
+        self.stop_t = None
+        self.ready_t = None
+        self.log_path = Path("/dev/null")
+
+    @property
+    def pid(self) -> int:  # type: ignore[override]
+        return self._pid
+
+    def alive(self) -> bool:
+        return _pid_alive(self._pid)
+
+    def wait_exit(self, timeout_s: float = 10.0) -> bool:
+        return bool(_until(lambda: not _pid_alive(self._pid), timeout_s))
+
+    def stop(self, sig: int = signal.SIGTERM, timeout_s: float = STOP_TIMEOUT_S) -> str:
+        if self.alive():
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self._pid, signal.SIGCONT)
+                os.kill(self._pid, sig)
+        return "adopted"
+
+    def text(self) -> str:
+        return ""
+
+    def close(self) -> None:
+        pass
+
+
+def _start_export(sess: Session) -> Proc:
+    return sess.start("export", [sys.executable, "-m", "tools.modbus_export", "--buffer", sess.name,
+                                 "--listen", "127.0.0.1:0"])
+
+
+def _modbus_port(p: Proc) -> int | None:
+    if isinstance(p, _Adopted):
+        return p.port
+    m = re.search(r"modbus-export listening.*:(\d+)", p.text())
+    return int(m.group(1)) if m else None
+
+
+def _modbus_read(port: int, timeout_s: float = 3.0) -> bytes | None:
+    """One Modbus TCP read (fc 4, input register 0, count 1): the answer, or None."""
+    import struct
+    req = struct.pack(">HHHBBHH", 7, 0, 6, 1, 4, 0, 1)
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=timeout_s) as s:
+            s.sendall(req)
+            data = s.recv(256)
+    except OSError:
+        return None
+    return data if len(data) >= 9 and data[7] == 4 else None
+
+
+def _trial_bridge(trial: Trial, workdir: Path, out: Outcome, sess: Session, ctx: dict) -> None:
+    """The victim is ``pfma bridge --commands``, the link of a remote controller."""
+    svc = ctx["service"]
+    c = sess.client(svc)
+    if c is None:
+        out.check("setup", False, f"service not publishing: {svc.tail()}")
+        return
+    for r in [p for p in sess.procs if p.role == "remote" and p.alive()]:
+        r.stop(signal.SIGTERM)  # the last trial's far end (its bridge is gone)
+    watch = ctx.get("watch") or ctx.setdefault("watch", RingWatch(sess.name, c))
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    bridge = sess.pfma("bridge", "bridge", "--buffer", sess.name, "--listen", endpoint, "--commands")
+    remote = sess.start("remote", [sys.executable, "-c", REMOTE_CONTROLLER, endpoint, sess.name,
+                                   str(REARM_SEED * (trial.index + 1)), *sess.rt_flag])
+    reached = _at_phase(trial, bridge, lambda: watch.armed_since(bridge.t0) and "up" in remote.text())
+    for p in (bridge, remote):
+        p.note_maps()
+    out.notes.append(f"bridge {reached} at the {trial.action}, service state {c.read_inputs().service_state}")
+    if reached == "never up":
+        out.check("reattach", False, f"the remote controller never armed the service: {remote.tail(3)} / "
+                                     f"bridge: {bridge.tail(3)}")
+    elif trial.index > 0 or reached == "up":
+        out.check("reattach", True, "a new bridge and its remote controller armed the service")
+    t_gone, _ = _signal_victim(bridge, trial)
+    _outputs_check(out, watch, c, t_gone)
+    bridge.stop()
+
+
+def _trial_gateway(trial: Trial, workdir: Path, out: Outcome, realtime: bool = False) -> None:
+    """The victim is ``pfma gateway`` (the simulated rack behind Modbus TCP) under a service:
+    the service must publish FAULT at 0 V within the watchdog plus one frame of the kill
+    (latched: nothing is driven when the rack answers again until a re-arm), stop with one
+    line when the bus stays silent (a gateway stopped for less than BUS_LOST_S: it rides
+    through, latched safe); a new gateway and service take over. (No controller: over a
+    loaded host's loopback Modbus the controller's hardware checks flap and it does not
+    power up; the service's reaction to its bus is what this kind measures.)"""
+    sess = Session("gateway", workdir, realtime)
+    watch = None
+    try:
+        port = free_port()
+        gw = sess.pfma("gateway", "gateway", "--listen", f"127.0.0.1:{port}")
+        url = f"modbus://127.0.0.1:{port}"
+        svc = None
+        c = None
+        if trial.phase != "start-up":
+            if not _until(lambda: "Ctrl-C stops" in gw.text(), WAIT_S, must_live=(gw,)):
+                out.check("setup", False, f"gateway did not start: {gw.tail()}")
+                return
+            svc = sess.serve("--bus", url, *GATEWAY_SCHEDULE)
+            c = sess.client(svc)
+            if c is None:
+                out.check("setup", False, f"service over the gateway never published: {svc.tail()}")
+                return
+        watch = RingWatch(sess.name, c) if c is not None else None
+        reached = _at_phase(trial, gw, lambda: "Ctrl-C stops" in gw.text())
+        out.notes.append(f"gateway {reached} at the {trial.action}")
+        t_gone, t_back = _signal_victim(gw, trial)
+        if svc is not None and watch is not None:
+            time.sleep(max(0.0, t_gone + SETTLE_S - time.monotonic()))
+            after = watch.window(t_gone, t_gone + SETTLE_S)
+            first = next((r for r in after if r["state"] == FAULT and r["vmax"] == 0.0), None)
+            period = float(_safe(lambda: c.read_stats()["period_s"]) or 1.0 / FRAME_RATE_HZ)
+            limit = WATCHDOG_S + period
+            early = [r for r in watch.window(gw.stop_t or t_gone, t_gone) if r["state"] == FAULT]
+            if early:  # shutting down: it stopped answering after its SIGINT, before the kill
+                dt = early[0]["t_s"] - (gw.stop_t or t_gone)
+                out.check("outputs_safe", dt <= limit and all(r["vmax"] == 0.0 for r in early + after),
+                          f"FAULT at 0 V published {dt * 1e3:.1f} ms after the gateway was asked to stop "
+                          f"(before the {trial.action})")
+            elif first is None:
+                out.check("outputs_safe", False, f"no FAULT at 0 V published after the gateway died "
+                                                 f"({len(after)} frames after)")
+            else:
+                dt = first["t_s"] - t_gone
+                out.figures["kill_to_0v_ms"] = round(dt * 1e3, 2)
+                out.check("outputs_safe", dt <= limit, f"FAULT at 0 V published {dt * 1e3:.1f} ms after the kill"
+                          + ("" if dt <= limit else f" > {limit * 1e3:.1f} ms"))
+            watch.close()
+            if trial.phase != "shutting down" and trial.action == "SIGSTOP+SIGCONT" and \
+                    t_back - t_gone < BUS_LOST_S - 0.1:
+                time.sleep(0.5)  # the bus answers again: the service rides through, latched safe
+                st = _safe(lambda: c.read_inputs().service_state)
+                out.check("resumed", svc.alive() and st != ARMED,
+                          f"the service rode through a {(t_back - t_gone) * 1e3:.0f} ms gateway stop (state {st})"
+                          if svc.alive() else f"the service stopped: {svc.tail(2)}")
+            elif trial.phase == "shutting down" or trial.action != "SIGSTOP+SIGCONT" or \
+                    t_back - t_gone > BUS_LOST_S + 0.1:
+                ended = _until(lambda: not svc.alive(), 10.0)
+                said = "stopped answering" in svc.text() or "bus lost" in svc.text()
+                out.check("takeover", bool(ended) and said,
+                          f"the service stopped, saying the bus stopped answering (exit {svc.p.returncode})"
+                          if ended and said else
+                          f"the service {'ran on' if not ended else 'stopped without saying bus lost'}: "
+                          f"{svc.tail(2)}")
+        # a new gateway and service take over (the old controller is left on the old segment)
+        if trial.action != "SIGSTOP+SIGCONT" or not gw.alive():
+            gw.stop()
+            gw2 = sess.pfma("gateway", "gateway", "--listen", f"127.0.0.1:{port}")
+            if not _until(lambda: "Ctrl-C stops" in gw2.text(), WAIT_S, must_live=(gw2,)):
+                out.check("reattach", False, f"a new gateway on port {port} did not start: {gw2.tail(2)}")
+                return
+        if svc is not None and svc.alive():
+            svc.stop()
+        svc2 = sess.serve("--bus", url, *GATEWAY_SCHEDULE)
+        c2 = sess.client(svc2)
+        out.check("reattach", c2 is not None, "a new service publishes over the new gateway" if c2 is not None
+                  else f"the new service never published: {svc2.tail(2)}")
+    finally:
+        if watch is not None:
+            watch.close()
+        sess.close(out, order=("controller", "service", "gateway"))
+
+
+# --------------------------------------------------------------------------- sessions
+
+
+#: kinds whose trials share one stack (a service, a controller) that runs through them
+SHARED = {"controller": _trial_controller, "recorder": _trial_recorder, "console": _trial_console,
+          "export": _trial_export, "bridge": _trial_bridge}
+#: kinds whose trials each start their own stack
+OWN = {"service": _trial_service, "gateway": _trial_gateway}
+
+
+#: kinds whose trials share one stack, run one after another on it (readers that leave
+#: the service and its controller running share one)
+GROUPS: tuple[tuple[str, ...], ...] = (("controller",), ("recorder", "console", "export"), ("bridge",))
+
+
+def _run_shared(kinds: tuple[str, ...], trials: list[Trial], workdir: Path, progress,
+                realtime: bool = False) -> list[Outcome]:
+    """The trials of ``kinds`` on one stack: a service (``--modbus`` when the export is a
+    victim), a controller flying for the readers' kinds; each trial starts its victim."""
+    sess = Session(kinds[0], workdir, realtime)
+    ctx: dict = {}
+    outs: list[Outcome] = []
+    try:
+        svc = sess.serve(*(("--modbus", "127.0.0.1:0") if "export" in kinds else ()))
+        ctx["service"] = svc
+        c = sess.client(svc)
+        if c is None:
+            for t in trials:
+                o = Outcome(t)
+                o.check("setup", False, f"the session's service never published: {svc.tail()}")
+                outs.append(o)
+            return outs
+        if set(kinds) & {"recorder", "console", "export"}:
+            ctl = sess.controller()
+            if not _until(lambda: sess.armed(c), WAIT_S, must_live=(ctl, svc)):
+                ctx["note"] = f"the session's controller did not arm the service: {ctl.tail(2)}"
+        if "export" in kinds:
+            pid = _until(lambda: _child_of(svc.pid), 10.0)
+            if pid:
+                ctx["export"] = _Adopted("export", pid, _until(lambda: _listen_port(pid), 10.0))
+        for t in trials:
+            o = Outcome(t)
+            t0 = time.monotonic()
+            try:
+                SHARED[t.kind](t, workdir, o, sess, ctx)
+            except Exception as err:  # noqa: BLE001 - the trial's failure, never a traceback out
+                o.check("bench", False, f"{type(err).__name__}: {err}")
+            if "note" in ctx:
+                o.notes.append(ctx.pop("note"))
+            o.seconds = time.monotonic() - t0
+            outs.append(o)
+            if progress:
+                progress(o)
+        for kind in ("controller", "bridge"):
+            last = [o for o in outs if o.trial.kind == kind]
+            if last:
+                _final_reattach(kind, sess, ctx, last[-1])
+    finally:
+        if ctx.get("watch") is not None:
+            ctx["watch"].close()
+        sess.close(outs[-1] if outs else None,
+                   order=("remote", "bridge", "console", "export", "recorder", "controller", "service"))
+    return outs
+
+
+def _final_reattach(kind: str, sess: Session, ctx: dict, out: Outcome) -> None:
+    """After the last controller/bridge trial: a new one must arm the service again."""
+    c = sess.client(ctx["service"])
+    if c is None:
+        out.check("reattach", False, "the service stopped publishing")
+        return
+    for r in [p for p in sess.procs if p.role == "remote" and p.alive()]:
+        r.stop(signal.SIGTERM)
+    watch = ctx.get("watch") or ctx.setdefault("watch", RingWatch(sess.name, c))
+    if kind == "controller":
+        ctl = sess.controller()
+        ok = _until(lambda: watch.armed_since(ctl.t0), WAIT_S, must_live=(ctl,))
+        out.check("reattach", bool(ok), "a new controller armed the service after the last trial" if ok else
+                  f"a new controller did not arm the service: {ctl.tail(3)}")
+        ctl.stop()
+        return
+    for i in (1, 2):  # two far ends that start their rearm counter at 0, each through a new bridge
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        before = int(c.read_commands().rearm_counter)
+        bridge = sess.pfma("bridge", "bridge", "--buffer", sess.name, "--listen", endpoint, "--commands")
+        remote = sess.start("remote", [sys.executable, "-c", REMOTE_CONTROLLER, endpoint, sess.name, "-",
+                                       *sess.rt_flag])
+        ok = _until(lambda: watch.armed_since(bridge.t0) and "up" in remote.text(), WAIT_S / 2,
+                    must_live=(bridge, remote))
+        for p in (bridge, remote):
+            p.note_maps()
+        after = int(c.read_commands().rearm_counter)
+        if ok:
+            out.check("reattach", True, f"remote controller {i} of 2 (rearm counter from 0) armed the service")
+        elif after == before:
+            out.check("reattach", False, f"remote controller {i} of 2 through a new bridge never armed the service: "
+                      f"its arm request carries rearm_counter {after}, the counter of the service's last arm "
+                      f"(RemoteCommander starts its command record at 0, tools/bridge/remote.py; the service "
+                      f"takes an arm request only with a new counter)")
+        else:
+            out.check("reattach", False, f"remote controller {i} of 2 never armed the service (rearm counter "
+                      f"{before} -> {after}): {remote.tail(3)} / {bridge.tail(3)}")
+        remote.stop(signal.SIGTERM)
+        bridge.stop()
+
+
+def _listen_port(pid: int) -> int | None:
+    """The TCP port process ``pid`` listens on (from /proc/net/tcp and its fds)."""
+    try:
+        inodes = set()
+        for fd in os.listdir(f"/proc/{pid}/fd"):
+            with contextlib.suppress(OSError):
+                t = os.readlink(f"/proc/{pid}/fd/{fd}")
+                if t.startswith("socket:["):
+                    inodes.add(t[8:-1])
+        with open("/proc/net/tcp") as f:
+            for line in f.readlines()[1:]:
+                parts = line.split()
+                if parts[3] == "0A" and parts[9] in inodes:
+                    return int(parts[1].split(":")[1], 16)
+    except OSError:
+        return None
+    return None
+
+
+def run_matrix(trials: int = DEFAULT_TRIALS, seed: int = DEFAULT_SEED, kinds: tuple[str, ...] = KINDS,
+               progress=None, logs: Path | None = None, realtime: bool = False) -> dict:
+    """Run the plan; returns the report (JSON-able): per kind trials, passes, failures with
+    their causes, figures; every trial's outcome.
+
+    :param realtime: the service and the local controllers run with ``--realtime`` (SCHED_FIFO,
+        pinned CPUs), so that on a loaded host the arm is still flying when a kill comes
+    :param logs: keep every process's output and the recordings in this directory (default:
+        a temporary directory, removed)
+    """
+    t0 = time.monotonic()
+    shm0 = set(os.listdir("/dev/shm"))
+    outs: list[Outcome] = []
+    load0 = os.getloadavg()
+    with (contextlib.nullcontext(str(logs)) if logs is not None else
+          tempfile.TemporaryDirectory(prefix="pfma-bench-chaos-")) as d:
+        workdir = Path(d)
+        workdir.mkdir(parents=True, exist_ok=True)
+        for group in [(k,) for k in kinds if k in OWN] + [g for g in GROUPS]:
+            mine = [t for t in plan(seed, trials, tuple(k for k in group if k in kinds))]
+            if not mine:
+                continue
+            if group[0] in OWN:
+                for t in mine:
+                    o = Outcome(t)
+                    t1 = time.monotonic()
+                    try:
+                        OWN[t.kind](t, workdir, o, realtime)
+                    except Exception as err:  # noqa: BLE001
+                        o.check("bench", False, f"{type(err).__name__}: {err}")
+                    o.seconds = time.monotonic() - t1
+                    outs.append(o)
+                    if progress:
+                        progress(o)
+            else:
+                outs += _run_shared(group, mine, workdir, progress, realtime)
+    outs.sort(key=lambda o: (kinds.index(o.trial.kind), o.trial.index))
+    stray = sorted(f for f in set(os.listdir("/dev/shm")) - shm0 if f.startswith(PREFIX))
+    rep = report(outs, seed=seed, trials=trials, seconds=time.monotonic() - t0, stray=stray,
+                 load=(load0, os.getloadavg()))
+    rep["realtime"] = realtime
+    return rep
+
+
+def report(outs: list[Outcome], *, seed: int, trials: int, seconds: float, stray: list[str], load) -> dict:
+    per: dict[str, dict] = {}
+    for o in outs:
+        k = per.setdefault(o.trial.kind, {"trials": 0, "passed": 0, "failures": [], "armed_at_kill": 0,
+                                          "trip_age_ms": [], "kill_to_0v_ms": [], "recorder_lost_s": []})
+        k["trials"] += 1
+        k["passed"] += o.passed
+        for f in o.failures():
+            k["failures"].append({"trial": o.trial.describe(), "cause": f})
+        if o.figures.get("armed_at_kill"):
+            k["armed_at_kill"] += 1
+        for key in ("trip_age_ms", "kill_to_0v_ms", "recorder_lost_s"):
+            if o.figures.get(key) is not None:
+                k[key].append(o.figures[key])
+    for k in per.values():
+        for key in ("trip_age_ms", "kill_to_0v_ms", "recorder_lost_s"):
+            v = sorted(k.pop(key))
+            k[key] = {"n": len(v), "min": v[0], "median": v[len(v) // 2], "max": v[-1]} if v else None
+    return {"seed": seed, "trials_per_kind": trials, "seconds": round(seconds, 1),
+            "load_avg_1min": {"start": round(load[0][0], 2), "end": round(load[1][0], 2)},
+            "cpus": os.cpu_count(), "kinds": per, "stray_segments": stray,
+            "passed": all(o.passed for o in outs) and not stray,
+            "outcomes": [o.as_dict() for o in outs]}
+
+
+def _line(o: Outcome) -> str:
+    mark = "pass" if o.passed else "FAIL"
+    fig = ", ".join(f"{k} {v}" for k, v in o.figures.items() if k != "armed_at_kill")
+    s = f"  {mark} {o.trial.describe()} ({o.seconds:.1f} s){'; ' + fig if fig else ''}"
+    for f in o.failures():
+        s += f"\n       {f}"
+    return s
+
+
+def print_report(rep: dict) -> None:
+    print(f"kill matrix, seed {rep['seed']}, {rep['trials_per_kind']} trials per kind"
+          f"{', service and controllers --realtime' if rep.get('realtime') else ''}, {rep['seconds']:g} s "
+          f"({rep['cpus']} CPUs, load average {rep['load_avg_1min']['start']} -> {rep['load_avg_1min']['end']})")
+    print(f"  {'kind':<11}{'trials':>7}{'passed':>8}  armed at kill  trip age ms (min/med/max)  kill->0 V ms")
+    for kind, k in rep["kinds"].items():
+        ta, kz = k["trip_age_ms"], k["kill_to_0v_ms"]
+        fmt = (lambda d: f"{d['min']}/{d['median']}/{d['max']} (n {d['n']})" if d else "-")
+        print(f"  {kind:<11}{k['trials']:>7}{k['passed']:>8}  {k['armed_at_kill']:>13}  {fmt(ta):<25}  {fmt(kz)}")
+        if k["recorder_lost_s"]:
+            print(f"  {'':<11}recorder data lost at the kill, s (min/med/max): {fmt(k['recorder_lost_s'])}")
+        for f in k["failures"]:
+            print(f"    FAIL {f['trial']}: {f['cause']}")
+    if rep["stray_segments"]:
+        print(f"  stray /dev/shm files: {', '.join(rep['stray_segments'])}")
+    print(f"  {'all passed' if rep['passed'] else 'FAILURES (above)'}")
+
+
+def figures(seconds: float | None = None, trials: int = DEFAULT_TRIALS, seed: int = DEFAULT_SEED,
+            kinds: tuple[str, ...] = KINDS, realtime: bool = False) -> dict:
+    """The matrix's figures (the report without each trial's outcome)."""
+    rep = run_matrix(trials=trials, seed=seed, kinds=kinds, realtime=realtime)
+    rep.pop("outcomes")
+    return rep
+
+
+def run(seconds: float | None = None, trials: int | None = None, seed: int | None = None,
+        kinds: tuple[str, ...] = KINDS, as_json: bool = False, realtime: bool = False) -> dict:
+    """``pfma bench chaos``: the text report (or ``as_json``: the whole report)."""
+    trials = DEFAULT_TRIALS if trials is None else trials
+    seed = DEFAULT_SEED if seed is None else seed
+    if not as_json:
+        print(f"pfma bench chaos --trials {trials} --seed {seed}{' --realtime' if realtime else ''}: "
+              f"{len(kinds)} kinds x {trials} trials", flush=True)
+    rep = run_matrix(trials=trials, seed=seed, kinds=kinds, realtime=realtime,
+                     progress=None if as_json else (lambda o: print(_line(o), flush=True)))
+    if as_json:
+        print(json.dumps(rep, indent=1))
+    else:
+        print_report(rep)
+    return rep
+
+
+if __name__ == "__main__":
+    run(trials=int(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT_TRIALS,
+        seed=int(sys.argv[2]) if len(sys.argv) > 2 else DEFAULT_SEED,
+        kinds=tuple(sys.argv[3].split(",")) if len(sys.argv) > 3 else KINDS,
+        realtime="--realtime" in sys.argv)

@@ -1,0 +1,387 @@
+"""The soak (issue 20 item 4): the simulated stack for M minutes, every process's memory
+sampled, every trip explained, the recording lossless.
+
+The stack, each a subprocess of this venv's python on a buffer ``pfma-soak-...``:
+
+- ``pfma serve --rack fake`` (the simulated rack in real time);
+- ``pfma controller --power-up --play soak``: a 2 cm square at the arm's start pose
+  (:func:`bench.bench_chaos.write_path`), looped: when a playback ends, this benchmark sets
+  ``msp.mode`` 0 then 2 through the world model (as ``pfma wm set`` would) and counts a lap;
+- ``pfma record`` (its summary says whether the recording is lossless);
+- ``pfma console`` (the Textual console, its output to a file);
+- ``pfma bridge`` on tcp/127.0.0.1 and ``pfma watch`` through it (so the bridge carries data).
+
+This process acts as the operator: when the controller goes to ERROR (after a trip), it
+sends ERROR RESET then POWER UP through the world model's request protocol (the console's
+``e`` and ``u`` keys) and the loop resumes; each recovery is counted.
+
+Measured:
+
+- **RSS** of every process from ``/proc/PID/status`` every :data:`SAMPLE_S` (10 s): the
+  growth after the first minute (the last sample minus the first at or after 60 s, MB)
+  and the largest value;
+- **trips**: every service message "outputs safe: ..." (the orderly stop's excepted), read
+  every 20 ms, each with its explanation: a host stall the service named in the message
+  ("(stall N ms)"), or a late controller (its missed-frame events, ``controller_stats``,
+  went up within :data:`EXPLAIN_WINDOW_S` of the trip: a controller that did not run for
+  the watchdog misses frames and says so); anything else is **unexplained**;
+- **the recording**: the recorder's summary (frames, recorder misses, service skips, the
+  stats window, messages missed, ``lossless``);
+- the service's frame statistics and every process's CPU.
+
+``pfma bench soak --minutes M`` (default 60); ``--realtime``: the service and the controller
+run SCHED_FIFO on pinned CPUs. Figures, never an assert.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import sys
+import tempfile
+import time
+import uuid
+from pathlib import Path
+
+from bench.bench_chaos import Proc, _until, free_port, write_path
+
+PREFIX = "pfma-soak-"
+SAMPLE_S = 10.0  #: RSS and CPU sampled this often
+WARMUP_S = 60.0  #: RSS growth is taken from the first sample at or after this
+POLL_S = 0.02  #: messages and the controller's statistics read this often
+LOOP_S = 0.25  #: the operator loop (playback restarts, recoveries) runs this often
+#: a trip is explained by the controller's missed-frame events within this window
+#: (seconds before, after): the controller publishes its statistics every 0.5 s
+EXPLAIN_WINDOW_S = (0.6, 1.2)
+START_TIMEOUT_S = 60.0
+STOP_TIMEOUT_S = 20.0
+
+
+def _rss_mb(pid: int) -> float | None:
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def _cpu_s(pid: int) -> float | None:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            parts = f.read().rsplit(")", 1)[1].split()
+        return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def explain_trip(text: str, t_trip: float, missed_t: list[float]) -> str | None:
+    """Why a trip happened, or None (unexplained).
+
+    :param missed_t: the times the controller's missed-frame events were seen to go up
+    """
+    if "stall" in text:
+        return "host stall named by the service"
+    if "stale heartbeat" in text:
+        lo, hi = t_trip - EXPLAIN_WINDOW_S[0], t_trip + EXPLAIN_WINDOW_S[1]
+        if any(lo <= t <= hi for t in missed_t):
+            return "controller late (its missed-frame events went up)"
+    return None
+
+
+class _Operator:
+    """Loops the playback and recovers the controller after an ERROR, via the world model."""
+
+    def __init__(self, wm_name: str) -> None:
+        self.wm_name = wm_name
+        self.link = None
+        self.laps = 0
+        self.recoveries: list[float] = []
+        self.errors: list[str] = []
+        self._restart_at: float | None = None
+        self._recovering: float | None = None
+
+    def _attach(self) -> bool:
+        if self.link is not None:
+            return True
+        from tools.console.control import ControlError, ControllerLink
+        try:
+            self.link = ControllerLink.attach(self.wm_name)
+        except ControlError:
+            return False
+        return True
+
+    def step(self, now: float) -> None:
+        from controller.decision import Status
+        from controller.layers import Request
+        from controller.paths import MspMode
+        if not self._attach():
+            return
+        wm, key = self.link.wm, self.link.key
+        try:
+            v = wm.get_task_inputs(("updown.status", "msp.state", "msp.mode"))
+            up, state, mode = Status(int(v["updown.status"])), int(v["msp.state"]), int(v["msp.mode"])
+            if up == Status.ERROR and (self._recovering is None or now - self._recovering > 5.0):
+                self._recovering = now
+                self.recoveries.append(now)
+                self.link.submit(Request.ERROR_RESET)
+                return
+            if up == Status.SHUT_DOWN and self._recovering is not None and now - self._recovering > 0.5:
+                self.link.submit(Request.POWER_UP)
+                self._recovering = None
+                return
+            if up != Status.START_UP_COMPLETE:
+                return
+            if self._restart_at is not None:
+                if now >= self._restart_at:
+                    wm.set_user("msp.mode", MspMode.PLAY, key)
+                    self._restart_at = None
+                    self.laps += 1
+                return
+            if state == MspMode.IDLE and mode == MspMode.PLAY:  # the playback ended: again
+                wm.set_user("msp.mode", MspMode.IDLE, key)
+                self._restart_at = now + 0.3  # a few 20 Hz planner periods see IDLE first
+        except Exception as err:  # noqa: BLE001 - a request ring full, a torn read: say, go on
+            if len(self.errors) < 20:
+                self.errors.append(f"{type(err).__name__}: {err}")
+
+    def close(self) -> None:
+        if self.link is not None:
+            self.link.wm.close()
+
+
+def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = False) -> dict:
+    from bit3.buffer import Bit3Buffer
+    from controller.worldmodel import WorldModel
+    from ioservice.safety import STOP_CODE
+
+    py = sys.executable
+    name = PREFIX + uuid.uuid4().hex[:6]
+    wm = name + "-wm"
+    rec_path = workdir / "soak.mcap"
+    path_dir = workdir / "paths"
+    path = write_path(path_dir, "soak")
+    rt = ("--realtime",) if realtime else ()
+    seconds = max(0.0, minutes * 60.0)
+    procs: dict[str, Proc] = {}
+    rep: dict = {"minutes": minutes, "buffer": name, "realtime": realtime, "errors": [],
+                 "load_avg_1min": {"start": round(os.getloadavg()[0], 2)}, "cpus": os.cpu_count()}
+
+    def pfma(role: str, *args: str) -> Proc:
+        p = Proc(role, [py, "-m", "tools.cli", *args], workdir)
+        procs[role] = p
+        return p
+
+    client = None
+    op = _Operator(wm)
+    samples: dict[str, list[tuple[float, float]]] = {}
+    cpu0: dict[str, tuple[float, float]] = {}
+    trips: list[dict] = []
+    missed_t: list[float] = []
+    counts: dict[str, int] = {}
+    cursor, lost = 0, 0
+    t0 = time.monotonic()
+    try:
+        svc = pfma("service", "serve", "--rack", "fake", "--buffer", name, *rt)
+        client = _until(lambda: _client_of(name, svc.pid), START_TIMEOUT_S, must_live=(svc,), poll_s=0.1)
+        if client is None:
+            rep["errors"].append(f"the service never published: {svc.tail()}")
+            return rep
+        # the recorder first: it records the whole session, the controller's start-up included
+        rec = pfma("recorder", "record", str(rec_path), "--buffer", name)
+        _until(lambda: "recording /dev/shm" in rec.text(), START_TIMEOUT_S, must_live=(rec,))
+        pfma("controller", "controller", "--buffer", name, "--wm", wm, "--power-up", "--play", path,
+             "--path-dir", str(path_dir), "--messages", "0", *rt)
+        endpoint = f"127.0.0.1:{free_port()}"
+        pfma("bridge", "bridge", "--buffer", name, "--listen", f"tcp/{endpoint}")
+        if not _until(lambda: _client_of(name, svc.pid) and WorldModel.attach(wm).close_after(lambda m: True),
+                      START_TIMEOUT_S, must_live=(procs["controller"],), poll_s=0.1):
+            rep["errors"].append(f"the controller never made its world model: {procs['controller'].tail()}")
+            return rep
+        pfma("console", "console", "--buffer", name, "--wm", wm)
+        _until(lambda: "on tcp" in procs["bridge"].text(), START_TIMEOUT_S, must_live=(procs["bridge"],))
+        pfma("bridge_reader", "watch", "elbow_pitch_angle", "--buffer", f"zenoh://{endpoint}/{name}",
+             "--rate", "2")
+        t0 = time.monotonic()
+        next_sample, next_op, next_report = t0, t0, t0 + 60.0
+        missed_prev = None
+        while (now := time.monotonic()) - t0 < seconds:
+            # the service's messages: every trip
+            try:
+                got = client.messages(cursor, queue="service")
+            except Exception:  # noqa: BLE001 - a torn read: next time
+                got = []
+            for m in got:
+                if cursor and m.first_seq > cursor + 1:
+                    lost += m.first_seq - cursor - 1
+                cursor = max(cursor, m.seq)
+                sev = m.severity.name if hasattr(m.severity, "name") else str(m.severity)
+                counts[sev] = counts.get(sev, 0) + 1
+                if m.text.startswith("outputs safe") and m.code != STOP_CODE:
+                    trips.append({"t_s": m.t_s, "at_s": round(m.t_s - t0, 2), "text": m.text})
+            # the controller's missed-frame events
+            try:
+                ev = int(client.read("controller_stats")["missed_events"])
+                if missed_prev is not None and ev > missed_prev:
+                    missed_t.append(now)
+                missed_prev = ev
+            except Exception:  # noqa: BLE001 - not published yet / no owner
+                pass
+            if now >= next_op:
+                next_op += LOOP_S
+                op.step(now)
+            if now >= next_sample:
+                next_sample += SAMPLE_S
+                for role, p in procs.items():
+                    r = _rss_mb(p.pid) if p.alive() else None
+                    if r is not None:
+                        samples.setdefault(role, []).append((round(now - t0, 1), round(r, 2)))
+                    c = _cpu_s(p.pid) if p.alive() else None
+                    if c is not None:
+                        cpu0.setdefault(role, (now, c))
+            if progress and now >= next_report:
+                next_report += 60.0
+                progress(f"{(now - t0) / 60:.0f} min: {len(trips)} trips, {op.laps} laps, "
+                         f"{len(op.recoveries)} recoveries, RSS "
+                         + ", ".join(f"{k} {v[-1][1]:.0f}" for k, v in samples.items()) + " MB")
+            for role, p in procs.items():
+                if not p.alive() and not any(e.startswith(role + " ") for e in rep["errors"]):
+                    rep["errors"].append(f"{role} exited after {now - t0:.0f} s (exit {p.p.returncode}): "
+                                         f"{p.tail(3)}")
+            time.sleep(POLL_S)
+        rep["run_s"] = round(time.monotonic() - t0, 1)
+        cpu = {}
+        for role, p in procs.items():
+            c = _cpu_s(p.pid) if p.alive() else None
+            if c is not None and role in cpu0:
+                t_c, c0 = cpu0[role]
+                cpu[role] = round(100.0 * (c - c0) / max(1e-9, time.monotonic() - t_c), 1)
+        rep["cpu_percent"] = cpu
+        try:
+            st = client.read("stats")
+            rep["service_stats"] = {k: (round(float(st[k]), 2) if "us" in k or "percent" in k else int(st[k]))
+                                    for k in ("frames", "dropped_frames", "overruns", "stall_events",
+                                              "wake_latency_p99_us", "work_p99_us", "cpu_percent")}
+        except Exception as err:  # noqa: BLE001
+            rep["service_stats"] = f"n/a ({type(err).__name__})"
+    except Exception as err:  # noqa: BLE001 - the report, never a traceback
+        rep["errors"].append(f"{type(err).__name__}: {err}")
+    finally:
+        op.close()
+        if client is not None:
+            client.close()
+        for role in ("bridge_reader", "console", "bridge", "recorder", "controller", "service"):
+            p = procs.get(role)
+            if p is None:
+                continue
+            how = p.stop(signal.SIGTERM if role == "bridge_reader" else signal.SIGINT, STOP_TIMEOUT_S)
+            if how.startswith("needed SIGKILL"):
+                rep["errors"].append(f"{role} {how}")
+            if "Traceback (most recent call last)" in p.text():
+                rep["errors"].append(f"traceback in the {role}'s output: {p.tail(2)}")
+        for p in procs.values():
+            p.close()
+        Bit3Buffer.unlink(name)
+        WorldModel.remove_segment(wm)
+    rep["load_avg_1min"]["end"] = round(os.getloadavg()[0], 2)
+    rep["rss_mb"] = {}
+    for role, s in samples.items():
+        after = [v for t, v in s if t >= WARMUP_S]
+        rep["rss_mb"][role] = {"first": s[0][1], "at_1min": after[0] if after else None, "last": s[-1][1],
+                               "max": max(v for _, v in s),
+                               "growth_after_1min": round(after[-1] - after[0], 2) if len(after) > 1 else None,
+                               "samples": len(s)}
+    rep["rss_samples"] = samples
+    rep["trips"] = []
+    for tr in trips:
+        why = explain_trip(tr["text"], tr["t_s"], missed_t)
+        rep["trips"].append({"at_s": tr["at_s"], "text": tr["text"], "explained": why})
+    rep["unexplained_trips"] = sum(1 for t in rep["trips"] if t["explained"] is None)
+    rep["controller_missed_events_seen"] = len(missed_t)
+    rep["operator"] = {"laps": op.laps, "recoveries": len(op.recoveries), "errors": op.errors}
+    rep["message_counts"] = counts
+    rep["messages_lost"] = lost
+    rep["recorder"] = _recorder_summary(rec_path)
+    return rep
+
+
+def _client_of(name: str, pid: int):
+    """A read-only client of buffer ``name`` once the service ``pid`` publishes there."""
+    from bit3.client import Client
+    c = Client.attach(name)
+    if c.owners()["inputs"].pid == pid and c.read_inputs().frame > 2:
+        return c
+    c.close()
+    return None
+
+
+def _recorder_summary(path: Path) -> dict:
+    if not path.exists():
+        return {"error": "no recording"}
+    try:
+        from tools.recording.reader import read_metadata
+        meta = read_metadata(path).get("pfma.recorder.summary", {})
+    except Exception as err:  # noqa: BLE001 - a cut file: say so
+        return {"error": f"{type(err).__name__}: {err}"}
+    out = {k: meta.get(k) for k in ("frames_recorded", "recorder_missed", "service_skipped", "window_service_frames",
+                                    "window_recorded", "window_service_dropped", "messages_missed", "sessions",
+                                    "lossless")}
+    out["file_mb"] = round(path.stat().st_size / 1e6, 1)
+    return out
+
+
+def _print(rep: dict) -> None:
+    print(f"soak on {rep['buffer']}: {rep.get('run_s', 0):g} s{' (--realtime)' if rep['realtime'] else ''}, "
+          f"{rep['cpus']} CPUs, load average {rep['load_avg_1min'].get('start')} -> "
+          f"{rep['load_avg_1min'].get('end')}")
+    for e in rep["errors"]:
+        print(f"  PROBLEM: {e}")
+    print(f"  {'process':<14}{'RSS first':>10}{'at 1 min':>10}{'last':>8}{'max':>8}{'growth after 1 min':>20}"
+          f"{'CPU %':>8}")
+    for role, r in rep.get("rss_mb", {}).items():
+        g = r["growth_after_1min"]
+        print(f"  {role:<14}{r['first']:>10.1f}{(r['at_1min'] or math.nan):>10.1f}{r['last']:>8.1f}{r['max']:>8.1f}"
+              f"{('%+.2f MB' % g) if g is not None else 'n/a':>20}{rep.get('cpu_percent', {}).get(role, math.nan):>8}")
+    op = rep.get("operator", {})
+    print(f"  path laps {op.get('laps')}, operator recoveries (error reset + power up) {op.get('recoveries')}")
+    print(f"  trips {len(rep.get('trips', []))}, unexplained {rep.get('unexplained_trips')}")
+    for t in rep.get("trips", [])[:30]:
+        print(f"    {t['at_s']:9.2f} s {t['text']}  <- {t['explained'] or 'UNEXPLAINED'}")
+    print(f"  service: {rep.get('service_stats')}")
+    print(f"  recorder: {rep.get('recorder')}")
+
+
+def figures(seconds: float | None = None, minutes: float = 1.0, realtime: bool = False) -> dict:
+    """The soak's figures (without the RSS sample lists)."""
+    if seconds is not None:
+        minutes = seconds / 60.0
+    with tempfile.TemporaryDirectory(prefix="pfma-bench-soak-") as d:
+        rep = measure(minutes, Path(d), realtime=realtime)
+    rep.pop("rss_samples", None)
+    return rep
+
+
+def run(seconds: float | None = None, minutes: float = 60.0, as_json: bool = False, realtime: bool = False) -> dict:
+    """``pfma bench soak --minutes M``; ``seconds`` (``--seconds``) overrides ``minutes``."""
+    if seconds is not None:
+        minutes = seconds / 60.0
+    progress = None if as_json else (lambda s: print("  ..." + s, flush=True))
+    if not as_json:
+        print(f"pfma bench soak --minutes {minutes:g}{' --realtime' if realtime else ''}: service, controller "
+              f"looping a path, recorder, console, bridge (+ a reader through it)", flush=True)
+    with tempfile.TemporaryDirectory(prefix="pfma-bench-soak-") as d:
+        rep = measure(minutes, Path(d), progress=progress, realtime=realtime)
+    if as_json:
+        print(json.dumps(rep, indent=1))
+    else:
+        _print(rep)
+    return rep
+
+
+if __name__ == "__main__":
+    run(minutes=float(sys.argv[1]) if len(sys.argv) > 1 else 60.0, as_json="--json" in sys.argv,
+        realtime="--realtime" in sys.argv)
