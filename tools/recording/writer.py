@@ -95,6 +95,7 @@ class Recorder:
         self._last_flush = self._t0_wall
         self._last_counters = self._t0_wall
         self._ring = np.full(_RING, -1, dtype=np.int64)
+        self._stats_pending: tuple[int, int, int] | None = None
         self._ring_i = 0
         self._win_acc = (0, 0, 0)
         self._win_new = False
@@ -109,6 +110,7 @@ class Recorder:
         if client.layout.hash != self.layout.hash:
             raise ValueError(f"recorder: buffer layout {client.layout.hash_hex} differs from the "
                              f"recording's {self.layout.hash_hex}")
+        self._count_stats()  # the last session's last snapshot, with what it recorded
         self.client = client
         self.counters.sessions += 1
         t_frame = client.header().frame_t_s  # the service's newest frame: messages recorded
@@ -119,6 +121,7 @@ class Recorder:
         self._last_t = {}
         self._json_n = 0
         self._stats_first = None  # (frame, frames, dropped, recorded_before)
+        self._stats_pending = None  # a stats snapshot not yet counted (see _stats)
         self._links_key = b""
         self._boards_key = b""
         self._msg_cursor = {"service": None, "controller": None}
@@ -240,6 +243,8 @@ class Recorder:
         cnt.frames_recorded += 1
         self._ring[self._ring_i % _RING] = frame
         self._ring_i += 1
+        if self._stats_pending is not None and frame >= self._stats_pending[0] - 1:
+            self._count_stats()
         self._put(RAW_TOPIC, t_ns, self._raw_bytes(snap.record))
         self._put("/pfma/status", t_ns, _dumps(self.t.status(r, head)))
         self._json_n += 1
@@ -283,7 +288,21 @@ class Recorder:
         cnt = self.counters
         cnt.stats_snapshots += 1
         self._put("/pfma/stats", _ns(float(d["t_s"]), self.offset_ns), _dumps(d))
-        k, frames, dropped = int(d["frame"]), int(d["frames"]), int(d["dropped_frames"])
+        # counted once every frame before k that will be recorded is: the capture thread may
+        # still hold frames this snapshot follows (counted now, the window came out one or
+        # two frames short at random); frames come in order, so that is when frame k - 1 or
+        # a later one has been recorded, or at the end
+        self._stats_pending = (int(d["frame"]), int(d["frames"]), int(d["dropped_frames"]))
+        if self._last_frame >= self._stats_pending[0] - 1:
+            self._count_stats()
+
+    def _count_stats(self) -> None:
+        """The stats window with the pending snapshot (see :meth:`_stats`)."""
+        pending, self._stats_pending = self._stats_pending, None
+        if pending is None:
+            return
+        cnt = self.counters
+        k, frames, dropped = pending
         # frames recorded with frame number < k
         before = self._ring_i - int(np.count_nonzero(self._ring >= k))
         first = self._stats_first
@@ -306,6 +325,7 @@ class Recorder:
 
     def _new_window(self) -> None:
         """A new service session: keep the finished window's counts, start a new window."""
+        self._count_stats()  # the last session's last snapshot, with what it recorded
         cnt = self.counters
         self._win_acc = (cnt.window_service_frames, cnt.window_recorded, cnt.window_service_dropped)
         self._win_new = True
@@ -335,6 +355,7 @@ class Recorder:
             self._msg_cursor[q] = got[-1].seq if got else head
 
     def _finish_counters(self) -> RecorderCounters:
+        self._count_stats()
         cnt = self.counters
         cnt.wall_s = self.wall() - self._t0_wall
         cnt.topic_counts = json.dumps(dict(self.topic_counts))
