@@ -8,6 +8,10 @@ import math
 import subprocess
 import sys
 
+import pytest
+
+pytestmark = pytest.mark.realtime
+
 HEADLINE = {
     "service": ("own_work_p50_us", "own_work_p99_us", "own_cpu_percent", "process_cpu_percent"),
     "controller": ("frame_p50_us", "frame_p99_us"),

@@ -5,7 +5,10 @@ import json
 import subprocess
 import sys
 
+import pytest
 
+
+@pytest.mark.realtime
 def test_short_stack_bench_reports_and_stops_every_process():
     out = subprocess.run([sys.executable, "-m", "tools.cli", "bench", "stack", "--minutes", "0.05", "--json"],
                          capture_output=True, text=True, timeout=240)

@@ -321,6 +321,7 @@ def test_try_read_refuses_a_copy_during_which_the_counter_changed(buf, shm_name,
         lock._seq = real
 
 
+@pytest.mark.realtime
 def test_try_read_after_a_controller_died_mid_write(shm_name, mp):
     from tests.bit3 import _workers
     buf = Bit3Buffer.create(shm_name)

@@ -13,6 +13,8 @@ from bit3.client import Client
 from bit3.buffer import Bit3Buffer, OwnershipError, SeqLockTimeout
 from tests.bit3 import _workers
 
+pytestmark = pytest.mark.realtime
+
 N_READS = 20_000
 
 

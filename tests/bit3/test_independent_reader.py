@@ -30,6 +30,7 @@ def test_reader_imports_only_the_standard_library():
     assert mods <= set(sys.stdlib_module_names) | {"__future__"}, mods
 
 
+@pytest.mark.realtime
 def test_independent_reader_sees_the_documented_rates(published_layout):
     rig = SimRig(prefix="pfma-test-")
     try:
@@ -45,6 +46,7 @@ def test_independent_reader_sees_the_documented_rates(published_layout):
         assert res[f"stats.{name[2:-2]}"] == pytest.approx(want, rel=0.01), (name, res)
 
 
+@pytest.mark.realtime
 def test_a_different_layout_is_refused(published_layout):
     wrong = dict(published_layout, hash="0" * 16)
     rig = SimRig(prefix="pfma-test-")
@@ -55,6 +57,7 @@ def test_a_different_layout_is_refused(published_layout):
         rig.close()
 
 
+@pytest.mark.realtime
 def test_a_service_that_stops_mid_measurement_is_reported_not_waited_for(published_layout):
     """Frames stop after 1 s of a 3 s measurement: the reader says so once its inputs have
     stood still for ``stall_s`` of (here simulated) wall-clock time, instead of hanging."""

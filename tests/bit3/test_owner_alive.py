@@ -8,6 +8,8 @@ process.
 import os
 from dataclasses import replace
 
+import pytest
+
 from bit3.layout import default_layout
 from bit3.buffer import Bit3Buffer, open_shm
 from tests.bit3 import _workers
@@ -39,6 +41,7 @@ def test_a_live_pid_without_the_lock_is_not_alive_and_the_lock_is(buf, shm_name)
     assert not alive
 
 
+@pytest.mark.realtime
 def test_a_live_owner_of_another_layout_is_alive_and_a_dead_one_is_not(shm_name, mp):
     other = replace(default_layout(), hash=b"otherrk!")
     b = Bit3Buffer.create(shm_name, other)

@@ -84,6 +84,7 @@ def test_ring_file_has_the_buffer_segment_mode(name):
     assert stat.S_IMODE(os.stat(ring_path(name)).st_mode) == 0o600
 
 
+@pytest.mark.realtime
 def test_replacing_the_ring_never_pulls_the_memory_from_under_a_reader(name, mp):
     """A reader in another process maps ring A (256 slots); the service "restarts" and
     creates ring B (4 slots, a smaller file) at the same path. Truncating A's file would

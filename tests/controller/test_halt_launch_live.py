@@ -11,10 +11,14 @@ import time
 import uuid
 from pathlib import Path
 
+import pytest
+
 from bit3.buffer import Bit3Buffer
 from bit3.client import Client
 from bit3.layout import ServiceState
 from controller.worldmodel import WorldModel
+
+pytestmark = pytest.mark.realtime
 
 ROOT = Path(__file__).resolve().parents[2]
 

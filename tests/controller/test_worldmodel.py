@@ -436,6 +436,7 @@ def test_one_owner_per_segment_and_a_dead_owners_segment_is_replaced(wm_name):
         WorldModel.attach(wm_name)
 
 
+@pytest.mark.realtime
 def test_another_process_decodes_names_and_values_from_the_stored_table(wm_name, mp):
     m = WorldModel.create(sup.sample_specs(), name=wm_name, owner="ctl-x")
     child = None
@@ -486,6 +487,7 @@ def test_another_process_decodes_names_and_values_from_the_stored_table(wm_name,
 N_READS = 20_000
 
 
+@pytest.mark.realtime
 def test_no_torn_frames_against_a_flat_out_writer_in_another_process(wm_name, mp):
     started, stop, result = mp.Event(), mp.Event(), mp.Queue()
     child = mp.Process(target=sup.flat_out_owner, args=(wm_name, started, stop, 20.0, result))

@@ -84,6 +84,7 @@ def test_hid_fills_its_slot_goes_invalid_when_unplugged_and_recovers(hid_rig):
     assert s.hc_deadman[i] and s.hc_axes[i][2] == 1.0
 
 
+@pytest.mark.realtime
 def test_the_frame_never_enumerates_or_opens_the_hid_its_thread_does():
     """``thread=True`` (pfma serve): the frame only reads; enumerate and open, which wait on
     udev and the kernel with real hidapi, happen in the reconnect thread."""
@@ -156,6 +157,7 @@ def _gone(name: str) -> bool:
     return not os.path.exists(f"/dev/shm/{name}")
 
 
+@pytest.mark.realtime
 def test_serve_hid_fake_says_simulated_and_fills_the_slot(capsys):
     name = "pfma-serve-" + uuid.uuid4().hex[:6]
     try:
@@ -202,6 +204,7 @@ def test_serve_hid_auto_without_a_device_or_without_hidapi(monkeypatch, capsys):
     assert _gone(name)
 
 
+@pytest.mark.realtime
 def test_serve_hid_auto_takes_the_first_spacemouse(monkeypatch, capsys):
     name = "pfma-serve-" + uuid.uuid4().hex[:6]
     mouse = FakeHidDevice(0x046D, 0xC077, path=b"/dev/hidraw-mouse")
@@ -223,6 +226,7 @@ def test_serve_hid_path_that_is_not_there(capsys):
     assert "--hid /dev/hidraw-pfma-none: no such device" in err and "Traceback" not in err and _gone(name)
 
 
+@pytest.mark.realtime
 def test_serve_ft_on_can_virtual_end_to_end(capsys):
     """``pfma serve --ft can://virtual/CH`` in this process (python-can's virtual bus does
     not cross processes), the fake CAN node answering from its Notifier thread."""

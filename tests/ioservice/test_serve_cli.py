@@ -4,6 +4,8 @@ import multiprocessing
 import uuid
 from dataclasses import replace
 
+import pytest
+
 from bit3.client import Client
 from bit3.layout import ServiceState, default_layout
 from bit3.buffer import Bit3Buffer
@@ -11,6 +13,7 @@ from tools.cli import main
 from tests.bit3 import _workers
 
 
+@pytest.mark.realtime
 def test_serve_runs_and_leaves_a_stopped_safe_buffer(capsys):
     name = "pfma-serve-" + uuid.uuid4().hex[:6]
     try:
@@ -38,6 +41,7 @@ def test_bad_schedule_file_refused(tmp_path, capsys):
     assert "phase 7" in capsys.readouterr().err
 
 
+@pytest.mark.realtime
 def test_serve_with_ft_on_a_pyserial_port(capsys):
     """The F/T sensor on a real pty (a USB-serial adapter's stand-in) instead of MVME400 port A."""
     from fakes.ft_sensor import FakeFtController
@@ -58,6 +62,7 @@ def test_serve_with_ft_on_a_pyserial_port(capsys):
         Bit3Buffer.unlink(name)
 
 
+@pytest.mark.realtime
 def test_serve_never_replaces_a_live_service_buffer_of_another_layout(capsys):
     """A buffer of another rack (another layout hash) whose service is alive is left
     alone: serve refuses with the owner's name and pid; once that service is gone the

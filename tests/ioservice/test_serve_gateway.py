@@ -22,6 +22,8 @@ from pfma.clock import MonotonicClock
 from tests.drivers.bus.tinybus import quiet_pymodbus
 from tools.cli import main
 
+pytestmark = pytest.mark.realtime
+
 #: bound on any wait in these tests
 WAIT_S = 30.0
 

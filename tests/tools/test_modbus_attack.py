@@ -242,6 +242,7 @@ def test_a_hundred_pipelined_requests_mixed_with_bad_ones_are_all_answered_in_or
 # --- floods and slow readers -----------------------------------------------------------------
 
 
+@pytest.mark.realtime
 def test_connections_over_the_limit_are_closed_and_the_others_served(service):
     ex = start(service, max_connections=3)
     try:
@@ -269,6 +270,7 @@ def test_connections_over_the_limit_are_closed_and_the_others_served(service):
         ex.stop()
 
 
+@pytest.mark.realtime
 def test_a_connection_flood_is_bounded_counted_and_said_in_one_line(service, caplog_export):
     """40 connections at once against a limit of 8, then 60 connect-and-drop cycles as
     fast as the client can (fewer than the listen backlog of 64: more only make the kernel

@@ -105,6 +105,7 @@ def test_block_read_through_a_dead_address_fails_whole(bus, tiny):
 
 
 # -- timeouts and a missing gateway -------------------------------------------------------
+@pytest.mark.realtime
 def test_silent_gateway_times_out_with_a_bus_error():
     with socket.socket() as silent:  # accepts TCP (kernel backlog) but never answers
         silent.bind(("127.0.0.1", 0))
@@ -117,6 +118,7 @@ def test_silent_gateway_times_out_with_a_bus_error():
     assert (info.value.addr, info.value.op) == (0xD000, "read")
 
 
+@pytest.mark.realtime
 def test_slow_gateway_times_out_then_recovers(gateway, tiny):
     tiny.words[0xD000] = 0x4100
     gateway.reply_delay_s = 1.0
@@ -147,6 +149,7 @@ def _five_accesses(b) -> list[str]:
     return errors
 
 
+@pytest.mark.realtime
 def test_a_gateway_that_stops_answering_costs_one_request_per_access(gateway):
     """A real pymodbus server that receives requests and never replies: every access sends
     exactly one request (a block stops at its first unanswered request), waits one timeout
@@ -159,6 +162,7 @@ def test_a_gateway_that_stops_answering_costs_one_request_per_access(gateway):
     assert gateway.wait_requests(5) == 5  # the server got exactly one request per access
 
 
+@pytest.mark.realtime
 def test_a_gateway_that_answers_again_is_used_again(gateway, tiny):
     tiny.words[0x1000] = 0x1234
     with ModbusTcpBus("127.0.0.1", gateway.port, timeout=0.2) as b:
@@ -172,6 +176,7 @@ def test_a_gateway_that_answers_again_is_used_again(gateway, tiny):
         assert (b.requests, b.connects) == (4, 2)  # the connection is kept while it works
 
 
+@pytest.mark.realtime
 def test_a_gateway_that_is_gone_costs_one_connect_attempt_per_access():
     port = free_port()
     with quiet_pymodbus(), ModbusTcpBus("127.0.0.1", port) as b:
@@ -180,6 +185,7 @@ def test_a_gateway_that_is_gone_costs_one_connect_attempt_per_access():
     assert all("unreachable" in e for e in errors)
 
 
+@pytest.mark.realtime
 def test_gateway_down_is_a_clear_bus_error():
     port = free_port()
     with quiet_pymodbus(), ModbusTcpBus("127.0.0.1", port, timeout=0.5) as b:
@@ -189,6 +195,7 @@ def test_gateway_down_is_a_clear_bus_error():
     assert (info.value.addr, info.value.width, info.value.op) == (0xD000, 16, "write")
 
 
+@pytest.mark.realtime
 def test_reconnects_after_the_gateway_restarts(tiny):
     with quiet_pymodbus():
         gw = ModbusGateway(tiny).start()

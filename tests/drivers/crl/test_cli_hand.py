@@ -9,6 +9,7 @@ import pytest
 from tools.cli import main
 
 
+@pytest.mark.realtime
 def test_cae_on_the_fake_rack(capsys):
     assert main(["hand", "--source", "cae", "--count", "3", "--rate-hz", "50"]) == 0
     out = capsys.readouterr().out.splitlines()
@@ -16,6 +17,7 @@ def test_cae_on_the_fake_rack(capsys):
     assert len(out) == 4 and all(" cae " in line and "VALID" in line for line in out[1:])
 
 
+@pytest.mark.realtime
 def test_crl_on_a_fake_master_behind_a_pty_json(capsys):
     assert main(["hand", "--source", "crl", "--count", "8", "--rate-hz", "20", "--json"]) == 0
     rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
@@ -23,6 +25,7 @@ def test_crl_on_a_fake_master_behind_a_pty_json(capsys):
     assert any(r["valid"] for r in rows)  # frames arrive well within 350 ms
 
 
+@pytest.mark.realtime
 def test_hid_falls_back_to_a_fake_and_says_so(capsys, monkeypatch):
     from drivers.crl.hid import HidSpaceMouse
 
@@ -33,6 +36,7 @@ def test_hid_falls_back_to_a_fake_and_says_so(capsys, monkeypatch):
     assert "FAKE" in cap.out.splitlines()[0] and len(cap.out.splitlines()) == 3
 
 
+@pytest.mark.realtime
 def test_hid_fake_port_and_duration(capsys):
     assert main(["hand", "--source", "hid", "--port", "fake", "--duration", "0.05"]) == 0
     assert " hid " in capsys.readouterr().out
@@ -43,6 +47,7 @@ def test_bad_source_is_a_usage_error():
         main(["hand", "--source", "joystick"])
 
 
+@pytest.mark.realtime
 def test_hand_times_are_seconds_since_the_command_started(capsys):
     """t= (and the JSON t_s) count from the start of the command, not the host's uptime."""
     import json

@@ -246,6 +246,7 @@ def _wait_until(cond, port, timeout_s=3.0):
     return True
 
 
+@pytest.mark.realtime
 def test_real_time_behind_ptydevice():
     import fakes.pty as pty
     fake = FakeCrlMaster(axes_fn=lambda t: (0.25, -0.5, 0.0, 0.0, 0.0, 0.75))

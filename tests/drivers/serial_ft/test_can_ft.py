@@ -35,6 +35,7 @@ def test_layout_identifiers():
         CanFtSensor(None, 16)
 
 
+@pytest.mark.realtime
 def test_read_pairs_two_frames_into_one_reading(can_pair):
     host, nb = can_pair
     clock = SimClock(5.0)
@@ -47,6 +48,7 @@ def test_read_pairs_two_frames_into_one_reading(can_pair):
         assert r.t_s == 5.0 and r.seq == 0 and s.stats().records == 1
 
 
+@pytest.mark.realtime
 def test_bias_stack_over_can(can_pair):
     host, nb = can_pair
     with FakeCanFtNode(nb, node_id=1) as node:
@@ -61,6 +63,7 @@ def test_bias_stack_over_can(can_pair):
         assert s.clear_bias() == 0
 
 
+@pytest.mark.realtime
 def test_other_nodes_and_mispaired_frames(can_pair):
     host, nb = can_pair
     with FakeCanFtNode(nb, node_id=2) as node:
@@ -146,6 +149,7 @@ def test_serial_urls_are_not_can():
     assert not any(is_can_url(u) for u in ("/dev/ttyUSB0", "socket://127.0.0.1:5000", "COM3", "loop://"))
 
 
+@pytest.mark.realtime
 def test_open_can_url_opens_and_closes_its_bus():
     channel = f"ft-{uuid.uuid4().hex}"
     with can.Bus(interface="virtual", channel=channel) as nb:
@@ -201,6 +205,7 @@ def _ip_flags(ifname: str) -> str:
         return ""
 
 
+@pytest.mark.realtime
 def test_socketcan_vcan0_round_trip_with_fake_node():
     """The driver on a kernel CAN socket (vcan0), both ways: the blocking read and the
     service's read_records. Runs wherever the kernel offers vcan (CI: .ci/run sets it up

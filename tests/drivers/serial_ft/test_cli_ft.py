@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import pytest
+
 from tools.cli import main
+
+pytestmark = pytest.mark.realtime
 
 
 def test_pfma_ft_fake_polls_and_prints_forces(capsys):

@@ -18,6 +18,8 @@ from pfma.errors import ConfigError, LinkError, PfmaTimeoutError
 
 from .conftest import ground_truth_check
 
+pytestmark = pytest.mark.realtime
+
 
 def read_until(sensor: FtSensor, n: int, timeout_s: float = 3.0) -> list:
     out: list = []

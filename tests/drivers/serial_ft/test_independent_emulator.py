@@ -21,6 +21,8 @@ from pfma.errors import ConfigError, LinkError
 
 from .independent_ft import IndependentFtController, counter_counts
 
+pytestmark = pytest.mark.realtime
+
 CPF = 20.0  # counts per newton (mrrocpp's ATI 3084 scale), configured on both sides
 CPT = 1000.0  # counts per newton-metre
 # A load whose count bytes are never 0x00/0x01 (never a plausible binary status byte);

@@ -19,6 +19,8 @@ from tools.bridge.session import open_session
 
 pytest.importorskip("zenoh")
 
+pytestmark = pytest.mark.realtime
+
 WAIT_S = 5.0  # bound of every wait for the link (a failure, not a timing assert)
 
 

@@ -63,6 +63,7 @@ COMMANDER = textwrap.dedent("""
 """)
 
 
+@pytest.mark.realtime
 def test_a_killed_remote_commander_trips_the_services_watchdog():
     name = "pfma-bridge-e2e-" + uuid.uuid4().hex[:6]
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -114,6 +115,7 @@ def test_bad_bridge_input_is_one_message(argv, code, words, capsys):
     assert words in err and "Traceback" not in err and err.count("\n") == 1
 
 
+@pytest.mark.realtime
 def test_bridge_commands_refused_while_a_local_controller_holds_the_area(capsys):
     """--commands claims the command area as a controller does: a live local controller
     refuses it, named, one line, exit 1; without --commands the bridge runs beside it."""

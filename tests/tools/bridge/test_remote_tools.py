@@ -54,6 +54,7 @@ def test_remote_names_parse_and_shared_memory_names_are_unchanged():
     assert "no I/O service runs" in no_service("pfma-no-such-remote-test")
 
 
+@pytest.mark.realtime
 def test_stats_and_read_through_the_bridge(served):
     rig, url = served
     with attach_reader(url) as remote:
@@ -64,6 +65,7 @@ def test_stats_and_read_through_the_bridge(served):
         assert hdr.rack_name == rig.layout.rack_name and hdr.layout_hash == rig.layout.hash
 
 
+@pytest.mark.realtime
 def test_monitor_once_and_read_with_a_zenoh_buffer(served, capsys):
     rig, url = served
     assert main(["monitor", "--once", "--json", "--buffer", url]) == 0
@@ -80,6 +82,7 @@ def test_a_bad_remote_name_is_one_message(url, words, capsys):
     assert words in err and "Traceback" not in err and err.count("\n") == 1
 
 
+@pytest.mark.realtime
 def test_pfma_read_and_stats_with_a_zenoh_buffer(served, capsys):
     rig, url = served
     assert main(["read", "--buffer", url, "elbow_pitch_angle", "--json"]) == 0
@@ -90,6 +93,7 @@ def test_pfma_read_and_stats_with_a_zenoh_buffer(served, capsys):
     assert d["service_state"] in ("SAFE", "ARMED", "FAULT", "HALTED") and set(d["devices"])
 
 
+@pytest.mark.realtime
 def test_pfma_stats_with_no_bridge_is_one_message(capsys):
     from tests.tools.bridge.test_bridge import free_port as port
     assert main(["stats", "--buffer", f"zenoh://127.0.0.1:{port()}/pfma"]) == 1

@@ -218,6 +218,7 @@ def test_scenario_scheduled_on_the_loops_frames_and_posted(served, capsys):
 # -- end to end: a real `pfma serve` process ----------------------------------------------------------
 
 
+@pytest.mark.realtime
 def test_end_to_end_with_a_serve_process():
     name = "pfma-fcli-e2e-" + uuid.uuid4().hex[:6]
     path = socket_path(name)

@@ -54,6 +54,7 @@ def gateway_process():
         proc.wait(WAIT_S)
 
 
+@pytest.mark.realtime
 def test_gateway_answers_the_fake_racks_registers_and_stops_on_sigterm(gateway_process):
     proc, port = gateway_process
     local = FakeWorld(clock=SimClock()).bus  # the same simulated rack, in this process

@@ -66,6 +66,7 @@ def _dead_service_buffer(name: str) -> int:
     return pid
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("argv", READERS, ids=lambda a: a[0])
 def test_dead_service_is_one_clear_error(argv, name, capsys):
     pid = _dead_service_buffer(name)
@@ -83,6 +84,7 @@ def test_buffer_nobody_ever_claimed_is_not_a_service(argv, name, capsys):
     assert f"service on /dev/shm/{name} is not running" in _one_line_error(capsys, argv[0])
 
 
+@pytest.mark.realtime
 def test_read_from_a_live_service_still_works(name, capsys):
     buf = Bit3Buffer.create(name)
     buf.close()

@@ -105,6 +105,7 @@ def test_modbus_bus_error_is_named_from_the_rack(rack_gateway, capsys):
     assert "rtd2 STATUS at A16 0x0208" in err and "exception 2" in err
 
 
+@pytest.mark.realtime
 def test_gateway_down_is_a_clear_error(capsys):
     port = free_port()
     with quiet_pymodbus():

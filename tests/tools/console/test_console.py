@@ -9,6 +9,7 @@ import time
 
 
 import numpy as np
+import pytest
 
 from bit3.client import Client
 from bit3.layout import ServiceState
@@ -94,6 +95,7 @@ def test_arrows_move_between_layers(console):
     run_app(console, body)
 
 
+@pytest.mark.realtime
 def test_record_starts_and_stops_a_recorder_of_this_system(console, tmp_path, monkeypatch):
     """`c` starts a `pfma record` process on the console's buffer (and world model); `c`
     again stops it cleanly: the MCAP file is complete (its summary readable)."""

@@ -195,6 +195,7 @@ rig.run(3600)
 """
 
 
+@pytest.mark.realtime
 def test_recorder_killed_with_sigkill_is_recovered(tmp_path):
     path = tmp_path / "killed.mcap"
     p = subprocess.Popen([sys.executable, "-c", _CHILD, str(path), str(REPO)], cwd=REPO,
@@ -295,6 +296,7 @@ def test_replay_through_the_fakes_matches_the_recording(rig, tmp_path):
     assert not rep.mismatches, rep.describe()
 
 
+@pytest.mark.realtime
 def test_record_cli_waits_with_a_message_and_gives_up(tmp_path):
     name = "pfma-none-" + uuid.uuid4().hex[:8]
     p = subprocess.run([sys.executable, "-m", "tools.cli", "record", str(tmp_path / "x.mcap"), "--buffer", name,

@@ -18,9 +18,13 @@ import time
 import uuid
 from pathlib import Path
 
+import pytest
+
 from tools.recording.reader import read_frames, read_metadata
 from bit3.ring import FrameRing
 from bit3.buffer import Bit3Buffer
+
+pytestmark = pytest.mark.realtime
 
 REPO = Path(__file__).resolve().parents[3]
 _RECORD = ("import sys; import tools.cli.record as r; r.STALE_S = 3600.0; from tools.cli import main; "

@@ -383,6 +383,7 @@ def _pump(stream, q: queue.Queue) -> None:
 
 
 
+@pytest.mark.realtime
 def test_end_to_end_serve_controller_record(tmp_path):
     from bit3.buffer import Bit3Buffer
     from tools.attach import no_service
