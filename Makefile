@@ -17,8 +17,11 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	@if [ -t 1 ]; then $(BIN)/pfma console --sim; else $(BIN)/pfma serve --rack fake --live --demo; fi
 
+# two passes: the deterministic tests on two workers, then the real-time ones (marked
+# realtime: they start processes or wait on wall-clock time) alone, so load cannot fail them
 test: $(STAMP)
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 2 -m "not lab and not realtime"
+	$(BIN)/python -m pytest -m "realtime and not lab"
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
