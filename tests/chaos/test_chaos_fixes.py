@@ -176,3 +176,16 @@ def test_judge_outputs_when_not_armed_wants_0v_in_every_frame_after():
     ok, detail, _ = judge_outputs(rows, [], 1.0)
     assert not ok and "not armed at the kill" in detail
     assert not judge_outputs(rows[:10], [], 1.0)[0]  # the ring does not cover the kill
+
+
+def test_ctrl_c_while_the_verbs_load_is_exit_130_without_a_traceback(monkeypatch, capsys):
+    """The kill matrix stops its processes with SIGINT; one that came while ``pfma console``
+    was still importing its verbs printed a KeyboardInterrupt traceback."""
+    import tools.cli as cli
+
+    def interrupted():
+        raise KeyboardInterrupt
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert cli.main(["console"]) == 130
+    out = capsys.readouterr()
+    assert out.out == "" and out.err == ""
