@@ -787,14 +787,12 @@ def _trial_service(trial: Trial, workdir: Path, out: Outcome, realtime: bool = F
             if not _until(lambda: sess.armed(c), WAIT_S, must_live=(ctl, svc)):
                 out.check("setup", False, f"never ARMED: controller {ctl.tail(3)}")
                 return
-        export = None
         reached = _at_phase(trial, svc, lambda: _child_of(svc.pid))
-        export_pid = _child_of(svc.pid)
-        if export_pid:
-            export = export_pid
+        export = _child_of(svc.pid)
         out.notes.append(f"service {reached} at the {trial.action}")
         old = sess._client
         sess._client = None  # keep the old segment's client for the controller's side
+        said_before = len(rec.text())  # the recorder's lines so far (about the old service)
         t_gone, t_back = _signal_victim(svc, trial)
         if trial.action == "SIGSTOP+SIGCONT":
             _service_resumed(out, sess, svc, old, t_gone, t_back)
@@ -818,8 +816,8 @@ def _trial_service(trial: Trial, workdir: Path, out: Outcome, realtime: bool = F
             old.close()
         rc, text = _pfma_read(sess.name)
         out.check("reattach", rc == 0 and READ_SIGNAL in text, f"pfma read: exit {rc}: {text[-200:]}")
-        said = _until(lambda: re.search(r"recording continues as session \d+|recording /dev/shm", rec.text()),
-                      15.0, must_live=(rec,))
+        said = _until(lambda: re.search(r"recording continues as session \d+|recording /dev/shm",
+                                        rec.text()[said_before:]), 15.0, must_live=(rec,))
         out.check("reattach", bool(said), "the recorder goes on: " + (said.group(0) if said else
                                                                          f"nothing in 15 s: {rec.tail(3)}"))
     finally:
@@ -854,7 +852,7 @@ def _controller_reports_loss(out: Outcome, ctl: Proc, old) -> None:
     """(b) The controller says the service stopped publishing and commands 0."""
     def said():
         return [m.text for m in old.messages(0, queue="controller") if "service not publishing" in m.text
-                or "fault 32" in m.text]
+                or "service STOPPED" in m.text or "fault 32" in m.text]
     got = _until(said, 5.0, must_live=(ctl,))
     if not got:
         out.check("loss_reported", False, "the controller did not say the service stopped publishing within 5 s"

@@ -18,8 +18,9 @@ sends ERROR RESET then POWER UP through the world model's request protocol (the 
 Measured:
 
 - **RSS** of every process from ``/proc/PID/status`` every :data:`SAMPLE_S` (10 s): the
-  growth after the first minute (the last sample minus the first at or after 60 s, MB)
-  and the largest value;
+  growth after the first minute (the last sample minus the first at or after 60 s, MB),
+  the largest value, and the slope over the run's second half (MB/h: a bounded history
+  that has filled shows ~0 there, a leak does not);
 - **trips**: every service message "outputs safe: ..." (the orderly stop's excepted), read
   every 20 ms, each with its explanation: a host stall the service named in the message
   ("(stall N ms)"), or a late controller (its missed-frame events, ``controller_stats``,
@@ -27,6 +28,8 @@ Measured:
   the watchdog misses frames and says so); anything else is **unexplained**;
 - **the recording**: the recorder's summary (frames, recorder misses, service skips, the
   stats window, messages missed, ``lossless``);
+- the service's warnings and errors and the controller's errors, and for each recovery the
+  controller's first ERROR and the service's last warning before it;
 - the service's frame statistics and every process's CPU.
 
 ``pfma bench soak --minutes M`` (default 60); ``--realtime``: the service and the controller
@@ -183,7 +186,8 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
     trips: list[dict] = []
     missed_t: list[float] = []
     counts: dict[str, int] = {}
-    cursor, lost = 0, 0
+    said: list[dict] = []  # the service's warnings and errors, the controller's errors
+    cursor, lost = {"service": 0, "controller": 0}, 0
     t0 = time.monotonic()
     try:
         svc = pfma("service", "serve", "--rack", "fake", "--buffer", name, *rt)
@@ -210,19 +214,24 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
         next_sample, next_op, next_report = t0, t0, t0 + 60.0
         missed_prev = None
         while (now := time.monotonic()) - t0 < seconds:
-            # the service's messages: every trip
-            try:
-                got = client.messages(cursor, queue="service")
-            except Exception:  # noqa: BLE001 - a torn read: next time
-                got = []
-            for m in got:
-                if cursor and m.first_seq > cursor + 1:
-                    lost += m.first_seq - cursor - 1
-                cursor = max(cursor, m.seq)
-                sev = m.severity.name if hasattr(m.severity, "name") else str(m.severity)
-                counts[sev] = counts.get(sev, 0) + 1
-                if m.text.startswith("outputs safe") and m.code != STOP_CODE:
-                    trips.append({"t_s": m.t_s, "at_s": round(m.t_s - t0, 2), "text": m.text})
+            # the service's messages (every trip) and the controller's (why it went to ERROR)
+            for q in ("service", "controller"):
+                try:
+                    got = client.messages(cursor[q], queue=q)
+                except Exception:  # noqa: BLE001 - a torn read: next time
+                    got = []
+                for m in got:
+                    if cursor[q] and m.first_seq > cursor[q] + 1:
+                        lost += m.first_seq - cursor[q] - 1
+                    cursor[q] = max(cursor[q], m.seq)
+                    sev = m.severity.name if hasattr(m.severity, "name") else str(m.severity)
+                    counts[f"{q} {sev}"] = counts.get(f"{q} {sev}", 0) + 1
+                    if q == "service" and m.text.startswith("outputs safe") and m.code != STOP_CODE:
+                        trips.append({"t_s": m.t_s, "at_s": round(m.t_s - t0, 2), "text": m.text})
+                    if (sev in ("WARNING", "ERROR", "FATAL") if q == "service" else sev in ("ERROR", "FATAL")) \
+                            and len(said) < 500:
+                        said.append({"queue": q, "t_s": m.t_s, "at_s": round(m.t_s - t0, 2), "severity": sev,
+                                     "text": m.text})
             # the controller's missed-frame events
             try:
                 ev = int(client.read("controller_stats")["missed_events"])
@@ -295,6 +304,9 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
                                "max": max(v for _, v in s),
                                "growth_after_1min": round(after[-1] - after[0], 2) if len(after) > 1 else None,
                                "samples": len(s)}
+        late = [(t, v) for t, v in s if t >= rep.get("run_s", 0.0) / 2]
+        rep["rss_mb"][role]["slope_second_half_mb_per_h"] = round(_slope(late) * 3600.0, 2) if len(late) > 2 \
+            else None
     rep["rss_samples"] = samples
     rep["trips"] = []
     for tr in trips:
@@ -302,11 +314,32 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
         rep["trips"].append({"at_s": tr["at_s"], "text": tr["text"], "explained": why})
     rep["unexplained_trips"] = sum(1 for t in rep["trips"] if t["explained"] is None)
     rep["controller_missed_events_seen"] = len(missed_t)
-    rep["operator"] = {"laps": op.laps, "recoveries": len(op.recoveries), "errors": op.errors}
+    rep["operator"] = {"laps": op.laps, "recoveries": len(op.recoveries), "errors": op.errors,
+                       "recovered_from": [_cause(said, t, t0) for t in op.recoveries]}
     rep["message_counts"] = counts
+    rep["warnings_errors"] = said
     rep["messages_lost"] = lost
     rep["recorder"] = _recorder_summary(rec_path)
     return rep
+
+
+def _slope(pts: list[tuple[float, float]]) -> float:
+    """Least-squares slope of (t, v) points (v per second)."""
+    n = len(pts)
+    mt = sum(t for t, _ in pts) / n
+    mv = sum(v for _, v in pts) / n
+    den = sum((t - mt) ** 2 for t, _ in pts)
+    return sum((t - mt) * (v - mv) for t, v in pts) / den if den > 0 else 0.0
+
+
+def _cause(said: list[dict], t_rec: float, t0: float) -> dict:
+    """What a recovery recovered from: the controller's first ERROR and the service's last
+    warning in the 5 s before it (the recovery comes within LOOP_S of the ERROR)."""
+    before = [m for m in said if t_rec - 5.0 <= m["t_s"] <= t_rec]
+    ctl = [m["text"] for m in before if m["queue"] == "controller"]
+    svc = [m["text"] for m in before if m["queue"] == "service"]
+    return {"at_s": round(t_rec - t0, 2), "controller": ctl[0] if ctl else None,
+            "service": svc[-1] if svc else None}
 
 
 def _client_of(name: str, pid: int):
@@ -341,13 +374,16 @@ def _print(rep: dict) -> None:
     for e in rep["errors"]:
         print(f"  PROBLEM: {e}")
     print(f"  {'process':<14}{'RSS first':>10}{'at 1 min':>10}{'last':>8}{'max':>8}{'growth after 1 min':>20}"
-          f"{'CPU %':>8}")
+          f"{'2nd half MB/h':>15}{'CPU %':>8}")
     for role, r in rep.get("rss_mb", {}).items():
-        g = r["growth_after_1min"]
+        g, sl = r["growth_after_1min"], r.get("slope_second_half_mb_per_h")
         print(f"  {role:<14}{r['first']:>10.1f}{(r['at_1min'] or math.nan):>10.1f}{r['last']:>8.1f}{r['max']:>8.1f}"
-              f"{('%+.2f MB' % g) if g is not None else 'n/a':>20}{rep.get('cpu_percent', {}).get(role, math.nan):>8}")
+              f"{('%+.2f MB' % g) if g is not None else 'n/a':>20}{('%+.1f' % sl) if sl is not None else 'n/a':>15}"
+              f"{rep.get('cpu_percent', {}).get(role, math.nan):>8}")
     op = rep.get("operator", {})
     print(f"  path laps {op.get('laps')}, operator recoveries (error reset + power up) {op.get('recoveries')}")
+    for r in op.get("recovered_from", [])[:20]:
+        print(f"    {r['at_s']:9.2f} s controller: {r['controller']}; service: {r['service']}")
     print(f"  trips {len(rep.get('trips', []))}, unexplained {rep.get('unexplained_trips')}")
     for t in rep.get("trips", [])[:30]:
         print(f"    {t['at_s']:9.2f} s {t['text']}  <- {t['explained'] or 'UNEXPLAINED'}")
