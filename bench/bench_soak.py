@@ -24,8 +24,9 @@ Measured:
 - **trips**: every service message "outputs safe: ..." (the orderly stop's excepted), read
   every 20 ms, each with its explanation: a host stall the service named in the message
   ("(stall N ms)"), or a late controller (its missed-frame events, ``controller_stats``,
-  went up within :data:`EXPLAIN_WINDOW_S` of the trip: a controller that did not run for
-  the watchdog misses frames and says so); anything else is **unexplained**;
+  went up, or it posted a message naming missed service frames, within
+  :data:`EXPLAIN_WINDOW_S` of the trip: a controller that did not run for the watchdog
+  misses frames and says so); anything else is **unexplained**;
 - **the recording**: the recorder's summary (frames, recorder misses, service skips, the
   stats window, messages missed, ``lossless``);
 - the service's warnings and errors and the controller's errors, and for each recovery the
@@ -82,10 +83,11 @@ def _cpu_s(pid: int) -> float | None:
         return None
 
 
-def explain_trip(text: str, t_trip: float, missed_t: list[float]) -> str | None:
+def explain_trip(text: str, t_trip: float, missed_t: list[float], missed_said_t: list[float] = ()) -> str | None:
     """Why a trip happened, or None (unexplained).
 
     :param missed_t: the times the controller's missed-frame events were seen to go up
+    :param missed_said_t: the times of the controller's messages naming missed service frames
     """
     if "stall" in text:
         return "host stall named by the service"
@@ -93,6 +95,8 @@ def explain_trip(text: str, t_trip: float, missed_t: list[float]) -> str | None:
         lo, hi = t_trip - EXPLAIN_WINDOW_S[0], t_trip + EXPLAIN_WINDOW_S[1]
         if any(lo <= t <= hi for t in missed_t):
             return "controller late (its missed-frame events went up)"
+        if any(lo <= t <= hi for t in missed_said_t):
+            return "controller late (it said it missed service frames)"
     return None
 
 
@@ -187,6 +191,7 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
     missed_t: list[float] = []
     counts: dict[str, int] = {}
     said: list[dict] = []  # the service's warnings and errors, the controller's errors
+    missed_said_t: list[float] = []  # the controller's messages naming missed service frames
     cursor, lost = {"service": 0, "controller": 0}, 0
     t0 = time.monotonic()
     try:
@@ -228,6 +233,8 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
                     counts[f"{q} {sev}"] = counts.get(f"{q} {sev}", 0) + 1
                     if q == "service" and m.text.startswith("outputs safe") and m.code != STOP_CODE:
                         trips.append({"t_s": m.t_s, "at_s": round(m.t_s - t0, 2), "text": m.text})
+                    if q == "controller" and "missed service frame" in m.text:
+                        missed_said_t.append(m.t_s)
                     if (sev in ("WARNING", "ERROR", "FATAL") if q == "service" else sev in ("ERROR", "FATAL")) \
                             and len(said) < 500:
                         said.append({"queue": q, "t_s": m.t_s, "at_s": round(m.t_s - t0, 2), "severity": sev,
@@ -310,7 +317,7 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
     rep["rss_samples"] = samples
     rep["trips"] = []
     for tr in trips:
-        why = explain_trip(tr["text"], tr["t_s"], missed_t)
+        why = explain_trip(tr["text"], tr["t_s"], missed_t, missed_said_t)
         rep["trips"].append({"at_s": tr["at_s"], "text": tr["text"], "explained": why})
     rep["unexplained_trips"] = sum(1 for t in rep["trips"] if t["explained"] is None)
     rep["controller_missed_events_seen"] = len(missed_t)

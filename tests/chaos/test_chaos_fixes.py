@@ -6,8 +6,10 @@ matrix's own logic: in process, deterministic (simulated frames, no processes, n
 - the recorder counted a statistics snapshot before the frames it follows had come out of
   its capture queue, so its stats window came out a frame short at random (NOT LOSSLESS on
   a lossless run);
+- a SIGINT while a ``pfma`` verb was still importing printed a KeyboardInterrupt traceback;
 - :func:`bench.bench_chaos.plan` is reproducible; :func:`bench.bench_chaos.judge_outputs`
-  fails a late, a missing and a non-zero trip.
+  fails a late, a missing and a non-zero trip; :func:`bench.bench_soak.explain_trip`
+  explains only by a stall the service named or a controller that said it was late.
 """
 
 from __future__ import annotations
@@ -189,3 +191,14 @@ def test_ctrl_c_while_the_verbs_load_is_exit_130_without_a_traceback(monkeypatch
     assert cli.main(["console"]) == 130
     out = capsys.readouterr()
     assert out.out == "" and out.err == ""
+
+
+def test_the_soak_explains_a_trip_by_a_named_stall_or_a_late_controller_only():
+    from bench.bench_soak import EXPLAIN_WINDOW_S, explain_trip
+    stale = "outputs safe: stale heartbeat 15.4>15 ms between frames"
+    assert explain_trip("outputs safe: stale heartbeat 70>15 ms (stall 60 ms)", 10.0, []) == \
+        "host stall named by the service"
+    assert explain_trip(stale, 10.0, [10.3]).startswith("controller late")
+    assert explain_trip(stale, 10.0, [], [9.9]).startswith("controller late")
+    assert explain_trip(stale, 10.0, [10.0 + EXPLAIN_WINDOW_S[1] + 0.1], [10.0 - EXPLAIN_WINDOW_S[0] - 0.1]) is None
+    assert explain_trip("outputs safe: refused write by pid 7: owner pid 8", 10.0, [10.0], [10.0]) is None
