@@ -510,13 +510,9 @@ REARM_SEED = 1000
 #: argv: endpoint, buffer, [rearm counter seed], [--realtime])
 REMOTE_CONTROLLER = textwrap.dedent("""
     import signal, sys, time
-    stop, looping = [], []
-    def on_stop(*a):  # in the loop: finish the frame, close the session; before it: leave now
-        stop.append(1)
-        if not looping:
-            raise SystemExit(0)
-    signal.signal(signal.SIGTERM, on_stop)
-    signal.signal(signal.SIGINT, on_stop)
+    stop = []
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # while connecting (blocked in zenoh): end at once
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
     from controller.decision import Status
     from controller.layers import Request
     from controller.runtime import ControllerRuntime
@@ -532,7 +528,8 @@ REMOTE_CONTROLLER = textwrap.dedent("""
     rt = ControllerRuntime(c, clock=MonotonicClock())
     rt.request(Request.POWER_UP)
     flying = False
-    looping.append(1)
+    signal.signal(signal.SIGTERM, lambda *a: stop.append(1))  # in the loop: finish, close the session
+    signal.signal(signal.SIGINT, lambda *a: stop.append(1))
     while not stop:
         if not c.changed("inputs"):
             time.sleep(0.0002)
