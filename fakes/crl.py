@@ -52,8 +52,8 @@ class ReceivedForce:
         return self.frame.wrench()[1]
 
 
-#: frames of ground truth a fake CRL master keeps, each way (newest first out)
-HISTORY_KEEP = 20_000
+#: frames of ground truth a fake CRL master keeps, each way (newest first out): 40 s at 50 Hz
+HISTORY_KEEP = 2_000
 
 class FakeCrlMaster(FaultyLine):
     """Byte-stream model of the CRL force-reflecting hand controller.
