@@ -302,7 +302,15 @@ class RemoteCommander:
         assert spec.body_dtype is not None
         self.raw = bytearray(spec.body_size)
         self.command: np.ndarray = np.ndarray((), spec.body_dtype, buffer=self.raw)
-        self._heartbeat = 0
+        # carry on from what the command area holds, as a local writer does: above all its
+        # re-arm counter, which the service takes once only (a second writer starting from
+        # zero could never arm again), and the heartbeat
+        try:
+            body, _ = remote._newest("commands")
+            self.raw[:] = body[:len(self.raw)]
+        except Bit3Error:  # the bridge has published no command body (no controller yet)
+            pass
+        self._heartbeat = int(self.command["heartbeat"])
 
     def write_commands(self, **fields: Any) -> int:
         """Set command fields (others keep their values) and publish the body."""

@@ -149,6 +149,38 @@ def test_a_remote_commander_drives_the_service_and_its_loss_trips_the_watchdog(l
     assert np.abs(s_in.dac_value).max() == 0.0
 
 
+def test_a_new_remote_writer_carries_on_from_the_command_area_and_can_re_arm(link):
+    """A writer taking over (a controller restarted elsewhere) starts from the area's record:
+    its re-arm counter goes on from the one the service has used, so a re-arm is taken."""
+    rig, bridge, peer = link
+    s = peer()
+    remote = RemoteBuffer(s, rig.name)
+    cmd = RemoteCommander(remote, "ops-laptop")
+    until(lambda: bridge.holder == "ops-laptop", "the bridge sees the writer's token")
+    settle(rig, bridge, remote)
+    zero = [0.0] * len(rig.layout.joint_names)
+    _deliver(rig, bridge, lambda: _arm(cmd, rig, bridge), "the arm request")
+    for _ in range(3):
+        _deliver(rig, bridge, lambda: cmd.write_commands(joint_rate_rad_s=zero), "a heartbeat")
+    assert ServiceState(rig.reader.read_inputs().service_state) is ServiceState.ARMED
+    s.close()  # the writer is lost: the watchdog trips
+    step(rig, bridge, int(np.ceil(rig.svc.guard.watchdog_s * rig.svc.schedule.frame_rate_hz)) + 2)
+    assert ServiceState(rig.reader.read_inputs().service_state) is ServiceState.FAULT
+    until(lambda: bridge.holder is None, "the lost writer's token gone")
+
+    remote2 = RemoteBuffer(peer(), rig.name)
+    step(rig, bridge)
+    cmd2 = RemoteCommander(remote2, "ops-laptop-2")
+    assert int(cmd2.command["rearm_counter"]) == 1  # the area's, not zero
+    until(lambda: bridge.holder == "ops-laptop-2", "the new writer's token")
+    counter = int(cmd2.command["rearm_counter"]) + 1
+    _deliver(rig, bridge, lambda: cmd2.write_commands(joint_rate_rad_s=zero, arm_request=1, rearm_counter=counter),
+             "the re-arm")
+    for _ in range(3):
+        _deliver(rig, bridge, lambda: cmd2.write_commands(joint_rate_rad_s=zero), "a heartbeat")
+    assert ServiceState(rig.reader.read_inputs().service_state) is ServiceState.ARMED
+
+
 def test_a_second_remote_writer_is_refused_naming_the_first(link):
     rig, bridge, peer = link
     first = RemoteCommander(RemoteBuffer(peer(), rig.name), "ops-laptop")
