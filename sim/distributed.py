@@ -41,6 +41,7 @@ from controller.layers import Request, Response
 from controller.runtime import LAYER_KEYS, ControllerRuntime
 from ioservice.schedule import Schedule
 from sim.rig import SimRig
+from sim.system import FrameStepping
 
 
 class _SimSource:
@@ -65,7 +66,7 @@ class _SimSource:
         self._src = None
 
 
-class DistributedSimulator:
+class DistributedSimulator(FrameStepping):
     """The whole stack, the controller distributed by ``config``, in simulated time.
 
     :param config: a :class:`DistributedConfig`, a distribution file, or a parsed TOML dict
@@ -158,26 +159,7 @@ class DistributedSimulator:
     def resume(self, process: str) -> None:
         self.running[self.config.process(process).name] = True
 
-    # --- running -------------------------------------------------------------------------
-    @property
-    def period_s(self) -> float:
-        return self.frames.period_s
-
-    def step(self, frames: int = 1) -> None:
-        """Advance ``frames`` minor frames (service frame, then every process's frame)."""
-        self.svc.loop.run(frames=frames, freeze_gc=False)
-
-    def run_until(self, predicate, max_frames: int) -> int:
-        """Step one frame at a time until ``predicate()``; returns the frames run.
-
-        :raises TimeoutError: not true after ``max_frames``
-        """
-        for n in range(1, max_frames + 1):
-            self.step(1)
-            if predicate():
-                return n
-        raise TimeoutError(f"condition not met within {max_frames} frames "
-                           f"({max_frames * self.period_s * 1e3:.1f} ms simulated)")
+    # --- running: FrameStepping (each frame: the service's, then every process's) -----------
 
     def statuses(self) -> dict[str, Status]:
         """Each layer's status in the world model of the process that runs it."""

@@ -24,7 +24,7 @@ and driven the same way produce identical traces.
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -34,8 +34,39 @@ from controller.runtime import ControllerRuntime
 from ioservice.schedule import Schedule
 from sim.rig import SimRig
 
+if TYPE_CHECKING:
+    from ioservice.service import IoService
 
-class SystemSimulator:
+
+class FrameStepping:
+    """Stepping a simulated system frame by frame (its ``svc`` runs the service's loop, whose
+    frame body also runs the controller's frames; ``frames`` is the FrameConfig)."""
+
+    frames: FrameConfig
+    svc: "IoService"
+
+    @property
+    def period_s(self) -> float:
+        return self.frames.period_s
+
+    def step(self, frames: int = 1) -> None:
+        """Advance ``frames`` minor frames (each: the service frame, then the controller's)."""
+        self.svc.loop.run(frames=frames, freeze_gc=False)
+
+    def run_until(self, predicate, max_frames: int) -> int:
+        """Step one frame at a time until ``predicate()`` is true; returns the frames run.
+
+        :raises TimeoutError: not true after ``max_frames``
+        """
+        for n in range(1, max_frames + 1):
+            self.step(1)
+            if predicate():
+                return n
+        raise TimeoutError(f"condition not met within {max_frames} frames "
+                           f"({max_frames * self.period_s * 1e3:.1f} ms simulated)")
+
+
+class SystemSimulator(FrameStepping):
     """The whole stack in simulated time.
 
     :param frames: controller frame configuration; the service runs at its frame rate
@@ -78,26 +109,7 @@ class SystemSimulator:
                 self.rt.tick()  # a minor frame, or the halted hold (docs/console.md)
         self.rig.after_frame.append(controller_frame)
 
-    # --- running -------------------------------------------------------------------------
-    @property
-    def period_s(self) -> float:
-        return self.frames.period_s
-
-    def step(self, frames: int = 1) -> None:
-        """Advance ``frames`` minor frames (service frame, then controller frame, each)."""
-        self.svc.loop.run(frames=frames, freeze_gc=False)
-
-    def run_until(self, predicate, max_frames: int) -> int:
-        """Step one frame at a time until ``predicate()`` is true; returns the frames run.
-
-        :raises TimeoutError: not true after ``max_frames``
-        """
-        for n in range(1, max_frames + 1):
-            self.step(1)
-            if predicate():
-                return n
-        raise TimeoutError(f"condition not met within {max_frames} frames "
-                           f"({max_frames * self.period_s * 1e3:.1f} ms simulated)")
+    # --- running: FrameStepping --------------------------------------------------------------
 
     def power_up(self, max_frames: int = 1000) -> int:
         """Request POWER UP and run until every layer is START UP COMPLETE; frames taken."""

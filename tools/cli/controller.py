@@ -820,18 +820,16 @@ def _run_distributed_sim(args, config, base: str | None) -> int:
     return 0
 
 
-class _PollPacer:
+class _PollPacer(LivePacer):
     """Paces a process whose inputs come over a bridge (``zenoh://``): no futex, and the
-    service's frame times are another host's clock, so it polls for a new inputs body."""
+    service's frame times are another host's clock, so it polls for a new inputs body (the
+    collector handling is the live pacer's)."""
 
     POLL_S = 100e-6
     GIVE_UP_S = 0.05  #: one wait at most (16 frames): the runtime's stale checks see the rest
 
     def __init__(self, client) -> None:
-        self.client = client
-        self.frames = 0
-        self.gave_up = 0
-        self.gc_frozen = False
+        super().__init__(client, period_s=self.GIVE_UP_S)
 
     def wait(self) -> None:
         end = time.monotonic() + self.GIVE_UP_S
@@ -843,18 +841,6 @@ class _PollPacer:
 
     def stepped(self, t_frame_s: float) -> None:
         self.frames += 1
-
-    def freeze_gc(self) -> None:
-        gc.collect()
-        gc.freeze()
-        gc.disable()
-        self.gc_frozen = True
-
-    def release_gc(self) -> None:
-        if self.gc_frozen:
-            gc.enable()
-            gc.unfreeze()
-            self.gc_frozen = False
 
 
 class _DistributedDriver:
