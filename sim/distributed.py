@@ -37,7 +37,7 @@ from controller.distributed import (
     DistributedConfig, DistributedProcess, ModelSource, SectionSource, load_config, parse_config,
 )
 from controller.frames import FrameConfig
-from controller.layers import Request, Response
+from controller.layers import Request
 from controller.runtime import LAYER_KEYS, ControllerRuntime
 from ioservice.schedule import Schedule
 from sim.rig import SimRig
@@ -178,22 +178,9 @@ class DistributedSimulator(FrameStepping):
         self.top.request(Request.POWER_UP)
         return self.run_until(lambda: self.all_status(Status.START_UP_COMPLETE), max_frames)
 
-    def request(self, kind: int, arg: int = 0, max_frames: int = 400) -> tuple[int, str]:
-        """A user request to System Up/Down; runs until it is answered other than IN
-        PROGRESS (or ``max_frames``); returns (Response code, text)."""
-        seq = self.top.request(kind, arg)
-        code, text = Response.NONE, ""
-        for _ in range(max_frames):
-            self.step(1)
-            got, code, text = self.response()
-            if got == seq and code != Response.IN_PROGRESS:
-                break
-        return code, text
-
-    def response(self) -> tuple[int, int, str]:
-        v = self.top.wm.get_task_inputs(("ui.response_seq", "ui.response", "ui.response_text"))
-        text = bytes(v["ui.response_text"]).rstrip(b"\0").decode(errors="replace")
-        return int(v["ui.response_seq"]), int(v["ui.response"]), text
+    @property
+    def updown_rt(self) -> ControllerRuntime:  # FrameStepping.request/response
+        return self.top
 
     # --- looking -------------------------------------------------------------------------
     def svc_frame(self) -> int:

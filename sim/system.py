@@ -65,6 +65,30 @@ class FrameStepping:
         raise TimeoutError(f"condition not met within {max_frames} frames "
                            f"({max_frames * self.period_s * 1e3:.1f} ms simulated)")
 
+    @property
+    def updown_rt(self) -> ControllerRuntime:
+        """The runtime whose world model has System Up/Down (the user requests go there)."""
+        raise NotImplementedError
+
+    def request(self, kind: int, arg: int = 0, max_frames: int = 400) -> tuple[int, str]:
+        """Post a user request (``Request.*``) and run frames until System Up/Down answers
+        it with anything but IN PROGRESS (or ``max_frames``); returns (Response code, text)."""
+        from controller.layers import Response
+        seq = self.updown_rt.request(kind, arg)
+        code, text = Response.NONE, ""
+        for _ in range(max_frames):
+            self.step(1)
+            got, code, text = self.response()
+            if got == seq and code != Response.IN_PROGRESS:
+                break
+        return code, text
+
+    def response(self) -> tuple[int, int, str]:
+        """(request number answered, Response code, the answer in words)."""
+        v = self.updown_rt.wm.get_task_inputs(("ui.response_seq", "ui.response", "ui.response_text"))
+        text = bytes(v["ui.response_text"]).rstrip(b"\0").decode(errors="replace")
+        return int(v["ui.response_seq"]), int(v["ui.response"]), text
+
 
 class SystemSimulator(FrameStepping):
     """The whole stack in simulated time.
@@ -117,24 +141,9 @@ class SystemSimulator(FrameStepping):
         self.rt.request(Request.POWER_UP)
         return self.run_until(lambda: self.rt.all_status(Status.START_UP_COMPLETE), max_frames)
 
-    def request(self, kind: int, arg: int = 0, max_frames: int = 400) -> tuple[int, str]:
-        """Post a user request (``Request.*``) and run frames until System Up/Down answers
-        it with anything but IN PROGRESS (or ``max_frames``); returns (Response code, text)."""
-        from controller.layers import Response
-        seq = self.rt.request(kind, arg)
-        code, text = Response.NONE, ""
-        for _ in range(max_frames):
-            self.step(1)
-            got, code, text = self.response()
-            if got == seq and code != Response.IN_PROGRESS:
-                break
-        return code, text
-
-    def response(self) -> tuple[int, int, str]:
-        """(request number answered, Response code, the answer in words)."""
-        v = self.rt.wm.get_task_inputs(("ui.response_seq", "ui.response", "ui.response_text"))
-        text = bytes(v["ui.response_text"]).rstrip(b"\0").decode(errors="replace")
-        return int(v["ui.response_seq"]), int(v["ui.response"]), text
+    @property
+    def updown_rt(self) -> ControllerRuntime:  # FrameStepping.request/response
+        return self.rt
 
     # --- looking -------------------------------------------------------------------------
     def svc_frame(self) -> int:
