@@ -102,11 +102,13 @@ def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
     bus = MeteredBus(world.bus)
     clock = TickingClock(base, tick_s=LIVE_TICK_S)
     arm_s = [0.0]
+    arm_cpu = [0.0]  # the same, in this thread's CPU time (what the CPU share subtracts)
 
     def arm_tick(now: float) -> None:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         world.tick(now)
         arm_s[0] += time.perf_counter() - t0
+        arm_cpu[0] += time.thread_time() - c0
 
     clock.hooks.append(arm_tick)
     buf = Bit3Buffer.create(name)
@@ -126,7 +128,7 @@ def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
         def ctl_tick(now: float) -> None:
             if now - last[0] < 0.002:
                 return
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.thread_time()
             last[0] = now
             state = svc.guard.state
             live = state == ServiceState.ARMED  # arming needs zero rates
@@ -137,7 +139,28 @@ def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
             else:
                 ctl.write_commands(joint_rate_rad_s=rates)
             arm_s[0] += time.perf_counter() - t0
+            arm_cpu[0] += time.thread_time() - c0
 
+        # The fakes' CPU: the bus meter times their wall clock per access (a CPU clock read per
+        # access would cost more than a fake register); each frame and each drain between frames
+        # gives its CPU time to the fakes in the proportion of its wall time spent inside the
+        # bus (so the time a loaded host did not run this process is not counted as CPU)
+        fake_cpu = [0.0]
+        in_frame = [False]
+        serial_tick = svc.serial_tick
+
+        def metered_drain(now: float | None = None) -> None:
+            if in_frame[0]:  # inside a frame: the frame's share counts it
+                serial_tick(now)
+                return
+            t0, c0, s0, a0 = time.perf_counter(), time.thread_time(), bus.sim_s, bus.accesses
+            serial_tick(now)
+            dw = time.perf_counter() - t0
+            if dw > 0:
+                inside = bus.sim_s - s0 + (bus.accesses - a0) * meter_s
+                fake_cpu[0] += (time.thread_time() - c0) * min(1.0, inside / dw)
+
+        svc.serial_tick = metered_drain  # type: ignore[method-assign]  (the frame's drains too)
         # as pfma serve does: the serial drain every tick, the arm model once per frame just
         # before it (TickingClock.pre_deadline_hooks)
         clock.hooks[:] = [svc.serial_tick, ctl_tick]
@@ -147,13 +170,21 @@ def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
         mark: dict = {}
 
         def frame(info) -> None:
-            t0, s0, a0 = time.perf_counter(), bus.sim_s, bus.accesses
-            body(info)
+            t0, c0, s0, a0 = time.perf_counter(), time.thread_time(), bus.sim_s, bus.accesses
+            in_frame[0] = True
+            try:
+                body(info)
+            finally:
+                in_frame[0] = False
+            dw = time.perf_counter() - t0
+            # the meter's own cost per access counts with the fakes, not the service
+            inside = bus.sim_s - s0 + (bus.accesses - a0) * meter_s
+            if dw > 0:
+                fake_cpu[0] += (time.thread_time() - c0) * min(1.0, inside / dw)
             if t0 >= t_measure:
                 if not mark:
-                    mark.update(cpu=time.process_time(), sim=bus.sim_s, arm=arm_s[0], t=t0, n=bus.accesses)
-                # the meter's own cost per access counts with the fakes, not the service
-                rows.append((time.perf_counter() - t0, bus.sim_s - s0 + (bus.accesses - a0) * meter_s))
+                    mark.update(cpu=time.process_time(), sim=fake_cpu[0], arm=arm_cpu[0], t=t0)
+                rows.append((dw, inside))
 
         svc.loop.body = frame
         t_measure = time.perf_counter() + settle_s
@@ -168,7 +199,10 @@ def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
         svc.run(duration_s=settle_s + seconds)
         wall = time.perf_counter() - mark["t"]
         cpu = time.process_time() - mark["cpu"]
-        sim = (bus.sim_s - mark["sim"]) + (arm_s[0] - mark["arm"]) + (bus.accesses - mark["n"]) * meter_s
+        # CPU of the fakes (their share of each frame's and drain's CPU), the arm model and the
+        # bench's controller (this thread's CPU clock): their wall time would also count the
+        # time a loaded host did not run this process (own CPU came out negative under load)
+        sim = (fake_cpu[0] - mark["sim"]) + (arm_cpu[0] - mark["arm"])
         work = np.array([r[0] for r in rows]) * 1e6
         fake = np.array([r[1] for r in rows]) * 1e6
         own = work - fake
