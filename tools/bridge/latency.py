@@ -140,7 +140,13 @@ def measure(seconds: float = 10.0) -> dict:
             if p.poll() is None:
                 p.send_signal(signal.SIGINT)
         for p in procs:
-            p.communicate(timeout=30)
+            try:
+                p.communicate(timeout=30)
+            except subprocess.TimeoutExpired:  # never leave a service or bridge running
+                p.kill()
+                p.communicate()
+        from bit3.buffer import Bit3Buffer
+        Bit3Buffer.unlink(name)  # the measurement's own buffer (a stopped service leaves it)
     frames, seqs = b["frames"], b["seqs"]
     seen = set(frames)
     span = max(seen) - min(seen) + 1 if seen else 0

@@ -12,6 +12,8 @@ import time
 import numpy as np
 import pytest
 
+from controller.worldmodel import WorldModel
+
 from sim.rig import SimRig
 from tests.tools.bridge.test_bridge import free_port, until
 from tools.bridge.bridge import Bridge
@@ -241,6 +243,7 @@ def test_watch_and_console_read_a_remote_buffer(monkeypatch, capsys):
     finally:
         session.close()
         sim.close()
+        WorldModel.remove_segment(wm)  # a closed model's segment stays until removed
 
 
 @pytest.mark.realtime

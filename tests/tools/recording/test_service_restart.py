@@ -117,3 +117,4 @@ def test_recorder_survives_a_service_restart_and_starts_a_new_session(tmp_path):
                 p.wait(30)
         Bit3Buffer.unlink(name)
         FrameRing.unlink(name)
+        Path(f"/dev/shm/{name}.faults").unlink(missing_ok=True)  # the killed service's fault endpoint
