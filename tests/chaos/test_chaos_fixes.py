@@ -202,3 +202,20 @@ def test_the_soak_explains_a_trip_by_a_named_stall_or_a_late_controller_only():
     assert explain_trip(stale, 10.0, [], [9.9]).startswith("controller late")
     assert explain_trip(stale, 10.0, [10.0 + EXPLAIN_WINDOW_S[1] + 0.1], [10.0 - EXPLAIN_WINDOW_S[0] - 0.1]) is None
     assert explain_trip("outputs safe: refused write by pid 7: owner pid 8", 10.0, [10.0], [10.0]) is None
+
+
+def test_judge_outputs_lets_a_paused_writer_arm_again_after_it_resumes():
+    """SIGSTOP+SIGCONT of a writer (or its bridge) that had not armed yet: once it runs again
+    it may arm with a new request (seen in CI: frame 1344 ARMED after the bridge's SIGCONT);
+    output while not ARMED is still a failure, and a writer that does not come back may not
+    arm at all."""
+    rows = _rows(1.0, None)
+    for r in rows:
+        r["state"], r["vmax"] = SAFE, 0.0
+    for r in rows[len(rows) // 2 + 20:]:
+        r["state"], r["vmax"] = ARMED, 0.2  # armed by the resumed writer, driving
+    assert judge_outputs(rows, [], 1.0, writer_returns=True)[0]
+    assert not judge_outputs(rows, [], 1.0)[0]  # a killed writer: no arming after
+    rows[-1]["state"] = SAFE  # output while not armed
+    ok, detail, _ = judge_outputs(rows, [], 1.0, writer_returns=True)
+    assert not ok and "not armed at the kill" in detail
