@@ -186,18 +186,6 @@ class DistributedSimulator(FrameStepping):
     def svc_frame(self) -> int:
         return int(self.rig.reader.header().frame) if self.rig.reader is not None else -1
 
-    def dac_volts(self) -> np.ndarray:
-        """What the DAC board drives right now (all channels), volts."""
-        return np.asarray(self.world.bus["dac"].output_volts_all(), dtype=float)
-
-    def joint_angles_rad(self) -> np.ndarray:
-        """True joint angles of the simulated arm in command-area joint order."""
-        from controller.params import JOINT_NAMES
-        from fakes.arm_params import AXES
-        q = self.world.sim.true_state().q
-        stems = [a.joint for a in AXES]
-        return np.array([q[stems.index(n)] for n in JOINT_NAMES], dtype=float)
-
     def close(self) -> None:
         for dp in self.processes.values():
             dp.close(unlink=True)

@@ -35,6 +35,7 @@ from ioservice.schedule import Schedule
 from sim.rig import SimRig
 
 if TYPE_CHECKING:
+    from fakes.world import FakeWorld
     from ioservice.service import IoService
 
 
@@ -44,6 +45,7 @@ class FrameStepping:
 
     frames: FrameConfig
     svc: "IoService"
+    world: "FakeWorld"
 
     @property
     def period_s(self) -> float:
@@ -64,6 +66,18 @@ class FrameStepping:
                 return n
         raise TimeoutError(f"condition not met within {max_frames} frames "
                            f"({max_frames * self.period_s * 1e3:.1f} ms simulated)")
+
+    def dac_volts(self) -> np.ndarray:
+        """What the DAC board drives right now (all channels), volts."""
+        return np.asarray(self.world.bus["dac"].output_volts_all(), dtype=float)
+
+    def joint_angles_rad(self) -> np.ndarray:
+        """True joint angles of the simulated arm in command-area joint order."""
+        from controller.params import JOINT_NAMES
+        from fakes.arm_params import AXES
+        q = self.world.sim.true_state().q
+        stems = [a.joint for a in AXES]
+        return np.array([q[stems.index(n)] for n in JOINT_NAMES], dtype=float)
 
     @property
     def updown_rt(self) -> ControllerRuntime:
@@ -149,18 +163,6 @@ class SystemSimulator(FrameStepping):
     def svc_frame(self) -> int:
         """The service frame number of the newest inputs published."""
         return int(self.client.header().frame)
-
-    def dac_volts(self) -> np.ndarray:
-        """What the DAC board drives right now (all channels), volts."""
-        return np.asarray(self.world.bus["dac"].output_volts_all(), dtype=float)
-
-    def joint_angles_rad(self) -> np.ndarray:
-        """True joint angles of the simulated arm in command-area joint order."""
-        from controller.params import JOINT_NAMES
-        from fakes.arm_params import AXES
-        q = self.world.sim.true_state().q
-        stems = [a.joint for a in AXES]
-        return np.array([q[stems.index(n)] for n in JOINT_NAMES], dtype=float)
 
     def close(self) -> None:
         if self.rt is not None:
