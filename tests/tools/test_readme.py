@@ -33,6 +33,7 @@ from pathlib import Path
 import pytest
 
 from bit3.buffer import Bit3Buffer
+from bit3.ring import FrameRing
 from controller.worldmodel import WorldModel
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -223,6 +224,7 @@ def test_every_readme_command_runs_as_written():
         pytest.skip(why)
     commands = [c for c, _ in readme_commands(README.read_text())]
     wm_existed = os.path.exists(f"/dev/shm/{WORLD_MODEL}")
+    buffer_existed = os.path.exists(f"/dev/shm/{BUFFER}")
     try:
         for cmd in commands:
             if cmd in RUN_ALONE:
@@ -245,3 +247,6 @@ def test_every_readme_command_runs_as_written():
     finally:
         if not wm_existed:  # the --sim controller's world model stays for `pfma wm`; ours goes
             WorldModel.remove_segment(WORLD_MODEL)
+        if not buffer_existed:  # a stopped service leaves its buffer for the readers; ours goes
+            Bit3Buffer.unlink(BUFFER)
+            FrameRing.unlink(BUFFER)
