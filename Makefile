@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint bench clean
+.PHONY: run test lint bench soak clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -30,6 +30,17 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/pfma bench
+
+# the soak, judged (issue 20; CI runs it after make test): the simulated stack for
+# SOAK_MINUTES, exit 1 naming each failed criterion (docs/chaos.md). --realtime (the service
+# and the controller SCHED_FIFO on pinned CPUs, as the kill matrix in make test runs them)
+# where this user may set SCHED_FIFO, e.g. root; else without it, and it says so.
+SOAK_MINUTES ?= 10
+soak: $(STAMP)
+	@if $(BIN)/python -c 'import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))' 2>/dev/null; \
+	then rt=--realtime; else rt=; echo "make soak: SCHED_FIFO not permitted for this user: the soak runs without --realtime"; fi; \
+	echo "$(BIN)/pfma bench soak --minutes $(SOAK_MINUTES) --check $$rt"; \
+	$(BIN)/pfma bench soak --minutes $(SOAK_MINUTES) --check $$rt
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -13,10 +13,15 @@ goal (issue 20): the flood costs at most 5 extra dropped frames per 10 s.
 The flood client runs on the same host (a 2-core VM here); on a lab PC the HMI is another
 machine, so this is the harder case. Nothing controls the arm: the service stays SAFE.
 
-Run: ``pfma bench flood --seconds 10`` (one round) or
-``python -m bench.bench_flood [SECONDS] [RATE] [ROUNDS] [realtime]`` (rounds alternate a
-quiet and a flooded run, so a change in the host's load falls on both; ``realtime`` runs
-``pfma serve --realtime``, SCHED_FIFO and pinned, as a lab PC does).
+Run: ``pfma bench flood [--seconds S] [--rounds N] [--realtime] [--check]`` (default 10 s,
+one round) or ``python -m bench.bench_flood [SECONDS] [RATE] [ROUNDS] [realtime]`` (rounds
+alternate a quiet and a flooded run, so a change in the host's load falls on both;
+``realtime`` runs ``pfma serve --realtime``, SCHED_FIFO and pinned, as a lab PC does).
+
+``--check`` judges the figures (:func:`judge`): at most :data:`MAX_EXTRA_DROPPED_PER_10S`
+extra dropped frames per 10 s flooded against quiet, over all rounds, and the export
+answering in every flooded run (at least :data:`MIN_ANSWERED_SHARE` of the requests asked
+for answered per second, none refused, none timed out or cut).
 """
 
 from __future__ import annotations
@@ -39,6 +44,14 @@ DEFAULT_RATE = 2000.0
 DEFAULT_CONNECTIONS = 4
 #: the reads of the flood: (function code, first register, count), alternately
 READS = ((4, 0, 125), (4, 20000, 64))
+#: seconds per run when none is given (the goal is stated per 10 s)
+DEFAULT_SECONDS = 10.0
+#: issue 20's goal: the flood costs at most this many extra dropped frames per 10 s
+MAX_EXTRA_DROPPED_PER_10S = 5.0
+#: "the export answering": at least this share of the requests asked for is answered per
+#: second in every flooded run. The flood client shares the host's CPUs with the service
+#: and the export, so it does not always send the whole rate (82-99 % here, issue 20).
+MIN_ANSWERED_SHARE = 0.5
 
 
 def _cpu_s(pid: int) -> float:
@@ -273,6 +286,39 @@ def figures(seconds: float = 10.0, rate: float = DEFAULT_RATE, connections: int 
             "load_average": round(os.getloadavg()[0], 2)}
 
 
+def judge(rep: dict) -> list[str]:
+    """Issue 20's flood criteria on a :func:`figures` report: one line per criterion that
+    failed, naming it and its figure; empty when the flood passed."""
+    if "error" in rep:
+        return [f"flood: FAILED the runs ran: {rep['error']}"]
+    bad = []
+    extra = rep["extra_dropped_per_10s"]
+    if extra > MAX_EXTRA_DROPPED_PER_10S:
+        bad.append(f"at most {MAX_EXTRA_DROPPED_PER_10S:g} extra dropped frames per 10 s under the flood: "
+                   f"{extra:+g} (quiet {rep['quiet_dropped_per_10s']:g}, flooded "
+                   f"{rep['flooded_dropped_per_10s']:g} per 10 s, {rep['rounds']} round(s))")
+    mute = []
+    for k, r in enumerate(rep["flooded"]):
+        share = r["answered_per_s"] / r["flood_rate"]
+        if share < MIN_ANSWERED_SHARE or r["refused"] or r["failed"]:
+            mute.append(f"run {k + 1}: {r['answered_per_s']:g} of {r['flood_rate']:g} requests/s answered, "
+                        f"{r['refused']} refused, {r['failed']} timed out or cut")
+    if mute:
+        bad.append(f"the export answering (>= {MIN_ANSWERED_SHARE:.0%} of the requests asked for, none refused "
+                   f"or lost): " + "; ".join(mute))
+    return [f"flood: FAILED {b}" for b in bad]
+
+
+def passed_line(rep: dict) -> str:
+    """The one line of a flood :func:`judge` passed: the figures it judged."""
+    answered = min(r["answered_per_s"] for r in rep["flooded"])
+    return (f"flood: passed ({rep['rounds']} round(s) of {rep['seconds']:g} s"
+            f"{', --realtime' if rep['realtime'] else ''}: {rep['extra_dropped_per_10s']:+g} dropped frames per "
+            f"10 s under the flood (quiet {rep['quiet_dropped_per_10s']:g}, flooded "
+            f"{rep['flooded_dropped_per_10s']:g}; at most {MAX_EXTRA_DROPPED_PER_10S:g}), the export answered "
+            f">= {answered:g} requests/s)")
+
+
 def _line(what: str, r: dict) -> str:
     s = (f"  {what}: {r['frames']} frames in {r['window_s']:g} s, {r['dropped_frames']} dropped "
          f"({r['dropped_per_10s']:g} per 10 s), {r['overruns']} overruns; CPU service "
@@ -283,7 +329,7 @@ def _line(what: str, r: dict) -> str:
     return s
 
 
-def run(seconds: float = 10.0, rate: float = DEFAULT_RATE, rounds: int = 1, realtime: bool = False) -> dict:
+def run(seconds: float = DEFAULT_SECONDS, rate: float = DEFAULT_RATE, rounds: int = 1, realtime: bool = False) -> dict:
     f = figures(seconds, rate, rounds=rounds, realtime=realtime)
     if "error" in f:
         print(f"Modbus flood: {f['error']}")

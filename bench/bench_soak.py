@@ -34,7 +34,14 @@ Measured:
 - the service's frame statistics and every process's CPU.
 
 ``pfma bench soak --minutes M`` (default 60); ``--realtime``: the service and the controller
-run SCHED_FIFO on pinned CPUs. Figures, never an assert.
+run SCHED_FIFO on pinned CPUs. Figures, never an assert; ``--check`` then judges them
+(:func:`judge`, issue 20's criteria) and exits 1 naming each criterion that failed: the
+RSS growth after the first minute at most :data:`RSS_BUDGET_MB` in every process, no
+unexplained trip, the recording lossless, the stack ran (path laps, every process alive
+to the end, no problem on the way) and nothing left behind (no ``/dev/shm`` file of the
+soak's name but the two a stopped service and controller leave by design, which the soak
+removes; no process naming the soak's buffer). ``make soak`` (CI) runs ``--minutes 10
+--check``.
 """
 
 from __future__ import annotations
@@ -61,6 +68,12 @@ LOOP_S = 0.25  #: the operator loop (playback restarts, recoveries) runs this of
 EXPLAIN_WINDOW_S = (0.6, 1.2)
 START_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 20.0
+#: the processes of the stack, in the order they stop
+ROLES = ("bridge_reader", "console", "bridge", "recorder", "controller", "service")
+#: issue 20's memory budget: at most this RSS growth after the first minute, in every process.
+#: The issue states it per hour; a shorter run (CI's 10 minutes) is held to the same 5 MB,
+#: not a share of it: a leak at the budget's rate shows only in the hour-long soak.
+RSS_BUDGET_MB = 5.0
 
 
 def _rss_mb(pid: int) -> float | None:
@@ -175,7 +188,7 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
     rt = ("--realtime",) if realtime else ()
     seconds = max(0.0, minutes * 60.0)
     procs: dict[str, Proc] = {}
-    rep: dict = {"minutes": minutes, "buffer": name, "realtime": realtime, "errors": [],
+    rep: dict = {"minutes": minutes, "buffer": name, "realtime": realtime, "errors": [], "died": {},
                  "load_avg_1min": {"start": round(os.getloadavg()[0], 2)}, "cpus": os.cpu_count()}
 
     def pfma(role: str, *args: str) -> Proc:
@@ -259,15 +272,15 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
                     c = _cpu_s(p.pid) if p.alive() else None
                     if c is not None:
                         cpu0.setdefault(role, (now, c))
+                    p.note_maps()
             if progress and now >= next_report:
                 next_report += 60.0
                 progress(f"{(now - t0) / 60:.0f} min: {len(trips)} trips, {op.laps} laps, "
                          f"{len(op.recoveries)} recoveries, RSS "
                          + ", ".join(f"{k} {v[-1][1]:.0f}" for k, v in samples.items()) + " MB")
             for role, p in procs.items():
-                if not p.alive() and not any(e.startswith(role + " ") for e in rep["errors"]):
-                    rep["errors"].append(f"{role} exited after {now - t0:.0f} s (exit {p.p.returncode}): "
-                                         f"{p.tail(3)}")
+                if not p.alive() and role not in rep["died"]:
+                    rep["died"][role] = f"exited after {now - t0:.0f} s (exit {p.p.returncode}): {p.tail(3)}"
             time.sleep(POLL_S)
         rep["run_s"] = round(time.monotonic() - t0, 1)
         cpu = {}
@@ -290,7 +303,7 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
         op.close()
         if client is not None:
             client.close()
-        for role in ("bridge_reader", "console", "bridge", "recorder", "controller", "service"):
+        for role in ROLES:
             p = procs.get(role)
             if p is None:
                 continue
@@ -301,6 +314,7 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
                 rep["errors"].append(f"traceback in the {role}'s output: {p.tail(2)}")
         for p in procs.values():
             p.close()
+        rep["left_behind"] = _left_behind(name, wm, procs, rep)
         Bit3Buffer.unlink(name)
         WorldModel.remove_segment(wm)
     rep["load_avg_1min"]["end"] = round(os.getloadavg()[0], 2)
@@ -328,6 +342,52 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
     rep["messages_lost"] = lost
     rep["recorder"] = _recorder_summary(rec_path)
     return rep
+
+
+def _left_behind(name: str, wm: str, procs: dict[str, Proc], rep: dict) -> list[str]:
+    """After every process stopped: the ``/dev/shm`` files of the soak's name other than
+    the buffer and the world model (a stopped service and controller leave those by design;
+    the caller removes them), which are removed here too, and the processes still running
+    with the soak's buffer name in their command line.
+
+    zenoh (the bridge, the reader through it) leaves its own ``/dev/shm/<pid>.zenoh`` when
+    it stops, and removes stale ones when a zenoh session next starts (docs/chaos.md): the
+    files the soak's processes mapped whose creating pid no longer runs are removed here
+    and listed in ``rep["zenoh_files_removed"]``, not failed."""
+    out = []
+    for f in sorted(os.listdir("/dev/shm")):
+        if f.startswith(name) and f not in (name, wm):
+            out.append(f"/dev/shm/{f}")
+            try:
+                os.unlink(f"/dev/shm/{f}")
+            except OSError:
+                pass
+    removed = []
+    for m in sorted(set().union(*(p.maps for p in procs.values()))):
+        base = Path(m).name
+        if base.startswith(name) or not os.path.exists(m):
+            continue
+        creator = base.removesuffix(".zenoh")
+        if base.endswith(".zenoh") and creator.isdigit() and not os.path.exists(f"/proc/{creator}"):
+            try:
+                os.unlink(m)
+                removed.append(m)
+            except OSError:
+                out.append(m)
+        else:
+            out.append(f"{m} (mapped by the {', '.join(r for r, p in procs.items() if m in p.maps)})")
+    rep["zenoh_files_removed"] = removed
+    for d in os.listdir("/proc"):
+        if not d.isdigit() or int(d) == os.getpid():
+            continue
+        try:
+            with open(f"/proc/{d}/cmdline", "rb") as f:
+                argv = f.read().replace(b"\0", b" ").decode(errors="replace").strip()
+        except OSError:
+            continue
+        if name in argv:
+            out.append(f"process {d}: {argv[:120]}")
+    return out
 
 
 def _slope(pts: list[tuple[float, float]]) -> float:
@@ -380,6 +440,13 @@ def _print(rep: dict) -> None:
           f"{rep['load_avg_1min'].get('end')}")
     for e in rep["errors"]:
         print(f"  PROBLEM: {e}")
+    for role, why in rep.get("died", {}).items():
+        print(f"  DIED: {role} {why}")
+    for x in rep.get("left_behind", []):
+        print(f"  LEFT BEHIND: {x}")
+    if rep.get("zenoh_files_removed"):
+        print(f"  zenoh's shared-memory files its stopped processes left, removed: "
+              f"{', '.join(rep['zenoh_files_removed'])}")
     print(f"  {'process':<14}{'RSS first':>10}{'at 1 min':>10}{'last':>8}{'max':>8}{'growth after 1 min':>20}"
           f"{'2nd half MB/h':>15}{'CPU %':>8}")
     for role, r in rep.get("rss_mb", {}).items():
@@ -396,6 +463,61 @@ def _print(rep: dict) -> None:
         print(f"    {t['at_s']:9.2f} s {t['text']}  <- {t['explained'] or 'UNEXPLAINED'}")
     print(f"  service: {rep.get('service_stats')}")
     print(f"  recorder: {rep.get('recorder')}")
+
+
+def judge(rep: dict) -> list[str]:
+    """Issue 20's criteria on a soak report (:func:`measure`'s): one line per criterion that
+    failed, naming it and its figure; empty when the soak passed."""
+    bad = []
+    rss = rep.get("rss_mb", {})
+    over, unmeasured = [], []
+    for role in ROLES:
+        g = rss.get(role, {}).get("growth_after_1min")
+        if g is None:
+            unmeasured.append(role)
+        elif g > RSS_BUDGET_MB:
+            over.append(f"{role} {g:+.2f} MB")
+    if over:
+        bad.append(f"RSS growth after the first minute <= {RSS_BUDGET_MB:g} MB: {', '.join(over)}")
+    if unmeasured:
+        bad.append(f"RSS growth after the first minute measured in every process: none for "
+                   f"{', '.join(unmeasured)} (it needs two samples from 1 min on)")
+    trips = rep.get("trips", [])
+    unexplained = [t for t in trips if t.get("explained") is None]
+    if unexplained or rep.get("unexplained_trips"):
+        n = max(len(unexplained), rep.get("unexplained_trips") or 0)
+        bad.append(f"no unexplained trip: {n} of {len(trips)}: "
+                   + "; ".join(f"{t['at_s']:g} s {t['text']}" for t in unexplained[:3]))
+    rec = rep.get("recorder") or {"error": "no summary"}
+    if str(rec.get("lossless")).lower() != "true":  # MCAP metadata: "True"; a report from JSON: true
+        figs = rec["error"] if "error" in rec else ", ".join(
+            f"{k} {rec.get(k)}" for k in ("frames_recorded", "recorder_missed", "window_service_frames",
+                                          "window_recorded", "messages_missed"))
+        bad.append(f"the recording lossless: not lossless ({figs})")
+    laps = (rep.get("operator") or {}).get("laps") or 0
+    if laps <= 0:
+        bad.append(f"the stack ran (path laps > 0): {laps} laps")
+    if rep.get("died"):
+        bad.append("every process alive to the end: "
+                   + "; ".join(f"{role} died: {why}" for role, why in rep["died"].items()))
+    if rep.get("errors"):
+        bad.append("the stack ran without a problem: " + "; ".join(rep["errors"]))
+    if rep.get("left_behind"):
+        bad.append("nothing left behind: " + "; ".join(rep["left_behind"]))
+    return [f"soak: FAILED {b}" for b in bad]
+
+
+def passed_line(rep: dict) -> str:
+    """The one line of a soak :func:`judge` passed: the figures it judged."""
+    rss = rep.get("rss_mb", {})
+    top = max(rss, key=lambda r: rss[r]["growth_after_1min"] or 0.0) if rss else None
+    rec = rep.get("recorder", {})
+    return (f"soak: passed ({rep.get('run_s', 0):g} s{' --realtime' if rep.get('realtime') else ''}: "
+            f"RSS growth after the first minute <= {RSS_BUDGET_MB:g} MB in all {len(rss)} processes (largest: "
+            f"{top} {rss[top]['growth_after_1min']:+.2f} MB), "
+            f"0 unexplained trips of {len(rep.get('trips', []))}, recording lossless "
+            f"({rec.get('frames_recorded')} frames), {rep.get('operator', {}).get('laps')} laps, every process "
+            f"alive to the end, nothing left behind)" if top else "soak: passed")
 
 
 def figures(seconds: float | None = None, minutes: float = 1.0, realtime: bool = False) -> dict:

@@ -1,4 +1,4 @@
-"""``pfma bench chaos`` / ``soak`` options: a mistake is one line and exit 2 (nothing runs)."""
+"""``pfma bench chaos`` / ``soak`` / ``flood`` options: a mistake is one line and exit 2 (nothing runs)."""
 
 from __future__ import annotations
 
@@ -18,6 +18,10 @@ def test_chaos_and_soak_run_only_when_named():
     (["bench", "chaos", "--kinds", ","], "unknown nothing"),
     (["bench", "soak", "--minutes", "-1"], "--minutes -1: must not be negative"),
     (["bench", "chaos", "service", "--json"], "--json measures"),
+    (["bench", "chaos", "--check"], "--check judges one of soak, flood, named alone (got: chaos)"),
+    (["bench", "soak", "flood", "--check"], "--check judges one of soak, flood, named alone"),
+    (["bench", "--check"], "(got: all benchmarks)"),
+    (["bench", "flood", "--rounds", "0"], "--rounds 0: must be positive"),
 ])
 def test_bad_chaos_and_soak_options_are_one_message(argv, words, capsys):
     assert main(argv) == 2

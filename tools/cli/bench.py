@@ -7,6 +7,13 @@ default 3, ``--seed``, ``--kinds``) and ``soak`` (the simulated stack flying a l
 for ``--minutes``, default 60) run only when named; ``pfma bench chaos --json`` and ``pfma
 bench soak --json`` print their whole report.
 
+``--check`` (``soak`` and ``flood`` only, named alone): after the figures, judge them
+against issue 20's criteria (``judge(report)`` of ``bench/bench_soak.py`` and
+``bench/bench_flood.py``, where the criteria are written once) and exit 1 with one line per
+failed criterion, else exit 0 with one line ``soak: passed (...)`` / ``flood: passed
+(...)`` (with ``--json`` those lines go to stderr, the JSON alone to stdout). ``make soak``
+runs ``pfma bench soak --minutes 10 --check``.
+
 ``pfma bench --json`` runs the set :data:`JSON_SET` and prints ONE JSON object, a key per
 benchmark, from each module's ``figures()`` (a dict; no printed text is parsed):
 ``service`` (the service on the simulated rack at 320 Hz, the fakes metered out),
@@ -37,6 +44,8 @@ def _names() -> list[str]:
 
 #: benchmarks that run only when named (long)
 ON_REQUEST = ("stack", "chaos", "soak")
+#: benchmarks ``--check`` judges (each module's ``judge(report) -> list[str]`` and ``passed_line``)
+CHECKED = ("soak", "flood")
 #: benchmarks named alone with ``--json``: their own whole report (not the JSON set)
 FULL_JSON = ("stack", "chaos", "soak")
 #: ``--minutes`` of the soak when none is given
@@ -51,7 +60,7 @@ STACK_MINUTES_JSON = 0.5
 def add_parser(sub):
     p = sub.add_parser("bench", help="run benchmarks (loop latency, buffer, service) and print figures")
     p.add_argument("names", nargs="*", help=f"which benchmarks (default: all): {', '.join(_names())}")
-    p.add_argument("--seconds", type=float, default=None, help="seconds per measured run (default 5)")
+    p.add_argument("--seconds", type=float, default=None, help="seconds per measured run (default 5; flood 10)")
     p.add_argument("--minutes", type=float, default=None,
                    help=f"stack: minutes the whole stack runs (default {STACK_MINUTES:g}; with --json "
                         f"{STACK_MINUTES_JSON:g}; 0.05 for a quick check); soak: minutes (default {SOAK_MINUTES:g})")
@@ -59,7 +68,13 @@ def add_parser(sub):
                    help=f"print one JSON object with the figures of {', '.join(JSON_SET)} "
                         f"(`pfma bench stack --json`: the stack's full report)")
     p.add_argument("--realtime", action="store_true",
-                   help="stack, chaos: run the service and the controller with --realtime (SCHED_FIFO, pinned CPUs)")
+                   help="stack, chaos, soak, flood: run the service (and the controller) with --realtime "
+                        "(SCHED_FIFO, pinned CPUs)")
+    p.add_argument("--check", action="store_true",
+                   help="soak, flood (named alone): judge the figures against issue 20's criteria; exit 1 "
+                        "with one line per failed criterion")
+    p.add_argument("--rounds", type=int, default=None,
+                   help="flood: pairs of a quiet and a flooded run, alternated (default 1)")
     p.add_argument("--trials", type=int, default=None,
                    help="chaos: trials per process kind (default 3; 100 for the full matrix)")
     p.add_argument("--seed", type=int, default=None, help="chaos: the seed of the kill plan (default 20)")
@@ -111,6 +126,13 @@ def run(args) -> int:
     if getattr(args, "trials", None) is not None and args.trials <= 0:
         print(f"pfma bench: --trials {args.trials}: must be positive", file=sys.stderr)
         return 2
+    if getattr(args, "rounds", None) is not None and args.rounds <= 0:
+        print(f"pfma bench: --rounds {args.rounds}: must be positive", file=sys.stderr)
+        return 2
+    if getattr(args, "check", False) and not (len(args.names) == 1 and args.names[0] in CHECKED):
+        print(f"pfma bench: --check judges one of {', '.join(CHECKED)}, named alone (got: "
+              f"{' '.join(args.names) or 'all benchmarks'})", file=sys.stderr)
+        return 2
     kinds = None
     if getattr(args, "kinds", None):
         from bench.bench_chaos import KINDS
@@ -154,10 +176,28 @@ def run(args) -> int:
             else:
                 rep = mod.run(minutes=SOAK_MINUTES if args.minutes is None else args.minutes, as_json=args.json,
                               realtime=args.realtime)
+                if args.check:
+                    return _verdict(mod, rep, args.json)
             if not args.json:
                 print()
             continue
         print(f"== bench {name} ==")
-        mod.run(seconds=seconds)
+        if name == "flood":
+            rep = mod.run(seconds=seconds if args.seconds is not None else mod.DEFAULT_SECONDS,
+                          rounds=args.rounds or 1, realtime=args.realtime)
+            if args.check:
+                return _verdict(mod, rep, False)
+        else:
+            mod.run(seconds=seconds)
         print()
     return 0
+
+
+def _verdict(mod, rep: dict, as_json: bool) -> int:
+    """``--check``: the benchmark's own judgement of its report, one line per failed
+    criterion (exit 1) or its one passed line (exit 0)."""
+    failed = mod.judge(rep)
+    out = sys.stderr if as_json else sys.stdout
+    for line in failed or [mod.passed_line(rep)]:
+        print(line, file=out)
+    return 1 if failed else 0
