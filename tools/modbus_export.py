@@ -67,11 +67,12 @@ from bit3.layout import Layout, default_layout
 from ioservice.safety import OutputGuard
 from bit3.buffer import Bit3Buffer, Bit3Error
 from pfma.errors import ConfigError, PfmaError
+from pfma.refusals import RefusalLog
 
 __all__ = [
     "CHANNELS_BASE", "COMMANDS_BASE", "IDENT_BASE", "INPUTS_BASE", "MAP_DOC_PATH", "MAP_VERSION",
     "STATS_BASE", "ExportLimits", "ExportProcess", "MapRow", "ModbusExport", "ModbusExportError",
-    "RefusalLog", "main", "map_row", "modbus_map_markdown", "parse_host_port", "register_map",
+    "refusal_log", "main", "map_row", "modbus_map_markdown", "parse_host_port", "register_map",
     "start_export_from_args", "write_modbus_map_doc",
 ]
 
@@ -497,66 +498,12 @@ class ExportLimits:
             raise ConfigError("Modbus export: idle_timeout_s and summary_interval_s must be > 0")
 
 
-class RefusalLog:
-    """Counts what the export refused and says so in one log line per interval at most.
-
-    A refused request (an exception answer) or a dropped connection is *noted* with a
-    short reason (a bounded set: the reasons carry a function code at most, never client
-    data); the first note after a quiet interval is logged at once, later ones are summed
-    and logged when ``interval_s`` has passed since the last line (:meth:`tick`), and what
-    is left at the end by :meth:`flush`. Never a traceback.
-
-    :param clock: seconds, monotonic (injectable for tests)
-    """
-
-    #: reasons listed in one line; the rest are summed
-    SHOWN = 6
-
-    def __init__(self, where: str, interval_s: float = 60.0, clock=time.monotonic,
-                 logger: logging.Logger | None = None) -> None:
-        self.where = where
-        self.interval_s = interval_s
-        self.clock = clock
-        self.log = logger or log
-        self.total: dict[str, int] = {}  #: every reason since the start
-        self.lines = 0  #: lines logged
-        self._pending: dict[str, int] = {}
-        self._last_line: float | None = None
-        self._since: float | None = None
-
-    def note(self, reason: str, n: int = 1) -> None:
-        self.total[reason] = self.total.get(reason, 0) + n
-        self._pending[reason] = self._pending.get(reason, 0) + n
-        if self._since is None:
-            self._since = self.clock()
-        self.tick()
-
-    def tick(self) -> None:
-        """Log the pending counts if the interval since the last line has passed."""
-        if not self._pending:
-            return
-        now = self.clock()
-        if self._last_line is None or now - self._last_line >= self.interval_s:
-            self._emit(now)
-
-    def flush(self) -> None:
-        """Log what is pending now (at stop)."""
-        if self._pending:
-            self._emit(self.clock())
-
-    def _emit(self, now: float) -> None:
-        items = sorted(self._pending.items(), key=lambda kv: (-kv[1], kv[0]))
-        shown = ", ".join(f"{reason}: {n}" for reason, n in items[:self.SHOWN])
-        rest = sum(n for _, n in items[self.SHOWN:])
-        if rest:
-            shown += f", and {rest} more of {len(items) - self.SHOWN} other kinds"
-        span = now - (self._since if self._since is not None else now)
-        self.log.warning("Modbus export %s refused in the last %.0f s: %s (totals since start: %d)",
-                         self.where, span, shown, sum(self.total.values()))
-        self.lines += 1
-        self._pending = {}
-        self._last_line = now
-        self._since = None
+def refusal_log(where: str, interval_s: float = 60.0, clock=time.monotonic,
+                logger: logging.Logger | None = None) -> RefusalLog:
+    """The export's :class:`pfma.refusals.RefusalLog`: refused requests and dropped
+    connections counted, one warning line per ``interval_s`` at most, never a traceback."""
+    lg = logger or log
+    return RefusalLog(f"Modbus export {where}", lambda line: lg.warning("%s", line), interval_s, clock)
 
 
 class _Connection(asyncio.BufferedProtocol):
@@ -818,7 +765,7 @@ class ModbusExport:
         self.writes = 0  #: write requests applied
         self.refused = 0  #: requests answered with an exception
         self.connections_total = 0  #: connections accepted (within the limit)
-        self.refusals = RefusalLog(f"{host}:{port}", self.limits.summary_interval_s)
+        self.refusals = refusal_log(f"{host}:{port}", self.limits.summary_interval_s)
         self._port = int(port)
         self._buf: Bit3Buffer | None = None
         self._client: Client | None = None

@@ -22,7 +22,7 @@ import pytest
 
 from bit3.layout import default_layout
 from tools.modbus_export import (
-    ExportLimits, ModbusExport, ModbusExportError, RefusalLog, start_export_from_args,
+    ExportLimits, ModbusExport, ModbusExportError, refusal_log, start_export_from_args,
 )
 
 #: function codes the map serves (docs/modbus-map.md)
@@ -382,7 +382,7 @@ def test_refusals_are_said_at_once_then_at_most_once_per_interval():
     h = Keep()
     logger.addHandler(h)
     try:
-        rl = RefusalLog("127.0.0.1:5020", interval_s=60.0, clock=clock, logger=logger)
+        rl = refusal_log("127.0.0.1:5020", interval_s=60.0, clock=clock, logger=logger)
         rl.note("requests of function code 0x81 (not in the map)")
         assert len(lines) == 1 and "requests of function code 0x81 (not in the map): 1" in lines[0]
         for k in range(1, 60):
