@@ -22,6 +22,7 @@ from typing import Any, Callable
 from bit3.buffer import AreaReader
 from bit3.client import Client
 from bit3.layout import Layout, Severity
+from pfma.refusals import RefusalLog
 from tools.bridge.session import key
 
 #: areas published (header: host-local pids and locks, its service state is in inputs;
@@ -33,6 +34,21 @@ AREAS = ("inputs", "stats", "commands", "service_messages", "controller_messages
 MIN_PERIOD_S = {"stats": 1.0, "controller_stats": 1.0}
 #: command fields the bridge stamps itself (the remote's values are not copied)
 STAMPED = ("heartbeat", "t_s", "writer_pid", "writer_token", "inputs_frame")
+#: remote command writers the bridge keeps track of (liveliness tokens, in order); tokens
+#: beyond are counted and ignored, so a peer declaring thousands cannot grow the list.
+#: Assumption: a lab has a handful of remote controllers and tools; 16 leaves room.
+MAX_WRITERS = 16
+#: senders named in their own "refused" message and counted by name in :attr:`Bridge.refused`;
+#: later ones are counted together under :data:`OTHER_SENDERS` (a peer that sends under a new
+#: name each time cannot flood the message queue or grow the counts)
+MAX_NAMED_SENDERS = 8
+OTHER_SENDERS = "(other senders)"
+#: a sender's name (the command body's Zenoh attachment) as the bridge keeps it, at most
+#: this many characters
+MAX_SENDER_CHARS = 64
+#: refused remote traffic is said in one service message per this interval at most
+#: (:class:`pfma.refusals.RefusalLog`), with the counts by reason
+REFUSAL_INTERVAL_S = 60.0
 #: polls between two looks whether the frame ring was replaced (one ``stat``; ~0.5 s at
 #: the CLI's 0.5 ms poll)
 RING_CHECK_POLLS = 1000
@@ -106,9 +122,17 @@ class Bridge:
         self.writers: list[str] = []
         self._pending: tuple[str, bytes] | None = None  #: newest (sender, body) not yet written
         self.applied = 0  #: remote bodies written to the command area
-        self.refused: dict[str, int] = {}  #: bodies from a writer that is not the holder
+        #: remote command bodies not written, by sender (the first MAX_NAMED_SENDERS; the
+        #: rest under OTHER_SENDERS)
+        self.refused: dict[str, int] = {}
+        #: refused remote traffic by reason, said in one message a minute at most
+        self.refusals = RefusalLog(f"bridge {name}", lambda line: self._post(line, Severity.WARNING),
+                                   REFUSAL_INTERVAL_S, self._now)
         self._said: set[str] = set()
         self._holder_said = ""
+        self._tokens_over = 0  # writer tokens beyond MAX_WRITERS, counted by Zenoh's thread
+        self._tokens_said = 0
+        self._closed = False
         if commander is not None:
             self._body_size = self.layout.area("commands").body_size
             self._entities.append(session.declare_subscriber(key(name, "commands", "set"), self._on_set))
@@ -124,7 +148,8 @@ class Bridge:
     # --- callbacks (Zenoh's threads): never block, only note -----------------------------
 
     def _on_set(self, sample: Any) -> None:
-        sender = sample.attachment.to_bytes().decode("utf-8", "replace") if sample.attachment else ""
+        a = sample.attachment
+        sender = a.to_bytes()[:4 * MAX_SENDER_CHARS].decode("utf-8", "replace")[:MAX_SENDER_CHARS] if a else ""
         self._pending = (sender, sample.payload.to_bytes())
 
     def _on_query(self, query: Any) -> None:
@@ -134,10 +159,13 @@ class Bridge:
             query.reply(query.key_expr, last[0], attachment=SEQ.pack(last[1]))
 
     def _on_token(self, sample: Any) -> None:
-        owner = str(sample.key_expr).rsplit("/", 1)[-1]
+        owner = str(sample.key_expr).rsplit("/", 1)[-1][:MAX_SENDER_CHARS]
         writers = list(self.writers)
         if str(sample.kind).endswith("PUT"):
             if owner not in writers:
+                if len(writers) >= MAX_WRITERS:
+                    self._tokens_over += 1  # counted; said by the poller (not from Zenoh's thread)
+                    return
                 writers.append(owner)
         elif owner in writers:
             writers.remove(owner)
@@ -156,6 +184,12 @@ class Bridge:
         (stats at their cap). Returns the number of bodies published."""
         if self.commander is not None:
             self._apply_commands()
+            over = self._tokens_over
+            if over != self._tokens_said:
+                self.refusals.note(f"writer tokens over the limit of {MAX_WRITERS} (ignored)",
+                                   over - self._tokens_said)
+                self._tokens_said = over
+            self.refusals.tick()
         n = self._publish_ring() if self.ring is not None else 0
         t = self._now()
         for area, r in self._readers.items():
@@ -232,16 +266,18 @@ class Bridge:
                 self._pending = got
             return
         if sender != holder:
-            self.refused[sender] = self.refused.get(sender, 0) + 1
-            if sender not in self._said:
+            self._count_refused(sender)
+            if sender not in self._said and len(self._said) < MAX_NAMED_SENDERS:
                 self._said.add(sender)
                 self._post(f"bridge: commands from {sender!r} refused: the command area is held "
                            f"by remote writer {holder!r}", Severity.WARNING)
+            else:
+                self.refusals.note("command bodies from a writer that does not hold the command area")
             return
         if len(body) != self._body_size:
-            self.refused[sender] = self.refused.get(sender, 0) + 1
-            self._post(f"bridge: a command body of {len(body)} bytes from {sender!r} refused "
-                       f"(the layout's is {self._body_size})", Severity.WARNING)
+            self._count_refused(sender)
+            self.refusals.note(f"command bodies {'shorter' if len(body) < self._body_size else 'longer'} "
+                               f"than the layout's {self._body_size} bytes")
             return
         import numpy as np
         rec = self.commander.command
@@ -253,11 +289,21 @@ class Bridge:
         self.commander.write_commands(inputs_frame=int(remote["inputs_frame"]))
         self.applied += 1
 
+    def _count_refused(self, sender: str) -> None:
+        who = sender if sender in self.refused or len(self.refused) < MAX_NAMED_SENDERS else OTHER_SENDERS
+        self.refused[who] = self.refused.get(who, 0) + 1
+
     def _post(self, text: str, severity: Severity) -> None:
         if self.commander is not None:
             self.commander.post_message(text, severity)
 
     def close(self) -> None:
+        """Say what was refused and not said yet; undeclare everything (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        if self.commander is not None:
+            self.refusals.flush()
         for e in self._entities:
             e.undeclare()
         self._entities.clear()

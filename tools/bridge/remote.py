@@ -67,6 +67,10 @@ class RemoteBuffer:
         #: (None from a bridge that attaches none): one tuple, replaced whole by the callback
         self._bodies: dict[str, tuple[bytes, int | None]] = {}
         self._counts: dict[str, int] = {a: 0 for a in AREAS}
+        self._sizes = {a: self.layout.area(a).body_size for a in AREAS}
+        #: bodies received on an area's key that are not of its size (truncated, oversized,
+        #: or not this layout's), by area: dropped, never decoded
+        self.rejected: dict[str, int] = {}
         self._snaps: dict[str, Snapshot] = {}
         self._seen: dict[str, int] = {a: 0 for a in AREAS}
         #: the sequence number the bridge attached to the body each area's last read
@@ -112,15 +116,32 @@ class RemoteBuffer:
             left = end - time.monotonic()
             for reply in self.session.get(key(self.name, "layout"), timeout=max(0.05, min(0.5, left))):
                 if reply.ok is not None:
-                    return json.loads(reply.ok.payload.to_bytes())
+                    return self._layout_document(reply.ok.payload.to_bytes())
             if time.monotonic() >= end:
                 raise Bit3Error(f"no bridge publishes buffer {self.name!r} (no answer on "
                                 f"{key(self.name, 'layout')} within {self.timeout_s:g} s)")
             time.sleep(0.05)
 
+    def _layout_document(self, data: bytes) -> dict:
+        """The layout a bridge answered, or a one-line Bit3Error (anything on the network
+        may answer on the layout's key)."""
+        try:
+            doc = json.loads(data)
+        except ValueError as err:
+            raise Bit3Error(f"the answer on {key(self.name, 'layout')} is not a layout document "
+                            f"({len(data)} bytes, not JSON: {err})") from None
+        if not isinstance(doc, dict) or not isinstance(doc.get("hash"), str):
+            raise Bit3Error(f"the answer on {key(self.name, 'layout')} is not a layout document "
+                            f"(no layout hash in it)")
+        return doc
+
     def _on_body(self, sample: Any) -> None:
         area = str(sample.key_expr).rsplit("/", 1)[-1]
         if area in self._counts:
+            if len(sample.payload) != self._sizes[area]:
+                # not a body of this layout (any peer may publish on the key): never decoded
+                self.rejected[area] = self.rejected.get(area, 0) + 1
+                return
             got = (sample.payload.to_bytes(), seq_of(sample))
             self._bodies[area] = got
             if area == "inputs" and self._queue is not None:
@@ -150,6 +171,9 @@ class RemoteBuffer:
         change again for a long time)."""
         for reply in self.session.get(key(self.name, area), timeout=self.timeout_s):
             if reply.ok is not None and not self._counts[area]:
+                if len(reply.ok.payload) != self._sizes[area]:
+                    self.rejected[area] = self.rejected.get(area, 0) + 1
+                    continue
                 self._bodies[area] = (reply.ok.payload.to_bytes(), seq_of(reply.ok))
                 self._counts[area] += 1
 
@@ -286,8 +310,16 @@ class RemoteCommander:
         asked = False
         for reply in s.get(key(name, "writer", "commands"), timeout=remote.timeout_s):
             if reply.ok is not None:
+                try:
+                    said = json.loads(reply.ok.payload.to_bytes())
+                except ValueError:
+                    said = None
+                if not isinstance(said, dict):
+                    raise Bit3Error(f"the answer on {key(name, 'writer', 'commands')} is not the "
+                                    f"bridge's (not a JSON object): is something else publishing there?")
                 asked = True
-                holder = json.loads(reply.ok.payload.to_bytes()).get("holder")
+                h = said.get("holder")
+                holder = h if isinstance(h, str) else None
         if not asked:
             raise Bit3Error(f"the bridge of {name} takes no commands (start it with --commands)")
         for reply in s.liveliness().get(key(name, "writer", "commands", "*"), timeout=remote.timeout_s):

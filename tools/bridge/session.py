@@ -18,6 +18,14 @@ from pfma.errors import PfmaError
 LEASE_MS = 1000
 #: the listening endpoint when neither --listen nor --connect is given: loopback only
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+#: the largest Zenoh message a session takes, bytes (Zenoh's default is 1 GiB: one peer could
+#: make a session hold that much). Assumption: 4 MiB; the largest payloads here are a world-model
+#: section (the whole model is ~200 KB) and the layout document (~64 KB for the report's rack).
+#: A bigger message closes the link that carried it; the session goes on with its other peers.
+MAX_MESSAGE_BYTES = 4 * 1024 * 1024
+#: peers one session accepts at once (Zenoh's default is 1,000). Assumption: a lab's bridge
+#: serves a few remote tools and controllers; 64 leaves room and bounds a connection flood.
+MAX_SESSIONS = 64
 
 _ENDPOINT = re.compile(r"^tcp/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 _NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
@@ -53,6 +61,8 @@ def open_session(listen: list[str] | None = None, connect: list[str] | None = No
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("scouting/gossip/enabled", "false")
     conf.insert_json5("transport/link/tx/lease", str(LEASE_MS))
+    conf.insert_json5("transport/link/rx/max_message_size", str(MAX_MESSAGE_BYTES))
+    conf.insert_json5("transport/unicast/max_sessions", str(MAX_SESSIONS))
     conf.insert_json5("listen/endpoints", _json_list(listen))
     conf.insert_json5("connect/endpoints", _json_list(connect))
     try:

@@ -52,6 +52,7 @@ def link():
         s = open_session(connect=[endpoint])
         sessions.append(s)
         return s
+    peer.endpoint = endpoint  # type: ignore[attr-defined]  (for a peer that must also listen)
     try:
         yield rig, bridge, peer
     finally:
