@@ -5,6 +5,7 @@ within its bounded waits when the service does not wake it (an older service).""
 from __future__ import annotations
 
 import threading
+import time
 
 import pytest
 
@@ -70,5 +71,27 @@ def test_pacer_sleeps_in_the_kernel_until_the_publish(buf, shm_name):
         _publish(buf, w, 2, True)
         t.join(30.0)
         assert not t.is_alive() and pacer.gave_up == 0
+    finally:
+        c.close()
+
+
+def test_pacer_waits_a_whole_give_up_when_the_service_has_gone_quiet(buf, shm_name):
+    """The service published its last frame long ago (it stopped): each wait still sleeps a
+    whole give-up (the bound below which nothing can return early), instead of returning at
+    once on a deadline in the past - the controller then spun through frames on the same
+    inputs at ~50 % of a core."""
+    buf.claim("service", "svc")
+    w = buf.writer("inputs")
+    _publish(buf, w, 1, True)
+    c = Client.attach(shm_name)
+    try:
+        c.read_inputs()
+        pacer = LivePacer(c, 1 / 320)
+        pacer.stepped(time.monotonic() - 10.0)  # the last frame: 10 s ago
+        for k in range(3):
+            t0 = time.monotonic()
+            pacer.wait()
+            assert time.monotonic() - t0 >= pacer.GIVE_UP_PERIODS * pacer.period_s
+            assert pacer.gave_up == k + 1
     finally:
         c.close()

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import signal
 import sys
 import time
 
@@ -354,6 +355,12 @@ class LivePacer:
             return  # already published (we are late): step on the newest frame now
         now = mono()
         t_next = self.t_next if self.t_next > 0 else now
+        if now > t_next + self.GIVE_UP_PERIODS * self.period_s:
+            # nothing published for longer than a give-up (the service stopped or stalls):
+            # wait a whole give-up from now. Without this the deadline stays in the past and
+            # the controller spun through frames on the same inputs (~50 % of a core, seen
+            # after its service stopped)
+            t_next = now
         slack = t_next - self.LEAD_S - now
         if self.gc_frozen and slack > self.GC_MIN_SLACK_S and self.frames % self.GC_EVERY_FRAMES == 0:
             gc.collect(1)  # young generations only, in the slack before the frame
@@ -437,24 +444,56 @@ class _Driver:
             gc.collect()  # what start-up allocated is not collected inside the first frames
             gc.freeze()
         self.printed_header = False
+        self.stop_signal = 0  #: the SIGTERM or SIGINT that asked for a stop (0: none)
+        self.closing = False  #: in close(): the power-down's frames run whatever the signals
+        self._silent_since: float | None = None  # the first give-up of the pacer in a row
+        self._silent_frame = -1
+        self._silent_said = False
 
     @property
     def period_s(self) -> float:
         return self.rt.frames.period_s
 
     def frame(self) -> None:
+        if self.stop_signal and not self.closing:
+            raise KeyboardInterrupt  # SIGTERM/SIGINT, acted on between frames (see stop_on_signals)
         if self.sim is not None:
             self.sim.step(1)
             return
-        self.pacer.wait()  # locked to the service: its next frame, on absolute deadlines
+        pacer = self.pacer
+        gave_up = pacer.gave_up
+        pacer.wait()  # locked to the service: its next frame, on absolute deadlines
         self.rt.tick()  # a minor frame, or the halted hold (pfma controller halt|step|resume)
         snap = self.rt.daq.snapshot
-        self.pacer.stepped(float(snap.t_s))
+        pacer.stepped(float(snap.t_s))
+        if pacer.gave_up != gave_up or self._silent_since is not None:
+            self._say_silence(pacer.gave_up != gave_up, int(snap.frame))
         if not self.pacer.gc_frozen and self.pacer.frames == self.FREEZE_AFTER_FRAMES:
             self.pacer.freeze_gc()  # start-up allocations done: no collector pauses in frames
 
     #: live frames run before the garbage collector is frozen (imports, first allocations)
     FREEZE_AFTER_FRAMES = 32
+    #: the terminal is told the service went silent after this long without a frame, s
+    #: (its layers report it at once, in the controller's message queue: this line is for
+    #: whoever watches the terminal)
+    SILENT_SAY_S = 0.5
+
+    def _say_silence(self, gave_up: bool, frame: int) -> None:
+        """One line when the service has published nothing for SILENT_SAY_S, one when its
+        frames come again."""
+        now = time.monotonic()
+        if gave_up:
+            if self._silent_since is None:
+                self._silent_since, self._silent_frame, self._silent_said = now, frame, False
+            elif not self._silent_said and now - self._silent_since >= self.SILENT_SAY_S:
+                self._silent_said = True
+                print(f"pfma controller: no frame from the service for over {self.SILENT_SAY_S:g} s "
+                      f"(last: frame {frame}; stopped or stalled?): the layers report it and the commands "
+                      f"are 0; waiting for frames", file=sys.stderr, flush=True)
+        elif frame != self._silent_frame:
+            if self._silent_said:
+                print(f"pfma controller: frames from the service again (frame {frame})", file=sys.stderr, flush=True)
+            self._silent_since = None
 
     def show(self, rec) -> None:
         if not self.args.trace and self.args.step is None and not self.args.halt:
@@ -466,8 +505,23 @@ class _Driver:
             self.printed_header = True
         print(self.rt.format_frame(rec), flush=True)
 
+    def stop_on_signals(self, between_frames: bool = True) -> dict:
+        """SIGTERM and SIGINT stop the controller as Ctrl-C always did (the orderly power-down
+        of :meth:`close`), acted on between two frames, never inside one; a second signal
+        stops at once. Also where the shell started it with SIGINT ignored (a background job)
+        and under a process manager's SIGTERM (before, SIGTERM ended it with no power-down and
+        left its world model behind). ``between_frames`` False (the keyboard loops, which
+        wait in ``input()``): the signal interrupts at once, as Ctrl-C does there. Returns the
+        old handlers."""
+        def on_signal(signum, _frame) -> None:
+            if self.stop_signal or not between_frames:
+                raise KeyboardInterrupt
+            self.stop_signal = signum
+        return {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+
     def close(self) -> None:
         from controller.decision import Status
+        self.closing = True
         rt = self.rt
         if rt.halted:  # outputs already held safe: let the service go SAFE (no re-arm, no power down)
             rt.release_halt()
@@ -648,6 +702,7 @@ def run(args) -> int:
               file=sys.stderr)
         return 1
     d.rt.on_frame.append(d.show)
+    old_handlers = d.stop_on_signals(between_frames=not args.halt)
     try:
         _setup_motion(d, args)
         _setup_paths(d, args)
@@ -677,8 +732,15 @@ def run(args) -> int:
             print(d.rt.messages.format(args.messages))
     except KeyboardInterrupt:
         print()
+        if d.stop_signal:
+            print(f"pfma controller: {signal.Signals(d.stop_signal).name}: stopping (powering down in order)",
+                  file=sys.stderr, flush=True)
     finally:
-        d.close()
+        try:
+            d.close()
+        finally:
+            for sig, h in old_handlers.items():
+                signal.signal(sig, h)
     return 0
 
 
@@ -885,6 +947,11 @@ class _DistributedDriver:
         gc.collect()
         gc.freeze()
         self.printed_header = False
+        self.stop_signal = 0  #: the SIGTERM or SIGINT that asked for a stop (0: none)
+        self.closing = False  #: in close(): the power-down's frames run whatever the signals
+        self._silent_since: float | None = None  # the first give-up of the pacer in a row
+        self._silent_frame = -1
+        self._silent_said = False
 
     @property
     def period_s(self) -> float:
