@@ -238,7 +238,14 @@ def run(args) -> int:
     try:
         slower = svc.fit_schedule(slow=slow)
     except BusTooSlow as err:
-        return _refuse(svc, buf, bus, "the bus cannot keep the schedule", str(err))
+        if world is None:
+            return _refuse(svc, buf, bus, "the bus cannot keep the schedule", str(err))
+        # the simulated rack is no bus: its "transfer time" is this host's CPU running the
+        # fakes, which a loaded host lacks for a while (seen at load 9 on 2 cores). Said, not
+        # refused: frames that overrun are counted and named like any other
+        slower = None
+        print(f"pfma serve: warning: the simulated rack's register emulation is slow on this host "
+              f"now (a loaded machine?); frames may overrun: {err}", file=sys.stderr, flush=True)
     if slower is not None:
         print(f"pfma serve: {slower}", flush=True)
     schedule = svc.schedule
