@@ -12,6 +12,7 @@ from typing import Any
 from mcap.writer import CompressionType, Writer
 
 from tools.recording.reader import iter_records_tolerant
+from tools.recording.spool import spool_chunk_indexes
 from tools.recording.schema import CHUNK_SIZE, LIBRARY, PROFILE, RAW_TOPIC, decode_raw, raw_dtype
 
 @dataclass
@@ -63,6 +64,7 @@ def recover(src: str | Path, dst: str | Path | None = None, *,
     raw_schema_d = None
     with open(dst, "wb") as out:
         w = Writer(out, compression=compression, chunk_size=CHUNK_SIZE)
+        spool = spool_chunk_indexes(w, dst.resolve().parent)  # an hour's recording: ~29,000 chunks
         started = False
         for rec, reason in iter_records_tolerant(src):
             if rec is None:
@@ -119,4 +121,6 @@ def recover(src: str | Path, dst: str | Path | None = None, *,
                                           "stopped_by": rep.stopped_by})
         rep.metadata += 1
         w.finish()
+        if spool is not None:
+            spool.close()
     return rep

@@ -15,6 +15,7 @@ from mcap.writer import CompressionType, Writer
 
 from bit3.client import Client
 from bit3.layout import Layout
+from tools.recording.spool import spool_chunk_indexes
 from tools.recording.schema import (
     CHUNK_SIZE, COUNTERS_EVERY_S, FLUSH_EVERY_S, LIBRARY, PROFILE, RAW_ENCODING, RAW_SCHEMA, RAW_SCHEMA_ENCODING,
     RAW_TOPIC, _ns, epoch_offset_ns, raw_schema,
@@ -71,6 +72,9 @@ class Recorder:
         self._f = open(out, "wb") if self._own_file else out
         self.path = str(out) if self._own_file else getattr(out, "name", "<stream>")
         self.w = Writer(self._f, chunk_size=chunk_size, compression=compression)
+        #: the writer's chunk indexes, on disk until the summary (None: this mcap keeps them
+        #: in memory; tools/recording/spool.py)
+        self.index_spool = spool_chunk_indexes(self.w, Path(out).resolve().parent if self._own_file else None)
         self.w.start(profile=PROFILE, library=LIBRARY)
         self.t = _Topics(self.layout)
         self._device_topics = tuple((topic, tf, getattr(self.t, enc)) for topic, tf, enc in DEVICE_TOPICS)
@@ -397,6 +401,8 @@ class Recorder:
             self.w.finish()
         finally:
             self._closed = True
+            if self.index_spool is not None:
+                self.index_spool.close()
             if self.wm is not None:
                 self.wm.close()
             if self._own_file:
