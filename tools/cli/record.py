@@ -310,6 +310,7 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
     rec = None
     err_code = 0
     wm = None
+    write_error: OSError | None = None
     if wm_name is not None:
         wm, code = _open_wm(wm_name, patterns, wait_s=wait_s, t_end=t_end, say=say, done=done)
         if wm is None:
@@ -415,6 +416,10 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
             rec.poll(inputs=False)
             rec.client = None
             client.close()
+    except OSError as err:  # writing: the disk full, a file-size limit, the file system gone
+        if rec is None:
+            raise  # not the recording's file (main() names it)
+        write_error = err
     finally:
         for s, h in old.items():
             signal.signal(s, h)
@@ -422,10 +427,21 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
         if wm is not None:  # never handed to a recorder
             wm.close()
         if rec is not None:
-            c = rec.close()
-            print(_summary_line(path, c), flush=True)
-            if rec.wm is not None:
-                print(_wm_line(rec.wm), flush=True)
+            try:
+                c = rec.close()
+            except OSError as err:
+                write_error = write_error or err
+                c = None
+            if c is not None:
+                print(_summary_line(path, c), flush=True)
+                if rec.wm is not None:
+                    print(_wm_line(rec.wm), flush=True)
+            if write_error is not None:
+                from tools.cli import _os_error_text
+                print(f"pfma record: cannot write {path}: {_os_error_text(write_error)}; the recording "
+                      f"ends here and the file keeps what was written before: `pfma record recover "
+                      f"{path}` makes a whole file of it", file=sys.stderr, flush=True)
+                err_code = 1
         elif not err_code:
             print(f"pfma record: no service came up on /dev/shm/{buffer}; nothing recorded", file=sys.stderr)
             err_code = 1
