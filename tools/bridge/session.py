@@ -69,7 +69,18 @@ def open_session(listen: list[str] | None = None, connect: list[str] | None = No
         return zenoh.open(conf)
     except zenoh.ZError as err:
         raise PfmaError(f"cannot open a Zenoh session (listen {listen or '-'}, connect "
-                        f"{connect or '-'}): {err}") from err
+                        f"{connect or '-'}): {zenoh_error_text(err)}") from err
+
+
+#: where in Zenoh's Rust sources an error was raised (" at /root/.cargo/.../tcp.rs:61."): noise
+#: to the person reading the message
+_RUST_WHERE = re.compile(r"\s+at\s+/\S+?\.rs:\d+\.?")
+
+
+def zenoh_error_text(err: BaseException) -> str:
+    """A Zenoh error without the Rust source locations it carries."""
+    text = _RUST_WHERE.sub("", str(err))
+    return re.sub(r"\[(.*)\]\s*$", r"\1", text).strip()
 
 
 def _json_list(items: list[str]) -> str:

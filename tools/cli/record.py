@@ -35,9 +35,11 @@ from __future__ import annotations
 import argparse
 import gc
 import json
+import os
 import signal
 import sys
 import time
+from pathlib import Path
 
 from pfma.rack import load_rack
 from tools.cli.args import nonneg_float, positive_float, positive_int
@@ -110,6 +112,10 @@ def run(args) -> int:
     except WmUsageError as err:
         print(f"pfma record: {err}", file=sys.stderr)
         return 2
+    why = _unwritable(args.target[0])
+    if why:  # said now, not after waiting for a service and recording into nowhere
+        print(f"pfma record: cannot write {args.target[0]}: {why}; nothing recorded", file=sys.stderr)
+        return 1
     from tools.attach import remote_target
     if remote_target(args.buffer) is not None:
         if args.wm is not None:
@@ -120,6 +126,22 @@ def run(args) -> int:
     return record(args.target[0], buffer=args.buffer, rack_arg=args.rack, duration_s=args.duration,
                   json_every=args.json_every, flush_s=args.flush_s, wait_s=args.wait, quiet=args.quiet,
                   wm_name=args.wm, patterns=patterns)
+
+
+def _unwritable(path: str) -> str:
+    """Why a recording cannot be made at ``path`` ("" when it can, as far as one can tell
+    before trying: the directory exists and this user may write in it; not a directory)."""
+    p = Path(path)
+    d = p.parent if str(p.parent) else Path(".")
+    if p.is_dir():
+        return "it is a directory"
+    if not d.is_dir():
+        return f"no directory {d}"
+    if not os.access(d, os.W_OK | os.X_OK):
+        return f"this user may not write in {d}"
+    if p.exists() and not os.access(p, os.W_OK):
+        return "this user may not write it"
+    return ""
 
 
 def _record_remote(args) -> int:
@@ -418,7 +440,8 @@ def record(path: str, *, buffer: str = "pfma", rack_arg: str = "fake", duration_
             client.close()
     except OSError as err:  # writing: the disk full, a file-size limit, the file system gone
         if rec is None:
-            raise  # not the recording's file (main() names it)
+            err_code = 1  # not a recording yet (main() names the file): not "no service came up"
+            raise
         write_error = err
     finally:
         for s, h in old.items():

@@ -136,6 +136,11 @@ ROWS = [
     Row("record-info-no-file", ("record", "info"), 2, ("usage: pfma record info FILE.mcap",)),
     Row("record-recover-no-file", ("record", "recover"), 2, ("usage: pfma record recover",)),
     Row("unknown-verb", ("no-such-verb",), 2, ("invalid choice",)),
+    # an output file that cannot be written: said at once, before waiting for a service
+    Row("record-into-no-dir", ("record", "/nonexistent-dir/x.mcap", "--buffer", "pfma-bad-nobody"), 1,
+        ("cannot write /nonexistent-dir/x.mcap", "no directory /nonexistent-dir", "nothing recorded")),
+    Row("record-onto-a-dir", ("record", "/tmp", "--buffer", "pfma-bad-nobody"), 1,
+        ("cannot write /tmp", "it is a directory")),
     # --- numbers out of their range: usage mistakes, refused before anything runs ------------
     *[Row(f"range-{'-'.join(argv[:2])}", argv, 2, (flag, says))
       for argv, flag, says in [
