@@ -261,10 +261,23 @@ def run(args) -> int:
     for e in svc.init_errors:
         print(f"pfma serve: {e}", file=sys.stderr)
     svc.install_signal_handlers()
-    export = None
+    export = guardian = None
     stop = threading.Event()
     viewer = demo = None
     try:
+        if world is None and args.bus.removeprefix("spy+") not in ("fake", "fake://"):
+            # the outputs outlive this process on a bus another process reaches: a guardian
+            # writes the DAC to 0 V if the service dies or stays stopped (ioservice/guardian.py)
+            from ioservice.guardian import GuardianProcess
+            guardian = GuardianProcess(args.bus, args.rack, args.watchdog_ms / 1e3 + schedule.period_s)
+            why = guardian.start()
+            if why:
+                guardian = None
+                print(f"pfma serve: warning: no output guardian ({why}): if this process is killed "
+                      f"the DAC keeps its last outputs", file=sys.stderr, flush=True)
+            else:
+                print(f"pfma serve: output guardian pid {guardian.pid}: the DAC goes to 0 V if this "
+                      f"service dies or stays stopped", flush=True)
         if args.modbus:  # inside the try: an export that cannot start leaves no buffer or ring behind
             from tools.modbus_export import start_export_from_args
             export = start_export_from_args(args.buffer, args.modbus, args.modbus_writes,
@@ -294,6 +307,8 @@ def run(args) -> int:
             viewer.join(2)
         if export is not None:
             export.stop()
+        if guardian is not None:
+            guardian.stop()  # after the service's own safe outputs: it leaves without writing
         s = svc.publish_stats()
         loop = s["loop"]
         print(f"pfma serve: stopped after {loop['frames']} frames, {loop['dropped']} dropped, "

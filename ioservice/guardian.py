@@ -1,0 +1,221 @@
+"""The output guardian: a process beside the service that writes the DAC to 0 V when the
+service can no longer do it itself.
+
+The service makes its outputs safe whenever it runs: a stale heartbeat, a refused command,
+a fault, its own stop (docs/safety.md). It cannot when it is killed (SIGKILL, a crash, the
+OOM killer) or stopped (SIGSTOP, a debugger): the VMIVME-4100 then holds the last codes
+written (hardware-registers reference: the DAC keeps its registers until written or reset),
+and an arm moving on them keeps moving. ``pfma serve`` on a bus another process can reach
+(a Modbus gateway, a VME device file, a CAEN bridge) therefore starts this guardian, with
+its own connection to the bus and the DAC board's driver:
+
+- **the service died**: Linux's parent-death signal (``PR_SET_PDEATHSIG``) or the 2 ms poll
+  (its parent is no longer the service) -> every DAC channel written 0 V at once (rates 0,
+  current limits 0 V: brakes set), one line on stderr, exit;
+- **the service is stopped** (``/proc`` state ``T``/``t``) for longer than the watchdog plus
+  one frame -> 0 V, once per stop, one line; a service that runs again writes its own
+  outputs in its next frame (it names the stall, and rates only follow commands of an age it
+  accepts: docs/safety.md);
+- **the service stops in order** (SIGTERM while the parent lives): the guardian exits
+  without writing (the service has written its safe outputs itself).
+
+Each second the guardian reads the DAC's control register (a keep-alive for connection-based buses and a
+check that it can still reach the board; the first failure is said once). On the
+simulated rack inside the service's process there is no guardian: the simulated arm lives
+and dies with that process.
+
+Assumption (named once, here): the guardian writes the data registers only; it leaves the
+control register's P3 output enable as it is, so the service's idea of its outputs stays true when it
+runs again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import time
+from typing import Any, Callable
+
+from pfma.process import process_state, set_parent_death_signal
+
+#: how often the guardian looks at its parent, s
+POLL_S = 0.002
+#: how often it reads the DAC's CSR (keep-alive, reachability), s
+KEEPALIVE_S = 1.0
+#: the line the guardian prints when it is ready
+READY = "guardian ready"
+
+
+class Guardian:
+    """Watches process ``parent_pid`` and writes ``dac`` to 0 V when it died or stays stopped.
+
+    :param dac: the DAC board's driver on the guardian's own bus connection (``zero_all``,
+        ``read_control``: drivers.dac.vmivme4100)
+    :param hold_s: how long a stopped parent may stay stopped (the watchdog plus one frame)
+    :param state: the parent's process state letter (injectable for tests)
+    :param parent_alive: whether the parent is still this process's parent (injectable)
+    """
+
+    def __init__(self, dac, parent_pid: int, hold_s: float, *, now: Callable[[], float] = time.monotonic,
+                 state: Callable[[int], str] = process_state,
+                 parent_alive: Callable[[], bool] | None = None, say: Callable[[str], None] | None = None) -> None:
+        self.dac = dac
+        self.parent_pid = parent_pid
+        self.hold_s = hold_s
+        self.now = now
+        self.state = state
+        self.parent_alive = parent_alive or (lambda: os.getppid() == parent_pid)
+        self.say = say or (lambda text: print(f"pfma serve guardian: {text}", file=sys.stderr, flush=True))
+        self.stopped_since: float | None = None
+        self.acted_this_stop = False
+        self.safe_writes = 0  #: times the DAC was written to 0 V
+        self._keepalive_t = now()
+        self._bus_said = False
+
+    def write_safe(self) -> bool:
+        try:
+            self.dac.zero_all()  # every channel's 0 V code, one block write
+        except Exception as err:  # noqa: BLE001 - said, never a traceback: this is the last net
+            self.say(f"could not write the DAC to 0 V: {type(err).__name__}: {err}")
+            return False
+        self.safe_writes += 1
+        return True
+
+    def step(self) -> str:
+        """One look. Returns "died" (outputs written safe; the guardian's work is over),
+        "stopped" (written safe for this stop), or "" (nothing to do)."""
+        t = self.now()
+        if not self.parent_alive():
+            ok = self.write_safe()
+            self.say(f"the service (pid {self.parent_pid}) is gone: "
+                     + ("every DAC channel written to 0 V (rates 0, current limits 0: brakes set)"
+                        if ok else "the DAC could NOT be written"))
+            return "died"
+        if self.state(self.parent_pid) in ("T", "t"):
+            if self.stopped_since is None:
+                self.stopped_since = t
+            elif not self.acted_this_stop and t - self.stopped_since >= self.hold_s:
+                self.acted_this_stop = True
+                ok = self.write_safe()
+                self.say(f"the service (pid {self.parent_pid}) has been stopped for "
+                         f"{(t - self.stopped_since) * 1e3:.0f} ms: "
+                         + ("every DAC channel written to 0 V" if ok else "the DAC could NOT be written"))
+                return "stopped"
+        else:
+            if self.acted_this_stop:
+                self.say(f"the service (pid {self.parent_pid}) runs again: its outputs are its own")
+            self.stopped_since, self.acted_this_stop = None, False
+        if t - self._keepalive_t >= KEEPALIVE_S:
+            self._keepalive_t = t
+            self._keepalive()
+        return ""
+
+    def _keepalive(self) -> None:
+        try:
+            self.dac.read_control()
+            self._bus_said = False
+        except Exception as err:  # noqa: BLE001
+            if not self._bus_said:
+                self._bus_said = True
+                self.say(f"cannot reach the DAC board now ({type(err).__name__}: {err}); still watching")
+
+
+class GuardianProcess:
+    """The guardian in its own process (``python -m ioservice.guardian``), started by the
+    service from its main thread (the parent-death signal follows the thread that started
+    it) and stopped by it after its orderly stop."""
+
+    def __init__(self, bus_url: str, rack: str, hold_s: float) -> None:
+        self.argv = [sys.executable, "-m", "ioservice.guardian", "--bus", bus_url, "--rack", rack,
+                     "--parent-pid", str(os.getpid()), "--hold-ms", repr(hold_s * 1e3)]
+        self.proc: Any = None  # subprocess.Popen once started
+
+    def start(self, timeout_s: float = 30.0) -> str:
+        """Start it; "" once it is ready, else why it is not running (one line)."""
+        import select
+        import subprocess
+        from pathlib import Path
+        root = Path(__file__).resolve().parent.parent
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(root), env.get("PYTHONPATH", "")) if p)
+        try:
+            self.proc = proc = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL,
+                                                text=True, env=env)
+        except OSError as err:
+            return f"could not start: {err}"
+        assert proc.stdout is not None
+        try:
+            ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
+            line = proc.stdout.readline().strip() if ready else ""
+        finally:
+            proc.stdout.close()
+        if line == READY:
+            return ""
+        self.stop()
+        return line.removeprefix("error: ") if line else f"not ready within {timeout_s:g} s"
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """SIGTERM (the service is alive: the guardian leaves without writing), then SIGKILL
+        after ``timeout_s``."""
+        proc, self.proc = self.proc, None
+        if proc is None:
+            return
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout_s)
+        except Exception:  # noqa: BLE001 - subprocess.TimeoutExpired
+            proc.kill()
+            proc.wait()
+
+    @property
+    def pid(self) -> int | None:
+        return self.proc.pid if self.proc is not None else None
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m ioservice.guardian", description=__doc__.split("\n\n")[0])
+    p.add_argument("--bus", required=True)
+    p.add_argument("--rack", default="fake")
+    p.add_argument("--parent-pid", type=int, required=True)
+    p.add_argument("--hold-ms", type=float, required=True)
+    args = p.parse_args(argv)
+    stop = {"flag": False}
+    signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__("flag", True))
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C goes to the service, which stops us
+    set_parent_death_signal(signal.SIGTERM)
+    if os.getppid() != args.parent_pid:
+        print("error: the service died before its guardian started", flush=True)
+        return 1
+    from drivers.bus import open_bus
+    from drivers.rackio import RackIO
+    from pfma.errors import PfmaError
+    from pfma.rack import load_rack
+    try:
+        rack = load_rack(args.rack)
+        dacs = rack.boards_of("dac")
+        if not dacs:
+            raise PfmaError(f"rack {rack.name} has no DAC board")
+        bus = open_bus(args.bus)
+        dac = RackIO(bus, rack).driver(dacs[0])
+    except (PfmaError, OSError, ValueError) as err:
+        print(f"error: {err}", flush=True)
+        return 1
+    g = Guardian(dac, args.parent_pid, args.hold_ms / 1e3)
+    print(READY, flush=True)
+    try:
+        sys.stdout.close()
+    except OSError:
+        pass
+    while True:
+        if g.step() == "died":
+            return 0
+        if stop["flag"] and g.parent_alive():
+            return 0  # the service stops in order: it made its outputs safe itself
+        time.sleep(POLL_S)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
