@@ -67,6 +67,7 @@ from bit3.layout import Layout, default_layout
 from ioservice.safety import OutputGuard
 from bit3.buffer import Bit3Buffer, Bit3Error
 from pfma.errors import ConfigError, PfmaError
+from pfma.process import set_parent_death_signal
 from pfma.refusals import RefusalLog
 
 __all__ = [
@@ -1157,16 +1158,6 @@ def start_export_from_args(buffer_name: str, host_port: str, allow_writes: bool,
     return ExportProcess(buffer_name, host=host, port=port, allow_writes=allow_writes, rack=rack).start()
 
 
-def _set_parent_death_signal() -> None:
-    """Ask Linux to send SIGTERM when the parent process dies (no-op elsewhere)."""
-    try:
-        import ctypes
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-
-
 def _leave_the_service_alone(nice: int) -> None:
     """Run below the service: an ordinary time-sharing process (a ``pfma serve --realtime``
     parent's SCHED_FIFO is inherited by its children), off the CPU the service is pinned
@@ -1225,7 +1216,7 @@ def main(argv: list[str] | None = None) -> int:
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
     if args.parent_pid is not None:
-        _set_parent_death_signal()
+        set_parent_death_signal(signal.SIGTERM)
         if os.getppid() != args.parent_pid:  # the parent died before the signal was armed
             return 0
     _leave_the_service_alone(args.nice)
