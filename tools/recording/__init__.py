@@ -48,8 +48,8 @@ Modules: :mod:`.schema` (constants, time stamps, the raw stream's schema and dec
 :mod:`.writer` (:class:`Recorder`), :mod:`.capture` (:class:`InputsCapture`, the
 capture thread), :mod:`.reader` (reading a recording back), :mod:`.recover` (rewriting
 a cut file), :mod:`.spool` (the MCAP writer's chunk indexes kept on disk until the
-summary, so the recorder's memory does not grow with the recording). Waiting for a live service and noticing its restart is
-:mod:`tools.attach`, shared by every tool.
+summary, so the recorder's memory does not grow with the recording). Waiting for a live
+service and noticing its restart is :mod:`tools.attach`, shared by every tool.
 """
 
 from tools.recording.capture import RING_CHECK_POLLS, InputsCapture, RingSwitch

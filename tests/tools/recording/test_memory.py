@@ -1,11 +1,11 @@
 """The recorder's memory does not grow with the length of the recording (issue 20 item 4).
 
-Frames captured from the simulated rig (one second, 320 frames) are fed to the recorder
+Frames captured from the simulated rig (one second of them) are fed to the recorder
 again and again with their frame numbers and sample times moved on, on a simulated wall
 clock (a chunk is closed every 0.25 s of it, and whenever one passes 256 KiB, as live).
 tracemalloc measures the Python memory after N and after 4N frames, each time right after
 a flush (no chunk in progress). Before the chunk indexes were spooled to disk
-(tools/recording/spool.py) this grew by about 30 bytes a frame (one ~1.1 kB ``ChunkIndex``
+(tools/recording/spool.py) this grew by about 25 bytes a frame (one ~1 kB ``ChunkIndex``
 per ~40 frames; docs/reliability.md, the soak); now it does not grow.
 """
 
@@ -24,11 +24,11 @@ from bit3.client import Snapshot
 from sim.rig import SimRig as Rig
 from tools.recording import RAW_TOPIC, Recorder, recover
 
-#: frames between the two measurements' first one and the start (N) and the second (4N)
+#: frames fed before the first measurement; the second comes after 4N in all
 N = 640
 #: allowed growth of the recorder's traced memory per frame between N and 4N frames.
-#: Measured: about 30 B/frame with the library's in-memory chunk indexes, 0.0 B/frame with
-#: the spool; 4 B/frame would be ~4.4 MB in an hour at 320 Hz, inside the issue's 5 MB
+#: Measured: 25.0 B/frame with the library's in-memory chunk indexes, 0.14 B/frame with
+#: the spool; 4 B/frame would be 4.6 MB in an hour at 320 Hz, inside the issue's 5 MB
 BOUND_B_PER_FRAME = 4.0
 
 
