@@ -31,18 +31,14 @@ import threading
 import time
 import uuid
 
+from pfma.process import cpu_seconds
+
 #: the console's terminal (the size the console's tests and snapshots use)
 COLS, ROWS = 180, 50
 #: seconds a display is given before its CPU is measured (start-up, the first drawings)
 SETTLE_S = 3.0
 #: the console must draw its areas within this
 START_TIMEOUT_S = 60.0
-
-
-def _cpu_s(pid: int) -> float:
-    with open(f"/proc/{pid}/stat") as f:
-        parts = f.read().rsplit(")", 1)[1].split()
-    return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def _default_sigint() -> None:
@@ -146,11 +142,11 @@ def _measure(pid: int, seconds: float, pty: _Pty, buffer: str) -> dict:
     from bit3.client import Client
     forces: set[tuple[float, ...]] = set()
     with Client.attach(buffer) as c:
-        c0, t0, b0 = _cpu_s(pid), time.monotonic(), pty.bytes
+        c0, t0, b0 = cpu_seconds(pid), time.monotonic(), pty.bytes
         while time.monotonic() - t0 < seconds:
             forces.add(tuple(round(float(x), 2) for x in c.read_inputs().ft_force_n))
             time.sleep(0.1)
-        c1, t1, b1 = _cpu_s(pid), time.monotonic(), pty.bytes
+        c1, t1, b1 = cpu_seconds(pid), time.monotonic(), pty.bytes
     wall = t1 - t0
     return {"cpu_percent": 100.0 * (c1 - c0) / wall, "wall_s": wall, "cpu_s": c1 - c0,
             "terminal_kb_per_s": (b1 - b0) / 1e3 / wall, "ft_forces_seen": len(forces)}

@@ -16,21 +16,16 @@ Run: ``pfma bench modbus`` or ``pfma bench --json``.
 from __future__ import annotations
 
 import importlib.util
-import os
 import socket
 import subprocess
 import sys
 import time
 import uuid
 
+from pfma.process import cpu_seconds
+
 #: bound on the gateway's and the service's start
 START_TIMEOUT_S = 30.0
-
-
-def _cpu_s(pid: int) -> float:
-    with open(f"/proc/{pid}/stat") as f:
-        parts = f.read().rsplit(")", 1)[1].split()
-    return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def _free_port() -> int:
@@ -99,7 +94,7 @@ def figures(seconds: float = 5.0) -> dict:
         time.sleep(0.5)  # settle
         st0 = client.read_stats()  # the client's preallocated copy: the counters are taken now
         n0 = {k: int(st0[k]) for k in ("frames", "overruns", "dropped_frames")}
-        cpu_s0, cpu_g0, t0 = _cpu_s(svc.pid), _cpu_s(gw.pid), time.monotonic()
+        cpu_s0, cpu_g0, t0 = cpu_seconds(svc.pid), cpu_seconds(gw.pid), time.monotonic()
         # meanwhile, the refresh rates as a reader that shares no code with the project sees
         # them (bench/independent_reader.py: stdlib only, layout from the published JSON)
         reader = IndependentReader(client.layout.as_json(), f"/dev/shm/{name}")
@@ -108,7 +103,7 @@ def figures(seconds: float = 5.0) -> dict:
         finally:
             reader.close()
         wall = time.monotonic() - t0
-        cpu_s, cpu_g = _cpu_s(svc.pid) - cpu_s0, _cpu_s(gw.pid) - cpu_g0
+        cpu_s, cpu_g = cpu_seconds(svc.pid) - cpu_s0, cpu_seconds(gw.pid) - cpu_g0
         # the service publishes its statistics about once a second: a short run waits (at most
         # STATS_WAIT_S) for a publication made after the measurement started
         t_stats = time.monotonic() + STATS_WAIT_S

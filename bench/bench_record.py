@@ -9,7 +9,6 @@ of issue 8 is ``pfma bench record --seconds 600``.
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -18,14 +17,9 @@ import time
 import uuid
 from pathlib import Path
 
+from pfma.process import cpu_seconds
 from tools.recording.reader import read_metadata
 from tools.recording.recover import recover
-
-
-def _cpu_s(pid: int) -> float:
-    with open(f"/proc/{pid}/stat") as f:
-        parts = f.read().rsplit(")", 1)[1].split()
-    return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def one(rate: float, seconds: float, workdir: Path) -> dict:
@@ -38,9 +32,9 @@ def one(rate: float, seconds: float, workdir: Path) -> dict:
     srv = subprocess.Popen([py, "-m", "tools.cli", "serve", "--buffer", name, "--duration", str(seconds),
                             "--frame-rate", str(rate)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                            text=True)
-    cpu0, t0 = _cpu_s(rec.pid), time.monotonic()
+    cpu0, t0 = cpu_seconds(rec.pid), time.monotonic()
     srv_out, _ = srv.communicate(timeout=seconds + 60)
-    cpu = _cpu_s(rec.pid) - cpu0
+    cpu = cpu_seconds(rec.pid) - cpu0
     wall = time.monotonic() - t0
     rec.send_signal(signal.SIGINT)  # Ctrl-C: the summary is written
     rec_out, rec_err = rec.communicate(timeout=60)

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
 import signal
 import subprocess
@@ -27,6 +26,8 @@ import time
 import uuid
 from pathlib import Path
 
+from pfma.process import cpu_seconds
+
 POLL_S = 0.02  #: reading period of the buffer (messages, F/T link, host stalls)
 START_TIMEOUT_S = 30.0  #: the service must publish frames within this
 STOP_TIMEOUT_S = 15.0  #: each process must exit this long after SIGINT (then SIGKILL)
@@ -35,9 +36,7 @@ LINK_STALE = 8  #: link_status bit (ioservice.service.LINK_STALE)
 
 def _cpu_s(pid: int) -> float | None:
     try:
-        with open(f"/proc/{pid}/stat") as f:
-            parts = f.read().rsplit(")", 1)[1].split()
-        return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
+        return cpu_seconds(pid)
     except (OSError, IndexError, ValueError):
         return None
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 
 
@@ -27,4 +28,26 @@ def process_state(pid: int) -> str:
         return ""
 
 
-__all__ = ["set_parent_death_signal", "process_state"]
+def cpu_seconds(pid: int) -> float:
+    """User plus system CPU time of process ``pid``, s (``/proc/PID/stat``).
+
+    :raises OSError: no such process (or no /proc)
+    """
+    with open(f"/proc/{pid}/stat") as f:
+        parts = f.read().rsplit(")", 1)[1].split()
+    return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def rss_mb(pid: int) -> float | None:
+    """Resident memory of process ``pid``, MB (``VmRSS``); None when it is gone."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+__all__ = ["set_parent_death_signal", "process_state", "cpu_seconds", "rss_mb"]
