@@ -38,6 +38,11 @@ STALE_S = 1.0
 #: sleep between drains of the queue when it was empty (a 320 Hz frame is 3.125 ms; the
 #: queue keeps every body, so this only sets the latency of writing, not what is kept)
 DRAIN_S = 0.002
+#: lost-frame ranges kept one by one; past this a new range is merged into the last one
+#: (the ranges then cover every lost frame and some received ones, said in the metadata),
+#: so a link that loses a frame every few frames for hours holds a bounded list. Assumption:
+#: 10,000 ranges (~1 MB) is more than a recording worth reading range by range holds.
+MAX_RANGES = 10_000
 
 
 @dataclass
@@ -50,6 +55,7 @@ class LinkLoss:
     service_skipped: int = 0  #: frame numbers the service itself skipped (not lost here)
     ranges: list[list[int]] = field(default_factory=list)  #: [first, last] frame numbers lost
     restarts: int = 0         #: the frame number went back (the service restarted)
+    merged: int = 0           #: gaps merged into the last range past MAX_RANGES
     sequenced: bool = True    #: the bridge attached sequence numbers to every body
 
     _seq: int = -1
@@ -81,6 +87,9 @@ class LinkLoss:
     def _add(self, first: int, last: int) -> None:
         if self.ranges and self.ranges[-1][1] == first - 1:
             self.ranges[-1][1] = last
+        elif len(self.ranges) >= MAX_RANGES:
+            self.ranges[-1][1] = last
+            self.merged += 1
         else:
             self.ranges.append([first, last])
 
@@ -93,6 +102,8 @@ class LinkLoss:
         return {"source": url, "inputs_received": str(self.received), "frames_lost": str(self.frames_lost),
                 "lost_ranges": json.dumps(self.ranges), "service_skipped": str(self.service_skipped),
                 "service_restarts": str(self.restarts),
+                **({"lost_ranges_merged": f"{self.merged} gaps past the first {MAX_RANGES} ranges merged into "
+                                          f"the last range (it covers received frames too)"} if self.merged else {}),
                 "counted_from": "sequence numbers and frame counters" if self.sequenced
                 else "frame counters only (the bridge attached no sequence numbers)"}
 
@@ -102,7 +113,8 @@ class LinkLoss:
                     f"service skipped {self.service_skipped})")
         inside = sum(b - a + 1 for a, b in self.ranges) - self.frames_lost
         within = (f"; {inside} frame numbers within those ranges the service itself skipped"
-                  if inside > 0 else "")
+                  if inside > 0 and not self.merged else
+                  f"; past {MAX_RANGES} ranges the gaps are merged into the last one" if self.merged else "")
         return (f"pfma record: link from {url}: LOST {self.frames_lost} frames: frames "
                 f"{self.ranges_text()} (service skipped {self.service_skipped} more{within})")
 

@@ -51,6 +51,20 @@ def test_link_loss_names_lost_frames_and_keeps_service_skips_apart():
     assert "2 frame numbers within those ranges the service itself skipped" in mixed.line("u")
 
 
+def test_link_loss_holds_a_bounded_list_of_ranges(monkeypatch):
+    """A link losing every other frame for a long time: past MAX_RANGES the gaps merge into
+    the last range (still covering every lost frame), counted and said."""
+    import tools.bridge.record as record
+    monkeypatch.setattr(record, "MAX_RANGES", 5)
+    loss = LinkLoss()
+    for k in range(40):  # frames 0, 2, 4, ...: every odd frame lost
+        loss.feed(2 * (2 * k) + 2, 2 * k)
+    assert loss.frames_lost == 39 and len(loss.ranges) == 5 and loss.merged == 34
+    assert loss.ranges[:4] == [[1, 1], [3, 3], [5, 5], [7, 7]] and loss.ranges[4] == [9, 77]
+    assert "34 gaps past the first 5 ranges merged" in loss.metadata("u")["lost_ranges_merged"]
+    assert "past 5 ranges the gaps are merged into the last one" in loss.line("u")
+
+
 # --- a recording through a bridge, stepped frame by frame in simulated time ----------------
 
 class LossyRemote(RemoteBuffer):
