@@ -21,7 +21,10 @@ alternate a quiet and a flooded run, so a change in the host's load falls on bot
 ``--check`` judges the figures (:func:`judge`): at most :data:`MAX_EXTRA_DROPPED_PER_10S`
 extra dropped frames per 10 s flooded against quiet, over all rounds, and the export
 answering in every flooded run (at least :data:`MIN_ANSWERED_SHARE` of the requests asked
-for answered per second, none refused, none timed out or cut).
+for answered per second, none refused, none timed out or cut). CI judges it with
+``--realtime --rounds 5`` only (.ci/run): a time-sharing service on the shared 2-core VM
+drops 0-204 frames per 10 s with nobody talking Modbus, so its difference is the host's
+noise, not the flood's (docs/reliability.md).
 """
 
 from __future__ import annotations
@@ -50,7 +53,7 @@ DEFAULT_SECONDS = 10.0
 MAX_EXTRA_DROPPED_PER_10S = 5.0
 #: "the export answering": at least this share of the requests asked for is answered per
 #: second in every flooded run. The flood client shares the host's CPUs with the service
-#: and the export, so it does not always send the whole rate (82-99 % here, issue 20).
+#: and the export, so it does not always send the whole rate (71-100 % here, docs/chaos.md).
 MIN_ANSWERED_SHARE = 0.5
 
 
