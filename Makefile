@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint bench soak clean
+.PHONY: run test lint bench soak flood clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -36,11 +36,21 @@ bench: $(STAMP)
 # and the controller SCHED_FIFO on pinned CPUs, as the kill matrix in make test runs them)
 # where this user may set SCHED_FIFO, e.g. root; else without it, and it says so.
 SOAK_MINUTES ?= 10
+FIFO_OK = $(BIN)/python -c 'import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))' 2>/dev/null
 soak: $(STAMP)
-	@if $(BIN)/python -c 'import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))' 2>/dev/null; \
+	@if $(FIFO_OK); \
 	then rt=--realtime; else rt=; echo "make soak: SCHED_FIFO not permitted for this user: the soak runs without --realtime"; fi; \
 	echo "$(BIN)/pfma bench soak --minutes $(SOAK_MINUTES) --check $$rt"; \
 	$(BIN)/pfma bench soak --minutes $(SOAK_MINUTES) --check $$rt
+
+# the Modbus flood, judged (issue 20: <= 5 extra dropped frames per 10 s under 2,000 reads/s;
+# CI runs it after the soak): only with --realtime (SCHED_FIFO). A time-sharing service's
+# dropped frames on a shared 2-core host are the host's (one quiet 10 s run dropped 204), so
+# without SCHED_FIFO the figure is not judged and this says so (docs/reliability.md)
+flood: $(STAMP)
+	@if $(FIFO_OK); \
+	then echo "$(BIN)/pfma bench flood --rounds 5 --realtime --check"; $(BIN)/pfma bench flood --rounds 5 --realtime --check; \
+	else echo "make flood: SCHED_FIFO not permitted for this user: the Modbus flood is not judged (pfma bench flood --realtime --check)"; fi
 
 clean:
 	rm -rf $(VENV) build *.egg-info
