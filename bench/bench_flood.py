@@ -38,6 +38,8 @@ import threading
 import time
 import uuid
 
+from pfma.process import cpu_seconds
+
 #: bound on the service's start
 START_TIMEOUT_S = 30.0
 #: longest wait for the service's next statistics publication (it publishes about once a second)
@@ -55,12 +57,6 @@ MAX_EXTRA_DROPPED_PER_10S = 5.0
 #: second in every flooded run. The flood client shares the host's CPUs with the service
 #: and the export, so it does not always send the whole rate (71-100 % here, docs/chaos.md).
 MIN_ANSWERED_SHARE = 0.5
-
-
-def _cpu_s(pid: int) -> float:
-    with open(f"/proc/{pid}/stat") as f:
-        parts = f.read().rsplit(")", 1)[1].split()
-    return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def _children(pid: int) -> list[int]:
@@ -227,7 +223,7 @@ def one_run(seconds: float, flood_rate: float | None, connections: int = DEFAULT
                 time.sleep(0.1)
         time.sleep(1.0)  # settle
         export_pids = [p for p in _children(svc.pid) if "tools.modbus_export" in _cmdline(p)]
-        cpu0 = {p: _cpu_s(p) for p in [svc.pid, *export_pids]}
+        cpu0 = {p: cpu_seconds(p) for p in [svc.pid, *export_pids]}
         if flood_rate:
             flood = Flood(port, flood_rate, connections).start()
         t0 = time.monotonic()
@@ -235,7 +231,7 @@ def one_run(seconds: float, flood_rate: float | None, connections: int = DEFAULT
         wall = time.monotonic() - t0
         if flood is not None:
             flood.stop()
-        cpu = {p: round(100 * (_cpu_s(p) - c) / wall, 1) for p, c in cpu0.items() if os.path.exists(f"/proc/{p}")}
+        cpu = {p: round(100 * (cpu_seconds(p) - c) / wall, 1) for p, c in cpu0.items() if os.path.exists(f"/proc/{p}")}
         out = {**w, "dropped_per_10s": round(10.0 * w["dropped_frames"] / w["window_s"], 1),
                "service_cpu_percent": cpu.get(svc.pid),
                "export_cpu_percent": sum(v for p, v in cpu.items() if p != svc.pid) if export_pids else None,

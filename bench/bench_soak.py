@@ -57,6 +57,7 @@ import uuid
 from pathlib import Path
 
 from bench.bench_chaos import Proc, _until, free_port, write_path
+from pfma.process import cpu_seconds, rss_mb
 
 PREFIX = "pfma-soak-"
 SAMPLE_S = 10.0  #: RSS and CPU sampled this often
@@ -76,22 +77,9 @@ ROLES = ("bridge_reader", "console", "bridge", "recorder", "controller", "servic
 RSS_BUDGET_MB = 5.0
 
 
-def _rss_mb(pid: int) -> float | None:
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            for line in f:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        return None
-    return None
-
-
 def _cpu_s(pid: int) -> float | None:
     try:
-        with open(f"/proc/{pid}/stat") as f:
-            parts = f.read().rsplit(")", 1)[1].split()
-        return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
+        return cpu_seconds(pid)
     except (OSError, IndexError, ValueError):
         return None
 
@@ -266,7 +254,7 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
             if now >= next_sample:
                 next_sample += SAMPLE_S
                 for role, p in procs.items():
-                    r = _rss_mb(p.pid) if p.alive() else None
+                    r = rss_mb(p.pid) if p.alive() else None
                     if r is not None:
                         samples.setdefault(role, []).append((round(now - t0, 1), round(r, 2)))
                     c = _cpu_s(p.pid) if p.alive() else None
