@@ -38,7 +38,7 @@ import sys
 import time
 from typing import Any, Callable
 
-from pfma.process import process_state, set_parent_death_signal
+from pfma.process import process_state, set_parent_death_signal, start_helper, stop_helper
 
 #: how often the guardian looks at its parent, s
 POLL_S = 0.002
@@ -134,23 +134,10 @@ class GuardianProcess:
 
     def start(self, timeout_s: float = 30.0) -> str:
         """Start it; "" once it is ready, else why it is not running (one line)."""
-        import select
-        import subprocess
-        from pathlib import Path
-        root = Path(__file__).resolve().parent.parent
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(root), env.get("PYTHONPATH", "")) if p)
         try:
-            self.proc = proc = subprocess.Popen(self.argv, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL,
-                                                text=True, env=env)
+            self.proc, line = start_helper(self.argv, timeout_s)
         except OSError as err:
             return f"could not start: {err}"
-        assert proc.stdout is not None
-        try:
-            ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
-            line = proc.stdout.readline().strip() if ready else ""
-        finally:
-            proc.stdout.close()
         if line == READY:
             return ""
         self.stop()
@@ -160,15 +147,7 @@ class GuardianProcess:
         """SIGTERM (the service is alive: the guardian leaves without writing), then SIGKILL
         after ``timeout_s``."""
         proc, self.proc = self.proc, None
-        if proc is None:
-            return
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout_s)
-        except Exception:  # noqa: BLE001 - subprocess.TimeoutExpired
-            proc.kill()
-            proc.wait()
+        stop_helper(proc, timeout_s)
 
     @property
     def pid(self) -> int | None:

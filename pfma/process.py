@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import signal
+from typing import Any
 
 
 def set_parent_death_signal(sig: int = signal.SIGTERM) -> bool:
@@ -50,4 +51,38 @@ def rss_mb(pid: int) -> float | None:
     return None
 
 
-__all__ = ["set_parent_death_signal", "process_state", "cpu_seconds", "rss_mb"]
+def start_helper(argv: list[str], timeout_s: float) -> tuple[Any, str]:
+    """Start a helper process of this package (``python -m ...``; the package's root on its
+    PYTHONPATH) and read the first line it prints (bounded by ``timeout_s``: "" when none
+    came). Returns (the Popen, that line); the caller stops it with :func:`stop_helper`."""
+    import select
+    import subprocess
+    from pathlib import Path
+    root = Path(__file__).resolve().parent.parent
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(root), env.get("PYTHONPATH", "")) if p)
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True, env=env)
+    assert proc.stdout is not None
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
+        line = proc.stdout.readline().strip() if ready else ""
+    finally:
+        proc.stdout.close()
+    return proc, line
+
+
+def stop_helper(proc: Any, timeout_s: float = 5.0) -> None:
+    """SIGTERM, then SIGKILL after ``timeout_s``; waits for the process (None: nothing)."""
+    import subprocess
+    if proc is None:
+        return
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+__all__ = ["set_parent_death_signal", "process_state", "cpu_seconds", "rss_mb", "start_helper", "stop_helper"]

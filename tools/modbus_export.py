@@ -67,7 +67,7 @@ from bit3.layout import Layout, default_layout
 from ioservice.safety import OutputGuard
 from bit3.buffer import Bit3Buffer, Bit3Error
 from pfma.errors import ConfigError, PfmaError
-from pfma.process import set_parent_death_signal
+from pfma.process import set_parent_death_signal, start_helper, stop_helper
 from pfma.refusals import RefusalLog
 
 __all__ = [
@@ -1105,18 +1105,7 @@ class ExportProcess:
         :raises ModbusExportError: it could not attach, claim or listen (its one-line
             reason), or did not say it listens within ``timeout_s``
         """
-        import select
-        root = Path(__file__).resolve().parent.parent
-        env = dict(os.environ)
-        env["PYTHONPATH"] = os.pathsep.join(p for p in (str(root), env.get("PYTHONPATH", "")) if p)
-        self.proc = proc = subprocess.Popen(self.argv(), stdout=subprocess.PIPE, stdin=subprocess.DEVNULL,
-                                            text=True, env=env)
-        assert proc.stdout is not None
-        try:
-            ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
-            line = proc.stdout.readline().strip() if ready else ""
-        finally:
-            proc.stdout.close()
+        self.proc, line = start_helper(self.argv(), timeout_s)
         if line.startswith(_READY):
             self.port = int(line.rsplit(":", 1)[1])
             return self
@@ -1127,15 +1116,7 @@ class ExportProcess:
     def stop(self, timeout_s: float = 5.0) -> None:
         """SIGTERM, then SIGKILL after ``timeout_s``; waits for the process."""
         proc, self.proc = self.proc, None
-        if proc is None:
-            return
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        stop_helper(proc, timeout_s)
 
     @property
     def pid(self) -> int | None:
