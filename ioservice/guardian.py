@@ -9,15 +9,23 @@ and an arm moving on them keeps moving. ``pfma serve`` on a bus another process 
 (a Modbus gateway, a VME device file, a CAEN bridge) therefore starts this guardian, with
 its own connection to the bus and the DAC board's driver:
 
-- **the service died**: Linux's parent-death signal (``PR_SET_PDEATHSIG``) or the 2 ms poll
-  (its parent is no longer the service) -> every DAC channel written 0 V at once (rates 0,
-  current limits 0 V: brakes set), one line on stderr, exit;
+- **the service died**: the guardian's stdin, a pipe from the service, reads end-of-file
+  (the kernel closes it when the last thread of the service is gone, whatever killed it), or
+  its parent is no longer the service -> every DAC channel written 0 V at once (rates 0,
+  current limits 0 V: brakes set), one line on stderr, the zeros written again over the next
+  second (:data:`REWRITES_S`: a write the service sent just before it died may land after
+  the first), exit;
 - **the service is stopped** (``/proc`` state ``T``/``t``) for longer than the watchdog plus
   one frame -> 0 V, once per stop, one line; a service that runs again writes its own
   outputs in its next frame (it names the stall, and rates only follow commands of an age it
   accepts: docs/safety.md);
-- **the service stops in order** (SIGTERM while the parent lives): the guardian exits
-  without writing (the service has written its safe outputs itself).
+- **the service stops in order**: it writes ``stop`` to the guardian's stdin, and the
+  guardian exits without writing (the service has written its safe outputs itself).
+
+Why not the parent-death signal: Linux sends it when the *thread* that started the child
+ends, and re-parents the child to another thread of the same process first; a service killed
+while its other threads still ran for a moment looked alive to ``getppid`` at that signal
+(3 of 15 runs of the gateway test left the DAC driving). SIGTERM alone is ignored.
 
 Each second the guardian reads the DAC's control register (a keep-alive for connection-based buses and a
 check that it can still reach the board; the first failure is said once). On the
@@ -38,7 +46,7 @@ import sys
 import time
 from typing import Any, Callable
 
-from pfma.process import process_state, set_parent_death_signal, start_helper, stop_helper
+from pfma.process import process_state, start_helper, stop_helper
 
 #: how often the guardian looks at its parent, s
 POLL_S = 0.002
@@ -46,6 +54,11 @@ POLL_S = 0.002
 KEEPALIVE_S = 1.0
 #: the line the guardian prints when it is ready
 READY = "guardian ready"
+#: after the service died, the zeros are written again this long after the first write, s:
+#: a write the service sent just before it died may still be carried out after the
+#: guardian's (it sat in a gateway's socket buffer: seen once in CI, the DAC left driving);
+#: the last rewrite comes after anything in flight (assumption: a gateway answers within 1 s)
+REWRITES_S = (0.01, 0.05, 0.2, 1.0)
 
 
 class Guardian:
@@ -82,6 +95,18 @@ class Guardian:
             return False
         self.safe_writes += 1
         return True
+
+    def settle(self, sleep: Callable[[float], None] = time.sleep) -> int:
+        """After the service died: the zeros again at :data:`REWRITES_S` after now, so that
+        a write of the dead service still in flight lands before the last one. Returns the
+        rewrites that succeeded."""
+        t0, n = self.now(), 0
+        for t in REWRITES_S:
+            wait = t0 + t - self.now()
+            if wait > 0:
+                sleep(wait)
+            n += self.write_safe()
+        return n
 
     def step(self) -> str:
         """One look. Returns "died" (outputs written safe; the guardian's work is over),
@@ -124,8 +149,8 @@ class Guardian:
 
 class GuardianProcess:
     """The guardian in its own process (``python -m ioservice.guardian``), started by the
-    service from its main thread (the parent-death signal follows the thread that started
-    it) and stopped by it after its orderly stop."""
+    service, which holds the write end of its stdin for as long as it lives, and stopped by
+    it (``stop`` on that pipe) after its orderly stop."""
 
     def __init__(self, bus_url: str, rack: str, hold_s: float) -> None:
         self.argv = [sys.executable, "-m", "ioservice.guardian", "--bus", bus_url, "--rack", rack,
@@ -135,7 +160,7 @@ class GuardianProcess:
     def start(self, timeout_s: float = 30.0) -> str:
         """Start it; "" once it is ready, else why it is not running (one line)."""
         try:
-            self.proc, line = start_helper(self.argv, timeout_s)
+            self.proc, line = start_helper(self.argv, timeout_s, stdin_pipe=True)
         except OSError as err:
             return f"could not start: {err}"
         if line == READY:
@@ -144,10 +169,21 @@ class GuardianProcess:
         return line.removeprefix("error: ") if line else f"not ready within {timeout_s:g} s"
 
     def stop(self, timeout_s: float = 5.0) -> None:
-        """SIGTERM (the service is alive: the guardian leaves without writing), then SIGKILL
-        after ``timeout_s``."""
+        """Tell it the service stops in order (``stop`` on its stdin: it leaves without
+        writing), then wait; SIGKILL after ``timeout_s``."""
         proc, self.proc = self.proc, None
+        if proc is None:
+            return
+        try:
+            proc.stdin.write("stop\n")
+            proc.stdin.flush()
+        except (OSError, ValueError):
+            pass  # it has gone already
         stop_helper(proc, timeout_s)
+        try:
+            proc.stdin.close()
+        except (OSError, ValueError):
+            pass
 
     @property
     def pid(self) -> int | None:
@@ -161,10 +197,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--parent-pid", type=int, required=True)
     p.add_argument("--hold-ms", type=float, required=True)
     args = p.parse_args(argv)
-    stop = {"flag": False}
-    signal.signal(signal.SIGTERM, lambda *_: stop.__setitem__("flag", True))
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C goes to the service, which stops us
-    set_parent_death_signal(signal.SIGTERM)
+    # a Ctrl-C goes to the service, which stops us; a SIGTERM decides nothing (above)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     if os.getppid() != args.parent_pid:
         print("error: the service died before its guardian started", flush=True)
         return 1
@@ -188,12 +223,19 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.close()
     except OSError:
         pass
+    import select
+    fd = sys.stdin.fileno()
     while True:
+        ready, _, _ = select.select([fd], [], [], POLL_S)
+        if ready:
+            said = os.read(fd, 64)
+            if b"stop" in said:
+                return 0  # the service stops in order: it made its outputs safe itself
+            if not said:  # end-of-file: the service is gone
+                g.parent_alive = lambda: False
         if g.step() == "died":
+            g.settle()
             return 0
-        if stop["flag"] and g.parent_alive():
-            return 0  # the service stops in order: it made its outputs safe itself
-        time.sleep(POLL_S)
 
 
 if __name__ == "__main__":

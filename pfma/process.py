@@ -51,17 +51,22 @@ def rss_mb(pid: int) -> float | None:
     return None
 
 
-def start_helper(argv: list[str], timeout_s: float) -> tuple[Any, str]:
+def start_helper(argv: list[str], timeout_s: float, *, stdin_pipe: bool = False) -> tuple[Any, str]:
     """Start a helper process of this package (``python -m ...``; the package's root on its
     PYTHONPATH) and read the first line it prints (bounded by ``timeout_s``: "" when none
-    came). Returns (the Popen, that line); the caller stops it with :func:`stop_helper`."""
+    came). Returns (the Popen, that line); the caller stops it with :func:`stop_helper`.
+
+    :param stdin_pipe: the helper's stdin is a pipe from this process (``proc.stdin``): it
+        reads end-of-file when this process is gone, whatever killed it
+    """
     import select
     import subprocess
     from pathlib import Path
     root = Path(__file__).resolve().parent.parent
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(root), env.get("PYTHONPATH", "")) if p)
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True, env=env)
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stdin=subprocess.PIPE if stdin_pipe else subprocess.DEVNULL,
+                            text=True, env=env)
     assert proc.stdout is not None
     try:
         ready, _, _ = select.select([proc.stdout], [], [], timeout_s)

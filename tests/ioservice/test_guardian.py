@@ -24,7 +24,7 @@ from bit3.layout import ServiceState
 from bit3.ring import FrameRing
 from drivers.rackio import RackIO
 from fakes.world import FakeWorld
-from ioservice.guardian import Guardian
+from ioservice.guardian import REWRITES_S, Guardian
 from pfma.clock import MonotonicClock, SimClock
 
 ZERO = 0x800  # the VMIVME-4100's 0 V code (+-10 V offset binary)
@@ -81,6 +81,27 @@ def test_a_service_that_died_leaves_the_dac_at_zero_volts():
     assert (board.codes == ZERO).all()
     assert said == ["the service (pid 4242) is gone: every DAC channel written to 0 V "
                     "(rates 0, current limits 0: brakes set)"]
+
+
+def test_a_write_of_the_dead_service_still_in_flight_is_overwritten():
+    """The service's last DAC write lands after the guardian's zeros (it sat in a gateway's
+    socket buffer): the rewrites over the next second put 0 V back."""
+    board, drv = _rig()
+    clock = _Clock()
+    g = Guardian(drv, 4242, hold_s=0.018, now=clock, state=lambda pid: "",
+                 parent_alive=lambda: False, say=lambda text: None)
+    assert g.step() == "died" and (board.codes == ZERO).all()
+    late = {"done": False}
+
+    def sleep(dt: float) -> None:
+        clock.t += dt
+        if not late["done"]:  # the dead service's request, carried out now
+            late["done"] = True
+            drv.write_volts_all([1.5] * 16)
+            assert (board.codes != ZERO).all()
+    assert g.settle(sleep) == len(REWRITES_S)
+    assert late["done"] and (board.codes == ZERO).all()
+    assert clock.t - 100.0 >= REWRITES_S[-1]
 
 
 def test_a_dac_that_cannot_be_written_is_said_not_raised():
@@ -177,7 +198,12 @@ def test_a_killed_service_over_a_gateway_leaves_the_arm_at_zero_volts():
             _until(lambda: (dac.codes != ZERO).any(), "the service drives again after SIGCONT")
             t_kill = time.monotonic()
             svc.kill()
-            _until(lambda: (dac.codes == ZERO).all(), "0 V after the service was killed")
+            try:
+                _until(lambda: (dac.codes == ZERO).all(), "0 V after the service was killed")
+            except AssertionError:
+                svc.wait(WAIT_S)
+                raise AssertionError(f"not 0 V after the service was killed: {dac.codes.tolist()}; "
+                                     f"the service and its guardian said: {svc.communicate()[0][-3000:]}") from None
             print(f"SIGKILL -> DAC 0 V: {(time.monotonic() - t_kill) * 1e3:.0f} ms")
             svc.wait(WAIT_S)
             time.sleep(0.2)
