@@ -22,10 +22,11 @@ its own connection to the bus and the DAC board's driver:
 - **the service stops in order**: it writes ``stop`` to the guardian's stdin, and the
   guardian exits without writing (the service has written its safe outputs itself).
 
-Why not the parent-death signal: Linux sends it when the *thread* that started the child
-ends, and re-parents the child to another thread of the same process first; a service killed
-while its other threads still ran for a moment looked alive to ``getppid`` at that signal
-(3 of 15 runs of the gateway test left the DAC driving). SIGTERM alone is ignored.
+Why not the parent-death signal and ``getppid``: with them, 3 of 15 runs of the gateway test
+left the DAC driving after a SIGKILL, the guardian leaving as on an orderly stop (most
+likely because Linux sends that signal when the *thread* that started the child ends and
+re-parents the child to a sibling thread of the same process first). SIGTERM alone is
+ignored.
 
 Each second the guardian reads the DAC's control register (a keep-alive for connection-based buses and a
 check that it can still reach the board; the first failure is said once). On the
