@@ -4,6 +4,7 @@ within its bounded waits when the service does not wake it (an older service).""
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 
@@ -24,14 +25,23 @@ def _publish(buf, w, frame: int, wake: bool) -> None:
         buf.wake_frame_waiters()
 
 
-@pytest.mark.parametrize("wake", [True, False], ids=["service wakes", "service never wakes"])
-def test_pacer_returns_on_the_next_published_frame(buf, shm_name, wake):
+@contextlib.contextmanager
+def _after_frame_1(buf, shm_name, wake: bool = True):
+    """A service that has published frame 1, and a client that has read it: (writer, client)."""
     buf.claim("service", "svc")
     w = buf.writer("inputs")
     _publish(buf, w, 1, wake)
     c = Client.attach(shm_name)
     try:
-        c.read_inputs()  # frame 1 taken: the pacer now waits for frame 2
+        c.read_inputs()
+        yield w, c
+    finally:
+        c.close()
+
+
+@pytest.mark.parametrize("wake", [True, False], ids=["service wakes", "service never wakes"])
+def test_pacer_returns_on_the_next_published_frame(buf, shm_name, wake):
+    with _after_frame_1(buf, shm_name, wake) as (w, c):  # the pacer now waits for frame 2
         pacer = LivePacer(c, 1 / 320)
         pacer.GIVE_UP_PERIODS = 10_000  # this test publishes when it likes: never give up
         done = threading.Event()
@@ -42,19 +52,12 @@ def test_pacer_returns_on_the_next_published_frame(buf, shm_name, wake):
         t.join(30.0)
         assert done.is_set() and pacer.gave_up == 0
         assert c.read_inputs().frame == 2
-    finally:
-        c.close()
 
 
 @pytest.mark.skipif(not futex.AVAILABLE, reason="no futex system call on this machine")
 def test_pacer_sleeps_in_the_kernel_until_the_publish(buf, shm_name):
     """The pacer is asleep on the frame word (a wake finds it) rather than polling."""
-    buf.claim("service", "svc")
-    w = buf.writer("inputs")
-    _publish(buf, w, 1, True)
-    c = Client.attach(shm_name)
-    try:
-        c.read_inputs()
+    with _after_frame_1(buf, shm_name) as (w, c):
         pacer = LivePacer(c, 1 / 320)
         pacer.GIVE_UP_PERIODS = 10_000
         pacer.FUTEX_LATE_S = 60.0  # one long sleep: only a wake can end it
@@ -71,8 +74,6 @@ def test_pacer_sleeps_in_the_kernel_until_the_publish(buf, shm_name):
         _publish(buf, w, 2, True)
         t.join(30.0)
         assert not t.is_alive() and pacer.gave_up == 0
-    finally:
-        c.close()
 
 
 def test_pacer_waits_a_whole_give_up_when_the_service_has_gone_quiet(buf, shm_name):
@@ -80,12 +81,7 @@ def test_pacer_waits_a_whole_give_up_when_the_service_has_gone_quiet(buf, shm_na
     whole give-up (the bound below which nothing can return early), instead of returning at
     once on a deadline in the past - the controller then spun through frames on the same
     inputs at ~50 % of a core."""
-    buf.claim("service", "svc")
-    w = buf.writer("inputs")
-    _publish(buf, w, 1, True)
-    c = Client.attach(shm_name)
-    try:
-        c.read_inputs()
+    with _after_frame_1(buf, shm_name) as (w, c):
         pacer = LivePacer(c, 1 / 320)
         pacer.stepped(time.monotonic() - 10.0)  # the last frame: 10 s ago
         for k in range(3):
@@ -93,5 +89,3 @@ def test_pacer_waits_a_whole_give_up_when_the_service_has_gone_quiet(buf, shm_na
             pacer.wait()
             assert time.monotonic() - t0 >= pacer.GIVE_UP_PERIODS * pacer.period_s
             assert pacer.gave_up == k + 1
-    finally:
-        c.close()
