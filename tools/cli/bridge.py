@@ -11,6 +11,7 @@ with neither --listen nor --connect it listens on tcp/127.0.0.1:7447 (loopback o
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 
@@ -61,6 +62,11 @@ def run(args) -> int:
         raise PfmaError(why)
     listen = args.listen or ([] if args.connect else [DEFAULT_LISTEN])
     reader = Client.attach(args.buffer, rack=args.rack)
+    # SIGTERM (a process manager) and SIGINT (also where a shell started it with SIGINT
+    # ignored) end the loop: the orderly close below (its summary; a command claim released)
+    stop = {"signal": 0}
+    old_handlers = {s: signal.signal(s, lambda signum, _f: stop.__setitem__("signal", signum))
+                    for s in (signal.SIGINT, signal.SIGTERM)}
     commander = None
     session = bridge = None
     try:
@@ -74,7 +80,7 @@ def run(args) -> int:
               f"{' (remote commands on)' if commander else ' (read-only)'}", file=sys.stderr, flush=True)
         end = None if args.duration is None else time.monotonic() + args.duration
         polls = 0
-        while end is None or time.monotonic() < end:
+        while (end is None or time.monotonic() < end) and not stop["signal"]:
             bridge.poll()
             polls += 1
             if bridge.ring is None and not polls % RING_LOOK_POLLS and not ring_gone:
@@ -97,6 +103,8 @@ def run(args) -> int:
         if commander is not None:
             commander.close()
         reader.close()
+        for sig, h in old_handlers.items():
+            signal.signal(sig, h)
 
 
 def _applied(bridge) -> str:

@@ -128,3 +128,41 @@ def test_bridge_commands_refused_while_a_local_controller_holds_the_area(capsys)
         assert "'local-ctl'" in err and "Traceback" not in err and err.count("\n") == 1
         assert main(["bridge", "--buffer", rig.name, "--listen", ep, "--duration", "0.1"]) == 0
         assert "(read-only)" in capsys.readouterr().err
+
+
+@pytest.mark.realtime
+def test_sigterm_stops_the_bridge_in_order_and_releases_the_command_area():
+    """SIGTERM (a process manager's stop; SIGINT ignored as a shell's background job has it)
+    ends `pfma bridge --commands` through its orderly close: the summary line, exit 0, and
+    the command area free for the next writer (before: killed at once, no summary)."""
+    name = "pfma-test-brsig-" + uuid.uuid4().hex[:6]
+    svc = pfma_proc("serve", "--rack", "fake", "--buffer", name, "--duration", "60")
+    bridge = None
+    try:
+        until(lambda: os.path.exists(f"/dev/shm/{name}"), "the service's buffer", (svc,))
+        time.sleep(0.5)
+        bridge = subprocess.Popen([sys.executable, "-m", "tools.cli", "bridge", "--buffer", name, "--commands",
+                                   "--listen", f"tcp/127.0.0.1:{free_port()}"], cwd=ROOT, env=ENV,
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                  preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+        c = Client.attach(name)
+        try:
+            until(lambda: c.owners()["commands"].pid == bridge.pid, "the bridge's command claim", (svc, bridge))
+            bridge.send_signal(signal.SIGTERM)
+            _, err = bridge.communicate(timeout=WAIT_S)
+            assert bridge.returncode == 0, err
+            assert "pfma bridge: stopped; published" in err and "Traceback" not in err
+            until(lambda: c.owners()["commands"].pid != bridge.pid, "the command area released")
+        finally:
+            c.close()
+    finally:
+        for p in (bridge, svc):
+            if p is not None and p.poll() is None:
+                p.send_signal(signal.SIGINT)
+                try:
+                    p.wait(WAIT_S)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+        Bit3Buffer.unlink(name)
+        from bit3.ring import FrameRing
+        FrameRing.unlink(name)
