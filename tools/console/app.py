@@ -12,6 +12,8 @@ are keyed user writes through the same ring ``pfma wm set`` uses; nothing else i
 
 from __future__ import annotations
 
+import asyncio
+import signal
 import sys
 import time
 from typing import Callable
@@ -467,6 +469,39 @@ class CameraScreen(ModalScreen):
 COVERING = (BrowserScreen, ParamScreen, MenuScreen, ForceScreen)
 
 
+#: signals that end the console as ``q`` does (Textual restores the terminal, the caller's
+#: clean-up runs: a simulated system stops with its outputs at 0 V): a process manager's
+#: SIGTERM, and SIGHUP when the terminal goes away. Before, either killed it at once, the
+#: terminal left in the alternate screen and a --sim system's buffer left in /dev/shm.
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+
+
+def _exit_on_signals(app: "App") -> list[int]:
+    """Install ``app.exit`` on :data:`STOP_SIGNALS` in the running event loop; the signals
+    installed (none where the loop cannot take them: not the main thread)."""
+    try:
+        loop = asyncio.get_running_loop()
+    except RuntimeError:
+        return []
+    done = []
+    for sig in STOP_SIGNALS:
+        try:
+            loop.add_signal_handler(sig, app.exit)
+        except (NotImplementedError, RuntimeError, ValueError):
+            continue
+        done.append(sig)
+    return done
+
+
+def _restore_signals(sigs: list[int]) -> None:
+    try:
+        loop = asyncio.get_running_loop()
+    except RuntimeError:
+        return
+    for sig in sigs:
+        loop.remove_signal_handler(sig)
+
+
 class ConsoleApp(App):
     """The primary display over the live system.
 
@@ -508,6 +543,7 @@ class ConsoleApp(App):
                  on_tick: Callable[[], None] | None = None, clock: Callable[[], float] = time.monotonic,
                  menu=None) -> None:
         super().__init__()
+        self._stop_signals: list[int] = []  # STOP_SIGNALS installed in on_mount
         self.menu = menu  #: the live menus (tools.console.menu.Menu, checked against the model) or None
         self.sources = sources
         self.link = link
@@ -539,6 +575,10 @@ class ConsoleApp(App):
         self.refresh_areas()
         if self.auto:
             self.set_interval(1.0 / REFRESH_HZ, self._timed)
+        self._stop_signals = _exit_on_signals(self)
+
+    def on_unmount(self) -> None:
+        _restore_signals(self._stop_signals)
 
     def _timed(self) -> None:
         if self.on_tick is not None:
