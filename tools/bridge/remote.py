@@ -31,6 +31,10 @@ DEFAULT_TIMEOUT_S = 5.0
 #: inputs bodies a ``queue_inputs`` reader may fall behind (about 25 s at 320 Hz)
 MAX_QUEUE = 8192
 _POLL_S = 0.002
+#: how long a new remote writer asks a bridge whose layout answered for its writer key before
+#: it says the bridge takes no commands, s (assumption: a bridge declares both within
+#: milliseconds of each other; 2 s also covers a loaded host)
+WRITER_QUERY_WAIT_S = 2.0
 
 
 def _local_layout(rack: str | Path | None) -> Layout:
@@ -308,18 +312,26 @@ class RemoteCommander:
         name = remote.name
         holder: str | None = None
         asked = False
-        for reply in s.get(key(name, "writer", "commands"), timeout=remote.timeout_s):
-            if reply.ok is not None:
-                try:
-                    said = json.loads(reply.ok.payload.to_bytes())
-                except ValueError:
-                    said = None
-                if not isinstance(said, dict):
-                    raise Bit3Error(f"the answer on {key(name, 'writer', 'commands')} is not the "
-                                    f"bridge's (not a JSON object): is something else publishing there?")
-                asked = True
-                h = said.get("holder")
-                holder = h if isinstance(h, str) else None
+        # asked again for a while: a bridge that has just started answers its layout a moment
+        # before its writer key (the kill matrix met that window once in 100 bridge restarts)
+        end = time.monotonic() + min(remote.timeout_s, WRITER_QUERY_WAIT_S)
+        while not asked:
+            left = end - time.monotonic()
+            for reply in s.get(key(name, "writer", "commands"), timeout=max(0.05, min(0.5, left))):
+                if reply.ok is not None:
+                    try:
+                        said = json.loads(reply.ok.payload.to_bytes())
+                    except ValueError:
+                        said = None
+                    if not isinstance(said, dict):
+                        raise Bit3Error(f"the answer on {key(name, 'writer', 'commands')} is not the "
+                                        f"bridge's (not a JSON object): is something else publishing there?")
+                    asked = True
+                    h = said.get("holder")
+                    holder = h if isinstance(h, str) else None
+            if asked or time.monotonic() >= end:
+                break
+            time.sleep(0.05)
         if not asked:
             raise Bit3Error(f"the bridge of {name} takes no commands (start it with --commands)")
         for reply in s.liveliness().get(key(name, "writer", "commands", "*"), timeout=remote.timeout_s):

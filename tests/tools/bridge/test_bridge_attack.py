@@ -220,3 +220,31 @@ def test_a_message_over_the_size_limit_drops_its_link_and_the_bridge_goes_on(lin
     n = reader.received("inputs")
     until(lambda: (step(rig, bridge), reader.received("inputs") > n + 5)[1], "frames to the other reader")
     assert int(reader.read_inputs().frame) <= int(rig.reader.read_inputs().frame)
+
+
+def test_a_bridge_without_commands_is_said_after_a_bounded_wait():
+    """A remote writer asks a read-only bridge for its writer key: no answer within
+    WRITER_QUERY_WAIT_S (a just-started bridge answers within milliseconds) -> one clear
+    Bit3Error, not a wait of the whole time-out."""
+    import time
+
+    from sim.rig import SimRig
+    from tools.bridge.bridge import Bridge
+    from tools.bridge.remote import WRITER_QUERY_WAIT_S
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    rig = SimRig(prefix="pfma-test-bridge-ro-")
+    here = open_session(listen=[endpoint])
+    there = open_session(connect=[endpoint])
+    bridge = Bridge(here, rig.name, rig.reader)  # read-only: no command writer
+    try:
+        remote = RemoteBuffer(there, rig.name, timeout_s=30.0)
+        t0 = time.monotonic()
+        with pytest.raises(Bit3Error, match="takes no commands"):
+            RemoteCommander(remote, "ops-laptop")
+        assert time.monotonic() - t0 < 30.0  # bounded by WRITER_QUERY_WAIT_S, not the 30 s time-out
+        assert WRITER_QUERY_WAIT_S < 30.0
+    finally:
+        bridge.close()
+        there.close()
+        here.close()
+        rig.close()
