@@ -670,8 +670,11 @@ class Bit3Buffer:
         h = self._hdr_off
         magic = bytes(mv[0:8])
         if magic != MAGIC:
+            # all zero: a service is still writing the header (the magic goes last); anything
+            # else is not a Bit3 buffer (tools wait out the first, never the second)
             raise LayoutMismatchError(f"Bit3 buffer {self.name}: magic {magic!r}, expected "
-                                      f"{MAGIC!r} (not initialised, or not a Bit3 buffer)")
+                                      f"{MAGIC!r} " + ("(not initialised yet)" if magic == bytes(8)
+                                                       else "(not a Bit3 buffer)"))
         version, _hsize, size, _n = struct.unpack_from("<IIII", mv, h["layout_version"])
         if version != LAYOUT_VERSION:
             raise LayoutMismatchError(f"Bit3 buffer {self.name}: layout version {version}, this "

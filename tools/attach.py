@@ -93,11 +93,16 @@ class _ShmWords(Words):
     """``pfma record``, ``scope``, ``replay``: "service on /dev/shm/pfma"."""
 
     starting_is_live = True
-    waits_uninitialised = False
+    # a restarting service's new buffer exists a moment before its header is written: a
+    # recorder that met it ended its recording as "a different layout" (3 of 100 service
+    # kills in the kill matrix); it waits now, saying so
+    waits_uninitialised = True
     waits_os_errors = True
     says_changes = True
 
     def reason(self, code, err=None, owner=None) -> str:
+        if code == "uninitialised":
+            return "buffer not initialised yet"
         if code == "no_buffer":
             return "no buffer yet"
         if code == "bit3":
