@@ -503,12 +503,11 @@ def _until(cond: Callable[[], object], timeout_s: float = WAIT_S, must_live: tup
         time.sleep(poll_s)
 
 
-#: the bridge trials' far ends start their rearm counter at REARM_SEED x (trial + 1): a
-#: RemoteCommander starts its command record at 0, so every remote controller's first arm
-#: request carries counter 1, which the service ignores when its last arm used 1 (it takes
-#: an arm request only with a new counter). The session's last check (two remote
-#: controllers that do not seed it, one after the other) measures that defect; the seeded
-#: trials measure the rest
+#: the bridge trials' far ends start their rearm counter at REARM_SEED x (trial + 1), so
+#: each trial's arm is its own. The session's last check runs two remote controllers that
+#: do not seed it, one after the other: a RemoteCommander carries on from the command body
+#: the bridge publishes (it once started at 0, and the second never armed: the service takes
+#: an arm request only with a new counter)
 REARM_SEED = 1000
 #: a controller runtime on a RemoteClient through ``pfma bridge --commands`` (the bridge
 #: kind's far end; one minor frame per inputs body received, a joint goal once started up;
@@ -1385,7 +1384,7 @@ def _final_reattach(kind: str, sess: Session, ctx: dict, out: Outcome) -> None:
                   f"a new controller did not arm the service: {ctl.tail(3)}")
         ctl.stop()
         return
-    for i in (1, 2):  # two far ends that start their rearm counter at 0, each through a new bridge
+    for i in (1, 2):  # two far ends that do not seed their rearm counter, each through a new bridge
         endpoint = f"tcp/127.0.0.1:{free_port()}"
         before = int(c.read_commands().rearm_counter)
         bridge = sess.pfma("bridge", "bridge", "--buffer", sess.name, "--listen", endpoint, "--commands")
@@ -1397,11 +1396,11 @@ def _final_reattach(kind: str, sess: Session, ctx: dict, out: Outcome) -> None:
             p.note_maps()
         after = int(c.read_commands().rearm_counter)
         if ok:
-            out.check("reattach", True, f"remote controller {i} of 2 (rearm counter from 0) armed the service")
+            out.check("reattach", True, f"remote controller {i} of 2 (its rearm counter not seeded) armed the service")
         elif after == before:
             out.check("reattach", False, f"remote controller {i} of 2 through a new bridge never armed the service: "
                       f"its arm request carries rearm_counter {after}, the counter of the service's last arm "
-                      f"(RemoteCommander starts its command record at 0, tools/bridge/remote.py; the service "
+                      f"(a RemoteCommander must carry on from the area's counter, tools/bridge/remote.py; the service "
                       f"takes an arm request only with a new counter)")
         else:
             out.check("reattach", False, f"remote controller {i} of 2 never armed the service (rearm counter "
