@@ -522,10 +522,12 @@ REMOTE_CONTROLLER = textwrap.dedent("""
     from controller.runtime import ControllerRuntime
     from pfma.clock import MonotonicClock
     from tools.bridge.remote import RemoteClient
-    if "--realtime" in sys.argv:  # as pfma controller --realtime: SCHED_FIFO on CPU 0
+    c = RemoteClient.connect(sys.argv[1], sys.argv[2], "chaos-remote-controller", timeout_s=30)
+    if "--realtime" in sys.argv:  # as pfma controller --realtime: SCHED_FIFO on CPU 0, this
+        # thread only: after the connect, so zenoh's threads (started by it) keep SCHED_OTHER
+        # and every CPU (see RemoteClient)
         from ioservice.loop import realtime_setup
         realtime_setup(cpu=0)
-    c = RemoteClient.connect(sys.argv[1], sys.argv[2], "chaos-remote-controller", timeout_s=30)
     if len(sys.argv) > 3 and sys.argv[3].isdigit():  # the first arm request's counter - 1 (REARM_SEED)
         c.command["rearm_counter"] = int(sys.argv[3])
     c.remote.wait("inputs", timeout_s=30)
