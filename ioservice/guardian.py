@@ -47,7 +47,7 @@ import sys
 import time
 from typing import Any, Callable
 
-from pfma.process import process_state, start_helper, stop_helper
+from pfma.process import first_line, process_state, spawn_helper, stop_helper
 
 #: how often the guardian looks at its parent, s
 POLL_S = 0.002
@@ -151,23 +151,37 @@ class Guardian:
 class GuardianProcess:
     """The guardian in its own process (``python -m ioservice.guardian``), started by the
     service, which holds the write end of its stdin for as long as it lives, and stopped by
-    it (``stop`` on that pipe) after its orderly stop."""
+    it (``stop`` on that pipe) after its orderly stop. A :class:`pfma.process.Restartable`:
+    ``pfma serve`` starts it again if it ends while the service runs."""
+
+    label = "output guardian"
+    lost = "the DAC is not guarded against this service's death until it is back"
 
     def __init__(self, bus_url: str, rack: str, hold_s: float) -> None:
         self.argv = [sys.executable, "-m", "ioservice.guardian", "--bus", bus_url, "--rack", rack,
                      "--parent-pid", str(os.getpid()), "--hold-ms", repr(hold_s * 1e3)]
         self.proc: Any = None  # subprocess.Popen once started
 
+    def spawn(self) -> Any:
+        """Start the process without waiting for it (its first line: :meth:`accept`)."""
+        self.proc = spawn_helper(self.argv, stdin_pipe=True)
+        return self.proc
+
+    def accept(self, line: str) -> str:
+        """"" when ``line`` says it is ready, else why not (one line)."""
+        return "" if line == READY else (line.removeprefix("error: ") or "it ended without a word")
+
     def start(self, timeout_s: float = 30.0) -> str:
         """Start it; "" once it is ready, else why it is not running (one line)."""
         try:
-            self.proc, line = start_helper(self.argv, timeout_s, stdin_pipe=True)
+            self.spawn()
         except OSError as err:
             return f"could not start: {err}"
-        if line == READY:
-            return ""
-        self.stop()
-        return line.removeprefix("error: ") if line else f"not ready within {timeout_s:g} s"
+        line = first_line(self.proc, timeout_s)
+        why = self.accept(line) if line is not None else f"not ready within {timeout_s:g} s"
+        if why:
+            self.stop()
+        return why
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """Tell it the service stops in order (``stop`` on its stdin: it leaves without

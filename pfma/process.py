@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import math
 import os
 import signal
-from typing import Any
+from typing import Any, Callable, Protocol
 
 
 def set_parent_death_signal(sig: int = signal.SIGTERM) -> bool:
@@ -51,29 +52,38 @@ def rss_mb(pid: int) -> float | None:
     return None
 
 
-def start_helper(argv: list[str], timeout_s: float, *, stdin_pipe: bool = False) -> tuple[Any, str]:
+def spawn_helper(argv: list[str], *, stdin_pipe: bool = False) -> Any:
     """Start a helper process of this package (``python -m ...``; the package's root on its
-    PYTHONPATH) and read the first line it prints (bounded by ``timeout_s``: "" when none
-    came). Returns (the Popen, that line); the caller stops it with :func:`stop_helper`.
+    PYTHONPATH) without waiting for it: the Popen, its stdout a pipe whose first line says
+    whether it came up (:func:`first_line`).
 
     :param stdin_pipe: the helper's stdin is a pipe from this process (``proc.stdin``): it
         reads end-of-file when this process is gone, whatever killed it
     """
-    import select
     import subprocess
     from pathlib import Path
     root = Path(__file__).resolve().parent.parent
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(root), env.get("PYTHONPATH", "")) if p)
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stdin=subprocess.PIPE if stdin_pipe else subprocess.DEVNULL,
+    return subprocess.Popen(argv, stdout=subprocess.PIPE, stdin=subprocess.PIPE if stdin_pipe else subprocess.DEVNULL,
                             text=True, env=env)
-    assert proc.stdout is not None
+
+
+def first_line(proc: Any, timeout_s: float = 0.0) -> str | None:
+    """The first line a :func:`spawn_helper` process printed, stripped, once it has printed
+    one or ended ("" for an end without a line); None while it has said nothing within
+    ``timeout_s`` (0: do not wait). Its stdout is closed once the line is read."""
+    import select
+    out = proc.stdout
+    if out is None or out.closed:
+        return ""
+    ready, _, _ = select.select([out], [], [], timeout_s)
+    if not ready:
+        return None
     try:
-        ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
-        line = proc.stdout.readline().strip() if ready else ""
+        return out.readline().strip()
     finally:
-        proc.stdout.close()
-    return proc, line
+        out.close()
 
 
 def stop_helper(proc: Any, timeout_s: float = 5.0) -> None:
@@ -90,4 +100,117 @@ def stop_helper(proc: Any, timeout_s: float = 5.0) -> None:
         proc.wait()
 
 
-__all__ = ["set_parent_death_signal", "process_state", "cpu_seconds", "rss_mb", "start_helper", "stop_helper"]
+#: how often :class:`HelperWatch` looks at its helpers, s (a ``waitpid`` each: cheap)
+WATCH_EVERY_S = 0.5
+#: how long a restarted helper may take to print its first line, s
+READY_WITHIN_S = 30.0
+#: the waits after a restart that failed, s: 1 s, then 5 s, then every 30 s (assumed: a
+#: port still held or a bus not answering clears within seconds or needs a person)
+RESTART_BACKOFF_S = (1.0, 5.0, 30.0)
+
+
+class Restartable(Protocol):
+    """A helper process :class:`HelperWatch` keeps running (the service's output guardian,
+    its Modbus export)."""
+
+    label: str  #: how messages name it ("output guardian")
+    lost: str  #: what its absence means, said when it ends ("the DAC is not guarded ...")
+    proc: Any  #: the running Popen, or None
+
+    def spawn(self) -> Any:
+        """Start it again (:func:`spawn_helper`, not waiting); sets and returns ``proc``."""
+        ...
+
+    def accept(self, line: str) -> str:
+        """Its first line: "" when it says it is up, else why it is not (one line)."""
+        ...
+
+
+class HelperWatch:
+    """Restarts the helper processes of a service that end while it runs, and says so.
+
+    :meth:`tick` runs in the service's thread between frames (a ``TickingClock`` hook) and
+    never waits on a helper: at most every :data:`WATCH_EVERY_S` it polls each helper's exit
+    status; a helper that ended is said (``say(True, text)``: its pid, how it ended, what
+    that means) and spawned again; its first line is picked up at a later tick (``say(False,
+    "... restarted: pid N")``), or the restart failed (no line within
+    :data:`READY_WITHIN_S`, or an error line) and is said and tried again after
+    :data:`RESTART_BACKOFF_S`. Start the helpers, and tick, from the thread that lives as
+    long as the service (the main thread): a helper with a parent-death signal gets it when
+    the thread that started it ends.
+    """
+
+    def __init__(self, say: Callable[[bool, str], None], now: Callable[[], float] | None = None) -> None:
+        import time
+        self.say = say
+        self.now = now or time.monotonic
+        self._helpers: list[Restartable] = []
+        self._state: dict[int, tuple[str, float, int]] = {}  # id -> (phase, since/until, failures)
+        self._last = -math.inf
+        self.restarts = 0  #: helpers restarted and up again
+
+    def add(self, helper: Restartable) -> None:
+        """Watch ``helper`` (already started and up)."""
+        self._helpers.append(helper)
+        self._state[id(helper)] = ("up", 0.0, 0)
+
+    def remove(self, helper: Restartable) -> None:
+        """Stop watching ``helper`` (before stopping it in order)."""
+        if helper in self._helpers:
+            self._helpers.remove(helper)
+            self._state.pop(id(helper), None)
+
+    def tick(self, now: float | None = None) -> None:
+        t = self.now()
+        if t - self._last < WATCH_EVERY_S:
+            return
+        self._last = t
+        for h in list(self._helpers):
+            self._look(h, t)
+
+    def _look(self, h: Restartable, t: float) -> None:
+        phase, when, fails = self._state[id(h)]
+        proc = h.proc
+        if phase == "up":
+            rc = proc.poll() if proc is not None else 0
+            if rc is None:
+                return
+            how = f"killed by {signal.Signals(-rc).name}" if rc < 0 and -rc in signal.valid_signals() else f"exit {rc}"
+            self.say(True, f"{h.label} (pid {proc.pid if proc is not None else '?'}) ended ({how}): "
+                           f"{h.lost}; restarting it")
+            self._spawn(h, t, fails)
+        elif phase == "starting":
+            line = first_line(proc, 0.0)
+            if line is None and proc.poll() is None and t - when <= READY_WITHIN_S:
+                return
+            why = h.accept(line) if line is not None else f"no ready line within {READY_WITHIN_S:g} s"
+            if not why:
+                self.restarts += 1
+                self._state[id(h)] = ("up", t, 0)
+                self.say(False, f"{h.label} restarted: pid {proc.pid}")
+                return
+            self._failed(h, t, fails, why)
+        elif t >= when:  # waiting out a failed restart
+            self._spawn(h, t, fails)
+
+    def _spawn(self, h: Restartable, t: float, fails: int) -> None:
+        try:
+            h.spawn()
+        except OSError as err:
+            self._failed(h, t, fails, f"could not start: {err}")
+            return
+        self._state[id(h)] = ("starting", t, fails)
+
+    def _failed(self, h: Restartable, t: float, fails: int, why: str) -> None:
+        proc = h.proc
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        h.proc = None
+        wait = RESTART_BACKOFF_S[min(fails, len(RESTART_BACKOFF_S) - 1)]
+        self._state[id(h)] = ("waiting", t + wait, fails + 1)
+        self.say(True, f"{h.label} did not restart: {why}; trying again in {wait:g} s")
+
+
+__all__ = ["set_parent_death_signal", "process_state", "cpu_seconds", "rss_mb", "spawn_helper", "first_line",
+           "stop_helper", "HelperWatch"]

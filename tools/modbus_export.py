@@ -67,7 +67,7 @@ from bit3.layout import Layout, default_layout
 from ioservice.safety import OutputGuard
 from bit3.buffer import Bit3Buffer, Bit3Error
 from pfma.errors import ConfigError, PfmaError
-from pfma.process import set_parent_death_signal, start_helper, stop_helper
+from pfma.process import first_line, set_parent_death_signal, spawn_helper, stop_helper
 from pfma.refusals import RefusalLog
 
 __all__ = [
@@ -1099,19 +1099,37 @@ class ExportProcess:
             argv.append("--writes")
         return argv
 
+    #: how :class:`pfma.process.HelperWatch` names it, and what its absence means
+    label = "Modbus export"
+    lost = "Modbus clients get no answers until it is back"
+
+    def spawn(self) -> subprocess.Popen:
+        """Start the process without waiting for it (its first line: :meth:`accept`); on the
+        port it listens on (a restart keeps the port port 0 was given)."""
+        self.proc = spawn_helper(self.argv())
+        return self.proc
+
+    def accept(self, line: str) -> str:
+        """"" when ``line`` says it listens (its port noted), else why not (one line)."""
+        if line.startswith(_READY):
+            self.port = int(line.rsplit(":", 1)[1])
+            return ""
+        return line.removeprefix("error: ") or "it ended without a word"
+
     def start(self, timeout_s: float = 30.0) -> "ExportProcess":
         """Start the process; return once it listens.
 
         :raises ModbusExportError: it could not attach, claim or listen (its one-line
             reason), or did not say it listens within ``timeout_s``
         """
-        self.proc, line = start_helper(self.argv(), timeout_s)
-        if line.startswith(_READY):
-            self.port = int(line.rsplit(":", 1)[1])
+        self.spawn()
+        line = first_line(self.proc, timeout_s)
+        why = self.accept(line) if line is not None else \
+            f"the Modbus export process did not start within {timeout_s:g} s"
+        if not why:
             return self
         self.stop()
-        raise ModbusExportError(line.removeprefix("error: ") if line else
-                                f"the Modbus export process did not start within {timeout_s:g} s")
+        raise ModbusExportError(why)
 
     def stop(self, timeout_s: float = 5.0) -> None:
         """SIGTERM, then SIGKILL after ``timeout_s``; waits for the process."""

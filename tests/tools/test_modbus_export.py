@@ -348,6 +348,67 @@ def test_start_export_from_args(shm_name, service):
     assert not ex.running
 
 
+@pytest.mark.realtime
+def test_a_killed_export_of_pfma_serve_is_said_and_started_again_on_its_port():
+    """``pfma serve --rack fake --modbus 127.0.0.1:0``: the port it prints is the one it
+    listens on; its export process SIGKILLed -> the service says so in its message queue and
+    starts another on the same port, which answers; Ctrl-C stops that one with the service."""
+    import os
+    import re
+    import signal
+    import subprocess
+    import sys
+    import time
+    import uuid
+    from pathlib import Path
+    from bit3.buffer import Bit3Buffer
+    from bit3.ring import FrameRing
+    from tests.ioservice.test_guardian import _until, children_running
+    name = "pfma-test-exrs-" + uuid.uuid4().hex[:6]
+    svc = subprocess.Popen([str(Path(sys.executable).with_name("pfma")), "serve", "--rack", "fake", "--buffer", name,
+                            "--modbus", "127.0.0.1:0", "--duration", "60"],
+                           stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        line = ""
+        while "Modbus TCP export on" not in line:
+            line = svc.stdout.readline()
+            assert line, "pfma serve ended before its export started"
+        port = int(re.search(r"export on 127\.0\.0\.1:(\d+)", line).group(1))
+        assert port > 0
+        c = connect(port)
+        assert value(c, "frame", area="inputs") >= 0
+        c.close()
+        first = children_running(svc.pid, b"tools.modbus_export")
+        assert len(first) == 1
+        os.kill(first[0], signal.SIGKILL)
+        cl = Client.attach(name)
+        texts: list[str] = []
+
+        def restarted() -> bool:
+            texts[:] = [m.text for m in cl.messages()]
+            return any(t.startswith("Modbus export restarted: pid") for t in texts)
+        _until(restarted, "a new export")
+        cl.close()
+        assert any(t.startswith(f"Modbus export (pid {first[0]}) ended (killed by SIGKILL): Modbus clients get no "
+                                "answers until it is back; restarting it") for t in texts), texts
+        second = children_running(svc.pid, b"tools.modbus_export")
+        assert len(second) == 1 and second != first
+        c = connect(port)  # the same port
+        f1 = value(c, "frame", area="inputs")
+        time.sleep(0.05)
+        assert value(c, "frame", area="inputs") > f1  # the service's frames, live
+        c.close()
+        svc.send_signal(signal.SIGINT)
+        assert svc.wait(30) == 0
+        assert not Path(f"/proc/{second[0]}").exists() or b"Z" in Path(f"/proc/{second[0]}/stat").read_bytes()
+    finally:
+        if svc.poll() is None:
+            svc.kill()
+            svc.wait(30)
+        Bit3Buffer.unlink(name)
+        FrameRing.unlink(name)
+
+
 def test_parse_host_port():
     assert parse_host_port("0.0.0.0:502") == ("0.0.0.0", 502)
     assert parse_host_port(":5020") == ("127.0.0.1", 5020)

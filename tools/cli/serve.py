@@ -126,6 +126,32 @@ def _live_message(m, t_start_s: float) -> str:
             f"{m.severity.name} src={m.source} code={m.code}: {m.text}")
 
 
+#: message codes of the helper watch: a helper process ended or did not restart (ERROR),
+#: a helper restarted (INFO); docs/reliability.md
+HELPER_LOST_CODE, HELPER_BACK_CODE = 190, 191
+
+
+def _watch_helpers(svc, clock, *helpers):
+    """A :class:`pfma.process.HelperWatch` over the service's helper processes that run (the
+    output guardian, the Modbus export), ticked between frames in the service's thread: one
+    that ends while the service runs is said (stderr and the service's message queue) and
+    started again. None when there is no helper."""
+    running = [h for h in helpers if h is not None]
+    if not running:
+        return None
+    from bit3.layout import Severity
+    from pfma.process import HelperWatch
+
+    def say(error: bool, text: str) -> None:
+        print(f"pfma serve: {text}", file=sys.stderr, flush=True)
+        svc.post(Severity.ERROR if error else Severity.INFO, HELPER_LOST_CODE if error else HELPER_BACK_CODE, text)
+    watch = HelperWatch(say)
+    for h in running:
+        watch.add(h)
+    clock.hooks.append(watch.tick)
+    return watch
+
+
 def _live_view(buffer_name: str, stop: threading.Event, rack) -> None:
     from bit3.client import Client
     try:
@@ -261,7 +287,7 @@ def run(args) -> int:
     for e in svc.init_errors:
         print(f"pfma serve: {e}", file=sys.stderr)
     svc.install_signal_handlers()
-    export = guardian = None
+    export = guardian = watch = None
     stop = threading.Event()
     viewer = demo = None
     try:
@@ -282,7 +308,8 @@ def run(args) -> int:
             from tools.modbus_export import start_export_from_args
             export = start_export_from_args(args.buffer, args.modbus, args.modbus_writes,
                                             rack=None if args.rack == "fake" else args.rack)
-            print(f"pfma serve: Modbus TCP export on {args.modbus}"
+            where = f"[{export.host}]:{export.port}" if ":" in export.host else f"{export.host}:{export.port}"
+            print(f"pfma serve: Modbus TCP export on {where}"
                   f"{' (command writes allowed)' if args.modbus_writes else ' (read-only)'}")
         on = "the simulated rack" if world else (
             f"{args.bus} (simulated registers)" if args.bus.removeprefix("spy+") in ("fake", "fake://")
@@ -290,6 +317,7 @@ def run(args) -> int:
         print(f"pfma serve: {rack.name} on {on}, buffer "
               f"/dev/shm/{args.buffer}, {schedule.frame_rate_hz:g} Hz frames; Ctrl-C stops "
               f"(outputs go to 0 V)", flush=True)
+        watch = _watch_helpers(svc, clock, guardian, export)
         if args.live:
             viewer = threading.Thread(target=_live_view, args=(args.buffer, stop, rack), daemon=True)
             viewer.start()
@@ -305,6 +333,8 @@ def run(args) -> int:
             demo.wait(5)
         if viewer is not None:
             viewer.join(2)
+        if watch is not None:
+            clock.hooks.remove(watch.tick)  # no restarts while the helpers are stopped in order
         if export is not None:
             export.stop()
         if guardian is not None:
