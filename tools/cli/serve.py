@@ -143,7 +143,10 @@ def _watch_helpers(svc, clock, *helpers):
     from pfma.process import HelperWatch
 
     def say(error: bool, text: str) -> None:
-        print(f"pfma serve: {text}", file=sys.stderr, flush=True)
+        try:
+            print(f"pfma serve: {text}", file=sys.stderr, flush=True)
+        except (OSError, ValueError):
+            pass  # no terminal any more (this runs in the frame loop): the message queue has it
         svc.post(Severity.ERROR if error else Severity.INFO, HELPER_LOST_CODE if error else HELPER_BACK_CODE, text)
     watch = HelperWatch(say)
     for h in running:
