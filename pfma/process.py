@@ -72,18 +72,28 @@ def spawn_helper(argv: list[str], *, stdin_pipe: bool = False) -> Any:
 def first_line(proc: Any, timeout_s: float = 0.0) -> str | None:
     """The first line a :func:`spawn_helper` process printed, stripped, once it has printed
     one or ended ("" for an end without a line); None while it has said nothing within
-    ``timeout_s`` (0: do not wait). Its stdout is closed once the line is read."""
+    ``timeout_s`` (0: do not wait). Never blocks past ``timeout_s``: the pipe is read with
+    ``os.read`` as bytes arrive (a part of a line is kept on ``proc`` for the next call), so
+    a helper that prints half a line cannot hang the service's thread. Its stdout is closed
+    once the line is read."""
     import select
+    import time
     out = proc.stdout
     if out is None or out.closed:
         return ""
-    ready, _, _ = select.select([out], [], [], timeout_s)
-    if not ready:
-        return None
-    try:
-        return out.readline().strip()
-    finally:
-        out.close()
+    fd = out.fileno()
+    end = time.monotonic() + timeout_s
+    got: bytes = getattr(proc, "_pfma_first_line", b"")
+    while True:
+        ready, _, _ = select.select([fd], [], [], max(0.0, end - time.monotonic()))
+        if not ready:
+            proc._pfma_first_line = got
+            return None
+        chunk = os.read(fd, 4096)
+        got += chunk
+        if not chunk or b"\n" in got:
+            out.close()
+            return got.split(b"\n", 1)[0].decode(errors="replace").strip()
 
 
 def stop_helper(proc: Any, timeout_s: float = 5.0) -> None:

@@ -149,3 +149,22 @@ def test_a_helper_that_says_nothing_is_given_up_after_its_window():
         assert silent.poll() is not None  # killed, not left behind
     finally:
         h.stop()
+
+
+def test_half_a_line_is_kept_and_never_blocks():
+    """A helper that prints part of its first line: first_line returns None within its
+    time-out (the service's thread is never held), keeps the part, and gives the whole line
+    once the rest arrives (3 s later: a test process held up that long could see both parts at once)."""
+    p = spawn_helper([sys.executable, "-c", "import sys, time; sys.stdout.write('half'); sys.stdout.flush(); "
+                                            "time.sleep(3); print(' a line', flush=True); time.sleep(60)"])
+    try:
+        end = time.monotonic() + 30.0
+        while getattr(p, "_pfma_first_line", b"") != b"half":  # the part arrives
+            # None, not the whole line a second later: a read to the newline would block
+            assert first_line(p, 0.1) is None
+            assert time.monotonic() < end, "the part never came"
+        assert first_line(p, 30.0) == "half a line"
+        assert p.stdout.closed
+    finally:
+        p.kill()
+        p.wait()
