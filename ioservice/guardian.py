@@ -47,7 +47,7 @@ import sys
 import time
 from typing import Any, Callable
 
-from pfma.process import first_line, process_state, spawn_helper, stop_helper
+from pfma.process import NO_WORD, bring_up, process_state, spawn_helper, stop_helper
 
 #: how often the guardian looks at its parent, s
 POLL_S = 0.002
@@ -169,16 +169,11 @@ class GuardianProcess:
 
     def accept(self, line: str) -> str:
         """"" when ``line`` says it is ready, else why not (one line)."""
-        return "" if line == READY else (line.removeprefix("error: ") or "it ended without a word")
+        return "" if line == READY else (line.removeprefix("error: ") or NO_WORD)
 
     def start(self, timeout_s: float = 30.0) -> str:
         """Start it; "" once it is ready, else why it is not running (one line)."""
-        try:
-            self.spawn()
-        except OSError as err:
-            return f"could not start: {err}"
-        line = first_line(self.proc, timeout_s)
-        why = self.accept(line) if line is not None else f"not ready within {timeout_s:g} s"
+        why = bring_up(self, timeout_s)
         if why:
             self.stop()
         return why

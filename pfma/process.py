@@ -136,6 +136,21 @@ class Restartable(Protocol):
         ...
 
 
+def bring_up(helper: Restartable, timeout_s: float) -> str:
+    """Start ``helper`` and wait for its first line (bounded by ``timeout_s``): "" once it is
+    up, else why not (one line; the caller stops it)."""
+    try:
+        helper.spawn()
+    except OSError as err:
+        return f"could not start: {err}"
+    line = first_line(helper.proc, timeout_s)
+    return helper.accept(line) if line is not None else f"{helper.label}: not ready within {timeout_s:g} s"
+
+
+#: what a helper's ``accept`` says for an end without a first line
+NO_WORD = "it ended without a word"
+
+
 class HelperWatch:
     """Restarts the helper processes of a service that end while it runs, and says so.
 
@@ -223,4 +238,4 @@ class HelperWatch:
 
 
 __all__ = ["set_parent_death_signal", "process_state", "cpu_seconds", "rss_mb", "spawn_helper", "first_line",
-           "stop_helper", "HelperWatch"]
+           "stop_helper", "HelperWatch", "bring_up", "NO_WORD"]

@@ -67,7 +67,7 @@ from bit3.layout import Layout, default_layout
 from ioservice.safety import OutputGuard
 from bit3.buffer import Bit3Buffer, Bit3Error
 from pfma.errors import ConfigError, PfmaError
-from pfma.process import first_line, set_parent_death_signal, spawn_helper, stop_helper
+from pfma.process import NO_WORD, bring_up, set_parent_death_signal, spawn_helper, stop_helper
 from pfma.refusals import RefusalLog
 
 __all__ = [
@@ -1086,7 +1086,7 @@ class ExportProcess:
     def argv(self) -> list[str]:
         lim = self.limits
         argv = [sys.executable, "-m", "tools.modbus_export", "--buffer", self.buffer_name,
-                "--listen", f"[{self.host}]:{self.port}" if ":" in self.host else f"{self.host}:{self.port}",
+                "--listen", self.address,
                 "--max-connections", str(lim.max_connections),
                 "--in-buffer-bytes", str(lim.in_buffer_bytes),
                 "--out-buffer-bytes", str(lim.out_buffer_bytes),
@@ -1098,6 +1098,11 @@ class ExportProcess:
         if self.allow_writes:
             argv.append("--writes")
         return argv
+
+    @property
+    def address(self) -> str:
+        """HOST:PORT as ``--listen`` takes it (an IPv6 host in brackets)."""
+        return f"[{self.host}]:{self.port}" if ":" in self.host else f"{self.host}:{self.port}"
 
     #: how :class:`pfma.process.HelperWatch` names it, and what its absence means
     label = "Modbus export"
@@ -1114,7 +1119,7 @@ class ExportProcess:
         if line.startswith(_READY):
             self.port = int(line.rsplit(":", 1)[1])
             return ""
-        return line.removeprefix("error: ") or "it ended without a word"
+        return line.removeprefix("error: ") or NO_WORD
 
     def start(self, timeout_s: float = 30.0) -> "ExportProcess":
         """Start the process; return once it listens.
@@ -1122,10 +1127,7 @@ class ExportProcess:
         :raises ModbusExportError: it could not attach, claim or listen (its one-line
             reason), or did not say it listens within ``timeout_s``
         """
-        self.spawn()
-        line = first_line(self.proc, timeout_s)
-        why = self.accept(line) if line is not None else \
-            f"the Modbus export process did not start within {timeout_s:g} s"
+        why = bring_up(self, timeout_s)
         if not why:
             return self
         self.stop()

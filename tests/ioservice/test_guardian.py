@@ -207,12 +207,17 @@ def test_a_killed_service_over_a_gateway_leaves_the_arm_at_zero_volts():
                 if svc.poll() is not None:
                     raise AssertionError(f"pfma serve exited: {svc.communicate()[0][-2000:]}")
                 return False
-            try:
-                _until(armed, "ARMED (zero rates)")
-            except AssertionError:
-                raise AssertionError(f"not ARMED: {[m.text for m in ctl.messages()][-8:]}") from None
-            cmd["now"] = (0.05, 1)
-            _until(lambda: (dac.output_volts_all() != 0.0).any(), "the DAC driving the rates")
+
+            def fly(rearm: int) -> None:
+                """Arm with zero rates under re-arm counter ``rearm``, then drive a small rate."""
+                cmd["now"] = (0.0, rearm)
+                try:
+                    _until(armed, f"ARMED (zero rates, re-arm {rearm})")
+                except AssertionError:
+                    raise AssertionError(f"not ARMED: {[m.text for m in ctl.messages()][-8:]}") from None
+                cmd["now"] = (0.05, rearm)
+                _until(lambda: (dac.output_volts_all() != 0.0).any(), "the DAC driving the rates")
+            fly(1)
             # the guardian itself killed: the service says so, starts another, and flies on;
             # the SIGSTOP and SIGKILL below are then caught by the new one
             first = _guardian_of(svc.pid)
@@ -230,13 +235,7 @@ def test_a_killed_service_over_a_gateway_leaves_the_arm_at_zero_volts():
                 # the gateway runs in this test's process: on a loaded host it misses replies
                 # while the new guardian starts (seen beside a soak: "no reply from gateway
                 # within 0.003125 s", FAULT on the input boards); re-armed as a controller would
-                cmd["now"] = (0.0, 2)
-                try:
-                    _until(armed, "ARMED again (zero rates)")
-                except AssertionError:
-                    raise AssertionError(f"not ARMED again: {[m.text for m in ctl.messages()][-8:]}") from None
-                cmd["now"] = (0.05, 2)
-                _until(lambda: (dac.output_volts_all() != 0.0).any(), "the DAC driving the rates again")
+                fly(2)
             svc.send_signal(signal.SIGSTOP)
             took = _until(lambda: (dac.codes == ZERO).all(), "0 V while the service is stopped")
             print(f"SIGSTOP -> DAC 0 V: {took * 1e3:.0f} ms (hold: 100 ms watchdog + one frame)")

@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from pfma.process import READY_WITHIN_S, RESTART_BACKOFF_S, WATCH_EVERY_S, HelperWatch, first_line, spawn_helper
+from pfma.process import NO_WORD, READY_WITHIN_S, RESTART_BACKOFF_S, WATCH_EVERY_S, HelperWatch, first_line, spawn_helper
 
 pytestmark = pytest.mark.realtime
 
@@ -38,7 +38,7 @@ class Helper:
         return self.proc
 
     def accept(self, line: str) -> str:
-        return "" if line == UP else (line.removeprefix("error: ") or "it ended without a word")
+        return "" if line == UP else (line.removeprefix("error: ") or NO_WORD)
 
     def stop(self) -> None:
         if self.proc is not None and self.proc.poll() is None:

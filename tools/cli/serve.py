@@ -311,8 +311,7 @@ def run(args) -> int:
             from tools.modbus_export import start_export_from_args
             export = start_export_from_args(args.buffer, args.modbus, args.modbus_writes,
                                             rack=None if args.rack == "fake" else args.rack)
-            where = f"[{export.host}]:{export.port}" if ":" in export.host else f"{export.host}:{export.port}"
-            print(f"pfma serve: Modbus TCP export on {where}"
+            print(f"pfma serve: Modbus TCP export on {export.address}"
                   f"{' (command writes allowed)' if args.modbus_writes else ' (read-only)'}")
         on = "the simulated rack" if world else (
             f"{args.bus} (simulated registers)" if args.bus.removeprefix("spy+") in ("fake", "fake://")
