@@ -86,6 +86,13 @@ def loop_figures(rate: float, seconds: float) -> dict:
         Bit3Buffer.unlink(name)
 
 
+def _serial_overruns(svc) -> int:
+    """Receive overruns the service's MVME400 ports have seen (characters lost because two
+    drains of the 3-character FIFO were too far apart)."""
+    m = svc._mvme400
+    return 0 if m is None else sum(p.stats.overruns for p in m[1]._ports.values())
+
+
 def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
     """The service's real periodic loop in this process on the simulated rack, each
     frame's work split into the fakes' register emulation and the service's own work."""
@@ -125,7 +132,10 @@ def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
         last = [-1.0]
         rearm = [0]
 
+        ticks = [0]  # the hook ticks between frames (each one a wake-up of the loop)
+
         def ctl_tick(now: float) -> None:
+            ticks[0] += 1
             if now - last[0] < 0.002:
                 return
             t0, c0 = time.perf_counter(), time.thread_time()
@@ -183,7 +193,8 @@ def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
                 fake_cpu[0] += (time.thread_time() - c0) * min(1.0, inside / dw)
             if t0 >= t_measure:
                 if not mark:
-                    mark.update(cpu=time.process_time(), sim=fake_cpu[0], arm=arm_cpu[0], t=t0)
+                    mark.update(cpu=time.process_time(), sim=fake_cpu[0], arm=arm_cpu[0], t=t0,
+                                ticks=ticks[0], overruns=_serial_overruns(svc))
                 rows.append((dw, inside))
 
         svc.loop.body = frame
@@ -207,6 +218,8 @@ def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
         fake = np.array([r[1] for r in rows]) * 1e6
         own = work - fake
         return {"rate": rate, "frames": len(rows), "armed_frames": armed[0],
+                "ticks_per_s": (ticks[0] - mark["ticks"]) / wall,
+                "serial_overruns": _serial_overruns(svc) - mark["overruns"],
                 "work_p50_us": float(np.median(work)), "work_p99_us": float(np.percentile(work, 99)),
                 "fake_p50_us": float(np.median(fake)),
                 "own_p50_us": float(np.median(own)), "own_p99_us": float(np.percentile(own, 99)),
@@ -218,9 +231,26 @@ def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
         Bit3Buffer.unlink(name)
 
 
-def task_costs(frames: int = 300) -> dict:
+def _spin(seconds: float) -> None:
+    """Busy-wait ``seconds`` (the process keeps its CPU: no sleep, no wake-up)."""
+    t_end = time.perf_counter() + seconds
+    while time.perf_counter() < t_end:
+        pass
+
+
+def task_costs(frames: int = 300, gap: str = "sleep") -> dict:
     """Median cost of each frame task in this process on the monotonic clock, with the
-    fakes' register emulation measured apart: {task: (total us, fakes us)}."""
+    fakes' register emulation measured apart: {task: (total us, fakes us, own us)}, each the
+    median over the runs (own: of each run's total minus its fakes' share).
+
+    :param gap: what each run follows, after the arm model's step: ``"sleep"`` (0.5 ms
+        asleep, as between the frames of the real loop) or ``"spin"`` (0.5 ms of busy-wait:
+        the same gap without giving up the CPU; ``bench/bench_host.py`` compares the two)
+    """
+    kinds = {"sleep": time.sleep, "spin": _spin}
+    if gap not in kinds:
+        raise ValueError(f"gap: 'sleep' or 'spin', not {gap!r}")
+    wait = kinds[gap]
     from fakes.metered import MeteredBus, overhead_per_access_s
     from fakes.world import FakeWorld
     from ioservice.loop import FrameInfo
@@ -250,12 +280,12 @@ def task_costs(frames: int = 300) -> dict:
             ts, fs = np.empty(frames), np.empty(frames)
             for i in range(frames):
                 world.tick(base.now())
-                time.sleep(0.0005)  # cold, as between the frames of the real loop
+                wait(0.0005)  # asleep: cold, as between the frames of the real loop
                 t0, s0, a0 = time.perf_counter(), bus.sim_s, bus.accesses
                 fn()
                 ts[i] = time.perf_counter() - t0
                 fs[i] = bus.sim_s - s0 + (bus.accesses - a0) * meter_s
-            out[label] = (float(np.median(ts) * 1e6), float(np.median(fs) * 1e6))
+            out[label] = (float(np.median(ts) * 1e6), float(np.median(fs) * 1e6), float(np.median(ts - fs) * 1e6))
         svc.stop()
         return out
     finally:
@@ -358,9 +388,12 @@ if __name__ == "__main__":
 def figures(seconds: float = 5.0) -> dict:
     """The headline figures of the service on the simulated rack at 320 Hz (``split_figures``:
     the real periodic loop in this process, ARMED, the fakes' register emulation and the
-    arm model metered out): the service's own frame work and CPU, and the process's CPU."""
+    arm model metered out): the service's own frame work and CPU, and the process's CPU;
+    the hook ticks between frames per second (each a wake-up, set by the MVME400 FIFO's
+    drains) and the receive overruns the serial ports saw while measured."""
     f = split_figures(320.0, seconds)
     return {"rate_hz": 320.0, "seconds": seconds, "frames": f["frames"], "armed_frames": f["armed_frames"],
             "own_work_p50_us": f["own_p50_us"], "own_work_p99_us": f["own_p99_us"],
             "own_cpu_percent": f["own_cpu_percent"], "process_cpu_percent": f["cpu_percent"],
-            "work_p50_us": f["work_p50_us"], "work_p99_us": f["work_p99_us"], "fakes_p50_us": f["fake_p50_us"]}
+            "work_p50_us": f["work_p50_us"], "work_p99_us": f["work_p99_us"], "fakes_p50_us": f["fake_p50_us"],
+            "ticks_per_s": f["ticks_per_s"], "serial_overruns": f["serial_overruns"]}

@@ -1,5 +1,6 @@
 """``pfma bench --json``: one JSON object with the figures of the service, the controller,
-the whole stack, the service over a loopback Modbus gateway and the Zenoh bridge. Tiny
+the whole stack, the service over a loopback Modbus gateway, the Zenoh bridge and the host's
+costs of a periodic loop. Tiny
 durations; the keys are checked and that the figures are finite and positive, never how
 fast anything is."""
 
@@ -13,9 +14,10 @@ import pytest
 pytestmark = pytest.mark.realtime
 
 HEADLINE = {
-    "service": ("own_work_p50_us", "own_work_p99_us", "own_cpu_percent", "process_cpu_percent"),
+    "service": ("own_work_p50_us", "own_work_p99_us", "own_cpu_percent", "process_cpu_percent", "ticks_per_s"),
     "controller": ("frame_p50_us", "frame_p99_us"),
     "stack": ("minutes", "run_s"),
+    "host": ("wakes_per_s", "cpu_per_wake_us", "cold_factor"),
 }
 
 
@@ -28,11 +30,15 @@ def test_bench_json_prints_one_object_with_every_benchmark():
                           "--minutes", "0.05"], capture_output=True, text=True, timeout=300)
     assert "Traceback" not in out.stderr, out.stderr[-2000:]
     rep = json.loads(out.stdout)  # the whole output is one object
-    assert set(rep) >= {"service", "controller", "stack", "modbus"}
+    assert set(rep) >= {"service", "controller", "stack", "modbus", "host"}
     for section, keys in HEADLINE.items():
         for k in keys:
             assert _positive(rep[section][k]), (section, k, rep[section].get(k))
     assert rep["stack"]["minutes"] == 0.05  # it names its duration
+    assert isinstance(rep["service"]["serial_overruns"], int) and rep["service"]["serial_overruns"] >= 0
+    host = rep["host"]  # per task, after a sleep and after a busy-wait; the sums per round
+    assert set(host["own_after_sleep_us"]) == set(host["own_after_spin_us"]) and "publish" in host["own_after_sleep_us"]
+    assert len(host["tasks_after_sleep_us"]) == len(host["tasks_after_spin_us"]) == 3
     assert isinstance(rep["stack"]["errors"], list)
     mb = rep["modbus"]
     if "skipped" in mb:
@@ -62,7 +68,7 @@ def test_bench_json_refuses_a_benchmark_it_does_not_measure():
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert out.stdout == ""
-    assert out.stderr.strip() == "pfma bench: --json measures service, controller, stack, modbus, bridge; not buffer"
+    assert out.stderr.strip() == "pfma bench: --json measures service, controller, stack, modbus, bridge, host; not buffer"
 
 
 def test_bench_unknown_name_is_one_message():

@@ -21,7 +21,9 @@ benchmark, from each module's ``figures()`` (a dict; no printed text is parsed):
 for ``--minutes``, default 0.5 here; it names its duration), ``modbus`` (the service
 over a loopback Modbus gateway; ``{"skipped": why}`` where that cannot run) and ``bridge``
 (inputs latency across ``pfma bridge`` on loopback beside shared memory, p50/p99, the share
-of publishes delivered, the bridge's CPU: tools/bridge/latency.py). Names after
+of publishes delivered, the bridge's CPU: tools/bridge/latency.py) and ``host`` (what this
+machine charges a periodic Python loop apart from the code: CPU per wake-up, and the cold
+factor of the service's tasks after a sleep: bench/bench_host.py). Names after
 ``--json`` pick from that set; ``pfma bench stack --json`` alone prints the stack's full
 report, as before.
 """
@@ -51,7 +53,7 @@ FULL_JSON = ("stack", "chaos", "soak")
 #: ``--minutes`` of the soak when none is given
 SOAK_MINUTES = 60.0
 #: what ``pfma bench --json`` measures, in this order
-JSON_SET = ("service", "controller", "stack", "modbus", "bridge")
+JSON_SET = ("service", "controller", "stack", "modbus", "bridge", "host")
 #: ``--minutes`` of the stack when none is given: text report / --json set
 STACK_MINUTES = 10.0
 STACK_MINUTES_JSON = 0.5
