@@ -280,7 +280,7 @@ def task_costs(frames: int = 300, gap: str = "sleep") -> dict:
             ts, fs = np.empty(frames), np.empty(frames)
             for i in range(frames):
                 world.tick(base.now())
-                wait(0.0005)  # asleep: cold, as between the frames of the real loop
+                wait(0.0005)  # the gap: asleep (cold, as between the frames of the loop) or busy
                 t0, s0, a0 = time.perf_counter(), bus.sim_s, bus.accesses
                 fn()
                 ts[i] = time.perf_counter() - t0

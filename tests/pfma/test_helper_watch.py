@@ -54,6 +54,13 @@ class Clock:
         return self.t
 
 
+def _watch() -> tuple[list[tuple[bool, str]], Clock, HelperWatch]:
+    """(what the watch said: (error, text) each, its clock, the watch)."""
+    said: list[tuple[bool, str]] = []
+    clock = Clock()
+    return said, clock, HelperWatch(lambda err, text: said.append((err, text)), now=clock)
+
+
 def _started(h: Helper) -> None:
     h.spawn()
     assert first_line(h.proc, 30.0) == UP
@@ -72,9 +79,7 @@ def _tick_until(watch: HelperWatch, clock: Clock, cond, what: str) -> None:
 
 
 def test_a_helper_that_is_killed_is_said_and_started_again():
-    said: list[tuple[bool, str]] = []
-    clock = Clock()
-    watch = HelperWatch(lambda err, text: said.append((err, text)), now=clock)
+    said, clock, watch = _watch()
     h = Helper([UP])
     try:
         _started(h)
@@ -103,9 +108,7 @@ def test_a_helper_that_is_killed_is_said_and_started_again():
 
 
 def test_a_restart_that_fails_is_said_and_tried_again_after_the_back_off():
-    said: list[tuple[bool, str]] = []
-    clock = Clock()
-    watch = HelperWatch(lambda err, text: said.append((err, text)), now=clock)
+    said, clock, watch = _watch()
     h = Helper([UP, "error: port 5020 in use", UP])
     try:
         _started(h)
@@ -126,9 +129,7 @@ def test_a_restart_that_fails_is_said_and_tried_again_after_the_back_off():
 
 
 def test_a_helper_that_says_nothing_is_given_up_after_its_window():
-    said: list[tuple[bool, str]] = []
-    clock = Clock()
-    watch = HelperWatch(lambda err, text: said.append((err, text)), now=clock)
+    said, clock, watch = _watch()
     h = Helper([UP, ""])  # the restarted one prints nothing
     try:
         _started(h)
