@@ -1,0 +1,87 @@
+"""The nominal arm's joint table: one place that the service, the controller and the
+file checks read (issue 28: the envelope and the file checks need it without ``fakes``).
+
+Source for every joint number below: pfma-model.md section 8 (the project's nominal
+PFMA model; ALL VALUES ASSUMED there, the real PFMA data are not public):
+
+- 8.2 joint limits (hard and soft), full-scale rate omega_fs at a 10 V command, the
+  software rate limit omega_lim = 0.6 omega_fs, and I_max (current at a 10 V limit);
+- 8.3 effective inertia and viscous friction (for predictions and braking distances).
+
+Joints are listed in the Bit3 command-area order (``bit3.layout`` joint_names):
+shoulder pitch, shoulder yaw, elbow pitch, wrist yaw, wrist pitch, wrist roll.
+``fakes.arm_params`` holds the simulated arm's own truth (which a test may make depart
+from this table); this table is what the software *expects* of the arm.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+SOURCE = "pfma-model.md 8.2-8.4 (nominal model, assumed)"
+DEG = math.pi / 180.0
+
+
+@dataclass(frozen=True)
+class JointFacts:
+    """One joint's nominal limits and amplifier data (pfma-model.md 8.2-8.4)."""
+
+    name: str  #: command-area joint name
+    hard_lo_rad: float
+    hard_hi_rad: float
+    soft_lo_rad: float
+    soft_hi_rad: float
+    omega_fs_rad_s: float  #: joint rate at a full-scale 10 V rate command
+    i_max_a: float  #: motor current at a 10 V current-limit command
+    inertia_kg_m2: float  #: decoupled effective inertia (8.3), for the prediction model
+    viscous_nm_s: float  #: joint-side viscous friction (8.3), for the prediction model
+    gear_n: float  #: gear ratio N (8.2)
+    k_t_nm_per_a: float  #: motor torque constant K_t (8.2)
+    eta: float = 0.8  #: gear efficiency (8.2)
+
+    @property
+    def torque_per_amp(self) -> float:
+        """N eta K_t: joint torque per motor ampere (8.2)."""
+        return self.gear_n * self.eta * self.k_t_nm_per_a
+
+    @property
+    def omega_lim_rad_s(self) -> float:
+        """Software rate limit: 0.6 omega_fs (8.2)."""
+        return 0.6 * self.omega_fs_rad_s
+
+    @property
+    def k_w_v_per_rad_s(self) -> float:
+        """Rate scale of command and tach: 10 V / omega_fs (8.4)."""
+        return 10.0 / self.omega_fs_rad_s
+
+    @property
+    def centre_rad(self) -> float:
+        """Middle of the hard range: resolver angles (0..2 pi) are unwrapped around it."""
+        return 0.5 * (self.hard_lo_rad + self.hard_hi_rad)
+
+
+#: pfma-model.md 8.2 (limits, omega_fs, I_max, N, K_t) and 8.3 (inertia, viscous friction)
+JOINTS: tuple[JointFacts, ...] = (
+    JointFacts("shoulder_pitch", -30 * DEG, 120 * DEG, -25 * DEG, 115 * DEG, 0.40, 10.0, 40.0, 20.0, 200, 0.12),
+    JointFacts("shoulder_yaw", -150 * DEG, 150 * DEG, -145 * DEG, 145 * DEG, 0.40, 10.0, 40.0, 20.0, 200, 0.12),
+    JointFacts("elbow_pitch", -150 * DEG, 10 * DEG, -145 * DEG, 5 * DEG, 0.50, 10.0, 12.0, 20.0, 150, 0.12),
+    JointFacts("wrist_yaw", -110 * DEG, 110 * DEG, -105 * DEG, 105 * DEG, 1.00, 5.0, 0.6, 2.0, 100, 0.06),
+    JointFacts("wrist_pitch", -110 * DEG, 110 * DEG, -105 * DEG, 105 * DEG, 1.00, 5.0, 0.6, 2.0, 100, 0.06),
+    JointFacts("wrist_roll", -180 * DEG, 180 * DEG, -175 * DEG, 175 * DEG, 2.00, 5.0, 0.08, 2.0, 60, 0.06),
+)
+JOINT_NAMES: tuple[str, ...] = tuple(j.name for j in JOINTS)
+N_JOINTS = len(JOINTS)
+
+
+def joint(name: str) -> JointFacts:
+    """Facts of one joint by its command-area name."""
+    for j in JOINTS:
+        if j.name == name:
+            return j
+    raise KeyError(f"no joint {name!r}; joints: {', '.join(JOINT_NAMES)}")
+
+
+def unwrap_angle(angle_rad: float, centre_rad: float) -> float:
+    """A resolver angle (0..2 pi) mapped into the 2 pi window centred on ``centre_rad``."""
+    return centre_rad + (angle_rad - centre_rad + math.pi) % (2.0 * math.pi) - math.pi
