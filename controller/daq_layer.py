@@ -124,9 +124,11 @@ class DataAcquisitionLayer(Layer):
         # the joints' channels by their role in the rack (channel keys joint, quantity)
         angles = [lay.joint_entry("rtd", j, "angle") for j in self.joint_order]
         tachs = [lay.joint_entry("adc", j, "rate") for j in self.joint_order]
+        currents = [lay.joint_entry("adc", j, "motor_current") for j in self.joint_order]
         rates = [lay.joint_entry("dac", j, "rate_command") for j in self.joint_order]
         self.rtd_slots = np.array([e.slot for e in angles], dtype=np.intp)
         self.tach_slots = np.array([e.slot for e in tachs], dtype=np.intp)
+        self.current_slots = np.array([e.slot for e in currents], dtype=np.intp)
         self.centre = np.array([j.centre_rad for j in JOINTS])
         self._joint_centres = tuple((k, float(c)) for k, c in zip(self.rtd_slots.tolist(), self.centre.tolist()))
         self._acq: dict = {}  # the acquire post, refilled every frame (same keys, same order)
@@ -189,6 +191,8 @@ class DataAcquisitionLayer(Layer):
                     "rad", doc="resolver joint angles unwrapped to each joint's range (command-area order)"),
             VarSpec("daq.joint_rate_rad_s", "task_io", "f8", (N_JOINTS,), w, z6, "rad/s",
                     doc="tachometer joint rates (filtered tach, ADC)"),
+            VarSpec("daq.motor_current_a", "task_io", "f8", (N_JOINTS,), w, z6, "A",
+                    doc="motor currents (amplifier current monitors, ADC; command-area order)"),
             VarSpec("daq.ft_force_n", "task_io", "f8", (3,), w, [0.0] * 3, "N", doc="wrist F/T force"),
             VarSpec("daq.ft_torque_nm", "task_io", "f8", (3,), w, [0.0] * 3, "N*m", doc="wrist F/T torque"),
             VarSpec("daq.hc_axes", "task_io", "f8", (nh, na), w, [[0.0] * na] * nh, "1",
@@ -234,7 +238,9 @@ class DataAcquisitionLayer(Layer):
         nh = len(HAND_CONTROLLERS)
         out = self._acq
         out["daq.joint_angle_rad"] = q
-        out["daq.joint_rate_rad_s"] = rec["adc_value"][self.tach_slots]
+        adc = rec["adc_value"]
+        out["daq.joint_rate_rad_s"] = adc[self.tach_slots]
+        out["daq.motor_current_a"] = adc[self.current_slots]
         out["daq.ft_force_n"] = rec["ft_force_n"]
         out["daq.ft_torque_nm"] = rec["ft_torque_nm"]
         out["daq.hc_axes"] = rec["hc_axes"][:nh]

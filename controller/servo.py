@@ -43,6 +43,9 @@ from controller.params import (
     DEFAULT_KP_PER_S, JOINTS, N_CURRENT_LIMITS, N_JOINTS, RATE_LOOP_LAMBDA, SAFE_STOP_RATE_RAD_S,
     SAFE_STOP_TIMEOUT_S, TACH_TAU_S, JointFacts, run_current_limits_a,
 )
+from controller.supervision import (
+    CHECKS, FERROR_MAX_RAD, FERROR_MIN_RAD, FERROR_TIME_S, JointSupervisor, Trip,
+)
 from controller.worldmodel import VarSpec
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -59,6 +62,11 @@ TACH_FAULT_BIT = 2
 #: missed more frames in a row than FrameConfig.max_missed_run (the servo slot did not run in
 #: its period), 13 no servo output for the current servo period at Data Acquisition's output
 ERR_LIMIT, ERR_PARAMS, ERR_MISSED, ERR_NO_OUTPUT = 10, 11, 12, 13
+#: error report codes of the joint supervision (controller.supervision), one per check:
+#: 14 resolver jump, 15 overspeed, 16 tach against resolver, 17 stall, 18 following error
+SUPERVISION_CODES = {check: 14 + n for n, check in enumerate(CHECKS)}
+#: brake phases in which the current limits may be raised: the joints are supervised
+_LIVE_PHASES = (2, 3, 4)
 
 
 class LeadLag:
@@ -189,6 +197,12 @@ class ServoLayer(Layer):
         self.hold = np.zeros(N_JOINTS)
         self._phase = 0
         self._t_phase = 0.0
+        self.sup: JointSupervisor | None = None  #: the joint supervision, latched at init
+        self.trip: Trip | None = None  #: the last supervision trip
+        self.frame_period_s = 1 / 320
+        self._sup_frame = -1  # service frame of the last supervised sample
+        self._u_sent = [0.0] * N_JOINTS  # the rates posted last servo period (what the amplifiers act on)
+        self._zero_limits = np.zeros(N_CURRENT_LIMITS)
 
     def specs(self) -> list[VarSpec]:
         z6 = [0.0] * N_JOINTS
@@ -206,6 +220,19 @@ class ServoLayer(Layer):
                 "current limits while powered up (6 joints + gripper)"),
             par("q_min_rad", [j.soft_lo_rad for j in JOINTS], "rad", "soft lower joint limits (8.2)"),
             par("q_max_rad", [j.soft_hi_rad for j in JOINTS], "rad", "soft upper joint limits (8.2)"),
+            par("ferror_min_rad", [FERROR_MIN_RAD] * N_JOINTS, "rad",
+                "following-error limit at standstill (LinuxCNC MIN_FERROR; docs/safety.md)"),
+            par("ferror_max_rad", [FERROR_MAX_RAD] * N_JOINTS, "rad",
+                "following-error limit at full-scale rate (LinuxCNC FERROR; docs/safety.md)"),
+            par("ferror_time_s", [FERROR_TIME_S] * N_JOINTS, "s",
+                "time the following error must stay beyond its limit (CiA 402 following-error time-out)"),
+            VarSpec("servo.ferror_rad", "task_status", "f8", (N_JOINTS,), "servo", z6, "rad",
+                    doc="following error of the last servo run: where the commanded rates should have "
+                        "taken each joint minus where it is (controller/supervision.py)"),
+            VarSpec("servo.trip_joint", "task_status", "i2", (), "servo", -1,
+                    doc="joint index (command-area order) of the last supervision trip, -1 none"),
+            VarSpec("servo.trip_cause", "task_status", "i2", (), "servo", -1,
+                    doc="likely cause of the last supervision trip (controller.supervision.CAUSES), -1 none"),
             VarSpec("servo.rate_cmd_rad_s", "task_io", "f8", (N_JOINTS,), "servo", z6, "rad/s",
                     doc="joint rate commands to Data Acquisition (command-area joint order)"),
             VarSpec("servo.rate_cmd_frame", "task_io", "i8", (), "servo", -1,
@@ -222,7 +249,8 @@ class ServoLayer(Layer):
 
     # --- sequence tasks ------------------------------------------------------------------
     def seq_init(self, rt: "LayerContext") -> TaskState:
-        names = ("kp_per_s", "tau_z_s", "tau_p_s", "rate_limit_rad_s", "current_limit_a", "q_min_rad", "q_max_rad")
+        names = ("kp_per_s", "tau_z_s", "tau_p_s", "rate_limit_rad_s", "current_limit_a", "q_min_rad", "q_max_rad",
+                 "ferror_min_rad", "ferror_max_rad", "ferror_time_s")
         v = rt.wm.get_task_inputs([f"servo.{n}" for n in names])
         p = {n: np.array(v[f"servo.{n}"], dtype=float) for n in names}
         self.period_s = rt.task_period_s("servo_control")
@@ -239,10 +267,16 @@ class ServoLayer(Layer):
                     problems.append(f"{j.name} current limit {p['current_limit_a'][i]} A outside 0..{j.i_max_a}")
             if problems:
                 raise ValueError("; ".join(problems))
+            self.sup = JointSupervisor(p["ferror_min_rad"], p["ferror_max_rad"], p["ferror_time_s"],
+                                       reference=LeadLag(p["kp_per_s"], p["tau_z_s"], p["tau_p_s"], self.period_s),
+                                       rate_limit_rad_s=p["rate_limit_rad_s"])
         except ValueError as err:
             self.set_fault(rt, ERR_PARAMS, f"control-law parameters: {err}")
             return TaskState.FAILED
         self.params = p
+        frames = getattr(rt, "frames", None)  # the minor frame = the service frame (the resolver samples)
+        self.frame_period_s = float(frames.period_s) if frames is not None else self.period_s / 2
+        self._sup_frame = -1
         rt.post(self.key, Level.INFO, f"compensators latched: T={self.period_s * 1e3:.3f} ms, "
                                       f"K={' '.join(f'{x:g}' for x in p['kp_per_s'])}")
         return TaskState.DONE
@@ -300,18 +334,41 @@ class ServoLayer(Layer):
         return self.seq_shutdown(rt)
 
     # --- the control law -----------------------------------------------------------------
+    _IN = ("daq.joint_angle_rad", "daq.service_frame", "daq.joint_rate_rad_s", "daq.motor_current_a",
+           "servo.current_limit_cmd_a", "servo.q_cmd_rad", "servo.q_cmd_valid")
+
     def control_task(self, rt: "LayerContext") -> None:
-        """Commanded joint positions -> rate commands (only while START UP COMPLETE)."""
+        """Supervise the joints (whenever the current limits may be raised), then commanded
+        joint positions -> rate commands (only while START UP COMPLETE)."""
         wm = rt.wm
         # the status this frame's table decided (the posted one is applied next frame): a
         # safe stop or shut-down starting this frame posted 0 rates the loop must not overwrite
-        if self.decided != Status.START_UP_COMPLETE or self.fault:
+        closed = self.decided == Status.START_UP_COMPLETE and not self.fault
+        live = self.sup is not None and self._phase in _LIVE_PHASES and not self.fault
+        if not closed and not live:
+            if self._sup_frame >= 0 and self.sup is not None:
+                self.sup.reset()
+                self._sup_frame = -1
             return
-        v = wm.get_task_inputs(("daq.joint_angle_rad", "daq.service_frame", "servo.q_cmd_rad", "servo.q_cmd_valid"))
+        v = wm.get_task_inputs(self._IN)
         q = np.asarray(v["daq.joint_angle_rad"], dtype=float)
+        frame = int(v["daq.service_frame"])
         p = self.params
         q_cmd = np.asarray(v["servo.q_cmd_rad"], dtype=float) if bool(v["servo.q_cmd_valid"]) else self.hold
         q_cmd = np.clip(q_cmd, p["q_min_rad"], p["q_max_rad"])
+        if live:
+            if not closed:
+                self._u_sent = [0.0] * N_JOINTS
+            dt = (frame - self._sup_frame) * self.frame_period_s if self._sup_frame >= 0 else 0.0
+            self._sup_frame = frame
+            trip = self.sup.update(dt, q.tolist(), np.asarray(v["daq.joint_rate_rad_s"]).tolist(), np.asarray(v["daq.motor_current_a"]).tolist(),
+                                   self._u_sent, np.asarray(v["servo.current_limit_cmd_a"]).tolist(),
+                                   closed and self._phase == 3, q_cmd.tolist())
+            if trip is not None:
+                self._trip(rt, trip)
+                return
+        if not closed:
+            return
         e = q_cmd - q
         rate = self.comp.step(e, p["rate_limit_rad_s"])  # saturated, the state follows (anti-windup)
         below, above = q < p["q_min_rad"], q > p["q_max_rad"]
@@ -322,7 +379,21 @@ class ServoLayer(Layer):
             self.set_fault(rt, ERR_LIMIT, f"beyond the soft limit: {', '.join(names)}")
             rate[:] = 0.0
         self.comp.track(rate)
+        self._u_sent = rate.tolist()
         # stamped with the service frame of the inputs it was computed from: Data Acquisition
         # sends it only within its servo period, the service only while young enough
         wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": rate, "servo.error_rad": e,
-                                       "servo.rate_cmd_frame": int(v["daq.service_frame"])})
+                                       "servo.ferror_rad": self.sup.ferror_rad if self.sup is not None else e * 0,
+                                       "servo.rate_cmd_frame": frame})
+
+    def _trip(self, rt: "LayerContext", trip: Trip) -> None:
+        """A supervision trip: the layer's fault (one message naming joint, check and likely
+        cause), the rates and every current limit to 0 at once (brakes on): the safe stop's
+        wait for still joints is no use when a joint does not follow its command."""
+        self.trip = trip
+        self.set_fault(rt, SUPERVISION_CODES[trip.check], f"{trip.text}; current limits 0 (brakes on)")
+        self._u_sent = [0.0] * N_JOINTS
+        rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS), "servo.rate_cmd_frame": -1,
+                                          "servo.current_limit_cmd_a": self._zero_limits,
+                                          "servo.trip_joint": trip.joint, "servo.trip_cause": trip.cause})
+        self._brake_phase(rt, 5)

@@ -57,8 +57,9 @@ class ArmModel:
 
     :param params: nominal parameters (default :data:`fakes.arm_params.NOMINAL`)
     :param environment: contact objects (default: free space)
-    :param errors: known departures from nominal (only ``tach_scale_error`` and
-        ``payload_kg`` act here; resolver/ADC/DAC errors act in ``SimulatedRack``)
+    :param errors: known departures from nominal (``tach_scale_error``, ``payload_kg`` and
+        the motion faults ``brake_held``, ``amp_off``, ``load_nm`` act here; resolver/ADC/DAC
+        errors act in ``SimulatedRack``)
     :param q0: initial positions, 7 values (default ``params.q_initial``, the 8.1 ready pose)
     :param shoulder_roll_rad: manual shoulder-roll index (tilts gravity in the base frame)
     """
@@ -105,6 +106,11 @@ class ArmModel:
         """Install new truth errors (tach scale, payload) for the following steps."""
         self.errors = errors
         self.k_w_true = self.k_w * (1.0 + np.asarray(errors.tach_scale_error, dtype=float))
+        # motion faults (sim.faults brake-held / amp-off / load)
+        self._brake_held = np.asarray(errors.brake_held, dtype=bool) & self.brake_fitted
+        self._amp_on = ~np.asarray(errors.amp_off, dtype=bool)
+        self._load_nm = np.asarray(errors.load_nm, dtype=float)
+        self._faulted = bool(self._brake_held.any() or not self._amp_on.all() or self._load_nm.any())
         self._g_key = None
 
     @property
@@ -246,9 +252,12 @@ class ArmModel:
         # brake release card with hysteresis: engage below 0.3 V, release above 0.5 V
         brake = (v_ilim < p.brake_engage_v) | (self.brake_engaged & (v_ilim <= p.brake_release_v))
         brake &= self.brake_fitted
-        self.brake_engaged = brake
         i_lim = self.i_max * v_ilim
         i_lim *= 0.1
+        if self._faulted:  # a held brake, an amplifier stage off (no current at all)
+            brake = brake | self._brake_held
+            i_lim *= self._amp_on
+        self.brake_engaged = brake
         neg_i_lim = -i_lim
 
         n_sub = max(1, math.ceil(dt_s / p.max_substep_s - 1e-9))
@@ -258,6 +267,8 @@ class ArmModel:
         cap = (self.coulomb + self.slip * brake) * self._h_over_j  # friction + brake, as a rate
         kv_cmd = self.k_a * v_cmd
         dv_static = self._gravity_cached() * self._h_over_j
+        if self._faulted:  # an external load torque, held over the step like gravity
+            dv_static = dv_static + self._load_nm * self._h_over_j
 
         q, v, vtf, cur, acc, tmp = self.q, self.qdot, self.tach_volts, self.current_a, self._tau, self._tmp
         k_a, keep_f, alpha_kw, hj_tpa = self.k_a, self._keep_f, self._alpha_kw, self._hj_tpa

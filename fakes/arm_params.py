@@ -187,11 +187,23 @@ class SimErrors:
     """DAC offset per signal name, volts."""
     payload_kg: float = 0.0
     """Payload at the tool point (not counterbalanced; seen by the F/T sensor)."""
+    brake_held: tuple[bool, ...] = (False,) * N_AXES
+    """Motion fault: the axis's brake stays engaged whatever its current limit (a brake
+    release card or its switch off, a seized brake; IRSS 3.6)."""
+    amp_off: tuple[bool, ...] = (False,) * N_AXES
+    """Motion fault: the axis's PWM output stage is off: no motor current whatever the
+    rate command and current limit (IRSS 3.6: the servo chassis' PWM enable switches)."""
+    load_nm: tuple[float, ...] = (0.0,) * N_AXES
+    """Motion fault: an external torque on each axis, N*m (gripper: N): a snagged cable,
+    an unexpected payload, a collision held against the arm."""
 
     def __post_init__(self) -> None:
         if len(self.resolver_offset_rad) != N_JOINTS:
             raise ValueError(f"resolver_offset_rad needs {N_JOINTS} values, got {len(self.resolver_offset_rad)}")
         if len(self.tach_scale_error) != N_AXES:
             raise ValueError(f"tach_scale_error needs {N_AXES} values, got {len(self.tach_scale_error)}")
+        for name in ("brake_held", "amp_off", "load_nm"):
+            if len(getattr(self, name)) != N_AXES:
+                raise ValueError(f"{name} needs {N_AXES} values, got {len(getattr(self, name))}")
         if self.payload_kg < 0:
             raise ValueError(f"payload_kg must be >= 0, got {self.payload_kg}")

@@ -6,7 +6,7 @@ PFMA model; ALL VALUES ASSUMED there, the real PFMA data are not public):
 
 - 8.2 joint limits (hard and soft), full-scale rate omega_fs at a 10 V command, the
   software rate limit omega_lim = 0.6 omega_fs, and I_max (current at a 10 V limit);
-- 8.3 effective inertia and viscous friction (for predictions and braking distances).
+- 8.3 effective inertia, viscous and Coulomb friction (for predictions and braking distances).
 
 Joints are listed in the Bit3 command-area order (``bit3.layout`` joint_names):
 shoulder pitch, shoulder yaw, elbow pitch, wrist yaw, wrist pitch, wrist roll.
@@ -38,6 +38,7 @@ class JointFacts:
     viscous_nm_s: float  #: joint-side viscous friction (8.3), for the prediction model
     gear_n: float  #: gear ratio N (8.2)
     k_t_nm_per_a: float  #: motor torque constant K_t (8.2)
+    coulomb_nm: float = 0.0  #: joint-side Coulomb friction (8.3), for the prediction model
     eta: float = 0.8  #: gear efficiency (8.2)
 
     @property
@@ -61,14 +62,14 @@ class JointFacts:
         return 0.5 * (self.hard_lo_rad + self.hard_hi_rad)
 
 
-#: pfma-model.md 8.2 (limits, omega_fs, I_max, N, K_t) and 8.3 (inertia, viscous friction)
+#: pfma-model.md 8.2 (limits, omega_fs, I_max, N, K_t) and 8.3 (inertia, viscous and Coulomb friction)
 JOINTS: tuple[JointFacts, ...] = (
-    JointFacts("shoulder_pitch", -30 * DEG, 120 * DEG, -25 * DEG, 115 * DEG, 0.40, 10.0, 40.0, 20.0, 200, 0.12),
-    JointFacts("shoulder_yaw", -150 * DEG, 150 * DEG, -145 * DEG, 145 * DEG, 0.40, 10.0, 40.0, 20.0, 200, 0.12),
-    JointFacts("elbow_pitch", -150 * DEG, 10 * DEG, -145 * DEG, 5 * DEG, 0.50, 10.0, 12.0, 20.0, 150, 0.12),
-    JointFacts("wrist_yaw", -110 * DEG, 110 * DEG, -105 * DEG, 105 * DEG, 1.00, 5.0, 0.6, 2.0, 100, 0.06),
-    JointFacts("wrist_pitch", -110 * DEG, 110 * DEG, -105 * DEG, 105 * DEG, 1.00, 5.0, 0.6, 2.0, 100, 0.06),
-    JointFacts("wrist_roll", -180 * DEG, 180 * DEG, -175 * DEG, 175 * DEG, 2.00, 5.0, 0.08, 2.0, 60, 0.06),
+    JointFacts("shoulder_pitch", -30 * DEG, 120 * DEG, -25 * DEG, 115 * DEG, 0.40, 10.0, 40.0, 20.0, 200, 0.12, 8.0),
+    JointFacts("shoulder_yaw", -150 * DEG, 150 * DEG, -145 * DEG, 145 * DEG, 0.40, 10.0, 40.0, 20.0, 200, 0.12, 8.0),
+    JointFacts("elbow_pitch", -150 * DEG, 10 * DEG, -145 * DEG, 5 * DEG, 0.50, 10.0, 12.0, 20.0, 150, 0.12, 8.0),
+    JointFacts("wrist_yaw", -110 * DEG, 110 * DEG, -105 * DEG, 105 * DEG, 1.00, 5.0, 0.6, 2.0, 100, 0.06, 1.0),
+    JointFacts("wrist_pitch", -110 * DEG, 110 * DEG, -105 * DEG, 105 * DEG, 1.00, 5.0, 0.6, 2.0, 100, 0.06, 1.0),
+    JointFacts("wrist_roll", -180 * DEG, 180 * DEG, -175 * DEG, 175 * DEG, 2.00, 5.0, 0.08, 2.0, 60, 0.06, 1.0),
 )
 JOINT_NAMES: tuple[str, ...] = tuple(j.name for j in JOINTS)
 N_JOINTS = len(JOINTS)

@@ -25,6 +25,10 @@ spec                                      what the hardware does
                                           6-axis: :func:`attach_usb_hand_controller`)
 ``tach-reversed:JOINT``                   the tachometer reads -1 x the joint rate
 ``adc-dead:SIGNAL=VOLTS``                 an A/D input stuck at VOLTS whatever it is fed
+``brake-held:JOINT``                      the joint's brake stays on whatever its current limit
+``amp-off:JOINT``                         the joint's PWM stage is off: no motor current at all
+``load:JOINT=NM``                         an external torque of NM N*m on the joint (a snag,
+                                          an unexpected payload, a collision)
 ``ft-noise``                              = ``serial-noise:`` the F/T line (the checkout's name)
 ========================================  ==================================================
 
@@ -78,6 +82,9 @@ KINDS: dict[str, tuple[str, str]] = {
     "tach-reversed": ("tach-reversed:JOINT", "the joint's tachometer reads -1 x its rate"),
     "adc-dead": ("adc-dead:SIGNAL=VOLTS", "an A/D input stuck at VOLTS whatever it is fed"),
     "ft-noise": ("ft-noise", "garbage bursts on the F/T line (= serial-noise on the F/T line)"),
+    "brake-held": ("brake-held:JOINT", "the joint's brake stays engaged whatever its current limit"),
+    "amp-off": ("amp-off:JOINT", "the joint's amplifier (PWM stage) is off: no motor current"),
+    "load": ("load:JOINT=NM", "an external torque of NM N*m on the joint (snag, payload, collision)"),
     "switcher-silent": ("switcher-silent", "the matrix video switcher never acknowledges a route (its strobe handshake)"),
 }
 
@@ -462,25 +469,66 @@ class _ErrorsFault(Fault):
             self._undo = None
 
 
-def _parse_tach(spec: str, arg: str, rack: RackConfig) -> Fault:
+def _axis(spec: str, name: str) -> int:
+    """The simulated arm's axis index of the joint ``name`` (the rack's joint names)."""
     from fakes.arm_params import AXES
     stems = [a.joint for a in AXES]
-    if arg not in stems:
-        raise _fail(spec, f"no joint {arg!r}" + (did_you_mean(arg, stems) or "")
+    if name not in stems:
+        raise _fail(spec, f"no joint {name!r}" + (did_you_mean(name, stems) or "")
                     + f"; joints: {', '.join(stems)}")
-    i = stems.index(arg)
+    return stems.index(name)
 
+
+def _axis_error(spec: str, key: tuple, description: str, field: str, i: int, value) -> Fault:
+    """A fault that sets one axis's entry of the SimErrors tuple ``field`` to ``value``."""
     def change(e):
-        old = e.tach_scale_error[i]
-        err = list(e.tach_scale_error)
-        err[i] = TACH_REVERSED_ERROR  # tach volts = K_w (1 + e) qdot = -K_w qdot
+        old = getattr(e, field)[i]
+        new = list(getattr(e, field))
+        new[i] = value
 
         def undo(e2):
-            back = list(e2.tach_scale_error)
+            back = list(getattr(e2, field))
             back[i] = old
-            return replace(e2, tach_scale_error=tuple(back))
-        return replace(e, tach_scale_error=tuple(err)), undo
-    return _ErrorsFault(spec, ("tach-reversed", arg), f"tachometer of {arg} reversed", change)
+            return replace(e2, **{field: tuple(back)})
+        return replace(e, **{field: tuple(new)}), undo
+    return _ErrorsFault(spec, key, description, change)
+
+
+def _parse_tach(spec: str, arg: str, rack: RackConfig) -> Fault:
+    i = _axis(spec, arg)
+    # tach volts = K_w (1 + e) qdot = -K_w qdot
+    return _axis_error(spec, ("tach-reversed", arg), f"tachometer of {arg} reversed",
+                       "tach_scale_error", i, TACH_REVERSED_ERROR)
+
+
+def _parse_brake_held(spec: str, arg: str, rack: RackConfig) -> Fault:
+    i = _axis(spec, arg)
+    if arg == "gripper":
+        raise _fail(spec, "the gripper has no brake (IRSS 3.6: six brake release cards)")
+    return _axis_error(spec, ("brake-held", arg), f"brake of {arg} held on", "brake_held", i, True)
+
+
+def _parse_amp_off(spec: str, arg: str, rack: RackConfig) -> Fault:
+    i = _axis(spec, arg)
+    return _axis_error(spec, ("amp-off", arg), f"amplifier (PWM stage) of {arg} off", "amp_off", i, True)
+
+
+#: the largest ``load:JOINT=NM`` accepted: well beyond any joint's brake (1.5 x 192 N*m)
+LOAD_MAX_NM = 1000.0
+
+
+def _parse_load(spec: str, arg: str, rack: RackConfig) -> Fault:
+    name, eq, value = arg.partition("=")
+    if not eq:
+        raise _fail(spec, "needs a torque: load:JOINT=NM (N*m; the gripper: N)")
+    i = _axis(spec, name)
+    try:
+        nm = float(value)
+    except ValueError:
+        raise _fail(spec, f"NM {value!r} is not a number") from None
+    if not abs(nm) <= LOAD_MAX_NM:  # also refuses NaN
+        raise _fail(spec, f"{value} N*m is outside -{LOAD_MAX_NM:g}..{LOAD_MAX_NM:g}")
+    return _axis_error(spec, ("load", name), f"external load {nm:g} N*m on {name}", "load_nm", i, nm)
 
 
 def _parse_adc_dead(spec: str, arg: str, rack: RackConfig) -> Fault:
@@ -535,6 +583,9 @@ _PARSERS: dict[str, Callable[[str, str, RackConfig], Fault]] = {
     "ft-unplugged": _parse_unplugged,
     "hand-unplugged": _parse_unplugged,
     "tach-reversed": _parse_tach,
+    "brake-held": _parse_brake_held,
+    "amp-off": _parse_amp_off,
+    "load": _parse_load,
     "adc-dead": _parse_adc_dead,
     "ft-noise": _parse_ft_noise,
     "switcher-silent": _parse_switcher_silent,

@@ -111,9 +111,11 @@ def test_fault_while_shut_down_blocks_power_up_with_error(sim):
     assert np.all(sim.dac_volts() == 0.0)
 
 
-def test_servo_limit_fault_is_an_error_of_the_servo_layer(powered):
+def test_a_resolver_jump_is_an_error_of_the_servo_layer(powered):
     rt = powered.rt
-    # drive the elbow past its soft limit by hand: a wrong resolver offset in the plant
+    # the elbow's reading jumps 100 degrees between two samples (a wrong resolver offset in
+    # the plant): before the supervision (issue 28) this drove the elbow "past its soft
+    # limit" and was fault 10; a jump no joint can make is now a resolver fault (14) at once
     from fakes.arm_params import SimErrors
     offs = [0.0] * 6
     offs[2] = np.radians(100.0)  # EP reads -90 + 100 = +10 deg > +5 deg soft limit + 1 deg
@@ -121,7 +123,8 @@ def test_servo_limit_fault_is_an_error_of_the_servo_layer(powered):
     powered.run_until(lambda: rt.status("updown") == S.ERROR, 40)
     k_servo = rt.first_change("servo", S.ERROR)
     assert rt.first_change("updown", S.ERROR) - k_servo == 5  # five layers above the servo
-    assert int(rt.wm.get("servo.error")) == 10
+    assert int(rt.wm.get("servo.error")) == 14
+    assert rt.servo.trip is not None and rt.servo.trip.joint == 2 and rt.servo.trip.cause_name == "resolver bit or loss"
     powered.step(2)
     assert np.all(powered.dac_volts()[RATE_CHANNELS] == 0.0)
     # the servo commands SHUT DOWN below it: Data Acquisition disarms once the limits are 0

@@ -3,7 +3,8 @@
 Benchmarks print measurements; they never assert. Each ``bench/bench_<name>.py``
 module has ``run(seconds=...)`` (its text report). ``stack`` (the whole stack for
 ``--minutes``, default 10), ``chaos`` (the kill matrix: ``--trials`` per process kind,
-default 3, ``--seed``, ``--kinds``) and ``soak`` (the simulated stack flying a looping path
+default 3, ``--seed``, ``--kinds``), ``supervision`` (every motion fault on every joint of a
+flying arm, ``--trials`` seeds each: the confusion matrix of docs/safety.md) and ``soak`` (the simulated stack flying a looping path
 for ``--minutes``, default 60) run only when named; ``pfma bench chaos --json`` and ``pfma
 bench soak --json`` print their whole report.
 
@@ -45,7 +46,7 @@ def _names() -> list[str]:
 
 
 #: benchmarks that run only when named (long)
-ON_REQUEST = ("stack", "chaos", "soak")
+ON_REQUEST = ("stack", "chaos", "soak", "supervision")
 #: benchmarks ``--check`` judges (each module's ``judge(report) -> list[str]`` and ``passed_line``)
 CHECKED = ("soak", "flood")
 #: benchmarks named alone with ``--json``: their own whole report (not the JSON set)
@@ -78,7 +79,8 @@ def add_parser(sub):
     p.add_argument("--rounds", type=int, default=None,
                    help="flood: pairs of a quiet and a flooded run, alternated (default 1)")
     p.add_argument("--trials", type=int, default=None,
-                   help="chaos: trials per process kind (default 3; 100 for the full matrix)")
+                   help="chaos: trials per process kind (default 3; 100 for the full matrix); supervision: "
+                        "seeded trials per fault and joint (default 3)")
     p.add_argument("--seed", type=int, default=None, help="chaos: the seed of the kill plan (default 20)")
     p.add_argument("--kinds", default=None, metavar="KIND,...",
                    help="chaos: which process kinds (default all: service, controller, recorder, console, "
@@ -184,6 +186,10 @@ def run(args) -> int:
                 print()
             continue
         print(f"== bench {name} ==")
+        if name == "supervision":
+            mod.run(trials=args.trials)
+            print()
+            continue
         if name == "flood":
             rep = mod.run(seconds=seconds if args.seconds is not None else mod.DEFAULT_SECONDS,
                           rounds=args.rounds or 1, realtime=args.realtime)

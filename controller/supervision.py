@@ -1,0 +1,355 @@
+"""Joint supervision: the arm stops when a joint does not do what it was told.
+
+Every servo period (160 Hz) the Servo Control layer hands this module each joint's
+resolver angle, tach rate, motor current, the rate it commanded and the current limit
+it commanded. Five checks, as a commissioned motion system has them (LinuxCNC's
+``FERROR``/``MIN_FERROR``, CiA 402's following-error window and time-out, a drive's
+overspeed and feedback checks):
+
+=====================  =================================================================
+check                  trips when
+=====================  =================================================================
+resolver jump          the angle moved further between two samples than the joint can
+                       (``max(JUMP_MIN_RAD, JUMP_SPEED_FACTOR x omega_fs x dt)``)
+overspeed              the resolver rate exceeds ``OVERSPEED_FACTOR x omega_fs``, or the
+                       tach reads at least ``TACH_FULL_SCALE_FRACTION`` of full scale (the
+                       ADC clips there: beyond it the tach cannot say how fast)
+tach against resolver  sign or magnitude disagree by more than ``TACH_ABS_TOL x omega_fs +
+                       TACH_REL_TOL x |rate|`` for ``TACH_TIME_S``
+stall                  (loop closed) a rate command worth more than ``STALL_RATE_FRACTION x
+                       omega_fs`` with the joint still and the motor current at its limit
+                       (brake held, jam) or none at all (amplifier off), for ``STALL_TIME_S``
+following error        (loop closed) the joint is further than the limit from where the
+                       commanded rates should have taken it, for ``ferror_time_s``; the
+                       limit is ``ferror_min_rad`` at standstill rising linearly to
+                       ``ferror_max_rad`` at full-scale rate (LinuxCNC's MIN_FERROR/FERROR)
+=====================  =================================================================
+
+"Where the commanded rates should have taken it" is a reference joint: the nominal closed
+loop driven by the same position command ``q_cmd`` as the real one - the servo's own
+compensator and rate limit on the reference's error, then the nominal model of the
+amplifier's proportional rate loop (pfma-model 8.4: ``J w' = N eta K_t K_a (V_cmd -
+V_tach) - b w - F_c sgn w``): its steady rate ``(lambda u - F_c/J) / (lambda + b/J)``
+(the wrist roll's viscous friction alone makes it 0.62 of the command), reached through a
+first-order lag of ``1/(lambda + b/J)`` plus ``MODEL_DELAY_S``. Gravity is not in the
+reference: the real position loop corrects it to a small offset (about a degree on the
+wrist yaw), except while the servo saturates, when a joint climbing against gravity falls
+behind. So while the real joint moves the way the reference does at no less than
+``PULL_FRACTION`` of its speed, the reference is pulled back towards the real joint
+(time constant ``PULL_S``): a slow but obedient joint is forgiven, a joint that moves the
+wrong way, too slowly or not at all never is.
+
+On any trip the layer drops every current limit at once (brakes on, the amplifiers'
+current to 0) with the rates: a joint that does not do what it is told may not stop on a
+0 V rate command (a DAC bit stuck, a tach reversed into positive feedback), and waiting
+for the safe stop's 0.5 s time-out is what let such a joint run to its hard stop.
+
+:func:`diagnose` then names the most likely physical cause from the last samples, by
+comparing the measured motor current and motion with the nominal model's prediction
+(the amplifier: ``I = K_a K_w (u - w_tach)`` limited to the current limit; the joint:
+torque makes motion). It reads only published inputs and the commands the controller
+sent, never the simulator's fault list. Every threshold here is assumed (this project's
+choice against the nominal arm model of pfma-model.md 8.2-8.4), named once, and listed in
+docs/safety.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from pfma.arm import JOINTS, JointFacts
+
+DEG = math.pi / 180.0
+
+#: a resolver angle that moves further than this between two samples is a sensor fault
+#: (assumed: 2 degrees, well above the 0.14-0.7 degrees a joint moves in a servo period at
+#: full-scale rate, and below a 14-bit resolver's bit 10, 22.5 degrees)
+JUMP_MIN_RAD = 2.0 * DEG
+JUMP_SPEED_FACTOR = 3.0
+#: overspeed: the resolver rate beyond this multiple of omega_fs (assumed: 20 % above the
+#: full-scale rate; the servo never commands more than 0.6 omega_fs)
+OVERSPEED_FACTOR = 1.2
+#: overspeed: the tach at this fraction of its full-scale reading (the ADC's +-10 V clips
+#: the tach at omega_fs, so it cannot show more)
+TACH_FULL_SCALE_FRACTION = 0.98
+#: tach against resolver: tolerated disagreement, absolute (fraction of omega_fs: the
+#: 14-bit resolver's quantisation makes a 6.25 ms difference rate jitter by about 0.06
+#: rad/s before filtering) and relative, and how long it must last (assumed)
+TACH_ABS_TOL = 0.15
+TACH_REL_TOL = 0.3
+TACH_TIME_S = 0.06
+#: stall: a rate command whose nominal steady rate (after the rate loop's droop and
+#: Coulomb dead band) is above this fraction of omega_fs (above the 0.07 omega_fs droop
+#: command that holds the shoulder against gravity) ...
+STALL_RATE_FRACTION = 0.15
+#: ... with the joint still (its rate below this fraction of omega_fs) and the current at
+#: its limit (this fraction of it, or all the amplifier gives for this command: the wrist
+#: roll's rate loop cannot reach its limit) or none at all (below this fraction of I_max),
+#: for this long (assumed)
+STALL_MOTION_FRACTION = 0.03
+STALL_CURRENT_FRACTION = 0.9
+NO_CURRENT_FRACTION = 0.03
+STALL_TIME_S = 0.25
+#: following error defaults per joint (assumed): 2 degrees at standstill, 8 at full-scale
+#: rate, beyond the limit for 0.1 s
+FERROR_MIN_RAD = 2.0 * DEG
+FERROR_MAX_RAD = 8.0 * DEG
+FERROR_TIME_S = 0.1
+#: the reference joint: lag beyond the rate loop's own (half the tach filter's 15.9 ms and
+#: about two frames of I/O delay), and its pull-back towards an obedient joint (assumed)
+MODEL_DELAY_S = 0.015
+PULL_FRACTION = 0.5
+PULL_S = 0.3
+#: rate-loop bandwidth lambda of pfma-model 8.4 (controller.params.RATE_LOOP_LAMBDA)
+RATE_LOOP_LAMBDA = 40.0
+#: tach card filter time constant, 10 Hz (IRSS 3.6.3; controller.params.TACH_TAU_S)
+TACH_TAU_S = 1.0 / (2.0 * math.pi * 10.0)
+#: a gap between two samples longer than this (a halt, a controller stalled by its host)
+#: re-primes the checks: the reference restarts where the joint is, the timers at zero
+#: (the supervision cannot vouch for what happened in between; assumed: 8 service frames)
+GAP_S = 0.025
+#: samples kept for the diagnosis, and how many of the newest it averages (50 ms)
+HISTORY = 16
+DIAG_SAMPLES = 8
+
+#: the checks, in the order a sample runs them
+CHECKS = ("resolver jump", "overspeed", "tach against resolver", "stall", "following error")
+#: the causes :func:`diagnose` can name (index = ``servo.trip_cause``)
+CAUSES = (
+    "not identified",
+    "brake not released (or a jam)",
+    "amplifier, PWM stage or current limit off",
+    "tach reversed",
+    "tach wrong gain",
+    "DAC bit or channel fault",
+    "resolver bit or loss",
+    "unexpected load or collision",
+)
+CAUSE_UNKNOWN, CAUSE_BRAKE, CAUSE_AMP_OFF, CAUSE_TACH_REVERSED, CAUSE_TACH_GAIN, CAUSE_DAC, CAUSE_RESOLVER, \
+    CAUSE_LOAD = range(len(CAUSES))
+
+
+def amp_gain_a_per_rad_s(jf: JointFacts) -> float:
+    """The amplifier's current per rad/s of rate error, K_a K_w = lambda J / (N eta K_t)
+    (pfma-model 8.4: K_a = lambda J / (N eta K_t K_w))."""
+    return RATE_LOOP_LAMBDA * jf.inertia_kg_m2 / jf.torque_per_amp
+
+
+#: the columns of one joint's samples, as the diagnosis reads them (a preallocated ring of
+#: floats, HISTORY x 5 per joint: nothing is allocated per sample that outlives it): the
+#: commanded rate the amplifier acted on (the previous period's), the tach rate, the
+#: resolver rate (difference through a tach-like filter), all rad/s; the motor current and
+#: the commanded current limit, A
+U, W_TACH, W_RES, I, I_LIM = range(5)
+
+
+@dataclass(frozen=True)
+class Trip:
+    """A supervision trip: which joint, which check, the likely cause, one message."""
+
+    joint: int
+    check: str
+    cause: int
+    text: str
+
+    @property
+    def cause_name(self) -> str:
+        return CAUSES[self.cause]
+
+
+def diagnose(jf: JointFacts, check: str, recent: np.ndarray) -> tuple[int, str]:
+    """The most likely physical cause of a trip of ``check`` on joint ``jf``, from its
+    newest samples (rows of the five columns U ... I_LIM): (a CAUSES index, the evidence
+    in words)."""
+    if check == "resolver jump":
+        return CAUSE_RESOLVER, "the angle jumped further than the joint can move"
+    u, wt, wr, i, i_lim = (float(x) for x in recent.mean(axis=0))
+    i_lim = max(i_lim, 0.0)
+    fs = jf.omega_fs_rad_s
+    kaw = amp_gain_a_per_rad_s(jf)
+    i_pred = max(-i_lim, min(i_lim, kaw * (u - wt)))
+    volts = 10.0 / fs  # rate -> DAC/tach volts
+    moving = abs(wr) > 0.05 * fs
+    if moving and wt * wr < 0 and abs(wt) > 0.05 * fs:
+        return CAUSE_TACH_REVERSED, f"tach {wt:+.3f} rad/s against resolver {wr:+.3f} rad/s"
+    if check == "tach against resolver":
+        return CAUSE_TACH_GAIN, f"tach {wt:+.3f} rad/s, resolver {wr:+.3f} rad/s"
+    if i_lim > 0.05 * jf.i_max_a and abs(i_pred) > 0.25 * i_lim and abs(i) < 0.03 * jf.i_max_a:
+        return CAUSE_AMP_OFF, f"no motor current ({i:+.2f} A) where the amplifier should give {i_pred:+.2f} A"
+    saturated = i_lim > 0 and abs(i) >= 0.8 * i_lim
+    u_acted = i / kaw + wt  # the rate command the amplifier's current says it acts on
+    if not saturated and abs(u_acted - u) > 0.1 * fs:
+        return CAUSE_DAC, (f"the amplifier acts on {u_acted * volts:+.1f} V, commanded {u * volts:+.1f} V "
+                           f"({i:+.2f} A at {wt:+.3f} rad/s)")
+    # the amplifier drives as told (the current the model predicts, in the command's direction)
+    driving = i * u > 0 and (saturated or abs(i) >= 0.75 * abs(i_pred))
+    if driving and abs(wr) < 0.03 * fs:
+        return CAUSE_BRAKE, f"the motor drives ({i:+.2f} A, limit {i_lim:.2f}), no motion ({wr:+.3f} rad/s)"
+    if driving and (wr * u < 0 or abs(wr) < 0.2 * abs(u)):
+        return CAUSE_LOAD, (f"the motor drives ({i:+.2f} A, limit {i_lim:.2f}), joint moving {wr:+.3f} rad/s "
+                            f"against a {u:+.3f} rad/s command")
+    if check == "overspeed" and wr * u <= 0:
+        return CAUSE_LOAD, f"joint driven at {wr:+.3f} rad/s against a {u:+.3f} rad/s command"
+    return CAUSE_UNKNOWN, (f"command {u:+.3f} rad/s, tach {wt:+.3f}, resolver {wr:+.3f} rad/s, "
+                           f"current {i:+.2f} A (limit {i_lim:.2f})")
+
+
+class JointSupervisor:
+    """The five checks for the six joints (command-area order, :data:`pfma.arm.JOINTS`).
+
+    :param ferror_min_rad: following-error limit at standstill, per joint
+    :param ferror_max_rad: following-error limit at full-scale rate, per joint
+    :param ferror_time_s: how long the error must stay beyond the limit, per joint
+    :param reference: the reference joints' compensator, an object with ``reset(e0)`` and
+        ``step(error, limit) -> rates`` (a second instance of the servo's own, so that the
+        reference is driven the same way); None: the pure gain ``kp_per_s``
+    :param rate_limit_rad_s: the servo's rate limit per joint (the reference saturates there)
+    """
+
+    def __init__(self, ferror_min_rad=None, ferror_max_rad=None, ferror_time_s=None,
+                 joints: tuple[JointFacts, ...] = JOINTS, reference=None, kp_per_s: float = 8.0,
+                 rate_limit_rad_s=None) -> None:
+        n = len(joints)
+        self.joints = joints
+        self.fe_min = [float(x) for x in (ferror_min_rad if ferror_min_rad is not None else [FERROR_MIN_RAD] * n)]
+        self.fe_max = [float(x) for x in (ferror_max_rad if ferror_max_rad is not None else [FERROR_MAX_RAD] * n)]
+        self.fe_time = [float(x) for x in (ferror_time_s if ferror_time_s is not None else [FERROR_TIME_S] * n)]
+        for i, j in enumerate(joints):
+            if not 0 < self.fe_min[i] <= self.fe_max[i] or not 0 < self.fe_time[i] <= 2.0:
+                raise ValueError(f"{j.name} following-error limits {self.fe_min[i]:g}..{self.fe_max[i]:g} rad over "
+                                 f"{self.fe_time[i]:g} s: need 0 < min <= max and 0 < time <= 2 s")
+        self.fs = [j.omega_fs_rad_s for j in joints]
+        # the nominal rate loop per joint: steady gain, Coulomb dead band (rad/s of command), lag
+        self._gain = [RATE_LOOP_LAMBDA / (RATE_LOOP_LAMBDA + j.viscous_nm_s / j.inertia_kg_m2) for j in joints]
+        self._kaw = [amp_gain_a_per_rad_s(j) for j in joints]
+        self._dead = [j.coulomb_nm / j.inertia_kg_m2 / RATE_LOOP_LAMBDA for j in joints]
+        self._tau = [1.0 / (RATE_LOOP_LAMBDA + j.viscous_nm_s / j.inertia_kg_m2) + MODEL_DELAY_S for j in joints]
+        self.reference = reference
+        self.kp = float(kp_per_s)
+        self.rate_lim = [float(x) for x in (rate_limit_rad_s if rate_limit_rad_s is not None
+                                            else [j.omega_lim_rad_s for j in joints])]
+        self._hist = np.zeros((n, HISTORY, 5))  # per joint, a ring of samples
+        self._hi = 0  # the ring's next row
+        self._filled = 0
+        self.ferror_rad = [0.0] * n  #: the following error of the last sample (model - measured)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the past (a new power-up): the next sample only primes."""
+        n = len(self.joints)
+        self._q: list[float] | None = None
+        self._w_res = [0.0] * n
+        self._w_m = [0.0] * n
+        self._q_model = [0.0] * n
+        self._closed = False
+        self._q_hold = [0.0] * n
+        self._t_tach = [0.0] * n
+        self._t_stall = [0.0] * n
+        self._t_fe = [0.0] * n
+        self._hi = self._filled = 0
+        self.ferror_rad = [0.0] * n
+
+    def _reference_rates(self, q_cmd: list[float]) -> list[float]:
+        """The reference joints' rate commands for this period."""
+        e = [c - m for c, m in zip(q_cmd, self._q_model)]
+        if self.reference is not None:
+            return self.reference.step(e, self.rate_lim).tolist()
+        kp = self.kp
+        return [max(-lim, min(lim, kp * x)) for x, lim in zip(e, self.rate_lim)]
+
+    def update(self, dt: float, q: list[float], w_tach: list[float], i_meas: list[float], u: list[float],
+               i_lim: list[float], closed: bool, q_cmd: list[float] | None = None) -> Trip | None:
+        """One servo period: ``dt`` since the last sample (s, from the service frames), the
+        angles, tach rates, motor currents, the rates commanded last period (what the
+        amplifiers acted on since), the current limits commanded, whether the position
+        loop is closed (following error and stall are checked only then) and the position
+        command the servo acts on this period (clipped to the soft limits; None: hold).
+        Returns the first trip, or None."""
+        if self._q is None or dt <= 0 or dt > GAP_S:
+            if self._q is None or dt > GAP_S:
+                self.reset()
+                self._q = q
+            return None
+        alpha = 1.0 - math.exp(-dt / TACH_TAU_S)
+        pull = dt / (PULL_S + dt)
+        if closed and not self._closed:  # the loop closes: the reference starts where the joint is, at rest
+            self._q_model = list(q)
+            self._q_hold = list(q)
+            self._w_m = [0.0] * len(q)
+            self._t_fe = [0.0] * len(q)
+            self._t_stall = [0.0] * len(q)
+            if self.reference is not None:
+                self.reference.reset(0.0)
+        self._closed = closed
+        u_ref = self._reference_rates(q_cmd if q_cmd is not None else self._q_hold) if closed else None
+        trip = None
+        q_prev = self._q
+        row = self._hist[:, self._hi]
+        row[:, U] = u
+        row[:, W_TACH] = w_tach
+        row[:, I] = i_meas
+        row[:, I_LIM] = i_lim[:len(q)]
+        for k, jf in enumerate(self.joints):
+            fs = self.fs[k]
+            d = (q[k] - q_prev[k] + math.pi) % (2.0 * math.pi) - math.pi
+            w_res = self._w_res[k] = self._w_res[k] + alpha * (d / dt - self._w_res[k])
+            wt, uk = w_tach[k], u[k]
+            row[k, W_RES] = w_res
+            if trip is not None:
+                continue
+            check = ""
+            detail = ""
+            jump = max(JUMP_MIN_RAD, JUMP_SPEED_FACTOR * fs * dt)
+            if abs(d) > jump:
+                check, detail = "resolver jump", f"{d / DEG:+.1f} deg in {dt * 1e3:.1f} ms > {jump / DEG:.1f}"
+            elif abs(w_res) > OVERSPEED_FACTOR * fs or abs(wt) >= TACH_FULL_SCALE_FRACTION * fs:
+                check, detail = "overspeed", (f"resolver {w_res:+.3f} rad/s, tach {wt:+.3f} rad/s, full scale "
+                                              f"{fs:g}")
+            else:
+                tol = TACH_ABS_TOL * fs + TACH_REL_TOL * max(abs(wt), abs(w_res))
+                self._t_tach[k] = self._t_tach[k] + dt if abs(wt - w_res) > tol else 0.0
+                if self._t_tach[k] >= TACH_TIME_S:
+                    check, detail = "tach against resolver", (f"tach {wt:+.3f} rad/s, resolver {w_res:+.3f} "
+                                                              f"rad/s for {self._t_tach[k] * 1e3:.0f} ms")
+            if u_ref is not None:
+                gain, dead = self._gain[k], self._dead[k]
+                ur = u_ref[k]
+                w_ref = gain * math.copysign(max(0.0, abs(ur) - dead), ur)
+                wm = self._w_m[k] = self._w_m[k] + dt / (self._tau[k] + dt) * (w_ref - self._w_m[k])
+                qm = self._q_model[k] + wm * dt
+                if wm * w_res > 0 and abs(w_res) >= PULL_FRACTION * abs(wm):  # obedient: forgive its pace
+                    qm -= (qm - q[k]) * pull
+                self._q_model[k] = qm
+                e = self.ferror_rad[k] = qm - q[k]
+                if not check:
+                    # what the real command should give (its droop and dead band included)
+                    w_ss = gain * math.copysign(max(0.0, abs(uk) - dead), uk)
+                    i_k, lim_k = abs(i_meas[k]), i_lim[k]
+                    stalled = (abs(w_ss) > STALL_RATE_FRACTION * fs and abs(w_res) < STALL_MOTION_FRACTION * fs
+                               and (i_k >= STALL_CURRENT_FRACTION * lim_k or i_k < NO_CURRENT_FRACTION * jf.i_max_a
+                                    or i_k >= 0.9 * min(lim_k, self._kaw[k] * abs(uk - wt))))
+                    self._t_stall[k] = self._t_stall[k] + dt if stalled else 0.0
+                    lim = self.fe_min[k] + (self.fe_max[k] - self.fe_min[k]) * min(1.0, abs(wm) / fs)
+                    self._t_fe[k] = self._t_fe[k] + dt if abs(e) > lim else 0.0
+                    if self._t_fe[k] >= self.fe_time[k]:
+                        check, detail = "following error", (f"{e / DEG:+.1f} deg > {lim / DEG:.1f} for "
+                                                            f"{self._t_fe[k] * 1e3:.0f} ms")
+                    elif self._t_stall[k] >= STALL_TIME_S:
+                        check, detail = "stall", (f"{uk:+.3f} rad/s commanded, {w_res:+.3f} moving for "
+                                                  f"{self._t_stall[k] * 1e3:.0f} ms")
+            if check:
+                cause, evidence = diagnose(jf, check, self.recent(k))
+                trip = Trip(k, check, cause, f"{jf.name} {check} ({detail}): likely {CAUSES[cause]}: {evidence}")
+        self._q = q
+        self._hi = (self._hi + 1) % HISTORY
+        self._filled = min(self._filled + 1, HISTORY)
+        return trip
+
+    def recent(self, k: int, n: int = DIAG_SAMPLES) -> np.ndarray:
+        """Joint ``k``'s newest ``n`` samples (fewer before the ring has filled), oldest first."""
+        n = min(n, self._filled + 1)
+        idx = [(self._hi - n + 1 + j) % HISTORY for j in range(n)]
+        return self._hist[k, idx]
