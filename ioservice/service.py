@@ -107,6 +107,9 @@ BUS_LOST_S = 0.5
 #: rounds, and the median is kept (a burst of host load in a few rounds does not condemn the
 #: bus, nor a few fast rounds acquit it). Assumed: 11 (about 0.1 s over a loopback gateway)
 BUS_PROBE_REPEATS = 11
+#: message code of a rack-file or calibration value accepted outside the nominal band by
+#: the rack file's ``[checks] allow_nonnominal`` (pfma/nominal.py), posted at start
+NONNOMINAL_CODE = 103
 #: the MVME400's receive FIFO: 3 characters, full 1.56 ms after the last drain at 19200
 #: baud (10 bits a character). Over a register gateway every drain is a network round
 #: trip, so the serial lines are not opened there (the F/T may come from a local port)
@@ -261,7 +264,8 @@ class IoService:
         self.post(Severity.INFO, 100, f"service started: {rack.name}, "
                   f"{self.schedule.frame_rate_hz:g} Hz frames, watchdog {watchdog_s * 1e3:g} ms")
         for diff in self.schedule.check_documented_rates():
-            self.post(Severity.WARNING, 101, f"schedule differs from the report: {diff}")
+            self.post(Severity.WARNING, 101, f"schedule differs from the report and the rack file's rate_hz: {diff}")
+        self._say_overrides(self.calibration)
 
     # ------------------------------------------------------------------ set-up
     def _build_tasks(self) -> None:
@@ -386,6 +390,19 @@ class IoService:
         return self.dac.is_limit
 
     # ------------------------------------------------------------------ messages and state
+    def _say_overrides(self, cal) -> None:
+        """Name every ``[checks] allow_nonnominal`` entry of the rack file (``pfma.nominal``):
+        each value it lets through outside the nominal band (rack file and calibration),
+        and each entry that lets nothing through. Posted (code 103, WARNING) and kept in
+        :attr:`notes` (``pfma serve`` prints them)."""
+        found = list(self.rack.nonnominal) + list(getattr(cal, "nonnominal", ()))
+        used = {key for key, _text in found}
+        texts = [text for _key, text in found] + [f"[checks] allow_nonnominal lists {o} ({self.rack.source}): its value is within the "
+                  f"nominal band (the override is not needed)" for o in self.rack.overrides if o not in used]
+        for t in texts:
+            self.post(Severity.WARNING, NONNOMINAL_CODE, f"override: {t}")
+            self.notes.append(f"override: {t}")
+
     def post(self, severity: int, code: int, text: str) -> None:
         self.queue.post(text, severity=severity, code=code, t_s=self.clock.now())
 
@@ -606,7 +623,7 @@ class IoService:
         self._build_tasks()
         self.stats_every = max(1, int(round(schedule.frame_rate_hz / 2)))
         for diff in schedule.check_documented_rates():
-            self.post(Severity.WARNING, 101, f"schedule differs from the report: {diff}")
+            self.post(Severity.WARNING, 101, f"schedule differs from the report and the rack file's rate_hz: {diff}")
 
     # one input task on its own, outside the frame (``bench/bench_service.py`` times them)
     def _task_rtd(self) -> None:
@@ -989,6 +1006,7 @@ class IoService:
         self.dac.calibrate(rack)
         self._apply_calibration_extras()
         self.post(Severity.INFO, 160, f"calibration v{cal.version} loaded ({cal.hash().hex()})")
+        self._say_overrides(cal)
 
 
 #: a bus whose class comes from this package is the simulated rack (see bus_is_simulated)
