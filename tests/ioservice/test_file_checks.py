@@ -4,11 +4,17 @@ start-up messages."""
 
 from __future__ import annotations
 
+import uuid
+
+import pytest
+
+from bit3.buffer import Bit3Buffer
 from calibration import files
 from ioservice.schedule import Schedule
 from ioservice.service import NONNOMINAL_CODE
 from pfma.rack import DEFAULT_RACK, SCHEDULED_RATES_HZ, load_rack, parse_rack
 from sim.rig import SimRig
+from tools.cli import main
 
 #: the schedule's tasks that serve each device's boards
 TASKS_OF = {"dac": ("dac",), "rtd": ("rtd",), "adc": ("adc",), "serial": ("ft", "hand"), "pio": ("pio",)}
@@ -67,3 +73,22 @@ def test_a_calibration_accepted_by_an_override_is_named_when_it_is_loaded(tmp_pa
         assert not any("not needed" in t for t in said)  # both overrides are in use
     finally:
         r.close()
+
+
+@pytest.mark.realtime
+def test_pfma_serve_prints_every_override_and_the_pending_direction_check(tmp_path, capsys):
+    rack_file = tmp_path / "lab.toml"
+    rack_file.write_text(DEFAULT_RACK.read_text().replace("scale = 0.05, limit = 0.5", "scale = -0.05, limit = 0.5", 1)
+                         + '\n[checks]\nallow_nonnominal = ["elbow_pitch_command.scale"]\n')
+    state = tmp_path / "d.json"
+    name = "pfma-serve-" + uuid.uuid4().hex[:6]
+    try:
+        assert main(["serve", "--rack", str(rack_file), "--bus", "fake", "--duration", "0.3", "--buffer", name,
+                     "--direction-state", str(state)]) == 0
+        err = capsys.readouterr().err.splitlines()
+        assert any(ln.startswith(f"pfma serve: override: elbow_pitch_command.scale = -0.05 accepted outside the "
+                                 f"nominal band by [checks] allow_nonnominal ({rack_file})") for ln in err), err
+        assert any(ln.startswith("pfma serve: direction check required before normal arming") for ln in err), err
+        assert not state.exists()  # nothing was confirmed
+    finally:
+        Bit3Buffer.unlink(name)
