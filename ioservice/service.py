@@ -408,8 +408,9 @@ class IoService:
         :attr:`notes` (``pfma serve`` prints them)."""
         found = list(self.rack.nonnominal) + list(getattr(cal, "nonnominal", ()))
         used = {key for key, _text in found}
-        texts = [text for _key, text in found] + [f"[checks] allow_nonnominal lists {o} ({self.rack.source}): its value is within the "
-                  f"nominal band (the override is not needed)" for o in self.rack.overrides if o not in used]
+        texts = [text for _key, text in found]
+        texts += [f"[checks] allow_nonnominal lists {o} ({self.rack.source}): its value is within the nominal "
+                  f"band (the override is not needed)" for o in self.rack.overrides if o not in used]
         for t in texts:
             self.post(Severity.WARNING, NONNOMINAL_CODE, f"override: {t}")
             self.notes.append(f"override: {t}")
