@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 import pfma
+from pfma import nominal
 from pfma.errors import CalibrationError
 from pfma.rack import RackConfig
 
@@ -107,6 +108,9 @@ class Calibration:
     def __init__(self, data: dict, path: Path | None = None) -> None:
         self.data = data
         self.path = path
+        #: ``("signal.field", text)`` per value accepted outside the nominal band by the rack
+        #: file's ``[checks] allow_nonnominal`` (set by :func:`validate` given a rack)
+        self.nonnominal: tuple[tuple[str, str], ...] = ()
 
     # accessors
     @property
@@ -252,6 +256,7 @@ def validate(data: Any, rack: RackConfig | None = None, source: str = "<data>",
     if "previous_hash" in d and d["previous_hash"] is not None:
         _str(d["previous_hash"], "previous_hash", source)
     chans = _obj(d["channels"], "channels", source)
+    nonnominal: tuple[tuple[str, str], ...] = ()
     for sig, e in chans.items():
         f = f"channels.{sig}"
         _obj(e, f, source)
@@ -281,6 +286,7 @@ def validate(data: Any, rack: RackConfig | None = None, source: str = "<data>",
         extra = sorted(set(chans) - known)
         if extra:
             raise _fail(f"channels.{extra[0]}", f"not an analog channel of rack {rack.name} ({rack.source})", source)
+        nonnominal = _check_nominal(chans, rack, source)
     if d.get("cae") is not None:
         _validate_cae(d["cae"], source)
     if d.get("ft") is not None:
@@ -289,7 +295,31 @@ def validate(data: Any, rack: RackConfig | None = None, source: str = "<data>",
                         "previous_hash", "channels", "cae", "ft", "comment"}
     if unknown:
         raise _fail(sorted(unknown)[0], "unknown top-level key", source)
-    return Calibration(d, path)
+    cal = Calibration(d, path)
+    cal.nonnominal = nonnominal
+    return cal
+
+
+def _check_nominal(chans: dict, rack: RackConfig, source: str) -> tuple[tuple[str, str], ...]:
+    """Each joint channel's scale and offset against the nominal arm (:mod:`pfma.nominal`:
+    sign, band, offset bound), as the rack file's own values are at parse. A value outside
+    is refused unless the rack file's ``[checks] allow_nonnominal`` names it; returns the
+    ``("signal.field", text)`` of those accepted so (the service names them at start). The limits are the rack
+    file's (checked there against its own scales): a calibration does not change them."""
+    accepted: list[tuple[str, str]] = []
+    for c in rack.channels():
+        e = chans.get(c.signal)
+        if e is None or c.device not in ANALOG_DEVICES:
+            continue
+        for f in nominal.check(c.device, c.joint, c.quantity, c.units, float(e["scale"]), float(e["offset"])):
+            what = f"{c.signal}.{f.field}"
+            if what in rack.overrides:
+                accepted.append((what, f"calibration {source}: {what} = {f.value:g} accepted outside the "
+                                       f"nominal band by [checks] allow_nonnominal ({rack.source}): {f.why}"))
+                continue
+            raise _fail(f"channels.{what}", f"{f.value:g}: {f.why}; a lab that knows better lists "
+                        f"\"{what}\" in the rack file's [checks] allow_nonnominal ({rack.source})", source)
+    return tuple(accepted)
 
 
 def _validate_cae(v: Any, source: str) -> None:
@@ -355,17 +385,70 @@ def parse_calibration(text: str, source: str = "<string>", rack: RackConfig | No
     return validate(data, rack=rack, source=source, path=path)
 
 
-def load_calibration(path: str | Path, rack: RackConfig | None = None) -> Calibration:
-    """Load and validate a calibration file (against ``rack`` when given).
+def load_calibration(path: str | Path, rack: RackConfig | None = None, *,
+                     verify_chain: bool = True) -> Calibration:
+    """Load and validate a calibration file (against ``rack`` when given), and verify its
+    ``previous_hash`` chain through ``<path>.history/`` (:func:`verify_chain`).
 
-    :raises CalibrationError: unreadable, truncated, wrong type, missing/unknown channel
+    :param verify_chain: False only for the files of a history itself (their chain is
+        walked from the current file)
+    :raises CalibrationError: unreadable, truncated, wrong type, missing/unknown channel,
+        a value outside the nominal band, a broken hash chain
     """
     p = Path(path)
     try:
         text = p.read_text()
     except (OSError, UnicodeDecodeError) as err:
         raise CalibrationError(f"cannot read calibration file {p}: {err}") from err
-    return parse_calibration(text, str(p), rack, path=p)
+    cal = parse_calibration(text, str(p), rack, path=p)
+    if verify_chain:
+        verify_chain_of(cal, p)
+    return cal
+
+
+def verify_chain_of(cal: Calibration, path: str | Path) -> list[Calibration]:
+    """Walk ``cal``'s ``previous_hash`` chain back through the versions kept in
+    ``<path>.history/`` to its first version (``previous_hash`` null); return the chain,
+    newest first.
+
+    Each version names the hash (:func:`calibration_hash`) of the file it replaced
+    (:func:`save_calibration`), so a kept version that was edited, deleted or swapped, or
+    a current file whose ``previous_hash`` was edited, breaks the chain. ASSUMED: the
+    history travels with its file; a file copied without its ``.history`` directory is
+    refused like a broken chain (restore the directory, or start a new chain:
+    ``pfma calibrate init`` on a new file).
+
+    :raises CalibrationError: naming the version whose ``previous_hash`` matches no kept
+        version (or one that is not older)
+    """
+    p = Path(path)
+    hist = history_dir(p)
+    kept: dict[str, Calibration] = {}
+    if hist.is_dir():
+        for f in sorted(hist.glob(f"{p.stem}.v*")):
+            try:
+                k = load_calibration(f, verify_chain=False)
+            except CalibrationError:
+                continue  # an unreadable kept file is simply not a link
+            kept.setdefault(calibration_hash(k).hex(), k)
+    chain = [cal]
+    while chain[-1].data.get("previous_hash") is not None:
+        cur = chain[-1]
+        h = cur.data["previous_hash"]
+        where = f"the file (version {cur.version})" if cur is cal else f"kept version {cur.version} ({cur.path})"
+        prev = kept.get(h)
+        if prev is None:
+            raise _fail("previous_hash", f"broken hash chain: {where} names "
+                        f"previous_hash {h}, which matches no version kept in {hist}"
+                        + ("" if hist.is_dir() else " (no such directory)")
+                        + "; a kept version was altered or lost (restore it) or the hash was edited",
+                        str(p))
+        if prev.version >= cur.version:
+            raise _fail("previous_hash", f"broken hash chain: {where} names "
+                        f"previous_hash {h}, kept version {prev.version} ({prev.path}), which is not "
+                        f"older", str(p))
+        chain.append(prev)
+    return chain
 
 
 def resolve(calibration: "Calibration | str | Path", rack: RackConfig | None = None) -> Calibration:
@@ -418,7 +501,7 @@ def save_calibration(cal: Calibration, path: str | Path, rack: RackConfig | None
         hist = history_dir(p)
         hist.mkdir(parents=True, exist_ok=True)
         try:
-            prev = load_calibration(p)
+            prev = load_calibration(p, verify_chain=False)
             prev_version, prev_hash = prev.version, calibration_hash(prev).hex()
             keep = hist / f"{p.stem}.v{prev.version:04d}{p.suffix or '.json'}"
         except CalibrationError:
@@ -444,18 +527,19 @@ def save_calibration(cal: Calibration, path: str | Path, rack: RackConfig | None
 
 def history(path: str | Path) -> list[Calibration]:
     """Every kept version of ``path`` (oldest first), then the current file. Unreadable
-    history files are skipped."""
+    history files are skipped; the hash chain is not verified (this is what
+    ``pfma calibrate history`` shows, also of a broken chain)."""
     p = Path(path)
     out = []
     hist = history_dir(p)
     if hist.is_dir():
         for f in sorted(hist.glob(f"{p.stem}.v*")):
             try:
-                out.append(load_calibration(f))
+                out.append(load_calibration(f, verify_chain=False))
             except CalibrationError:
                 continue
     if p.exists():
-        out.append(load_calibration(p))
+        out.append(load_calibration(p, verify_chain=False))
     return out
 
 

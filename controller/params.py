@@ -24,13 +24,11 @@ from __future__ import annotations
 import math
 # the joint table lives in pfma.arm (the service's envelope and the file checks read it too)
 from pfma.arm import (  # noqa: F401  (re-exported: the controller's one import of arm facts)
-    DEG, JOINT_NAMES, JOINTS, N_JOINTS, SOURCE, JointFacts, joint, unwrap_angle,
+    DEG, GRIPPER_I_MAX_A, JOINT_NAMES, JOINTS, N_JOINTS, SOURCE, JointFacts, joint, unwrap_angle,
 )
 
 #: current-limit channels of the command area: the six joints, then the gripper
 N_CURRENT_LIMITS = 7
-#: gripper I_max (A): the rack's 0.5 A/V current-limit scale x 10 V (rack_default.toml)
-GRIPPER_I_MAX_A = 5.0
 
 #: 8.4 default computer-side joint loop gain K_p (1/s)
 DEFAULT_KP_PER_S = 8.0

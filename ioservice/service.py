@@ -34,6 +34,7 @@ import os
 import resource
 import signal
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -43,6 +44,8 @@ from bit3.layout import (  # noqa: F401 - the status bits are re-exported for ol
     Severity,
 )
 from bit3.layout import MODE_HALTED  # HALTED (issue 18): the halted controller's command-area mode
+from ioservice import direction
+from ioservice.direction import DirectionCheck
 from ioservice.loop import FrameInfo, FrameLoop, LoopStats
 from ioservice.safety import OutputGuard
 from ioservice.schedule import (
@@ -107,6 +110,9 @@ BUS_LOST_S = 0.5
 #: rounds, and the median is kept (a burst of host load in a few rounds does not condemn the
 #: bus, nor a few fast rounds acquit it). Assumed: 11 (about 0.1 s over a loopback gateway)
 BUS_PROBE_REPEATS = 11
+#: message code of a rack-file or calibration value accepted outside the nominal band by
+#: the rack file's ``[checks] allow_nonnominal`` (pfma/nominal.py), posted at start
+NONNOMINAL_CODE = 103
 #: the MVME400's receive FIFO: 3 characters, full 1.56 ms after the last drain at 19200
 #: baud (10 bits a character). Over a register gateway every drain is a network round
 #: trip, so the serial lines are not opened there (the F/T may come from a local port)
@@ -146,6 +152,10 @@ class IoService:
         refused with a ConfigError if it exceeds the watchdog
     :param bus_name: how messages name the bus (``modbus://HOST:PORT``); default: the bus's
         own ``describe()``, or its type
+    :param direction_state: the direction-check state file (``ioservice.direction``): the
+        scale signs a direction check last confirmed; when the running signs differ, arms
+        are direction-check arms until each changed joint has moved as commanded. None
+        (default): no direction check
     :param simulated: whether the rack is simulated (the register-level fakes), published as
         ``OWNER_FLAG_SIMULATED`` in the service's owner slots of the Bit3 header so every
         tool can say so; default (None): :func:`bus_is_simulated`
@@ -155,7 +165,8 @@ class IoService:
                  schedule: Schedule | None = None, watchdog_s: float = 0.015,
                  owner: str = "pfma-ioservice", serial: bool = True, calibration=None,
                  ft_port: str | None = None, max_input_age_frames: int | None = None,
-                 bus_name: str | None = None, simulated: bool | None = None) -> None:
+                 bus_name: str | None = None, simulated: bool | None = None,
+                 direction_state: str | Path | None = None) -> None:
         self.calibration = None  # calibration: the loaded calibration in force (None = nominal)
         if calibration is not None:
             rack, self.calibration = _calibrated_rack(rack, calibration)
@@ -261,7 +272,11 @@ class IoService:
         self.post(Severity.INFO, 100, f"service started: {rack.name}, "
                   f"{self.schedule.frame_rate_hz:g} Hz frames, watchdog {watchdog_s * 1e3:g} ms")
         for diff in self.schedule.check_documented_rates():
-            self.post(Severity.WARNING, 101, f"schedule differs from the report: {diff}")
+            self.post(Severity.WARNING, 101, f"schedule differs from the report and the rack file's rate_hz: {diff}")
+        self._say_overrides(self.calibration)
+        self._direction_path = direction_state
+        self.direction: DirectionCheck | None = None  #: the direction check (None: not kept)
+        self._start_direction_check()
 
     # ------------------------------------------------------------------ set-up
     def _build_tasks(self) -> None:
@@ -386,6 +401,44 @@ class IoService:
         return self.dac.is_limit
 
     # ------------------------------------------------------------------ messages and state
+    def _say_overrides(self, cal) -> None:
+        """Name every ``[checks] allow_nonnominal`` entry of the rack file (``pfma.nominal``):
+        each value it lets through outside the nominal band (rack file and calibration),
+        and each entry that lets nothing through. Posted (code 103, WARNING) and kept in
+        :attr:`notes` (``pfma serve`` prints them)."""
+        found = list(self.rack.nonnominal) + list(getattr(cal, "nonnominal", ()))
+        used = {key for key, _text in found}
+        texts = [text for _key, text in found]
+        texts += [f"[checks] allow_nonnominal lists {o} ({self.rack.source}): its value is within the nominal "
+                  f"band (the override is not needed)" for o in self.rack.overrides if o not in used]
+        for t in texts:
+            self.post(Severity.WARNING, NONNOMINAL_CODE, f"override: {t}")
+            self.notes.append(f"override: {t}")
+
+    def _start_direction_check(self) -> None:
+        """(Re)compare the running scale signs with the direction-check record and say
+        which joints are pending (code 104, also in :attr:`notes`)."""
+        if self._direction_path is None:
+            return
+        self.direction = DirectionCheck(self.rack, self.layout, self._direction_path, self.dac.limit)
+        text = self.direction.start_text()
+        if text:
+            self.post(Severity.WARNING, direction.PENDING_CODE, text)
+            self.notes.append(text)
+
+    def _direction(self, eng: list[float]) -> str | None:
+        """This frame's direction-check refusal (a pending joint moved the wrong way, or the
+        command is not a direction-check move), None when there is none; posts what the
+        check found (a joint confirmed, the record written)."""
+        d = self.direction
+        assert d is not None
+        v = self._v
+        why = d.observe(eng, v["rtd_angle_rad"], v["adc_value"], self.guard.state == ServiceState.ARMED)
+        for sev, code, text in d.events:
+            self.post((Severity.INFO, Severity.WARNING, Severity.ERROR)[sev], code, text)
+        d.events.clear()
+        return why or d.restriction(eng)
+
     def post(self, severity: int, code: int, text: str) -> None:
         self.queue.post(text, severity=severity, code=code, t_s=self.clock.now())
 
@@ -606,7 +659,7 @@ class IoService:
         self._build_tasks()
         self.stats_every = max(1, int(round(schedule.frame_rate_hz / 2)))
         for diff in schedule.check_documented_rates():
-            self.post(Severity.WARNING, 101, f"schedule differs from the report: {diff}")
+            self.post(Severity.WARNING, 101, f"schedule differs from the report and the rack file's rate_hz: {diff}")
 
     # one input task on its own, outside the frame (``bench/bench_service.py`` times them)
     def _task_rtd(self) -> None:
@@ -731,6 +784,8 @@ class IoService:
             eng[dac.gripper_ch] = float(c["gripper"])
         if refusal is None:
             refusal = self._check_limits(eng)
+            if refusal is None and self.direction is not None and self.direction.pending:
+                refusal = self._direction(eng)
             if refusal is not None:
                 status |= CMD_REFUSED
         hb = self._hb_ok if self._hb_ok is not None else -1
@@ -989,6 +1044,8 @@ class IoService:
         self.dac.calibrate(rack)
         self._apply_calibration_extras()
         self.post(Severity.INFO, 160, f"calibration v{cal.version} loaded ({cal.hash().hex()})")
+        self._start_direction_check()  # the calibration may have changed a sign
+        self._say_overrides(cal)
 
 
 #: a bus whose class comes from this package is the simulated rack (see bus_is_simulated)

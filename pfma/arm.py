@@ -72,6 +72,9 @@ JOINTS: tuple[JointFacts, ...] = (
     JointFacts("wrist_roll", -180 * DEG, 180 * DEG, -175 * DEG, 175 * DEG, 2.00, 5.0, 0.08, 2.0, 60, 0.06, 1.0),
 )
 JOINT_NAMES: tuple[str, ...] = tuple(j.name for j in JOINTS)
+#: gripper I_max (A): the current at a 10 V current-limit command (the rack's 0.5 A/V
+#: current-limit scale x 10 V, rack_default.toml); the gripper is not a servoed joint
+GRIPPER_I_MAX_A = 5.0
 N_JOINTS = len(JOINTS)
 
 

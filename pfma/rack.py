@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NoReturn
 
+from pfma import nominal
 from pfma.errors import ConfigError, did_you_mean
 
 DEFAULT_RACK = Path(__file__).with_name("rack_default.toml")
@@ -43,6 +44,17 @@ COMMANDS_KEYS = {"max_input_age_frames", "limit_margin"}
 #: ``[bit3]`` keys: the Bit3 shared-memory window (IRSS report 3.4.3)
 BIT3_KEYS = {"size", "computational_window", "io_window"}
 BIT3_SIZE = 32768  #: the Bit3 adapter's 32 KiB window
+#: ``[checks]`` keys: ``allow_nonnominal`` = ``"signal.field"`` names whose values the file
+#: checks (:mod:`pfma.nominal`) accept outside the nominal band (a lab that knows better)
+CHECKS_KEYS = {"allow_nonnominal"}
+#: the rate (Hz) the service's default schedule runs each device's boards at
+#: (``ioservice.schedule``: 320 Hz minor frames; DAC every frame, resolvers and ADC every
+#: 2nd, the serial lines every 4th, the parallel ports every 8th). A board's ``rate_hz``
+#: documents it; it cannot change it, so any other value is refused at parse (the schedule
+#: is set by ``pfma serve --frame-rate`` / ``--schedule``, and the service says so when the
+#: schedule it runs differs from these). tests/ioservice checks this table against the
+#: schedule's.
+SCHEDULED_RATES_HZ = {"dac": 320.0, "rtd": 160.0, "adc": 160.0, "serial": 80.0, "pio": 40.0}
 SIGNAL_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
@@ -156,6 +168,12 @@ class RackConfig:
     commands: CommandPolicy = field(default_factory=CommandPolicy)
     #: the servoed arm joints, base to tool (``[arm] joints``): the one joint list
     joints: tuple[str, ...] = ()
+    #: ``[checks] allow_nonnominal``: ``"signal.field"`` values a lab accepts outside the
+    #: nominal band (:mod:`pfma.nominal`); calibrations of those fields are accepted too
+    overrides: tuple[str, ...] = ()
+    #: ``("signal.field", text)`` per value this file holds outside the nominal band under an
+    #: override (the service names each in its start-up messages)
+    nonnominal: tuple[tuple[str, str], ...] = ()
 
     def channels(self) -> list[Channel]:
         return [c for b in self.boards for c in b.channels]
@@ -351,10 +369,12 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
     boards_raw = data.get("board")
     if not isinstance(boards_raw, list) or not boards_raw:
         fail("no [[board]] entries")
-    unknown_top = set(data) - {"rack", "bit3", "board", "commands", "arm"}
+    unknown_top = set(data) - {"rack", "bit3", "board", "commands", "arm", "checks"}
     if unknown_top:
         fail(f"unknown top-level section(s): {', '.join(sorted(unknown_top))}")
 
+    overrides = _overrides(data.get("checks", {}), text, source)
+    nonnominal: list[tuple[str, str]] = []
     boards: list[BoardConfig] = []
     signals: dict[str, tuple[int, int]] = {}
     roles: dict[tuple[str, str], str] = {}  # (joint, quantity) -> signal
@@ -394,12 +414,18 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
                      key="base")
             if other.name == name:
                 fail(f"board name {name!r} used twice", bi, key="name")
-        rate = b.get("rate_hz", 0)
+        scheduled = SCHEDULED_RATES_HZ.get(device)
+        rate = b.get("rate_hz", scheduled or 0)
         if not _is_number(rate):
             fail(f"board {name}: rate_hz must be a number (Hz), not {rate!r}", bi, key="rate_hz")
         rate = float(rate)
         if rate <= 0:
             fail(f"board {name}: rate_hz must be positive", bi, key="rate_hz")
+        if scheduled is not None and abs(rate - scheduled) > 1e-9:
+            fail(f"board {name}: rate_hz = {rate:g}, but the service's schedule runs {device} boards at "
+                 f"{scheduled:g} Hz; rate_hz only documents the schedule (write {scheduled:g} or leave it "
+                 f"out; the supported rates are {_scheduled_rates()}; pfma serve --frame-rate or "
+                 f"--schedule sets what runs)", bi, key="rate_hz")
         if not isinstance(b["channels"], list):
             fail(f"board {name}: channels must be an array of channel tables", bi, key="channels")
         chans: list[Channel] = []
@@ -465,6 +491,16 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
                 fail(f"board {name}: channel {ch} names joint {joint!r} but no quantity", bi, ci)
             if quantity and quantity not in ("hand_controller", "force_torque") and not joint:
                 fail(f"board {name}: channel {ch} quantity {quantity!r} needs the joint it belongs to", bi, ci)
+            for finding in nominal.check(device, joint, quantity, str(c["units"]), scale,
+                                         float(c.get("offset", 0.0)), limit):
+                what = f"{sig}.{finding.field}"
+                if finding.overridable and what in overrides:
+                    nonnominal.append((what, f"{what} = {finding.value:g} accepted outside the nominal band "
+                                             f"by [checks] allow_nonnominal ({source}): {finding.why}"))
+                    continue
+                fail(f"board {name}: channel {ch} ({sig}) {finding.field} = {finding.value:g}: {finding.why}"
+                     + (f"; a lab that knows better lists \"{what}\" in [checks] allow_nonnominal"
+                        if finding.overridable else ""), bi, ci)
             if joint:
                 if (joint, quantity) in roles:
                     fail(f"joint {joint!r} has two {quantity} channels ({roles[(joint, quantity)]} "
@@ -482,10 +518,51 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
         chans.sort(key=lambda x: x.channel)
         boards.append(BoardConfig(name=name, kind=kind, device=device, base=base, window=window,
                                   rate_hz=rate, title=str(b.get("title", kind)), channels=tuple(chans)))
+    analog = {c.signal: c for b in boards for c in b.channels}
+    for o in overrides:
+        sig, _, fld = o.rpartition(".")
+        c = analog.get(sig)
+        if c is None or nominal.nominal(c.device, c.joint, c.quantity) is None:
+            checked = [s for s, x in analog.items() if nominal.nominal(x.device, x.joint, x.quantity)]
+            _section_fail(text, source, "checks", "allow_nonnominal",
+                          f"[checks] allow_nonnominal names {o!r}, but {sig!r} is not a channel the "
+                          f"nominal checks judge" + did_you_mean(sig, checked))
+        if fld == "limit" and c.device != "dac":
+            _section_fail(text, source, "checks", "allow_nonnominal",
+                          f"[checks] allow_nonnominal names {o!r}, but only DAC channels have a limit")
     return RackConfig(name=str(rack.get("name", "rack")), boards=tuple(boards),
                       bit3=_bit3(data.get("bit3", {}), text, source), source=source,
                       commands=_command_policy(data.get("commands", {}), text, source),
-                      joints=_arm_joints(data.get("arm", {}), roles, text, source))
+                      joints=_arm_joints(data.get("arm", {}), roles, text, source),
+                      overrides=overrides, nonnominal=tuple(nonnominal))
+
+
+def _scheduled_rates() -> str:
+    return ", ".join(f"{d} {r:g} Hz" for d, r in SCHEDULED_RATES_HZ.items())
+
+
+def _section_fail(text: str, source: str, section: str, key: str | None, msg: str) -> NoReturn:
+    line = _section_key_line(text, section, key)
+    raise ConfigError(f"{source}:{line}: {msg}" if line else f"{source}: {msg}")
+
+
+def _overrides(raw, text: str, source: str) -> tuple[str, ...]:
+    """``[checks] allow_nonnominal``: a list of ``"signal.field"`` (field: scale, offset,
+    limit); the signals are checked against the channels once they are read."""
+    fail = _section(raw, "checks", CHECKS_KEYS, text, source)
+    names = raw.get("allow_nonnominal", [])
+    fields = nominal.OVERRIDABLE_FIELDS
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        fail(f"[checks] allow_nonnominal must be a list of \"signal.field\" strings, not {names!r}",
+             "allow_nonnominal")
+    for n in names:
+        sig, dot, fld = n.rpartition(".")
+        if not dot or not SIGNAL_RE.match(sig) or fld not in fields:
+            fail(f"[checks] allow_nonnominal entry {n!r} is not \"signal.field\" with field one of "
+                 f"{', '.join(fields)}", "allow_nonnominal")
+    if len(set(names)) != len(names):
+        fail(f"[checks] allow_nonnominal names an entry twice: {names!r}", "allow_nonnominal")
+    return tuple(names)
 
 
 def _arm_joints(raw, roles: dict[tuple[str, str], str], text: str, source: str) -> tuple[str, ...]:
@@ -510,9 +587,8 @@ def _section(raw, section: str, known: set[str], text: str, source: str):
     """Check that ``[section]`` is a table with only ``known`` keys; return its ``fail(msg,
     key=None)``, which raises a ConfigError naming the file and the line of the section (or
     of ``key`` in it)."""
-    def fail(msg: str, key: str | None = None):
-        line = _section_key_line(text, section, key)
-        raise ConfigError(f"{source}:{line}: {msg}" if line else f"{source}: {msg}")
+    def fail(msg: str, key: str | None = None) -> NoReturn:
+        _section_fail(text, source, section, key, msg)
 
     if not isinstance(raw, dict):
         fail(f"[{section}] must be a table")

@@ -77,6 +77,10 @@ def add_parser(sub):
     p.add_argument("--realtime", action="store_true", help="try SCHED_FIFO and a pinned CPU (needs privileges)")
     p.add_argument("--calibration", default=None, metavar="FILE",
                    help="calibration file (pfma calibrate ...) applied at start; default: nominal scales")
+    p.add_argument("--direction-state", default=None, metavar="FILE",
+                   help="the scale signs the last direction check confirmed (docs/safety.md \"Files\"); when "
+                        "they changed, arms are direction-check arms until each joint moved as commanded; "
+                        "default: FILE.direction.json beside --calibration, none without it")
     add_serve_fault_args(p)
     return p
 
@@ -243,7 +247,8 @@ def run(args) -> int:
         svc = IoService(rack, bus, buf, clock, schedule=schedule, watchdog_s=args.watchdog_ms / 1e3,
                         max_input_age_frames=args.max_input_age,
                         calibration=getattr(args, "calibration", None), ft_port=ft_url,
-                        bus_name=None if world is not None else args.bus)
+                        bus_name=None if world is not None else args.bus,
+                        direction_state=_direction_state(args))
     except BaseException:
         buf.close(unlink=True)  # a service that could not start leaves no buffer behind
         if hid is not None:
@@ -368,6 +373,16 @@ class _Refused(Exception):
     def __init__(self, status: int, text: str) -> None:
         super().__init__(text)
         self.status = status
+
+
+def _direction_state(args) -> str | None:
+    """``--direction-state``, or ``<calibration>.direction.json`` beside ``--calibration``."""
+    from ioservice.direction import default_path
+    given = getattr(args, "direction_state", None)
+    if given:
+        return given
+    p = default_path(getattr(args, "calibration", None))
+    return str(p) if p is not None else None
 
 
 def _ft_url(given: list[str] | None) -> str | None:
