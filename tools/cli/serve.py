@@ -10,7 +10,9 @@ parallel-port transactions); a schedule the bus cannot keep is refused with the 
 unless ``--schedule slow`` lets it run the best slower schedule that fits, which it names.
 Over a Modbus gateway (``--bus modbus://HOST:PORT``, e.g. ``pfma gateway``) the serial
 lines are not opened: the F/T comes from ``--ft URL`` or is absent. A bus that stops
-answering makes the outputs safe and ends the run with exit status 1.
+answering ends the run with exit status 1; the DAC then did not take its 0 V either, so the
+outputs are NOT known safe and the message says so (they may hold their last values: the
+hardware E-stop, or the rack's amplifier-enable charge pump, docs/safety.md, must stop the arm).
 
 Devices beside the rack (docs/devices.md):
   --ft URL       the F/T sensor on a pyserial URL (/dev/ttyUSB0, socket://host:port) or
