@@ -41,10 +41,14 @@ from __future__ import annotations
 from bit3.layout import ServiceState  # the states as the Bit3 header publishes them
 from pfma.clock import Clock
 
-__all__ = ["OutputGuard", "ServiceState", "STOP_CODE", "HALT_CODE"]
+__all__ = ["OutputGuard", "ServiceState", "STOP_CODE", "HALT_CODE", "TRIP_PREFIXES"]
 
 #: message code of the orderly stop's notice ("outputs safe: service stopped"): not a trip
 STOP_CODE = 10
+#: how every trip and stop message of the service begins: "outputs safe" while the DAC
+#: answers, "outputs NOT known safe" while its last write failed (docs/safety.md "Honest
+#: outputs"); tools that count trips look for either
+TRIP_PREFIXES = ("outputs safe", "outputs NOT known safe")
 #: message code of the halt's notices (halted by the controller, halt released): not a trip
 HALT_CODE = 11
 
