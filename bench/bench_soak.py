@@ -24,9 +24,10 @@ Measured:
 - **trips**: every service message "outputs safe: ..." or "outputs NOT known safe: ..."
   (``ioservice.safety.TRIP_PREFIXES``; the orderly stop's excepted), read every 20 ms,
   each with its explanation: a host stall the service named in the message ("(stall N ms)"),
-  or a late controller (its missed-frame events, ``controller_stats``, went up, or it posted a message naming missed service frames, within
-  :data:`EXPLAIN_WINDOW_S` of the trip: a controller that did not run for the watchdog
-  misses frames and says so); anything else is **unexplained**;
+  or a late controller (its missed-frame events, ``controller_stats``, went up, or it
+  posted a message naming missed service frames, within :data:`EXPLAIN_WINDOW_S` of the
+  trip: a controller that did not run for the watchdog misses frames and says so); anything
+  else is **unexplained**;
 - **the recording**: the recorder's summary (frames, recorder misses, service skips, the
   stats window, messages missed, ``lossless``);
 - the service's warnings and errors and the controller's errors, and for each recovery the
