@@ -395,15 +395,17 @@ class DacTask:
         svc = self.svc
         svc.fault_code = FAULT_DAC_UNREACHABLE
         svc.guard.outputs_known_safe = False
-        if svc.dac_unreachable is not None:
-            return
-        text = (f"DAC not answering ({err}): its outputs may hold their last values "
+        first = svc.dac_unreachable is None
+        if first:
+            svc.dac_unreachable = (
+                f"DAC not answering ({err}): its outputs may hold their last values "
                 f"({self.last_values_text()}); {svc.pump.stopped_text()}; press the hardware "
                 f"E-stop if the arm moves; the service keeps writing 0 V every frame")
-        svc.dac_unreachable = text
+        text = svc.dac_unreachable
         was = svc.guard.state
+        # a re-arm while the board is still silent trips again (and says so once more)
         svc.guard.trip(text, code=FAULT_DAC_UNREACHABLE)
-        if was in (ServiceState.FAULT, ServiceState.STOPPED):  # the guard said nothing: already tripped
+        if first and was in (ServiceState.FAULT, ServiceState.STOPPED):  # the guard said nothing
             svc.post(Severity.ERROR, FAULT_DAC_UNREACHABLE, f"{svc.guard.outputs_word()}: {text}")
 
     def answering_again(self, volts: list[float]) -> None:

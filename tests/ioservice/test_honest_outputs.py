@@ -99,6 +99,25 @@ def test_without_a_charge_pump_the_dac_failure_is_said_honestly_and_cannot_be_st
     assert not rig.svc.dac_unreachable and rig.svc.guard.outputs_known_safe
 
 
+def test_a_re_arm_while_the_dac_does_not_answer_trips_again(plain):
+    rig = plain
+    _moving(rig)
+    faults = FaultSet(rig.world)
+    faults.inject("bus-error:dac")
+    rig.run(0.05)
+    ctl = rig.controller()
+    rig.on_frame.clear()  # a controller that asks for a new arm with zero rates
+    rig.on_frame.append(lambda info: ctl.write_commands(joint_rate_rad_s=[0.0] * 6, arm_request=1,
+                                                        rearm_counter=2))
+    rig.run(0.05)
+    s = rig.reader.read_inputs()
+    assert rig.svc.guard.trips == 2  # armed again for a frame: the write failed, tripped again
+    assert s.service_state == ServiceState.FAULT and s.fault_code == FAULT_DAC_UNREACHABLE
+    texts = _texts(rig)
+    assert "armed" in texts and len([t for t in texts if "DAC not answering" in t]) == 2
+    assert not any("outputs safe" in t for t in texts)
+
+
 def test_a_stop_while_the_dac_does_not_answer_is_not_called_safe(plain):
     rig = plain
     _moving(rig)
