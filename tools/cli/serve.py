@@ -309,6 +309,15 @@ def run(args) -> int:
             else:
                 print(f"pfma serve: output guardian pid {guardian.pid}: the DAC goes to 0 V if this "
                       f"service dies or stays stopped", flush=True)
+            # what stops the arm when the DAC board itself does not answer (docs/safety.md
+            # "Honest outputs"): said once at start, on a hardware bus
+            if rack.amplifier_enable is not None:
+                print(f"pfma serve: amplifier enable: charge pump {rack.amplifier_enable.describe()}, "
+                      f"toggled every frame while ARMED and the DAC answers", flush=True)
+            else:
+                print(f"pfma serve: warning: rack {rack.name} has no amplifier-enable output "
+                      f"([amplifier_enable]): if the DAC board stops answering, only the hardware "
+                      f"E-stop stops the arm", file=sys.stderr, flush=True)
         if args.modbus:  # inside the try: an export that cannot start leaves no buffer or ring behind
             from tools.modbus_export import start_export_from_args
             export = start_export_from_args(args.buffer, args.modbus, args.modbus_writes,
