@@ -963,10 +963,14 @@ class IoService:
             self.dac.drv.disable_outputs()
         except PfmaError as err:
             self.guard.outputs_known_safe = False  # the stop's notice must not call them safe
+            self.fault_code = FAULT_DAC_UNREACHABLE
             self.post(Severity.ERROR, 150, f"could not disable DAC outputs: {err}")
         else:
             self.guard.outputs_known_safe = True
             self.dac_unreachable = None
+            if self.fault_code == FAULT_DAC_UNREACHABLE:  # written 0 V and disconnected after all
+                self.fault_code = FAULT_DAC
+        self._v["fault_code"][...] = self.fault_code
         self.guard.stop(reason if self.guard.outputs_known_safe else
                         f"{reason}; the DAC did not answer: its outputs may hold their last values "
                         f"({self.dac.last_values_text()}); {self.pump.stopped_text()}; press the hardware E-stop")

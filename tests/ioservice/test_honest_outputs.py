@@ -131,6 +131,22 @@ def test_a_stop_while_the_dac_does_not_answer_is_not_called_safe(plain):
                               "may hold their last values (last written +6.00 V on shoulder_pitch_command")
     assert stop[0].endswith("press the hardware E-stop")
     assert not any("outputs safe" in t for t in texts)
+    s = rig.reader.read_inputs()  # the stopped service's last word: still not known safe
+    assert s.service_state == ServiceState.STOPPED and s.fault_code == FAULT_DAC_UNREACHABLE
+
+
+def test_a_stop_once_the_dac_answers_again_disconnects_and_is_called_safe(plain):
+    rig = plain
+    _moving(rig)
+    faults = FaultSet(rig.world)
+    faults.inject("bus-error:dac")
+    rig.run(0.05)
+    faults.clear("bus-error:dac")
+    rig.svc.stop()  # no frame between: the stop's own disconnect is the first write that answers
+    assert _texts(rig)[-2].startswith("outputs safe: service stopped")
+    s = rig.reader.read_inputs()
+    assert s.service_state == ServiceState.STOPPED and s.fault_code == FAULT_DAC
+    assert not rig.world.bus["dac"].outputs_connected
 
 
 def test_a_stop_with_the_dac_answering_still_says_outputs_safe(plain):
