@@ -80,15 +80,18 @@ class ChargePump:
         try:
             self.drv.write_port(cfg.port, level << cfg.bit)
         except PfmaError as err:
+            # ARMED, and the amplifiers are about to drop: FAULT, said (once per arming: the
+            # pump runs again only after a re-arm)
             svc = self.svc
             svc._count_board_error(cfg.board, err)
-            if self.failed is None:
-                self.failed = str(err)
-                svc.fault_code = FAULT_AMP_ENABLE
-                svc.guard.trip(f"amplifier-enable charge pump ({cfg.describe()}) not written: {err}; "
-                               f"the amplifiers drop within {DROP_MS:.0f} ms", code=FAULT_AMP_ENABLE)
+            self.failed = str(err)
+            svc.fault_code = FAULT_AMP_ENABLE
+            svc.guard.trip(f"amplifier-enable charge pump ({cfg.describe()}) not written: {err}; "
+                           f"the amplifiers drop within {DROP_MS:.0f} ms", code=FAULT_AMP_ENABLE)
             return
         self.failed = None
+        if self.svc.faulted_boards:
+            self.svc._board_answered(cfg.board)
         self.level = level
         self.toggles += 1
         self.running = True

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bit3.layout import FAULT_DAC_UNREACHABLE, ServiceState
+from bit3.layout import FAULT_AMP_ENABLE, FAULT_DAC_UNREACHABLE, ServiceState
 from drivers.pio.registers import CHARGE_PUMP
 from ioservice.guardian import Guardian
 from ioservice.safety import OutputGuard
@@ -239,3 +239,20 @@ def test_the_relay_also_drops_when_the_service_stops_toggling_for_any_reason(pum
     assert rig.reader.read_inputs().service_state == ServiceState.FAULT
     assert not relay.energized()
     assert np.all(rig.world.sim.true_state().current_a == 0.0)
+
+
+def test_a_charge_pump_that_cannot_be_written_while_armed_trips(pumped):
+    rig = pumped
+    _moving(rig)
+    faults = FaultSet(rig.world)
+    faults.inject("bus-error:pio_video")
+    rig.run(0.05)
+    s = rig.reader.read_inputs()
+    assert s.service_state == ServiceState.FAULT and s.fault_code == FAULT_AMP_ENABLE
+    assert not rig.world.sim.relay.energized()
+    said = [t for t in _texts(rig) if "charge pump" in t]
+    assert said == ["outputs safe: amplifier-enable charge pump (pio_video port 1 bit 0) not written: bus error: "
+                    "write8 pio_video PIA1_PRB at A16 0x0025: board does not answer (injected fault); the "
+                    "amplifiers drop within 20 ms"]
+    # the DAC answers: its 0 V is what keeps the arm still here, and it is called safe
+    assert rig.world.bus["dac"].output_volts(rig.svc.rack.channel("shoulder_pitch_command").channel) == 0.0
