@@ -86,6 +86,8 @@ def test_without_a_charge_pump_the_dac_failure_is_said_honestly_and_cannot_be_st
     # what software cannot do: the latch keeps +6 V and the joint keeps moving
     assert dac.output_volts(ch) == pytest.approx(6.0, abs=0.01)
     assert rig.world.sim.true_state().q[AXIS] - q0 == pytest.approx(0.5 * RATE, rel=0.15)
+    from tools.cli import stats as stats_cli  # pfma stats says it too (its JSON, and a line)
+    assert stats_cli.collect(rig.reader)["commands"]["outputs_known_safe"] is False
     # ... though the service tries 0 V in every frame (each try is a counted bus error)
     assert _dac_errors(rig) - e0 >= 0.5 * 320 - 2
     # the board answers again: 0 V written at once, said, the fault code says "was the DAC",
@@ -97,6 +99,7 @@ def test_without_a_charge_pump_the_dac_failure_is_said_honestly_and_cannot_be_st
     assert s.service_state == ServiceState.FAULT and s.fault_code == FAULT_DAC
     assert _texts(rig)[-1] == "DAC answering again: outputs 0 V; the service stays FAULT until re-armed"
     assert not rig.svc.dac_unreachable and rig.svc.guard.outputs_known_safe
+    assert stats_cli.collect(rig.reader)["commands"]["outputs_known_safe"] is True
 
 
 def test_a_re_arm_while_the_dac_does_not_answer_trips_again(plain):
@@ -256,3 +259,15 @@ def test_a_charge_pump_that_cannot_be_written_while_armed_trips(pumped):
                     "amplifiers drop within 20 ms"]
     # the DAC answers: its 0 V is what keeps the arm still here, and it is called safe
     assert rig.world.bus["dac"].output_volts(rig.svc.rack.channel("shoulder_pitch_command").channel) == 0.0
+
+
+def test_pfma_stats_prints_outputs_not_known_safe(plain, capsys):
+    from tools.cli import main
+    rig = plain
+    rig.run(0.05)
+    FaultSet(rig.world).inject("bus-error:dac")
+    rig.run(0.02)
+    assert main(["stats", "--buffer", rig.name]) == 0
+    out = capsys.readouterr().out
+    assert "OUTPUTS NOT KNOWN SAFE: the DAC board does not answer; its outputs may hold their last values: " \
+           "press the hardware E-stop if the arm moves" in out
