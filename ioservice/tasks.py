@@ -391,7 +391,8 @@ class DacTask:
         guardian go through this board, so nothing in software can make the outputs safe
         now. FAULT with FAULT_DAC_UNREACHABLE and one message saying so, naming what the
         outputs may hold and what to do (the guard trips, or says it when already FAULT);
-        later failures of the same episode are counted, not said again."""
+        later failures of the same episode are counted, not said again, unless a re-arm made
+        the service ARMED meanwhile: that is a new trip, said by the guard."""
         svc = self.svc
         svc.fault_code = FAULT_DAC_UNREACHABLE
         svc.guard.outputs_known_safe = False
