@@ -98,6 +98,16 @@ class ChargePump:
         if self._slot is not None:
             self.svc._v["pio_port_bits"][self._slot] = level << cfg.bit
 
+    def probe(self) -> None:
+        """The pump's bus transaction, timed with the DAC's at start (``IoService.measure_bus``):
+        its port written with the level it holds, so no edge (the relay stays as it is)."""
+        if self.drv is None or self.cfg is None:
+            return
+        try:
+            self.drv.write_port(self.cfg.port, self.level << self.cfg.bit)
+        except PfmaError:
+            pass
+
     def stopped_text(self) -> str:
         """For the DAC-not-answering message: what the amplifier enable does now."""
         if self.cfg is None:

@@ -298,12 +298,14 @@ class DacTask:
 
     def probe(self) -> None:
         """The run's transaction: all 16 channels written, with the codes they hold (0 V
-        while the outputs are disconnected, as at start)."""
+        while the outputs are disconnected, as at start), and the charge pump's port with
+        the level it holds (no edge)."""
         drv = self.drv
         try:
             drv.write_volts_all(list(drv.shadow_volts), clamp=True)
         except PfmaError:
             pass
+        self.svc.pump.probe()  # the charge pump's write follows the DAC's in every ARMED frame
 
     def calibrate(self, rack) -> None:
         chans = _by_channel(rack.board(self.cfg.name).channels)

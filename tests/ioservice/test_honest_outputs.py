@@ -271,3 +271,14 @@ def test_pfma_stats_prints_outputs_not_known_safe(plain, capsys):
     out = capsys.readouterr().out
     assert "OUTPUTS NOT KNOWN SAFE: the DAC board does not answer; its outputs may hold their last values: " \
            "press the hardware E-stop if the arm moves" in out
+
+
+def test_the_bus_measurement_times_the_pump_without_an_edge(pumped):
+    rig = pumped
+    relay = rig.world.sim.relay
+    fake = rig.world.bus["pio_video"]
+    fake.log_traffic = True
+    n0 = len(fake.traffic)
+    rig.svc.measure_bus(repeats=3)
+    writes = [t for t in fake.traffic[n0:] if t[0] == "w"]
+    assert len(writes) == 3 and relay.edges == 0  # one port write per DAC probe, no level change
