@@ -282,3 +282,15 @@ def test_the_bus_measurement_times_the_pump_without_an_edge(pumped):
     rig.svc.measure_bus(repeats=3)
     writes = [t for t in fake.traffic[n0:] if t[0] == "w"]
     assert len(writes) == 3 and relay.edges == 0  # one port write per DAC probe, no level change
+
+
+def test_pfma_monitor_says_outputs_not_known_safe(plain):
+    from tools.checkout.view import monitor_lines
+    rig = plain
+    rig.run(0.05)
+    assert not any("NOT KNOWN SAFE" in line for line in monitor_lines(rig.reader))
+    FaultSet(rig.world).inject("bus-error:dac")
+    rig.run(0.02)
+    lines = monitor_lines(rig.reader)
+    assert lines[1] == "OUTPUTS NOT KNOWN SAFE: the DAC does not answer; press the hardware E-stop"
+    assert "fault 7  outputs UNKNOWN  brakes" in lines[2] and all(len(line) <= 80 for line in lines)
