@@ -983,8 +983,9 @@ def _trial_recorder(trial: Trial, workdir: Path, out: Outcome, sess: Session, ct
 
 
 def _trips_since(c, t0: float) -> list[str]:
-    """The service's trip messages ("outputs safe: ...") posted since ``t0``."""
-    return [m.text for m in _service_messages(c) if m.t_s >= t0 and m.text.startswith("outputs safe")]
+    """The service's trip messages ("outputs safe: ...", "outputs NOT known safe: ...") posted since ``t0``."""
+    from ioservice.safety import TRIP_PREFIXES
+    return [m.text for m in _service_messages(c) if m.t_s >= t0 and m.text.startswith(TRIP_PREFIXES)]
 
 
 def _unaffected(out: Outcome, c, k0: int, t0: float) -> None:

@@ -21,12 +21,13 @@ Measured:
   growth after the first minute (the last sample minus the first at or after 60 s, MB),
   the largest value, and the slope over the run's second half (MB/h: a bounded history
   that has filled shows ~0 there, a leak does not);
-- **trips**: every service message "outputs safe: ..." (the orderly stop's excepted), read
-  every 20 ms, each with its explanation: a host stall the service named in the message
-  ("(stall N ms)"), or a late controller (its missed-frame events, ``controller_stats``,
-  went up, or it posted a message naming missed service frames, within
-  :data:`EXPLAIN_WINDOW_S` of the trip: a controller that did not run for the watchdog
-  misses frames and says so); anything else is **unexplained**;
+- **trips**: every service message "outputs safe: ..." or "outputs NOT known safe: ..."
+  (``ioservice.safety.TRIP_PREFIXES``; the orderly stop's excepted), read every 20 ms,
+  each with its explanation: a host stall the service named in the message ("(stall N ms)"),
+  or a late controller (its missed-frame events, ``controller_stats``, went up, or it
+  posted a message naming missed service frames, within :data:`EXPLAIN_WINDOW_S` of the
+  trip: a controller that did not run for the watchdog misses frames and says so); anything
+  else is **unexplained**;
 - **the recording**: the recorder's summary (frames, recorder misses, service skips, the
   stats window, messages missed, ``lossless``);
 - the service's warnings and errors and the controller's errors, and for each recovery the
@@ -165,7 +166,7 @@ class _Operator:
 def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = False) -> dict:
     from bit3.buffer import Bit3Buffer
     from controller.worldmodel import WorldModel
-    from ioservice.safety import STOP_CODE
+    from ioservice.safety import STOP_CODE, TRIP_PREFIXES
 
     py = sys.executable
     name = PREFIX + uuid.uuid4().hex[:6]
@@ -232,7 +233,7 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
                     cursor[q] = max(cursor[q], m.seq)
                     sev = m.severity.name if hasattr(m.severity, "name") else str(m.severity)
                     counts[f"{q} {sev}"] = counts.get(f"{q} {sev}", 0) + 1
-                    if q == "service" and m.text.startswith("outputs safe") and m.code != STOP_CODE:
+                    if q == "service" and m.text.startswith(TRIP_PREFIXES) and m.code != STOP_CODE:
                         trips.append({"t_s": m.t_s, "at_s": round(m.t_s - t0, 2), "text": m.text})
                     if q == "controller" and "missed service frame" in m.text:
                         missed_said_t.append(m.t_s)

@@ -126,6 +126,17 @@ class ServiceState(enum.IntEnum):
     #              (0 V, brakes set) with a live heartbeat: not a fault; needs a re-arm request
 
 
+#: ``inputs.fault_code`` values every tool may need to tell apart (issue 28 item 5,
+#: docs/safety.md "Honest outputs"; the others are ``ioservice.service.FAULT_*``):
+#: FAULT_DAC_UNREACHABLE while the DAC board does not answer: the service could not write
+#: 0 V and the outputs may hold their last values (NOT known safe: the console shows a
+#: banner); it becomes FAULT_DAC (2: a DAC write failed, outputs since written 0 V) once a
+#: 0 V write succeeds again. FAULT_AMP_ENABLE: the amplifier-enable charge pump could not
+#: be written (its relay drops the amplifiers).
+FAULT_DAC_UNREACHABLE = 7
+FAULT_AMP_ENABLE = 8
+
+
 #: ``commands.mode`` value of a halted controller (IRSS halt / single step, docs/console.md):
 #: it keeps writing (a fresh heartbeat) 0 rates, 0 current limits and no arm request, and the
 #: service reports HALTED instead of SAFE; any other value is informational

@@ -98,6 +98,9 @@ class ArmModel:
         self._m_com = np.array([(*m.com_m, 1.0) for m in lm])
         self._m_mask = np.array([[m.frame >= i + 1 for m in lm] for i in range(N_JOINTS)], dtype=float)
         self._d6 = params.dh[-1].d_m
+        #: the amplifiers' enable (the rack's charge-pump relay, when it has one: True
+        #: without one, the amplifiers then being enabled by the hardware E-stop chain alone)
+        self.amplifiers_enabled = True
         self.set_errors(self.errors)
         self.reset(q0)
 
@@ -247,6 +250,10 @@ class ArmModel:
         vr = p.dac_range_v
         v_cmd = np.minimum(np.maximum(np.asarray(rate_cmd_volts, dtype=float), -vr), vr)
         v_ilim = np.minimum(np.maximum(np.asarray(current_limit_volts, dtype=float), 0.0), vr)
+        if not self.amplifiers_enabled:
+            # the amplifier-enable relay is open: no current, and the brake-release card,
+            # fed through the same contact, sets the brakes (as a current limit of 0 V)
+            v_ilim = np.zeros_like(v_ilim)
         if v_cmd.shape != (N_AXES,) or v_ilim.shape != (N_AXES,):
             raise ValueError(f"need {N_AXES} rate commands and {N_AXES} current limits (SY SP EP WP WY WR GR)")
         # brake release card with hysteresis: engage below 0.3 V, release above 0.5 V

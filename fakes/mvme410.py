@@ -9,6 +9,11 @@ of model time later, pulses CA1 low then high.
 Model time follows the board's clock: each bus access first runs events due by
 ``clock.now()``; ``step(dt_s)`` runs ``dt_s`` more (never double-counting a period the
 clock also covered).
+
+A board may also carry the **amplifier-enable charge-pump relay** on one output bit
+(:meth:`FakeMvme410.attach_charge_pump`, the rack file's ``[amplifier_enable]``; ASSUMED
+behaviour in one table, ``drivers.pio.registers.CHARGE_PUMP``): it holds the amplifiers
+enabled while the bit keeps changing level and drops when it stops.
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ import heapq
 import itertools
 from collections.abc import Callable
 
-from drivers.pio.registers import MATRIX_SWITCHER, MVME410, PORTS, decode_matrix_route
+from drivers.pio.registers import CHARGE_PUMP, MATRIX_SWITCHER, MVME410, PORTS, decode_matrix_route
 from fakes.board import FakeBoard, NoAnswer
 from fakes.pia import FakePia6821, even_byte_reason
 from pfma.clock import Clock
@@ -93,6 +98,49 @@ class MatrixSwitcher:
         self.acks += 1
 
 
+class ChargePumpRelay:
+    """Peer on one output pin: a charge-pump watchdog relay (``CHARGE_PUMP``, assumed).
+
+    Every change of the pin's level (latch AND DDR, what the board drives) is an edge, seen
+    at the bus access that made it. The relay is pulled in while the last two edges came
+    less than ``drop_s`` apart and the last one less than ``drop_s`` ago: one edge never pulls
+    it in, and a pin held at either level drops it ``drop_s`` after its last edge.
+
+    :param level: the pin as it is now (a function of nothing: the board's output)
+    :param now: the board's clock
+    """
+
+    def __init__(self, level: Callable[[], int], now: Callable[[], float],
+                 drop_s: float = CHARGE_PUMP["drop_s"]) -> None:
+        self._level = level
+        self._now = now
+        self.drop_s = drop_s
+        self.level = level()
+        self.edges = 0  #: level changes seen
+        self._last: float | None = None  # time of the last edge
+        self._prev: float | None = None  # and of the one before
+
+    def sample(self) -> None:
+        """After a bus write to the board: an edge if the pin changed level."""
+        lvl = self._level()
+        if lvl != self.level:
+            self.level = lvl
+            self.edges += 1
+            self._prev, self._last = self._last, self._now()
+
+    def energized(self, t: float | None = None) -> bool:
+        """Whether the relay holds the amplifiers enabled at ``t`` (default: now)."""
+        if self._last is None or self._prev is None:
+            return False
+        t = self._now() if t is None else t
+        return self._last - self._prev < self.drop_s and t - self._last < self.drop_s
+
+    @property
+    def drops_at(self) -> float | None:
+        """When the relay drops (or dropped) if no edge comes: ``drop_s`` after the last one."""
+        return None if self._last is None else self._last + self.drop_s
+
+
 class FakeMvme410(FakeBoard):
     """Fake MVME410 (two PIAs) with a matrix switcher model on port 0.
 
@@ -109,6 +157,7 @@ class FakeMvme410(FakeBoard):
         self.pia1 = FakePia6821(f"{self.name}.PIA1")
         self.pia2 = FakePia6821(f"{self.name}.PIA2")
         self.switcher = MatrixSwitcher(self.pia1, self.events)
+        self.relay: ChargePumpRelay | None = None  #: the charge-pump relay, if one is wired
         self._pia_at = {}
         for idx, pia in enumerate((self.pia1, self.pia2)):
             first = MVME410.reg(f"PIA{idx + 1}_PRA").offset
@@ -148,6 +197,8 @@ class FakeMvme410(FakeBoard):
         pia, rs = self._locate(offset)
         self.events.sync()
         pia.write(rs, value)
+        if self.relay is not None:
+            self.relay.sample()
 
     def step(self, dt_s: float) -> None:
         """Run ``dt_s`` of model time (switcher acknowledge pulses)."""
@@ -169,6 +220,14 @@ class FakeMvme410(FakeBoard):
         """Port 0..3's pins driven by the board (latch AND DDR; input bits read 0)."""
         pia, side = self._port(port)
         return pia.port_a_output() if side == "a" else pia.port_b_output()
+
+    def attach_charge_pump(self, port: int, bit: int, drop_s: float = CHARGE_PUMP["drop_s"]) -> ChargePumpRelay:
+        """Wire a charge-pump relay (``CHARGE_PUMP``) to output ``bit`` of ``port``."""
+        if not 0 <= bit <= 7:
+            raise ValueError(f"{self.name}: bit {bit} not in 0..7")
+        self._port(port)
+        self.relay = ChargePumpRelay(lambda: (self.outputs(port) >> bit) & 1, self.clock.now, drop_s)
+        return self.relay
 
     @property
     def route(self) -> int | None:

@@ -79,6 +79,12 @@ class SimulatedRack:
         self.arm = arm if arm is not None else ArmModel(environment=environment, errors=self.errors)
         self.environment = self.arm.environment
         self._ft_push = None
+        #: the amplifier-enable charge-pump relay (``fakes.mvme410.ChargePumpRelay``) when the
+        #: rack file names one (``[amplifier_enable]``); None: the amplifiers are always enabled
+        self.relay = None
+        amp = self.config.amplifier_enable
+        if amp is not None:
+            self.relay = self.fake_rack[amp.board].attach_charge_pump(amp.port, amp.bit)
         self._wire()
         self.set_errors(self.errors)
         self._cae_axes = np.zeros(len(CAE_AXIS_SIGNALS))
@@ -242,6 +248,8 @@ class SimulatedRack:
             and stepping them too would run them ``dt_s`` ahead of it)
         """
         v_cmd, v_ilim = self.amplifier_inputs()
+        if self.relay is not None:
+            self.arm.amplifiers_enabled = self.relay.energized()
         self.arm.step(dt_s, v_cmd, v_ilim)
         if boards:
             self.fake_rack.step(dt_s)

@@ -33,6 +33,13 @@ check that it can still reach the board; the first failure is said once). On the
 simulated rack inside the service's process there is no guardian: the simulated arm lives
 and dies with that process.
 
+The amplifier-enable charge pump (rack file ``[amplifier_enable]``, ``ioservice.chargepump``)
+is the service's alone: the guardian never toggles it, so a service that died or stays
+stopped has dropped the amplifiers through it whatever the guardian can write. When the
+guardian cannot write the DAC either it says so and never calls the outputs safe: they may
+hold their last values, and on a rack without that output only the hardware E-stop stops
+the arm (issue 28 item 5, docs/safety.md "Honest outputs").
+
 Assumption (named once, here): the guardian writes the data registers only; it leaves the
 control register's P3 output enable as it is, so the service's idea of its outputs stays true when it
 runs again.
@@ -70,11 +77,13 @@ class Guardian:
     :param hold_s: how long a stopped parent may stay stopped (the watchdog plus one frame)
     :param state: the parent's process state letter (injectable for tests)
     :param parent_alive: whether the parent is still this process's parent (injectable)
+    :param amplifier_enable: the rack's charge pump (``AmplifierEnable.describe()``), "" for none
     """
 
     def __init__(self, dac, parent_pid: int, hold_s: float, *, now: Callable[[], float] = time.monotonic,
                  state: Callable[[int], str] = process_state,
-                 parent_alive: Callable[[], bool] | None = None, say: Callable[[str], None] | None = None) -> None:
+                 parent_alive: Callable[[], bool] | None = None, say: Callable[[str], None] | None = None,
+                 amplifier_enable: str = "") -> None:
         self.dac = dac
         self.parent_pid = parent_pid
         self.hold_s = hold_s
@@ -87,6 +96,15 @@ class Guardian:
         self.safe_writes = 0  #: times the DAC was written to 0 V
         self._keepalive_t = now()
         self._bus_said = False
+        self.amplifier_enable = amplifier_enable
+
+    def not_written(self) -> str:
+        """What a failed 0 V write means (never "safe"): the outputs may hold their last values."""
+        amp = (f"the amplifier-enable charge pump ({self.amplifier_enable}) is no longer toggled: its relay "
+               f"drops the amplifiers" if self.amplifier_enable else
+               "this rack has no amplifier-enable output: only the hardware E-stop stops the arm")
+        return (f"the DAC could NOT be written: its outputs may hold their last values; {amp}; "
+                f"press the hardware E-stop if the arm moves")
 
     def write_safe(self) -> bool:
         try:
@@ -117,7 +135,7 @@ class Guardian:
             ok = self.write_safe()
             self.say(f"the service (pid {self.parent_pid}) is gone: "
                      + ("every DAC channel written to 0 V (rates 0, current limits 0: brakes set)"
-                        if ok else "the DAC could NOT be written"))
+                        if ok else self.not_written()))
             return "died"
         if self.state(self.parent_pid) in ("T", "t"):
             if self.stopped_since is None:
@@ -127,7 +145,7 @@ class Guardian:
                 ok = self.write_safe()
                 self.say(f"the service (pid {self.parent_pid}) has been stopped for "
                          f"{(t - self.stopped_since) * 1e3:.0f} ms: "
-                         + ("every DAC channel written to 0 V" if ok else "the DAC could NOT be written"))
+                         + ("every DAC channel written to 0 V" if ok else self.not_written()))
                 return "stopped"
         else:
             if self.acted_this_stop:
@@ -227,7 +245,8 @@ def main(argv: list[str] | None = None) -> int:
     except (PfmaError, OSError, ValueError) as err:
         print(f"error: {err}", flush=True)
         return 1
-    g = Guardian(dac, args.parent_pid, args.hold_ms / 1e3)
+    amp = rack.amplifier_enable
+    g = Guardian(dac, args.parent_pid, args.hold_ms / 1e3, amplifier_enable=amp.describe() if amp else "")
     print(READY, flush=True)
     try:
         sys.stdout.close()

@@ -27,6 +27,10 @@ Rules (issue "data-acquisition service", item 3; MVME 104 watchdog 15 ms, IRSS 3
   trip. Leaving HALTED needs an arm request with a new number (the re-arm), or the mode
   cleared (-> SAFE). A heartbeat that goes stale while HALTED is a watchdog FAULT like any
   other: the controller that was holding the halt is gone.
+- **Honesty** (issue 28 item 5, docs/safety.md "Honest outputs"): every safe action goes
+  through the DAC board. While the service's last DAC write failed
+  (:attr:`OutputGuard.outputs_known_safe` False, set by the service) no trip or stop says
+  "outputs safe": they say "outputs NOT known safe" instead.
 - The heartbeat is judged on the **service's** clock: the service notes when it
   last saw the heartbeat counter change, so the two processes' clocks never need to
   agree.
@@ -37,10 +41,14 @@ from __future__ import annotations
 from bit3.layout import ServiceState  # the states as the Bit3 header publishes them
 from pfma.clock import Clock
 
-__all__ = ["OutputGuard", "ServiceState", "STOP_CODE", "HALT_CODE"]
+__all__ = ["OutputGuard", "ServiceState", "STOP_CODE", "HALT_CODE", "TRIP_PREFIXES"]
 
 #: message code of the orderly stop's notice ("outputs safe: service stopped"): not a trip
 STOP_CODE = 10
+#: how every trip and stop message of the service begins: "outputs safe" while the DAC
+#: answers, "outputs NOT known safe" while its last write failed (docs/safety.md "Honest
+#: outputs"); tools that count trips look for either
+TRIP_PREFIXES = ("outputs safe", "outputs NOT known safe")
 #: message code of the halt's notices (halted by the controller, halt released): not a trip
 HALT_CODE = 11
 
@@ -68,6 +76,13 @@ class OutputGuard:
         self._arm_request_used: int | None = None  # arm_request value that armed or was refused last
         self._ever_seen = False
         self._pending_notice: int | None = None
+        #: False while the service's last DAC write failed (the DAC board not answering):
+        #: the outputs may hold their last values, and no message calls them safe
+        self.outputs_known_safe = True
+
+    def outputs_word(self) -> str:
+        """How trips and stops name the outputs: "outputs safe" only while the DAC answers."""
+        return "outputs safe" if self.outputs_known_safe else "outputs NOT known safe"
 
     def heartbeat_age_s(self) -> float:
         return self.clock.now() - self._hb_t
@@ -176,9 +191,9 @@ class OutputGuard:
         self.state = ServiceState.FAULT
         self.trips += 1
         self.reason = reason
-        self.post(2, code, f"outputs safe: {reason}")
+        self.post(2, code, f"{self.outputs_word()}: {reason}")
 
     def stop(self, reason: str = "service stopped") -> None:
         self.state = ServiceState.STOPPED
         self.reason = reason
-        self.post(1, STOP_CODE, f"outputs safe: {reason}")
+        self.post(1 if self.outputs_known_safe else 2, STOP_CODE, f"{self.outputs_word()}: {reason}")

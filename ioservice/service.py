@@ -44,7 +44,9 @@ from bit3.layout import (  # noqa: F401 - the status bits are re-exported for ol
     Severity,
 )
 from bit3.layout import MODE_HALTED  # HALTED (issue 18): the halted controller's command-area mode
+from bit3.layout import FAULT_AMP_ENABLE, FAULT_DAC_UNREACHABLE  # noqa: F401 - issue 28 item 5, re-exported
 from ioservice import direction
+from ioservice.chargepump import ChargePump
 from ioservice.direction import DirectionCheck
 from ioservice.loop import FrameInfo, FrameLoop, LoopStats
 from ioservice.safety import OutputGuard
@@ -66,6 +68,8 @@ FAULT_NONE, FAULT_WATCHDOG, FAULT_DAC, FAULT_INPUTS, FAULT_UNEXPECTED = 0, 1, 2,
 #: inputs.fault_code when the outputs went safe because a command was refused (the service
 #: is then SAFE, not FAULT): a field beyond its limit / NaN, or a writer without the claim
 FAULT_COMMAND, FAULT_FOREIGN = 5, 6
+# FAULT_DAC_UNREACHABLE (7: the DAC does not answer, outputs NOT known safe) and
+# FAULT_AMP_ENABLE (8: the charge pump could not be written) are bit3.layout's: tools read them
 #: internal: nobody holds the command area's claim (no controller yet); not published
 _NO_WRITER = 0x100
 #: consecutive failing samples of an input board before the outputs are made safe
@@ -243,6 +247,10 @@ class IoService:
         self.ft = FtTask(self)
         self.hand = HandTask(self)
         self.pio = PioTask(self)
+        #: while the DAC board does not answer: the message that said so (the outputs may hold
+        #: their last values; issue 28 item 5); None while its last write succeeded
+        self.dac_unreachable: str | None = None
+        self.pump = ChargePump(self)  #: the amplifier-enable charge pump (inactive without one)
         self._build_tasks()
         self.rtd.wire()
         self.adc.wire()
@@ -251,6 +259,7 @@ class IoService:
         # Outputs start disconnected and at 0 V: write the zeros, keep P3 off.
         self._init_board(self.dac.cfg, self.dac.drv.disable_outputs)
         self.pio.wire()
+        self.pump.wire()
         self._mvme400: tuple[BoardConfig, Any] | None = None  # (board, driver) of the serial board
         self._last_drain = -math.inf  # clock time of the last serial FIFO drain
         self._ft_url = ft_port
@@ -552,7 +561,10 @@ class IoService:
         silent = self.clock.now() - self._bus_ok_t
         if silent <= BUS_LOST_S:
             return
-        self.bus_lost = self._bus_silence(silent) + "; outputs made safe, service stopping"
+        self.bus_lost = self._bus_silence(silent) + (
+            "; outputs made safe, service stopping" if self.dac_unreachable is None else
+            "; outputs NOT known safe (the DAC did not answer: they may hold their last values; "
+            "press the hardware E-stop), service stopping")
         self.post(Severity.ERROR, 152, f"bus lost: {self.bus_name}")
         self.fault_code = FAULT_DAC if self.fault_code == FAULT_NONE else self.fault_code
         # outputs: the DAC write of this frame has already failed (and tripped the guard);
@@ -569,7 +581,10 @@ class IoService:
         than the command watchdog, before BUS_LOST_S, is reported all the same."""
         silent = self.clock.now() - self._bus_ok_t
         if self.bus_lost is None and self._bus_failed and silent > self.watchdog_s:
-            self.bus_lost = self._bus_silence(silent) + " when the run ended; outputs made safe"
+            self.bus_lost = self._bus_silence(silent) + (
+                " when the run ended; outputs made safe" if self.dac_unreachable is None else
+                " when the run ended; outputs NOT known safe (the DAC did not answer: they may hold "
+                "their last values; press the hardware E-stop)")
             self.post(Severity.ERROR, 152, f"bus lost: {self.bus_name}")
 
     # ------------------------------------------------------------------ what the bus can keep
@@ -839,7 +854,9 @@ class IoService:
         self._write_dac(self.dac.zeros, self.dac.forced_safe, self.dac.zeros)
 
     def _write_dac(self, volts: list[float], status: list[int], eng: list[float]) -> None:
-        self.dac.write(volts, status, eng)
+        ok = self.dac.write(volts, status, eng)
+        # the amplifier-enable charge pump: one edge per frame while ARMED and the DAC answers
+        self.pump.frame(ok and self.guard.state == ServiceState.ARMED)
 
     def _publish(self, info: FrameInfo) -> None:
         v = self._v
@@ -997,11 +1014,21 @@ class IoService:
         """Outputs to 0 V and disconnected, state STOPPED, message posted (idempotent)."""
         if self.state == ServiceState.STOPPED:
             return
-        self.guard.stop(reason)
         try:
             self.dac.drv.disable_outputs()
         except PfmaError as err:
+            self.guard.outputs_known_safe = False  # the stop's notice must not call them safe
+            self.fault_code = FAULT_DAC_UNREACHABLE
             self.post(Severity.ERROR, 150, f"could not disable DAC outputs: {err}")
+        else:
+            self.guard.outputs_known_safe = True
+            self.dac_unreachable = None
+            if self.fault_code == FAULT_DAC_UNREACHABLE:  # written 0 V and disconnected after all
+                self.fault_code = FAULT_DAC
+        self._v["fault_code"][...] = self.fault_code
+        self.guard.stop(reason if self.guard.outputs_known_safe else
+                        f"{reason}; the DAC did not answer: its outputs may hold their last values "
+                        f"({self.dac.last_values_text()}); {self.pump.stopped_text()}; press the hardware E-stop")
         self._outputs_enabled = False
         self.dac.publish_stopped()
         self.set_state(ServiceState.STOPPED)

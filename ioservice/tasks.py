@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from bit3.layout import (
-    CHANNEL_BUS_ERROR, DAC_CLIPPED, DAC_FORCED_SAFE, LINK_FAULT, LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_NO_REFERENCE,
+    CHANNEL_BUS_ERROR, DAC_CLIPPED, DAC_FORCED_SAFE, FAULT_DAC_UNREACHABLE, LINK_FAULT, LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_NO_REFERENCE,
     ServiceState, Severity,
 )
 from pfma.errors import PfmaError
@@ -298,12 +298,14 @@ class DacTask:
 
     def probe(self) -> None:
         """The run's transaction: all 16 channels written, with the codes they hold (0 V
-        while the outputs are disconnected, as at start)."""
+        while the outputs are disconnected, as at start), and the charge pump's port with
+        the level it holds (no edge)."""
         drv = self.drv
         try:
             drv.write_volts_all(list(drv.shadow_volts), clamp=True)
         except PfmaError:
             pass
+        self.svc.pump.probe()  # the charge pump's write follows the DAC's in every ARMED frame
 
     def calibrate(self, rack) -> None:
         chans = _by_channel(rack.board(self.cfg.name).channels)
@@ -338,9 +340,12 @@ class DacTask:
             st_out.append(st)
         return volts, st_out
 
-    def write(self, volts: list[float], status: list[int], eng: list[float]) -> None:
+    def write(self, volts: list[float], status: list[int], eng: list[float]) -> bool:
         """Write the volts (the driver converts to codes) and publish codes, volts, values,
-        status, the outputs and brakes flags; a failed write trips the guard."""
+        status, the outputs and brakes flags. A failed write trips the guard and says the
+        outputs are NOT known safe (:meth:`not_answering`); the service keeps writing 0 V
+        every frame, and the first write that succeeds again says so (:meth:`answering_again`).
+        Returns whether the write succeeded."""
         svc = self.svc
         v = svc._v
         t = svc.clock.now()
@@ -348,15 +353,15 @@ class DacTask:
         try:
             drv.write_volts_all(volts, clamp=True)
         except PfmaError as err:
-            from ioservice import service as _service  # the fault codes
             svc._count_board_error(self.cfg.name, err)
             svc._devices["dac"].errors += 1
-            svc.fault_code = _service.FAULT_DAC
-            svc.guard.trip(f"DAC write failed: {err}", code=_service.FAULT_DAC)
-            return
+            self.not_answering(err)
+            return False
         svc._bus_ok_t = t
         if svc.faulted_boards:
             svc._board_answered(self.cfg.name)
+        if svc.dac_unreachable is not None:
+            self.answering_again(volts)
         slots = self.slots
         v["dac_counts"][slots] = drv.shadow_counts
         v["dac_volts"][slots] = drv.shadow_volts
@@ -370,6 +375,55 @@ class DacTask:
         svc._sampled("dac", t)
         if svc.guard.state != svc.state and svc.state not in (ServiceState.STOPPED,):
             svc.set_state(svc.guard.state)
+        return True
+
+    def last_values_text(self) -> str:
+        """What the DAC holds as far as the service knows: the codes of the last writes that
+        reached it (the driver's shadow: a failed block write keeps a channel's old code),
+        the non-zero channels named."""
+        if not self.svc._outputs_enabled:
+            return "last written 0 V with the outputs disconnected (P3 off)"
+        held = [(v, name) for v, name in zip(self.drv.shadow_volts.tolist(), self.names) if abs(v) >= 0.005]
+        if not held:
+            return "last written 0 V on every channel"
+        return "last written " + ", ".join(f"{v:+.2f} V on {name}" for v, name in held)
+
+    def not_answering(self, err: Exception) -> None:
+        """A DAC write failed: every safe action of the service, its stop and the output
+        guardian go through this board, so nothing in software can make the outputs safe
+        now. FAULT with FAULT_DAC_UNREACHABLE and one message saying so, naming what the
+        outputs may hold and what to do (the guard trips, or says it when already FAULT);
+        later failures of the same episode are counted, not said again, unless a re-arm made
+        the service ARMED meanwhile: that is a new trip, said by the guard."""
+        svc = self.svc
+        svc.fault_code = FAULT_DAC_UNREACHABLE
+        svc.guard.outputs_known_safe = False
+        first = svc.dac_unreachable is None
+        if first:
+            svc.dac_unreachable = (
+                f"DAC not answering ({err}): its outputs may hold their last values "
+                f"({self.last_values_text()}); {svc.pump.stopped_text()}; press the hardware "
+                f"E-stop if the arm moves; the service keeps writing 0 V every frame")
+        text = svc.dac_unreachable
+        was = svc.guard.state
+        # a re-arm while the board is still silent trips again (and says so once more)
+        svc.guard.trip(text, code=FAULT_DAC_UNREACHABLE)
+        if first and was in (ServiceState.FAULT, ServiceState.STOPPED):  # the guard said nothing
+            svc.post(Severity.ERROR, FAULT_DAC_UNREACHABLE, f"{svc.guard.outputs_word()}: {text}")
+
+    def answering_again(self, volts: list[float]) -> None:
+        """The first write that succeeded after :meth:`not_answering`: the outputs are known
+        again (0 V: the guard is FAULT, so the zeros were written); FAULT stays until a re-arm."""
+        from ioservice.service import FAULT_DAC
+        svc = self.svc
+        svc.dac_unreachable = None
+        svc.guard.outputs_known_safe = True
+        if svc.fault_code == FAULT_DAC_UNREACHABLE:
+            svc.fault_code = FAULT_DAC
+        zero = not any(volts)
+        svc.post(Severity.WARNING, FAULT_DAC,
+                 "DAC answering again: outputs " + ("0 V" if zero else "written")
+                 + f"; the service stays {svc.guard.state.name} until re-armed")
 
     def publish_stopped(self) -> None:
         """After the outputs were disabled: the shadow (0 V) and no outputs, no brakes."""

@@ -55,6 +55,8 @@ CHECKS_KEYS = {"allow_nonnominal"}
 #: schedule it runs differs from these). tests/ioservice checks this table against the
 #: schedule's.
 SCHEDULED_RATES_HZ = {"dac": 320.0, "rtd": 160.0, "adc": 160.0, "serial": 80.0, "pio": 40.0}
+#: ``[amplifier_enable]`` keys: the optional charge-pump output (see :class:`AmplifierEnable`)
+AMPLIFIER_ENABLE_KEYS = {"board", "port", "bit"}
 SIGNAL_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
@@ -159,6 +161,29 @@ class CommandPolicy:
     limit_margin: float = 0.02
 
 
+@dataclass(frozen=True)
+class AmplifierEnable:
+    """The amplifier-enable charge pump (rack file section ``[amplifier_enable]``, optional;
+    issue 28 item 5, docs/safety.md "Honest outputs"): one output bit of a parallel-port
+    board that the service toggles every frame while it is ARMED and its DAC answers, as
+    LinuxCNC's ``charge-pump``/``amp-enable-out``. A relay behind it (a retriggerable
+    watchdog) holds the amplifiers enabled only while the bit keeps toggling, so a dead,
+    stalled or faulted service, or one whose DAC stopped answering, drops the amplifiers.
+
+    ASSUMED (named once here): the port carrying the bit is the charge pump's alone (its
+    channel has ``direction = "out"``; the service writes its other bits 0), and the rack
+    has no such output unless the file says so (the seed's rack has none: its DAC board is
+    then a single point of failure the hardware E-stop must cover).
+    """
+
+    board: str  #: a ``pio`` board of the rack
+    port: int  #: 0..3 (the board's channel of that number, an output)
+    bit: int  #: 0..7
+
+    def describe(self) -> str:
+        return f"{self.board} port {self.port} bit {self.bit}"
+
+
 @dataclass
 class RackConfig:
     name: str
@@ -174,6 +199,8 @@ class RackConfig:
     #: ``("signal.field", text)`` per value this file holds outside the nominal band under an
     #: override (the service names each in its start-up messages)
     nonnominal: tuple[tuple[str, str], ...] = ()
+    #: the amplifier-enable charge pump (``[amplifier_enable]``), None: the rack has none
+    amplifier_enable: AmplifierEnable | None = None
 
     def channels(self) -> list[Channel]:
         return [c for b in self.boards for c in b.channels]
@@ -369,7 +396,7 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
     boards_raw = data.get("board")
     if not isinstance(boards_raw, list) or not boards_raw:
         fail("no [[board]] entries")
-    unknown_top = set(data) - {"rack", "bit3", "board", "commands", "arm", "checks"}
+    unknown_top = set(data) - {"rack", "bit3", "board", "commands", "arm", "checks", "amplifier_enable"}
     if unknown_top:
         fail(f"unknown top-level section(s): {', '.join(sorted(unknown_top))}")
 
@@ -530,11 +557,13 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
         if fld == "limit" and c.device != "dac":
             _section_fail(text, source, "checks", "allow_nonnominal",
                           f"[checks] allow_nonnominal names {o!r}, but only DAC channels have a limit")
+    amp = data.get("amplifier_enable")
     return RackConfig(name=str(rack.get("name", "rack")), boards=tuple(boards),
                       bit3=_bit3(data.get("bit3", {}), text, source), source=source,
                       commands=_command_policy(data.get("commands", {}), text, source),
                       joints=_arm_joints(data.get("arm", {}), roles, text, source),
-                      overrides=overrides, nonnominal=tuple(nonnominal))
+                      overrides=overrides, nonnominal=tuple(nonnominal),
+                      amplifier_enable=None if amp is None else _amplifier_enable(amp, boards, text, source))
 
 
 def _scheduled_rates() -> str:
@@ -563,6 +592,33 @@ def _overrides(raw, text: str, source: str) -> tuple[str, ...]:
     if len(set(names)) != len(names):
         fail(f"[checks] allow_nonnominal names an entry twice: {names!r}", "allow_nonnominal")
     return tuple(names)
+
+
+def _amplifier_enable(raw, boards: list[BoardConfig], text: str, source: str) -> AmplifierEnable:
+    """Validate ``[amplifier_enable]``: ``board`` a pio board of the rack, ``port`` one of
+    its channels with ``direction = "out"`` and no other use (not the matrix switcher),
+    ``bit`` 0..7."""
+    fail = _section(raw, "amplifier_enable", AMPLIFIER_ENABLE_KEYS, text, source)
+    missing = sorted(AMPLIFIER_ENABLE_KEYS - set(raw))
+    if missing:
+        fail(f"[amplifier_enable] needs {', '.join(missing)} (board = a pio board, port = 0..3, bit = 0..7)")
+    name, port, bit = raw["board"], raw["port"], raw["bit"]
+    pio = [b for b in boards if b.device == "pio"]
+    found = [b for b in pio if b.name == name]
+    if not found:
+        fail(f"[amplifier_enable] board {name!r} is not a pio board of this rack; pio boards: "
+             f"{', '.join(b.name for b in pio) or 'none'}", "board")
+    board = found[0]
+    if not _is_int(port) or not 0 <= port < len(board.channels):
+        fail(f"[amplifier_enable] port must be an integer 0..{len(board.channels) - 1}, not {port!r}", "port")
+    if not _is_int(bit) or not 0 <= bit <= 7:
+        fail(f"[amplifier_enable] bit must be an integer 0..7, not {bit!r}", "bit")
+    ch = board.signal(port)
+    if ch.direction != "out" or ch.signal == "matrix_switcher_route" or ch.signal.startswith("user_if_box"):
+        fail(f"[amplifier_enable] {name} port {port} ({ch.signal}) must be an output of its own: give "
+             f"that channel direction = \"out\" and a signal of its own (not the matrix switcher's or "
+             f"the user inputs')", "port")
+    return AmplifierEnable(str(name), int(port), int(bit))
 
 
 def _arm_joints(raw, roles: dict[tuple[str, str], str], text: str, source: str) -> tuple[str, ...]:

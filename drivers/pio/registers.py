@@ -135,6 +135,20 @@ def decode_matrix_route(value: int) -> tuple[int, int]:
     return fields[1].get(value), fields[2].get(value)
 
 
+#: The amplifier-enable charge-pump relay (issue 28 item 5; rack file ``[amplifier_enable]``):
+#: ASSUMED (no drawing of such a relay exists for this rack; modelled on the charge-pump
+#: watchdog boards LinuxCNC's ``charge-pump`` output drives). The relay holds the servo
+#: amplifiers' enable while the output bit keeps changing level: it pulls in once two edges
+#: come less than ``drop_s`` apart and drops ``drop_s`` after the last edge (a retriggerable
+#: monostable), so a bit held at either level, whatever its level, drops it. The service
+#: toggles the bit every frame (an edge every 3.125 ms at 320 Hz). Amplifiers without enable
+#: give no current, and the brake-release card is fed through the same contact (fail-safe
+#: brakes: unpowered = set).
+CHARGE_PUMP = {
+    "drop_s": 0.020,  #: no edge for this long: the relay drops (assumed 20 ms, > 6 frames at 320 Hz)
+}
+
+
 MVME410 = BoardDescription(
     kind="mvme410",
     title="Motorola MVME410 dual 16-bit parallel I/O (2 x MC6821 PIA)",

@@ -114,6 +114,8 @@ def test_a_gateway_that_stops_answering_ends_the_run_safe_and_names_it(buffer_na
         assert s.frame < 60 * 320  # it ended on the lost bus, not at the end of --duration
         texts = [m.text for m in c.messages()]
         assert f"bus lost: {gw.url}" in texts
-        assert any(t.startswith("outputs safe: DAC write failed") for t in texts)
+        # the DAC did not take the 0 V: never called safe (issue 28 item 5)
+        assert any(t.startswith("outputs NOT known safe: DAC not answering") for t in texts)
+        assert not any("outputs safe" in t for t in texts)
     finally:
         c.close()

@@ -14,7 +14,8 @@ from typing import Any, Callable
 import numpy as np
 
 from bit3.layout import (
-    BOARD_FAULT, BOARD_INIT, BOARD_OK, CHANNEL_BUS_ERROR, DAC_CLIPPED, DAC_FORCED_SAFE, DEVICE_GROUPS, LINK_FAULT,
+    BOARD_FAULT, BOARD_INIT, BOARD_OK, CHANNEL_BUS_ERROR, DAC_CLIPPED, DAC_FORCED_SAFE, DEVICE_GROUPS,
+    FAULT_DAC_UNREACHABLE, LINK_FAULT,
     LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_LOSS_OF_SIGNAL, RTD_NO_REFERENCE, ServiceState,
 )
 from pfma.errors import PfmaError, did_you_mean
@@ -154,10 +155,13 @@ def monitor_header(d: dict[str, Any], width: int = MONITOR_WIDTH) -> list[str]:
     """The service's state in lines of at most ``width`` columns."""
     import textwrap
     rates = "  ".join(f"{g} {v['rate_hz']:.0f}/{v['errors']}" for g, v in d["devices"].items())
+    unknown = d["fault_code"] == FAULT_DAC_UNREACHABLE  # the DAC does not answer (docs/safety.md)
     lines = [
         f"pfma monitor  buffer {d['buffer']}  rack {d['rack']}  state {d['state']}",
+        *(["OUTPUTS NOT KNOWN SAFE: the DAC does not answer; press the hardware E-stop"]
+          if unknown else []),
         f"frame {d['frame']}  t {d['t_s']:.3f} s  fault {d['fault_code']}  "
-        f"outputs {'ENABLED' if d['outputs_enabled'] else 'off'}  "
+        f"outputs {'UNKNOWN' if unknown else 'ENABLED' if d['outputs_enabled'] else 'off'}  "
         f"brakes {'released' if d['brakes_released'] else 'set'}  "
         f"watchdog {'TRIPPED' if d['watchdog_tripped'] else 'ok'}",
         f"heartbeat {d['command_heartbeat']} (age {d['command_age_s'] * 1e3:.1f} ms)  "

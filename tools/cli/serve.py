@@ -10,7 +10,9 @@ parallel-port transactions); a schedule the bus cannot keep is refused with the 
 unless ``--schedule slow`` lets it run the best slower schedule that fits, which it names.
 Over a Modbus gateway (``--bus modbus://HOST:PORT``, e.g. ``pfma gateway``) the serial
 lines are not opened: the F/T comes from ``--ft URL`` or is absent. A bus that stops
-answering makes the outputs safe and ends the run with exit status 1.
+answering ends the run with exit status 1; the DAC then did not take its 0 V either, so the
+outputs are NOT known safe and the message says so (they may hold their last values: the
+hardware E-stop, or the rack's amplifier-enable charge pump, docs/safety.md, must stop the arm).
 
 Devices beside the rack (docs/devices.md):
   --ft URL       the F/T sensor on a pyserial URL (/dev/ttyUSB0, socket://host:port) or
@@ -312,6 +314,15 @@ def run(args) -> int:
             else:
                 print(f"pfma serve: output guardian pid {guardian.pid}: the DAC goes to 0 V if this "
                       f"service dies or stays stopped", flush=True)
+            # what stops the arm when the DAC board itself does not answer (docs/safety.md
+            # "Honest outputs"): said once at start, on a hardware bus
+            if rack.amplifier_enable is not None:
+                print(f"pfma serve: amplifier enable: charge pump {rack.amplifier_enable.describe()}, "
+                      f"toggled every frame while ARMED and the DAC answers", flush=True)
+            else:
+                print(f"pfma serve: warning: rack {rack.name} has no amplifier-enable output "
+                      f"([amplifier_enable]): if the DAC board stops answering, only the hardware "
+                      f"E-stop stops the arm", file=sys.stderr, flush=True)
         if args.modbus:  # inside the try: an export that cannot start leaves no buffer or ring behind
             from tools.modbus_export import start_export_from_args
             export = start_export_from_args(args.buffer, args.modbus, args.modbus_writes,

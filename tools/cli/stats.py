@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 import sys
 
-from bit3.layout import CMD_STATUS_NAMES, DEVICE_GROUPS, ServiceState
+from bit3.layout import CMD_STATUS_NAMES, DEVICE_GROUPS, FAULT_DAC_UNREACHABLE, ServiceState
 
 
 def add_parser(sub):
@@ -43,6 +43,9 @@ def collect(client) -> dict:
     out["commands"] = {  # what the service made of the command area (docs/safety.md)
         "writer": writer.name if writer is not None and writer.alive else None,
         "fault_code": int(s.fault_code), "watchdog_tripped": bool(s.watchdog_tripped),
+        # False while the DAC board does not answer: its outputs may hold their last values
+        # (docs/safety.md "Honest outputs")
+        "outputs_known_safe": int(s.fault_code) != FAULT_DAC_UNREACHABLE,
         "inputs_frame": int(s.command_inputs_frame), "input_age_frames": int(s.command_input_age_frames),
         "status": [n for b, n in CMD_STATUS_NAMES.items() if status & b],
         "stale_frames": int(s.stale_commands), "absent_frames": int(s.absent_commands),
@@ -139,5 +142,8 @@ def run(args) -> int:
     print(f"commands: {age}  status {'+'.join(cm['status']) or 'ok'}  "
           f"stale {cm['stale_frames']} frames  absent {cm['absent_frames']}  refused {cm['refused']}  "
           f"foreign writes {cm['foreign_writes']}{'  WATCHDOG TRIPPED' if cm['watchdog_tripped'] else ''}{stall}")
+    if not cm["outputs_known_safe"]:
+        print("OUTPUTS NOT KNOWN SAFE: the DAC board does not answer; its outputs may hold their last values: "
+              "press the hardware E-stop if the arm moves (docs/safety.md \"Honest outputs\")")
     print(format_controller(d["controller"]))
     return 0

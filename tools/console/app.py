@@ -517,6 +517,8 @@ class ConsoleApp(App):
     .area { border: round $accent; padding: 0 1; height: 100%; }
     #world { row-span: 1; }
     #messages { column-span: 2; }
+    #banner { dock: top; height: auto; padding: 0 1; background: red; color: white; text-style: bold;
+              border: heavy yellow; display: none; }
     """
     TITLE = "PFMA operator console"
     BINDINGS = [
@@ -564,6 +566,8 @@ class ConsoleApp(App):
         self.recording: ConsoleRecording | None = None  # ``c``: a pfma record process, made at the first press
 
     def compose(self) -> ComposeResult:
+        # issue 28 item 5: shown only while the service reports its outputs NOT known safe
+        yield Static("", id="banner", markup=False)
         with Grid():
             for key, title in zip(("local", "world", "messages", "commands", "global"), view.AREAS):
                 w = Static("", id=key, classes="area", markup=False)
@@ -605,6 +609,7 @@ class ConsoleApp(App):
             self._set("world", self.read_error)
             return
         self._follow_answer()
+        self._show_banner(view.outputs_banner(r))
         self.ft.add(r.inputs)
         if ready and isinstance(scr, ForceScreen):
             scr.redraw()
@@ -618,6 +623,22 @@ class ConsoleApp(App):
         self._set("global", view.global_commands(r, self.rearm, self.last_answer))
         if isinstance(self.screen, CameraScreen) and self.screen.is_mounted:  # the camera routes are live too
             self.screen.redraw()
+
+    def _show_banner(self, text: str) -> None:
+        """The banner above the areas (and under any screen pushed over them: it is the main
+        screen's): shown with ``text``, hidden when ``text`` is ""."""
+        if self._shown.get("banner") == text:
+            return
+        self._shown["banner"] = text
+        banner = self.query_one("#banner", Static)
+        banner.update(text)
+        banner.display = bool(text)
+
+    @property
+    def banner_text(self) -> str:
+        """The banner's text while it is shown, "" while hidden."""
+        banner = self.query_one("#banner", Static)
+        return str(banner.render()) if banner.display else ""
 
     def _set(self, key: str, text: str) -> None:
         """Redraw an area only when its text changed, without a layout pass (the grid fixes

@@ -14,7 +14,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from bit3.layout import DEVICE_GROUPS, HAND_CONTROLLERS, ServiceState, Severity
+from bit3.layout import DEVICE_GROUPS, FAULT_DAC_UNREACHABLE, HAND_CONTROLLERS, ServiceState, Severity
 from controller.cartesian import CartesianLayer
 from controller.daq_layer import FAULT_NAMES, DataAcquisitionLayer
 from controller.decision import Command, Status, status_text
@@ -191,10 +191,11 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
     s, st = r.inputs, r.stats
     lay = s.layout
     halted = bool(r.wm.get("runtime.halted", False))
+    outputs_word = "NOT KNOWN SAFE" if outputs_unknown(r) else "LIVE" if int(s.outputs_enabled) else "safe (0 V)"
     lines = [rack_line(rack) + ("" if speed is None else f"  (simulated time x{speed:.2f} of real time)"),
              f"service {r.service_state:<8} frame {r.frame:<9} t {r.t_s:9.3f} s  "
              f"{float(st.rate_hz):6.1f} Hz  fault code {int(s.fault_code)}",
-             f"outputs {'LIVE' if int(s.outputs_enabled) else 'safe (0 V)'}  brakes "
+             f"outputs {outputs_word}  brakes "
              f"{'released' if int(s.brakes_released) else 'set'}  watchdog "
              f"{'TRIPPED' if int(s.watchdog_tripped) else 'ok'} (command age {float(s.command_age_s) * 1e3:.1f} ms)",
              "device rates: " + "  ".join(f"{g} {float(st.device_rate_hz[lay.slot('device', g)]):.0f}"
@@ -220,6 +221,29 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
     lines.append(f"hand controllers: {hc}")
     lines.append(camera_routes_line(r))
     return "\n".join(lines)
+
+
+def outputs_unknown(r: Reading) -> bool:
+    """The service says its outputs are NOT known safe: its DAC board does not answer
+    (``inputs.fault_code`` FAULT_DAC_UNREACHABLE, issue 28 item 5)."""
+    return r.inputs is not None and int(r.inputs.fault_code) == FAULT_DAC_UNREACHABLE
+
+
+def outputs_banner(r: Reading) -> str:
+    """The banner the console shows above every area while :func:`outputs_unknown` ("" when
+    not): what is known (the values last written, as the service published them), what it
+    means and what the operator must do."""
+    if not outputs_unknown(r):
+        return ""
+    s = r.inputs
+    held = [(float(s.dac_volts[c.slot]), c.name) for c in s.layout.channels
+            if c.kind == "dac" and c.area == "inputs" and abs(float(s.dac_volts[c.slot])) >= 0.005]
+    last = ", ".join(f"{v:+.2f} V {name}" for v, name in held) or "0 V on every channel"
+    return ("OUTPUTS NOT KNOWN SAFE: the DAC board is not answering; its outputs may hold their last "
+            f"values ({last}).\n"
+            "PRESS THE HARDWARE E-STOP if the arm moves. Software cannot stop it through the DAC: the "
+            "service keeps writing 0 V every frame and has stopped the amplifier-enable charge pump if "
+            "the rack has one; without one only the E-stop stops the arm.")
 
 
 def camera_routes_line(r: Reading) -> str:
