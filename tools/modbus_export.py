@@ -21,8 +21,12 @@ generated ``docs/modbus-map.md``, see :func:`modbus_map_markdown`):
 - **holding registers (fc 3, 6, 16)**: the ``commands`` area body at HR 0, same
   encoding. Reads are always allowed. Writes are refused (exception 1,
   ILLEGAL_FUNCTION) unless the export was started with ``allow_writes=True``; then the
-  export holds the controller writer role and every accepted write is one
-  ``Client.write_commands`` (heartbeat + 1).
+  export holds the controller writer role and accepts writes of :data:`REQUEST_FIELDS`
+  only (the camera route, checked against the route table) and keep-alives, each one
+  ``Client.write_commands`` (heartbeat + 1). It **never arms or drives motion** (issue 28
+  item 6): its command record holds the safe command (no arm request, rates 0, current
+  limits 0: brakes set, gripper 0), and a write touching any other field answers
+  exception 2 (ILLEGAL_ADDRESS), counted and logged like every refusal.
 - **every other function code** (0..255) answers exception 1.
 
 Every read request copies one consistent, seqlocked snapshot of its area
@@ -64,6 +68,7 @@ import numpy as np
 
 from bit3.client import PRIMARY_FIELD, Client
 from bit3.layout import Layout, default_layout
+from drivers.pio.routes import ALL_ROUTES
 from ioservice.safety import OutputGuard
 from bit3.buffer import Bit3Buffer, Bit3Error
 from pfma.errors import ConfigError, PfmaError
@@ -94,6 +99,16 @@ MAP_VERSION = 1
 CHANNEL_KINDS = ("rtd", "adc", "dac", "pio")
 #: command fields the export sets itself; writing them is accepted as a keep-alive only
 KEEPALIVE_FIELDS = ("heartbeat", "t_s", "writer_pid", "writer_token")
+#: the requests a Modbus master may write (writes enabled): the camera route, a value of the
+#: route table (drivers/pio/routes.py ALL_ROUTES), which the service's PIO task applies. No
+#: field that arms or moves the arm is here: Modbus TCP has no authentication and its port
+#: is reachable by every local user (issue 28 item 6)
+REQUEST_FIELDS = ("matrix_route",)
+#: what the export's command record holds apart from the requests: the safe command (no arm
+#: request, every rate 0, every current limit 0 = brakes set, gripper 0), so the service
+#: stays SAFE while the export holds the command area
+SAFE_COMMAND = {"arm_request": 0, "joint_rate_rad_s": 0.0, "current_limit_a": 0.0, "gripper": 0.0,
+                "mode": 0, "crl_reflect_enable": 0, "crl_reflect_force_n": 0.0, "crl_reflect_torque_nm": 0.0}
 #: the service's default command watchdog, taken from ioservice/safety.py OutputGuard (the
 #: MVME 104's 15 ms, IRSS report 3.4.2) so that the generated map follows the service
 SERVICE_WATCHDOG_S: float = inspect.signature(OutputGuard).parameters["watchdog_s"].default
@@ -189,7 +204,7 @@ def _field_rows(layout: Layout, area: str, base: int, table: str) -> list[MapRow
         off = f.offset - a.body_offset
         first = base + off // 2
         last = base + (off + f.nbytes - 1) // 2
-        writable = table == "holding" and f.name not in KEEPALIVE_FIELDS
+        writable = table == "holding" and f.name in REQUEST_FIELDS
         doc = f.doc
         if table == "holding" and f.name in KEEPALIVE_FIELDS:
             doc += "; set by the export: a write is accepted as a keep-alive, its value ignored"
@@ -259,7 +274,6 @@ def modbus_map_markdown(layout: Layout | None = None) -> str:
     rows = register_map(lay)
     ins, sts, cmd = (lay.area(n) for n in ("inputs", "stats", "commands"))
     n_ch = len(_rack_channels(lay))
-    wd_ms = SERVICE_WATCHDOG_S * 1e3
     out = [
         "# Modbus TCP map of the Bit3 buffer",
         "",
@@ -338,29 +352,37 @@ def modbus_map_markdown(layout: Layout | None = None) -> str:
         "",
         "Writes are **refused with exception 1 (ILLEGAL_FUNCTION) unless the export was "
         "started with writes enabled** (`ModbusExport(..., allow_writes=True)`; "
-        "`pfma serve` passes its own option through). With writes enabled the export claims the buffer's "
+        "`pfma serve --modbus-writes`). With writes enabled the export claims the buffer's "
         f"`controller` writer role as `{DEFAULT_OWNER}` (it fails to start, naming the "
         "owner, when a controller already holds it), and every accepted write request is "
         "applied to its command record and published at once, with the command "
-        "`heartbeat` incremented by one (`t_s` stamped). Rules:",
+        "`heartbeat` incremented by one (`t_s` stamped).",
         "",
+        "**The export never arms the arm or drives motion** (a Modbus TCP port has no "
+        "authentication; on loopback every local user reaches it). Its command record holds "
+        "the safe command: `arm_request` 0, every rate 0, every current limit 0 (brakes "
+        "set), gripper 0, mode 0, no CRL force display; so the service stays SAFE while the "
+        "export holds the command area. Rules:",
+        "",
+        f"- Writable: {', '.join(f'`{n}`' for n in REQUEST_FIELDS)} only: "
+        "a camera route, which must be one of the route table's 16 values "
+        "(`drivers/pio/routes.py` `ALL_ROUTES`, docs/cameras.md), else exception 3; the "
+        "service's PIO task applies it and reads it back (`inputs.matrix_route`).",
+        "- A write that touches any other command field (`arm_request`, `rearm_counter`, "
+        "rates, current limits, gripper, mode, ...) answers **exception 2 "
+        "(ILLEGAL_ADDRESS)**, is counted (`refused`) and said in the export's refusal log "
+        "line; nothing is applied.",
         "- A write must cover whole elements: writing part of a float64 (fewer than its 4 "
         "registers) or a register holding no command field answers exception 2; a "
         "non-finite float answers exception 3 (ILLEGAL_VALUE). Nothing is applied then.",
         "- `heartbeat` and `t_s` are set by the export; writing them (any value) is "
         "accepted as a keep-alive: it publishes the command record again with the "
-        "heartbeat incremented.",
+        "heartbeat incremented (the safe command stays the safe command).",
         "- Use function code 16 to write a multi-register value in one request.",
         "",
-        f"**Watchdog.** When the service is ARMED it trips the outputs to 0 V (FAULT; brakes "
-        f"set) if the command heartbeat does not change for longer than its watchdog, "
-        f"{wd_ms:.0f} ms by default (the MVME 104's; `ioservice/safety.py`). A Modbus HMI that commands the arm "
-        f"must therefore write (for example the heartbeat register) at least every "
-        f"{wd_ms:.0f} ms, with every request answered in time, for as long as the arm is "
-        "armed. A Modbus/TCP round trip on a plant network does not reliably meet that. "
-        "**In practice, Modbus command writes are for `matrix_route` and low-rate lab use "
-        "with the arm not armed; drive the arm from a controller process that uses "
-        "`bit3.client` directly.**",
+        "The arm is driven by a controller process through `bit3.client` (docs/safety.md, "
+        "\"Trust boundary\"); a Modbus master observes it (input registers, holding-register "
+        "reads) and, with writes enabled and no controller running, requests camera routes.",
         "",
     ]
 
@@ -843,6 +865,9 @@ class ModbusExport:
                 path = self.buffer_name if "/" in self.buffer_name else None  # file window
                 self._client = Client.attach(self.buffer_name, writer="commands", owner=self.owner,
                                              layout=self.layout, path=path)
+                rec = self._client.command  # the safe command, published with the first write
+                for name, safe in SAFE_COMMAND.items():
+                    rec[name] = safe
             self._views = {n: _AreaView(self._buf, n) for n in ("inputs", "stats", "commands")}
             server = _ServerThread(self, self.host, self._port, self.limits)
             server.start(timeout_s)
@@ -1002,8 +1027,16 @@ class ModbusExport:
         names: set[str] = set()
         for r in range(lo, hi):
             names |= self._hr_fields[r]
+        never = sorted(names.difference(REQUEST_FIELDS, KEEPALIVE_FIELDS))
+        if never:  # the export never arms or drives motion: only the requests are writable
+            # (the first field only: a bounded set of reasons for the refusal log)
+            return ILLEGAL_ADDRESS, (f"writes of {never[0]}{' and more' if len(never) > 1 else ''} "
+                                     f"(writable: {', '.join(REQUEST_FIELDS)}; the export never arms "
+                                     "or moves the arm)")
         fields = {n: (new[n].item() if new[n].ndim == 0 else new[n].copy())
                   for n in sorted(names) if n not in KEEPALIVE_FIELDS}
+        if "matrix_route" in fields and int(fields["matrix_route"]) not in ALL_ROUTES:
+            return ILLEGAL_VALUE, "writes of a matrix_route outside the route table"
         try:
             if fields:
                 client.write_commands(**fields)
@@ -1193,7 +1226,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
     p.add_argument("--listen", default=f"127.0.0.1:{DEFAULT_PORT}", metavar="HOST:PORT",
                    help=f"address to serve (default 127.0.0.1:{DEFAULT_PORT}; port 0: any free one)")
-    p.add_argument("--writes", action="store_true", help="accept command writes (claims the controller role)")
+    p.add_argument("--writes", action="store_true", help="accept camera-route requests (claims the controller role; never arms or moves the arm)")
     p.add_argument("--rack", default=None, help="rack TOML of the buffer (default: the default rack)")
     p.add_argument("--max-connections", type=int, default=d.max_connections,
                    help=f"clients at once; one more is closed at once (default {d.max_connections})")

@@ -53,7 +53,7 @@ def add_parser(sub):
                         "docs/reliability.md, the pfma group model)")
     p.add_argument("--duration", type=positive_float, default=None, help="seconds to run (default: until Ctrl-C)")
     p.add_argument("--modbus", default=None, metavar="HOST:PORT", help="export the buffer over Modbus TCP")
-    p.add_argument("--modbus-writes", action="store_true", help="let Modbus clients write the command area")
+    p.add_argument("--modbus-writes", action="store_true", help="let Modbus clients request camera routes (claims the command area; never arms or moves the arm: docs/modbus-map.md)")
     p.add_argument("--frame-rate", type=float_in(1.0, 5000.0, "Hz"), default=320.0, help="minor-frame rate (320 default; 1000 fast)")
     p.add_argument("--schedule", default=None, metavar="FILE.toml|slow",
                    help="acquisition schedule: a [schedule] table (frame_rate_hz, tasks.NAME = {divider, "
