@@ -62,6 +62,23 @@ def test_a_forger_copying_pid_and_token_puts_the_service_safe_and_names_it(rig, 
         f.close()
 
 
+def test_while_safe_two_writers_are_said_once_until_the_next_arm(rig):
+    ctl = armed(rig)
+    ctl.cmd["arm_request"] = 0  # disarmed by the holder: SAFE, still writing
+    rig.run_frames(3)
+    assert rig.reader.read_inputs().service_state == ServiceState.SAFE
+    f = Forger(rig.name, rig.layout)
+    try:
+        _forge_on(rig, lambda: f.forge("own", RATE), set(range(0, 60, 2)))
+        rig.run_frames(60)
+        s = rig.reader.read_inputs()
+        assert s.foreign_writes >= 2 and s.command_status & CMD_FOREIGN and s.fault_code == 0
+        assert len(_two_writer_messages(rig)) == 1, texts(rig)  # not once per detection
+        assert np.all(volts(rig) == 0.0)
+    finally:
+        f.close()
+
+
 def test_the_forged_rate_never_reaches_the_dac_for_more_than_one_frame(rig):
     """The issue's reproduction (+9.75 V for 4 s): the forger's rate is obeyed at most in
     the frame before its stream meets the holder's."""
