@@ -108,6 +108,9 @@ def test_a_killed_remote_commander_trips_the_services_watchdog():
     (["bridge", "--listen", "127.0.0.1:7447"], 2, "is not tcp/HOST:PORT"),
     (["bridge", "--buffer", "a/b"], 2, "may hold only letters"),
     (["bridge", "--buffer", "pfma-no-such-bridge-buffer"], 1, "no I/O service runs on buffer"),
+    (["bridge", "--operator", "ops"], 2, "--operator needs --users"),
+    (["bridge", "--users", "/nonexistent/pfma-users"], 2, "cannot read the Zenoh credentials"),
+    (["bridge", "--users", "/dev/null"], 2, "no user:password line"),
 ])
 def test_bad_bridge_input_is_one_message(argv, code, words, capsys):
     assert main(argv) == code
