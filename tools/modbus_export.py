@@ -62,6 +62,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -104,6 +105,18 @@ KEEPALIVE_FIELDS = ("heartbeat", "t_s", "writer_pid", "writer_token")
 #: field that arms or moves the arm is here: Modbus TCP has no authentication and its port
 #: is reachable by every local user (issue 28 item 6)
 REQUEST_FIELDS = ("matrix_route",)
+#: holding registers of the requests to a running controller (``requests_wm``): HR 9000 the
+#: request (``controller.layers.Request``), 9001 its argument; read back: 9000-9001 the last
+#: request written and its argument, 9002 the number it was posted under (low 16 bits),
+#: 9003 the controller's answer to the newest request (``Response``: 0 none, 1 IN PROGRESS,
+#: 2 COMPLETE, 3 REFUSED, 4 FAILED), 9004 the number that answer is for (low 16 bits)
+REQUESTS_BASE = 9000
+REQUEST_REGISTERS = 5
+#: the requests a Modbus master may post to the controller: HALT (outputs 0 V, brakes set)
+#: and CAMERA ROUTE (argument monitor * 16 + camera). Not POWER UP, SINGLE STEP, RESUME
+#: (they arm or move the arm), ERROR RESET or POWER DOWN (they start sequences of the
+#: controller's): issue 28 item 6, the export never arms or drives motion
+MODBUS_REQUESTS = {4: "HALT", 7: "CAMERA ROUTE"}
 #: what the export's command record holds apart from the requests: the safe command (no arm
 #: request, every rate 0, every current limit 0 = brakes set, gripper 0), so the service
 #: stays SAFE while the export holds the command area
@@ -347,8 +360,35 @@ def modbus_map_markdown(layout: Layout | None = None) -> str:
         f"| input (fc 4) | {IDENT_BASE} | 6 | identification |",
         f"| holding (fc 3/6/16) | {COMMANDS_BASE} | {cmd.body_size // 2} | `commands` area "
         f"body ({cmd.body_size} bytes; fields below) |",
+        f"| holding (fc 3/6/16) | {REQUESTS_BASE} | {REQUEST_REGISTERS} | requests to the controller "
+        "(only with `--modbus-requests WM`; below) |",
         "",
-        "## Writing commands (holding registers)",
+        "## Requests to the controller (holding registers 9000-9004)",
+        "",
+        "With `pfma serve --modbus --modbus-requests WM` (`ModbusExport(..., allow_writes=True, "
+        "requests_wm=WM)`, WM the running controller's world model) a Modbus master posts "
+        "**requests** to the controller, which validates and answers them as it does the "
+        "console's (System Up/Down, docs/console.md); the export does not claim the command "
+        "area (the controller holds it), and every write to it answers exception 2.",
+        "",
+        "| register | UINT16 | write | read |",
+        "|---:|---|---|---|",
+        f"| {REQUESTS_BASE} | request | posts the request (fc 6 alone, with the argument written "
+        f"before; or fc 16 with the argument in {REQUESTS_BASE + 1}) | the last request posted |",
+        f"| {REQUESTS_BASE + 1} | argument | kept for the next request | its argument |",
+        f"| {REQUESTS_BASE + 2} | number | | the number it was posted under (low 16 bits) |",
+        f"| {REQUESTS_BASE + 3} | answer | | the controller's answer to its newest request: 0 none "
+        "yet, 1 IN PROGRESS, 2 COMPLETE, 3 REFUSED, 4 FAILED |",
+        f"| {REQUESTS_BASE + 4} | answered | | the number that answer is for (low 16 bits) |",
+        "",
+        "Requests taken: " + ", ".join(f"**{k} {n}**" for k, n in MODBUS_REQUESTS.items()) + " "
+        "(argument monitor x 16 + camera, 0 = blank; docs/cameras.md). Any other request, "
+        "among them 1 POWER UP, 5 SINGLE STEP and 6 RESUME (they arm or move the arm), 3 ERROR "
+        "RESET and 2 POWER DOWN, answers exception 3 and is not posted. No running controller "
+        "(no world model, or its owner gone): exception 4, one log line. The world model's "
+        "access key is `$PFMA_WM_KEY` or the default one, as for `pfma controller halt`.",
+        "",
+        "## Camera-route writes without a controller (`--modbus-writes`)",
         "",
         "Writes are **refused with exception 1 (ILLEGAL_FUNCTION) unless the export was "
         "started with writes enabled** (`ModbusExport(..., allow_writes=True)`; "
@@ -382,7 +422,9 @@ def modbus_map_markdown(layout: Layout | None = None) -> str:
         "",
         "The arm is driven by a controller process through `bit3.client` (docs/safety.md, "
         "\"Trust boundary\"); a Modbus master observes it (input registers, holding-register "
-        "reads) and, with writes enabled and no controller running, requests camera routes.",
+        "reads), posts HALT and CAMERA ROUTE requests to a running controller "
+        "(`--modbus-requests`), or, with `--modbus-writes` and no controller running, sets the "
+        "camera route.",
         "",
     ]
 
@@ -770,7 +812,8 @@ class ModbusExport:
     def __init__(self, buffer: str | Bit3Buffer = "pfma", host: str = "127.0.0.1",
                  port: int = DEFAULT_PORT, allow_writes: bool = False, *,
                  owner: str = DEFAULT_OWNER, device_id: int = 0,
-                 layout: Layout | None = None, limits: ExportLimits | None = None) -> None:
+                 layout: Layout | None = None, limits: ExportLimits | None = None,
+                 requests_wm: str | None = None, wm_key: str | None = None) -> None:
         if not 0 <= int(port) <= 65535:
             raise ConfigError(f"Modbus export: port {port} out of range 0..65535")
         if not 0 <= int(device_id) <= 255:
@@ -780,6 +823,13 @@ class ModbusExport:
         self.layout = buffer.layout if isinstance(buffer, Bit3Buffer) else (layout or default_layout())
         self.host = host
         self.allow_writes = bool(allow_writes)
+        #: the world model of the controller requests go to (None: no request block); with
+        #: it the export never claims the command area (the running controller holds it)
+        self.requests_wm = requests_wm
+        self.wm_key = wm_key
+        self._link: Any = None  # tools.console.control.ControllerLink, attached at the first request
+        self._req = [0, 0, 0]  # the last request, its argument, the number it was posted under
+        self.posted = 0  #: requests posted to the controller
         self.owner = owner
         self.device_id = int(device_id)
         self.limits = limits or ExportLimits()
@@ -861,7 +911,7 @@ class ModbusExport:
                 self._buf = self._given
             else:
                 self._buf = Bit3Buffer.attach(self.buffer_name, readonly=True, layout=self.layout)
-            if self.allow_writes:
+            if self.allow_writes and self.requests_wm is None:
                 path = self.buffer_name if "/" in self.buffer_name else None  # file window
                 self._client = Client.attach(self.buffer_name, writer="commands", owner=self.owner,
                                              layout=self.layout, path=path)
@@ -895,6 +945,7 @@ class ModbusExport:
 
     def _close_buffers(self) -> None:
         self._views = {}
+        self._drop_link()
         if self._client is not None:
             self._client.close()
             self._client = None
@@ -958,7 +1009,7 @@ class ModbusExport:
         if fc == 6:
             if len(pdu) != 5:
                 return self._exception(fc, ILLEGAL_VALUE, "malformed fc 6 requests (length)")
-            if not self.allow_writes or self._client is None:
+            if not self.allow_writes:
                 return self._exception(fc, ILLEGAL_FUNCTION, "writes (refused: read-only export)")
             address, value = struct.unpack_from(">HH", pdu, 1)
             code = self._write(address, [value])
@@ -969,7 +1020,7 @@ class ModbusExport:
             address, count, nbytes = struct.unpack_from(">HHB", pdu, 1)
             if not 1 <= count <= MAX_WRITE_REGISTERS or nbytes != 2 * count or len(pdu) != 6 + nbytes:
                 return self._exception(fc, ILLEGAL_VALUE, "malformed fc 16 requests (counts)")
-            if not self.allow_writes or self._client is None:
+            if not self.allow_writes:
                 return self._exception(fc, ILLEGAL_FUNCTION, "writes (refused: read-only export)")
             code = self._write(address, list(struct.unpack_from(f">{count}H", pdu, 6)))
             return self._exception(fc, code[0], code[1]) if code else pdu[:5]
@@ -985,6 +1036,8 @@ class ModbusExport:
             if COMMANDS_BASE <= address and end <= COMMANDS_BASE + self._hr_count:
                 regs = self._views["commands"].registers()
                 return regs[address - COMMANDS_BASE:end - COMMANDS_BASE].tobytes()
+            if self.requests_wm is not None and REQUESTS_BASE <= address and end <= REQUESTS_BASE + REQUEST_REGISTERS:
+                return self._request_registers()[address - REQUESTS_BASE:end - REQUESTS_BASE].tobytes()
             return None
         for base, n, area in self._ir_areas:
             if base <= address and end <= base + n:
@@ -1006,8 +1059,14 @@ class ModbusExport:
             return vals.astype(">f4").view(">u2")
 
     def _write(self, address: int, values: list[int]) -> tuple[int, str] | None:
-        """Apply one write request to the command record and publish it (heartbeat + 1);
-        ``(exception code, reason)`` when refused (nothing applied)."""
+        """Apply one write request to the command record and publish it (heartbeat + 1), or
+        post it to the controller (the request block); ``(exception code, reason)`` when
+        refused (nothing applied)."""
+        if self.requests_wm is not None:
+            if REQUESTS_BASE <= address and address + len(values) <= REQUESTS_BASE + 2:
+                return self._request(address - REQUESTS_BASE, values)
+            return ILLEGAL_ADDRESS, ("writes outside the request block (the command area is the "
+                                     "controller's; the export never arms or moves the arm)")
         lo = address - COMMANDS_BASE
         hi = lo + len(values)  # exclusive
         if lo < 0 or hi > self._hr_count:
@@ -1046,6 +1105,54 @@ class ModbusExport:
             return ILLEGAL_VALUE, f"writes of values the command area refuses ({', '.join(sorted(fields))})"
         self.writes += 1
         return None
+
+    def _request(self, offset: int, values: list[int]) -> tuple[int, str] | None:
+        """A write to the request block: the argument is kept; a request (HR 9000) of
+        :data:`MODBUS_REQUESTS` is posted to the controller, which answers it (validates)."""
+        req = self._req
+        if offset == 1:  # the argument alone
+            req[1] = values[0]
+            self.writes += 1
+            return None
+        kind = values[0]
+        arg = values[1] if len(values) > 1 else req[1]
+        if kind not in MODBUS_REQUESTS:
+            return ILLEGAL_VALUE, (f"requests of kind {kind} (taken: "
+                                   f"{', '.join(f'{k} {n}' for k, n in MODBUS_REQUESTS.items())}; "
+                                   "the export never arms or moves the arm)")
+        from tools.console.control import ControlError, ControllerLink
+        try:
+            if self._link is None:
+                self._link = ControllerLink.attach(self.requests_wm, self.wm_key)
+            seq = self._link.submit(kind, arg)
+        except ControlError as err:
+            self._drop_link()
+            log.warning("Modbus export %s:%d: request %s not posted: %s", self.host, self.port,
+                        MODBUS_REQUESTS[kind], err)
+            return DEVICE_FAILURE, "requests while no controller answers"
+        req[:] = [kind, arg, seq]
+        self.posted += 1
+        self.writes += 1
+        return None
+
+    def _request_registers(self) -> np.ndarray:
+        kind, arg, seq = self._req
+        code = answered = 0
+        if self._link is not None:
+            try:
+                v = self._link.wm.get_task_inputs(("ui.response_seq", "ui.response"))
+                answered, code = int(v["ui.response_seq"]), int(v["ui.response"])
+            except Exception:  # noqa: BLE001 - a world model gone under us reads as no answer
+                self._drop_link()
+        return np.array([kind, arg, seq & 0xFFFF, code & 0xFFFF, answered & 0xFFFF], dtype=">u2")
+
+    def _drop_link(self) -> None:
+        if self._link is not None:
+            try:
+                self._link.wm.close()
+            except Exception:  # noqa: BLE001 - closing a segment already gone
+                pass
+            self._link = None
 
 
 # ----------------------------------------------------------------------------------------
@@ -1106,8 +1213,10 @@ class ExportProcess:
 
     def __init__(self, buffer_name: str, host: str = "127.0.0.1", port: int = DEFAULT_PORT,
                  allow_writes: bool = False, *, rack: str | None = None,
-                 limits: ExportLimits | None = None, nice: int = EXPORT_NICE) -> None:
+                 limits: ExportLimits | None = None, nice: int = EXPORT_NICE,
+                 requests_wm: str | None = None) -> None:
         self.buffer_name = buffer_name
+        self.requests_wm = requests_wm
         self.host = host
         self.port = port
         self.allow_writes = allow_writes
@@ -1128,7 +1237,9 @@ class ExportProcess:
                 "--nice", str(self.nice), "--parent-pid", str(os.getpid())]
         if self.rack:
             argv += ["--rack", self.rack]
-        if self.allow_writes:
+        if self.requests_wm is not None:
+            argv += ["--requests", self.requests_wm]
+        elif self.allow_writes:
             argv.append("--writes")
         return argv
 
@@ -1181,15 +1292,18 @@ class ExportProcess:
 
 
 def start_export_from_args(buffer_name: str, host_port: str, allow_writes: bool,
-                           rack: str | None = None) -> ExportProcess:
+                           rack: str | None = None, requests_wm: str | None = None) -> ExportProcess:
     """Parse ``HOST:PORT`` and start the export in its own process (for ``pfma serve
     --modbus``; :class:`ExportProcess`). The caller stops it (``export.stop()``) when the
     service stops.
 
     :param rack: the rack TOML of a buffer made from another rack file than the default
+    :param requests_wm: the controller's world model: Modbus requests (HALT, CAMERA ROUTE)
+        are posted to it (docs/modbus-map.md)
     """
     host, port = parse_host_port(host_port)
-    return ExportProcess(buffer_name, host=host, port=port, allow_writes=allow_writes, rack=rack).start()
+    return ExportProcess(buffer_name, host=host, port=port, allow_writes=allow_writes or requests_wm is not None,
+                         rack=rack, requests_wm=requests_wm).start()
 
 
 def _leave_the_service_alone(nice: int) -> None:
@@ -1227,6 +1341,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--listen", default=f"127.0.0.1:{DEFAULT_PORT}", metavar="HOST:PORT",
                    help=f"address to serve (default 127.0.0.1:{DEFAULT_PORT}; port 0: any free one)")
     p.add_argument("--writes", action="store_true", help="accept camera-route requests (claims the controller role; never arms or moves the arm)")
+    p.add_argument("--requests", default=None, metavar="WM",
+                   help="post HALT and CAMERA ROUTE requests to the controller of world model WM "
+                        "(holding registers 9000-9004; never arms or moves the arm)")
     p.add_argument("--rack", default=None, help="rack TOML of the buffer (default: the default rack)")
     p.add_argument("--max-connections", type=int, default=d.max_connections,
                    help=f"clients at once; one more is closed at once (default {d.max_connections})")
@@ -1264,7 +1381,8 @@ def main(argv: list[str] | None = None) -> int:
             from bit3.layout import build_layout
             from pfma.rack import load_rack
             layout = build_layout(load_rack(args.rack))
-        export = ModbusExport(args.buffer, host, port, args.writes, layout=layout, limits=limits).start()
+        export = ModbusExport(args.buffer, host, port, args.writes or args.requests is not None, layout=layout,
+                              limits=limits, requests_wm=args.requests).start()
     except PfmaError as err:
         print(f"error: {err}", flush=True)
         return 1
