@@ -25,7 +25,7 @@ from bit3.seqlock import Bit3Error, LayoutMismatchError, OwnershipError
 from pfma.rack import load_rack
 from tools.bridge.bridge import AREAS, STAMPED, seq_of, writer_of
 from tools.bridge.consistency import BodyCheck
-from tools.bridge.session import check_name, key
+from tools.bridge.session import CREDENTIALS_ENV, check_name, key
 
 #: how long a first body or the layout is waited for, s (bounded: then a clear error)
 DEFAULT_TIMEOUT_S = 5.0
@@ -129,7 +129,9 @@ class RemoteBuffer:
                     return self._layout_document(reply.ok.payload.to_bytes())
             if time.monotonic() >= end:
                 raise Bit3Error(f"no bridge publishes buffer {self.name!r} (no answer on "
-                                f"{key(self.name, 'layout')} within {self.timeout_s:g} s)")
+                                f"{key(self.name, 'layout')} within {self.timeout_s:g} s; a bridge "
+                                f"started with --users takes only peers with its credentials: "
+                                f"${CREDENTIALS_ENV})")
             time.sleep(0.05)
 
     def _layout_document(self, data: bytes) -> dict:

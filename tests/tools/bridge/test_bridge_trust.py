@@ -190,3 +190,22 @@ def test_a_viewer_reads_but_its_commands_and_area_bodies_are_denied(secured):
     assert np.all(np.asarray(rig.world.bus["dac"].output_volts_all()) == 0.0)
     here_sub.undeclare()
     reader.close()
+
+
+@pytest.mark.realtime
+def test_a_reader_with_a_wrong_password_gets_one_line_naming_the_credentials(secured):
+    from bit3.buffer import Bit3Error
+    rig, bridge, here, peer = secured
+    with pytest.raises(Bit3Error) as err:
+        RemoteBuffer(peer("viewer", "not-the-password"), rig.name, timeout_s=0.5)
+    text = str(err.value)
+    assert "no bridge publishes buffer" in text and "$PFMA_ZENOH_CREDENTIALS" in text and "\n" not in text
+
+
+def test_a_credentials_file_that_is_not_user_password_is_one_message(tmp_path, monkeypatch):
+    from pfma.errors import PfmaError
+    bad = tmp_path / "creds"
+    bad.write_text("just-a-password\n")
+    monkeypatch.setenv("PFMA_ZENOH_CREDENTIALS", str(bad))
+    with pytest.raises(PfmaError, match="line 1 is not user:password"):
+        open_session(connect=["tcp/127.0.0.1:1"])
