@@ -612,6 +612,7 @@ class IoService:
         self.loop.period_s = schedule.period_s
         self._build_tasks()
         self.stats_every = max(1, int(round(schedule.frame_rate_hz / 2)))
+        self._claim_check.hold_frames = int(round(TWO_WRITER_HOLD_S * schedule.frame_rate_hz))
         for diff in schedule.check_documented_rates():
             self.post(Severity.WARNING, 101, f"schedule differs from the report: {diff}")
 

@@ -257,3 +257,10 @@ def test_a_forger_in_a_second_process_is_refused_and_named(rig, mp):
         child.join(30.0)
         if child.is_alive():
             child.kill()
+
+
+def test_the_arm_refusal_holds_one_second_at_any_frame_rate(rig):
+    from ioservice.schedule import Schedule
+    assert rig.svc._claim_check.hold_frames == round(TWO_WRITER_HOLD_S * 320)
+    rig.svc.reschedule(Schedule(frame_rate_hz=160))
+    assert rig.svc._claim_check.hold_frames == round(TWO_WRITER_HOLD_S * 160)
