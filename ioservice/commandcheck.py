@@ -34,9 +34,12 @@ for :data:`TWO_WRITER_HOLD_S` after the last sign of a second writer an arm requ
 refused with the same words (so a forger still writing cannot be re-armed past). After that
 an explicit re-arm (a new ``rearm_counter``, rates at zero) arms again.
 
-What it cannot see: a second writer while the claim holder writes nothing (stopped with
-SIGSTOP by the same user, or between a dead holder and its lock's release) that continues the
-holder's sequence and heartbeat exactly: one stream, one writer as far as the bytes tell.
+What it cannot see: a second writer whose bodies the service reads only ever in place of the
+holder's, continuing the holder's sequence and heartbeat: one that overwrites every holder
+body before the service reads it (in place, or through the lock with the next numbers), or
+one that writes while the holder writes nothing (stopped with SIGSTOP by the same user, or
+between a dead holder and its lock's release). One stream, one writer as far as the bytes
+tell; the boundary is the service's user (docs/safety.md, "Trust boundary").
 
 Cost: a few integer comparisons per good read and a ~200-byte compare and copy; no numpy.
 """

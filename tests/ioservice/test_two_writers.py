@@ -156,13 +156,16 @@ def test_keep_alives_and_open_loop_and_halted_writers_are_one_writer(rig):
     assert LIMITS  # (the armed() helper's limits: the holder armed with them)
 
 
-def test_a_forger_rewriting_each_holder_body_in_place_is_not_detectable(rig):
-    """The limit, documented in docs/safety.md: bytes rewritten in place right after each
-    of the holder's writes, its counters kept, are one stream to the service: obeyed."""
+@pytest.mark.parametrize("mode", ["inplace", "follow"])
+def test_a_forger_overwriting_each_holder_body_before_the_service_reads_it_is_not_detectable(rig, mode):
+    """The limit, documented in docs/safety.md: a forger that overwrites every one of the
+    holder's bodies before the service reads it, continuing the holder's counters (bytes
+    rewritten in place, or published through the lock with the next numbers), is one
+    stream to the service: obeyed."""
     armed(rig)
     f = Forger(rig.name, rig.layout)
     try:
-        _forge_on(rig, lambda: f.forge("inplace", RATE), set(range(10)))
+        _forge_on(rig, lambda: f.forge(mode, RATE), set(range(10)))
         rig.run_frames(10)
         s = rig.reader.read_inputs()
         assert s.service_state == ServiceState.ARMED and s.foreign_writes == 0
