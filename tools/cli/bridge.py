@@ -6,6 +6,9 @@ the layout JSON under ``pfma/<buffer>/layout``) at the rate it changes. With
 one remote writer publishes on ``pfma/<buffer>/commands/set``; the service's watchdog
 and limits apply unchanged. Peer mode on explicit endpoints, no multicast scouting;
 with neither --listen nor --connect it listens on tcp/127.0.0.1:7447 (loopback only).
+With --users FILE (user:password lines) only peers that authenticate as one of those users
+connect (Zenoh usrpwd), and Zenoh's access control lets them read while only --operator
+users may command; remote tools authenticate with $PFMA_ZENOH_CREDENTIALS.
 """
 
 from __future__ import annotations
