@@ -203,6 +203,10 @@ def run(args) -> int:
             raise ConfigError(f"schedule file {args.schedule}: {err}") from err
     else:
         schedule = Schedule() if args.frame_rate == 320.0 else Schedule.scaled(args.frame_rate)
+    if (args.modbus_writes or args.modbus_requests) and not args.modbus:
+        print(f"pfma serve: {'--modbus-requests' if args.modbus_requests else '--modbus-writes'} needs "
+              f"--modbus HOST:PORT (the export it configures)", file=sys.stderr)
+        return 2
     if args.rack != "fake" and args.bus is None:
         print(f"pfma serve: --rack {args.rack} needs --bus: the rack's register bus "
               f"(modbus://HOST:PORT, file:PATH), or --bus fake to run it on the simulated "
