@@ -33,6 +33,7 @@ class Forger:
         body["joint_rate_rad_s"][0] = rate
         body["writer_pid"] = pid
         body["writer_token"] = token
+        body["inputs_frame"] = self.buf.header().frame  # fresh, as the service wants it
         if mode == "inplace":
             self.lock._body[:] = memoryview(body.tobytes())
         elif mode == "follow":

@@ -174,6 +174,22 @@ def test_a_forger_overwriting_each_holder_body_before_the_service_reads_it_is_no
         f.close()
 
 
+def test_a_forger_writing_while_the_holder_is_silent_is_not_detectable(rig):
+    """The other limit: the holder writes nothing (stopped with SIGSTOP by the same user);
+    a forger continuing its counters is the only stream, and is obeyed."""
+    ctl = armed(rig)
+    ctl.enabled = False  # the holder is stopped
+    f = Forger(rig.name, rig.layout)
+    try:
+        _forge_on(rig, lambda: f.forge("follow", RATE), set(range(20)))
+        rig.run_frames(20)
+        s = rig.reader.read_inputs()
+        assert s.service_state == ServiceState.ARMED and s.foreign_writes == 0
+        assert float(volts(rig)[0]) != 0.0
+    finally:
+        f.close()
+
+
 # --- the stream check alone: a single writer is never taken for two -----------------------
 
 @st.composite
