@@ -227,9 +227,10 @@ def test_one_writer_through_its_own_counters_is_never_two(steps):
 @settings(max_examples=200, deadline=None)
 @given(st.lists(st.tuples(st.sampled_from("HF"), st.integers(1, 3)), min_size=2, max_size=30))
 def test_interleaved_streams_with_own_counters_are_seen_when_both_are_read(runs):
-    """Two writers, each with its own sequence counter and heartbeat (different start
-    points), publishing in any interleaving; the service reads after each run. Whenever it
-    has read a body of each, it has seen a second writer."""
+    """Two writers, each with its own sequence counter and heartbeat whose counters do not
+    line up (sequence - 2 x heartbeat: 0 for one, -4 for the other), publishing in any
+    interleaving; the service reads after each run. Whenever it has read a body of each, it
+    has seen a second writer. (Counters that line up are the undetectable case above.)"""
     raw = bytearray(16)
     chk = ClaimStreamCheck(raw, hold_frames=320)
     own = {"H": [1000, 500], "F": [1010, 507]}  # [seq, heartbeat] per writer
