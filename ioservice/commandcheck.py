@@ -6,7 +6,8 @@ copy both (they are in the header and in every body), so it alone cannot tell th
 holder from a forger running as the same user (issue 28 item 6). This check looks at the
 stream of bodies that pass it. One writer through ``bit3.client.Client`` (the controller,
 the bridge, checkout, calibration, the Modbus export, the demo) keeps three things
-consistent, and a second writer interleaving with it breaks at least one of them:
+consistent; a second writer whose counters do not line up with the holder's breaks at least
+one of them as soon as the service has read a body of each:
 
 - **sequence and heartbeat move together.** Every publish bumps the area's sequence counter
   by 2 (``bit3.seqlock``; each writer keeps its *own* copy of the counter) and the body's
