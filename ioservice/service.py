@@ -47,6 +47,7 @@ from bit3.layout import MODE_HALTED  # HALTED (issue 18): the halted controller'
 from bit3.layout import FAULT_AMP_ENABLE, FAULT_DAC_UNREACHABLE  # noqa: F401 - issue 28 item 5, re-exported
 from ioservice import direction
 from ioservice.chargepump import ChargePump
+from ioservice.commandcheck import TWO_WRITER_HOLD_S, ClaimStreamCheck
 from ioservice.direction import DirectionCheck
 from ioservice.loop import FrameInfo, FrameLoop, LoopStats
 from ioservice.safety import OutputGuard
@@ -72,6 +73,9 @@ FAULT_COMMAND, FAULT_FOREIGN = 5, 6
 # FAULT_AMP_ENABLE (8: the charge pump could not be written) are bit3.layout's: tools read them
 #: internal: nobody holds the command area's claim (no controller yet); not published
 _NO_WRITER = 0x100
+#: _fetch_command: the body carries the claim's pid and token but its stream shows a second
+#: writer (ioservice/commandcheck.py); not published (CMD_FOREIGN is, for the hold)
+_TWO_WRITERS = 0x200
 #: consecutive failing samples of an input board before the outputs are made safe
 INPUT_FAULT_FRAMES = 3
 #: serial FIFO drains (``IoService.serial_tick``) closer together than this are skipped: at
@@ -215,6 +219,9 @@ class IoService:
         self.guard = OutputGuard(clock, watchdog_s, post=self._post_guard)
         self._hb_ok: int | None = None  # heartbeat of the last command written by the claim holder
         self._hb_seen: int | None = None  # heartbeat in the command record at the last good read
+        #: two writers on one claim (a forger copying the holder's pid and token): issue 28 item 6
+        self._claim_check = ClaimStreamCheck(self.commands.raw,
+                                             int(round(TWO_WRITER_HOLD_S * self.schedule.frame_rate_hz)))
         self._refusals_seen = 0
         self._cmd_episode = 0  # command_status bits already announced by a message
         self._last_alive: float | None = None  # clock time the service last ran (frame or hook tick)
@@ -673,6 +680,7 @@ class IoService:
         self.loop.period_s = schedule.period_s
         self._build_tasks()
         self.stats_every = max(1, int(round(schedule.frame_rate_hz / 2)))
+        self._claim_check.hold_frames = int(round(TWO_WRITER_HOLD_S * schedule.frame_rate_hz))
         for diff in schedule.check_documented_rates():
             self.post(Severity.WARNING, 101, f"schedule differs from the report and the rack file's rate_hz: {diff}")
 
@@ -710,7 +718,10 @@ class IoService:
             return _NO_WRITER
         if body_pid != pid or int(c["writer_token"]) != token:
             return CMD_FOREIGN
-        self._hb_ok = int(c["heartbeat"])
+        hb = int(c["heartbeat"])
+        if self._claim_check.note(pid, token, self.commands.last_seq, hb, int(c["controller_frame"])):
+            return _TWO_WRITERS  # the claim's stamps, but not one writer's stream: no heartbeat
+        self._hb_ok = hb
         return 0
 
     def _stall_note(self) -> str:
@@ -787,7 +798,17 @@ class IoService:
             if new_write:
                 v["foreign_writes"] += 1
             refusal = f"refused write by pid {int(c['writer_pid'])}: owner pid {pid}"
-        status &= CMD_ABSENT | CMD_FOREIGN  # _NO_WRITER is not published: no command yet
+        new_two, two = self._claim_check.frame(k)
+        if two is not None:  # two writers on the claim, now or within the hold
+            status |= CMD_FOREIGN
+            if new_two:
+                v["foreign_writes"] += 1
+                if self.guard.state != ServiceState.ARMED:  # (ARMED: the guard's refusal says it)
+                    self._announce(CMD_FOREIGN, two)
+                self._cmd_episode |= CMD_FOREIGN
+            if refusal is None:
+                refusal = two
+        status &= CMD_ABSENT | CMD_FOREIGN  # _NO_WRITER, _TWO_WRITERS are not published
         # engineering command per DAC channel, in plain Python (16 values)
         eng = [0.0] * dac.n
         rates = c["joint_rate_rad_s"].tolist()

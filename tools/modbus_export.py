@@ -21,8 +21,12 @@ generated ``docs/modbus-map.md``, see :func:`modbus_map_markdown`):
 - **holding registers (fc 3, 6, 16)**: the ``commands`` area body at HR 0, same
   encoding. Reads are always allowed. Writes are refused (exception 1,
   ILLEGAL_FUNCTION) unless the export was started with ``allow_writes=True``; then the
-  export holds the controller writer role and every accepted write is one
-  ``Client.write_commands`` (heartbeat + 1).
+  export holds the controller writer role and accepts writes of :data:`REQUEST_FIELDS`
+  only (the camera route, checked against the route table) and keep-alives, each one
+  ``Client.write_commands`` (heartbeat + 1). It **never arms or drives motion** (issue 28
+  item 6): its command record holds the safe command (no arm request, rates 0, current
+  limits 0: brakes set, gripper 0), and a write touching any other field answers
+  exception 2 (ILLEGAL_ADDRESS), counted and logged like every refusal.
 - **every other function code** (0..255) answers exception 1.
 
 Every read request copies one consistent, seqlocked snapshot of its area
@@ -58,12 +62,14 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
+from typing import Any
 from pathlib import Path
 
 import numpy as np
 
 from bit3.client import PRIMARY_FIELD, Client
 from bit3.layout import Layout, default_layout
+from drivers.pio.routes import ALL_ROUTES
 from ioservice.safety import OutputGuard
 from bit3.buffer import Bit3Buffer, Bit3Error
 from pfma.errors import ConfigError, PfmaError
@@ -94,6 +100,28 @@ MAP_VERSION = 1
 CHANNEL_KINDS = ("rtd", "adc", "dac", "pio")
 #: command fields the export sets itself; writing them is accepted as a keep-alive only
 KEEPALIVE_FIELDS = ("heartbeat", "t_s", "writer_pid", "writer_token")
+#: the requests a Modbus master may write (writes enabled): the camera route, a value of the
+#: route table (drivers/pio/routes.py ALL_ROUTES), which the service's PIO task applies. No
+#: field that arms or moves the arm is here: Modbus TCP has no authentication and its port
+#: is reachable by every local user (issue 28 item 6)
+REQUEST_FIELDS = ("matrix_route",)
+#: holding registers of the requests to a running controller (``requests_wm``): HR 9000 the
+#: request (``controller.layers.Request``), 9001 its argument; read back: 9000-9001 the last
+#: request written and its argument, 9002 the number it was posted under (low 16 bits),
+#: 9003 the controller's answer to the newest request (``Response``: 0 none, 1 IN PROGRESS,
+#: 2 COMPLETE, 3 REFUSED, 4 FAILED), 9004 the number that answer is for (low 16 bits)
+REQUESTS_BASE = 9000
+REQUEST_REGISTERS = 5
+#: the requests a Modbus master may post to the controller: HALT (outputs 0 V, brakes set)
+#: and CAMERA ROUTE (argument monitor * 16 + camera). Not POWER UP, SINGLE STEP, RESUME
+#: (they arm or move the arm), ERROR RESET or POWER DOWN (they start sequences of the
+#: controller's): issue 28 item 6, the export never arms or drives motion
+MODBUS_REQUESTS = {4: "HALT", 7: "CAMERA ROUTE"}
+#: what the export's command record holds apart from the requests: the safe command (no arm
+#: request, every rate 0, every current limit 0 = brakes set, gripper 0), so the service
+#: stays SAFE while the export holds the command area
+SAFE_COMMAND = {"arm_request": 0, "joint_rate_rad_s": 0.0, "current_limit_a": 0.0, "gripper": 0.0,
+                "mode": 0, "crl_reflect_enable": 0, "crl_reflect_force_n": 0.0, "crl_reflect_torque_nm": 0.0}
 #: the service's default command watchdog, taken from ioservice/safety.py OutputGuard (the
 #: MVME 104's 15 ms, IRSS report 3.4.2) so that the generated map follows the service
 SERVICE_WATCHDOG_S: float = inspect.signature(OutputGuard).parameters["watchdog_s"].default
@@ -189,7 +217,7 @@ def _field_rows(layout: Layout, area: str, base: int, table: str) -> list[MapRow
         off = f.offset - a.body_offset
         first = base + off // 2
         last = base + (off + f.nbytes - 1) // 2
-        writable = table == "holding" and f.name not in KEEPALIVE_FIELDS
+        writable = table == "holding" and f.name in REQUEST_FIELDS
         doc = f.doc
         if table == "holding" and f.name in KEEPALIVE_FIELDS:
             doc += "; set by the export: a write is accepted as a keep-alive, its value ignored"
@@ -259,7 +287,6 @@ def modbus_map_markdown(layout: Layout | None = None) -> str:
     rows = register_map(lay)
     ins, sts, cmd = (lay.area(n) for n in ("inputs", "stats", "commands"))
     n_ch = len(_rack_channels(lay))
-    wd_ms = SERVICE_WATCHDOG_S * 1e3
     out = [
         "# Modbus TCP map of the Bit3 buffer",
         "",
@@ -333,34 +360,71 @@ def modbus_map_markdown(layout: Layout | None = None) -> str:
         f"| input (fc 4) | {IDENT_BASE} | 6 | identification |",
         f"| holding (fc 3/6/16) | {COMMANDS_BASE} | {cmd.body_size // 2} | `commands` area "
         f"body ({cmd.body_size} bytes; fields below) |",
+        f"| holding (fc 3/6/16) | {REQUESTS_BASE} | {REQUEST_REGISTERS} | requests to the controller "
+        "(only with `--modbus-requests WM`; below) |",
         "",
-        "## Writing commands (holding registers)",
+        "## Requests to the controller (holding registers 9000-9004)",
+        "",
+        "With `pfma serve --modbus --modbus-requests WM` (`ModbusExport(..., allow_writes=True, "
+        "requests_wm=WM)`, WM the running controller's world model) a Modbus master posts "
+        "**requests** to the controller, which validates and answers them as it does the "
+        "console's (System Up/Down, docs/console.md); the export does not claim the command "
+        "area (the controller holds it), and every write to it answers exception 2.",
+        "",
+        "| register | UINT16 | write | read |",
+        "|---:|---|---|---|",
+        f"| {REQUESTS_BASE} | request | posts the request (fc 6 alone, with the argument written "
+        f"before; or fc 16 with the argument in {REQUESTS_BASE + 1}) | the last request posted |",
+        f"| {REQUESTS_BASE + 1} | argument | kept for the next request | its argument |",
+        f"| {REQUESTS_BASE + 2} | number | | the number it was posted under (low 16 bits) |",
+        f"| {REQUESTS_BASE + 3} | answer | | the controller's answer to its newest request: 0 none "
+        "yet, 1 IN PROGRESS, 2 COMPLETE, 3 REFUSED, 4 FAILED |",
+        f"| {REQUESTS_BASE + 4} | answered | | the number that answer is for (low 16 bits) |",
+        "",
+        "Requests taken: " + ", ".join(f"**{k} {n}**" for k, n in MODBUS_REQUESTS.items()) + " "
+        "(argument monitor x 16 + camera, 0 = blank; docs/cameras.md). Any other request, "
+        "among them 1 POWER UP, 5 SINGLE STEP and 6 RESUME (they arm or move the arm), 3 ERROR "
+        "RESET and 2 POWER DOWN, answers exception 3 and is not posted. No running controller "
+        "(no world model, or its owner gone): exception 4, one log line. The world model's "
+        "access key is `$PFMA_WM_KEY` or the default one, as for `pfma controller halt`.",
+        "",
+        "## Camera-route writes without a controller (`--modbus-writes`)",
         "",
         "Writes are **refused with exception 1 (ILLEGAL_FUNCTION) unless the export was "
         "started with writes enabled** (`ModbusExport(..., allow_writes=True)`; "
-        "`pfma serve` passes its own option through). With writes enabled the export claims the buffer's "
+        "`pfma serve --modbus-writes`). With writes enabled the export claims the buffer's "
         f"`controller` writer role as `{DEFAULT_OWNER}` (it fails to start, naming the "
         "owner, when a controller already holds it), and every accepted write request is "
         "applied to its command record and published at once, with the command "
-        "`heartbeat` incremented by one (`t_s` stamped). Rules:",
+        "`heartbeat` incremented by one (`t_s` stamped).",
         "",
+        "**The export never arms the arm or drives motion** (a Modbus TCP port has no "
+        "authentication; on loopback every local user reaches it). Its command record holds "
+        "the safe command: `arm_request` 0, every rate 0, every current limit 0 (brakes "
+        "set), gripper 0, mode 0, no CRL force display; so the service stays SAFE while the "
+        "export holds the command area. Rules:",
+        "",
+        f"- Writable: {', '.join(f'`{n}`' for n in REQUEST_FIELDS)} only: "
+        "a camera route, which must be one of the route table's 16 values "
+        "(`drivers/pio/routes.py` `ALL_ROUTES`, docs/cameras.md), else exception 3; the "
+        "service's PIO task applies it and reads it back (`inputs.matrix_route`).",
+        "- A write that touches any other command field (`arm_request`, `rearm_counter`, "
+        "rates, current limits, gripper, mode, ...) answers **exception 2 "
+        "(ILLEGAL_ADDRESS)**, is counted (`refused`) and said in the export's refusal log "
+        "line; nothing is applied.",
         "- A write must cover whole elements: writing part of a float64 (fewer than its 4 "
         "registers) or a register holding no command field answers exception 2; a "
         "non-finite float answers exception 3 (ILLEGAL_VALUE). Nothing is applied then.",
         "- `heartbeat` and `t_s` are set by the export; writing them (any value) is "
         "accepted as a keep-alive: it publishes the command record again with the "
-        "heartbeat incremented.",
+        "heartbeat incremented (the safe command stays the safe command).",
         "- Use function code 16 to write a multi-register value in one request.",
         "",
-        f"**Watchdog.** When the service is ARMED it trips the outputs to 0 V (FAULT; brakes "
-        f"set) if the command heartbeat does not change for longer than its watchdog, "
-        f"{wd_ms:.0f} ms by default (the MVME 104's; `ioservice/safety.py`). A Modbus HMI that commands the arm "
-        f"must therefore write (for example the heartbeat register) at least every "
-        f"{wd_ms:.0f} ms, with every request answered in time, for as long as the arm is "
-        "armed. A Modbus/TCP round trip on a plant network does not reliably meet that. "
-        "**In practice, Modbus command writes are for `matrix_route` and low-rate lab use "
-        "with the arm not armed; drive the arm from a controller process that uses "
-        "`bit3.client` directly.**",
+        "The arm is driven by a controller process through `bit3.client` (docs/safety.md, "
+        "\"Trust boundary\"); a Modbus master observes it (input registers, holding-register "
+        "reads), posts HALT and CAMERA ROUTE requests to a running controller "
+        "(`--modbus-requests`), or, with `--modbus-writes` and no controller running, sets the "
+        "camera route.",
         "",
     ]
 
@@ -748,7 +812,8 @@ class ModbusExport:
     def __init__(self, buffer: str | Bit3Buffer = "pfma", host: str = "127.0.0.1",
                  port: int = DEFAULT_PORT, allow_writes: bool = False, *,
                  owner: str = DEFAULT_OWNER, device_id: int = 0,
-                 layout: Layout | None = None, limits: ExportLimits | None = None) -> None:
+                 layout: Layout | None = None, limits: ExportLimits | None = None,
+                 requests_wm: str | None = None, wm_key: str | None = None) -> None:
         if not 0 <= int(port) <= 65535:
             raise ConfigError(f"Modbus export: port {port} out of range 0..65535")
         if not 0 <= int(device_id) <= 255:
@@ -758,6 +823,13 @@ class ModbusExport:
         self.layout = buffer.layout if isinstance(buffer, Bit3Buffer) else (layout or default_layout())
         self.host = host
         self.allow_writes = bool(allow_writes)
+        #: the world model of the controller requests go to (None: no request block); with
+        #: it the export never claims the command area (the running controller holds it)
+        self.requests_wm = requests_wm
+        self.wm_key = wm_key
+        self._link: Any = None  # tools.console.control.ControllerLink, attached at the first request
+        self._req = [0, 0, 0]  # the last request, its argument, the number it was posted under
+        self.posted = 0  #: requests posted to the controller
         self.owner = owner
         self.device_id = int(device_id)
         self.limits = limits or ExportLimits()
@@ -839,10 +911,13 @@ class ModbusExport:
                 self._buf = self._given
             else:
                 self._buf = Bit3Buffer.attach(self.buffer_name, readonly=True, layout=self.layout)
-            if self.allow_writes:
+            if self.allow_writes and self.requests_wm is None:
                 path = self.buffer_name if "/" in self.buffer_name else None  # file window
                 self._client = Client.attach(self.buffer_name, writer="commands", owner=self.owner,
                                              layout=self.layout, path=path)
+                rec = self._client.command  # the safe command, published with the first write
+                for name, safe in SAFE_COMMAND.items():
+                    rec[name] = safe
             self._views = {n: _AreaView(self._buf, n) for n in ("inputs", "stats", "commands")}
             server = _ServerThread(self, self.host, self._port, self.limits)
             server.start(timeout_s)
@@ -870,6 +945,7 @@ class ModbusExport:
 
     def _close_buffers(self) -> None:
         self._views = {}
+        self._drop_link()
         if self._client is not None:
             self._client.close()
             self._client = None
@@ -933,7 +1009,7 @@ class ModbusExport:
         if fc == 6:
             if len(pdu) != 5:
                 return self._exception(fc, ILLEGAL_VALUE, "malformed fc 6 requests (length)")
-            if not self.allow_writes or self._client is None:
+            if not self.allow_writes:
                 return self._exception(fc, ILLEGAL_FUNCTION, "writes (refused: read-only export)")
             address, value = struct.unpack_from(">HH", pdu, 1)
             code = self._write(address, [value])
@@ -944,7 +1020,7 @@ class ModbusExport:
             address, count, nbytes = struct.unpack_from(">HHB", pdu, 1)
             if not 1 <= count <= MAX_WRITE_REGISTERS or nbytes != 2 * count or len(pdu) != 6 + nbytes:
                 return self._exception(fc, ILLEGAL_VALUE, "malformed fc 16 requests (counts)")
-            if not self.allow_writes or self._client is None:
+            if not self.allow_writes:
                 return self._exception(fc, ILLEGAL_FUNCTION, "writes (refused: read-only export)")
             code = self._write(address, list(struct.unpack_from(f">{count}H", pdu, 6)))
             return self._exception(fc, code[0], code[1]) if code else pdu[:5]
@@ -960,6 +1036,8 @@ class ModbusExport:
             if COMMANDS_BASE <= address and end <= COMMANDS_BASE + self._hr_count:
                 regs = self._views["commands"].registers()
                 return regs[address - COMMANDS_BASE:end - COMMANDS_BASE].tobytes()
+            if self.requests_wm is not None and REQUESTS_BASE <= address and end <= REQUESTS_BASE + REQUEST_REGISTERS:
+                return self._request_registers()[address - REQUESTS_BASE:end - REQUESTS_BASE].tobytes()
             return None
         for base, n, area in self._ir_areas:
             if base <= address and end <= base + n:
@@ -981,8 +1059,14 @@ class ModbusExport:
             return vals.astype(">f4").view(">u2")
 
     def _write(self, address: int, values: list[int]) -> tuple[int, str] | None:
-        """Apply one write request to the command record and publish it (heartbeat + 1);
-        ``(exception code, reason)`` when refused (nothing applied)."""
+        """Apply one write request to the command record and publish it (heartbeat + 1), or
+        post it to the controller (the request block); ``(exception code, reason)`` when
+        refused (nothing applied)."""
+        if self.requests_wm is not None:
+            if REQUESTS_BASE <= address and address + len(values) <= REQUESTS_BASE + 2:
+                return self._request(address - REQUESTS_BASE, values)
+            return ILLEGAL_ADDRESS, ("writes outside the request block (the command area is the "
+                                     "controller's; the export never arms or moves the arm)")
         lo = address - COMMANDS_BASE
         hi = lo + len(values)  # exclusive
         if lo < 0 or hi > self._hr_count:
@@ -1002,8 +1086,16 @@ class ModbusExport:
         names: set[str] = set()
         for r in range(lo, hi):
             names |= self._hr_fields[r]
+        never = sorted(names.difference(REQUEST_FIELDS, KEEPALIVE_FIELDS))
+        if never:  # the export never arms or drives motion: only the requests are writable
+            # (the first field only: a bounded set of reasons for the refusal log)
+            return ILLEGAL_ADDRESS, (f"writes of {never[0]}{' and more' if len(never) > 1 else ''} "
+                                     f"(writable: {', '.join(REQUEST_FIELDS)}; the export never arms "
+                                     "or moves the arm)")
         fields = {n: (new[n].item() if new[n].ndim == 0 else new[n].copy())
                   for n in sorted(names) if n not in KEEPALIVE_FIELDS}
+        if "matrix_route" in fields and int(fields["matrix_route"]) not in ALL_ROUTES:
+            return ILLEGAL_VALUE, "writes of a matrix_route outside the route table"
         try:
             if fields:
                 client.write_commands(**fields)
@@ -1013,6 +1105,54 @@ class ModbusExport:
             return ILLEGAL_VALUE, f"writes of values the command area refuses ({', '.join(sorted(fields))})"
         self.writes += 1
         return None
+
+    def _request(self, offset: int, values: list[int]) -> tuple[int, str] | None:
+        """A write to the request block: the argument is kept; a request (HR 9000) of
+        :data:`MODBUS_REQUESTS` is posted to the controller, which answers it (validates)."""
+        req = self._req
+        if offset == 1:  # the argument alone
+            req[1] = values[0]
+            self.writes += 1
+            return None
+        kind = values[0]
+        arg = values[1] if len(values) > 1 else req[1]
+        if kind not in MODBUS_REQUESTS:
+            return ILLEGAL_VALUE, (f"requests of kind {kind} (taken: "
+                                   f"{', '.join(f'{k} {n}' for k, n in MODBUS_REQUESTS.items())}; "
+                                   "the export never arms or moves the arm)")
+        from tools.console.control import ControlError, ControllerLink
+        try:
+            if self._link is None:
+                self._link = ControllerLink.attach(self.requests_wm, self.wm_key)
+            seq = self._link.submit(kind, arg)
+        except ControlError as err:
+            self._drop_link()
+            log.warning("Modbus export %s:%d: request %s not posted: %s", self.host, self.port,
+                        MODBUS_REQUESTS[kind], err)
+            return DEVICE_FAILURE, "requests while no controller answers"
+        req[:] = [kind, arg, seq]
+        self.posted += 1
+        self.writes += 1
+        return None
+
+    def _request_registers(self) -> np.ndarray:
+        kind, arg, seq = self._req
+        code = answered = 0
+        if self._link is not None:
+            try:
+                v = self._link.wm.get_task_inputs(("ui.response_seq", "ui.response"))
+                answered, code = int(v["ui.response_seq"]), int(v["ui.response"])
+            except Exception:  # noqa: BLE001 - a world model gone under us reads as no answer
+                self._drop_link()
+        return np.array([kind, arg, seq & 0xFFFF, code & 0xFFFF, answered & 0xFFFF], dtype=">u2")
+
+    def _drop_link(self) -> None:
+        if self._link is not None:
+            try:
+                self._link.wm.close()
+            except Exception:  # noqa: BLE001 - closing a segment already gone
+                pass
+            self._link = None
 
 
 # ----------------------------------------------------------------------------------------
@@ -1073,8 +1213,10 @@ class ExportProcess:
 
     def __init__(self, buffer_name: str, host: str = "127.0.0.1", port: int = DEFAULT_PORT,
                  allow_writes: bool = False, *, rack: str | None = None,
-                 limits: ExportLimits | None = None, nice: int = EXPORT_NICE) -> None:
+                 limits: ExportLimits | None = None, nice: int = EXPORT_NICE,
+                 requests_wm: str | None = None) -> None:
         self.buffer_name = buffer_name
+        self.requests_wm = requests_wm
         self.host = host
         self.port = port
         self.allow_writes = allow_writes
@@ -1095,7 +1237,9 @@ class ExportProcess:
                 "--nice", str(self.nice), "--parent-pid", str(os.getpid())]
         if self.rack:
             argv += ["--rack", self.rack]
-        if self.allow_writes:
+        if self.requests_wm is not None:
+            argv += ["--requests", self.requests_wm]
+        elif self.allow_writes:
             argv.append("--writes")
         return argv
 
@@ -1148,15 +1292,18 @@ class ExportProcess:
 
 
 def start_export_from_args(buffer_name: str, host_port: str, allow_writes: bool,
-                           rack: str | None = None) -> ExportProcess:
+                           rack: str | None = None, requests_wm: str | None = None) -> ExportProcess:
     """Parse ``HOST:PORT`` and start the export in its own process (for ``pfma serve
     --modbus``; :class:`ExportProcess`). The caller stops it (``export.stop()``) when the
     service stops.
 
     :param rack: the rack TOML of a buffer made from another rack file than the default
+    :param requests_wm: the controller's world model: Modbus requests (HALT, CAMERA ROUTE)
+        are posted to it (docs/modbus-map.md)
     """
     host, port = parse_host_port(host_port)
-    return ExportProcess(buffer_name, host=host, port=port, allow_writes=allow_writes, rack=rack).start()
+    return ExportProcess(buffer_name, host=host, port=port, allow_writes=allow_writes or requests_wm is not None,
+                         rack=rack, requests_wm=requests_wm).start()
 
 
 def _leave_the_service_alone(nice: int) -> None:
@@ -1193,7 +1340,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
     p.add_argument("--listen", default=f"127.0.0.1:{DEFAULT_PORT}", metavar="HOST:PORT",
                    help=f"address to serve (default 127.0.0.1:{DEFAULT_PORT}; port 0: any free one)")
-    p.add_argument("--writes", action="store_true", help="accept command writes (claims the controller role)")
+    p.add_argument("--writes", action="store_true", help="accept camera-route requests (claims the controller role; never arms or moves the arm)")
+    p.add_argument("--requests", default=None, metavar="WM",
+                   help="post HALT and CAMERA ROUTE requests to the controller of world model WM "
+                        "(holding registers 9000-9004; never arms or moves the arm)")
     p.add_argument("--rack", default=None, help="rack TOML of the buffer (default: the default rack)")
     p.add_argument("--max-connections", type=int, default=d.max_connections,
                    help=f"clients at once; one more is closed at once (default {d.max_connections})")
@@ -1231,7 +1381,8 @@ def main(argv: list[str] | None = None) -> int:
             from bit3.layout import build_layout
             from pfma.rack import load_rack
             layout = build_layout(load_rack(args.rack))
-        export = ModbusExport(args.buffer, host, port, args.writes, layout=layout, limits=limits).start()
+        export = ModbusExport(args.buffer, host, port, args.writes or args.requests is not None, layout=layout,
+                              limits=limits, requests_wm=args.requests).start()
     except PfmaError as err:
         print(f"error: {err}", flush=True)
         return 1

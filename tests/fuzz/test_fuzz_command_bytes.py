@@ -3,7 +3,8 @@ armed, has bytes of its fields overwritten with random bytes (or is replaced by 
 bytes whole) and published through the area's sequence lock, frame after frame. The
 service never drives a DAC channel beyond its configured limit (current limits never
 below 0 V), and whenever it refuses a command or leaves ARMED it posts a message naming
-the cause (refused field and value, a foreign writer, a stale heartbeat ...).
+the cause (refused field and value, a foreign writer, a stale heartbeat, a heartbeat that
+breaks the holder's stream: two writers on the claim ...).
 
 Simulated time (``SimRig``). Not repeated here: tests/ioservice/test_command_path.py
 fuzzes the command *fields* with values (NaN, inf, beyond limits), torn writes, a rogue
@@ -63,7 +64,7 @@ def test_random_bytes_in_the_command_record_never_drive_beyond_a_limit_and_every
             rig.run_frames(1)
         assert rig.reader.read_inputs().service_state == ServiceState.ARMED
         svc = rig.svc
-        lock = rig.buf.lock("commands")
+        lock = ctl.buffer.lock("commands")  # the holder's own counter: one writer's stream
         good = ctl.command.copy()
         body = bytearray(good.tobytes())
         n_msgs = len(rig.reader.messages())
@@ -104,7 +105,9 @@ def test_random_bytes_in_the_command_record_never_drive_beyond_a_limit_and_every
             new = [m.text for m in msgs[n_msgs:]]
             n_msgs = len(msgs)
             if s.refused_commands > refused0:  # a refusal: the message names field and value, or the writer
-                assert any(t.startswith(("refused", "arm refused", "outputs safe: refused")) for t in new), new
+                # (a patched heartbeat breaks the holder's stream: "two writers on the claim ...")
+                assert any(t.startswith(("refused", "arm refused", "outputs safe: refused", "two writers on the claim"))
+                           for t in new), new
             if state0 == ServiceState.ARMED and s.service_state != ServiceState.ARMED:  # a trip: its cause said
                 assert new and all(t for t in new), (ServiceState(s.service_state).name, new)
             if s.service_state != ServiceState.ARMED:

@@ -290,16 +290,18 @@ def test_fuzzed_command_areas_never_drive_a_channel_beyond_its_limit(writes):
         rig.close()
 
 
-def test_an_absurd_rate_written_over_modbus_is_refused_too(rig):
-    """The Modbus export (``pfma serve --modbus-writes``) writes the command area through
-    the same client: 1e9 rad/s from a Modbus master is refused by the service, not clipped
-    to 9.995 V."""
+def test_a_modbus_master_can_neither_arm_nor_move_the_arm(rig):
+    """issue 28 item 6: the Modbus export (``pfma serve --modbus-writes``), a hostile master
+    on loopback TCP: arming, a re-arm counter, current limits and a rate are refused with
+    exception 2 (ILLEGAL_DATA_ADDRESS), the service stays SAFE at 0 V and the arm does not
+    move; the one request it takes, a camera route from the route table, is applied."""
     from pymodbus.client import ModbusTcpClient
 
     from tools.modbus_export import ModbusExport, map_row, register_map
     ROWS = register_map(rig.layout)
     DT = ModbusTcpClient.DATATYPE
     rig.run_frames(4)  # the service has seen the (still empty) command area
+    angle0 = float(rig.reader.read_inputs().shoulder_pitch_angle)
     with ModbusExport(rig.name, port=0, allow_writes=True, layout=rig.layout) as ex:
         c = ModbusTcpClient("127.0.0.1", port=ex.port, timeout=2, retries=0)
         assert c.connect()
@@ -307,21 +309,25 @@ def test_an_absurd_rate_written_over_modbus_is_refused_too(rig):
             def write(field, values, dt):
                 row = map_row(ROWS, field, "holding")
                 regs = [r for v in values for r in c.convert_to_registers(v, dt)]
-                assert not c.write_registers(row.address, regs, device_id=1).isError()
-            write("current_limit_a", list(LIMITS), DT.FLOAT64)
-            write("rearm_counter", [1], DT.UINT32)
-            row = map_row(ROWS, "arm_request", "holding")
-            assert not c.write_register(row.address, 0x0100, device_id=1).isError()  # high byte: arm_request
-            rig.run_frames(1)
-            assert rig.reader.read_inputs().service_state == ServiceState.ARMED
-            write("joint_rate_rad_s", [1e9, 0, 0, 0, 0, 0], DT.FLOAT64)
-            rig.run_frames(1)
+                return c.write_registers(row.address, regs, device_id=1)
+            for rr in (write("current_limit_a", list(LIMITS), DT.FLOAT64),
+                       write("rearm_counter", [1], DT.UINT32),
+                       c.write_register(map_row(ROWS, "arm_request", "holding").address, 0x0100, device_id=1),
+                       write("joint_rate_rad_s", [0.4, 0, 0, 0, 0, 0], DT.FLOAT64)):
+                assert rr.isError() and rr.exception_code == 2
+            assert not write("matrix_route", [0x0009], DT.UINT16).isError()  # a route request
+            hb = map_row(ROWS, "heartbeat", "holding")
+            for _ in range(64):  # keep-alives for 0.2 s: the heartbeat is fresh, still no arming
+                assert not c.write_registers(hb.address, [0, 0, 0, 1], device_id=1).isError()
+                rig.run_frames(1)
         finally:
             c.close()
+        assert ex.refused == 4 and ex.writes == 65
     s = rig.reader.read_inputs()
-    assert s.service_state == ServiceState.SAFE and s.refused_commands == 1
+    assert s.service_state == ServiceState.SAFE and s.refused_commands == 0
     assert np.all(volts(rig) == 0.0)
-    assert "refused shoulder_pitch_command=1e+09 rad/s, limit +-0.4" in texts(rig)
+    assert float(s.shoulder_pitch_angle) == pytest.approx(angle0, abs=1e-6)
+    assert s.matrix_route == 0x0009  # the route request was applied by the service
 
 
 def test_the_input_age_can_be_set_per_service_and_is_checked_against_the_watchdog(rig):

@@ -94,3 +94,10 @@ def test_serve_never_replaces_a_live_service_buffer_of_another_layout(capsys):
             child.kill()
         b.close()
         Bit3Buffer.unlink(name)
+
+
+@pytest.mark.parametrize("flag", [["--modbus-writes"], ["--modbus-requests", "pfma_wm"]])
+def test_a_modbus_write_option_without_the_export_is_one_message(flag, capsys):
+    assert main(["serve", "--duration", "0.1", "--buffer", "unused-modbus-flag", *flag]) == 2
+    err = capsys.readouterr().err
+    assert "needs --modbus HOST:PORT" in err and err.count("\n") == 1 and "Traceback" not in err

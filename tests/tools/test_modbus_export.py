@@ -257,25 +257,11 @@ def test_writes_are_applied_with_allow_writes_and_bump_the_heartbeat(shm_name, s
         c = connect(ex.port)
         try:
             mr = map_row(ROWS, "matrix_route", "holding")
-            assert not c.write_register(mr.address, 0x0203, device_id=1).isError()
+            assert not c.write_register(mr.address, 0x0009, device_id=1).isError()  # cameras 1 and 2
             cmd = cl.read_commands()
-            assert cmd.matrix_route == 0x0203 and cmd.heartbeat == 1
-            jr = map_row(ROWS, "joint_rate_rad_s", "holding")
-            rates = [0.5, -0.25, 0.0, 1e-3, -2.0, 0.125]
-            regs = [r for v in rates for r in c.convert_to_registers(v, DT.FLOAT64)]
-            assert not c.write_registers(jr.address, regs, device_id=1).isError()
-            cmd = cl.read_commands()
-            assert list(cmd.joint_rate_rad_s) == rates and cmd.heartbeat == 2
-            assert cmd.matrix_route == 0x0203  # other fields keep their values
-            addr, _ = jr.element(4)  # one element of an array
-            rr = c.write_registers(addr, c.convert_to_registers(0.75, DT.FLOAT64), device_id=1)
-            assert not rr.isError()
-            assert cl.read_commands().joint_rate_rad_s[4] == 0.75
-            # byte field in the high byte of its register; the low byte is padding
-            ar = map_row(ROWS, "arm_request", "holding")
-            assert ar.byte_in_register() == "high"
-            assert not c.write_register(ar.address, 0x01FF, device_id=1).isError()
-            assert cl.read_commands().arm_request == 1
+            assert cmd.matrix_route == 0x0009 and cmd.heartbeat == 1
+            # the rest of the record is the safe command: no arm request, rates and limits 0
+            assert cmd.arm_request == 0 and not any(cmd.joint_rate_rad_s) and not any(cmd.current_limit_a)
             # keep-alive: a write to the heartbeat register only bumps it
             hb = map_row(ROWS, "heartbeat", "holding")
             before = cl.read_commands().copy()
@@ -283,15 +269,47 @@ def test_writes_are_applied_with_allow_writes_and_bump_the_heartbeat(shm_name, s
             after = cl.read_commands()
             assert after.heartbeat == before.heartbeat + 1
             assert after.t_s >= before.t_s
-            assert list(after.joint_rate_rad_s) == list(before.joint_rate_rad_s)
+            assert after.matrix_route == 0x0009  # other fields keep their values
             # read back through Modbus (fc 3) shows the published record
             assert value(c, "heartbeat", table="holding") == after.heartbeat
-            assert value(c, "joint_rate_rad_s", 4, table="holding") == 0.75
-            assert ex.writes == 5
+            assert value(c, "matrix_route", table="holding") == 0x0009
+            assert ex.writes == 2
         finally:
             c.close()
     with Client.attach(shm_name) as cl:
         assert cl.owners()["commands"].pid == 0  # stop() released the role
+
+
+def test_only_the_camera_route_is_writable_and_it_must_be_in_the_route_table(shm_name, service):
+    """issue 28 item 6: arming, re-arming, rates, current limits, gripper and mode answer
+    exception 2 and change nothing; a route byte outside the table answers exception 3."""
+    with ModbusExport(shm_name, port=0, allow_writes=True) as ex, Client.attach(shm_name) as cl:
+        c = connect(ex.port)
+        try:
+            f64 = c.convert_to_registers(0.5, DT.FLOAT64)
+            tries = {
+                "joint_rate_rad_s": f64 * 6, "gripper": f64, "current_limit_a": f64 * 7,
+                "rearm_counter": c.convert_to_registers(1, DT.UINT32),
+                "mode": c.convert_to_registers(1, DT.UINT32),
+                "inputs_frame": [0, 0, 0, 1], "controller_frame": [0, 0, 0, 1],
+            }
+            for name, regs in tries.items():
+                rr = c.write_registers(map_row(ROWS, name, "holding").address, regs, device_id=1)
+                assert rr.isError() and rr.exception_code == 2, name
+            ar = map_row(ROWS, "arm_request", "holding")
+            rr = c.write_register(ar.address, 0x0100, device_id=1)  # high byte: arm_request 1
+            assert rr.isError() and rr.exception_code == 2
+            mr = map_row(ROWS, "matrix_route", "holding")
+            rr = c.write_register(mr.address, 0x00FF, device_id=1)  # not a route of the table
+            assert rr.isError() and rr.exception_code == 3
+            rr = c.write_registers(mr.address, [0x0009, 0x0100], device_id=1)  # route and arm_request
+            assert rr.isError() and rr.exception_code == 2
+            cmd = cl.read_commands()
+            assert cmd.heartbeat == 0 and cmd.arm_request == 0 and cmd.matrix_route == 0
+            assert ex.writes == 0 and ex.refused == len(tries) + 3
+            assert any("writes of arm_request" in r for r in ex.refusals.total), ex.refusals.total
+        finally:
+            c.close()
 
 
 def test_bad_writes_are_refused_and_change_nothing(shm_name, service):
@@ -306,11 +324,11 @@ def test_bad_writes_are_refused_and_change_nothing(shm_name, service):
             assert rr.isError() and rr.exception_code == 2
             rr = c.write_register(400, 1, device_id=1)  # no command field there
             assert rr.isError() and rr.exception_code == 2
-            nan = c.convert_to_registers(float("nan"), DT.FLOAT64)
-            rr = c.write_registers(g.address, nan, device_id=1)
+            mr = map_row(ROWS, "matrix_route", "holding")
+            rr = c.write_register(mr.address, 0x1000, device_id=1)  # a bit outside the route byte
             assert rr.isError() and rr.exception_code == 3
             cmd = cl.read_commands()
-            assert cmd.heartbeat == 0 and cmd.gripper == 0.0
+            assert cmd.heartbeat == 0 and cmd.gripper == 0.0 and cmd.matrix_route == 0
             assert ex.refused == 4 and ex.writes == 0
         finally:
             c.close()
@@ -448,10 +466,7 @@ def test_map_covers_every_field_without_overlap():
             for a in range(r.address, r.address + r.count):
                 assert a not in owner, f"{r.name} overlaps {owner[a]} at {a}"
                 owner[a] = r.name
-    assert [r.name for r in ROWS if r.table == "holding" and r.writable] == [
-        "joint_rate_rad_s", "gripper", "current_limit_a", "matrix_route", "arm_request",
-        "rearm_counter", "mode", "crl_reflect_force_n", "crl_reflect_torque_nm", "crl_reflect_enable",
-        "inputs_frame", "controller_frame"]
+    assert [r.name for r in ROWS if r.table == "holding" and r.writable] == ["matrix_route"]
 
 
 def test_committed_map_doc_is_the_generated_one():

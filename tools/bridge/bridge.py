@@ -57,6 +57,11 @@ RING_CHECK_POLLS = 1000
 #: that sees a jump of more than 2 knows publishes were lost on the way (at the bridge or
 #: on the link) and a frame-number jump with a step of 2 is a frame the service skipped
 SEQ = struct.Struct("<Q")
+#: after the sequence number, the attachment carries the bridge's writer identity: its Zenoh
+#: session id (ASCII hex), which is also the last chunk of the liveliness token
+#: ``pfma/<buffer>/publisher/<id>`` it declares; readers take only bodies of the first live
+#: publisher token they saw (tools/bridge/consistency.py, issue 28 item 6)
+MAX_WRITER_ID = 64
 
 
 def seq_of(sample: Any) -> int | None:
@@ -65,7 +70,18 @@ def seq_of(sample: Any) -> int | None:
     if a is None:
         return None
     b = a.to_bytes()
-    return SEQ.unpack(b)[0] if len(b) == SEQ.size else None
+    return SEQ.unpack_from(b)[0] if SEQ.size <= len(b) <= SEQ.size + MAX_WRITER_ID else None
+
+
+def writer_of(sample: Any) -> str | None:
+    """The writer identity a bridge attached after the sequence number (None: none)."""
+    a = sample.attachment
+    if a is None:
+        return None
+    b = a.to_bytes()
+    if not SEQ.size < len(b) <= SEQ.size + MAX_WRITER_ID:
+        return None
+    return b[SEQ.size:].decode("ascii", "replace")
 
 
 def layout_document(layout: Layout) -> bytes:
@@ -96,6 +112,11 @@ class Bridge:
         self._now = now or reader.buffer.clock_now
         self._readers: dict[str, AreaReader] = {a: reader.buffer.reader(a) for a in AREAS}
         self._pubs = {a: session.declare_publisher(key(name, a)) for a in AREAS}
+        #: this bridge's writer identity (attached to every body after its sequence number)
+        #: and its liveliness token, by which readers know it is the publisher
+        self.writer_id = str(session.zid())
+        self._id = self.writer_id.encode("ascii")
+        self._publisher_token = session.liveliness().declare_token(key(name, "publisher", self.writer_id))
         self._last_pub = {a: -float("inf") for a in AREAS}
         self.published = {a: 0 for a in AREAS}  #: bodies published, by area
         #: publishes of the inputs area this bridge did not see (its poll came after the
@@ -156,7 +177,7 @@ class Bridge:
         area = str(query.key_expr).rsplit("/", 1)[-1]
         last = self._last.get(area)  # one read: the body and its number together
         if last is not None:
-            query.reply(query.key_expr, last[0], attachment=SEQ.pack(last[1]))
+            query.reply(query.key_expr, last[0], attachment=SEQ.pack(last[1]) + self._id)
 
     def _on_token(self, sample: Any) -> None:
         owner = str(sample.key_expr).rsplit("/", 1)[-1][:MAX_SENDER_CHARS]
@@ -203,7 +224,7 @@ class Bridge:
                 self.missed += (seq - prev) // 2 - 1
             body = bytes(r.raw)
             self._last[area] = (body, seq)
-            self._pubs[area].put(body, attachment=SEQ.pack(seq))
+            self._pubs[area].put(body, attachment=SEQ.pack(seq) + self._id)
             self._last_pub[area] = t
             self.published[area] += 1
             n += 1
@@ -241,7 +262,7 @@ class Bridge:
                 continue
             data = bytes(body)
             self._last["inputs"] = (data, 2 * k)  # k is already the next frame: stamp 2(k-1)+2
-            pub.put(data, attachment=SEQ.pack(2 * k))
+            pub.put(data, attachment=SEQ.pack(2 * k) + self._id)
             self.published["inputs"] += 1
             n += 1
         self._ring_k = k
@@ -311,6 +332,7 @@ class Bridge:
             p.undeclare()
         self._pubs.clear()
         self._layout_q.undeclare()
+        self._publisher_token.undeclare()
         for q in self._area_q:
             q.undeclare()
         self._area_q.clear()

@@ -23,8 +23,9 @@ from bit3.client import QUEUES, Snapshot
 from bit3.layout import MAGIC, Layout, ServiceState, build_layout, default_layout
 from bit3.seqlock import Bit3Error, LayoutMismatchError, OwnershipError
 from pfma.rack import load_rack
-from tools.bridge.bridge import AREAS, STAMPED, seq_of
-from tools.bridge.session import check_name, key
+from tools.bridge.bridge import AREAS, STAMPED, seq_of, writer_of
+from tools.bridge.consistency import BodyCheck
+from tools.bridge.session import CREDENTIALS_ENV, check_name, key
 
 #: how long a first body or the layout is waited for, s (bounded: then a clear error)
 DEFAULT_TIMEOUT_S = 5.0
@@ -92,6 +93,11 @@ class RemoteBuffer:
         #: recorder) and, once connected by :meth:`connect`, ``url``: the
         #: ``zenoh://HOST:PORT/NAME`` another tool would be given to read the same buffer
         self.buffer = SimpleNamespace(name=name, queue=self._queue_head, url=None)
+        #: bodies of the right size whose writer or sequence is not the bridge's: rejected,
+        #: counted (``check.rejected``) and said once per episode (``check.notes``)
+        self.check = BodyCheck(name)
+        self._publishers = session.liveliness().declare_subscriber(
+            key(name, "publisher", "*"), self._on_publisher, history=True)
         self._sub = session.declare_subscriber(key(name, "*"), self._on_body)
 
     @classmethod
@@ -123,7 +129,9 @@ class RemoteBuffer:
                     return self._layout_document(reply.ok.payload.to_bytes())
             if time.monotonic() >= end:
                 raise Bit3Error(f"no bridge publishes buffer {self.name!r} (no answer on "
-                                f"{key(self.name, 'layout')} within {self.timeout_s:g} s)")
+                                f"{key(self.name, 'layout')} within {self.timeout_s:g} s; a bridge "
+                                f"started with --users takes only peers with its credentials: "
+                                f"${CREDENTIALS_ENV})")
             time.sleep(0.05)
 
     def _layout_document(self, data: bytes) -> dict:
@@ -139,6 +147,10 @@ class RemoteBuffer:
                             f"(no layout hash in it)")
         return doc
 
+    def _on_publisher(self, sample: Any) -> None:
+        import zenoh
+        self.check.token(str(sample.key_expr).rsplit("/", 1)[-1], sample.kind == zenoh.SampleKind.PUT)
+
     def _on_body(self, sample: Any) -> None:
         area = str(sample.key_expr).rsplit("/", 1)[-1]
         if area in self._counts:
@@ -147,6 +159,8 @@ class RemoteBuffer:
                 self.rejected[area] = self.rejected.get(area, 0) + 1
                 return
             got = (sample.payload.to_bytes(), seq_of(sample))
+            if not self.check.take(area, got[1], writer_of(sample), got[0]):
+                return  # not the bridge's writer, or a sequence number it cannot have sent
             self._bodies[area] = got
             if area == "inputs" and self._queue is not None:
                 if len(self._queue) < self.max_queue:
@@ -178,7 +192,10 @@ class RemoteBuffer:
                 if len(reply.ok.payload) != self._sizes[area]:
                     self.rejected[area] = self.rejected.get(area, 0) + 1
                     continue
-                self._bodies[area] = (reply.ok.payload.to_bytes(), seq_of(reply.ok))
+                body, seq = reply.ok.payload.to_bytes(), seq_of(reply.ok)
+                if not self.check.take(area, seq, writer_of(reply.ok), body):
+                    continue
+                self._bodies[area] = (body, seq)
                 self._counts[area] += 1
 
     def read(self, area: str) -> Snapshot:
@@ -282,6 +299,7 @@ class RemoteBuffer:
         if self._sub is not None:
             self._sub.undeclare()
             self._sub = None
+            self._publishers.undeclare()
             if self._own_session:
                 self.session.close()
 

@@ -6,14 +6,19 @@ the layout JSON under ``pfma/<buffer>/layout``) at the rate it changes. With
 one remote writer publishes on ``pfma/<buffer>/commands/set``; the service's watchdog
 and limits apply unchanged. Peer mode on explicit endpoints, no multicast scouting;
 with neither --listen nor --connect it listens on tcp/127.0.0.1:7447 (loopback only).
+With --users FILE (user:password lines) only peers that authenticate as one of those users
+connect (Zenoh usrpwd), and Zenoh's access control lets them read while only --operator
+users may command; remote tools authenticate with $PFMA_ZENOH_CREDENTIALS.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
 import time
+from pathlib import Path
 
 from pfma.errors import PfmaError
 from tools.cli.args import positive_float
@@ -41,6 +46,11 @@ def add_parser(sub):
     p.add_argument("--owner", default="pfma-bridge", help="owner name of the command claim")
     p.add_argument("--duration", type=positive_float, default=None, metavar="S",
                    help="stop after S seconds (default: until Ctrl-C)")
+    p.add_argument("--users", default=None, metavar="FILE",
+                   help="user:password lines of the peers allowed to connect: Zenoh authentication "
+                        "(usrpwd) and access control (every user reads; only --operator users command)")
+    p.add_argument("--operator", action="append", default=[], metavar="USER",
+                   help="a user of --users who may put remote commands (repeatable; with --commands)")
     return p
 
 
@@ -48,12 +58,23 @@ def run(args) -> int:
     from bit3.client import Client
     from tools.attach import no_service
     from tools.bridge.bridge import Bridge
-    from tools.bridge.session import DEFAULT_LISTEN, check_endpoint, check_name, open_session
+    from tools.bridge.session import (
+        CREDENTIALS_ENV, DEFAULT_LISTEN, ZenohAuth, access_control, check_endpoint, check_name, open_session,
+        read_credentials,
+    )
 
+    auth = None
     try:
         check_name(args.buffer)
         for e in (args.listen or []) + (args.connect or []):
             check_endpoint(e)
+        if args.operator and not args.users:
+            raise PfmaError("--operator needs --users (the users file it names an entry of)")
+        if args.users:
+            own = ZenohAuth.from_file(os.environ[CREDENTIALS_ENV]) if os.environ.get(CREDENTIALS_ENV) else None
+            auth = ZenohAuth(own.user if own else None, own.password if own else None, args.users)
+            # checked here: a bad users file or an operator not in it is one line, exit 2
+            access_control(args.buffer, [u for u, _ in read_credentials(Path(args.users))], args.operator)
     except PfmaError as err:
         print(f"pfma bridge: {err}", file=sys.stderr)
         return 2
@@ -61,6 +82,7 @@ def run(args) -> int:
     if why is not None:
         raise PfmaError(why)
     listen = args.listen or ([] if args.connect else [DEFAULT_LISTEN])
+    secured = "" if auth is None else f"; users of {args.users} only, operators: {', '.join(args.operator) or 'none'}"
     reader = Client.attach(args.buffer, rack=args.rack)
     # SIGTERM (a process manager) and SIGINT (also where a shell started it with SIGINT
     # ignored) end the loop: the orderly close below (its summary; a command claim released)
@@ -72,12 +94,13 @@ def run(args) -> int:
     try:
         if args.commands:
             commander = Client.attach(args.buffer, writer="commands", owner=args.owner, rack=args.rack)
-        session = open_session(listen=listen, connect=args.connect)
+        session = open_session(listen=listen, connect=args.connect, auth=auth, buffer=args.buffer,
+                               operators=args.operator)
         bridge = Bridge(session, args.buffer, reader, commander=commander, now=time.monotonic,
                         ring=_ring(args.buffer, reader))
         ring_gone = bridge.ring is not None
         print(f"pfma bridge: buffer {args.buffer} on {', '.join(listen + (args.connect or []))}"
-              f"{' (remote commands on)' if commander else ' (read-only)'}", file=sys.stderr, flush=True)
+              f"{' (remote commands on)' if commander else ' (read-only)'}{secured}", file=sys.stderr, flush=True)
         end = None if args.duration is None else time.monotonic() + args.duration
         polls = 0
         while (end is None or time.monotonic() < end) and not stop["signal"]:

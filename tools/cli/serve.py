@@ -55,7 +55,12 @@ def add_parser(sub):
                         "docs/reliability.md, the pfma group model)")
     p.add_argument("--duration", type=positive_float, default=None, help="seconds to run (default: until Ctrl-C)")
     p.add_argument("--modbus", default=None, metavar="HOST:PORT", help="export the buffer over Modbus TCP")
-    p.add_argument("--modbus-writes", action="store_true", help="let Modbus clients write the command area")
+    p.add_argument("--modbus-writes", action="store_true",
+                   help="with no controller: let Modbus clients set the camera route (claims the command area; "
+                        "never arms or moves the arm: docs/modbus-map.md)")
+    p.add_argument("--modbus-requests", default=None, metavar="WM",
+                   help="let Modbus clients post HALT and CAMERA ROUTE requests to the controller of world "
+                        "model WM, which answers them (never arms or moves the arm: docs/modbus-map.md)")
     p.add_argument("--frame-rate", type=float_in(1.0, 5000.0, "Hz"), default=320.0, help="minor-frame rate (320 default; 1000 fast)")
     p.add_argument("--schedule", default=None, metavar="FILE.toml|slow",
                    help="acquisition schedule: a [schedule] table (frame_rate_hz, tasks.NAME = {divider, "
@@ -204,6 +209,10 @@ def run(args) -> int:
             raise ConfigError(f"schedule file {args.schedule}: {err}") from err
     else:
         schedule = Schedule() if args.frame_rate == 320.0 else Schedule.scaled(args.frame_rate)
+    if (args.modbus_writes or args.modbus_requests) and not args.modbus:
+        print(f"pfma serve: {'--modbus-requests' if args.modbus_requests else '--modbus-writes'} needs "
+              f"--modbus HOST:PORT (the export it configures)", file=sys.stderr)
+        return 2
     if args.rack != "fake" and args.bus is None:
         print(f"pfma serve: --rack {args.rack} needs --bus: the rack's register bus "
               f"(modbus://HOST:PORT, file:PATH), or --bus fake to run it on the simulated "
@@ -326,9 +335,11 @@ def run(args) -> int:
         if args.modbus:  # inside the try: an export that cannot start leaves no buffer or ring behind
             from tools.modbus_export import start_export_from_args
             export = start_export_from_args(args.buffer, args.modbus, args.modbus_writes,
-                                            rack=None if args.rack == "fake" else args.rack)
-            print(f"pfma serve: Modbus TCP export on {export.address}"
-                  f"{' (command writes allowed)' if args.modbus_writes else ' (read-only)'}")
+                                            rack=None if args.rack == "fake" else args.rack,
+                                            requests_wm=args.modbus_requests)
+            mode = (f" (requests to the controller of {args.modbus_requests})" if args.modbus_requests
+                    else " (camera-route writes)" if args.modbus_writes else " (read-only)")
+            print(f"pfma serve: Modbus TCP export on {export.address}{mode}")
         on = "the simulated rack" if world else (
             f"{args.bus} (simulated registers)" if args.bus.removeprefix("spy+") in ("fake", "fake://")
             else args.bus)

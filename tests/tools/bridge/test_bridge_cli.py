@@ -108,6 +108,9 @@ def test_a_killed_remote_commander_trips_the_services_watchdog():
     (["bridge", "--listen", "127.0.0.1:7447"], 2, "is not tcp/HOST:PORT"),
     (["bridge", "--buffer", "a/b"], 2, "may hold only letters"),
     (["bridge", "--buffer", "pfma-no-such-bridge-buffer"], 1, "no I/O service runs on buffer"),
+    (["bridge", "--operator", "ops"], 2, "--operator needs --users"),
+    (["bridge", "--users", "/nonexistent/pfma-users"], 2, "cannot read the Zenoh credentials"),
+    (["bridge", "--users", "/dev/null"], 2, "no user:password line"),
 ])
 def test_bad_bridge_input_is_one_message(argv, code, words, capsys):
     assert main(argv) == code
@@ -155,6 +158,55 @@ def test_sigterm_stops_the_bridge_in_order_and_releases_the_command_area():
             until(lambda: c.owners()["commands"].pid != bridge.pid, "the command area released")
         finally:
             c.close()
+    finally:
+        for p in (bridge, svc):
+            if p is not None and p.poll() is None:
+                p.send_signal(signal.SIGINT)
+                try:
+                    p.wait(WAIT_S)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+        Bit3Buffer.unlink(name)
+        from bit3.ring import FrameRing
+        FrameRing.unlink(name)
+
+
+@pytest.mark.realtime
+def test_a_bridge_with_users_serves_a_tool_with_credentials_and_not_one_without(tmp_path):
+    """`pfma bridge --users FILE --operator ops` (processes, loopback): `pfma read` through
+    it with $PFMA_ZENOH_CREDENTIALS of a user in the file reads the service's frame; the same
+    tool without credentials gets one line and exit 1 (not connected: no layout answer)."""
+    name = "pfma-test-brusr-" + uuid.uuid4().hex[:6]
+    users = tmp_path / "users"
+    users.write_text("ops:ops-pw\nviewer:viewer-pw\n")
+    users.chmod(0o600)
+    creds = tmp_path / "creds"
+    creds.write_text("viewer:viewer-pw\n")
+    creds.chmod(0o600)
+    port = free_port()
+    svc = pfma_proc("serve", "--rack", "fake", "--buffer", name, "--duration", "60")
+    bridge = None
+    try:
+        until(lambda: os.path.exists(f"/dev/shm/{name}"), "the service's buffer", (svc,))
+        bridge = pfma_proc("bridge", "--buffer", name, "--listen", f"tcp/127.0.0.1:{port}",
+                           "--users", str(users), "--operator", "ops", "--duration", "60")
+        url = f"zenoh://127.0.0.1:{port}/{name}"
+        ok = None
+        end = time.monotonic() + WAIT_S
+        while time.monotonic() < end:  # the bridge may still be starting: ask again, bounded
+            ok = subprocess.run([sys.executable, "-m", "tools.cli", "read", "elbow_pitch_angle", "--buffer", url],
+                                cwd=ROOT, env=dict(ENV, PFMA_ZENOH_CREDENTIALS=str(creds)),
+                                capture_output=True, text=True, timeout=60)
+            if ok.returncode == 0:
+                break
+        assert ok is not None and ok.returncode == 0, ok
+        assert "Traceback" not in ok.stderr
+        env = {k: v for k, v in ENV.items() if k != "PFMA_ZENOH_CREDENTIALS"}
+        no = subprocess.run([sys.executable, "-m", "tools.cli", "read", "elbow_pitch_angle", "--buffer", url],
+                            cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
+        assert no.returncode == 1, no
+        assert "PFMA_ZENOH_CREDENTIALS" in no.stderr and "Traceback" not in no.stderr
+        assert no.stderr.count("\n") == 1, no.stderr
     finally:
         for p in (bridge, svc):
             if p is not None and p.poll() is None:
