@@ -163,6 +163,9 @@ WRITER_ROLES: dict[str, tuple[str, ...]] = {
 BOARD_OK, BOARD_INIT, BOARD_FAULT = 1, 2, 4  #: ``board_status``
 LINK_OPEN, LINK_SYNCED, LINK_FAULT, LINK_STALE = 1, 2, 4, 8  #: ``link_status``
 DAC_CLIPPED, DAC_FORCED_SAFE = 1, 2  #: ``dac_status``: saturated within the limit margin / forced to 0 V
+#: ``dac_status``: a rate command saturated by the service's slew limit / held at 0 V by its
+#: envelope (braking distance of a soft limit; ioservice/envelope.py)
+DAC_SLEWED, DAC_ENVELOPE = 4, 8
 RTD_LOSS_OF_SIGNAL, RTD_NO_REFERENCE = 1, 2  #: ``rtd_status`` (from the VMIVME-4940's status)
 CHANNEL_BUS_ERROR = 0x100  #: ``rtd_status`` / ``adc_status``: the board did not answer this sample
 #: ``inputs.command_status`` bits: what the service made of this frame's command area

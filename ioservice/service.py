@@ -47,6 +47,7 @@ from bit3.layout import MODE_HALTED  # HALTED (issue 18): the halted controller'
 from bit3.layout import FAULT_AMP_ENABLE, FAULT_DAC_UNREACHABLE  # noqa: F401 - issue 28 item 5, re-exported
 from ioservice import direction
 from ioservice.chargepump import ChargePump
+from ioservice.envelope import CODE_OVERSPEED, ServiceEnvelope
 from ioservice.commandcheck import TWO_WRITER_HOLD_S, ClaimStreamCheck
 from ioservice.direction import DirectionCheck
 from ioservice.loop import FrameInfo, FrameLoop, LoopStats
@@ -71,6 +72,8 @@ FAULT_NONE, FAULT_WATCHDOG, FAULT_DAC, FAULT_INPUTS, FAULT_UNEXPECTED = 0, 1, 2,
 FAULT_COMMAND, FAULT_FOREIGN = 5, 6
 # FAULT_DAC_UNREACHABLE (7: the DAC does not answer, outputs NOT known safe) and
 # FAULT_AMP_ENABLE (8: the charge pump could not be written) are bit3.layout's: tools read them
+#: inputs.fault_code when the service's envelope found a joint over speed (issue 28 item 4)
+FAULT_OVERSPEED = 9
 #: internal: nobody holds the command area's claim (no controller yet); not published
 _NO_WRITER = 0x100
 #: _fetch_command: the body carries the claim's pid and token but its stream shows a second
@@ -251,6 +254,15 @@ class IoService:
         self.rtd = RtdTask(self)
         self.adc = AdcTask(self)
         self.dac = DacTask(self)
+        lay = self.layout
+        #: the motion envelope (issue 28 item 4): slew, braking distance, overspeed
+        self.envelope = ServiceEnvelope(
+            rack.envelope, [(j, lay.joint_entry("dac", j, "rate_command").channel, lay.joint_slot("rtd", j, "angle"),
+                             lay.joint_slot("adc", j, "rate")) for j in lay.joint_names
+                            if rack.find(j, "angle") is not None and rack.find(j, "rate") is not None],
+            self.post)
+        self._env_status = [0] * max((len(b.channels) for b in rack.boards_of("dac")), default=0)
+        self._env_k = 0  # the frame the envelope last ran in
         self.ft = FtTask(self)
         self.hand = HandTask(self)
         self.pio = PioTask(self)
@@ -849,10 +861,17 @@ class IoService:
         age = k - f_in
         v["command_inputs_frame"][...] = f_in
         v["command_input_age_frames"][...] = age if 0 <= age < 0xFFFFFFFF else 0xFFFFFFFF
+        env = self.envelope
+        over = env.sample(v["rtd_angle_rad"], v["adc_value"], float(v["t_rtd_s"]))
+        if over is not None and live:  # the envelope's overspeed: every channel 0 V, brakes set
+            self.fault_code = FAULT_OVERSPEED
+            self.guard.trip(over, code=CODE_OVERSPEED)
+            live = False
         if not live:
             v["command_status"][...] = status
             # a condition that ended may be announced again; refusals stay announced until re-armed
             self._cmd_episode &= status | CMD_REFUSED | CMD_FOREIGN
+            env.reset()
             self._apply_safe()
             return
         if not self._outputs_enabled:
@@ -866,7 +885,18 @@ class IoService:
                                       f"{self.policy.max_input_age_frames}{self._stall_note()}")
         self._cmd_episode &= status | CMD_REFUSED | CMD_FOREIGN
         v["command_status"][...] = status
+        est = self._env_status
+        if not stale:
+            for ch in dac.rate_list:
+                est[ch] = 0
+            env.apply(eng, self.schedule.period_s * max(1, k - self._env_k), est)
+        else:
+            env.reset()
+        self._env_k = k
         volts, st_out = dac.volts(eng, stale)
+        if not stale:
+            for ch in dac.rate_list:
+                st_out[ch] |= est[ch]
         self._write_dac(volts, st_out, eng)
 
     def _apply_safe(self) -> None:

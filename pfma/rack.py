@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NoReturn
 
+from pfma import envelope as envelope_cfg
 from pfma import nominal
 from pfma.errors import ConfigError, did_you_mean
 
@@ -193,6 +194,9 @@ class RackConfig:
     commands: CommandPolicy = field(default_factory=CommandPolicy)
     #: the servoed arm joints, base to tool (``[arm] joints``): the one joint list
     joints: tuple[str, ...] = ()
+    #: the service's motion envelope (``[envelope]``, :mod:`pfma.envelope`): soft limits,
+    #: braking deceleration and slew per joint, the overspeed factor
+    envelope: envelope_cfg.Envelope = field(default_factory=lambda: envelope_cfg.Envelope(()))
     #: ``[checks] allow_nonnominal``: ``"signal.field"`` values a lab accepts outside the
     #: nominal band (:mod:`pfma.nominal`); calibrations of those fields are accepted too
     overrides: tuple[str, ...] = ()
@@ -396,7 +400,7 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
     boards_raw = data.get("board")
     if not isinstance(boards_raw, list) or not boards_raw:
         fail("no [[board]] entries")
-    unknown_top = set(data) - {"rack", "bit3", "board", "commands", "arm", "checks", "amplifier_enable"}
+    unknown_top = set(data) - {"rack", "bit3", "board", "commands", "arm", "checks", "amplifier_enable", "envelope"}
     if unknown_top:
         fail(f"unknown top-level section(s): {', '.join(sorted(unknown_top))}")
 
@@ -558,10 +562,12 @@ def parse_rack(text: str, source: str = "<string>") -> RackConfig:
             _section_fail(text, source, "checks", "allow_nonnominal",
                           f"[checks] allow_nonnominal names {o!r}, but only DAC channels have a limit")
     amp = data.get("amplifier_enable")
+    joints = _arm_joints(data.get("arm", {}), roles, text, source)
     return RackConfig(name=str(rack.get("name", "rack")), boards=tuple(boards),
                       bit3=_bit3(data.get("bit3", {}), text, source), source=source,
                       commands=_command_policy(data.get("commands", {}), text, source),
-                      joints=_arm_joints(data.get("arm", {}), roles, text, source),
+                      joints=joints,
+                      envelope=_envelope(data.get("envelope", {}), joints, text, source),
                       overrides=overrides, nonnominal=tuple(nonnominal),
                       amplifier_enable=None if amp is None else _amplifier_enable(amp, boards, text, source))
 
@@ -619,6 +625,16 @@ def _amplifier_enable(raw, boards: list[BoardConfig], text: str, source: str) ->
              f"that channel direction = \"out\" and a signal of its own (not the matrix switcher's or "
              f"the user inputs')", "port")
     return AmplifierEnable(str(name), int(port), int(bit))
+
+
+def _envelope(raw, joints: tuple[str, ...], text: str, source: str) -> envelope_cfg.Envelope:
+    """``[envelope]``: the service's motion envelope per joint (:mod:`pfma.envelope`)."""
+    if not isinstance(raw, dict):
+        _section_fail(text, source, "envelope", None, "[envelope] must be a table")
+
+    def fail(msg: str, key: str | None = None) -> NoReturn:
+        _section_fail(text, source, "envelope", key, msg)
+    return envelope_cfg.parse(raw, joints, fail)
 
 
 def _arm_joints(raw, roles: dict[tuple[str, str], str], text: str, source: str) -> tuple[str, ...]:

@@ -101,7 +101,7 @@ def test_within_the_margin_a_command_is_saturated_with_its_status_bit_and_obeyed
     ctl = armed(rig)
     ctl.cmd["joint_rate_rad_s"] = [0.405, 0, 0, 0, 0, 0]  # limit 0.4 rad/s, margin 2 %
     ctl.cmd["current_limit_a"] = [5.0, 5.0, -0.1, 2.5, 2.5, 2.5, 0.0]  # -0.1 A: within 2 % of 10 A
-    rig.run(0.02)
+    rig.run(0.1)  # the envelope's slew limit ramps 0 -> full scale in 50 ms (8 rad/s^2)
     s = rig.reader.read_inputs()
     assert s.service_state == ServiceState.ARMED and s.refused_commands == 0
     assert s.dac_status[0] == DAC_CLIPPED and s.dac_volts[0] == pytest.approx(10.0, abs=0.01)
@@ -112,7 +112,7 @@ def test_a_rate_from_old_inputs_drives_0_v_and_says_how_old(rig):
     ctl = armed(rig)
     ctl.cmd["joint_rate_rad_s"] = [0.1, 0, 0, 0, 0, 0]
     ctl.frames_old = 0  # closed loop: the controller names the inputs it used
-    rig.run_frames(4)
+    rig.run_frames(8)  # the slew limit ramps 0 -> 0.1 rad/s in 4 frames
     s = rig.reader.read_inputs()
     assert s.command_input_age_frames == 1 and not s.command_status & CMD_STALE
     assert volts(rig)[0] == pytest.approx(0.1 / 0.04, abs=0.01)
@@ -125,7 +125,7 @@ def test_a_rate_from_old_inputs_drives_0_v_and_says_how_old(rig):
     assert volts(rig)[7] == pytest.approx(5.0, abs=0.01)  # current limits stay: brakes stay off
     assert sum("cmd inputs 5 fr old > 4" in t for t in texts(rig)) == 1  # one message per episode
     ctl.frames_old = 0
-    rig.run_frames(2)
+    rig.run_frames(6)  # fresh again: from the 0 V it drove, the slew limit ramps in 4 frames
     assert volts(rig)[0] == pytest.approx(0.1 / 0.04, abs=0.01)
 
 
