@@ -940,6 +940,7 @@ def _run_distributed_sim(args, config, base: str | None) -> int:
             print(f"process {p.name}: {line}")
         if args.power_up:
             print(f"power-up: {'every layer START UP COMPLETE after ' + str(up_at) + ' frames' if up_at else 'not complete'}")
+        print(f"process {shown}: {first_cause_line(rt)}")
         if args.messages:
             print(f"--- last {args.messages} messages of process {shown} ---")
             print(rt.messages.format(args.messages))
@@ -1083,6 +1084,7 @@ class _DistributedDriver:
                             code = 1
                             break
             print(_status_line(self.rt))
+            print(first_cause_line(self.rt))
             if args.messages:
                 print(f"--- last {args.messages} messages ---")
                 print(self.rt.messages.format(args.messages))
