@@ -112,23 +112,26 @@ class LivePrinter:
     :param write: takes one line (e.g. ``print``)
     :param clock: monotonic seconds (a fake one in tests)
     :param wanted: which messages are said (default :func:`is_live_worthy`)
+    :param fmt: a message's line (default :func:`live_line`; ``pfma serve`` says the Bit3
+        queue's messages with its own)
     """
 
     def __init__(self, write, clock, *, per_second: int = LIVE_PER_SECOND, per_flush: int = LIVE_PER_FLUSH,
-                 keep: int = LIVE_QUEUE, wanted=is_live_worthy) -> None:
+                 keep: int = LIVE_QUEUE, wanted=is_live_worthy, fmt=live_line) -> None:
         self.write = write
+        self.fmt = fmt
         self.clock = clock
         self.per_second = per_second
         self.per_flush = per_flush
         self.wanted = wanted
-        self.queue: deque[Message] = deque(maxlen=keep)
+        self.queue: deque = deque(maxlen=keep)
         self.said = 0  #: lines written (messages)
         self.held = 0  #: messages not said (over the rate, or the queue full), all told
         self._window_t = -float("inf")
         self._in_window = 0
         self._untold = 0  # messages not said in this window (the "... K more" line)
 
-    def __call__(self, m: Message) -> None:
+    def __call__(self, m) -> None:
         if self.wanted(m):
             if len(self.queue) == self.queue.maxlen:
                 self._untold += 1
@@ -147,7 +150,7 @@ class LivePrinter:
         while self.queue and n < self.per_flush:
             m = self.queue.popleft()
             if self._in_window < self.per_second:
-                self.write(live_line(m))
+                self.write(self.fmt(m))
                 self._in_window += 1
                 self.said += 1
                 n += 1
