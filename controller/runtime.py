@@ -112,6 +112,16 @@ FIRST_CAUSE_BYTES = 240
 FIRST_CAUSE_WINDOW_FRAMES = 64
 
 
+def first_cause_text(wm) -> str:
+    """A world model's ``runtime.first_cause`` as text ("" without an ERROR episode, or a
+    world model without the variable)."""
+    try:
+        raw = wm.get("runtime.first_cause")
+    except Exception:  # noqa: BLE001 - an older world model, or one without the runtime's variables
+        return ""
+    return bytes(np.asarray(raw, dtype=np.uint8)).rstrip(b"\0").decode(errors="replace")
+
+
 @dataclass(frozen=True)
 class FirstCause:
     """The root message of an ERROR episode (the first of the cascade, not its last)."""

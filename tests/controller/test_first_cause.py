@@ -84,3 +84,37 @@ def test_a_reversed_tach_keeps_the_supervision_trip_as_the_root(powered):
     assert fc is not None and fc.source == "servo", fc
     assert "shoulder_yaw" in fc.text and fc.code == rt.servo.error_code != 0
     assert fc.text == rt.messages.recent(min_level=Level.ERROR)[0].text
+
+
+def test_pfma_wm_and_stats_show_the_first_cause_of_a_running_controller(capsys):
+    import json
+    import uuid
+
+    from controller.worldmodel import WorldModel
+    from sim.system import SystemSimulator
+    from tools.cli import main
+    from tools.cli.stats import controller_first_cause
+    name = "pfma-test-fc-" + uuid.uuid4().hex[:6]
+    sim = SystemSimulator(wm_name=name)
+    try:
+        sim.step(10)
+        assert main(["wm", "list", "--name", name, "--filter", "runtime.frames"]) == 0
+        out = capsys.readouterr().out.splitlines()
+        assert not out[1].startswith("first cause")  # no episode: no line
+        assert controller_first_cause(name) == ""
+        sim.power_up(max_frames=400)
+        FaultSet(sim.world).inject("resolver-los:shoulder_pitch_angle")
+        sim.run_until(lambda: sim.rt.status("updown") == Status.ERROR, 200)
+        want = f"{sim.rt.first_cause.source}: {sim.rt.first_cause.text}"
+        assert main(["wm", "list", "--name", name, "--filter", "runtime.frames"]) == 0
+        out = capsys.readouterr().out.splitlines()
+        assert out[0].startswith(f"world model '{name}'") and out[1] == f"first cause of the ERROR: {want}"
+        assert main(["wm", "get", "runtime.frames", "--name", name]) == 0
+        assert capsys.readouterr().out.splitlines()[1] == f"first cause of the ERROR: {want}"
+        assert main(["wm", "get", "runtime.frames", "--name", name, "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["first_cause"] == want
+        assert controller_first_cause(name) == want and "shoulder_pitch" in want
+    finally:
+        sim.close()
+        WorldModel.remove_segment(name)
+    assert controller_first_cause(name) is None  # gone: nothing shown

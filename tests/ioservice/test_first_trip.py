@@ -57,3 +57,21 @@ def test_a_refusal_is_a_first_cause_and_a_new_arm_clears_it(rig):
     assert s.service_state == ServiceState.ARMED
     assert (s.first_trip_code, s.text("first_trip_text")) == (0, "") and rig.svc.guard.first_trip is None
     assert np.all(s.record["first_trip_text"] == 0)
+
+
+def test_pfma_stats_names_the_first_trip(rig):
+    from tools.cli import stats as stats_cli
+    ctl, state = _controller(rig)
+    rig.run(0.05)
+    d = stats_cli.collect(rig.reader)
+    assert d["first_trip"] is None
+    assert stats_cli.format_first_causes(d) == ["service first trip since the last arm: none"]
+    state["alive"] = False
+    rig.run(0.1)
+    d = stats_cli.collect(rig.reader)
+    code, reason, t = rig.svc.guard.first_trip
+    assert d["first_trip"] == {"code": code, "t_s": t, "text": reason}
+    d["controller_first_cause"] = "daq: fault 1: shoulder_pitch resolver status 0x1"
+    assert stats_cli.format_first_causes(d) == [
+        f"service first trip since the last arm: {reason} (code {code}, t={t:.1f} s)",
+        "controller first cause of the ERROR: daq: fault 1: shoulder_pitch resolver status 0x1"]
