@@ -1017,14 +1017,8 @@ class _DistributedDriver:
         self.say = None
         if not getattr(args, "quiet", False):
             from controller.messages import LivePrinter
-            clock = self.sim.clock.now if self.sim is not None else time.monotonic  # sim: simulated seconds
-            self.say = LivePrinter(lambda line: print(line, flush=True), clock)
+            self.say = LivePrinter(lambda line: print(line, flush=True), time.monotonic)
             self.rt.messages.listeners.append(self.say)
-        self.faults = None
-        if self.sim is not None and getattr(args, "sim_fault", None):
-            from sim.faults import FaultSet
-            self.faults = FaultSet(self.sim.world)
-            self._fault_frame = self.sim.service_frames + int(round(args.sim_fault_at / self.period_s))
         self.stop_signal = 0  #: the SIGTERM or SIGINT that asked for a stop (0: none)
         self.closing = False  #: in close(): the power-down's frames run whatever the signals
         self._silent_since: float | None = None  # the first give-up of the pacer in a row
@@ -1039,6 +1033,8 @@ class _DistributedDriver:
         self.pacer.wait()
         self.rt.tick()
         self.pacer.stepped(float(self.rt.daq.snapshot.t_s))
+        if self.say is not None:
+            self.say.flush()  # after the frame's work: at most LIVE_PER_FLUSH lines
         if not self.pacer.gc_frozen and self.pacer.frames == _Driver.FREEZE_AFTER_FRAMES:
             self.pacer.freeze_gc()
 
@@ -1083,13 +1079,10 @@ class _DistributedDriver:
                                   file=sys.stderr)
                             code = 1
                             break
-            print(_status_line(self.rt))
-            print(first_cause_line(self.rt))
-            if args.messages:
-                print(f"--- last {args.messages} messages ---")
-                print(self.rt.messages.format(args.messages))
+            _summary(self, args)
         except KeyboardInterrupt:
             print()
+            _summary(self, args)  # Ctrl-C too: what happened, before the power-down
         finally:
             self.stop()
             self.close()
