@@ -96,6 +96,12 @@ def live_line(m: Message) -> str:
     return f"{m.t_s:10.3f} s  {m.source:<10} {m.level.name:<7} {text}"
 
 
+def is_always_said(m: Message) -> bool:
+    """Said even over the rate limit (they are few: one per status change of one layer, one
+    per ERROR episode): System Up/Down's status changes and the runtime's first-cause line."""
+    return (m.source == "updown" and "(row " in m.text) or (m.source == "runtime" and m.text.startswith("first cause: "))
+
+
 def is_live_worthy(m: Message) -> bool:
     """What a live controller says as it happens: every WARNING and ERROR, and System
     Up/Down's status changes (its decision-table lines, "A -> B (row N: ...)")."""
@@ -107,18 +113,22 @@ class LivePrinter:
 
     As a :class:`MessageBoard` listener it only queues the message (a bounded deque append,
     in the frame); :meth:`flush`, called after the frame, writes at most ``per_flush`` lines
-    and at most ``per_second`` a second, then one "... K more" line when the second is over.
+    and at most ``per_second`` a second (System Up/Down's changes and the first cause are
+    said over it), then one "... K more" line when the second is over.
 
     :param write: takes one line (e.g. ``print``)
     :param clock: monotonic seconds (a fake one in tests)
     :param wanted: which messages are said (default :func:`is_live_worthy`)
     :param fmt: a message's line (default :func:`live_line`; ``pfma serve`` says the Bit3
         queue's messages with its own)
+    :param always: messages said even over the rate (default :func:`is_always_said`)
     """
 
     def __init__(self, write, clock, *, per_second: int = LIVE_PER_SECOND, per_flush: int = LIVE_PER_FLUSH,
-                 keep: int = LIVE_QUEUE, wanted=is_live_worthy, fmt=live_line) -> None:
+                 keep: int = LIVE_QUEUE, wanted=is_live_worthy, fmt=live_line,
+                 always=is_always_said) -> None:
         self.write = write
+        self.always = always
         self.fmt = fmt
         self.clock = clock
         self.per_second = per_second
@@ -149,7 +159,7 @@ class LivePrinter:
         n = 0
         while self.queue and n < self.per_flush:
             m = self.queue.popleft()
-            if self._in_window < self.per_second:
+            if self._in_window < self.per_second or self.always(m):
                 self.write(self.fmt(m))
                 self._in_window += 1
                 self.said += 1

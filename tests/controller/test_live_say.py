@@ -76,6 +76,22 @@ def test_rate_limit_then_one_more_line_when_the_second_is_over():
     assert lines[-1].split()[-1] == "after" and say.held == n - LIVE_PER_SECOND
 
 
+def test_up_down_changes_and_the_first_cause_are_said_over_the_rate():
+    """A cascade's last line (System Up/Down entering ERROR) is the one a person needs; seen
+    live: it fell under the limit behind the layers' lines."""
+    board, say, lines, clock = _board_and_printer()
+    for i in range(LIVE_PER_SECOND):
+        board.post("joint", Level.ERROR, f"e{i}", 0, i)
+    board.post("servo", Level.ERROR, "over", 0, 10)
+    board.post("runtime", Level.WARNING, "first cause: daq: fault 1: x", 0, 10)
+    board.post("updown", Level.ERROR, "START UP COMPLETE -> ERROR (row 1: subordinate in ERROR (X))", 0, 11)
+    while say.queue:
+        say.flush()
+    assert len(lines) == LIVE_PER_SECOND + 2 and say.held == 1
+    assert lines[-2].endswith("first cause: daq: fault 1: x")
+    assert lines[-1].endswith("START UP COMPLETE -> ERROR (row 1: subordinate in ERROR (X))")
+
+
 def test_drain_at_exit_says_the_queue_within_the_rate_and_counts_the_rest():
     board, say, lines, clock = _board_and_printer(keep=20)
     for i in range(30):  # 10 more than the queue keeps

@@ -196,7 +196,7 @@ def _start_saying(buffer_name: str, stop: threading.Event, t_start_s: float) -> 
         return None
     say = LivePrinter(lambda line: print(line, flush=True), time.monotonic,
                       wanted=lambda m: m.queue == "service_messages" and m.severity >= Severity.WARNING,
-                      fmt=lambda m: _say_line(m, t_start_s))
+                      fmt=lambda m: _say_line(m, t_start_s), always=lambda m: False)
     c.new_messages()  # the start-up messages: said by the start lines
 
     def run() -> None:
