@@ -438,6 +438,16 @@ class ControllerRuntime:
         self._publish_first_cause()
         self.post("runtime", Level.WARNING, f"first cause: {self.first_cause.format()}")
 
+    def _reset_done(self, old: int, new: int) -> None:
+        """System Up/Down (this process's or, distributed, another's) left ERROR RESET for a
+        status that is not ERROR: the episode is over, its first cause cleared."""
+        if old == Status.ERROR_RESET and new not in (Status.ERROR, Status.ERROR_RESET) \
+                and self.first_cause is not None:
+            self.post("runtime", Level.INFO, "ERROR RESET done: first cause cleared")
+            self.first_cause = None
+            self._err_cand.clear()
+            self._publish_first_cause()
+
     def _publish_first_cause(self) -> None:
         fc = self.first_cause
         raw = b"" if fc is None else f"{fc.source}: {fc.text}".encode()[:FIRST_CAUSE_BYTES]
@@ -464,12 +474,7 @@ class ControllerRuntime:
         self._changed.add(layer.key)
         if layer is self.updown:
             self.wm.powered_up = new != Status.SHUT_DOWN  # protected variables locked until down again
-            if old == Status.ERROR_RESET and new not in (Status.ERROR, Status.ERROR_RESET) \
-                    and self.first_cause is not None:
-                self.post("runtime", Level.INFO, "ERROR RESET done: first cause cleared")
-                self.first_cause = None
-                self._err_cand.clear()
-                self._publish_first_cause()
+            self._reset_done(old, new)
         if new == Status.ERROR and self.first_cause is None:
             self._episode_begins(layer)
 
@@ -563,6 +568,8 @@ class ControllerRuntime:
                 self._remote_status[l.key] = new
                 self.status_changes.append((self.frame, l.key, old, new))
                 self._changed.add(l.key)
+                if l is self.updown:
+                    self._reset_done(old, new)
         if "updown" not in self.local_keys:
             up = self._remote_status["updown"] != Status.SHUT_DOWN
             if up != wm.powered_up:

@@ -118,3 +118,27 @@ def test_pfma_wm_and_stats_show_the_first_cause_of_a_running_controller(capsys):
         sim.close()
         WorldModel.remove_segment(name)
     assert controller_first_cause(name) is None  # gone: nothing shown
+
+
+def test_distributed_each_process_keeps_its_own_root_and_an_error_reset_clears_both():
+    """A distributed controller: the rack process keeps the rack's root message; the
+    planners' process (which sees the rack only through its sections) keeps its first local
+    ERROR; System Up/Down's ERROR RESET, seen across the boundary, clears both."""
+    from sim.distributed import DistributedSimulator
+    two = {"process": {"planners": {"layers": ["updown", "msp", "trajectory", "cartesian"]},
+                       "rack": {"layers": ["joint", "servo", "daq"]}}}
+    with DistributedSimulator(two) as sim:
+        sim.step(10)
+        sim.power_up(1000)
+        faults = FaultSet(sim.world)
+        faults.inject("resolver-los:shoulder_pitch_angle")
+        sim.run_until(lambda: sim.all_status(Status.ERROR), 100)
+        rack, top = sim.rt("rack").first_cause, sim.rt("planners").first_cause
+        assert rack is not None and rack.source == "daq" and "shoulder_pitch" in rack.text
+        assert top is not None and top.source == "cartesian" and "subordinate in ERROR" in top.text
+        faults.clear("resolver-los:shoulder_pitch_angle")
+        sim.step(400)
+        code, text = sim.request(Request.ERROR_RESET, max_frames=600)
+        assert code == Response.COMPLETE, text
+        sim.step(5)
+        assert sim.rt("rack").first_cause is None and sim.rt("planners").first_cause is None
