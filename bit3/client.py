@@ -81,6 +81,10 @@ class Snapshot:
         v = self.record[name]
         return v.item() if v.ndim == 0 else v
 
+    def text(self, name: str) -> str:
+        """A zero-padded UTF-8 byte-array field as text (``inputs.first_trip_text``)."""
+        return bytes(self.record[name]).rstrip(b"\0").decode(errors="replace")
+
     def _entry(self, signal: str):
         return self._layout.channel(signal, self.area)
 

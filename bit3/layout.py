@@ -126,6 +126,11 @@ class ServiceState(enum.IntEnum):
     #              (0 V, brakes set) with a live heartbeat: not a fault; needs a re-arm request
 
 
+#: bytes of ``inputs.first_trip_text``: the first trip's or refusal's reason since the last
+#: arm, cut to this many bytes (assumed: the guard's reasons are one sentence; the whole text
+#: is in the service's message queue)
+FIRST_TRIP_TEXT_BYTES = 120
+
 #: ``inputs.fault_code`` values every tool may need to tell apart (issue 28 item 5,
 #: docs/safety.md "Honest outputs"; the others are ``ioservice.service.FAULT_*``):
 #: FAULT_DAC_UNREACHABLE while the DAC board does not answer: the service could not write
@@ -520,6 +525,12 @@ def _inputs(area: AreaSpec, rack: RackConfig) -> tuple[_Record, list[ChannelEntr
     r.add("foreign_writes", "<u8", units="1", doc="command areas written by a process without the claim")
     r.add("host_stall_s", "<f8", units="s", doc="length of the latest host stall the service saw (0 = none)")
     r.add("host_stall_t_s", "<f8", units="s", doc="when that stall ended")
+    # the first cause of the service's trip episode (issue 29 item 3)
+    r.add("first_trip_code", "<u4", units="enum",
+          doc="message code of the first trip or refusal since the last arm (0 = none)")
+    r.add("first_trip_t_s", "<f8", units="s", doc="when that first trip or refusal happened")
+    r.add("first_trip_text", "u1", (FIRST_TRIP_TEXT_BYTES,), "utf-8",
+          "the first trip or refusal's reason since the last arm (zero-padded; cleared when armed again)")
 
     entries: list[ChannelEntry] = []
     for kind, group in (("rtd", rtd), ("adc", adc), ("dac", dac), ("pio", pio)):

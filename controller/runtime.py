@@ -100,6 +100,42 @@ STATS_PUBLISH_S = 0.5
 TIMING_RING = 1024
 #: the servo's periodic task (its slot defines the servo period)
 SERVO_TASK = "servo_control"
+#: bytes of ``runtime.first_cause`` (the root message of the current ERROR episode, UTF-8):
+#: "LAYER: text", cut to this many bytes (assumed enough for a layer's fault sentence; the
+#: whole text stays in :attr:`ControllerRuntime.first_cause`)
+FIRST_CAUSE_BYTES = 240
+#: an ERROR message is the root of the ERROR a layer enters if it was posted at most this
+#: many minor frames before (a fault is posted in one frame and its layer's table decides
+#: ERROR in the next; a sequence task's failure likewise). Assumed: 64 frames (0.2 s at
+#: 320 Hz) covers every such path with room; an older ERROR message from the same layer
+#: that did not lead to ERROR is not taken for the root.
+FIRST_CAUSE_WINDOW_FRAMES = 64
+
+
+def first_cause_text(wm) -> str:
+    """A world model's ``runtime.first_cause`` as text ("" without an ERROR episode, or a
+    world model without the variable)."""
+    try:
+        raw = wm.get("runtime.first_cause")
+    except Exception:  # noqa: BLE001 - an older world model, or one without the runtime's variables
+        return ""
+    return bytes(np.asarray(raw, dtype=np.uint8)).rstrip(b"\0").decode(errors="replace")
+
+
+@dataclass(frozen=True)
+class FirstCause:
+    """The root message of an ERROR episode (the first of the cascade, not its last)."""
+    source: str  #: layer key (or "runtime")
+    code: int  #: the layer's error code when it entered ERROR (0: none)
+    text: str
+    t_s: float  #: seconds since the runtime started
+    frame: int  #: minor frame of the message
+
+    def format(self) -> str:
+        c = f" (code {self.code})" if self.code else ""
+        return f"{self.source}: {self.text}{c}  [frame {self.frame}, t {self.t_s:.3f} s]"
+
+
 #: bytes of ``runtime.step_trace`` (the trace of the last single-step run, UTF-8): the
 #: header and about 45 frame lines; a longer run keeps its last lines
 STEP_TRACE_BYTES = 8192
@@ -171,6 +207,14 @@ def runtime_specs() -> list[VarSpec]:
                 doc="frames run by single steps since the start"),
         VarSpec("runtime.step_trace", "response_output", "u1", (STEP_TRACE_BYTES,), w, [0] * STEP_TRACE_BYTES,
                 doc="trace of the last single-step run (UTF-8 text, zero-padded)"),
+        VarSpec("runtime.first_cause", "error_reports", "u1", (FIRST_CAUSE_BYTES,), w, [0] * FIRST_CAUSE_BYTES,
+                doc="the first cause of the current ERROR episode: the root message that started it "
+                    "(\"LAYER: text\", UTF-8, zero-padded; empty: no episode); kept until an ERROR RESET "
+                    "completes (docs/controller.md \"First cause\")"),
+        VarSpec("runtime.first_cause_code", "error_reports", "i4", (), w, 0,
+                doc="the first cause's layer error code (0: none, or a message without a code)"),
+        VarSpec("runtime.first_cause_frame", "error_reports", "i8", (), w, -1,
+                doc="the minor frame of the first cause's message (-1: no episode)"),
     ]
 
 
@@ -287,6 +331,11 @@ class ControllerRuntime:
         self.t0 = self.now  #: trace and message times are seconds since the runtime started
         self.last_rid: dict[str, int] = {}
         self.status_changes: list[tuple[int, str, int, int]] = []  #: (frame, layer, old, new)
+        #: the root message of the current ERROR episode (None: no episode); kept until an
+        #: ERROR RESET completes (System Up/Down leaves ERROR RESET)
+        self.first_cause: FirstCause | None = None
+        self.error_episodes = 0  #: ERROR episodes begun since the start
+        self._err_cand: dict[str, Message] = {}  # per source: the first recent ERROR message
         self.on_frame: list[Callable[[FrameTrace], None]] = []
         self._request_seq = 0
         self._goal_seq = 0
@@ -369,7 +418,44 @@ class ControllerRuntime:
 
     # --- messages ----------------------------------------------------------------------------
     def post(self, source: str, level: Level | int, text: str) -> Message:
-        return self.messages.post(source, level, text, self.now - self.t0, self.frame)
+        m = self.messages.post(source, level, text, self.now - self.t0, self.frame)
+        if level >= Level.ERROR and self.first_cause is None:
+            c = self._err_cand.get(source)
+            if c is None or m.frame - c.frame > FIRST_CAUSE_WINDOW_FRAMES:
+                self._err_cand[source] = m  # the first of a run of this source's ERROR messages
+        return m
+
+    def _episode_begins(self, layer: Layer) -> None:
+        """``layer`` entered ERROR and no episode is active: its root message (its first
+        ERROR message of the last FIRST_CAUSE_WINDOW_FRAMES, e.g. "fault 18: ...") is the
+        episode's first cause."""
+        m = self._err_cand.get(layer.key)
+        if m is None or self.frame - m.frame > FIRST_CAUSE_WINDOW_FRAMES:
+            m = self.messages.post(layer.key, Level.ERROR, "entered ERROR", self.now - self.t0, self.frame)
+        self.first_cause = FirstCause(layer.key, int(layer.error_code), m.text, m.t_s, m.frame)
+        self.error_episodes += 1
+        self._err_cand.clear()
+        self._publish_first_cause()
+        self.post("runtime", Level.WARNING, f"first cause: {self.first_cause.format()}")
+
+    def _reset_done(self, old: int, new: int) -> None:
+        """System Up/Down (this process's or, distributed, another's) left ERROR RESET for a
+        status that is not ERROR: the episode is over, its first cause cleared."""
+        if old == Status.ERROR_RESET and new not in (Status.ERROR, Status.ERROR_RESET) \
+                and self.first_cause is not None:
+            self.post("runtime", Level.INFO, "ERROR RESET done: first cause cleared")
+            self.first_cause = None
+            self._err_cand.clear()
+            self._publish_first_cause()
+
+    def _publish_first_cause(self) -> None:
+        fc = self.first_cause
+        raw = b"" if fc is None else f"{fc.source}: {fc.text}".encode()[:FIRST_CAUSE_BYTES]
+        words = np.zeros(FIRST_CAUSE_BYTES, dtype=np.uint8)
+        words[:len(raw)] = np.frombuffer(raw, dtype=np.uint8)
+        self.wm.post_task_outputs("runtime", {
+            "runtime.first_cause": words, "runtime.first_cause_code": 0 if fc is None else fc.code,
+            "runtime.first_cause_frame": -1 if fc is None else fc.frame})
 
     def _forward(self, m: Message) -> None:
         """Every layer's message, whole, into the Bit3 controller message queue (a long text
@@ -388,6 +474,9 @@ class ControllerRuntime:
         self._changed.add(layer.key)
         if layer is self.updown:
             self.wm.powered_up = new != Status.SHUT_DOWN  # protected variables locked until down again
+            self._reset_done(old, new)
+        if new == Status.ERROR and self.first_cause is None:
+            self._episode_begins(layer)
 
     # --- the minor frame ---------------------------------------------------------------------
     def step(self) -> FrameTrace:
@@ -479,6 +568,8 @@ class ControllerRuntime:
                 self._remote_status[l.key] = new
                 self.status_changes.append((self.frame, l.key, old, new))
                 self._changed.add(l.key)
+                if l is self.updown:
+                    self._reset_done(old, new)
         if "updown" not in self.local_keys:
             up = self._remote_status["updown"] != Status.SHUT_DOWN
             if up != wm.powered_up:

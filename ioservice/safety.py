@@ -71,6 +71,9 @@ class OutputGuard:
         self.trips = 0
         self.refusals = 0  #: commands refused while they would have driven the arm
         self.reason = ""
+        #: the first trip or refusal since the outputs were last armed (code, reason, clock
+        #: time): the root of the episode, not the notices after it; None once armed again
+        self.first_trip: tuple[int, str, float] | None = None
         self._hb: int | None = None  # last heartbeat counter seen
         self._hb_t = -1e300  # when it last changed (service clock)
         self._arm_request_used: int | None = None  # arm_request value that armed or was refused last
@@ -138,6 +141,7 @@ class OutputGuard:
             else:
                 self.state = ServiceState.ARMED
                 self.reason = ""
+                self.first_trip = None  # a new episode begins with the next trip
                 self.post(0, 5, "armed")
                 return True
         if halted and fresh and self.state == ServiceState.SAFE:
@@ -182,6 +186,8 @@ class OutputGuard:
         self.state = ServiceState.SAFE
         self.refusals += 1
         self.reason = reason
+        if self.first_trip is None:
+            self.first_trip = (code, reason, self.clock.now())
         self.post(2, code, reason)
 
     def trip(self, reason: str, code: int = 9) -> None:
@@ -191,6 +197,8 @@ class OutputGuard:
         self.state = ServiceState.FAULT
         self.trips += 1
         self.reason = reason
+        if self.first_trip is None:
+            self.first_trip = (code, reason, self.clock.now())
         self.post(2, code, f"{self.outputs_word()}: {reason}")
 
     def stop(self, reason: str = "service stopped") -> None:

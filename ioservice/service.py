@@ -43,7 +43,7 @@ from bit3.layout import (  # noqa: F401 - the status bits are re-exported for ol
     DAC_CLIPPED, DAC_FORCED_SAFE, LINK_FAULT, LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_NO_REFERENCE, ServiceState,
     Severity,
 )
-from bit3.layout import MODE_HALTED  # HALTED (issue 18): the halted controller's command-area mode
+from bit3.layout import FIRST_TRIP_TEXT_BYTES, MODE_HALTED  # HALTED (issue 18): the halted controller's command-area mode
 from bit3.layout import FAULT_AMP_ENABLE, FAULT_DAC_UNREACHABLE  # noqa: F401 - issue 28 item 5, re-exported
 from ioservice import direction
 from ioservice.chargepump import ChargePump
@@ -238,6 +238,7 @@ class IoService:
         self.fault_code = FAULT_NONE
         self._rec = self.inputs.record
         self._v = {name: self.inputs.record[name] for name in self.inputs.record.dtype.names or ()}
+        self._first_trip: tuple[int, str, float] | None = None  # what inputs.first_trip_* hold
         self._stats_rec = self.stats_writer.record
         self._devices = {g: _DeviceCounter() for g in ("rtd", "adc", "dac", "ft", "pio", "crl", "hid")}
         #: boards whose last transaction failed (BOARD_FAULT set); one that answers again is
@@ -915,11 +916,25 @@ class IoService:
         v["t_s"][...] = info.t_wake
         v["service_state"][...] = int(self.state)
         v["fault_code"][...] = self.fault_code
+        if self.guard.first_trip is not self._first_trip:  # changes once a trip episode
+            self._put_first_trip()
         self.inputs.publish()
         if self.ring is not None:  # the history a stalled recorder catches up from
             self.ring.write(self.inputs.raw)
         self.buf.set_frame(info.index, info.t_wake)
         self.buf.wake_frame_waiters()  # a live controller sleeps on the frame word (bit3.futex)
+
+    def _put_first_trip(self) -> None:
+        """The guard's first trip or refusal since the last arm into ``inputs.first_trip_*``
+        (written when it changes, not every frame)."""
+        self._first_trip = ft = self.guard.first_trip
+        v = self._v
+        code, text, t = ft if ft is not None else (0, "", 0.0)
+        raw = text.encode()[:FIRST_TRIP_TEXT_BYTES]
+        v["first_trip_code"][...] = code
+        v["first_trip_t_s"][...] = t
+        v["first_trip_text"][...] = 0
+        v["first_trip_text"][:len(raw)] = np.frombuffer(raw, dtype=np.uint8)
 
     # ------------------------------------------------------------------ between frames
     def serial_tick(self, now: float | None = None) -> None:
@@ -1084,6 +1099,8 @@ class IoService:
         self.dac.publish_stopped()
         self.set_state(ServiceState.STOPPED)
         self.publish_stats()
+        if self.guard.first_trip is not self._first_trip:
+            self._put_first_trip()
         self.inputs.publish()
         if self.ring is not None:
             self.ring.write(self.inputs.raw)

@@ -64,6 +64,14 @@ def test_a_controller_says_its_service_went_quiet_and_stops_in_order_on_sigterm(
         assert ctl.wait(timeout=WAIT_S) == 0, err.read_text()
         assert "SIGTERM: stopping (powering down in order)" in err.read_text()
         assert "Traceback" not in err.read_text()
+        # said as it happened (stdout): System Up/Down's changes; at the SIGTERM: the statuses,
+        # the ERROR episode's first cause (its root, not the cascade) and the last messages
+        said = out.read_text()
+        assert "SHUT DOWN -> INITIALIZATION IN PROGRESS" in said and "START UP -> START UP COMPLETE" in said
+        cause = next((l for l in said.splitlines() if l.startswith("first cause")), "")
+        assert cause.startswith("first cause of the ERROR: "), said
+        assert "subordinate in ERROR" not in cause, said
+        assert "--- last 30 messages ---" in said
     finally:
         for p in (ctl, svc):
             if p is not None and p.poll() is None:

@@ -101,3 +101,41 @@ def test_a_modbus_write_option_without_the_export_is_one_message(flag, capsys):
     assert main(["serve", "--duration", "0.1", "--buffer", "unused-modbus-flag", *flag]) == 2
     err = capsys.readouterr().err
     assert "needs --modbus HOST:PORT" in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+@pytest.mark.realtime
+def test_serve_says_a_trip_when_it_happens_and_its_first_cause_at_exit(tmp_path, capsys):
+    """Issue 29 item 3: a board that stops answering half a second in (a scenario) trips the
+    service; the trip is said on the terminal as it happens (one line, time, severity, code)
+    and the first trip since the last arm is named again at exit."""
+    scenario = tmp_path / "trip.toml"
+    scenario.write_text('name = "trip"\ndescription = "the resolver board stops answering"\n'
+                        '[[step]]\nat_s = 0.5\ninject = "bus-error:rtd1"\n')
+    name = "pfma-serve-" + uuid.uuid4().hex[:6]
+    try:
+        assert main(["serve", "--duration", "2", "--buffer", name, "--scenario", str(scenario)]) == 0
+        lines = capsys.readouterr().out.splitlines()
+        trips = [l for l in lines if " ERROR " in l and "outputs safe: rtd1 failed" in l]
+        assert len(trips) == 1 and trips[0].startswith("pfma serve: ")
+        assert any("WARNING 180: simulated fault on: bus-error:rtd1" in l for l in lines)
+        stopped = next(i for i, l in enumerate(lines) if l.startswith("pfma serve: stopped after"))
+        assert lines.index(trips[0]) < stopped  # said before the end, not only in a summary
+        assert lines[stopped + 1].startswith("pfma serve: first trip since the last arm: rtd1 failed")
+        c = Client.attach(name)
+        s = c.read_inputs()
+        assert s.text("first_trip_text").startswith("rtd1 failed") and s.first_trip_code != 0
+        c.close()
+    finally:
+        Bit3Buffer.unlink(name)
+
+
+@pytest.mark.realtime
+def test_serve_quiet_says_no_message_lines(capsys):
+    name = "pfma-serve-" + uuid.uuid4().hex[:6]
+    try:
+        assert main(["serve", "--duration", "0.5", "--buffer", name, "-q",
+                     "--fault", "bus-error:rtd1"]) == 0
+        out = capsys.readouterr().out
+        assert " ERROR " not in out and "first trip since the last arm: rtd1 failed" in out
+    finally:
+        Bit3Buffer.unlink(name)

@@ -72,6 +72,7 @@ RUN_ALONE = (
     f"{PFMA} calibrate adc --rack fake --file out/pfma-cal.json --non-interactive",
     f"{PFMA} calibrate show --file out/pfma-cal.json",
     f"{PFMA} controller --sim --power-up --duration 0.3 --trace",
+    f"{PFMA} controller --sim --power-up --duration 1.5 --sim-fault resolver-los:shoulder_pitch_angle --sim-fault-at 1",
     f"{PFMA} wm list",  # the world model the line above left (the README says so)
     f"{PFMA} reg read 0xD000",
     f"{PFMA} reg write 0xD000 0xC100 --yes-i-know",

@@ -73,7 +73,17 @@ def add_parser(sub):
                    help="run N minor frames one at a time, printing each frame's trace, then stop")
     p.add_argument("--trace", action="store_true", help="print the per-frame trace")
     p.add_argument("--changes", action="store_true", help="trace only frames in which a status changed")
-    p.add_argument("--messages", type=nonneg_int, default=30, metavar="N", help="messages shown at the end (30)")
+    p.add_argument("--messages", type=nonneg_int, default=30, metavar="N",
+                   help="messages shown at the end (30), after the ERROR episode's first cause")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="do not print System Up/Down's state changes, WARNINGs and ERRORs as they happen "
+                        "(the summary at the end stays)")
+    p.add_argument("--sim-fault", action="append", default=[], metavar="SPEC",
+                   help="with --sim: inject this fault into the simulated rack (any spec of `pfma fault "
+                        "list`, e.g. resolver-los:shoulder_pitch_angle, tach-reversed:shoulder_yaw; "
+                        "repeatable; docs/faults.md) at --sim-fault-at")
+    p.add_argument("--sim-fault-at", type=nonneg_float, default=0.0, metavar="S",
+                   help="simulated seconds from the start at which --sim-fault is injected (default 0)")
     p.add_argument("--no-ft", action="store_true", help="a stale F/T link is not a fault")
     p.add_argument("--tables", action="store_true", help="print the decision tables and the schedule")
     p.add_argument("--realtime", action="store_true",
@@ -444,6 +454,19 @@ class _Driver:
             gc.collect()  # what start-up allocated is not collected inside the first frames
             gc.freeze()
         self.printed_header = False
+        #: says System Up/Down's state changes, WARNINGs and ERRORs as they happen (after the
+        #: frame, rate-limited; None with -q): controller.messages.LivePrinter
+        self.say = None
+        if not getattr(args, "quiet", False):
+            from controller.messages import LivePrinter
+            clock = self.sim.clock.now if self.sim is not None else time.monotonic  # sim: simulated seconds
+            self.say = LivePrinter(lambda line: print(line, flush=True), clock)
+            self.rt.messages.listeners.append(self.say)
+        self.faults = None
+        if self.sim is not None and getattr(args, "sim_fault", None):
+            from sim.faults import FaultSet
+            self.faults = FaultSet(self.sim.world)
+            self._fault_frame = self.sim.service_frames + int(round(args.sim_fault_at / self.period_s))
         self.stop_signal = 0  #: the SIGTERM or SIGINT that asked for a stop (0: none)
         self.closing = False  #: in close(): the power-down's frames run whatever the signals
         self._silent_since: float | None = None  # the first give-up of the pacer in a row
@@ -458,7 +481,14 @@ class _Driver:
         if self.stop_signal and not self.closing:
             raise KeyboardInterrupt  # SIGTERM/SIGINT, acted on between frames (see stop_on_signals)
         if self.sim is not None:
+            if self.faults is not None and self.sim.service_frames >= self._fault_frame:
+                for spec in self.args.sim_fault:
+                    f = self.faults.inject(spec)
+                    print(f"pfma controller: simulated fault injected: {f.spec}", flush=True)
+                self.faults = None
             self.sim.step(1)
+            if self.say is not None:
+                self.say.flush()
             return
         pacer = self.pacer
         gave_up = pacer.gave_up
@@ -466,6 +496,8 @@ class _Driver:
         self.rt.tick()  # a minor frame, or the halted hold (pfma controller halt|step|resume)
         snap = self.rt.daq.snapshot
         pacer.stepped(float(snap.t_s))
+        if self.say is not None:
+            self.say.flush()  # after the frame's work: at most LIVE_PER_FLUSH lines
         if pacer.gave_up != gave_up or self._silent_since is not None:
             self._say_silence(pacer.gave_up != gave_up, int(snap.frame))
         if not self.pacer.gc_frozen and self.pacer.frames == self.FREEZE_AFTER_FRAMES:
@@ -695,6 +727,19 @@ def run(args) -> int:
     if args.tables:
         return _print_tables(args.profile)
     from controller.layers import Request
+    if args.sim_fault:
+        if not args.sim:
+            print("pfma controller: --sim-fault needs --sim (a running service takes `pfma fault inject`)",
+                  file=sys.stderr)
+            return 2
+        from pfma.errors import ConfigError
+        from sim.faults import parse_fault
+        for spec in args.sim_fault:  # a bad spec is a usage mistake: exit 2 before anything is built
+            try:
+                parse_fault(spec)
+            except ConfigError as err:
+                print(f"pfma controller: --sim-fault {err}", file=sys.stderr)
+                return 2
     try:
         d = _Driver(args)
     except FileNotFoundError as err:
@@ -724,17 +769,15 @@ def run(args) -> int:
             for _ in range(budget):
                 d.frame()
         _finish_paths(d, args)
-        print(_status_line(d.rt))
         if _motion_settings(args) or args.demo_stick or args.demo_wall is not None:
             print(_motion_summary(d))
-        if args.messages:
-            print(f"--- last {args.messages} messages ---")
-            print(d.rt.messages.format(args.messages))
+        _summary(d, args)
     except KeyboardInterrupt:
         print()
         if d.stop_signal:
             print(f"pfma controller: {signal.Signals(d.stop_signal).name}: stopping (powering down in order)",
                   file=sys.stderr, flush=True)
+        _summary(d, args)  # Ctrl-C and SIGTERM too: what happened, before the power-down
     finally:
         try:
             d.close()
@@ -742,6 +785,27 @@ def run(args) -> int:
             for sig, h in old_handlers.items():
                 signal.signal(sig, h)
     return 0
+
+
+def first_cause_line(rt) -> str:
+    """The current ERROR episode's first cause in one line ("none" without an episode)."""
+    fc = rt.first_cause
+    if fc is None:
+        return "first cause: none (no ERROR episode)"
+    return f"first cause of the ERROR: {fc.format()}"
+
+
+def _summary(d, args) -> None:
+    """At exit (--duration ended, Ctrl-C, SIGTERM): what is still to be said, the layers'
+    statuses, the ERROR episode's first cause (kept however many messages followed it) and
+    the last messages."""
+    if d.say is not None:
+        d.say.drain()
+    print(_status_line(d.rt))
+    print(first_cause_line(d.rt))
+    if args.messages:
+        print(f"--- last {args.messages} messages ---")
+        print(d.rt.messages.format(args.messages), flush=True)
 
 
 # --- a distributed controller (issue 19 item 3; docs/controller.md "Distributing the layers") ----
@@ -876,6 +940,7 @@ def _run_distributed_sim(args, config, base: str | None) -> int:
             print(f"process {p.name}: {line}")
         if args.power_up:
             print(f"power-up: {'every layer START UP COMPLETE after ' + str(up_at) + ' frames' if up_at else 'not complete'}")
+        print(f"process {shown}: {first_cause_line(rt)}")
         if args.messages:
             print(f"--- last {args.messages} messages of process {shown} ---")
             print(rt.messages.format(args.messages))
@@ -947,6 +1012,13 @@ class _DistributedDriver:
         gc.collect()
         gc.freeze()
         self.printed_header = False
+        #: says System Up/Down's state changes, WARNINGs and ERRORs as they happen (after the
+        #: frame, rate-limited; None with -q): controller.messages.LivePrinter
+        self.say = None
+        if not getattr(args, "quiet", False):
+            from controller.messages import LivePrinter
+            self.say = LivePrinter(lambda line: print(line, flush=True), time.monotonic)
+            self.rt.messages.listeners.append(self.say)
         self.stop_signal = 0  #: the SIGTERM or SIGINT that asked for a stop (0: none)
         self.closing = False  #: in close(): the power-down's frames run whatever the signals
         self._silent_since: float | None = None  # the first give-up of the pacer in a row
@@ -961,6 +1033,8 @@ class _DistributedDriver:
         self.pacer.wait()
         self.rt.tick()
         self.pacer.stepped(float(self.rt.daq.snapshot.t_s))
+        if self.say is not None:
+            self.say.flush()  # after the frame's work: at most LIVE_PER_FLUSH lines
         if not self.pacer.gc_frozen and self.pacer.frames == _Driver.FREEZE_AFTER_FRAMES:
             self.pacer.freeze_gc()
 
@@ -1005,12 +1079,10 @@ class _DistributedDriver:
                                   file=sys.stderr)
                             code = 1
                             break
-            print(_status_line(self.rt))
-            if args.messages:
-                print(f"--- last {args.messages} messages ---")
-                print(self.rt.messages.format(args.messages))
+            _summary(self, args)
         except KeyboardInterrupt:
             print()
+            _summary(self, args)  # Ctrl-C too: what happened, before the power-down
         finally:
             self.stop()
             self.close()

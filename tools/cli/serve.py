@@ -32,6 +32,7 @@ import os
 import subprocess
 import sys
 import threading
+import time
 
 from bit3.layout import ServiceState, build_layout, default_layout
 from ioservice.schedule import Schedule
@@ -79,6 +80,8 @@ def add_parser(sub):
                         "minor frames old (default: the rack file's [commands] max_input_age_frames, 4); "
                         "must fit the watchdog")
     p.add_argument("--live", action="store_true", help="print a live channel view twice a second")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="do not print trips, refusals, stalls (every WARNING and ERROR) as they happen")
     p.add_argument("--demo", action="store_true",
                    help="also start the demo controller (a separate process) that arms and swings the arm")
     p.add_argument("--realtime", action="store_true", help="try SCHED_FIFO and a pinned CPU (needs privileges)")
@@ -164,6 +167,64 @@ def _watch_helpers(svc, clock, *helpers):
         watch.add(h)
     clock.hooks.append(watch.tick)
     return watch
+
+
+#: how often `pfma serve` looks for its own new messages to say (a thread beside the frame
+#: loop, never in it): s
+SAY_POLL_S = 0.1
+
+
+def _say_line(m, t_start_s: float) -> str:
+    """One service message as `pfma serve` says it when it happens."""
+    text = m.text.replace("\n", " | ")
+    return f"pfma serve: {m.t_s - t_start_s:9.2f} s  {m.severity.name:<7} {m.code}: {text}"
+
+
+def _start_saying(buffer_name: str, stop: threading.Event, t_start_s: float) -> threading.Thread | None:
+    """Say the service's trips, refusals, stalls (every WARNING and ERROR of its own message
+    queue) as they happen: a thread reading the Bit3 queue every SAY_POLL_S, rate-limited
+    by :class:`controller.messages.LivePrinter` (at most LIVE_PER_SECOND lines a second,
+    then one "... K more" line). Nothing of this runs in the frame loop; the attach and the
+    imports are done here, before the loop starts, not in the thread beside it."""
+    from bit3.client import Client
+    from bit3.layout import Severity
+    from controller.messages import LivePrinter
+    try:
+        c = Client.attach(buffer_name)
+    except Bit3Error as err:
+        print(f"pfma serve: cannot say its messages: {err}", file=sys.stderr)
+        return None
+    say = LivePrinter(lambda line: print(line, flush=True), time.monotonic,
+                      wanted=lambda m: m.queue == "service_messages" and m.severity >= Severity.WARNING,
+                      fmt=lambda m: _say_line(m, t_start_s), always=lambda m: False)
+    c.new_messages()  # the start-up messages: said by the start lines
+
+    def run() -> None:
+        try:
+            while True:
+                stopping = stop.wait(SAY_POLL_S)
+                for m in c.new_messages():
+                    say(m)
+                if stopping:
+                    say.drain()
+                    return
+                say.flush()
+        except (OSError, ValueError):
+            pass  # no terminal any more
+        finally:
+            c.close()
+    t = threading.Thread(target=run, name="pfma-serve-say", daemon=True)
+    t.start()
+    return t
+
+
+def first_trip_line(svc) -> str:
+    """The service's first trip or refusal since the last arm, one line (at exit)."""
+    ft = svc.guard.first_trip
+    if ft is None:
+        return "pfma serve: first trip since the last arm: none"
+    code, reason, _t = ft
+    return f"pfma serve: first trip since the last arm: {reason} (code {code})"
 
 
 def _live_view(buffer_name: str, stop: threading.Event, rack) -> None:
@@ -306,7 +367,7 @@ def run(args) -> int:
     for e in svc.init_errors:
         print(f"pfma serve: {e}", file=sys.stderr)
     svc.install_signal_handlers()
-    export = guardian = watch = None
+    export = guardian = watch = sayer = None
     stop = threading.Event()
     viewer = demo = None
     try:
@@ -347,9 +408,11 @@ def run(args) -> int:
               f"/dev/shm/{args.buffer}, {schedule.frame_rate_hz:g} Hz frames; Ctrl-C stops "
               f"(outputs go to 0 V)", flush=True)
         watch = _watch_helpers(svc, clock, guardian, export)
-        if args.live:
+        if args.live:  # the live view prints every message
             viewer = threading.Thread(target=_live_view, args=(args.buffer, stop, rack), daemon=True)
             viewer.start()
+        elif not args.quiet:
+            sayer = _start_saying(args.buffer, stop, clock.now())
         if args.demo:
             demo = subprocess.Popen([sys.executable, "-m", "sim.demo", "--buffer", args.buffer,
                                      "--duration", str(args.duration or 3600)])
@@ -362,6 +425,8 @@ def run(args) -> int:
             demo.wait(5)
         if viewer is not None:
             viewer.join(2)
+        if sayer is not None:
+            sayer.join(2)
         if watch is not None:
             clock.hooks.remove(watch.tick)  # no restarts while the helpers are stopped in order
         if export is not None:
@@ -375,6 +440,7 @@ def run(args) -> int:
               f"p99 {loop['work_s']['p99'] * 1e6:.0f} us; wake latency p50 "
               f"{loop['wake_latency_s']['p50'] * 1e6:.0f} us; device rates "
               + ", ".join(f"{k} {v['rate_hz']:.1f} Hz" for k, v in s["devices"].items() if v["samples"]))
+        print(first_trip_line(svc), flush=True)
         buf.release()
         buf.close()
         svc.ring.close()

@@ -14,6 +14,9 @@ def add_parser(sub):
     p = sub.add_parser("stats", help="service statistics from the Bit3 buffer")
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
     p.add_argument("--json", action="store_true", help="one JSON object")
+    p.add_argument("--wm", default="pfma_wm", metavar="NAME",
+                   help="the controller's world model, for its ERROR episode's first cause (default pfma_wm; "
+                        "'none': not read)")
     return p
 
 
@@ -52,6 +55,9 @@ def collect(client) -> dict:
         "refused": int(s.refused_commands), "foreign_writes": int(s.foreign_writes),
         "last_host_stall_s": float(s.host_stall_s), "last_host_stall_t_s": float(s.host_stall_t_s),
     }
+    # the first trip or refusal since the last arm (the root of the episode, not the notices after it)
+    out["first_trip"] = ({"code": int(s.first_trip_code), "t_s": float(s.first_trip_t_s),
+                          "text": s.text("first_trip_text")} if int(s.first_trip_code) else None)
     out["controller"] = collect_controller(client)
     return out
 
@@ -95,6 +101,36 @@ def format_controller(c: dict | None) -> str:
     ])
 
 
+def controller_first_cause(wm_name: str) -> str | None:
+    """The controller's current ERROR episode's first cause from its world model ("" none;
+    None: no world model of that name, or it is not read)."""
+    if wm_name in ("", "none"):
+        return None
+    from controller.runtime import first_cause_text
+    from controller.worldmodel import WorldModel
+    try:
+        wm = WorldModel.attach(wm_name)
+    except Exception:  # noqa: BLE001 - no controller's world model: nothing to show
+        return None
+    try:
+        if not wm.info().owner_alive:  # a stopped controller's episode is not the running system's
+            return None
+        return first_cause_text(wm)
+    finally:
+        wm.close()
+
+
+def format_first_causes(d: dict) -> list[str]:
+    ft = d.get("first_trip")
+    out = [f"service first trip since the last arm: {ft['text']} (code {ft['code']}, t={ft['t_s']:.1f} s)"
+           if ft else "service first trip since the last arm: none"]
+    fc = d.get("controller_first_cause")
+    if fc is not None:
+        out.append(f"controller first cause of the ERROR: {fc}" if fc else
+                   "controller first cause of the ERROR: none (no ERROR episode)")
+    return out
+
+
 def run(args) -> int:
     from bit3.buffer import Bit3Error
     from pfma.errors import PfmaError
@@ -111,6 +147,7 @@ def run(args) -> int:
         d = collect(c)
     finally:
         c.close()
+    d["controller_first_cause"] = controller_first_cause(getattr(args, "wm", "none"))
     if args.json:
         print(json.dumps(d, indent=1))
         return 0
@@ -145,5 +182,6 @@ def run(args) -> int:
     if not cm["outputs_known_safe"]:
         print("OUTPUTS NOT KNOWN SAFE: the DAC board does not answer; its outputs may hold their last values: "
               "press the hardware E-stop if the arm moves (docs/safety.md \"Honest outputs\")")
+    print("\n".join(format_first_causes(d)))
     print(format_controller(d["controller"]))
     return 0

@@ -98,6 +98,21 @@ def _header(info) -> str:
             f"powered up: {'yes' if info.powered_up else 'no'}, {info.n_variables} variables")
 
 
+def _print_first_cause(wm) -> None:
+    """Under the header, while the controller is in an ERROR episode: its root message."""
+    cause = _first_cause(wm)
+    if cause:
+        print(f"first cause of the ERROR: {cause}")
+
+
+def _first_cause(wm) -> str:
+    """The controller's current ERROR episode's root message (runtime.first_cause), or ""."""
+    if wm is None:
+        return ""
+    from controller.runtime import first_cause_text
+    return first_cause_text(wm)
+
+
 def _matches(spec, text: str | None) -> bool:
     if not text:
         return True
@@ -132,10 +147,11 @@ def cmd_list(wm, args) -> int:
     info = wm.info()
     if args.json:
         print(json.dumps({"name": info.name, "owner": info.owner, "owner_pid": info.owner_pid,
-                          "frame": info.frame, "powered_up": info.powered_up,
+                          "frame": info.frame, "powered_up": info.powered_up, "first_cause": _first_cause(wm),
                           "variables": [_describe(s, values[s.name]) for s in specs]}, indent=1))
         return 0
     print(_header(info))
+    _print_first_cause(wm)
     if not specs:
         print("no variables match" + (f" area {args.area}" if args.area else "")
               + (f" filter {args.filter!r}" if args.filter else ""))
@@ -159,9 +175,11 @@ def cmd_get(wm, args) -> int:
     info = wm.info()
     if args.json:
         print(json.dumps({"name": info.name, "frame": info.frame, "powered_up": info.powered_up,
+                          "first_cause": _first_cause(wm),
                           "variables": {s.name: _describe(s, values[s.name]) for s in specs}}, indent=1))
         return 0
     print(f"{_header(info)} (values from one consistent copy)")
+    _print_first_cause(wm)
     for s in specs:
         print(f"\n{s.name}")
         print(f"  area       {s.area}")

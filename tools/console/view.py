@@ -14,6 +14,8 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+import numpy as np
+
 from bit3.layout import DEVICE_GROUPS, FAULT_DAC_UNREACHABLE, HAND_CONTROLLERS, ServiceState, Severity
 from controller.cartesian import CartesianLayer
 from controller.daq_layer import FAULT_NAMES, DataAcquisitionLayer
@@ -96,7 +98,7 @@ class Sources:
                                 if f"{k}.{f}" in names)
         extra = ("runtime.halted", "runtime.steps_left", "runtime.step_frames", "runtime.frames", "runtime.rate_hz",
                  "runtime.missed_frames", "daq.fault_bits", "daq.joint_angle_rad", "daq.joint_rate_rad_s", "daq.camera_route",
-                 "ui.response_seq", "ui.response", "ui.response_text")
+                 "ui.response_seq", "ui.response", "ui.response_text", "runtime.first_cause")
         self.wm_vars = self.layer_vars + tuple(n for n in extra if n in names)
         self.messages: deque[ConsoleMessage] = deque(maxlen=MESSAGES_KEPT)
         #: simulated seconds per wall second (``pfma console --sim``), or None (a live system)
@@ -207,6 +209,7 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
            + f"  {float(r.wm.get('runtime.rate_hz', 0.0)):.0f} Hz  frames {int(r.wm.get('runtime.frames', 0))}"
            + f"  missed {int(r.wm.get('runtime.missed_frames', 0))}")
     lines.append(ctl)
+    lines += first_cause_lines(r)
     q = r.wm.get("daq.joint_angle_rad")
     qd = r.wm.get("daq.joint_rate_rad_s")
     if q is not None and qd is not None:
@@ -221,6 +224,22 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
     lines.append(f"hand controllers: {hc}")
     lines.append(camera_routes_line(r))
     return "\n".join(lines)
+
+
+def first_cause_lines(r: Reading) -> list[str]:
+    """The root of the current episode, while there is one (issue 29 item 3): the service's
+    first trip or refusal since the last arm (Bit3 ``inputs.first_trip_*``) and the
+    controller's ERROR episode's first cause (``runtime.first_cause``), not the cascade after."""
+    out = []
+    s = r.inputs
+    if s is not None and int(s.first_trip_code):
+        out.append(f"service first trip: {s.text('first_trip_text')}")
+    raw = r.wm.get("runtime.first_cause")
+    if raw is not None and r.controller_alive:
+        text = bytes(np.asarray(raw, dtype=np.uint8)).rstrip(b"\0").decode(errors="replace")
+        if text:
+            out.append(f"controller first cause: {text}")
+    return out
 
 
 def outputs_unknown(r: Reading) -> bool:
