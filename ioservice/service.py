@@ -982,8 +982,8 @@ class IoService:
         rec["stall_events"] = s["stalls"]
         rec["window_frames"] = min(self.loop_stats.n, self.loop_stats.window)
         rec["period_s"] = self.schedule.period_s
-        p = s["period_s"]["p50"]
-        rec["rate_hz"] = 1.0 / p if p and p > 0 and not math.isnan(p) else 0.0
+        r = s["rate_hz"]  # frames run over the time they took: a dropped frame lowers it
+        rec["rate_hz"] = 0.0 if math.isnan(r) else r
         for n in ("p50", "p99", "p999", "max"):
             rec[f"wake_latency_{n}_us"] = s["wake_latency_s"][n] * 1e6
         for n in ("p50", "p99", "max"):
