@@ -125,6 +125,11 @@ class ServiceState(enum.IntEnum):
     HALTED = 5    # the controller is halted (single-stepping) and holds the outputs safe
     #              (0 V, brakes set) with a live heartbeat: not a fault; needs a re-arm request
 
+    def __str__(self) -> str:
+        """The name: ``print(state)`` and ``f"{state}"`` say ARMED, not 2 (issue 29 item 7);
+        ``int(state)``, ``f"{state:d}"`` and JSON stay numbers."""
+        return self.name
+
 
 #: ``inputs.fault_code`` values every tool may need to tell apart (issue 28 item 5,
 #: docs/safety.md "Honest outputs"; the others are ``ioservice.service.FAULT_*``):

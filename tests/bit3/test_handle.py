@@ -46,7 +46,7 @@ def test_arm_takes_a_new_rearm_number_each_time_and_the_service_arms(rig):
     rack, _ = _handle(rig)
     before = int(rig.reader.read_commands().rearm_counter)
     rack.arm(current_limit_a=2.0)
-    assert rack.state is ServiceState.ARMED and rack.state.name == "ARMED"
+    assert rack.state is ServiceState.ARMED and f"{rack.state}" == str(rack.state) == "ARMED"  # a name, not 2
     assert int(rig.reader.read_commands().rearm_counter) == before + 1
     rack.disarm()
     rack.sleep(0.02)
