@@ -38,6 +38,7 @@ the service trips to FAULT, which is the safe side.
 
 from __future__ import annotations
 
+import atexit
 import math
 import sys
 import threading
@@ -61,6 +62,8 @@ RATE_EXPIRY_S = 0.3
 KEEPALIVE_S = 0.005
 #: how long :meth:`Rack.arm` waits for the service to say ARMED
 ARM_WAIT_S = 1.0
+#: how long :meth:`Rack.close` keeps the heartbeat going for the service to see the disarm
+CLOSE_WAIT_S = 0.5
 
 
 class RackError(Bit3Error):
@@ -188,6 +191,9 @@ class Rack:
         if keepalive:
             self._thread = threading.Thread(target=self._keepalive_loop, name="rack-keepalive", daemon=True)
             self._thread.start()
+            # a script that never calls close() (no ``with``) still disarms when it ends, not
+            # by the service's watchdog tripping to FAULT
+            atexit.register(self.close)
 
     @classmethod
     def open(cls, buffer: str = "pfma", *, owner: str = "python-script", rack: str | None = None,
@@ -301,8 +307,14 @@ class Rack:
         if self._closed:
             return
         self._closed = True
+        atexit.unregister(self.close)
         try:
             self.disarm()
+            # the heartbeat goes on until the service has seen the disarm: a writer that
+            # stopped at once could be judged stale before the service's next frame
+            t_end = self._now() + CLOSE_WAIT_S
+            while self.state == ServiceState.ARMED and self._now() < t_end:
+                self._sleep(0.005)
         finally:
             self._stop.set()
             if self._thread is not None:

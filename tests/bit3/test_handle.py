@@ -162,3 +162,10 @@ def test_an_exception_in_the_with_block_disarms(rig):
     assert int(cmd.arm_request) == 0 and not any(cmd.joint_rate_rad_s) and not any(cmd.current_limit_a)
     rig.run_frames(3)
     assert rig.reader.service_state is ServiceState.SAFE  # disarmed by command, not a trip
+
+
+def test_a_second_writer_is_refused_in_one_line_naming_the_holder(rig):
+    rig.controller("the-controller")
+    with pytest.raises(RackError) as e:
+        Rack.open(rig.name, owner="my-script")
+    assert "the-controller" in str(e.value) and "\n" not in str(e.value)

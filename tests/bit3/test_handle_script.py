@@ -10,6 +10,7 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
+import time
 import uuid
 from pathlib import Path
 
@@ -56,6 +57,11 @@ def service():
     name = "pfma-py-" + uuid.uuid4().hex[:8]
     p = _serve(name)
     try:
+        with Client.attach(name) as c:
+            for _ in range(10_000):  # a bound, not a timing: until the first frames are published
+                if c.read_inputs().frame > 10:
+                    break
+                time.sleep(0.001)
         yield name
     finally:
         p.terminate()
@@ -100,3 +106,15 @@ def test_no_service_is_one_line(tmp_path):
     assert out.returncode != 0
     last = out.stderr.strip().splitlines()[-1]
     assert last.startswith("bit3.handle.RackError: no I/O service runs on buffer"), out.stderr
+
+
+def test_a_script_without_with_that_ends_disarms_instead_of_tripping(service, tmp_path):
+    code = (f"from bit3.handle import Rack\n"
+            f"rack = Rack.open({service!r})\n"
+            f"rack.arm(current_limit_a=2.0)\n"
+            f"print(rack.state)\n")  # no close(), no with: the process just ends
+    out = _run(code, tmp_path)
+    assert out.returncode == 0 and out.stdout == "ARMED\n", (out.stdout, out.stderr)
+    with Client.attach(service) as c:
+        texts = [m.text for m in c.messages(0)]
+        assert texts[-1] == "disarmed by command" and c.service_state is ServiceState.SAFE, texts
