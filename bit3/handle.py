@@ -48,7 +48,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 from bit3.client import Client, Snapshot
 from bit3.layout import (
-    CHANNEL_BUS_ERROR, RTD_LOSS_OF_SIGNAL, RTD_NO_REFERENCE, ServiceState,
+    CHANNEL_BUS_ERROR, RTD_LOSS_OF_SIGNAL, RTD_NO_REFERENCE, ServiceState, Severity,
 )
 from bit3.seqlock import Bit3Error
 from pfma.arm import JOINTS, JointFacts
@@ -254,9 +254,14 @@ class Rack:
         :data:`RATE_EXPIRY_S` unless given again.
 
         :raises RackError: an unknown joint, a value that is not finite or is beyond the
-            joint's rate limit (nothing is sent)
+            joint's rate limit, or a non-zero rate while the service is not ARMED (a trip:
+            its reason is given); nothing is sent
         """
         values = self._per_joint(rates, by_joint, "rate")
+        if any(values) and self.state != ServiceState.ARMED:
+            why = self._service_reason(0, warnings_only=True)
+            raise RackError(f"the service is {self.state}, not ARMED: rates not sent"
+                            f"{' (' + why + ')' if why else ''}; rack.arm(...) arms it again")
         for name, v in zip(self.joints, values):
             lim = self._rate_limit.get(name)
             if lim is not None and abs(v) > lim:
@@ -433,8 +438,11 @@ class Rack:
         msgs = self.client.messages(0, "service")
         return msgs[-1].seq if msgs else 0
 
-    def _service_reason(self, since_seq: int) -> str:
+    def _service_reason(self, since_seq: int, warnings_only: bool = False) -> str:
+        """The service's newest message since ``since_seq`` (a WARNING or worse if asked)."""
         msgs = self.client.messages(since_seq, "service")
+        if warnings_only:
+            msgs = [m for m in msgs if m.severity >= Severity.WARNING]
         return msgs[-1].text if msgs else ""
 
     def __repr__(self) -> str:

@@ -64,6 +64,12 @@ def test_the_keepalive_holds_the_heartbeat_through_a_sleep_and_without_it_the_se
     rig.on_frame.clear()  # the keep-alive gone (a dead script): the watchdog trips
     rack.sleep(0.05)
     assert rack.state is ServiceState.FAULT
+    # a rate command now is a one-line error with the service's reason, not silently ignored
+    with pytest.raises(RackError, match=r"the service is FAULT, not ARMED: rates not sent \(outputs safe: stale heartbeat"):
+        rack.rates(elbow_pitch=-0.1)
+    rig.on_frame.append(lambda info: rack.keepalive_step())
+    rack.arm(current_limit_a=2.0)  # re-armed with a new number
+    rack.rates(elbow_pitch=-0.1)
 
 
 def test_a_rate_command_drives_until_it_expires_then_the_keepalive_sends_zero_not_the_last(rig):
