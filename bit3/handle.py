@@ -338,7 +338,7 @@ class Rack:
         """One keep-alive: expire an old rate command (zero rates, said once), then publish
         the command area (a new heartbeat). The thread calls it every :data:`KEEPALIVE_S`."""
         with self._lock:
-            if self._closed:
+            if self._stop.is_set():  # detached (close() keeps the heartbeat until it sets this)
                 return
             if self._now() >= self._rates_until and any(self._rates):
                 self._rates = [0.0] * len(self.joints)
