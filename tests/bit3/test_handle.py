@@ -175,3 +175,15 @@ def test_a_second_writer_is_refused_in_one_line_naming_the_holder(rig):
     with pytest.raises(RackError) as e:
         Rack.open(rig.name, owner="my-script")
     assert "the-controller" in str(e.value) and "\n" not in str(e.value)
+
+
+def test_a_resolver_in_loss_of_signal_reads_with_that_status_not_as_a_plain_angle(rig):
+    rack, _ = _handle(rig)
+    rig.world.bus["rtd1"].inject("loss_of_signal", channel=0)
+    rack.sleep(0.05)
+    inputs = rack.read()
+    statuses = {j: inputs.angle(j).status for j in rack.joints}
+    bad = {j: st for j, st in statuses.items() if st != "ok"}
+    assert list(bad.values()) == ["loss of signal"], statuses
+    j = next(iter(bad))
+    assert not inputs.angle(j).ok and str(inputs.angle(j)).endswith("rad (loss of signal)")
