@@ -280,10 +280,16 @@ class Rack:
                        **by_joint: float) -> None:
         """Command current limits (A): one number for every joint, a list in command order,
         ``{joint: amps}`` or keywords; the others keep theirs. A limit of 0 sets the brake."""
+        if by_joint and limits is not None and not isinstance(limits, Mapping):
+            raise RackError("give current limits as one value or list, or by joint name, not both")
         with self._lock:
             if by_joint or isinstance(limits, Mapping):
                 merged = dict(zip(self.joints, self._limits))
-                merged.update(dict(limits or {}, **by_joint))  # type: ignore[arg-type]
+                if len(self._limits) > len(self.joints):
+                    merged["gripper"] = self._limits[len(self.joints)]
+                if isinstance(limits, Mapping):
+                    merged.update(limits)
+                merged.update(by_joint)
                 values = self._limit_list(merged)
             else:
                 values = self._limit_list(0.0 if limits is None else limits)

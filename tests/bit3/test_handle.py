@@ -187,3 +187,14 @@ def test_a_resolver_in_loss_of_signal_reads_with_that_status_not_as_a_plain_angl
     assert list(bad.values()) == ["loss of signal"], statuses
     j = next(iter(bad))
     assert not inputs.angle(j).ok and str(inputs.angle(j)).endswith("rad (loss of signal)")
+
+
+def test_current_limits_by_name_keep_the_others(rig):
+    rack, notes = _handle(rig)
+    rack.arm(current_limit_a=[1.0, 1.0, 1.0, 0.5, 0.5, 0.5, 0.8])  # the six joints and the gripper
+    rack.current_limits(wrist_roll=0.2)
+    lim = [float(x) for x in rig.reader.read_commands().current_limit_a]
+    assert lim == [1.0, 1.0, 1.0, 0.5, 0.5, 0.2, 0.8]
+    assert any(n.startswith("wrist_roll: current limit 0.2 A is below its breakaway current 0.347 A") for n in notes)
+    with pytest.raises(RackError, match="not both"):
+        rack.current_limits(1.0, wrist_roll=0.5)
