@@ -174,6 +174,11 @@ class Rack:
             ch = rack.find(name, "rate_command")
             if ch is not None and ch.limit is not None:
                 self._rate_limit[name] = float(ch.limit)
+        #: current limits' own limits (A), in command order: the rack file's, as the service checks them
+        self._current_max: list[float | None] = []
+        for name in (*self.joints, "gripper"):
+            ch = rack.find(name, "current_limit")
+            self._current_max.append(float(ch.limit) if ch is not None and ch.limit is not None else None)
         self.rate_expiry_s = float(rate_expiry_s)
         self._now = now
         self._sleep = sleep
@@ -409,9 +414,14 @@ class Rack:
             if len(out) != n:
                 raise RackError(f"{len(out)} current limits given: {len(self.joints)} joints "
                                 f"(or {n} with the gripper)")
-        for v in out:
+        names = (*self.joints, "gripper")
+        for i, v in enumerate(out[:n]):
+            what = names[i] if i < len(names) else f"current limit {i}"
             if not math.isfinite(v) or v < 0:
-                raise RackError(f"current limit {v!r} A: a limit is a finite number >= 0 (nothing sent)")
+                raise RackError(f"{what}: current limit {v!r} A: a limit is a finite number >= 0 (nothing sent)")
+            top = self._current_max[i] if i < len(self._current_max) else None
+            if top is not None and v > top:
+                raise RackError(f"{what}: current limit {v:g} A is beyond its limit {top:g} A (nothing sent)")
         return out[:n]
 
     def _note_once(self, joint: str, what: str, text: str) -> None:

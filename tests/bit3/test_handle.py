@@ -135,8 +135,10 @@ def test_mistakes_are_one_line_refusals_and_nothing_is_sent(rig):
         rack.rates(elbow=0.1)
     with pytest.raises(RackError, match="not finite"):
         rack.rates(elbow_pitch=float("nan"))
-    with pytest.raises(RackError, match="a limit is a finite number >= 0"):
+    with pytest.raises(RackError, match="shoulder_pitch: current limit -1.0 A: a limit is a finite number >= 0"):
         rack.current_limits(-1.0)
+    with pytest.raises(RackError, match="wrist_roll: current limit 6 A is beyond its limit 5 A"):
+        rack.current_limits(wrist_roll=6.0)
     assert int(rig.reader.read_commands().heartbeat) == hb
     rack.sleep(0.02)
     assert rack.state is ServiceState.ARMED
