@@ -31,8 +31,8 @@ What the handle does for the script (each rule once, here and in docs/python.md)
   not move.
 - **Disarm** on ``close()``, at the end of the ``with`` block and on an exception in it.
 
-Assumption (named once): the keep-alive thread needs the GIL every 5 ms; a script that
-holds it longer (a long C call that does not release it) lets the heartbeat go stale and
+Assumption (named once): the keep-alive thread needs the GIL every 3 ms; a script that
+holds it more than about 10 ms (a long C call that does not release it) lets the heartbeat go stale and
 the service trips to FAULT, which is the safe side.
 """
 
@@ -58,8 +58,10 @@ from pfma.rack import RackConfig, load_rack
 #: sends zero rates (assumed: 0.3 s, long enough for a script that renews at 10-50 Hz,
 #: short enough that a hung script moves a joint at most 0.3 s x its rate)
 RATE_EXPIRY_S = 0.3
-#: the keep-alive re-publishes the command area this often (the service's watchdog: 15 ms)
-KEEPALIVE_S = 0.005
+#: the keep-alive re-publishes the command area this often: about one service frame
+#: (3.125 ms), so a stall of this process up to about 10 ms stays inside the service's
+#: 15 ms watchdog (measured: about 2 % of a core on the 2-core dev VM)
+KEEPALIVE_S = 0.003
 #: how long :meth:`Rack.arm` waits for the service to say ARMED
 ARM_WAIT_S = 1.0
 #: how long :meth:`Rack.close` keeps the heartbeat going for the service to see the disarm
