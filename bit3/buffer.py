@@ -50,7 +50,7 @@ from bit3.layout import (
     ServiceState,
     Severity, _header, default_layout, resolve_role, struct_field, struct_names,
 )
-from bit3 import access, futex
+from bit3 import access, futex, space
 from bit3.seqlock import (  # noqa: F401  (the errors and constants are part of the buffer's API)
     DEFAULT_READ_TIMEOUT_S, TRY_READ_ATTEMPTS, Bit3Error, LayoutMismatchError, OwnershipError, SeqLock,
     SeqLockTimeout,
@@ -478,6 +478,7 @@ class Bit3Buffer:
         :param group: None: mode 0600 (private to this user); a group name or gid: mode
             0640 and that group, so its members can attach read-only (bit3/access.py)
         :raises Bit3Error: unknown group, or this user is not a member of it (nothing left behind)
+        :raises ShmFullError: /dev/shm has no room for the buffer (nothing left behind)
         """
         layout = layout or default_layout()
         try:
@@ -489,6 +490,9 @@ class Bit3Buffer:
                                 f"process uses it") from None
             return cls.attach(name, readonly=False, layout=layout)
         try:
+            # every page now (bit3/space.py): a full /dev/shm is a one-line error here, not a
+            # SIGBUS at the first write. SharedMemory has mapped the file but touched no page
+            space.reserve(shm._fd, BUFFER_SIZE, f"/dev/shm/{name}", f"the Bit3 buffer {name!r}")
             access.apply_access(shm._fd, f"/dev/shm/{name}", group)
         except BaseException:
             shm.close()

@@ -125,6 +125,11 @@ class ServiceState(enum.IntEnum):
     HALTED = 5    # the controller is halted (single-stepping) and holds the outputs safe
     #              (0 V, brakes set) with a live heartbeat: not a fault; needs a re-arm request
 
+    def __str__(self) -> str:
+        """The name: ``print(state)`` and ``f"{state}"`` say ARMED, not 2 (issue 29 item 7);
+        ``int(state)``, ``f"{state:d}"`` and JSON stay numbers."""
+        return self.name
+
 
 #: bytes of ``inputs.first_trip_text``: the first trip's or refusal's reason since the last
 #: arm, cut to this many bytes (assumed: the guard's reasons are one sentence; the whole text

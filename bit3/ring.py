@@ -45,6 +45,7 @@ import os
 import struct
 import uuid
 
+from bit3 import space
 from bit3.access import PRIVATE_MODE, access_error, segment_access
 
 MAGIC = b"PFMARING"
@@ -103,6 +104,9 @@ class FrameRing:
                 os.fchown(fd, -1, gid)  # before the mode: never readable by the wrong group
             os.fchmod(fd, mode)  # whatever the umask
             os.ftruncate(fd, size)
+            # every page before the mapping (bit3/space.py): a full /dev/shm is a ShmFullError
+            # here, the temporary file removed below, not a SIGBUS in a frame
+            space.reserve(fd, size, path, f"the frame ring of {buffer_name!r}")
             mm = mmap.mmap(fd, size, mmap.MAP_SHARED, mmap.PROT_READ | mmap.PROT_WRITE)
             st = os.fstat(fd)
             _HDR.pack_into(mm, 0, MAGIC, VERSION, n_slots, slot, body_size,

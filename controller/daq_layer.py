@@ -87,6 +87,9 @@ COMMAND_FAULT_STATUS = CMD_STALE | CMD_REFUSED | CMD_FOREIGN
 COMMAND_COUNTERS = (("stale_commands", "stale"), ("refused_commands", "refused"), ("foreign_writes", "foreign"))
 #: controller frames without a new service frame before the service counts as lost
 STALE_FRAMES = 4
+#: a host stall "explains" an F/T gap when it lasted at least this fraction of the gap
+#: (assumed: half; the rest is the sensor's period and the resync after the stall)
+STALL_EXPLAINS = 0.5
 #: consecutive frames the service must flag the F/T link stale/faulted before it counts
 #: (assumed: 4 frames = 12.5 ms on top of the service's 100 ms stale age, so that one late
 #: record on a busy host does not stop the arm; a dead link still trips in 62.5 ms)
@@ -152,6 +155,9 @@ class DataAcquisitionLayer(Layer):
         self._force_vars: tuple[str, ...] | None = None
         self._ft_warned = False
         self._ft_warning = ""
+        self._stalls = np.zeros((8, 2))  #: the last 8 host stalls the service published: end time, length (s)
+        self._stall_n = 0
+        self._stall_seen_t = 0.0
         self.arm_request = 0
         self.rearm_counter = int(client.command["rearm_counter"])
         self._t_phase = 0.0
@@ -339,18 +345,40 @@ class DataAcquisitionLayer(Layer):
         v = rt.wm.get_task_inputs(self._force_vars)
         return int(v["force.state"]) != 0 or bool(v.get("teleop.reflect_enabled", False))
 
-    @staticmethod
-    def _stall_note(snap) -> str:
-        """" after a host stall of N ms" when the service saw one in the last 0.5 s."""
-        stall = float(snap.host_stall_s)
-        if stall > 0 and 0 <= float(snap.t_s) - float(snap.host_stall_t_s) <= 0.5:
-            return f" after a host stall of {stall * 1e3:.0f} ms"
-        return ""
+    def _note_stalls(self, rec) -> None:
+        """Keep each host stall the service publishes (its measured length and end time; the
+        inputs area holds only the latest, so a short stall after a long one would hide it)."""
+        t_end = float(rec["host_stall_t_s"])
+        if t_end != self._stall_seen_t:  # a new stall (rare): nothing allocated otherwise
+            self._stall_seen_t = t_end
+            dur = float(rec["host_stall_s"])
+            if dur > 0:
+                row = self._stalls[self._stall_n % len(self._stalls)]
+                row[0], row[1] = t_end, dur
+                self._stall_n += 1
+
+    def _stall_note(self, t_s: float, age_s: float) -> str:
+        """What the measured host stalls say about an F/T gap of ``age_s`` seen at ``t_s``:
+        " after a host stall of N ms" when the longest stall that overlapped the gap covers
+        at least STALL_EXPLAINS of it; "; a host stall of N ms in that time does not explain
+        it" when it is shorter; "" when the service measured none in the gap. Never a stall
+        the gap did not contain (issue 29 item 8: a 1,045 ms gap was blamed on a 17 ms stall)."""
+        n = min(self._stall_n, len(self._stalls))
+        longest = 0.0
+        for t_end, dur in self._stalls[:n]:
+            if t_end <= t_s and t_end > t_s - age_s:  # it ended inside the gap
+                longest = max(longest, float(dur))
+        if longest <= 0:
+            return ""
+        if longest >= STALL_EXPLAINS * age_s:
+            return f" after a host stall of {longest * 1e3:.0f} ms"
+        return f"; a host stall of {longest * 1e3:.0f} ms in that time does not explain it"
 
     def check(self, snap, service_state: int) -> tuple[int, str]:
         """The hardware checks of one snapshot: (fault bits, description)."""
         bits, why = 0, []
         rec = snap.record
+        self._note_stalls(rec)
         rs = rec["rtd_status"][self.rtd_slots]
         if rs.any():
             bits |= FAULT_RESOLVER
@@ -364,8 +392,9 @@ class DataAcquisitionLayer(Layer):
             bad = bool(ls & (LINK_STALE | LINK_FAULT) or not ls)
             self._ft_bad_run = self._ft_bad_run + 1 if bad else 0
             if self._ft_bad_run >= FT_BAD_FRAMES:
+                age = float(rec["link_age_s"][self.ft_slot])  # measured by the service
                 what = (f"F/T link {'stale' if ls & LINK_STALE else 'faulted' if ls & LINK_FAULT else 'not open'}"
-                        f" (age {float(snap.link_age_s[self.ft_slot]) * 1e3:.0f} ms){self._stall_note(snap)}")
+                        f" (age {age * 1e3:.0f} ms){self._stall_note(float(rec['t_s']), age)}")
                 if self.ft_in_use:
                     bits |= FAULT_FT
                     why.append(what)

@@ -25,6 +25,7 @@ import math
 # the joint table lives in pfma.arm (the service's envelope and the file checks read it too)
 from pfma.arm import (  # noqa: F401  (re-exported: the controller's one import of arm facts)
     DEG, GRIPPER_I_MAX_A, JOINT_NAMES, JOINTS, N_JOINTS, SOURCE, JointFacts, joint, unwrap_angle,
+    RATE_LOOP_LAMBDA as _RATE_LOOP_LAMBDA,
 )
 
 #: current-limit channels of the command area: the six joints, then the gripper
@@ -42,8 +43,9 @@ BRAKE_RELEASE_V = 0.5
 #: 8.4 safe stop: wait for |qdot| below this, or for SAFE_STOP_TIMEOUT_S, before limits go to 0
 SAFE_STOP_RATE_RAD_S = 0.01
 SAFE_STOP_TIMEOUT_S = 0.5
-#: 8.4 amplifier rate loop: lambda (rad/s) and the 10 Hz tach filter time constant (s)
-RATE_LOOP_LAMBDA = 40.0
+#: 8.4 amplifier rate loop: lambda (rad/s; the one value is pfma.arm.RATE_LOOP_LAMBDA) and the
+#: 10 Hz tach filter time constant (s)
+RATE_LOOP_LAMBDA = _RATE_LOOP_LAMBDA
 TACH_TAU_S = 1.0 / (2.0 * math.pi * 10.0)
 
 

@@ -60,7 +60,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pfma.arm import JOINTS, JointFacts
+from pfma.arm import JOINTS, RATE_LOOP_LAMBDA as _RATE_LOOP_LAMBDA, JointFacts
 
 DEG = math.pi / 180.0
 
@@ -103,8 +103,8 @@ FERROR_TIME_S = 0.1
 MODEL_DELAY_S = 0.015
 PULL_FRACTION = 0.5
 PULL_S = 0.3
-#: rate-loop bandwidth lambda of pfma-model 8.4 (controller.params.RATE_LOOP_LAMBDA)
-RATE_LOOP_LAMBDA = 40.0
+#: rate-loop bandwidth lambda of pfma-model 8.4 (pfma.arm.RATE_LOOP_LAMBDA, the one value)
+RATE_LOOP_LAMBDA = _RATE_LOOP_LAMBDA
 #: tach card filter time constant, 10 Hz (IRSS 3.6.3; controller.params.TACH_TAU_S)
 TACH_TAU_S = 1.0 / (2.0 * math.pi * 10.0)
 #: a gap between two samples longer than this (a halt, a controller stalled by its host)
@@ -135,7 +135,7 @@ CAUSE_UNKNOWN, CAUSE_BRAKE, CAUSE_AMP_OFF, CAUSE_TACH_REVERSED, CAUSE_TACH_GAIN,
 def amp_gain_a_per_rad_s(jf: JointFacts) -> float:
     """The amplifier's current per rad/s of rate error, K_a K_w = lambda J / (N eta K_t)
     (pfma-model 8.4: K_a = lambda J / (N eta K_t K_w))."""
-    return RATE_LOOP_LAMBDA * jf.inertia_kg_m2 / jf.torque_per_amp
+    return jf.amp_gain_a_per_rad_s
 
 
 #: the columns of one joint's samples, as the diagnosis reads them (a preallocated ring of

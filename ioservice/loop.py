@@ -60,11 +60,20 @@ class LoopStats:
             self.overrun_run = 0
 
     def summary(self) -> dict:
-        """p50/p99/p99.9/max of wake latency, period and work (seconds), and the counters."""
+        """p50/p99/p99.9/max of wake latency, period and work (seconds), the counters, and
+        ``rate_hz``: the frames actually run in the window over the time they span (the sum
+        of their wake-to-wake periods), so a dropped frame, whose time is in the next
+        frame's period, lowers it (a median period would not: issue 29 item 8); NaN before
+        two frames have run."""
         m = min(self.n, self.window)
         out = {"frames": self.n, "dropped": self.dropped, "overruns": self.overruns,
                "longest_overrun_run": self.longest_overrun_run, "stalls": self.stalls,
                "gc_gen2_in_loop": gc.get_stats()[2]["collections"] - self.gc_gen2_at_start}
+        periods = self.period_s[:m]
+        periods = periods[~np.isnan(periods)]
+        span = float(periods.sum()) if periods.size else 0.0
+        out["rate_hz"] = periods.size / span if span > 0 else math.nan
+        out["rate_window_s"] = span
         for name, ring in (("wake_latency_s", self.wake_latency_s), ("period_s", self.period_s),
                            ("work_s", self.work_s)):
             data = ring[:m]

@@ -100,6 +100,9 @@ FT_RETRY_FRAMES = 2
 #: as the cause of a watchdog trip or stale command it explains. Assumed: 10 ms, well
 #: above the wake-up jitter of a shared VM (p99 ~0.85 ms) and below the 15 ms watchdog
 HOST_STALL_S = 0.010
+#: a frame whose own run takes longer than HOST_STALL_S is posted as a "long frame" with its
+#: measured length, at most once per this many seconds (the others counted in the next notice)
+LONG_FRAME_NOTICE_S = 1.0
 #: between frames the command heartbeat is checked at most this often (the hooks tick
 #: every ``LIVE_TICK_S`` for the serial FIFOs; the watchdog is 15 ms, so a check every
 #: 1 ms makes the reaction to a dead controller the watchdog plus at most 1 ms plus a
@@ -230,6 +233,9 @@ class IoService:
         self._last_alive: float | None = None  # clock time the service last ran (frame or hook tick)
         self._stall_s = 0.0  # the latest host stall and when it ended
         self._stall_end = -math.inf
+        self._long_frames = 0  # long frames since the last notice, and the longest (s)
+        self._long_frame_max_s = 0.0
+        self._long_frame_said = -math.inf
         self._guard_state = self.guard.state
         self.loop_stats = LoopStats()
         self.loop = FrameLoop(clock, self.schedule.period_s, self.frame, self.loop_stats)
@@ -565,7 +571,9 @@ class IoService:
             self._check_bus_lost()
         self._publish(info)
         self.serial_tick()
-        self._last_alive = self.clock.now()  # a long frame is the service's own work, not a stall
+        end = self._last_alive = self.clock.now()  # a long frame is the service's own work, not a stall
+        if end - info.t_wake > HOST_STALL_S:  # measured and named (rare: nothing per frame otherwise)
+            self._long_frame(k, end - info.t_wake, end)
         if k % self.stats_every == 0:
             if self._stats_between_frames:
                 self._stats_due_k = k  # computed in the sleep after this frame (idle_tick)
@@ -759,6 +767,19 @@ class IoService:
             v["host_stall_s"][...] = self._stall_s
             v["host_stall_t_s"][...] = now
             self.post(Severity.WARNING, 170, f"host stall: service did not run for {self._stall_s * 1e3:.0f} ms")
+
+    def _long_frame(self, k: int, took_s: float, now: float) -> None:
+        """A frame whose own run took longer than HOST_STALL_S (its work, or the host taking
+        the CPU inside it: the service cannot tell which) is not a host stall, but its length
+        is measured and posted: at most one notice per LONG_FRAME_NOTICE_S, counting the others."""
+        self._long_frames += 1
+        self._long_frame_max_s = max(self._long_frame_max_s, took_s)
+        if now - self._long_frame_said < LONG_FRAME_NOTICE_S:
+            return
+        n, longest = self._long_frames, self._long_frame_max_s
+        self._long_frame_said, self._long_frames, self._long_frame_max_s = now, 0, 0.0
+        more = f" ({n} such frames, longest {longest * 1e3:.0f} ms)" if n > 1 else ""
+        self.post(Severity.WARNING, 172, f"long frame: frame {k} ran {took_s * 1e3:.0f} ms{more}")
 
     def _check_limits(self, eng: list[float]) -> str | None:
         """The first command value that is not finite or beyond its limit (x (1 + margin)),
@@ -1027,8 +1048,8 @@ class IoService:
         rec["stall_events"] = s["stalls"]
         rec["window_frames"] = min(self.loop_stats.n, self.loop_stats.window)
         rec["period_s"] = self.schedule.period_s
-        p = s["period_s"]["p50"]
-        rec["rate_hz"] = 1.0 / p if p and p > 0 and not math.isnan(p) else 0.0
+        r = s["rate_hz"]  # frames run over the time they took: a dropped frame lowers it
+        rec["rate_hz"] = 0.0 if math.isnan(r) else r
         for n in ("p50", "p99", "p999", "max"):
             rec[f"wake_latency_{n}_us"] = s["wake_latency_s"][n] * 1e6
         for n in ("p50", "p99", "max"):

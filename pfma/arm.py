@@ -21,6 +21,10 @@ from dataclasses import dataclass
 
 SOURCE = "pfma-model.md 8.2-8.4 (nominal model, assumed)"
 DEG = math.pi / 180.0
+#: the amplifier's rate-loop bandwidth lambda (1/s) of pfma-model.md 8.4 (assumed there):
+#: K_a = lambda J / (N eta K_t K_w), so the motor current per rad/s of rate error is
+#: lambda J / (N eta K_t) (controller.params and controller.supervision use this one value)
+RATE_LOOP_LAMBDA = 40.0
 
 
 @dataclass(frozen=True)
@@ -55,6 +59,24 @@ class JointFacts:
     def k_w_v_per_rad_s(self) -> float:
         """Rate scale of command and tach: 10 V / omega_fs (8.4)."""
         return 10.0 / self.omega_fs_rad_s
+
+    @property
+    def amp_gain_a_per_rad_s(self) -> float:
+        """The amplifier's motor current per rad/s of rate error, K_a K_w = lambda J / (N eta K_t)
+        (pfma-model.md 8.4)."""
+        return RATE_LOOP_LAMBDA * self.inertia_kg_m2 / self.torque_per_amp
+
+    @property
+    def breakaway_rate_rad_s(self) -> float:
+        """The smallest rate command that moves the joint from rest: below it the amplifier's
+        torque at zero speed, N eta K_t K_a K_w u = lambda J u, does not beat the Coulomb
+        friction (pfma-model.md 8.3-8.4; nominal values, gravity not counted)."""
+        return self.coulomb_nm / (RATE_LOOP_LAMBDA * self.inertia_kg_m2)
+
+    @property
+    def breakaway_current_a(self) -> float:
+        """The smallest current limit whose torque beats the Coulomb friction: coulomb / (N eta K_t)."""
+        return self.coulomb_nm / self.torque_per_amp
 
     @property
     def centre_rad(self) -> float:

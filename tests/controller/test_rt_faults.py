@@ -141,3 +141,20 @@ def test_a_service_that_stops_publishing_is_a_fault(powered):
     assert rt.daq.fault_bits & FAULT_STALE
     assert rt.status("servo") == S.ERROR or rt.status("daq") == S.ERROR
     assert any("not publishing" in m.text or "unchanged" in m.text for m in rt.messages.recent())
+
+
+def test_an_ft_gap_is_blamed_only_on_a_measured_stall_that_explains_it(sim):
+    """Issue 29 item 8: after a 1,045 ms gap the F/T warning blamed "a host stall of 17 ms"
+    (the latest stall the service had published, not one that explains the gap). Each
+    stall the service publishes is kept; the note names the longest one inside the gap and
+    says when it does not explain it."""
+    daq = sim.rt.daq
+    t = float(sim.rig.reader.read_inputs().t_s)
+    daq._note_stalls({"host_stall_t_s": t + 0.0, "host_stall_s": 1.045})  # ended at t
+    daq._note_stalls({"host_stall_t_s": t + 0.3, "host_stall_s": 0.017})  # a later short one
+    # seen at t + 0.35 with a gap of 1.4 s: both stalls ended inside it; the long one explains it
+    assert daq._stall_note(t + 0.35, 1.4) == " after a host stall of 1045 ms"
+    # a gap of 0.2 s that began after the long stall holds only the 17 ms one: not the cause
+    assert daq._stall_note(t + 0.35, 0.2) == "; a host stall of 17 ms in that time does not explain it"
+    # a gap with no stall inside it: nothing blamed
+    assert daq._stall_note(t + 2.0, 0.5) == ""

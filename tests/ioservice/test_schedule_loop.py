@@ -83,3 +83,30 @@ def test_late_frame_is_dropped_not_burst():
     assert all(b > a for a, b in zip(times, times[1:]))
     # no two frames ran at the same instant (no catch-up burst)
     assert len(set(round(t, 9) for t in times)) == len(times)
+
+
+def test_the_rate_counts_frames_actually_run_so_dropped_frames_lower_it():
+    """Issue 29 item 8: `pfma stats` showed 319.96 Hz while ~65 % of frames were dropped
+    (a median period hides them). The rate is frames run over the time they span."""
+    clock = SimClock(0.0)
+    P = 1 / 320
+    wakes = []
+
+    def body(info):
+        wakes.append(info.t_wake)
+        if info.index % 3 == 0:
+            clock.advance(2.2 * P)  # every third frame overruns: the next one is dropped
+
+    stats = FrameLoop(clock, P, body).run(frames=300, freeze_gc=False)
+    s = stats.summary()
+    assert stats.dropped == 100  # one of every three frames
+    run = len(wakes)
+    assert s["rate_hz"] == pytest.approx((run - 1) / (wakes[-1] - wakes[0]))
+    assert s["rate_hz"] == pytest.approx(2 / 3 * 320, rel=0.01)  # 200 frames run in 300 periods
+    assert s["rate_window_s"] == pytest.approx(wakes[-1] - wakes[0])
+
+
+def test_the_rate_is_the_frame_rate_when_nothing_is_dropped():
+    clock = SimClock(0.0)
+    stats = FrameLoop(clock, 1 / 320, lambda info: clock.advance(1e-4)).run(frames=100, freeze_gc=False)
+    assert stats.summary()["rate_hz"] == pytest.approx(320.0)

@@ -356,7 +356,10 @@ def run(args) -> int:
         print(f"pfma serve: {slower}", flush=True)
     schedule = svc.schedule
     from bit3.ring import FrameRing
-    svc.ring = FrameRing.create(args.buffer, layout.area("inputs").body_size, layout.hash)
+    try:
+        svc.ring = FrameRing.create(args.buffer, layout.area("inputs").body_size, layout.hash)
+    except Bit3Error as err:  # no room in /dev/shm (bit3/space.py): nothing left behind
+        return _refuse(svc, buf, bus, "no room for the frame ring", str(err))
     if world is not None:
         # the arm model steps once per frame, 0.4-0.8 ms before it (TickingClock
         # pre-deadline hooks; 1 ms integration substeps inside), so the frame reads the arm
