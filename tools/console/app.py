@@ -582,7 +582,7 @@ class ConsoleApp(App):
     Area:focus { border: round $secondary; }
     Area > Static { text-wrap: nowrap; text-overflow: ellipsis; }
     #messages-area { column-span: 2; }
-    Screen.-narrow Grid { grid-size: 1 5; grid-columns: 1fr; grid-rows: 4fr 3fr 5fr 2fr 4fr; }
+    Screen.-narrow Grid { grid-size: 1 5; grid-columns: 1fr; grid-rows: 6fr 3fr 7fr 2fr 5fr; }
     Screen.-narrow Area { border: none; border-top: round $accent; padding: 0 1; }
     Screen.-narrow Area:focus { border-top: round $secondary; }
     Screen.-narrow #messages-area { column-span: 1; }
@@ -808,6 +808,10 @@ class ConsoleApp(App):
     def action_layer(self, d: int) -> None:
         self.selected = (self.selected + d) % len(view.LAYERS)
         self.refresh_areas()
+        # the selected layer's row in view (Local Status scrolls on a short terminal; row 0 is the header)
+        area = self.query_one("#local-area", Area)
+        self.call_after_refresh(area.scroll_to_region, Region(0, self.selected + 1, 1, 1), animate=False,
+                                immediate=True)
 
     def _send(self, kind: int, arg: int = 0) -> None:
         if self.link is None:

@@ -196,9 +196,7 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
              f"{float(st.rate_hz):6.1f} Hz  fault code {int(s.fault_code)}",
              f"outputs {outputs_word}  brakes "
              f"{'released' if int(s.brakes_released) else 'set'}  watchdog "
-             f"{'TRIPPED' if int(s.watchdog_tripped) else 'ok'} (command age {float(s.command_age_s) * 1e3:.1f} ms)",
-             "device rates: " + "  ".join(f"{g} {float(st.device_rate_hz[lay.slot('device', g)]):.0f}"
-                                          for g in DEVICE_GROUPS) + " Hz"]
+             f"{'TRIPPED' if int(s.watchdog_tripped) else 'ok'} (command age {float(s.command_age_s) * 1e3:.1f} ms)"]
     ctl = (f"controller ({r.controller_owner or '?'}): "
            + ("NOT RUNNING" if not r.controller_alive else
               ("HALTED" + (f", {int(r.wm.get('runtime.steps_left', 0))} step(s) to run" if
@@ -216,6 +214,8 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
                    for i, n in enumerate(HAND_CONTROLLERS))
     lines.append(f"hand controllers: {hc}")
     lines.append(camera_routes_line(r))
+    lines.append("device rates: " + "  ".join(f"{g} {float(st.device_rate_hz[lay.slot('device', g)]):.0f}"
+                                              for g in DEVICE_GROUPS) + " Hz")
     return "\n".join(lines)
 
 
@@ -310,7 +310,7 @@ def camera_screen(r: Reading | None, monitor: int, last: str) -> str:
 def messages_area(msgs, n: int = MAIN_MESSAGES) -> str:
     """The ``n`` newest messages of every source in time order, the newest at the bottom
     (the area keeps its end in view; ``m`` shows them all, newest first)."""
-    ordered = sorted(msgs, key=lambda m: m.t_s)[-n:]
+    ordered = sorted(list(msgs)[-4 * n:], key=lambda m: m.t_s)[-n:]  # the newest received: not all kept
     return "\n".join(_msg_line(m) for m in ordered) if ordered else "(no messages yet)"
 
 

@@ -213,3 +213,39 @@ def test_halted_world_status_shows_measured_motion_and_held_outputs(sim, console
 def test_angles_are_shown_in_minus_pi_to_pi(a):
     w = view.wrap_angle(a)
     assert -np.pi < w <= np.pi and np.isclose(np.cos(w), np.cos(a)) and np.isclose(np.sin(w), np.sin(a))
+
+
+def test_at_80x24_the_selected_layer_stays_in_view(sim, console):
+    async def body(pilot):
+        await pilot.press("u")
+        frames(sim, console, 300)
+        for _ in range(6):  # down the tree to Data Acquisition, the last row of Local Status
+            await pilot.press("right")
+            await pilot.pause()
+        assert "> Data Acquisition" in screen_text(console)
+        await pilot.press("right")  # round to System Up/Down, the first
+        await pilot.pause()
+        assert "> System Up/Down" in screen_text(console)
+    run_at(console, (80, 24), body)
+
+
+@pytest.mark.parametrize("size", SIZES, ids=[f"{w}x{h}" for w, h in SIZES])
+def test_the_outputs_banner_heads_every_size_and_the_areas_stay(sim, console, size):
+    """issue 28 item 5's banner (the DAC not answering) docked above the areas at each size,
+    whole (it wraps to the width), and every area still titled on the terminal."""
+    from sim.faults import FaultSet
+    faults = FaultSet(sim.world)
+
+    async def body(pilot):
+        frames(sim, console, 2)
+        faults.inject("bus-error:dac")
+        frames(sim, console, 2)
+        await pilot.pause()
+        text = screen_text(console)
+        rows = text.splitlines()
+        assert "OUTPUTS NOT KNOWN SAFE" in rows[1] or "OUTPUTS NOT KNOWN SAFE" in rows[0]
+        flat = " ".join(r.strip(" ┃━┏┓┗┛") for r in rows)
+        assert "PRESS THE HARDWARE E-STOP" in flat and "without one only the E-stop stops the arm." in flat
+        for title in view.AREAS:
+            assert title in text, (title, size)
+    run_at(console, size, body)
