@@ -22,7 +22,7 @@ from rich.cells import cell_len
 from rich.segment import Segment
 from textual.app import App, ComposeResult
 from textual.binding import Binding
-from textual.containers import Grid, Horizontal, Vertical
+from textual.containers import Grid, Horizontal, Vertical, VerticalScroll
 from textual.geometry import Region
 from textual.screen import ModalScreen
 from textual.strip import Strip
@@ -97,17 +97,76 @@ class DebugDisplay(ModalScreen):
             app.call_later(app.refresh_areas)
 
 
+class Area(VerticalScroll, inherit_bindings=False):
+    """One area of the primary display: its text in a scrollable box. Tab focuses the next
+    area; pgup/pgdn/home/end scroll the focused one (the arrows stay the layer keys)."""
+
+    BINDINGS = [Binding("pageup", "page_up", "scroll", show=False), Binding("pagedown", "page_down", "scroll"),
+                Binding("home", "scroll_home", "top", show=False), Binding("end", "scroll_end", "end", show=False)]
+
+
 class MessagesScreen(ModalScreen):
-    """The last 100 messages of every source, time-ordered (``m`` or Escape closes)."""
+    """Every message the console keeps (:data:`view.MESSAGES_KEPT`), newest first, live:
+    ``s`` cycles the source shown, ``l`` the lowest level shown; pgdn/pgup/home/end
+    scroll (pgdn: older); ``m`` or Escape closes."""
 
-    BINDINGS = [Binding("escape,m,q", "app.pop_screen", "close")]
+    BINDINGS = [Binding("escape,m,q", "app.pop_screen", "close"),
+                Binding("s", "source", "source"), Binding("l", "level", "level"),
+                Binding("pagedown", "scroll('page_down')", "older"), Binding("pageup", "scroll('page_up')", "newer"),
+                Binding("down", "scroll('scroll_down')", "older", show=False),
+                Binding("up", "scroll('scroll_up')", "newer", show=False),
+                Binding("home", "scroll('scroll_home')", "newest", show=False),
+                Binding("end", "scroll('scroll_end')", "oldest", show=False)]
+    CSS = """
+    MessagesScreen { background: $surface; }
+    MessagesScreen #messages-head { height: 1; padding: 0 1; text-style: bold; }
+    MessagesScreen VerticalScroll { height: 1fr; }
+    MessagesScreen #all-messages { padding: 0 1; text-wrap: nowrap; text-overflow: ellipsis; }
+    """
 
-    def __init__(self, text: str) -> None:
+    def __init__(self, msgs) -> None:
         super().__init__()
-        self.text = text
+        self.msgs = msgs
+        self.source: str | None = None  #: the source shown (None: all)
+        self.level: str | None = None  #: the lowest level shown (None: all)
+        self._text = ""
 
     def compose(self) -> ComposeResult:
-        yield Static(self.text, id="all-messages", markup=False)
+        yield Static("", id="messages-head", markup=False)
+        with VerticalScroll(id="messages-scroll", can_focus=False):  # the keys are the screen's (footer)
+            yield Static("", id="all-messages", markup=False)
+        yield Footer()
+
+    def on_mount(self) -> None:
+        self.redraw()
+
+    def redraw(self) -> None:
+        """Redraw when the text changed (the app's refresh calls it while open)."""
+        head, _, body = view.messages_screen(self.msgs, self.source, self.level).partition("\n")
+        if head + body == self._text:
+            return
+        self._text = head + body
+        self.query_one("#messages-head", Static).update(head)
+        self.query_one("#all-messages", Static).update(body)
+
+    def text(self) -> str:
+        return str(self.query_one("#messages-head", Static).render()) + "\n" + str(
+            self.query_one("#all-messages", Static).render())
+
+    def action_source(self) -> None:
+        sources = [None, *view.message_sources(self.msgs)]
+        self.source = sources[(sources.index(self.source) + 1) % len(sources) if self.source in sources else 0]
+        self.redraw()
+        self.query_one(VerticalScroll).scroll_home(animate=False)
+
+    def action_level(self) -> None:
+        levels: list[str | None] = [None, *view.LEVELS[1:]]
+        self.level = levels[(levels.index(self.level) + 1) % len(levels)]
+        self.redraw()
+        self.query_one(VerticalScroll).scroll_home(animate=False)
+
+    def action_scroll(self, how: str) -> None:
+        getattr(self.query_one(VerticalScroll), f"action_{how}")()
 
 
 class BrowserScreen(DebugDisplay):
@@ -512,11 +571,21 @@ class ConsoleApp(App):
         hook for a caller that wants it)
     """
 
+    # Sizes (docs/console.md): from 120 columns two columns (Local Status and World Status
+    # left, the commands right, Messages under both); below, one column, each area with a
+    # title line and no side borders. Every area scrolls (tab, pgup/pgdn); no line wraps
+    # (a line longer than its area ends in an ellipsis).
+    HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-wide")]
     CSS = """
-    Grid { grid-size: 2 3; grid-columns: 1fr 1fr; grid-rows: 1fr 1fr auto; }
-    .area { border: round $accent; padding: 0 1; height: 100%; }
-    #world { row-span: 1; }
-    #messages { column-span: 2; }
+    Grid { grid-size: 2 3; grid-columns: 2fr 1fr; grid-rows: 5fr 5fr 3fr; }
+    Area { border: round $accent; padding: 0 1; height: 100%; scrollbar-size-vertical: 1; }
+    Area:focus { border: round $secondary; }
+    Area > Static { text-wrap: nowrap; text-overflow: ellipsis; }
+    #messages-area { column-span: 2; }
+    Screen.-narrow Grid { grid-size: 1 5; grid-columns: 1fr; grid-rows: 6fr 3fr 7fr 2fr 5fr; }
+    Screen.-narrow Area { border: none; border-top: round $accent; padding: 0 1; }
+    Screen.-narrow Area:focus { border-top: round $secondary; }
+    Screen.-narrow #messages-area { column-span: 1; }
     #banner { dock: top; height: auto; padding: 0 1; background: red; color: white; text-style: bold;
               border: heavy yellow; display: none; }
     """
@@ -568,11 +637,12 @@ class ConsoleApp(App):
     def compose(self) -> ComposeResult:
         # issue 28 item 5: shown only while the service reports its outputs NOT known safe
         yield Static("", id="banner", markup=False)
+        titles = dict(zip(("local", "world", "messages", "commands", "global"), view.AREAS))
         with Grid():
-            for key, title in zip(("local", "world", "messages", "commands", "global"), view.AREAS):
-                w = Static("", id=key, classes="area", markup=False)
-                w.border_title = title
-                yield w
+            for key in ("local", "global", "world", "commands", "messages"):  # the grid's order (CSS)
+                with Area(id=f"{key}-area", classes="area") as area:
+                    area.border_title = titles[key]
+                    yield Static("", id=key, markup=False)
         yield Footer()
 
     def on_mount(self) -> None:
@@ -618,10 +688,10 @@ class ConsoleApp(App):
         self._set("local", view.local_status(r, self.selected))
         speed = self.sources.speed() if self.sources.speed is not None else None
         self._set("world", view.world_status(r, self.sources.rack, speed))
-        self._set("messages", view.messages_area(self.sources.messages))
+        self._set("messages", view.messages_area(self.sources.messages), follow=True)
         self._set("commands", view.local_commands(r, self.selected, self.sources.wm))
         self._set("global", view.global_commands(r, self.rearm, self.last_answer))
-        if isinstance(self.screen, CameraScreen) and self.screen.is_mounted:  # the camera routes are live too
+        if isinstance(self.screen, (CameraScreen, MessagesScreen)) and self.screen.is_mounted:  # live too
             self.screen.redraw()
 
     def _show_banner(self, text: str) -> None:
@@ -640,13 +710,20 @@ class ConsoleApp(App):
         banner = self.query_one("#banner", Static)
         return str(banner.render()) if banner.display else ""
 
-    def _set(self, key: str, text: str) -> None:
-        """Redraw an area only when its text changed, without a layout pass (the grid fixes
-        every area's size; its text never does)."""
-        if self._shown.get(key) == text:
+    def _set(self, key: str, text: str, follow: bool = False) -> None:
+        """Redraw an area only when its text changed; a layout pass only when its number of
+        lines changed (the grid fixes the area's size, its scroll range follows the text).
+        ``follow``: an area that showed its end keeps showing it (Messages: the newest)."""
+        old = self._shown.get(key)
+        if old == text:
             return
         self._shown[key] = text
-        self.query_one(f"#{key}", Static).update(text, layout=False)
+        lines = old is None or old.count("\n") != text.count("\n")
+        self.query_one(f"#{key}", Static).update(text, layout=lines)
+        if follow:
+            area = self.query_one(f"#{key}-area", Area)
+            if area.scroll_y >= area.max_scroll_y:
+                self.call_after_refresh(area.scroll_end, animate=False, immediate=True)
 
     def area_text(self, key: str) -> str:
         """The text an area shows now (``local``, ``world``, ``messages``, ``commands``, ``global``)."""
@@ -731,6 +808,10 @@ class ConsoleApp(App):
     def action_layer(self, d: int) -> None:
         self.selected = (self.selected + d) % len(view.LAYERS)
         self.refresh_areas()
+        # the selected layer's row in view (Local Status scrolls on a short terminal; row 0 is the header)
+        area = self.query_one("#local-area", Area)
+        self.call_after_refresh(area.scroll_to_region, Region(0, self.selected + 1, 1, 1), animate=False,
+                                immediate=True)
 
     def _send(self, kind: int, arg: int = 0) -> None:
         if self.link is None:
@@ -803,4 +884,4 @@ class ConsoleApp(App):
         self.push_screen(ForceScreen(self.ft))
 
     def action_messages(self) -> None:
-        self.push_screen(MessagesScreen(view.messages_screen(self.sources.messages)))
+        self.push_screen(MessagesScreen(self.sources.messages))

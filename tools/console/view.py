@@ -10,6 +10,7 @@ terminal.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -21,7 +22,6 @@ from controller.cartesian import CartesianLayer
 from controller.daq_layer import FAULT_NAMES, DataAcquisitionLayer
 from controller.decision import Command, Status, status_text
 from controller.layers import JointPlannerLayer, UpDownLayer
-from controller.params import JOINT_NAMES
 from controller.paths import MultiSegmentLayer
 from controller.servo import ServoLayer
 from controller.trajectory import TrajectoryLayer
@@ -34,10 +34,12 @@ LAYERS: tuple[tuple[str, str], ...] = tuple((c.key, c.title) for c in (
     DataAcquisitionLayer))
 #: the five areas of the primary display, titled as the IRSS report names them (2.2.8)
 AREAS = ("Local Status", "World Status", "Messages", "Local Commands", "Global Commands")
-#: messages kept by the console (the Messages screen shows them all, time-ordered)
-MESSAGES_KEPT = 100
-#: messages per source in the Messages area
-RECENT_PER_SOURCE = 3
+#: messages kept by the console (the Messages screen shows them all, newest first, filtered)
+MESSAGES_KEPT = 1000
+#: messages in the main screen's Messages area: the newest, in time order (newest at the bottom)
+MAIN_MESSAGES = 50
+#: the levels the Messages screen filters by (``l`` cycles): at least this severe
+LEVELS = ("INFO", "WARNING", "ERROR", "FATAL")
 #: the Global Commands, their keys and what each sends (None: not yet built)
 GLOBAL_COMMANDS: tuple[tuple[str, str, str | None], ...] = (
     ("u", "power up", "POWER UP"),
@@ -48,7 +50,7 @@ GLOBAL_COMMANDS: tuple[tuple[str, str, str | None], ...] = (
     ("a", "re-arm (for the next resume)", None),
     ("r", "resume (needs a first)", "RESUME"),
     ("c", "record start/stop", None),
-    ("v", "camera routes (1 2 3: camera, 0: blank, per monitor)", "CAMERA ROUTE"),
+    ("v", "camera routes (its screen)", "CAMERA ROUTE"),
 )
 NOT_YET: dict[str, str] = {}  #: keys whose command is not built yet: their text
 _TASK_KIND = {1: "init", 2: "startup", 3: "shutdown", 4: "safe", 5: "reset"}
@@ -159,27 +161,24 @@ def rack_kind(client) -> str:
 
 def rack_line(rack: str) -> str:
     return {"simulated": "SIMULATED RACK: the boards, the arm and the sensors are fakes",
-            "real": "rack: real (the service's register bus is hardware, not the simulated rack)"
-            }.get(rack, "rack: unknown (the buffer does not say whether its boards are simulated)")
+            "real": "rack: real (the service's register bus is hardware, not simulated)"
+            }.get(rack, "rack: unknown (the buffer does not say if its boards are simulated)")
 
 
 def local_status(r: Reading, selected: int) -> str:
-    """One line per layer (state, command, subordinate's state, row, task, error), the
-    selected one marked and detailed."""
-    lines = []
+    """One line per layer (state, command; a layer's subordinate is the row under it), the
+    selected one marked and detailed. Lines fit 76 columns (docs/console.md "Sizes")."""
+    lines = [f"  {'LAYER':<26} {'STATE':<31} COMMAND"]
     w = r.wm
     for i, (k, title) in enumerate(LAYERS):
         st = int(w.get(f"{k}.status", -1))
         cmd = int(w.get(f"{k}.command", 0))
-        sub = f"{LAYERS[i + 1][0]}.status" if i + 1 < len(LAYERS) else None
-        sub_st = status_text(int(w[sub])) if sub and sub in w else "-"
         mark = ">" if i == selected else " "
-        lines.append(f"{mark} {title:<27} {status_text(st):<22} cmd {_enum(Command, cmd):<13} sub {sub_st}")
+        lines.append(f"{mark} {title:<26} {status_text(st):<31} {_enum(Command, cmd)}")
     k, title = LAYERS[selected]
     task = int(w.get(f"{k}.task", 0))
     err = int(w.get(f"{k}.error", 0))
-    lines.append("")
-    lines.append(f"{title}: row {int(w.get(f'{k}.row', 0))}, sequence task "
+    lines.append(f"{title}: row {int(w.get(f'{k}.row', 0))}, task "
                  f"{_TASK_KIND.get(task // 10, '-')} {_TASK_STATE.get(task % 10, '?')}, "
                  f"last error {err if err else 'none'}")
     if k == "daq":
@@ -194,14 +193,12 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
     lay = s.layout
     halted = bool(r.wm.get("runtime.halted", False))
     outputs_word = "NOT KNOWN SAFE" if outputs_unknown(r) else "LIVE" if int(s.outputs_enabled) else "safe (0 V)"
-    lines = [rack_line(rack) + ("" if speed is None else f"  (simulated time x{speed:.2f} of real time)"),
+    lines = [rack_line(rack) + ("" if speed is None else f"; time x{speed:.2f}"),
              f"service {r.service_state:<8} frame {r.frame:<9} t {r.t_s:9.3f} s  "
              f"{float(st.rate_hz):6.1f} Hz  fault code {int(s.fault_code)}",
              f"outputs {outputs_word}  brakes "
              f"{'released' if int(s.brakes_released) else 'set'}  watchdog "
-             f"{'TRIPPED' if int(s.watchdog_tripped) else 'ok'} (command age {float(s.command_age_s) * 1e3:.1f} ms)",
-             "device rates: " + "  ".join(f"{g} {float(st.device_rate_hz[lay.slot('device', g)]):.0f}"
-                                          for g in DEVICE_GROUPS) + " Hz"]
+             f"{'TRIPPED' if int(s.watchdog_tripped) else 'ok'} (command age {float(s.command_age_s) * 1e3:.1f} ms)"]
     ctl = (f"controller ({r.controller_owner or '?'}): "
            + ("NOT RUNNING" if not r.controller_alive else
               ("HALTED" + (f", {int(r.wm.get('runtime.steps_left', 0))} step(s) to run" if
@@ -210,12 +207,9 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
            + f"  missed {int(r.wm.get('runtime.missed_frames', 0))}")
     lines.append(ctl)
     lines += first_cause_lines(r)
-    q = r.wm.get("daq.joint_angle_rad")
-    qd = r.wm.get("daq.joint_rate_rad_s")
-    if q is not None and qd is not None:
-        lines.append("joint  " + " ".join(f"{n[:11]:>11}" for n in JOINT_NAMES))
-        lines.append("rad    " + " ".join(f"{float(v):>+11.4f}" for v in q))
-        lines.append("rad/s  " + " ".join(f"{float(v):>+11.4f}" for v in qd))
+    if halted:
+        lines.append("HALTED: the motion below is measured, the outputs as the service holds them")
+    lines += joint_lines(s)
     f, t = s.ft_force_n, s.ft_torque_nm
     lines.append(f"F/T  F ({float(f[0]):+7.2f}, {float(f[1]):+7.2f}, {float(f[2]):+7.2f}) N  "
                  f"T ({float(t[0]):+6.3f}, {float(t[1]):+6.3f}, {float(t[2]):+6.3f}) N*m")
@@ -223,6 +217,8 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
                    for i, n in enumerate(HAND_CONTROLLERS))
     lines.append(f"hand controllers: {hc}")
     lines.append(camera_routes_line(r))
+    lines.append("device rates: " + "  ".join(f"{g} {float(st.device_rate_hz[lay.slot('device', g)]):.0f}"
+                                              for g in DEVICE_GROUPS) + " Hz")
     return "\n".join(lines)
 
 
@@ -240,6 +236,47 @@ def first_cause_lines(r: Reading) -> list[str]:
         if text:
             out.append(f"controller first cause: {text}")
     return out
+
+
+def wrap_angle(a: float) -> float:
+    """An angle in (-pi, pi] (the console's one way to show an angle, in rad)."""
+    return math.pi - (math.pi - a) % math.tau
+
+
+def _short(joint: str) -> str:
+    """A joint's name in 10 columns: ``shoulder_pitch`` -> ``sh pitch``."""
+    first, _, rest = joint.partition("_")
+    return (f"{_SHORT.get(first, first)} {rest}" if rest else first)[:10]
+
+
+_SHORT = {"shoulder": "sh", "elbow": "elb", "wrist": "wr"}
+_JOINT_SLOTS: dict[int, tuple[tuple[str, ...], list[int], list[int], list[int]]] = {}
+
+
+def joint_lines(s) -> list[str]:
+    """The joints as the service measured them at its latest frame (Bit3 inputs, not the
+    world model: while the controller is halted its ``daq.*`` copy is frozen at its last
+    frame, so a rate read there would be old motion shown as now): the resolver angle in
+    (-pi, pi], the tach rate, and the rate command the DAC holds (V). Fits 74 columns."""
+    lay = s.layout
+    slots = _JOINT_SLOTS.get(id(lay))
+    if slots is None:
+        try:
+            names = tuple(lay.joint_names)
+            slots = (names, [lay.joint_entry("rtd", j, "angle").slot for j in names],
+                     [lay.joint_entry("adc", j, "rate").slot for j in names],
+                     [lay.joint_entry("dac", j, "rate_command").slot for j in names])
+        except (KeyError, LookupError, ValueError, AttributeError):
+            slots = ((), [], [], [])
+        _JOINT_SLOTS[id(lay)] = slots
+    names, rtd, tach, dac = slots
+    if not names:
+        return ["joints: this layout names no joint channels"]
+    ang, rate, volts = s.rtd_angle_rad, s.adc_value, s.dac_volts
+    return ["joint      " + " ".join(f"{_short(n):>10}" for n in names),
+            "rad        " + " ".join(f"{wrap_angle(float(ang[k])):>+10.4f}" for k in rtd),
+            "rad/s tach " + " ".join(f"{float(rate[k]):>+10.4f}" for k in tach),
+            "V out      " + " ".join(f"{float(volts[k]):>+10.3f}" for k in dac)]
 
 
 def outputs_unknown(r: Reading) -> bool:
@@ -289,22 +326,33 @@ def camera_screen(r: Reading | None, monitor: int, last: str) -> str:
     return "\n".join(lines)
 
 
-def messages_area(msgs, per_source: int = RECENT_PER_SOURCE) -> str:
-    """The ``per_source`` newest messages of every source, grouped by source."""
-    by: dict[str, list[ConsoleMessage]] = {}
-    for m in msgs:
-        by.setdefault(m.source, []).append(m)
-    lines = []
-    for src in sorted(by, key=lambda s: (s != "console", s != "service", s)):
-        for m in by[src][-per_source:]:
-            lines.append(_msg_line(m))
-    return "\n".join(lines) if lines else "(no messages yet)"
-
-
-def messages_screen(msgs) -> str:
-    """The last 100, time-ordered."""
-    ordered = sorted(msgs, key=lambda m: m.t_s)
+def messages_area(msgs, n: int = MAIN_MESSAGES) -> str:
+    """The ``n`` newest messages of every source in time order, the newest at the bottom
+    (the area keeps its end in view; ``m`` shows them all, newest first)."""
+    ordered = sorted(list(msgs)[-4 * n:], key=lambda m: m.t_s)[-n:]  # the newest received: not all kept
     return "\n".join(_msg_line(m) for m in ordered) if ordered else "(no messages yet)"
+
+
+def message_sources(msgs) -> list[str]:
+    """The sources the messages come from, the console's and the service's first."""
+    return sorted({m.source for m in msgs}, key=lambda s: (s != "console", s != "service", s))
+
+
+def filter_messages(msgs, source: str | None = None, level: str | None = None) -> list[ConsoleMessage]:
+    """The messages of ``source`` (None: all) at least as severe as ``level`` (None: all),
+    newest first (equal times: the later received first)."""
+    floor = LEVELS.index(level) if level in LEVELS else -1
+    keep = [m for m in msgs if (source is None or m.source == source)
+            and (floor < 0 or (m.level in LEVELS and LEVELS.index(m.level) >= floor))]
+    return [m for _, m in sorted(enumerate(keep), key=lambda km: (km[1].t_s, km[0]), reverse=True)]
+
+
+def messages_screen(msgs, source: str | None = None, level: str | None = None) -> str:
+    """The messages the console keeps, newest first, of one source and from one level up."""
+    shown = filter_messages(msgs, source, level)
+    head = (f"{len(shown)} of {len(msgs)} messages, newest first   source: {source or 'all'} (s)   "
+            f"level: {level + ' and above' if level else 'all'} (l)")
+    return "\n".join([head] + [_msg_line(m) for m in shown] if shown else [head, "(no messages)"])
 
 
 def _msg_line(m: ConsoleMessage) -> str:
@@ -312,34 +360,45 @@ def _msg_line(m: ConsoleMessage) -> str:
 
 
 def local_commands(r: Reading, selected: int, wm) -> str:
-    """The selected layer's command and the variables a user may set in it (read-only here)."""
+    """The selected layer's command and the variables a user may set in it (read-only here;
+    ``w`` and ``p`` modify). Lines fit 36 columns (docs/console.md "Sizes")."""
     k, title = LAYERS[selected]
-    lines = [f"{title}: command {_enum(Command, int(r.wm.get(f'{k}.command', 0)))} "
-             f"(sent by {'the user requests' if k == 'updown' else LAYERS[selected - 1][1]})"]
+    lines = [f"{title}: command {_enum(Command, int(r.wm.get(f'{k}.command', 0)))}",
+             f"  sent by {'the user requests' if k == 'updown' else LAYERS[selected - 1][1]}"]
     settable = [s for s in wm.specs if s.name.startswith(f"{k}.") and s.user != "never"]
+    if settable:
+        lines.append("settable (*: powered down only)")
     for s in settable[:8]:
-        when = "any time" if s.user == "always" else "powered down only"
-        lines.append(f"  {s.name:<28} {s.type_text:<8} {when}")
+        lines.append(f"  {s.name}{'' if s.user == 'always' else ' *'}  {s.type_text}")
     if len(settable) > 8:
         lines.append(f"  ... {len(settable) - 8} more (pfma wm list)")
     if not settable:
         lines.append("  (no user-settable variables)")
-    lines.append("modify: w (world model: Enter on a variable), p (parameters, powered down only)")
+    lines.append("w  world model (Enter: modify)")
+    lines.append("p  parameters (powered down)")
     lines.append("up/down: layer tree")
     return "\n".join(lines)
 
 
 def global_commands(r: Reading, rearm: bool, last: str) -> str:
-    lines = []
+    """The last answer first (the newest), then the Global Commands, short ones paired
+    (lines fit 36 columns: docs/console.md "Sizes")."""
+    items = []
     for key, what, _ in GLOBAL_COMMANDS:
         extra = ""
         if key == "a":
             extra = "  [RE-ARM GIVEN]" if rearm else ""
         elif key in NOT_YET:
             extra = "  (not yet)"
-        lines.append(f"{key}  {what}{extra}")
-    lines.append("m  messages  w  world model (Enter: modify)  p  parameters  l  menus  f  force  q  quit")
-    lines.append(f"last answer: {last or '-'}")
+        items.append(f"{key}  {what}{extra}")
+    lines = [f"last answer: {last or '-'}"]
+    line = ""
+    for it in items:
+        if line and len(line) + 3 + len(it) > 36:
+            lines.append(line)
+            line = ""
+        line = f"{line}   {it}" if line else it
+    lines += [line, "m  messages   w  world model", "p  parameters  l  menus  f  force", "q  quit   tab, pgup/pgdn: scroll"]
     return "\n".join(lines)
 
 

@@ -51,6 +51,40 @@ def test_primary_display_powered_up(rig, snap_compare):
     assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 300, ("u",)))
 
 
+SIZES = [(80, 24), (120, 40), (200, 50)]  #: issue 29 item 4: the smallest usable, clean, wide
+
+
+@pytest.mark.parametrize("size", SIZES, ids=[f"{w}x{h}" for w, h in SIZES])
+def test_primary_display_at_size(rig, snap_compare, size):
+    """Powered up, then halted with one step: every area titled on the terminal, the newest
+    message in view, the joints measured (the halted line) at every size."""
+    sim, app = rig
+
+    async def run_before(pilot):
+        await _then(sim, app, 300, ("u", "h", "s"))(pilot)
+        await pilot.pause()
+        text = screen_text(app)
+        assert all(title in text for title in view.AREAS)
+        newest = max(app.sources.messages, key=lambda m: m.t_s)
+        assert newest.text[:30] in text
+        if size != (80, 24):  # at 80x24 World Status pages for the rest
+            assert "HALTED: the motion below is measured" in text and "rad/s tach" in text
+    assert snap_compare(app, terminal_size=size, run_before=run_before)
+
+
+def test_messages_screen_80x24(rig, snap_compare):
+    """The Messages screen at 80x24: newest first, its head says the filters."""
+    sim, app = rig
+
+    async def run_before(pilot):
+        await _then(sim, app, 300, ("u", "h", "m"))(pilot)
+        rows = screen_text(app).splitlines()
+        assert rows[0].strip().startswith(f"{len(app.sources.messages)} of {len(app.sources.messages)} messages, newest first")
+        newest = max(app.sources.messages, key=lambda m: m.t_s)
+        assert newest.text[:30] in rows[1]
+    assert snap_compare(app, terminal_size=(80, 24), run_before=run_before)
+
+
 def test_primary_display_halted(rig, snap_compare):
     sim, app = rig
     assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 300, ("u", "h", "s")))
