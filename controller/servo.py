@@ -267,9 +267,11 @@ class ServoLayer(Layer):
                     problems.append(f"{j.name} current limit {p['current_limit_a'][i]} A outside 0..{j.i_max_a}")
             if problems:
                 raise ValueError("; ".join(problems))
+            pure = not (np.any(p["tau_z_s"]) or np.any(p["tau_p_s"]))  # the reference: the same compensator
             self.sup = JointSupervisor(p["ferror_min_rad"], p["ferror_max_rad"], p["ferror_time_s"],
-                                       reference=LeadLag(p["kp_per_s"], p["tau_z_s"], p["tau_p_s"], self.period_s),
-                                       rate_limit_rad_s=p["rate_limit_rad_s"])
+                                       reference=None if pure else LeadLag(p["kp_per_s"], p["tau_z_s"],
+                                                                           p["tau_p_s"], self.period_s),
+                                       kp_per_s=p["kp_per_s"].tolist(), rate_limit_rad_s=p["rate_limit_rad_s"])
         except ValueError as err:
             self.set_fault(rt, ERR_PARAMS, f"control-law parameters: {err}")
             return TaskState.FAILED

@@ -56,6 +56,7 @@ docs/safety.md.
 from __future__ import annotations
 
 import math
+from array import array
 from dataclasses import dataclass
 
 import numpy as np
@@ -205,12 +206,13 @@ class JointSupervisor:
     :param ferror_time_s: how long the error must stay beyond the limit, per joint
     :param reference: the reference joints' compensator, an object with ``reset(e0)`` and
         ``step(error, limit) -> rates`` (a second instance of the servo's own, so that the
-        reference is driven the same way); None: the pure gain ``kp_per_s``
+        reference is driven the same way); None: the pure gain ``kp_per_s`` (one value, or
+        one per joint), computed in plain floats
     :param rate_limit_rad_s: the servo's rate limit per joint (the reference saturates there)
     """
 
     def __init__(self, ferror_min_rad=None, ferror_max_rad=None, ferror_time_s=None,
-                 joints: tuple[JointFacts, ...] = JOINTS, reference=None, kp_per_s: float = 8.0,
+                 joints: tuple[JointFacts, ...] = JOINTS, reference=None, kp_per_s=8.0,
                  rate_limit_rad_s=None) -> None:
         n = len(joints)
         self.joints = joints
@@ -228,12 +230,17 @@ class JointSupervisor:
         self._dead = [j.coulomb_nm / j.inertia_kg_m2 / RATE_LOOP_LAMBDA for j in joints]
         self._tau = [1.0 / (RATE_LOOP_LAMBDA + j.viscous_nm_s / j.inertia_kg_m2) + MODEL_DELAY_S for j in joints]
         self.reference = reference
-        self.kp = float(kp_per_s)
+        self.kp = [float(x) for x in (kp_per_s if isinstance(kp_per_s, (list, tuple, np.ndarray))
+                                      else [kp_per_s] * n)]
         self.rate_lim = [float(x) for x in (rate_limit_rad_s if rate_limit_rad_s is not None
                                             else [j.omega_lim_rad_s for j in joints])]
-        self._hist = np.zeros((n, HISTORY, 5))  # per joint, a ring of samples
+        #: the diagnosis's history: per joint, five columns (U ... I_LIM) of a ring of HISTORY
+        #: doubles (array.array: a sample stores numbers, it keeps no float object alive)
+        self._h = [[array("d", bytes(8 * HISTORY)) for _ in range(5)] for _ in range(n)]
         self._hi = 0  # the ring's next row
         self._filled = 0
+        self._dt = -1.0
+        self._rows: tuple = ()
         self.ferror_rad = [0.0] * n  #: the following error of the last sample (model - measured)
         self.reset()
 
@@ -252,13 +259,18 @@ class JointSupervisor:
         self._hi = self._filled = 0
         self.ferror_rad = [0.0] * n
 
-    def _reference_rates(self, q_cmd: list[float]) -> list[float]:
-        """The reference joints' rate commands for this period."""
-        e = [c - m for c, m in zip(q_cmd, self._q_model)]
-        if self.reference is not None:
-            return self.reference.step(e, self.rate_lim).tolist()
-        kp = self.kp
-        return [max(-lim, min(lim, kp * x)) for x, lim in zip(e, self.rate_lim)]
+    def _constants(self, dt: float) -> None:
+        """Per-joint figures of one sample period, computed when the period changes (the
+        servo's period is constant; a missed frame changes it for one sample)."""
+        self._dt = dt
+        self._alpha = 1.0 - math.exp(-dt / TACH_TAU_S)
+        self._pull = dt / (PULL_S + dt)
+        self._rows = tuple(
+            (k, jf, fs, max(JUMP_MIN_RAD, JUMP_SPEED_FACTOR * fs * dt), OVERSPEED_FACTOR * fs,
+             TACH_FULL_SCALE_FRACTION * fs, TACH_ABS_TOL * fs, self._gain[k], self._dead[k],
+             dt / (self._tau[k] + dt), self._kaw[k], self.fe_min[k], self.fe_max[k] - self.fe_min[k],
+             STALL_RATE_FRACTION * fs, STALL_MOTION_FRACTION * fs, NO_CURRENT_FRACTION * jf.i_max_a)
+            for k, (jf, fs) in enumerate(zip(self.joints, self.fs)))
 
     def update(self, dt: float, q: list[float], w_tach: list[float], i_meas: list[float], u: list[float],
                i_lim: list[float], closed: bool, q_cmd: list[float] | None = None) -> Trip | None:
@@ -267,14 +279,16 @@ class JointSupervisor:
         amplifiers acted on since), the current limits commanded, whether the position
         loop is closed (following error and stall are checked only then) and the position
         command the servo acts on this period (clipped to the soft limits; None: hold).
-        Returns the first trip, or None."""
+        Returns the first trip, or None. Plain floats throughout: it runs in the servo's
+        period, inside the controller's frame budget."""
         if self._q is None or dt <= 0 or dt > GAP_S:
             if self._q is None or dt > GAP_S:
                 self.reset()
                 self._q = q
             return None
-        alpha = 1.0 - math.exp(-dt / TACH_TAU_S)
-        pull = dt / (PULL_S + dt)
+        if dt != self._dt:
+            self._constants(dt)
+        alpha, pull = self._alpha, self._pull
         if closed and not self._closed:  # the loop closes: the reference starts where the joint is, at rest
             self._q_model = list(q)
             self._q_hold = list(q)
@@ -284,72 +298,95 @@ class JointSupervisor:
             if self.reference is not None:
                 self.reference.reset(0.0)
         self._closed = closed
-        u_ref = self._reference_rates(q_cmd if q_cmd is not None else self._q_hold) if closed else None
+        qc = q_cmd if q_cmd is not None else self._q_hold
+        # the reference's rate commands: the servo's own compensator when it is not a pure gain
+        # (a second instance), else the gain inline below (plain floats, no list per period)
+        u_ref = self.reference.step([c - m for c, m in zip(qc, self._q_model)], self.rate_lim).tolist() \
+            if closed and self.reference is not None else None
         trip = None
-        q_prev = self._q
-        row = self._hist[:, self._hi]
-        row[:, U] = u
-        row[:, W_TACH] = w_tach
-        row[:, I] = i_meas
-        row[:, I_LIM] = i_lim[:len(q)]
-        for k, jf in enumerate(self.joints):
-            fs = self.fs[k]
-            d = (q[k] - q_prev[k] + math.pi) % (2.0 * math.pi) - math.pi
-            w_res = self._w_res[k] = self._w_res[k] + alpha * (d / dt - self._w_res[k])
+        q_prev, w_res_l, hist, hi = self._q, self._w_res, self._h, self._hi
+        t_tach, t_fe, t_stall, w_m_l, q_m_l = self._t_tach, self._t_fe, self._t_stall, self._w_m, self._q_model
+        pi, two_pi = math.pi, 2.0 * math.pi
+        kp_l, rl_l = self.kp, self.rate_lim
+        for (k, jf, fs, jump, over, tach_top, tach_abs, gain, dead, a_m, kaw, fe_min, fe_span, stall_rate,
+             stall_motion, no_current) in self._rows:
+            qk = q[k]
+            d = (qk - q_prev[k] + pi) % two_pi - pi
+            w_res = w_res_l[k] = w_res_l[k] + alpha * (d / dt - w_res_l[k])
             wt, uk = w_tach[k], u[k]
-            row[k, W_RES] = w_res
+            h = hist[k]
+            h[0][hi], h[1][hi], h[2][hi], h[3][hi], h[4][hi] = uk, wt, w_res, i_meas[k], i_lim[k]
             if trip is not None:
                 continue
             check = ""
-            detail = ""
-            jump = max(JUMP_MIN_RAD, JUMP_SPEED_FACTOR * fs * dt)
-            if abs(d) > jump:
+            if d > jump or -d > jump:
                 check, detail = "resolver jump", f"{d / DEG:+.1f} deg in {dt * 1e3:.1f} ms > {jump / DEG:.1f}"
-            elif abs(w_res) > OVERSPEED_FACTOR * fs or abs(wt) >= TACH_FULL_SCALE_FRACTION * fs:
+            elif abs(w_res) > over or abs(wt) >= tach_top:
                 check, detail = "overspeed", (f"resolver {w_res:+.3f} rad/s, tach {wt:+.3f} rad/s, full scale "
                                               f"{fs:g}")
             else:
-                tol = TACH_ABS_TOL * fs + TACH_REL_TOL * max(abs(wt), abs(w_res))
-                self._t_tach[k] = self._t_tach[k] + dt if abs(wt - w_res) > tol else 0.0
-                if self._t_tach[k] >= TACH_TIME_S:
-                    check, detail = "tach against resolver", (f"tach {wt:+.3f} rad/s, resolver {w_res:+.3f} "
-                                                              f"rad/s for {self._t_tach[k] * 1e3:.0f} ms")
-            if u_ref is not None:
-                gain, dead = self._gain[k], self._dead[k]
-                ur = u_ref[k]
-                w_ref = gain * math.copysign(max(0.0, abs(ur) - dead), ur)
-                wm = self._w_m[k] = self._w_m[k] + dt / (self._tau[k] + dt) * (w_ref - self._w_m[k])
-                qm = self._q_model[k] + wm * dt
+                aw = abs(wt)
+                ar = abs(w_res)
+                if abs(wt - w_res) > tach_abs + TACH_REL_TOL * (aw if aw > ar else ar):
+                    t_tach[k] += dt
+                    if t_tach[k] >= TACH_TIME_S:
+                        check, detail = "tach against resolver", (f"tach {wt:+.3f} rad/s, resolver {w_res:+.3f} "
+                                                                  f"rad/s for {t_tach[k] * 1e3:.0f} ms")
+                elif t_tach[k]:
+                    t_tach[k] = 0.0
+            if closed:
+                if u_ref is not None:
+                    ur = u_ref[k]
+                else:
+                    ur = kp_l[k] * (qc[k] - q_m_l[k])
+                    lim_r = rl_l[k]
+                    if ur > lim_r:
+                        ur = lim_r
+                    elif ur < -lim_r:
+                        ur = -lim_r
+                m = abs(ur) - dead
+                w_ref = (gain * m if ur > 0 else -gain * m) if m > 0 else 0.0
+                wm = w_m_l[k] = w_m_l[k] + a_m * (w_ref - w_m_l[k])
+                qm = q_m_l[k] + wm * dt
                 if wm * w_res > 0 and abs(w_res) >= PULL_FRACTION * abs(wm):  # obedient: forgive its pace
-                    qm -= (qm - q[k]) * pull
-                self._q_model[k] = qm
-                e = self.ferror_rad[k] = qm - q[k]
+                    qm -= (qm - qk) * pull
+                q_m_l[k] = qm
+                e = self.ferror_rad[k] = qm - qk
                 if not check:
-                    # what the real command should give (its droop and dead band included)
-                    w_ss = gain * math.copysign(max(0.0, abs(uk) - dead), uk)
-                    i_k, lim_k = abs(i_meas[k]), i_lim[k]
-                    stalled = (abs(w_ss) > STALL_RATE_FRACTION * fs and abs(w_res) < STALL_MOTION_FRACTION * fs
-                               and (i_k >= STALL_CURRENT_FRACTION * lim_k or i_k < NO_CURRENT_FRACTION * jf.i_max_a
-                                    or i_k >= 0.9 * min(lim_k, self._kaw[k] * abs(uk - wt))))
-                    self._t_stall[k] = self._t_stall[k] + dt if stalled else 0.0
-                    lim = self.fe_min[k] + (self.fe_max[k] - self.fe_min[k]) * min(1.0, abs(wm) / fs)
-                    self._t_fe[k] = self._t_fe[k] + dt if abs(e) > lim else 0.0
-                    if self._t_fe[k] >= self.fe_time[k]:
+                    # the real command's nominal steady rate (its droop and dead band included)
+                    m = abs(uk) - dead
+                    ai = abs(i_meas[k])
+                    lk = i_lim[k]
+                    if (m > 0 and gain * m > stall_rate and abs(w_res) < stall_motion
+                            and (ai >= STALL_CURRENT_FRACTION * lk or ai < no_current
+                                 or ai >= 0.9 * min(lk, kaw * abs(uk - wt)))):
+                        t_stall[k] += dt
+                    elif t_stall[k]:
+                        t_stall[k] = 0.0
+                    lim = fe_min + fe_span * min(1.0, abs(wm) / fs)
+                    if e > lim or -e > lim:
+                        t_fe[k] += dt
+                    elif t_fe[k]:
+                        t_fe[k] = 0.0
+                    if t_fe[k] >= self.fe_time[k]:
                         check, detail = "following error", (f"{e / DEG:+.1f} deg > {lim / DEG:.1f} for "
-                                                            f"{self._t_fe[k] * 1e3:.0f} ms")
-                    elif self._t_stall[k] >= STALL_TIME_S:
+                                                            f"{t_fe[k] * 1e3:.0f} ms")
+                    elif t_stall[k] >= STALL_TIME_S:
                         check, detail = "stall", (f"{uk:+.3f} rad/s commanded, {w_res:+.3f} moving for "
-                                                  f"{self._t_stall[k] * 1e3:.0f} ms")
+                                                  f"{t_stall[k] * 1e3:.0f} ms")
             if check:
                 cause, evidence = diagnose(jf, check, self.recent(k))
                 trip = Trip(k, check, cause, f"{jf.name} {check} ({detail}): likely {CAUSES[cause]}: {evidence}")
         self._q = q
-        self._hi = (self._hi + 1) % HISTORY
-        self._filled = min(self._filled + 1, HISTORY)
+        self._hi = (hi + 1) % HISTORY
+        if self._filled < HISTORY:
+            self._filled += 1
         return trip
 
     def recent(self, k: int, n: int = DIAG_SAMPLES) -> np.ndarray:
-        """Joint ``k``'s newest ``n`` samples (fewer before the ring has filled), oldest first."""
+        """Joint ``k``'s newest ``n`` samples (fewer before the ring has filled), oldest
+        first, as rows of the five columns U ... I_LIM (the newest is the one being taken)."""
         n = min(n, self._filled + 1)
         idx = [(self._hi - n + 1 + j) % HISTORY for j in range(n)]
-        return self._hist[k, idx]
+        cols = self._h[k]
+        return np.array([[cols[c][i] for c in range(5)] for i in idx], dtype=float)

@@ -87,7 +87,9 @@ class ServiceEnvelope:
         self._fast = [0] * n
         self._sat_run = [0.0] * n  # how long the current saturation episode has lasted
         self._named = [False] * n
-        self._dir = [0] * n  # the direction of the last nonzero request  # successive resolver samples beyond the overspeed rate
+        self._dir = [0] * n  # the direction of the last nonzero request
+        #: per joint, what the frame's fast path needs, in one tuple
+        self._rows = tuple(zip(range(n), self.ch, self.slew, self.hi, self.lo, [1.0 / a for a in self.two_a]))  # successive resolver samples beyond the overspeed rate
         self._q_ok = False
 
     def reset(self) -> None:
@@ -103,9 +105,11 @@ class ServiceEnvelope:
         dt = t_rtd - self._t_rtd if self._t_rtd is not None else 0.0
         self._t_rtd = t_rtd
         q = self.q
+        angles = angles.tolist()  # plain floats: cheaper to index than numpy scalars
+        tach = tach.tolist()
         for k, slot in enumerate(self.rtd_slot):
             c = self.centre[k]
-            new = c + (float(angles[slot]) - c + math.pi) % _TWO_PI - math.pi
+            new = c + (angles[slot] - c + math.pi) % _TWO_PI - math.pi
             if self._q_ok and dt > 0:
                 rate = (new - q[k]) / dt
                 if abs(rate) > self.overspeed[k]:
@@ -119,7 +123,7 @@ class ServiceEnvelope:
         self._q_ok = True
         if reason is None:
             for k, slot in enumerate(self.tach_slot):
-                w = float(tach[slot])
+                w = tach[slot]
                 if abs(w) >= self.tach_top[k]:
                     reason = (f"overspeed {self.names[k]}: tach {w:+.2f} rad/s at full scale "
                               f"({self.tach_top[k]:.2f})")
@@ -128,56 +132,66 @@ class ServiceEnvelope:
 
     def apply(self, eng: list[float], dt: float, status: list[int]) -> None:
         """Slew and braking distance on the rate commands ``eng`` (in place); sets the
-        channels' ``status`` bits."""
-        last, q = self.last, self.q
-        for k, ch in enumerate(self.ch):
-            u = eng[ch]
-            prev = last[k]
-            step = self.slew[k] * dt
-            sat = False
-            if u != 0.0:
-                if u > prev + step:
-                    u, sat = prev + step, True
-                elif u < prev - step:
-                    u, sat = prev - step, True
-            if sat:
-                run = self._sat_run[k] = self._sat_run[k] + dt
-                if not self.slewed[k]:
-                    self.slewed[k] = True
-                    self.slew_episodes += 1
-                    self._named[k] = False
-                if run >= SLEW_NAME_S and not self._named[k]:
-                    self._named[k] = True
-                    self.post(Severity.WARNING, CODE_SLEW,
-                              f"slew limit: {self.names[k]} command {eng[ch]:+.3f} rad/s after {prev:+.3f}: "
-                              f"saturated at {self.slew[k]:g} rad/s^2 for {run * 1e3:.0f} ms")
-            elif self.slewed[k]:
-                self.slewed[k] = False
-                self._sat_run[k] = 0.0
-            # the braking distance of the *requested* rate (what the joint will run at once the
-            # slew lets it): held while the request keeps pointing at the limit (one episode)
+        channels' ``status`` bits. A joint in no episode whose request needs neither costs a
+        few float operations (the service's frame budget); episodes take :meth:`_episode`."""
+        last, q, held, slewed = self.last, self.q, self.held, self.slewed
+        for k, ch, slew, hi, lo, inv2a in self._rows:
             r = eng[ch]
-            hold = False
+            if r == 0.0:  # a stop is obeyed at once and ends any episode
+                if held[k] or slewed[k]:
+                    self._episode(k, ch, 0.0, 0.0, False, False, dt, status)
+                last[k] = 0.0
+                continue
+            prev = last[k]
+            step = slew * dt
+            u, sat = r, False
+            if r > prev + step:
+                u, sat = prev + step, True
+            elif r < prev - step:
+                u, sat = prev - step, True
+            # the braking distance of the *requested* rate (what the joint runs at once the
+            # slew lets it); an episode holds while the request keeps pointing at the limit
             if r > 0.0:
-                room = self.hi[k] - q[k]
-                hold = room <= r * (T_REACT_S + r / self.two_a[k]) or (self.held[k] and self._dir[k] > 0)
-                self._dir[k] = 1
-            elif r < 0.0:
-                room = q[k] - self.lo[k]
-                hold = room <= -r * (T_REACT_S - r / self.two_a[k]) or (self.held[k] and self._dir[k] < 0)
-                self._dir[k] = -1
-            if hold != self.held[k]:
-                self.held[k] = hold
-                if hold:
-                    self.envelope_episodes += 1
-                    lim = self.hi[k] if r > 0 else self.lo[k]
-                    self.post(Severity.WARNING, CODE_ENVELOPE,
-                              f"envelope: {self.names[k]} at {math.degrees(q[k]):.1f} deg, "
-                              f"{abs(math.degrees(lim - q[k])):.1f} deg from its soft limit: rate toward it 0 V")
-            if hold:
-                u = 0.0
-                status[ch] |= DAC_ENVELOPE
-            elif sat:
-                status[ch] |= DAC_SLEWED
+                hold = hi - q[k] <= r * (T_REACT_S + r * inv2a) or (held[k] and self._dir[k] > 0)
+            else:
+                hold = q[k] - lo <= -r * (T_REACT_S - r * inv2a) or (held[k] and self._dir[k] < 0)
+            if sat or hold or slewed[k] or held[k]:
+                u = self._episode(k, ch, r, u, sat, hold, dt, status)
             eng[ch] = u
             last[k] = u
+
+    def _episode(self, k: int, ch: int, r: float, u: float, sat: bool, hold: bool, dt: float,
+                 status: list[int]) -> float:
+        """The bookkeeping of a saturation or hold (starts, names, ends); returns the rate."""
+        prev = self.last[k]
+        if sat:
+            run = self._sat_run[k] = self._sat_run[k] + dt
+            if not self.slewed[k]:
+                self.slewed[k] = True
+                self.slew_episodes += 1
+                self._named[k] = False
+            if run >= SLEW_NAME_S and not self._named[k]:
+                self._named[k] = True
+                self.post(Severity.WARNING, CODE_SLEW,
+                          f"slew limit: {self.names[k]} command {r:+.3f} rad/s after {prev:+.3f}: "
+                          f"saturated at {self.slew[k]:g} rad/s^2 for {run * 1e3:.0f} ms")
+        elif self.slewed[k]:
+            self.slewed[k] = False
+            self._sat_run[k] = 0.0
+        if r != 0.0:
+            self._dir[k] = 1 if r > 0.0 else -1
+        if hold != self.held[k]:
+            self.held[k] = hold
+            if hold:
+                self.envelope_episodes += 1
+                q = self.q[k]
+                lim = self.hi[k] if r > 0 else self.lo[k]
+                self.post(Severity.WARNING, CODE_ENVELOPE,
+                          f"envelope: {self.names[k]} at {math.degrees(q):.1f} deg, "
+                          f"{abs(math.degrees(lim - q)):.1f} deg from its soft limit: rate toward it 0 V")
+        if hold:
+            status[ch] |= DAC_ENVELOPE
+            return 0.0
+        if sat:
+            status[ch] |= DAC_SLEWED
+        return u
