@@ -21,11 +21,10 @@ shoulder pitch, shoulder yaw, elbow pitch, wrist yaw, wrist pitch, wrist roll.
 
 from __future__ import annotations
 
-import math
 # the joint table lives in pfma.arm (the service's envelope and the file checks read it too)
 from pfma.arm import (  # noqa: F401  (re-exported: the controller's one import of arm facts)
     DEG, GRIPPER_I_MAX_A, JOINT_NAMES, JOINTS, N_JOINTS, SOURCE, JointFacts, joint, unwrap_angle,
-    RATE_LOOP_LAMBDA as _RATE_LOOP_LAMBDA,
+    RATE_LOOP_LAMBDA, RUN_CURRENT_FRACTION, TACH_TAU_S,
 )
 
 #: current-limit channels of the command area: the six joints, then the gripper
@@ -33,20 +32,13 @@ N_CURRENT_LIMITS = 7
 
 #: 8.4 default computer-side joint loop gain K_p (1/s)
 DEFAULT_KP_PER_S = 8.0
-#: Current limit while powered up, as a fraction of I_max. Assumed (this project): half
-#: of I_max holds the counterbalanced arm with margin (192 N*m max at the shoulder vs
-#: ~47 N*m residual gravity) and halves the torque in a collision; the demo controller
-#: uses the same figures.
-RUN_CURRENT_FRACTION = 0.5
 #: 8.4 brake released above this current-limit command (volts = 10 I / I_max)
 BRAKE_RELEASE_V = 0.5
 #: 8.4 safe stop: wait for |qdot| below this, or for SAFE_STOP_TIMEOUT_S, before limits go to 0
 SAFE_STOP_RATE_RAD_S = 0.01
 SAFE_STOP_TIMEOUT_S = 0.5
-#: 8.4 amplifier rate loop: lambda (rad/s; the one value is pfma.arm.RATE_LOOP_LAMBDA) and the
-#: 10 Hz tach filter time constant (s)
-RATE_LOOP_LAMBDA = _RATE_LOOP_LAMBDA
-TACH_TAU_S = 1.0 / (2.0 * math.pi * 10.0)
+# 8.4 amplifier rate loop: lambda (RATE_LOOP_LAMBDA) and the 10 Hz tach filter time constant
+# (TACH_TAU_S) come from pfma.arm, with RUN_CURRENT_FRACTION (the one value of each)
 
 
 def run_current_limits_a() -> tuple[float, ...]:

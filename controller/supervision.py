@@ -61,7 +61,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pfma.arm import JOINTS, RATE_LOOP_LAMBDA as _RATE_LOOP_LAMBDA, JointFacts
+from pfma.arm import JOINTS, RATE_LOOP_LAMBDA, TACH_TAU_S, JointFacts  # noqa: F401 (re-exported)
 
 DEG = math.pi / 180.0
 
@@ -104,10 +104,6 @@ FERROR_TIME_S = 0.1
 MODEL_DELAY_S = 0.015
 PULL_FRACTION = 0.5
 PULL_S = 0.3
-#: rate-loop bandwidth lambda of pfma-model 8.4 (pfma.arm.RATE_LOOP_LAMBDA, the one value)
-RATE_LOOP_LAMBDA = _RATE_LOOP_LAMBDA
-#: tach card filter time constant, 10 Hz (IRSS 3.6.3; controller.params.TACH_TAU_S)
-TACH_TAU_S = 1.0 / (2.0 * math.pi * 10.0)
 #: a gap between two samples longer than this (a halt, a controller stalled by its host)
 #: re-primes the checks: the reference restarts where the joint is, the timers at zero
 #: (the supervision cannot vouch for what happened in between; assumed: 8 service frames)

@@ -25,6 +25,13 @@ DEG = math.pi / 180.0
 #: K_a = lambda J / (N eta K_t K_w), so the motor current per rad/s of rate error is
 #: lambda J / (N eta K_t) (controller.params and controller.supervision use this one value)
 RATE_LOOP_LAMBDA = 40.0
+#: the 10 Hz tach filter cards' time constant (s): IRSS report 3.6.3 (sourced), pfma-model 8.4
+TACH_TAU_S = 1.0 / (2.0 * math.pi * 10.0)
+#: Current limit while powered up, as a fraction of I_max. Assumed (this project): half
+#: of I_max holds the counterbalanced arm with margin (192 N*m max at the shoulder vs
+#: ~47 N*m residual gravity) and halves the torque in a collision; the controller, the demo
+#: controller and the service's envelope (its braking deceleration) use this one figure.
+RUN_CURRENT_FRACTION = 0.5
 
 
 @dataclass(frozen=True)

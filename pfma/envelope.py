@@ -33,11 +33,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from pfma.arm import JOINTS, JointFacts
+from pfma.arm import JOINTS, RUN_CURRENT_FRACTION, JointFacts
 
 DEG = math.pi / 180.0
-#: the run current limit as a fraction of I_max (controller.params.RUN_CURRENT_FRACTION)
-RUN_CURRENT_FRACTION = 0.5
 BRAKE_FRACTION = 0.5
 SLEW_FS_PER_S = 20.0
 SLEW_FS_PER_S_MAX = 100.0

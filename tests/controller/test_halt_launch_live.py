@@ -16,20 +16,12 @@ import pytest
 from bit3.buffer import Bit3Buffer
 from bit3.client import Client
 from bit3.layout import ServiceState
+from tests.controller._live_support import stop, wait_for
 from controller.worldmodel import WorldModel
 
 pytestmark = pytest.mark.realtime
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def _wait_for(pred, timeout_s: float = 20.0) -> bool:
-    t_end = time.monotonic() + timeout_s
-    while time.monotonic() < t_end:
-        if pred():
-            return True
-        time.sleep(0.05)  # polling a subprocess, bounded
-    return False
 
 
 def _state(name: str) -> int | None:
@@ -48,10 +40,10 @@ def test_halt_at_launch_holds_halted_while_waiting_and_steps_on_command():
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ctl = None
     try:
-        assert _wait_for(lambda: _state(name) is not None), "the service did not come up"
+        assert wait_for(lambda: _state(name) is not None), "the service did not come up"
         ctl = subprocess.Popen([*py, "controller", "--buffer", name, "--wm", wm, "--halt"], cwd=ROOT,
                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        assert _wait_for(lambda: _state(name) == ServiceState.HALTED), "the service never showed HALTED"
+        assert wait_for(lambda: _state(name) == ServiceState.HALTED), "the service never showed HALTED"
         time.sleep(0.5)  # waiting at the prompt: 160 service frames, thirty watchdog periods
         assert _state(name) == ServiceState.HALTED  # held, not tripped
         assert ctl.stdin is not None
@@ -68,12 +60,6 @@ def test_halt_at_launch_holds_halted_while_waiting_and_steps_on_command():
         assert any("halted by the controller" in t for t in texts), texts
         assert not any("stale heartbeat" in t for t in texts), texts  # no watchdog trip
     finally:
-        for p in (ctl, serve):
-            if p is not None and p.poll() is None:
-                p.terminate()
-                try:
-                    p.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+        stop(ctl, serve)
         Bit3Buffer.unlink(name)
         WorldModel.remove_segment(wm)

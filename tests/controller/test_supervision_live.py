@@ -18,6 +18,7 @@ import pytest
 from bit3.buffer import Bit3Buffer
 from bit3.client import Client
 from bit3.layout import ServiceState
+from tests.controller._live_support import stop, wait_for
 
 pytestmark = pytest.mark.realtime
 
@@ -41,15 +42,6 @@ def _fifo_permitted() -> bool:
 RT = ["--realtime"] if _fifo_permitted() else []
 
 
-def _wait_for(pred, timeout_s: float = 20.0) -> bool:
-    t_end = time.monotonic() + timeout_s
-    while time.monotonic() < t_end:
-        if pred():
-            return True
-        time.sleep(0.05)  # polling a subprocess, bounded
-    return False
-
-
 def _inputs(name: str):
     try:
         with Client.attach(name) as c:
@@ -70,29 +62,23 @@ def test_a_motion_fault_on_the_live_arm_stops_it_and_names_joint_and_cause(spec,
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ctl = None
     try:
-        assert _wait_for(lambda: _inputs(name) is not None), "the service did not come up"
+        assert wait_for(lambda: _inputs(name) is not None), "the service did not come up"
         ctl = subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", "none", "--power-up",
                                 "--duration", "8", "--messages", "400", *RT], cwd=ROOT,
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        assert _wait_for(lambda: (s := _inputs(name)) is not None and s.service_state == ServiceState.ARMED
+        assert wait_for(lambda: (s := _inputs(name)) is not None and s.service_state == ServiceState.ARMED
                          and bool(s.brakes_released)), "the controller never powered up"
         time.sleep(0.5)  # holding its pose
         inj = subprocess.run([*PY, "fault", "inject", "--buffer", name, spec], cwd=ROOT, capture_output=True,
                              text=True, timeout=30)
         assert inj.returncode == 0, inj.stdout + inj.stderr
         # stopped: every DAC channel at 0 V (rates and current limits: brakes on)
-        assert _wait_for(lambda: (s := _inputs(name)) is not None
+        assert wait_for(lambda: (s := _inputs(name)) is not None
                          and np.all(np.asarray(s.record["dac_volts"]) == 0.0), 10), "outputs not at 0 V"
         out, _ = ctl.communicate(timeout=60)
         lines = [ln for ln in out.splitlines() if "fault 1" in ln and joint in ln and "current limits 0" in ln]
         assert lines, out
         assert f"likely {cause}" in lines[0], lines[0]
     finally:
-        for p in (ctl, serve):
-            if p is not None and p.poll() is None:
-                p.terminate()
-                try:
-                    p.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+        stop(ctl, serve)
         Bit3Buffer.unlink(name)
