@@ -74,6 +74,9 @@ FAULT_COMMAND, FAULT_FOREIGN = 5, 6
 # FAULT_AMP_ENABLE (8: the charge pump could not be written) are bit3.layout's: tools read them
 #: inputs.fault_code when the service's envelope found a joint over speed (issue 28 item 4)
 FAULT_OVERSPEED = 9
+#: a command's age is counted in frames the service ran over the last this-many-plus-one
+#: frames (a ring of the dropped-frame count; an older command is stale whatever the count)
+_AGE_RING_MASK = 63
 #: internal: nobody holds the command area's claim (no controller yet); not published
 _NO_WRITER = 0x100
 #: _fetch_command: the body carries the claim's pid and token but its stream shows a second
@@ -270,6 +273,8 @@ class IoService:
             self.post)
         self._env_status = [0] * max((len(b.channels) for b in rack.boards_of("dac")), default=0)
         self._env_k = 0  # the frame the envelope last ran in
+        self._dropped_total = 0  #: frames the loop dropped since start (it did not run them)
+        self._dropped_at = [0] * (_AGE_RING_MASK + 1)  # _dropped_total as it was at frame k (k & mask)
         self.ft = FtTask(self)
         self.hand = HandTask(self)
         self.pio = PioTask(self)
@@ -552,6 +557,16 @@ class IoService:
         try:
             if mask & self._adc_bit:
                 self.adc.start()  # the scan converts while the DAC and resolvers run
+            # frames the loop dropped (the service did not run: a host stall) are noted so that
+            # they do not age a command (issue 29 item 1): see _task_dac
+            missed = info.missed
+            if missed:
+                total = self._dropped_total = self._dropped_total + missed
+                # a dropped frame j counts itself: a command stamped with it (it was never
+                # published; a writer's arithmetic) is then as old as one from the frame before k
+                for j in range(1, min(missed, _AGE_RING_MASK) + 1):
+                    self._dropped_at[(k - j) & _AGE_RING_MASK] = total - j + 1
+            self._dropped_at[k & _AGE_RING_MASK] = self._dropped_total
             self._task_dac(k)
             for bit, task in self._input_tasks:
                 if mask & bit:
@@ -881,6 +896,10 @@ class IoService:
         # freshness: how old are the inputs these commands were computed from?
         f_in = int(c["inputs_frame"])
         age = k - f_in
+        if 0 < age <= _AGE_RING_MASK:
+            # counted in frames the service ran: frames it dropped (it did not run, so no newer
+            # inputs existed for the controller to answer) do not age the command
+            age -= self._dropped_total - self._dropped_at[f_in & _AGE_RING_MASK]
         v["command_inputs_frame"][...] = f_in
         v["command_input_age_frames"][...] = age if 0 <= age < 0xFFFFFFFF else 0xFFFFFFFF
         env = self.envelope
