@@ -357,6 +357,20 @@ class DataAcquisitionLayer(Layer):
                 row[0], row[1] = t_end, dur
                 self._stall_n += 1
 
+    def service_dropped(self, t_from: float, t_to: float, period_s: float) -> int:
+        """Frames the service itself did not run between two frames it published at
+        ``t_from`` and ``t_to`` (service clock): those of every host stall it measured that
+        ended in (t_from, t_to], a stall of d seconds dropping int(d / period) frames
+        (issue 29 item 1: the controller is not charged with frames the service never
+        published)."""
+        self._note_stalls(self.snapshot.record) if self.snapshot is not None else None
+        n = min(self._stall_n, len(self._stalls))
+        dropped = 0
+        for t_end, dur in self._stalls[:n]:
+            if t_from < t_end <= t_to + period_s:
+                dropped += int(float(dur) / period_s)
+        return dropped
+
     def _stall_note(self, t_s: float, age_s: float) -> str:
         """What the measured host stalls say about an F/T gap of ``age_s`` seen at ``t_s``:
         " after a host stall of N ms" when the longest stall that overlapped the gap covers

@@ -70,6 +70,7 @@ go on at the next servo slot; without it the resume is refused with a message.
 
 from __future__ import annotations
 
+import math
 import gc
 import time
 from collections import deque
@@ -353,6 +354,9 @@ class ControllerRuntime:
         self._changed: set[str] = set()
         # missed frames
         self.prev_frame = -1  #: service frame of the previous step (-1: none yet)
+        self._prev_t_s = -math.inf  # service time of that frame (for the stalls between it and the next)
+        #: of the missed frames, those the service dropped itself in a host stall (not the controller's)
+        self.service_dropped_frames = 0
         self.missed_frames = 0
         self.missed_events = 0
         self.missed_run = 0  #: frames missed just before the latest step
@@ -488,11 +492,17 @@ class ControllerRuntime:
         self.frame = f = self.daq.acquire(self) if self._has_daq else self._inputs_frame()
         prev = self.prev_frame
         catch: frozenset[str] = frozenset()
+        t_f = float(self.daq.snapshot.t_s) if self._has_daq and self.daq.snapshot is not None else self.now
         if f != prev:  # a repeated frame (no new inputs) keeps the servo period it had
             missed = f - prev - 1 if 0 <= prev < f else 0
             self.missed_run = missed
             if missed:
-                catch = self._missed(prev, f, missed)
+                # frames the service dropped itself (a host stall it measured) are not the
+                # controller's: it could not run frames that were never published
+                own = missed
+                if self._has_daq:
+                    own = max(0, missed - self.daq.service_dropped(self._prev_t_s, t_f, self.frames.period_s))
+                catch = self._missed(prev, f, missed, own)
             else:
                 self.caught_up = ()
             if self._has_servo:
@@ -502,6 +512,7 @@ class ControllerRuntime:
                 self.servo_catch_up = 0 < missed <= self.frames.max_missed_run and \
                     self.frames.last_slot(SERVO_TASK, f - 1) > prev
             self.prev_frame = max(prev, f)
+            self._prev_t_s = t_f
         else:
             self.servo_catch_up = False
         if self.before_segment is not None:
@@ -622,9 +633,13 @@ class ControllerRuntime:
             self.servo.clear_fault(self)
 
     # --- missed frames -------------------------------------------------------------------
-    def _missed(self, prev: int, f: int, missed: int) -> frozenset[str]:
+    def _missed(self, prev: int, f: int, missed: int, own: int | None = None) -> frozenset[str]:
         """Service frames prev+1 .. f-1 were not run: count them, say so, return the tasks
-        to catch up, and fault the servo if the run is longer than allowed."""
+        to catch up, and fault the servo if the run is longer than allowed. ``own``: how many
+        of them the service did publish (the rest it dropped in a host stall: caught up, said,
+        but never the controller's fault); default all."""
+        own = missed if own is None else own
+        self.service_dropped_frames += missed - own
         first, last = prev + 1, f - 1
         span = min(missed, MINOR_FRAMES_PER_MAJOR)  # the table repeats every major frame
         names = frozenset(n for g in range(first, first + span) for n, _ in self._table[g % MINOR_FRAMES_PER_MAJOR])
@@ -643,7 +658,8 @@ class ControllerRuntime:
             more = ""
             if self._miss_quiet[0]:
                 more = f" (+{self._miss_quiet[0]} more events, {self._miss_quiet[1]} frames, since the last message)"
-            self.post("runtime", Level.WARNING, f"missed service {where} ({missed}): caught up "
+            whose = "" if own == missed else f"; {missed - own} dropped by the service's own host stall"
+            self.post("runtime", Level.WARNING, f"missed service {where} ({missed}{whose}): caught up "
                                                 f"{', '.join(self.caught_up) or 'no tasks'} in frame {f}{more}")
             self._miss_msg_t = self.now
             self._miss_quiet = [0, 0]
@@ -651,7 +667,7 @@ class ControllerRuntime:
             self._miss_quiet[0] += 1
             self._miss_quiet[1] += missed
         m = self.frames.max_missed_run
-        if missed > m and self._has_servo and not self.servo.fault and \
+        if own > m and self._has_servo and not self.servo.fault and \
                 self.wm.get_state_variable(self.servo.v_status) == Status.START_UP_COMPLETE:
             lost = [g for g in range(first, first + span) if any(n == SERVO_TASK for n, _ in
                                                                  self._table[g % MINOR_FRAMES_PER_MAJOR])]
@@ -749,6 +765,7 @@ class ControllerRuntime:
         f = int(snap.frame)
         self.frame = f
         self.prev_frame = max(self.prev_frame, f)
+        self._prev_t_s = float(snap.t_s)
         self.wm.communications_segment()
         self.updown.debug_requests(self)
         if self._resume_seq and self._resume_tick(snap, f):

@@ -112,3 +112,54 @@ def test_a_stall_longer_than_the_watchdog_still_trips_named(rig):
     t = texts(rig)
     assert any(x.startswith("host stall: service did not run for 3") for x in t), t
     assert any("stale heartbeat" in x and "(stall 3" in x for x in t), t
+
+
+# --- the controller's half: frames the service never published are not the controller's -----
+
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(stall_s=st.floats(0.0135, 0.0145), at=st.integers(20, 120))
+def test_a_powered_up_controller_rides_through_a_service_stall(stall_s, at):
+    """The whole stack in the system simulator, powered up; the host freezes the service for
+    13.5-14.5 ms (3-4 frames it drops, more than the controller's max_missed_run of 2; the
+    controller runs right after each service frame, so its heartbeat stays fresh). The
+    service measures the stall (in the simulator, without the live loop's between-frame
+    ticks, a gap counts as a stall beyond HOST_STALL_S plus one period, 13.1 ms; live beyond
+    10 ms), and the controller subtracts the frames it dropped. Before: 'rates 0V: cmd inputs 5 fr old > 4' at the service
+    (Data Acquisition's fault 64) and the servo's fault 12 'controller missed service frames':
+    every layer in ERROR. Now: every layer stays START UP COMPLETE, the missed frames are said
+    as the service's, no stale command."""
+    from controller.decision import Status
+    from sim.system import SystemSimulator
+    with SystemSimulator() as sim:
+        sim.step(10)
+        sim.power_up(400)
+        sim.step(20)
+        done = []
+
+        def stall(info):
+            if not done and info.index >= at + 40:
+                done.append(info.index)
+                sim.clock.advance(stall_s)
+        sim.rig.after_frame.insert(0, stall)
+        sim.step(at + 120)
+        assert done
+        assert sim.rt.all_status(Status.START_UP_COMPLETE), [m.text for m in sim.rt.messages.recent(20)]
+        s = sim.client.read_inputs()
+        assert s.stale_commands == 0 and s.service_state == ServiceState.ARMED
+        # the gap was counted as the service's (the WARNING that says so is rate-limited)
+        assert sim.rt.service_dropped_frames >= 2 and sim.rt.missed_frames == sim.rt.service_dropped_frames
+
+
+def test_a_controller_that_misses_frames_itself_is_still_faulted():
+    """The service runs every frame; the controller skips 3 of them (its own stall): the
+    servo's fault 12 as before."""
+    from controller.servo import ERR_MISSED
+    from sim.system import SystemSimulator
+    with SystemSimulator() as sim:
+        sim.step(10)
+        sim.power_up(400)
+        sim.step(20)
+        base = sim.svc_frame()
+        sim.controller_steps = lambda f: 0 if base + 10 <= f < base + 13 else 1
+        sim.step(40)
+        assert int(sim.rt.wm.get("servo.error")) == ERR_MISSED or sim.rt.servo.error_code == ERR_MISSED
