@@ -363,7 +363,8 @@ class DataAcquisitionLayer(Layer):
         ended in (t_from, t_to], a stall of d seconds dropping int(d / period) frames
         (issue 29 item 1: the controller is not charged with frames the service never
         published)."""
-        self._note_stalls(self.snapshot.record) if self.snapshot is not None else None
+        if self.snapshot is not None:  # the stall of this very frame may not be noted yet
+            self._note_stalls(self.snapshot.record)
         n = min(self._stall_n, len(self._stalls))
         dropped = 0
         for t_end, dur in self._stalls[:n]:

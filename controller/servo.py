@@ -385,7 +385,7 @@ class ServoLayer(Layer):
         # stamped with the service frame of the inputs it was computed from: Data Acquisition
         # sends it only within its servo period, the service only while young enough
         wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": rate, "servo.error_rad": e,
-                                       "servo.ferror_rad": self.sup.ferror_rad if self.sup is not None else e * 0,
+                                       "servo.ferror_rad": self.sup.ferror_rad,
                                        "servo.rate_cmd_frame": frame})
 
     def _trip(self, rt: "LayerContext", trip: Trip) -> None:
