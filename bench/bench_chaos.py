@@ -536,11 +536,15 @@ REMOTE_CONTROLLER = textwrap.dedent("""
     flying = False
     signal.signal(signal.SIGTERM, lambda *a: stop.append(1))  # in the loop: finish, close the session
     signal.signal(signal.SIGINT, lambda *a: stop.append(1))
+    said = None
     while not stop:
         if not c.changed("inputs"):
             time.sleep(0.0002)
             continue
         rt.tick()
+        if rt.first_cause is not None and rt.first_cause is not said:  # say a fault as it happens
+            said = rt.first_cause
+            print("fault: " + said.format(), flush=True)
         if not flying and rt.all_status(Status.START_UP_COMPLETE):
             q = [float(v) for v in rt.wm.get("daq.joint_angle_rad")]
             q[0] += 0.15
@@ -1406,8 +1410,10 @@ def _final_reattach(kind: str, sess: Session, ctx: dict, out: Outcome) -> None:
                       f"(a RemoteCommander must carry on from the area's counter, tools/bridge/remote.py; the service "
                       f"takes an arm request only with a new counter)")
         else:
-            out.check("reattach", False, f"remote controller {i} of 2 never armed the service (rearm counter "
-                      f"{before} -> {after}): {remote.tail(3)} / {bridge.tail(3)}")
+            armed = watch.armed_since(bridge.t0)
+            out.check("reattach", False, f"remote controller {i} of 2 "
+                      f"{'armed the service but was not up' if armed else 'never armed the service'} in "
+                      f"{WAIT_S / 2:.0f} s (rearm counter {before} -> {after}): {remote.tail(3)} / {bridge.tail(3)}")
         remote.stop(signal.SIGTERM)
         bridge.stop()
 
