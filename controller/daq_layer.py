@@ -425,8 +425,13 @@ class DataAcquisitionLayer(Layer):
                     for i in np.nonzero(bs & BOARD_FAULT)[0]]
         # a service in FAULT matters while this layer wants the outputs; once it has withdrawn
         # its arm request (the safe task), the latched FAULT only waits for the next arm
-        # request (power up's start-up task): else an error reset could never finish
-        if service_state == ServiceState.STOPPED or (service_state == ServiceState.FAULT and self.arm_request) or \
+        # request (power up's start-up task): else an error reset could never finish. While
+        # that request is on its way (start-up phase 1: sent, not yet answered; a link's
+        # latency or a command that landed after the service's next frame began), FAULT is
+        # the last episode's, not a new one: the start-up task times out after ARM_TIMEOUT_S
+        # naming the state (tests/controller/test_arm_latency.py)
+        if service_state == ServiceState.STOPPED or \
+                (service_state == ServiceState.FAULT and self.arm_request and self._phase != 1) or \
                 (self.arm_request and self._phase == 2 and service_state != ServiceState.ARMED
                  and not (self.halted and service_state == ServiceState.HALTED)):
             bits |= FAULT_SERVICE
