@@ -35,6 +35,7 @@ import importlib
 import json
 import math
 import pkgutil
+import os
 import sys
 
 import bench
@@ -146,6 +147,10 @@ def run(args) -> int:
             print(f"pfma bench: --kinds {args.kinds}: unknown {', '.join(bad) or 'nothing'}; known: "
                   f"{', '.join(KINDS)}", file=sys.stderr)
             return 2
+    if not args.realtime:  # every process a bench starts stays time-shared and unpinned (a
+        # 2-core host is not filled with SCHED_FIFO processes): ioservice.loop.REALTIME_ENV
+        from ioservice.loop import REALTIME_ENV
+        os.environ[REALTIME_ENV] = "off"
     known = _names()
     unknown = set(args.names) - set(known)
     if unknown:

@@ -86,8 +86,10 @@ def add_parser(sub):
                    help="simulated seconds from the start at which --sim-fault is injected (default 0)")
     p.add_argument("--no-ft", action="store_true", help="a stale F/T link is not a fault")
     p.add_argument("--tables", action="store_true", help="print the decision tables and the schedule")
-    p.add_argument("--realtime", action="store_true",
-                   help="SCHED_FIFO priority 49 pinned to CPU 0 (needs privileges; pfma serve --realtime takes the last CPU)")
+    p.add_argument("--realtime", action=argparse.BooleanOptionalAction, default=None,
+                   help="SCHED_FIFO priority 49 pinned to CPU 0 (pfma serve takes the last CPU): taken by default "
+                        "where this user may, said in one line; --no-realtime opts out (PFMA_REALTIME=off turns "
+                        "the default off)")
     g = p.add_argument_group("distributed controller (docs/controller.md, \"Distributing the layers\")")
     g.add_argument("--distribute", metavar="FILE", default=None,
                    help="a TOML assigning the seven layers to processes (examples/distributed.toml)")
@@ -445,12 +447,7 @@ class _Driver:
             self.rt = ControllerRuntime(self.client, frames=frames, wm_name=wm_name, clock=MonotonicClock(),
                                         require_ft=not args.no_ft)
             self.pacer = LivePacer(self.client, frames.period_s)
-            if args.realtime:
-                from ioservice.loop import realtime_setup
-                # the service pins itself to the last CPU (pfma serve --realtime); the
-                # controller takes the first, one priority below it
-                for w in realtime_setup(cpu=0, fifo_priority=49):
-                    print(f"pfma controller: {w}", file=sys.stderr)
+            _realtime(args)
             gc.collect()  # what start-up allocated is not collected inside the first frames
             gc.freeze()
         self.printed_header = False
@@ -1005,10 +1002,7 @@ class _DistributedDriver:
         self.rt = self.dp.rt
         self.pacer = LivePacer(self.client, frames.period_s) if isinstance(self.client, Client) \
             else _PollPacer(self.client)
-        if args.realtime:
-            from ioservice.loop import realtime_setup
-            for w in realtime_setup(cpu=0, fifo_priority=49):
-                print(f"pfma controller: {w}", file=sys.stderr)
+        _realtime(args)
         gc.collect()
         gc.freeze()
         self.printed_header = False
@@ -1119,3 +1113,12 @@ class _DistributedDriver:
         if self.link is not None:
             self.link.close()
         self.client.close()
+
+
+def _realtime(args) -> None:
+    """The live controller's real-time set-up (by default where permitted; ioservice.loop.
+    realtime_start): the service pins itself to the last CPU (pfma serve), the controller
+    takes the first, one priority below it."""
+    from ioservice.loop import realtime_start
+    for line in realtime_start("pfma controller", args.realtime, 0, 49):
+        print(line, file=sys.stderr)

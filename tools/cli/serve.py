@@ -84,7 +84,10 @@ def add_parser(sub):
                    help="do not print trips, refusals, stalls (every WARNING and ERROR) as they happen")
     p.add_argument("--demo", action="store_true",
                    help="also start the demo controller (a separate process) that arms and swings the arm")
-    p.add_argument("--realtime", action="store_true", help="try SCHED_FIFO and a pinned CPU (needs privileges)")
+    p.add_argument("--realtime", action=argparse.BooleanOptionalAction, default=None,
+                   help="SCHED_FIFO priority 50 pinned to the last CPU: taken by default where this user may "
+                        "(root, CAP_SYS_NICE or an RLIMIT_RTPRIO), said in one line; --no-realtime opts out "
+                        "(PFMA_REALTIME=off turns the default off)")
     p.add_argument("--calibration", default=None, metavar="FILE",
                    help="calibration file (pfma calibrate ...) applied at start; default: nominal scales")
     p.add_argument("--direction-state", default=None, metavar="FILE",
@@ -258,7 +261,7 @@ def _live_view(buffer_name: str, stop: threading.Event, rack) -> None:
 
 def run(args) -> int:
     from ioservice.service import LIVE_TICK_S, IoService
-    from ioservice.loop import realtime_setup
+    from ioservice.loop import realtime_start
     slow = args.schedule == "slow"
     if args.schedule and not slow:
         import tomllib
@@ -303,9 +306,9 @@ def run(args) -> int:
         except (PfmaError, OSError) as err:
             print(f"pfma serve: cannot open the bus {args.bus}: {err}", file=sys.stderr)
             return 1
-    if args.realtime:
-        for w in realtime_setup(cpu=os.cpu_count() - 1 if os.cpu_count() else None):
-            print(f"pfma serve: {w}", file=sys.stderr)
+    for line in realtime_start("pfma serve", args.realtime, os.cpu_count() - 1 if os.cpu_count() else None, 50,
+                               watchdog_ms=args.watchdog_ms):
+        print(line, file=sys.stderr)
     _replace_stale(args.buffer)
     try:
         buf = Bit3Buffer.create(args.buffer, layout, group=args.group)
