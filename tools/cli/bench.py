@@ -74,6 +74,8 @@ def add_parser(sub):
     p.add_argument("--realtime", action="store_true",
                    help="stack, chaos, soak, flood: run the service (and the controller) with --realtime "
                         "(SCHED_FIFO, pinned CPUs)")
+    p.add_argument("--hog", action="store_true",
+                   help="stack: one CPU hog (a busy process at nice 0) beside the stack, reported")
     p.add_argument("--check", action="store_true",
                    help="soak, flood (named alone): judge the figures against issue 20's criteria; exit 1 "
                         "with one line per failed criterion")
@@ -109,7 +111,7 @@ def _json_set(names: list[str], args) -> int:
         mod = importlib.import_module(f"bench.bench_{name}")
         try:
             if name == "stack":
-                out[name] = mod.figures(minutes=minutes, realtime=args.realtime)
+                out[name] = mod.figures(minutes=minutes, realtime=args.realtime, hog=args.hog)
                 failed |= bool(out[name]["errors"])
             else:
                 out[name] = mod.figures(seconds=seconds)
@@ -172,7 +174,8 @@ def run(args) -> int:
             if not args.json:
                 print(f"== bench {name} ==")
             minutes = STACK_MINUTES if args.minutes is None else args.minutes
-            rep = mod.run(seconds=args.seconds, minutes=minutes, as_json=args.json, realtime=args.realtime)
+            rep = mod.run(seconds=args.seconds, minutes=minutes, as_json=args.json, realtime=args.realtime,
+                          hog=args.hog)
             if rep.get("errors") and args.json:
                 return 1
             continue
