@@ -25,7 +25,7 @@ Rules kept here:
 The package, cut along those seams (``from controller.worldmodel import X`` gives all of it):
 
 - :mod:`controller.worldmodel.spec`: variable specifications (:class:`VarSpec`, the areas,
-  who may set what, :func:`coerce`) and the errors;
+  who may set what, :func:`coerce`, :func:`coerce_user`) and the errors;
 - :mod:`controller.worldmodel.segment`: the shared-memory segment format (header fields,
   request-slot layout, the variable table's layout and decoding, :func:`list_segments`);
 - :mod:`controller.worldmodel.requests`: the user-request ring (keyed user writes);
@@ -46,13 +46,13 @@ from controller.worldmodel.segment import (
 )
 from controller.worldmodel.spec import (
     AREAS, USER_ALWAYS, USER_AREAS, USER_MODES, USER_NEVER, USER_POWERED_DOWN, USER_WRITERS, VarSpec,
-    WorldModelError, WorldModelValueError, coerce, default_user,
+    WorldModelError, WorldModelValueError, coerce, coerce_user, default_user,
 )
 
 __all__ = [
     # variable specifications
     "AREAS", "USER_NEVER", "USER_POWERED_DOWN", "USER_ALWAYS", "USER_MODES", "USER_WRITERS", "USER_AREAS",
-    "WorldModelError", "WorldModelValueError", "VarSpec", "default_user", "coerce",
+    "WorldModelError", "WorldModelValueError", "VarSpec", "default_user", "coerce", "coerce_user",
     # the segment format
     "MAGIC", "FORMAT_VERSION", "HEADER_SIZE", "REQUEST_SLOTS", "SLOT_HEADER", "MIN_PAYLOAD", "READ_TIMEOUT_S",
     "HEADER_FIELDS", "SLOT_FIELDS", "FREE", "WRITING", "PENDING", "APPLIED", "REJECTED", "STATE_NAMES",

@@ -20,7 +20,7 @@ from bit3.buffer import lock_byte
 from controller.worldmodel.segment import (
     APPLIED, FREE, HEADER_FIELDS, PENDING, REQUEST_SLOTS, SLOT_FIELDS, SLOT_HEADER, STATE_NAMES, WRITING,
 )
-from controller.worldmodel.spec import VarSpec, WorldModelError, WorldModelValueError, coerce
+from controller.worldmodel.spec import VarSpec, WorldModelError, WorldModelValueError, coerce_user
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,7 @@ class UserRequestRing:
         if not self.check_key(key):
             raise WorldModelError(f"world-model variable {name!r}: wrong or missing access key; "
                                   f"user writes need the model's access key")
-        raw = coerce(s, value).tobytes()
+        raw = coerce_user(s, value).tobytes()
         if self.readonly:
             info = self.info()
             if not info.owner_alive:
@@ -169,7 +169,7 @@ class UserRequestRing:
         if not hmac.compare_digest(self._slot_get(k, "key_hash"), bytes(self._root[o:o + 32])):
             return False, f"{s.name}: wrong access key"
         try:
-            coerce(s, self._decode_value(i, raw))
+            coerce_user(s, self._decode_value(i, raw))
         except WorldModelValueError as err:
             return False, str(err)
         return True, ""

@@ -540,3 +540,41 @@ def test_a_slot_abandoned_mid_write_is_reused(wm):
     assert wm.communications_segment() == 0  # the owner ignores it
     rid = wm.set_user("hc.enable", True, DEFAULT_ACCESS_KEY)
     assert rid == 1 and wm.communications_segment() == 1 and wm.get("hc.enable")
+
+
+# --- allowed values (VarSpec.choices; issue 30 item 2: the shoulder-roll index) ------------------
+def test_choices_are_checked_when_declared():
+    with pytest.raises(WorldModelError, match="initial value 3.0 is not one of its choices"):
+        VarSpec("arm.index", "control_flags", "f8", (), "user", 3.0, choices=(1, 2))
+    with pytest.raises(WorldModelError, match="choices need a scalar variable"):
+        VarSpec("arm.index", "control_flags", "f8", (2,), "user", [1.0, 1.0], choices=(1, 2))
+    with pytest.raises(WorldModelError, match="a choice is not a valid value"):
+        VarSpec("arm.count", "control_flags", "i2", (), "user", 1, choices=(1, 1e6))
+    s = VarSpec("arm.index", "control_flags", "f8", (), "user", 2.0, choices=(1, 2))
+    assert s.choices == (1.0, 2.0) and VarSpec.from_json(s.to_json()) == s
+    assert "choices" not in VarSpec("arm.other", "control_flags", "f8", (), "user", 0.0).to_json()
+
+
+def test_a_user_write_outside_the_choices_is_refused_by_the_tool_and_by_the_owner(wm_name):
+    specs = [VarSpec("arm.index", "control_flags", "f8", (), "user", 0.0, "deg", choices=(-45, 0, 45))]
+    m = WorldModel.create(specs, name=wm_name)
+    try:
+        ro = WorldModel.attach(wm_name)  # the table read back from the segment keeps the choices
+        try:
+            assert ro.spec("arm.index").choices == (-45.0, 0.0, 45.0)
+            with pytest.raises(WorldModelValueError) as e:
+                ro.set_user("arm.index", 30, DEFAULT_ACCESS_KEY)
+            assert str(e.value) == "arm.index: 30 deg is not one of its values -45, 0, 45 deg"
+            rid = ro.set_user("arm.index", -45, DEFAULT_ACCESS_KEY)
+        finally:
+            ro.close()
+        forged = sup.forge_request(wm_name, "arm.index", 44.0, DEFAULT_ACCESS_KEY)
+        m.communications_segment()
+        assert m.request(rid).state == "applied" and m.get("arm.index") == -45.0
+        r = m.request(forged)
+        assert (r.state, r.result) == ("rejected", "arm.index: 44 deg is not one of its values -45, 0, 45 deg")
+        m.post_task_outputs("user", {"arm.index": 44.0})  # the owner's own posts are not checked (frame path)
+        m.communications_segment()
+        assert m.get("arm.index") == 44.0
+    finally:
+        m.close()
