@@ -12,7 +12,7 @@ its PWM/rate servo card (IRSS report 3.6, pfma-model.md 8.4)::
 
 Simplifications (documented in docs/simulated-arm.md): decoupled per-joint effective
 inertias (8.3) instead of a full rigid-body model; gravity is the exact static gravity of
-the 8.3 point masses (links counterbalanced 90 % on J2-J4, payload not), held constant
+the 8.3 point masses (links counterbalanced 90 % on J1-J5, payload not), held constant
 over one ``step``; contact is a point contact at the tool point, linearised about the
 pose at the start of each ``step``. Integration is fixed-step semi-implicit Euler with
 substeps of at most ``max_substep_s`` (1 ms): the viscous, stop-damping and Coulomb/brake
@@ -174,7 +174,8 @@ class ArmModel:
     def gravity_torque_nm(self, q: Sequence[float] | None = None) -> np.ndarray:
         """Net gravity torque on each axis after the counterbalance, N*m (gripper 0).
 
-        Links: ``(1 - 0.9) tau_grav`` on J2-J4, full elsewhere; payload: never counterbalanced.
+        Links: ``(1 - 0.9) tau_grav`` on J1-J5 (J1 and J5: ``fakes.arm_params.
+        SHOULDER_YAW_COUNTERBALANCED``), full on the wrist roll; payload: never counterbalanced.
         """
         q = self.q if q is None else np.asarray(q, dtype=float)
         F = self.kin.frames(q)

@@ -41,7 +41,7 @@ class AxisParams:
     inertia: float  #: decoupled effective inertia incl. reflected rotor, kg*m^2 (gripper: kg)
     coulomb: float  #: joint-side Coulomb friction, N*m (gripper: N)
     viscous: float  #: joint-side viscous friction, N*m*s/rad (gripper: N*s/m)
-    counterbalanced: bool  #: 90 % of link gravity removed (J2-J4)
+    counterbalanced: bool  #: 90 % of link gravity removed (J1-J5)
     brake: bool  #: brake fitted (six joints; the gripper has none, IRSS 3.6)
     has_angle: bool = True  #: resolver fitted (the gripper has none in the rack)
     eta: float = 0.8  #: gear efficiency
@@ -63,10 +63,26 @@ class AxisParams:
 
 
 #: The seven axes. Columns per pfma-model.md 8.2 (limits, N, omega_fs, K_t, I_max) and
-#: 8.3 (inertia, friction); counterbalance on J2-J4 (8.3); brakes on the six joints (IRSS 3.6).
+#: 8.3 (inertia, friction); counterbalance on J1-J5 (8.3 names J2-J4; J1 and J5: see
+#: below); brakes on the six joints (IRSS 3.6).
+#:
+#: Assumed (this project), SHOULDER_YAW_COUNTERBALANCED and WRIST_YAW_COUNTERBALANCED: the
+#: arm's counterbalances (IRSS report section 1: "counter balanced at the shoulder, elbow and
+#: wrist", and a spring counterbalance near the wrist) balance the links about the shoulder
+#: point and about the wrist centre, so they take 90 % of the link gravity off the shoulder
+#: yaw and the wrist yaw as well as off the pitch joints. 8.3 names J2-J4 because with the
+#: shoulder roll at 0 the shoulder yaw axis is vertical (no gravity on it at all) and the
+#: wrist yaw carries little (the 4 kg of link 6 at 0.22 m). Once the hand-indexed shoulder
+#: roll (8.1) tilts them, without this the nominal arm could not hold its ready pose at any
+#: index but 0: 246 N*m on the shoulder yaw at +45 deg against 192 N*m at I_max, and 6.1
+#: N*m on the wrist yaw that its weak rate loop (0.5 A/V) holds only with a 0.3 rad/s
+#: command, which the supervision takes for a stall.
+SHOULDER_YAW_COUNTERBALANCED = True
+WRIST_YAW_COUNTERBALANCED = True
 AXES: tuple[AxisParams, ...] = (
     AxisParams("SY", "Shoulder Yaw", "shoulder_yaw", -150 * DEG, 150 * DEG,
-               -145 * DEG, 145 * DEG, 200, 0.40, 0.12, 10.0, 40.0, 8.0, 20.0, False, True),
+               -145 * DEG, 145 * DEG, 200, 0.40, 0.12, 10.0, 40.0, 8.0, 20.0, SHOULDER_YAW_COUNTERBALANCED,
+               True),
     AxisParams("SP", "Shoulder Pitch", "shoulder_pitch", -30 * DEG, 120 * DEG,
                -25 * DEG, 115 * DEG, 200, 0.40, 0.12, 10.0, 40.0, 8.0, 20.0, True, True),
     AxisParams("EP", "Elbow Pitch", "elbow_pitch", -150 * DEG, 10 * DEG,
@@ -74,7 +90,7 @@ AXES: tuple[AxisParams, ...] = (
     AxisParams("WP", "Wrist Pitch", "wrist_pitch", -110 * DEG, 110 * DEG,
                -105 * DEG, 105 * DEG, 100, 1.00, 0.06, 5.0, 0.6, 1.0, 2.0, True, True),
     AxisParams("WY", "Wrist Yaw", "wrist_yaw", -110 * DEG, 110 * DEG,
-               -105 * DEG, 105 * DEG, 100, 1.00, 0.06, 5.0, 0.6, 1.0, 2.0, False, True),
+               -105 * DEG, 105 * DEG, 100, 1.00, 0.06, 5.0, 0.6, 1.0, 2.0, WRIST_YAW_COUNTERBALANCED, True),
     AxisParams("WR", "Wrist Roll", "wrist_roll", -180 * DEG, 180 * DEG,
                -175 * DEG, 175 * DEG, 60, 2.00, 0.06, 5.0, 0.08, 1.0, 2.0, False, True),
     # assumed (simulator): gripper jaw opening 0..0.10 m, 0.05 m/s at 10 V, 40 N/A
@@ -136,7 +152,7 @@ class ArmParams:
     dh: tuple[DhRow, ...] = DH
     link_masses: tuple[PointMass, ...] = LINK_MASSES
     gravity_m_s2: float = 9.81
-    counterbalance_fraction: float = 0.9  #: 8.3: tau_cb = -0.9 tau_grav,links on J2-J4
+    counterbalance_fraction: float = 0.9  #: 8.3: tau_cb = -0.9 tau_grav,links on J2-J4 (and J1, J5 here)
     rate_loop_lambda: float = 40.0  #: 8.4: K_a = lambda J / (N eta K_t K_w), rad/s
     tach_filter_hz: float = 10.0  #: IRSS 3.6.3 (sourced) / 8.4: tau_f = 15.9 ms
     brake_engage_v: float = 0.3  #: 8.4: brake engaged when V_ilim < 0.3 V

@@ -66,17 +66,22 @@ class SimulatedRack:
     :param environment: contact objects (default: free space; ignored when ``arm`` is given)
     :param errors: known truth errors (resolver offsets, tach scale, ADC/DAC gain and
         offset per signal, payload); default all zero
+    :param shoulder_roll_rad: where the arm's manually indexed shoulder roll is pinned
+        (pfma-model 8.1; ignored when ``arm`` is given): it tilts the arm under gravity and
+        moves the tool in the world. No sensor reports it (``shoulder_roll_rate`` stays 0 V)
     :raises KeyError: when the rack configuration lacks a signal the arm needs
     """
 
     def __init__(self, rack: RackConfig | None = None, *, clock: Clock | None = None,
                  fake_rack: FakeRack | None = None, arm: ArmModel | None = None,
-                 environment: Environment | None = None, errors: SimErrors | None = None) -> None:
+                 environment: Environment | None = None, errors: SimErrors | None = None,
+                 shoulder_roll_rad: float = 0.0) -> None:
         self.config = rack if rack is not None else load_rack()
         self.fake_rack = fake_rack if fake_rack is not None else FakeRack.from_config(self.config, clock=clock)
         self.clock = self.fake_rack.clock
         self.errors = errors if errors is not None else SimErrors()
-        self.arm = arm if arm is not None else ArmModel(environment=environment, errors=self.errors)
+        self.arm = arm if arm is not None else ArmModel(environment=environment, errors=self.errors,
+                                                        shoulder_roll_rad=shoulder_roll_rad)
         self.environment = self.arm.environment
         self._ft_push = None
         #: the amplifier-enable charge-pump relay (``fakes.mvme410.ChargePumpRelay``) when the

@@ -24,6 +24,9 @@ class FakeWorld:
     :param clock: shared by the boards and the world (default: a new SimClock)
     :param max_step_s: longest single physics step when the world falls behind
     :param min_step_s: ticks closer together than this are skipped (bounds the cost)
+    :param sim_kwargs: :class:`fakes.sim_rack.SimulatedRack` arguments: ``errors``,
+        ``environment``, ``shoulder_roll_rad`` (where the arm's hand-indexed shoulder roll
+        is pinned, pfma-model 8.1)
     """
 
     def __init__(self, rack: RackConfig | None = None, clock: Clock | None = None,
