@@ -72,8 +72,9 @@ MODE_NAMES = {MODE_HOLD: "HOLD", MODE_TELEOP: "TELEOP", MODE_TRAJECTORY: "TRAJEC
 #: largest reference-to-measured distance a hand-controller twist may grow (assumed)
 MAX_LAG_M = 0.05
 MAX_LAG_RAD = 0.20
-#: the shoulder roll index (8.1: configuration, default 0; world = base rotated by it)
-SHOULDER_ROLL_RAD = 0.0
+#: the shoulder-roll index the Joint Planner took at power-up (8.1: world = base rotated by
+#: it); without it in the model (no Joint Planner) the index is 0
+ROLL_VAR = "joint.shoulder_roll_rad"
 #: the trajectory planner's outputs (T's layer); trajectory mode needs them in the model
 TRAJ_VARS = ("traj.pos_m", "traj.quat", "traj.active")
 #: the Joint Planner's measured tool pose (K's layer); without it fk(daq angles) is used
@@ -123,6 +124,7 @@ class CartesianLayer(Layer):
         self.seq = 0
         self.runs = {"cartesian_slow": 0, "cartesian_fast": 0}
         self._have: dict[str, bool] | None = None
+        self.shoulder_roll_rad = 0.0  #: the index of the kinematics (taken at start-up)
 
     def _reset_motion(self) -> None:
         self.mode = MODE_HOLD
@@ -211,7 +213,8 @@ class CartesianLayer(Layer):
     def _check_model(self, rt: "LayerContext") -> dict[str, bool]:
         if self._have is None:
             names = set(rt.wm.names())
-            self._have = {"traj": all(n in names for n in TRAJ_VARS), "tool": all(n in names for n in TOOL_VARS)}
+            self._have = {"traj": all(n in names for n in TRAJ_VARS), "tool": all(n in names for n in TOOL_VARS),
+                          "roll": ROLL_VAR in names}
         return self._have
 
     # --- sequences -----------------------------------------------------------------------
@@ -228,8 +231,10 @@ class CartesianLayer(Layer):
         self.force.reset()
         self.delay.reset()
         v = rt.wm.get_task_inputs(("daq.joint_angle_rad", "cart.mode", "force.zero_seq"))
+        # the index the Joint Planner's kinematics took at its initialisation (before this start-up)
+        self.shoulder_roll_rad = float(rt.wm.get(ROLL_VAR)) if self._check_model(rt)["roll"] else 0.0
         from controller.kinematics import fk
-        p, q = fk(v["daq.joint_angle_rad"], SHOULDER_ROLL_RAD)
+        p, q = fk(v["daq.joint_angle_rad"], self.shoulder_roll_rad)
         self.meas_pos, self.meas_quat = np.asarray(p, float), q_normalize(q)
         self.hold_pos, self.hold_quat = self.meas_pos.copy(), self.meas_quat.copy()
         self.mode = int(v["cart.mode"]) if int(v["cart.mode"]) in MODE_NAMES else MODE_HOLD
@@ -266,7 +271,7 @@ class CartesianLayer(Layer):
                 self.meas_pos, self.meas_quat = np.asarray(p, float), q_normalize(q)
                 return
         from controller.kinematics import fk
-        p, q = fk(v["daq.joint_angle_rad"], SHOULDER_ROLL_RAD)
+        p, q = fk(v["daq.joint_angle_rad"], self.shoulder_roll_rad)
         self.meas_pos, self.meas_quat = np.asarray(p, float), q_normalize(q)
 
     def base(self) -> tuple[np.ndarray, np.ndarray]:

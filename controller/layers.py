@@ -23,6 +23,7 @@ The layers above the Joint Planner are in their own modules (:mod:`controller.ca
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
@@ -32,7 +33,9 @@ from controller.decision import (
     command_text, status_text,
 )
 from controller.messages import Level
-from controller.params import JOINTS, N_JOINTS
+from controller.params import (
+    JOINTS, N_JOINTS, SHOULDER_ROLL_STEPS_DEG, check_shoulder_roll_deg, shoulder_roll_text,
+)
 from controller.quat import q_angle
 from controller.worldmodel import VarSpec
 from drivers.pio.registers import decode_matrix_route
@@ -311,6 +314,14 @@ class UpDownLayer(Layer):
                                                     "ui.response_text": words})
         rt.post(self.key, lvl, f"request {seq}: {text} -> {Response.NAMES[code]}")
 
+    def _roll_note(self, rt) -> str:
+        """What POWER UP's first answer says of the shoulder-roll index (no sensor: the
+        operator's parameter, shown so that it is confirmed; docs/controller.md)."""
+        if "joint.shoulder_roll_deg" not in rt.wm.names():
+            return ""
+        deg = float(rt.wm.get("joint.shoulder_roll_deg"))
+        return f" (shoulder-roll index {shoulder_roll_text(deg)}: no sensor, as set in joint.shoulder_roll_deg)"
+
     def _command(self, rt, cmd: Command) -> None:
         if cmd != self._cmd:
             self._cmd = cmd
@@ -374,7 +385,7 @@ class UpDownLayer(Layer):
                 if st == Status.SHUT_DOWN:
                     self._active, self._active_seq = req, seq
                     self._command(rt, Command.INIT_TO_START)
-                    self._respond(rt, seq, Response.IN_PROGRESS, name)
+                    self._respond(rt, seq, Response.IN_PROGRESS, name + self._roll_note(rt))
                 else:
                     self._respond(rt, seq, Response.REFUSED, f"{name}: system is {status_text(st)}")
             elif req == Request.POWER_DOWN:
@@ -453,9 +464,12 @@ class JointPlannerLayer(Layer):
     ``joint.tool_pos_m`` / ``joint.tool_quat`` = fk(``daq.joint_angle_rad``). Its start-up
     task commands the current joint angles so that nothing moves when the loop closes.
 
-    :param shoulder_roll_rad: the manually indexed shoulder roll (configuration,
-        pfma-model 8.1: -90..+90 deg in 45 deg steps, default 0); published as
-        ``joint.shoulder_roll_rad``
+    The manually indexed shoulder roll (pfma-model 8.1) has no sensor: its index is the
+    user parameter ``joint.shoulder_roll_deg`` (one of -90, -45, 0, +45, +90; set only while
+    powered down), which the initialisation task takes for the kinematics and publishes as
+    ``joint.shoulder_roll_rad`` (docs/controller.md "The shoulder-roll index").
+
+    :param shoulder_roll_deg: the parameter's initial value (default 0)
     """
 
     key = "joint"
@@ -465,13 +479,16 @@ class JointPlannerLayer(Layer):
     CART_VARS = ("cart.pos_cmd_m", "cart.quat_cmd", "cart.cmd_valid", "cart.cmd_seq")
     MODE_JOINT, MODE_CARTESIAN = 0, 1
 
-    def __init__(self, shoulder_roll_rad: float = 0.0) -> None:
+    def __init__(self, shoulder_roll_deg: int = 0) -> None:
         super().__init__()
         self._seen_goal = 0
         self.periodic["joint_planner"] = self.plan_task
         self.lo = np.array([j.soft_lo_rad for j in JOINTS])
         self.hi = np.array([j.soft_hi_rad for j in JOINTS])
-        self.shoulder_roll_rad = float(shoulder_roll_rad)
+        #: the initial value of the parameter joint.shoulder_roll_deg
+        self.shoulder_roll_deg = check_shoulder_roll_deg(shoulder_roll_deg)
+        #: the index the kinematics use: joint.shoulder_roll_deg as the initialisation took it
+        self.shoulder_roll_rad = math.radians(self.shoulder_roll_deg)
         self.q_cmd = np.zeros(N_JOINTS)  #: the last joint command posted (rad)
         self.mode = self.MODE_JOINT
         self._have_cart: bool | None = None
@@ -511,8 +528,13 @@ class JointPlannerLayer(Layer):
                     doc="Cartesian mode: tool-point distance from the commanded pose to fk(servo.q_cmd_rad)"),
             VarSpec("joint.cart_err_rad", "task_status", "f8", (), w, 0.0, "rad",
                     doc="Cartesian mode: orientation angle from the commanded pose to fk(servo.q_cmd_rad)"),
+            VarSpec("joint.shoulder_roll_deg", "control_flags", "f8", (), "user", float(self.shoulder_roll_deg), "deg",
+                    choices=SHOULDER_ROLL_STEPS_DEG,
+                    doc="the shoulder roll's index position, set by hand on the arm (no sensor): -90 -45 0 45 90 "
+                        "(pfma-model 8.1); set it where the joint is pinned, while powered down; power-up takes it"),
             VarSpec("joint.shoulder_roll_rad", "status_output", "f8", (), w, self.shoulder_roll_rad, "rad",
-                    doc="the shoulder-roll index the kinematics use (configuration, pfma-model 8.1)"),
+                    doc="the shoulder-roll index the kinematics use: joint.shoulder_roll_deg as the last "
+                        "power-up took it (pfma-model 8.1: world = base rotated about x by it)"),
         ]
 
     def _cart_available(self, rt: "LayerContext") -> bool:
@@ -524,6 +546,12 @@ class JointPlannerLayer(Layer):
     def seq_init(self, rt: "LayerContext") -> TaskState:
         self._cart_available(rt)
         self._dt_s = rt.task_period_s("joint_planner")
+        # the shoulder-roll index: a parameter (no sensor), fixed from here to the power-down
+        deg = check_shoulder_roll_deg(float(rt.wm.get("joint.shoulder_roll_deg")))
+        self.shoulder_roll_rad = math.radians(deg)
+        rt.wm.post_task_outputs("joint", {"joint.shoulder_roll_rad": self.shoulder_roll_rad})
+        rt.post(self.key, Level.INFO, f"shoulder-roll index {shoulder_roll_text(deg)} (joint.shoulder_roll_deg; "
+                                      f"no sensor: as the operator set it): the kinematics use it until power-down")
         return TaskState.DONE
 
     def seq_startup(self, rt: "LayerContext") -> TaskState:

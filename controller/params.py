@@ -11,6 +11,8 @@ PFMA model; ALL VALUES ASSUMED there, the real PFMA data are not public):
   Brake engaged below V_ilim 0.3 V, released above 0.5 V;
 - 8.4 computer-side joint loop: qdot_cmd = qdot_ff + C_j(s) (q_cmd - q), default
   C_j = K_p = 8 1/s, optional lead/lag (section 5), omega_lim saturation;
+- 8.1 the manually indexed shoulder roll's positions (-90..+90 deg in 45 deg steps;
+  ``SHOULDER_ROLL_STEPS_DEG``), a parameter of the kinematics, not a servoed joint;
 - 8.4 amplifier rate loop (for the servo's step-response prediction): tach filter
   tau_f = 15.9 ms (10 Hz), K_a = lambda J / (N eta K_t K_w) with lambda = 40 rad/s,
   effective inertia 8.3 and viscous friction 8.3.
@@ -25,6 +27,7 @@ from __future__ import annotations
 from pfma.arm import (  # noqa: F401  (re-exported: the controller's one import of arm facts)
     DEG, GRIPPER_I_MAX_A, JOINT_NAMES, JOINTS, N_JOINTS, SOURCE, JointFacts, joint, unwrap_angle,
     RATE_LOOP_LAMBDA, RUN_CURRENT_FRACTION, TACH_TAU_S,
+    SHOULDER_ROLL_STEPS_DEG, SHOULDER_ROLL_STEPS_TEXT, check_shoulder_roll_deg, shoulder_roll_text,
 )
 
 #: current-limit channels of the command area: the six joints, then the gripper

@@ -902,6 +902,12 @@ class ControllerRuntime:
         self.wm.set_user("joint.goal_seq", self._goal_seq, self._key)
         return self._goal_seq
 
+    def set_shoulder_roll(self, deg: int) -> int:
+        """Set the shoulder-roll index ``joint.shoulder_roll_deg`` (one of -90, -45, 0, 45, 90;
+        only while powered down; the next power-up takes it). A user write like ``pfma wm set``:
+        returns its request id. :raises WorldModelError: another value, or powered up"""
+        return int(self.wm.set_user("joint.shoulder_roll_deg", float(deg), self._key))
+
     # --- queries -------------------------------------------------------------------------
     def status(self, key: str = "updown") -> Status:
         return Status(self.wm.get_state_variable(f"{key}.status"))

@@ -12,9 +12,10 @@ Facts (pfma-model.md, ASSUMED there):
   2 N*m, disabled when the synthetic round trip exceeds 0.5 s (section 6).
 
 Hand-controller frame (drivers/crl/state.py): x forward, y left, z up, roll/pitch/yaw
-about x/y/z - the orientation of the arm's base frame 0 at q = 0, so in "world" mode
-axis i moves the tool along world axis i (the world frame equals frame 0 while the
-shoulder roll index is 0). In "tool" mode the same numbers are taken in the tool frame.
+about x/y/z - the orientation of the world frame (the arm's mount: frame 0 at q = 0 while
+the shoulder roll index is 0), so in "world" mode axis i moves the tool along world axis
+i whatever the index (up stays up: the kinematics take the index, pfma-model 8.1). In
+"tool" mode the same numbers are taken in the tool frame.
 
 All three sources (CAE, CRL, HID) are used in rate mode here: the CRL's number is the
 master's position in its workspace (-1..1 = +-0.20 m / +-60 deg), so with rate mode the

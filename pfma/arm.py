@@ -118,3 +118,34 @@ def joint(name: str) -> JointFacts:
 def unwrap_angle(angle_rad: float, centre_rad: float) -> float:
     """A resolver angle (0..2 pi) mapped into the 2 pi window centred on ``centre_rad``."""
     return centre_rad + (angle_rad - centre_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+# --- the manually indexed shoulder roll (pfma-model.md 8.1) -------------------------------------
+#: The shoulder roll is indexed by hand, not servoed: a constant mount transform before joint 1,
+#: ``T_world_base = T_mount Rx(phi_SR)`` (T_mount = identity here), at one of these positions
+#: (deg; 45 deg steps, default 0). It has no sensor: the controller takes it as a parameter the
+#: operator sets and confirms (docs/controller.md "The shoulder-roll index").
+SHOULDER_ROLL_STEPS_DEG: tuple[int, ...] = (-90, -45, 0, 45, 90)
+
+
+def shoulder_roll_text(deg: float) -> str:
+    """An index position as the tools say it: ``+45 deg``, ``0 deg``, ``-90 deg``."""
+    return f"{deg:+g} deg" if deg else "0 deg"
+
+
+#: the positions in words, for every refusal of another value
+SHOULDER_ROLL_STEPS_TEXT = (", ".join(shoulder_roll_text(d) for d in SHOULDER_ROLL_STEPS_DEG)
+                            + " (45 deg steps, pfma-model 8.1)")
+
+
+def check_shoulder_roll_deg(deg: float) -> int:
+    """``deg`` as an index position (an int), or a :class:`ValueError` naming the positions."""
+    try:
+        value = float(deg)
+    except (TypeError, ValueError):
+        raise ValueError(f"shoulder roll {deg!r} is not a number; the index positions are "
+                         f"{SHOULDER_ROLL_STEPS_TEXT}") from None
+    if value not in SHOULDER_ROLL_STEPS_DEG:
+        raise ValueError(f"shoulder roll {value:g} deg is not an index position; the shoulder roll is indexed "
+                         f"by hand at {SHOULDER_ROLL_STEPS_TEXT}")
+    return int(value)

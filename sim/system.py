@@ -24,12 +24,14 @@ and driven the same way produce identical traces.
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from controller.frames import FrameConfig
 from controller.layers import Request
+from controller.params import check_shoulder_roll_deg
 from controller.runtime import ControllerRuntime
 from ioservice.schedule import Schedule
 from sim.rig import SimRig
@@ -80,6 +82,18 @@ class FrameStepping:
         return np.array([q[stems.index(n)] for n in JOINT_NAMES], dtype=float)
 
     @property
+    def shoulder_roll_rad(self) -> float:
+        """Where the simulated arm's shoulder roll is pinned (its truth; the controller's
+        index is its parameter ``joint.shoulder_roll_deg``, which may differ)."""
+        return float(self.world.sim.arm.shoulder_roll_rad)
+
+    def tool_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """True tool pose of the simulated arm in the world (position m, quaternion w x y z):
+        the kinematics of its true joint angles and its true shoulder-roll index."""
+        from controller.kinematics import fk
+        return fk(self.joint_angles_rad(), self.shoulder_roll_rad)
+
+    @property
     def updown_rt(self) -> ControllerRuntime:
         """The runtime whose world model has System Up/Down (the user requests go there)."""
         raise NotImplementedError
@@ -112,23 +126,31 @@ class SystemSimulator(FrameStepping):
     :param name: Bit3 shared-memory name (default: a private random one)
     :param wm_name: world-model shared-memory name (None: private memory)
     :param require_ft: a stale F/T link is a Data Acquisition fault
+    :param shoulder_roll_deg: the shoulder-roll index (pfma-model 8.1: -90, -45, 0, 45, 90):
+        the simulated arm is pinned there and the controller's parameter
+        ``joint.shoulder_roll_deg`` is set to it (a user write, applied at the first frame)
     :param world_kw: extra keyword arguments for :class:`fakes.world.FakeWorld`
+    :raises ValueError: a shoulder roll that is not an index position
     """
 
     def __init__(self, *, frames: FrameConfig | None = None, profile: str | None = None,
                  name: str | None = None, wm_name: str | None = None, require_ft: bool = True,
-                 trace_frames: int = 4096, **world_kw) -> None:
+                 trace_frames: int = 4096, shoulder_roll_deg: int = 0, **world_kw) -> None:
         if frames is None:
             frames = FrameConfig.profile(profile) if profile else FrameConfig()
         self.frames = frames
+        roll = check_shoulder_roll_deg(shoulder_roll_deg)
         self.rig = SimRig(name=name, prefix="pfma-sim-",
-                          service_kw={"schedule": Schedule(frame_rate_hz=frames.frame_rate_hz)}, **world_kw)
+                          service_kw={"schedule": Schedule(frame_rate_hz=frames.frame_rate_hz)},
+                          shoulder_roll_rad=math.radians(roll), **world_kw)
         self.name, self.clock, self.world, self.svc = self.rig.name, self.rig.clock, self.rig.world, self.rig.svc
         self.rt = None
         try:
             self.client = self.rig.controller(owner="controller")
             self.rt = ControllerRuntime(self.client, frames=frames, wm_name=wm_name, clock=self.clock,
                                         require_ft=require_ft, trace_frames=trace_frames)
+            if roll:
+                self.rt.set_shoulder_roll(roll)
         except BaseException:
             self.rig.close()
             raise
