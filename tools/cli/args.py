@@ -84,3 +84,13 @@ def monitor_number(text: str) -> int:
     if v not in MONITORS:
         raise argparse.ArgumentTypeError(f"{text} is not a monitor: {MONITORS[0]}..{MONITORS[-1]}")
     return v
+
+
+def shoulder_roll_degrees(text: str) -> int:
+    """A shoulder-roll index position in degrees: -90, -45, 0, 45 or 90 (pfma-model 8.1);
+    another value is refused naming them."""
+    from pfma.arm import check_shoulder_roll_deg
+    try:
+        return check_shoulder_roll_deg(_number(float, text))
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None

@@ -6,6 +6,7 @@ Examples::
     pfma controller --sim --power-up --duration 0.5 --trace --changes
     pfma controller --sim --halt            # single-step: Enter = one minor frame, ? = help
     pfma controller --sim --power-up --step 40
+    pfma controller --sim --shoulder-roll 45 --power-up      # the shoulder roll indexed at +45 deg
     pfma controller --buffer pfma --power-up --duration 10     # against ``pfma serve``
     pfma controller --tables                # the decision tables and the scheduling table
     pfma controller halt --wm pfma_wm       # a running controller: hold the outputs HALTED
@@ -25,13 +26,15 @@ from __future__ import annotations
 
 import argparse
 import gc
+import math
 import signal
 import sys
 import time
 
 from bit3 import futex
 from tools.cli.args import (
-    camera_number, monitor_number, nonneg_float, nonneg_int, positive_float, positive_int, whole_number,
+    camera_number, monitor_number, nonneg_float, nonneg_int, positive_float, positive_int, shoulder_roll_degrees,
+    whole_number,
 )
 
 HELP = """single-step commands (IRSS halt / manual interrupt):
@@ -98,6 +101,7 @@ def add_parser(sub):
                         "the one with daq writes the Bit3 command area, the others read the inputs)")
     _add_motion_arguments(p)
     _add_path_arguments(p)
+    _add_roll_arguments(p)
     return p
 
 
@@ -116,6 +120,68 @@ class _CountOrCamera(argparse.Action):
         except argparse.ArgumentTypeError as err:
             raise argparse.ArgumentError(None, f"argument {'CAMERA' if route else 'N'}: {err}") from None
         setattr(namespace, self.dest, value)
+
+
+# --- the shoulder-roll index (issue 30 item 2; docs/controller.md "The shoulder-roll index") ----
+def _add_roll_arguments(p) -> None:
+    g = p.add_argument_group("the shoulder-roll index (indexed by hand, no sensor)")
+    g.add_argument("--shoulder-roll", type=shoulder_roll_degrees, default=None, metavar="DEG",
+                   help="where the shoulder roll is pinned: -90, -45, 0, 45 or 90 (deg). Sets "
+                        "joint.shoulder_roll_deg before anything powers up, and is the operator's "
+                        "confirmation of it: a --power-up on a rack the service does not report as "
+                        "simulated needs it. With --sim the simulated arm is pinned there too")
+
+
+def _setup_roll(d, args) -> int:
+    """Set the index (``--shoulder-roll``) and, with ``--power-up``, show it and check it was
+    confirmed; 0, or 2 after one line saying why the power-up is refused."""
+    from controller.params import SHOULDER_ROLL_STEPS_TEXT, shoulder_roll_text
+    wm = d.rt.wm
+    if args.shoulder_roll is not None:
+        d.rt.set_shoulder_roll(args.shoulder_roll)
+        d.frame()  # applied at this frame's communications segment (still powered down)
+    deg = float(wm.get("joint.shoulder_roll_deg"))
+    if d.sim is not None and args.shoulder_roll is None:
+        return 0  # the simulated arm and the controller both at 0: nothing to confirm or say
+    if not args.power_up:
+        if args.shoulder_roll is not None:
+            print(f"shoulder-roll index {shoulder_roll_text(deg)} (joint.shoulder_roll_deg; the next power-up "
+                  f"takes it)", flush=True)
+        return 0
+    if d.sim is not None:
+        why = "the simulated arm is pinned there too"
+    elif args.shoulder_roll is not None:
+        why = f"confirmed by --shoulder-roll {args.shoulder_roll}"
+    else:
+        rack = _rack_kind(d.client)
+        if rack != "simulated":
+            print(f"pfma controller: the shoulder roll is indexed by hand and has no sensor: --power-up on "
+                  f"{'an' if rack == 'unknown' else 'a'} {rack} rack needs --shoulder-roll DEG, the index the joint is pinned at ({SHOULDER_ROLL_STEPS_TEXT}); "
+                  f"check the joint, then say it (the controller's is {shoulder_roll_text(deg)})", file=sys.stderr)
+            return 2
+        why = "not confirmed: the service's rack is simulated, its arm pinned where `pfma serve --shoulder-roll` put it"
+    print(f"power-up with the shoulder-roll index {shoulder_roll_text(deg)} ({why})", flush=True)
+    return 0
+
+
+def _rack_kind(client) -> str:
+    """"simulated", "real" or "unknown": what the service publishes of its rack (Bit3 header)."""
+    try:
+        return str(client.header().rack_kind)
+    except Exception:  # noqa: BLE001 - what cannot be read is unknown (and needs the confirmation)
+        return "unknown"
+
+
+def _roll_summary(d) -> str:
+    from controller.params import shoulder_roll_text
+    v = d.rt.wm.get_task_inputs(("joint.shoulder_roll_deg", "joint.shoulder_roll_rad"))
+    used = math.degrees(float(v["joint.shoulder_roll_rad"]))
+    line = f"shoulder-roll index {shoulder_roll_text(float(v['joint.shoulder_roll_deg']))} (joint.shoulder_roll_deg)"
+    if d.rt.wm.powered_up:
+        line += f"; the kinematics use {shoulder_roll_text(round(used))}"
+    if d.sim is not None:
+        line += f"; the simulated arm is pinned at {shoulder_roll_text(round(math.degrees(d.sim.shoulder_roll_rad)))}"
+    return line
 
 
 # --- motion: teleoperation, force control, time delay (Cartesian engine, issue 6) -------------
@@ -171,9 +237,8 @@ def _setup_motion(d, args) -> None:
         d.frame()  # applied at this frame's communications segment
         print("motion settings: " + ", ".join(f"{k}={v}" for k, v in settings.items()))
     if args.demo_wall is not None:
-        from controller.kinematics import fk
         from fakes.environment import Wall
-        p, _ = fk(d.sim.joint_angles_rad())
+        p, _ = d.sim.tool_pose()
         x = float(p[0]) + args.demo_wall
         d.sim.world.sim.environment.add(Wall(point_m=(x, 0.0, 0.0), normal=(-1.0, 0.0, 0.0)))
         print(f"virtual wall at x = {x:.3f} m (normal -x, 2e4 N/m)")
@@ -205,8 +270,7 @@ def _motion_summary(d) -> str:
             f"force state {int(v['force.state'])} F ({w[0]:+.2f}, {w[1]:+.2f}, {w[2]:+.2f}) N  "
             f"reflection {'on' if v['teleop.reflect_enabled'] else 'off'}")
     if d.sim is not None:
-        from controller.kinematics import fk
-        t, _ = fk(d.sim.joint_angles_rad())
+        t, _ = d.sim.tool_pose()
         line += f"\ntool (true) ({t[0]:+.4f}, {t[1]:+.4f}, {t[2]:+.4f}) m"
     return line
 
@@ -436,7 +500,8 @@ class _Driver:
         self.client = None
         if args.sim:
             from sim.system import SystemSimulator
-            self.sim = SystemSimulator(frames=frames, wm_name=wm_name, require_ft=not args.no_ft)
+            self.sim = SystemSimulator(frames=frames, wm_name=wm_name, require_ft=not args.no_ft,
+                                       shoulder_roll_deg=getattr(args, "shoulder_roll", None) or 0)
             self.rt = self.sim.rt
             self.sim.step(10)  # the service's first frames (links open)
         else:
@@ -602,6 +667,10 @@ def _shared_command(d: _Driver, cmd: str, applied: str) -> bool:
     from controller.layers import Request
     if cmd in ("p", "d", "r"):
         kind = {"p": Request.POWER_UP, "d": Request.POWER_DOWN, "r": Request.ERROR_RESET}[cmd]
+        if cmd == "p":
+            from controller.params import shoulder_roll_text
+            print(f"shoulder-roll index {shoulder_roll_text(float(d.rt.wm.get('joint.shoulder_roll_deg')))} "
+                  f"(no sensor: joint.shoulder_roll_deg, as set)")
         print(f"request {d.rt.request(kind)}: {Request.NAMES[kind]} (applied at {applied})")
     elif cmd == "m":
         print(d.rt.messages.format())
@@ -675,6 +744,10 @@ def _frame_control(args) -> int:
     if args.frames is not None and args.action not in ("step", "route"):
         print(f"pfma controller {args.action}: takes no frame count (only step N does)", file=sys.stderr)
         return 2
+    if getattr(args, "shoulder_roll", None) is not None:
+        print(f"pfma controller {args.action}: takes no --shoulder-roll (a running controller's index: `pfma wm "
+              f"set joint.shoulder_roll_deg DEG` while it is powered down)", file=sys.stderr)
+        return 2
     if args.rearm and args.action != "resume":
         print(f"pfma controller {args.action}: --rearm belongs to resume", file=sys.stderr)
         return 2
@@ -746,6 +819,8 @@ def run(args) -> int:
     d.rt.on_frame.append(d.show)
     old_handlers = d.stop_on_signals(between_frames=not args.halt)
     try:
+        if _setup_roll(d, args):
+            return 2
         _setup_motion(d, args)
         _setup_paths(d, args)
         if args.power_up:
@@ -768,6 +843,8 @@ def run(args) -> int:
         _finish_paths(d, args)
         if _motion_settings(args) or args.demo_stick or args.demo_wall is not None:
             print(_motion_summary(d))
+        if args.shoulder_roll is not None or (d.sim is None and args.power_up):
+            print(_roll_summary(d))
         _summary(d, args)
     except KeyboardInterrupt:
         print()
@@ -821,7 +898,7 @@ def _distributed_unsupported(args) -> list[str]:
              ("--impedance", args.impedance is not None), ("--delay", args.delay is not None),
              ("--jitter", args.jitter is not None), ("--vernier", args.vernier), ("--demo-stick", args.demo_stick),
              ("--demo-wall", args.demo_wall is not None), ("--tables", args.tables),
-             ("--hc-frame", args.hc_frame != "world")]
+             ("--hc-frame", args.hc_frame != "world"), ("--shoulder-roll", args.shoulder_roll is not None)]
     return [f for f, on in flags if on]
 
 

@@ -41,7 +41,7 @@ from ioservice.ticking import TickingClock
 from pfma.clock import MonotonicClock
 from pfma.rack import load_rack
 from tools.cli.fault import add_serve_fault_args, install_serve_faults
-from tools.cli.args import float_in, positive_float, positive_int
+from tools.cli.args import float_in, positive_float, positive_int, shoulder_roll_degrees
 
 
 def add_parser(sub):
@@ -94,6 +94,10 @@ def add_parser(sub):
                    help="the scale signs the last direction check confirmed (docs/safety.md \"Files\"); when "
                         "they changed, arms are direction-check arms until each joint moved as commanded; "
                         "default: FILE.direction.json beside --calibration, none without it")
+    p.add_argument("--shoulder-roll", type=shoulder_roll_degrees, default=None, metavar="DEG",
+                   help="the simulated rack (--rack fake) only: pin its arm's hand-indexed shoulder roll at "
+                        "-90, -45, 0, 45 or 90 deg (default 0); the controller is told with its own "
+                        "--shoulder-roll (docs/controller.md \"The shoulder-roll index\")")
     add_serve_fault_args(p)
     return p
 
@@ -282,6 +286,10 @@ def run(args) -> int:
               f"(modbus://HOST:PORT, file:PATH), or --bus fake to run it on the simulated "
               f"rack's registers", file=sys.stderr)
         return 2
+    if args.shoulder_roll is not None and not (args.rack == "fake" and args.bus in (None, "fake")):
+        print("pfma serve: --shoulder-roll pins the simulated arm (--rack fake); a real arm's shoulder roll is "
+              "pinned by hand (tell the controller: pfma controller --shoulder-roll DEG)", file=sys.stderr)
+        return 2
     try:
         ft_url = _ft_url(args.ft_port)
         hid = _open_hid(args.hid)
@@ -295,7 +303,7 @@ def run(args) -> int:
     world = None
     if args.rack == "fake" and args.bus in (None, "fake"):
         from fakes.world import FakeWorld
-        world = FakeWorld(rack, clock=base)
+        world = FakeWorld(rack, clock=base, shoulder_roll_rad=math.radians(args.shoulder_roll or 0))
         bus = world.bus
         clock.hooks.append(world.tick)
     else:
@@ -407,7 +415,8 @@ def run(args) -> int:
             mode = (f" (requests to the controller of {args.modbus_requests})" if args.modbus_requests
                     else " (camera-route writes)" if args.modbus_writes else " (read-only)")
             print(f"pfma serve: Modbus TCP export on {export.address}{mode}")
-        on = "the simulated rack" if world else (
+        on = ("the simulated rack" + (f" (its shoulder roll pinned at {args.shoulder_roll:+d} deg)"
+                                      if args.shoulder_roll else "")) if world else (
             f"{args.bus} (simulated registers)" if args.bus.removeprefix("spy+") in ("fake", "fake://")
             else args.bus)
         print(f"pfma serve: {rack.name} on {on}, buffer "
