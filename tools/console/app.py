@@ -244,11 +244,11 @@ class ParamScreen(DebugDisplay):
                 Binding("left", "col(-1)", "joint"), Binding("right", "col(1)", "joint"),
                 Binding("enter,e", "edit", "edit")]
 
-    def __init__(self, wm) -> None:
+    def __init__(self, wm, select: str | None = None) -> None:
         super().__init__()
         self.wm = wm
         self.names = debug.param_names(wm)
-        self.row = 0
+        self.row = self.names.index(select) if select in self.names else 0
         self.col = 0
 
     def compose(self) -> ComposeResult:
@@ -462,7 +462,7 @@ class EditScreen(ModalScreen):
         return json.dumps(vec)
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
-        from controller.worldmodel import WorldModelError, coerce
+        from controller.worldmodel import WorldModelError, coerce_user
         from tools.cli.wm import format_value, parse_value
         text = event.value.strip()
         status = self.query_one("#edit-status", Static)
@@ -473,7 +473,7 @@ class EditScreen(ModalScreen):
             self.app.pop_screen()
             return
         try:
-            value = coerce(self.spec, parse_value(self.full_text(text)))
+            value = coerce_user(self.spec, parse_value(self.full_text(text)))
         except WorldModelError as err:  # the value check of pfma wm set: shown here, nothing sent
             self.confirm = None
             status.update(f"not sent: {err}")
@@ -483,6 +483,49 @@ class EditScreen(ModalScreen):
 
     def action_cancel(self) -> None:
         self.app.pop_screen()
+
+
+class PowerUpScreen(ModalScreen):
+    """POWER UP asks first (issue 30 item 2): the shoulder roll is indexed by hand and has no
+    sensor, so the operator confirms the index the kinematics will take
+    (``joint.shoulder_roll_deg``, docs/console.md "Power-up and the shoulder-roll index").
+    ``y``/Enter sends POWER UP, ``p`` opens the parameters to change the index, ``n``/Escape
+    cancels; nothing is sent but on ``y``."""
+
+    BINDINGS = [Binding("y,enter", "confirm", "yes: power up"), Binding("p", "change", "no: change it"),
+                Binding("n,escape", "cancel", "cancel")]
+    CSS = "PowerUpScreen { align: center middle; } #power-up { width: 84; height: auto; border: heavy $warning; }"
+
+    def __init__(self, deg: float) -> None:
+        super().__init__()
+        self.deg = deg
+
+    def compose(self) -> ComposeResult:
+        yield Static(view.power_up_question(self.deg), id="power-up", markup=False)
+
+    def text(self) -> str:
+        return str(self.query_one("#power-up", Static).render())
+
+    def action_confirm(self) -> None:
+        app = self.app
+        self.app.pop_screen()
+        if isinstance(app, ConsoleApp):
+            app.power_up_confirmed(self.deg)
+
+    def action_change(self) -> None:
+        app = self.app
+        self.app.pop_screen()
+        if isinstance(app, ConsoleApp):
+            app._note("INFO", "POWER UP not sent: change the shoulder-roll index (joint.shoulder_roll_deg) here, "
+                              "then u again")
+            app.push_screen(ParamScreen(app.sources.wm, select="joint.shoulder_roll_deg"))
+
+    def action_cancel(self) -> None:
+        app = self.app
+        self.app.pop_screen()
+        if isinstance(app, ConsoleApp):
+            app._note("INFO", "POWER UP cancelled (the shoulder-roll index was not confirmed)")
+            app.refresh_areas()
 
 
 class CameraScreen(ModalScreen):
@@ -577,7 +620,7 @@ class ConsoleApp(App):
     # (a line longer than its area ends in an ellipsis).
     HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-wide")]
     CSS = """
-    Grid { grid-size: 2 3; grid-columns: 2fr 1fr; grid-rows: 5fr 5fr 3fr; }
+    Grid { grid-size: 2 3; grid-columns: 2fr 1fr; grid-rows: 13fr 17fr 9fr; }
     Area { border: round $accent; padding: 0 1; height: 100%; scrollbar-size-vertical: 1; }
     Area:focus { border: round $secondary; }
     Area > Static { text-wrap: nowrap; text-overflow: ellipsis; }
@@ -593,7 +636,7 @@ class ConsoleApp(App):
     BINDINGS = [
         Binding("left", "layer(-1)", "layer", show=False), Binding("right", "layer(1)", "layer", show=False),
         Binding("up", "layer(-1)", "tree", show=False), Binding("down", "layer(1)", "tree", show=False),
-        Binding("u", "request('POWER_UP')", "power up"),
+        Binding("u", "power_up", "power up"),
         Binding("d", "request('POWER_DOWN')", "power down"),
         Binding("e", "request('ERROR_RESET')", "error reset"),
         Binding("h", "request('HALT')", "halt"),
@@ -827,6 +870,27 @@ class ConsoleApp(App):
 
     def action_request(self, name: str) -> None:
         self._send(getattr(Request, name))
+
+    def action_power_up(self) -> None:
+        """``u``: POWER UP, once the operator has confirmed the shoulder-roll index (no sensor;
+        :class:`PowerUpScreen`). A world model without the index sends it at once."""
+        wm = self.sources.wm
+        if self.link is None or "joint.shoulder_roll_deg" not in wm.names():
+            self._send(Request.POWER_UP)
+            return
+        self.push_screen(PowerUpScreen(float(wm.get("joint.shoulder_roll_deg"))))
+
+    def power_up_confirmed(self, deg: float) -> None:
+        """The operator confirmed the index ``deg``: POWER UP (unless it changed meanwhile)."""
+        from controller.params import shoulder_roll_text
+        now = float(self.sources.wm.get("joint.shoulder_roll_deg"))
+        if now != deg:
+            self._note("WARNING", f"POWER UP not sent: the shoulder-roll index changed to {shoulder_roll_text(now)} "
+                                  f"while the question showed {shoulder_roll_text(deg)}; u again")
+            self.refresh_areas()
+            return
+        self._note("INFO", f"shoulder-roll index {shoulder_roll_text(deg)} confirmed by the operator")
+        self._send(Request.POWER_UP)
 
     def action_step(self, n: int) -> None:
         self._send(Request.STEP, n)

@@ -1,6 +1,6 @@
 """The console's record start/stop (``c``): a ``pfma record`` process beside the console,
 recording the service's Bit3 topics and, with a world model, the layers' statuses and the
-servo's variables (``--wm NAME --var``), to ``pfma-console-<time>.mcap`` in the working
+servo's variables and the shoulder-roll index (``--wm NAME --var``), to ``pfma-console-<time>.mcap`` in the working
 directory (assumed: where the operator started the console). Ctrl-C (SIGINT) ends it
 cleanly with its summary written, as at a terminal."""
 
@@ -12,7 +12,7 @@ import sys
 import time
 
 #: world-model variables the console records beside the Bit3 topics (docs/console.md)
-WM_VARS = ("*.status", "servo.*")
+WM_VARS = ("*.status", "servo.*", "joint.shoulder_roll_*")
 #: how long a stopping recorder may take to write its summary before it is killed
 STOP_TIMEOUT_S = 10.0
 

@@ -22,6 +22,7 @@ from controller.cartesian import CartesianLayer
 from controller.daq_layer import FAULT_NAMES, DataAcquisitionLayer
 from controller.decision import Command, Status, status_text
 from controller.layers import JointPlannerLayer, UpDownLayer
+from controller.params import shoulder_roll_text
 from controller.paths import MultiSegmentLayer
 from controller.servo import ServoLayer
 from controller.trajectory import TrajectoryLayer
@@ -100,7 +101,8 @@ class Sources:
                                 if f"{k}.{f}" in names)
         extra = ("runtime.halted", "runtime.steps_left", "runtime.step_frames", "runtime.frames", "runtime.rate_hz",
                  "runtime.missed_frames", "daq.fault_bits", "daq.joint_angle_rad", "daq.joint_rate_rad_s", "daq.camera_route",
-                 "ui.response_seq", "ui.response", "ui.response_text", "runtime.first_cause")
+                 "ui.response_seq", "ui.response", "ui.response_text", "runtime.first_cause",
+                 "joint.shoulder_roll_deg")
         self.wm_vars = self.layer_vars + tuple(n for n in extra if n in names)
         self.messages: deque[ConsoleMessage] = deque(maxlen=MESSAGES_KEPT)
         #: simulated seconds per wall second (``pfma console --sim``), or None (a live system)
@@ -206,6 +208,7 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
            + f"  {float(r.wm.get('runtime.rate_hz', 0.0)):.0f} Hz  frames {int(r.wm.get('runtime.frames', 0))}"
            + f"  missed {int(r.wm.get('runtime.missed_frames', 0))}")
     lines.append(ctl)
+    lines += shoulder_roll_lines(r)
     lines += first_cause_lines(r)
     if halted:
         lines.append("HALTED: the motion below is measured, the outputs as the service holds them")
@@ -220,6 +223,34 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
     lines.append("device rates: " + "  ".join(f"{g} {float(st.device_rate_hz[lay.slot('device', g)]):.0f}"
                                               for g in DEVICE_GROUPS) + " Hz")
     return "\n".join(lines)
+
+
+def shoulder_roll_lines(r: Reading) -> list[str]:
+    """The shoulder-roll index (issue 30 item 2): the operator's parameter
+    ``joint.shoulder_roll_deg`` (indexed by hand, no sensor). While powered up it is the one
+    the kinematics use (power-up takes it, and it cannot change until power-down). Fits 76
+    columns."""
+    deg = r.wm.get("joint.shoulder_roll_deg")
+    if deg is None or not r.controller_alive:
+        return []
+    return [f"shoulder roll {shoulder_roll_text(float(deg))} (indexed by hand, no sensor)"]
+
+
+def power_up_question(deg: float) -> str:
+    """What the console asks before POWER UP (:class:`tools.console.app.PowerUpScreen`)."""
+    t = shoulder_roll_text(deg)
+    return "\n".join([
+        "POWER UP: confirm the shoulder-roll index",
+        "",
+        "The shoulder roll is indexed by hand and has no sensor: every Cartesian mode",
+        "(teleoperation, paths, impedance) and the F/T gravity compensation will take it",
+        f"as {t} (joint.shoulder_roll_deg).",
+        "",
+        f"Check the joint's index pin: is the shoulder roll pinned at {t}?",
+        "",
+        "y / Enter    yes: power up",
+        "p            no: change the index (the parameters, powered down), then u again",
+        "n / Escape   cancel"])
 
 
 def first_cause_lines(r: Reading) -> list[str]:

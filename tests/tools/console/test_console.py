@@ -32,7 +32,7 @@ def test_five_areas_titled_as_the_report_names_them(console):
 def test_power_up_from_the_global_commands(sim, console):
     async def body(pilot):
         assert "SHUT DOWN" in console.area_text("local")
-        await pilot.press("u")
+        await pilot.press("u", "y")
         frames(sim, console, 300)
         assert sim.rt.all_status(Status.START_UP_COMPLETE)
         local = console.area_text("local")
@@ -123,7 +123,7 @@ def test_record_starts_and_stops_a_recorder_of_this_system(console, tmp_path, mo
 
 def test_messages_screen_shows_what_the_console_keeps_newest_first(sim, console):
     async def body(pilot):
-        await pilot.press("u")
+        await pilot.press("u", "y")
         frames(sim, console, 200)
         await pilot.press("m")
         await pilot.pause()
@@ -140,7 +140,7 @@ def test_messages_screen_shows_what_the_console_keeps_newest_first(sim, console)
 
 def test_the_console_claims_nothing(sim, console):
     async def body(pilot):
-        await pilot.press("u", "h")
+        await pilot.press("u", "y", "h")
         frames(sim, console, 50)
     run_app(console, body)
     owners = sim.client.owners()

@@ -45,7 +45,7 @@ def _times(lines) -> list[float]:
 @pytest.mark.parametrize("size", SIZES, ids=[f"{w}x{h}" for w, h in SIZES])
 def test_every_area_is_on_screen_at_every_size(sim, console, size):
     async def body(pilot):
-        await pilot.press("u")
+        await pilot.press("u", "y")
         frames(sim, console, 300)
         await pilot.pause()
         text = screen_text(console)
@@ -61,7 +61,7 @@ def test_no_line_is_cut_at_120x40(sim, console):
     """The IRSS areas' lines fit their areas: the selected layer's detail line, the joints,
     the camera routes and every command are whole on the terminal (no ellipsis, no wrap)."""
     async def body(pilot):
-        await pilot.press("u")
+        await pilot.press("u", "y")
         frames(sim, console, 300)
         await pilot.press("right", "right", "right", "right", "right", "right")  # Data Acquisition: the longest
         frames(sim, console, 1)
@@ -86,7 +86,7 @@ def test_no_line_is_cut_at_120x40(sim, console):
 def test_at_80x24_an_area_pages_for_more(sim, console):
     """Tab focuses the next area; pgdn scrolls it (World Status has more lines than rows)."""
     async def body(pilot):
-        await pilot.press("u")
+        await pilot.press("u", "y")
         frames(sim, console, 300)
         await pilot.pause()
         world = console.query_one("#world-area", Area)
@@ -102,7 +102,7 @@ def test_at_80x24_an_area_pages_for_more(sim, console):
 
 def test_main_messages_in_time_order_the_newest_in_view(sim, console):
     async def body(pilot):
-        await pilot.press("u")
+        await pilot.press("u", "y")
         frames(sim, console, 300)
         _notes(console, 30)
         frames(sim, console, 1)
@@ -120,7 +120,7 @@ def test_main_messages_in_time_order_the_newest_in_view(sim, console):
 
 def test_messages_screen_newest_first_pages_to_older(sim, console):
     async def body(pilot):
-        await pilot.press("u")
+        await pilot.press("u", "y")
         frames(sim, console, 300)
         _notes(console, 60)
         await pilot.press("m")
@@ -141,7 +141,7 @@ def test_messages_screen_newest_first_pages_to_older(sim, console):
 
 def test_messages_screen_filters_by_source_and_level(sim, console):
     async def body(pilot):
-        await pilot.press("u")
+        await pilot.press("u", "y")
         frames(sim, console, 300)
         _notes(console, 3, "WARNING")
         _notes(console, 3, "INFO")
@@ -217,7 +217,7 @@ def test_angles_are_shown_in_minus_pi_to_pi(a):
 
 def test_at_80x24_the_selected_layer_stays_in_view(sim, console):
     async def body(pilot):
-        await pilot.press("u")
+        await pilot.press("u", "y")
         frames(sim, console, 300)
         for _ in range(6):  # down the tree to Data Acquisition, the last row of Local Status
             await pilot.press("right")

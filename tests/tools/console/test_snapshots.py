@@ -48,7 +48,7 @@ def _then(sim, app, frames: int, keys: tuple[str, ...] = ()):
 
 def test_primary_display_powered_up(rig, snap_compare):
     sim, app = rig
-    assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 300, ("u",)))
+    assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 300, ("u", "y")))
 
 
 SIZES = [(80, 24), (120, 40), (200, 50)]  #: issue 29 item 4: the smallest usable, clean, wide
@@ -61,7 +61,7 @@ def test_primary_display_at_size(rig, snap_compare, size):
     sim, app = rig
 
     async def run_before(pilot):
-        await _then(sim, app, 300, ("u", "h", "s"))(pilot)
+        await _then(sim, app, 300, ("u", "y", "h", "s"))(pilot)
         await pilot.pause()
         text = screen_text(app)
         assert all(title in text for title in view.AREAS)
@@ -77,7 +77,7 @@ def test_messages_screen_80x24(rig, snap_compare):
     sim, app = rig
 
     async def run_before(pilot):
-        await _then(sim, app, 300, ("u", "h", "m"))(pilot)
+        await _then(sim, app, 300, ("u", "y", "h", "m"))(pilot)
         rows = screen_text(app).splitlines()
         assert rows[0].strip().startswith(f"{len(app.sources.messages)} of {len(app.sources.messages)} messages, newest first")
         newest = max(app.sources.messages, key=lambda m: m.t_s)
@@ -87,28 +87,28 @@ def test_messages_screen_80x24(rig, snap_compare):
 
 def test_primary_display_halted(rig, snap_compare):
     sim, app = rig
-    assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 300, ("u", "h", "s")))
+    assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 300, ("u", "y", "h", "s")))
 
 
 def test_messages_screen(rig, snap_compare):
     sim, app = rig
-    assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 300, ("u", "m")))
+    assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 300, ("u", "y", "m")))
 
 
 def test_world_model_browser(rig, snap_compare):
     sim, app = rig
-    assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 300, ("u", "w")))
+    assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 300, ("u", "y", "w")))
 
 
 def test_parameter_display(rig, snap_compare):
     sim, app = rig
-    assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 300, ("u", "p")))
+    assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 300, ("u", "y", "p")))
 
 
 def test_force_displays(rig, snap_compare):
     sim, app = rig
     sim.world.ft.set_load((12.0, -4.0, 30.0), (0.5, -0.25, 0.125))
-    assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 40, ("u", "u", "u", "u", "f")))
+    assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 40, ("u", "y", "escape", "escape", "f")))
 
 
 def test_camera_screen(rig, snap_compare):
@@ -186,3 +186,19 @@ def test_live_menu(rig, snap_compare, monkeypatch):
         await pilot.pause()
         assert screen_text(app).splitlines()[4].rstrip() == f"controller frames  {int(wm.get('runtime.frames'))}"
     assert snap_compare(app, terminal_size=SIZE, run_before=run_before)
+
+
+def test_power_up_asks_for_the_shoulder_roll_index(snap_compare):
+    """``u`` over a controller whose shoulder-roll index is +45 deg: the question names it,
+    nothing is sent yet (issue 30 item 2)."""
+    sim = SystemSimulator(shoulder_roll_deg=45)
+    client = Client.attach(sim.name, layout=sim.rig.layout)
+    try:
+        sim.step(10)
+        app = ConsoleApp(view.Sources(client, sim.rt.wm, rack="simulated"), ControllerLink(sim.rt.wm),
+                         auto_refresh=False)
+        assert snap_compare(app, terminal_size=SIZE, run_before=_then(sim, app, 20, ("u",)))
+        assert int(sim.rt.wm.get("ui.request_seq")) == 0  # asked, not sent
+    finally:
+        client.close()
+        sim.close()
