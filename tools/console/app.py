@@ -641,7 +641,8 @@ class ConsoleApp(App):
         with Grid():
             for key in ("local", "global", "world", "commands", "messages"):  # the grid's order (CSS)
                 with Area(id=f"{key}-area", classes="area") as area:
-                    area.border_title = titles[key]
+                    area.border_title = titles[key] + (f" ({self.sources.names})" if key == "world" and
+                                                       self.sources.names else "")
                     yield Static("", id=key, markup=False)
         yield Footer()
 
