@@ -21,6 +21,7 @@ from controller.layers import Response, find_answer
 from controller.runtime import LAYER_KEYS, first_cause_text
 from controller.worldmodel import WorldModel
 from tests.controller._live_support import stop, wait_for
+from tests.controller.test_supervision_live import RT  # --realtime where this user may (SCHED_FIFO)
 
 pytestmark = pytest.mark.realtime
 
@@ -36,27 +37,24 @@ def _service_state(name: str) -> int | None:
         return None
 
 
-def _statuses(wm_name: str) -> dict[str, Status] | None:
+def _attach(wm_name: str) -> WorldModel | None:
     try:
-        with WorldModel.attach(wm_name) as wm:
-            return {k: Status(int(wm.get(f"{k}.status"))) for k in LAYER_KEYS}
+        return WorldModel.attach(wm_name)
     except Exception:  # noqa: BLE001 - not there yet
         return None
 
 
-def _first_cause(wm_name: str) -> str:
-    with WorldModel.attach(wm_name) as wm:
-        return first_cause_text(wm)
+def _statuses(w: WorldModel) -> dict[str, Status]:
+    return {k: Status(int(w.get(f"{k}.status"))) for k in LAYER_KEYS}
 
 
-def _outputs_safe(name: str) -> bool:
+def _outputs_safe(c: Client) -> bool:
     """The service holds the outputs safe: HALTED (the halted controller's command), or FAULT
     should a host stall on this shared machine let the heartbeat go stale (the watchdog);
     either way every DAC channel 0 V and the brakes set, never ARMED."""
-    with Client.attach(name) as c:
-        snap = c.read_inputs()
-        return int(snap.service_state) in (ServiceState.HALTED, ServiceState.FAULT) and \
-            not np.any(snap.dac_value) and not int(snap.brakes_released)
+    snap = c.read_inputs()
+    return int(snap.service_state) in (ServiceState.HALTED, ServiceState.FAULT) and \
+        not np.any(snap.dac_value) and not int(snap.brakes_released)
 
 
 def _pfma(*argv: str) -> subprocess.CompletedProcess:
@@ -66,60 +64,63 @@ def _pfma(*argv: str) -> subprocess.CompletedProcess:
 def test_power_up_from_the_shell_while_halted_steps_then_resume_rearm_completes():
     name = "pfma-test-rq-" + uuid.uuid4().hex[:6]
     wm = name + "-wm"
-    serve = subprocess.Popen([*PY, "serve", "--buffer", name, "--duration", "120"], cwd=ROOT,
+    serve = subprocess.Popen([*PY, "serve", "--buffer", name, "--duration", "120", *RT], cwd=ROOT,
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    ctl = None
+    ctl = w = c = None
     try:
         assert wait_for(lambda: _service_state(name) is not None), "the service did not come up"
-        ctl = subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--duration", "110"], cwd=ROOT,
+        ctl = subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--duration", "110", *RT], cwd=ROOT,
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        assert wait_for(lambda: _statuses(wm) is not None), "the controller made no world model"
+        assert wait_for(lambda: _attach(wm) is not None), "the controller made no world model"
+        # one attachment each, read while polling (attaching on every poll costs this loaded host)
+        w, c = WorldModel.attach(wm), Client.attach(name)
         r = _pfma("controller", "halt", "--wm", wm)
         assert r.returncode == 0 and "-> COMPLETE" in r.stdout, (r.stdout, r.stderr)
-        assert wait_for(lambda: _service_state(name) == ServiceState.HALTED, 10)
+        assert wait_for(lambda: int(c.read_inputs().service_state) == ServiceState.HALTED, 10)
         r = _pfma("controller", "power-up", "--wm", wm)
         assert r.returncode == 0 and "POWER UP: queued" in r.stdout and "-> QUEUED" in r.stdout, (r.stdout, r.stderr)
         m = re.match(r"request (\d+): ", r.stdout)
         assert m is not None, r.stdout
         seq = int(m.group(1))
-        assert _statuses(wm) == dict.fromkeys(LAYER_KEYS, Status.SHUT_DOWN)  # halted: nothing ran
+        assert _statuses(w) == dict.fromkeys(LAYER_KEYS, Status.SHUT_DOWN)  # halted: nothing ran
         for _ in range(20):  # 10 frames a step until Data Acquisition waits in START UP for the arm
             r = _pfma("controller", "step", "10", "--wm", wm)
             assert r.returncode == 0 and "SINGLE STEP: 10 frame(s) run" in r.stdout, (r.stdout, r.stderr)
             assert len(r.stdout.splitlines()) >= 12  # the answer, the trace's header, its 10 frames
-            assert _outputs_safe(name)
-            if (_statuses(wm) or {}).get("daq") == Status.START_UP:
+            assert _outputs_safe(c)
+            if _statuses(w)["daq"] == Status.START_UP:
                 break
-        st = _statuses(wm)
-        assert st is not None and st["daq"] == Status.START_UP and st["updown"] == Status.START_UP, st
-        with WorldModel.attach(wm) as w:
-            code, _text = find_answer(w, seq) or (0, "")
+        st = _statuses(w)
+        assert st["daq"] == Status.START_UP and st["updown"] == Status.START_UP, st
+        code, _text = find_answer(w, seq) or (0, "")
         assert code == Response.IN_PROGRESS
         r = _pfma("controller", "resume", "--rearm", "--wm", wm)
         assert r.returncode == 0 and "re-armed" in r.stdout, (r.stdout, r.stderr)
         up = dict.fromkeys(LAYER_KEYS, Status.START_UP_COMPLETE)
-        wait_for(lambda: _statuses(wm) == up or (_statuses(wm) or {}).get("updown") == Status.ERROR, 20)
+        wait_for(lambda: _statuses(w) == up or _statuses(w)["updown"] == Status.ERROR, 20)
         retries = 0
-        while _statuses(wm) != up and retries < 2 and "missed service frames" in _first_cause(wm):
-            # on this shared 2-core host a controller descheduled for 3 frames is a servo fault
-            # (max_missed_run), as in any running controller: then ERROR RESET and POWER UP from
-            # the shell, at most twice (tests/controller/test_distributed_live.py does the same)
+        while _statuses(w) != up and retries < 2 and "missed service frames" in first_cause_text(w):
+            # on a shared 2-core host without SCHED_FIFO a controller descheduled for 3 frames is a
+            # servo fault (max_missed_run), as in any running controller: then ERROR RESET and
+            # POWER UP from the shell, at most twice (tests/controller/test_distributed_live.py too)
             retries += 1
-            assert wait_for(lambda: (_statuses(wm) or {}).get("updown") == Status.ERROR, 10)
+            assert wait_for(lambda: _statuses(w)["updown"] == Status.ERROR, 10)
             r = _pfma("controller", "reset", "--wm", wm)
             assert r.returncode == 0 and "ERROR RESET: SHUT DOWN -> COMPLETE" in r.stdout, (r.stdout, r.stderr)
             r = _pfma("controller", "power-up", "--wm", wm)  # running: it waits for the final answer
-            assert r.returncode == 0 or "missed service frames" in _first_cause(wm), (r.stdout, r.stderr)
-        assert _statuses(wm) == up, (_statuses(wm), _first_cause(wm))
+            assert r.returncode == 0 or "missed service frames" in first_cause_text(w), (r.stdout, r.stderr)
+        assert _statuses(w) == up, (_statuses(w), first_cause_text(w))
         if not retries:
-            with WorldModel.attach(wm) as w:
-                assert find_answer(w, seq) == (Response.COMPLETE, "POWER UP: START UP COMPLETE")
-        assert _service_state(name) == ServiceState.ARMED
+            assert find_answer(w, seq) == (Response.COMPLETE, "POWER UP: START UP COMPLETE")
+        assert int(c.read_inputs().service_state) == ServiceState.ARMED
         ctl.terminate()  # an orderly power-down on the way out
         out, _ = ctl.communicate(timeout=30)
         assert ctl.returncode == 0 and "Traceback" not in out, out
-        assert _service_state(name) != ServiceState.ARMED
+        assert int(c.read_inputs().service_state) != ServiceState.ARMED
     finally:
+        for h in (w, c):
+            if h is not None:
+                h.close()
         stop(ctl, serve)
         Bit3Buffer.unlink(name)
         WorldModel.remove_segment(wm)
