@@ -85,16 +85,19 @@ class FrameStepping:
         raise NotImplementedError
 
     def request(self, kind: int, arg: int = 0, max_frames: int = 400) -> tuple[int, str]:
-        """Post a user request (``Request.*``) and run frames until System Up/Down answers
-        it with anything but IN PROGRESS (or ``max_frames``); returns (Response code, text)."""
+        """Post a user request (``Request.*``) and run frames until System Up/Down gives it a
+        final answer (``Response.FINAL``: not QUEUED or IN PROGRESS) or ``max_frames`` have
+        run; returns (Response code, text) of its newest answer."""
         from controller.layers import Response
         seq = self.updown_rt.request(kind, arg)
         code, text = Response.NONE, ""
         for _ in range(max_frames):
             self.step(1)
-            got, code, text = self.response()
-            if got == seq and code != Response.IN_PROGRESS:
-                break
+            a = self.updown_rt.answer(seq)
+            if a is not None:
+                code, text = a
+                if code in Response.FINAL:
+                    break
         return code, text
 
     def response(self) -> tuple[int, int, str]:
