@@ -486,3 +486,28 @@ def test_a_request_written_by_hand_is_checked_by_the_layer(up):
     a = _answer(sim, ControllerLink(wm), 7)
     assert a.result == "REFUSED" and "is not a unit quaternion (norm 1.414214)" in a.text
     assert int(wm.get("msp.state")) == MspMode.IDLE
+
+
+def test_cli_play_says_why_a_path_was_refused_and_max_turn_allows_the_turn(tmp_path, capsys):
+    from tools.cli import main
+    d = str(tmp_path)
+    assert main(["path", "--dir", d, "new", "ident", "--point", "1.55,0,-0.33,1,0,0,0"]) == 0
+    base = ["controller", "--sim", "--wm", "none", "--power-up", "--path-dir", d, "--messages", "0", "-q",
+            "--play", "ident", "--duration", "1"]
+    capsys.readouterr()
+    assert main(base) == 0
+    out = capsys.readouterr().out
+    assert ("path ident: playback ended (REFUSED): path ident (id 1) refused before it started: point 0: turns the "
+            "tool 30.8 deg") in out
+    assert main(base + ["--max-turn", "180"]) == 0
+    out = capsys.readouterr().out
+    assert "point 0: crosses a soft limit: wrist_pitch would reach 105." in out
+
+
+def test_no_move_is_sent_to_a_halted_controller(up):
+    sim = up
+    assert sim.request(Request.HALT)[0] == Response.COMPLETE
+    link = ControllerLink(sim.rt.wm)
+    with pytest.raises(ControlError, match="the controller is halted: a move would start only on the resume"):
+        link.move_pose((1.5, 0.0, -0.3))
+    assert int(sim.rt.wm.get("msp.move_request")[0]) == 0

@@ -169,6 +169,11 @@ class ControllerLink:
         return self._move(MoveRequest.stop)
 
     def _move(self, make) -> int:
+        """Write one move request. Refused while the controller is halted: no frame runs then,
+        and the move would start on the resume, unexpected."""
+        if self.halted():
+            raise ControlError("the controller is halted: a move would start only on the resume (pfma controller "
+                               "resume --rearm first)")
         try:
             seq = max(int(self.wm.get("msp.move_request")[0]), int(self.wm.get("msp.move_done_seq")),
                       self._move_seq) + 1
