@@ -78,6 +78,9 @@ SHOULDER_ROLL_RAD = 0.0
 TRAJ_VARS = ("traj.pos_m", "traj.quat", "traj.active")
 #: the Joint Planner's measured tool pose (K's layer); without it fk(daq angles) is used
 TOOL_VARS = ("joint.tool_pos_m", "joint.tool_quat")
+#: the Joint Planner's joint moves: when one ends the held pose becomes fk of the joint command
+#: (the pose it reached), so that Cartesian mode resumes there, not at the pose held before it
+JMOVE_VARS = ("joint.jmove_done_seq", "servo.q_cmd_rad")
 
 
 def _compose(offset6: np.ndarray, pos_m: np.ndarray, quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -141,6 +144,7 @@ class CartesianLayer(Layer):
         self._zero_seq = 0
         self._params_key = None
         self._lag_warned = False
+        self._jmove_seen = 0
         self.valid = False
 
     # --- world model ---------------------------------------------------------------------
@@ -211,7 +215,8 @@ class CartesianLayer(Layer):
     def _check_model(self, rt: "LayerContext") -> dict[str, bool]:
         if self._have is None:
             names = set(rt.wm.names())
-            self._have = {"traj": all(n in names for n in TRAJ_VARS), "tool": all(n in names for n in TOOL_VARS)}
+            self._have = {"traj": all(n in names for n in TRAJ_VARS), "tool": all(n in names for n in TOOL_VARS),
+                          "jmove": all(n in names for n in JMOVE_VARS)}
         return self._have
 
     # --- sequences -----------------------------------------------------------------------
@@ -234,6 +239,8 @@ class CartesianLayer(Layer):
         self.hold_pos, self.hold_quat = self.meas_pos.copy(), self.meas_quat.copy()
         self.mode = int(v["cart.mode"]) if int(v["cart.mode"]) in MODE_NAMES else MODE_HOLD
         self._zero_seq = int(v["force.zero_seq"])
+        if self._check_model(rt)["jmove"]:
+            self._jmove_seen = int(rt.wm.get_task_inputs(("joint.jmove_done_seq",))["joint.jmove_done_seq"])
         self.valid = True
         self._post_command(rt)
         rt.post(self.key, Level.INFO, f"holding the tool at {self._fmt_pose(self.hold_pos, self.hold_quat)}, "
@@ -304,9 +311,13 @@ class CartesianLayer(Layer):
                  "delay.round_trip_s", "delay.jitter"]
         names += list(TRAJ_VARS) if have["traj"] else []
         names += list(TOOL_VARS) if have["tool"] else []
+        names += list(JMOVE_VARS) if have["jmove"] else []
         v = rt.wm.get_task_inputs(names)
         self._measured(rt, v)
         now = rt.now
+        if have["jmove"] and int(v["joint.jmove_done_seq"]) != self._jmove_seen:
+            self._jmove_seen = int(v["joint.jmove_done_seq"])
+            self._hold_joint_command(rt, v["servo.q_cmd_rad"])
         # synthetic delay settings
         try:
             rtt = SyntheticDelay.check_round_trip(float(v["delay.round_trip_s"]))
@@ -391,6 +402,20 @@ class CartesianLayer(Layer):
             f, t, on = np.zeros(3), np.zeros(3), False
         out.update({"teleop.reflect_force_n": f, "teleop.reflect_torque_nm": t, "teleop.reflect_enabled": on})
         rt.wm.post_task_outputs(self.key, out)
+
+    def _hold_joint_command(self, rt: "LayerContext", q_cmd) -> None:
+        """A joint move ended: hold fk(joint command), the pose it reached, with no blend (the
+        Joint Planner ran the joints, not this command: continuity with the command held before
+        would pull the arm back)."""
+        if self.mode == MODE_TRAJECTORY and self.traj_active:
+            return  # a trajectory commands the pose (not while the Path Planner runs a joint move)
+        from controller.kinematics import fk
+        p, q = fk(q_cmd, SHOULDER_ROLL_RAD)
+        self.hold_pos, self.hold_quat = np.asarray(p, float), q_normalize(q)
+        self.tele = np.zeros(6)
+        self.blend = np.zeros(6)
+        rt.post(self.key, Level.INFO, f"joint move {self._jmove_seen} ended: holding the pose it reached, "
+                                      f"{self._fmt_pose(self.hold_pos, self.hold_quat)}")
 
     def _warn_once(self, rt, key: str, text: str) -> None:
         seen = getattr(self, "_warned", set())

@@ -23,6 +23,7 @@ The layers above the Joint Planner are in their own modules (:mod:`controller.ca
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
@@ -635,6 +636,11 @@ class UpDownLayer(Layer):
 STUCK_S = 0.5
 STUCK_POS_M = 1e-4
 STUCK_ROT_RAD = 1e-3
+#: a joint move (``msp.jmove_*``) accelerates to its speed in this time (assumed, this project:
+#: as the trajectory caps reach full coarse speed in 1 s, controller.trajectory)
+JMOVE_ACCEL_S = 1.0
+#: ``joint.jmove_done_code`` (the values of ``traj.done_code``)
+JMOVE_REACHED, JMOVE_STOPPED, JMOVE_REFUSED = 0, 1, 2
 
 
 class JointPlannerLayer(Layer):
@@ -658,6 +664,15 @@ class JointPlannerLayer(Layer):
       command's pose changes (the Cartesian Engine holding a pose does not undo a goal),
       then continues in Cartesian mode from the goal (``joint.mode`` says which).
 
+    * **joint move** (the Multi-Segment Path Planner's ``msp.jmove_*``, a checked move-to
+      request): the joint command moves on the straight line in joint space from where it
+      is to ``msp.jmove_goal_rad``, one normalised parameter on a rest-to-rest trapezoid
+      (every joint within ``msp.jmove_speed`` times its rate limit, reaching it in
+      JMOVE_ACCEL_S); ``msp.jmove_stop`` decelerates it to rest. It takes precedence over
+      the Cartesian command while it runs and answers ``joint.jmove_done_seq`` /
+      ``joint.jmove_done_code``; the Cartesian Engine then holds the pose it reached
+      (no jump back when Cartesian mode resumes).
+
     Every run from INITIALIZATION COMPLETE on it also posts the measured tool pose
     ``joint.tool_pos_m`` / ``joint.tool_quat`` = fk(``daq.joint_angle_rad``). Its start-up
     task commands the current joint angles so that nothing moves when the loop closes.
@@ -672,6 +687,8 @@ class JointPlannerLayer(Layer):
     short = "JNTP"
     #: the Cartesian Engine's command (writer "cartesian"); without them only joint goals work
     CART_VARS = ("cart.pos_cmd_m", "cart.quat_cmd", "cart.cmd_valid", "cart.cmd_seq")
+    #: the Multi-Segment Path Planner's joint moves (writer "msp"); without them none
+    JMOVE_VARS = ("msp.jmove_seq", "msp.jmove_goal_rad", "msp.jmove_speed", "msp.jmove_stop")
     MODE_JOINT, MODE_CARTESIAN = 0, 1
 
     def __init__(self, shoulder_roll_rad: float = 0.0) -> None:
@@ -692,6 +709,10 @@ class JointPlannerLayer(Layer):
         self._stuck_runs = 0  # runs blocked at a soft limit with a static command
         self._recover: np.ndarray | None = None  # joint-space goal that leaves a soft limit
         self.last_step = None  #: the last kinematics.StepResult (tests, trace)
+        self._have_jmove: bool | None = None
+        self._inputs: tuple[str, ...] | None = None  # the names plan_task reads (built at its first run)
+        self._jm_seen = 0  # the last msp.jmove_seq taken
+        self._jm: "_JointMove | None" = None  # the joint move running
 
     def specs(self) -> list[VarSpec]:
         z = [0.0] * N_JOINTS
@@ -722,6 +743,12 @@ class JointPlannerLayer(Layer):
                     doc="Cartesian mode: orientation angle from the commanded pose to fk(servo.q_cmd_rad)"),
             VarSpec("joint.shoulder_roll_rad", "status_output", "f8", (), w, self.shoulder_roll_rad, "rad",
                     doc="the shoulder-roll index the kinematics use (configuration, pfma-model 8.1)"),
+            VarSpec("joint.jmove_active", "task_io", "b1", (), w, False,
+                    doc="a joint move (msp.jmove_*) commands the joints"),
+            VarSpec("joint.jmove_done_seq", "task_io", "i4", (), w, 0,
+                    doc="the last joint move finished (msp.jmove_seq)"),
+            VarSpec("joint.jmove_done_code", "task_io", "i2", (), w, 0,
+                    doc="how joint.jmove_done_seq ended: 0 REACHED 1 STOPPED 2 REFUSED"),
         ]
 
     def _cart_available(self, rt: "LayerContext") -> bool:
@@ -729,6 +756,12 @@ class JointPlannerLayer(Layer):
             names = set(rt.wm.names())
             self._have_cart = all(n in names for n in self.CART_VARS)
         return self._have_cart
+
+    def _jmove_available(self, rt: "LayerContext") -> bool:
+        if self._have_jmove is None:
+            names = set(rt.wm.names())
+            self._have_jmove = all(n in names for n in self.JMOVE_VARS)
+        return self._have_jmove
 
     def seq_init(self, rt: "LayerContext") -> TaskState:
         self._cart_available(rt)
@@ -743,12 +776,18 @@ class JointPlannerLayer(Layer):
         self._bad_cmd = False
         self._cart_at_goal = None
         self._last_pose, self._stuck_runs, self._recover = None, 0, None
+        self._jm = None
+        if self._jmove_available(rt):  # a joint move sent before this start-up is not run
+            self._jm_seen = int(rt.wm.get_task_inputs(("msp.jmove_seq",))["msp.jmove_seq"])
         rt.wm.post_task_outputs("joint", {"servo.q_cmd_rad": self.q_cmd, "servo.q_cmd_valid": True,
-                                          "joint.mode": self.mode})
+                                          "joint.mode": self.mode, "joint.jmove_active": False})
         return TaskState.DONE
 
     def seq_shutdown(self, rt: "LayerContext") -> TaskState:
-        rt.wm.post_task_outputs("joint", {"servo.q_cmd_valid": False})
+        out: dict = {"servo.q_cmd_valid": False}
+        if self._jm is not None:
+            self._jmove_end(rt, JMOVE_STOPPED, "shut down", out)
+        rt.wm.post_task_outputs("joint", out)
         return TaskState.DONE
 
     def plan_task(self, rt: "LayerContext") -> None:
@@ -757,18 +796,29 @@ class JointPlannerLayer(Layer):
         status = rt.wm.get_state_variable(self.v_status)
         if status not in (Status.INITIALIZATION_COMPLETE, Status.START_UP, Status.START_UP_COMPLETE):
             return
-        names = ("daq.joint_angle_rad", "joint.goal_rad", "joint.goal_seq")
         cart = self._cart_available(rt)
-        v = rt.wm.get_task_inputs(names + self.CART_VARS if cart else names)
+        jm = self._jmove_available(rt)
+        names = self._inputs
+        if names is None:  # built once: what this model has of the planner's inputs
+            names = self._inputs = (("daq.joint_angle_rad", "joint.goal_rad", "joint.goal_seq")
+                                    + (self.CART_VARS if cart else ()) + (self.JMOVE_VARS if jm else ()))
+        v = rt.wm.get_task_inputs(names)
         p, quat = kin.fk(v["daq.joint_angle_rad"], self.shoulder_roll_rad)
         out: dict = {"joint.tool_pos_m": p, "joint.tool_quat": quat}
         if status == Status.START_UP_COMPLETE:
             valid = cart and bool(v["cart.cmd_valid"])
             if int(v["joint.goal_seq"]) != self._seen_goal:
+                if self._jm is not None:
+                    self._jmove_end(rt, JMOVE_STOPPED, "a user joint goal took over", out)
                 self._set_mode(rt, self.MODE_JOINT, out)
                 self._joint_goal(rt, v, out)
                 self._cart_at_goal = (np.array(v["cart.pos_cmd_m"], dtype=float),
                                       np.array(v["cart.quat_cmd"], dtype=float)) if valid else None
+            elif jm and (self._jm is not None or int(v["msp.jmove_seq"]) != self._jm_seen):
+                self._joint_move(rt, v, out)
+                if valid and self._jm is None:  # ended: joint mode until the Cartesian command changes
+                    self._cart_at_goal = (np.array(v["cart.pos_cmd_m"], dtype=float),
+                                          np.array(v["cart.quat_cmd"], dtype=float))
             elif valid and (self.mode == self.MODE_CARTESIAN or self._cart_moved(v)):
                 self._cart_at_goal = None
                 self._cartesian(rt, kin, v, out)
@@ -858,6 +908,60 @@ class JointPlannerLayer(Layer):
             except kin.KinematicsError as err:
                 rt.post(self.key, Level.WARNING, f"blocked at a soft limit, holding: {err}")
 
+    # --- joint moves (msp.jmove_*) -------------------------------------------------------
+    def _joint_move(self, rt: "LayerContext", v: dict, out: dict) -> None:
+        seq = int(v["msp.jmove_seq"])
+        if seq != self._jm_seen:
+            self._jm_seen = seq
+            if self._jm is not None:
+                self._jmove_end(rt, JMOVE_STOPPED, f"joint move {seq} took over", out)
+            self._set_mode(rt, self.MODE_JOINT, out)
+            self._jmove_start(rt, seq, v, out)
+            if self._jm is None:
+                return
+        jm = self._jm
+        assert jm is not None
+        if bool(v["msp.jmove_stop"]) and jm.stop_t is None:
+            jm.request_stop(rt.now)
+            rt.post(self.key, Level.INFO, f"joint move {jm.seq}: stop requested")
+        s, finished = jm.sample(rt.now)
+        self.q_cmd = jm.q0 + s * jm.d
+        out["servo.q_cmd_rad"] = self.q_cmd
+        if finished:
+            self._jmove_end(rt, JMOVE_STOPPED if jm.stop_t is not None and s < 1.0 - 1e-12 else JMOVE_REACHED,
+                            "", out)
+
+    def _jmove_start(self, rt: "LayerContext", seq: int, v: dict, out: dict) -> None:
+        from controller.kinematics import RATE_LIMIT_RAD_S
+        from controller.trajectory import plan_trapezoid
+        goal = np.asarray(v["msp.jmove_goal_rad"], dtype=float)
+        speed = float(v["msp.jmove_speed"])
+        if not (np.all(np.isfinite(goal)) and math.isfinite(speed) and 0.0 < speed <= 1.0):
+            rt.post(self.key, Level.ERROR, f"joint move {seq} refused: goal {goal.tolist()} / speed {speed!r} "
+                                           f"(needs finite angles and a speed 0..1)")
+            out.update({"joint.jmove_done_seq": seq, "joint.jmove_done_code": JMOVE_REFUSED})
+            return
+        goal = np.clip(goal, self.lo, self.hi)
+        d = goal - self.q_cmd
+        big = np.abs(d) > 1e-12
+        if big.any():
+            vn = float(np.min(RATE_LIMIT_RAD_S[big] * speed / np.abs(d[big])))
+            prof = plan_trapezoid(1.0, vn, vn / JMOVE_ACCEL_S)
+        else:
+            prof = plan_trapezoid(0.0, 1.0, 1.0)
+        self._jm = _JointMove(seq, self.q_cmd.copy(), d, rt.now, prof)
+        out["joint.jmove_active"] = True
+        rt.post(self.key, Level.INFO, f"joint move {seq}: to " + " ".join(f"{x:+.4f}" for x in goal)
+                + f" rad in {prof.duration_s:.2f} s")
+
+    def _jmove_end(self, rt: "LayerContext", code: int, why: str, out: dict) -> None:
+        jm = self._jm
+        assert jm is not None
+        self._jm = None
+        out.update({"joint.jmove_active": False, "joint.jmove_done_seq": jm.seq, "joint.jmove_done_code": code})
+        if code != JMOVE_REACHED:
+            rt.post(self.key, Level.INFO, f"joint move {jm.seq} stopped" + (f": {why}" if why else ""))
+
     def _joint_goal(self, rt: "LayerContext", v: dict, out: dict) -> None:
         seq = int(v["joint.goal_seq"])
         if seq == self._seen_goal:
@@ -872,6 +976,30 @@ class JointPlannerLayer(Layer):
         self.q_cmd = q
         out["servo.q_cmd_rad"] = q
         rt.post(self.key, Level.INFO, f"goal {seq}: " + " ".join(f"{x:+.4f}" for x in q) + " rad")
+
+
+class _JointMove:
+    """A joint move in time: ``q0 + s(t) d`` with ``s`` on a trapezoid, and its controlled stop."""
+
+    def __init__(self, seq: int, q0: np.ndarray, d: np.ndarray, t0: float, profile) -> None:
+        self.seq, self.q0, self.d, self.t0, self.profile = seq, q0, d, t0, profile
+        self.stop_t: float | None = None
+        self._stop_s = self._stop_v = 0.0
+
+    def request_stop(self, t: float) -> None:
+        s, v, _ = self.profile.sample(t - self.t0)
+        self.stop_t, self._stop_s, self._stop_v = t, s, v
+
+    def sample(self, t: float) -> tuple[float, bool]:
+        """(s, finished) at time ``t``."""
+        if self.stop_t is None:
+            s, _, _ = self.profile.sample(t - self.t0)
+            return s, t - self.t0 >= self.profile.duration_s
+        a = self.profile.a
+        dur = self._stop_v / a if a > 0 else 0.0
+        tau = min(t - self.stop_t, dur)
+        s = min(1.0, self._stop_s + self._stop_v * tau - 0.5 * a * tau * tau)
+        return s, t - self.stop_t >= dur
 
 
 def bottom_table() -> CompiledTable:

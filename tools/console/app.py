@@ -13,6 +13,7 @@ are keyed user writes through the same ring ``pfma wm set`` uses; nothing else i
 from __future__ import annotations
 
 import asyncio
+import math
 import signal
 import sys
 import time
@@ -32,7 +33,7 @@ from textual.widgets import Footer, Input, Static
 from drivers.pio.routes import MONITORS, route_request_arg
 from tools.console.recording import ConsoleRecording
 from tools.console import debug, view
-from tools.console.control import Answer, ControlError, ControllerLink, Request, Response
+from tools.console.control import Answer, ControlError, ControllerLink, Request, Response, parse_move
 
 #: refresh rate of the areas (the issue's 10 Hz)
 REFRESH_HZ = 10.0
@@ -527,6 +528,62 @@ class CameraScreen(ModalScreen):
         self.redraw()
 
 
+class MoveScreen(ModalScreen):
+    """Move to (docs/console.md "Move to"): type a pose, joint angles or ``stop``; Enter
+    checks the text and shows the move, Enter again sends it as a move-to request
+    (:meth:`ControllerLink.move_pose` / ``move_joints`` / ``stop_move``; a pose move sets
+    cart.mode 2 TRAJECTORY first if it is not). The controller checks the motion before it
+    starts; its answer (a refusal naming the point and the reason, OK, FAILED with the worst
+    tracking error) shows here and in Messages. Live at the console's refresh."""
+
+    BINDINGS = [Binding("escape", "app.pop_screen", "close")]
+    CSS = "MoveScreen { align: center middle; } #move { width: 110; height: auto; border: round $accent; }"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.confirm: str | None = None  # the text checked and shown for confirmation
+        self.status = ""
+
+    def compose(self) -> ComposeResult:
+        with Vertical(id="move"):
+            yield Static("", id="move-info", markup=False)
+            yield Input(value="", placeholder="pose 1.55,0,-0.33", id="move-text")
+
+    def on_mount(self) -> None:
+        self.redraw()
+
+    def redraw(self) -> None:
+        app = self.app
+        assert isinstance(app, ConsoleApp)
+        self.query_one("#move-info", Static).update(view.move_screen(app.sources.wm, self.status))
+
+    def text(self) -> str:
+        return str(self.query_one("#move-info", Static).render())
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        app = self.app
+        assert isinstance(app, ConsoleApp)
+        text = event.value.strip()
+        try:
+            kind, nums, turn = parse_move(text)
+        except ControlError as err:
+            self.confirm = None
+            self.status = f"not sent: {err}"
+            self.redraw()
+            return
+        if self.confirm != text:
+            self.confirm = text
+            what = {"stop": "stop the running move or playback",
+                    "pose": f"move the tool to {text[4:].strip()}",
+                    "joints": f"move the joints to {text[6:].strip()} deg"}[kind]
+            self.status = f"{what}?  Enter: confirm and send   Escape: close"
+            self.redraw()
+            return
+        self.confirm = None
+        self.status = app.send_move(kind, nums, turn)
+        self.redraw()
+
+
 #: the debug-window displays that cover the five areas (not redrawn while one is open)
 COVERING = (BrowserScreen, ParamScreen, MenuScreen, ForceScreen)
 
@@ -604,6 +661,7 @@ class ConsoleApp(App):
         Binding("a", "rearm", "re-arm"),
         Binding("r", "resume", "resume"),
         Binding("c", "record", "record"), Binding("v", "cameras", "cameras"),
+        Binding("t", "move", "move to"),
         Binding("m", "messages", "messages"),
         Binding("w", "browser", "world model"),
         Binding("p", "params", "parameters"),
@@ -636,6 +694,7 @@ class ConsoleApp(App):
         self.writes: dict[int, str] = {}  # user writes waiting for the owner's verdict: id -> variable
         self.write_status = ""  # the last write's outcome or refusal (the browser and parameters show it)
         self.recording: ConsoleRecording | None = None  # ``c``: a pfma record process, made at the first press
+        self.pending_move: int | None = None  # the move-to request whose answer is awaited
 
     def compose(self) -> ComposeResult:
         # issue 28 item 5: shown only while the service reports its outputs NOT known safe
@@ -695,7 +754,8 @@ class ConsoleApp(App):
         self._set("messages", view.messages_area(self.sources.messages), follow=True)
         self._set("commands", view.local_commands(r, self.selected, self.sources.wm))
         self._set("global", view.global_commands(r, self.rearm, self.last_answer))
-        if isinstance(self.screen, (CameraScreen, MessagesScreen)) and self.screen.is_mounted:  # live too
+        self._follow_move()
+        if isinstance(self.screen, (CameraScreen, MessagesScreen, MoveScreen)) and self.screen.is_mounted:  # live too
             self.screen.redraw()
 
     def _show_banner(self, text: str) -> None:
@@ -873,6 +933,45 @@ class ConsoleApp(App):
         if self.link is None:
             self._note("WARNING", "read-only console: no controller to route the cameras")
         self.push_screen(CameraScreen())
+
+    def action_move(self) -> None:
+        if self.link is None:
+            self._note("WARNING", "read-only console: no controller to send moves to")
+        self.push_screen(MoveScreen())
+
+    def send_move(self, kind: str, nums: list[float], turn: float | None) -> str:
+        """Send one move-to request (the move screen); the answer follows at the refresh."""
+        if self.link is None:
+            self._note("WARNING", "read-only console: no controller to send moves to")
+            return "not sent: read-only console"
+        try:
+            if kind == "stop":
+                seq = self.link.stop_move()
+            elif kind == "pose":
+                change = self.link.trajectory_mode()
+                if change:
+                    self._note("INFO", f"{change} (a pose move follows the Trajectory Planner)")
+                seq = self.link.move_pose(nums[:3], nums[3:] if len(nums) == 7 else None, turn)
+            else:
+                seq = self.link.move_joints(nums, turn)
+        except ControlError as err:
+            self._note("ERROR", str(err))
+            return f"not sent: {err}"
+        self.pending_move = seq
+        line = f"move {seq} sent: {kind} " + (" ".join(f"{x:g}" for x in nums) if kind == "pose" else
+                                            " ".join(f"{math.degrees(x):g}" for x in nums))
+        self._note("INFO", line.rstrip())
+        return line.rstrip() + "; the controller checks it before it starts"
+
+    def _follow_move(self) -> None:
+        if self.pending_move is None or self.link is None:
+            return
+        a = self.link.move_answer(self.pending_move)
+        if a is None:
+            return
+        self.pending_move = None
+        self.last_answer = a.line()
+        self._note("INFO" if a.ok else "WARNING", a.line())
 
     def action_browser(self) -> None:
         self.push_screen(BrowserScreen(self.sources.wm))

@@ -18,7 +18,8 @@ from controller.layers import Request, Response, find_answer
 from controller.worldmodel import WorldModel, WorldModelError
 from controller.worldmodel.model import ACCESS_KEY_ENV, DEFAULT_ACCESS_KEY
 
-__all__ = ["Answer", "ControllerLink", "ControlError", "Request", "Response", "WriteOutcome", "access_key"]
+__all__ = ["Answer", "ControllerLink", "ControlError", "MoveAnswer", "Request", "Response", "WriteOutcome",
+           "access_key", "parse_move"]
 
 
 class ControlError(Exception):
@@ -59,6 +60,7 @@ class ControllerLink:
         self.wm = wm
         self.key = access_key(key)
         self._seq = 0
+        self._move_seq = 0
 
     @classmethod
     def attach(cls, name: str, key: str | None = None) -> "ControllerLink":
@@ -142,6 +144,95 @@ class ControllerLink:
             return None
         return WriteOutcome(rid, r.variable, r.state == "applied", r.result)
 
+    # --- move-to requests (msp.move_request; docs/controller.md "Moves that mean what they say") ---
+    def move_pose(self, pos_m, quat=None, max_turn_rad: float | None = None) -> int:
+        """Ask the controller to move the tool to ``pos_m`` (x, y, z m, world) with ``quat``
+        (qw, qx, qy, qz; None: keep the tool's orientation) on a straight line, checked
+        first (tool rotation up to ``max_turn_rad``, default ``msp.max_turn_rad``; soft
+        limits; singular sets). It needs cart.mode 2 TRAJECTORY: :meth:`trajectory_mode`.
+        Returns the request number (:meth:`move_answer`, :meth:`wait_move`).
+
+        :raises ControlError: a bad pose (one line), or the write refused
+        """
+        from controller.paths import MoveRequest, PathError
+        try:
+            return self._move(lambda seq: MoveRequest.pose(seq, pos_m, quat, max_turn_rad))
+        except PathError as err:
+            raise ControlError(f"move: {err}") from None
+
+    def move_joints(self, joints_rad, max_turn_rad: float | None = None) -> int:
+        """Ask the controller to move the joints to ``joints_rad`` (rad, command-area order)
+        on a straight line in joint space, checked first. Returns the request number."""
+        from controller.paths import MoveRequest, PathError
+        try:
+            return self._move(lambda seq: MoveRequest.joints(seq, joints_rad, max_turn_rad))
+        except PathError as err:
+            raise ControlError(f"move: {err}") from None
+
+    def stop_move(self) -> int:
+        """Stop the running move or playback (it decelerates to rest). Returns the request number."""
+        from controller.paths import MoveRequest
+        return self._move(MoveRequest.stop)
+
+    def _move(self, make) -> int:
+        """Write one move request. Refused while the controller is halted: no frame runs then,
+        and the move would start on the resume, unexpected."""
+        if self.halted():
+            raise ControlError("the controller is halted: a move would start only on the resume (pfma controller "
+                               "resume --rearm first)")
+        try:
+            seq = max(int(self.wm.get("msp.move_request")[0]), int(self.wm.get("msp.move_done_seq")),
+                      self._move_seq) + 1
+            req = make(seq)
+            self.wm.set_user("msp.move_request", req.to_array(), self.key)
+        except WorldModelError as err:
+            raise ControlError(str(err)) from None
+        self._move_seq = seq
+        return seq
+
+    def trajectory_mode(self) -> str:
+        """Set cart.mode 2 TRAJECTORY (the Cartesian Engine follows the Trajectory Planner, as a
+        pose move or playback needs) unless it is; "" if it was, else the change in words."""
+        from controller.cartesian import MODE_NAMES, MODE_TRAJECTORY
+        try:
+            mode = int(self.wm.get("cart.mode"))
+            if mode == MODE_TRAJECTORY:
+                return ""
+            self.wm.set_user("cart.mode", MODE_TRAJECTORY, self.key)
+        except WorldModelError as err:
+            raise ControlError(str(err)) from None
+        return f"cart.mode {MODE_NAMES.get(mode, mode)} -> TRAJECTORY"
+
+    def move_answer(self, seq: int) -> "MoveAnswer | None":
+        """How move request ``seq`` ended (None: not yet)."""
+        from controller.paths import MspResult
+        v = self.wm.get_task_inputs(("msp.move_done_seq", "msp.result", "msp.result_text"))
+        done = int(v["msp.move_done_seq"])
+        if done < seq:
+            return None
+        code = int(v["msp.result"])
+        text = _text(v["msp.result_text"])
+        if done > seq:
+            return MoveAnswer(seq, code, f"move {seq} ended; a later request's answer is shown: {text}", False,
+                              MspResult.NAMES.get(code, "?"))
+        return MoveAnswer(seq, code, text, code == MspResult.OK, MspResult.NAMES.get(code, "?"))
+
+    def wait_move(self, seq: int, timeout_s: float, poll_s: float = 0.02) -> "MoveAnswer":
+        """Poll (real time) until move request ``seq`` is answered.
+
+        :raises ControlError: not answered within ``timeout_s`` (the move goes on)
+        """
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            a = self.move_answer(seq)
+            if a is not None:
+                return a
+            time.sleep(poll_s)
+        info = self.wm.info()
+        alive = "" if info.owner_alive else f"; its controller (pid {info.owner_pid}) is not running"
+        raise ControlError(f"move {seq}: not ended within {timeout_s:g} s (it goes on; `pfma controller move --stop` "
+                           f"stops it){alive}")
+
     def halted(self) -> bool:
         return bool(self.wm.get("runtime.halted"))
 
@@ -155,6 +246,22 @@ class ControllerLink:
 
 
 @dataclass(frozen=True)
+class MoveAnswer:
+    """How a move request ended: ``code`` is ``msp.result`` (``MspResult``), ``text`` the
+    controller's words (``msp.result_text``: the point and the reason of a refusal, the worst
+    tracking error of a FAILED)."""
+
+    seq: int
+    code: int
+    text: str
+    ok: bool
+    result: str  #: the result's name: OK, REFUSED, FAILED, CANCELLED ...
+
+    def line(self) -> str:
+        return self.text or f"move {self.seq} -> {self.result}"
+
+
+@dataclass(frozen=True)
 class WriteOutcome:
     """What the owner did with a user write: applied (at frame N) or rejected (why)."""
 
@@ -162,6 +269,44 @@ class WriteOutcome:
     variable: str
     applied: bool
     result: str
+
+
+def parse_move(text: str) -> tuple[str, list[float], float | None]:
+    """The console's move-to text: ``pose X,Y,Z[,QW,QX,QY,QZ]``, ``joints D,D,D,D,D,D``
+    (degrees) or ``stop``, optionally followed by ``turn DEG``; returns (kind, numbers -
+    metres/quaternion or radians -, largest tool rotation in rad or None).
+
+    :raises ControlError: one line saying what is wrong
+    """
+    import math
+    words = text.replace(";", " ").split()
+    turn = None
+    if len(words) >= 2 and words[-2] == "turn":
+        try:
+            deg = float(words[-1])
+        except ValueError:
+            raise ControlError(f"turn {words[-1]!r}: not a number of degrees") from None
+        if not 0.0 < deg <= 180.0:
+            raise ControlError(f"turn {deg:g}: the largest tool rotation must be 0..180 degrees")
+        turn = math.radians(deg)
+        words = words[:-2]
+    if words == ["stop"]:
+        return "stop", [], None
+    if len(words) < 2 or words[0] not in ("pose", "joints"):
+        raise ControlError("type pose X,Y,Z[,QW,QX,QY,QZ], joints D,D,D,D,D,D or stop (then optionally turn DEG)")
+    try:
+        nums = [float(x) for x in ",".join(words[1:]).split(",") if x.strip()]
+    except ValueError:
+        raise ControlError(f"{words[0]}: {' '.join(words[1:])!r} is not a list of numbers") from None
+    if not all(math.isfinite(x) for x in nums):
+        raise ControlError(f"{words[0]}: numbers must be finite")
+    if words[0] == "pose" and len(nums) not in (3, 7):
+        raise ControlError(f"pose: 3 numbers (x, y, z m) or 7 (and qw, qx, qy, qz) needed, {len(nums)} given")
+    if words[0] == "joints":
+        if len(nums) != 6:
+            raise ControlError(f"joints: 6 angles (degrees) needed, {len(nums)} given")
+        nums = [math.radians(x) for x in nums]
+    return words[0], nums, turn
 
 
 def _text(words) -> str:

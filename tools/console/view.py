@@ -51,6 +51,7 @@ GLOBAL_COMMANDS: tuple[tuple[str, str, str | None], ...] = (
     ("r", "resume (needs a first)", "RESUME"),
     ("c", "record start/stop", None),
     ("v", "camera routes (its screen)", "CAMERA ROUTE"),
+    ("t", "move to (its screen)", None),
 )
 NOT_YET: dict[str, str] = {}  #: keys whose command is not built yet: their text
 _TASK_KIND = {1: "init", 2: "startup", 3: "shutdown", 4: "safe", 5: "reset"}
@@ -466,3 +467,41 @@ def browser_selected(wm, area_index: int, page: int, cursor: int) -> str | None:
     pages = max(1, -(-len(names) // BROWSER_ROWS))
     shown = names[(page % pages) * BROWSER_ROWS:(page % pages + 1) * BROWSER_ROWS]
     return shown[cursor % len(shown)] if shown else None
+
+
+# --- the move-to screen (issue 30 item 5, docs/console.md "Move to") -------------------------
+MOVE_HELP = ("type  pose X,Y,Z  (m, world; the tool keeps its orientation)\n"
+             "      pose X,Y,Z,QW,QX,QY,QZ   joints D,D,D,D,D,D  (degrees, command order)   stop\n"
+             "      add  turn DEG  to allow a larger tool rotation than msp.max_turn_rad\n"
+             "Enter: check it   Enter again: send   Escape: close")
+
+
+def move_screen(wm, status: str) -> str:
+    """The move-to screen: where the tool is, the last move's answer, how to type a move."""
+    import numpy as np
+    from controller.paths import MspMode
+    from controller.params import JOINT_NAMES
+    names = ("joint.tool_pos_m", "joint.tool_quat", "daq.joint_angle_rad", "cart.mode", "msp.state",
+             "msp.move_seq", "msp.move_done_seq", "msp.result_text", "msp.max_turn_rad", "msp.track_err_m",
+             "msp.track_err_rad")
+    if wm is None:
+        return "MOVE TO: no controller world model (start the console with the controller's --wm)"
+    try:
+        v = wm.get_task_inputs(names)
+    except Exception as err:  # noqa: BLE001 - a controller without moves: say so, do not die
+        return f"MOVE TO: cannot read the controller's world model: {type(err).__name__}: {err}"
+    p, q = v["joint.tool_pos_m"], v["joint.tool_quat"]
+    j = v["daq.joint_angle_rad"]
+    last = bytes(np.asarray(v["msp.result_text"], dtype=np.uint8)).rstrip(b"\0").decode(errors="replace")
+    state = MspMode.NAMES.get(int(v["msp.state"]), "?")
+    lines = [f"MOVE TO   tool ({float(p[0]):+.4f}, {float(p[1]):+.4f}, {float(p[2]):+.4f}) m  "
+             f"q ({float(q[0]):+.4f}, {float(q[1]):+.4f}, {float(q[2]):+.4f}, {float(q[3]):+.4f})",
+             "joints   " + "  ".join(f"{n} {math.degrees(float(a)):+.1f}" for n, a in zip(JOINT_NAMES, j)) + " deg",
+             f"path planner {state}  move {int(v['msp.move_seq'])} (answered {int(v['msp.move_done_seq'])})  "
+             f"cart.mode {int(v['cart.mode'])}  largest tool rotation {math.degrees(float(v['msp.max_turn_rad'])):.0f} "
+             f"deg  tracking {float(v['msp.track_err_m']) * 1e3:.1f} mm / "
+             f"{math.degrees(float(v['msp.track_err_rad'])):.2f} deg",
+             f"last: {last or '-'}", "", MOVE_HELP]
+    if status:
+        lines += ["", status]
+    return "\n".join(lines)
