@@ -119,7 +119,7 @@ class MultiSegmentLayer(Layer):
     def specs(self) -> list[VarSpec]:
         return self.state_specs() + segment_specs() + [
             VarSpec("msp.mode", "command_input", "i2", (), "user", 0,
-                    doc="path planner mode: 0 idle, 1 record, 2 play (path msp.path_id)"),
+                    doc="path planner mode (RECORD into, PLAY: path msp.path_id)", enum=MspMode.NAMES),
             VarSpec("msp.path_id", "command_input", "i4", (), "user", 0,
                     doc="the path to record into or play (the id in its file; pfma path list)"),
             VarSpec("msp.teach", "command_input", "i4", (), "user", 0,
@@ -131,12 +131,12 @@ class MultiSegmentLayer(Layer):
             VarSpec("msp.capture_angle_rad", "command_input", "f8", (), "user", CAPTURE_ANGLE_RAD, "rad",
                     doc="continuous capture: a point each time the tool turned this far"),
             VarSpec("msp.record_source", "command_input", "i2", (), "user", RecordSource.MEASURED,
-                    doc="recording stores 0 the measured tool pose (joint.tool_*) or 1 the Cartesian command "
-                        "(cart.pos_cmd_m/quat_cmd: playback repeats the recorded motion)"),
+                    doc="recording stores the MEASURED tool pose (joint.tool_*) or the Cartesian COMMAND "
+                        "(cart.pos_cmd_m/quat_cmd: playback repeats the recorded motion)", enum=RecordSource.NAMES),
             VarSpec("msp.speed_scale", "command_input", "f8", (), "user", 1.0,
                     doc="playback speed factor on the path's speeds (capped by traj.*_max)"),
             VarSpec("msp.state", "status_output", "i2", (), "msp", 0,
-                    doc="path planner state: 0 idle, 1 recording, 2 playing"),
+                    doc="path planner state: idle, recording, playing", enum=MspMode.NAMES),
             VarSpec("msp.points", "status_output", "i4", (), "msp", 0,
                     doc="points recorded so far (recording) or in the path (playing)"),
             VarSpec("msp.segment", "status_output", "i4", (), "msp", 0,
@@ -146,8 +146,7 @@ class MultiSegmentLayer(Layer):
             VarSpec("msp.finished", "status_output", "i4", (), "msp", 0,
                     doc="counts recordings saved and playbacks ended (msp.result says how)"),
             VarSpec("msp.result", "status_output", "i2", (), "msp", 0,
-                    doc="last recording/playback: 0 OK 1 CANCELLED 2 NO POSE 3 NO PATH 4 EMPTY 5 REFUSED "
-                        "6 SAVE FAILED"),
+                    doc="how the last recording/playback ended", enum=MspResult.NAMES),
         ]
 
     # --- helpers ---------------------------------------------------------------------------
