@@ -11,6 +11,9 @@ stime from /proc over the run), the host stalls the service named. A process tha
 reported with its exit code and the tail of its output, never a traceback.
 
 ``pfma bench stack --minutes 10 [--json]``; ``--minutes 0.05`` is the short variant a test runs.
+``--hog`` runs one CPU hog beside the stack (a busy Python loop at nice 0, as issue 29's
+"done when" asks: an ordinary host's other work), reported with its CPU %; the report's
+``held`` says whether no layer went to ERROR.
 """
 
 from __future__ import annotations
@@ -221,7 +224,12 @@ def _trips(messages: list[dict]) -> list[dict]:
             and any(w in m["text"].lower() for w in words)]
 
 
-def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = False) -> dict:
+#: the CPU hog of ``--hog``: one busy process at nice 0 (assumed representative of an ordinary
+#: host's other work: a compile, a browser tab spinning)
+HOG = "import signal, sys\nsignal.signal(signal.SIGINT, lambda *a: sys.exit(0))\nwhile True:\n    pass"
+
+
+def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = False, hog: bool = False) -> dict:
     from bit3.client import Client
     from tools.recording.reader import read_metadata
 
@@ -230,11 +238,14 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
     rec_path = workdir / "stack.mcap"
     seconds = max(0.0, minutes * 60.0)
     procs: dict[str, _Proc] = {}
-    rep: dict = {"minutes": minutes, "buffer": name, "started": [], "errors": [], "realtime": realtime}
+    rep: dict = {"minutes": minutes, "buffer": name, "started": [], "errors": [], "realtime": realtime, "hog": hog}
     rt_flag = ["--realtime"] if realtime else []  # service SCHED_FIFO on the last CPU, controller on CPU 0
     client = None
     watch = None
     try:
+        if hog:
+            procs["hog"] = _Proc("hog", [py, "-c", HOG], workdir)
+            rep["started"].append("hog")
         procs["service"] = _Proc("service", [py, "-m", "tools.cli", "serve", "--rack", "fake", "--buffer", name, *rt_flag],
                                  workdir)
         rep["started"].append("service")
@@ -291,7 +302,7 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
     except Exception as err:  # noqa: BLE001 - the report, never a traceback
         rep["errors"].append(f"{type(err).__name__}: {err}")
     finally:
-        for key in ("controller", "recorder", "service"):  # the service last: the others end cleanly
+        for key in ("controller", "recorder", "service", "hog"):  # the service last: the others end cleanly
             p = procs.get(key)
             if p is not None:
                 try:
@@ -315,6 +326,8 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
         WorldModel.remove_segment(name + "-wm")
     rep["processes"] = {k: p.report() for k, p in procs.items()}
     for k, p in procs.items():
+        if k == "hog":
+            continue
         if p.died is not None:
             rep["errors"].append(f"{k} died after {p.died['at_s']} s (exit {p.died['returncode']})")
         elif p.stop_how.startswith("SIGKILL"):
@@ -338,6 +351,7 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
                           "stale_fraction": _r(watch.ft_stale_reads / watch.reads, 4) if watch.reads else None,
                           "reads": watch.reads}
         rep["inputs"] = li
+        rep["held"] = not rep["layers_in_error"] and not rep["errors"]
     rep["recorder"] = {}
     if rec_path.exists():
         try:
@@ -366,7 +380,9 @@ def _pairs_text(d) -> str:
 def _print(rep: dict) -> None:
     pr = rep.get("processes", {})
     print(f"stack on buffer {rep['buffer']}: {rep.get('run_s', 0):g} s measured "
-          f"(service up in {rep.get('service_start_s')} s)")
+          f"(service up in {rep.get('service_start_s')} s){', beside a CPU hog' if rep.get('hog') else ''}")
+    if "held" in rep:
+        print(f"  {'HELD: no layer went to ERROR' if rep['held'] else 'NOT HELD: see the problems and layers below'}")
     for k, p in pr.items():
         died = f", DIED at {p['died']['at_s']} s (exit {p['died']['returncode']})" if p["died"] else ""
         print(f"  {k:<10} pid {p['pid']:<7} CPU {p['cpu_percent']} % of a core, stopped by {p['stopped']} "
@@ -412,13 +428,13 @@ def _print(rep: dict) -> None:
             print(f"    ... {len(rep['messages']) - 40} more (--json has them all)")
 
 
-def figures(minutes: float = 0.5, realtime: bool = False) -> dict:
+def figures(minutes: float = 0.5, realtime: bool = False, hog: bool = False) -> dict:
     """The whole stack for ``minutes`` (real time): its headline figures (the full report is
     ``run(as_json=True)``). ``minutes`` and ``run_s`` name the duration."""
     with tempfile.TemporaryDirectory(prefix="pfma-bench-stack-") as d:
-        rep = measure(minutes, Path(d), realtime=realtime)
+        rep = measure(minutes, Path(d), realtime=realtime, hog=hog)
     procs = rep.get("processes", {})
-    return {"minutes": minutes, "run_s": rep.get("run_s"), "realtime": realtime,
+    return {"minutes": minutes, "run_s": rep.get("run_s"), "realtime": realtime, "hog": hog, "held": rep.get("held"),
             "service_start_s": rep.get("service_start_s"),
             "cpu_percent": {k: p.get("cpu_percent") for k, p in procs.items()},
             "service_stats": rep.get("service_stats"), "controller_stats": rep.get("controller_stats"),
@@ -427,16 +443,18 @@ def figures(minutes: float = 0.5, realtime: bool = False) -> dict:
             "warnings_errors": len(rep.get("messages", [])), "errors": rep["errors"]}
 
 
-def run(seconds: float | None = None, minutes: float = 10.0, as_json: bool = False, realtime: bool = False) -> dict:
+def run(seconds: float | None = None, minutes: float = 10.0, as_json: bool = False, realtime: bool = False,
+        hog: bool = False) -> dict:
     """Run the stack; ``seconds`` (``pfma bench --seconds``) overrides ``minutes`` when given."""
     if seconds is not None:
         minutes = seconds / 60.0
     progress = None if as_json else (lambda s: print("  ..." + s, flush=True))
     if not as_json:
         print(f"pfma serve --rack fake + pfma controller --power-up + pfma record, {minutes:g} min"
-              f"{' (service and controller --realtime)' if realtime else ''}", flush=True)
+              f"{' (service and controller --realtime)' if realtime else ''}"
+              f"{', beside one CPU hog at nice 0' if hog else ''}", flush=True)
     with tempfile.TemporaryDirectory(prefix="pfma-bench-stack-") as d:
-        rep = measure(minutes, Path(d), progress=progress, realtime=realtime)
+        rep = measure(minutes, Path(d), progress=progress, realtime=realtime, hog=hog)
     if as_json:
         print(json.dumps(rep, indent=1))
     else:

@@ -426,8 +426,13 @@ class DataAcquisitionLayer(Layer):
                     for i in np.nonzero(bs & BOARD_FAULT)[0]]
         # a service in FAULT matters while this layer wants the outputs; once it has withdrawn
         # its arm request (the safe task), the latched FAULT only waits for the next arm
-        # request (power up's start-up task): else an error reset could never finish
-        if service_state == ServiceState.STOPPED or (service_state == ServiceState.FAULT and self.arm_request) or \
+        # request (power up's start-up task): else an error reset could never finish. While
+        # that request is on its way (start-up phase 1: sent, not yet answered; a link's
+        # latency or a command that landed after the service's next frame began), FAULT is
+        # the last episode's, not a new one: the start-up task times out after ARM_TIMEOUT_S
+        # naming the state (tests/controller/test_arm_latency.py)
+        if service_state == ServiceState.STOPPED or \
+                (service_state == ServiceState.FAULT and self.arm_request and self._phase != 1) or \
                 (self.arm_request and self._phase == 2 and service_state != ServiceState.ARMED
                  and not (self.halted and service_state == ServiceState.HALTED)):
             bits |= FAULT_SERVICE
@@ -574,7 +579,9 @@ class DataAcquisitionLayer(Layer):
         if self.task_frames == 0:
             self._t_phase = rt.now
         st = int(self.snapshot.service_state) if self.snapshot is not None else -1
-        if st in (ServiceState.SAFE, ServiceState.FAULT) and not self.fault_bits:
+        # halted (a power-up stepped frame by frame): the service holds HALTED for us, safe
+        safe = st in (ServiceState.SAFE, ServiceState.FAULT) or (self.halted and st == ServiceState.HALTED)
+        if safe and not self.fault_bits:
             self.monitoring = True
             return TaskState.DONE
         if rt.now - self._t_phase > INIT_TIMEOUT_S:
@@ -585,11 +592,21 @@ class DataAcquisitionLayer(Layer):
         return TaskState.RUNNING
 
     def seq_startup(self, rt: "LayerContext") -> TaskState:
-        """Arm the service: a new arm request with all rates 0; wait for ARMED."""
+        """Arm the service: a new arm request with all rates 0; wait for ARMED (at most
+        ARM_TIMEOUT_S). While the runtime is halted (a power-up single-stepped) the outputs
+        stay in the halted safe state: the arm request waits for the resume's explicit
+        re-arm (``pfma controller resume --rearm``), and the time-out counts from the first
+        frame after it."""
         if self.task_frames == 0:
             self.rearm_counter += 1
             self.arm_request = 1
             self._phase = 1
+            self._t_phase = rt.now
+            if self.halted:
+                rt.post(self.key, Level.INFO, "START UP: halted, so the outputs stay safe; arming waits for "
+                                              "resume --rearm (console: a, then r)")
+            return TaskState.RUNNING
+        if self.halted:
             self._t_phase = rt.now
             return TaskState.RUNNING
         if int(self.snapshot.service_state) == ServiceState.ARMED:

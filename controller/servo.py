@@ -300,7 +300,9 @@ class ServoLayer(Layer):
 
     def seq_startup(self, rt: "LayerContext") -> TaskState:
         """Brake release (pfma-model 8.4): rate 0 V, then raise the current limits, wait
-        until the brakes report released; then hold the present angles and close the loop."""
+        until the brakes report released; then hold the present angles and close the loop.
+        While the runtime is halted the outputs are held safe (brakes set): the wait goes on,
+        its time-out counting from the first frame after the resume's re-arm."""
         if self.task_frames == 0:
             rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS), "servo.rate_cmd_frame": -1})
             self._brake_phase(rt, 1)
@@ -317,6 +319,9 @@ class ServoLayer(Layer):
                                           f"current limits were raised; holding the present angles")
             self._brake_phase(rt, 3)
             return TaskState.DONE
+        if rt.halted:
+            self._t_phase = rt.now
+            return TaskState.RUNNING
         if rt.now - self._t_phase > BRAKE_RELEASE_TIMEOUT_S:
             rt.post(self.key, Level.ERROR, f"brakes not released {BRAKE_RELEASE_TIMEOUT_S} s after the "
                                            f"current limits were raised")

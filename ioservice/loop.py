@@ -174,26 +174,70 @@ class FrameLoop:
         return stats
 
 
+#: the environment variable that turns real-time scheduling's default off for every process
+#: started beneath it (``PFMA_REALTIME=off``): the test suite (tests/conftest.py) and ``pfma
+#: bench`` without ``--realtime`` set it, so a 2-core CI host running everything as root is
+#: never filled with SCHED_FIFO processes. An explicit ``--realtime`` still takes it.
+REALTIME_ENV = "PFMA_REALTIME"
+
+
+def realtime_default() -> bool:
+    """Whether a process started without ``--realtime``/``--no-realtime`` tries real-time
+    scheduling: yes, unless :data:`REALTIME_ENV` says ``off`` (or ``0``, ``no``)."""
+    import os
+    return os.environ.get(REALTIME_ENV, "").strip().lower() not in ("off", "0", "no", "false")
+
+
+def realtime_start(prog: str, flag: bool | None, cpu: int | None, fifo_priority: int,
+                   watchdog_ms: float | None = None) -> list[str]:
+    """The real-time set-up of a live process (``pfma serve``, ``pfma controller``), by
+    default where permitted (issue 29 item 2); returns the lines to print (one, plus any
+    partial failure).
+
+    :param flag: ``--realtime`` (True: asked for), ``--no-realtime`` (False), neither (None:
+        :func:`realtime_default`; without it, nothing is tried and nothing said, since the
+        caller's environment said so once).
+    :param watchdog_ms: named in the line that says what a time-shared process costs.
+    """
+    if flag is False:
+        return [f"{prog}: real-time off (--no-realtime): time-shared, not pinned"]
+    if flag is None and not realtime_default():
+        return []
+    warnings = realtime_setup(cpu=cpu, fifo_priority=fifo_priority)
+    if warnings and warnings[0].startswith("SCHED_FIFO"):
+        cost = (f"a host stall longer than the {watchdog_ms:g} ms watchdog puts the outputs to 0 V"
+                if watchdog_ms else "its frames wait behind every other process on a busy host")
+        return [f"{prog}: real-time not permitted for this user (SCHED_FIFO needs root, CAP_SYS_NICE or an "
+                f"RLIMIT_RTPRIO; docs/deployment.md): running time-shared and not pinned; {cost}",
+                *(f"{prog}: {w}" for w in warnings[1:])]
+    pinned = f", pinned to CPU {cpu}" if cpu is not None and not any(w.startswith("could not pin")
+                                                                      for w in warnings) else ""
+    return [f"{prog}: real-time: SCHED_FIFO priority {fifo_priority}{pinned} (--no-realtime opts out)",
+            *(f"{prog}: {w}" for w in warnings)]
+
+
 def realtime_setup(cpu: int | None = None, fifo_priority: int | None = 50) -> list[str]:
     """Best-effort real-time set-up for the loop's process; returns warnings (empty = all done).
 
-    SCHED_FIFO at ``fifo_priority`` when permitted, pinned to ``cpu`` when given,
-    timer slack 1 ns (prctl PR_SET_TIMERSLACK) so sleeps wake on time.
+    SCHED_FIFO at ``fifo_priority`` when permitted, then (only if it was) pinned to ``cpu``
+    when given, timer slack 1 ns (prctl PR_SET_TIMERSLACK) so sleeps wake on time.
     """
     import ctypes
     import os
     warnings: list[str] = []
-    if cpu is not None:
-        try:
-            os.sched_setaffinity(0, {cpu})
-        except OSError as err:
-            warnings.append(f"could not pin to CPU {cpu}: {err.strerror}")
+    fifo = False
     if fifo_priority:
         try:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(fifo_priority))
+            fifo = True
         except (OSError, AttributeError) as err:
             warnings.append(f"SCHED_FIFO not permitted ({getattr(err, 'strerror', err)}); "
                             f"running SCHED_OTHER, expect more wake-up jitter")
+    if cpu is not None and fifo:  # never pinned without SCHED_FIFO: a time-shared process
+        try:                      # pinned to one CPU only loses the other when that one is busy
+            os.sched_setaffinity(0, {cpu})
+        except OSError as err:
+            warnings.append(f"could not pin to CPU {cpu}: {err.strerror}")
     try:
         libc = ctypes.CDLL(None, use_errno=True)
         PR_SET_TIMERSLACK = 29

@@ -1,5 +1,12 @@
 """Fixtures shared across the suite: a private Bit3 buffer (``shm_name``, ``buf``) and a spawn
-multiprocessing context (``mp``) for cross-process tests."""
+multiprocessing context (``mp``) for cross-process tests.
+
+The suite runs without real-time scheduling: ``PFMA_REALTIME=off`` (ioservice.loop.REALTIME_ENV)
+is set here for every process a test starts, so ``pfma serve`` and ``pfma controller`` stay
+time-shared and unpinned unless a test that is about real-time passes ``--realtime``; a
+2-core CI host running everything as root is never filled with SCHED_FIFO processes. The
+run's header says so once.
+"""
 
 import multiprocessing
 import os
@@ -8,6 +15,14 @@ import uuid
 import pytest
 
 from bit3.buffer import Bit3Buffer
+from ioservice.loop import REALTIME_ENV
+
+os.environ[REALTIME_ENV] = "off"
+
+
+def pytest_report_header(config):
+    return (f"real-time scheduling: off for the processes this suite starts ({REALTIME_ENV}=off); "
+            f"only tests that pass --realtime take SCHED_FIFO")
 
 
 @pytest.fixture

@@ -9,13 +9,16 @@ import pytest
 
 
 @pytest.mark.realtime
-def test_short_stack_bench_reports_and_stops_every_process(capsys):
-    out = subprocess.run([sys.executable, "-m", "tools.cli", "bench", "stack", "--minutes", "0.05", "--json"],
-                         capture_output=True, text=True, timeout=240)
+@pytest.mark.parametrize("hog", [False, True])
+def test_short_stack_bench_reports_and_stops_every_process(hog, capsys):
+    out = subprocess.run([sys.executable, "-m", "tools.cli", "bench", "stack", "--minutes", "0.05", "--json",
+                          *(["--hog"] if hog else [])], capture_output=True, text=True, timeout=240)
     assert "Traceback" not in out.stderr, out.stderr[-2000:]
     rep = json.loads(out.stdout)
-    assert rep["started"] == ["service", "controller", "recorder"]
-    for name in ("service", "controller", "recorder"):
+    names = ["hog"] * hog + ["service", "controller", "recorder"]
+    assert rep["started"] == names and rep["hog"] == hog
+    assert rep["held"] == (not rep["layers_in_error"] and not rep["errors"])
+    for name in names:
         p = rep["processes"][name]
         assert p["pid"] > 0
         assert p["stopped"] in ("SIGINT", "had exited")

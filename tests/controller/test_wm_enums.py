@@ -121,8 +121,8 @@ def test_every_error_code_a_layer_posts_is_in_its_enumeration():
 
 #: the controller's enumerated variables (the values are the layers' own tables)
 ENUMERATED = {"updown.status": "ERROR", "servo.command": "ERROR RESET", "servo.error": "controller missed frames",
-              "daq.error": "resolver", "joint.task": "INIT RUNNING", "ui.request": "POWER UP",
-              "ui.response": "REFUSED", "cart.mode": "TELEOP", "cart.hc_source": "CRL", "cart.hc_frame": "TOOL",
+              "daq.error": "resolver", "joint.task": "INIT RUNNING",
+              "ui.response": "CANCELLED", "cart.mode": "TELEOP", "cart.hc_source": "CRL", "cart.hc_frame": "TOOL",
               "force.frame": "TOOL", "force.state": "IMPEDANCE", "joint.mode": "CARTESIAN", "msp.mode": "PLAY",
               "msp.state": "RECORD", "msp.result": "NO PATH", "msp.record_source": "COMMAND",
               "traj.done_code": "STOPPED", "servo.trip_joint": "elbow_pitch",

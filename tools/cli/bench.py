@@ -35,6 +35,7 @@ import importlib
 import json
 import math
 import pkgutil
+import os
 import sys
 
 import bench
@@ -73,6 +74,8 @@ def add_parser(sub):
     p.add_argument("--realtime", action="store_true",
                    help="stack, chaos, soak, flood: run the service (and the controller) with --realtime "
                         "(SCHED_FIFO, pinned CPUs)")
+    p.add_argument("--hog", action="store_true",
+                   help="stack: one CPU hog (a busy process at nice 0) beside the stack, reported")
     p.add_argument("--check", action="store_true",
                    help="soak, flood (named alone): judge the figures against issue 20's criteria; exit 1 "
                         "with one line per failed criterion")
@@ -108,7 +111,7 @@ def _json_set(names: list[str], args) -> int:
         mod = importlib.import_module(f"bench.bench_{name}")
         try:
             if name == "stack":
-                out[name] = mod.figures(minutes=minutes, realtime=args.realtime)
+                out[name] = mod.figures(minutes=minutes, realtime=args.realtime, hog=args.hog)
                 failed |= bool(out[name]["errors"])
             else:
                 out[name] = mod.figures(seconds=seconds)
@@ -146,6 +149,10 @@ def run(args) -> int:
             print(f"pfma bench: --kinds {args.kinds}: unknown {', '.join(bad) or 'nothing'}; known: "
                   f"{', '.join(KINDS)}", file=sys.stderr)
             return 2
+    if not args.realtime:  # every process a bench starts stays time-shared and unpinned (a
+        # 2-core host is not filled with SCHED_FIFO processes): ioservice.loop.REALTIME_ENV
+        from ioservice.loop import REALTIME_ENV
+        os.environ[REALTIME_ENV] = "off"
     known = _names()
     unknown = set(args.names) - set(known)
     if unknown:
@@ -167,7 +174,8 @@ def run(args) -> int:
             if not args.json:
                 print(f"== bench {name} ==")
             minutes = STACK_MINUTES if args.minutes is None else args.minutes
-            rep = mod.run(seconds=args.seconds, minutes=minutes, as_json=args.json, realtime=args.realtime)
+            rep = mod.run(seconds=args.seconds, minutes=minutes, as_json=args.json, realtime=args.realtime,
+                          hog=args.hog)
             if rep.get("errors") and args.json:
                 return 1
             continue

@@ -12,6 +12,9 @@ Examples::
     pfma controller step 5                  # ... run exactly 5 minor frames, print their trace
     pfma controller resume --rearm          # ... re-arm the outputs and go on
     pfma controller route 2 1               # ... camera 2 on monitor 1 (0 blanks it)
+    pfma controller power-up                # ... the Global Commands: POWER UP (halted: it runs
+    pfma controller power-down              #     with each step; resume --rearm arms), POWER DOWN,
+    pfma controller reset                   #     ERROR RESET
     pfma controller --distribute examples/distributed.toml --process rack       # one process of a
     pfma controller --distribute examples/distributed.toml --process planners --power-up   # distributed one
     pfma controller --sim --distribute examples/distributed.toml --power-up     # all of it, simulated
@@ -42,21 +45,33 @@ HELP = """single-step commands (IRSS halt / manual interrupt):
   ?               this help"""
 
 
+#: ``pfma controller ACTION``: the Global Commands' requests (docs/console.md) to a running controller
+SYSTEM_ACTIONS = ("power-up", "power-down", "reset")
+#: how long ``pfma controller power-up|power-down|reset`` waits for the final answer (assumed:
+#: the longest sequence, a power-up with its init, arm and brake-release time-outs of
+#: controller/daq_layer.py and controller/servo.py, takes about 1.2 s; ten seconds is far
+#: beyond it and still a prompt "no answer" for a controller that is not running frames)
+SYSTEM_REQUEST_TIMEOUT_S = 10.0
+
+
 def add_parser(sub):
     p = sub.add_parser("controller", help="run the IRSS-layered controller (live service or --sim)",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("action", nargs="?", choices=("halt", "step", "resume", "route"), default=None,
+    p.add_argument("action", nargs="?", choices=("halt", "step", "resume", "route", *SYSTEM_ACTIONS), default=None,
                    help="requests to a RUNNING controller (its --wm): halt (outputs held in the "
                         "service's HALTED state, 0 V, brakes set), step [N] (exactly N minor frames, "
                         "their trace printed), resume (needs --rearm), route CAMERA MONITOR (the "
-                        "console's CAMERA ROUTE: that camera on that monitor, 0 blanks it)")
+                        "console's CAMERA ROUTE: that camera on that monitor, 0 blanks it), power-up, "
+                        "power-down, reset (the Global Commands POWER UP, POWER DOWN, ERROR RESET; "
+                        "halted, they run frame by frame with the steps)")
     p.add_argument("frames", nargs="?", default=None, metavar="N|CAMERA", action=_CountOrCamera,
                    help="step: minor frames to run (default 1); route: the camera, 1..3 or 0 = blank")
     p.add_argument("monitor", nargs="?", type=monitor_number, default=None, metavar="MONITOR",
                    help="route: the monitor, 1..2")
     p.add_argument("--rearm", action="store_true", help="resume: re-arm the outputs (required)")
     p.add_argument("--key", default=None,
-                   help="halt/step/resume: world-model access key (default $PFMA_WM_KEY or the default key)")
+                   help="requests to a running controller: world-model access key (default $PFMA_WM_KEY or "
+                        "the default key)")
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name of the service (default pfma)")
     p.add_argument("--sim", action="store_true", help="simulate the whole system (fake rack + service) "
                                                      "in simulated time instead")
@@ -86,8 +101,10 @@ def add_parser(sub):
                    help="simulated seconds from the start at which --sim-fault is injected (default 0)")
     p.add_argument("--no-ft", action="store_true", help="a stale F/T link is not a fault")
     p.add_argument("--tables", action="store_true", help="print the decision tables and the schedule")
-    p.add_argument("--realtime", action="store_true",
-                   help="SCHED_FIFO priority 49 pinned to CPU 0 (needs privileges; pfma serve --realtime takes the last CPU)")
+    p.add_argument("--realtime", action=argparse.BooleanOptionalAction, default=None,
+                   help="SCHED_FIFO priority 49 pinned to CPU 0 (pfma serve takes the last CPU): taken by default "
+                        "where this user may, said in one line; --no-realtime opts out (PFMA_REALTIME=off turns "
+                        "the default off)")
     g = p.add_argument_group("distributed controller (docs/controller.md, \"Distributing the layers\")")
     g.add_argument("--distribute", metavar="FILE", default=None,
                    help="a TOML assigning the seven layers to processes (examples/distributed.toml)")
@@ -446,12 +463,7 @@ class _Driver:
             self.rt = ControllerRuntime(self.client, frames=frames, wm_name=wm_name, clock=MonotonicClock(),
                                         require_ft=not args.no_ft)
             self.pacer = LivePacer(self.client, frames.period_s)
-            if args.realtime:
-                from ioservice.loop import realtime_setup
-                # the service pins itself to the last CPU (pfma serve --realtime); the
-                # controller takes the first, one priority below it
-                for w in realtime_setup(cpu=0, fifo_priority=49):
-                    print(f"pfma controller: {w}", file=sys.stderr)
+            _realtime(args)
             gc.collect()  # what start-up allocated is not collected inside the first frames
             gc.freeze()
         self.printed_header = False
@@ -714,11 +726,53 @@ def _frame_control(args) -> int:
     return 0 if a.ok else 1
 
 
+# --- the Global Commands from the shell: pfma controller power-up|power-down|reset ------------
+def _system_request(args) -> int:
+    """``pfma controller power-up|power-down|reset``: the console's Global Commands (POWER
+    UP, POWER DOWN, ERROR RESET) as one request to the running controller through its world
+    model, as ``halt``, ``step`` and ``resume`` do; prints the answer. System Up/Down queues
+    it: running, the final answer comes when the sequence ends (at most
+    SYSTEM_REQUEST_TIMEOUT_S); halted, the request runs frame by frame with the steps
+    (``pfma controller step``) and arming waits for ``resume --rearm``, so the command
+    returns once the request is queued or in progress and says so."""
+    from tools.console.control import ControlError, ControllerLink, Request, Response
+    what = args.action
+    if args.frames is not None or args.monitor is not None:
+        print(f"pfma controller {what}: takes no frame count, camera or monitor", file=sys.stderr)
+        return 2
+    if args.rearm:
+        print(f"pfma controller {what}: --rearm belongs to resume", file=sys.stderr)
+        return 2
+    if args.wm in ("none", ""):
+        print(f"pfma controller {what}: needs the running controller's world model (--wm NAME)", file=sys.stderr)
+        return 2
+    kind = {"power-up": Request.POWER_UP, "power-down": Request.POWER_DOWN, "reset": Request.ERROR_RESET}[what]
+    try:
+        link = ControllerLink.attach(args.wm, args.key)
+        try:
+            seq = link.submit(kind)
+            a = link.wait(seq, timeout_s=SYSTEM_REQUEST_TIMEOUT_S, halted_ok=True)
+            print(a.line())
+            waiting = a.code in (Response.QUEUED, Response.IN_PROGRESS)
+            if waiting:
+                arming = " and `pfma controller resume --rearm` arms the outputs" if kind == Request.POWER_UP else ""
+                print(f"the controller is halted: `pfma controller step [N]` runs the {Request.NAMES[kind]} frame by "
+                      f"frame{arming}; the outputs stay safe (0 V, brakes set) until then")
+        finally:
+            link.close()
+    except ControlError as err:
+        print(f"pfma controller {what}: {err}", file=sys.stderr)
+        return 1
+    return 0 if a.ok or waiting else 1
+
+
 def run(args) -> int:
     if args.distribute is not None or args.process is not None:
         return _run_distributed(args)
     if args.wm is None:
         args.wm = "pfma_wm"
+    if args.action in SYSTEM_ACTIONS:
+        return _system_request(args)
     if args.action is not None:
         return _frame_control(args)
     if args.frames is not None or args.monitor is not None:
@@ -1006,10 +1060,7 @@ class _DistributedDriver:
         self.rt = self.dp.rt
         self.pacer = LivePacer(self.client, frames.period_s) if isinstance(self.client, Client) \
             else _PollPacer(self.client)
-        if args.realtime:
-            from ioservice.loop import realtime_setup
-            for w in realtime_setup(cpu=0, fifo_priority=49):
-                print(f"pfma controller: {w}", file=sys.stderr)
+        _realtime(args)
         gc.collect()
         gc.freeze()
         self.printed_header = False
@@ -1120,3 +1171,12 @@ class _DistributedDriver:
         if self.link is not None:
             self.link.close()
         self.client.close()
+
+
+def _realtime(args) -> None:
+    """The live controller's real-time set-up (by default where permitted; ioservice.loop.
+    realtime_start): the service pins itself to the last CPU (pfma serve), the controller
+    takes the first, one priority below it."""
+    from ioservice.loop import realtime_start
+    for line in realtime_start("pfma controller", args.realtime, 0, 49):
+        print(line, file=sys.stderr)

@@ -50,6 +50,9 @@ def add_parser(sub):
     p.add_argument("--rack", default="fake", help="fake (simulated rack, default) or a rack TOML")
     p.add_argument("--bus", default=None, help="register bus for a real rack (modbus://H:P, file:PATH)")
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
+    p.add_argument("--private-if-busy", action="store_true",
+                   help="while a live service owns --buffer, run on a private buffer (pfma-sim-...), named in "
+                        "one line, instead of refusing (make run)")
     p.add_argument("--group", default=None, metavar="GROUP",
                    help="make the buffer and its frame ring mode 0640 with this group, so its members "
                         "(operators' accounts) can read them (default: 0600, this user only; "
@@ -84,7 +87,10 @@ def add_parser(sub):
                    help="do not print trips, refusals, stalls (every WARNING and ERROR) as they happen")
     p.add_argument("--demo", action="store_true",
                    help="also start the demo controller (a separate process) that arms and swings the arm")
-    p.add_argument("--realtime", action="store_true", help="try SCHED_FIFO and a pinned CPU (needs privileges)")
+    p.add_argument("--realtime", action=argparse.BooleanOptionalAction, default=None,
+                   help="SCHED_FIFO priority 50 pinned to the last CPU: taken by default where this user may "
+                        "(root, CAP_SYS_NICE or an RLIMIT_RTPRIO), said in one line; --no-realtime opts out "
+                        "(PFMA_REALTIME=off turns the default off)")
     p.add_argument("--calibration", default=None, metavar="FILE",
                    help="calibration file (pfma calibrate ...) applied at start; default: nominal scales")
     p.add_argument("--direction-state", default=None, metavar="FILE",
@@ -258,7 +264,7 @@ def _live_view(buffer_name: str, stop: threading.Event, rack) -> None:
 
 def run(args) -> int:
     from ioservice.service import LIVE_TICK_S, IoService
-    from ioservice.loop import realtime_setup
+    from ioservice.loop import realtime_start
     slow = args.schedule == "slow"
     if args.schedule and not slow:
         import tomllib
@@ -303,9 +309,16 @@ def run(args) -> int:
         except (PfmaError, OSError) as err:
             print(f"pfma serve: cannot open the bus {args.bus}: {err}", file=sys.stderr)
             return 1
-    if args.realtime:
-        for w in realtime_setup(cpu=os.cpu_count() - 1 if os.cpu_count() else None):
-            print(f"pfma serve: {w}", file=sys.stderr)
+    for line in realtime_start("pfma serve", args.realtime, os.cpu_count() - 1 if os.cpu_count() else None, 50,
+                               watchdog_ms=args.watchdog_ms):
+        print(line, file=sys.stderr)
+    private = False
+    if args.private_if_busy:  # make run: the default name unless a live service has it (tools/runnames.py)
+        from tools.runnames import claim
+        names = claim(args.buffer, None)
+        if names.private:
+            args.buffer, private = names.buffer, True
+            print(f"pfma serve: {names.note}", flush=True)
     _replace_stale(args.buffer)
     try:
         buf = Bit3Buffer.create(args.buffer, layout, group=args.group)
@@ -445,7 +458,7 @@ def run(args) -> int:
               + ", ".join(f"{k} {v['rate_hz']:.1f} Hz" for k, v in s["devices"].items() if v["samples"]))
         print(first_trip_line(svc), flush=True)
         buf.release()
-        buf.close()
+        buf.close(unlink=private)  # a private name nobody will ask for again goes; the default stays for readers
         svc.ring.close()
         FrameRing.unlink(args.buffer)
         svc.hand.close()

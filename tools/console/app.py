@@ -38,6 +38,9 @@ from tools.console.control import Answer, ControlError, ControllerLink, Request,
 REFRESH_HZ = 10.0
 #: frames one capital-S single step runs
 BIG_STEP = 10
+#: requests the console follows to their final answers at once (the newest; System Up/Down
+#: queues at most controller.layers.QUEUE_SLOTS, and a few more are answered at once)
+PENDING_FOLLOWED = 16
 
 
 class LinesView(Widget):
@@ -626,7 +629,7 @@ class ConsoleApp(App):
         self.selected = 0
         self.rearm = False
         self.last_answer = ""
-        self.pending: int | None = None  # request waiting for its final answer
+        self.pending: list[int] = []  # requests waiting for their final answers, oldest first (queued requests)
         self.reading: view.Reading | None = None
         self.read_error = ""
         self.refreshes = 0
@@ -643,7 +646,8 @@ class ConsoleApp(App):
         with Grid():
             for key in ("local", "global", "world", "commands", "messages"):  # the grid's order (CSS)
                 with Area(id=f"{key}-area", classes="area") as area:
-                    area.border_title = titles[key]
+                    area.border_title = titles[key] + (f" ({self.sources.names})" if key == "world" and
+                                                       self.sources.names else "")
                     yield Static("", id=key, markup=False)
         yield Footer()
 
@@ -732,17 +736,18 @@ class ConsoleApp(App):
         return str(self.query_one(f"#{key}", Static).render())
 
     def _follow_answer(self) -> None:
-        if self.pending is None or self.link is None:
+        if not self.pending or self.link is None:
             return
-        a = self.link.answer(self.pending)
-        if a is None:
-            return
-        self._show_answer(a)
-        if a.done:
-            self.pending = None
-            if a.ok and "SINGLE STEP" in a.text:
-                for line in self.link.step_trace().splitlines()[-3:]:
-                    self._note("INFO", "trace " + line.strip())
+        for seq in list(self.pending):  # each request sent is followed to its final answer
+            a = self.link.answer(seq)
+            if a is None:
+                continue
+            self._show_answer(a)
+            if a.done:
+                self.pending.remove(seq)
+                if a.ok and "SINGLE STEP" in a.text:
+                    for line in self.link.step_trace().splitlines()[-3:]:
+                        self._note("INFO", "trace " + line.strip())
 
     def _show_answer(self, a: Answer) -> None:
         line = a.line()
@@ -821,11 +826,13 @@ class ConsoleApp(App):
             self._note("WARNING", "read-only console: no controller to send requests to")
             return
         try:
-            self.pending = self.link.submit(kind, arg)
+            seq = self.link.submit(kind, arg)
         except ControlError as err:
             self._note("ERROR", str(err))
             return
-        self._note("INFO", f"request {self.pending}: {Request.NAMES[kind]} sent")
+        self.pending.append(seq)
+        del self.pending[:-PENDING_FOLLOWED]  # the oldest unanswered stop being followed (never more than these)
+        self._note("INFO", f"request {seq}: {Request.NAMES[kind]} sent")
         self.refresh_areas()
 
     def action_request(self, name: str) -> None:

@@ -1,10 +1,11 @@
 """Requests to a running controller through its world model's request/response protocol
-(``ui.request``, ``ui.request_arg``, ``ui.request_seq`` -> ``ui.response``,
-``ui.response_text``, ``ui.response_seq``; System Up/Down answers, docs/console.md).
+(one keyed write of ``ui.request`` = (kind, argument) per request, numbered by the write's
+request id; System Up/Down queues them and answers each in its answer log ``ui.answer_*``,
+docs/controller.md "User requests", docs/console.md).
 
-Used by ``pfma controller halt|step|resume`` and by the console. The link never blocks on
-its own: :meth:`ControllerLink.answer` is polled (the CLI waits in real time, the console
-at its refresh, a test in simulated frames).
+Used by ``pfma controller halt|step|resume|power-up|power-down|reset`` and by the console.
+The link never blocks on its own: :meth:`ControllerLink.answer` is polled (the CLI waits in
+real time, the console at its refresh, a test in simulated frames).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import os
 import time
 from dataclasses import dataclass
 
-from controller.layers import Request, Response
+from controller.layers import Request, Response, find_answer
 from controller.worldmodel import WorldModel, WorldModelError
 from controller.worldmodel.model import ACCESS_KEY_ENV, DEFAULT_ACCESS_KEY
 
@@ -32,7 +33,8 @@ class Answer:
 
     @property
     def done(self) -> bool:
-        return self.code not in (Response.NONE, Response.IN_PROGRESS)
+        """A final answer (not QUEUED or IN PROGRESS)."""
+        return self.code in Response.FINAL
 
     @property
     def ok(self) -> bool:
@@ -74,25 +76,29 @@ class ControllerLink:
         return cls(wm, key)
 
     def submit(self, kind: int, arg: int = 0) -> int:
-        """Post request ``kind`` (``Request.*``) with ``arg``; returns its number."""
+        """Post request ``kind`` (``Request.*``) with ``arg``: one keyed write of
+        ``ui.request``; returns its number (the write's request id)."""
         try:
-            self._seq = max(self._seq, int(self.wm.get("ui.request_seq"))) + 1
-            self.wm.set_user("ui.request_arg", int(arg), self.key)
-            self.wm.set_user("ui.request", int(kind), self.key)
-            self.wm.set_user("ui.request_seq", self._seq, self.key)
+            return int(self.wm.set_user("ui.request", [int(kind), int(arg)], self.key))
         except WorldModelError as err:
             raise ControlError(str(err)) from None
-        return self._seq
 
     def answer(self, seq: int) -> Answer | None:
-        """The answer to request ``seq`` so far (None: not answered yet)."""
-        v = self.wm.get_task_inputs(("ui.response_seq", "ui.response", "ui.response_text"))
-        if int(v["ui.response_seq"]) != seq:
-            return None
-        return Answer(seq, int(v["ui.response"]), _text(v["ui.response_text"]))
+        """The newest answer to request ``seq`` so far (None: not answered yet). A request
+        the world model itself rejected (never reached System Up/Down) reads as REFUSED
+        with the world model's reason."""
+        a = find_answer(self.wm, seq)
+        if a is not None:
+            return Answer(seq, a[0], a[1])
+        r = self.wm.request(seq)
+        if r is not None and r.state == "rejected":
+            return Answer(seq, Response.REFUSED, f"not taken by the world model: {r.result}")
+        return None
 
-    def wait(self, seq: int, timeout_s: float, poll_s: float = 0.005) -> Answer:
-        """Poll (real time) until request ``seq`` is answered with more than IN PROGRESS.
+    def wait(self, seq: int, timeout_s: float, poll_s: float = 0.005, halted_ok: bool = False) -> Answer:
+        """Poll (real time) until request ``seq`` has a final answer (``Answer.done``).
+        ``halted_ok``: also return once it is QUEUED or IN PROGRESS while the controller is
+        halted (it then runs frame by frame, with the steps).
 
         :raises ControlError: not answered within ``timeout_s``
         """
@@ -102,7 +108,7 @@ class ControllerLink:
             a = self.answer(seq)
             if a is not None:
                 last = a
-                if a.done:
+                if a.done or (halted_ok and self.halted()):
                     return a
             time.sleep(poll_s)
         info = self.wm.info()

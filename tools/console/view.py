@@ -105,6 +105,8 @@ class Sources:
         self.messages: deque[ConsoleMessage] = deque(maxlen=MESSAGES_KEPT)
         #: simulated seconds per wall second (``pfma console --sim``), or None (a live system)
         self.speed: Callable[[], float] | None = None
+        #: the names read, shown in World Status's title ("buffer pfma, world model pfma_wm"; "": none)
+        self.names = ""
         self._seq = {"service": 0, "controller": 0}
 
     def read(self) -> Reading:

@@ -5,6 +5,8 @@ TOML and the force displays. Pilot key presses on the system simulator in simula
 
 from __future__ import annotations
 
+import os
+import uuid
 
 import numpy as np
 import pytest
@@ -259,12 +261,14 @@ def test_a_menu_variable_the_model_lacks_exits_2_before_the_console_starts(tmp_p
     from tools.cli import main
     f = tmp_path / "typo.toml"
     f.write_text('[[page]]\nname = "a"\n\n[[page.var]]\nname = "runtime.frame"\nformat = "d"\n')
-    rc = main(["console", "--sim", "--menu", str(f)])  # the simulated system is built, checked, closed
+    name = f"pfma-menu-{uuid.uuid4().hex[:8]}"  # not make run's default names: tests run side by side
+    rc = main(["console", "--sim", "--menu", str(f), "--buffer", name, "--wm", f"{name}_wm"])  # built, checked, closed
     out, err = capsys.readouterr()
     assert rc == 2 and "Traceback" not in err
     assert err.startswith(f"pfma console: {f}:5: page 1 var 1 name: no variable 'runtime.frame' in the world "
                           f"model; did you mean runtime.frames")
     assert len(err.strip().splitlines()) == 1
+    assert not [n for n in os.listdir("/dev/shm") if n.startswith(name)]  # nothing left behind
 
 
 def test_a_format_that_does_not_fit_the_variable_is_named(sim, tmp_path):
