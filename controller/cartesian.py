@@ -59,7 +59,7 @@ from controller.layers import Layer
 from controller.messages import Level
 from controller.quat import q_conj, q_from_rotvec, q_mul, q_normalize, q_to_matrix, q_to_rotvec
 from controller.teleop import (
-    COARSE_LIN_M_S, COARSE_ROT_RAD_S, FRAME_TOOL, HC_CRL, HC_SOURCES, HcSample, Telemetry, hc_twist, reflect,
+    COARSE_LIN_M_S, COARSE_ROT_RAD_S, FRAME_NAMES, FRAME_TOOL, HC_CRL, HC_SOURCE_NAMES, HC_SOURCES, HcSample, Telemetry, hc_twist, reflect,
 )
 from controller.worldmodel import VarSpec
 from pfma.errors import ConfigError
@@ -152,10 +152,11 @@ class CartesianLayer(Layer):
         u, w = "user", "cartesian"
         return self.state_specs() + [
             # user controls (command input)
-            VarSpec("cart.mode", "command_input", "i2", (), u, 0, doc="Cartesian mode: 0 hold 1 teleop 2 trajectory"),
-            VarSpec("cart.hc_source", "command_input", "i2", (), u, 0, doc="hand controller: 0 CAE 1 CRL 2 HID"),
+            VarSpec("cart.mode", "command_input", "i2", (), u, 0, doc="Cartesian mode", enum=MODE_NAMES),
+            VarSpec("cart.hc_source", "command_input", "i2", (), u, 0, doc="the hand controller teleoperation follows",
+                    enum=HC_SOURCE_NAMES),
             VarSpec("cart.hc_frame", "command_input", "i2", (), u, 0,
-                    doc="hand-controller rates in 0 the world frame 1 the tool frame"),
+                    doc="hand-controller rates in the world frame or the tool frame", enum=FRAME_NAMES),
             VarSpec("cart.hc_gain_lin_m_s", "command_input", "f8", (3,), u, [COARSE_LIN_M_S] * 3, "m/s",
                     doc="rate at full deflection, x y z (then limited to 0.15 m/s coarse, 0.03 vernier)"),
             VarSpec("cart.hc_gain_rot_rad_s", "command_input", "f8", (3,), u, [COARSE_ROT_RAD_S] * 3, "rad/s",
@@ -166,7 +167,8 @@ class CartesianLayer(Layer):
                     doc="impedance control on (zeroes the F/T sensor first)"),
             VarSpec("force.zero_seq", "command_input", "i4", (), u, 0,
                     doc="increment to zero the F/T sensor (only while impedance is off; no contact!)"),
-            VarSpec("force.frame", "command_input", "i2", (), u, 0, doc="impedance axes: 0 world 1 tool"),
+            VarSpec("force.frame", "command_input", "i2", (), u, 0, doc="impedance axes: world or tool frame",
+                    enum=FRAME_NAMES),
             VarSpec("force.mass", "command_input", "f8", (6,), u, list(DEFAULT_MASS), "kg|kg*m^2",
                     doc="impedance mass per axis x y z roll pitch yaw"),
             VarSpec("force.damping", "command_input", "f8", (6,), u, list(DEFAULT_DAMPING), "N*s/m|N*m*s/rad",
@@ -192,7 +194,7 @@ class CartesianLayer(Layer):
                     doc="reference orientation before the force offset"),
             VarSpec("cart.hc_active", "task_status", "b1", (), w, False,
                     doc="the (delayed) hand controller moves the reference (deadman held)"),
-            VarSpec("force.state", "task_status", "i2", (), w, 0, doc="force control: 0 OFF 1 ZEROING 2 IMPEDANCE"),
+            VarSpec("force.state", "task_status", "i2", (), w, 0, doc="force control state", enum=STATE_NAMES),
             VarSpec("force.offset", "task_status", "f8", (6,), w, [0.0] * 6, "m|rad",
                     doc="compliant offset (world dp, rotation vector)"),
             VarSpec("force.wrench_n", "task_io", "f8", (6,), w, [0.0] * 6, "N|N*m",

@@ -31,8 +31,8 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from controller.decision import (
-    BOTTOM_TABLE, LAYER_TABLE, Action, Command, CompiledTable, KEEP, Status, TaskState, compile_table,
-    command_text, status_text,
+    BOTTOM_TABLE, LAYER_STATUSES, LAYER_TABLE, Action, Command, CompiledTable, KEEP, Status, TaskState,
+    compile_table, command_text, status_text,
 )
 from controller.messages import Level
 from controller.params import JOINTS, N_JOINTS
@@ -166,6 +166,16 @@ ROUTE_TIMEOUT_S = 0.25
 
 SEQ_ACTIONS = {Action.INIT: "init", Action.STARTUP: "startup", Action.SHUTDOWN: "shutdown",
                Action.SAFE: "safe", Action.RESET: "reset"}
+#: ``<key>.task``, the sequence-task mailbox, by name: 10 x kind + state (0 IDLE)
+TASK_NAMES = {int(k) * 10 + int(t): ("IDLE" if k == Action.NONE and t == TaskState.IDLE else
+                                      f"{SEQ_ACTIONS.get(k, k.name.lower()).upper()} {t.name}")
+              for k in Action if k != Action.CLEAR for t in TaskState}
+#: error report codes any layer may post in ``<key>.error`` (docs/controller.md): a task of
+#: the layer raised; a neighbour's process is lost, or this process stops while the system
+#: is up (controller.distributed). Each layer adds its own (``Layer.error_names``).
+ERR_TASK_RAISED, ERR_SECTION_LOST, ERR_PROCESS_STOPPING = 90, 91, 92
+ERROR_NAMES = {0: "none", ERR_TASK_RAISED: "a task raised", ERR_SECTION_LOST: "neighbour process lost",
+               ERR_PROCESS_STOPPING: "this process stopping"}
 
 
 class Layer:
@@ -177,6 +187,9 @@ class Layer:
 
     key = "layer"
     title = "Layer"
+    #: the codes this layer posts in ``<key>.error``, by name (the variable's enumeration:
+    #: any other code is refused when posted)
+    error_names: dict[int, str] = ERROR_NAMES
     short = "LAYR"  #: four letters for the trace
 
     def __init__(self) -> None:
@@ -217,19 +230,17 @@ class Layer:
         k = self.key
         return [
             VarSpec(f"{k}.command", "command_input", "i2", (), self.command_writer(), 0,
-                    doc=f"command to {self.title} (Command enum: 0 NONE 1 INIT TO START 2 START UP "
-                        f"3 SHUT DOWN 4 ERROR RESET)"),
+                    doc=f"command to {self.title} (controller.decision.Command)", enum=Command),
             VarSpec(f"{k}.status", "status_output", "i2", (), k, int(Status.SHUT_DOWN),
-                    doc=f"{self.title} status (Status enum: 0 SHUT DOWN 1 INIT IN PROGRESS 2 WAITING FOR "
-                        f"SUBORDINATE TO INIT 3 INIT COMPLETE 4 START UP 5 START UP COMPLETE 6 SHUT DOWN "
-                        f"IN PROGRESS 7 ERROR 8 ERROR RESET)"),
+                    doc=f"{self.title} status (controller.decision.Status)", enum=LAYER_STATUSES),
             VarSpec(f"{k}.row", "task_status", "i2", (), k, 0,
                     doc=f"the {self.title} decision-table row that decided last"),
             VarSpec(f"{k}.task", "task_status", "i2", (), k, 0,
                     doc="sequence-task mailbox: 10 x kind (1 init 2 startup 3 shutdown 4 safe 5 reset) "
-                        "+ state (0 idle 1 running 2 done 3 failed)"),
+                        "+ state (0 idle 1 running 2 done 3 failed)", enum=TASK_NAMES),
             VarSpec(f"{k}.error", "error_reports", "i4", (), k, 0,
-                    doc=f"{self.title} error report code (0 none; see docs/controller.md)"),
+                    doc=f"{self.title} error report code (0 none; see docs/controller.md)",
+                    enum=self.error_names),
         ]
 
     def specs(self) -> list[VarSpec]:
@@ -405,8 +416,8 @@ class UpDownLayer(Layer):
             VarSpec("ui.response_text", "response_output", "u1", (RESPONSE_TEXT_BYTES,), "updown_requests",
                     [0] * RESPONSE_TEXT_BYTES, doc="the answer in words (UTF-8, zero-padded)"),
             VarSpec("ui.response", "response_output", "i2", (), "updown_requests", 0,
-                    doc="answer to the request ui.response_seq (the newest request answered): 1 IN PROGRESS "
-                        "2 COMPLETE 3 REFUSED 4 FAILED 5 QUEUED 6 CANCELLED"),
+                    doc="answer to the request ui.response_seq (the newest request answered)",
+                    enum=Response.NAMES),
             VarSpec("ui.response_seq", "response_output", "i4", (), "updown_requests", 0,
                     doc="the request number ui.response answers"),
             VarSpec("ui.answer_count", "response_output", "i8", (), "updown_requests", 0,
@@ -690,6 +701,8 @@ class JointPlannerLayer(Layer):
     #: the Multi-Segment Path Planner's joint moves (writer "msp"); without them none
     JMOVE_VARS = ("msp.jmove_seq", "msp.jmove_goal_rad", "msp.jmove_speed", "msp.jmove_stop")
     MODE_JOINT, MODE_CARTESIAN = 0, 1
+    #: ``joint.mode`` by name
+    MODE_NAMES = {MODE_JOINT: "JOINT GOAL", MODE_CARTESIAN: "CARTESIAN"}
 
     def __init__(self, shoulder_roll_rad: float = 0.0) -> None:
         super().__init__()
@@ -736,7 +749,8 @@ class JointPlannerLayer(Layer):
             VarSpec("joint.limited", "task_status", "b1", (), w, False,
                     doc="a joint is held at a soft limit (Cartesian mode) or a goal was clipped"),
             VarSpec("joint.mode", "task_status", "i2", (), w, 0,
-                    doc="0 joint goal, 1 Cartesian (cart.cmd_valid)"),
+                    doc="what the Joint Planner follows: the joint goal, or the Cartesian command "
+                        "(cart.cmd_valid)", enum=self.MODE_NAMES),
             VarSpec("joint.cart_err_m", "task_status", "f8", (), w, 0.0, "m",
                     doc="Cartesian mode: tool-point distance from the commanded pose to fk(servo.q_cmd_rad)"),
             VarSpec("joint.cart_err_rad", "task_status", "f8", (), w, 0.0, "rad",

@@ -83,7 +83,7 @@ from controller.cartesian import CartesianLayer
 from controller.daq_layer import DataAcquisitionLayer
 from controller.decision import SHORT, SHORT_CMD, Command, Status, TaskState
 from controller.frames import MINOR_FRAMES_PER_MAJOR, FrameConfig, ScheduleError
-from controller.layers import JointPlannerLayer, Layer, Request, Response, UpDownLayer, find_answer
+from controller.layers import ERR_TASK_RAISED, JointPlannerLayer, Layer, Request, Response, UpDownLayer, find_answer
 from controller.messages import Level, Message, MessageBoard
 from controller.paths import MultiSegmentLayer
 from controller.trajectory import TrajectoryLayer
@@ -542,7 +542,7 @@ class ControllerRuntime:
                 fn(self)
             except Exception as err:  # noqa: BLE001 - a task error is its layer's fault
                 layer = next(l for l in self.layers if name in l.periodic)
-                layer.set_fault(self, 90, f"task {name} raised {type(err).__name__}: {err}")
+                layer.set_fault(self, ERR_TASK_RAISED, f"task {name} raised {type(err).__name__}: {err}")
         # output last, after a second communications segment: the rates leave in the frame
         # whose inputs they were computed from (the service sees them 1-2 frames old, not 2-3)
         self.wm.communications_segment()

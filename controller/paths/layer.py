@@ -217,7 +217,8 @@ class MultiSegmentLayer(Layer):
     def specs(self) -> list[VarSpec]:
         return self.state_specs() + segment_specs() + joint_move_specs() + [
             VarSpec("msp.mode", "command_input", "i2", (), "user", 0,
-                    doc="path planner mode: 0 idle, 1 record, 2 play (path msp.path_id)"),
+                    doc="path planner mode (RECORD into, PLAY: path msp.path_id)",
+                    enum={k: v for k, v in MspMode.NAMES.items() if k != MspMode.MOVE}),
             VarSpec("msp.path_id", "command_input", "i4", (), "user", 0,
                     doc="the path to record into or play (the id in its file; pfma path list)"),
             VarSpec("msp.teach", "command_input", "i4", (), "user", 0,
@@ -229,8 +230,8 @@ class MultiSegmentLayer(Layer):
             VarSpec("msp.capture_angle_rad", "command_input", "f8", (), "user", CAPTURE_ANGLE_RAD, "rad",
                     doc="continuous capture: a point each time the tool turned this far"),
             VarSpec("msp.record_source", "command_input", "i2", (), "user", RecordSource.MEASURED,
-                    doc="recording stores 0 the measured tool pose (joint.tool_*) or 1 the Cartesian command "
-                        "(cart.pos_cmd_m/quat_cmd: playback repeats the recorded motion)"),
+                    doc="recording stores the MEASURED tool pose (joint.tool_*) or the Cartesian COMMAND "
+                        "(cart.pos_cmd_m/quat_cmd: playback repeats the recorded motion)", enum=RecordSource.NAMES),
             VarSpec("msp.speed_scale", "command_input", "f8", (), "user", 1.0,
                     doc="playback speed factor on the path's speeds (capped by traj.*_max)"),
             VarSpec("msp.max_turn_rad", "command_input", "f8", (), "user", MAX_TURN_RAD, "rad",
@@ -246,7 +247,7 @@ class MultiSegmentLayer(Layer):
                     doc="move-to request: [seq, kind 0 stop 1 pose 2 joints, x y z m, qw qx qy qz (0: keep the "
                         "orientation), 6 joint rad, max turn rad (0: msp.max_turn_rad)]; a new seq is a new request"),
             VarSpec("msp.state", "status_output", "i2", (), "msp", 0,
-                    doc="path planner state: 0 idle, 1 recording, 2 playing, 3 moving (a move request)"),
+                    doc="path planner state: idle, recording, playing, moving (a move request)", enum=MspMode.NAMES),
             VarSpec("msp.points", "status_output", "i4", (), "msp", 0,
                     doc="points recorded so far (recording) or in the path (playing)"),
             VarSpec("msp.segment", "status_output", "i4", (), "msp", 0,
@@ -256,8 +257,8 @@ class MultiSegmentLayer(Layer):
             VarSpec("msp.finished", "status_output", "i4", (), "msp", 0,
                     doc="counts recordings saved and playbacks ended (msp.result says how)"),
             VarSpec("msp.result", "status_output", "i2", (), "msp", 0,
-                    doc="last recording/playback/move: 0 OK 1 CANCELLED 2 NO POSE 3 NO PATH 4 EMPTY 5 REFUSED "
-                        "6 SAVE FAILED 7 FAILED (not followed within the tracking tolerance)"),
+                    doc="how the last recording/playback/move ended (FAILED: not followed within the tracking "
+                        "tolerance)", enum=MspResult.NAMES),
             VarSpec("msp.result_text", "status_output", "u1", (RESULT_TEXT_BYTES,), "msp", [0] * RESULT_TEXT_BYTES,
                     doc="how the last recording/playback/move ended, in words (UTF-8, zero-padded)"),
             VarSpec("msp.move_seq", "status_output", "i4", (), "msp", 0,

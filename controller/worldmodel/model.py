@@ -77,8 +77,8 @@ class _Hot(NamedTuple):
     kind: str  #: numpy kind of the variable: f, i, u, b
     scalar: struct.Struct | None  #: the scalar's struct (None: an array, or no struct code)
     vector: struct.Struct | None  #: a 1-D f8 array's struct (packs a tuple or list of floats)
-    lo: int  #: integer range (0, 0 for other kinds)
-    hi: int
+    lo: int  #: integer range the fast path takes (0, 0 for other kinds; an enumeration's,
+    hi: int  #: or the empty 1, 0 when it has gaps: every post then goes through coerce)
     is_state: bool
     f8: bool
 
@@ -91,6 +91,9 @@ def _hot(s: VarSpec, offset: int) -> _Hot:
     f8 = dt.kind == "f" and dt.itemsize == 8
     vector = struct.Struct(f"{order}{s.shape[0]}d") if f8 and len(s.shape) == 1 else None
     lo, hi = (int(np.iinfo(dt).min), int(np.iinfo(dt).max)) if dt.kind in "iu" else (0, 0)
+    if s.enum:  # no extra check per post: a contiguous enumeration is a range
+        values = [v for v, _ in s.enum]
+        lo, hi = (values[0], values[-1]) if values[-1] - values[0] + 1 == len(values) else (1, 0)
     return _Hot(s.writer, offset, dt, s.count, tuple(s.shape), dt.kind, scalar, vector, lo, hi, s.is_state, f8)
 
 

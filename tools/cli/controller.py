@@ -187,7 +187,7 @@ def _setup_motion(d, args) -> None:
         wm.set_user(name, value, wm.access_key)
     if settings:
         d.frame()  # applied at this frame's communications segment
-        print("motion settings: " + ", ".join(f"{k}={v}" for k, v in settings.items()))
+        print("motion settings: " + ", ".join(f"{k}={wm.spec(k).value_text(v) or v}" for k, v in settings.items()))
     if args.demo_wall is not None:
         from controller.kinematics import fk
         from fakes.environment import Wall
@@ -220,7 +220,8 @@ def _motion_summary(d) -> str:
     p = v["cart.pos_cmd_m"]
     w = v["force.wrench_n"]
     line = (f"Cartesian command ({p[0]:+.4f}, {p[1]:+.4f}, {p[2]:+.4f}) m valid={bool(v['cart.cmd_valid'])}  "
-            f"force state {int(v['force.state'])} F ({w[0]:+.2f}, {w[1]:+.2f}, {w[2]:+.2f}) N  "
+            f"force {d.rt.wm.spec('force.state').value_text(v['force.state'])} "
+            f"F ({w[0]:+.2f}, {w[1]:+.2f}, {w[2]:+.2f}) N  "
             f"reflection {'on' if v['teleop.reflect_enabled'] else 'off'}")
     if d.sim is not None:
         from controller.kinematics import fk

@@ -111,8 +111,8 @@ _LIVE_LEAD = "{:>8} {:>7} {:<8}"
 def _wrap_pi(a: float) -> float:
     """An angle (rad) wrapped to (-pi, pi]: the resolvers read 0..2 pi, so a joint near 0
     would jump between ~0 and ~2 pi."""
-    w = math.remainder(a, 2 * math.pi)  # [-pi, pi]
-    return math.pi if w <= -math.pi else w
+    from pfma.show import wrap_angle  # the one way an angle is shown
+    return wrap_angle(a)
 
 
 def _joint_label(name: str) -> str:

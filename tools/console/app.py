@@ -425,7 +425,8 @@ class ForceScreen(DebugDisplay):
 class EditScreen(ModalScreen):
     """Type a value for one variable (or one element of a vector), Enter to check it,
     Enter again to confirm and send it; Escape cancels. The value is read as ``pfma wm
-    set`` reads VALUE (JSON, or numbers separated by commas/spaces)."""
+    set`` reads VALUE (JSON, numbers separated by commas/spaces, or a name of an enumerated
+    variable's values); a value outside the enumeration is refused here, nothing sent."""
 
     BINDINGS = [Binding("escape", "cancel", "cancel")]
     CSS = "EditScreen { align: center middle; } #edit { width: 100; height: auto; border: round $accent; }"
@@ -439,10 +440,10 @@ class EditScreen(ModalScreen):
         self.confirm: str | None = None  # the text checked and shown for confirmation
 
     def compose(self) -> ComposeResult:
-        from tools.cli.wm import format_value
+        from tools.cli.wm import format_value, value_text
         now = self.current if self.index is None else self.current[self.index]
         with Vertical(id="edit"):
-            yield Static(self._info(format_value(self.current)), id="edit-info", markup=False)
+            yield Static(self._info(value_text(self.spec, self.current)), id="edit-info", markup=False)
             yield Input(value=format_value(now), id="edit-value")
             yield Static("Enter: check the value   Escape: cancel", id="edit-status", markup=False)
 
@@ -451,7 +452,8 @@ class EditScreen(ModalScreen):
         what = f"{self.var}[{self.index}]" if self.index is not None else self.var
         when = "any time" if s.user == "always" else "only while powered down"
         return (f"modify {what}  ({s.type_text}{' ' + s.units if s.units else ''}; written by {s.writer}; "
-                f"users may set it {when})\nnow: {now}\n{s.doc}")
+                f"users may set it {when})\nnow: {now}\n{s.doc}"
+                + (f"\nvalues: {s.enum_text()}" if s.enum else ""))
 
     def full_text(self, text: str) -> str:
         """The value to send: the typed text, or the vector with the element replaced."""
@@ -460,14 +462,14 @@ class EditScreen(ModalScreen):
         import json
 
         from tools.cli.wm import parse_value
-        v = parse_value(text)
+        v = parse_value(text, self.spec)
         vec = [x.item() if hasattr(x, "item") else x for x in list(self.current)]
         vec[self.index] = v
         return json.dumps(vec)
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
         from controller.worldmodel import WorldModelError, coerce
-        from tools.cli.wm import format_value, parse_value
+        from tools.cli.wm import parse_value, value_text
         text = event.value.strip()
         status = self.query_one("#edit-status", Static)
         app = self.app
@@ -477,13 +479,13 @@ class EditScreen(ModalScreen):
             self.app.pop_screen()
             return
         try:
-            value = coerce(self.spec, parse_value(self.full_text(text)))
+            value = coerce(self.spec, parse_value(self.full_text(text), self.spec))
         except WorldModelError as err:  # the value check of pfma wm set: shown here, nothing sent
             self.confirm = None
             status.update(f"not sent: {err}")
             return
         self.confirm = text
-        status.update(f"set {self.var} = {format_value(value)}?  Enter: confirm and send   Escape: cancel")
+        status.update(f"set {self.var} = {value_text(self.spec, value)}?  Enter: confirm and send   Escape: cancel")
 
     def action_cancel(self) -> None:
         self.app.pop_screen()
@@ -863,8 +865,9 @@ class ConsoleApp(App):
                 continue
             name = self.writes.pop(rid)
             if o.applied:
-                from tools.cli.wm import format_value
-                self.write_status = f"{name} = {format_value(self.link.wm.get(name))} (write #{rid}, {o.result})"
+                from tools.cli.wm import value_text
+                self.write_status = (f"{name} = {value_text(self.link.wm.spec(name), self.link.wm.get(name))} "
+                                     f"(write #{rid}, {o.result})")
                 self._note("INFO", self.write_status)
             else:
                 self._refuse(name, f"write #{rid} rejected by the controller: {o.result}")

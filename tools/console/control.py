@@ -125,15 +125,15 @@ class ControllerLink:
         return self.wm.check_user_settable(name)
 
     def write(self, name: str, text: str) -> int:
-        """Ask the owner to set ``name`` to ``text`` (a ``pfma wm set`` VALUE: JSON, or numbers
-        separated by commas/spaces) with this link's key; returns the request id. The rule,
+        """Ask the owner to set ``name`` to ``text`` (a ``pfma wm set`` VALUE: JSON, numbers
+        separated by commas/spaces, or a name of an enumerated variable's values) with this link's key; returns the request id. The rule,
         the key and the value are checked by ``WorldModel.set_user``, the call ``pfma wm set``
         makes, and again by the owner when it applies the request.
 
         :raises WorldModelError: why not (not user-settable, powered up, key, value, ring full)
         """
         from tools.cli.wm import parse_value  # VALUE as `pfma wm set` reads it
-        return int(self.wm.set_user(name, parse_value(text), self.key))
+        return int(self.wm.set_user(name, parse_value(text, self.wm.spec(name)), self.key))
 
     def outcome(self, rid: int) -> "WriteOutcome | None":
         """The owner's verdict on write ``rid`` once it has one (None while pending)."""

@@ -17,21 +17,24 @@ from typing import Any, Callable
 
 import numpy as np
 
-from bit3.layout import DEVICE_GROUPS, FAULT_DAC_UNREACHABLE, HAND_CONTROLLERS, ServiceState, Severity
+from bit3.layout import DEVICE_GROUPS, FAULT_CODE_NAMES, FAULT_DAC_UNREACHABLE, HAND_CONTROLLERS, ServiceState, Severity
 from controller.cartesian import CartesianLayer
 from controller.daq_layer import FAULT_NAMES, DataAcquisitionLayer
 from controller.decision import Command, Status, status_text
-from controller.layers import JointPlannerLayer, UpDownLayer
+from controller.layers import TASK_NAMES, JointPlannerLayer, UpDownLayer
 from controller.paths import MultiSegmentLayer
 from controller.servo import ServoLayer
 from controller.trajectory import TrajectoryLayer
 from drivers.pio.registers import decode_matrix_route
 from drivers.pio.routes import MONITORS, camera_name, route_text
+from pfma.show import flag_names, name_of, named, wrap_angle
 
 #: the seven IRSS layers, highest first: (world-model key, the report's title)
-LAYERS: tuple[tuple[str, str], ...] = tuple((c.key, c.title) for c in (
-    UpDownLayer, MultiSegmentLayer, TrajectoryLayer, CartesianLayer, JointPlannerLayer, ServoLayer,
-    DataAcquisitionLayer))
+_LAYER_CLASSES = (UpDownLayer, MultiSegmentLayer, TrajectoryLayer, CartesianLayer, JointPlannerLayer, ServoLayer,
+                  DataAcquisitionLayer)
+LAYERS: tuple[tuple[str, str], ...] = tuple((c.key, c.title) for c in _LAYER_CLASSES)
+#: each layer's ``<key>.error`` codes by name (its class's ``error_names``)
+_ERROR_NAMES: dict[str, dict[int, str]] = {c.key: c.error_names for c in _LAYER_CLASSES}
 #: the five areas of the primary display, titled as the IRSS report names them (2.2.8)
 AREAS = ("Local Status", "World Status", "Messages", "Local Commands", "Global Commands")
 #: messages kept by the console (the Messages screen shows them all, newest first, filtered)
@@ -54,8 +57,6 @@ GLOBAL_COMMANDS: tuple[tuple[str, str, str | None], ...] = (
     ("t", "move to (its screen)", None),
 )
 NOT_YET: dict[str, str] = {}  #: keys whose command is not built yet: their text
-_TASK_KIND = {1: "init", 2: "startup", 3: "shutdown", 4: "safe", 5: "reset"}
-_TASK_STATE = {0: "idle", 1: "running", 2: "done", 3: "failed"}
 
 
 @dataclass
@@ -146,10 +147,7 @@ def _split_source(text: str) -> tuple[str, str]:
 
 # --- the areas' text ---------------------------------------------------------------------------
 def _enum(enum_cls, v: int) -> str:
-    try:
-        return enum_cls(v).name.replace("_", " ")
-    except ValueError:
-        return str(v)
+    return name_of(v, enum_cls)
 
 
 def rack_kind(client) -> str:
@@ -181,12 +179,11 @@ def local_status(r: Reading, selected: int) -> str:
     k, title = LAYERS[selected]
     task = int(w.get(f"{k}.task", 0))
     err = int(w.get(f"{k}.error", 0))
-    lines.append(f"{title}: row {int(w.get(f'{k}.row', 0))}, task "
-                 f"{_TASK_KIND.get(task // 10, '-')} {_TASK_STATE.get(task % 10, '?')}, "
-                 f"last error {err if err else 'none'}")
+    lines.append(f"{title}: row {int(w.get(f'{k}.row', 0))}, task {name_of(task, TASK_NAMES).lower()}, "
+                 f"last error {named(err, _ERROR_NAMES[k]) if err else 'none'}")
     if k == "daq":
         bits = int(w.get("daq.fault_bits", 0))
-        lines.append("hardware checks: " + (", ".join(n for b, n in FAULT_NAMES.items() if bits & b) or "clear"))
+        lines.append("hardware checks: " + flag_names(bits, FAULT_NAMES, clear="clear").replace("|", ", "))
     lines.append("<- -> layer")
     return "\n".join(lines)
 
@@ -198,7 +195,7 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
     outputs_word = "NOT KNOWN SAFE" if outputs_unknown(r) else "LIVE" if int(s.outputs_enabled) else "safe (0 V)"
     lines = [rack_line(rack) + ("" if speed is None else f"; time x{speed:.2f}"),
              f"service {r.service_state:<8} frame {r.frame:<9} t {r.t_s:9.3f} s  "
-             f"{float(st.rate_hz):6.1f} Hz  fault code {int(s.fault_code)}",
+             f"{float(st.rate_hz):6.1f} Hz  fault {name_of(s.fault_code, FAULT_CODE_NAMES)}",
              f"outputs {outputs_word}  brakes "
              f"{'released' if int(s.brakes_released) else 'set'}  watchdog "
              f"{'TRIPPED' if int(s.watchdog_tripped) else 'ok'} (command age {float(s.command_age_s) * 1e3:.1f} ms)"]
@@ -239,11 +236,6 @@ def first_cause_lines(r: Reading) -> list[str]:
         if text:
             out.append(f"controller first cause: {text}")
     return out
-
-
-def wrap_angle(a: float) -> float:
-    """An angle in (-pi, pi] (the console's one way to show an angle, in rad)."""
-    return math.pi - (math.pi - a) % math.tau
 
 
 def _short(joint: str) -> str:
@@ -422,7 +414,9 @@ def browser_names(wm, area: str) -> tuple[str, ...]:
 def _value_text(spec, v, width: int = 70) -> str:
     import numpy as np
     a = np.asarray(v)
-    if spec.dtype == "u1" and a.ndim == 1 and a.size > 16:  # a text field (zero-padded UTF-8)
+    if spec.value_text(v) is not None and a.ndim == 0:  # an enumeration or a bit set: by name (pfma/show.py)
+        out = spec.value_text(v)
+    elif spec.dtype == "u1" and a.ndim == 1 and a.size > 16:  # a text field (zero-padded UTF-8)
         text = bytes(a).rstrip(b"\0").decode(errors="replace").replace("\n", " | ")
         out = repr(text)
     elif a.ndim == 0:

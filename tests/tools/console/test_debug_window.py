@@ -98,6 +98,36 @@ def test_a_bad_value_is_named_in_the_editor_and_nothing_is_sent(sim, console):
     run_app(console, body)
 
 
+def test_a_value_outside_an_enumeration_is_refused_and_a_name_is_taken(sim, console):
+    """msp.mode = 7 was accepted by the editor and then warned about as unknown (issue 29):
+    now the editor refuses it, listing the values, and takes the name PLAY for 2."""
+    async def body(pilot):
+        scr = await _browse_to(pilot, console, "msp.mode")
+        assert "IDLE (0)" in scr.text()  # the browser shows the enumeration by name
+        await pilot.press("enter")
+        await pilot.pause()
+        assert "values: 0 IDLE, 1 RECORD, 2 PLAY" in str(console.screen.query_one("#edit-info").render())
+        await _type(pilot, "7")
+        await pilot.press("enter")
+        await pilot.pause()
+        status = str(console.screen.query_one("#edit-status").render())
+        assert status.startswith("not sent:") and "7 is not one of its values (0 IDLE, 1 RECORD, 2 PLAY)" in status
+        await pilot.press("enter")  # the refused text is never confirmed
+        await pilot.pause()
+        assert not console.writes and isinstance(console.screen, EditScreen)
+        await _type(pilot, "play")
+        await pilot.press("enter")
+        await pilot.pause()
+        assert "set msp.mode = PLAY (2)?" in str(console.screen.query_one("#edit-status").render())
+        await pilot.press("enter")
+        await pilot.pause()
+        assert console.screen is scr and len(console.writes) == 1
+        frames(sim, console, 2)
+        await pilot.pause()
+        assert int(sim.rt.wm.get("msp.mode")) == 2 and "msp.mode = PLAY (2) (write #" in scr.text()
+    run_app(console, body)
+
+
 def test_a_wrong_key_is_refused_by_the_write_path(sim):
     client = Client.attach(sim.name, layout=sim.rig.layout)
     app = ConsoleApp(view.Sources(client, sim.rt.wm, rack="simulated"), ControllerLink(sim.rt.wm, key="wrong"),
