@@ -23,7 +23,7 @@ run: $(STAMP)
 # realtime: they start processes or wait on wall-clock time) alone, so load cannot fail them
 test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -m "not lab and not realtime"
-	$(BIN)/python -m pytest -m "realtime and not lab"
+	$(BIN)/python -m pytest -m "realtime and not lab" --durations=15
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
