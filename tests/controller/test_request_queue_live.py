@@ -21,7 +21,7 @@ from controller.layers import Response, find_answer
 from controller.runtime import LAYER_KEYS, first_cause_text
 from controller.worldmodel import WorldModel
 from tests.controller._live_support import stop, wait_for
-from tests.controller.test_supervision_live import RT  # --realtime where this user may (SCHED_FIFO)
+from tests.controller._live_support import RT  # --realtime where this user may (SCHED_FIFO)
 
 pytestmark = pytest.mark.realtime
 
