@@ -99,16 +99,19 @@ class FrameStepping:
         raise NotImplementedError
 
     def request(self, kind: int, arg: int = 0, max_frames: int = 400) -> tuple[int, str]:
-        """Post a user request (``Request.*``) and run frames until System Up/Down answers
-        it with anything but IN PROGRESS (or ``max_frames``); returns (Response code, text)."""
+        """Post a user request (``Request.*``) and run frames until System Up/Down gives it a
+        final answer (``Response.FINAL``: not QUEUED or IN PROGRESS) or ``max_frames`` have
+        run; returns (Response code, text) of its newest answer."""
         from controller.layers import Response
         seq = self.updown_rt.request(kind, arg)
         code, text = Response.NONE, ""
         for _ in range(max_frames):
             self.step(1)
-            got, code, text = self.response()
-            if got == seq and code != Response.IN_PROGRESS:
-                break
+            a = self.updown_rt.answer(seq)
+            if a is not None:
+                code, text = a
+                if code in Response.FINAL:
+                    break
         return code, text
 
     def response(self) -> tuple[int, int, str]:
@@ -129,18 +132,20 @@ class SystemSimulator(FrameStepping):
     :param shoulder_roll_deg: the shoulder-roll index (pfma-model 8.1: -90, -45, 0, 45, 90):
         the simulated arm is pinned there and the controller's parameter
         ``joint.shoulder_roll_deg`` is set to it (a user write, applied at the first frame)
+    :param ring: also keep the buffer's frame history ring (:class:`sim.rig.SimRig`)
     :param world_kw: extra keyword arguments for :class:`fakes.world.FakeWorld`
     :raises ValueError: a shoulder roll that is not an index position
     """
 
     def __init__(self, *, frames: FrameConfig | None = None, profile: str | None = None,
                  name: str | None = None, wm_name: str | None = None, require_ft: bool = True,
-                 trace_frames: int = 4096, shoulder_roll_deg: int = 0, **world_kw) -> None:
+                 trace_frames: int = 4096, shoulder_roll_deg: int = 0, ring: bool = False,
+                 **world_kw) -> None:
         if frames is None:
             frames = FrameConfig.profile(profile) if profile else FrameConfig()
         self.frames = frames
         roll = check_shoulder_roll_deg(shoulder_roll_deg)
-        self.rig = SimRig(name=name, prefix="pfma-sim-",
+        self.rig = SimRig(name=name, prefix="pfma-sim-", ring=ring,
                           service_kw={"schedule": Schedule(frame_rate_hz=frames.frame_rate_hz)},
                           shoulder_roll_rad=math.radians(roll), **world_kw)
         self.name, self.clock, self.world, self.svc = self.rig.name, self.rig.clock, self.rig.world, self.rig.svc

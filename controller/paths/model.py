@@ -18,8 +18,10 @@ from controller.trajectory import Limits
 from pfma.errors import PfmaError
 
 FORMAT = "pfma-path"
-#: version of the path file format; files of a newer version are refused
-FORMAT_VERSION = 1
+#: version of the path file format; files of a newer version are refused. Version 2 added
+#: points without an orientation (``"quat": null``: keep the tool's orientation); a file
+#: whose points all have one is still written as version 1, which older programs read
+FORMAT_VERSION = 2
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
 POINT_KINDS = ("teach", "capture", "edit")
 
@@ -34,11 +36,14 @@ class PathError(PfmaError, ValueError):
 
 @dataclass(frozen=True)
 class PathPoint:
-    """One recorded pose. ``v_lin_m_s``/``v_rot_rad_s``: speed override of the segment that
-    ends at this point (None: the path's limits)."""
+    """One recorded pose. ``quat`` None: the point keeps the tool's orientation (resolved at
+    playback start: the orientation of the point before it, or, for the first point, the
+    tool's orientation when the playback starts; :func:`resolve_orientations`).
+    ``v_lin_m_s``/``v_rot_rad_s``: speed override of the segment that ends at this point
+    (None: the path's limits)."""
 
     pos_m: tuple[float, float, float]
-    quat: tuple[float, float, float, float]
+    quat: tuple[float, float, float, float] | None
     kind: str = "capture"
     t_s: float = 0.0
     v_lin_m_s: float | None = None
@@ -46,7 +51,8 @@ class PathPoint:
 
     def to_json(self) -> dict:
         d: dict[str, Any] = {"pos_m": [round(x, 9) for x in self.pos_m],
-                             "quat": [round(x, 12) for x in self.quat], "kind": self.kind,
+                             "quat": None if self.quat is None else [round(x, 12) for x in self.quat],
+                             "kind": self.kind,
                              "t_s": round(self.t_s, 6)}
         if self.v_lin_m_s is not None:
             d["v_lin_m_s"] = self.v_lin_m_s
@@ -55,29 +61,32 @@ class PathPoint:
         return d
 
 
-def make_point(pos_m: Sequence[float], quat: Sequence[float], kind: str = "capture", t_s: float = 0.0,
+def make_point(pos_m: Sequence[float], quat: Sequence[float] | None, kind: str = "capture", t_s: float = 0.0,
                v_lin_m_s: float | None = None, v_rot_rad_s: float | None = None, where: str = "point") -> PathPoint:
-    """A checked :class:`PathPoint` (finite position, unit quaternion, known kind, speeds > 0).
+    """A checked :class:`PathPoint` (finite position, unit quaternion or None - keep the
+    tool's orientation -, known kind, speeds > 0).
 
     :raises PathError: naming ``where``
     """
     try:
         p = np.asarray(pos_m, dtype=float).reshape(3)
-        q = np.asarray(quat, dtype=float).reshape(4)
+        q = None if quat is None else np.asarray(quat, dtype=float).reshape(4)
     except (TypeError, ValueError) as err:
         raise PathError(f"{where}: position needs 3 numbers and quat 4 ({err})") from None
-    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+    if not (np.all(np.isfinite(p)) and (q is None or np.all(np.isfinite(q)))):
         raise PathError(f"{where}: position/quaternion not finite")
-    n = float(np.linalg.norm(q))
-    if abs(n - 1.0) > 1e-3:
-        raise PathError(f"{where}: quaternion {q.tolist()} is not unit length (norm {n:.6f})")
-    q = q / n
+    if q is not None:
+        n = float(np.linalg.norm(q))
+        if abs(n - 1.0) > 1e-3:
+            raise PathError(f"{where}: quaternion {q.tolist()} is not unit length (norm {n:.6f})")
+        q = q / n
     if kind not in POINT_KINDS:
         raise PathError(f"{where}: kind {kind!r} is not one of {', '.join(POINT_KINDS)}")
     for nm, val in (("v_lin_m_s", v_lin_m_s), ("v_rot_rad_s", v_rot_rad_s)):
         if val is not None and not (isinstance(val, (int, float)) and math.isfinite(val) and val > 0):
             raise PathError(f"{where}: {nm} {val!r} must be a number > 0 (or absent)")
-    return PathPoint(tuple(float(x) for x in p), tuple(float(x) for x in q), kind, float(t_s),
+    return PathPoint(tuple(float(x) for x in p), None if q is None else tuple(float(x) for x in q), kind,
+                     float(t_s),
                      None if v_lin_m_s is None else float(v_lin_m_s),
                      None if v_rot_rad_s is None else float(v_rot_rad_s))
 
@@ -115,7 +124,8 @@ class Path:
     note: str = ""
 
     def to_json(self) -> dict:
-        return {"format": FORMAT, "version": FORMAT_VERSION, "name": self.name, "id": self.id,
+        version = FORMAT_VERSION if any(p.quat is None for p in self.points) else 1
+        return {"format": FORMAT, "version": version, "name": self.name, "id": self.id,
                 "revision": self.revision, "created": self.created, "modified": self.modified,
                 "note": self.note, "frame": "world", "units": {"pos_m": "m", "quat": "w,x,y,z (tool in world)"},
                 "limits": dict(zip(Limits._fields, self.limits)),
@@ -154,6 +164,8 @@ class Path:
             w = f"{where}: point {i}"
             if not isinstance(p, dict):
                 raise PathError(f"{w}: not an object")
+            if p.get("quat") is None and ver < 2:
+                raise PathError(f"{w}: no quat (a point without an orientation needs format version 2)")
             out.append(make_point(p.get("pos_m"), p.get("quat"), p.get("kind", "capture"), p.get("t_s", 0.0),
                                   p.get("v_lin_m_s"), p.get("v_rot_rad_s"), where=w))
         rev = d.get("revision", 0)
@@ -176,6 +188,9 @@ class Path:
                  f"{lim.a_rot_rad_s2:g} rad/s^2   modified {self.modified or '-'}"]
         if self.note:
             lines.append(f"  note: {self.note}")
+        if any(p.quat is None for p in self.points):
+            lines.append("  points without an orientation keep the tool's: the point before's, or at the first the "
+                         "tool's orientation when the playback starts")
         lines.append(f"  {'#':>4} {'kind':<7} {'t s':>8}  {'x m':>9} {'y m':>9} {'z m':>9}   "
                      f"{'qw':>8} {'qx':>8} {'qy':>8} {'qz':>8}  speed")
         for i, p in enumerate(self.points):
@@ -183,7 +198,8 @@ class Path:
             if p.v_lin_m_s is not None or p.v_rot_rad_s is not None:
                 sp = f"{p.v_lin_m_s or '-'} m/s {p.v_rot_rad_s or '-'} rad/s"
             lines.append(f"  {i:>4} {p.kind:<7} {p.t_s:>8.3f}  " + " ".join(f"{x:>9.4f}" for x in p.pos_m)
-                         + "   " + " ".join(f"{x:>8.5f}" for x in p.quat) + f"  {sp}")
+                         + "   " + (" ".join(f"{x:>8.5f}" for x in p.quat) if p.quat is not None
+                                    else f"{'keep the orientation before it':>35}") + f"  {sp}")
         return "\n".join(lines)
 
 
@@ -206,29 +222,25 @@ def delete_points(path: Path, indices: Iterable[int]) -> Path:
 
 def insert_point(path: Path, index: int, pos_m: Sequence[float], quat: Sequence[float] | None = None,
                  kind: str = "edit") -> Path:
-    """A new point before ``index`` (``len(points)`` appends). Without ``quat`` it takes
-    the orientation of its neighbour."""
+    """A new point before ``index`` (``len(points)`` appends). Without ``quat`` it keeps
+    the tool's orientation (the point before it, or the tool's at playback start)."""
     j = _index(path, index, allow_end=True)
-    if quat is None:
-        if not path.points:
-            quat = (1.0, 0.0, 0.0, 0.0)
-        else:
-            quat = path.points[min(j, len(path.points) - 1)].quat
     t = path.points[j - 1].t_s if j > 0 else 0.0
     pt = make_point(pos_m, quat, kind, t, where=f"path {path.name}: inserted point {index}")
     return replace(path, points=path.points[:j] + (pt,) + path.points[j:])
 
 
 def move_point(path: Path, index: int, pos_m: Sequence[float] | None = None, quat: Sequence[float] | None = None,
-               offset_m: Sequence[float] | None = None) -> Path:
-    """Point ``index`` at a new position (or shifted by ``offset_m``) and/or orientation."""
+               offset_m: Sequence[float] | None = None, keep_orientation: bool = False) -> Path:
+    """Point ``index`` at a new position (or shifted by ``offset_m``) and/or orientation
+    (``keep_orientation``: none of its own, it keeps the tool's)."""
     j = _index(path, index)
     p = path.points[j]
     pos = np.asarray(p.pos_m if pos_m is None else pos_m, dtype=float)
     if offset_m is not None:
         pos = pos + np.asarray(offset_m, dtype=float).reshape(3)
-    new = make_point(pos, p.quat if quat is None else quat, p.kind, p.t_s, p.v_lin_m_s, p.v_rot_rad_s,
-                     where=f"path {path.name}: point {index}")
+    q = None if keep_orientation else (p.quat if quat is None else quat)
+    new = make_point(pos, q, p.kind, p.t_s, p.v_lin_m_s, p.v_rot_rad_s, where=f"path {path.name}: point {index}")
     return replace(path, points=path.points[:j] + (new,) + path.points[j + 1:])
 
 
@@ -257,3 +269,17 @@ def set_limits(path: Path, **kw: float) -> Path:
         raise PathError(f"path {path.name}: unknown limit(s) {', '.join(sorted(bad))}; "
                         f"limits: {', '.join(Limits._fields)}")
     return replace(path, limits=check_limits(path.limits._replace(**kw), f"path {path.name}: limits"))
+
+
+def resolve_orientations(points: Sequence[PathPoint], start_quat: Sequence[float]) -> tuple[PathPoint, ...]:
+    """The points with every missing orientation filled in: the orientation of the point
+    before (after it was filled in), the first point's ``start_quat`` (the tool's
+    orientation when the playback starts). Points that have one are returned unchanged."""
+    out = []
+    prev = tuple(float(x) for x in np.asarray(start_quat, dtype=float).reshape(4))
+    for p in points:
+        if p.quat is None:
+            p = replace(p, quat=prev)
+        out.append(p)
+        prev = p.quat  # type: ignore[assignment]
+    return tuple(out)

@@ -75,7 +75,7 @@ def test_the_index_is_a_parameter_of_the_index_positions_set_only_while_powered_
         for bad in (30, 45.5, 135, -180):
             with pytest.raises(WorldModelValueError) as e:
                 sim.rt.set_shoulder_roll(bad)
-            assert str(e.value) == f"joint.shoulder_roll_deg: {bad:g} deg is not one of its values {STEPS} deg"
+            assert str(e.value) == f"joint.shoulder_roll_deg: {bad:g} deg is not one of its values ({STEPS} deg)"
         sim.rt.set_shoulder_roll(-45)
         sim.step(1)
         assert wm.get("joint.shoulder_roll_deg") == -45.0
@@ -98,7 +98,7 @@ def test_a_forged_ring_entry_of_another_index_is_rejected_by_the_owner():
             sim.step(1)
             r = wm.request(bad)
             assert (r.state, r.result) == ("rejected",
-                                           f"joint.shoulder_roll_deg: 30 deg is not one of its values {STEPS} deg")
+                                           f"joint.shoulder_roll_deg: 30 deg is not one of its values ({STEPS} deg)")
             assert wm.request(good).state == "applied" and wm.get("joint.shoulder_roll_deg") == 90.0
     finally:
         WorldModel.remove_segment(name)

@@ -76,7 +76,7 @@ def test_p_from_the_question_edits_the_index_which_refuses_other_values(sim45, c
         await pilot.press("home", "ctrl+k", "3", "0", "enter")
         await pilot.pause()
         status = str(console.screen.query_one("#edit-status").render())
-        assert status == "not sent: joint.shoulder_roll_deg: 30 deg is not one of its values -90, -45, 0, 45, 90 deg"
+        assert status == "not sent: joint.shoulder_roll_deg: 30 deg is not one of its values (-90, -45, 0, 45, 90 deg)"
         await pilot.press("home", "ctrl+k", "-", "4", "5", "enter", "enter")  # checked, then confirmed
         await pilot.pause()
         frames(sim, console, 2)
