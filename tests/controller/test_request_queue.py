@@ -287,7 +287,8 @@ def test_power_up_and_a_step_in_one_segment_are_both_answered(sim):
     assert step > up
     sim.step(4)
     assert _answer(sim, step)[0] == R.COMPLETE
-    assert _answer(sim, up) == (R.IN_PROGRESS, "POWER UP")  # taken in the stepped frame
+    assert _answer(sim, up) == (R.IN_PROGRESS, "POWER UP (shoulder-roll index 0 deg: no sensor, "
+                                                 "as set in joint.shoulder_roll_deg)")  # taken in the stepped frame
     assert rt.status("updown") == S.SHUT_DOWN  # its command reaches the table next frame
     _step(sim)
     assert rt.status("updown") == S.INITIALIZATION_IN_PROGRESS

@@ -607,7 +607,7 @@ def test_a_user_write_outside_the_choices_is_refused_by_the_tool_and_by_the_owne
             assert ro.spec("arm.index").choices == (-45.0, 0.0, 45.0)
             with pytest.raises(WorldModelValueError) as e:
                 ro.set_user("arm.index", 30, DEFAULT_ACCESS_KEY)
-            assert str(e.value) == "arm.index: 30 deg is not one of its values -45, 0, 45 deg"
+            assert str(e.value) == "arm.index: 30 deg is not one of its values (-45, 0, 45 deg)"
             rid = ro.set_user("arm.index", -45, DEFAULT_ACCESS_KEY)
         finally:
             ro.close()
@@ -615,7 +615,7 @@ def test_a_user_write_outside_the_choices_is_refused_by_the_tool_and_by_the_owne
         m.communications_segment()
         assert m.request(rid).state == "applied" and m.get("arm.index") == -45.0
         r = m.request(forged)
-        assert (r.state, r.result) == ("rejected", "arm.index: 44 deg is not one of its values -45, 0, 45 deg")
+        assert (r.state, r.result) == ("rejected", "arm.index: 44 deg is not one of its values (-45, 0, 45 deg)")
         m.post_task_outputs("user", {"arm.index": 44.0})  # the owner's own posts are not checked (frame path)
         m.communications_segment()
         assert m.get("arm.index") == 44.0

@@ -54,8 +54,8 @@ GLOBAL_COMMANDS: tuple[tuple[str, str, str | None], ...] = (
     ("a", "re-arm (for the next resume)", None),
     ("r", "resume (needs a first)", "RESUME"),
     ("c", "record start/stop", None),
-    ("v", "camera routes (its screen)", "CAMERA ROUTE"),
-    ("t", "move to (its screen)", None),
+    ("v", "camera routes", "CAMERA ROUTE"),  # v and t open their screens; one line so the
+    ("t", "move to", None),                   # area fits the 120x40 row split (13 rows)
 )
 NOT_YET: dict[str, str] = {}  #: keys whose command is not built yet: their text
 
