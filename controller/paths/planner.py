@@ -73,11 +73,17 @@ class PlannedSegment:
     pos_m: np.ndarray
     quat: np.ndarray
     limits: Limits
+    gripper: str | None = None  #: a gripper event to do once the segment has ended (open/close/stop)
+    force_n: float | None = None  #: its grip force (None: the one in force)
 
 
 def plan_path(path: Path, speed_scale: float = 1.0, tol_m: float = PLAN_TOL_M, tol_rad: float = PLAN_TOL_RAD,
               cap: Limits = DEFAULT_CAP) -> list[PlannedSegment]:
     """The playback plan: one rest-to-rest segment per key point (:func:`simplify`).
+
+    A gripper event (a point of kind "gripper") is a key point: its segment ends at the pose
+    where the event was recorded (often where the arm already is: a segment of zero length),
+    and the playback does the event there before the next segment.
 
     The segment into key point k has the path's limits, speeds times ``speed_scale``
     (0 < scale), lowered by the smallest speed override among the points it covers, all
@@ -100,7 +106,7 @@ def plan_path(path: Path, speed_scale: float = 1.0, tol_m: float = PLAN_TOL_M, t
         vr = min([base.v_rot_rad_s] + [p.v_rot_rad_s * speed_scale for p in covered if p.v_rot_rad_s])
         lim = Limits(vl, base.a_lin_m_s2, vr, base.a_rot_rad_s2).clipped(cap)
         p = path.points[k]
-        out.append(PlannedSegment(k, np.array(p.pos_m), np.array(p.quat), lim))
+        out.append(PlannedSegment(k, np.array(p.pos_m), np.array(p.quat), lim, p.gripper, p.force_n))
         prev = k
     return out
 
