@@ -50,11 +50,11 @@ GLOBAL_COMMANDS: tuple[tuple[str, str, str | None], ...] = (
     ("h", "halt", "HALT"),
     ("s", "single step (1 frame; S: 10)", "SINGLE STEP"),
     ("a", "re-arm (for the next resume)", None),
-    ("r", "resume (after a)", "RESUME"),
-    ("c", "record", None),
-    ("v", "cameras", "CAMERA ROUTE"),
-    ("+ -", f"grip force +-{GRIP_FORCE_STEP_N:g} N", "GRIPPER FORCE"),
+    ("r", "resume (needs a first)", "RESUME"),
+    ("c", "record start/stop", None),
+    ("v", "camera routes (its screen)", "CAMERA ROUTE"),
     ("o g x", "gripper open, grip, stop", "GRIPPER OPEN / CLOSE / STOP"),
+    ("+ -", f"grip force +-{GRIP_FORCE_STEP_N:g} N", "GRIPPER FORCE"),
 )
 NOT_YET: dict[str, str] = {}  #: keys whose command is not built yet: their text
 _TASK_KIND = {1: "init", 2: "startup", 3: "shutdown", 4: "safe", 5: "reset"}
@@ -245,8 +245,7 @@ def first_cause_lines(r: Reading) -> list[str]:
 
 
 #: the gripper's world-model variables the console reads (controller/gripper.py)
-GRIPPER_VARS = ("gripper.state", "gripper.force_n", "gripper.motor_force_n", "gripper.jaw_m", "gripper.jaw_known",
-                "gripper.response_seq", "gripper.response", "gripper.response_text")
+GRIPPER_VARS = ("gripper.state", "gripper.force_n", "gripper.motor_force_n", "gripper.jaw_m", "gripper.jaw_known")
 
 
 def gripper_status_line(r: Reading) -> str:
