@@ -13,15 +13,17 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 # on a terminal: the whole simulated system (rack, service, controller flying a demo path)
-# with the operator console (q or Ctrl-C stops everything, outputs 0 V); else the plain line view
+# with the operator console (q or Ctrl-C stops everything, outputs 0 V); else the plain line view.
+# Both on the buffer pfma (the console: and world model pfma_wm) that every tool reads by
+# default; while another system runs there, on a private name said in one line
 run: $(STAMP)
-	@if [ -t 1 ]; then $(BIN)/pfma console --sim; else $(BIN)/pfma serve --rack fake --live --demo; fi
+	@if [ -t 1 ]; then $(BIN)/pfma console --sim; else $(BIN)/pfma serve --rack fake --live --demo --private-if-busy; fi
 
 # two passes: the deterministic tests on two workers, then the real-time ones (marked
 # realtime: they start processes or wait on wall-clock time) alone, so load cannot fail them
 test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -m "not lab and not realtime"
-	$(BIN)/python -m pytest -m "realtime and not lab"
+	$(BIN)/python -m pytest -m "realtime and not lab" --durations=15
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

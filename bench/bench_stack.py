@@ -364,6 +364,19 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
     return rep
 
 
+def _pairs_text(d) -> str:
+    """A dict as readable words, ``frames recorded 1200, lossless yes`` (never a Python dict);
+    anything else as it is."""
+    if not isinstance(d, dict):
+        return str(d)
+
+    def one(v) -> str:
+        if isinstance(v, bool):
+            return "yes" if v else "no"
+        return "-" if v is None else _pairs_text(v) if isinstance(v, dict) else str(v)
+    return ", ".join(f"{str(k).replace('_', ' ')} {one(v)}" for k, v in d.items())
+
+
 def _print(rep: dict) -> None:
     pr = rep.get("processes", {})
     print(f"stack on buffer {rep['buffer']}: {rep.get('run_s', 0):g} s measured "
@@ -387,7 +400,7 @@ def _print(rep: dict) -> None:
               f"(longest run {c['longest_missed_run']}), missed task slots {c['missed_task_slots']}, "
               f"overruns {c['overruns']}")
     else:
-        print(f"  controller: stats {c}")
+        print(f"  controller: no statistics ({c})")
     f = rep.get("ft_link")
     if f:
         print(f"  F/T link: records {f['records']}, bad {f['bad']}, resyncs {f['resyncs']}, rate {f['rate_hz']} Hz, "
@@ -399,7 +412,7 @@ def _print(rep: dict) -> None:
               f"{h['over_20ms']}, >60 ms {h['over_60ms']}, >100 ms {h['over_100ms']})")
     r = rep.get("recorder")
     if r:
-        print(f"  recorder: {r}")
+        print(f"  recorder: {_pairs_text(r)}")
     if "trips" in rep:
         print(f"  trips (service): {len(rep['trips'])}")
         for m in rep["trips"][:20]:
@@ -407,7 +420,8 @@ def _print(rep: dict) -> None:
         print(f"  layers that went to ERROR: {len(rep['layers_in_error'])}")
         for m in rep["layers_in_error"]:
             print(f"    {m['layer']} at {m['at_s']} s ({m['count']}x): {m['why']}")
-        print(f"  warnings/errors: {rep['message_counts']} (lost unread: {rep['messages_lost']})")
+        counts = "; ".join(f"{q} {_pairs_text(c) or 'none'}" for q, c in rep["message_counts"].items())
+        print(f"  warnings/errors: {counts} (lost unread: {_pairs_text(rep['messages_lost']) or 'none'})")
         for m in rep["messages"][:40]:
             print(f"    {m['at_s']:8.2f} s {m['queue']:<10} {m['severity']:<7} {m['code']:>4} {m['text']}")
         if len(rep["messages"]) > 40:

@@ -64,6 +64,7 @@ from pfma.gripper import (
     GripperState, Outcome,
 )
 from pfma.rack import RackConfig, load_rack
+from pfma.show import wrap_angle
 
 #: a rate command lasts this long unless the script gives it again; then the keep-alive
 #: sends zero rates (assumed: 0.3 s, long enough for a script that renews at 10-50 Hz,
@@ -138,6 +139,8 @@ class Inputs:
         ch = self.snapshot.channel(signal)
         status = next((int(v) for k, v in ch.items() if k.endswith("_status")), 0)
         value = float(self.snapshot.value(signal))
+        if c.kind == "rtd":  # the resolver's 0..2 pi in (-pi, pi], as every tool shows it (pfma/show.py)
+            value = wrap_angle(value)
         return Reading(signal, value, c.units, _status_text(c.kind, status))
 
     def _joint(self, kind: str, joint: str, quantity: str) -> Reading:
@@ -148,7 +151,7 @@ class Inputs:
         return self[entry.name]
 
     def angle(self, joint: str) -> Reading:
-        """A joint's resolver angle (rad, as the service publishes it) with its status."""
+        """A joint's resolver angle (rad, in (-pi, pi]) with its status."""
         return self._joint("rtd", joint, "angle")
 
     def rate(self, joint: str) -> Reading:

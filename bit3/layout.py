@@ -51,6 +51,7 @@ import numpy as np
 
 from pfma.errors import ConfigError, did_you_mean
 from pfma.rack import RackConfig, load_rack
+from pfma.show import flag_names
 
 MAGIC = b"PFMABIT3"
 LAYOUT_VERSION = 1
@@ -145,6 +146,21 @@ FIRST_TRIP_TEXT_BYTES = 120
 #: be written (its relay drops the amplifiers).
 FAULT_DAC_UNREACHABLE = 7
 FAULT_AMP_ENABLE = 8
+#: the other ``inputs.fault_code`` values (the service's, ioservice/service.py imports them):
+#: the heartbeat watchdog, a failed DAC write, failed input boards, an unexpected error in
+#: the frame; a refused command (SAFE, not FAULT: a field beyond its limit or NaN / a
+#: writer without the claim); the envelope found a joint over speed (issue 28 item 4)
+FAULT_NONE, FAULT_WATCHDOG, FAULT_DAC, FAULT_INPUTS, FAULT_UNEXPECTED = 0, 1, 2, 3, 4
+FAULT_COMMAND, FAULT_FOREIGN = 5, 6
+FAULT_OVERSPEED = 9
+#: ``inputs.fault_code`` by name (``pfma stats``, ``monitor``, ``watch``, the console; pfma/show.py),
+#: at most 11 characters (the console's World Status line): the watchdog tripped, a DAC
+#: write failed, an input board failed, an unexpected error, a command refused, a foreign
+#: writer, the DAC does not answer, the amplifier enable not written, a joint over speed
+FAULT_CODE_NAMES = {FAULT_NONE: "none", FAULT_WATCHDOG: "WATCHDOG", FAULT_DAC: "DAC WRITE",
+                    FAULT_INPUTS: "INPUT BOARD", FAULT_UNEXPECTED: "UNEXPECTED", FAULT_COMMAND: "CMD REFUSED",
+                    FAULT_FOREIGN: "FOREIGN CMD", FAULT_DAC_UNREACHABLE: "DAC LOST", FAULT_AMP_ENABLE: "AMP ENABLE",
+                    FAULT_OVERSPEED: "OVERSPEED"}
 
 
 #: ``commands.mode`` value of a halted controller (IRSS halt / single step, docs/console.md):
@@ -185,6 +201,40 @@ CMD_REFUSED = 4  #: a field was NaN, infinite or beyond its limit: outputs made 
 CMD_FOREIGN = 8  #: written by a process that does not hold the claim: refused, outputs made safe
 CMD_STATUS_NAMES = {CMD_STALE: "stale", CMD_ABSENT: "absent", CMD_REFUSED: "refused",
                     CMD_FOREIGN: "foreign writer"}
+#: the names of each status word's bits, by the kind of entry it belongs to (the one table
+#: ``pfma read``, ``watch``, ``monitor``, ``stats`` and the Python handle show them by)
+STATUS_BIT_NAMES: dict[str, dict[int, str]] = {
+    "rtd": {RTD_LOSS_OF_SIGNAL: "LOS", RTD_NO_REFERENCE: "NOREF", CHANNEL_BUS_ERROR: "BUSERR"},
+    "adc": {CHANNEL_BUS_ERROR: "BUSERR"},
+    "dac": {DAC_CLIPPED: "CLIPPED", DAC_FORCED_SAFE: "SAFE", DAC_SLEWED: "SLEWED", DAC_ENVELOPE: "ENVELOPE"},
+    "pio": {},
+    "board": {BOARD_OK: "PRESENT", BOARD_INIT: "INITIALISED", BOARD_FAULT: "FAULT"},
+    "link": {LINK_OPEN: "OPEN", LINK_SYNCED: "SYNCED", LINK_FAULT: "FAULT", LINK_STALE: "STALE"},
+}
+#: the healthy status word of each kind: shown as ``ok`` (a channel: no bit set; a board:
+#: present and initialised; a link: open and synchronised)
+STATUS_HEALTHY: dict[str, int] = {"rtd": 0, "adc": 0, "dac": 0, "pio": 0,
+                                  "board": BOARD_OK | BOARD_INIT, "link": LINK_OPEN | LINK_SYNCED}
+
+
+def status_text(kind: str, bits: int) -> str:
+    """A status word as a person reads it: ``ok`` when healthy, else the names of its
+    problem bits (``LOS``, ``BUSERR``: the value is the last good sample; a board's
+    ``FAULT``; a link's ``STALE``), or what a board or link lacks (``NOT INITIALISED``,
+    ``CLOSED``, ``NOT SYNCED``)."""
+    bits = int(bits)
+    healthy = STATUS_HEALTHY.get(kind, 0)
+    if bits == healthy:
+        return "ok"
+    names = STATUS_BIT_NAMES.get(kind, {})
+    problems = flag_names(bits & ~healthy, names, clear="")
+    if kind == "board" and not problems:
+        return "NOT INITIALISED"
+    if kind == "link":
+        missing = ("CLOSED" if not bits & LINK_OPEN else
+                   "" if bits & (LINK_SYNCED | LINK_FAULT | LINK_STALE) else "NOT SYNCED")
+        return "|".join(x for x in (problems, missing) if x)
+    return problems or "ok"
 #: other accepted spellings of a role: the name of its main area
 ROLE_ALIASES = {"inputs": "service", "commands": "controller"}
 
@@ -932,6 +982,20 @@ def layout_markdown(layout: Layout | None = None) -> str:
         offs = ", ".join(f"{f}[{i}]@{o}" for f, i, o in c.fields)
         out.append(f"| {c.name} | {c.area} | {c.kind} | {c.slot} | {c.units} | {where} | {offs} | "
                    f"{c.label}{' (spare)' if c.spare else ''} |")
+    out += ["", "## Names of the numbers", "",
+            "How every tool shows the enumerations and status words above (pfma/show.py; `--json` keeps "
+            "the number beside the name). A status word that is healthy reads `ok`: a channel's with no "
+            "bit set, a board's present and initialised, a link's open and synchronised; otherwise the "
+            "names of its problem bits (`BUSERR`: the board did not answer, the value is its last good "
+            "sample), or what a board or link lacks (`NOT INITIALISED`, `CLOSED`, `NOT SYNCED`).", "",
+            "| word | value: name |", "|---|---|",
+            "| service_state | " + ", ".join(f"{int(v)} {v.name}" for v in ServiceState) + " |",
+            "| fault_code | " + ", ".join(f"{v} {n}" for v, n in FAULT_CODE_NAMES.items()) + " |",
+            "| command_status (bits) | " + ", ".join(f"{v} {n}" for v, n in CMD_STATUS_NAMES.items()) + " |"]
+    for kind, names in STATUS_BIT_NAMES.items():
+        if names:
+            out.append(f"| {kind}_status (bits) | " + ", ".join(f"0x{v:x} {n}" for v, n in names.items())
+                       + f"; healthy: 0x{STATUS_HEALTHY[kind]:x} |")
     out.append("")
     return "\n".join(out)
 

@@ -59,7 +59,7 @@ from controller.layers import Layer
 from controller.messages import Level
 from controller.quat import q_conj, q_from_rotvec, q_mul, q_normalize, q_to_matrix, q_to_rotvec
 from controller.teleop import (
-    COARSE_LIN_M_S, COARSE_ROT_RAD_S, FRAME_TOOL, HC_CRL, HC_SOURCES, HcSample, Telemetry, hc_twist, reflect,
+    COARSE_LIN_M_S, COARSE_ROT_RAD_S, FRAME_NAMES, FRAME_TOOL, HC_CRL, HC_SOURCE_NAMES, HC_SOURCES, HcSample, Telemetry, hc_twist, reflect,
 )
 from controller.worldmodel import VarSpec
 from pfma.errors import ConfigError
@@ -78,6 +78,9 @@ SHOULDER_ROLL_RAD = 0.0
 TRAJ_VARS = ("traj.pos_m", "traj.quat", "traj.active")
 #: the Joint Planner's measured tool pose (K's layer); without it fk(daq angles) is used
 TOOL_VARS = ("joint.tool_pos_m", "joint.tool_quat")
+#: the Joint Planner's joint moves: when one ends the held pose becomes fk of the joint command
+#: (the pose it reached), so that Cartesian mode resumes there, not at the pose held before it
+JMOVE_VARS = ("joint.jmove_done_seq", "servo.q_cmd_rad")
 
 
 def _compose(offset6: np.ndarray, pos_m: np.ndarray, quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -141,6 +144,7 @@ class CartesianLayer(Layer):
         self._zero_seq = 0
         self._params_key = None
         self._lag_warned = False
+        self._jmove_seen = 0
         self.valid = False
 
     # --- world model ---------------------------------------------------------------------
@@ -148,10 +152,11 @@ class CartesianLayer(Layer):
         u, w = "user", "cartesian"
         return self.state_specs() + [
             # user controls (command input)
-            VarSpec("cart.mode", "command_input", "i2", (), u, 0, doc="Cartesian mode: 0 hold 1 teleop 2 trajectory"),
-            VarSpec("cart.hc_source", "command_input", "i2", (), u, 0, doc="hand controller: 0 CAE 1 CRL 2 HID"),
+            VarSpec("cart.mode", "command_input", "i2", (), u, 0, doc="Cartesian mode", enum=MODE_NAMES),
+            VarSpec("cart.hc_source", "command_input", "i2", (), u, 0, doc="the hand controller teleoperation follows",
+                    enum=HC_SOURCE_NAMES),
             VarSpec("cart.hc_frame", "command_input", "i2", (), u, 0,
-                    doc="hand-controller rates in 0 the world frame 1 the tool frame"),
+                    doc="hand-controller rates in the world frame or the tool frame", enum=FRAME_NAMES),
             VarSpec("cart.hc_gain_lin_m_s", "command_input", "f8", (3,), u, [COARSE_LIN_M_S] * 3, "m/s",
                     doc="rate at full deflection, x y z (then limited to 0.15 m/s coarse, 0.03 vernier)"),
             VarSpec("cart.hc_gain_rot_rad_s", "command_input", "f8", (3,), u, [COARSE_ROT_RAD_S] * 3, "rad/s",
@@ -162,7 +167,8 @@ class CartesianLayer(Layer):
                     doc="impedance control on (zeroes the F/T sensor first)"),
             VarSpec("force.zero_seq", "command_input", "i4", (), u, 0,
                     doc="increment to zero the F/T sensor (only while impedance is off; no contact!)"),
-            VarSpec("force.frame", "command_input", "i2", (), u, 0, doc="impedance axes: 0 world 1 tool"),
+            VarSpec("force.frame", "command_input", "i2", (), u, 0, doc="impedance axes: world or tool frame",
+                    enum=FRAME_NAMES),
             VarSpec("force.mass", "command_input", "f8", (6,), u, list(DEFAULT_MASS), "kg|kg*m^2",
                     doc="impedance mass per axis x y z roll pitch yaw"),
             VarSpec("force.damping", "command_input", "f8", (6,), u, list(DEFAULT_DAMPING), "N*s/m|N*m*s/rad",
@@ -188,7 +194,7 @@ class CartesianLayer(Layer):
                     doc="reference orientation before the force offset"),
             VarSpec("cart.hc_active", "task_status", "b1", (), w, False,
                     doc="the (delayed) hand controller moves the reference (deadman held)"),
-            VarSpec("force.state", "task_status", "i2", (), w, 0, doc="force control: 0 OFF 1 ZEROING 2 IMPEDANCE"),
+            VarSpec("force.state", "task_status", "i2", (), w, 0, doc="force control state", enum=STATE_NAMES),
             VarSpec("force.offset", "task_status", "f8", (6,), w, [0.0] * 6, "m|rad",
                     doc="compliant offset (world dp, rotation vector)"),
             VarSpec("force.wrench_n", "task_io", "f8", (6,), w, [0.0] * 6, "N|N*m",
@@ -211,7 +217,8 @@ class CartesianLayer(Layer):
     def _check_model(self, rt: "LayerContext") -> dict[str, bool]:
         if self._have is None:
             names = set(rt.wm.names())
-            self._have = {"traj": all(n in names for n in TRAJ_VARS), "tool": all(n in names for n in TOOL_VARS)}
+            self._have = {"traj": all(n in names for n in TRAJ_VARS), "tool": all(n in names for n in TOOL_VARS),
+                          "jmove": all(n in names for n in JMOVE_VARS)}
         return self._have
 
     # --- sequences -----------------------------------------------------------------------
@@ -234,6 +241,8 @@ class CartesianLayer(Layer):
         self.hold_pos, self.hold_quat = self.meas_pos.copy(), self.meas_quat.copy()
         self.mode = int(v["cart.mode"]) if int(v["cart.mode"]) in MODE_NAMES else MODE_HOLD
         self._zero_seq = int(v["force.zero_seq"])
+        if self._check_model(rt)["jmove"]:
+            self._jmove_seen = int(rt.wm.get_task_inputs(("joint.jmove_done_seq",))["joint.jmove_done_seq"])
         self.valid = True
         self._post_command(rt)
         rt.post(self.key, Level.INFO, f"holding the tool at {self._fmt_pose(self.hold_pos, self.hold_quat)}, "
@@ -304,9 +313,13 @@ class CartesianLayer(Layer):
                  "delay.round_trip_s", "delay.jitter"]
         names += list(TRAJ_VARS) if have["traj"] else []
         names += list(TOOL_VARS) if have["tool"] else []
+        names += list(JMOVE_VARS) if have["jmove"] else []
         v = rt.wm.get_task_inputs(names)
         self._measured(rt, v)
         now = rt.now
+        if have["jmove"] and int(v["joint.jmove_done_seq"]) != self._jmove_seen:
+            self._jmove_seen = int(v["joint.jmove_done_seq"])
+            self._hold_joint_command(rt, v["servo.q_cmd_rad"])
         # synthetic delay settings
         try:
             rtt = SyntheticDelay.check_round_trip(float(v["delay.round_trip_s"]))
@@ -391,6 +404,20 @@ class CartesianLayer(Layer):
             f, t, on = np.zeros(3), np.zeros(3), False
         out.update({"teleop.reflect_force_n": f, "teleop.reflect_torque_nm": t, "teleop.reflect_enabled": on})
         rt.wm.post_task_outputs(self.key, out)
+
+    def _hold_joint_command(self, rt: "LayerContext", q_cmd) -> None:
+        """A joint move ended: hold fk(joint command), the pose it reached, with no blend (the
+        Joint Planner ran the joints, not this command: continuity with the command held before
+        would pull the arm back)."""
+        if self.mode == MODE_TRAJECTORY and self.traj_active:
+            return  # a trajectory commands the pose (not while the Path Planner runs a joint move)
+        from controller.kinematics import fk
+        p, q = fk(q_cmd, SHOULDER_ROLL_RAD)
+        self.hold_pos, self.hold_quat = np.asarray(p, float), q_normalize(q)
+        self.tele = np.zeros(6)
+        self.blend = np.zeros(6)
+        rt.post(self.key, Level.INFO, f"joint move {self._jmove_seen} ended: holding the pose it reached, "
+                                      f"{self._fmt_pose(self.hold_pos, self.hold_quat)}")
 
     def _warn_once(self, rt, key: str, text: str) -> None:
         seen = getattr(self, "_warned", set())

@@ -24,6 +24,7 @@ class LayerContext(Protocol):
     servo_oldest_frame: int  #: the oldest servo stamp Data Acquisition may still send
     servo_catch_up: bool  #: this frame catches up a missed servo slot
     servo: Any  #: the Servo Control layer (Data Acquisition faults it for a missing output)
+    halted: bool  #: halted (docs/console.md): frames run only as single steps, outputs held safe
 
     def post(self, source: str, level: Any, text: str) -> Any:
         """Post a message (source = layer key) to the controller's message board."""

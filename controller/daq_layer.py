@@ -58,7 +58,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from controller.decision import Status, TaskState
-from controller.layers import Layer, bottom_table
+from controller.layers import ERROR_NAMES, Layer, bottom_table
 from controller.messages import Level
 from controller.params import GRIPPER, JOINTS, N_CURRENT_LIMITS, N_JOINTS
 from controller.servo import ERR_NO_OUTPUT
@@ -113,6 +113,8 @@ class DataAcquisitionLayer(Layer):
     key = "daq"
     title = "Data Acquisition"
     short = "DAQ "
+    #: ``daq.error``: the lowest hardware-check bit that tripped (FAULT_NAMES), or every layer's
+    error_names = {**ERROR_NAMES, **FAULT_NAMES}
 
     def __init__(self, client: "Client", require_ft: bool = True) -> None:
         super().__init__()
@@ -216,7 +218,7 @@ class DataAcquisitionLayer(Layer):
             VarSpec("daq.gripper_current_a", "task_io", "f8", (), w, 0.0, "A",
                     doc="gripper motor current (end-effector current monitor, ADC)"),
             VarSpec("daq.service_state", "status_output", "i2", (), w, 0,
-                    doc="I/O service state (0 STARTING 1 SAFE 2 ARMED 3 FAULT 4 STOPPED 5 HALTED)"),
+                    doc="I/O service state (bit3.layout.ServiceState)", enum=ServiceState),
             VarSpec("daq.brakes_released", "task_io", "b1", (), w, False, doc="the service sees a current limit "
                     "above the brake release level with outputs live"),
             VarSpec("daq.outputs_enabled", "task_io", "b1", (), w, False, doc="the DAC drives the arm"),
@@ -228,8 +230,7 @@ class DataAcquisitionLayer(Layer):
             VarSpec("daq.camera_route_applied", "task_io", "i4", (), w, -1, "bits",
                     doc="route the service has applied to the switcher (inputs.matrix_route)"),
             VarSpec("daq.fault_bits", "error_reports", "i4", (), w, 0,
-                    doc="hardware checks: 1 resolver 2 tach ADC 4 F/T 8 board 16 service state 32 service stale "
-                        "64 command refused/stale at the service"),
+                    doc="hardware checks that tripped (a bit each)", flags=FAULT_NAMES),
         ]
 
     # --- acquire -------------------------------------------------------------------------
@@ -609,7 +610,9 @@ class DataAcquisitionLayer(Layer):
         if self.task_frames == 0:
             self._t_phase = rt.now
         st = int(self.snapshot.service_state) if self.snapshot is not None else -1
-        if st in (ServiceState.SAFE, ServiceState.FAULT) and not self.fault_bits:
+        # halted (a power-up stepped frame by frame): the service holds HALTED for us, safe
+        safe = st in (ServiceState.SAFE, ServiceState.FAULT) or (self.halted and st == ServiceState.HALTED)
+        if safe and not self.fault_bits:
             self.monitoring = True
             return TaskState.DONE
         if rt.now - self._t_phase > INIT_TIMEOUT_S:
@@ -620,11 +623,21 @@ class DataAcquisitionLayer(Layer):
         return TaskState.RUNNING
 
     def seq_startup(self, rt: "LayerContext") -> TaskState:
-        """Arm the service: a new arm request with all rates 0; wait for ARMED."""
+        """Arm the service: a new arm request with all rates 0; wait for ARMED (at most
+        ARM_TIMEOUT_S). While the runtime is halted (a power-up single-stepped) the outputs
+        stay in the halted safe state: the arm request waits for the resume's explicit
+        re-arm (``pfma controller resume --rearm``), and the time-out counts from the first
+        frame after it."""
         if self.task_frames == 0:
             self.rearm_counter += 1
             self.arm_request = 1
             self._phase = 1
+            self._t_phase = rt.now
+            if self.halted:
+                rt.post(self.key, Level.INFO, "START UP: halted, so the outputs stay safe; arming waits for "
+                                              "resume --rearm (console: a, then r)")
+            return TaskState.RUNNING
+        if self.halted:
             self._t_phase = rt.now
             return TaskState.RUNNING
         if int(self.snapshot.service_state) == ServiceState.ARMED:

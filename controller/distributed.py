@@ -64,6 +64,7 @@ from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
 
 from controller.decision import Status, TaskState
 from controller.frames import TASK_DOCS
+from controller.layers import ERR_PROCESS_STOPPING, ERR_SECTION_LOST
 from controller.messages import Level
 from controller.runtime import LAYER_KEYS, ControllerRuntime
 from controller.worldmodel import WorldModel, WorldModelError
@@ -73,11 +74,10 @@ from pfma.errors import ConfigError, did_you_mean
 #: lost (assumed: 100 ms at 320 Hz, like the service's F/T stale age: far beyond a host
 #: hiccup or the Zenoh p99 latency, well inside the 1 s a human notices)
 SECTION_LOST_FRAMES = 32
-#: error code of a layer whose neighbour's process is lost (docs/controller.md)
-ERR_SECTION_LOST = 91
-#: error code of a layer next to another process's when its own process stops while the
-#: system is up (:meth:`DistributedProcess.leave`): the layers below it stop safely
-ERR_PROCESS_STOPPING = 92
+# error codes (controller.layers, docs/controller.md): ERR_SECTION_LOST of a layer whose
+# neighbour's process is lost; ERR_PROCESS_STOPPING of a layer next to another process's when
+# its own process stops while the system is up (:meth:`DistributedProcess.leave`): the
+# layers below it stop safely
 #: frames between attempts to attach a remote world model not there yet (0.1 s at 320 Hz)
 ATTACH_RETRY_FRAMES = 32
 #: a process's world model is ``<base><WM_SEPARATOR><process>``

@@ -50,6 +50,8 @@ GRIPPER_TEXT_BYTES = 160
 #: the gripper's index in the current-limit vector (the six joints, then the gripper)
 GRIPPER_LIMIT_INDEX = 6
 _RESPONSE_NAMES = {IN_PROGRESS: "IN PROGRESS", COMPLETE: "COMPLETE", REFUSED: "REFUSED", FAILED: "FAILED"}
+#: the values of gripper.response and gripper.msp_done_code (0: nothing answered yet)
+RESPONSE_ENUM = {0: "NONE", **_RESPONSE_NAMES}
 #: the Servo Control brake phase in which the loop is closed (controller.servo)
 _LOOP_CLOSED = 3
 
@@ -59,19 +61,22 @@ def gripper_specs() -> list[VarSpec]:
     w = "servo"
     return [
         VarSpec("gripper.request", "command_input", "i2", (), "user", 0,
-                doc="gripper request: 1 OPEN 2 CLOSE 3 STOP 4 FORCE (acted on when gripper.request_seq changes)"),
+                doc="gripper request: 1 OPEN 2 CLOSE 3 STOP 4 FORCE (acted on when gripper.request_seq changes)",
+                enum=GripperRequest),
         VarSpec("gripper.request_force_n", "command_input", "f8", (), "user", 0.0, "N",
                 doc="grip force for the request (0 keeps the present one; FORCE needs it)"),
         VarSpec("gripper.request_seq", "command_input", "i4", (), "user", 0,
                 doc="gripper request number: increment to make a new request"),
         VarSpec("gripper.response", "response_output", "i2", (), w, 0,
-                doc="answer to gripper request gripper.response_seq: 1 IN PROGRESS 2 COMPLETE 3 REFUSED 4 FAILED"),
+                doc="answer to gripper request gripper.response_seq: 1 IN PROGRESS 2 COMPLETE 3 REFUSED 4 FAILED",
+                enum=RESPONSE_ENUM),
         VarSpec("gripper.response_seq", "response_output", "i4", (), w, 0,
                 doc="the gripper request number gripper.response answers"),
         VarSpec("gripper.response_text", "response_output", "u1", (GRIPPER_TEXT_BYTES,), w,
                 [0] * GRIPPER_TEXT_BYTES, doc="the gripper's answer in words (UTF-8, zero-padded)"),
         VarSpec("gripper.state", "status_output", "i2", (), w, int(GripperState.OFF),
-                doc="gripper: 0 OFF 1 STOPPED 2 OPENING 3 CLOSING 4 OPEN 5 CLOSED 6 GRIPPING 7 STALLED"),
+                doc="gripper: 0 OFF 1 STOPPED 2 OPENING 3 CLOSING 4 OPEN 5 CLOSED 6 GRIPPING 7 STALLED",
+                enum=GripperState),
         VarSpec("gripper.force_n", "status_output", "f8", (), w, 0.0, "N",
                 doc="the grip force in force (the gripper's current limit x 40 N/A)"),
         VarSpec("gripper.motor_force_n", "task_status", "f8", (), w, 0.0, "N",
@@ -85,10 +90,11 @@ def gripper_specs() -> list[VarSpec]:
         VarSpec("gripper.msp_done_seq", "task_io", "i4", (), w, 0,
                 doc="the path planner's gripper request (msp.gripper_seq) answered last"),
         VarSpec("gripper.msp_done_code", "task_io", "i2", (), w, 0,
-                doc="its answer: 2 COMPLETE 3 REFUSED 4 FAILED (1 while IN PROGRESS)"),
+                doc="its answer: 2 COMPLETE 3 REFUSED 4 FAILED (1 while IN PROGRESS)", enum=RESPONSE_ENUM),
         VarSpec("gripper.event_seq", "task_io", "i4", (), w, 0,
                 doc="counts the user's gripper requests accepted (a path recording stores each)"),
-        VarSpec("gripper.event", "task_io", "i2", (), w, 0, doc="the last accepted request (1 OPEN 2 CLOSE 3 STOP 4 FORCE)"),
+        VarSpec("gripper.event", "task_io", "i2", (), w, 0, doc="the last accepted request (1 OPEN 2 CLOSE 3 STOP 4 FORCE)",
+                enum=GripperRequest),
         VarSpec("gripper.event_force_n", "task_io", "f8", (), w, 0.0, "N",
                 doc="the grip force in force after it"),
     ]
@@ -98,7 +104,7 @@ def path_request_specs() -> list[VarSpec]:
     """The path planner's gripper request (declared by the Multi-Segment Path Planner)."""
     return [
         VarSpec("msp.gripper_request", "task_io", "i2", (), "msp", 0,
-                doc="path playback's gripper request: 1 OPEN 2 CLOSE 3 STOP 4 FORCE"),
+                doc="path playback's gripper request: 1 OPEN 2 CLOSE 3 STOP 4 FORCE", enum=GripperRequest),
         VarSpec("msp.gripper_force_n", "task_io", "f8", (), "msp", 0.0, "N",
                 doc="its grip force (0 keeps the present one)"),
         VarSpec("msp.gripper_seq", "task_io", "i4", (), "msp", 0,

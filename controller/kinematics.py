@@ -352,6 +352,87 @@ def ik(p_m: Sequence[float], quat: Sequence[float], q_ref: Sequence[float] | Non
     return sols[0]
 
 
+# --- the closed form on many poses at once (the path checks, controller.paths.check) --------
+
+#: the closed-form branches :func:`ik_batch` takes: (shoulder yaw reaching back over the top,
+#: elbow angle negative, wrist flipped); 8 in all
+BRANCHES: tuple[tuple[bool, bool, bool], ...] = tuple((b, e, w) for b in (False, True) for e in (False, True)
+                                                      for w in (False, True))
+
+
+def ik_batch(p_m: np.ndarray, r_world: np.ndarray, branch,
+             shoulder_roll_rad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """The closed-form inverse of ``N`` poses on one branch, vectorised (the same equations
+    as :func:`ik`; no joint limits, no choice of branch, no 2 pi turns: angles wrapped to
+    -pi..pi). For checking sampled paths (:mod:`controller.paths.check`), where calling
+    :func:`ik` per sample would cost ~0.25 ms each.
+
+    :param p_m: tool points, shape (N, 3), world frame
+    :param r_world: tool orientations as rotation matrices, shape (N, 3, 3)
+    :param branch: one of :data:`BRANCHES`, or three bool arrays of shape (N,) (a branch per pose)
+    :returns: (joint angles (N, 6) in command-area order, reachable (N,) bool: the wrist
+        centre within the arm's reach; the angles of an unreachable pose are the nearest
+        the closed form gives)
+    """
+    back, elbow_neg, flip = (np.asarray(b, dtype=bool) for b in branch)
+    base_r = base_transform(shoulder_roll_rad)[:3, :3]
+    rb = np.einsum("ji,njk->nik", base_r, r_world)  # base_r.T @ r_world
+    pb = p_m @ base_r  # (base_r.T @ p) per row
+    wc = pb - D6_M * rb[:, :, 2]
+    dist = np.linalg.norm(wc, axis=1)
+    reach = (dist <= A2_M + A3_M + 1e-9) & (dist >= abs(A2_M - A3_M) - 1e-9)
+    q1 = np.arctan2(wc[:, 1], wc[:, 0]) + np.where(back, math.pi, 0.0)
+    cos3 = np.clip((dist * dist - A2_M * A2_M - A3_M * A3_M) / (2.0 * A2_M * A3_M), -1.0, 1.0)
+    q3 = np.arccos(cos3) * np.where(elbow_neg, -1.0, 1.0)
+    c1, s1 = np.cos(q1), np.sin(q1)
+    q2 = np.arctan2(wc[:, 2], wc[:, 0] * c1 + wc[:, 1] * s1) - np.arctan2(A3_M * np.sin(q3),
+                                                                          A2_M + A3_M * np.cos(q3))
+    c23, s23 = np.cos(q2 + q3), np.sin(q2 + q3)
+    # r03 = Rz(q1) Rx(90 deg) Rz(q2 + q3), row by row
+    r03 = np.empty((len(q1), 3, 3))
+    r03[:, 0, 0], r03[:, 0, 1], r03[:, 0, 2] = c1 * c23, -c1 * s23, s1
+    r03[:, 1, 0], r03[:, 1, 1], r03[:, 1, 2] = s1 * c23, -s1 * s23, -c1
+    r03[:, 2, 0], r03[:, 2, 1], r03[:, 2, 2] = s23, c23, 0.0
+    w = np.einsum("nji,njk->nik", r03, rb)  # r03.T @ rb = Rz(t4) Ry(t5) Rz(t6)
+    sb = np.hypot(w[:, 0, 2], w[:, 1, 2])
+    t4 = np.arctan2(w[:, 1, 2], w[:, 0, 2])
+    t5 = np.arctan2(sb, w[:, 2, 2])
+    t6 = np.arctan2(w[:, 2, 1], -w[:, 2, 0])
+    t4, t5, t6 = np.where(flip, t4 + math.pi, t4), np.where(flip, -t5, t5), np.where(flip, t6 + math.pi, t6)
+    q_dh = np.stack([q1, q2, q3, t4, t5 - DH[4].offset_rad, t6], axis=1)
+    q_dh = (q_dh + math.pi) % (2.0 * math.pi) - math.pi
+    return q_dh[:, CA_FROM_DH], reach
+
+
+def fk_batch(q: np.ndarray, shoulder_roll_rad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fk` of ``N`` configurations at once: (tool points (N, 3), tool rotation
+    matrices (N, 3, 3)), world frame; ``q`` shape (N, 6), command-area order."""
+    th = np.atleast_2d(np.asarray(q, dtype=float))[:, DH_FROM_CA] + _OFFSET
+    n = th.shape[0]
+    t = np.broadcast_to(base_transform(shoulder_roll_rad), (n, 4, 4)).copy()
+    for i in range(6):
+        ct, st = np.cos(th[:, i]), np.sin(th[:, i])
+        m = np.zeros((n, 4, 4))
+        m[:, 0, 0], m[:, 0, 1], m[:, 0, 2], m[:, 0, 3] = ct, -st * _CAF[i], st * _SAF[i], _AF[i] * ct
+        m[:, 1, 0], m[:, 1, 1], m[:, 1, 2], m[:, 1, 3] = st, ct * _CAF[i], -ct * _SAF[i], _AF[i] * st
+        m[:, 2, 1], m[:, 2, 2], m[:, 2, 3] = _SAF[i], _CAF[i], _DF[i]
+        m[:, 3, 3] = 1.0
+        t = t @ m
+    return t[:, :3, 3].copy(), t[:, :3, :3].copy()
+
+
+def singular_distances(q: np.ndarray) -> np.ndarray:
+    """How far configurations are from each singular set (8.1), shape (N, 3): columns
+    wrist (rad: wrist yaw from +-90 deg), stretch (rad: elbow from 0 or 180 deg), axis (m:
+    wrist centre from the shoulder-yaw axis). :func:`singular_sets` reports a set when its
+    distance is below the margin."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    wy, el, sp = q[:, J["wrist_yaw"]], q[:, J["elbow_pitch"]], q[:, J["shoulder_pitch"]]
+    return np.stack([np.arcsin(np.minimum(1.0, np.abs(np.cos(wy)))),
+                     np.arcsin(np.minimum(1.0, np.abs(np.sin(el)))),
+                     np.abs(A2_M * np.cos(sp) + A3_M * np.cos(sp + el))], axis=1)
+
+
 # --- rate-limited damped-least-squares step --------------------------------------------------
 
 #: Damped least squares (assumed, this project; Nakamura & Hanafusa's variable damping):

@@ -23,13 +23,16 @@ The layers above the Joint Planner are in their own modules (:mod:`controller.ca
 
 from __future__ import annotations
 
+import math
+from collections import deque
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from controller.decision import (
-    BOTTOM_TABLE, LAYER_TABLE, Action, Command, CompiledTable, KEEP, Status, TaskState, compile_table,
-    command_text, status_text,
+    BOTTOM_TABLE, LAYER_STATUSES, LAYER_TABLE, Action, Command, CompiledTable, KEEP, Status, TaskState,
+    compile_table, command_text, status_text,
 )
 from controller.messages import Level
 from controller.params import JOINTS, N_JOINTS
@@ -41,24 +44,25 @@ from drivers.pio.routes import camera_name, parse_route_request, route_text
 if TYPE_CHECKING:  # pragma: no cover
     from controller.context import LayerContext
 
-#: user requests to System Up/Down (``ui.request``), report 2.2.8 request/response protocol
+#: user requests to System Up/Down (``ui.request``), report 2.2.8 request/response protocol;
+#: what each kind does is its row of :data:`REQUEST_KINDS`
 class Request:
     NONE = 0
     POWER_UP = 1
     POWER_DOWN = 2
     ERROR_RESET = 3
     #: the debug window's frame control (report 2.2.8, docs/console.md): acted on by the
-    #: runtime between frames, answered by System Up/Down like the others; ``ui.request_arg``
+    #: runtime between frames, answered by System Up/Down like the others; the argument
     #: is STEP's frame count and RESUME's re-arm (1 = re-arm the outputs)
     HALT = 4
     STEP = 5
     RESUME = 6
-    #: camera routing (docs/cameras.md): ``ui.request_arg`` = monitor * 16 + camera (0 = blank);
+    #: camera routing (docs/cameras.md): the argument = monitor * 16 + camera (0 = blank);
     #: System Up/Down hands it to Data Acquisition, the one writer of ``commands.matrix_route``
     ROUTE = 7
-    NAMES = {0: "NONE", 1: "POWER UP", 2: "POWER DOWN", 3: "ERROR RESET", 4: "HALT", 5: "SINGLE STEP",
-             6: "RESUME", 7: "CAMERA ROUTE"}
-    DEBUG = (4, 5, 6)
+    #: kind -> name, and the frame-control kinds: filled from REQUEST_KINDS
+    NAMES: dict[int, str] = {}
+    DEBUG: tuple[int, ...] = ()
 
 
 class Response:
@@ -67,7 +71,90 @@ class Response:
     COMPLETE = 2
     REFUSED = 3
     FAILED = 4
-    NAMES = {0: "NONE", 1: "IN PROGRESS", 2: "COMPLETE", 3: "REFUSED", 4: "FAILED"}
+    #: waiting its turn in System Up/Down's queue (halted: until a frame runs)
+    QUEUED = 5
+    #: taken out of the queue unrun: a later HALT or POWER DOWN, or the system's ERROR,
+    #: came first (or a POWER DOWN superseded a POWER UP in progress); never run later
+    CANCELLED = 6
+    NAMES = {0: "NONE", 1: "IN PROGRESS", 2: "COMPLETE", 3: "REFUSED", 4: "FAILED", 5: "QUEUED", 6: "CANCELLED"}
+    #: the final answers (a request gets exactly one; QUEUED and IN PROGRESS come before it)
+    FINAL = (2, 3, 4, 6)
+
+
+#: how a request kind is taken: by the runtime's frame control, on arrival (halted or not)
+FRAME = "frame"
+
+
+@dataclass(frozen=True)
+class RequestKind:
+    """One kind of user request: a row of :data:`REQUEST_KINDS`.
+
+    :param take: :data:`FRAME` (the runtime's frame control acts on it on arrival, between
+        frames, halted or not), or the :class:`UpDownLayer` method that takes it from the
+        queue in order, ``(rt, seq, arg, status) -> bool``, in the request task (in frames
+        that run: while halted, single steps); it answers the request and returns True, or
+        returns False to leave it at the head of the queue until a later frame
+    :param follow: the :class:`UpDownLayer` method ``(rt, status)`` that follows it once
+        taken, every frame, until it answers; such a request is *the active one* and the
+        system's sequence: one at a time
+    :param waits: at the head of the queue it waits while an active request is followed
+    :param cancels: on arrival every request queued before it is answered CANCELLED
+    :param arg: what its argument means ("" none)
+    """
+
+    code: int
+    name: str
+    take: str
+    follow: str = ""
+    waits: bool = False
+    cancels: bool = False
+    arg: str = ""
+
+
+#: every request kind System Up/Down takes (docs/controller.md "User requests"). A new kind
+#: is one row here (its constant in :class:`Request`, its take/follow methods in UpDownLayer)
+REQUEST_KINDS: dict[int, RequestKind] = {k.code: k for k in (
+    RequestKind(Request.POWER_UP, "POWER UP", "_take_power_up", "_follow_power_up", waits=True),
+    RequestKind(Request.POWER_DOWN, "POWER DOWN", "_take_power_down", "_follow_to_shut_down", cancels=True),
+    RequestKind(Request.ERROR_RESET, "ERROR RESET", "_take_error_reset", "_follow_to_shut_down", waits=True),
+    RequestKind(Request.HALT, "HALT", FRAME, cancels=True),
+    RequestKind(Request.STEP, "SINGLE STEP", FRAME, arg="frames to run (0: 1)"),
+    RequestKind(Request.RESUME, "RESUME", FRAME, arg="1: re-arm the outputs (required)"),
+    RequestKind(Request.ROUTE, "CAMERA ROUTE", "_take_route", arg="monitor * 16 + camera (0 = blank)"),
+)}
+Request.NAMES = {Request.NONE: "NONE", **{c: k.name for c, k in REQUEST_KINDS.items()}}
+Request.DEBUG = tuple(c for c, k in REQUEST_KINDS.items() if k.take == FRAME)
+
+#: requests waiting in System Up/Down's queue at most; one more is REFUSED "queue full"
+#: (assumed: an operator queues a few requests ahead, e.g. POWER UP and a route while halted)
+QUEUE_SLOTS = 8
+#: answers kept in the world model's answer log (``ui.answer_*``), so that each request's
+#: answer is found by its number even when others were answered since (assumed: a client
+#: polls every few ms; 16 answers is several frames of answers even with cancellations)
+ANSWER_SLOTS = 16
+#: what a client reads of the answer log, the active request and the queue (:func:`find_answer`)
+ANSWER_VARS = ("ui.answer_count", "ui.answer_seq", "ui.answer_code", "ui.answer_text", "ui.active", "ui.queue")
+
+
+def find_answer(wm, seq: int) -> tuple[int, str] | None:
+    """The newest answer to request ``seq`` in world model ``wm``: its newest entry in the
+    answer log, else (its entry already overwritten by ANSWER_SLOTS later answers) IN
+    PROGRESS while it is the active request or QUEUED while it waits in the queue; None
+    when it has none (not received yet, or finished more than ANSWER_SLOTS answers ago).
+    Returns (Response code, text)."""
+    v = wm.get_task_inputs(ANSWER_VARS)
+    n, seqs = int(v["ui.answer_count"]), v["ui.answer_seq"]
+    for j in range(n - 1, max(n - ANSWER_SLOTS, 0) - 1, -1):  # newest first
+        k = j % ANSWER_SLOTS
+        if int(seqs[k]) == seq:
+            return int(v["ui.answer_code"][k]), bytes(v["ui.answer_text"][k]).rstrip(b"\0").decode(errors="replace")
+    active, kind = (int(x) for x in v["ui.active"])
+    if seq and active == seq:
+        return Response.IN_PROGRESS, f"{Request.NAMES.get(kind, kind)}: in progress"
+    for i, (q, kind, _arg) in enumerate(v["ui.queue"]):
+        if seq and int(q) == seq:
+            return Response.QUEUED, f"{Request.NAMES.get(int(kind), kind)}: queued ({i} ahead)"
+    return None
 
 
 _NO_SUBORDINATE = int(Status.NO_SUBORDINATE)
@@ -79,6 +166,16 @@ ROUTE_TIMEOUT_S = 0.25
 
 SEQ_ACTIONS = {Action.INIT: "init", Action.STARTUP: "startup", Action.SHUTDOWN: "shutdown",
                Action.SAFE: "safe", Action.RESET: "reset"}
+#: ``<key>.task``, the sequence-task mailbox, by name: 10 x kind + state (0 IDLE)
+TASK_NAMES = {int(k) * 10 + int(t): ("IDLE" if k == Action.NONE and t == TaskState.IDLE else
+                                      f"{SEQ_ACTIONS.get(k, k.name.lower()).upper()} {t.name}")
+              for k in Action if k != Action.CLEAR for t in TaskState}
+#: error report codes any layer may post in ``<key>.error`` (docs/controller.md): a task of
+#: the layer raised; a neighbour's process is lost, or this process stops while the system
+#: is up (controller.distributed). Each layer adds its own (``Layer.error_names``).
+ERR_TASK_RAISED, ERR_SECTION_LOST, ERR_PROCESS_STOPPING = 90, 91, 92
+ERROR_NAMES = {0: "none", ERR_TASK_RAISED: "a task raised", ERR_SECTION_LOST: "neighbour process lost",
+               ERR_PROCESS_STOPPING: "this process stopping"}
 
 
 class Layer:
@@ -90,6 +187,9 @@ class Layer:
 
     key = "layer"
     title = "Layer"
+    #: the codes this layer posts in ``<key>.error``, by name (the variable's enumeration:
+    #: any other code is refused when posted)
+    error_names: dict[int, str] = ERROR_NAMES
     short = "LAYR"  #: four letters for the trace
 
     def __init__(self) -> None:
@@ -130,19 +230,17 @@ class Layer:
         k = self.key
         return [
             VarSpec(f"{k}.command", "command_input", "i2", (), self.command_writer(), 0,
-                    doc=f"command to {self.title} (Command enum: 0 NONE 1 INIT TO START 2 START UP "
-                        f"3 SHUT DOWN 4 ERROR RESET)"),
+                    doc=f"command to {self.title} (controller.decision.Command)", enum=Command),
             VarSpec(f"{k}.status", "status_output", "i2", (), k, int(Status.SHUT_DOWN),
-                    doc=f"{self.title} status (Status enum: 0 SHUT DOWN 1 INIT IN PROGRESS 2 WAITING FOR "
-                        f"SUBORDINATE TO INIT 3 INIT COMPLETE 4 START UP 5 START UP COMPLETE 6 SHUT DOWN "
-                        f"IN PROGRESS 7 ERROR 8 ERROR RESET)"),
+                    doc=f"{self.title} status (controller.decision.Status)", enum=LAYER_STATUSES),
             VarSpec(f"{k}.row", "task_status", "i2", (), k, 0,
                     doc=f"the {self.title} decision-table row that decided last"),
             VarSpec(f"{k}.task", "task_status", "i2", (), k, 0,
                     doc="sequence-task mailbox: 10 x kind (1 init 2 startup 3 shutdown 4 safe 5 reset) "
-                        "+ state (0 idle 1 running 2 done 3 failed)"),
+                        "+ state (0 idle 1 running 2 done 3 failed)", enum=TASK_NAMES),
             VarSpec(f"{k}.error", "error_reports", "i4", (), k, 0,
-                    doc=f"{self.title} error report code (0 none; see docs/controller.md)"),
+                    doc=f"{self.title} error report code (0 none; see docs/controller.md)",
+                    enum=self.error_names),
         ]
 
     def specs(self) -> list[VarSpec]:
@@ -253,11 +351,25 @@ class Layer:
 class UpDownLayer(Layer):
     """System Up/Down: master control; user requests arrive here (request/response).
 
-    Its request task (``updown_requests``, every minor frame) is the report's "real time
-    task running in the system up/down layer": it takes a request posted asynchronously
-    by the user interface (``ui.request`` + a new ``ui.request_seq``), turns it into the
-    layer's command, follows the power-up sequence (INIT TO START, then START UP once
-    INITIALIZATION COMPLETE) and answers in ``ui.response`` / ``ui.response_seq``.
+    A request is one keyed user write of ``ui.request`` = (kind, argument); the world
+    model's user-request ring carries it, and its request id there is the request's number
+    (``ControllerRuntime.request``, ``ControllerLink.submit``). The world model keeps every
+    such write in order (:meth:`WorldModel.keep_user_writes`), so two requests applied in
+    one communications segment are two requests, never the last one alone.
+
+    Every tick, halted or not, :meth:`receive_requests` takes the new ones in order: a
+    frame-control request (HALT, SINGLE STEP, RESUME) goes to the runtime at once; the
+    others join the queue (at most QUEUE_SLOTS; one more is REFUSED). A request whose kind
+    ``cancels`` (HALT, POWER DOWN) first answers CANCELLED every request queued before it,
+    and so does the system's ERROR (its table deciding ERROR). The request task
+    (``updown_requests``, every minor frame: while halted only in single-stepped frames) is
+    the report's "real time task running in the system up/down layer": it follows the
+    active request (POWER UP: INIT TO START, then START UP once INITIALIZATION COMPLETE;
+    POWER DOWN and ERROR RESET: until SHUT DOWN) and takes queued requests in order (the
+    table :data:`REQUEST_KINDS` says how). Each request is answered with its number in the
+    answer log ``ui.answer_*`` (QUEUED and IN PROGRESS first if it waits, then exactly one
+    final answer); ``ui.response`` / ``ui.response_seq`` / ``ui.response_text`` keep the
+    answer to the newest request answered.
     """
 
     key = "updown"
@@ -266,24 +378,37 @@ class UpDownLayer(Layer):
 
     def __init__(self) -> None:
         super().__init__()
-        self._seen_seq = 0
         self._answered_seq = 0  # newest request answered in ui.response
-        self._active = Request.NONE
+        self._received_seq = 0  # newest request received (ui.request_seq)
+        self._queue: deque[tuple[int, int, int]] = deque()  # (seq, kind, arg) waiting, oldest first
+        self._active = Request.NONE  # the request being followed (a kind with a follow method)
         self._active_seq = 0
         self._cmd = Command.NONE
         self._route: tuple[int, int, int, float] | None = None  # (seq, monitor, camera, t0) being followed
+        self._in_error = False  # the table decided ERROR last frame
+        # the answer log (preallocated; posted whole when an answer is added)
+        self._ans_count = 0
+        self._ans_seq = np.zeros(ANSWER_SLOTS, dtype=np.int32)
+        self._ans_code = np.zeros(ANSWER_SLOTS, dtype=np.int16)
+        self._ans_text = np.zeros((ANSWER_SLOTS, RESPONSE_TEXT_BYTES), dtype=np.uint8)
+        self._queue_rows = np.zeros((QUEUE_SLOTS, 3), dtype=np.int32)
         self.periodic["updown_requests"] = self.requests_task
 
     def specs(self) -> list[VarSpec]:
+        kinds = " ".join(f"{c} {k.name}" for c, k in REQUEST_KINDS.items())
+        args = "; ".join(f"{k.name}: {k.arg}" for k in REQUEST_KINDS.values() if k.arg)
         return self.state_specs() + [
-            VarSpec("ui.request", "command_input", "i2", (), "user", 0,
-                    doc="user request to System Up/Down: 1 POWER UP 2 POWER DOWN 3 ERROR RESET 4 HALT "
-                        "5 SINGLE STEP 6 RESUME 7 CAMERA ROUTE (acted on when ui.request_seq changes)"),
-            VarSpec("ui.request_seq", "command_input", "i4", (), "user", 0,
-                    doc="user request number: increment to make a new request"),
-            VarSpec("ui.request_arg", "command_input", "i4", (), "user", 0,
-                    doc="argument of the request: SINGLE STEP's frame count, RESUME's re-arm (1), "
-                        "CAMERA ROUTE's monitor * 16 + camera (0 = blank)"),
+            VarSpec("ui.request", "command_input", "i4", (2,), "user", [0, 0],
+                    doc=f"a user request to System Up/Down: (kind, argument); each write is one request, "
+                        f"its number the write's request id. Kinds: {kinds}. Arguments: {args}"),
+            VarSpec("ui.request_seq", "status_output", "i4", (), "updown_requests", 0,
+                    doc="the newest request System Up/Down received (its number)"),
+            VarSpec("ui.queue", "status_output", "i4", (QUEUE_SLOTS, 3), "updown_requests",
+                    [[0, 0, 0]] * QUEUE_SLOTS,
+                    doc="the requests waiting in System Up/Down's queue, oldest first: (number, kind, "
+                        "argument) rows, 0 after the last"),
+            VarSpec("ui.active", "status_output", "i4", (2,), "updown_requests", [0, 0],
+                    doc="the request in progress (POWER UP, POWER DOWN, ERROR RESET): (number, kind); 0 none"),
             VarSpec("updown.route_request", "task_io", "i4", (), "updown_requests", 0,
                     doc="the newest CAMERA ROUTE request for Data Acquisition: monitor * 16 + camera"),
             VarSpec("updown.route_request_seq", "task_io", "i4", (), "updown_requests", 0,
@@ -291,61 +416,216 @@ class UpDownLayer(Layer):
             VarSpec("ui.response_text", "response_output", "u1", (RESPONSE_TEXT_BYTES,), "updown_requests",
                     [0] * RESPONSE_TEXT_BYTES, doc="the answer in words (UTF-8, zero-padded)"),
             VarSpec("ui.response", "response_output", "i2", (), "updown_requests", 0,
-                    doc="answer to the request ui.response_seq: 1 IN PROGRESS 2 COMPLETE 3 REFUSED 4 FAILED"),
+                    doc="answer to the request ui.response_seq (the newest request answered)",
+                    enum=Response.NAMES),
             VarSpec("ui.response_seq", "response_output", "i4", (), "updown_requests", 0,
                     doc="the request number ui.response answers"),
+            VarSpec("ui.answer_count", "response_output", "i8", (), "updown_requests", 0,
+                    doc=f"answers given so far; the answer log's newest entry is slot (count - 1) % {ANSWER_SLOTS}"),
+            VarSpec("ui.answer_seq", "response_output", "i4", (ANSWER_SLOTS,), "updown_requests",
+                    [0] * ANSWER_SLOTS, doc="answer log: the request number each entry answers"),
+            VarSpec("ui.answer_code", "response_output", "i2", (ANSWER_SLOTS,), "updown_requests",
+                    [0] * ANSWER_SLOTS, doc="answer log: each entry's answer (as ui.response)"),
+            VarSpec("ui.answer_text", "response_output", "u1", (ANSWER_SLOTS, RESPONSE_TEXT_BYTES),
+                    "updown_requests", [[0] * RESPONSE_TEXT_BYTES] * ANSWER_SLOTS,
+                    doc="answer log: each entry's answer in words (UTF-8, zero-padded)"),
         ]
 
+    # --- answers -------------------------------------------------------------------------
     def _respond(self, rt, seq: int, code: int, text: str) -> None:
         lvl = Level.WARNING if code in (Response.REFUSED, Response.FAILED) else Level.INFO
-        if seq < self._answered_seq:
-            # a later request was answered already: the one response slot keeps the newest
-            # request's answer (this one is a message only)
-            rt.post(self.key, lvl, f"request {seq}: {text} -> {Response.NAMES[code]}")
-            return
-        self._answered_seq = seq
         raw = text.encode()[:RESPONSE_TEXT_BYTES]
-        words = np.zeros(RESPONSE_TEXT_BYTES, dtype=np.uint8)
-        words[:len(raw)] = np.frombuffer(raw, dtype=np.uint8)
-        rt.wm.post_task_outputs("updown_requests", {"ui.response": code, "ui.response_seq": seq,
-                                                    "ui.response_text": words})
+        k = self._ans_count % ANSWER_SLOTS
+        self._ans_count += 1
+        self._ans_seq[k], self._ans_code[k] = seq, code
+        self._ans_text[k, :] = 0
+        self._ans_text[k, :len(raw)] = np.frombuffer(raw, dtype=np.uint8)
+        out: dict = {"ui.answer_count": self._ans_count, "ui.answer_seq": self._ans_seq,
+                     "ui.answer_code": self._ans_code, "ui.answer_text": self._ans_text}
+        if seq >= self._answered_seq:  # ui.response keeps the newest request's answer
+            self._answered_seq = seq
+            out.update({"ui.response": code, "ui.response_seq": seq, "ui.response_text": self._ans_text[k]})
+        rt.wm.post_task_outputs("updown_requests", out)
         rt.post(self.key, lvl, f"request {seq}: {text} -> {Response.NAMES[code]}")
+
+    def answer(self, rt, seq: int, code: int, text: str) -> None:
+        """A later answer to request ``seq`` (a step run finished, a re-arm armed or not)."""
+        self._respond(rt, seq, code, text)
 
     def _command(self, rt, cmd: Command) -> None:
         if cmd != self._cmd:
             self._cmd = cmd
             rt.wm.post_task_outputs("updown_requests", {"updown.command": int(cmd)})
 
-    def debug_requests(self, rt) -> None:
-        """A new HALT, SINGLE STEP or RESUME request (``Request.DEBUG``): handed to the
-        runtime's frame control (``rt.debug_request``) and answered here. Called by the
-        runtime after each communications segment, halted or not (the request task does not
-        run while halted); other requests are left to the request task."""
-        v = rt.wm.get_task_inputs(("ui.request", "ui.request_seq", "ui.request_arg"))
-        seq, req = int(v["ui.request_seq"]), int(v["ui.request"])
-        if seq == self._seen_seq or req not in Request.DEBUG:
+    # --- arrival (every tick, halted or not) -----------------------------------------------
+    def receive_requests(self, rt) -> None:
+        """The requests applied since the last tick, in order: frame control to the runtime
+        (``rt.debug_request``) and answered here; the others queued. Called by the runtime
+        after each tick's first communications segment, halted or not."""
+        new = rt.wm.take_user_writes()
+        if not new:
             return
-        self._seen_seq = seq
-        code, text = rt.debug_request(req, int(v["ui.request_arg"]), seq)
-        self._respond(rt, seq, code, f"{Request.NAMES[req]}: {text}")
+        for seq, _name, value in new:
+            kind, arg = int(value[0]), int(value[1])
+            self._received_seq = seq
+            k = REQUEST_KINDS.get(kind)
+            if k is None:
+                self._respond(rt, seq, Response.REFUSED, f"unknown request {kind} (kinds: "
+                                                         f"{', '.join(f'{c} {n.name}' for c, n in REQUEST_KINDS.items())})")
+                continue
+            if k.take == FRAME:
+                code, text = rt.debug_request(kind, arg, seq)
+                if k.cancels and code != Response.REFUSED:
+                    self._cancel_queued(rt, f"{k.name} (request {seq}) came after it")
+                self._respond(rt, seq, code, f"{k.name}: {text}")
+                continue
+            if k.cancels:
+                self._cancel_queued(rt, f"{k.name} (request {seq}) came after it")
+            if len(self._queue) >= QUEUE_SLOTS:
+                waiting = ", ".join(f"{Request.NAMES.get(q[1], q[1])} {q[0]}" for q in self._queue)
+                self._respond(rt, seq, Response.REFUSED, f"{k.name}: request queue full ({QUEUE_SLOTS} waiting: "
+                                                         f"{waiting})")
+            else:
+                self._queue.append((seq, kind, arg))
+                why = [f"{len(self._queue) - 1} ahead"] if len(self._queue) > 1 else []
+                if k.waits and self._active != Request.NONE:
+                    why.append(f"{Request.NAMES[self._active]} {self._active_seq} in progress")
+                if rt.halted:
+                    why.append("halted: taken at the next frame run, a step or the resume")
+                if why:  # else the request task takes it in this frame: no need to say it waits
+                    self._respond(rt, seq, Response.QUEUED, f"{k.name}: queued ({'; '.join(why)})")
+        rt.wm.post_task_outputs("updown_requests", {"ui.request_seq": self._received_seq})
+        self._post_queue(rt)
 
-    def answer(self, rt, seq: int, code: int, text: str) -> None:
-        """A later answer to request ``seq`` (a step run finished, a re-arm armed or not)."""
+    def _cancel_queued(self, rt, why: str) -> None:
+        while self._queue:
+            seq, kind, _arg = self._queue.popleft()
+            self._respond(rt, seq, Response.CANCELLED, f"{Request.NAMES[kind]}: cancelled, never run: {why}")
+        self._post_queue(rt)
+
+    def _post_queue(self, rt) -> None:
+        rows = self._queue_rows
+        rows[:] = 0
+        for i, item in enumerate(self._queue):
+            rows[i] = item
+        rt.wm.post_task_outputs("updown_requests", {"ui.queue": rows})
+
+    def queued(self) -> tuple[tuple[int, int, int], ...]:
+        """The requests waiting, oldest first: (number, kind, argument)."""
+        return tuple(self._queue)
+
+    # --- the decision table: the system's ERROR cancels the queue ---------------------------
+    def run_table(self, rt: "LayerContext") -> None:
+        super().run_table(rt)
+        err = self.decided == Status.ERROR
+        if err and not self._in_error and self._queue:
+            self._cancel_queued(rt, "System Up/Down entered ERROR")
+        self._in_error = err
+
+    # --- the request task (every minor frame that runs) --------------------------------------
+    def requests_task(self, rt: "LayerContext") -> None:
+        if self._active == Request.NONE and not self._queue and self._route is None:
+            return  # nothing to follow or take (the frame's common case: nothing read)
+        st = Status(rt.wm.get_state_variable("updown.status"))
+        if self._route is not None:
+            self._follow_route(rt)
+        if self._active != Request.NONE:
+            a = REQUEST_KINDS[self._active]
+            if st == Status.ERROR and self._active != Request.ERROR_RESET:
+                self._finish(rt, Response.FAILED, f"{a.name}: System Up/Down in ERROR")
+            else:
+                getattr(self, a.follow)(rt, st)
+        changed = False
+        while self._queue:
+            seq, kind, arg = self._queue[0]
+            k = REQUEST_KINDS[kind]
+            if k.waits and self._active != Request.NONE:
+                break  # its turn comes when the active request is answered
+            if not getattr(self, k.take)(rt, seq, arg, st):
+                break  # not yet: it stays at the head
+            self._queue.popleft()
+            changed = True
+        if changed:
+            self._post_queue(rt)
+
+    def _start(self, rt, kind: int, seq: int, cmd: Command) -> None:
+        self._active, self._active_seq = kind, seq
+        self._command(rt, cmd)
+        rt.wm.post_task_outputs("updown_requests", {"ui.active": (seq, kind)})
+        self._respond(rt, seq, Response.IN_PROGRESS, Request.NAMES[kind])
+
+    def _finish(self, rt, code: int, text: str) -> None:
+        seq, self._active, self._active_seq = self._active_seq, Request.NONE, 0
+        rt.wm.post_task_outputs("updown_requests", {"ui.active": (0, 0)})
         self._respond(rt, seq, code, text)
 
-    def _route_request(self, rt, seq: int, arg: int) -> None:
+    # --- the kinds (REQUEST_KINDS) ------------------------------------------------------------
+    def _take_power_up(self, rt, seq: int, arg: int, st: Status) -> bool:
+        if st == Status.SHUT_DOWN:
+            self._start(rt, Request.POWER_UP, seq, Command.INIT_TO_START)
+        else:
+            self._respond(rt, seq, Response.REFUSED, f"POWER UP: system is {status_text(st)}")
+        return True
+
+    def _follow_power_up(self, rt, st: Status) -> None:
+        if st == Status.INITIALIZATION_COMPLETE:
+            self._command(rt, Command.START_UP)
+        elif st == Status.START_UP_COMPLETE:
+            self._finish(rt, Response.COMPLETE, "POWER UP: START UP COMPLETE")
+
+    def _take_power_down(self, rt, seq: int, arg: int, st: Status) -> bool:
+        """Taken at once (it does not wait): it supersedes a POWER UP in progress (answered
+        CANCELLED) wherever SHUT DOWN is accepted."""
+        name = "POWER DOWN"
+        busy = f"{Request.NAMES[self._active]} (request {self._active_seq}) in progress"
+        if st in (Status.INITIALIZATION_COMPLETE, Status.START_UP, Status.START_UP_COMPLETE):
+            if self._active == Request.POWER_UP:
+                self._finish(rt, Response.CANCELLED, f"POWER UP: cancelled at {status_text(st)}: "
+                                                     f"POWER DOWN (request {seq}) supersedes it")
+            if self._active == Request.NONE:
+                self._start(rt, Request.POWER_DOWN, seq, Command.SHUT_DOWN)
+            else:
+                self._respond(rt, seq, Response.REFUSED, f"{name}: {busy}")
+        elif st in (Status.INITIALIZATION_IN_PROGRESS, Status.WAITING_FOR_SUBORDINATE_TO_INIT) or \
+                (st == Status.SHUT_DOWN and self._active == Request.POWER_UP):
+            self._respond(rt, seq, Response.REFUSED, f"{name}: no SHUT DOWN before INITIALIZATION "
+                                                     f"COMPLETE (report 2.2.6)")
+        elif self._active != Request.NONE:
+            self._respond(rt, seq, Response.REFUSED, f"{name}: {busy}, system {status_text(st)}")
+        elif st == Status.SHUT_DOWN:
+            self._respond(rt, seq, Response.COMPLETE, f"{name}: already SHUT DOWN")
+        else:
+            self._respond(rt, seq, Response.REFUSED, f"{name}: system is {status_text(st)}")
+        return True
+
+    def _take_error_reset(self, rt, seq: int, arg: int, st: Status) -> bool:
+        if st == Status.ERROR:
+            self._start(rt, Request.ERROR_RESET, seq, Command.ERROR_RESET)
+        else:
+            self._respond(rt, seq, Response.REFUSED, f"ERROR RESET: system is {status_text(st)}, not ERROR")
+        return True
+
+    def _follow_to_shut_down(self, rt, st: Status) -> None:
+        if st == Status.SHUT_DOWN:
+            self._finish(rt, Response.COMPLETE, f"{Request.NAMES[self._active]}: SHUT DOWN")
+
+    def _take_route(self, rt, seq: int, arg: int, st: Status) -> bool:
         """A CAMERA ROUTE request: any system state (the cameras are not the arm). Handed to
         Data Acquisition through ``updown.route_request``; answered COMPLETE once the service
-        reports the monitor's new source applied, FAILED after ROUTE_TIMEOUT_S."""
+        reports the monitor's new source applied, FAILED after ROUTE_TIMEOUT_S. One route at a
+        time: the next waits at the head of the queue until this one is answered."""
+        if self._route is not None:
+            return False
         name = Request.NAMES[Request.ROUTE]
         try:
             monitor, camera = parse_route_request(arg)
         except ValueError as err:
             self._respond(rt, seq, Response.REFUSED, f"{name}: {err}")
-            return
+            return True
         rt.wm.post_task_outputs("updown_requests", {"updown.route_request": arg, "updown.route_request_seq": seq})
         self._route = (seq, monitor, camera, rt.now)
         self._respond(rt, seq, Response.IN_PROGRESS, f"{name}: monitor {monitor} <- {camera_name(camera)}")
+        return True
 
     def _follow_route(self, rt) -> None:
         assert self._route is not None
@@ -361,71 +641,17 @@ class UpDownLayer(Layer):
                                                     f"applied by the service within {ROUTE_TIMEOUT_S} s (its "
                                                     f"messages say why)")
 
-    def requests_task(self, rt: "LayerContext") -> None:
-        wm = rt.wm
-        v = wm.get_task_inputs(("ui.request", "ui.request_seq", "updown.status"))
-        seq, req, st = int(v["ui.request_seq"]), int(v["ui.request"]), Status(int(v["updown.status"]))
-        if seq != self._seen_seq and req in Request.DEBUG:
-            self._seen_seq = seq  # the runtime's frame control takes these (debug_requests)
-        if seq != self._seen_seq:
-            self._seen_seq = seq
-            name = Request.NAMES.get(req, f"request {req}")
-            if req == Request.POWER_UP:
-                if st == Status.SHUT_DOWN:
-                    self._active, self._active_seq = req, seq
-                    self._command(rt, Command.INIT_TO_START)
-                    self._respond(rt, seq, Response.IN_PROGRESS, name)
-                else:
-                    self._respond(rt, seq, Response.REFUSED, f"{name}: system is {status_text(st)}")
-            elif req == Request.POWER_DOWN:
-                if st in (Status.INITIALIZATION_COMPLETE, Status.START_UP, Status.START_UP_COMPLETE):
-                    self._active, self._active_seq = req, seq
-                    self._command(rt, Command.SHUT_DOWN)
-                    self._respond(rt, seq, Response.IN_PROGRESS, name)
-                elif st == Status.SHUT_DOWN:
-                    self._respond(rt, seq, Response.COMPLETE, f"{name}: already SHUT DOWN")
-                elif st in (Status.INITIALIZATION_IN_PROGRESS, Status.WAITING_FOR_SUBORDINATE_TO_INIT):
-                    self._respond(rt, seq, Response.REFUSED, f"{name}: no SHUT DOWN before INITIALIZATION "
-                                                             f"COMPLETE (report 2.2.6)")
-                else:
-                    self._respond(rt, seq, Response.REFUSED, f"{name}: system is {status_text(st)}")
-            elif req == Request.ROUTE:
-                self._route_request(rt, seq, int(wm.get("ui.request_arg")))
-            elif req == Request.ERROR_RESET:
-                if st == Status.ERROR:
-                    self._active, self._active_seq = req, seq
-                    self._command(rt, Command.ERROR_RESET)
-                    self._respond(rt, seq, Response.IN_PROGRESS, name)
-                else:
-                    self._respond(rt, seq, Response.REFUSED, f"{name}: system is {status_text(st)}, not ERROR")
-            else:
-                self._respond(rt, seq, Response.REFUSED, f"unknown request {req}")
-        if self._route is not None:
-            self._follow_route(rt)
-        # follow the active request synchronously with the real-time system
-        a = self._active
-        if a == Request.NONE:
-            return
-        name = Request.NAMES[a]
-        if st == Status.ERROR and a != Request.ERROR_RESET:
-            self._respond(rt, self._active_seq, Response.FAILED, f"{name}: System Up/Down in ERROR")
-            self._active = Request.NONE
-        elif a == Request.POWER_UP:
-            if st == Status.INITIALIZATION_COMPLETE:
-                self._command(rt, Command.START_UP)
-            elif st == Status.START_UP_COMPLETE:
-                self._respond(rt, self._active_seq, Response.COMPLETE, f"{name}: START UP COMPLETE")
-                self._active = Request.NONE
-        elif a in (Request.POWER_DOWN, Request.ERROR_RESET) and st == Status.SHUT_DOWN:
-            self._respond(rt, self._active_seq, Response.COMPLETE, f"{name}: SHUT DOWN")
-            self._active = Request.NONE
-
 
 #: Joint Planner: a Cartesian command that stays blocked at a soft limit (pose error above
 #: these) for STUCK_S with the command unchanged triggers the joint-space recovery (assumed)
 STUCK_S = 0.5
 STUCK_POS_M = 1e-4
 STUCK_ROT_RAD = 1e-3
+#: a joint move (``msp.jmove_*``) accelerates to its speed in this time (assumed, this project:
+#: as the trajectory caps reach full coarse speed in 1 s, controller.trajectory)
+JMOVE_ACCEL_S = 1.0
+#: ``joint.jmove_done_code`` (the values of ``traj.done_code``)
+JMOVE_REACHED, JMOVE_STOPPED, JMOVE_REFUSED = 0, 1, 2
 
 
 class JointPlannerLayer(Layer):
@@ -449,6 +675,15 @@ class JointPlannerLayer(Layer):
       command's pose changes (the Cartesian Engine holding a pose does not undo a goal),
       then continues in Cartesian mode from the goal (``joint.mode`` says which).
 
+    * **joint move** (the Multi-Segment Path Planner's ``msp.jmove_*``, a checked move-to
+      request): the joint command moves on the straight line in joint space from where it
+      is to ``msp.jmove_goal_rad``, one normalised parameter on a rest-to-rest trapezoid
+      (every joint within ``msp.jmove_speed`` times its rate limit, reaching it in
+      JMOVE_ACCEL_S); ``msp.jmove_stop`` decelerates it to rest. It takes precedence over
+      the Cartesian command while it runs and answers ``joint.jmove_done_seq`` /
+      ``joint.jmove_done_code``; the Cartesian Engine then holds the pose it reached
+      (no jump back when Cartesian mode resumes).
+
     Every run from INITIALIZATION COMPLETE on it also posts the measured tool pose
     ``joint.tool_pos_m`` / ``joint.tool_quat`` = fk(``daq.joint_angle_rad``). Its start-up
     task commands the current joint angles so that nothing moves when the loop closes.
@@ -463,7 +698,11 @@ class JointPlannerLayer(Layer):
     short = "JNTP"
     #: the Cartesian Engine's command (writer "cartesian"); without them only joint goals work
     CART_VARS = ("cart.pos_cmd_m", "cart.quat_cmd", "cart.cmd_valid", "cart.cmd_seq")
+    #: the Multi-Segment Path Planner's joint moves (writer "msp"); without them none
+    JMOVE_VARS = ("msp.jmove_seq", "msp.jmove_goal_rad", "msp.jmove_speed", "msp.jmove_stop")
     MODE_JOINT, MODE_CARTESIAN = 0, 1
+    #: ``joint.mode`` by name
+    MODE_NAMES = {MODE_JOINT: "JOINT GOAL", MODE_CARTESIAN: "CARTESIAN"}
 
     def __init__(self, shoulder_roll_rad: float = 0.0) -> None:
         super().__init__()
@@ -483,6 +722,10 @@ class JointPlannerLayer(Layer):
         self._stuck_runs = 0  # runs blocked at a soft limit with a static command
         self._recover: np.ndarray | None = None  # joint-space goal that leaves a soft limit
         self.last_step = None  #: the last kinematics.StepResult (tests, trace)
+        self._have_jmove: bool | None = None
+        self._inputs: tuple[str, ...] | None = None  # the names plan_task reads (built at its first run)
+        self._jm_seen = 0  # the last msp.jmove_seq taken
+        self._jm: "_JointMove | None" = None  # the joint move running
 
     def specs(self) -> list[VarSpec]:
         z = [0.0] * N_JOINTS
@@ -506,13 +749,20 @@ class JointPlannerLayer(Layer):
             VarSpec("joint.limited", "task_status", "b1", (), w, False,
                     doc="a joint is held at a soft limit (Cartesian mode) or a goal was clipped"),
             VarSpec("joint.mode", "task_status", "i2", (), w, 0,
-                    doc="0 joint goal, 1 Cartesian (cart.cmd_valid)"),
+                    doc="what the Joint Planner follows: the joint goal, or the Cartesian command "
+                        "(cart.cmd_valid)", enum=self.MODE_NAMES),
             VarSpec("joint.cart_err_m", "task_status", "f8", (), w, 0.0, "m",
                     doc="Cartesian mode: tool-point distance from the commanded pose to fk(servo.q_cmd_rad)"),
             VarSpec("joint.cart_err_rad", "task_status", "f8", (), w, 0.0, "rad",
                     doc="Cartesian mode: orientation angle from the commanded pose to fk(servo.q_cmd_rad)"),
             VarSpec("joint.shoulder_roll_rad", "status_output", "f8", (), w, self.shoulder_roll_rad, "rad",
                     doc="the shoulder-roll index the kinematics use (configuration, pfma-model 8.1)"),
+            VarSpec("joint.jmove_active", "task_io", "b1", (), w, False,
+                    doc="a joint move (msp.jmove_*) commands the joints"),
+            VarSpec("joint.jmove_done_seq", "task_io", "i4", (), w, 0,
+                    doc="the last joint move finished (msp.jmove_seq)"),
+            VarSpec("joint.jmove_done_code", "task_io", "i2", (), w, 0,
+                    doc="how joint.jmove_done_seq ended: 0 REACHED 1 STOPPED 2 REFUSED"),
         ]
 
     def _cart_available(self, rt: "LayerContext") -> bool:
@@ -520,6 +770,12 @@ class JointPlannerLayer(Layer):
             names = set(rt.wm.names())
             self._have_cart = all(n in names for n in self.CART_VARS)
         return self._have_cart
+
+    def _jmove_available(self, rt: "LayerContext") -> bool:
+        if self._have_jmove is None:
+            names = set(rt.wm.names())
+            self._have_jmove = all(n in names for n in self.JMOVE_VARS)
+        return self._have_jmove
 
     def seq_init(self, rt: "LayerContext") -> TaskState:
         self._cart_available(rt)
@@ -534,12 +790,18 @@ class JointPlannerLayer(Layer):
         self._bad_cmd = False
         self._cart_at_goal = None
         self._last_pose, self._stuck_runs, self._recover = None, 0, None
+        self._jm = None
+        if self._jmove_available(rt):  # a joint move sent before this start-up is not run
+            self._jm_seen = int(rt.wm.get_task_inputs(("msp.jmove_seq",))["msp.jmove_seq"])
         rt.wm.post_task_outputs("joint", {"servo.q_cmd_rad": self.q_cmd, "servo.q_cmd_valid": True,
-                                          "joint.mode": self.mode})
+                                          "joint.mode": self.mode, "joint.jmove_active": False})
         return TaskState.DONE
 
     def seq_shutdown(self, rt: "LayerContext") -> TaskState:
-        rt.wm.post_task_outputs("joint", {"servo.q_cmd_valid": False})
+        out: dict = {"servo.q_cmd_valid": False}
+        if self._jm is not None:
+            self._jmove_end(rt, JMOVE_STOPPED, "shut down", out)
+        rt.wm.post_task_outputs("joint", out)
         return TaskState.DONE
 
     def plan_task(self, rt: "LayerContext") -> None:
@@ -548,18 +810,29 @@ class JointPlannerLayer(Layer):
         status = rt.wm.get_state_variable(self.v_status)
         if status not in (Status.INITIALIZATION_COMPLETE, Status.START_UP, Status.START_UP_COMPLETE):
             return
-        names = ("daq.joint_angle_rad", "joint.goal_rad", "joint.goal_seq")
         cart = self._cart_available(rt)
-        v = rt.wm.get_task_inputs(names + self.CART_VARS if cart else names)
+        jm = self._jmove_available(rt)
+        names = self._inputs
+        if names is None:  # built once: what this model has of the planner's inputs
+            names = self._inputs = (("daq.joint_angle_rad", "joint.goal_rad", "joint.goal_seq")
+                                    + (self.CART_VARS if cart else ()) + (self.JMOVE_VARS if jm else ()))
+        v = rt.wm.get_task_inputs(names)
         p, quat = kin.fk(v["daq.joint_angle_rad"], self.shoulder_roll_rad)
         out: dict = {"joint.tool_pos_m": p, "joint.tool_quat": quat}
         if status == Status.START_UP_COMPLETE:
             valid = cart and bool(v["cart.cmd_valid"])
             if int(v["joint.goal_seq"]) != self._seen_goal:
+                if self._jm is not None:
+                    self._jmove_end(rt, JMOVE_STOPPED, "a user joint goal took over", out)
                 self._set_mode(rt, self.MODE_JOINT, out)
                 self._joint_goal(rt, v, out)
                 self._cart_at_goal = (np.array(v["cart.pos_cmd_m"], dtype=float),
                                       np.array(v["cart.quat_cmd"], dtype=float)) if valid else None
+            elif jm and (self._jm is not None or int(v["msp.jmove_seq"]) != self._jm_seen):
+                self._joint_move(rt, v, out)
+                if valid and self._jm is None:  # ended: joint mode until the Cartesian command changes
+                    self._cart_at_goal = (np.array(v["cart.pos_cmd_m"], dtype=float),
+                                          np.array(v["cart.quat_cmd"], dtype=float))
             elif valid and (self.mode == self.MODE_CARTESIAN or self._cart_moved(v)):
                 self._cart_at_goal = None
                 self._cartesian(rt, kin, v, out)
@@ -649,6 +922,60 @@ class JointPlannerLayer(Layer):
             except kin.KinematicsError as err:
                 rt.post(self.key, Level.WARNING, f"blocked at a soft limit, holding: {err}")
 
+    # --- joint moves (msp.jmove_*) -------------------------------------------------------
+    def _joint_move(self, rt: "LayerContext", v: dict, out: dict) -> None:
+        seq = int(v["msp.jmove_seq"])
+        if seq != self._jm_seen:
+            self._jm_seen = seq
+            if self._jm is not None:
+                self._jmove_end(rt, JMOVE_STOPPED, f"joint move {seq} took over", out)
+            self._set_mode(rt, self.MODE_JOINT, out)
+            self._jmove_start(rt, seq, v, out)
+            if self._jm is None:
+                return
+        jm = self._jm
+        assert jm is not None
+        if bool(v["msp.jmove_stop"]) and jm.stop_t is None:
+            jm.request_stop(rt.now)
+            rt.post(self.key, Level.INFO, f"joint move {jm.seq}: stop requested")
+        s, finished = jm.sample(rt.now)
+        self.q_cmd = jm.q0 + s * jm.d
+        out["servo.q_cmd_rad"] = self.q_cmd
+        if finished:
+            self._jmove_end(rt, JMOVE_STOPPED if jm.stop_t is not None and s < 1.0 - 1e-12 else JMOVE_REACHED,
+                            "", out)
+
+    def _jmove_start(self, rt: "LayerContext", seq: int, v: dict, out: dict) -> None:
+        from controller.kinematics import RATE_LIMIT_RAD_S
+        from controller.trajectory import plan_trapezoid
+        goal = np.asarray(v["msp.jmove_goal_rad"], dtype=float)
+        speed = float(v["msp.jmove_speed"])
+        if not (np.all(np.isfinite(goal)) and math.isfinite(speed) and 0.0 < speed <= 1.0):
+            rt.post(self.key, Level.ERROR, f"joint move {seq} refused: goal {goal.tolist()} / speed {speed!r} "
+                                           f"(needs finite angles and a speed 0..1)")
+            out.update({"joint.jmove_done_seq": seq, "joint.jmove_done_code": JMOVE_REFUSED})
+            return
+        goal = np.clip(goal, self.lo, self.hi)
+        d = goal - self.q_cmd
+        big = np.abs(d) > 1e-12
+        if big.any():
+            vn = float(np.min(RATE_LIMIT_RAD_S[big] * speed / np.abs(d[big])))
+            prof = plan_trapezoid(1.0, vn, vn / JMOVE_ACCEL_S)
+        else:
+            prof = plan_trapezoid(0.0, 1.0, 1.0)
+        self._jm = _JointMove(seq, self.q_cmd.copy(), d, rt.now, prof)
+        out["joint.jmove_active"] = True
+        rt.post(self.key, Level.INFO, f"joint move {seq}: to " + " ".join(f"{x:+.4f}" for x in goal)
+                + f" rad in {prof.duration_s:.2f} s")
+
+    def _jmove_end(self, rt: "LayerContext", code: int, why: str, out: dict) -> None:
+        jm = self._jm
+        assert jm is not None
+        self._jm = None
+        out.update({"joint.jmove_active": False, "joint.jmove_done_seq": jm.seq, "joint.jmove_done_code": code})
+        if code != JMOVE_REACHED:
+            rt.post(self.key, Level.INFO, f"joint move {jm.seq} stopped" + (f": {why}" if why else ""))
+
     def _joint_goal(self, rt: "LayerContext", v: dict, out: dict) -> None:
         seq = int(v["joint.goal_seq"])
         if seq == self._seen_goal:
@@ -663,6 +990,30 @@ class JointPlannerLayer(Layer):
         self.q_cmd = q
         out["servo.q_cmd_rad"] = q
         rt.post(self.key, Level.INFO, f"goal {seq}: " + " ".join(f"{x:+.4f}" for x in q) + " rad")
+
+
+class _JointMove:
+    """A joint move in time: ``q0 + s(t) d`` with ``s`` on a trapezoid, and its controlled stop."""
+
+    def __init__(self, seq: int, q0: np.ndarray, d: np.ndarray, t0: float, profile) -> None:
+        self.seq, self.q0, self.d, self.t0, self.profile = seq, q0, d, t0, profile
+        self.stop_t: float | None = None
+        self._stop_s = self._stop_v = 0.0
+
+    def request_stop(self, t: float) -> None:
+        s, v, _ = self.profile.sample(t - self.t0)
+        self.stop_t, self._stop_s, self._stop_v = t, s, v
+
+    def sample(self, t: float) -> tuple[float, bool]:
+        """(s, finished) at time ``t``."""
+        if self.stop_t is None:
+            s, _, _ = self.profile.sample(t - self.t0)
+            return s, t - self.t0 >= self.profile.duration_s
+        a = self.profile.a
+        dur = self._stop_v / a if a > 0 else 0.0
+        tau = min(t - self.stop_t, dur)
+        s = min(1.0, self._stop_s + self._stop_v * tau - 0.5 * a * tau * tau)
+        return s, t - self.stop_t >= dur
 
 
 def bottom_table() -> CompiledTable:

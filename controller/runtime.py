@@ -83,7 +83,7 @@ from controller.cartesian import CartesianLayer
 from controller.daq_layer import DataAcquisitionLayer
 from controller.decision import SHORT, SHORT_CMD, Command, Status, TaskState
 from controller.frames import MINOR_FRAMES_PER_MAJOR, FrameConfig, ScheduleError
-from controller.layers import JointPlannerLayer, Layer, Request, Response, UpDownLayer
+from controller.layers import ERR_TASK_RAISED, JointPlannerLayer, Layer, Request, Response, UpDownLayer, find_answer
 from controller.messages import Level, Message, MessageBoard
 from controller.paths import MultiSegmentLayer
 from controller.trajectory import TrajectoryLayer
@@ -323,6 +323,8 @@ class ControllerRuntime:
         self.updown: UpDownLayer = self.by_key["updown"]  # type: ignore[assignment]
         specs = [s for l in self.layers for s in l.specs()] + runtime_specs()
         self.wm = WorldModel.create(specs, name=wm_name, clock=clock, access_key=access_key, owner="controller")
+        if "updown" in self.local_keys:
+            self.wm.keep_user_writes("ui.request")  # each write is a request (UpDownLayer)
         self._key = self.wm.access_key
         self.messages = MessageBoard()
         self.trace: deque[FrameTrace] = deque(maxlen=trace_frames)
@@ -338,7 +340,6 @@ class ControllerRuntime:
         self.error_episodes = 0  #: ERROR episodes begun since the start
         self._err_cand: dict[str, Message] = {}  # per source: the first recent ERROR message
         self.on_frame: list[Callable[[FrameTrace], None]] = []
-        self._request_seq = 0
         self._goal_seq = 0
         self._gripper_seq = 0
         # halt, single step, resume (docs/console.md)
@@ -522,7 +523,7 @@ class ControllerRuntime:
         if self.remote_layers:
             self._observe_remote()
         if "updown" in self.local_keys:
-            self.updown.debug_requests(self)
+            self.updown.receive_requests(self)
         if self.servo.fault and self.servo.error_code in SERVO_EVENT_FAULTS:
             self._reset_servo_event()
         for l in self.run_layers:
@@ -542,7 +543,7 @@ class ControllerRuntime:
                 fn(self)
             except Exception as err:  # noqa: BLE001 - a task error is its layer's fault
                 layer = next(l for l in self.layers if name in l.periodic)
-                layer.set_fault(self, 90, f"task {name} raised {type(err).__name__}: {err}")
+                layer.set_fault(self, ERR_TASK_RAISED, f"task {name} raised {type(err).__name__}: {err}")
         # output last, after a second communications segment: the rates leave in the frame
         # whose inputs they were computed from (the service sees them 1-2 frames old, not 2-3)
         self.wm.communications_segment()
@@ -768,7 +769,7 @@ class ControllerRuntime:
         self.prev_frame = max(self.prev_frame, f)
         self._prev_t_s = float(snap.t_s)
         self.wm.communications_segment()
-        self.updown.debug_requests(self)
+        self.updown.receive_requests(self)
         self.servo.gripper.halted(self)  # a gripper request is refused while halted
         if self._resume_seq and self._resume_tick(snap, f):
             return self.step()  # resumed: this tick is the first frame again (controller time goes on)
@@ -883,17 +884,15 @@ class ControllerRuntime:
 
     # --- user requests (asynchronous, request/response) -------------------------------------
     def request(self, kind: int, arg: int = 0) -> int:
-        """Post a user request to System Up/Down (``Request.POWER_UP`` ...; ``arg``:
-        ``ui.request_arg``, SINGLE STEP's frames or RESUME's re-arm); returns its number.
-        The answer appears in ``ui.response`` / ``ui.response_seq`` / ``ui.response_text``."""
-        self._request_seq = max(self._request_seq, int(self.wm.get("ui.request_seq"))) + 1
-        self.wm.set_user("ui.request_arg", int(arg), self._key)
-        self.wm.set_user("ui.request", int(kind), self._key)
-        self.wm.set_user("ui.request_seq", self._request_seq, self._key)
-        return self._request_seq
+        """Post a user request to System Up/Down (``Request.POWER_UP`` ...; ``arg``: SINGLE
+        STEP's frames, RESUME's re-arm, CAMERA ROUTE's monitor * 16 + camera): one keyed
+        write of ``ui.request``; returns its number (the write's request id). Its answers
+        appear in the answer log (:meth:`answer`) and, while it is the newest request
+        answered, in ``ui.response`` / ``ui.response_seq`` / ``ui.response_text``."""
+        return int(self.wm.set_user("ui.request", [int(kind), int(arg)], self._key))
 
     def response(self) -> tuple[int, int]:
-        """(request number answered, Response code)."""
+        """(request number answered, Response code) of ``ui.response``."""
         v = self.wm.get_task_inputs(("ui.response_seq", "ui.response"))
         return int(v["ui.response_seq"]), int(v["ui.response"])
 
@@ -906,6 +905,10 @@ class ControllerRuntime:
         self.wm.set_user("gripper.request", int(kind), self._key)
         self.wm.set_user("gripper.request_seq", self._gripper_seq, self._key)
         return self._gripper_seq
+
+    def answer(self, seq: int) -> tuple[int, str] | None:
+        """The newest answer to request ``seq`` (Response code, text); None before one."""
+        return find_answer(self.wm, seq)
 
     def set_joint_goal(self, q_rad: Sequence[float]) -> int:
         """Command joint positions (command-area order) through the Joint Planner."""

@@ -38,14 +38,14 @@ import numpy as np
 
 from controller.decision import Status, TaskState
 from controller.gripper import GRIPPER_LIMIT_INDEX, GripperDrive, gripper_specs
-from controller.layers import Layer
+from controller.layers import ERROR_NAMES, Layer
 from controller.messages import Level
 from controller.params import (
     DEFAULT_KP_PER_S, GRIPPER_I_MAX_A, JOINTS, N_CURRENT_LIMITS, N_JOINTS, RATE_LOOP_LAMBDA, SAFE_STOP_RATE_RAD_S,
     SAFE_STOP_TIMEOUT_S, TACH_TAU_S, JointFacts, run_current_limits_a,
 )
 from controller.supervision import (
-    CHECKS, FERROR_MAX_RAD, FERROR_MIN_RAD, FERROR_TIME_S, JointSupervisor, Trip,
+    CAUSES, CHECKS, FERROR_MAX_RAD, FERROR_MIN_RAD, FERROR_TIME_S, JointSupervisor, Trip,
 )
 from controller.worldmodel import VarSpec
 
@@ -66,6 +66,13 @@ ERR_LIMIT, ERR_PARAMS, ERR_MISSED, ERR_NO_OUTPUT = 10, 11, 12, 13
 #: error report codes of the joint supervision (controller.supervision), one per check:
 #: 14 resolver jump, 15 overspeed, 16 tach against resolver, 17 stall, 18 following error
 SUPERVISION_CODES = {check: 14 + n for n, check in enumerate(CHECKS)}
+#: ``servo.error`` by name: the codes above and every layer's (controller.layers.ERROR_NAMES)
+SERVO_ERROR_NAMES = {**ERROR_NAMES, ERR_LIMIT: "soft limit", ERR_PARAMS: "bad parameters",
+                     ERR_MISSED: "controller missed frames", ERR_NO_OUTPUT: "no servo output",
+                     **{code: check for check, code in SUPERVISION_CODES.items()}}
+#: ``servo.brake_phase`` by name (the brake release and stop sequence)
+BRAKE_PHASE_NAMES = {0: "BRAKES SET", 1: "RATE ZEROED", 2: "LIMITS RAISED", 3: "RELEASED",
+                     4: "STOPPING", 5: "LIMITS ZERO"}
 #: brake phases in which the current limits may be raised: the joints are supervised
 _LIVE_PHASES = (2, 3, 4)
 
@@ -188,6 +195,7 @@ class ServoLayer(Layer):
     key = "servo"
     title = "Servo Control"
     short = "SERV"
+    error_names = SERVO_ERROR_NAMES
 
     def __init__(self) -> None:
         super().__init__()
@@ -247,9 +255,11 @@ class ServoLayer(Layer):
                     doc="following error of the last servo run: where the commanded rates should have "
                         "taken each joint minus where it is (controller/supervision.py)"),
             VarSpec("servo.trip_joint", "task_status", "i2", (), "servo", -1,
-                    doc="joint index (command-area order) of the last supervision trip, -1 none"),
+                    doc="joint (command-area order) of the last supervision trip, -1 none",
+                    enum={-1: "none", **{n: j.name for n, j in enumerate(JOINTS)}}),
             VarSpec("servo.trip_cause", "task_status", "i2", (), "servo", -1,
-                    doc="likely cause of the last supervision trip (controller.supervision.CAUSES), -1 none"),
+                    doc="likely cause of the last supervision trip (controller.supervision.CAUSES), -1 none",
+                    enum={-1: "none", **dict(enumerate(CAUSES))}),
             VarSpec("servo.rate_cmd_rad_s", "task_io", "f8", (N_JOINTS,), "servo", z6, "rad/s",
                     doc="joint rate commands to Data Acquisition (command-area joint order)"),
             VarSpec("servo.rate_cmd_frame", "task_io", "i8", (), "servo", -1,
@@ -260,8 +270,8 @@ class ServoLayer(Layer):
             VarSpec("servo.error_rad", "task_status", "f8", (N_JOINTS,), "servo", z6, "rad",
                     doc="position error q_cmd - q of the last servo run"),
             VarSpec("servo.brake_phase", "task_status", "i2", (), "servo", 0,
-                    doc="0 brakes set, 1 rate zeroed, 2 limits raised, 3 released (loop closed), "
-                        "4 stopping, 5 limits zero"),
+                    doc="the brake sequence: set, rate zeroed, limits raised, released (loop closed), "
+                        "stopping, limits zero", enum=BRAKE_PHASE_NAMES),
         ] + gripper_specs()
 
     # --- sequence tasks ------------------------------------------------------------------
@@ -310,7 +320,9 @@ class ServoLayer(Layer):
 
     def seq_startup(self, rt: "LayerContext") -> TaskState:
         """Brake release (pfma-model 8.4): rate 0 V, then raise the current limits, wait
-        until the brakes report released; then hold the present angles and close the loop."""
+        until the brakes report released; then hold the present angles and close the loop.
+        While the runtime is halted the outputs are held safe (brakes set): the wait goes on,
+        its time-out counting from the first frame after the resume's re-arm."""
         if self.task_frames == 0:
             rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS), "servo.rate_cmd_frame": -1})
             self._brake_phase(rt, 1)
@@ -327,6 +339,9 @@ class ServoLayer(Layer):
                                           f"current limits were raised; holding the present angles")
             self._brake_phase(rt, 3)
             return TaskState.DONE
+        if rt.halted:
+            self._t_phase = rt.now
+            return TaskState.RUNNING
         if rt.now - self._t_phase > BRAKE_RELEASE_TIMEOUT_S:
             rt.post(self.key, Level.ERROR, f"brakes not released {BRAKE_RELEASE_TIMEOUT_S} s after the "
                                            f"current limits were raised")

@@ -34,6 +34,9 @@ SOURCE = "pfma-model.md 8.2, 8.5, 8.6 (assumed)"
 HC_SOURCES: tuple[str, ...] = ("cae", "crl", "hid")
 HC_CAE, HC_CRL, HC_HID = 0, 1, 2
 FRAME_WORLD, FRAME_TOOL = 0, 1
+#: ``cart.hc_source`` and ``cart.hc_frame`` / ``force.frame`` by name
+HC_SOURCE_NAMES = {n: s.upper() for n, s in enumerate(HC_SOURCES)}
+FRAME_NAMES = {FRAME_WORLD: "WORLD", FRAME_TOOL: "TOOL"}
 #: 8.2 Cartesian teleoperation limits (translation m/s, rotation rad/s)
 COARSE_LIN_M_S, COARSE_ROT_RAD_S = 0.15, 0.25
 VERNIER_LIN_M_S, VERNIER_ROT_RAD_S = 0.03, 0.05

@@ -318,7 +318,7 @@ class TrajectoryLayer(Layer):
             VarSpec("traj.done_seq", "task_io", "i4", (), "trajectory", 0,
                     doc="the last segment finished (the request for the next one)"),
             VarSpec("traj.done_code", "task_io", "i2", (), "trajectory", 0,
-                    doc="how traj.done_seq ended: 0 REACHED 1 STOPPED 2 REFUSED"),
+                    doc="how traj.done_seq ended", enum=DoneCode.NAMES),
             VarSpec("traj.v_lin_max_m_s", "control_flags", "f8", (), "user", cap.v_lin_m_s, "m/s", protected=True,
                     doc="trajectory translation speed cap (pfma-model 8.2 coarse teleop limit)"),
             VarSpec("traj.a_lin_max_m_s2", "control_flags", "f8", (), "user", cap.a_lin_m_s2, "m/s^2",

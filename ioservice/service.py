@@ -44,7 +44,10 @@ from bit3.layout import (  # noqa: F401 - the status bits are re-exported for ol
     Severity,
 )
 from bit3.layout import FIRST_TRIP_TEXT_BYTES, MODE_HALTED  # HALTED (issue 18): the halted controller's command-area mode
-from bit3.layout import FAULT_AMP_ENABLE, FAULT_DAC_UNREACHABLE  # noqa: F401 - issue 28 item 5, re-exported
+from bit3.layout import (  # noqa: F401 - inputs.fault_code values, re-exported for older importers
+    FAULT_AMP_ENABLE, FAULT_COMMAND, FAULT_DAC, FAULT_DAC_UNREACHABLE, FAULT_FOREIGN, FAULT_INPUTS, FAULT_NONE,
+    FAULT_OVERSPEED, FAULT_UNEXPECTED, FAULT_WATCHDOG,
+)
 from ioservice import direction
 from ioservice.chargepump import ChargePump
 from ioservice.envelope import CODE_OVERSPEED, ServiceEnvelope
@@ -65,15 +68,8 @@ from pfma.errors import BusError, ConfigError, PfmaError
 from pfma.rack import BoardConfig, RackConfig
 from drivers.rackio import RackIO
 
-#: fault codes (inputs.fault_code)
-FAULT_NONE, FAULT_WATCHDOG, FAULT_DAC, FAULT_INPUTS, FAULT_UNEXPECTED = 0, 1, 2, 3, 4
-#: inputs.fault_code when the outputs went safe because a command was refused (the service
-#: is then SAFE, not FAULT): a field beyond its limit / NaN, or a writer without the claim
-FAULT_COMMAND, FAULT_FOREIGN = 5, 6
-# FAULT_DAC_UNREACHABLE (7: the DAC does not answer, outputs NOT known safe) and
-# FAULT_AMP_ENABLE (8: the charge pump could not be written) are bit3.layout's: tools read them
-#: inputs.fault_code when the service's envelope found a joint over speed (issue 28 item 4)
-FAULT_OVERSPEED = 9
+# the fault codes (inputs.fault_code: FAULT_NONE ... FAULT_OVERSPEED) and their names are
+# bit3.layout's (imported above): the service writes them, the controller and tools read them
 #: a command's age is counted in frames the service ran over the last this-many-plus-one
 #: frames (a ring of the dropped-frame count; an older command is stale whatever the count)
 _AGE_RING_MASK = 63

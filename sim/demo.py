@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import signal
 import sys
 import time
 
@@ -145,6 +146,11 @@ def run(buffer: str = "pfma", duration_s: float = 30.0, wait_s: float = 10.0) ->
     except KeyboardInterrupt:
         pass
     finally:
+        # a second Ctrl-C (or the group's SIGINT twice: make run, timeout) must not cut the disarm short
+        try:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        except ValueError:  # run() called outside the main thread: its caller owns the signals
+            pass
         c.write_commands(joint_rate_rad_s=[0.0] * len(joints), current_limit_a=[0.0] * 7, arm_request=0,
                          inputs_frame=frame)
         c.close()

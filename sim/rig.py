@@ -21,6 +21,7 @@ from bit3.client import Client
 from bit3.layout import build_layout
 from ioservice.service import IoService
 from bit3.buffer import Bit3Buffer
+from bit3.ring import FrameRing
 from ioservice.ticking import TickingClock
 from pfma.clock import SimClock
 from pfma.rack import RackConfig
@@ -33,11 +34,14 @@ class SimRig:
     :param name: Bit3 shared-memory name (default: a private random one)
     :param prefix: prefix of the random name
     :param service_kw: extra ``IoService`` arguments (``calibration=``, ``schedule=`` ...)
+    :param ring: also keep the frame history ring ``/dev/shm/NAME.ring`` (bit3/ring.py), as
+        ``pfma serve`` does, for a recorder reading the rig from another process
     :param world_kw: extra ``FakeWorld`` arguments (``errors=``, ``environment=`` ...)
     """
 
     def __init__(self, rack: RackConfig | None = None, *, name: str | None = None,
-                 prefix: str = "pfma-sim-", service_kw: dict | None = None, **world_kw: Any) -> None:
+                 prefix: str = "pfma-sim-", service_kw: dict | None = None, ring: bool = False,
+                 **world_kw: Any) -> None:
         self.name = name or prefix + uuid.uuid4().hex[:8]
         self.clock = SimClock()
         self.world = FakeWorld(rack, clock=self.clock, **world_kw)
@@ -49,8 +53,12 @@ class SimRig:
         self.svc = None
         self.reader = None
         self.ctl: Client | None = None
+        self.ring: FrameRing | None = None
         try:
             self.svc = IoService(self.rack, self.world.bus, self.buf, self.tclock, **(service_kw or {}))
+            if ring:
+                self.ring = self.svc.ring = FrameRing.create(self.name, self.layout.area("inputs").body_size,
+                                                             self.layout.hash)
             self.tclock.hooks.append(self.svc.serial_tick)
             self.reader = Client.attach(self.name, layout=self.layout, clock_now=self.clock.now)
         except BaseException:
@@ -96,6 +104,10 @@ class SimRig:
             self.svc = None
         self.buf.close()
         Bit3Buffer.unlink(self.name)
+        if self.ring is not None:
+            self.ring.close()
+            self.ring = None
+            FrameRing.unlink(self.name)
 
     def __enter__(self) -> "SimRig":
         return self

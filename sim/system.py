@@ -85,16 +85,19 @@ class FrameStepping:
         raise NotImplementedError
 
     def request(self, kind: int, arg: int = 0, max_frames: int = 400) -> tuple[int, str]:
-        """Post a user request (``Request.*``) and run frames until System Up/Down answers
-        it with anything but IN PROGRESS (or ``max_frames``); returns (Response code, text)."""
+        """Post a user request (``Request.*``) and run frames until System Up/Down gives it a
+        final answer (``Response.FINAL``: not QUEUED or IN PROGRESS) or ``max_frames`` have
+        run; returns (Response code, text) of its newest answer."""
         from controller.layers import Response
         seq = self.updown_rt.request(kind, arg)
         code, text = Response.NONE, ""
         for _ in range(max_frames):
             self.step(1)
-            got, code, text = self.response()
-            if got == seq and code != Response.IN_PROGRESS:
-                break
+            a = self.updown_rt.answer(seq)
+            if a is not None:
+                code, text = a
+                if code in Response.FINAL:
+                    break
         return code, text
 
     def response(self) -> tuple[int, int, str]:
@@ -112,16 +115,17 @@ class SystemSimulator(FrameStepping):
     :param name: Bit3 shared-memory name (default: a private random one)
     :param wm_name: world-model shared-memory name (None: private memory)
     :param require_ft: a stale F/T link is a Data Acquisition fault
+    :param ring: also keep the buffer's frame history ring (:class:`sim.rig.SimRig`)
     :param world_kw: extra keyword arguments for :class:`fakes.world.FakeWorld`
     """
 
     def __init__(self, *, frames: FrameConfig | None = None, profile: str | None = None,
                  name: str | None = None, wm_name: str | None = None, require_ft: bool = True,
-                 trace_frames: int = 4096, **world_kw) -> None:
+                 trace_frames: int = 4096, ring: bool = False, **world_kw) -> None:
         if frames is None:
             frames = FrameConfig.profile(profile) if profile else FrameConfig()
         self.frames = frames
-        self.rig = SimRig(name=name, prefix="pfma-sim-",
+        self.rig = SimRig(name=name, prefix="pfma-sim-", ring=ring,
                           service_kw={"schedule": Schedule(frame_rate_hz=frames.frame_rate_hz)}, **world_kw)
         self.name, self.clock, self.world, self.svc = self.rig.name, self.rig.clock, self.rig.world, self.rig.svc
         self.rt = None

@@ -109,7 +109,8 @@ REQUEST_FIELDS = ("matrix_route",)
 #: request (``controller.layers.Request``), 9001 its argument; read back: 9000-9001 the last
 #: request written and its argument, 9002 the number it was posted under (low 16 bits),
 #: 9003 the controller's answer to the newest request (``Response``: 0 none, 1 IN PROGRESS,
-#: 2 COMPLETE, 3 REFUSED, 4 FAILED), 9004 the number that answer is for (low 16 bits)
+#: 2 COMPLETE, 3 REFUSED, 4 FAILED, 5 QUEUED, 6 CANCELLED), 9004 the number that answer is
+#: for (low 16 bits)
 REQUESTS_BASE = 9000
 REQUEST_REGISTERS = 5
 #: the requests a Modbus master may post to the controller: HALT (outputs 0 V, brakes set)
@@ -378,7 +379,7 @@ def modbus_map_markdown(layout: Layout | None = None) -> str:
         f"| {REQUESTS_BASE + 1} | argument | kept for the next request | its argument |",
         f"| {REQUESTS_BASE + 2} | number | | the number it was posted under (low 16 bits) |",
         f"| {REQUESTS_BASE + 3} | answer | | the controller's answer to its newest request: 0 none "
-        "yet, 1 IN PROGRESS, 2 COMPLETE, 3 REFUSED, 4 FAILED |",
+        "yet, 1 IN PROGRESS, 2 COMPLETE, 3 REFUSED, 4 FAILED, 5 QUEUED, 6 CANCELLED |",
         f"| {REQUESTS_BASE + 4} | answered | | the number that answer is for (low 16 bits) |",
         "",
         "Requests taken: " + ", ".join(f"**{k} {n}**" for k, n in MODBUS_REQUESTS.items()) + " "

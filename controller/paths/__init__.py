@@ -29,16 +29,33 @@ Three parts:
   (:mod:`controller.trajectory`), the next one each time ``traj.done_seq`` reports the
   last one done. Mode 0 during a playback stops it (the Trajectory Planner decelerates).
 
+Moves (issue 30 item 5): a move-to request (``msp.move_request``,
+:mod:`controller.paths.move`: a pose or a joint goal) runs through the same layer; every
+playback and move is checked before it starts (:mod:`controller.paths.check`: tool
+rotation, soft limits, singular sets along the sampled motion) and its tracking error is
+measured while it runs (OK only within ``msp.track_tol_*``). A point without an
+orientation keeps the tool's.
+
 The package, one module per part (``from controller.paths import X`` gives all of it):
 :mod:`controller.paths.model` (path buffers, checks, pure edits),
-:mod:`controller.paths.store` (the path files), :mod:`controller.paths.planner` (planning)
-and :mod:`controller.paths.layer` (the layer).
+:mod:`controller.paths.store` (the path files), :mod:`controller.paths.planner` (planning),
+:mod:`controller.paths.check` (the check before a motion starts),
+:mod:`controller.paths.move` (move-to requests) and :mod:`controller.paths.layer` (the layer).
 """
 
+from controller.paths.check import (
+    MAX_TURN_RAD as MAX_TURN_RAD,
+    MotionCheck,
+    Refusal,
+    Target,
+)
 from controller.paths.layer import (
     CAPTURE_ANGLE_RAD as CAPTURE_ANGLE_RAD,
     CAPTURE_DIST_M as CAPTURE_DIST_M,
     CMD_POSE as CMD_POSE,
+    JMOVE_SPEED as JMOVE_SPEED,
+    TRACK_TOL_M as TRACK_TOL_M,
+    TRACK_TOL_RAD as TRACK_TOL_RAD,
     TOOL_POSE as TOOL_POSE,
     USER_VARS as USER_VARS,
     MspMode,
@@ -61,13 +78,16 @@ from controller.paths.model import (
     insert_point,
     make_point,
     move_point,
+    resolve_orientations,
     set_limits,
     set_speed,
 )
+from controller.paths.move import MOVE_REQUEST_LEN as MOVE_REQUEST_LEN, MoveKind, MoveRequest
 from controller.paths.planner import (
     PLAN_TOL_M as PLAN_TOL_M,
     PLAN_TOL_RAD as PLAN_TOL_RAD,
     PlannedSegment,
+    offline_start_quat,
     plan_duration_s,
     plan_path,
     simplify,
@@ -83,4 +103,5 @@ from controller.paths.store import (
 __all__ = ["Path", "PathPoint", "PathStore", "PathInfo", "PathError", "make_point", "delete_points",
            "insert_point", "insert_gripper", "move_point", "set_speed", "set_limits", "simplify", "plan_path", "plan_duration_s",
            "PlannedSegment", "MultiSegmentLayer", "MspMode", "MspResult", "RecordSource", "default_dir", "FORMAT_VERSION",
-           "DEFAULT_LIMITS"]
+           "DEFAULT_LIMITS", "resolve_orientations", "offline_start_quat", "MotionCheck", "Refusal", "Target",
+           "MoveRequest", "MoveKind"]

@@ -20,8 +20,10 @@ from pfma.gripper import ACTIONS as GRIPPER_ACTIONS, check_force
 from pfma.arm import GRIPPER
 
 FORMAT = "pfma-path"
-#: version of the path file format; files of a newer version are refused. Version 2 adds
-#: gripper events (points of kind "gripper"); a path without one is still written as version 1
+#: version of the path file format; files of a newer version are refused. Version 2 added
+#: points without an orientation (``"quat": null``: keep the tool's orientation) and gripper
+#: events (points of kind "gripper"); a file with neither is still written as version 1, which
+#: older programs read (:meth:`Path.needs_v2`)
 FORMAT_VERSION = 2
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
 #: "gripper": a gripper event (open, close, stop) at that pose, replayed in order with the motion
@@ -40,11 +42,14 @@ class PathError(PfmaError, ValueError):
 
 @dataclass(frozen=True)
 class PathPoint:
-    """One recorded pose. ``v_lin_m_s``/``v_rot_rad_s``: speed override of the segment that
-    ends at this point (None: the path's limits)."""
+    """One recorded pose. ``quat`` None: the point keeps the tool's orientation (resolved at
+    playback start: the orientation of the point before it, or, for the first point, the
+    tool's orientation when the playback starts; :func:`resolve_orientations`).
+    ``v_lin_m_s``/``v_rot_rad_s``: speed override of the segment that ends at this point
+    (None: the path's limits)."""
 
     pos_m: tuple[float, float, float]
-    quat: tuple[float, float, float, float]
+    quat: tuple[float, float, float, float] | None
     kind: str = "capture"
     t_s: float = 0.0
     v_lin_m_s: float | None = None
@@ -54,7 +59,8 @@ class PathPoint:
 
     def to_json(self) -> dict:
         d: dict[str, Any] = {"pos_m": [round(x, 9) for x in self.pos_m],
-                             "quat": [round(x, 12) for x in self.quat], "kind": self.kind,
+                             "quat": None if self.quat is None else [round(x, 12) for x in self.quat],
+                             "kind": self.kind,
                              "t_s": round(self.t_s, 6)}
         if self.v_lin_m_s is not None:
             d["v_lin_m_s"] = self.v_lin_m_s
@@ -67,26 +73,28 @@ class PathPoint:
         return d
 
 
-def make_point(pos_m: Sequence[float], quat: Sequence[float], kind: str = "capture", t_s: float = 0.0,
+def make_point(pos_m: Sequence[float], quat: Sequence[float] | None, kind: str = "capture", t_s: float = 0.0,
                v_lin_m_s: float | None = None, v_rot_rad_s: float | None = None, where: str = "point",
                gripper: str | None = None, force_n: float | None = None) -> PathPoint:
-    """A checked :class:`PathPoint` (finite position, unit quaternion, known kind, speeds > 0;
-    a gripper event has an action of :data:`PATH_GRIPPER_ACTIONS` and a grip force within the
-    gripper's range or none, and only a gripper event has them).
+    """A checked :class:`PathPoint` (finite position, unit quaternion or None - keep the
+    tool's orientation -, known kind, speeds > 0; a gripper event has an action of
+    :data:`PATH_GRIPPER_ACTIONS` and a grip force within the gripper's range or none, and only
+    a gripper event has them).
 
     :raises PathError: naming ``where``
     """
     try:
         p = np.asarray(pos_m, dtype=float).reshape(3)
-        q = np.asarray(quat, dtype=float).reshape(4)
+        q = None if quat is None else np.asarray(quat, dtype=float).reshape(4)
     except (TypeError, ValueError) as err:
         raise PathError(f"{where}: position needs 3 numbers and quat 4 ({err})") from None
-    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+    if not (np.all(np.isfinite(p)) and (q is None or np.all(np.isfinite(q)))):
         raise PathError(f"{where}: position/quaternion not finite")
-    n = float(np.linalg.norm(q))
-    if abs(n - 1.0) > 1e-3:
-        raise PathError(f"{where}: quaternion {q.tolist()} is not unit length (norm {n:.6f})")
-    q = q / n
+    if q is not None:
+        n = float(np.linalg.norm(q))
+        if abs(n - 1.0) > 1e-3:
+            raise PathError(f"{where}: quaternion {q.tolist()} is not unit length (norm {n:.6f})")
+        q = q / n
     if kind not in POINT_KINDS:
         raise PathError(f"{where}: kind {kind!r} is not one of {', '.join(POINT_KINDS)}")
     for nm, val in (("v_lin_m_s", v_lin_m_s), ("v_rot_rad_s", v_rot_rad_s)):
@@ -104,7 +112,8 @@ def make_point(pos_m: Sequence[float], quat: Sequence[float], kind: str = "captu
             force_n = float(force_n)
     elif gripper is not None or force_n is not None:
         raise PathError(f"{where}: gripper/force_n belong to a point of kind 'gripper', not {kind!r}")
-    return PathPoint(tuple(float(x) for x in p), tuple(float(x) for x in q), kind, float(t_s),
+    return PathPoint(tuple(float(x) for x in p), None if q is None else tuple(float(x) for x in q), kind,
+                     float(t_s),
                      None if v_lin_m_s is None else float(v_lin_m_s),
                      None if v_rot_rad_s is None else float(v_rot_rad_s), gripper, force_n)
 
@@ -143,11 +152,17 @@ class Path:
 
     @property
     def has_gripper(self) -> bool:
-        """The path holds gripper events (its file is then format version 2)."""
+        """The path holds gripper events."""
         return any(p.kind == "gripper" for p in self.points)
 
+    @property
+    def needs_v2(self) -> bool:
+        """The path's file must be format version 2: it holds points without an orientation
+        and/or gripper events (the one version-bump rule)."""
+        return self.has_gripper or any(p.quat is None for p in self.points)
+
     def to_json(self) -> dict:
-        version = FORMAT_VERSION if self.has_gripper else 1  # older readers still take the rest
+        version = FORMAT_VERSION if self.needs_v2 else 1  # older readers still take the rest
         return {"format": FORMAT, "version": version, "name": self.name, "id": self.id,
                 "revision": self.revision, "created": self.created, "modified": self.modified,
                 "note": self.note, "frame": "world", "units": {"pos_m": "m", "quat": "w,x,y,z (tool in world)"},
@@ -187,6 +202,10 @@ class Path:
             w = f"{where}: point {i}"
             if not isinstance(p, dict):
                 raise PathError(f"{w}: not an object")
+            if p.get("quat") is None and ver < 2:
+                raise PathError(f"{w}: no quat (a point without an orientation needs format version 2)")
+            if p.get("kind") == "gripper" and ver < 2:
+                raise PathError(f"{w}: a gripper event needs format version 2")
             out.append(make_point(p.get("pos_m"), p.get("quat"), p.get("kind", "capture"), p.get("t_s", 0.0),
                                   p.get("v_lin_m_s"), p.get("v_rot_rad_s"), where=w,
                                   gripper=p.get("gripper"), force_n=p.get("force_n")))
@@ -210,6 +229,9 @@ class Path:
                  f"{lim.a_rot_rad_s2:g} rad/s^2   modified {self.modified or '-'}"]
         if self.note:
             lines.append(f"  note: {self.note}")
+        if any(p.quat is None for p in self.points):
+            lines.append("  points without an orientation keep the tool's: the point before's, or at the first the "
+                         "tool's orientation when the playback starts")
         lines.append(f"  {'#':>4} {'kind':<7} {'t s':>8}  {'x m':>9} {'y m':>9} {'z m':>9}   "
                      f"{'qw':>8} {'qx':>8} {'qy':>8} {'qz':>8}  speed")
         for i, p in enumerate(self.points):
@@ -219,7 +241,8 @@ class Path:
             if p.kind == "gripper":
                 sp = f"gripper {p.gripper}" + (f" {p.force_n:g} N" if p.force_n is not None else "")
             lines.append(f"  {i:>4} {p.kind:<7} {p.t_s:>8.3f}  " + " ".join(f"{x:>9.4f}" for x in p.pos_m)
-                         + "   " + " ".join(f"{x:>8.5f}" for x in p.quat) + f"  {sp}")
+                         + "   " + (" ".join(f"{x:>8.5f}" for x in p.quat) if p.quat is not None
+                                    else f"{'keep the orientation before it':>35}") + f"  {sp}")
         return "\n".join(lines)
 
 
@@ -242,14 +265,9 @@ def delete_points(path: Path, indices: Iterable[int]) -> Path:
 
 def insert_point(path: Path, index: int, pos_m: Sequence[float], quat: Sequence[float] | None = None,
                  kind: str = "edit") -> Path:
-    """A new point before ``index`` (``len(points)`` appends). Without ``quat`` it takes
-    the orientation of its neighbour."""
+    """A new point before ``index`` (``len(points)`` appends). Without ``quat`` it keeps
+    the tool's orientation (the point before it, or the tool's at playback start)."""
     j = _index(path, index, allow_end=True)
-    if quat is None:
-        if not path.points:
-            quat = (1.0, 0.0, 0.0, 0.0)
-        else:
-            quat = path.points[min(j, len(path.points) - 1)].quat
     t = path.points[j - 1].t_s if j > 0 else 0.0
     pt = make_point(pos_m, quat, kind, t, where=f"path {path.name}: inserted point {index}")
     return replace(path, points=path.points[:j] + (pt,) + path.points[j:])
@@ -272,15 +290,17 @@ def insert_gripper(path: Path, index: int, action: str, force_n: float | None = 
 
 
 def move_point(path: Path, index: int, pos_m: Sequence[float] | None = None, quat: Sequence[float] | None = None,
-               offset_m: Sequence[float] | None = None) -> Path:
-    """Point ``index`` at a new position (or shifted by ``offset_m``) and/or orientation."""
+               offset_m: Sequence[float] | None = None, keep_orientation: bool = False) -> Path:
+    """Point ``index`` at a new position (or shifted by ``offset_m``) and/or orientation
+    (``keep_orientation``: none of its own, it keeps the tool's)."""
     j = _index(path, index)
     p = path.points[j]
     pos = np.asarray(p.pos_m if pos_m is None else pos_m, dtype=float)
     if offset_m is not None:
         pos = pos + np.asarray(offset_m, dtype=float).reshape(3)
-    new = make_point(pos, p.quat if quat is None else quat, p.kind, p.t_s, p.v_lin_m_s, p.v_rot_rad_s,
-                     where=f"path {path.name}: point {index}", gripper=p.gripper, force_n=p.force_n)
+    q = None if keep_orientation else (p.quat if quat is None else quat)
+    new = make_point(pos, q, p.kind, p.t_s, p.v_lin_m_s, p.v_rot_rad_s, where=f"path {path.name}: point {index}",
+                     gripper=p.gripper, force_n=p.force_n)
     return replace(path, points=path.points[:j] + (new,) + path.points[j + 1:])
 
 
@@ -309,3 +329,17 @@ def set_limits(path: Path, **kw: float) -> Path:
         raise PathError(f"path {path.name}: unknown limit(s) {', '.join(sorted(bad))}; "
                         f"limits: {', '.join(Limits._fields)}")
     return replace(path, limits=check_limits(path.limits._replace(**kw), f"path {path.name}: limits"))
+
+
+def resolve_orientations(points: Sequence[PathPoint], start_quat: Sequence[float]) -> tuple[PathPoint, ...]:
+    """The points with every missing orientation filled in: the orientation of the point
+    before (after it was filled in), the first point's ``start_quat`` (the tool's
+    orientation when the playback starts). Points that have one are returned unchanged."""
+    out = []
+    prev = tuple(float(x) for x in np.asarray(start_quat, dtype=float).reshape(4))
+    for p in points:
+        if p.quat is None:
+            p = replace(p, quat=prev)
+        out.append(p)
+        prev = p.quat  # type: ignore[assignment]
+    return tuple(out)

@@ -13,7 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
-from controller.paths.model import Path, PathError, PathPoint
+from controller.paths.model import Path, PathError, PathPoint, resolve_orientations
 from controller.quat import q_angle, q_slerp
 from controller.trajectory import DEFAULT_CAP, Limits, plan_segment
 
@@ -22,19 +22,35 @@ PLAN_TOL_M = 0.001
 PLAN_TOL_RAD = math.radians(1.0)
 
 
-def _pose_deviation(p: PathPoint, a: PathPoint, b: PathPoint) -> tuple[float, float]:
-    """(distance m, angle rad) of ``p`` from the straight segment a->b executed with one
-    parameter (the point of the segment nearest ``p``, and the orientation there)."""
-    pa, pb, pp = np.array(a.pos_m), np.array(b.pos_m), np.array(p.pos_m)
-    d = pb - pa
+def segment_deviation(x: np.ndarray, q: Sequence[float], p0: np.ndarray, q0: Sequence[float], p1: np.ndarray,
+                      q1: Sequence[float], tol: tuple[float, float] | None = None) -> tuple[float, float]:
+    """(distance m, angle rad) of the pose (``x``, ``q``) from the straight segment
+    (p0, q0) -> (p1, q1) executed with one parameter: the point of the segment nearest
+    ``x`` (by the orientation for a pure rotation), and the orientation there. With
+    ``tol`` (m, rad) the parameter nearest by the orientation is tried too and the one
+    with the smaller error relative to ``tol`` kept (a segment that mostly turns)."""
+    d = p1 - p0
     L2 = float(d @ d)
-    if L2 > 1e-12:
-        u = min(1.0, max(0.0, float((pp - pa) @ d) / L2))
-    else:
-        ang = q_angle(a.quat, b.quat)
-        u = min(1.0, q_angle(a.quat, p.quat) / ang) if ang > 1e-9 else 0.0
-    dist = float(np.linalg.norm(pp - (pa + u * d)))
-    return dist, q_angle(p.quat, q_slerp(a.quat, b.quat, u))
+    ang = q_angle(q0, q1)
+    u_rot = min(1.0, q_angle(q0, q) / ang) if ang > 1e-9 else 0.0
+    cands = [min(1.0, max(0.0, float((x - p0) @ d) / L2))] if L2 > 1e-12 else []
+    if not cands or (tol is not None and ang > 1e-9):
+        cands.append(u_rot)
+    best = (math.inf, math.inf)
+    for u in cands:
+        e = (float(np.linalg.norm(x - (p0 + u * d))), q_angle(q, q_slerp(q0, q1, u)))
+        if tol is None or max(e[0] / tol[0], e[1] / tol[1]) < max(best[0] / tol[0], best[1] / tol[1]):
+            best = e
+            if tol is None:
+                break
+    return best
+
+
+def _pose_deviation(p: PathPoint, a: PathPoint, b: PathPoint) -> tuple[float, float]:
+    """(distance m, angle rad) of ``p`` from the straight segment a->b (points with their
+    orientations resolved)."""
+    return segment_deviation(np.array(p.pos_m), p.quat, np.array(a.pos_m), a.quat,  # type: ignore[arg-type]
+                             np.array(b.pos_m), b.quat)  # type: ignore[arg-type]
 
 
 def simplify(points: Sequence[PathPoint], tol_m: float = PLAN_TOL_M, tol_rad: float = PLAN_TOL_RAD) -> list[int]:
@@ -77,13 +93,26 @@ class PlannedSegment:
     force_n: float | None = None  #: its grip force (None: the one in force)
 
 
+def offline_start_quat(path: Path) -> tuple[float, float, float, float]:
+    """The orientation a plan made without the controller assumes for the tool at the start
+    (``pfma path show --plan``): the first point's that has one, else the identity."""
+    for p in path.points:
+        if p.quat is not None:
+            return p.quat
+    return (1.0, 0.0, 0.0, 0.0)
+
+
 def plan_path(path: Path, speed_scale: float = 1.0, tol_m: float = PLAN_TOL_M, tol_rad: float = PLAN_TOL_RAD,
-              cap: Limits = DEFAULT_CAP) -> list[PlannedSegment]:
+              cap: Limits = DEFAULT_CAP, start_quat: Sequence[float] | None = None) -> list[PlannedSegment]:
     """The playback plan: one rest-to-rest segment per key point (:func:`simplify`).
 
     A gripper event (a point of kind "gripper") is a key point: its segment ends at the pose
     where the event was recorded (often where the arm already is: a segment of zero length),
     and the playback does the event there before the next segment.
+
+    Points without an orientation keep the tool's (:func:`resolve_orientations`):
+    ``start_quat`` is the tool's orientation when the playback starts (None: the one
+    :func:`offline_start_quat` assumes).
 
     The segment into key point k has the path's limits, speeds times ``speed_scale``
     (0 < scale), lowered by the smallest speed override among the points it covers, all
@@ -96,27 +125,31 @@ def plan_path(path: Path, speed_scale: float = 1.0, tol_m: float = PLAN_TOL_M, t
         raise PathError(f"path {path.name}: no points to play")
     if not (math.isfinite(speed_scale) and speed_scale > 0):
         raise PathError(f"speed scale {speed_scale!r} must be > 0")
-    keys = simplify(path.points, tol_m, tol_rad)
+    points = resolve_orientations(path.points, offline_start_quat(path) if start_quat is None else start_quat)
+    keys = simplify(points, tol_m, tol_rad)
     out = []
     prev = -1
     base = path.limits.scaled(speed_scale)
     for k in keys:
-        covered = path.points[prev + 1:k + 1]
+        covered = points[prev + 1:k + 1]
         vl = min([base.v_lin_m_s] + [p.v_lin_m_s * speed_scale for p in covered if p.v_lin_m_s])
         vr = min([base.v_rot_rad_s] + [p.v_rot_rad_s * speed_scale for p in covered if p.v_rot_rad_s])
         lim = Limits(vl, base.a_lin_m_s2, vr, base.a_rot_rad_s2).clipped(cap)
-        p = path.points[k]
+        p = points[k]
         out.append(PlannedSegment(k, np.array(p.pos_m), np.array(p.quat), lim, p.gripper, p.force_n))
         prev = k
     return out
 
 
 def plan_duration_s(path: Path, start: PathPoint | None = None, speed_scale: float = 1.0) -> float:
-    """Time the plan takes at its limits (without the hand-over gaps between segments)."""
-    segs = plan_path(path, speed_scale)
+    """Time the plan takes at its limits (without the hand-over gaps between segments),
+    from ``start`` (default: point 0 with the orientation :func:`offline_start_quat`
+    assumes)."""
+    q_start = offline_start_quat(path) if start is None or start.quat is None else start.quat
+    segs = plan_path(path, speed_scale, start_quat=q_start)
     t = 0.0
     p0 = np.array((start or path.points[0]).pos_m)
-    q0 = np.array((start or path.points[0]).quat)
+    q0 = np.array(q_start)
     for s in segs:
         t += plan_segment(p0, q0, s.pos_m, s.quat, s.limits).duration_s
         p0, q0 = s.pos_m, s.quat

@@ -53,6 +53,10 @@ INIT_GRACE_S = 2.0
 #: distinct name tuples whose read plan :meth:`WorldModel.get_task_inputs` keeps (the
 #: layers' constant tuples; a caller building new tuples every time is not cached past this)
 PLAN_CACHE = 256
+#: kept user writes (:meth:`WorldModel.keep_user_writes`) the owner may hold untaken; a
+#: write beyond them is rejected (assumed: the owner takes them every frame, and a
+#: communications segment applies at most REQUEST_SLOTS writes; four segments' worth)
+KEPT_WRITES = 4 * REQUEST_SLOTS
 #: numpy (kind, itemsize) -> struct code, for scalars read and written without numpy
 _STRUCT_CODE = {("f", 8): "d", ("f", 4): "f", ("i", 1): "b", ("i", 2): "h", ("i", 4): "i", ("i", 8): "q",
                 ("u", 1): "B", ("u", 2): "H", ("u", 4): "I", ("u", 8): "Q", ("b", 1): "?"}
@@ -73,8 +77,8 @@ class _Hot(NamedTuple):
     kind: str  #: numpy kind of the variable: f, i, u, b
     scalar: struct.Struct | None  #: the scalar's struct (None: an array, or no struct code)
     vector: struct.Struct | None  #: a 1-D f8 array's struct (packs a tuple or list of floats)
-    lo: int  #: integer range (0, 0 for other kinds)
-    hi: int
+    lo: int  #: integer range the fast path takes (0, 0 for other kinds; an enumeration's,
+    hi: int  #: or the empty 1, 0 when it has gaps: every post then goes through coerce)
     is_state: bool
     f8: bool
 
@@ -87,6 +91,9 @@ def _hot(s: VarSpec, offset: int) -> _Hot:
     f8 = dt.kind == "f" and dt.itemsize == 8
     vector = struct.Struct(f"{order}{s.shape[0]}d") if f8 and len(s.shape) == 1 else None
     lo, hi = (int(np.iinfo(dt).min), int(np.iinfo(dt).max)) if dt.kind in "iu" else (0, 0)
+    if s.enum:  # no extra check per post: a contiguous enumeration is a range
+        values = [v for v, _ in s.enum]
+        lo, hi = (values[0], values[-1]) if values[-1] - values[0] + 1 == len(values) else (1, 0)
     return _Hot(s.writer, offset, dt, s.count, tuple(s.shape), dt.kind, scalar, vector, lo, hi, s.is_state, f8)
 
 
@@ -152,6 +159,9 @@ class WorldModel(UserRequestRing):
         self._remote: dict[int, str] = {}  # variable index -> the process whose section holds it
         self._remote_models: dict[str, str] = {}  # process -> its world-model name
         self._importer: Callable[[memoryview], None] | None = None
+        # variables whose every applied user write the owner takes in order (keep_user_writes)
+        self._kept: frozenset[int] = frozenset()
+        self._kept_log: list[tuple[int, int, bytes]] = []  # (request id, variable index, value)
 
     # --- opening ---------------------------------------------------------------------
 
@@ -565,8 +575,10 @@ class WorldModel(UserRequestRing):
                         imp(body)
                     for i, raw in batch.items():
                         body[offs[i]:offs[i] + len(raw)] = raw
-                    for slot, i, raw in requests:
+                    for rid, slot, i, raw in requests:
                         ok, msg = self._check_request(slot, i, raw)
+                        if ok and i in self._kept:
+                            ok, msg = self._keep(rid, i, raw)
                         if ok:
                             body[offs[i]:offs[i] + len(raw)] = raw
                         applied.append((slot, ok, msg))
@@ -585,6 +597,32 @@ class WorldModel(UserRequestRing):
         self._stats["frames"] += 1
         self._stats["posts_applied"] += len(batch)
         return len(batch) + n_user
+
+    # --- user writes kept in order (a request queue: controller/layers.py) ---------------
+
+    def keep_user_writes(self, name: str) -> None:
+        """Owner: keep every applied user write of ``name``, in order, with its request id,
+        for :meth:`take_user_writes`. For a variable whose writes are messages rather than
+        a state (System Up/Down's ``ui.request``): two writes applied in one communications
+        segment would otherwise leave only the last one's value."""
+        self._require_owner("keep_user_writes")
+        self._kept = self._kept | {self._index[self.spec(name).name]}
+
+    def _keep(self, rid: int, i: int, raw: bytes) -> tuple[bool, str]:
+        if len(self._kept_log) >= KEPT_WRITES:
+            return False, (f"{self._specs[i].name}: the owner has not taken its {KEPT_WRITES} earlier "
+                           f"writes (is it running?)")
+        self._kept_log.append((rid, i, raw))
+        return True, ""
+
+    def take_user_writes(self) -> "list[tuple[int, str, Any]] | tuple[()]":
+        """Owner: the kept user writes applied since the last call, oldest first, as (request
+        id, variable, value); ``()`` when there are none (nothing is built in a frame
+        without any)."""
+        if not self._kept_log:
+            return ()
+        log, self._kept_log = self._kept_log, []
+        return [(rid, self._specs[i].name, self._decode_value(i, raw)) for rid, i, raw in log]
 
     # --- a distributed controller's sections (controller/distributed.py) ---------------
 

@@ -139,8 +139,8 @@ class UserRequestRing:
                                           f"locked by another process for over 1 s") from None
                 os.sched_yield()
 
-    def _pending_requests(self) -> list[tuple[int, int, bytes]]:
-        """(slot, variable index, value bytes) of every pending request, oldest first."""
+    def _pending_requests(self) -> list[tuple[int, int, int, bytes]]:
+        """(request id, slot, variable index, value bytes) of every pending request, oldest first."""
         out = []
         words, step = self._req_words, self._req_step  # each slot's state word, one view
         for k in range(REQUEST_SLOTS):
@@ -151,7 +151,7 @@ class UserRequestRing:
             base = k * self._lay.req_slot_size + SLOT_HEADER
             out.append((self._slot_get(k, "req_id"), k, i, bytes(self._req[base:base + n])))
         out.sort()  # oldest first
-        return [(k, i, raw) for _rid, k, i, raw in out]
+        return out
 
     def _check_request(self, k: int, i: int, raw: bytes) -> tuple[bool, str]:
         """Re-check a request at apply time: the ring is shared memory any process can write

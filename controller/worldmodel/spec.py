@@ -9,18 +9,24 @@ Rules kept here (IRSS report 2.2.2 rules 3 and 4, 2.3.6 areas):
   checked by :func:`coerce` (shape, dtype range, finite floats) before it is queued;
 - a user-interface write is allowed only for variables that declare it (``VarSpec.user``:
   task outputs, layer commands and statuses never, control-law parameters only while
-  powered down, requests always).
+  powered down, requests always);
+- an enumerated variable (``VarSpec.enum``: a state, status, mode or error code) holds only
+  the values of its enumeration: any other is refused by :func:`coerce`, whoever posts it,
+  and tools show it by name (``VarSpec.value_text``, pfma/show.py). A bit set
+  (``VarSpec.flags``) is shown by the names of its bits.
 """
 
 from __future__ import annotations
 
+import enum
 import re
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 
 from pfma.errors import PfmaError
+from pfma.show import flag_names, named
 
 #: the report's world-model areas (2.3.6: task input/output, task internal status, command
 #: input, status output, control flags, response output, error reports). The report says
@@ -100,6 +106,11 @@ class VarSpec:
         from the writer and area, see :func:`default_user`. Only a variable whose writer is
         the user interface (:data:`USER_WRITERS`) in an area of :data:`USER_AREAS` may be
         anything but ``"never"``.
+    :param enum: the values an integer scalar may hold, with their names: a dict
+        ``{0: "HOLD", 1: "TELEOP"}``, an IntEnum class or ``(value, name)`` pairs (stored
+        as sorted pairs). Every other value is refused (:func:`coerce`).
+    :param flags: the names of the bits of an integer scalar that is a bit set (shown by
+        name; any combination is a valid value)
     """
 
     name: str
@@ -112,6 +123,8 @@ class VarSpec:
     protected: bool = False
     doc: str = ""
     user: str = ""
+    enum: Any = ()
+    flags: Any = ()
 
     def __post_init__(self) -> None:
         where = f"world-model variable {self.name!r}"
@@ -128,6 +141,17 @@ class VarSpec:
         object.__setattr__(self, "shape", tuple(int(n) for n in shape))
         if not isinstance(self.writer, str) or not self.writer.strip():
             raise WorldModelError(f"{where}: needs exactly one writer (a task or layer name)")
+        for what in ("enum", "flags"):
+            pairs = _named_values(getattr(self, what), f"{where}: {what}")
+            if pairs and (self.shape != () or dt.kind not in "iu"):
+                raise WorldModelError(f"{where}: {what} needs an integer scalar, not {self.type_text}")
+            if pairs and not all(np.iinfo(dt).min <= v <= np.iinfo(dt).max for v, _ in pairs):
+                raise WorldModelError(f"{where}: {what} has a value outside {dt.name}")
+            object.__setattr__(self, what, pairs)
+        if self.enum and self.flags:
+            raise WorldModelError(f"{where}: an enumeration or a bit set, not both")
+        object.__setattr__(self, "_enum_map", dict(self.enum))
+        object.__setattr__(self, "_flag_map", dict(self.flags))
         try:
             value = coerce(self, self.initial)
         except WorldModelValueError as err:
@@ -174,6 +198,30 @@ class VarSpec:
         """An integer scalar: usable with get/post_state_variable."""
         return self.shape == () and self.np_dtype.kind in "iu"
 
+    @property
+    def enum_names(self) -> dict[int, str]:
+        """The enumeration as ``{value: name}`` (empty: not enumerated)."""
+        return self._enum_map
+
+    @property
+    def flag_names(self) -> dict[int, str]:
+        """The bit set's names as ``{bit: name}`` (empty: not a bit set)."""
+        return self._flag_map
+
+    def value_text(self, value: Any) -> str | None:
+        """An enumerated value as ``"ERROR (7)"``, a bit set as ``"resolver|F/T link (5)"``
+        (pfma/show.py); None for any other variable (the caller shows the number)."""
+        if self._enum_map:
+            return named(int(np.asarray(value).item()), self._enum_map)
+        if self._flag_map:
+            v = int(np.asarray(value).item())
+            return f"{flag_names(v, self._flag_map, clear='none')} ({v})"
+        return None
+
+    def enum_text(self) -> str:
+        """The enumeration in one line: ``0 HOLD, 1 TELEOP, 2 TRAJECTORY``."""
+        return ", ".join(f"{v} {n}" for v, n in self.enum)
+
     def user_refusal(self, powered_up: bool) -> str | None:
         """Why a user may not set this variable now, or None if one may."""
         if self.user == USER_ALWAYS or (self.user == USER_POWERED_DOWN and not powered_up):
@@ -186,9 +234,14 @@ class VarSpec:
         return f"{self.name} is {_AREA_ROLE[self.area]} {self.writer}; users may not set it"
 
     def to_json(self) -> dict:
-        return {"name": self.name, "area": self.area, "dtype": self.dtype, "shape": list(self.shape),
-                "writer": self.writer, "initial": _jsonable(self.initial), "units": self.units,
-                "protected": self.protected, "doc": self.doc, "user": self.user}
+        out = {"name": self.name, "area": self.area, "dtype": self.dtype, "shape": list(self.shape),
+               "writer": self.writer, "initial": _jsonable(self.initial), "units": self.units,
+               "protected": self.protected, "doc": self.doc, "user": self.user}
+        if self.enum:
+            out["enum"] = [[v, n] for v, n in self.enum]
+        if self.flags:
+            out["flags"] = [[v, n] for v, n in self.flags]
+        return out
 
     @classmethod
     def from_json(cls, d: Mapping) -> "VarSpec":
@@ -199,7 +252,33 @@ class VarSpec:
             protected = user == USER_POWERED_DOWN
         return cls(name=d["name"], area=d["area"], dtype=d["dtype"], shape=tuple(d["shape"]),
                    writer=d["writer"], initial=d["initial"], units=d.get("units", ""),
-                   protected=protected, doc=d.get("doc", ""), user=user)
+                   protected=protected, doc=d.get("doc", ""), user=user,
+                   enum=tuple((int(v), str(n)) for v, n in d.get("enum", ())),
+                   flags=tuple((int(v), str(n)) for v, n in d.get("flags", ())))
+
+
+def _named_values(given: Any, where: str) -> tuple[tuple[int, str], ...]:
+    """``VarSpec.enum`` / ``flags`` as sorted ``(value, name)`` pairs, from a dict, an
+    IntEnum class, IntEnum members or pairs (a member's name with "_" read as " "); every
+    value an integer, every name a distinct non-empty text."""
+    if not given:
+        return ()
+    items: Iterable[Any] = given.items() if isinstance(given, Mapping) else given
+    items = [(x.value, x.name.replace("_", " ")) if isinstance(x, enum.Enum) else x for x in items]
+    out: dict[int, str] = {}
+    for pair in items:
+        try:
+            v, n = pair
+        except (TypeError, ValueError):
+            raise WorldModelError(f"{where}: {pair!r} is not a (value, name) pair") from None
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not isinstance(n, str) or not n.strip():
+            raise WorldModelError(f"{where}: {pair!r} needs an integer value and a name")
+        if int(v) in out:
+            raise WorldModelError(f"{where}: value {int(v)} named twice")
+        out[int(v)] = n
+    if len(set(out.values())) != len(out):
+        raise WorldModelError(f"{where}: a name is given to two values")
+    return tuple(sorted(out.items()))
 
 
 def default_user(area: str, writer: str, protected: bool = False, *, strict: bool = True) -> str:
@@ -262,6 +341,9 @@ def coerce(spec: VarSpec, value: Any) -> np.ndarray:
             if lo < info.min or hi > info.max:
                 raise WorldModelValueError(f"{_where(spec)}: {lo if lo < info.min else hi} is outside "
                                            f"{dt.name} range [{info.min}, {info.max}]")
+        if spec.enum and int(a.item()) not in spec.enum_names:
+            raise WorldModelValueError(f"{_where(spec)}: {int(a.item())} is not one of its values "
+                                       f"({spec.enum_text()})")
         return np.array(a, dtype=dt, order="C")
     with np.errstate(over="ignore", invalid="ignore"):
         out = np.array(a, dtype=dt, order="C")

@@ -7,6 +7,8 @@ handle's ``sleep`` runs the rig: a script's ``rack.sleep(0.5)`` is 0.5 s of simu
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from bit3.handle import RATE_EXPIRY_S, Rack, RackError
@@ -151,6 +153,8 @@ def test_inputs_are_named_and_carry_their_status(rig):
     a = inputs.angle("elbow_pitch")
     assert a.name == "elbow_pitch_angle" and a.units == "rad" and a.status == "ok" and a.ok
     assert str(a).endswith("rad (ok)")
+    raw = inputs.snapshot.elbow_pitch_angle  # the resolver's 0..2 pi as the buffer holds it
+    assert raw > math.pi and a.value == pytest.approx(raw - 2 * math.pi)  # shown in (-pi, pi], as every tool
     assert inputs["elbow_pitch_angle"] == a
     assert inputs.service_state is ServiceState.SAFE
     with pytest.raises(RackError, match="no input 'elbow'; inputs: "):

@@ -131,3 +131,35 @@ def test_message_record_is_80_bytes():
     e = lay.area("service_messages").body_dtype.fields["entries"][0]
     assert e.subdtype[0].itemsize == 80 and e.shape == (50,)
     assert np.dtype(lay.area("commands").body_dtype).itemsize == 960
+
+
+def test_every_status_word_reads_by_name_ok_when_healthy():
+    """bit3.layout.status_text: the one table pfma read, watch, monitor and stats name a
+    channel's, board's or link's status by (issue 29 item 5)."""
+    from bit3.layout import (
+        BOARD_FAULT, BOARD_INIT, BOARD_OK, CHANNEL_BUS_ERROR, DAC_CLIPPED, DAC_FORCED_SAFE, LINK_FAULT, LINK_OPEN,
+        LINK_STALE, LINK_SYNCED, RTD_LOSS_OF_SIGNAL, RTD_NO_REFERENCE, STATUS_HEALTHY, status_text,
+    )
+    for kind, healthy in STATUS_HEALTHY.items():
+        assert status_text(kind, healthy) == "ok", kind
+    assert status_text("rtd", RTD_LOSS_OF_SIGNAL) == "LOS"  # the resolver in loss of signal
+    assert status_text("rtd", RTD_LOSS_OF_SIGNAL | RTD_NO_REFERENCE | CHANNEL_BUS_ERROR) == "LOS|NOREF|BUSERR"
+    assert status_text("adc", CHANNEL_BUS_ERROR) == "BUSERR" and status_text("adc", 0x40) == "0x40"
+    assert status_text("dac", DAC_CLIPPED | DAC_FORCED_SAFE) == "CLIPPED|SAFE"
+    assert status_text("board", BOARD_OK | BOARD_INIT | BOARD_FAULT) == "FAULT"  # was "7 OK|INIT|FAULT"
+    assert status_text("board", BOARD_FAULT) == "FAULT"  # its init failed
+    assert status_text("board", 0) == "NOT INITIALISED" and status_text("board", BOARD_OK) == "NOT INITIALISED"
+    assert status_text("link", LINK_OPEN | LINK_STALE) == "STALE"
+    assert status_text("link", LINK_OPEN | LINK_SYNCED | LINK_FAULT) == "FAULT"
+    assert status_text("link", LINK_FAULT | LINK_STALE) == "FAULT|STALE|CLOSED"
+    assert status_text("link", 0) == "CLOSED" and status_text("link", LINK_OPEN) == "NOT SYNCED"
+
+
+def test_fault_codes_have_one_home_and_a_name_each():
+    import ioservice.service as svc
+    from bit3 import layout
+    codes = {n: getattr(layout, n) for n in dir(layout)
+             if n.startswith("FAULT_") and n != "FAULT_CODE_NAMES" and isinstance(getattr(layout, n), int)}
+    assert sorted(codes.values()) == sorted(set(codes.values())) == sorted(layout.FAULT_CODE_NAMES)
+    assert all(getattr(svc, n) == v for n, v in codes.items())  # the service's are these, re-exported
+    assert all(len(n) <= 11 for n in layout.FAULT_CODE_NAMES.values())  # the console's World Status line

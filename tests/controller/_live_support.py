@@ -1,10 +1,29 @@
 """What the tests of live processes (``pfma serve``, ``pfma controller``) share: bounded
-polling and an orderly end of every process a test started."""
+polling, an orderly end of every process a test started, and whether this user may run
+SCHED_FIFO (``RT``)."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import time
+
+
+def fifo_permitted() -> bool:
+    """Whether this user may run SCHED_FIFO (root in CI)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        return True
+    except (OSError, AttributeError):
+        return False
+
+
+#: the flag live tests that fly the arm give ``pfma serve`` and ``pfma controller``: where
+#: SCHED_FIFO is permitted both run with ``--realtime``, as a lab's should
+#: (docs/deployment.md), so a loaded 2-core host's stalls do not stop the arm before the
+#: test's point is reached (the suite's own default is PFMA_REALTIME=off: tests/conftest.py)
+RT = ["--realtime"] if fifo_permitted() else []
 
 
 def wait_for(pred, timeout_s: float = 20.0) -> bool:

@@ -184,7 +184,7 @@ def test_posting_another_process_section_is_refused_naming_it(two):
     with pytest.raises(WorldModelError, match=r"'joint.status' \(writer 'joint'\) is in the section of process 'rack'"):
         planners.wm.post_state_variable("joint", "joint.status", 5)
     # a user write of another process's variable: refused at once ...
-    with pytest.raises(WorldModelError, match=r"ui.request_arg belongs to process planners \(distributed world model\)"):
+    with pytest.raises(WorldModelError, match=r"ui.request belongs to process planners \(distributed world model\)"):
         rack.request(Request.POWER_UP)
     # ... its own variables are fine, in its own process
     planners.wm.post_task_outputs("runtime", {"runtime.frames": 1})

@@ -78,10 +78,7 @@ def _response(wm_name: str) -> tuple[int, int] | None:
 def _request(wm_name: str, kind: int) -> int:
     wm = WorldModel.attach(wm_name)
     try:
-        seq = int(wm.get("ui.request_seq")) + 1
-        for name, value in (("ui.request_arg", 0), ("ui.request", kind), ("ui.request_seq", seq)):
-            wm.set_user(name, value, "pfma")
-        return seq
+        return int(wm.set_user("ui.request", [kind, 0], "pfma"))  # one write, numbered by its request id
     finally:
         wm.close()
 
@@ -113,11 +110,15 @@ def test_two_processes_against_pfma_serve_power_up():
         # servo fault (max_missed_run, as in one process): then ERROR RESET and POWER UP again,
         # at most twice more, through the planners' world model (as `pfma wm set` would)
         top_wm = f"{base}.planners"
-        seq, outcomes = 1, []
+        def answered(want: int) -> bool:  # want 0: the --power-up request, whatever its number
+            r = _response(top_wm)
+            return r is not None and r[0] > 0 and want in (0, r[0]) and r[1] in Response.FINAL
+
+        seq, outcomes = 0, []
         for attempt in range(3):
-            assert _wait_for(lambda: (_response(top_wm) or (0, 0))[0] == seq and
-                             _response(top_wm)[1] != Response.IN_PROGRESS, 15), (seq, _response(top_wm))
+            assert _wait_for(lambda: answered(seq), 15), (seq, _response(top_wm))
             outcomes.append(_response(top_wm))
+            seq = outcomes[-1][0]
             if outcomes[-1] == (seq, Response.COMPLETE):
                 break
             seq = _request(top_wm, Request.ERROR_RESET)

@@ -48,7 +48,7 @@ def test_gripper_events_round_trip_as_version_2_and_keep_their_place(tmp_path):
     ({"kind": "teach", "gripper": "close"}, "gripper/force_n belong to a point of kind 'gripper', not 'teach'"),
 ])
 def test_a_bad_gripper_event_in_a_file_is_refused_naming_the_point(tmp_path, point, says):
-    doc = Path("bad", 1, tuple(_pts([0.0]))).to_json()
+    doc = dict(Path("bad", 1, tuple(_pts([0.0]))).to_json(), version=2)
     doc["points"].append({"pos_m": [0, 0, 0], "quat": list(Q), **point})
     with pytest.raises(PathError, match="point 1: .*" + says.replace("(", r"\(").replace(")", r"\)")):
         Path.from_json(doc, "bad.json")
@@ -59,6 +59,31 @@ def test_an_older_reader_refuses_a_file_with_gripper_events_by_its_version():
     assert p.to_json()["version"] == 2 and Path("n", 1, tuple(_pts([0.0]))).to_json()["version"] == 1
     with pytest.raises(PathError, match="format version 3 is newer than this program's 2"):
         Path.from_json(dict(p.to_json(), version=3), "future.json")
+
+
+def test_a_version_1_file_with_a_gripper_event_is_refused_naming_the_point():
+    doc = insert_gripper(Path("g", 1, tuple(_pts([0.0]))), 1, "close").to_json()
+    with pytest.raises(PathError, match="point 1: a gripper event needs format version 2"):
+        Path.from_json(dict(doc, version=1), "old.json")
+
+
+def test_gripper_events_and_points_without_an_orientation_round_trip_together(tmp_path):
+    # one version-bump rule (Path.needs_v2): either one makes a file version 2, both too
+    st = PathStore(tmp_path)
+    keep = make_point((0.02, 0.0, 0.0), None, "teach")
+    p = insert_gripper(Path("mix", 0, tuple(_pts([0.0, 0.01])) + (keep,)), 3, "close", 50.0)
+    assert p.points[3].quat is None  # the event takes the pose of the point before it, orientation kept too
+    saved = st.save(st.new("mix", p.points))
+    doc = json.loads(st.file("mix").read_text())
+    assert doc["version"] == 2 and doc["points"][2]["quat"] is None and doc["points"][3]["gripper"] == "close"
+    assert st.load("mix") == saved
+    q = (0.0, 0.0, 0.0, 1.0)
+    plan = plan_path(saved, start_quat=q)
+    # resolved: the null orientations take point 1's (all points before have one); the event stays a key point
+    assert [(s.index, s.gripper) for s in plan][-1] == (3, "close")
+    assert all(tuple(s.quat) == Q for s in plan)
+    only_null = Path("n", 1, tuple(_pts([0.0])) + (keep,))
+    assert only_null.needs_v2 and not only_null.has_gripper and only_null.to_json()["version"] == 2
 
 
 def test_the_plan_keeps_every_gripper_event_as_a_key_point_with_its_action():

@@ -5,6 +5,8 @@ changes and every WARNING and ERROR, at most LIVE_PER_SECOND lines a second then
 
 from __future__ import annotations
 
+import re
+
 from controller.messages import (
     LIVE_PER_FLUSH, LIVE_PER_SECOND, Level, LivePrinter, MessageBoard, is_live_worthy, live_line,
 )
@@ -154,3 +156,16 @@ def test_a_sim_fault_without_sim_or_with_a_bad_spec_is_one_line_and_exit_2(capsy
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 2 and err[0].startswith("pfma controller: --sim-fault needs --sim")
     assert err[1].startswith("pfma controller: --sim-fault ") and "Traceback" not in "".join(err)
+
+
+def test_motion_settings_and_the_force_state_are_said_by_name(capsys):
+    """``pfma controller`` printed ``cart.mode=1, cart.hc_source=0`` and ``force state 2``
+    (issue 29): now the names of the variables' enumerations, the numbers beside them."""
+    from tools.cli import main
+    assert main(["controller", "--sim", "--wm", "none", "--power-up", "--duration", "0.3", "--teleop", "crl",
+                 "--impedance", "on", "-q", "--messages", "0"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == ("motion settings: cart.mode=TELEOP (1), cart.hc_source=CRL (1), cart.hc_frame=WORLD (0), "
+                        "force.enable=True")
+    summary = next(ln for ln in lines if ln.startswith("Cartesian command "))
+    assert re.search(r" force (OFF \(0\)|ZEROING \(1\)|IMPEDANCE \(2\)) F \(", summary), summary

@@ -37,7 +37,7 @@ def test_store_round_trip_revisions_and_ids(tmp_path):
     assert st.by_id(2).name == "place"
     assert [(i.name, i.id, i.points) for i in st.list()] == [("pick", 1, 3), ("place", 2, 1)]
     doc = json.loads((tmp_path / "paths" / "pick.json").read_text())
-    # without gripper events a path is still written as version 1 (older readers take it)
+    # every point has an orientation and none is a gripper event: written as version 1, which older programs read
     assert doc["format"] == "pfma-path" and doc["version"] == 1 < FORMAT_VERSION and doc["revision"] == 1
     # edits saved bump the revision; no temporary files are left behind
     c = st.save(set_limits(back, v_lin_m_s=0.02))
@@ -90,7 +90,7 @@ def test_pure_edits(tmp_path):
     assert [x.pos_m[0] for x in d.points] == [0.0, 0.2]
     i = insert_point(p, 1, (0.05, 0.01, 0.0))
     assert [x.pos_m[0] for x in i.points] == [0.0, 0.05, 0.1, 0.2, 0.3] and i.points[1].kind == "edit"
-    assert i.points[1].quat == Q
+    assert i.points[1].quat is None  # no orientation given: it keeps the tool's
     m = move_point(p, 2, offset_m=(0.0, 0.0, 0.01))
     assert m.points[2].pos_m == (0.2, 0.0, 0.01)
     qz = q_from_axis_angle([0, 0, 1], 0.5)

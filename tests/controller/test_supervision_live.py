@@ -18,7 +18,7 @@ import pytest
 from bit3.buffer import Bit3Buffer
 from bit3.client import Client
 from bit3.layout import ServiceState
-from tests.controller._live_support import stop, wait_for
+from tests.controller._live_support import RT, stop, wait_for
 
 pytestmark = pytest.mark.realtime
 
@@ -26,20 +26,6 @@ ROOT = Path(__file__).resolve().parents[2]
 PY = [sys.executable, "-m", "tools.cli"]
 
 
-def _fifo_permitted() -> bool:
-    """Whether this user may run SCHED_FIFO (root in CI): then both processes run with
-    --realtime, as a lab's should (docs/deployment.md), so that a loaded 2-core host's stalls
-    do not stop the arm before the fault is injected."""
-    try:
-        import os
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        return True
-    except (OSError, AttributeError):
-        return False
-
-
-RT = ["--realtime"] if _fifo_permitted() else []
 
 
 def _inputs(name: str):

@@ -61,7 +61,7 @@ def test_every_real_output_command_and_status_is_never_user_settable(shm_sim):
 def test_what_the_code_base_sets_as_a_user_is_declared_user_settable(shm_sim):
     """runtime.request()/set_joint_goal(), `pfma controller` motion/path flags, the tests."""
     wm = shm_sim.rt.wm
-    always = ("ui.request", "ui.request_seq", "joint.goal_rad", "joint.goal_seq", "cart.mode",
+    always = ("ui.request", "joint.goal_rad", "joint.goal_seq", "cart.mode",
               "cart.hc_source", "cart.hc_frame", "cart.vernier", "force.enable", "delay.round_trip_s",
               "delay.jitter", "msp.mode", "msp.path_id", "msp.teach", "msp.speed_scale")
     down = ("servo.kp_per_s", "servo.tau_z_s", "servo.tau_p_s", "traj.v_lin_max_m_s")

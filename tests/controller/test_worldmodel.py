@@ -396,6 +396,49 @@ def test_a_full_request_ring_is_refused_clearly(wm):
     assert [r.req_id for r in wm.requests()] == list(range(2, REQUEST_SLOTS + 2))
 
 
+def test_kept_user_writes_are_each_taken_in_order_with_their_request_id(wm):
+    """A variable whose writes are messages (System Up/Down's requests): two writes applied
+    in one segment are two, not the last one's value alone."""
+    wm.keep_user_writes("updown.command")
+    assert wm.take_user_writes() == ()  # nothing kept yet: nothing built
+    rids = [wm.set_user("updown.command", v, DEFAULT_ACCESS_KEY) for v in (1, 3, 2)]
+    other = wm.set_user("hc.enable", True, DEFAULT_ACCESS_KEY)  # not kept: a state as before
+    assert wm.take_user_writes() == ()  # not before the communications segment
+    wm.communications_segment()
+    taken = wm.take_user_writes()
+    assert [(rid, name, int(v)) for rid, name, v in taken] == [(rids[0], "updown.command", 1),
+                                                               (rids[1], "updown.command", 3),
+                                                               (rids[2], "updown.command", 2)]
+    assert int(wm.get("updown.command")) == 2 and wm.request(other).state == "applied"
+    assert wm.take_user_writes() == ()  # taken once
+
+
+def test_kept_user_writes_the_owner_does_not_take_are_rejected_not_lost(wm):
+    from controller.worldmodel.model import KEPT_WRITES
+    wm.keep_user_writes("updown.command")
+    for _ in range(KEPT_WRITES // REQUEST_SLOTS):
+        for _ in range(REQUEST_SLOTS):
+            wm.set_user("updown.command", 1, DEFAULT_ACCESS_KEY)
+        wm.communications_segment()
+    rid = wm.set_user("updown.command", 4, DEFAULT_ACCESS_KEY)
+    wm.communications_segment()
+    r = wm.request(rid)
+    assert r.state == "rejected" and f"has not taken its {KEPT_WRITES} earlier writes" in r.result
+    assert len(wm.take_user_writes()) == KEPT_WRITES and int(wm.get("updown.command")) == 1
+
+
+def test_only_the_owner_keeps_user_writes(wm_name):
+    m = WorldModel.create(sup.sample_specs(), name=wm_name)
+    try:
+        with WorldModel.attach(wm_name) as ro:
+            with pytest.raises(WorldModelError, match="keep_user_writes"):
+                ro.keep_user_writes("updown.command")
+        with pytest.raises(WorldModelError, match="no variable"):
+            m.keep_user_writes("updown.commandx")
+    finally:
+        m.close()
+
+
 # --- shared memory: ownership, attach, other processes --------------------------------------
 
 

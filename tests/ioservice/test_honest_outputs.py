@@ -293,4 +293,5 @@ def test_pfma_monitor_says_outputs_not_known_safe(plain):
     rig.run(0.02)
     lines = monitor_lines(rig.reader)
     assert lines[1] == "OUTPUTS NOT KNOWN SAFE: the DAC does not answer; press the hardware E-stop"
-    assert "fault 7  outputs UNKNOWN  brakes" in lines[2] and all(len(line) <= 80 for line in lines)
+    assert lines[2].endswith("fault DAC LOST (7)") and lines[3].startswith("outputs UNKNOWN  brakes")
+    assert all(len(line) <= 80 for line in lines)

@@ -17,7 +17,7 @@ import pytest
 from bit3.buffer import Bit3Buffer
 from ioservice import loop
 from ioservice.loop import REALTIME_ENV, realtime_default, realtime_start
-from tests.controller._live_support import stop, wait_for
+from tests.controller._live_support import fifo_permitted, stop, wait_for
 
 
 class _Sched:
@@ -84,14 +84,6 @@ def test_the_suite_runs_with_the_default_off():
     assert os.environ[REALTIME_ENV] == "off" and not loop.realtime_default()
 
 
-def _fifo_permitted() -> bool:
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        return True
-    except OSError:
-        return False
-
 
 def _serve(name: str, *flags: str) -> subprocess.Popen:
     env = {k: v for k, v in os.environ.items() if k != REALTIME_ENV}  # a user's shell
@@ -120,7 +112,7 @@ def test_pfma_serve_by_default_and_opted_out(flags):
     if flags:
         assert policy == os.SCHED_OTHER and len(cpus) == ncpu, (policy, cpus)
         assert "real-time off (--no-realtime)" in err
-    elif _fifo_permitted():
+    elif fifo_permitted():
         assert policy == os.SCHED_FIFO and len(cpus) == 1, (policy, cpus)
         assert "pfma serve: real-time: SCHED_FIFO priority 50, pinned to CPU" in err
     else:

@@ -8,25 +8,43 @@ the reason (``NOT_RUN``). A command the README gains or changes is in none of th
 test fails until it is classified.
 
 Commands run with ``bash -c`` from the repository root, in README order (the ``RUN_ALONE``
-ones first, then the service is started: ``pfma serve --rack fake`` on the README's buffer
-``pfma``, waited for by polling ``pfma stats``, stopped with SIGINT). Each must exit 0 with
-no traceback, unless ``EXIT_CODES`` names the exit status the README documents for it. The
-files they write go to ``out/``, which is git-ignored.
+ones first, then the service lines beside the system ``make run`` starts, which the README
+offers as their service). Each must exit 0 with no traceback, unless ``EXIT_CODES`` names
+the exit status the README documents for it. The files they write go to ``out/``, which is
+git-ignored.
 
-This runs in real time (the service is a real-time process): about a minute. It uses the
+``make run`` is run as a user runs it, both of its branches (``make`` on the Makefile's
+recipe, its venv stamp taken as made: this test runs from that venv), each under
+``timeout(1)``, which signals the whole process group, so nothing outlives a killed test by
+more than :data:`MAKE_RUN_LIMIT_S`:
+
+- output not a terminal (``pfma serve --rack fake --live --demo``): its start line must name
+  ``/dev/shm/pfma``; the *(service)* lines run beside it; a Ctrl-C (SIGINT to the group, as
+  a terminal sends it) stops it;
+- on a terminal (a pty: ``pfma console --sim``, the whole simulated system): the console must
+  name ``buffer pfma, world model pfma_wm`` on screen; the *(service)* lines run beside it;
+  ``q`` stops it, exit 0, and it leaves none of its names in ``/dev/shm``.
+
+Before each, the leftovers of the run before (the stopped service's buffer, the ``--sim``
+controller's world model) lie in ``/dev/shm``: ``make run`` takes the names over them.
+
+This runs in real time (the service is a real-time process): about two minutes. It uses the
 user's default names, so it steps aside (a skip saying why) when a live service owns
 ``/dev/shm/pfma``, a live controller owns ``/dev/shm/pfma_wm`` or something listens on the
 README's Modbus port; a stale buffer left by a stopped service is replaced, as ``pfma serve``
-itself does.
+itself does. (``make run`` beside a live service on ``pfma``: tests/tools/test_make_run.py.)
 """
 
 from __future__ import annotations
 
 import os
+import pty
 import re
+import select
 import signal
 import socket
 import subprocess
+import threading
 import time
 from pathlib import Path
 
@@ -46,7 +64,7 @@ SHELL_BLOCKS = ("sh", "bash", "shell")
 
 #: commands not run here, each with its reason
 NOT_RUN = {
-    "make run": "interactive: the console on a terminal, runs until q or Ctrl-C",
+    "make run": "run by this test as the service of the (service) lines, both branches (not a line to run alone)",
     "make test": "this test suite",
     f"{PFMA} ft --port /dev/ttyUSB0 --binary --checksum --stream": "lab hardware: an F/T sensor on /dev/ttyUSB0",
 }
@@ -102,10 +120,16 @@ EXIT_CODES = {
         ({0, 1}, "exit 1 if one is off by more than 1 %"),
 }
 
-#: bounds: one command, the service coming up (polled), the service's own run (stopped earlier)
+#: bounds: one command, the service coming up (polled), a `make run` (stopped earlier)
 COMMAND_TIMEOUT_S = 90.0
 SERVICE_UP_TIMEOUT_S = 30.0
-SERVICE_DURATION_S = 120
+MAKE_RUN_LIMIT_S = 300
+#: `make run` as the README says it, bounded (timeout(1) SIGINTs the group, SIGKILL 10 s later)
+MAKE_RUN = ["timeout", "-k", "10", "-s", "INT", str(MAKE_RUN_LIMIT_S), "make", "-s", "-o", ".venv/.installed", "run"]
+#: what `make run` on a terminal shows: the names every tool reads by default
+ON_SCREEN = f"World Status (buffer {BUFFER}, world model {WORLD_MODEL})".encode()
+#: what `make run` on a terminal may leave in /dev/shm: nothing of these
+SIM_NAMES = (BUFFER, f"{BUFFER}.ring", f"{BUFFER}.faults", WORLD_MODEL)
 
 
 def strip_comment(line: str) -> tuple[str, str]:
@@ -205,49 +229,173 @@ def _run(cmd: str, with_service: bool) -> None:
         f"{cmd} ({where}) exited {p.returncode}, README says {sorted(allowed)}:\n{output[-3000:]}"
 
 
-def _service_up(proc: subprocess.Popen) -> None:
-    """Poll ``pfma stats`` (exit 0: the service publishes) until it answers, bounded."""
+def _service_up(exited) -> None:
+    """Poll ``pfma stats`` (exit 0: the service publishes) until it answers, bounded;
+    ``exited()`` says why the system ended before (None: it runs)."""
     deadline = time.monotonic() + SERVICE_UP_TIMEOUT_S
     while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            out = proc.stdout.read() if proc.stdout else ""
-            pytest.fail(f"pfma serve exited {proc.returncode} before it came up:\n{out[-3000:]}")
+        why = exited()
+        if why is not None:
+            pytest.fail(f"make run ended before its service came up: {why}")
         if subprocess.run([PFMA, "stats", "--buffer", BUFFER], cwd=ROOT, capture_output=True,
                           timeout=COMMAND_TIMEOUT_S).returncode == 0:
             return
-    pytest.fail(f"pfma serve did not come up within {SERVICE_UP_TIMEOUT_S:g} s")
+    pytest.fail(f"make run's service did not come up within {SERVICE_UP_TIMEOUT_S:g} s")
+
+
+def _run_service_lines(commands: list[str]) -> None:
+    for cmd in commands:
+        if cmd in RUN_WITH_SERVICE:
+            _run(cmd, with_service=True)
+
+
+class _Leftovers:
+    """Removes the default names this test's runs made (not the user's: those present before
+    stay, and a live one made the test skip)."""
+
+    def __init__(self) -> None:
+        self.existed = {n for n in SIM_NAMES if os.path.exists(f"/dev/shm/{n}")}
+
+    def remove(self) -> None:
+        if WORLD_MODEL not in self.existed:  # the --sim controller's world model stays for `pfma wm`; ours goes
+            WorldModel.remove_segment(WORLD_MODEL)
+        if BUFFER not in self.existed:  # a stopped service leaves its buffer for the readers; ours goes
+            Bit3Buffer.unlink(BUFFER)
+            FrameRing.unlink(BUFFER)
 
 
 @pytest.mark.realtime
-def test_every_readme_command_runs_as_written():
+def test_every_readme_command_runs_as_written(tmp_path):
+    """The lines that need nothing, then the (service) lines beside `make run` off a terminal."""
     why = _refuse_to_disturb()
     if why:
         pytest.skip(why)
     commands = [c for c, _ in readme_commands(README.read_text())]
-    wm_existed = os.path.exists(f"/dev/shm/{WORLD_MODEL}")
-    buffer_existed = os.path.exists(f"/dev/shm/{BUFFER}")
+    left = _Leftovers()
     try:
         for cmd in commands:
             if cmd in RUN_ALONE:
                 _run(cmd, with_service=False)
-        service = subprocess.Popen([PFMA, "serve", "--rack", "fake", "--buffer", BUFFER,
-                                    "--duration", str(SERVICE_DURATION_S)], cwd=ROOT,
-                                   stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                   stderr=subprocess.STDOUT, text=True)
+        log = tmp_path / "make-run.log"
+        with open(log, "w") as out:
+            run = subprocess.Popen(MAKE_RUN, cwd=ROOT, stdin=subprocess.DEVNULL, stdout=out,
+                                   stderr=subprocess.STDOUT, start_new_session=True)
         try:
-            _service_up(service)
-            for cmd in commands:
-                if cmd in RUN_WITH_SERVICE:
-                    _run(cmd, with_service=True)
+            _service_up(lambda: None if run.poll() is None else f"exit {run.returncode}:\n{log.read_text()[-3000:]}")
+            _run_service_lines(commands)
         finally:
-            if service.poll() is None:
-                service.send_signal(signal.SIGINT)
-            out, _ = service.communicate(timeout=30)
-        assert service.returncode == 0, f"pfma serve ended with {service.returncode}:\n{out[-3000:]}"
-        assert "Traceback" not in out, out[-3000:]
+            if run.poll() is None:  # Ctrl-C, as a terminal sends it: timeout(1) passes it to the group
+                run.send_signal(signal.SIGINT)
+            try:
+                run.wait(30)
+            except subprocess.TimeoutExpired:
+                os.killpg(run.pid, signal.SIGKILL)
+                run.wait(10)
+        text = log.read_text()
+        assert f"buffer /dev/shm/{BUFFER}, " in text, text[:3000]  # the README's buffer, named at start
+        assert "pfma serve: stopped after" in text and "Traceback" not in text, text[-3000:]
     finally:
-        if not wm_existed:  # the --sim controller's world model stays for `pfma wm`; ours goes
-            WorldModel.remove_segment(WORLD_MODEL)
-        if not buffer_existed:  # a stopped service leaves its buffer for the readers; ours goes
-            Bit3Buffer.unlink(BUFFER)
-            FrameRing.unlink(BUFFER)
+        left.remove()
+
+
+class _Pty:
+    """A process on a pseudo-terminal (as `make run` in a terminal), its output drained into
+    :attr:`out` by a thread (a full pty would block it)."""
+
+    def __init__(self, argv: list[str]) -> None:
+        self.pid, self.fd = pty.fork()
+        if self.pid == 0:  # the child: a session on the pty, as a terminal's shell gives
+            try:
+                os.chdir(ROOT)
+                os.environ["TERM"] = "xterm-256color"
+                os.execvp(argv[0], argv)
+            finally:
+                os._exit(127)  # never back into pytest in the child
+        self.out = b""
+        self.status: int | None = None
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._drain, daemon=True)
+        self._thread.start()
+
+    def _drain(self) -> None:
+        while True:
+            r, _, _ = select.select([self.fd], [], [], 0.1)
+            if not r:
+                continue
+            try:
+                data = os.read(self.fd, 65536)
+            except OSError:  # the child closed the pty
+                return
+            if not data:
+                return
+            with self._lock:
+                self.out += data
+
+    def seen(self, what: bytes, limit_s: float) -> bool:
+        end = time.monotonic() + limit_s
+        while time.monotonic() < end:
+            with self._lock:
+                if what in self.out:
+                    return True
+            if self.exited() is not None:
+                break
+            time.sleep(0.1)
+        with self._lock:
+            return what in self.out
+
+    def exited(self) -> int | None:
+        if self.status is None:
+            pid, status = os.waitpid(self.pid, os.WNOHANG)
+            if pid:
+                self.status = status
+        return self.status
+
+    def wait(self, limit_s: float) -> int | None:
+        end = time.monotonic() + limit_s
+        while self.exited() is None and time.monotonic() < end:
+            time.sleep(0.1)
+        return self.status
+
+    def close(self) -> None:
+        """Still running (a failed check): SIGTERM, which the console takes as q (it removes
+        its names), then SIGKILL to the session's group (make, the console) if it stays."""
+        if self.exited() is None:
+            os.killpg(self.pid, signal.SIGTERM)
+            if self.wait(30) is None:
+                os.killpg(self.pid, signal.SIGKILL)
+                self.wait(10)
+        self._thread.join(5)
+        os.close(self.fd)
+
+
+@pytest.mark.realtime
+def test_the_service_lines_run_beside_make_run_on_a_terminal():
+    """`make run` in a terminal: the console over the simulated system, on the default names,
+    named on screen; the (service) lines beside it; q leaves nothing behind."""
+    why = _refuse_to_disturb()
+    if why:
+        pytest.skip(why)
+    commands = [c for c, _ in readme_commands(README.read_text())]
+    left = _Leftovers()
+    try:
+        for cmd in commands:  # the file a (service) line reads
+            if "out/layout.json" in cmd and cmd in RUN_ALONE:
+                _run(cmd, with_service=False)
+        term = _Pty(MAKE_RUN)
+        try:
+            assert term.seen(b"SIMULATED", SERVICE_UP_TIMEOUT_S), term.out[-2000:]
+            assert term.seen(ON_SCREEN, 5.0), term.out[-2000:]
+            _service_up(lambda: None if term.exited() is None else f"status {term.status}: {term.out[-2000:]!r}")
+            _run_service_lines(commands)
+            os.write(term.fd, b"q")
+            status = term.wait(60)
+        finally:
+            term.close()
+        assert status is not None and os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0, (status, term.out[-2000:])
+        tail = term.out[-3000:]
+        assert b"simulated system stopped; DAC outputs 0.000 V max" in tail and b"Traceback" not in term.out, tail
+        assert b"pfma console: a service already runs" not in term.out  # no fallback: the names were free
+        made = [n for n in SIM_NAMES if n not in left.existed and os.path.exists(f"/dev/shm/{n}")]
+        assert not made, f"make run left {made} in /dev/shm"
+    finally:
+        left.remove()

@@ -34,6 +34,7 @@ from bit3.layout import (
     RTD_NO_REFERENCE, ServiceState,
 )
 from pfma.errors import PfmaError
+from pfma.show import wrap_angle
 from drivers.pio.routes import ALL_ROUTES, route_text
 
 #: rtd_status bits (bit3.layout)
@@ -247,7 +248,7 @@ class Checkout:
             pp = float((ang.max() - ang.min()) / lsb)
             self.record("resolvers", c.name, "noise (peak-peak)", pp <= max_noise, round(pp, 2), 0,
                         max_noise, "counts",
-                        f"mean {float(np.mean(cap['rtd_angle_rad'][:, c.slot])):.4f} rad over "
+                        f"mean {wrap_angle(float(np.mean(ang))):.4f} rad over "
                         f"{len(ang)} samples")
 
     # ------------------------------------------------------------------ ADC

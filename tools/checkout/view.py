@@ -1,7 +1,9 @@
 """Text views of the buffer for ``pfma monitor`` (every channel) and ``pfma watch`` (a few).
 
 Pure functions of a :class:`bit3.client.Client`; the CLI modules only loop, pace
-and redraw.
+and redraw. Values are shown the one way of pfma/show.py: angles (rad) in (-pi, pi],
+states and codes by name, each channel's status word by name (``bit3.layout.status_text``:
+``ok``, ``LOS``, ``BUSERR``, ``STALE``, ``FAULT``).
 """
 
 from __future__ import annotations
@@ -9,35 +11,72 @@ from __future__ import annotations
 import fnmatch
 import math
 import re
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
 from bit3.layout import (
-    BOARD_FAULT, BOARD_INIT, BOARD_OK, CHANNEL_BUS_ERROR, DAC_CLIPPED, DAC_ENVELOPE, DAC_FORCED_SAFE, DAC_SLEWED, DEVICE_GROUPS,
-    FAULT_DAC_UNREACHABLE, LINK_FAULT,
-    LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_LOSS_OF_SIGNAL, RTD_NO_REFERENCE, ServiceState,
+    CMD_STATUS_NAMES, DEVICE_GROUPS, FAULT_CODE_NAMES, FAULT_DAC_UNREACHABLE, ServiceState, status_text,
 )
 from pfma.errors import PfmaError, did_you_mean
+from pfma.show import flag_names, name_of, named, wrap_angle
 
-RTD_BITS = {RTD_LOSS_OF_SIGNAL: "LOS", RTD_NO_REFERENCE: "NOREF", CHANNEL_BUS_ERROR: "BUSERR"}
-ADC_BITS = {CHANNEL_BUS_ERROR: "BUSERR"}
-DAC_BITS = {DAC_CLIPPED: "CLIPPED", DAC_FORCED_SAFE: "SAFE", DAC_SLEWED: "SLEWED", DAC_ENVELOPE: "ENVELOPE"}
-BOARD_BITS = {BOARD_OK: "OK", BOARD_INIT: "INIT", BOARD_FAULT: "FAULT"}
-LINK_BITS = {LINK_OPEN: "OPEN", LINK_SYNCED: "SYNCED", LINK_FAULT: "FAULT", LINK_STALE: "STALE"}
 #: which device group's measured rate applies to a channel kind
 KIND_DEVICE = {"rtd": "rtd", "adc": "adc", "dac": "dac", "pio": "pio"}
 HC_DEVICE = {"cae": "adc", "crl": "crl", "hid": "hid"}
+#: input-area fields that hold an enumeration or a bit set, by their names (``pfma watch``)
+FIELD_NAMES: dict[str, tuple[str, dict[int, str]]] = {
+    "service_state": ("enum", {int(s): s.name for s in ServiceState}),
+    "fault_code": ("enum", FAULT_CODE_NAMES),
+    "command_status": ("flags", CMD_STATUS_NAMES),
+}
 
 
-def bits(value: int, names: dict[int, str]) -> str:
-    if not value:
-        return "-"
-    out = [n for b, n in names.items() if value & b]
-    rest = value & ~sum(names)
-    if rest:
-        out.append(f"0x{rest:X}")
-    return "|".join(out)
+def hc_status(valid: bool, deadman: bool, fault: bool) -> str:
+    """A hand controller's status: FAULT, NO DATA (axes not valid), DEADMAN (held) or ok."""
+    return "FAULT" if fault else "NO DATA" if not valid else "DEADMAN" if deadman else "ok"
+
+
+def entry_status(s, c) -> str | None:
+    """The status of one input entry (rack channel, board, link, hand controller) of
+    snapshot ``s`` by name (``ok``, ``LOS``, ...), or None when it has no status word."""
+    if c.kind == "hc":
+        i = c.slot
+        return hc_status(bool(s.hc_valid[i]), bool(s.hc_deadman[i]), bool(s.hc_fault[i]))
+    for f, i, _ in c.fields:
+        if f.endswith("_status") and c.kind != "pio":
+            return status_text(c.kind, int(s.record[f][i]))
+    return None
+
+
+#: what a board's or a link's value is (its status word is shown as its status, by name)
+ENTRY_VALUE = {"board": ("board_errors", "err"), "link": ("link_records", "recs")}
+
+
+def entry_value(s, c) -> Any:
+    """The value of one input entry of snapshot ``s`` as the tools show it: a resolver angle
+    in (-pi, pi]; a board's error count, a link's good records (:data:`ENTRY_VALUE`); else
+    the channel's engineering value (``Snapshot.value``)."""
+    if c.kind in ENTRY_VALUE:
+        return int(s.record[ENTRY_VALUE[c.kind][0]][c.slot])
+    v = s.value(c.name)
+    return wrap_angle(v) if c.kind == "rtd" else v
+
+
+def entry_units(c) -> str:
+    """The units of :func:`entry_value`."""
+    return ENTRY_VALUE[c.kind][1] if c.kind in ENTRY_VALUE else c.units
+
+
+def field_text(name: str, v: Any) -> str | None:
+    """An enumerated input field's value by name (``ARMED (2)``), None for any other field."""
+    how = FIELD_NAMES.get(name)
+    if how is None:
+        return None
+    kind, names = how
+    if kind == "enum":
+        return named(int(v), names)
+    return f"{flag_names(int(v), names)} ({int(v)})"
 
 
 def fmt(v: Any) -> str:
@@ -88,8 +127,9 @@ def monitor_data(client, filter_text: str | None = None, messages: int = 5) -> d
     dev_rate = {g: float(st.device_rate_hz[lay.slot("device", g)]) for g in DEVICE_GROUPS}
     hdr = client.header()
     out: dict[str, Any] = {
-        "buffer": client.buffer.name, "rack": hdr.rack_name, "state": ServiceState(s.service_state).name,
+        "buffer": client.buffer.name, "rack": hdr.rack_name, "state": name_of(s.service_state, ServiceState),
         "frame": int(s.frame), "t_s": float(s.t_s), "fault_code": int(s.fault_code),
+        "fault_name": name_of(s.fault_code, FAULT_CODE_NAMES),  # the number stays in fault_code
         "outputs_enabled": bool(s.outputs_enabled), "brakes_released": bool(s.brakes_released),
         "watchdog_tripped": bool(s.watchdog_tripped), "command_heartbeat": int(s.command_heartbeat),
         "command_age_s": float(s.command_age_s), "frame_rate_hz": float(st.rate_hz),
@@ -105,45 +145,45 @@ def monitor_data(client, filter_text: str | None = None, messages: int = 5) -> d
         where = f"{c.board}/{c.channel}" if c.channel >= 0 else c.board
         rate = dev_rate.get(KIND_DEVICE.get(c.kind, ""), float("nan"))
         value: Any
+        code = 0  # the status word as published (--json: "status_bits")
         if c.kind == "rtd":
-            value = float(s.rtd_angle_rad[i])
-            raw = f"{int(s.rtd_counts[i])} cnt {math.degrees(s.rtd_angle_rad[i]):.1f} deg"
-            stat = bits(int(s.rtd_status[i]), RTD_BITS)
+            value = wrap_angle(float(s.rtd_angle_rad[i]))  # the resolver's 0..2 pi shown in (-pi, pi]
+            raw = f"{int(s.rtd_counts[i])} cnt {math.degrees(value):+.1f} deg"
+            code = int(s.rtd_status[i])
         elif c.kind == "adc":
             value, raw = float(s.adc_value[i]), f"{s.adc_volts[i]:+.3f} V {int(s.adc_counts[i])} cnt"
-            stat = bits(int(s.adc_status[i]), ADC_BITS)
+            code = int(s.adc_status[i])
         elif c.kind == "dac":
             value, raw = float(s.dac_value[i]), f"{s.dac_volts[i]:+.3f} V {int(s.dac_counts[i])} cnt"
-            stat = bits(int(s.dac_status[i]), DAC_BITS)
+            code = int(s.dac_status[i])
         elif c.kind == "pio":
             b = int(s.pio_port_bits[i])
-            value, raw, stat = b, f"{b:08b}", "-"
+            value, raw = b, f"{b:08b}"
         elif c.kind == "board":
             value = int(s.board_errors[i])
             addr = int(s.board_last_error_addr[i])
             raw = f"last error at A16 0x{addr:04X}" if addr else ""
-            stat, rate, where = bits(int(s.board_status[i]), BOARD_BITS), float("nan"), c.board
+            code, rate, where = int(s.board_status[i]), float("nan"), c.board
         elif c.kind == "link":
             value = int(s.link_records[i])
             raw = (f"bad {int(s.link_bad[i])} resyncs {int(s.link_resyncs[i])} "
                    f"age {s.link_age_s[i] * 1e3:.0f} ms")
-            stat, rate = bits(int(s.link_status[i]), LINK_BITS), float(s.link_rate_hz[i])
+            code, rate = int(s.link_status[i]), float(s.link_rate_hz[i])
         elif c.kind == "hc":
             value = [round(float(x), 3) for x in s.hc_axes[i]]
             raw = f"btn 0x{int(s.hc_buttons[i]):X}"
-            flags = [n for n, on in (("VALID", s.hc_valid[i]), ("DEADMAN", s.hc_deadman[i]),
-                                     ("FAULT", s.hc_fault[i])) if on]
-            stat, rate = "|".join(flags) or "-", dev_rate.get(HC_DEVICE.get(c.name, ""), float("nan"))
+            rate = dev_rate.get(HC_DEVICE.get(c.name, ""), float("nan"))
         else:
             continue
+        stat = entry_status(s, c) or "-"
         units = "recs" if c.kind == "link" else ("err" if c.kind == "board" else c.units)
         rows.append({"name": c.name, "kind": c.kind, "value": value, "units": units, "raw": raw,
-                     "status": stat, "rate_hz": rate, "where": where, "spare": bool(c.spare)})
+                     "status": stat, "status_bits": code, "rate_hz": rate, "where": where, "spare": bool(c.spare)})
     for name, units in (("ft_force_n", "N"), ("ft_torque_nm", "N*m")):
         if matches(filter_text, name, "ft force torque"):
             rows.append({"name": name, "kind": "ft", "value": [round(float(x), 3) for x in s[name]],
                          "units": units, "raw": f"status 0x{int(s.ft_status):X} t {s.ft_t_s:.3f} s",
-                         "status": "-", "rate_hz": dev_rate["ft"], "where": "sio", "spare": False})
+                         "status": "-", "status_bits": 0, "rate_hz": dev_rate["ft"], "where": "sio", "spare": False})
     out["channels"] = rows
     out["messages"] = [{"t_s": float(m.t_s), "queue": m.queue, "seq": int(m.seq), "severity": m.severity.name,
                         "source": m.source, "code": int(m.code), "text": m.text}
@@ -160,7 +200,8 @@ def monitor_header(d: dict[str, Any], width: int = MONITOR_WIDTH) -> list[str]:
         f"pfma monitor  buffer {d['buffer']}  rack {d['rack']}  state {d['state']}",
         *(["OUTPUTS NOT KNOWN SAFE: the DAC does not answer; press the hardware E-stop"]
           if unknown else []),
-        f"frame {d['frame']}  t {d['t_s']:.3f} s  fault {d['fault_code']}  "
+        f"frame {d['frame']}  t {d['t_s']:.3f} s  fault "
+        + (f"{d['fault_name']} ({d['fault_code']})" if d["fault_code"] else "none"),
         f"outputs {'UNKNOWN' if unknown else 'ENABLED' if d['outputs_enabled'] else 'off'}  "
         f"brakes {'released' if d['brakes_released'] else 'set'}  "
         f"watchdog {'TRIPPED' if d['watchdog_tripped'] else 'ok'}",
@@ -201,7 +242,9 @@ def monitor_lines(client, filter_text: str | None = None, messages: int = 5,
 
 
 def message_text(m: dict[str, Any]) -> str:
-    return f"{m['t_s']:.3f} {m['severity']} {m['source']}: {m['text']}"
+    """``12.345 INFO service: armed``: a message with its queue's name (the number in its
+    ``source`` field says nothing: every writer posts 0)."""
+    return f"{m['t_s']:.3f} {m['severity']} {m['queue'].removesuffix('_messages')}: {m['text']}"
 
 
 def monitor_screen(d: dict[str, Any], page: int, height: int, width: int = MONITOR_WIDTH,
@@ -229,9 +272,28 @@ Getter = Callable[[Any], Any]
 _INDEXED = re.compile(r"^(\w+)\[(\d+)\]$")
 
 
-def resolve_signals(layout, names: list[str]) -> list[tuple[str, Getter, str]]:
-    """``(label, getter(snapshot), units)`` for each name: a rack channel / board / link /
-    hand controller, an input-area field (``ft_force_n``) or one element (``ft_force_n[2]``).
+class Signal(NamedTuple):
+    """One signal ``pfma watch`` follows: ``get(snapshot)`` its value (an angle already in
+    (-pi, pi]), ``status(snapshot)`` its status by name (None: it has none), ``name(value)``
+    an enumerated field's value by name (None: a number)."""
+
+    label: str
+    get: Getter
+    units: str
+    status: Callable[[Any], str] | None = None
+    name: Callable[[Any], str | None] | None = None
+
+
+def _angle(get: Getter) -> Getter:
+    def wrapped(s):
+        v = get(s)
+        return np.array([wrap_angle(x) for x in np.ravel(v)]).reshape(np.shape(v)) if np.ndim(v) else wrap_angle(v)
+    return wrapped
+
+
+def resolve_signals(layout, names: list[str]) -> list[Signal]:
+    """A :class:`Signal` for each name: a rack channel / board / link / hand controller, an
+    input-area field (``ft_force_n``) or one element (``ft_force_n[2]``).
 
     :raises PfmaError: for an unknown name, with the closest known ones
     """
@@ -241,8 +303,8 @@ def resolve_signals(layout, names: list[str]) -> list[tuple[str, Getter, str]]:
     for name in names:
         if name in channels:
             c = channels[name]
-            units = {"board": "err", "link": "recs"}.get(c.kind, c.units)
-            out.append((name, lambda s, n=name: s.value(n), units))
+            status = None if c.kind == "pio" else (lambda s, e=c: entry_status(s, e) or "-")
+            out.append(Signal(name, lambda s, e=c: entry_value(s, e), entry_units(c), status))
             continue
         m = _INDEXED.match(name)
         base, idx = (m.group(1), int(m.group(2))) if m else (name, None)
@@ -252,9 +314,13 @@ def resolve_signals(layout, names: list[str]) -> list[tuple[str, Getter, str]]:
                 n_el = int(np.prod(f.shape)) if f.shape else 1
                 if not f.shape or idx >= f.shape[0]:
                     raise PfmaError(f"watch: {name}: field {base} has {n_el} element(s)")
-                out.append((name, lambda s, b=base, i=idx: s[b][i], f.units))
+                get = lambda s, b=base, i=idx: s[b][i]  # noqa: E731
             else:
-                out.append((name, lambda s, b=base: s[b], f.units))
+                get = lambda s, b=base: s[b]  # noqa: E731
+            if f.units == "rad":
+                get = _angle(get)
+            enum_name = (lambda v, b=base: field_text(b, v)) if base in FIELD_NAMES else None
+            out.append(Signal(name, get, "" if enum_name else f.units, None, enum_name))
             continue
         raise PfmaError(f"watch: no channel or input field {name!r}"
                         + (did_you_mean(name, list(channels) + list(fields), n=4, cutoff=0.5)
@@ -262,17 +328,31 @@ def resolve_signals(layout, names: list[str]) -> list[tuple[str, Getter, str]]:
     return out
 
 
-def watch_line(snapshot, signals: list[tuple[str, Getter, str]]) -> str:
-    """``t=12.3456 s  elbow_pitch_angle=-1.5708 rad  ...`` for one snapshot."""
+def watch_line(snapshot, signals: list[Signal]) -> str:
+    """``t=12.3456 s  elbow_pitch_angle=-1.5708 rad [ok]  service_state=ARMED (2)  ...`` for
+    one snapshot: each channel's status in brackets beside its value."""
     parts = [f"t={snapshot.t_s:.4f} s"]
-    for label, get, units in signals:
-        parts.append(f"{label}={fmt(get(snapshot))}" + (f" {units}" if units else ""))
+    for sig in signals:
+        v = sig.get(snapshot)
+        shown = (sig.name(v) if sig.name is not None else None) or fmt(v)
+        text = f"{sig.label}={shown}" + (f" {sig.units}" if sig.units else "")
+        if sig.status is not None:
+            text += f" [{sig.status(snapshot)}]"
+        parts.append(text)
     return "  ".join(parts)
 
 
-def watch_record(snapshot, signals: list[tuple[str, Getter, str]]) -> dict[str, Any]:
+def watch_record(snapshot, signals: list[Signal]) -> dict[str, Any]:
     """One sample as data (``pfma watch --json``, one JSON line each): ``t_s``, ``frame``,
-    ``values`` by signal and their ``units``."""
-    return {"t_s": float(snapshot.t_s), "frame": int(snapshot.frame),
-            "values": {label: get(snapshot) for label, get, _ in signals},
-            "units": {label: units for label, _, units in signals}}
+    ``values`` by signal (numbers; angles in (-pi, pi]) and their ``units``; ``status`` by
+    signal for the channels that have one, ``names`` for the enumerated fields."""
+    values = {sig.label: sig.get(snapshot) for sig in signals}
+    out: dict[str, Any] = {"t_s": float(snapshot.t_s), "frame": int(snapshot.frame), "values": values,
+                           "units": {sig.label: sig.units for sig in signals}}
+    status = {sig.label: sig.status(snapshot) for sig in signals if sig.status is not None}
+    if status:
+        out["status"] = status
+    names = {sig.label: sig.name(values[sig.label]) for sig in signals if sig.name is not None}
+    if names:
+        out["names"] = names
+    return out

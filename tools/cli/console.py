@@ -4,7 +4,8 @@ Examples::
 
     pfma console                         # the service on buffer pfma, the controller's pfma_wm
     pfma console --buffer pfma --wm pfma_wm
-    pfma console --sim                   # the whole simulated system in this process (make run)
+    pfma console --sim                   # the whole simulated system in this process (make run),
+                                         # on buffer pfma and world model pfma_wm unless in use
     pfma console --sim --menu examples/console-menu.toml    # with live menus (key l)
 
 Five areas (Local Status, World Status, Messages, Local Commands, Global Commands),
@@ -21,15 +22,18 @@ def add_parser(sub):
     p = sub.add_parser("console", help="the operator console: five areas over the live system, "
                                        "power up/down, halt/step/resume",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("--buffer", default="pfma",
+    p.add_argument("--buffer", default=None,
                    help="Bit3 shared-memory name of the service (default pfma), or zenoh://HOST:PORT/NAME "
-                        "through a pfma bridge (docs/bridge.md; the world model --wm stays on this host)")
-    p.add_argument("--wm", "--name", dest="wm", default="pfma_wm", metavar="NAME",
+                        "through a pfma bridge (docs/bridge.md; the world model --wm stays on this host); "
+                        "--sim: the name the simulated system takes")
+    p.add_argument("--wm", "--name", dest="wm", default=None, metavar="NAME",
                    help="the controller's world-model name (default pfma_wm)")
     p.add_argument("--key", default=None, help="world-model access key (default $PFMA_WM_KEY or the default key)")
     p.add_argument("--sim", action="store_true",
                    help="run the whole simulated system here (simulated rack, service, controller powered up "
-                        "flying a demo path) and show it; q or Ctrl-C stops everything, outputs 0 V")
+                        "flying a demo path) and show it; q or Ctrl-C stops everything, outputs 0 V. On buffer "
+                        "pfma and world model pfma_wm, so every tool reaches it with its defaults; while another "
+                        "system uses either, on a private pair, named in one line"),
     p.add_argument("--no-demo", action="store_true", help="--sim: power up but fly no demo path")
     p.add_argument("--menu", metavar="FILE.toml", default=None,
                    help="live menus (key l): named pages of world-model variables with a format each and a refresh "
@@ -55,6 +59,8 @@ def run(args) -> int:
         return 2
     if args.sim:
         return _run_sim(args, menu)
+    from tools.runnames import DEFAULT_BUFFER, DEFAULT_WM
+    args.buffer, args.wm = args.buffer or DEFAULT_BUFFER, args.wm or DEFAULT_WM
     from tools.attach import attach_reader, no_service
     from tools.console.control import ControlError, ControllerLink
     from tools.console.view import Sources
@@ -78,7 +84,9 @@ def run(args) -> int:
         if menu is not None:
             menu.check(link.wm)
         # simulated or not: what the service's buffer says (its SIMULATED flag), every refresh
-        app = _app(Sources(client, link.wm), link, menu=menu)
+        sources = Sources(client, link.wm)
+        sources.names = f"buffer {args.buffer}, world model {args.wm}"
+        app = _app(sources, link, menu=menu)
         try:
             app.run()
         finally:
@@ -103,7 +111,23 @@ def _run_sim(args, menu=None) -> int:
     from tools.console.simrun import SimulatedSystem
     from tools.console.view import Sources
     from tools.console.menu import MenuError
-    system = SimulatedSystem(demo=not args.no_demo)
+    from tools.runnames import DEFAULT_BUFFER, DEFAULT_WM, claim
+    from pfma.errors import PfmaError
+    if args.buffer is not None and "://" in args.buffer:
+        print(f"pfma console: --sim runs the simulated system here, on a shared-memory buffer: --buffer takes its "
+              f"name, not {args.buffer}", file=sys.stderr)
+        return 2
+    try:  # the defaults unless another system runs on them (then a private pair, said); a name given: as given
+        names = claim(args.buffer or DEFAULT_BUFFER, args.wm or DEFAULT_WM,
+                      fallback=args.buffer is None and args.wm is None)
+        system = SimulatedSystem(demo=not args.no_demo, buffer=names.buffer, wm=names.wm)
+    except PfmaError as err:  # in use (or taken since the check): one line
+        print(f"pfma console: {err}", file=sys.stderr)
+        return 1
+    # said before the console covers the terminal (seen after it), and in its Messages
+    for note in (names.note, system.fault_note):
+        if note:
+            print(f"pfma console: {note}", file=sys.stderr, flush=True)
     if menu is not None:
         try:
             menu.check(system.sim.rt.wm)
@@ -114,6 +138,10 @@ def _run_sim(args, menu=None) -> int:
     client = Client.attach(system.name, layout=system.sim.rig.layout)
     sources = Sources(client, system.sim.rt.wm, rack="simulated")
     sources.speed = lambda: system.speed
+    sources.names = f"buffer {names.buffer}, world model {names.wm}"
+    for note in (names.note, system.fault_note):
+        if note:
+            sources.note(0.0, "WARNING", note)
     app = _app(sources, ControllerLink(system.sim.rt.wm, args.key), menu=menu)
     system.start()
     try:
@@ -127,5 +155,5 @@ def _run_sim(args, menu=None) -> int:
         system.close()
     top = float(abs(volts).max()) if len(volts) else 0.0
     print(f"pfma console: simulated system stopped; DAC outputs {top:.3f} V max (service stopped, outputs "
-          f"disconnected)")
+          f"disconnected); buffer {names.buffer} and world model {names.wm} removed")
     return 0

@@ -13,6 +13,10 @@ Examples::
     pfma controller resume --rearm          # ... re-arm the outputs and go on
     pfma controller route 2 1               # ... camera 2 on monitor 1 (0 blanks it)
     pfma controller gripper close --force 60   # ... close the gripper, grip with 60 N
+    pfma controller power-up                # ... the Global Commands: POWER UP (halted: it runs
+    pfma controller power-down              #     with each step; resume --rearm arms), POWER DOWN,
+    pfma controller reset                   #     ERROR RESET
+    pfma controller move --pose 1.55,0,-0.33  # ... move the tool there, keeping its orientation
     pfma controller --distribute examples/distributed.toml --process rack       # one process of a
     pfma controller --distribute examples/distributed.toml --process planners --power-up   # distributed one
     pfma controller --sim --distribute examples/distributed.toml --power-up     # all of it, simulated
@@ -43,15 +47,27 @@ HELP = """single-step commands (IRSS halt / manual interrupt):
   ?               this help"""
 
 
+#: ``pfma controller ACTION``: the Global Commands' requests (docs/console.md) to a running controller
+SYSTEM_ACTIONS = ("power-up", "power-down", "reset")
+#: how long ``pfma controller power-up|power-down|reset`` waits for the final answer (assumed:
+#: the longest sequence, a power-up with its init, arm and brake-release time-outs of
+#: controller/daq_layer.py and controller/servo.py, takes about 1.2 s; ten seconds is far
+#: beyond it and still a prompt "no answer" for a controller that is not running frames)
+SYSTEM_REQUEST_TIMEOUT_S = 10.0
+
+
 def add_parser(sub):
     p = sub.add_parser("controller", help="run the IRSS-layered controller (live service or --sim)",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("action", nargs="?", choices=("halt", "step", "resume", "route", "gripper"), default=None,
+    p.add_argument("action", nargs="?", choices=("halt", "step", "resume", "route", "move", "gripper",
+                                                 *SYSTEM_ACTIONS), default=None,
                    help="requests to a RUNNING controller (its --wm): halt (outputs held in the "
                         "service's HALTED state, 0 V, brakes set), step [N] (exactly N minor frames, "
                         "their trace printed), resume (needs --rearm), route CAMERA MONITOR (the "
-                        "console's CAMERA ROUTE: that camera on that monitor, 0 blanks it), gripper "
-                        "open|close|stop [--force N] (waits for the move to end)")
+                        "console's CAMERA ROUTE: that camera on that monitor, 0 blanks it), power-up, "
+                        "power-down, reset (the Global Commands POWER UP, POWER DOWN, ERROR RESET; "
+                        "halted, they run frame by frame with the steps), move (--pose, --joints or --stop: a checked "
+                        "move-to request), gripper open|close|stop [--force N] (waits for the move to end)")
     p.add_argument("frames", nargs="?", default=None, metavar="N|CAMERA|open|close|stop", action=_CountOrCamera,
                    help="step: minor frames to run (default 1); route: the camera, 1..3 or 0 = blank; "
                         "gripper: open, close or stop")
@@ -62,7 +78,8 @@ def add_parser(sub):
                    help="gripper: the grip force in N (its current limit at 40 N/A; 10..200 N on the nominal "
                         "jaw); alone (`gripper --force N`) it only sets the force")
     p.add_argument("--key", default=None,
-                   help="halt/step/resume: world-model access key (default $PFMA_WM_KEY or the default key)")
+                   help="requests to a running controller: world-model access key (default $PFMA_WM_KEY or "
+                        "the default key)")
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name of the service (default pfma)")
     p.add_argument("--sim", action="store_true", help="simulate the whole system (fake rack + service) "
                                                      "in simulated time instead")
@@ -104,6 +121,7 @@ def add_parser(sub):
                         "the one with daq writes the Bit3 command area, the others read the inputs)")
     _add_motion_arguments(p)
     _add_path_arguments(p)
+    _add_move_arguments(p)
     return p
 
 
@@ -181,7 +199,7 @@ def _setup_motion(d, args) -> None:
         wm.set_user(name, value, wm.access_key)
     if settings:
         d.frame()  # applied at this frame's communications segment
-        print("motion settings: " + ", ".join(f"{k}={v}" for k, v in settings.items()))
+        print("motion settings: " + ", ".join(f"{k}={wm.spec(k).value_text(v) or v}" for k, v in settings.items()))
     if args.demo_wall is not None:
         from controller.kinematics import fk
         from fakes.environment import Wall
@@ -214,7 +232,8 @@ def _motion_summary(d) -> str:
     p = v["cart.pos_cmd_m"]
     w = v["force.wrench_n"]
     line = (f"Cartesian command ({p[0]:+.4f}, {p[1]:+.4f}, {p[2]:+.4f}) m valid={bool(v['cart.cmd_valid'])}  "
-            f"force state {int(v['force.state'])} F ({w[0]:+.2f}, {w[1]:+.2f}, {w[2]:+.2f}) N  "
+            f"force {d.rt.wm.spec('force.state').value_text(v['force.state'])} "
+            f"F ({w[0]:+.2f}, {w[1]:+.2f}, {w[2]:+.2f}) N  "
             f"reflection {'on' if v['teleop.reflect_enabled'] else 'off'}")
     if d.sim is not None:
         from controller.kinematics import fk
@@ -241,6 +260,9 @@ def _add_path_arguments(p) -> None:
                    help="record the Cartesian command instead of the measured tool pose (playback then "
                         "repeats the recorded motion, servo errors included)")
     g.add_argument("--speed", type=positive_float, default=None, metavar="F", help="playback speed factor (msp.speed_scale)")
+    g.add_argument("--max-turn", type=_turn_degrees, default=None, metavar="DEG",
+                   help="allow the playback (or `move`) to turn the tool up to DEG degrees from its starting "
+                        "orientation (msp.max_turn_rad, default 30: more is refused before it starts)")
 
 
 def _setup_paths(d, args) -> None:
@@ -265,6 +287,8 @@ def _setup_paths(d, args) -> None:
         settings = {"msp.path_id": path.id}
         if args.speed is not None:
             settings["msp.speed_scale"] = args.speed
+        if args.max_turn is not None:
+            settings["msp.max_turn_rad"] = _max_turn_rad(args.max_turn)
         start = {"cart.mode": 2, "msp.mode": MspMode.PLAY}
         print(f"playing path {path.name} (id {path.id}, {len(path.points)} points) from {store.dir}")
     for name, value in settings.items():
@@ -317,7 +341,108 @@ def _finish_paths(d, args) -> None:
             print(f"path {args.play}: still playing, segment {int(v['msp.segment'])} of {int(v['msp.segments'])} "
                   f"(run longer: --duration)")
         else:
-            print(f"path {args.play}: playback ended ({MspResult.NAMES.get(int(v['msp.result']), '?')})")
+            print(f"path {args.play}: playback ended ({MspResult.NAMES.get(int(v['msp.result']), '?')}): "
+                  f"{_text(wm.get('msp.result_text'))}")
+
+
+def _text(words) -> str:
+    return bytes(words).rstrip(b"\0").decode(errors="replace")
+
+
+def _turn_degrees(text: str) -> float:
+    """``--max-turn DEG``: the largest tool rotation, 0 < DEG <= 180 (argparse's usage error otherwise)."""
+    try:
+        deg = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of degrees") from None
+    if not 0.0 < deg <= 180.0:
+        raise argparse.ArgumentTypeError(f"{deg:g}: the largest tool rotation must be 0..180 degrees")
+    return deg
+
+
+def _max_turn_rad(deg: float) -> float:
+    import math
+    return math.radians(deg)
+
+
+# --- move-to requests (issue 30 item 5; docs/controller.md "Moves that mean what they say") ------
+def _add_move_arguments(p) -> None:
+    g = p.add_argument_group("move (`pfma controller move ... --wm NAME`: a checked move-to request to a running "
+                             "controller)")
+    x = g.add_mutually_exclusive_group()
+    x.add_argument("--pose", metavar="X,Y,Z[,QW,QX,QY,QZ]", default=None,
+                   help="move the tool point to X,Y,Z (m, world) in a straight line; without a quaternion the tool "
+                        "keeps its orientation (sets cart.mode 2 TRAJECTORY if it is not)")
+    x.add_argument("--joints", metavar="DEG,DEG,DEG,DEG,DEG,DEG", default=None,
+                   help="move the joints to these angles (degrees, command order: shoulder pitch, shoulder yaw, "
+                        "elbow pitch, wrist yaw, wrist pitch, wrist roll) in a straight line in joint space")
+    x.add_argument("--stop", action="store_true", help="stop the running move or playback (decelerates to rest)")
+    g.add_argument("--no-wait", action="store_true", help="return once the request is sent (default: wait for "
+                                                           "its end and print how it ended)")
+    g.add_argument("--timeout", type=positive_float, default=300.0, metavar="S",
+                   help="seconds to wait for the move's end (default 300; the move goes on after it)")
+
+
+def _move_control(args) -> int:
+    """``pfma controller move --pose ... | --joints ... | --stop --wm NAME``: one move-to
+    request to the running controller through its world model; waits for its end (the
+    controller's words: a refusal names the point and the reason; FAILED the worst tracking
+    error and where)."""
+    import math
+    from tools.console.control import ControlError, ControllerLink
+    err = sys.stderr
+    if args.frames is not None or args.monitor is not None:
+        print("pfma controller move: takes no N/CAMERA/MONITOR (use --pose, --joints or --stop)", file=err)
+        return 2
+    if args.pose is None and args.joints is None and not args.stop:
+        print("pfma controller move: what to? --pose X,Y,Z[,QW,QX,QY,QZ], --joints DEG x 6 or --stop", file=err)
+        return 2
+    if args.wm in ("none", ""):
+        print("pfma controller move: needs the running controller's world model (--wm NAME)", file=err)
+        return 2
+    try:
+        if args.pose is not None:
+            vals = _numbers(args.pose, (3, 7), "--pose")
+        elif args.joints is not None:
+            vals = [math.radians(x) for x in _numbers(args.joints, (6,), "--joints")]
+        turn = _max_turn_rad(args.max_turn) if args.max_turn is not None else None
+    except ValueError as e:
+        print(f"pfma controller move: {e}", file=err)
+        return 2
+    try:
+        link = ControllerLink.attach(args.wm, args.key)
+        try:
+            if args.stop:
+                seq = link.stop_move()
+            elif args.pose is not None:
+                change = link.trajectory_mode()
+                if change:
+                    print(f"{change} (a pose move follows the Trajectory Planner)")
+                seq = link.move_pose(vals[:3], vals[3:] if len(vals) == 7 else None, turn)
+            else:
+                seq = link.move_joints(vals, turn)
+            print(f"move {seq} sent", flush=True)
+            if args.no_wait:
+                return 0
+            a = link.wait_move(seq, args.timeout)
+            print(a.line())
+        finally:
+            link.close()
+    except ControlError as e:
+        print(f"pfma controller move: {e}", file=err)
+        return 1
+    return 0 if a.ok else 1
+
+
+def _numbers(text: str, counts: tuple[int, ...], what: str) -> list[float]:
+    import math
+    try:
+        vals = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise ValueError(f"{what} {text!r}: not a comma-separated list of numbers") from None
+    if len(vals) not in counts or not all(math.isfinite(x) for x in vals):
+        raise ValueError(f"{what} {text!r}: needs {' or '.join(map(str, counts))} finite numbers")
+    return vals
 
 
 def _print_tables(profile: str) -> int:
@@ -733,7 +858,8 @@ def _gripper_control(args) -> int:
     from pfma.arm import GRIPPER
     from pfma.gripper import ACTIONS, MOVE_TIMEOUT_S, check_force
     from tools.console.control import ControlError, ControllerLink
-    if args.monitor is not None or args.rearm:
+    if args.monitor is not None or args.rearm or args.pose is not None or args.joints is not None or args.stop \
+            or args.no_wait:
         print("pfma controller gripper: takes open|close|stop and --force N only", file=sys.stderr)
         return 2
     if args.frames is None and args.force is None:
@@ -762,6 +888,46 @@ def _gripper_control(args) -> int:
     return 0 if a.ok else 1
 
 
+# --- the Global Commands from the shell: pfma controller power-up|power-down|reset ------------
+def _system_request(args) -> int:
+    """``pfma controller power-up|power-down|reset``: the console's Global Commands (POWER
+    UP, POWER DOWN, ERROR RESET) as one request to the running controller through its world
+    model, as ``halt``, ``step`` and ``resume`` do; prints the answer. System Up/Down queues
+    it: running, the final answer comes when the sequence ends (at most
+    SYSTEM_REQUEST_TIMEOUT_S); halted, the request runs frame by frame with the steps
+    (``pfma controller step``) and arming waits for ``resume --rearm``, so the command
+    returns once the request is queued or in progress and says so."""
+    from tools.console.control import ControlError, ControllerLink, Request, Response
+    what = args.action
+    if args.frames is not None or args.monitor is not None:
+        print(f"pfma controller {what}: takes no frame count, camera or monitor", file=sys.stderr)
+        return 2
+    if args.rearm:
+        print(f"pfma controller {what}: --rearm belongs to resume", file=sys.stderr)
+        return 2
+    if args.wm in ("none", ""):
+        print(f"pfma controller {what}: needs the running controller's world model (--wm NAME)", file=sys.stderr)
+        return 2
+    kind = {"power-up": Request.POWER_UP, "power-down": Request.POWER_DOWN, "reset": Request.ERROR_RESET}[what]
+    try:
+        link = ControllerLink.attach(args.wm, args.key)
+        try:
+            seq = link.submit(kind)
+            a = link.wait(seq, timeout_s=SYSTEM_REQUEST_TIMEOUT_S, halted_ok=True)
+            print(a.line())
+            waiting = a.code in (Response.QUEUED, Response.IN_PROGRESS)
+            if waiting:
+                arming = " and `pfma controller resume --rearm` arms the outputs" if kind == Request.POWER_UP else ""
+                print(f"the controller is halted: `pfma controller step [N]` runs the {Request.NAMES[kind]} frame by "
+                      f"frame{arming}; the outputs stay safe (0 V, brakes set) until then")
+        finally:
+            link.close()
+    except ControlError as err:
+        print(f"pfma controller {what}: {err}", file=sys.stderr)
+        return 1
+    return 0 if a.ok or waiting else 1
+
+
 def run(args) -> int:
     if args.distribute is not None or args.process is not None:
         return _run_distributed(args)
@@ -771,6 +937,14 @@ def run(args) -> int:
         return _gripper_control(args)
     if args.force is not None:
         print("pfma controller: --force belongs to `pfma controller gripper`", file=sys.stderr)
+        return 2
+    if args.action in SYSTEM_ACTIONS:
+        return _system_request(args)
+    if args.action == "move":
+        return _move_control(args)
+    if args.pose is not None or args.joints is not None or args.stop or args.no_wait:
+        print("pfma controller: --pose, --joints, --stop and --no-wait belong to `pfma controller move`",
+              file=sys.stderr)
         return 2
     if args.action is not None:
         return _frame_control(args)

@@ -14,7 +14,9 @@ Examples::
 
 Files live in ``--dir`` (default ``$PFMA_PATH_DIR``, else ``~/.local/share/pfma/paths``);
 ``pfma controller --record NAME`` / ``--play NAME`` record and play them. Points are
-numbered from 0 (negative numbers count from the end).
+numbered from 0 (negative numbers count from the end). A point given without an
+orientation keeps the tool's: the orientation of the point before it, or, at the first
+point, the tool's orientation when the playback starts (``--quat keep`` makes a point so).
 """
 
 from __future__ import annotations
@@ -37,7 +39,8 @@ def add_parser(sub):
     n = ps.add_parser("new", help="a new path from points")
     n.add_argument("name")
     n.add_argument("--point", action="append", default=[], metavar="X,Y,Z[,QW,QX,QY,QZ]",
-                   help="a teach point (metres, world frame; quaternion default identity); repeat")
+                   help="a teach point (metres, world frame); without a quaternion it keeps the tool's orientation "
+                        "(the point before's, or the tool's when the playback starts); repeat")
     n.add_argument("--gripper", action=_GripperAfterPoints, default=[], metavar="ACTION[:N]",
                    help="a gripper event (open, close or stop; :N a grip force in N) after the points given so "
                         "far, at the pose of the point before it; replayed in order with the motion; repeat")
@@ -49,7 +52,9 @@ def add_parser(sub):
     e.add_argument("--move", type=int, metavar="I", help="move point I (with --pos, --offset and/or --quat)")
     e.add_argument("--pos", metavar="X,Y,Z", help="position for --insert/--move (m)")
     e.add_argument("--offset", metavar="DX,DY,DZ", help="shift for --move (m)")
-    e.add_argument("--quat", metavar="QW,QX,QY,QZ", help="orientation for --insert/--move")
+    e.add_argument("--quat", metavar="QW,QX,QY,QZ|keep",
+                   help="orientation for --insert/--move ('keep': none of its own, it keeps the tool's; --insert "
+                        "without --quat keeps it too)")
     e.add_argument("--speed", metavar="I[,J...]|all", help="speed override of the segments ending at these points "
                                                             "(with --v-lin/--v-rot, or --clear)")
     e.add_argument("--v-lin", type=float, help="translation speed m/s for --speed")
@@ -120,7 +125,8 @@ def _edit(store, args) -> int:
     from controller.trajectory import Limits
     p = store.load(args.name)
     orig = p
-    quat = _floats(args.quat, (4,), "--quat") if args.quat else None
+    keep = args.quat == "keep"
+    quat = _floats(args.quat, (4,), "--quat") if args.quat and not keep else None
     if args.delete:
         p = delete_points(p, _ints(args.delete, "--delete"))
     if args.insert is not None:
@@ -128,10 +134,10 @@ def _edit(store, args) -> int:
             raise PathError("--insert needs --pos")
         p = insert_point(p, args.insert, _floats(args.pos, (3,), "--pos"), quat)
     if args.move is not None:
-        if not (args.pos or args.offset or quat):
+        if not (args.pos or args.offset or args.quat):
             raise PathError("--move needs --pos, --offset or --quat")
         p = move_point(p, args.move, _floats(args.pos, (3,), "--pos") if args.pos else None, quat,
-                       _floats(args.offset, (3,), "--offset") if args.offset else None)
+                       _floats(args.offset, (3,), "--offset") if args.offset else None, keep_orientation=keep)
     if args.speed:
         idx = None if args.speed == "all" else _ints(args.speed, "--speed")
         if not args.clear and args.v_lin is None and args.v_rot is None:
@@ -182,16 +188,17 @@ def run(args) -> int:
         print(p.describe())
         if args.plan and p.points:
             plan = plan_path(p)
+            keep = " with the orientation of the first point that has one" if any(
+                x.quat is None for x in p.points) else ""
             print(f"  playback plan: {len(plan)} segments to key points "
                   f"{', '.join(str(s.index) for s in plan)}; {plan_duration_s(p):.2f} s at the limits "
-                  f"(from point 0, without the approach)")
+                  f"(from point 0{keep}, without the approach)")
         return 0
     if cmd == "new":
         pts = []
         for i, text in enumerate(args.point):
             v = _floats(text, (3, 7), f"--point {i}")
-            pts.append(make_point(v[:3], v[3:] if len(v) == 7 else (1.0, 0.0, 0.0, 0.0), "teach",
-                                  where=f"--point {i}"))
+            pts.append(make_point(v[:3], v[3:] if len(v) == 7 else None, "teach", where=f"--point {i}"))
         for k, (after, text) in enumerate(args.gripper):  # in the order given; k events inserted before
             if not pts:
                 raise PathError("--gripper: a gripper event needs a --point to take its pose from")

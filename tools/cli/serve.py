@@ -50,6 +50,9 @@ def add_parser(sub):
     p.add_argument("--rack", default="fake", help="fake (simulated rack, default) or a rack TOML")
     p.add_argument("--bus", default=None, help="register bus for a real rack (modbus://H:P, file:PATH)")
     p.add_argument("--buffer", default="pfma", help="Bit3 shared-memory name (default pfma)")
+    p.add_argument("--private-if-busy", action="store_true",
+                   help="while a live service owns --buffer, run on a private buffer (pfma-sim-...), named in "
+                        "one line, instead of refusing (make run)")
     p.add_argument("--group", default=None, metavar="GROUP",
                    help="make the buffer and its frame ring mode 0640 with this group, so its members "
                         "(operators' accounts) can read them (default: 0600, this user only; "
@@ -108,8 +111,8 @@ _LIVE_LEAD = "{:>8} {:>7} {:<8}"
 def _wrap_pi(a: float) -> float:
     """An angle (rad) wrapped to (-pi, pi]: the resolvers read 0..2 pi, so a joint near 0
     would jump between ~0 and ~2 pi."""
-    w = math.remainder(a, 2 * math.pi)  # [-pi, pi]
-    return math.pi if w <= -math.pi else w
+    from pfma.show import wrap_angle  # the one way an angle is shown
+    return wrap_angle(a)
 
 
 def _joint_label(name: str) -> str:
@@ -309,6 +312,13 @@ def run(args) -> int:
     for line in realtime_start("pfma serve", args.realtime, os.cpu_count() - 1 if os.cpu_count() else None, 50,
                                watchdog_ms=args.watchdog_ms):
         print(line, file=sys.stderr)
+    private = False
+    if args.private_if_busy:  # make run: the default name unless a live service has it (tools/runnames.py)
+        from tools.runnames import claim
+        names = claim(args.buffer, None)
+        if names.private:
+            args.buffer, private = names.buffer, True
+            print(f"pfma serve: {names.note}", flush=True)
     _replace_stale(args.buffer)
     try:
         buf = Bit3Buffer.create(args.buffer, layout, group=args.group)
@@ -448,7 +458,7 @@ def run(args) -> int:
               + ", ".join(f"{k} {v['rate_hz']:.1f} Hz" for k, v in s["devices"].items() if v["samples"]))
         print(first_trip_line(svc), flush=True)
         buf.release()
-        buf.close()
+        buf.close(unlink=private)  # a private name nobody will ask for again goes; the default stays for readers
         svc.ring.close()
         FrameRing.unlink(args.buffer)
         svc.hand.close()

@@ -1,13 +1,20 @@
 """``pfma stats``: measured rates per device, loop latency percentiles, overruns and
 error counters of a running service, read from its Bit3 buffer; and the controller's
-frame timing and missed frames (Bit3 ``controller_stats``) when a controller is attached."""
+frame timing and missed frames (Bit3 ``controller_stats``) when a controller is attached.
+
+States, fault codes and status words are shown by name (pfma/show.py); ``--json`` keeps each
+number beside its name (``service_state`` / ``service_state_code``, ``fault_code`` /
+``fault_name``, a board's ``status`` / ``status_name``)."""
 
 from __future__ import annotations
 
 import json
 import sys
 
-from bit3.layout import CMD_STATUS_NAMES, DEVICE_GROUPS, FAULT_DAC_UNREACHABLE, ServiceState
+from bit3.layout import (
+    CMD_STATUS_NAMES, DEVICE_GROUPS, FAULT_CODE_NAMES, FAULT_DAC_UNREACHABLE, ServiceState, status_text,
+)
+from pfma.show import name_of
 
 
 def add_parser(sub):
@@ -25,7 +32,7 @@ def collect(client) -> dict:
     s = client.read_inputs()
     lay = client.layout
     out = {
-        "service_state": ServiceState(s.service_state).name,
+        "service_state": name_of(s.service_state, ServiceState), "service_state_code": int(s.service_state),
         "frame": st.frame, "frames": st.frames, "dropped_frames": st.dropped_frames,
         "overruns": st.overruns, "stall_events": st.stall_events,
         "frame_rate_hz": st.rate_hz, "period_s": st.period_s,
@@ -35,9 +42,13 @@ def collect(client) -> dict:
         "devices": {g: {"rate_hz": float(st.device_rate_hz[lay.slot("device", g)]),
                         "samples": int(st.device_samples[lay.slot("device", g)]),
                         "errors": int(st.device_errors[lay.slot("device", g)])} for g in DEVICE_GROUPS},
-        "boards": {c.name: {"status": int(s.board_status[c.slot]), "errors": int(s.board_errors[c.slot])}
+        "boards": {c.name: {"status": int(s.board_status[c.slot]),
+                            "status_name": status_text("board", int(s.board_status[c.slot])),
+                            "errors": int(s.board_errors[c.slot])}
                    for c in lay.channels if c.kind == "board"},
-        "links": {c.name: {"records": int(s.link_records[c.slot]), "bad": int(s.link_bad[c.slot]),
+        "links": {c.name: {"status": int(s.link_status[c.slot]),
+                           "status_name": status_text("link", int(s.link_status[c.slot])),
+                           "records": int(s.link_records[c.slot]), "bad": int(s.link_bad[c.slot]),
                            "resyncs": int(s.link_resyncs[c.slot]), "rate_hz": float(s.link_rate_hz[c.slot])}
                   for c in lay.channels if c.kind == "link"},
     }
@@ -45,12 +56,13 @@ def collect(client) -> dict:
     writer = client.owners().get("commands")
     out["commands"] = {  # what the service made of the command area (docs/safety.md)
         "writer": writer.name if writer is not None and writer.alive else None,
-        "fault_code": int(s.fault_code), "watchdog_tripped": bool(s.watchdog_tripped),
+        "fault_code": int(s.fault_code), "fault_name": name_of(s.fault_code, FAULT_CODE_NAMES),
+        "watchdog_tripped": bool(s.watchdog_tripped),
         # False while the DAC board does not answer: its outputs may hold their last values
         # (docs/safety.md "Honest outputs")
         "outputs_known_safe": int(s.fault_code) != FAULT_DAC_UNREACHABLE,
         "inputs_frame": int(s.command_inputs_frame), "input_age_frames": int(s.command_input_age_frames),
-        "status": [n for b, n in CMD_STATUS_NAMES.items() if status & b],
+        "status": [n for b, n in CMD_STATUS_NAMES.items() if status & b], "status_bits": status,
         "stale_frames": int(s.stale_commands), "absent_frames": int(s.absent_commands),
         "refused": int(s.refused_commands), "foreign_writes": int(s.foreign_writes),
         "last_host_stall_s": float(s.host_stall_s), "last_host_stall_t_s": float(s.host_stall_t_s),
@@ -163,22 +175,23 @@ def run(args) -> int:
         if v["samples"]:
             t.add_row(g, f"{v['rate_hz']:.1f}", str(v["samples"]), str(v["errors"]))
     print_table(t)
-    from tools.checkout.view import BOARD_BITS, bits
     t = table("board", "status", "errors>", title="boards")
     for b, v in d["boards"].items():
-        t.add_row(b, f"{v['status']} {bits(v['status'], BOARD_BITS)}", str(v["errors"]))
+        t.add_row(b, v["status_name"], str(v["errors"]))
     print_table(t)
-    t = table("link", "records>", "bad>", "resyncs>", "rate /s>", title="links")
+    t = table("link", "status", "records>", "bad>", "resyncs>", "rate /s>", title="links")
     for n, v in d["links"].items():
-        t.add_row(n, str(v["records"]), str(v["bad"]), str(v["resyncs"]), f"{v['rate_hz']:.1f}")
+        t.add_row(n, v["status_name"], str(v["records"]), str(v["bad"]), str(v["resyncs"]), f"{v['rate_hz']:.1f}")
     print_table(t)
     cm = d["commands"]
     stall = (f"  last host stall {cm['last_host_stall_s'] * 1e3:.0f} ms at t={cm['last_host_stall_t_s']:.1f} s"
              if cm["last_host_stall_s"] > 0 else "")
     age = f"age {cm['input_age_frames']} frames" if cm["writer"] else "no command writer attached"
+    fault = f"  service fault {cm['fault_name']}" if cm["fault_code"] else ""
     print(f"commands: {age}  status {'+'.join(cm['status']) or 'ok'}  "
           f"stale {cm['stale_frames']} frames  absent {cm['absent_frames']}  refused {cm['refused']}  "
-          f"foreign writes {cm['foreign_writes']}{'  WATCHDOG TRIPPED' if cm['watchdog_tripped'] else ''}{stall}")
+          f"foreign writes {cm['foreign_writes']}{'  WATCHDOG TRIPPED' if cm['watchdog_tripped'] else ''}{stall}"
+          f"{fault}")
     if not cm["outputs_known_safe"]:
         print("OUTPUTS NOT KNOWN SAFE: the DAC board does not answer; its outputs may hold their last values: "
               "press the hardware E-stop if the arm moves (docs/safety.md \"Honest outputs\")")

@@ -9,9 +9,14 @@ Everything is decoded from the variable table stored (as JSON) in the shared-mem
 segment, so this needs no controller code. ``set`` checks the request here: unknown
 variable; a variable users may not set (a task output, layer command, status or report, or
 a control-law parameter while powered up: ``VarSpec.user``, the USER column of ``list``);
-wrong key; bad value. It then puts it into the segment's user-request ring; the owning
+wrong key; bad value (an enumerated variable takes only the values of its enumeration).
+It then puts it into the segment's user-request ring; the owning
 process applies it at its next communications segment (docs/world-model.md). VALUE is JSON: ``1.5``, ``-3``, ``true``, ``[0.1, 0.2, 0.3]``
-(or numbers separated by commas/spaces).
+(or numbers separated by commas/spaces); an enumerated variable also takes a name (``PLAY``).
+
+States, statuses, modes and error codes are shown by name with the number beside them
+(``ERROR (7)``; pfma/show.py); ``--json`` keeps the number in ``value`` and puts the name
+in ``value_name``.
 """
 
 from __future__ import annotations
@@ -91,11 +96,33 @@ def format_value(v, width: int | None = None) -> str:
     return text
 
 
-def _header(info) -> str:
+def value_text(spec, v, width: int | None = None) -> str:
+    """A variable's value as a person reads it: an enumeration or a bit set by name with
+    the number beside it (``ERROR (7)``, :meth:`VarSpec.value_text`), else :func:`format_value`."""
+    named = spec.value_text(v)
+    if named is None:
+        return format_value(v, width)
+    return named if width is None or len(named) <= width else named[:width - 3] + "..."
+
+
+def _layers_in_error(wm) -> tuple[int, int]:
+    """(layers in ERROR, layers): the ``<layer>.status`` variables whose value is named ERROR."""
+    specs = [s for s in wm.specs if s.name.endswith(".status") and "ERROR" in s.enum_names.values()]
+    if not specs:
+        return 0, 0
+    values = wm.get_task_inputs([s.name for s in specs])
+    return sum(1 for s in specs if s.enum_names.get(int(values[s.name])) == "ERROR"), len(specs)
+
+
+def _header(info, wm=None) -> str:
     owner = (f"{info.owner} (pid {info.owner_pid}, {'running' if info.owner_alive else 'NOT running'})"
              if info.owner_pid > 0 else f"{info.owner} (closed)")
+    up = "yes" if info.powered_up else "no"
+    n_err, n = _layers_in_error(wm) if wm is not None else (0, 0)
+    if n_err:
+        up += f" (but {n_err} of {n} layers in ERROR)" if info.powered_up else f" ({n_err} of {n} layers in ERROR)"
     return (f"world model {info.name!r}: owner {owner}, frame {info.frame}, "
-            f"powered up: {'yes' if info.powered_up else 'no'}, {info.n_variables} variables")
+            f"powered up: {up}, {info.n_variables} variables")
 
 
 def _print_first_cause(wm) -> None:
@@ -153,9 +180,16 @@ def _user_text(spec) -> str:
 
 
 def _describe(spec, value) -> dict:
-    return {"name": spec.name, "area": spec.area, "type": spec.type_text, "dtype": spec.dtype,
-            "shape": list(spec.shape), "units": spec.units, "writer": spec.writer,
-            "protected": spec.protected, "user": spec.user, "value": _py(value), "doc": spec.doc}
+    out = {"name": spec.name, "area": spec.area, "type": spec.type_text, "dtype": spec.dtype,
+           "shape": list(spec.shape), "units": spec.units, "writer": spec.writer,
+           "protected": spec.protected, "user": spec.user, "value": _py(value), "doc": spec.doc}
+    if spec.enum or spec.flags:  # the number stays in "value"; the name beside it
+        names = spec.enum_names or spec.flag_names
+        v = int(np.asarray(value).item())
+        out["value_name"] = (names.get(v) if spec.enum else
+                             [n for b, n in names.items() if v & b])
+        out["enum" if spec.enum else "flags"] = {str(k): n for k, n in names.items()}
+    return out
 
 
 # ----------------------------------------------------------------------------------------
@@ -171,7 +205,7 @@ def cmd_list(wm, args) -> int:
                           "frame": info.frame, "powered_up": info.powered_up, "first_cause": _first_cause(wm),
                           "variables": [_describe(s, values[s.name]) for s in specs]}, indent=1))
         return 0
-    print(_header(info))
+    print(_header(info, wm))
     _print_first_cause(wm)
     _print_gripper(wm)
     if not specs:
@@ -179,7 +213,7 @@ def cmd_list(wm, args) -> int:
               + (f" filter {args.filter!r}" if args.filter else ""))
         return 0
     rows = [(s.name, s.area, s.type_text, s.units or "-", s.writer, s.user,
-             format_value(values[s.name], 40), s.doc) for s in specs]
+             value_text(s, values[s.name], 40), s.doc) for s in specs]
     heads = ("NAME", "AREA", "TYPE", "UNITS", "WRITER", "USER", "VALUE", "DOC")
     widths = [max(len(h), *(len(r[k]) for r in rows)) for k, h in enumerate(heads[:-1])]
     fmt = "  ".join(f"{{:<{w}}}" for w in widths) + "  {}"
@@ -200,7 +234,7 @@ def cmd_get(wm, args) -> int:
                           "first_cause": _first_cause(wm),
                           "variables": {s.name: _describe(s, values[s.name]) for s in specs}}, indent=1))
         return 0
-    print(f"{_header(info)} (values from one consistent copy)")
+    print(f"{_header(info, wm)} (values from one consistent copy)")
     _print_first_cause(wm)
     _print_gripper(wm)
     for s in specs:
@@ -210,17 +244,47 @@ def cmd_get(wm, args) -> int:
         print(f"  units      {s.units or '-'}")
         print(f"  writer     {s.writer}")
         print(f"  user set   {_user_text(s)}")
-        print(f"  value      {format_value(values[s.name])}")
+        print(f"  value      {value_text(s, values[s.name])}")
+        if s.enum:
+            print(f"  values     {s.enum_text()} (any other is refused)")
+        elif s.flags:
+            print("  bits       " + ", ".join(f"{b} {n}" for b, n in s.flags))
         print(f"  doc        {s.doc or '-'}")
     return 0
 
 
-def parse_value(text: str):
-    """VALUE as JSON; else numbers separated by commas/spaces (``1,2,3`` or ``"1 2 3"``)."""
+def parse_value(text: str, spec=None):
+    """VALUE as JSON; else numbers separated by commas/spaces (``1,2,3`` or ``"1 2 3"``); for
+    an enumerated variable (``spec.enum``) also a name of its enumeration (``PLAY``, ``play``).
+
+    :raises WorldModelValueError: neither (for an enumerated variable the message lists its
+        values; a number outside them is refused by the value check, :func:`coerce`)
+    """
+    from controller.worldmodel import WorldModelValueError
+    enum = spec.enum_names if spec is not None and spec.enum else None
+    if enum:
+        from pfma.show import value_of
+        v = value_of(text.strip().strip('"'), enum)
+        if v is not None:
+            return v
+    value = _parse_json_or_numbers(text)
+    if enum and (value is _NOT_PARSED or isinstance(value, str)):
+        raise WorldModelValueError(f"{spec.name}: {text!r} is not one of its values ({spec.enum_text()})")
+    if value is _NOT_PARSED:
+        raise WorldModelValueError(f"value {text!r} is not JSON (examples: 1.5, -3, true, [0.1, 0.2, 0.3])")
+    return value
+
+
+_NOT_PARSED = object()
+
+
+def _parse_json_or_numbers(text: str):
+    """``text`` as JSON, else as numbers separated by commas/spaces; :data:`_NOT_PARSED` if neither."""
     try:
         return json.loads(text)
     except ValueError:
         pass
+
     def number(p: str):
         try:
             return json.loads(p)
@@ -235,8 +299,7 @@ def parse_value(text: str):
             return [number(p) for p in parts]
     except ValueError:
         pass
-    from controller.worldmodel import WorldModelValueError
-    raise WorldModelValueError(f"value {text!r} is not JSON (examples: 1.5, -3, true, [0.1, 0.2, 0.3])")
+    return _NOT_PARSED
 
 
 def cmd_set(wm, args) -> int:
@@ -247,7 +310,7 @@ def cmd_set(wm, args) -> int:
     if not key:
         raise WorldModelError(f"setting {spec.name!r} needs the world model's access key "
                               f"(--key KEY or ${ACCESS_KEY_ENV})")
-    value = parse_value(args.value)
+    value = parse_value(args.value, spec)
     rid = wm.set_user(spec.name, value, key)
     if args.wait <= 0:
         print(f"{spec.name}: request #{rid} queued; the owner applies it at its next "
@@ -260,7 +323,7 @@ def cmd_set(wm, args) -> int:
             print(f"{spec.name}: request #{rid} was overwritten before its outcome was read")
             return 1
         if r.state == "applied":
-            print(f"{spec.name} = {format_value(wm.get(spec.name))} {spec.units}".rstrip()
+            print(f"{spec.name} = {value_text(spec, wm.get(spec.name))} {spec.units}".rstrip()
                   + f"  (request #{rid}, {r.result})")
             return 0
         if r.state == "rejected":
@@ -279,7 +342,7 @@ def cmd_requests(wm, args) -> int:
     if args.json:
         print(json.dumps([r.__dict__ for r in reqs], indent=1))
         return 0
-    print(_header(wm.info()))
+    print(_header(wm.info(), wm))
     if not reqs:
         print("no user requests")
         return 0

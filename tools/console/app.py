@@ -13,6 +13,7 @@ are keyed user writes through the same ring ``pfma wm set`` uses; nothing else i
 from __future__ import annotations
 
 import asyncio
+import math
 import signal
 import sys
 import time
@@ -32,12 +33,15 @@ from textual.widgets import Footer, Input, Static
 from drivers.pio.routes import MONITORS, route_request_arg
 from tools.console.recording import ConsoleRecording
 from tools.console import debug, view
-from tools.console.control import Answer, ControlError, ControllerLink, Request, Response
+from tools.console.control import Answer, ControlError, ControllerLink, Request, Response, parse_move
 
 #: refresh rate of the areas (the issue's 10 Hz)
 REFRESH_HZ = 10.0
 #: frames one capital-S single step runs
 BIG_STEP = 10
+#: requests the console follows to their final answers at once (the newest; System Up/Down
+#: queues at most controller.layers.QUEUE_SLOTS, and a few more are answered at once)
+PENDING_FOLLOWED = 16
 
 
 class LinesView(Widget):
@@ -421,7 +425,8 @@ class ForceScreen(DebugDisplay):
 class EditScreen(ModalScreen):
     """Type a value for one variable (or one element of a vector), Enter to check it,
     Enter again to confirm and send it; Escape cancels. The value is read as ``pfma wm
-    set`` reads VALUE (JSON, or numbers separated by commas/spaces)."""
+    set`` reads VALUE (JSON, numbers separated by commas/spaces, or a name of an enumerated
+    variable's values); a value outside the enumeration is refused here, nothing sent."""
 
     BINDINGS = [Binding("escape", "cancel", "cancel")]
     CSS = "EditScreen { align: center middle; } #edit { width: 100; height: auto; border: round $accent; }"
@@ -435,10 +440,10 @@ class EditScreen(ModalScreen):
         self.confirm: str | None = None  # the text checked and shown for confirmation
 
     def compose(self) -> ComposeResult:
-        from tools.cli.wm import format_value
+        from tools.cli.wm import format_value, value_text
         now = self.current if self.index is None else self.current[self.index]
         with Vertical(id="edit"):
-            yield Static(self._info(format_value(self.current)), id="edit-info", markup=False)
+            yield Static(self._info(value_text(self.spec, self.current)), id="edit-info", markup=False)
             yield Input(value=format_value(now), id="edit-value")
             yield Static("Enter: check the value   Escape: cancel", id="edit-status", markup=False)
 
@@ -447,7 +452,8 @@ class EditScreen(ModalScreen):
         what = f"{self.var}[{self.index}]" if self.index is not None else self.var
         when = "any time" if s.user == "always" else "only while powered down"
         return (f"modify {what}  ({s.type_text}{' ' + s.units if s.units else ''}; written by {s.writer}; "
-                f"users may set it {when})\nnow: {now}\n{s.doc}")
+                f"users may set it {when})\nnow: {now}\n{s.doc}"
+                + (f"\nvalues: {s.enum_text()}" if s.enum else ""))
 
     def full_text(self, text: str) -> str:
         """The value to send: the typed text, or the vector with the element replaced."""
@@ -456,14 +462,14 @@ class EditScreen(ModalScreen):
         import json
 
         from tools.cli.wm import parse_value
-        v = parse_value(text)
+        v = parse_value(text, self.spec)
         vec = [x.item() if hasattr(x, "item") else x for x in list(self.current)]
         vec[self.index] = v
         return json.dumps(vec)
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
         from controller.worldmodel import WorldModelError, coerce
-        from tools.cli.wm import format_value, parse_value
+        from tools.cli.wm import parse_value, value_text
         text = event.value.strip()
         status = self.query_one("#edit-status", Static)
         app = self.app
@@ -473,13 +479,13 @@ class EditScreen(ModalScreen):
             self.app.pop_screen()
             return
         try:
-            value = coerce(self.spec, parse_value(self.full_text(text)))
+            value = coerce(self.spec, parse_value(self.full_text(text), self.spec))
         except WorldModelError as err:  # the value check of pfma wm set: shown here, nothing sent
             self.confirm = None
             status.update(f"not sent: {err}")
             return
         self.confirm = text
-        status.update(f"set {self.var} = {format_value(value)}?  Enter: confirm and send   Escape: cancel")
+        status.update(f"set {self.var} = {value_text(self.spec, value)}?  Enter: confirm and send   Escape: cancel")
 
     def action_cancel(self) -> None:
         self.app.pop_screen()
@@ -521,6 +527,62 @@ class CameraScreen(ModalScreen):
         app = self.app
         assert isinstance(app, ConsoleApp)
         app._send(Request.ROUTE, route_request_arg(self.monitor, camera))
+        self.redraw()
+
+
+class MoveScreen(ModalScreen):
+    """Move to (docs/console.md "Move to"): type a pose, joint angles or ``stop``; Enter
+    checks the text and shows the move, Enter again sends it as a move-to request
+    (:meth:`ControllerLink.move_pose` / ``move_joints`` / ``stop_move``; a pose move sets
+    cart.mode 2 TRAJECTORY first if it is not). The controller checks the motion before it
+    starts; its answer (a refusal naming the point and the reason, OK, FAILED with the worst
+    tracking error) shows here and in Messages. Live at the console's refresh."""
+
+    BINDINGS = [Binding("escape", "app.pop_screen", "close")]
+    CSS = "MoveScreen { align: center middle; } #move { width: 110; height: auto; border: round $accent; }"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.confirm: str | None = None  # the text checked and shown for confirmation
+        self.status = ""
+
+    def compose(self) -> ComposeResult:
+        with Vertical(id="move"):
+            yield Static("", id="move-info", markup=False)
+            yield Input(value="", placeholder="pose 1.55,0,-0.33", id="move-text")
+
+    def on_mount(self) -> None:
+        self.redraw()
+
+    def redraw(self) -> None:
+        app = self.app
+        assert isinstance(app, ConsoleApp)
+        self.query_one("#move-info", Static).update(view.move_screen(app.sources.wm, self.status))
+
+    def text(self) -> str:
+        return str(self.query_one("#move-info", Static).render())
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        app = self.app
+        assert isinstance(app, ConsoleApp)
+        text = event.value.strip()
+        try:
+            kind, nums, turn = parse_move(text)
+        except ControlError as err:
+            self.confirm = None
+            self.status = f"not sent: {err}"
+            self.redraw()
+            return
+        if self.confirm != text:
+            self.confirm = text
+            what = {"stop": "stop the running move or playback",
+                    "pose": f"move the tool to {text[4:].strip()}",
+                    "joints": f"move the joints to {text[6:].strip()} deg"}[kind]
+            self.status = f"{what}?  Enter: confirm and send   Escape: close"
+            self.redraw()
+            return
+        self.confirm = None
+        self.status = app.send_move(kind, nums, turn)
         self.redraw()
 
 
@@ -577,7 +639,7 @@ class ConsoleApp(App):
     # (a line longer than its area ends in an ellipsis).
     HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-wide")]
     CSS = """
-    Grid { grid-size: 2 3; grid-columns: 2fr 1fr; grid-rows: 15fr 16fr 8fr; }
+    Grid { grid-size: 2 3; grid-columns: 2fr 1fr; grid-rows: 16fr 16fr 7fr; }
     Area { border: round $accent; padding: 0 1; height: 100%; scrollbar-size-vertical: 1; }
     Area:focus { border: round $secondary; }
     Area > Static { text-wrap: nowrap; text-overflow: ellipsis; }
@@ -604,6 +666,7 @@ class ConsoleApp(App):
         Binding("o", "gripper('OPEN')", "open", show=False), Binding("g", "gripper('CLOSE')", "grip", show=False),
         Binding("x", "gripper('STOP')", "gripper stop", show=False),
         Binding("plus", "grip_force(1)", "force+", show=False), Binding("minus", "grip_force(-1)", "force-", show=False),
+        Binding("t", "move", "move to"),
         Binding("m", "messages", "messages"),
         Binding("w", "browser", "world model"),
         Binding("p", "params", "parameters"),
@@ -627,7 +690,7 @@ class ConsoleApp(App):
         self.selected = 0
         self.rearm = False
         self.last_answer = ""
-        self.pending: int | None = None  # request waiting for its final answer
+        self.pending: list[int] = []  # requests waiting for their final answers, oldest first (queued requests)
         self.gripper_pending: int | None = None  # gripper request waiting for its final answer
         self.reading: view.Reading | None = None
         self.read_error = ""
@@ -637,6 +700,7 @@ class ConsoleApp(App):
         self.writes: dict[int, str] = {}  # user writes waiting for the owner's verdict: id -> variable
         self.write_status = ""  # the last write's outcome or refusal (the browser and parameters show it)
         self.recording: ConsoleRecording | None = None  # ``c``: a pfma record process, made at the first press
+        self.pending_move: int | None = None  # the move-to request whose answer is awaited
 
     def compose(self) -> ComposeResult:
         # issue 28 item 5: shown only while the service reports its outputs NOT known safe
@@ -645,7 +709,8 @@ class ConsoleApp(App):
         with Grid():
             for key in ("local", "global", "world", "commands", "messages"):  # the grid's order (CSS)
                 with Area(id=f"{key}-area", classes="area") as area:
-                    area.border_title = titles[key]
+                    area.border_title = titles[key] + (f" ({self.sources.names})" if key == "world" and
+                                                       self.sources.names else "")
                     yield Static("", id=key, markup=False)
         yield Footer()
 
@@ -696,7 +761,8 @@ class ConsoleApp(App):
         self._set("messages", view.messages_area(self.sources.messages), follow=True)
         self._set("commands", view.local_commands(r, self.selected, self.sources.wm))
         self._set("global", view.global_commands(r, self.rearm, self.last_answer))
-        if isinstance(self.screen, (CameraScreen, MessagesScreen)) and self.screen.is_mounted:  # live too
+        self._follow_move()
+        if isinstance(self.screen, (CameraScreen, MessagesScreen, MoveScreen)) and self.screen.is_mounted:  # live too
             self.screen.redraw()
 
     def _show_banner(self, text: str) -> None:
@@ -735,17 +801,18 @@ class ConsoleApp(App):
         return str(self.query_one(f"#{key}", Static).render())
 
     def _follow_answer(self) -> None:
-        if self.pending is None or self.link is None:
+        if not self.pending or self.link is None:
             return
-        a = self.link.answer(self.pending)
-        if a is None:
-            return
-        self._show_answer(a)
-        if a.done:
-            self.pending = None
-            if a.ok and "SINGLE STEP" in a.text:
-                for line in self.link.step_trace().splitlines()[-3:]:
-                    self._note("INFO", "trace " + line.strip())
+        for seq in list(self.pending):  # each request sent is followed to its final answer
+            a = self.link.answer(seq)
+            if a is None:
+                continue
+            self._show_answer(a)
+            if a.done:
+                self.pending.remove(seq)
+                if a.ok and "SINGLE STEP" in a.text:
+                    for line in self.link.step_trace().splitlines()[-3:]:
+                        self._note("INFO", "trace " + line.strip())
 
     def _show_answer(self, a: Answer) -> None:
         line = a.line()
@@ -803,8 +870,9 @@ class ConsoleApp(App):
                 continue
             name = self.writes.pop(rid)
             if o.applied:
-                from tools.cli.wm import format_value
-                self.write_status = f"{name} = {format_value(self.link.wm.get(name))} (write #{rid}, {o.result})"
+                from tools.cli.wm import value_text
+                self.write_status = (f"{name} = {value_text(self.link.wm.spec(name), self.link.wm.get(name))} "
+                                     f"(write #{rid}, {o.result})")
                 self._note("INFO", self.write_status)
             else:
                 self._refuse(name, f"write #{rid} rejected by the controller: {o.result}")
@@ -823,11 +891,13 @@ class ConsoleApp(App):
             self._note("WARNING", "read-only console: no controller to send requests to")
             return
         try:
-            self.pending = self.link.submit(kind, arg)
+            seq = self.link.submit(kind, arg)
         except ControlError as err:
             self._note("ERROR", str(err))
             return
-        self._note("INFO", f"request {self.pending}: {Request.NAMES[kind]} sent")
+        self.pending.append(seq)
+        del self.pending[:-PENDING_FOLLOWED]  # the oldest unanswered stop being followed (never more than these)
+        self._note("INFO", f"request {seq}: {Request.NAMES[kind]} sent")
         self.refresh_areas()
 
     def action_request(self, name: str) -> None:
@@ -902,6 +972,45 @@ class ConsoleApp(App):
         if self.link is None:
             self._note("WARNING", "read-only console: no controller to route the cameras")
         self.push_screen(CameraScreen())
+
+    def action_move(self) -> None:
+        if self.link is None:
+            self._note("WARNING", "read-only console: no controller to send moves to")
+        self.push_screen(MoveScreen())
+
+    def send_move(self, kind: str, nums: list[float], turn: float | None) -> str:
+        """Send one move-to request (the move screen); the answer follows at the refresh."""
+        if self.link is None:
+            self._note("WARNING", "read-only console: no controller to send moves to")
+            return "not sent: read-only console"
+        try:
+            if kind == "stop":
+                seq = self.link.stop_move()
+            elif kind == "pose":
+                change = self.link.trajectory_mode()
+                if change:
+                    self._note("INFO", f"{change} (a pose move follows the Trajectory Planner)")
+                seq = self.link.move_pose(nums[:3], nums[3:] if len(nums) == 7 else None, turn)
+            else:
+                seq = self.link.move_joints(nums, turn)
+        except ControlError as err:
+            self._note("ERROR", str(err))
+            return f"not sent: {err}"
+        self.pending_move = seq
+        line = f"move {seq} sent: {kind} " + (" ".join(f"{x:g}" for x in nums) if kind == "pose" else
+                                            " ".join(f"{math.degrees(x):g}" for x in nums))
+        self._note("INFO", line.rstrip())
+        return line.rstrip() + "; the controller checks it before it starts"
+
+    def _follow_move(self) -> None:
+        if self.pending_move is None or self.link is None:
+            return
+        a = self.link.move_answer(self.pending_move)
+        if a is None:
+            return
+        self.pending_move = None
+        self.last_answer = a.line()
+        self._note("INFO" if a.ok else "WARNING", a.line())
 
     def action_browser(self) -> None:
         self.push_screen(BrowserScreen(self.sources.wm))

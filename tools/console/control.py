@@ -1,10 +1,11 @@
 """Requests to a running controller through its world model's request/response protocol
-(``ui.request``, ``ui.request_arg``, ``ui.request_seq`` -> ``ui.response``,
-``ui.response_text``, ``ui.response_seq``; System Up/Down answers, docs/console.md).
+(one keyed write of ``ui.request`` = (kind, argument) per request, numbered by the write's
+request id; System Up/Down queues them and answers each in its answer log ``ui.answer_*``,
+docs/controller.md "User requests", docs/console.md).
 
-Used by ``pfma controller halt|step|resume`` and by the console. The link never blocks on
-its own: :meth:`ControllerLink.answer` is polled (the CLI waits in real time, the console
-at its refresh, a test in simulated frames).
+Used by ``pfma controller halt|step|resume|power-up|power-down|reset`` and by the console.
+The link never blocks on its own: :meth:`ControllerLink.answer` is polled (the CLI waits in
+real time, the console at its refresh, a test in simulated frames).
 """
 
 from __future__ import annotations
@@ -13,11 +14,12 @@ import os
 import time
 from dataclasses import dataclass
 
-from controller.layers import Request, Response
+from controller.layers import Request, Response, find_answer
 from controller.worldmodel import WorldModel, WorldModelError
 from controller.worldmodel.model import ACCESS_KEY_ENV, DEFAULT_ACCESS_KEY
 
-__all__ = ["Answer", "ControllerLink", "ControlError", "Request", "Response", "WriteOutcome", "access_key"]
+__all__ = ["Answer", "ControllerLink", "ControlError", "MoveAnswer", "Request", "Response", "WriteOutcome",
+           "access_key", "parse_move"]
 
 
 class ControlError(Exception):
@@ -33,7 +35,8 @@ class Answer:
 
     @property
     def done(self) -> bool:
-        return self.code not in (Response.NONE, Response.IN_PROGRESS)
+        """A final answer (not QUEUED or IN PROGRESS)."""
+        return self.code in Response.FINAL
 
     @property
     def ok(self) -> bool:
@@ -60,6 +63,7 @@ class ControllerLink:
         self.key = access_key(key)
         self._seq = 0
         self._gseq = 0
+        self._move_seq = 0
 
     @classmethod
     def attach(cls, name: str, key: str | None = None) -> "ControllerLink":
@@ -77,25 +81,29 @@ class ControllerLink:
         return cls(wm, key)
 
     def submit(self, kind: int, arg: int = 0) -> int:
-        """Post request ``kind`` (``Request.*``) with ``arg``; returns its number."""
+        """Post request ``kind`` (``Request.*``) with ``arg``: one keyed write of
+        ``ui.request``; returns its number (the write's request id)."""
         try:
-            self._seq = max(self._seq, int(self.wm.get("ui.request_seq"))) + 1
-            self.wm.set_user("ui.request_arg", int(arg), self.key)
-            self.wm.set_user("ui.request", int(kind), self.key)
-            self.wm.set_user("ui.request_seq", self._seq, self.key)
+            return int(self.wm.set_user("ui.request", [int(kind), int(arg)], self.key))
         except WorldModelError as err:
             raise ControlError(str(err)) from None
-        return self._seq
 
     def answer(self, seq: int) -> Answer | None:
-        """The answer to request ``seq`` so far (None: not answered yet)."""
-        v = self.wm.get_task_inputs(("ui.response_seq", "ui.response", "ui.response_text"))
-        if int(v["ui.response_seq"]) != seq:
-            return None
-        return Answer(seq, int(v["ui.response"]), _text(v["ui.response_text"]))
+        """The newest answer to request ``seq`` so far (None: not answered yet). A request
+        the world model itself rejected (never reached System Up/Down) reads as REFUSED
+        with the world model's reason."""
+        a = find_answer(self.wm, seq)
+        if a is not None:
+            return Answer(seq, a[0], a[1])
+        r = self.wm.request(seq)
+        if r is not None and r.state == "rejected":
+            return Answer(seq, Response.REFUSED, f"not taken by the world model: {r.result}")
+        return None
 
-    def wait(self, seq: int, timeout_s: float, poll_s: float = 0.005) -> Answer:
-        """Poll (real time) until request ``seq`` is answered with more than IN PROGRESS.
+    def wait(self, seq: int, timeout_s: float, poll_s: float = 0.005, halted_ok: bool = False) -> Answer:
+        """Poll (real time) until request ``seq`` has a final answer (``Answer.done``).
+        ``halted_ok``: also return once it is QUEUED or IN PROGRESS while the controller is
+        halted (it then runs frame by frame, with the steps).
 
         :raises ControlError: not answered within ``timeout_s``
         """
@@ -105,7 +113,7 @@ class ControllerLink:
             a = self.answer(seq)
             if a is not None:
                 last = a
-                if a.done:
+                if a.done or (halted_ok and self.halted()):
                     return a
             time.sleep(poll_s)
         info = self.wm.info()
@@ -120,15 +128,15 @@ class ControllerLink:
         return self.wm.check_user_settable(name)
 
     def write(self, name: str, text: str) -> int:
-        """Ask the owner to set ``name`` to ``text`` (a ``pfma wm set`` VALUE: JSON, or numbers
-        separated by commas/spaces) with this link's key; returns the request id. The rule,
+        """Ask the owner to set ``name`` to ``text`` (a ``pfma wm set`` VALUE: JSON, numbers
+        separated by commas/spaces, or a name of an enumerated variable's values) with this link's key; returns the request id. The rule,
         the key and the value are checked by ``WorldModel.set_user``, the call ``pfma wm set``
         makes, and again by the owner when it applies the request.
 
         :raises WorldModelError: why not (not user-settable, powered up, key, value, ring full)
         """
         from tools.cli.wm import parse_value  # VALUE as `pfma wm set` reads it
-        return int(self.wm.set_user(name, parse_value(text), self.key))
+        return int(self.wm.set_user(name, parse_value(text, self.wm.spec(name)), self.key))
 
     def outcome(self, rid: int) -> "WriteOutcome | None":
         """The owner's verdict on write ``rid`` once it has one (None while pending)."""
@@ -138,6 +146,95 @@ class ControllerLink:
         if r.state not in ("applied", "rejected"):
             return None
         return WriteOutcome(rid, r.variable, r.state == "applied", r.result)
+
+    # --- move-to requests (msp.move_request; docs/controller.md "Moves that mean what they say") ---
+    def move_pose(self, pos_m, quat=None, max_turn_rad: float | None = None) -> int:
+        """Ask the controller to move the tool to ``pos_m`` (x, y, z m, world) with ``quat``
+        (qw, qx, qy, qz; None: keep the tool's orientation) on a straight line, checked
+        first (tool rotation up to ``max_turn_rad``, default ``msp.max_turn_rad``; soft
+        limits; singular sets). It needs cart.mode 2 TRAJECTORY: :meth:`trajectory_mode`.
+        Returns the request number (:meth:`move_answer`, :meth:`wait_move`).
+
+        :raises ControlError: a bad pose (one line), or the write refused
+        """
+        from controller.paths import MoveRequest, PathError
+        try:
+            return self._move(lambda seq: MoveRequest.pose(seq, pos_m, quat, max_turn_rad))
+        except PathError as err:
+            raise ControlError(f"move: {err}") from None
+
+    def move_joints(self, joints_rad, max_turn_rad: float | None = None) -> int:
+        """Ask the controller to move the joints to ``joints_rad`` (rad, command-area order)
+        on a straight line in joint space, checked first. Returns the request number."""
+        from controller.paths import MoveRequest, PathError
+        try:
+            return self._move(lambda seq: MoveRequest.joints(seq, joints_rad, max_turn_rad))
+        except PathError as err:
+            raise ControlError(f"move: {err}") from None
+
+    def stop_move(self) -> int:
+        """Stop the running move or playback (it decelerates to rest). Returns the request number."""
+        from controller.paths import MoveRequest
+        return self._move(MoveRequest.stop)
+
+    def _move(self, make) -> int:
+        """Write one move request. Refused while the controller is halted: no frame runs then,
+        and the move would start on the resume, unexpected."""
+        if self.halted():
+            raise ControlError("the controller is halted: a move would start only on the resume (pfma controller "
+                               "resume --rearm first)")
+        try:
+            seq = max(int(self.wm.get("msp.move_request")[0]), int(self.wm.get("msp.move_done_seq")),
+                      self._move_seq) + 1
+            req = make(seq)
+            self.wm.set_user("msp.move_request", req.to_array(), self.key)
+        except WorldModelError as err:
+            raise ControlError(str(err)) from None
+        self._move_seq = seq
+        return seq
+
+    def trajectory_mode(self) -> str:
+        """Set cart.mode 2 TRAJECTORY (the Cartesian Engine follows the Trajectory Planner, as a
+        pose move or playback needs) unless it is; "" if it was, else the change in words."""
+        from controller.cartesian import MODE_NAMES, MODE_TRAJECTORY
+        try:
+            mode = int(self.wm.get("cart.mode"))
+            if mode == MODE_TRAJECTORY:
+                return ""
+            self.wm.set_user("cart.mode", MODE_TRAJECTORY, self.key)
+        except WorldModelError as err:
+            raise ControlError(str(err)) from None
+        return f"cart.mode {MODE_NAMES.get(mode, mode)} -> TRAJECTORY"
+
+    def move_answer(self, seq: int) -> "MoveAnswer | None":
+        """How move request ``seq`` ended (None: not yet)."""
+        from controller.paths import MspResult
+        v = self.wm.get_task_inputs(("msp.move_done_seq", "msp.result", "msp.result_text"))
+        done = int(v["msp.move_done_seq"])
+        if done < seq:
+            return None
+        code = int(v["msp.result"])
+        text = _text(v["msp.result_text"])
+        if done > seq:
+            return MoveAnswer(seq, code, f"move {seq} ended; a later request's answer is shown: {text}", False,
+                              MspResult.NAMES.get(code, "?"))
+        return MoveAnswer(seq, code, text, code == MspResult.OK, MspResult.NAMES.get(code, "?"))
+
+    def wait_move(self, seq: int, timeout_s: float, poll_s: float = 0.02) -> "MoveAnswer":
+        """Poll (real time) until move request ``seq`` is answered.
+
+        :raises ControlError: not answered within ``timeout_s`` (the move goes on)
+        """
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end:
+            a = self.move_answer(seq)
+            if a is not None:
+                return a
+            time.sleep(poll_s)
+        info = self.wm.info()
+        alive = "" if info.owner_alive else f"; its controller (pid {info.owner_pid}) is not running"
+        raise ControlError(f"move {seq}: not ended within {timeout_s:g} s (it goes on; `pfma controller move --stop` "
+                           f"stops it){alive}")
 
     def halted(self) -> bool:
         return bool(self.wm.get("runtime.halted"))
@@ -195,6 +292,22 @@ class ControllerLink:
 
 
 @dataclass(frozen=True)
+class MoveAnswer:
+    """How a move request ended: ``code`` is ``msp.result`` (``MspResult``), ``text`` the
+    controller's words (``msp.result_text``: the point and the reason of a refusal, the worst
+    tracking error of a FAILED)."""
+
+    seq: int
+    code: int
+    text: str
+    ok: bool
+    result: str  #: the result's name: OK, REFUSED, FAILED, CANCELLED ...
+
+    def line(self) -> str:
+        return self.text or f"move {self.seq} -> {self.result}"
+
+
+@dataclass(frozen=True)
 class WriteOutcome:
     """What the owner did with a user write: applied (at frame N) or rejected (why)."""
 
@@ -202,6 +315,44 @@ class WriteOutcome:
     variable: str
     applied: bool
     result: str
+
+
+def parse_move(text: str) -> tuple[str, list[float], float | None]:
+    """The console's move-to text: ``pose X,Y,Z[,QW,QX,QY,QZ]``, ``joints D,D,D,D,D,D``
+    (degrees) or ``stop``, optionally followed by ``turn DEG``; returns (kind, numbers -
+    metres/quaternion or radians -, largest tool rotation in rad or None).
+
+    :raises ControlError: one line saying what is wrong
+    """
+    import math
+    words = text.replace(";", " ").split()
+    turn = None
+    if len(words) >= 2 and words[-2] == "turn":
+        try:
+            deg = float(words[-1])
+        except ValueError:
+            raise ControlError(f"turn {words[-1]!r}: not a number of degrees") from None
+        if not 0.0 < deg <= 180.0:
+            raise ControlError(f"turn {deg:g}: the largest tool rotation must be 0..180 degrees")
+        turn = math.radians(deg)
+        words = words[:-2]
+    if words == ["stop"]:
+        return "stop", [], None
+    if len(words) < 2 or words[0] not in ("pose", "joints"):
+        raise ControlError("type pose X,Y,Z[,QW,QX,QY,QZ], joints D,D,D,D,D,D or stop (then optionally turn DEG)")
+    try:
+        nums = [float(x) for x in ",".join(words[1:]).split(",") if x.strip()]
+    except ValueError:
+        raise ControlError(f"{words[0]}: {' '.join(words[1:])!r} is not a list of numbers") from None
+    if not all(math.isfinite(x) for x in nums):
+        raise ControlError(f"{words[0]}: numbers must be finite")
+    if words[0] == "pose" and len(nums) not in (3, 7):
+        raise ControlError(f"pose: 3 numbers (x, y, z m) or 7 (and qw, qx, qy, qz) needed, {len(nums)} given")
+    if words[0] == "joints":
+        if len(nums) != 6:
+            raise ControlError(f"joints: 6 angles (degrees) needed, {len(nums)} given")
+        nums = [math.radians(x) for x in nums]
+    return words[0], nums, turn
 
 
 def _text(words) -> str:

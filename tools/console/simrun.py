@@ -2,7 +2,10 @@
 simulator (simulated rack, the real I/O service, the real controller) run in a thread,
 paced to the wall clock, the controller powered up and flying the short demo path
 (:func:`sim.demo.demo_goal`) through the Joint Planner; the console reads it like a live
-system.
+system. So do the other tools: on the names it is given (``pfma console --sim``: the default
+buffer ``pfma`` and world model ``pfma_wm`` unless in use, :mod:`tools.runnames`) it keeps
+what ``pfma serve --rack fake`` keeps beside its buffer: the frame history ring (``pfma
+record``, ``watch``, ``scope``) and the fault control socket (``pfma fault``).
 
 Assumed (docs/console.md): simulated time follows the wall clock when the host is fast
 enough and falls behind otherwise (never ahead); the console shows the ratio. The
@@ -28,11 +31,26 @@ STOP_POWER_DOWN_S = 2.0
 
 
 class SimulatedSystem:
-    """The system simulator stepped in a background thread at (at most) wall-clock speed."""
+    """The system simulator stepped in a background thread at (at most) wall-clock speed.
 
-    def __init__(self, *, demo: bool = True, power_up: bool = True) -> None:
-        self.sim = SystemSimulator()
-        self.sim.step(10)  # the service's first frames (links open)
+    :param buffer: Bit3 shared-memory name (None: a private random one), taken as given (the
+        caller decides it is free: :func:`tools.runnames.claim`)
+    :param wm: world-model shared-memory name (None: private memory), removed by :meth:`close`
+    """
+
+    def __init__(self, *, demo: bool = True, power_up: bool = True, buffer: str | None = None,
+                 wm: str | None = None) -> None:
+        self.wm_name = wm
+        self.sim = SystemSimulator(name=buffer, wm_name=wm, ring=True)
+        #: why ``pfma fault`` cannot reach this system (None: it can), said by the caller
+        self.fault_note: str | None = None
+        self._faults = None
+        try:
+            self._open_fault_control()
+            self.sim.step(10)  # the service's first frames (links open)
+        except BaseException:
+            self.close()
+            raise
         self.demo = demo
         self.lock = threading.Lock()  # held while frames run (the sim is not thread-safe itself)
         self._stop = threading.Event()
@@ -47,6 +65,22 @@ class SimulatedSystem:
     @property
     def name(self) -> str:
         return self.sim.name
+
+    def _open_fault_control(self) -> None:
+        """``pfma fault inject|clear|list --buffer NAME`` into this simulated rack, as into
+        ``pfma serve --rack fake``'s (the requests are applied between two frames, in the
+        thread that runs them)."""
+        from pfma.errors import PfmaError
+        from tools.cli.fault import FaultController, FaultEndpoint, socket_path
+        ctl = FaultController(self.sim.svc, self.sim.world)
+        ctl.install()
+        endpoint = FaultEndpoint(socket_path(self.name), ctl)
+        try:
+            endpoint.start()
+        except PfmaError as err:
+            self.fault_note = f"no fault control endpoint ({err}): pfma fault cannot reach this system"
+            return
+        self._faults = endpoint
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name="pfma-sim", daemon=True)
@@ -120,4 +154,11 @@ class SimulatedSystem:
         return volts
 
     def close(self) -> None:
+        """Remove what the system made: the fault socket, the buffer and its ring, the world model."""
+        if self._faults is not None:
+            self._faults.close()
+            self._faults = None
         self.sim.close()
+        if self.wm_name is not None:
+            from controller.worldmodel import WorldModel
+            WorldModel.remove_segment(self.wm_name)

@@ -17,21 +17,24 @@ from typing import Any, Callable
 
 import numpy as np
 
-from bit3.layout import DEVICE_GROUPS, FAULT_DAC_UNREACHABLE, HAND_CONTROLLERS, ServiceState, Severity
+from bit3.layout import DEVICE_GROUPS, FAULT_CODE_NAMES, FAULT_DAC_UNREACHABLE, HAND_CONTROLLERS, ServiceState, Severity
 from controller.cartesian import CartesianLayer
 from controller.daq_layer import FAULT_NAMES, DataAcquisitionLayer
 from controller.decision import Command, Status, status_text
-from controller.layers import JointPlannerLayer, UpDownLayer
+from controller.layers import TASK_NAMES, JointPlannerLayer, UpDownLayer
 from controller.paths import MultiSegmentLayer
 from controller.servo import ServoLayer
 from controller.trajectory import TrajectoryLayer
 from drivers.pio.registers import decode_matrix_route
 from drivers.pio.routes import MONITORS, camera_name, route_text
+from pfma.show import flag_names, name_of, named, wrap_angle
 
 #: the seven IRSS layers, highest first: (world-model key, the report's title)
-LAYERS: tuple[tuple[str, str], ...] = tuple((c.key, c.title) for c in (
-    UpDownLayer, MultiSegmentLayer, TrajectoryLayer, CartesianLayer, JointPlannerLayer, ServoLayer,
-    DataAcquisitionLayer))
+_LAYER_CLASSES = (UpDownLayer, MultiSegmentLayer, TrajectoryLayer, CartesianLayer, JointPlannerLayer, ServoLayer,
+                  DataAcquisitionLayer)
+LAYERS: tuple[tuple[str, str], ...] = tuple((c.key, c.title) for c in _LAYER_CLASSES)
+#: each layer's ``<key>.error`` codes by name (its class's ``error_names``)
+_ERROR_NAMES: dict[str, dict[int, str]] = {c.key: c.error_names for c in _LAYER_CLASSES}
 #: the five areas of the primary display, titled as the IRSS report names them (2.2.8)
 AREAS = ("Local Status", "World Status", "Messages", "Local Commands", "Global Commands")
 #: messages kept by the console (the Messages screen shows them all, newest first, filtered)
@@ -55,10 +58,9 @@ GLOBAL_COMMANDS: tuple[tuple[str, str, str | None], ...] = (
     ("v", "camera routes (its screen)", "CAMERA ROUTE"),
     ("o g x", "gripper open, grip, stop", "GRIPPER OPEN / CLOSE / STOP"),
     ("+ -", f"grip force +-{GRIP_FORCE_STEP_N:g} N", "GRIPPER FORCE"),
+    ("t", "move to (its screen)", None),
 )
 NOT_YET: dict[str, str] = {}  #: keys whose command is not built yet: their text
-_TASK_KIND = {1: "init", 2: "startup", 3: "shutdown", 4: "safe", 5: "reset"}
-_TASK_STATE = {0: "idle", 1: "running", 2: "done", 3: "failed"}
 
 
 @dataclass
@@ -110,6 +112,8 @@ class Sources:
         self.messages: deque[ConsoleMessage] = deque(maxlen=MESSAGES_KEPT)
         #: simulated seconds per wall second (``pfma console --sim``), or None (a live system)
         self.speed: Callable[[], float] | None = None
+        #: the names read, shown in World Status's title ("buffer pfma, world model pfma_wm"; "": none)
+        self.names = ""
         self._seq = {"service": 0, "controller": 0}
 
     def read(self) -> Reading:
@@ -148,10 +152,7 @@ def _split_source(text: str) -> tuple[str, str]:
 
 # --- the areas' text ---------------------------------------------------------------------------
 def _enum(enum_cls, v: int) -> str:
-    try:
-        return enum_cls(v).name.replace("_", " ")
-    except ValueError:
-        return str(v)
+    return name_of(v, enum_cls)
 
 
 def rack_kind(client) -> str:
@@ -183,12 +184,11 @@ def local_status(r: Reading, selected: int) -> str:
     k, title = LAYERS[selected]
     task = int(w.get(f"{k}.task", 0))
     err = int(w.get(f"{k}.error", 0))
-    lines.append(f"{title}: row {int(w.get(f'{k}.row', 0))}, task "
-                 f"{_TASK_KIND.get(task // 10, '-')} {_TASK_STATE.get(task % 10, '?')}, "
-                 f"last error {err if err else 'none'}")
+    lines.append(f"{title}: row {int(w.get(f'{k}.row', 0))}, task {name_of(task, TASK_NAMES).lower()}, "
+                 f"last error {named(err, _ERROR_NAMES[k]) if err else 'none'}")
     if k == "daq":
         bits = int(w.get("daq.fault_bits", 0))
-        lines.append("hardware checks: " + (", ".join(n for b, n in FAULT_NAMES.items() if bits & b) or "clear"))
+        lines.append("hardware checks: " + flag_names(bits, FAULT_NAMES, clear="clear").replace("|", ", "))
     lines.append("<- -> layer")
     return "\n".join(lines)
 
@@ -200,7 +200,7 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
     outputs_word = "NOT KNOWN SAFE" if outputs_unknown(r) else "LIVE" if int(s.outputs_enabled) else "safe (0 V)"
     lines = [rack_line(rack) + ("" if speed is None else f"; time x{speed:.2f}"),
              f"service {r.service_state:<8} frame {r.frame:<9} t {r.t_s:9.3f} s  "
-             f"{float(st.rate_hz):6.1f} Hz  fault code {int(s.fault_code)}",
+             f"{float(st.rate_hz):6.1f} Hz  fault {name_of(s.fault_code, FAULT_CODE_NAMES)}",
              f"outputs {outputs_word}  brakes "
              f"{'released' if int(s.brakes_released) else 'set'}  watchdog "
              f"{'TRIPPED' if int(s.watchdog_tripped) else 'ok'} (command age {float(s.command_age_s) * 1e3:.1f} ms)"]
@@ -259,11 +259,6 @@ def gripper_status_line(r: Reading) -> str:
     from pfma.gripper import describe
     return describe(int(w["gripper.state"]), float(w["gripper.force_n"]), float(w["gripper.motor_force_n"]),
                     float(w["gripper.jaw_m"]) if bool(w.get("gripper.jaw_known", False)) else None)
-
-
-def wrap_angle(a: float) -> float:
-    """An angle in (-pi, pi] (the console's one way to show an angle, in rad)."""
-    return math.pi - (math.pi - a) % math.tau
 
 
 def _short(joint: str) -> str:
@@ -442,7 +437,9 @@ def browser_names(wm, area: str) -> tuple[str, ...]:
 def _value_text(spec, v, width: int = 70) -> str:
     import numpy as np
     a = np.asarray(v)
-    if spec.dtype == "u1" and a.ndim == 1 and a.size > 16:  # a text field (zero-padded UTF-8)
+    if spec.value_text(v) is not None and a.ndim == 0:  # an enumeration or a bit set: by name (pfma/show.py)
+        out = spec.value_text(v)
+    elif spec.dtype == "u1" and a.ndim == 1 and a.size > 16:  # a text field (zero-padded UTF-8)
         text = bytes(a).rstrip(b"\0").decode(errors="replace").replace("\n", " | ")
         out = repr(text)
     elif a.ndim == 0:
@@ -487,3 +484,41 @@ def browser_selected(wm, area_index: int, page: int, cursor: int) -> str | None:
     pages = max(1, -(-len(names) // BROWSER_ROWS))
     shown = names[(page % pages) * BROWSER_ROWS:(page % pages + 1) * BROWSER_ROWS]
     return shown[cursor % len(shown)] if shown else None
+
+
+# --- the move-to screen (issue 30 item 5, docs/console.md "Move to") -------------------------
+MOVE_HELP = ("type  pose X,Y,Z  (m, world; the tool keeps its orientation)\n"
+             "      pose X,Y,Z,QW,QX,QY,QZ   joints D,D,D,D,D,D  (degrees, command order)   stop\n"
+             "      add  turn DEG  to allow a larger tool rotation than msp.max_turn_rad\n"
+             "Enter: check it   Enter again: send   Escape: close")
+
+
+def move_screen(wm, status: str) -> str:
+    """The move-to screen: where the tool is, the last move's answer, how to type a move."""
+    import numpy as np
+    from controller.paths import MspMode
+    from controller.params import JOINT_NAMES
+    names = ("joint.tool_pos_m", "joint.tool_quat", "daq.joint_angle_rad", "cart.mode", "msp.state",
+             "msp.move_seq", "msp.move_done_seq", "msp.result_text", "msp.max_turn_rad", "msp.track_err_m",
+             "msp.track_err_rad")
+    if wm is None:
+        return "MOVE TO: no controller world model (start the console with the controller's --wm)"
+    try:
+        v = wm.get_task_inputs(names)
+    except Exception as err:  # noqa: BLE001 - a controller without moves: say so, do not die
+        return f"MOVE TO: cannot read the controller's world model: {type(err).__name__}: {err}"
+    p, q = v["joint.tool_pos_m"], v["joint.tool_quat"]
+    j = v["daq.joint_angle_rad"]
+    last = bytes(np.asarray(v["msp.result_text"], dtype=np.uint8)).rstrip(b"\0").decode(errors="replace")
+    state = MspMode.NAMES.get(int(v["msp.state"]), "?")
+    lines = [f"MOVE TO   tool ({float(p[0]):+.4f}, {float(p[1]):+.4f}, {float(p[2]):+.4f}) m  "
+             f"q ({float(q[0]):+.4f}, {float(q[1]):+.4f}, {float(q[2]):+.4f}, {float(q[3]):+.4f})",
+             "joints   " + "  ".join(f"{n} {math.degrees(float(a)):+.1f}" for n, a in zip(JOINT_NAMES, j)) + " deg",
+             f"path planner {state}  move {int(v['msp.move_seq'])} (answered {int(v['msp.move_done_seq'])})  "
+             f"cart.mode {int(v['cart.mode'])}  largest tool rotation {math.degrees(float(v['msp.max_turn_rad'])):.0f} "
+             f"deg  tracking {float(v['msp.track_err_m']) * 1e3:.1f} mm / "
+             f"{math.degrees(float(v['msp.track_err_rad'])):.2f} deg",
+             f"last: {last or '-'}", "", MOVE_HELP]
+    if status:
+        lines += ["", status]
+    return "\n".join(lines)

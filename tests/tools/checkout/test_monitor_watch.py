@@ -1,6 +1,7 @@
 """`pfma monitor --once`, `pfma watch --count` against a running (simulated-time) service;
 waiting for a service that is not up, reattaching after a restart, never hanging."""
 
+import math
 import re
 import uuid
 
@@ -11,6 +12,7 @@ from tools.attach import ServiceLink, attach_waiting
 from bit3.client import Client
 from tools.cli import main
 from pfma.errors import PfmaTimeoutError
+from pfma.show import wrap_angle
 from sim.rig import SimRig as Rig
 
 
@@ -25,10 +27,12 @@ def test_monitor_once_shows_every_channel_with_units_status_and_links(rig, capsy
         if c.area == "inputs":
             assert any(line.startswith(c.name) for line in lines), c.name
     row = next(line for line in lines if line.startswith("elbow_pitch_angle "))
-    angle = rig.reader.read_inputs().value("elbow_pitch_angle")
+    angle = wrap_angle(rig.reader.read_inputs().value("elbow_pitch_angle"))  # 0..2 pi shown in (-pi, pi]
+    assert angle < 0 < rig.reader.read_inputs().value("elbow_pitch_angle")  # the rig's elbow: just below 0
     assert f"{angle:+.4f}" in row and " rad " in row and "160.0" in row  # value, units, rate
+    assert row.split()[4] == "ok" and f"{math.degrees(angle):+.1f} deg" in row  # status; degrees labelled
     ft = next(line for line in lines if line.startswith("ft_sensor "))
-    assert "SYNCED" in ft and re.search(r"bad \d+ resyncs \d+", ft)
+    assert ft.split()[4] == "ok" and re.search(r"bad \d+ resyncs \d+", ft)  # open and synced: ok
     assert "messages:" in out and "service started" in out
 
 
@@ -63,9 +67,41 @@ def test_watch_count_prints_one_line_per_sample(rig, capsys):
     s = rig.reader.read_inputs()
     for line in lines:
         assert line.startswith(f"t={s.t_s:.4f} s")
-        assert f"elbow_pitch_angle={s.value('elbow_pitch_angle'):+.4f} rad" in line
-        assert "cae_up_down=+5.00" in line and " V" in line
-        assert "service_state=1 enum" in line
+        assert f"elbow_pitch_angle={wrap_angle(s.value('elbow_pitch_angle')):+.4f} rad [ok]" in line
+        assert "cae_up_down=+5.00" in line and " V [ok]" in line
+        assert "service_state=SAFE (1)" in line and "ft_force_n[2]=" in line and "ft_force_n[2]=[" not in line
+
+
+def test_read_watch_and_monitor_show_a_resolver_in_loss_of_signal_beside_its_value(rig, capsys):
+    """A resolver in loss of signal read as a plain angle "from the service" (issue 29): each
+    tool now shows the channel's status beside the value, numbers and names in --json."""
+    import json
+
+    from sim.faults import FaultSet
+    rig.run(0.2)
+    assert main(["read", "elbow_pitch_angle", "wrist_yaw_angle", "--buffer", rig.name]) == 0
+    assert [ln.split()[3] for ln in capsys.readouterr().out.splitlines()] == ["ok", "ok"]
+    FaultSet(rig.world).inject("resolver-los:elbow_pitch_angle")
+    rig.run(0.05)
+    rig.svc.publish_stats()
+    assert main(["read", "elbow_pitch_angle", "wrist_yaw_angle", "rtd1", "--buffer", rig.name]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [ln.split()[0] for ln in lines] == ["elbow_pitch_angle", "wrist_yaw_angle", "rtd1"]
+    assert lines[0].split()[2:4] == ["rad", "LOS"] and lines[1].split()[3] == "ok"
+    assert lines[2].split()[1:4] == ["0", "err", "ok"]  # a board: its error count and status
+    assert main(["read", "elbow_pitch_angle", "--buffer", rig.name, "--json"]) == 0
+    (row,) = json.loads(capsys.readouterr().out)
+    assert row["status"] == 1 and row["status_name"] == "LOS" and -math.pi < row["value"] <= math.pi
+    assert main(["watch", "elbow_pitch_angle", "wrist_yaw_angle", "--buffer", rig.name, "--count", "1"]) == 0
+    line = capsys.readouterr().out
+    assert re.search(r"elbow_pitch_angle=[-+]\d\.\d{4} rad \[LOS\]", line) and "rad [ok]" in line
+    assert main(["watch", "elbow_pitch_angle", "service_state", "--buffer", rig.name, "--count", "1", "--json"]) == 0
+    rec = json.loads(capsys.readouterr().out)
+    assert rec["status"] == {"elbow_pitch_angle": "LOS"} and rec["values"]["service_state"] == 1
+    assert rec["names"] == {"service_state": "SAFE (1)"}
+    assert main(["monitor", "--buffer", rig.name, "--once", "--filter", "elbow_pitch_angle"]) == 0
+    row_line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("elbow_pitch_angle "))
+    assert row_line.split()[4] == "LOS"
 
 
 def test_watch_unknown_signal_names_close_matches(rig, capsys):
@@ -173,3 +209,30 @@ def test_link_invalidated_after_a_failed_read_reattaches(rig):
         assert "read timed out" in said[0]
     finally:
         link.close()
+
+
+def test_stats_shows_board_and_link_status_and_the_service_state_by_name(rig, capsys):
+    """``pfma stats`` showed a healthy board as ``3 OK|INIT`` (issue 29): now ``ok``, a
+    failing one ``FAULT``; --json keeps the numbers beside the names."""
+    import json
+
+    from sim.faults import FaultSet
+    rig.run(0.3)
+    FaultSet(rig.world).inject("bus-error:rtd2")
+    rig.run(0.05)
+    rig.svc.publish_stats()
+    assert main(["stats", "--buffer", rig.name, "--wm", "none"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    boards = {ln.split()[0]: ln.split()[1] for ln in lines[lines.index("boards") + 2:lines.index("links")]}
+    assert boards["rtd2"] == "FAULT" and boards["rtd1"] == "ok" and boards["dac"] == "ok"
+    links = {ln.split()[0]: ln.split()[1] for ln in lines[lines.index("links") + 2:] if ln.split()
+             and ln.split()[0].endswith(("_sensor", "_controller"))}
+    assert links["ft_sensor"] == "ok" and links["hid_hand_controller"] == "CLOSED"
+    assert lines[0].startswith("state FAULT ")  # the failed input board made the outputs safe
+    assert "service fault INPUT BOARD" in next(ln for ln in lines if ln.startswith("commands: "))
+    assert main(["stats", "--buffer", rig.name, "--wm", "none", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["boards"]["rtd2"]["status_name"] == "FAULT" and d["boards"]["rtd2"]["status"] & 4
+    assert d["boards"]["rtd1"] == {"status": 3, "status_name": "ok", "errors": 0}
+    assert d["service_state"] == "FAULT" and d["service_state_code"] == 3
+    assert d["commands"]["fault_name"] == "INPUT BOARD" and d["commands"]["fault_code"] == 3

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import uuid
 from dataclasses import dataclass
 
 import pytest
 
+from pfma.show import wrap_angle
 from tools.cli import build_parser, main
 
 OFFSET_NS = 1_700_000_000_000_000_000
@@ -108,8 +110,10 @@ def test_json_documents_carry_the_values(world, capsys):
     assert main(["monitor", "--once", "--buffer", world["buffer"], "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
     row = next(r for r in d["channels"] if r["name"] == "elbow_pitch_angle")
-    assert row["value"] == pytest.approx(rig.reader.read_inputs().value("elbow_pitch_angle"))
-    assert row["units"] == "rad" and d["state"] == "SAFE"
+    # the resolver's 0..2 pi is shown in (-pi, pi] (pfma/show.py); the status by name beside its bits
+    assert row["value"] == pytest.approx(wrap_angle(rig.reader.read_inputs().value("elbow_pitch_angle")))
+    assert -math.pi < row["value"] <= math.pi and row["status"] == "ok" and row["status_bits"] == 0
+    assert row["units"] == "rad" and d["state"] == "SAFE" and d["fault_code"] == 0 and d["fault_name"] == "none"
     assert main(["scope", "--open", str(world["cap"]), "--json"]) == 0
     cap = json.loads(capsys.readouterr().out)
     assert cap["values"]["adc_spare_25"] == [0.0, 2.5, None] and cap["trigger_frame"] == 2

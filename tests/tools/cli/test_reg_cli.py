@@ -96,6 +96,24 @@ def test_reg_read_and_write_over_modbus(rack_gateway, capsys):
         assert rack["dac"].outputs_connected
 
 
+def test_read_over_a_bus_shows_a_resolver_angle_in_minus_pi_to_pi_and_its_status(rack_gateway, capsys):
+    """``pfma read --bus``: the resolver's 0..2 pi shown in (-pi, pi], its status from the
+    board's STATUS register beside it (LOS, NOREF), as the service would publish it."""
+    import json
+    import math
+    rack, gw = rack_gateway
+    with gw.lock:
+        rack["rtd1"].set_counts(0, 12288)  # 3/4 turn: 4.71239 rad on the board
+    assert main(["read", "elbow_pitch_angle", "--bus", gw.url, "--json"]) == 0
+    (row,) = json.loads(capsys.readouterr().out)
+    assert row["value"] == pytest.approx(-math.pi / 2) and row["status_name"] == "ok" and row["status"] == 0
+    with gw.lock:
+        rack["rtd1"].inject("loss_of_signal", channel=0)
+    assert main(["read", "elbow_pitch_angle", "wrist_yaw_angle", "--bus", gw.url]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split()[1:4] == ["-1.5708", "rad", "LOS"] and lines[1].split()[3] == "ok"
+
+
 def test_modbus_bus_error_is_named_from_the_rack(rack_gateway, capsys):
     rack, gw = rack_gateway
     with gw.lock:

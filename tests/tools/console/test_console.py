@@ -81,6 +81,30 @@ def test_halt_step_resume_from_the_console(sim, console):
     run_app(console, body)
 
 
+def test_power_up_sent_while_halted_is_followed_through_the_steps_to_its_answer(sim, console):
+    """Issue 30 item 4: POWER UP and a single step sent in one refresh are two requests, each
+    followed to its answer; the steps walk the power-up, the resume with re-arm completes it."""
+    async def body(pilot):
+        await pilot.press("h")
+        frames(sim, console, 5)
+        await pilot.press("u", "s")
+        frames(sim, console, 10)
+        assert len(console.pending) == 1  # the step answered; the power-up waits for the resume
+        msgs = console.area_text("messages")
+        assert "POWER UP: queued (halted" in msgs and "SINGLE STEP: 1 frame(s) run" in msgs
+        for _ in range(12):
+            await pilot.press("S")
+            frames(sim, console, 20)
+        assert sim.rt.status("updown") not in (Status.SHUT_DOWN, Status.ERROR)
+        assert np.all(sim.dac_volts() == 0.0) and sim.rt.halted
+        await pilot.press("a", "r")
+        frames(sim, console, 300)
+        assert sim.rt.all_status(Status.START_UP_COMPLETE)
+        assert "POWER UP: START UP COMPLETE -> COMPLETE" in console.area_text("messages")
+        assert console.pending == []
+    run_app(console, body)
+
+
 def test_arrows_move_between_layers(console):
     async def body(pilot):
         assert console.area_text("local").splitlines()[0].split() == ["LAYER", "STATE", "COMMAND"]

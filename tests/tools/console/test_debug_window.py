@@ -5,6 +5,8 @@ TOML and the force displays. Pilot key presses on the system simulator in simula
 
 from __future__ import annotations
 
+import os
+import uuid
 
 import numpy as np
 import pytest
@@ -93,6 +95,36 @@ def test_a_bad_value_is_named_in_the_editor_and_nothing_is_sent(sim, console):
         await pilot.press("escape")
         await pilot.pause()
         assert isinstance(console.screen, BrowserScreen)
+    run_app(console, body)
+
+
+def test_a_value_outside_an_enumeration_is_refused_and_a_name_is_taken(sim, console):
+    """msp.mode = 7 was accepted by the editor and then warned about as unknown (issue 29):
+    now the editor refuses it, listing the values, and takes the name PLAY for 2."""
+    async def body(pilot):
+        scr = await _browse_to(pilot, console, "msp.mode")
+        assert "IDLE (0)" in scr.text()  # the browser shows the enumeration by name
+        await pilot.press("enter")
+        await pilot.pause()
+        assert "values: 0 IDLE, 1 RECORD, 2 PLAY" in str(console.screen.query_one("#edit-info").render())
+        await _type(pilot, "7")
+        await pilot.press("enter")
+        await pilot.pause()
+        status = str(console.screen.query_one("#edit-status").render())
+        assert status.startswith("not sent:") and "7 is not one of its values (0 IDLE, 1 RECORD, 2 PLAY)" in status
+        await pilot.press("enter")  # the refused text is never confirmed
+        await pilot.pause()
+        assert not console.writes and isinstance(console.screen, EditScreen)
+        await _type(pilot, "play")
+        await pilot.press("enter")
+        await pilot.pause()
+        assert "set msp.mode = PLAY (2)?" in str(console.screen.query_one("#edit-status").render())
+        await pilot.press("enter")
+        await pilot.pause()
+        assert console.screen is scr and len(console.writes) == 1
+        frames(sim, console, 2)
+        await pilot.pause()
+        assert int(sim.rt.wm.get("msp.mode")) == 2 and "msp.mode = PLAY (2) (write #" in scr.text()
     run_app(console, body)
 
 
@@ -229,12 +261,14 @@ def test_a_menu_variable_the_model_lacks_exits_2_before_the_console_starts(tmp_p
     from tools.cli import main
     f = tmp_path / "typo.toml"
     f.write_text('[[page]]\nname = "a"\n\n[[page.var]]\nname = "runtime.frame"\nformat = "d"\n')
-    rc = main(["console", "--sim", "--menu", str(f)])  # the simulated system is built, checked, closed
+    name = f"pfma-menu-{uuid.uuid4().hex[:8]}"  # not make run's default names: tests run side by side
+    rc = main(["console", "--sim", "--menu", str(f), "--buffer", name, "--wm", f"{name}_wm"])  # built, checked, closed
     out, err = capsys.readouterr()
     assert rc == 2 and "Traceback" not in err
     assert err.startswith(f"pfma console: {f}:5: page 1 var 1 name: no variable 'runtime.frame' in the world "
                           f"model; did you mean runtime.frames")
     assert len(err.strip().splitlines()) == 1
+    assert not [n for n in os.listdir("/dev/shm") if n.startswith(name)]  # nothing left behind
 
 
 def test_a_format_that_does_not_fit_the_variable_is_named(sim, tmp_path):
