@@ -30,6 +30,13 @@ What the handle does for the script (each rule once, here and in docs/python.md)
   model, gravity not counted) is sent as asked, and said once per joint: the joint will
   not move.
 - **Disarm** on ``close()``, at the end of the ``with`` block and on an exception in it.
+- **Gripper**: ``gripper_open``/``gripper_close``/``gripper_stop``/``gripper_force`` drive the
+  seventh amplifier (DAC channels 6 and 13) with the controller's own motion logic
+  (:class:`pfma.gripper.GripperMotion`, run by the keep-alive at :data:`GRIPPER_UPDATE_S`): a
+  move ends on a stall, a close holds at the grip force its current limit sets.
+  ``gripper_wait`` waits for the end of the move. The gripper's command does not expire
+  like a rate (a move ends on its stall or after ``pfma.gripper.MOVE_TIMEOUT_S``, a grip
+  presses no harder than its force); a dead script stops it with the heartbeat.
 
 Assumption (named once): the keep-alive thread needs the GIL every 3 ms; a script that
 holds it more than about 10 ms (a long C call that does not release it) lets the heartbeat go stale and
@@ -51,7 +58,11 @@ from bit3.layout import (
     CHANNEL_BUS_ERROR, RTD_LOSS_OF_SIGNAL, RTD_NO_REFERENCE, ServiceState, Severity,
 )
 from bit3.seqlock import Bit3Error
-from pfma.arm import JOINTS, JointFacts
+from pfma.arm import GRIPPER, JOINTS, JointFacts
+from pfma.gripper import (
+    ACTIONS as GRIPPER_ACTIONS, COMPLETE, FAILED, MOVE_TIMEOUT_S, NOTE, REFUSED, GripperMotion, GripperRequest,
+    GripperState, Outcome,
+)
 from pfma.rack import RackConfig, load_rack
 from pfma.show import wrap_angle
 
@@ -67,6 +78,9 @@ KEEPALIVE_S = 0.003
 ARM_WAIT_S = 1.0
 #: how long :meth:`Rack.close` keeps the heartbeat going for the service to see the disarm
 CLOSE_WAIT_S = 0.5
+#: the keep-alive updates the gripper's motion this often while it moves or holds (as the
+#: controller's gripper task: 40 Hz)
+GRIPPER_UPDATE_S = 0.025
 
 
 class RackError(Bit3Error):
@@ -197,7 +211,12 @@ class Rack:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._closed = False
-        self._publish(rates=self._rates, current_limit_a=self._limits, arm_request=0)
+        # the gripper (pfma/gripper.py): its tach (volts on the default rack) and current channels
+        self.gripper = GripperMotion()  #: the gripper's motion (state, force_n, jaw_m ...)
+        self._grip_ch = self._gripper_channels(client)
+        self._grip_t = -math.inf  # the last gripper update
+        self._grip_last: Outcome | None = None  # the end of the last move
+        self._publish(rates=self._rates, current_limit_a=self._limits, gripper=0.0, arm_request=0)
         if keepalive:
             self._thread = threading.Thread(target=self._keepalive_loop, name="rack-keepalive", daemon=True)
             self._thread.start()
@@ -248,7 +267,8 @@ class Rack:
             self._rates = [0.0] * len(self.joints)
             self._limits = limits
             counter = int(self.client.command["rearm_counter"]) + 1
-            self._publish(rates=self._rates, current_limit_a=limits, arm_request=1, rearm_counter=counter)
+            self._publish(rates=self._rates, current_limit_a=limits, gripper=0.0, arm_request=1,
+                          rearm_counter=counter)
         self._check_limits_move()
         t_end = self._now() + wait_s
         while self.state != ServiceState.ARMED:
@@ -257,6 +277,9 @@ class Rack:
                 raise RackError(f"the service did not arm within {wait_s:g} s (state "
                                 f"{self.state.name}){': ' + why if why else ''}")
             self._sleep(0.01)
+        with self._lock:
+            self.gripper.power(False, self._now())  # a new arming: the gripper starts STOPPED, limit as asked
+            self.gripper.power(True, self._now())
 
     def rates(self, rates: Iterable[float] | Mapping[str, float] | None = None, **by_joint: float) -> None:
         """Command joint rates (rad/s): ``rates(elbow_pitch=0.05)``, ``rates({"wrist_roll": 0.4})``
@@ -316,12 +339,56 @@ class Rack:
         self._sleep(seconds)
 
     def disarm(self) -> None:
-        """Rates 0, current limits 0 (brakes set), no arm request."""
+        """Rates 0, current limits 0 (brakes set), the gripper off, no arm request."""
         with self._lock:
             self._rates = [0.0] * len(self.joints)
             self._limits = [0.0] * len(self._limits)
             self._rates_until = -math.inf
-            self._publish(rates=self._rates, current_limit_a=self._limits, arm_request=0)
+            self.gripper.power(False, self._now())
+            self._publish(rates=self._rates, current_limit_a=self._limits, gripper=0.0, arm_request=0)
+
+    # --- the gripper (pfma/gripper.py) ---------------------------------------------------
+    def gripper_open(self, force_n: float | None = None) -> str:
+        """Open the jaw (``force_n``: a new grip force, N); the move ends at the open stop
+        (:meth:`gripper_wait`). Returns the answer.
+
+        :raises RackError: not ARMED, or the request refused (a force outside its range ...)
+        """
+        return self._gripper_request("open", force_n)
+
+    def gripper_close(self, force_n: float | None = None) -> str:
+        """Close the jaw; on contact it holds with the grip force (``force_n``, N; else the one
+        in force: 40 N until set). Returns the answer; :meth:`gripper_wait` waits for the grip."""
+        return self._gripper_request("close", force_n)
+
+    def gripper_stop(self) -> str:
+        """Stop the jaw (a grip is released)."""
+        return self._gripper_request("stop", None)
+
+    def gripper_force(self, force_n: float) -> str:
+        """Set the grip force (N; the gripper's current limit at 40 N/A), in force at once."""
+        return self._gripper_request("force", force_n)
+
+    def gripper_wait(self, timeout_s: float = MOVE_TIMEOUT_S + 1.0) -> str:
+        """Wait until the gripper's move ends; returns how (``"GRIPPING after 2.10 s: ..."``).
+
+        :raises RackError: the move failed (the drive did not answer, no stall), or it did not
+            end within ``timeout_s``
+        """
+        t_end = self._now() + timeout_s
+        while self.gripper.moving:
+            if self._now() >= t_end:
+                raise RackError(f"the gripper is still {self.gripper.state.name} after {timeout_s:g} s")
+            self._sleep(GRIPPER_UPDATE_S)
+        last = self._grip_last
+        if last is not None and last.code == FAILED:
+            raise RackError(f"gripper: {last.text}")
+        return last.text if last is not None else f"gripper {self.gripper.state.name}"
+
+    @property
+    def gripper_state(self) -> GripperState:
+        """The gripper's state (``GripperState.GRIPPING`` ...)."""
+        return self.gripper.state
 
     def close(self) -> None:
         """Disarm, stop the keep-alive, detach. Safe to call twice."""
@@ -351,10 +418,13 @@ class Rack:
     # --- the keep-alive ---------------------------------------------------------------
 
     def keepalive_step(self) -> None:
-        """One keep-alive: expire an old rate command (zero rates, said once), then publish
+        """One keep-alive: expire an old rate command (zero rates, said once), update the
+        gripper's motion (every :data:`GRIPPER_UPDATE_S` while it moves or holds), then publish
         the command area (a new heartbeat). The thread calls it every :data:`KEEPALIVE_S`."""
         with self._lock:
             if self._stop.is_set():  # detached (close() keeps the heartbeat until it sets this)
+                return
+            if self._gripper_update():
                 return
             if self._now() >= self._rates_until and any(self._rates):
                 self._rates = [0.0] * len(self.joints)
@@ -375,6 +445,70 @@ class Rack:
                 return
 
     # --- helpers -----------------------------------------------------------------------
+
+    @staticmethod
+    def _gripper_channels(client: Client) -> tuple[int, float, int] | None:
+        """(tach slot, m/s per unit, current slot) of the gripper, None without them."""
+        lay = client.layout
+        try:
+            tach = lay.joint_entry("adc", "gripper", "rate")
+            cur = lay.joint_entry("adc", "gripper", "motor_current")
+        except KeyError:
+            return None
+        return tach.slot, (1.0 / GRIPPER.k_w_v_per_m_s if tach.units == "V" else 1.0), cur.slot
+
+    def _gripper_request(self, action: str, force_n: float | None) -> str:
+        kind = GRIPPER_ACTIONS[action]
+        if kind in (GripperRequest.OPEN, GripperRequest.CLOSE) and self.state != ServiceState.ARMED:
+            raise RackError(f"the service is {self.state}, not ARMED: gripper {action} not sent; rack.arm(...) first")
+        if self._grip_ch is None:
+            raise RackError("this rack has no gripper tach and current channels (joint gripper: rate, motor_current)")
+        with self._lock:
+            out = self.gripper.request(kind, force_n or 0.0, self._now())
+            if out.code == REFUSED:
+                raise RackError(f"gripper {action}: {out.text} (nothing sent)")
+            if out.code == COMPLETE:
+                self._grip_last = out
+            self._gripper_publish()
+        return out.text
+
+    def _gripper_publish(self) -> None:
+        g = self.gripper
+        if len(self._limits) > len(self.joints) and g.powered:
+            self._limits[len(self.joints)] = g.current_limit_a
+        self._publish(gripper=g.rate_cmd_m_s * GRIPPER.k_w_v_per_m_s, current_limit_a=self._limits)
+
+    def _gripper_update(self) -> bool:
+        """The keep-alive's gripper sample (under the lock); True when it published."""
+        g = self.gripper
+        if self._grip_ch is None or g.state not in (GripperState.OPENING, GripperState.CLOSING,
+                                                     GripperState.GRIPPING, GripperState.CLOSED):
+            return False
+        t = self._now()
+        if t - self._grip_t < GRIPPER_UPDATE_S - 1e-9:
+            return False
+        self._grip_t = t
+        if self.state != ServiceState.ARMED:  # tripped or disarmed under the script: the drive is off
+            out = g.power(False, t)
+        else:
+            tach, scale, cur = self._grip_ch
+            adc = self.client.read_inputs().record["adc_value"]
+            before = (g.rate_cmd_m_s, g.current_limit_a)
+            out = g.update(t, float(adc[tach]) * scale, float(adc[cur]))
+            if (g.rate_cmd_m_s, g.current_limit_a) != before:
+                self._gripper_publish()
+                if out is not None:
+                    self._gripper_outcome(out)
+                return True
+        if out is not None:
+            self._gripper_outcome(out)
+        return False
+
+    def _gripper_outcome(self, out: Outcome) -> None:
+        if out.code != NOTE:
+            self._grip_last = out
+        if out.code in (FAILED, NOTE):
+            self._say(f"gripper: {out.text}")
 
     def _publish(self, rates: list[float] | None = None, **fields: Any) -> None:
         if rates is not None:

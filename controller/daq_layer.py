@@ -60,7 +60,7 @@ import numpy as np
 from controller.decision import Status, TaskState
 from controller.layers import ERROR_NAMES, Layer, bottom_table
 from controller.messages import Level
-from controller.params import JOINTS, N_CURRENT_LIMITS, N_JOINTS
+from controller.params import GRIPPER, JOINTS, N_CURRENT_LIMITS, N_JOINTS
 from controller.servo import ERR_NO_OUTPUT
 from controller.worldmodel import VarSpec
 from drivers.pio.routes import box_selections, route_text, set_monitor
@@ -137,6 +137,12 @@ class DataAcquisitionLayer(Layer):
         self.centre = np.array([j.centre_rad for j in JOINTS])
         self._joint_centres = tuple((k, float(c)) for k, c in zip(self.rtd_slots.tolist(), self.centre.tolist()))
         self._acq: dict = {}  # the acquire post, refilled every frame (same keys, same order)
+        # the gripper (controller/gripper.py): its tach (volts on the default rack: converted with
+        # the nominal 10 V / omega_fs) and motor current; None where the rack has no such channel
+        self.gripper_tach_slot, self.gripper_current_slot = self._gripper_slot(lay, "rate"), \
+            self._gripper_slot(lay, "motor_current")
+        self.gripper_tach_scale = 1.0 / GRIPPER.k_w_v_per_m_s if self._gripper_units(lay, "rate") == "V" else 1.0
+        self.gripper_cmd_scale = GRIPPER.k_w_v_per_m_s  #: volts per m/s of the gripper command (DAC channel 6)
         ft = next((c for c in lay.channels if c.kind == "link" and c.quantity == "force_torque"), None)
         # the boards the servo depends on: those carrying the joints' angles, tachs and rate
         # commands, and the F/T sensor's serial board when force sensing is required
@@ -173,8 +179,8 @@ class DataAcquisitionLayer(Layer):
         if getattr(client, "role", None) == "controller":
             # a claimed command area the service has never seen written looks like a foreign
             # writer's: publish a safe command (0 rates, 0 limits, no arm request) at once
-            client.write_commands(joint_rate_rad_s=self._zeros, current_limit_a=self._zero_limits, arm_request=0,
-                                  controller_frame=0)
+            client.write_commands(joint_rate_rad_s=self._zeros, gripper=0.0, current_limit_a=self._zero_limits,
+                                  arm_request=0, controller_frame=0)
         #: the runtime is halted (docs/console.md): every write is the halted safe command
         self.halted = False
         self.stale_outputs = 0  #: frames whose servo output was not of the current servo period
@@ -207,6 +213,10 @@ class DataAcquisitionLayer(Layer):
                     doc=f"hand-controller axes ({', '.join(HAND_CONTROLLERS)} x {', '.join(HC_AXES)})"),
             VarSpec("daq.hc_deadman", "task_io", "b1", (nh,), w, [False] * nh, doc="hand-controller deadman"),
             VarSpec("daq.service_frame", "task_io", "i8", (), w, 0, doc="service frame of the inputs"),
+            VarSpec("daq.gripper_rate_m_s", "task_io", "f8", (), w, 0.0, "m/s",
+                    doc="gripper jaw rate (end-effector tach, ADC; opening positive)"),
+            VarSpec("daq.gripper_current_a", "task_io", "f8", (), w, 0.0, "A",
+                    doc="gripper motor current (end-effector current monitor, ADC)"),
             VarSpec("daq.service_state", "status_output", "i2", (), w, 0,
                     doc="I/O service state (bit3.layout.ServiceState)", enum=ServiceState),
             VarSpec("daq.brakes_released", "task_io", "b1", (), w, False, doc="the service sees a current limit "
@@ -252,6 +262,10 @@ class DataAcquisitionLayer(Layer):
         out["daq.ft_torque_nm"] = rec["ft_torque_nm"]
         out["daq.hc_axes"] = rec["hc_axes"][:nh]
         out["daq.hc_deadman"] = rec["hc_deadman"][:nh].astype(bool)
+        if self.gripper_tach_slot is not None:
+            out["daq.gripper_rate_m_s"] = adc[self.gripper_tach_slot] * self.gripper_tach_scale
+        if self.gripper_current_slot is not None:
+            out["daq.gripper_current_a"] = adc[self.gripper_current_slot]
         out["daq.service_frame"] = frame
         out["daq.service_state"] = st
         out["daq.brakes_released"] = bool(rec["brakes_released"])
@@ -476,8 +490,23 @@ class DataAcquisitionLayer(Layer):
         bad = [m for m in msgs if int(m.severity) >= 2]
         return bad[-1].text if bad else ""
 
+    @staticmethod
+    def _gripper_slot(lay, quantity: str) -> int | None:
+        try:
+            return lay.joint_entry("adc", "gripper", quantity).slot
+        except KeyError:
+            return None
+
+    @staticmethod
+    def _gripper_units(lay, quantity: str) -> str:
+        try:
+            return lay.joint_entry("adc", "gripper", quantity).units
+        except KeyError:
+            return ""
+
     # --- output --------------------------------------------------------------------------
-    _OUT = ("servo.rate_cmd_rad_s", "servo.rate_cmd_frame", "servo.current_limit_cmd_a", "servo.error")
+    _OUT = ("servo.rate_cmd_rad_s", "servo.rate_cmd_frame", "servo.current_limit_cmd_a", "servo.error",
+            "gripper.rate_cmd_m_s")
 
     def output(self, rt: "LayerContext", status: int) -> None:
         """Write this frame's commands with a new heartbeat, ``inputs_frame`` and
@@ -493,7 +522,7 @@ class DataAcquisitionLayer(Layer):
         if self.halted:  # a single step while halted: the outputs stay in the halted safe state
             self.hold_output(frame)
             return
-        rates, stamp = self._zeros, frame
+        rates, stamp, grip = self._zeros, frame, 0.0
         if status == Status.SHUT_DOWN:
             limits = self._zero_limits
         else:
@@ -508,6 +537,8 @@ class DataAcquisitionLayer(Layer):
                     pass  # a sequence task's constant zero
                 elif s >= rt.servo_oldest_frame and not servo.fault and not int(v["servo.error"]):
                     rates, stamp = v["servo.rate_cmd_rad_s"], s
+                if not servo.fault:  # the seventh amplifier (controller/gripper.py)
+                    grip = float(v["gripper.rate_cmd_m_s"]) * self.gripper_cmd_scale
                 elif rt.servo_catch_up and not servo.fault:
                     self.catch_up_zeros += 1  # the missed slot runs in this frame: 0 for one frame
                 else:
@@ -518,7 +549,7 @@ class DataAcquisitionLayer(Layer):
                                         f"at frame {frame}: the last was computed from frame {s} "
                                         f"({frame - s} frames old); rates 0")
         reflect = self._reflection(rt, status)
-        self.client.write_commands(joint_rate_rad_s=rates, current_limit_a=limits,
+        self.client.write_commands(joint_rate_rad_s=rates, gripper=grip, current_limit_a=limits,
                                    arm_request=self.arm_request, rearm_counter=self.rearm_counter,
                                    inputs_frame=stamp, controller_frame=self.writes, **self._route_field(reflect))
         self.sent_input_frame = stamp
@@ -542,7 +573,7 @@ class DataAcquisitionLayer(Layer):
         without a watchdog trip. ``resume``: the resume's command instead (mode cleared, and
         if this layer had armed the outputs, an arm request with its ``rearm_counter``, which
         the runtime has made new; still 0 rates and limits)."""
-        self.client.write_commands(joint_rate_rad_s=self._zeros, current_limit_a=self._zero_limits,
+        self.client.write_commands(joint_rate_rad_s=self._zeros, gripper=0.0, current_limit_a=self._zero_limits,
                                    arm_request=self.arm_request if resume else 0, rearm_counter=self.rearm_counter,
                                    mode=0 if resume else MODE_HALTED, inputs_frame=frame,
                                    controller_frame=self.writes, **self._route_field(self._no_reflection()))

@@ -77,6 +77,7 @@ TASK_DOCS = {
     "cartesian_fast": ("cartesian", "Cartesian engine: force/torque offsets"),
     "joint_planner": ("joint", "joint planner: commanded joint positions for the servo"),
     "servo_control": ("servo", "first-order compensators, limits: joint positions -> rate commands"),
+    "gripper_control": ("servo", "the gripper (seventh amplifier): requests, stall detection, grip force"),
 }
 
 #: profile -> (minor-frame rate Hz, {task: (rate Hz, phase)})
@@ -89,6 +90,7 @@ PROFILES: dict[str, tuple[float, dict[str, tuple[float, int]]]] = {
         "cartesian_slow": (40.0, 5),
         "trajectory_planner": (40.0, 7),
         "msp_planner": (20.0, 9),
+        "gripper_control": (40.0, 3),
     }),
     "overview": (268.0, {
         "updown_requests": (268.0, 0),
@@ -98,6 +100,7 @@ PROFILES: dict[str, tuple[float, dict[str, tuple[float, int]]]] = {
         "cartesian_slow": (67.0, 3),
         "trajectory_planner": (33.5, 5),
         "msp_planner": (33.5, 7),
+        "gripper_control": (33.5, 2),
     }),
 }
 
@@ -108,7 +111,7 @@ PROFILES: dict[str, tuple[float, dict[str, tuple[float, int]]]] = {
 TASK_BUDGETS_S = {
     "updown_requests": 50e-6, "servo_control": 250e-6, "joint_planner": 500e-6,
     "cartesian_fast": 300e-6, "cartesian_slow": 300e-6, "trajectory_planner": 200e-6,
-    "msp_planner": 200e-6,
+    "msp_planner": 200e-6, "gripper_control": 100e-6,
 }
 
 

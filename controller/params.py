@@ -25,7 +25,7 @@ from __future__ import annotations
 
 # the joint table lives in pfma.arm (the service's envelope and the file checks read it too)
 from pfma.arm import (  # noqa: F401  (re-exported: the controller's one import of arm facts)
-    DEG, GRIPPER_I_MAX_A, JOINT_NAMES, JOINTS, N_JOINTS, SOURCE, JointFacts, joint, unwrap_angle,
+    DEG, GRIPPER, GRIPPER_I_MAX_A, JOINT_NAMES, JOINTS, N_JOINTS, SOURCE, JointFacts, joint, unwrap_angle,
     RATE_LOOP_LAMBDA, RUN_CURRENT_FRACTION, TACH_TAU_S,
     SHOULDER_ROLL_STEPS_DEG, SHOULDER_ROLL_STEPS_TEXT, check_shoulder_roll_deg, shoulder_roll_text,
 )
@@ -45,5 +45,6 @@ SAFE_STOP_TIMEOUT_S = 0.5
 
 
 def run_current_limits_a() -> tuple[float, ...]:
-    """Default current limits while powered up: RUN_CURRENT_FRACTION x I_max, gripper 0."""
-    return tuple(RUN_CURRENT_FRACTION * j.i_max_a for j in JOINTS) + (0.0,)
+    """Default current limits while powered up: RUN_CURRENT_FRACTION x I_max; the gripper's
+    entry is the most its grip force may use (I_max: 200 N at 40 N/A; controller/gripper.py)."""
+    return tuple(RUN_CURRENT_FRACTION * j.i_max_a for j in JOINTS) + (GRIPPER_I_MAX_A,)

@@ -341,6 +341,7 @@ class ControllerRuntime:
         self._err_cand: dict[str, Message] = {}  # per source: the first recent ERROR message
         self.on_frame: list[Callable[[FrameTrace], None]] = []
         self._goal_seq = 0
+        self._gripper_seq = 0
         # halt, single step, resume (docs/console.md)
         self.halted = False
         self.steps_left = 0
@@ -769,6 +770,7 @@ class ControllerRuntime:
         self._prev_t_s = float(snap.t_s)
         self.wm.communications_segment()
         self.updown.receive_requests(self)
+        self.servo.gripper.halted(self)  # a gripper request is refused while halted
         if self._resume_seq and self._resume_tick(snap, f):
             return self.step()  # resumed: this tick is the first frame again (controller time goes on)
         if not self._resume_seq:
@@ -893,6 +895,16 @@ class ControllerRuntime:
         """(request number answered, Response code) of ``ui.response``."""
         v = self.wm.get_task_inputs(("ui.response_seq", "ui.response"))
         return int(v["ui.response_seq"]), int(v["ui.response"])
+
+    def gripper_request(self, kind: int, force_n: float = 0.0) -> int:
+        """Post a gripper request (``pfma.gripper.GripperRequest``: 1 OPEN 2 CLOSE 3 STOP 4 FORCE;
+        ``force_n`` > 0 sets the grip force) to Servo Control; returns its number. The answer
+        appears in ``gripper.response`` / ``gripper.response_seq`` / ``gripper.response_text``."""
+        self._gripper_seq = max(self._gripper_seq, int(self.wm.get("gripper.request_seq"))) + 1
+        self.wm.set_user("gripper.request_force_n", float(force_n), self._key)
+        self.wm.set_user("gripper.request", int(kind), self._key)
+        self.wm.set_user("gripper.request_seq", self._gripper_seq, self._key)
+        return self._gripper_seq
 
     def answer(self, seq: int) -> tuple[int, str] | None:
         """The newest answer to request ``seq`` (Response code, text); None before one."""

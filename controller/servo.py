@@ -37,10 +37,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from controller.decision import Status, TaskState
+from controller.gripper import GRIPPER_LIMIT_INDEX, GripperDrive, gripper_specs
 from controller.layers import ERROR_NAMES, Layer
 from controller.messages import Level
 from controller.params import (
-    DEFAULT_KP_PER_S, JOINTS, N_CURRENT_LIMITS, N_JOINTS, RATE_LOOP_LAMBDA, SAFE_STOP_RATE_RAD_S,
+    DEFAULT_KP_PER_S, GRIPPER_I_MAX_A, JOINTS, N_CURRENT_LIMITS, N_JOINTS, RATE_LOOP_LAMBDA, SAFE_STOP_RATE_RAD_S,
     SAFE_STOP_TIMEOUT_S, TACH_TAU_S, JointFacts, run_current_limits_a,
 )
 from controller.supervision import (
@@ -211,6 +212,21 @@ class ServoLayer(Layer):
         self._sup_frame = -1  # service frame of the last supervised sample
         self._u_sent = [0.0] * N_JOINTS  # the rates posted last servo period (what the amplifiers act on)
         self._zero_limits = np.zeros(N_CURRENT_LIMITS)
+        #: the seventh amplifier (controller/gripper.py): its own task, 40 Hz
+        self.gripper = GripperDrive(self)
+        self.periodic["gripper_control"] = self.gripper.task
+
+    @property
+    def brake_phase(self) -> int:
+        """``servo.brake_phase`` as this layer last set it (3: loop closed)."""
+        return self._phase
+
+    def limits_cmd(self, gripper_a: float) -> np.ndarray:
+        """The current-limit command: the six joints' latched limits, then ``gripper_a`` (the
+        gripper's current limit, which its grip force sets: controller/gripper.py)."""
+        out = np.array(self.params["current_limit_a"], dtype=float)
+        out[GRIPPER_LIMIT_INDEX] = gripper_a
+        return out
 
     def specs(self) -> list[VarSpec]:
         z6 = [0.0] * N_JOINTS
@@ -225,7 +241,8 @@ class ServoLayer(Layer):
             par("rate_limit_rad_s", [j.omega_lim_rad_s for j in JOINTS], "rad/s",
                 "joint rate limit (pfma-model 8.2: 0.6 omega_fs)"),
             par("current_limit_a", run_current_limits_a(), "A",
-                "current limits while powered up (6 joints + gripper)"),
+                "current limits while powered up (6 joints), and the most the gripper may use (its grip "
+                "force sets its limit, up to this x 40 N/A)"),
             par("q_min_rad", [j.soft_lo_rad for j in JOINTS], "rad", "soft lower joint limits (8.2)"),
             par("q_max_rad", [j.soft_hi_rad for j in JOINTS], "rad", "soft upper joint limits (8.2)"),
             par("ferror_min_rad", [FERROR_MIN_RAD] * N_JOINTS, "rad",
@@ -255,7 +272,7 @@ class ServoLayer(Layer):
             VarSpec("servo.brake_phase", "task_status", "i2", (), "servo", 0,
                     doc="the brake sequence: set, rate zeroed, limits raised, released (loop closed), "
                         "stopping, limits zero", enum=BRAKE_PHASE_NAMES),
-        ]
+        ] + gripper_specs()
 
     # --- sequence tasks ------------------------------------------------------------------
     def seq_init(self, rt: "LayerContext") -> TaskState:
@@ -275,6 +292,9 @@ class ServoLayer(Layer):
                                     f"not inside the hard limits")
                 if not 0 <= p["current_limit_a"][i] <= j.i_max_a:
                     problems.append(f"{j.name} current limit {p['current_limit_a'][i]} A outside 0..{j.i_max_a}")
+            g = p["current_limit_a"][GRIPPER_LIMIT_INDEX]
+            if not 0 <= g <= GRIPPER_I_MAX_A:
+                problems.append(f"gripper current limit {g} A outside 0..{GRIPPER_I_MAX_A}")
             if problems:
                 raise ValueError("; ".join(problems))
             pure = not (np.any(p["tau_z_s"]) or np.any(p["tau_p_s"]))  # the reference: the same compensator
@@ -307,8 +327,8 @@ class ServoLayer(Layer):
             rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS), "servo.rate_cmd_frame": -1})
             self._brake_phase(rt, 1)
             return TaskState.RUNNING
-        if self._phase == 1:
-            rt.wm.post_task_outputs("servo", {"servo.current_limit_cmd_a": self.params["current_limit_a"]})
+        if self._phase == 1:  # the gripper's stays 0 until its drive runs (START UP COMPLETE)
+            rt.wm.post_task_outputs("servo", {"servo.current_limit_cmd_a": self.limits_cmd(0.0)})
             self._brake_phase(rt, 2)
             return TaskState.RUNNING
         v = rt.wm.get_task_inputs(("daq.brakes_released", "daq.joint_angle_rad"))

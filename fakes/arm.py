@@ -10,6 +10,11 @@ its PWM/rate servo card (IRSS report 3.6, pfma-model.md 8.4)::
                   holds up to 1.5 x the max joint torque, then slips
     J qddot = tau_m + tau_gravity + tau_contact + tau_stop - b qdot - F_c sgn(qdot) - brake
 
+The gripper's jaw (axis 6, opening in m) has hard stops at 0 (closed) and its travel; an
+object placed between the jaws (:meth:`ArmModel.place_jaw_object`) is a stop at its width,
+as stiff as the hard stops: a close stalls on it and presses with the force the amplifier's
+current limit sets (:attr:`ArmModel.jaw_force_n`).
+
 Simplifications (documented in docs/simulated-arm.md): decoupled per-joint effective
 inertias (8.3) instead of a full rigid-body model; gravity is the exact static gravity of
 the 8.3 point masses (links counterbalanced 90 % on J1-J5, payload not), held constant
@@ -50,6 +55,7 @@ class ArmState:
     current_monitor_volts: np.ndarray  #: V_imon = 10 I / I_max, V
     brake_engaged: np.ndarray  #: bool per axis (always False for the gripper, which has none)
     contact_force_n: np.ndarray  #: force of the environment on the tool point, world frame, N
+    jaw_force_n: float = 0.0  #: force between the jaws (on an object, or on each other when closed), N
 
 
 class ArmModel:
@@ -86,6 +92,7 @@ class ArmModel:
         self.i_max = f(lambda a: a.i_max_a)
         self.hard_lo = f(lambda a: a.hard_lo)
         self.hard_hi = f(lambda a: a.hard_hi)
+        self._jaw_axis = next(i for i, a in enumerate(ax) if a.name == "GR")
         self.brake_fitted = np.array([a.brake for a in ax])
         self.slip = params.brake_slip_factor * f(lambda a: a.torque_max) * self.brake_fitted
         self.k_stop = self.inertia * params.stop_omega_rad_s ** 2
@@ -137,6 +144,8 @@ class ArmModel:
         self.brake_engaged = self.brake_fitted.copy()
         self.t_s = 0.0
         self.contact_force_n = np.zeros(3)
+        self._lo = self.hard_lo.copy()  # the hard stops, and an object between the jaws
+        self.jaw_object_m: float | None = None  #: width of the object between the jaws (None: none)
         self._g_key = None
         self._h = None
         self._tau = np.zeros(N_AXES)
@@ -161,7 +170,35 @@ class ArmModel:
         """A copy of the true state."""
         return ArmState(self.t_s, self.q.copy(), self.qdot.copy(), self.tach_volts.copy(),
                         self.current_a.copy(), self.current_monitor_volts,
-                        self.brake_engaged.copy(), self.contact_force_n.copy())
+                        self.brake_engaged.copy(), self.contact_force_n.copy(), self.jaw_force_n)
+
+    # -- the gripper's jaw -----------------------------------------------------------------
+    @property
+    def jaw_force_n(self) -> float:
+        """Force between the jaws, N: the object's (or the closed stop's) spring, k x depth."""
+        g = self._jaw_axis
+        return float(self.k_stop[g] * max(0.0, self._lo[g] - self.q[g]))
+
+    def place_jaw_object(self, width_m: float | None) -> None:
+        """Put an object of ``width_m`` between the jaws (None: take it away). It stays where
+        it is (held by the world, not by the jaws) and is as stiff as the hard stops.
+
+        :raises ValueError: a width outside the travel, or wider than the jaw is open now
+        """
+        g = self._jaw_axis
+        if width_m is None:
+            self.jaw_object_m = None
+            self._lo[g] = self.hard_lo[g]
+            return
+        w = float(width_m)
+        if not (math.isfinite(w) and self.hard_lo[g] < w < self.hard_hi[g]):
+            raise ValueError(f"a jaw object of {w:g} m does not fit the jaw's travel "
+                             f"{self.hard_lo[g]:g}..{self.hard_hi[g]:g} m")
+        if self.q[g] < w:
+            raise ValueError(f"the jaw is open {self.q[g] * 1e3:.1f} mm, narrower than the "
+                             f"{w * 1e3:.1f} mm object: open it first")
+        self.jaw_object_m = w
+        self._lo[g] = w
 
     def frames(self) -> np.ndarray:
         """World transforms of DH frames 0..6 at the current pose, shape (7, 4, 4)."""
@@ -281,7 +318,7 @@ class ArmModel:
         q, v, vtf, cur, acc, tmp = self.q, self.qdot, self.tach_volts, self.current_a, self._tau, self._tmp
         k_a, keep_f, alpha_kw, hj_tpa = self.k_a, self._keep_f, self._alpha_kw, self._hj_tpa
         inv_denom = self._inv_denom_free
-        lo, hi = self.hard_lo, self.hard_hi
+        lo, hi = self._lo, self.hard_hi
         # hard stops need per-substep work only near a stop (or for long steps)
         margin = np.abs(v) * dt_s
         margin += 0.01

@@ -6,7 +6,8 @@ the real PFMA data are not public), and the IRSS report section 3.6 (seven
 PWM/rate servo cards incl. the gripper, six brake release cards, 10 Hz one-pole
 tach filter cards). The facts are copied in here; nothing reads the reference
 files at run time. The gripper axis has no published numbers at all: its row is
-this simulator's own assumption (marked ``assumed (simulator)``).
+this project's assumption, :data:`pfma.arm.GRIPPER` (one place for the controller and
+this simulator).
 
 Axis order everywhere in the simulator is the DH order SY, SP, EP, WP, WY, WR,
 then the gripper (index 6). Rotary axes are in rad, rad/s, N*m, kg*m^2; the
@@ -18,7 +19,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from pfma.arm import GRIPPER
+
 SOURCE = "pfma-model.md 8.1-8.7 (nominal model, assumed); IRSS report 3.6"
+_G = GRIPPER  # the gripper's row below
 
 DEG = math.pi / 180.0
 
@@ -93,11 +97,14 @@ AXES: tuple[AxisParams, ...] = (
                -105 * DEG, 105 * DEG, 100, 1.00, 0.06, 5.0, 0.6, 1.0, 2.0, WRIST_YAW_COUNTERBALANCED, True),
     AxisParams("WR", "Wrist Roll", "wrist_roll", -180 * DEG, 180 * DEG,
                -175 * DEG, 175 * DEG, 60, 2.00, 0.06, 5.0, 0.08, 1.0, 2.0, False, True),
-    # assumed (simulator): gripper jaw opening 0..0.10 m, 0.05 m/s at 10 V, 40 N/A
-    # (N = 500 rotor rad per m of jaw travel), 5 A (the rack's 0.5 A/V scale), 20 kg reflected
-    # mass (lead screw), friction 2 N + 20 N*s/m; no brake, no resolver, no gravity.
-    AxisParams("GR", "Gripper", "gripper", 0.0, 0.10, 0.005, 0.095,
-               500, 0.05, 0.10, 5.0, 20.0, 2.0, 20.0, False, False, has_angle=False),
+    # the gripper: the nominal jaw of pfma.arm.GRIPPER (assumed, this project; one place for
+    # the controller, the script handle and this simulator): opening 0..0.10 m, 0.05 m/s at
+    # 10 V, 40 N/A (N = 500 rotor rad per m of jaw travel), 5 A (the rack's 0.5 A/V scale),
+    # 100 kg reflected mass (lead screw), friction 2 N + 20 N*s/m; no brake, no resolver, no
+    # gravity. Its "soft limits" are information only (the controller ends moves on a stall).
+    AxisParams("GR", "Gripper", "gripper", 0.0, _G.travel_m, 0.005, _G.travel_m - 0.005,
+               _G.gear_n, _G.omega_fs_m_s, _G.k_t_nm_per_a, _G.i_max_a, _G.mass_kg, _G.coulomb_n,
+               _G.viscous_n_s_m, False, False, has_angle=False, eta=_G.eta),
 )
 
 N_AXES = len(AXES)
@@ -163,7 +170,7 @@ class ArmParams:
     tool_mass_kg: float = 1.5  #: 8.7: tool behind the sensor
     tool_com_m: float = 0.06  #: 8.7: tool centre of mass beyond the sensor along z6
     # Simulator choices (assumed, documented in docs/simulated-arm.md):
-    stop_omega_rad_s: float = 300.0  #: hard stop stiffness k = J * omega^2
+    stop_omega_rad_s: float = 300.0  #: hard stop stiffness k = J * omega^2 (also an object between the jaws)
     stop_zeta: float = 0.7  #: hard stop damping ratio
     max_substep_s: float = 1.0e-3  #: integration substep upper bound (1 kHz or finer)
     q_initial: tuple[float, ...] = (0.0, 30 * DEG, -90 * DEG, 60 * DEG, 0.0, 0.0, 0.05)

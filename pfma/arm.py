@@ -107,6 +107,53 @@ GRIPPER_I_MAX_A = 5.0
 N_JOINTS = len(JOINTS)
 
 
+@dataclass(frozen=True)
+class GripperFacts:
+    """The end effector's nominal jaw: the seventh amplifier (IRSS report section 1: "7 pulse
+    width modulated amplifiers (6 DOF + end effector)"; 3.6: seven PWM/rate servo cards). The
+    rack drives it with DAC channel 6 (gripper command: a rate, 10 V = ``omega_fs_m_s``) and
+    13 (its current limit), and senses its rate (ADC 15, tach volts) and motor current (ADC
+    7); it has no position sensor and no brake.
+
+    Every figure but ``i_max_a`` is this project's assumption (the report gives none; named
+    once here, used by the controller, the script handle and the simulated arm, and listed in
+    docs/simulated-arm.md "The gripper")."""
+
+    travel_m: float  #: jaw opening from closed (0) to fully open, m
+    omega_fs_m_s: float  #: jaw speed at a full-scale 10 V command, m/s (opening positive)
+    gear_n: float  #: motor rad per m of jaw travel (lead screw)
+    k_t_nm_per_a: float  #: motor torque constant
+    i_max_a: float  #: motor current at a 10 V current-limit command (the rack's scale)
+    mass_kg: float  #: reflected mass of the jaw drive (rotor inertia x N^2), kg
+    coulomb_n: float  #: jaw-side Coulomb friction, N
+    viscous_n_s_m: float  #: jaw-side viscous friction, N*s/m
+    eta: float = 0.8  #: screw efficiency
+
+    @property
+    def force_per_amp(self) -> float:
+        """N eta K_t: jaw force per motor ampere (N/A); at a stall the grip force is this
+        times the current limit (the amplifier saturates there)."""
+        return self.gear_n * self.eta * self.k_t_nm_per_a
+
+    @property
+    def force_max_n(self) -> float:
+        """Grip force at I_max (N)."""
+        return self.force_per_amp * self.i_max_a
+
+    @property
+    def k_w_v_per_m_s(self) -> float:
+        """Rate scale of command and tach: 10 V / omega_fs (V per m/s)."""
+        return 10.0 / self.omega_fs_m_s
+
+
+#: the nominal jaw (assumed, this project): 0..100 mm travel, 50 mm/s at 10 V, 40 N per
+#: ampere (200 N at I_max 5 A), 100 kg reflected mass (its rate card's K_a is then
+#: lambda J / (N eta K_t K_w) = 0.5 A/V: a full-scale command saturates at any current
+#: limit, so a stalled jaw presses with the force the current limit sets), 2 N + 20 N*s/m friction
+GRIPPER = GripperFacts(travel_m=0.10, omega_fs_m_s=0.05, gear_n=500.0, k_t_nm_per_a=0.10,
+                       i_max_a=GRIPPER_I_MAX_A, mass_kg=100.0, coulomb_n=2.0, viscous_n_s_m=20.0)
+
+
 def joint(name: str) -> JointFacts:
     """Facts of one joint by its command-area name."""
     for j in JOINTS:

@@ -13,7 +13,9 @@ Run: ``python -m sim.demo --buffer pfma --duration 30``
 
 :func:`demo_goal` is the short demo path the real controller flies in ``make run`` (the
 console over the system simulator, docs/console.md): joint goals through the Joint
-Planner, a few poses around the start pose, one every :data:`DEMO_GOAL_EVERY_S`.
+Planner, a few poses around the start pose, one every :data:`DEMO_GOAL_EVERY_S`; at some
+poses the gripper opens or closes (:func:`demo_gripper`) on a part placed between its jaws
+(:data:`DEMO_JAW_OBJECT_M`).
 """
 
 from __future__ import annotations
@@ -47,6 +49,13 @@ DEMO_PATH: tuple[dict[str, float], ...] = (
 )
 #: seconds between two goals of the demo path (the Joint Planner needs ~2 s per move)
 DEMO_GOAL_EVERY_S = 4.0
+#: the demo path's gripper events: pose index of DEMO_PATH -> the gripper request made when the
+#: demo goes to that pose (open, close: pfma.gripper.ACTIONS). An open or a close takes about
+#: 3 s at the gripper's 20 mm/s (controller/gripper.py), within the pose's 4 s
+DEMO_GRIPPER: dict[int, str] = {0: "open", 2: "close"}
+#: width of the part between the jaws of the simulated world while the demo runs (m): the
+#: demo's close grips it (GRIPPING at the grip force), its open lets go
+DEMO_JAW_OBJECT_M = 0.04
 
 
 def demo_goal(joints, q0, t: float) -> tuple[int, list[float]]:
@@ -55,6 +64,11 @@ def demo_goal(joints, q0, t: float) -> tuple[int, list[float]]:
     k = int(t // DEMO_GOAL_EVERY_S) % len(DEMO_PATH)
     off = DEMO_PATH[k]
     return k, [float(q) + off.get(name, 0.0) for name, q in zip(joints, q0)]
+
+
+def demo_gripper(k: int) -> str | None:
+    """The gripper request the demo path makes at pose ``k`` (None: none)."""
+    return DEMO_GRIPPER.get(k % len(DEMO_PATH))
 
 
 def hold_rate(q: float, q0: float, k: float = HOLD_GAIN_1_S,

@@ -74,6 +74,7 @@ from controller.paths.model import (
     check_limits as check_limits,
     check_name as check_name,
     delete_points,
+    insert_gripper,
     insert_point,
     make_point,
     move_point,
@@ -100,7 +101,7 @@ from controller.paths.store import (
 )
 
 __all__ = ["Path", "PathPoint", "PathStore", "PathInfo", "PathError", "make_point", "delete_points",
-           "insert_point", "move_point", "set_speed", "set_limits", "simplify", "plan_path", "plan_duration_s",
+           "insert_point", "insert_gripper", "move_point", "set_speed", "set_limits", "simplify", "plan_path", "plan_duration_s",
            "PlannedSegment", "MultiSegmentLayer", "MspMode", "MspResult", "RecordSource", "default_dir", "FORMAT_VERSION",
            "DEFAULT_LIMITS", "resolve_orientations", "offline_start_quat", "MotionCheck", "Refusal", "Target",
            "MoveRequest", "MoveKind"]

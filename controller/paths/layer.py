@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from controller.decision import Status
+from controller.gripper import path_request_specs
 from controller.layers import Layer
 from controller.messages import Level
 from controller.paths.check import MAX_TURN_RAD, SAMPLES_PER_RUN, MotionCheck, Target
@@ -49,6 +50,7 @@ from controller.paths.store import PathStore, _now_text, path_missing
 from controller.quat import q_angle, q_normalize
 from controller.trajectory import DoneCode, segment_specs
 from controller.worldmodel import VarSpec
+from pfma.gripper import ACTION_NAMES as GRIPPER_ACTION_NAMES, ACTIONS as GRIPPER_ACTIONS, COMPLETE, IN_PROGRESS
 
 if TYPE_CHECKING:  # pragma: no cover
     from controller.context import LayerContext
@@ -93,14 +95,18 @@ class MspResult:
     REFUSED = 5  #: refused before it started (the check, busy, not in trajectory mode) or by the Trajectory Planner
     SAVE_FAILED = 6
     FAILED = 7  #: ran to its end, but the arm did not follow within the tracking tolerance
+    GRIPPER = 8  #: a gripper event of the path was refused or failed (Servo Control's answer)
     NAMES = {0: "OK", 1: "CANCELLED", 2: "NO POSE", 3: "NO PATH", 4: "EMPTY", 5: "REFUSED", 6: "SAVE FAILED",
-             7: "FAILED"}
+             7: "FAILED", 8: "GRIPPER FAILED"}
 
 
 TOOL_POSE = ("joint.tool_pos_m", "joint.tool_quat")
 CMD_POSE = ("cart.cmd_valid", "cart.pos_cmd_m", "cart.quat_cmd")
 USER_VARS = ("msp.mode", "msp.path_id", "msp.teach", "msp.capture", "msp.capture_dist_m", "msp.capture_angle_rad",
              "msp.speed_scale", "msp.record_source")
+#: the gripper's accepted user requests (Servo Control, controller/gripper.py): a recording stores each
+GRIPPER_EVENT = ("gripper.event_seq", "gripper.event", "gripper.event_force_n")
+GRIPPER_DONE = ("gripper.msp_done_seq", "gripper.msp_done_code")
 #: the user variables of moves and of the checks (read with USER_VARS every run)
 MOVE_USER_VARS = ("msp.move_request", "msp.max_turn_rad", "msp.track_tol_m", "msp.track_tol_rad")
 _RUN_VARS = USER_VARS + MOVE_USER_VARS
@@ -203,6 +209,9 @@ class MultiSegmentLayer(Layer):
         self._plan: list[PlannedSegment] = []
         self._seg_i = 0
         self._seg_seq = 0
+        self._grip_event_seen = 0  # gripper.event_seq when last looked at (recording)
+        self._grip_seq = 0  # the path's gripper requests made (msp.gripper_seq)
+        self._grip_wait = False  # playback waits for the gripper's answer to _grip_seq
         self._job: _Job | None = None
         self._move_seen = 0
         self._jmove_seq = 0
@@ -215,7 +224,7 @@ class MultiSegmentLayer(Layer):
         self.last_error = ""
 
     def specs(self) -> list[VarSpec]:
-        return self.state_specs() + segment_specs() + joint_move_specs() + [
+        return self.state_specs() + segment_specs() + joint_move_specs() + path_request_specs() + [
             VarSpec("msp.mode", "command_input", "i2", (), "user", 0,
                     doc="path planner mode (RECORD into, PLAY: path msp.path_id)",
                     enum={k: v for k, v in MspMode.NAMES.items() if k != MspMode.MOVE}),
@@ -338,6 +347,8 @@ class MultiSegmentLayer(Layer):
             return
         self._rec, self._rec_t0 = [], rt.now
         self._teach_seen = int(v["msp.teach"])
+        if self._has(rt, GRIPPER_EVENT):
+            self._grip_event_seen = int(rt.wm.get("gripper.event_seq"))
         self.state = MspMode.RECORD
         if bool(v["msp.capture"]):
             self._add_point(rt, *pose, "capture")
@@ -366,11 +377,33 @@ class MultiSegmentLayer(Layer):
                 turned = q_angle(q, last.quat)
                 if moved >= float(v["msp.capture_dist_m"]) or turned >= float(v["msp.capture_angle_rad"]):
                     self._add_point(rt, p, q, "capture")
+        self._record_gripper(rt, p, q)
         if len(self._rec) != n0:
             self._status(rt, points=len(self._rec))
 
+    def _record_gripper(self, rt, p: np.ndarray, q: np.ndarray) -> None:
+        """A gripper request the user made while recording (accepted by Servo Control): a
+        gripper event at the present pose, with the grip force in force after it."""
+        if not self._has(rt, GRIPPER_EVENT):
+            return
+        g = rt.wm.get_task_inputs(GRIPPER_EVENT)
+        seq = int(g["gripper.event_seq"])
+        if seq == self._grip_event_seen:
+            return
+        self._grip_event_seen = seq
+        action = GRIPPER_ACTION_NAMES.get(int(g["gripper.event"]))
+        if action not in ("open", "close", "stop"):
+            return  # a grip force alone: each event carries the force in force
+        self._rec.append(PathPoint(tuple(float(x) for x in p), tuple(float(x) for x in q), "gripper",
+                                   round(rt.now - self._rec_t0, 6), gripper=action,
+                                   force_n=round(float(g["gripper.event_force_n"]), 3)))
+        rt.post(self.key, Level.INFO, f"gripper event {len(self._rec) - 1}: {action} at "
+                                      f"{float(g['gripper.event_force_n']):.0f} N")
+
     def _stop_record(self, rt, v) -> None:
         pose = self._tool_pose(rt)
+        if pose is not None:
+            self._record_gripper(rt, *pose)  # a request answered since the last run is part of the path
         if pose is not None and bool(v["msp.capture"]) and self._rec:
             last = self._rec[-1]
             if np.linalg.norm(pose[0] - np.array(last.pos_m)) > 1e-4 or q_angle(pose[1], last.quat) > 1e-3:
@@ -485,6 +518,11 @@ class MultiSegmentLayer(Layer):
             self._end(rt, MspResult.NO_PATH if path_missing(err) else MspResult.EMPTY,
                       f"play path id {pid}: {err}")
             return
+        if any(s.gripper for s in plan) and not self._has(rt, GRIPPER_DONE):
+            self._end(rt, MspResult.GRIPPER, f"play path id {pid}: it has gripper events and this controller "
+                                             f"has no gripper (Servo Control's gripper.* variables)")
+            return
+        self._grip_wait = False
         job = _Job("path", f"path {path.name} (id {pid})")
         job.points = len(path.points)
         self._job = job
@@ -675,6 +713,9 @@ class MultiSegmentLayer(Layer):
         if job.kind == "joint":
             self._jmove_poll(rt, job)
             return
+        if self._grip_wait:
+            self._wait_gripper(rt, job)
+            return
         v = rt.wm.get_task_inputs(("traj.done_seq", "traj.done_code"))
         if int(v["traj.done_seq"]) != self._seg_seq:
             return
@@ -687,6 +728,36 @@ class MultiSegmentLayer(Layer):
             self._end(rt, MspResult.CANCELLED, f"{job.label}: segment {self._seg_i + 1} stopped",
                       move_seq=job.move_seq)
             return
+        s = self._plan[self._seg_i]
+        if s.gripper:  # the segment's end is a gripper event: do it before going on
+            self._grip_seq += 1
+            self._grip_wait = True
+            rt.wm.post_task_outputs("msp", {"msp.gripper_request": int(GRIPPER_ACTIONS[s.gripper]),
+                                            "msp.gripper_force_n": s.force_n or 0.0,
+                                            "msp.gripper_seq": self._grip_seq})
+            rt.post(self.key, Level.INFO, f"{job.label}: segment {self._seg_i + 1} reached; gripper {s.gripper}"
+                                          + (f" at {s.force_n:g} N" if s.force_n else ""))
+            return
+        self._next(rt, job)
+
+    def _wait_gripper(self, rt, job: _Job) -> None:
+        """The path's gripper event: go on when Servo Control answers it COMPLETE; end the
+        playback (GRIPPER FAILED) when it refuses or fails it."""
+        v = rt.wm.get_task_inputs(GRIPPER_DONE)
+        if int(v["gripper.msp_done_seq"]) != self._grip_seq:
+            return
+        code = int(v["gripper.msp_done_code"])
+        if code == IN_PROGRESS:
+            return
+        self._grip_wait = False
+        s = self._plan[self._seg_i]
+        if code != COMPLETE:
+            self._end(rt, MspResult.GRIPPER, f"{job.label}: gripper {s.gripper} after segment {self._seg_i + 1} "
+                                             f"refused or failed (Servo Control's messages say why)")
+            return
+        self._next(rt, job)
+
+    def _next(self, rt, job: _Job) -> None:
         self._seg_i += 1
         if self._seg_i >= len(self._plan):
             what = (f"playback done ({len(self._plan)} segments)" if job.kind == "path" else f"{job.label} done")
@@ -711,6 +782,11 @@ class MultiSegmentLayer(Layer):
 
     def _cancel_play(self, rt, why: str) -> None:
         job = self._job
+        if self._grip_wait:  # a gripper move of the path: stop it too
+            self._grip_wait = False
+            self._grip_seq += 1
+            rt.wm.post_task_outputs("msp", {"msp.gripper_request": int(GRIPPER_ACTIONS["stop"]),
+                                            "msp.gripper_force_n": 0.0, "msp.gripper_seq": self._grip_seq})
         if job is not None and job.running:
             rt.wm.post_task_outputs("msp", {"msp.jmove_stop": True} if job.kind == "joint" else {"msp.seg_stop": True})
         what = "playback" if job is None or job.kind == "path" else job.label

@@ -16,14 +16,20 @@ import numpy as np
 
 from controller.trajectory import Limits
 from pfma.errors import PfmaError
+from pfma.gripper import ACTIONS as GRIPPER_ACTIONS, check_force
+from pfma.arm import GRIPPER
 
 FORMAT = "pfma-path"
 #: version of the path file format; files of a newer version are refused. Version 2 added
-#: points without an orientation (``"quat": null``: keep the tool's orientation); a file
-#: whose points all have one is still written as version 1, which older programs read
+#: points without an orientation (``"quat": null``: keep the tool's orientation) and gripper
+#: events (points of kind "gripper"); a file with neither is still written as version 1, which
+#: older programs read (:meth:`Path.needs_v2`)
 FORMAT_VERSION = 2
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}$")
-POINT_KINDS = ("teach", "capture", "edit")
+#: "gripper": a gripper event (open, close, stop) at that pose, replayed in order with the motion
+POINT_KINDS = ("teach", "capture", "edit", "gripper")
+#: the gripper events a path may hold (pfma.gripper.ACTIONS but FORCE, which a request's force_n carries)
+PATH_GRIPPER_ACTIONS = tuple(a for a in GRIPPER_ACTIONS if a != "force")
 
 #: Defaults of a new path (assumed, this project): half the trajectory caps, so a
 #: playback is slower than the coarse teleoperation limits (pfma-model 8.2).
@@ -48,6 +54,8 @@ class PathPoint:
     t_s: float = 0.0
     v_lin_m_s: float | None = None
     v_rot_rad_s: float | None = None
+    gripper: str | None = None  #: kind "gripper": the event (``open``, ``close``, ``stop``)
+    force_n: float | None = None  #: kind "gripper": its grip force (None: the one in force)
 
     def to_json(self) -> dict:
         d: dict[str, Any] = {"pos_m": [round(x, 9) for x in self.pos_m],
@@ -58,13 +66,20 @@ class PathPoint:
             d["v_lin_m_s"] = self.v_lin_m_s
         if self.v_rot_rad_s is not None:
             d["v_rot_rad_s"] = self.v_rot_rad_s
+        if self.gripper is not None:
+            d["gripper"] = self.gripper
+        if self.force_n is not None:
+            d["force_n"] = self.force_n
         return d
 
 
 def make_point(pos_m: Sequence[float], quat: Sequence[float] | None, kind: str = "capture", t_s: float = 0.0,
-               v_lin_m_s: float | None = None, v_rot_rad_s: float | None = None, where: str = "point") -> PathPoint:
+               v_lin_m_s: float | None = None, v_rot_rad_s: float | None = None, where: str = "point",
+               gripper: str | None = None, force_n: float | None = None) -> PathPoint:
     """A checked :class:`PathPoint` (finite position, unit quaternion or None - keep the
-    tool's orientation -, known kind, speeds > 0).
+    tool's orientation -, known kind, speeds > 0; a gripper event has an action of
+    :data:`PATH_GRIPPER_ACTIONS` and a grip force within the gripper's range or none, and only
+    a gripper event has them).
 
     :raises PathError: naming ``where``
     """
@@ -85,10 +100,22 @@ def make_point(pos_m: Sequence[float], quat: Sequence[float] | None, kind: str =
     for nm, val in (("v_lin_m_s", v_lin_m_s), ("v_rot_rad_s", v_rot_rad_s)):
         if val is not None and not (isinstance(val, (int, float)) and math.isfinite(val) and val > 0):
             raise PathError(f"{where}: {nm} {val!r} must be a number > 0 (or absent)")
+    if kind == "gripper":
+        if gripper not in PATH_GRIPPER_ACTIONS:
+            raise PathError(f"{where}: a gripper event needs gripper = one of {', '.join(PATH_GRIPPER_ACTIONS)}, "
+                            f"not {gripper!r}")
+        if force_n is not None:
+            why = check_force(force_n, GRIPPER.force_max_n) if isinstance(force_n, (int, float)) \
+                and not isinstance(force_n, bool) else f"grip force {force_n!r} is not a number"
+            if why:
+                raise PathError(f"{where}: {why}")
+            force_n = float(force_n)
+    elif gripper is not None or force_n is not None:
+        raise PathError(f"{where}: gripper/force_n belong to a point of kind 'gripper', not {kind!r}")
     return PathPoint(tuple(float(x) for x in p), None if q is None else tuple(float(x) for x in q), kind,
                      float(t_s),
                      None if v_lin_m_s is None else float(v_lin_m_s),
-                     None if v_rot_rad_s is None else float(v_rot_rad_s))
+                     None if v_rot_rad_s is None else float(v_rot_rad_s), gripper, force_n)
 
 
 def check_name(name: str) -> str:
@@ -123,8 +150,19 @@ class Path:
     modified: str = ""
     note: str = ""
 
+    @property
+    def has_gripper(self) -> bool:
+        """The path holds gripper events."""
+        return any(p.kind == "gripper" for p in self.points)
+
+    @property
+    def needs_v2(self) -> bool:
+        """The path's file must be format version 2: it holds points without an orientation
+        and/or gripper events (the one version-bump rule)."""
+        return self.has_gripper or any(p.quat is None for p in self.points)
+
     def to_json(self) -> dict:
-        version = FORMAT_VERSION if any(p.quat is None for p in self.points) else 1
+        version = FORMAT_VERSION if self.needs_v2 else 1  # older readers still take the rest
         return {"format": FORMAT, "version": version, "name": self.name, "id": self.id,
                 "revision": self.revision, "created": self.created, "modified": self.modified,
                 "note": self.note, "frame": "world", "units": {"pos_m": "m", "quat": "w,x,y,z (tool in world)"},
@@ -166,8 +204,11 @@ class Path:
                 raise PathError(f"{w}: not an object")
             if p.get("quat") is None and ver < 2:
                 raise PathError(f"{w}: no quat (a point without an orientation needs format version 2)")
+            if p.get("kind") == "gripper" and ver < 2:
+                raise PathError(f"{w}: a gripper event needs format version 2")
             out.append(make_point(p.get("pos_m"), p.get("quat"), p.get("kind", "capture"), p.get("t_s", 0.0),
-                                  p.get("v_lin_m_s"), p.get("v_rot_rad_s"), where=w))
+                                  p.get("v_lin_m_s"), p.get("v_rot_rad_s"), where=w,
+                                  gripper=p.get("gripper"), force_n=p.get("force_n")))
         rev = d.get("revision", 0)
         if not isinstance(rev, int) or rev < 0:
             raise PathError(f"{where}: revision {rev!r} must be an integer >= 0")
@@ -197,6 +238,8 @@ class Path:
             sp = ""
             if p.v_lin_m_s is not None or p.v_rot_rad_s is not None:
                 sp = f"{p.v_lin_m_s or '-'} m/s {p.v_rot_rad_s or '-'} rad/s"
+            if p.kind == "gripper":
+                sp = f"gripper {p.gripper}" + (f" {p.force_n:g} N" if p.force_n is not None else "")
             lines.append(f"  {i:>4} {p.kind:<7} {p.t_s:>8.3f}  " + " ".join(f"{x:>9.4f}" for x in p.pos_m)
                          + "   " + (" ".join(f"{x:>8.5f}" for x in p.quat) if p.quat is not None
                                     else f"{'keep the orientation before it':>35}") + f"  {sp}")
@@ -230,6 +273,22 @@ def insert_point(path: Path, index: int, pos_m: Sequence[float], quat: Sequence[
     return replace(path, points=path.points[:j] + (pt,) + path.points[j:])
 
 
+def insert_gripper(path: Path, index: int, action: str, force_n: float | None = None) -> Path:
+    """A gripper event before ``index`` (``len(points)`` appends) at the pose of the point
+    before it (of the point after it when it is first): replayed once the arm has reached
+    that pose, before the motion goes on.
+
+    :raises PathError: no point to take the pose from, a bad action or force
+    """
+    j = _index(path, index, allow_end=True)
+    if not path.points:
+        raise PathError(f"path {path.name}: a gripper event needs a point to take its pose from")
+    ref = path.points[j - 1] if j > 0 else path.points[0]
+    pt = make_point(ref.pos_m, ref.quat, "gripper", ref.t_s, where=f"path {path.name}: gripper event {index}",
+                    gripper=action, force_n=force_n)
+    return replace(path, points=path.points[:j] + (pt,) + path.points[j:])
+
+
 def move_point(path: Path, index: int, pos_m: Sequence[float] | None = None, quat: Sequence[float] | None = None,
                offset_m: Sequence[float] | None = None, keep_orientation: bool = False) -> Path:
     """Point ``index`` at a new position (or shifted by ``offset_m``) and/or orientation
@@ -240,7 +299,8 @@ def move_point(path: Path, index: int, pos_m: Sequence[float] | None = None, qua
     if offset_m is not None:
         pos = pos + np.asarray(offset_m, dtype=float).reshape(3)
     q = None if keep_orientation else (p.quat if quat is None else quat)
-    new = make_point(pos, q, p.kind, p.t_s, p.v_lin_m_s, p.v_rot_rad_s, where=f"path {path.name}: point {index}")
+    new = make_point(pos, q, p.kind, p.t_s, p.v_lin_m_s, p.v_rot_rad_s, where=f"path {path.name}: point {index}",
+                     gripper=p.gripper, force_n=p.force_n)
     return replace(path, points=path.points[:j] + (new,) + path.points[j + 1:])
 
 
@@ -258,7 +318,7 @@ def set_speed(path: Path, indices: Iterable[int] | None = None, v_lin_m_s: float
             pts[j] = make_point(p.pos_m, p.quat, p.kind, p.t_s,
                                 p.v_lin_m_s if v_lin_m_s is None else v_lin_m_s,
                                 p.v_rot_rad_s if v_rot_rad_s is None else v_rot_rad_s,
-                                where=f"path {path.name}: point {j}")
+                                where=f"path {path.name}: point {j}", gripper=p.gripper, force_n=p.force_n)
     return replace(path, points=tuple(pts))
 
 

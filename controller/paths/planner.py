@@ -89,6 +89,8 @@ class PlannedSegment:
     pos_m: np.ndarray
     quat: np.ndarray
     limits: Limits
+    gripper: str | None = None  #: a gripper event to do once the segment has ended (open/close/stop)
+    force_n: float | None = None  #: its grip force (None: the one in force)
 
 
 def offline_start_quat(path: Path) -> tuple[float, float, float, float]:
@@ -103,6 +105,10 @@ def offline_start_quat(path: Path) -> tuple[float, float, float, float]:
 def plan_path(path: Path, speed_scale: float = 1.0, tol_m: float = PLAN_TOL_M, tol_rad: float = PLAN_TOL_RAD,
               cap: Limits = DEFAULT_CAP, start_quat: Sequence[float] | None = None) -> list[PlannedSegment]:
     """The playback plan: one rest-to-rest segment per key point (:func:`simplify`).
+
+    A gripper event (a point of kind "gripper") is a key point: its segment ends at the pose
+    where the event was recorded (often where the arm already is: a segment of zero length),
+    and the playback does the event there before the next segment.
 
     Points without an orientation keep the tool's (:func:`resolve_orientations`):
     ``start_quat`` is the tool's orientation when the playback starts (None: the one
@@ -130,7 +136,7 @@ def plan_path(path: Path, speed_scale: float = 1.0, tol_m: float = PLAN_TOL_M, t
         vr = min([base.v_rot_rad_s] + [p.v_rot_rad_s * speed_scale for p in covered if p.v_rot_rad_s])
         lim = Limits(vl, base.a_lin_m_s2, vr, base.a_rot_rad_s2).clipped(cap)
         p = points[k]
-        out.append(PlannedSegment(k, np.array(p.pos_m), np.array(p.quat), lim))
+        out.append(PlannedSegment(k, np.array(p.pos_m), np.array(p.quat), lim, p.gripper, p.force_n))
         prev = k
     return out
 

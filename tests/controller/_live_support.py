@@ -46,3 +46,30 @@ def stop(*procs: subprocess.Popen | None) -> None:
                 p.wait(timeout=10)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def power_up_holding(start, armed, hold_s: float = 0.5, attempts: int = 3) -> subprocess.Popen:
+    """Start a live controller that powers up (``start()`` returns its Popen, stdout piped as
+    text) and return it once the arm is powered up (``armed()``: the service ARMED with the
+    brakes released) and still is after ``hold_s`` of holding its pose.
+
+    A controller descheduled for more than ``max_missed_run`` service frames in a row is a
+    servo fault (code 12, "missed service frames"; tests/controller/test_missed_frames.py), as
+    in any running controller: a loaded 2-core CI host did it 0.8 s after power-up even under
+    SCHED_FIFO. That one cause, named in the controller's output, starts a new controller (at
+    most ``attempts`` in all); any other way of not holding the pose fails the test with the
+    controller's output."""
+    outs = []
+    for _ in range(attempts):
+        ctl = start()
+        up = wait_for(armed)
+        if up:
+            time.sleep(hold_s)  # holding its pose
+            if armed() and ctl.poll() is None:
+                return ctl
+        stop(ctl)
+        out = ctl.communicate(timeout=30)[0] or ""
+        outs.append(out)
+        assert "missed service frames" in out, ("the controller never powered up" if not up else
+                                                "the arm did not hold its pose") + "\n" + out
+    raise AssertionError(f"{attempts} power-ups in a row ended in missed service frames:\n" + "\n".join(outs))

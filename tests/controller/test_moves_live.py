@@ -22,7 +22,7 @@ from bit3.client import Client
 from bit3.layout import ServiceState
 from controller.decision import Status
 from controller.worldmodel import WorldModel
-from tests.controller._live_support import RT, stop, wait_for
+from tests.controller._live_support import RT, power_up_holding, stop, wait_for
 
 pytestmark = pytest.mark.realtime
 
@@ -70,11 +70,12 @@ def test_move_from_the_shell_and_python_keeps_the_orientation_and_a_turning_one_
     ctl = None
     try:
         assert wait_for(lambda: _inputs(name) is not None), "the service did not come up"
-        ctl = subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--power-up", "--duration", "60",
-                                "--messages", "60", *RT], cwd=ROOT, stdout=subprocess.PIPE,
-                               stderr=subprocess.STDOUT, text=True)
-        assert wait_for(lambda: (s := _inputs(name)) is not None and s.service_state == ServiceState.ARMED
-                         and bool(s.brakes_released)), "the controller never powered up"
+        ctl = power_up_holding(
+            lambda: subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--power-up", "--duration",
+                                      "60", "--messages", "60", *RT], cwd=ROOT, stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, text=True),
+            lambda: (s := _inputs(name)) is not None and s.service_state == ServiceState.ARMED
+            and bool(s.brakes_released))
         assert wait_for(lambda: _msp_up(wm)), "the path planner never started"
         with WorldModel.attach(wm) as m:
             p0 = np.array(m.get("joint.tool_pos_m"))

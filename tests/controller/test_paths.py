@@ -37,7 +37,7 @@ def test_store_round_trip_revisions_and_ids(tmp_path):
     assert st.by_id(2).name == "place"
     assert [(i.name, i.id, i.points) for i in st.list()] == [("pick", 1, 3), ("place", 2, 1)]
     doc = json.loads((tmp_path / "paths" / "pick.json").read_text())
-    # every point has an orientation: written as version 1, which older programs read
+    # every point has an orientation and none is a gripper event: written as version 1, which older programs read
     assert doc["format"] == "pfma-path" and doc["version"] == 1 < FORMAT_VERSION and doc["revision"] == 1
     # edits saved bump the revision; no temporary files are left behind
     c = st.save(set_limits(back, v_lin_m_s=0.02))

@@ -72,8 +72,8 @@ def test_a_running_controllers_index_is_set_by_pfma_wm_set_and_refused_otherwise
             key = sim.rt.wm.access_key
             rc, _, err = pfma(capsys, "wm", "set", "joint.shoulder_roll_deg", "30", "--key", key, "--wait", "0",
                               "--name", name)
-            assert (rc, err) == (1, "pfma wm: joint.shoulder_roll_deg: 30 deg is not one of its values -90, -45, 0, "
-                                    "45, 90 deg\n")
+            assert (rc, err) == (1, "pfma wm: joint.shoulder_roll_deg: 30 deg is not one of its values (-90, -45, "
+                                    "0, 45, 90 deg)\n")
             rc, _, err = pfma(capsys, "wm", "set", "joint.shoulder_roll_deg", "+45", "--key", key, "--wait", "0",
                               "--name", name)
             assert rc == 0, err

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
 import uuid
 from pathlib import Path
 
@@ -18,7 +17,7 @@ import pytest
 from bit3.buffer import Bit3Buffer
 from bit3.client import Client
 from bit3.layout import ServiceState
-from tests.controller._live_support import RT, stop, wait_for
+from tests.controller._live_support import RT, power_up_holding, stop, wait_for
 
 pytestmark = pytest.mark.realtime
 
@@ -49,12 +48,12 @@ def test_a_motion_fault_on_the_live_arm_stops_it_and_names_joint_and_cause(spec,
     ctl = None
     try:
         assert wait_for(lambda: _inputs(name) is not None), "the service did not come up"
-        ctl = subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", "none", "--power-up",
-                                "--duration", "8", "--messages", "400", *RT], cwd=ROOT,
-                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        assert wait_for(lambda: (s := _inputs(name)) is not None and s.service_state == ServiceState.ARMED
-                         and bool(s.brakes_released)), "the controller never powered up"
-        time.sleep(0.5)  # holding its pose
+        ctl = power_up_holding(
+            lambda: subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", "none", "--power-up",
+                                      "--duration", "8", "--messages", "400", *RT], cwd=ROOT,
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
+            lambda: (s := _inputs(name)) is not None and s.service_state == ServiceState.ARMED
+            and bool(s.brakes_released))
         inj = subprocess.run([*PY, "fault", "inject", "--buffer", name, spec], cwd=ROOT, capture_output=True,
                              text=True, timeout=30)
         assert inj.returncode == 0, inj.stdout + inj.stderr

@@ -126,7 +126,9 @@ ENUMERATED = {"updown.status": "ERROR", "servo.command": "ERROR RESET", "servo.e
               "force.frame": "TOOL", "force.state": "IMPEDANCE", "joint.mode": "CARTESIAN", "msp.mode": "PLAY",
               "msp.state": "RECORD", "msp.result": "NO PATH", "msp.record_source": "COMMAND",
               "traj.done_code": "STOPPED", "servo.trip_joint": "elbow_pitch",
-              "servo.trip_cause": "tach reversed", "servo.brake_phase": "RELEASED", "daq.service_state": "ARMED"}
+              "servo.trip_cause": "tach reversed", "servo.brake_phase": "RELEASED", "daq.service_state": "ARMED",
+              "gripper.state": "GRIPPING", "gripper.request": "CLOSE", "gripper.response": "REFUSED",
+              "gripper.msp_done_code": "FAILED", "gripper.event": "OPEN", "msp.gripper_request": "STOP"}
 
 
 @pytest.fixture

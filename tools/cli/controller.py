@@ -13,6 +13,7 @@ Examples::
     pfma controller step 5                  # ... run exactly 5 minor frames, print their trace
     pfma controller resume --rearm          # ... re-arm the outputs and go on
     pfma controller route 2 1               # ... camera 2 on monitor 1 (0 blanks it)
+    pfma controller gripper close --force 60   # ... close the gripper, grip with 60 N
     pfma controller power-up                # ... the Global Commands: POWER UP (halted: it runs
     pfma controller power-down              #     with each step; resume --rearm arms), POWER DOWN,
     pfma controller reset                   #     ERROR RESET
@@ -61,19 +62,24 @@ SYSTEM_REQUEST_TIMEOUT_S = 10.0
 def add_parser(sub):
     p = sub.add_parser("controller", help="run the IRSS-layered controller (live service or --sim)",
                        description=__doc__.split("\n\n")[0])
-    p.add_argument("action", nargs="?", choices=("halt", "step", "resume", "route", "move", *SYSTEM_ACTIONS), default=None,
+    p.add_argument("action", nargs="?", choices=("halt", "step", "resume", "route", "move", "gripper",
+                                                 *SYSTEM_ACTIONS), default=None,
                    help="requests to a RUNNING controller (its --wm): halt (outputs held in the "
                         "service's HALTED state, 0 V, brakes set), step [N] (exactly N minor frames, "
                         "their trace printed), resume (needs --rearm), route CAMERA MONITOR (the "
                         "console's CAMERA ROUTE: that camera on that monitor, 0 blanks it), power-up, "
                         "power-down, reset (the Global Commands POWER UP, POWER DOWN, ERROR RESET; "
                         "halted, they run frame by frame with the steps), move (--pose, --joints or --stop: a checked "
-                        "move-to request)")
-    p.add_argument("frames", nargs="?", default=None, metavar="N|CAMERA", action=_CountOrCamera,
-                   help="step: minor frames to run (default 1); route: the camera, 1..3 or 0 = blank")
+                        "move-to request), gripper open|close|stop [--force N] (waits for the move to end)")
+    p.add_argument("frames", nargs="?", default=None, metavar="N|CAMERA|open|close|stop", action=_CountOrCamera,
+                   help="step: minor frames to run (default 1); route: the camera, 1..3 or 0 = blank; "
+                        "gripper: open, close or stop")
     p.add_argument("monitor", nargs="?", type=monitor_number, default=None, metavar="MONITOR",
                    help="route: the monitor, 1..2")
     p.add_argument("--rearm", action="store_true", help="resume: re-arm the outputs (required)")
+    p.add_argument("--force", type=positive_float, default=None, metavar="N",
+                   help="gripper: the grip force in N (its current limit at 40 N/A; 10..200 N on the nominal "
+                        "jaw); alone (`gripper --force N`) it only sets the force")
     p.add_argument("--key", default=None,
                    help="requests to a running controller: world-model access key (default $PFMA_WM_KEY or "
                         "the default key)")
@@ -131,6 +137,12 @@ class _CountOrCamera(argparse.Action):
     def __call__(self, parser, namespace, values, option_string=None) -> None:
         if values is None:
             setattr(namespace, self.dest, None)
+            return
+        if getattr(namespace, "action", None) == "gripper":
+            if values not in GRIPPER_VERBS:
+                raise argparse.ArgumentError(None, f"argument open|close|stop: gripper takes open, close or stop, "
+                                                   f"not {values!r}")
+            setattr(namespace, self.dest, values)
             return
         route = getattr(namespace, "action", None) == "route"
         try:
@@ -908,6 +920,47 @@ def _frame_control(args) -> int:
     return 0 if a.ok else 1
 
 
+#: the words of ``pfma controller gripper`` (pfma.gripper.ACTIONS; the force alone is --force)
+GRIPPER_VERBS = ("open", "close", "stop")
+
+
+def _gripper_control(args) -> int:
+    """``pfma controller gripper open|close|stop [--force N]`` (or ``gripper --force N``): one
+    gripper request to the running controller's Servo Control through its world model; prints
+    each answer and waits for the move to end (controller/gripper.py)."""
+    from pfma.arm import GRIPPER
+    from pfma.gripper import ACTIONS, MOVE_TIMEOUT_S, check_force
+    from tools.console.control import ControlError, ControllerLink
+    if args.monitor is not None or args.rearm or args.pose is not None or args.joints is not None or args.stop \
+            or args.no_wait:
+        print("pfma controller gripper: takes open|close|stop and --force N only", file=sys.stderr)
+        return 2
+    if args.frames is None and args.force is None:
+        print("pfma controller gripper: needs open, close or stop (and/or --force N)", file=sys.stderr)
+        return 2
+    if args.force is not None:
+        why = check_force(args.force, GRIPPER.force_max_n)
+        if why:
+            print(f"pfma controller gripper: --force: {why}", file=sys.stderr)
+            return 2
+    if args.wm in ("none", ""):
+        print("pfma controller gripper: needs the running controller's world model (--wm NAME)", file=sys.stderr)
+        return 2
+    kind = ACTIONS[args.frames or "force"]
+    try:
+        link = ControllerLink.attach(args.wm, args.key)
+        try:
+            seq = link.submit_gripper(kind, args.force or 0.0)
+            # a move ends on a stall, or fails after MOVE_TIMEOUT_S; a second for the answer on top
+            a = link.wait_gripper(seq, timeout_s=MOVE_TIMEOUT_S + 2.0, on_answer=lambda x: print(x.line(), flush=True))
+        finally:
+            link.close()
+    except ControlError as err:
+        print(f"pfma controller gripper: {err}", file=sys.stderr)
+        return 1
+    return 0 if a.ok else 1
+
+
 # --- the Global Commands from the shell: pfma controller power-up|power-down|reset ------------
 def _system_request(args) -> int:
     """``pfma controller power-up|power-down|reset``: the console's Global Commands (POWER
@@ -981,6 +1034,11 @@ def run(args) -> int:
         return _run_distributed(args)
     if args.wm is None:
         args.wm = "pfma_wm"
+    if args.action == "gripper":
+        return _gripper_control(args)
+    if args.force is not None:
+        print("pfma controller: --force belongs to `pfma controller gripper`", file=sys.stderr)
+        return 2
     if args.action in SYSTEM_ACTIONS:
         return _system_request(args)
     if args.action == "move":

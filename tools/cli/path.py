@@ -8,6 +8,8 @@ Examples::
     pfma path edit demo --delete 3,4 --insert 2 --pos 1.55,0.02,-0.3
     pfma path edit demo --move 5 --offset 0,0,0.01 --speed 5 --v-lin 0.02
     pfma path edit demo --limits 0.05,0.1,0.15,0.2 --rename demo2
+    pfma path new pick --point 1.5,0,-0.3 --gripper open --point 1.5,0,-0.35 --gripper close:60
+    pfma path edit pick --gripper 2 open       # a gripper event before point 2
     pfma path delete demo2
 
 Files live in ``--dir`` (default ``$PFMA_PATH_DIR``, else ``~/.local/share/pfma/paths``);
@@ -19,6 +21,7 @@ point, the tool's orientation when the playback starts (``--quat keep`` makes a 
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 
@@ -38,6 +41,9 @@ def add_parser(sub):
     n.add_argument("--point", action="append", default=[], metavar="X,Y,Z[,QW,QX,QY,QZ]",
                    help="a teach point (metres, world frame); without a quaternion it keeps the tool's orientation "
                         "(the point before's, or the tool's when the playback starts); repeat")
+    n.add_argument("--gripper", action=_GripperAfterPoints, default=[], metavar="ACTION[:N]",
+                   help="a gripper event (open, close or stop; :N a grip force in N) after the points given so "
+                        "far, at the pose of the point before it; replayed in order with the motion; repeat")
     n.add_argument("--note", default="")
     e = ps.add_parser("edit", help="change points, speeds, limits or the name (saved as a new revision)")
     e.add_argument("name")
@@ -55,11 +61,40 @@ def add_parser(sub):
     e.add_argument("--v-rot", type=float, help="rotation speed rad/s for --speed")
     e.add_argument("--clear", action="store_true", help="remove the --speed overrides")
     e.add_argument("--limits", metavar="VLIN,ALIN,VROT,AROT", help="path limits (m/s, m/s^2, rad/s, rad/s^2)")
+    e.add_argument("--gripper", nargs=2, action="append", default=[], metavar=("I", "ACTION[:N]"),
+                   help="insert a gripper event (open, close or stop; :N a grip force in N) before point I, at "
+                        "the pose of the point before it; repeat")
     e.add_argument("--note", default=None)
     e.add_argument("--rename", metavar="NEW")
     d = ps.add_parser("delete", help="delete a path file")
     d.add_argument("name")
     return p
+
+
+class _GripperAfterPoints(argparse.Action):
+    """``--gripper`` of ``pfma path new``: kept with the number of ``--point`` given before it
+    (argparse reads the options in order), so the events keep their place among the points."""
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        events = list(getattr(namespace, self.dest) or [])
+        events.append((len(getattr(namespace, "point", None) or []), values))
+        setattr(namespace, self.dest, events)
+
+
+def gripper_event(text: str, what: str = "--gripper") -> tuple[str, float | None]:
+    """``ACTION[:N]`` -> (action, grip force or None); a PathError names what is wrong."""
+    from controller.paths import PathError
+    from controller.paths.model import PATH_GRIPPER_ACTIONS
+    action, _, force = text.partition(":")
+    if action not in PATH_GRIPPER_ACTIONS:
+        raise PathError(f"{what}: {text!r}: the action is one of {', '.join(PATH_GRIPPER_ACTIONS)} "
+                        f"(then :N for a grip force in N)")
+    if not force:
+        return action, None
+    try:
+        return action, float(force)
+    except ValueError:
+        raise PathError(f"{what}: {text!r}: the grip force {force!r} is not a number (N)") from None
 
 
 def _floats(text: str, n: tuple[int, ...], what: str) -> list[float]:
@@ -85,7 +120,7 @@ def _edit(store, args) -> int:
     from dataclasses import replace
 
     from controller.paths import (
-        PathError, delete_points, insert_point, move_point, set_limits, set_speed,
+        PathError, delete_points, insert_gripper, insert_point, move_point, set_limits, set_speed,
     )
     from controller.trajectory import Limits
     p = store.load(args.name)
@@ -110,6 +145,12 @@ def _edit(store, args) -> int:
         p = set_speed(p, idx, args.v_lin, args.v_rot, clear=args.clear)
     if args.limits:
         p = set_limits(p, **dict(zip(Limits._fields, _floats(args.limits, (4,), "--limits"))))
+    for index, text in args.gripper:
+        try:
+            i = int(index)
+        except ValueError:
+            raise PathError(f"--gripper: {index!r} is not a point number") from None
+        p = insert_gripper(p, i, *gripper_event(text))
     if args.note is not None:
         p = replace(p, note=args.note)
     if p == orig and not args.rename:
@@ -125,7 +166,7 @@ def _edit(store, args) -> int:
 
 
 def run(args) -> int:
-    from controller.paths import PathStore, make_point, plan_duration_s, plan_path
+    from controller.paths import PathError, PathStore, make_point, plan_duration_s, plan_path
     store = PathStore(args.dir)
     cmd = args.path_cmd or "list"
     if cmd == "list":
@@ -158,6 +199,14 @@ def run(args) -> int:
         for i, text in enumerate(args.point):
             v = _floats(text, (3, 7), f"--point {i}")
             pts.append(make_point(v[:3], v[3:] if len(v) == 7 else None, "teach", where=f"--point {i}"))
+        for k, (after, text) in enumerate(args.gripper):  # in the order given; k events inserted before
+            if not pts:
+                raise PathError("--gripper: a gripper event needs a --point to take its pose from")
+            action, force = gripper_event(text)
+            at = after + k
+            ref = pts[at - 1] if at > 0 else pts[0]  # the point before it (the first, for an event before any)
+            pts.insert(at, make_point(ref.pos_m, ref.quat, "gripper", where=f"--gripper {text}",
+                                      gripper=action, force_n=force))
         p = store.new(args.name, pts, note=args.note)
         print(f"path {p.name}: id {p.id}, {len(p.points)} points, {store.file(p.name)}")
         return 0

@@ -132,6 +132,27 @@ def _print_first_cause(wm) -> None:
         print(f"first cause of the ERROR: {cause}")
 
 
+def _print_gripper(wm) -> None:
+    """Under the header: the gripper's state, grip force and jaw (controller/gripper.py), when
+    the model has them."""
+    line = gripper_line(wm)
+    if line:
+        print(line)
+
+
+GRIPPER_VARS = ("gripper.state", "gripper.force_n", "gripper.motor_force_n", "gripper.jaw_m", "gripper.jaw_known")
+
+
+def gripper_line(wm) -> str:
+    """The gripper in one line ("" for a model without the gripper's variables)."""
+    if wm is None or not all(n in wm.names() for n in GRIPPER_VARS):
+        return ""
+    from pfma.gripper import describe
+    v = wm.get_task_inputs(GRIPPER_VARS)
+    return describe(int(v["gripper.state"]), float(v["gripper.force_n"]), float(v["gripper.motor_force_n"]),
+                    float(v["gripper.jaw_m"]) if bool(v["gripper.jaw_known"]) else None)
+
+
 def _first_cause(wm) -> str:
     """The controller's current ERROR episode's root message (runtime.first_cause), or ""."""
     if wm is None:
@@ -186,6 +207,7 @@ def cmd_list(wm, args) -> int:
         return 0
     print(_header(info, wm))
     _print_first_cause(wm)
+    _print_gripper(wm)
     if not specs:
         print("no variables match" + (f" area {args.area}" if args.area else "")
               + (f" filter {args.filter!r}" if args.filter else ""))
@@ -214,6 +236,7 @@ def cmd_get(wm, args) -> int:
         return 0
     print(f"{_header(info, wm)} (values from one consistent copy)")
     _print_first_cause(wm)
+    _print_gripper(wm)
     for s in specs:
         print(f"\n{s.name}")
         print(f"  area       {s.area}")

@@ -682,7 +682,7 @@ class ConsoleApp(App):
     # (a line longer than its area ends in an ellipsis).
     HORIZONTAL_BREAKPOINTS = [(0, "-narrow"), (120, "-wide")]
     CSS = """
-    Grid { grid-size: 2 3; grid-columns: 2fr 1fr; grid-rows: 13fr 17fr 9fr; }
+    Grid { grid-size: 2 3; grid-columns: 2fr 1fr; grid-rows: 15fr 17fr 7fr; }
     Area { border: round $accent; padding: 0 1; height: 100%; scrollbar-size-vertical: 1; }
     Area:focus { border: round $secondary; }
     Area > Static { text-wrap: nowrap; text-overflow: ellipsis; }
@@ -706,6 +706,9 @@ class ConsoleApp(App):
         Binding("a", "rearm", "re-arm"),
         Binding("r", "resume", "resume"),
         Binding("c", "record", "record"), Binding("v", "cameras", "cameras"),
+        Binding("o", "gripper('OPEN')", "open", show=False), Binding("g", "gripper('CLOSE')", "grip", show=False),
+        Binding("x", "gripper('STOP')", "gripper stop", show=False),
+        Binding("plus", "grip_force(1)", "force+", show=False), Binding("minus", "grip_force(-1)", "force-", show=False),
         Binding("t", "move", "move to"),
         Binding("m", "messages", "messages"),
         Binding("w", "browser", "world model"),
@@ -731,6 +734,7 @@ class ConsoleApp(App):
         self.rearm = False
         self.last_answer = ""
         self.pending: list[int] = []  # requests waiting for their final answers, oldest first (queued requests)
+        self.gripper_pending: int | None = None  # gripper request waiting for its final answer
         self.reading: view.Reading | None = None
         self.read_error = ""
         self.refreshes = 0
@@ -787,6 +791,7 @@ class ConsoleApp(App):
             self._set("world", self.read_error)
             return
         self._follow_answer()
+        self._follow_gripper()
         self._show_banner(view.outputs_banner(r))
         self.ft.add(r.inputs)
         if ready and isinstance(scr, ForceScreen):
@@ -961,6 +966,37 @@ class ConsoleApp(App):
             return
         self._note("INFO", f"shoulder-roll index {shoulder_roll_text(deg)} confirmed by the operator")
         self._send(Request.POWER_UP)
+
+    # --- the gripper (Global Commands o g x + -; controller/gripper.py) ---------------------------
+    def action_gripper(self, name: str, force_n: float = 0.0) -> None:
+        from pfma.gripper import GripperRequest
+        if self.link is None:
+            self._note("WARNING", "read-only console: no controller to send gripper requests to")
+            return
+        try:
+            self.gripper_pending = self.link.submit_gripper(int(GripperRequest[name]), force_n)
+        except ControlError as err:
+            self._note("ERROR", str(err))
+            return
+        self._note("INFO", f"gripper request {self.gripper_pending}: {name}"
+                           + (f" {force_n:g} N" if force_n else "") + " sent")
+        self.refresh_areas()
+
+    def action_grip_force(self, sign: int) -> None:
+        """``+``/``-``: the grip force in force plus or minus view.GRIP_FORCE_STEP_N (the controller
+        refuses one outside its range, naming it)."""
+        now = float(self.reading.wm.get("gripper.force_n", 0.0)) if self.reading is not None else 0.0
+        self.action_gripper("FORCE", max(0.0, now + sign * view.GRIP_FORCE_STEP_N))
+
+    def _follow_gripper(self) -> None:
+        if self.gripper_pending is None or self.link is None:
+            return
+        a = self.link.gripper_answer(self.gripper_pending)
+        if a is None:
+            return
+        self._show_answer(a)
+        if a.done:
+            self.gripper_pending = None
 
     def action_step(self, n: int) -> None:
         self._send(Request.STEP, n)

@@ -31,6 +31,7 @@ class Answer:
     seq: int
     code: int  #: Response.*
     text: str
+    what: str = "request"  #: the line's first word(s): "request", "gripper request"
 
     @property
     def done(self) -> bool:
@@ -42,7 +43,8 @@ class Answer:
         return self.code == Response.COMPLETE
 
     def line(self) -> str:
-        return f"request {self.seq}: {self.text or Request.NAMES.get(self.code, '?')} -> {Response.NAMES[self.code]}"
+        return (f"{self.what} {self.seq}: {self.text or Request.NAMES.get(self.code, '?')} -> "
+                f"{Response.NAMES.get(self.code, self.code)}")
 
 
 def access_key(key: str | None) -> str:
@@ -60,6 +62,7 @@ class ControllerLink:
         self.wm = wm
         self.key = access_key(key)
         self._seq = 0
+        self._gseq = 0
         self._move_seq = 0
 
     @classmethod
@@ -235,6 +238,49 @@ class ControllerLink:
 
     def halted(self) -> bool:
         return bool(self.wm.get("runtime.halted"))
+
+    # --- the gripper (controller/gripper.py: requests to Servo Control) --------------------------
+    def submit_gripper(self, kind: int, force_n: float = 0.0) -> int:
+        """Post gripper request ``kind`` (``pfma.gripper.GripperRequest``: 1 OPEN 2 CLOSE 3 STOP
+        4 FORCE; ``force_n`` > 0 sets the grip force); returns its number."""
+        try:
+            seq = self._gseq = max(self._gseq, int(self.wm.get("gripper.request_seq"))) + 1
+            self.wm.set_user("gripper.request_force_n", float(force_n), self.key)
+            self.wm.set_user("gripper.request", int(kind), self.key)
+            self.wm.set_user("gripper.request_seq", seq, self.key)
+        except WorldModelError as err:
+            raise ControlError(str(err)) from None
+        return seq
+
+    def gripper_answer(self, seq: int) -> Answer | None:
+        """Servo Control's answer to gripper request ``seq`` so far (None: not answered yet)."""
+        v = self.wm.get_task_inputs(("gripper.response_seq", "gripper.response", "gripper.response_text"))
+        if int(v["gripper.response_seq"]) != seq:
+            return None
+        return Answer(seq, int(v["gripper.response"]), _text(v["gripper.response_text"]), "gripper request")
+
+    def wait_gripper(self, seq: int, timeout_s: float, poll_s: float = 0.005,
+                     on_answer=None) -> Answer:
+        """Poll (real time) until gripper request ``seq`` is answered with more than IN
+        PROGRESS (``on_answer`` is called with each new answer, the IN PROGRESS one too).
+
+        :raises ControlError: not answered within ``timeout_s``
+        """
+        end = time.monotonic() + timeout_s
+        last = None
+        while time.monotonic() < end:
+            a = self.gripper_answer(seq)
+            if a is not None and a != last:
+                last = a
+                if on_answer is not None:
+                    on_answer(a)
+                if a.done:
+                    return a
+            time.sleep(poll_s)
+        info = self.wm.info()
+        state = f"last answer: {last.line()}" if last else "no answer"
+        alive = "" if info.owner_alive else f"; its controller (pid {info.owner_pid}) is not running"
+        raise ControlError(f"gripper request {seq}: {state} within {timeout_s:g} s{alive}")
 
     def step_trace(self) -> str:
         """The trace of the last single-step run (header and one line per frame)."""

@@ -21,7 +21,7 @@ import numpy as np
 
 from controller.decision import Status
 from controller.layers import Request
-from sim.demo import demo_goal
+from sim.demo import DEMO_JAW_OBJECT_M, demo_goal, demo_gripper
 from sim.system import SystemSimulator
 
 #: simulated frames run per lock of the pacing loop (a few: the console's reads interleave)
@@ -112,11 +112,25 @@ class SimulatedSystem:
         if self._q0 is None:
             self._q0 = [float(v) for v in rt.wm.get("daq.joint_angle_rad")]
             self._t_up = t
+            self._place_jaw_object()
         from controller.params import JOINT_NAMES
         k, goal = demo_goal(JOINT_NAMES, self._q0, t - (self._t_up or t))
         if k != self._pose:
             self._pose = k
             rt.set_joint_goal(goal)
+            grip = demo_gripper(k)
+            if grip is not None:
+                from pfma.gripper import ACTIONS
+                rt.gripper_request(ACTIONS[grip])
+
+    def _place_jaw_object(self) -> None:
+        """The demo's part between the jaws of the simulated world (sim.demo.DEMO_JAW_OBJECT_M)."""
+        arm = self.sim.world.sim.arm
+        if arm.jaw_object_m is None:
+            try:
+                arm.place_jaw_object(DEMO_JAW_OBJECT_M)
+            except ValueError:
+                pass  # the jaw is narrower than the part: the demo's close then closes on nothing
 
     def stop(self) -> np.ndarray:
         """Stop the frames, power down in order (halted: release the halt), stop the

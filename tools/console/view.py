@@ -44,6 +44,8 @@ MESSAGES_KEPT = 1000
 MAIN_MESSAGES = 50
 #: the levels the Messages screen filters by (``l`` cycles): at least this severe
 LEVELS = ("INFO", "WARNING", "ERROR", "FATAL")
+#: what one press of + or - changes the grip force by (the console's step; assumed)
+GRIP_FORCE_STEP_N = 10.0
 #: the Global Commands, their keys and what each sends (None: not yet built)
 GLOBAL_COMMANDS: tuple[tuple[str, str, str | None], ...] = (
     ("u", "power up", "POWER UP"),
@@ -54,8 +56,10 @@ GLOBAL_COMMANDS: tuple[tuple[str, str, str | None], ...] = (
     ("a", "re-arm (for the next resume)", None),
     ("r", "resume (needs a first)", "RESUME"),
     ("c", "record start/stop", None),
-    ("v", "camera routes", "CAMERA ROUTE"),  # v and t open their screens; one line so the
-    ("t", "move to", None),                   # area fits the 120x40 row split (13 rows)
+    ("v", "camera routes", "CAMERA ROUTE"),  # v and t open their screens (one line: the
+    ("t", "move to", None),                   # area fits the 120x40 split, docs/console.md "Sizes")
+    ("o g x", "gripper open, grip, stop", "GRIPPER OPEN / CLOSE / STOP"),
+    ("+ -", f"grip force +-{GRIP_FORCE_STEP_N:g} N", "GRIPPER FORCE"),
 )
 NOT_YET: dict[str, str] = {}  #: keys whose command is not built yet: their text
 
@@ -105,6 +109,7 @@ class Sources:
                  "runtime.missed_frames", "daq.fault_bits", "daq.joint_angle_rad", "daq.joint_rate_rad_s", "daq.camera_route",
                  "ui.response_seq", "ui.response", "ui.response_text", "runtime.first_cause",
                  "joint.shoulder_roll_deg")
+        extra += GRIPPER_VARS
         self.wm_vars = self.layer_vars + tuple(n for n in extra if n in names)
         self.messages: deque[ConsoleMessage] = deque(maxlen=MESSAGES_KEPT)
         #: simulated seconds per wall second (``pfma console --sim``), or None (a live system)
@@ -220,6 +225,7 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
                    for i, n in enumerate(HAND_CONTROLLERS))
     lines.append(f"hand controllers: {hc}")
     lines.append(camera_routes_line(r))
+    lines.append(gripper_status_line(r))
     lines.append("device rates: " + "  ".join(f"{g} {float(st.device_rate_hz[lay.slot('device', g)]):.0f}"
                                               for g in DEVICE_GROUPS) + " Hz")
     return "\n".join(lines)
@@ -267,6 +273,23 @@ def first_cause_lines(r: Reading) -> list[str]:
         if text:
             out.append(f"controller first cause: {text}")
     return out
+
+
+#: the gripper's world-model variables the console reads (controller/gripper.py)
+GRIPPER_VARS = ("gripper.state", "gripper.force_n", "gripper.motor_force_n", "gripper.jaw_m", "gripper.jaw_known")
+
+
+def gripper_status_line(r: Reading) -> str:
+    """The gripper: its state, the grip force set and the motor's, the jaw estimate (not
+    sensed: estimated from the tach once an open reached the stop)."""
+    w = r.wm
+    if "gripper.state" not in w:
+        return "gripper: this controller has none"
+    if not r.controller_alive:
+        return "gripper: controller not running"
+    from pfma.gripper import describe
+    return describe(int(w["gripper.state"]), float(w["gripper.force_n"]), float(w["gripper.motor_force_n"]),
+                    float(w["gripper.jaw_m"]) if bool(w.get("gripper.jaw_known", False)) else None)
 
 
 def _short(joint: str) -> str:

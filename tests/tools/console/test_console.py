@@ -87,7 +87,7 @@ def test_power_up_sent_while_halted_is_followed_through_the_steps_to_its_answer(
     async def body(pilot):
         await pilot.press("h")
         frames(sim, console, 5)
-        await pilot.press("u", "s")
+        await pilot.press("u", "y", "s")  # y: the shoulder-roll index confirmed (docs/console.md)
         frames(sim, console, 10)
         assert len(console.pending) == 1  # the step answered; the power-up waits for the resume
         msgs = console.area_text("messages")
