@@ -79,7 +79,8 @@ def test_power_up_from_the_shell_while_halted_steps_then_resume_rearm_completes(
         assert wait_for(lambda: int(c.read_inputs().service_state) == ServiceState.HALTED, 10)
         r = _pfma("controller", "power-up", "--wm", wm)
         assert r.returncode == 0 and "POWER UP: queued" in r.stdout and "-> QUEUED" in r.stdout, (r.stdout, r.stderr)
-        m = re.match(r"request (\d+): ", r.stdout)
+        assert r.stdout.startswith("POWER UP with the shoulder-roll index 0 deg"), r.stdout  # said first
+        m = re.search(r"^request (\d+): ", r.stdout, re.M)
         assert m is not None, r.stdout
         seq = int(m.group(1))
         assert _statuses(w) == dict.fromkeys(LAYER_KEYS, Status.SHUT_DOWN)  # halted: nothing ran
