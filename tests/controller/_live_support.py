@@ -48,9 +48,9 @@ def stop(*procs: subprocess.Popen | None) -> None:
                 p.kill()
 
 
-def power_up_holding(start, armed, hold_s: float = 0.5, attempts: int = 3) -> subprocess.Popen:
+def power_up_holding(start, armed, hold_s: float = 0.5, attempts: int = 3, log=None) -> subprocess.Popen:
     """Start a live controller that powers up (``start()`` returns its Popen, stdout piped as
-    text) and return it once the arm is powered up (``armed()``: the service ARMED with the
+    text, or written to the file ``log``) and return it once the arm is powered up (``armed()``: the service ARMED with the
     brakes released) and still is after ``hold_s`` of holding its pose.
 
     A controller descheduled for more than ``max_missed_run`` service frames in a row is a
@@ -68,7 +68,7 @@ def power_up_holding(start, armed, hold_s: float = 0.5, attempts: int = 3) -> su
             if armed() and ctl.poll() is None:
                 return ctl
         stop(ctl)
-        out = ctl.communicate(timeout=30)[0] or ""
+        out = (ctl.communicate(timeout=30)[0] or "") if log is None else log.read_text()
         outs.append(out)
         assert "missed service frames" in out, ("the controller never powered up" if not up else
                                                 "the arm did not hold its pose") + "\n" + out

@@ -20,7 +20,7 @@ from bit3.client import Client
 from bit3.layout import ServiceState
 from controller.worldmodel import WorldModel
 from pfma.gripper import GripperState
-from tests.controller._live_support import stop, wait_for
+from tests.controller._live_support import power_up_holding, stop, wait_for
 
 pytestmark = pytest.mark.realtime
 
@@ -72,9 +72,12 @@ def test_pfma_controller_gripper_open_then_close_moves_the_live_jaw(tmp_path):
     log = tmp_path / "controller.log"
     try:
         assert wait_for(lambda: _inputs(name) is not None), "the service did not come up"
-        with open(log, "w") as out:
-            ctl = subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--power-up", "--duration", "60",
-                                    *RT], cwd=ROOT, stdout=out, stderr=subprocess.STDOUT)
+        def start() -> subprocess.Popen:
+            with open(log, "w") as out:
+                return subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--power-up", "--duration",
+                                         "60", *RT], cwd=ROOT, stdout=out, stderr=subprocess.STDOUT)
+        ctl = power_up_holding(start, lambda: (s := _inputs(name)) is not None
+                               and s.service_state == ServiceState.ARMED and bool(s.brakes_released), log=log)
         assert wait_for(lambda: (g := _gripper(wm)) is not None and int(g["gripper.state"]) == GripperState.STOPPED,
                         timeout_s=30), "the controller never powered the gripper up"
         assert int(_inputs(name).service_state) == ServiceState.ARMED
