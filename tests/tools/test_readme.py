@@ -104,6 +104,7 @@ RUN_WITH_SERVICE = (
     f"{PFMA} read elbow_pitch_angle",
     f"{PFMA} fault inject resolver-los:shoulder_pitch_angle",
     f"{PFMA} fault clear all",
+    f"{PFMA} hand --source cae --deflect x=0.4 --deadman --for 2",
     f"{PFMA} monitor --once",
     f"{PFMA} watch elbow_pitch_angle --count 30",
     f"{PFMA} record out/run.mcap --duration 3",

@@ -39,6 +39,10 @@ from pfma.errors import ConfigError, PfmaError
 
 #: message codes the service posts (``service_messages``)
 MSG_FAULT_ON, MSG_FAULT_OFF, MSG_SCENARIO_STEP_FAILED = 180, 181, 182
+#: a simulated hand controller deflected or released (``pfma hand --deflect``)
+MSG_HAND = 183
+#: the longest a deflection holds before the stick springs back (``pfma hand --for``), s
+HAND_HOLD_MAX_S = 10.0
 #: how long a request waits for the loop to take it (the loop takes it before its next
 #: frame: 3.1 ms at 320 Hz; a stopped or stalled loop answers nothing)
 REPLY_TIMEOUT_S = 2.0
@@ -205,6 +209,8 @@ class FaultController:
         self.scenario = None  # a sim.scenario.ScenarioRunner
         self.say = say
         self.frame = 0
+        #: frame at which the simulated CAE stick springs back to centre, deadman up (None: it is)
+        self.hand_until: int | None = None
 
     def install(self) -> None:
         """Run :meth:`on_frame` before every frame of the service's loop."""
@@ -219,6 +225,8 @@ class FaultController:
         """Between frames: the scenario's steps due, then the queued requests."""
         self.frame = k
         try:
+            if self.hand_until is not None and k >= self.hand_until:
+                self._hand_release("its time ran out")
             if self.scenario is not None:
                 self.scenario.on_frame(k)
             requests = self.requests
@@ -241,6 +249,8 @@ class FaultController:
         from sim.faults import parse_fault
         op = req.get("op")
         spec = req.get("spec")
+        if op == "hand":
+            return self.hand(req)
         try:
             if op == "list":
                 return {"ok": True, "faults": self.faults.listing()}
@@ -258,6 +268,35 @@ class FaultController:
             return {"ok": True, "faults": [_fault_dict(f, self.frame) for f in done]}
         except ConfigError as err:  # already active, not active
             return {"ok": False, "exit": 1, "error": str(err)}
+
+    def hand(self, req: dict) -> dict:
+        """``op`` hand: hold the simulated CAE stick (``volts``: its six axis voltages in
+        ``fakes.sim_rack.CAE_AXIS_SIGNALS`` order, +-10 V full deflection; ``deadman``: discrete
+        1 closed) for ``for_s`` seconds, after which it springs back to centre with the deadman
+        up, as a hand let go does (renew to keep it; a new request replaces the old)."""
+        volts, deadman, for_s = req.get("volts"), req.get("deadman"), req.get("for_s")
+        ok = (req.get("source") == "cae" and isinstance(volts, list) and len(volts) == 6
+              and all(isinstance(v, (int, float)) and abs(v) <= 10.0 for v in volts)
+              and isinstance(deadman, bool) and isinstance(for_s, (int, float)) and 0 < for_s <= HAND_HOLD_MAX_S)
+        if not ok:
+            return {"ok": False, "exit": 2, "error": f"bad hand request {req!r}"}
+        self.world.set_cae([float(v) for v in volts], (deadman, False, False))
+        period = self.svc.schedule.period_s
+        self.hand_until = self.frame + max(1, int(round(float(for_s) / period)))
+        text = (f"simulated CAE stick held at {', '.join(f'{v:+.2f}' for v in volts)} V, deadman "
+                f"{'pressed' if deadman else 'up'}, for {float(for_s):g} s")
+        self.svc.post(_severity("INFO"), MSG_HAND, text)
+        if self.say is not None:
+            self.say(f"pfma serve: frame {self.frame}: {text}")
+        return {"ok": True, "until_frame": self.hand_until, "text": text}
+
+    def _hand_release(self, why: str) -> None:
+        self.hand_until = None
+        self.world.set_cae([0.0] * 6, (False, False, False))
+        text = f"simulated CAE stick released: centred, deadman up ({why})"
+        self.svc.post(_severity("INFO"), MSG_HAND, text)
+        if self.say is not None:
+            self.say(f"pfma serve: frame {self.frame}: {text}")
 
     def inject(self, spec: str):
         f = self.faults.inject(spec, since=self.frame)

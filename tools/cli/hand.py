@@ -14,6 +14,21 @@ hand-controller frame: x forward, y left, z up; roll/pitch/yaw right-handed).
 - ``hid``: a 3Dconnexion SpaceMouse (hidapi, hidraw backend). ``--bus auto`` (default)
   opens the first one found and falls back to a fake device, saying so; ``--bus fake``
   forces the fake; ``--bus /dev/hidrawN`` opens that node. The deadman is the left button.
+
+Flying the simulated arm by hand (issue 30 item 6): ``--deflect AXES`` holds the simulated
+CAE stick of the running ``pfma serve`` (``--buffer``, default pfma) instead of printing::
+
+    pfma hand --source cae --deflect x=0.4 --deadman --for 2     # forward, 40 %, for 2 s
+
+AXES are ``NAME=VALUE`` pairs in the hand-controller frame (x forward, y left, z up, roll,
+pitch, yaw), each -1..1 of full deflection, mapped to the stick's voltages by the driver's
+own table (``drivers.crl.cae.CAE_AXES``); the others are centred. ``--deadman`` presses
+the deadman (discrete 1): without it the controller ignores the stick, as on the rack.
+After ``--for`` seconds (default 1, at most 10) the stick springs back to centre and the
+deadman comes up, as a hand let go does: a script renews it to keep flying, and a dead
+script cannot leave the stick deflected. The controller flies it in teleoperation
+(``pfma controller --power-up --teleop cae``). A real rack's service has no such
+endpoint: the deflection is refused, exit 1.
 """
 
 from __future__ import annotations
@@ -45,7 +60,75 @@ def add_parser(sub):
     p.add_argument("--rate-hz", type=positive_float, default=10.0, help="lines per second (default 10)")
     p.add_argument("--rack", default="fake", help="rack TOML (default: the IRSS report's tables)")
     p.add_argument("--json", action="store_true", help="one JSON object per line (JSON lines)")
+    d = p.add_argument_group("flying the simulated arm (--source cae)")
+    d.add_argument("--deflect", metavar="AXES", default=None,
+                   help="hold the running simulated rack's CAE stick: NAME=VALUE,... (x y z roll pitch yaw, "
+                        "-1..1 of full deflection)")
+    d.add_argument("--deadman", action="store_true", help="with --deflect: press the deadman")
+    d.add_argument("--for", dest="for_s", type=positive_float, default=1.0, metavar="S",
+                   help="with --deflect: seconds before the stick springs back (default 1, at most 10)")
+    d.add_argument("--buffer", default="pfma", help="with --deflect: the service's Bit3 buffer (default pfma)")
     return p
+
+
+def parse_deflection(text: str) -> list[float]:
+    """``x=0.4,z=-0.2`` -> the six CAE axis voltages (``CAE_AXES`` order, +-10 V full).
+
+    :raises ValueError: a name not in AXES (the closest named), a value not a number in -1..1
+    """
+    import difflib
+    from drivers.crl.cae import CAE_AXES, FULL_SCALE_V
+    from drivers.crl.state import AXES
+    frac = dict.fromkeys(AXES, 0.0)
+    for part in (p.strip() for p in text.split(",")):
+        if not part:
+            continue
+        name, eq, value = part.partition("=")
+        name = name.strip()
+        if name not in frac:
+            close = difflib.get_close_matches(name, AXES, 1)
+            raise ValueError(f"no axis {name!r} (axes: {' '.join(AXES)})" + (f"; did you mean {close[0]}?"
+                                                                            if close else ""))
+        try:
+            v = float(value) if eq else float("nan")
+        except ValueError:
+            v = float("nan")
+        if not -1.0 <= v <= 1.0:
+            raise ValueError(f"{part!r}: give NAME=VALUE with VALUE in -1..1 (of full deflection)")
+        frac[name] = v
+    return [sign * frac[axis] * FULL_SCALE_V + 0.0 for _, axis, sign in CAE_AXES]  # + 0.0: no -0.0
+
+
+def _deflect(args) -> int:
+    from tools.cli.fault import HAND_HOLD_MAX_S, NoEndpoint, request
+    if args.source != "cae":
+        print(f"pfma hand: --deflect holds the simulated CAE stick (--source cae), not {args.source}",
+              file=sys.stderr)
+        return 2
+    if args.for_s > HAND_HOLD_MAX_S:
+        print(f"pfma hand: --for {args.for_s:g}: at most {HAND_HOLD_MAX_S:g} s (renew it to hold longer)",
+              file=sys.stderr)
+        return 2
+    try:
+        volts = parse_deflection(args.deflect)
+    except ValueError as err:
+        print(f"pfma hand: --deflect: {err}", file=sys.stderr)
+        return 2
+    req = {"op": "hand", "source": "cae", "volts": volts, "deadman": bool(args.deadman), "for_s": args.for_s}
+    try:
+        reply = request(args.buffer, req)
+    except NoEndpoint:
+        print(f"pfma hand: service {args.buffer} runs a real rack (or none): a stick is deflected only on the "
+              f"simulated rack; on the rack, move the stick by hand", file=sys.stderr)
+        return 1
+    if not reply.get("ok"):
+        print(f"pfma hand: {reply.get('error', 'the service refused the request')}", file=sys.stderr)
+        return int(reply.get("exit", 1))
+    if args.json:
+        print(json.dumps(reply))
+    else:
+        print(f"pfma hand: {reply['text']} (then centred, deadman up)")
+    return 0
 
 
 def _wave(t_s: float, k: int, amp: float = 0.6) -> float:
@@ -197,6 +280,11 @@ SOURCES = {"cae": _Cae, "crl": _Crl, "hid": _Hid}
 
 
 def run(args) -> int:
+    if args.deflect is not None:
+        return _deflect(args)
+    if args.deadman:
+        print("pfma hand: --deadman goes with --deflect", file=sys.stderr)
+        return 2
     if args.rate_hz <= 0:
         print("pfma hand: --rate-hz must be positive", file=sys.stderr)
         return 2

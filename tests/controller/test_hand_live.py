@@ -1,0 +1,85 @@
+"""Flying the simulated arm by hand on the live system (issue 30 item 6): real ``pfma serve``
+(the simulated rack) and ``pfma controller --power-up --teleop cae`` processes on a private
+buffer and world model; ``pfma hand --deflect`` as an operator types it. With the deadman
+pressed the tool moves; without it, it holds; after ``--for`` the stick is let go and the
+tool stops. Bounded polling of processes (real time)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bit3.buffer import Bit3Buffer
+from bit3.client import Client
+from bit3.layout import HAND_CONTROLLERS, ServiceState
+from controller.worldmodel import WorldModel
+from tests.controller._live_support import RT, power_up_holding, stop, wait_for
+
+pytestmark = pytest.mark.realtime
+
+ROOT = Path(__file__).resolve().parents[2]
+PY = [sys.executable, "-m", "tools.cli"]
+CAE = HAND_CONTROLLERS.index("cae")
+
+
+def _inputs(name: str):
+    try:
+        with Client.attach(name) as c:
+            return c.read_inputs()
+    except Exception:  # noqa: BLE001 - not up yet
+        return None
+
+
+def _tool(wm: str) -> np.ndarray:
+    with WorldModel.attach(wm) as m:
+        return np.array(m.get("joint.tool_pos_m"))
+
+
+def _hand(name: str, *argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([*PY, "hand", "--source", "cae", "--buffer", name, *argv], cwd=ROOT,
+                          capture_output=True, text=True, timeout=30)
+
+
+def test_the_simulated_stick_flies_the_live_arm_with_the_deadman_only():
+    name = "pfma-test-hd-" + uuid.uuid4().hex[:6]
+    wm = name + "-wm"
+    serve = subprocess.Popen([*PY, "serve", "--buffer", name, "--duration", "90", *RT], cwd=ROOT,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    ctl = None
+    try:
+        assert wait_for(lambda: _inputs(name) is not None), "the service did not come up"
+        ctl = power_up_holding(
+            lambda: subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--power-up", "--teleop",
+                                      "cae", "--duration", "60", "--messages", "60", *RT], cwd=ROOT,
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
+            lambda: (s := _inputs(name)) is not None and s.service_state == ServiceState.ARMED
+            and bool(s.brakes_released))
+        p0 = _tool(wm)
+        r = _hand(name, "--deflect", "x=0.6", "--for", "1")  # no deadman: the stick is not trusted
+        assert r.returncode == 0 and "deadman up, for 1 s" in r.stdout, r.stdout + r.stderr
+        assert wait_for(lambda: not bool(_inputs(name).hc_deadman[CAE]) and abs(_inputs(name).hc_axes[CAE][0]) > 0.1,
+                        5)
+        p1 = _tool(wm)
+        assert np.linalg.norm(p1 - p0) < 0.002, (p0, p1)
+        r = _hand(name, "--deflect", "x=0.6", "--deadman", "--for", "1.5")
+        assert r.returncode == 0 and "deadman pressed, for 1.5 s" in r.stdout, r.stdout + r.stderr
+        assert wait_for(lambda: np.linalg.norm(_tool(wm) - p1) > 0.01, 10), \
+            "the tool did not move with the deadman pressed"
+        # let go after 1.5 s: the deadman comes up and the tool stops (the arm catches up with
+        # its reference within half a second, then holds)
+        assert wait_for(lambda: not bool(_inputs(name).hc_deadman[CAE]), 10)
+        time.sleep(0.5)
+        p2 = _tool(wm)
+        time.sleep(0.5)
+        assert np.linalg.norm(_tool(wm) - p2) < 0.001, (p2, _tool(wm))
+        assert int(_inputs(name).service_state) == ServiceState.ARMED
+    finally:
+        stop(ctl, serve)
+        Bit3Buffer.unlink(name)
+        WorldModel.remove_segment(wm)
