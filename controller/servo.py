@@ -45,7 +45,8 @@ from controller.params import (
     SAFE_STOP_TIMEOUT_S, TACH_TAU_S, JointFacts, run_current_limits_a,
 )
 from controller.supervision import (
-    CAUSES, CHECKS, FERROR_MAX_RAD, FERROR_MIN_RAD, FERROR_TIME_S, JointSupervisor, Trip,
+    BRAKE_STATE_NAMES, BRAKE_UNPROVEN, CAUSES, CHECKS, FERROR_MAX_RAD, FERROR_MIN_RAD, FERROR_TIME_S,
+    JointSupervisor, Trip,
 )
 from controller.worldmodel import VarSpec
 
@@ -208,6 +209,8 @@ class ServoLayer(Layer):
         self._t_phase = 0.0
         self.sup: JointSupervisor | None = None  #: the joint supervision, latched at init
         self.trip: Trip | None = None  #: the last supervision trip
+        #: the brake states last posted (servo.brake_state; posted only when they change)
+        self._brake_posted: list[int] = [BRAKE_UNPROVEN] * N_JOINTS
         self.frame_period_s = 1 / 320
         self._sup_frame = -1  # service frame of the last supervised sample
         self._u_sent = [0.0] * N_JOINTS  # the rates posted last servo period (what the amplifiers act on)
@@ -269,6 +272,11 @@ class ServoLayer(Layer):
                     [0.0] * N_CURRENT_LIMITS, "A", doc="current-limit commands (0 = brakes set)"),
             VarSpec("servo.error_rad", "task_status", "f8", (N_JOINTS,), "servo", z6, "rad",
                     doc="position error q_cmd - q of the last servo run"),
+            VarSpec("servo.brake_state", "task_status", "u1", (N_JOINTS,), "servo", [BRAKE_UNPROVEN] * N_JOINTS,
+                    doc="each joint's brake as the sensors show it, never from the command alone: "
+                        + ", ".join(f"{k} {v}" for k, v in BRAKE_STATE_NAMES.items())
+                        + " (SET: limit 0, joint still; PROVEN RELEASED: moved as told since its limit was "
+                          "raised; controller/supervision.py)"),
             VarSpec("servo.brake_phase", "task_status", "i2", (), "servo", 0,
                     doc="the brake sequence: set, rate zeroed, limits raised, released (loop closed), "
                         "stopping, limits zero", enum=BRAKE_PHASE_NAMES),
@@ -371,6 +379,7 @@ class ServoLayer(Layer):
         return self.seq_shutdown(rt)
 
     # --- the control law -----------------------------------------------------------------
+    _BRAKE_IN = ("daq.joint_angle_rad", "daq.service_frame", "servo.current_limit_cmd_a")
     _IN = ("daq.joint_angle_rad", "daq.service_frame", "daq.joint_rate_rad_s", "daq.motor_current_a",
            "servo.current_limit_cmd_a", "servo.q_cmd_rad", "servo.q_cmd_valid")
 
@@ -386,6 +395,12 @@ class ServoLayer(Layer):
             if self._sup_frame >= 0 and self.sup is not None:
                 self.sup.reset()
                 self._sup_frame = -1
+            if self.sup is not None:  # the brakes as the sensors show them, powered down too
+                b = wm.get_task_inputs(self._BRAKE_IN)
+                self.sup.observe_brakes(int(b["daq.service_frame"]) * self.frame_period_s,
+                                        np.asarray(b["daq.joint_angle_rad"]).tolist(),
+                                        np.asarray(b["servo.current_limit_cmd_a"]).tolist())
+                self._post_brakes(wm)
             return
         v = wm.get_task_inputs(self._IN)
         q = np.asarray(v["daq.joint_angle_rad"], dtype=float)
@@ -401,6 +416,7 @@ class ServoLayer(Layer):
             trip = self.sup.update(dt, q.tolist(), np.asarray(v["daq.joint_rate_rad_s"]).tolist(), np.asarray(v["daq.motor_current_a"]).tolist(),
                                    self._u_sent, np.asarray(v["servo.current_limit_cmd_a"]).tolist(),
                                    closed and self._phase == 3, q_cmd.tolist())
+            self._post_brakes(wm)
             if trip is not None:
                 self._trip(rt, trip)
                 return
@@ -422,6 +438,12 @@ class ServoLayer(Layer):
         wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": rate, "servo.error_rad": e,
                                        "servo.ferror_rad": self.sup.ferror_rad,
                                        "servo.rate_cmd_frame": frame})
+
+    def _post_brakes(self, wm) -> None:
+        """``servo.brake_state``, posted when it changes (rarely)."""
+        if self.sup is not None and self.sup.brake_state != self._brake_posted:
+            self._brake_posted = list(self.sup.brake_state)
+            wm.post_task_outputs("servo", {"servo.brake_state": self._brake_posted})
 
     def _trip(self, rt: "LayerContext", trip: Trip) -> None:
         """A supervision trip: the layer's fault (one message naming joint, check and likely

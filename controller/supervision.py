@@ -112,6 +112,17 @@ GAP_S = 0.025
 HISTORY = 16
 DIAG_SAMPLES = 8
 
+#: a joint's brake as the sensors show it (``servo.brake_state``; issue 30 item 3), never
+#: from the command alone: SET - its current limit is 0 (the brake engaged) and the joint is
+#: still, as a set brake holds it; UNPROVEN - neither shown: the limit is raised but the
+#: joint has not yet moved the way it was told since, or it moves while its limit is 0;
+#: PROVEN RELEASED - since its limit was raised the joint moved the commanded way at more
+#: than STALL_MOTION_FRACTION of omega_fs, which a held brake does not allow. A joint
+#: holding its pose after power-up stays UNPROVEN until it first moves (there is no brake
+#: sensor: pfma-model 8.4).
+BRAKE_SET, BRAKE_UNPROVEN, BRAKE_PROVEN = 0, 1, 2
+BRAKE_STATE_NAMES = {BRAKE_SET: "SET", BRAKE_UNPROVEN: "UNPROVEN", BRAKE_PROVEN: "PROVEN RELEASED"}
+
 #: the checks, in the order a sample runs them
 CHECKS = ("resolver jump", "overspeed", "tach against resolver", "stall", "following error")
 #: the causes :func:`diagnose` can name (index = ``servo.trip_cause``)
@@ -238,6 +249,12 @@ class JointSupervisor:
         self._dt = -1.0
         self._rows: tuple = ()
         self.ferror_rad = [0.0] * n  #: the following error of the last sample (model - measured)
+        #: each joint's brake as its last live sample showed it (BRAKE_*; kept through a
+        #: reset: the last thing the sensors showed)
+        self.brake_state = [BRAKE_UNPROVEN] * n
+        self._bq: list[float] | None = None  # observe_brakes's last angles and their time
+        self._bq_t = 0.0
+        self._bq_w = [0.0] * n
         self.reset()
 
     def reset(self) -> None:
@@ -304,6 +321,7 @@ class JointSupervisor:
         t_tach, t_fe, t_stall, w_m_l, q_m_l = self._t_tach, self._t_fe, self._t_stall, self._w_m, self._q_model
         pi, two_pi = math.pi, 2.0 * math.pi
         kp_l, rl_l = self.kp, self.rate_lim
+        brake = self.brake_state
         for (k, jf, fs, jump, over, tach_top, tach_abs, gain, dead, a_m, kaw, fe_min, fe_span, stall_rate,
              stall_motion, no_current) in self._rows:
             qk = q[k]
@@ -312,6 +330,11 @@ class JointSupervisor:
             wt, uk = w_tach[k], u[k]
             h = hist[k]
             h[0][hi], h[1][hi], h[2][hi], h[3][hi], h[4][hi] = uk, wt, w_res, i_meas[k], i_lim[k]
+            bs = brake[k]
+            if i_lim[k] <= 0.0:
+                brake[k] = BRAKE_SET if -stall_motion < w_res < stall_motion else BRAKE_UNPROVEN
+            elif bs != BRAKE_PROVEN:
+                brake[k] = BRAKE_PROVEN if uk * w_res > 0 and abs(w_res) >= stall_motion else BRAKE_UNPROVEN
             if trip is not None:
                 continue
             check = ""
@@ -378,6 +401,25 @@ class JointSupervisor:
         if self._filled < HISTORY:
             self._filled += 1
         return trip
+
+    def observe_brakes(self, t_s: float, q: list[float], i_lim: list[float]) -> None:
+        """Outside the supervised phases (powered down, the limits at 0): the brake state
+        from the resolvers alone, at service time ``t_s`` (s): SET while a joint's limit is 0
+        and it is still, UNPROVEN while it moves (a set brake would hold it)."""
+        prev, t_prev = self._bq, self._bq_t
+        self._bq, self._bq_t = q, t_s
+        dt = t_s - t_prev
+        if prev is None or dt <= 0 or dt > GAP_S:
+            return
+        pi, two_pi = math.pi, 2.0 * math.pi
+        alpha = 1.0 - math.exp(-dt / TACH_TAU_S)  # filtered as the live checks' resolver rate (a
+        wf = self._bq_w                            # one-count flicker is not motion)
+        for k, fs in enumerate(self.fs):
+            w = wf[k] = wf[k] + alpha * (((q[k] - prev[k] + pi) % two_pi - pi) / dt - wf[k])
+            if i_lim[k] <= 0.0:
+                self.brake_state[k] = BRAKE_SET if abs(w) < STALL_MOTION_FRACTION * fs else BRAKE_UNPROVEN
+            elif self.brake_state[k] != BRAKE_PROVEN:
+                self.brake_state[k] = BRAKE_UNPROVEN
 
     def recent(self, k: int, n: int = DIAG_SAMPLES) -> np.ndarray:
         """Joint ``k``'s newest ``n`` samples (fewer before the ring has filled), oldest
