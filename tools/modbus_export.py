@@ -1388,7 +1388,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {err}", flush=True)
         return 1
     try:
-        print(f"{_READY} on {export.host}:{export.port}", flush=True)
+        try:
+            print(f"{_READY} on {export.host}:{export.port}", flush=True)
+        except BrokenPipeError:
+            # the service that started it died before reading the line (the kill matrix's
+            # SIGKILL at start-up): nobody to serve; stop without a traceback, and point the
+            # stdout Python flushes at exit somewhere that cannot break
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            log.warning("Modbus export %s:%d: the process that started it is gone; stopping", export.host,
+                        export.port)
+            return 1
         while not stop.wait(0.5):
             if args.parent_pid is not None and os.getppid() != args.parent_pid:
                 break

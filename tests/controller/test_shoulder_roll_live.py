@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import subprocess
 import sys
 import uuid
@@ -77,7 +78,9 @@ def test_serve_and_controller_at_45_deg_power_up_and_report_the_index():
         assert "shoulder-roll index +45 deg (joint.shoulder_roll_deg); the kinematics use +45 deg" in out
         # held at +45 deg: no joint tripped its supervision (a host too loaded for the live
         # controller may still miss frames: that fault is the host's, not the index's)
-        assert not any(w in out for w in ("overspeed", "stall", "following error")), out
+        # (a supervision trip reads "JOINT CHECK (detail)"; "host stall" in a missed-frames
+        # warning is not one: seen beside a CPU hog)
+        assert not re.search(r"\b(resolver jump|overspeed|tach against resolver|stall|following error) \(", out), out
     finally:
         stop(ctl, serve)
         Bit3Buffer.unlink(name)

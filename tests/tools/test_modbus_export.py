@@ -473,3 +473,20 @@ def test_committed_map_doc_is_the_generated_one():
     assert MAP_DOC_PATH.read_text() == modbus_map_markdown(), (
         "docs/modbus-map.md is stale; regenerate with "
         "tools.modbus_export.write_modbus_map_doc()")
+
+
+def test_an_export_whose_starter_died_before_reading_its_ready_line_stops_without_a_traceback(service, shm_name):
+    """The kill matrix's case (SIGKILL of `pfma serve` at start-up, under a CPU hog): the
+    export child's ready line meets a pipe nobody reads. One warning, exit 1, no traceback."""
+    import os
+    import subprocess
+    import sys
+    r, w = os.pipe()
+    os.close(r)  # the starter is gone: nobody will ever read
+    try:
+        p = subprocess.run([sys.executable, "-m", "tools.modbus_export", "--buffer", shm_name, "--listen",
+                            "127.0.0.1:0"], stdout=w, stderr=subprocess.PIPE, text=True, timeout=60)
+    finally:
+        os.close(w)
+    assert p.returncode == 1 and "Traceback" not in p.stderr, p.stderr
+    assert "the process that started it is gone; stopping" in p.stderr
