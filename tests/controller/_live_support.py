@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import os
 import subprocess
+import sys
 import time
+from pathlib import Path
 
 
 def fifo_permitted() -> bool:
@@ -24,6 +26,28 @@ def fifo_permitted() -> bool:
 #: (docs/deployment.md), so a loaded 2-core host's stalls do not stop the arm before the
 #: test's point is reached (the suite's own default is PFMA_REALTIME=off: tests/conftest.py)
 RT = ["--realtime"] if fifo_permitted() else []
+
+
+#: the checkout's root and the ``pfma`` command as the live tests run it
+ROOT = Path(__file__).resolve().parents[2]
+PY = [sys.executable, "-m", "tools.cli"]
+
+
+def live_inputs(name: str):
+    """The newest Bit3 inputs of the service on buffer ``name`` (None: not up yet)."""
+    from bit3.client import Client
+    try:
+        with Client.attach(name) as c:
+            return c.read_inputs()
+    except Exception:  # noqa: BLE001 - not up yet
+        return None
+
+
+def armed_and_released(name: str) -> bool:
+    """The service on ``name`` ARMED with the brakes released (a powered-up arm)."""
+    from bit3.layout import ServiceState
+    s = live_inputs(name)
+    return s is not None and s.service_state == ServiceState.ARMED and bool(s.brakes_released)
 
 
 def wait_for(pred, timeout_s: float = 20.0) -> bool:

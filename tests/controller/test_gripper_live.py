@@ -8,10 +8,8 @@ COMPLETE. Bounded polling of processes (real time)."""
 from __future__ import annotations
 
 import subprocess
-import sys
 import threading
 import uuid
-from pathlib import Path
 
 import pytest
 
@@ -20,36 +18,12 @@ from bit3.client import Client
 from bit3.layout import ServiceState
 from controller.worldmodel import WorldModel
 from pfma.gripper import GripperState
-from tests.controller._live_support import power_up_holding, stop, wait_for
+from tests.controller._live_support import PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for
 
 pytestmark = pytest.mark.realtime
 
-ROOT = Path(__file__).resolve().parents[2]
-PY = [sys.executable, "-m", "tools.cli"]
 
 
-def _fifo_permitted() -> bool:
-    """Whether this user may run SCHED_FIFO (root in CI): then both processes run with
-    --realtime, as a lab's should (docs/deployment.md), so that a loaded 2-core host's stalls
-    do not stop the arm (missed frames are a Servo Control fault) before the gripper moves."""
-    try:
-        import os
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        return True
-    except (OSError, AttributeError):
-        return False
-
-
-RT = ["--realtime"] if _fifo_permitted() else []
-
-
-def _inputs(name: str):
-    try:
-        with Client.attach(name) as c:
-            return c.read_inputs()
-    except Exception:  # noqa: BLE001 - not up yet
-        return None
 
 
 def _gripper(wm_name: str) -> dict | None:
@@ -71,16 +45,15 @@ def test_pfma_controller_gripper_open_then_close_moves_the_live_jaw(tmp_path):
     ctl = None
     log = tmp_path / "controller.log"
     try:
-        assert wait_for(lambda: _inputs(name) is not None), "the service did not come up"
+        assert wait_for(lambda: live_inputs(name) is not None), "the service did not come up"
         def start() -> subprocess.Popen:
             with open(log, "w") as out:
                 return subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--power-up", "--duration",
                                          "60", *RT], cwd=ROOT, stdout=out, stderr=subprocess.STDOUT)
-        ctl = power_up_holding(start, lambda: (s := _inputs(name)) is not None
-                               and s.service_state == ServiceState.ARMED and bool(s.brakes_released), log=log)
+        ctl = power_up_holding(start, lambda: armed_and_released(name), log=log)
         assert wait_for(lambda: (g := _gripper(wm)) is not None and int(g["gripper.state"]) == GripperState.STOPPED,
                         timeout_s=30), "the controller never powered the gripper up"
-        assert int(_inputs(name).service_state) == ServiceState.ARMED
+        assert int(live_inputs(name).service_state) == ServiceState.ARMED
         opened = subprocess.run([*PY, "controller", "gripper", "open", "--wm", wm], cwd=ROOT,
                                 capture_output=True, text=True, timeout=30)
         assert opened.returncode == 0, opened.stdout + opened.stderr + log.read_text()

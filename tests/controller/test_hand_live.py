@@ -7,33 +7,21 @@ tool stops. Bounded polling of processes (real time)."""
 from __future__ import annotations
 
 import subprocess
-import sys
 import time
 import uuid
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from bit3.buffer import Bit3Buffer
-from bit3.client import Client
 from bit3.layout import HAND_CONTROLLERS, ServiceState
 from controller.worldmodel import WorldModel
-from tests.controller._live_support import RT, power_up_holding, stop, wait_for
+from tests.controller._live_support import PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for
 
 pytestmark = pytest.mark.realtime
 
-ROOT = Path(__file__).resolve().parents[2]
-PY = [sys.executable, "-m", "tools.cli"]
 CAE = HAND_CONTROLLERS.index("cae")
 
-
-def _inputs(name: str):
-    try:
-        with Client.attach(name) as c:
-            return c.read_inputs()
-    except Exception:  # noqa: BLE001 - not up yet
-        return None
 
 
 def _tool(wm: str) -> np.ndarray:
@@ -53,17 +41,16 @@ def test_the_simulated_stick_flies_the_live_arm_with_the_deadman_only():
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ctl = None
     try:
-        assert wait_for(lambda: _inputs(name) is not None), "the service did not come up"
+        assert wait_for(lambda: live_inputs(name) is not None), "the service did not come up"
         ctl = power_up_holding(
             lambda: subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--power-up", "--teleop",
                                       "cae", "--duration", "60", "--messages", "60", *RT], cwd=ROOT,
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
-            lambda: (s := _inputs(name)) is not None and s.service_state == ServiceState.ARMED
-            and bool(s.brakes_released))
+            lambda: armed_and_released(name))
         p0 = _tool(wm)
         r = _hand(name, "--deflect", "x=0.6", "--for", "1")  # no deadman: the stick is not trusted
         assert r.returncode == 0 and "deadman up, for 1 s" in r.stdout, r.stdout + r.stderr
-        assert wait_for(lambda: not bool(_inputs(name).hc_deadman[CAE]) and abs(_inputs(name).hc_axes[CAE][0]) > 0.1,
+        assert wait_for(lambda: not bool(live_inputs(name).hc_deadman[CAE]) and abs(live_inputs(name).hc_axes[CAE][0]) > 0.1,
                         5)
         p1 = _tool(wm)
         assert np.linalg.norm(p1 - p0) < 0.002, (p0, p1)
@@ -73,12 +60,12 @@ def test_the_simulated_stick_flies_the_live_arm_with_the_deadman_only():
             "the tool did not move with the deadman pressed"
         # let go after 1.5 s: the deadman comes up and the tool stops (the arm catches up with
         # its reference within half a second, then holds)
-        assert wait_for(lambda: not bool(_inputs(name).hc_deadman[CAE]), 10)
+        assert wait_for(lambda: not bool(live_inputs(name).hc_deadman[CAE]), 10)
         time.sleep(0.5)
         p2 = _tool(wm)
         time.sleep(0.5)
         assert np.linalg.norm(_tool(wm) - p2) < 0.001, (p2, _tool(wm))
-        assert int(_inputs(name).service_state) == ServiceState.ARMED
+        assert int(live_inputs(name).service_state) == ServiceState.ARMED
     finally:
         stop(ctl, serve)
         Bit3Buffer.unlink(name)

@@ -12,32 +12,20 @@ import re
 import subprocess
 import sys
 import uuid
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from bit3.buffer import Bit3Buffer
-from bit3.client import Client
-from bit3.layout import ServiceState
 from controller.decision import Status
 from controller.worldmodel import WorldModel
-from tests.controller._live_support import RT, power_up_holding, stop, wait_for
+from tests.controller._live_support import PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for
 
 pytestmark = pytest.mark.realtime
 
-ROOT = Path(__file__).resolve().parents[2]
-PY = [sys.executable, "-m", "tools.cli"]
 
 
 
-
-def _inputs(name: str):
-    try:
-        with Client.attach(name) as c:
-            return c.read_inputs()
-    except Exception:  # noqa: BLE001 - not up yet
-        return None
 
 
 def _msp_up(wm: str) -> bool:
@@ -69,13 +57,12 @@ def test_move_from_the_shell_and_python_keeps_the_orientation_and_a_turning_one_
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ctl = None
     try:
-        assert wait_for(lambda: _inputs(name) is not None), "the service did not come up"
+        assert wait_for(lambda: live_inputs(name) is not None), "the service did not come up"
         ctl = power_up_holding(
             lambda: subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--power-up", "--duration",
                                       "60", "--messages", "60", *RT], cwd=ROOT, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True),
-            lambda: (s := _inputs(name)) is not None and s.service_state == ServiceState.ARMED
-            and bool(s.brakes_released))
+            lambda: armed_and_released(name))
         assert wait_for(lambda: _msp_up(wm)), "the path planner never started"
         with WorldModel.attach(wm) as m:
             p0 = np.array(m.get("joint.tool_pos_m"))

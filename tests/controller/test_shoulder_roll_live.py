@@ -11,45 +11,18 @@ import json
 import math
 import re
 import subprocess
-import sys
 import uuid
-from pathlib import Path
 
 import pytest
 
 from bit3.buffer import Bit3Buffer
-from bit3.client import Client
-from bit3.layout import ServiceState
 from controller.worldmodel import WorldModel
-from tests.controller._live_support import stop, wait_for
+from tests.controller._live_support import PY, ROOT, RT, armed_and_released, live_inputs, stop, wait_for
 
 pytestmark = pytest.mark.realtime
 
-ROOT = Path(__file__).resolve().parents[2]
-PY = [sys.executable, "-m", "tools.cli"]
 
 
-def _fifo_permitted() -> bool:
-    """Whether this user may run SCHED_FIFO: then both processes take it, as a lab's do
-    (docs/deployment.md), so that a loaded host does not make the live controller miss frames."""
-    try:
-        import os
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        return True
-    except (OSError, AttributeError):
-        return False
-
-
-RT = ["--realtime"] if _fifo_permitted() else []
-
-
-def _inputs(name: str):
-    try:
-        with Client.attach(name) as c:
-            return c.read_inputs()
-    except Exception:  # noqa: BLE001 - not up yet
-        return None
 
 
 def test_serve_and_controller_at_45_deg_power_up_and_report_the_index():
@@ -60,12 +33,11 @@ def test_serve_and_controller_at_45_deg_power_up_and_report_the_index():
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     ctl = None
     try:
-        assert wait_for(lambda: _inputs(name) is not None), "the service did not come up"
+        assert wait_for(lambda: live_inputs(name) is not None), "the service did not come up"
         ctl = subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--shoulder-roll", "45",
                                 "--power-up", "--duration", "4", "--messages", "0", *RT], cwd=ROOT,
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        assert wait_for(lambda: (s := _inputs(name)) is not None and s.service_state == ServiceState.ARMED
-                         and bool(s.brakes_released)), "the controller never powered up"
+        assert wait_for(lambda: armed_and_released(name)), "the controller never powered up"
         got = subprocess.run([*PY, "wm", "get", "joint.shoulder_roll_rad", "joint.shoulder_roll_deg", "--name", wm,
                               "--json"], cwd=ROOT, capture_output=True, text=True, timeout=30)
         assert got.returncode == 0, got.stdout + got.stderr

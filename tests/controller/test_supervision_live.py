@@ -7,32 +7,19 @@ the joint and the likely cause. Bounded polling of processes (real time)."""
 from __future__ import annotations
 
 import subprocess
-import sys
 import uuid
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from bit3.buffer import Bit3Buffer
-from bit3.client import Client
-from bit3.layout import ServiceState
-from tests.controller._live_support import RT, power_up_holding, stop, wait_for
+from tests.controller._live_support import PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for
 
 pytestmark = pytest.mark.realtime
 
-ROOT = Path(__file__).resolve().parents[2]
-PY = [sys.executable, "-m", "tools.cli"]
 
 
 
-
-def _inputs(name: str):
-    try:
-        with Client.attach(name) as c:
-            return c.read_inputs()
-    except Exception:  # noqa: BLE001 - not up yet
-        return None
 
 
 @pytest.mark.parametrize("spec,joint,cause", [
@@ -47,18 +34,17 @@ def test_a_motion_fault_on_the_live_arm_stops_it_and_names_joint_and_cause(spec,
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ctl = None
     try:
-        assert wait_for(lambda: _inputs(name) is not None), "the service did not come up"
+        assert wait_for(lambda: live_inputs(name) is not None), "the service did not come up"
         ctl = power_up_holding(
             lambda: subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", "none", "--power-up",
                                       "--duration", "8", "--messages", "400", *RT], cwd=ROOT,
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
-            lambda: (s := _inputs(name)) is not None and s.service_state == ServiceState.ARMED
-            and bool(s.brakes_released))
+            lambda: armed_and_released(name))
         inj = subprocess.run([*PY, "fault", "inject", "--buffer", name, spec], cwd=ROOT, capture_output=True,
                              text=True, timeout=30)
         assert inj.returncode == 0, inj.stdout + inj.stderr
         # stopped: every DAC channel at 0 V (rates and current limits: brakes on)
-        assert wait_for(lambda: (s := _inputs(name)) is not None
+        assert wait_for(lambda: (s := live_inputs(name)) is not None
                          and np.all(np.asarray(s.record["dac_volts"]) == 0.0), 10), "outputs not at 0 V"
         out, _ = ctl.communicate(timeout=60)
         lines = [ln for ln in out.splitlines() if "fault 1" in ln and joint in ln and "current limits 0" in ln]
