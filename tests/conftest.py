@@ -43,3 +43,21 @@ def buf(shm_name):
 @pytest.fixture(scope="session")
 def mp():
     return multiprocessing.get_context("spawn")
+
+
+@pytest.fixture
+def shm_sim(monkeypatch):
+    """A system simulator with its world model in shared memory (a unique name), for the
+    ``pfma controller <request>`` verbs run in this process: their polls for an answer step
+    the simulator one frame each (deterministic). Yields ``(sim, wm_name)``."""
+    from controller.worldmodel import WorldModel
+    from sim.system import SystemSimulator
+    import tools.console.control as control
+    monkeypatch.delenv("PFMA_WM_KEY", raising=False)
+    name = f"pfma_wmsim{os.getpid()}_{uuid.uuid4().hex[:8]}"
+    s = SystemSimulator(wm_name=name)
+    s.step(10)
+    monkeypatch.setattr(control.time, "sleep", lambda _s: s.step(1))
+    yield s, name
+    s.close()
+    WorldModel.remove_segment(name)

@@ -349,24 +349,7 @@ def test_requests_while_running_are_taken_in_the_frame_they_arrive_without_queue
 
 
 # --- pfma controller power-up | power-down | reset (the Global Commands from the shell) --------
-@pytest.fixture
-def shm_sim(monkeypatch):
-    """A simulated system whose world model is in shared memory; the CLI's real-time wait for
-    an answer steps the simulator one frame per poll (deterministic)."""
-    from controller.worldmodel import WorldModel
-    from sim.system import SystemSimulator
-    from tests.controller import _wm_support as sup
-    import tools.console.control as control
-    monkeypatch.delenv("PFMA_WM_KEY", raising=False)
-    name = sup.unique_name()
-    s = SystemSimulator(wm_name=name)
-    s.step(10)
-    monkeypatch.setattr(control.time, "sleep", lambda _s: s.step(1))
-    yield s, name
-    s.close()
-    WorldModel.remove_segment(name)
-
-
+# (shm_sim: tests/conftest.py)
 def _pfma(capsys, *argv):
     from tools.cli import main
     rc = main(list(argv))

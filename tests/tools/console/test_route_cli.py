@@ -5,27 +5,11 @@ the system simulator one frame per poll (deterministic, no wall-clock waits)."""
 
 from __future__ import annotations
 
-import os
-import uuid
 
 import pytest
 
 from tools.cli import main
 
-
-@pytest.fixture
-def shm_sim(monkeypatch):
-    from controller.worldmodel import WorldModel
-    from sim.system import SystemSimulator
-    import tools.console.control as control
-    monkeypatch.delenv("PFMA_WM_KEY", raising=False)
-    name = f"pfma_wmroute{os.getpid()}_{uuid.uuid4().hex[:8]}"
-    s = SystemSimulator(wm_name=name)
-    s.step(10)
-    monkeypatch.setattr(control.time, "sleep", lambda _s: s.step(1))
-    yield s, name
-    s.close()
-    WorldModel.remove_segment(name)
 
 
 def _pfma(capsys, *argv):
