@@ -76,9 +76,9 @@ def parse_deflection(text: str) -> list[float]:
 
     :raises ValueError: a name not in AXES (the closest named), a value not a number in -1..1
     """
-    import difflib
     from drivers.crl.cae import CAE_AXES, FULL_SCALE_V
     from drivers.crl.state import AXES
+    from pfma.errors import did_you_mean
     frac = dict.fromkeys(AXES, 0.0)
     for part in (p.strip() for p in text.split(",")):
         if not part:
@@ -86,9 +86,7 @@ def parse_deflection(text: str) -> list[float]:
         name, eq, value = part.partition("=")
         name = name.strip()
         if name not in frac:
-            close = difflib.get_close_matches(name, AXES, 1)
-            raise ValueError(f"no axis {name!r} (axes: {' '.join(AXES)})" + (f"; did you mean {close[0]}?"
-                                                                            if close else ""))
+            raise ValueError(f"no axis {name!r} (axes: {' '.join(AXES)})" + did_you_mean(name, AXES, n=1))
         try:
             v = float(value) if eq else float("nan")
         except ValueError:
