@@ -48,11 +48,11 @@ def test_the_axes_map_through_the_drivers_table_onto_the_sticks_signals():
 
 
 def test_a_deflection_with_the_deadman_reaches_the_inputs_then_springs_back(rig, capsys):
-    rc, out, err = _hand(rig, capsys, "--deflect", "x=0.4,z=-0.25", "--deadman", "--for", "0.5")
+    rc, out, err = _hand(rig, capsys, "--deflect", "x=0.4,z=-0.25", "--deadman", "--for", "5")
     assert rc == 0, err
     said = [ln for ln in out.splitlines() if ln.startswith("pfma hand:")]  # (the service says it too, here)
     assert said[0].startswith("pfma hand: simulated CAE stick held at -2.50, +4.00, +0.00, +0.00, +0.00, +0.00 V, "
-                          "deadman pressed, for 0.5 s")
+                          "deadman pressed, for 5 s")
     rig.run_frames(40)  # the ADC's next conversions (160 Hz)
     s = rig.reader.read_inputs()
     assert bool(s.hc_deadman[CAE]) and bool(s.hc_valid[CAE])
@@ -62,7 +62,9 @@ def test_a_deflection_with_the_deadman_reaches_the_inputs_then_springs_back(rig,
     assert axes[0] == pytest.approx(((4.0 - 0.5) / 9.5) ** 2, abs=0.005)
     assert axes[2] == pytest.approx(-((2.5 - 0.5) / 9.5) ** 2, abs=0.005)
     assert np.allclose(axes[[1, 3, 4, 5]], 0.0)
-    rig.run_frames(160)  # 0.5 s of 320 Hz frames: let go
+    # (the client's thread steps frames while it waits, as many as its wall time allows: 5 s of
+    # hold, 1600 frames, is far more than that, so the check above is inside the hold)
+    rig.run_frames(1600)  # 5 s of 320 Hz frames: let go
     s = rig.reader.read_inputs()
     assert not bool(s.hc_deadman[CAE]) and np.allclose(np.asarray(s.hc_axes[CAE]), 0.0)
     texts = [m.text for m in rig.reader.messages() if m.code == MSG_HAND]
