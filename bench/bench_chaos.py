@@ -446,9 +446,19 @@ class Proc:
             rc = self.p.wait(timeout=timeout_s)
             self.exit_how = f"{signal.Signals(sig).name} -> exit {rc}"
         except subprocess.TimeoutExpired:
+            self.where_hung()
             self.kill_group()
             self.exit_how = f"needed SIGKILL ({timeout_s:g} s after {signal.Signals(sig).name})"
         return self.exit_how
+
+    def where_hung(self) -> None:
+        """A far end (``REMOTE_CONTROLLER``) that did not exit: ask it to print its threads'
+        stacks (faulthandler on SIGUSR1) into its output before it is killed."""
+        if self.role != "remote":
+            return
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(self.pid, signal.SIGUSR1)
+        time.sleep(0.5)
 
     def wait_exit(self, timeout_s: float = 10.0) -> bool:
         try:
@@ -479,6 +489,21 @@ class Proc:
         if self.alive():
             self.kill_group()
         self._log.close()
+
+
+def hung_at(text: str) -> str:
+    """Where each thread was in a faulthandler dump (``Proc.where_hung``): the innermost
+    frame of each, as ``func (file:line)``; "" when ``text`` holds no dump."""
+    where, want = [], False
+    for line in text.splitlines():
+        if line.startswith(("Thread 0x", "Current thread 0x")):
+            want = True
+        elif want and line.strip().startswith("File "):
+            m = re.match(r'\s*File "([^"]+)", line (\d+) in (\S+)', line)
+            if m:
+                where.append(f"{m.group(3)} ({Path(m.group(1)).name}:{m.group(2)})")
+            want = False
+    return "; ".join(where)
 
 
 def free_port() -> int:
@@ -513,7 +538,8 @@ REARM_SEED = 1000
 #: kind's far end; one minor frame per inputs body received, a joint goal once started up;
 #: argv: endpoint, buffer, [rearm counter seed], [--realtime])
 REMOTE_CONTROLLER = textwrap.dedent("""
-    import signal, sys, time
+    import faulthandler, signal, sys, time
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # the bench asks where it hangs before a SIGKILL
     stop = []
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # while connecting (blocked in zenoh): end at once
     signal.signal(signal.SIGINT, signal.SIG_DFL)
@@ -522,7 +548,12 @@ REMOTE_CONTROLLER = textwrap.dedent("""
     from controller.runtime import ControllerRuntime
     from pfma.clock import MonotonicClock
     from tools.bridge.remote import RemoteClient
-    c = RemoteClient.connect(sys.argv[1], sys.argv[2], "chaos-remote-controller", timeout_s=30)
+    from bit3.seqlock import Bit3Error
+    try:  # a bridge killed or stopped in its start-up: one line, exit 1 (as a tool would)
+        c = RemoteClient.connect(sys.argv[1], sys.argv[2], "chaos-remote-controller", timeout_s=30)
+    except Bit3Error as err:
+        print(f"remote controller: cannot connect: {err}", flush=True)
+        sys.exit(1)
     if "--realtime" in sys.argv:  # as pfma controller --realtime: SCHED_FIFO on CPU 0, this
         # thread only: after the connect, so zenoh's threads (started by it) keep SCHED_OTHER
         # and every CPU (see RemoteClient)
@@ -530,8 +561,13 @@ REMOTE_CONTROLLER = textwrap.dedent("""
         realtime_setup(cpu=0)
     if len(sys.argv) > 3 and sys.argv[3].isdigit():  # the first arm request's counter - 1 (REARM_SEED)
         c.command["rearm_counter"] = int(sys.argv[3])
-    c.remote.wait("inputs", timeout_s=30)
-    rt = ControllerRuntime(c, clock=MonotonicClock())
+    try:  # the bridge gone before its first bodies: one line, exit 1
+        c.remote.wait("inputs", timeout_s=30)
+        rt = ControllerRuntime(c, clock=MonotonicClock())
+    except Bit3Error as err:
+        print(f"remote controller: no bodies from the bridge: {err}", flush=True)
+        c.close()
+        sys.exit(1)
     rt.request(Request.POWER_UP)
     flying = False
     signal.signal(signal.SIGTERM, lambda *a: stop.append(1))  # in the loop: finish, close the session
@@ -651,7 +687,8 @@ class Session:
         for p in sorted(self.procs, key=lambda p: rank.get(p.role, -1)):
             how = p.stop(signal.SIGTERM if p.role in ("remote", "export") else signal.SIGINT)
             if out is not None and how.startswith("needed SIGKILL") and not p.killed:
-                out.check("clean_exits", False, f"{p.role} (pid {p.pid}) {how}; last output: {p.tail(3)}")
+                out.check("clean_exits", False, f"{p.role} (pid {p.pid}) {how}; last output: {p.tail(3)}"
+                          + (f"; it hung at: {hung_at(p.text())}" if hung_at(p.text()) else ""))
         for p in self.procs:
             p.close()
             if out is not None and "Traceback (most recent call last)" in p.text():

@@ -133,11 +133,6 @@ class Bridge:
             self._last[a] = (bytes(r.raw), seq)
         if ring is not None:
             self.attach_ring(ring)
-        self._area_q = [session.declare_queryable(key(name, a), self._on_query) for a in AREAS]
-        doc = layout_document(self.layout)
-        self._layout_q = session.declare_queryable(key(name, "layout"),
-                                                   lambda q: q.reply(q.key_expr, doc))
-        session.put(key(name, "layout"), doc)
         self._entities: list[Any] = []
         #: remote writers by the order their tokens appeared; the first is the holder
         self.writers: list[str] = []
@@ -165,6 +160,14 @@ class Bridge:
                 key(name, "writer", "commands"),
                 lambda q: q.reply(q.key_expr, json.dumps({"holder": self.holder,
                                                           "writers": self.writers}).encode())))
+        # the areas and then the layout last: a peer that has the layout also gets the writer
+        # key (a new remote writer asks it right after the layout; declared after it, a
+        # bridge descheduled in between was once taken as one that "takes no commands")
+        self._area_q = [session.declare_queryable(key(name, a), self._on_query) for a in AREAS]
+        doc = layout_document(self.layout)
+        self._layout_q = session.declare_queryable(key(name, "layout"),
+                                                   lambda q: q.reply(q.key_expr, doc))
+        session.put(key(name, "layout"), doc)
 
     # --- callbacks (Zenoh's threads): never block, only note -----------------------------
 

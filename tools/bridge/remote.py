@@ -279,8 +279,14 @@ class RemoteBuffer:
         """Owner slots are host-local (pids): not published; empty."""
         return {}
 
-    def messages(self, since_seq: int = 0, queue: str = "service") -> list[Message]:
+    def messages(self, since_seq: int = 0, queue: str = "service", *, wait: bool = True) -> list[Message]:
+        """The messages of ``queue`` after ``since_seq``. With ``wait`` (a tool's first look)
+        a queue not received yet is asked of the bridge and waited for, bounded by
+        ``timeout_s`` twice over (then :class:`Bit3Error`); without it (a control loop's
+        look, :class:`RemoteClient`) such a queue is [] at once: nothing received yet."""
         area = QUEUES.get(queue, queue)
+        if not wait and area in self._counts and not self._counts[area]:
+            return []
         return decode_messages(area, self.read(area).record, since_seq)
 
     def new_messages(self) -> list[Message]:
@@ -351,7 +357,9 @@ class RemoteCommander:
                 break
             time.sleep(0.05)
         if not asked:
-            raise Bit3Error(f"the bridge of {name} takes no commands (start it with --commands)")
+            raise Bit3Error(f"the bridge of {name} answered its layout but not its command writer key "
+                            f"within {min(remote.timeout_s, WRITER_QUERY_WAIT_S):g} s: it takes no "
+                            f"commands (start it with --commands), or it stalled (try again)")
         for reply in s.liveliness().get(key(name, "writer", "commands", "*"), timeout=remote.timeout_s):
             if reply.ok is not None and holder is None:
                 holder = str(reply.ok.key_expr).rsplit("/", 1)[-1]
@@ -465,7 +473,10 @@ class RemoteClient:
         return self.remote.changed(area)
 
     def messages(self, since_seq: int = 0, queue: str = "service") -> list[Message]:
-        return self.remote.messages(since_seq, queue)
+        """Never blocks (the controller reads it inside its frame): a queue the bridge has
+        not sent yet is [] (a lost link once held a remote controller's frame here for
+        twice the connect time-out, deaf to SIGTERM, in the kill matrix)."""
+        return self.remote.messages(since_seq, queue, wait=False)
 
     def header(self) -> HeaderInfo:
         return self.remote.header()

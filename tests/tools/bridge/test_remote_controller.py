@@ -212,3 +212,24 @@ def test_a_remote_controller_process_flies_and_a_killed_bridge_trips_the_watchdo
         Bit3Buffer.unlink(name)
     for p, (out, err) in zip(procs, outs):
         assert "Traceback" not in err, err
+
+
+def test_a_remote_controllers_look_at_a_queue_the_bridge_never_sent_does_not_block(remote):
+    """The controller reads the service's message queue inside its frame (the reason for a
+    refused command). Over a cut link, a queue never received is [] at once: it once held a
+    remote controller's frame for twice the connect time-out (ask, then wait), deaf to
+    SIGTERM, in the kill matrix. A tool's look (``RemoteBuffer.messages``) still waits,
+    bounded, and then says so."""
+    from bit3.client import QUEUES
+    from bit3.seqlock import Bit3Error
+    r = remote
+    area = QUEUES["service"]
+    r.bridge.close()
+    r.here.close()
+    r.linked = False
+    assert r.remote.received(area) == 0  # the bridge never sent it (never polled)
+    assert r.client.messages(0, "service") == []
+    assert r.remote.received(area) == 0
+    r.remote.timeout_s = 0.2
+    with pytest.raises(Bit3Error, match="no service_messages body|within"):
+        r.remote.messages(0, "service")
