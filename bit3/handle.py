@@ -54,9 +54,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Mapping
 
 from bit3.client import Client, Snapshot
-from bit3.layout import (
-    CHANNEL_BUS_ERROR, RTD_LOSS_OF_SIGNAL, RTD_NO_REFERENCE, ServiceState, Severity,
-)
+from bit3.layout import ServiceState, Severity, status_text
 from bit3.seqlock import Bit3Error
 from pfma.arm import GRIPPER, JOINTS, JointFacts
 from pfma.gripper import (
@@ -104,21 +102,6 @@ class Reading:
         return f"{self.name} = {self.value:.4f} {self.units} ({self.status})"
 
 
-def _status_text(kind: str, bits: int) -> str:
-    why = []
-    if kind == "rtd":
-        if bits & RTD_LOSS_OF_SIGNAL:
-            why.append("loss of signal")
-        if bits & RTD_NO_REFERENCE:
-            why.append("no reference")
-    if bits & CHANNEL_BUS_ERROR:
-        why.append("bus error")
-    rest = bits & ~(CHANNEL_BUS_ERROR | (RTD_LOSS_OF_SIGNAL | RTD_NO_REFERENCE if kind == "rtd" else 0))
-    if rest:
-        why.append(f"status 0x{rest:X}")
-    return ", ".join(why) or "ok"
-
-
 class Inputs:
     """A copy of one frame of inputs with named, status-carrying readings."""
 
@@ -141,7 +124,7 @@ class Inputs:
         value = float(self.snapshot.value(signal))
         if c.kind == "rtd":  # the resolver's 0..2 pi in (-pi, pi], as every tool shows it (pfma/show.py)
             value = wrap_angle(value)
-        return Reading(signal, value, c.units, _status_text(c.kind, status))
+        return Reading(signal, value, c.units, status_text(c.kind, status))
 
     def _joint(self, kind: str, joint: str, quantity: str) -> Reading:
         try:

@@ -201,6 +201,9 @@ CMD_REFUSED = 4  #: a field was NaN, infinite or beyond its limit: outputs made 
 CMD_FOREIGN = 8  #: written by a process that does not hold the claim: refused, outputs made safe
 CMD_STATUS_NAMES = {CMD_STALE: "stale", CMD_ABSENT: "absent", CMD_REFUSED: "refused",
                     CMD_FOREIGN: "foreign writer"}
+#: ``ft_status``: the F/T controller's status byte (0 ok; 1 overload, |load| > 110 % of full
+#: scale: assumed, drivers/serial_ft/protocol.py STATUS_CODES; the driver drops any other)
+FT_OVERLOAD = 1
 #: the names of each status word's bits, by the kind of entry it belongs to (the one table
 #: ``pfma read``, ``watch``, ``monitor``, ``stats`` and the Python handle show them by)
 STATUS_BIT_NAMES: dict[str, dict[int, str]] = {
@@ -208,12 +211,13 @@ STATUS_BIT_NAMES: dict[str, dict[int, str]] = {
     "adc": {CHANNEL_BUS_ERROR: "BUSERR"},
     "dac": {DAC_CLIPPED: "CLIPPED", DAC_FORCED_SAFE: "SAFE", DAC_SLEWED: "SLEWED", DAC_ENVELOPE: "ENVELOPE"},
     "pio": {},
+    "ft": {FT_OVERLOAD: "OVERLOAD"},
     "board": {BOARD_OK: "PRESENT", BOARD_INIT: "INITIALISED", BOARD_FAULT: "FAULT"},
     "link": {LINK_OPEN: "OPEN", LINK_SYNCED: "SYNCED", LINK_FAULT: "FAULT", LINK_STALE: "STALE"},
 }
 #: the healthy status word of each kind: shown as ``ok`` (a channel: no bit set; a board:
 #: present and initialised; a link: open and synchronised)
-STATUS_HEALTHY: dict[str, int] = {"rtd": 0, "adc": 0, "dac": 0, "pio": 0,
+STATUS_HEALTHY: dict[str, int] = {"rtd": 0, "adc": 0, "dac": 0, "pio": 0, "ft": 0,
                                   "board": BOARD_OK | BOARD_INIT, "link": LINK_OPEN | LINK_SYNCED}
 
 

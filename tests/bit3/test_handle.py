@@ -190,9 +190,9 @@ def test_a_resolver_in_loss_of_signal_reads_with_that_status_not_as_a_plain_angl
     inputs = rack.read()
     statuses = {j: inputs.angle(j).status for j in rack.joints}
     bad = {j: st for j, st in statuses.items() if st != "ok"}
-    assert list(bad.values()) == ["loss of signal"], statuses
+    assert list(bad.values()) == ["LOS"], statuses
     j = next(iter(bad))
-    assert not inputs.angle(j).ok and str(inputs.angle(j)).endswith("rad (loss of signal)")
+    assert not inputs.angle(j).ok and str(inputs.angle(j)).endswith("rad (LOS)")
 
 
 def test_current_limits_by_name_keep_the_others(rig):

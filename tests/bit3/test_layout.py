@@ -153,6 +153,7 @@ def test_every_status_word_reads_by_name_ok_when_healthy():
     assert status_text("link", LINK_OPEN | LINK_SYNCED | LINK_FAULT) == "FAULT"
     assert status_text("link", LINK_FAULT | LINK_STALE) == "FAULT|STALE|CLOSED"
     assert status_text("link", 0) == "CLOSED" and status_text("link", LINK_OPEN) == "NOT SYNCED"
+    assert status_text("ft", 1) == "OVERLOAD" and status_text("ft", 0x80) == "0x80"  # the F/T status byte
 
 
 def test_fault_codes_have_one_home_and_a_name_each():

@@ -183,7 +183,8 @@ def monitor_data(client, filter_text: str | None = None, messages: int = 5) -> d
         if matches(filter_text, name, "ft force torque"):
             rows.append({"name": name, "kind": "ft", "value": [round(float(x), 3) for x in s[name]],
                          "units": units, "raw": f"status 0x{int(s.ft_status):X} t {s.ft_t_s:.3f} s",
-                         "status": "-", "status_bits": 0, "rate_hz": dev_rate["ft"], "where": "sio", "spare": False})
+                         "status": status_text("ft", int(s.ft_status)), "status_bits": int(s.ft_status),
+                         "rate_hz": dev_rate["ft"], "where": "sio", "spare": False})
     out["channels"] = rows
     out["messages"] = [{"t_s": float(m.t_s), "queue": m.queue, "seq": int(m.seq), "severity": m.severity.name,
                         "source": m.source, "code": int(m.code), "text": m.text}
