@@ -45,8 +45,8 @@ from controller.params import (
     SAFE_STOP_TIMEOUT_S, TACH_TAU_S, JointFacts, run_current_limits_a,
 )
 from controller.supervision import (
-    BRAKE_STATE_NAMES, BRAKE_UNPROVEN, CAUSES, CHECKS, FERROR_MAX_RAD, FERROR_MIN_RAD, FERROR_TIME_S,
-    JointSupervisor, Trip,
+    BRAKE_PROVEN, BRAKE_STATE_NAMES, BRAKE_UNPROVEN, CAUSES, CHECKS, FERROR_MAX_RAD, FERROR_MIN_RAD, FERROR_TIME_S,
+    STALL_MOTION_FRACTION, JointSupervisor, Trip, diagnose,
 )
 from controller.worldmodel import VarSpec
 
@@ -57,6 +57,22 @@ if TYPE_CHECKING:  # pragma: no cover
 LIMIT_FAULT_MARGIN_RAD = math.radians(1.0)
 #: brakes must report released within this time of raising the current limits (assumed)
 BRAKE_RELEASE_TIMEOUT_S = 0.5
+#: the power-up brake test (issue 30 item 3; ``servo.brake_test``): each joint is driven,
+#: away from its nearer soft limit, by the rate command whose nominal steady rate is this
+#: fraction of its full-scale rate, until the sensors prove its brake released and its drive
+#: answering (``servo.brake_state`` PROVEN RELEASED: it moved the commanded way at more than
+#: supervision.STALL_MOTION_FRACTION of full scale), then back for as long; a joint that has
+#: not proved it within BRAKE_TEST_MAX_S fails the power-up, named with its likely cause.
+#: The loop then closes on the pose the power-up started from. While the joints move, the
+#: supervision's resolver, overspeed and tach-against-resolver checks run, so a reversed tach
+#: or a DAC driving the wrong way trips here, before any commanded motion (assumed figures:
+#: a quarter of full scale proves a joint in 40-80 ms, about 0.2-1 degree out and back)
+BRAKE_TEST_RATE_FRACTION = 0.25
+BRAKE_TEST_MAX_S = 0.4
+#: a joint proves itself only when its tach also shows the commanded direction (a reversed
+#: tach, or a DAC driving the wrong way, never passes), and fails at once when it goes further
+#: than this from where the test started (assumed: 2 degrees bounds a runaway to a small one)
+BRAKE_TEST_MAX_EXCURSION_RAD = math.radians(2.0)
 
 #: Data Acquisition's "tach ADC failed" hardware-check bit (controller.daq_layer.FAULT_TACH)
 TACH_FAULT_BIT = 2
@@ -65,17 +81,20 @@ TACH_FAULT_BIT = 2
 #: its period), 13 no servo output for the current servo period at Data Acquisition's output
 ERR_LIMIT, ERR_PARAMS, ERR_MISSED, ERR_NO_OUTPUT = 10, 11, 12, 13
 #: error report codes of the joint supervision (controller.supervision), one per check:
-#: 14 resolver jump, 15 overspeed, 16 tach against resolver, 17 stall, 18 following error
+#: 14 resolver jump, 15 overspeed, 16 tach against resolver, 17 stall, 18 following error;
+#: 19 the power-up brake test: a joint did not prove its brake released and its drive answering
 SUPERVISION_CODES = {check: 14 + n for n, check in enumerate(CHECKS)}
+ERR_BRAKE_TEST = 19
 #: ``servo.error`` by name: the codes above and every layer's (controller.layers.ERROR_NAMES)
 SERVO_ERROR_NAMES = {**ERROR_NAMES, ERR_LIMIT: "soft limit", ERR_PARAMS: "bad parameters",
                      ERR_MISSED: "controller missed frames", ERR_NO_OUTPUT: "no servo output",
-                     **{code: check for check, code in SUPERVISION_CODES.items()}}
+                     **{code: check for check, code in SUPERVISION_CODES.items()}, ERR_BRAKE_TEST: "brake test"}
 #: ``servo.brake_phase`` by name (the brake release and stop sequence)
 BRAKE_PHASE_NAMES = {0: "BRAKES SET", 1: "RATE ZEROED", 2: "LIMITS RAISED", 3: "RELEASED",
-                     4: "STOPPING", 5: "LIMITS ZERO"}
+                     4: "STOPPING", 5: "LIMITS ZERO", 6: "BRAKE TEST"}
+PHASE_BRAKE_TEST = 6
 #: brake phases in which the current limits may be raised: the joints are supervised
-_LIVE_PHASES = (2, 3, 4)
+_LIVE_PHASES = (2, 3, 4, PHASE_BRAKE_TEST)
 
 
 class LeadLag:
@@ -190,6 +209,95 @@ def predict_step(jf: JointFacts, step_rad: float, *, kp: float = DEFAULT_KP_PER_
     return StepPrediction(ts, qs, step_rad, over, settle)
 
 
+class BrakeTest:
+    """The power-up brake test's motion (:data:`BRAKE_TEST_RATE_FRACTION`): one instance per
+    test, stepped once per servo period with the supervision's brake states; plain floats
+    (it runs in the controller's frame, at power-up only).
+
+    Each joint: out at its test rate, away from its nearer soft limit, until its brake
+    state is PROVEN RELEASED and its tach shows the same way, or :data:`BRAKE_TEST_MAX_S` has
+    passed (then it failed: 0 at once, a stuck joint is not driven back); back at the
+    opposite rate until the tach shows that way too and for at least as long as it went out
+    (a command that reaches the joint one way only fails here); then 0. Beyond
+    :data:`BRAKE_TEST_MAX_EXCURSION_RAD` from the start it fails at once."""
+
+    def __init__(self, sup: JointSupervisor, q0: list[float], q_min: list[float], q_max: list[float],
+                 rate_limit: list[float]) -> None:
+        self.sup = sup
+        self.q0 = list(q0)
+        n = len(q0)
+        self.u: list[float] = []
+        #: whether the way back must be shown by the tach too: only with room for it before
+        #: the soft limit (a joint powered up at its limit comes back to the limit, where the
+        #: service's envelope holds the command at 0 V)
+        self.check_back: list[bool] = []
+        for k in range(n):
+            away = 1.0 if q0[k] <= 0.5 * (q_min[k] + q_max[k]) else -1.0
+            mag = min(sup.command_for_rate(k, BRAKE_TEST_RATE_FRACTION * sup.fs[k]), rate_limit[k])
+            self.u.append(away * mag)
+            room = q0[k] - q_min[k] if away > 0 else q_max[k] - q0[k]
+            self.check_back.append(room >= BRAKE_TEST_MAX_EXCURSION_RAD)
+        self.stage = [0] * n  # 0 out, 1 back, 2 done
+        self.t = 0.0
+        self.t_out = [0.0] * n
+        self.t_back = [0.0] * n
+        self.back = [False] * n  # the tach has shown the way back
+        self.excursion = [0.0] * n  #: furthest each joint went from q0 (rad)
+        self.failed: dict[int, str] = {}  #: joint -> what it did, its likely cause and the evidence
+        self.causes: dict[int, int] = {}  #: joint -> its likely cause (supervision.CAUSES index)
+
+    @property
+    def done(self) -> bool:
+        return all(st == 2 for st in self.stage)
+
+    def step(self, dt: float, q: list[float], w_tach: list[float]) -> list[float]:
+        """The rates for the next servo period (the supervision has taken this period's
+        sample, so its brake states are this period's)."""
+        self.t += dt
+        out = [0.0] * len(self.u)
+        brake = self.sup.brake_state
+        for k, u in enumerate(self.u):
+            if self.stage[k] == 2:
+                continue
+            d = abs((q[k] - self.q0[k] + math.pi) % (2 * math.pi) - math.pi)
+            if d > self.excursion[k]:
+                self.excursion[k] = d
+            if d > BRAKE_TEST_MAX_EXCURSION_RAD:
+                self._fail(k, u if self.stage[k] == 0 else -u, f"went {math.degrees(d):.1f} deg, beyond the test's "
+                                 f"{math.degrees(BRAKE_TEST_MAX_EXCURSION_RAD):g} deg")
+                continue
+            if self.stage[k] == 0:
+                shown = w_tach[k] * u > 0 and abs(w_tach[k]) >= STALL_MOTION_FRACTION * self.sup.fs[k]
+                if brake[k] == BRAKE_PROVEN and shown:
+                    self.stage[k], self.t_out[k] = 1, self.t
+                elif self.t >= BRAKE_TEST_MAX_S:
+                    self._fail(k, u, f"not within {BRAKE_TEST_MAX_S * 1e3:.0f} ms")
+                    continue
+                else:
+                    out[k] = u
+                    continue
+            self.t_back[k] += dt
+            if w_tach[k] * u < 0 and abs(w_tach[k]) >= STALL_MOTION_FRACTION * self.sup.fs[k]:
+                self.back[k] = True  # it answers the other direction too (the direction check)
+            if (self.back[k] or not self.check_back[k]) and self.t_back[k] >= self.t_out[k]:
+                self.stage[k] = 2
+            elif self.t_back[k] >= BRAKE_TEST_MAX_S:
+                self._fail(k, -u, f"not back within {BRAKE_TEST_MAX_S * 1e3:.0f} ms")
+            else:
+                out[k] = -u
+        return out
+
+    def _fail(self, k: int, u: float, how: str) -> None:
+        """Joint ``k`` failed: 0 at once (a stuck or runaway joint is not driven back), its
+        likely cause from its newest samples."""
+        jf = self.sup.joints[k]
+        cause, evidence = diagnose(jf, "stall", self.sup.recent(k))
+        self.failed[k] = (f"{jf.name} did not move as told at {u:+.3f} rad/s ({how}): likely "
+                          f"{CAUSES[cause]}: {evidence}")
+        self.causes[k] = cause
+        self.stage[k] = 2
+
+
 class ServoLayer(Layer):
     """Servo Control (layer 6)."""
 
@@ -218,6 +326,12 @@ class ServoLayer(Layer):
         #: the seventh amplifier (controller/gripper.py): its own task, 40 Hz
         self.gripper = GripperDrive(self)
         self.periodic["gripper_control"] = self.gripper.task
+        #: the power-up brake test (servo.brake_test, latched at init) and the running one
+        self.brake_test_on = True
+        self.brake_test: BrakeTest | None = None
+        self._q_powerup: list[float] = []  # the pose the power-up started from (the test returns there)
+        self._testing = False  # the start-up sequence is in its brake test
+        self._tach: list[float] = [0.0] * N_JOINTS  # the tach rates of the last supervised sample
 
     @property
     def brake_phase(self) -> int:
@@ -278,15 +392,23 @@ class ServoLayer(Layer):
                         + " (SET: limit 0, joint still; PROVEN RELEASED: moved as told since its limit was "
                           "raised; controller/supervision.py)"),
             VarSpec("servo.brake_phase", "task_status", "i2", (), "servo", 0,
-                    doc="the brake sequence: set, rate zeroed, limits raised, released (loop closed), "
-                        "stopping, limits zero", enum=BRAKE_PHASE_NAMES),
+                    doc="the brake sequence: set, rate zeroed, limits raised, brake test, released (loop "
+                        "closed), stopping, limits zero", enum=BRAKE_PHASE_NAMES),
+            VarSpec("servo.brake_test", "control_flags", "i2", (), "user", 1, protected=True,
+                    enum={0: "off", 1: "on"},
+                    doc="the power-up brake test: each joint moves a little out and back (at a quarter of "
+                        "its full-scale rate, about 0.2-1 deg) to prove its brake released and its drive "
+                        "answering before START UP COMPLETE; a joint that does not fails the power-up, "
+                        "named (off: the brakes are taken as released when the limits are raised; "
+                        "protected: not while powered up)"),
         ] + gripper_specs()
 
     # --- sequence tasks ------------------------------------------------------------------
     def seq_init(self, rt: "LayerContext") -> TaskState:
         names = ("kp_per_s", "tau_z_s", "tau_p_s", "rate_limit_rad_s", "current_limit_a", "q_min_rad", "q_max_rad",
                  "ferror_min_rad", "ferror_max_rad", "ferror_time_s")
-        v = rt.wm.get_task_inputs([f"servo.{n}" for n in names])
+        v = rt.wm.get_task_inputs([f"servo.{n}" for n in names] + ["servo.brake_test"])
+        self.brake_test_on = bool(int(v["servo.brake_test"]))
         p = {n: np.array(v[f"servo.{n}"], dtype=float) for n in names}
         self.period_s = rt.task_period_s("servo_control")
         try:
@@ -333,18 +455,29 @@ class ServoLayer(Layer):
         its time-out counting from the first frame after the resume's re-arm."""
         if self.task_frames == 0:
             rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS), "servo.rate_cmd_frame": -1})
+            self._testing = False
             self._brake_phase(rt, 1)
             return TaskState.RUNNING
         if self._phase == 1:  # the gripper's stays 0 until its drive runs (START UP COMPLETE)
             rt.wm.post_task_outputs("servo", {"servo.current_limit_cmd_a": self.limits_cmd(0.0)})
             self._brake_phase(rt, 2)
             return TaskState.RUNNING
+        if self._testing:
+            return self._brake_test_result(rt)
         v = rt.wm.get_task_inputs(("daq.brakes_released", "daq.joint_angle_rad"))
         if bool(v["daq.brakes_released"]):
             self.hold = np.array(v["daq.joint_angle_rad"], dtype=float)
-            self.comp.reset(0.0)
             rt.post(self.key, Level.INFO, f"brakes released {(rt.now - self._t_phase) * 1e3:.1f} ms after the "
-                                          f"current limits were raised; holding the present angles")
+                                          f"current limits were raised"
+                                          + ("; brake test: each joint out and back" if self.brake_test_on else
+                                             "; holding the present angles (brake test off)"))
+            if self.brake_test_on:
+                self._q_powerup = self.hold.tolist()
+                self.brake_test = None  # started by the next servo period (control_task)
+                self._testing = True
+                self._brake_phase(rt, PHASE_BRAKE_TEST)
+                return TaskState.RUNNING
+            self.comp.reset(0.0)
             self._brake_phase(rt, 3)
             return TaskState.DONE
         if rt.halted:
@@ -355,6 +488,37 @@ class ServoLayer(Layer):
                                            f"current limits were raised")
             return TaskState.FAILED
         return TaskState.RUNNING
+
+    def _brake_test_result(self, rt: "LayerContext") -> TaskState:
+        """The brake test's end: every joint proved -> the loop closes on the power-up's
+        pose (DONE); a joint that did not -> the layer's fault naming it (every current
+        limit 0 at once, as a supervision trip) and FAILED."""
+        bt = self.brake_test
+        if self.fault:  # a supervision check tripped while the joints moved (it named the joint)
+            self._testing = False
+            return TaskState.FAILED
+        if bt is None or not bt.done:
+            return TaskState.RUNNING
+        self._testing = False
+        if bt.failed:
+            k = min(bt.failed)
+            self.trip = Trip(k, "brake test", bt.causes[k], bt.failed[k])
+            self.set_fault(rt, ERR_BRAKE_TEST, "brake test: " + "; ".join(bt.failed[j] for j in sorted(bt.failed))
+                           + "; current limits 0 (brakes on)")
+            self._u_sent = [0.0] * N_JOINTS
+            rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS), "servo.rate_cmd_frame": -1,
+                                              "servo.current_limit_cmd_a": self._zero_limits,
+                                              "servo.trip_joint": k, "servo.trip_cause": bt.causes[k]})
+            self._brake_phase(rt, 5)
+            return TaskState.FAILED
+        self.hold = np.array(self._q_powerup, dtype=float)
+        self.comp.reset(0.0)
+        worst = max(range(N_JOINTS), key=lambda j: bt.excursion[j])
+        rt.post(self.key, Level.INFO, f"brake test passed in {bt.t * 1e3:.0f} ms: every joint moved as told "
+                                      f"(brakes PROVEN RELEASED; furthest {math.degrees(bt.excursion[worst]):.2f} deg, "
+                                      f"{JOINTS[worst].name}); holding the power-up pose")
+        self._brake_phase(rt, 3)
+        return TaskState.DONE
 
     def seq_shutdown(self, rt: "LayerContext") -> TaskState:
         """Safe stop (pfma-model 8.4): rate 0 V; wait |qdot| < 0.01 rad/s or 0.5 s; limits 0 V."""
@@ -409,17 +573,21 @@ class ServoLayer(Layer):
         q_cmd = np.asarray(v["servo.q_cmd_rad"], dtype=float) if bool(v["servo.q_cmd_valid"]) else self.hold
         q_cmd = np.clip(q_cmd, p["q_min_rad"], p["q_max_rad"])
         if live:
-            if not closed:
+            if not closed and self._phase != PHASE_BRAKE_TEST:
                 self._u_sent = [0.0] * N_JOINTS
             dt = (frame - self._sup_frame) * self.frame_period_s if self._sup_frame >= 0 else 0.0
             self._sup_frame = frame
-            trip = self.sup.update(dt, q.tolist(), np.asarray(v["daq.joint_rate_rad_s"]).tolist(), np.asarray(v["daq.motor_current_a"]).tolist(),
+            self._tach = np.asarray(v["daq.joint_rate_rad_s"]).tolist()
+            trip = self.sup.update(dt, q.tolist(), self._tach, np.asarray(v["daq.motor_current_a"]).tolist(),
                                    self._u_sent, np.asarray(v["servo.current_limit_cmd_a"]).tolist(),
                                    closed and self._phase == 3, q_cmd.tolist())
             self._post_brakes(wm)
             if trip is not None:
                 self._trip(rt, trip)
                 return
+        if self._phase == PHASE_BRAKE_TEST:
+            self._brake_test_step(rt, q, frame)
+            return
         if not closed:
             return
         e = q_cmd - q
@@ -438,6 +606,23 @@ class ServoLayer(Layer):
         wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": rate, "servo.error_rad": e,
                                        "servo.ferror_rad": self.sup.ferror_rad,
                                        "servo.rate_cmd_frame": frame})
+
+    def _brake_test_step(self, rt: "LayerContext", q: np.ndarray, frame: int) -> None:
+        """One servo period of the power-up brake test (:class:`BrakeTest`): its rates,
+        stamped with this frame. Halted (the outputs held safe, nothing moves): the test
+        starts again after the resume."""
+        if rt.halted:
+            self.brake_test = None
+            self._u_sent = [0.0] * N_JOINTS
+            return
+        p = self.params
+        if self.brake_test is None:
+            assert self.sup is not None
+            self.brake_test = BrakeTest(self.sup, self._q_powerup or q.tolist(), p["q_min_rad"].tolist(),
+                                        p["q_max_rad"].tolist(), p["rate_limit_rad_s"].tolist())
+        rates = self.brake_test.step(self.period_s, q.tolist(), self._tach)
+        self._u_sent = rates
+        rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.array(rates), "servo.rate_cmd_frame": frame})
 
     def _post_brakes(self, wm) -> None:
         """``servo.brake_state``, posted when it changes (rarely)."""

@@ -257,6 +257,11 @@ class JointSupervisor:
         self._bq_w = [0.0] * n
         self.reset()
 
+    def command_for_rate(self, k: int, rate: float) -> float:
+        """The rate command (rad/s) whose nominal steady rate on joint ``k`` is ``rate`` (>= 0):
+        the rate loop's droop and Coulomb dead band added back (the stall check's model)."""
+        return rate / self._gain[k] + self._dead[k]
+
     def reset(self) -> None:
         """Forget the past (a new power-up): the next sample only primes."""
         n = len(self.joints)
@@ -382,6 +387,8 @@ class JointSupervisor:
                         t_stall[k] += dt
                     elif t_stall[k]:
                         t_stall[k] = 0.0
+                    if t_stall[k] >= 0.5 * STALL_TIME_S and brake[k] == BRAKE_PROVEN:
+                        brake[k] = BRAKE_UNPROVEN  # told to move and not moving: no longer proven
                     lim = fe_min + fe_span * min(1.0, abs(wm) / fs)
                     if e > lim or -e > lim:
                         t_fe[k] += dt

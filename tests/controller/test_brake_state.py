@@ -20,10 +20,22 @@ def _state(sim) -> list[int]:
     return [int(x) for x in sim.rt.wm.get("servo.brake_state")]
 
 
-def test_holding_after_power_up_is_unproven_a_move_proves_it_a_power_down_sets_it(powered):
+def test_the_power_up_brake_test_proves_every_brake_a_power_down_sets_them(powered):
     sim = powered
-    assert _state(sim) == [BRAKE_UNPROVEN] * 6  # limits raised, no commanded motion yet
+    assert _state(sim) == [BRAKE_PROVEN] * 6  # the power-up's brake test moved each out and back
     assert "2 PROVEN RELEASED" in sim.rt.wm.spec("servo.brake_state").doc
+    sim.rt.request(Request.POWER_DOWN)
+    sim.step(600)
+    assert sim.rt.all_status(Status.SHUT_DOWN)
+    assert _state(sim) == [BRAKE_SET] * 6  # limits 0 and every joint still: the last thing sensed
+
+
+def test_without_the_brake_test_holding_is_unproven_a_move_proves_it(sim):
+    wm = sim.rt.wm
+    wm.set_user("servo.brake_test", 0, wm.access_key)
+    sim.power_up(max_frames=400)
+    sim.step(20)
+    assert _state(sim) == [BRAKE_UNPROVEN] * 6  # limits raised, no commanded motion yet
     k = JOINT_NAMES.index("elbow_pitch")
     goal = np.array(sim.rt.wm.get("daq.joint_angle_rad"))
     goal[k] -= 0.2
@@ -37,10 +49,13 @@ def test_holding_after_power_up_is_unproven_a_move_proves_it_a_power_down_sets_i
     assert _state(sim) == [BRAKE_SET] * 6  # limits 0 and every joint still: the last thing sensed
 
 
-def test_a_held_brake_never_proves_released():
+def _held_brake_after_power_up(brake_test: int) -> list[int]:
+    """Power up (the brake test on or off), then hold shoulder yaw's brake and tell it to move:
+    its brake state, sample by sample, until the stall check trips it."""
     from sim.faults import FaultSet
     from sim.system import SystemSimulator
     with SystemSimulator() as sim:
+        sim.rt.wm.set_user("servo.brake_test", brake_test, sim.rt.wm.access_key)
         sim.step(10)
         sim.power_up(400)
         sim.step(20)
@@ -49,14 +64,27 @@ def test_a_held_brake_never_proves_released():
         goal = np.array(sim.rt.wm.get("daq.joint_angle_rad"))
         goal[k] += 0.3
         sim.rt.set_joint_goal(goal)
-        seen = set()
+        seen = []
         for _ in range(200):
             sim.step(1)
-            seen.add(_state(sim)[k])
+            seen.append(_state(sim)[k])
             if sim.rt.servo.trip is not None:
                 break
         assert sim.rt.servo.trip is not None and sim.rt.servo.trip.joint == k  # the stall check stops it
-        assert BRAKE_PROVEN not in seen and BRAKE_UNPROVEN in seen
+        return seen
+
+
+def test_a_held_brake_never_proves_released():
+    seen = _held_brake_after_power_up(brake_test=0)
+    assert BRAKE_PROVEN not in seen and BRAKE_UNPROVEN in seen
+
+
+def test_a_proven_brake_that_then_holds_is_proven_no_more_before_the_trip():
+    """Proven at power-up by the brake test, then held (a seized brake): told to move and
+    not moving for half the stall time, it is UNPROVEN again, before the stall trip."""
+    seen = _held_brake_after_power_up(brake_test=1)
+    assert seen[0] == BRAKE_PROVEN and BRAKE_UNPROVEN in seen
+    assert seen[seen.index(BRAKE_UNPROVEN):] == [BRAKE_UNPROVEN] * (len(seen) - seen.index(BRAKE_UNPROVEN))
 
 
 def test_the_rule_on_made_up_samples():

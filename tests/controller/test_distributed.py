@@ -137,7 +137,7 @@ def test_cli_simulates_every_process(capsys):
     out = capsys.readouterr().out
     assert "process planners: updown=START_UP_COMPLETE  msp=START_UP_COMPLETE" in out
     assert "process rack: joint=START_UP_COMPLETE  servo=START_UP_COMPLETE  daq=START_UP_COMPLETE" in out
-    assert "power-up: every layer START UP COMPLETE after 45 frames" in out
+    assert "power-up: every layer START UP COMPLETE after 77 frames" in out
 
 
 # --- sections and ownership -------------------------------------------------------------------

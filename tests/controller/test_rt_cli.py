@@ -27,11 +27,11 @@ def test_step_prints_one_line_per_minor_frame(capsys):
 
 
 def test_halt_single_steps_from_the_keyboard(capsys, monkeypatch):
-    monkeypatch.setattr("sys.stdin", io.StringIO("s 2\np\ns 60\nt\nq\n"))
+    monkeypatch.setattr("sys.stdin", io.StringIO("s 2\np\ns 100\nt\nq\n"))  # the power-up with its brake test
     assert main(["controller", "--sim", "--wm", "none", "--halt", "--messages", "3"]) == 0
     out = capsys.readouterr().out
     assert "request 1: POWER UP" in out
-    assert "UPDN=START UP COMPLETE" in out  # 't' after 60 single steps
+    assert "UPDN=START UP COMPLETE" in out  # 't' after 100 single steps
 
 
 def test_tables_option_prints_tables_and_schedule(capsys):

@@ -135,8 +135,11 @@ def test_power_up_takes_the_index_says_it_and_holds_the_tool_where_it_is():
         sim.step(320)
         assert sim.rt.all_status(Status.START_UP_COMPLETE)
         p, _ = sim.tool_pose()
-        assert np.linalg.norm(p - p0) < 0.005  # the servo's sag under gravity, nothing more
-        assert np.linalg.norm(wm.get("cart.pos_cmd_m") - p0) < 0.002  # held where the tool was
+        # the servo's sag under gravity and the brake test's out and back (back within the
+        # joints' friction dead band, about 0.7 deg of wrist roll), nothing more: 0.25 m if the
+        # index were ignored
+        assert np.linalg.norm(p - p0) < 0.010
+        assert np.linalg.norm(wm.get("cart.pos_cmd_m") - p0) < 0.010  # held where the tool was
         assert np.linalg.norm(wm.get("joint.tool_pos_m") - p) < 0.002  # measured with the index
 
 

@@ -1026,6 +1026,9 @@ def _shell_roll_confirmed(link, given: int | None) -> bool:
            "check the joint's index pin; --shoulder-roll DEG says it")
     print(f"POWER UP with the shoulder-roll index {t} (joint.shoulder_roll_deg; indexed by hand, no sensor: "
           f"{how})", flush=True)
+    if "servo.brake_test" in link.wm.names() and int(link.wm.get("servo.brake_test")):
+        print("the power-up tests every brake: each joint moves a little out and back (about a degree) "
+              "before START UP COMPLETE (servo.brake_test); keep clear", flush=True)
     return True
 
 

@@ -22,7 +22,7 @@ from controller.cartesian import CartesianLayer
 from controller.daq_layer import FAULT_NAMES, DataAcquisitionLayer
 from controller.decision import Command, Status, status_text
 from controller.layers import TASK_NAMES, JointPlannerLayer, UpDownLayer
-from controller.params import shoulder_roll_text
+from controller.params import JOINT_NAMES, shoulder_roll_text
 from controller.paths import MultiSegmentLayer
 from controller.servo import ServoLayer
 from controller.trajectory import TrajectoryLayer
@@ -108,7 +108,7 @@ class Sources:
         extra = ("runtime.halted", "runtime.steps_left", "runtime.step_frames", "runtime.frames", "runtime.rate_hz",
                  "runtime.missed_frames", "daq.fault_bits", "daq.joint_angle_rad", "daq.joint_rate_rad_s", "daq.camera_route",
                  "ui.response_seq", "ui.response", "ui.response_text", "runtime.first_cause",
-                 "joint.shoulder_roll_deg")
+                 "joint.shoulder_roll_deg", "servo.brake_state")
         extra += GRIPPER_VARS
         self.wm_vars = self.layer_vars + tuple(n for n in extra if n in names)
         self.messages: deque[ConsoleMessage] = deque(maxlen=MESSAGES_KEPT)
@@ -203,7 +203,7 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
     lines = [rack_line(rack) + ("" if speed is None else f"; time x{speed:.2f}"),
              f"service {r.service_state:<8} frame {r.frame:<9} t {r.t_s:9.3f} s  "
              f"{float(st.rate_hz):6.1f} Hz  fault {name_of(s.fault_code, FAULT_CODE_NAMES)}",
-             f"outputs {outputs_word}  brakes "
+             f"outputs {outputs_word}  brakes commanded "
              f"{'released' if int(s.brakes_released) else 'set'}  watchdog "
              f"{'TRIPPED' if int(s.watchdog_tripped) else 'ok'} (command age {float(s.command_age_s) * 1e3:.1f} ms)"]
     ctl = (f"controller ({r.controller_owner or '?'}): "
@@ -217,7 +217,8 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
     lines += first_cause_lines(r)
     if halted:
         lines.append("HALTED: the motion below is measured, the outputs as the service holds them")
-    lines += joint_lines(s)
+    joints = joint_lines(s)
+    lines += joints[:1] + brake_row(r, s) + joints[1:]
     f, t = s.ft_force_n, s.ft_torque_nm
     lines.append(f"F/T  F ({float(f[0]):+7.2f}, {float(f[1]):+7.2f}, {float(f[2]):+7.2f}) N  "
                  f"T ({float(t[0]):+6.3f}, {float(t[1]):+6.3f}, {float(t[2]):+6.3f}) N*m")
@@ -253,6 +254,9 @@ def power_up_question(deg: float) -> str:
         f"as {t} (joint.shoulder_roll_deg).",
         "",
         f"Check the joint's index pin: is the shoulder roll pinned at {t}?",
+        "",
+        "The power-up then tests every brake (servo.brake_test): each joint moves a",
+        "little out and back (about a degree) before START UP COMPLETE. Keep clear.",
         "",
         "y / Enter    yes: power up",
         "p            no: change the index (the parameters, powered down), then u again",
@@ -300,6 +304,25 @@ def _short(joint: str) -> str:
 
 _SHORT = {"shoulder": "sh", "elbow": "elb", "wrist": "wr"}
 _JOINT_SLOTS: dict[int, tuple[tuple[str, ...], list[int], list[int], list[int]]] = {}
+
+
+#: ``servo.brake_state`` as World Status shows it (controller.supervision.BRAKE_STATE_NAMES)
+_BRAKE_WORDS = {0: "SET", 1: "unproven", 2: "released"}
+
+
+def brake_row(r: Reading, s) -> list[str]:
+    """Each joint's brake as the sensors showed it (``servo.brake_state``: the controller's,
+    never the command; issue 30 item 3), under the joint names of :func:`joint_lines`;
+    nothing while no controller runs (the last state it posted would be old)."""
+    states = r.wm.get("servo.brake_state")
+    if states is None or not r.controller_alive:
+        return []
+    by_name = {n: int(v) for n, v in zip(JOINT_NAMES, states)}
+    try:
+        names = tuple(s.layout.joint_names)
+    except (AttributeError, LookupError, ValueError):
+        return []
+    return ["brake      " + " ".join(f"{_BRAKE_WORDS.get(by_name.get(n, -1), '?'):>10}" for n in names)]
 
 
 def joint_lines(s) -> list[str]:

@@ -203,7 +203,7 @@ def test_halted_world_status_shows_measured_motion_and_held_outputs(sim, console
         assert f"{frozen:+.4f}" not in rates
         volts = next(ln for ln in world if ln.startswith("V out"))
         assert volts.split()[2:] == ["+0.000"] * len(names)  # the held outputs: 0 V
-        assert any("outputs safe (0 V)  brakes set" in ln for ln in world)
+        assert any("outputs safe (0 V)  brakes commanded set" in ln for ln in world)
         angles = next(ln for ln in world if ln.startswith("rad ")).split()[1:]
         assert all(-np.pi < float(a) <= np.pi for a in angles)
     run_at(console, (120, 40), body)
