@@ -8,6 +8,10 @@ its PWM/rate servo card (IRSS report 3.6, pfma-model.md 8.4)::
     joint torque  tau_m = N eta K_t I
     brake         engaged below 0.3 V current limit, released above 0.5 V (hysteresis);
                   holds up to 1.5 x the max joint torque, then slips
+    front panel   the servo chassis' switches (IRSS 3.6, SimErrors.panel_*): a PWM stage off:
+                  I = 0 on that axis; a brake release switch off: that brake set; the
+                  +/-15 V converter off (or the +28 V that feeds it): I = 0 on every axis,
+                  every brake set, current monitors and tach filter outputs at 0 V
     J qddot = tau_m + tau_gravity + tau_contact + tau_stop - b qdot - F_c sgn(qdot) - brake
 
 The gripper's jaw (axis 6, opening in m) has hard stops at 0 (closed) and its travel; an
@@ -34,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fakes.arm_params import N_AXES, N_JOINTS, NOMINAL, ArmParams, SimErrors
+from fakes.arm_params import BRAKE_LOGIC_ON_15V, N_AXES, N_JOINTS, NOMINAL, ArmParams, SimErrors
 from fakes.environment import Environment, point_load_wrench, tool_gravity_wrench
 from fakes.kinematics import Kinematics
 
@@ -64,8 +68,8 @@ class ArmModel:
     :param params: nominal parameters (default :data:`fakes.arm_params.NOMINAL`)
     :param environment: contact objects (default: free space)
     :param errors: known departures from nominal (``tach_scale_error``, ``payload_kg`` and
-        the motion faults ``brake_held``, ``amp_off``, ``load_nm`` act here; resolver/ADC/DAC
-        errors act in ``SimulatedRack``)
+        the motion faults ``brake_held``, ``amp_off``, ``load_nm`` and the front-panel
+        switches ``panel_*`` act here; resolver/ADC/DAC errors act in ``SimulatedRack``)
     :param q0: initial positions, 7 values (default ``params.q_initial``, the 8.1 ready pose)
     :param shoulder_roll_rad: manual shoulder-roll index (tilts gravity in the base frame)
     """
@@ -116,9 +120,20 @@ class ArmModel:
         """Install new truth errors (tach scale, payload) for the following steps."""
         self.errors = errors
         self.k_w_true = self.k_w * (1.0 + np.asarray(errors.tach_scale_error, dtype=float))
-        # motion faults (sim.faults brake-held / amp-off / load)
-        self._brake_held = np.asarray(errors.brake_held, dtype=bool) & self.brake_fitted
-        self._amp_on = ~np.asarray(errors.amp_off, dtype=bool)
+        # motion faults (sim.faults brake-held / amp-off / load) and the servo control
+        # chassis' front-panel switches (sim.faults panel-off:...), kept apart in SimErrors
+        # and combined here: either one sets a brake or turns a PWM stage off
+        brake_set = np.asarray(errors.brake_held, dtype=bool) | np.asarray(errors.panel_brake_off, dtype=bool)
+        stage_off = np.asarray(errors.amp_off, dtype=bool) | np.asarray(errors.panel_pwm_off, dtype=bool)
+        #: the +/-15 V DC-DC converter is on (it runs from the chassis' +28 VDC, IRSS 3.6):
+        #: False, the rate servo cards, current monitors and tach filter buffers are unpowered
+        self.analog_powered = not (errors.panel_28v_off or errors.panel_15v_off)
+        if not self.analog_powered:
+            stage_off = np.ones(N_AXES, dtype=bool)  # no drive from an unpowered rate servo card
+            if errors.panel_28v_off or BRAKE_LOGIC_ON_15V:  # no coil power, or no threshold logic
+                brake_set = np.ones(N_AXES, dtype=bool)
+        self._brake_held = brake_set & self.brake_fitted
+        self._amp_on = ~stage_off
         self._load_nm = np.asarray(errors.load_nm, dtype=float)
         self._faulted = bool(self._brake_held.any() or not self._amp_on.all() or self._load_nm.any())
         self._g_key = None
@@ -163,8 +178,21 @@ class ArmModel:
     # -- outputs ------------------------------------------------------------------
     @property
     def current_monitor_volts(self) -> np.ndarray:
-        """Motor current monitor, V = 10 I / I_max (8.4)."""
+        """Motor current monitor, V = 10 I / I_max (8.4); 0 V while the +/-15 V that
+        powers the servo cards' monitors is off (``SimErrors.panel_15v_off``, ``panel_28v_off``)."""
+        if not self.analog_powered:
+            return np.zeros(N_AXES)
         return 10.0 * self.current_a / self.i_max
+
+    @property
+    def tach_output_volts(self) -> np.ndarray:
+        """What the tach filter cards output, the tach voltage the ADC reads (IRSS 3.6.3: an
+        RC filter, then a voltage-follower buffer): V_tf, or 0 V while the +/-15 V that
+        powers the buffers is off. The RC filter is passive: ``tach_volts`` (V_tf) keeps
+        following the tach meanwhile, and the buffer shows it again once powered."""
+        if not self.analog_powered:
+            return np.zeros(N_AXES)
+        return self.tach_volts
 
     def state(self) -> ArmState:
         """A copy of the true state."""
@@ -299,7 +327,7 @@ class ArmModel:
         brake &= self.brake_fitted
         i_lim = self.i_max * v_ilim
         i_lim *= 0.1
-        if self._faulted:  # a held brake, an amplifier stage off (no current at all)
+        if self._faulted:  # a held brake, an amplifier stage off (no current at all), a panel switch off
             brake = brake | self._brake_held
             i_lim *= self._amp_on
         self.brake_engaged = brake

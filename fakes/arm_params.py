@@ -110,6 +110,14 @@ AXES: tuple[AxisParams, ...] = (
 N_AXES = len(AXES)
 N_JOINTS = 6  #: the six arm joints (resolver + DH); axis 6 is the gripper
 
+#: Assumed (this project), BRAKE_LOGIC_ON_15V: the brake release cards' threshold logic
+#: (release above 0.5 V of current limit, engage below 0.3 V; pfma-model 8.4) is analog and
+#: runs on the servo chassis' +/-15 V, so with the +/-15 V DC-DC converter off no card
+#: switches the +28 VDC to its release coil and every brake stays set (IRSS 3.6.2 says only
+#: that the cards apply 28 VDC to the coils when the front-panel switches are on and the
+#: current-limit threshold is raised). Used by the front-panel fault ``panel-off:15v``.
+BRAKE_LOGIC_ON_15V = True
+
 
 @dataclass(frozen=True)
 class DhRow:
@@ -219,13 +227,32 @@ class SimErrors:
     load_nm: tuple[float, ...] = (0.0,) * N_AXES
     """Motion fault: an external torque on each axis, N*m (gripper: N): a snagged cable,
     an unexpected payload, a collision held against the arm."""
+    # The servo control chassis' front-panel switches (IRSS 3.6), the operator's: kept
+    # apart from the faults above (a seized brake, a failed stage) so that turning a switch
+    # back on never clears one of them; the arm model combines both.
+    panel_28v_off: bool = False
+    """Central switch: the chassis' +28 VDC supply off. No PWM drive on any axis, no power
+    for the brake release coils (every brake set whatever the current limit), and the
+    +/-15 V DC-DC converter it feeds unpowered too (every effect of ``panel_15v_off``)."""
+    panel_15v_off: bool = False
+    """Central switch: the +/-15 V DC-DC converter off. The analog electronics are
+    unpowered: the rate servo cards give no drive (no motor current on any axis), the
+    motor-current monitors and the tach filter cards' buffers output 0 V, and the brake
+    release cards' threshold logic sets every brake (:data:`BRAKE_LOGIC_ON_15V`)."""
+    panel_pwm_off: tuple[bool, ...] = (False,) * N_AXES
+    """Left switches: the axis's PWM output stage off (seven: six joints and the gripper):
+    no motor current on that axis."""
+    panel_brake_off: tuple[bool, ...] = (False,) * N_AXES
+    """Right switches: +28 VDC to the joint's brake release circuit off (six joints; the
+    gripper's entry has no effect, it has no brake): the brake stays set whatever the
+    current limit."""
 
     def __post_init__(self) -> None:
         if len(self.resolver_offset_rad) != N_JOINTS:
             raise ValueError(f"resolver_offset_rad needs {N_JOINTS} values, got {len(self.resolver_offset_rad)}")
         if len(self.tach_scale_error) != N_AXES:
             raise ValueError(f"tach_scale_error needs {N_AXES} values, got {len(self.tach_scale_error)}")
-        for name in ("brake_held", "amp_off", "load_nm"):
+        for name in ("brake_held", "amp_off", "load_nm", "panel_pwm_off", "panel_brake_off"):
             if len(getattr(self, name)) != N_AXES:
                 raise ValueError(f"{name} needs {N_AXES} values, got {len(getattr(self, name))}")
         if self.payload_kg < 0:

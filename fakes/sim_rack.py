@@ -8,9 +8,10 @@ boards' physical-side hooks:
 
 - resolver angles -> RTD fakes (``<joint>_angle`` signals), wrapped to 0..2 pi:
   ``reading = wrap(q + resolver_offset_rad)`` (resolver zero = DH zero + offset, 0 nominal);
-- filtered tach volts V_tf -> ADC ``<joint>_rate`` (``shoulder_roll_rate`` stays 0 V:
-  the shoulder roll is indexed by hand);
-- motor current monitor 10 I / I_max -> ADC ``<joint>_motor_current``;
+- filtered tach volts V_tf, as the tach filter card's buffer outputs it
+  (``ArmModel.tach_output_volts``: 0 V while the servo chassis' +/-15 V is off) -> ADC
+  ``<joint>_rate`` (``shoulder_roll_rate`` stays 0 V: the shoulder roll is indexed by hand);
+- motor current monitor 10 I / I_max (0 V without the +/-15 V) -> ADC ``<joint>_motor_current``;
 - CAE hand-controller volts (``set_cae``) -> ADC ``cae_*``.
 
 Every channel is found by signal name in the rack configuration; nothing here knows a
@@ -272,7 +273,7 @@ class SimulatedRack:
         q = arm.q
         for axis, (board, ch) in self.angle.items():
             self.fake_rack[board].set_angle_rad(ch, (q[axis] + self._resolver_offset[axis]) % _TWO_PI)
-        tach, imon = arm.tach_volts, arm.current_monitor_volts
+        tach, imon = arm.tach_output_volts, arm.current_monitor_volts  # 0 V without the +/-15 V
         for m in self._adc.values():
             m.volts[m.rate_ch] = tach[m.rate_axis]
             m.volts[m.cur_ch] = imon[m.cur_axis]

@@ -29,6 +29,15 @@ spec                                      what the hardware does
 ``amp-off:JOINT``                         the joint's PWM stage is off: no motor current at all
 ``load:JOINT=NM``                         an external torque of NM N*m on the joint (a snag,
                                           an unexpected payload, a collision)
+``panel-off:28v``                         servo chassis front panel (IRSS 3.6): the +28 VDC
+                                          supply off: no drive on any axis, every brake set,
+                                          and the +/-15 V converter unpowered (as below)
+``panel-off:15v``                         the +/-15 V DC-DC converter off: no motor current,
+                                          current monitors and tach outputs 0 V, brakes set
+``panel-off:pwm:JOINT``                   the PWM output stage switch of a joint or the
+                                          gripper off: no motor current on that axis
+``panel-off:brake:JOINT``                 a joint's brake release switch off: its brake stays
+                                          set whatever the current limit (not the gripper)
 ``ft-noise``                              = ``serial-noise:`` the F/T line (the checkout's name)
 ========================================  ==================================================
 
@@ -86,6 +95,15 @@ KINDS: dict[str, tuple[str, str]] = {
     "amp-off": ("amp-off:JOINT", "the joint's amplifier (PWM stage) is off: no motor current"),
     "load": ("load:JOINT=NM", "an external torque of NM N*m on the joint (snag, payload, collision)"),
     "switcher-silent": ("switcher-silent", "the matrix video switcher never acknowledges a route (its strobe handshake)"),
+    # the servo control chassis' front-panel switches (IRSS 3.6): one kind, a row per switch
+    "panel-off:28v": ("panel-off:28v", "servo chassis +28 VDC off: no drive on any axis, every brake set, "
+                                       "no +/-15 V either"),
+    "panel-off:15v": ("panel-off:15v", "servo chassis +/-15 V converter off: no motor current, monitors and "
+                                       "tachs read 0 V, brakes set"),
+    "panel-off:pwm": ("panel-off:pwm:JOINT", "the front-panel switch of a joint's (or the gripper's) PWM "
+                                             "stage off: no motor current"),
+    "panel-off:brake": ("panel-off:brake:JOINT", "the front-panel brake release switch of a joint off: its "
+                                                 "brake stays set"),
 }
 
 
@@ -513,6 +531,62 @@ def _parse_amp_off(spec: str, arg: str, rack: RackConfig) -> Fault:
     return _axis_error(spec, ("amp-off", arg), f"amplifier (PWM stage) of {arg} off", "amp_off", i, True)
 
 
+#: the servo control chassis' front-panel switches (IRSS 3.6), ``panel-off:SWITCH[:JOINT]``:
+#: switch -> (the SimErrors field it sets, what it is)
+PANEL_SWITCHES: dict[str, tuple[str, str]] = {
+    "28v": ("panel_28v_off", "+28 VDC"),
+    "15v": ("panel_15v_off", "+/-15 V converter"),
+    "pwm": ("panel_pwm_off", "PWM stage switch"),
+    "brake": ("panel_brake_off", "brake release switch"),
+}
+PANEL_SYNTAX = "panel-off:28v|15v|pwm:JOINT|brake:JOINT"
+
+
+def _parse_panel(spec: str, arg: str, rack: RackConfig) -> Fault:
+    """A front-panel switch of the servo control chassis turned off (its own SimErrors
+    fields: clearing it never clears a ``brake-held`` or ``amp-off``, nor they it)."""
+    from fakes.arm_params import AXES
+    switch, _, name = arg.partition(":")
+    if not switch:
+        raise _fail(spec, f"needs a switch: {PANEL_SYNTAX}")
+    if switch not in PANEL_SWITCHES:
+        raise _fail(spec, f"unknown switch {switch!r}"
+                    + (did_you_mean(switch, PANEL_SWITCHES) or "") + f"; switches: {PANEL_SYNTAX}")
+    field, what = PANEL_SWITCHES[switch]
+    kind = f"panel-off:{switch}"
+    if switch in ("28v", "15v"):
+        if name:
+            raise _fail(spec, f"{kind} takes no joint (one switch for the whole chassis)")
+        if switch == "28v":
+            text = (f"servo chassis {what} off: no PWM drive on any axis, every brake set, "
+                    "the +/-15 V converter unpowered")
+        else:
+            text = (f"servo chassis {what} off: no motor current, current monitors and "
+                    "tach filter outputs at 0 V, every brake set")
+
+        def change(e):
+            old = getattr(e, field)
+            return replace(e, **{field: True}), lambda e2: replace(e2, **{field: old})
+        fault: Fault = _ErrorsFault(spec, ("panel-off", switch), text, change)
+    else:
+        if not name:
+            raise _fail(spec, f"needs a joint: {kind}:JOINT")
+        if switch == "brake":
+            if name == "gripper":
+                raise _fail(spec, "the gripper has no brake: the right-hand panel switches release the "
+                                  "six joints' brakes (IRSS 3.6)")
+            braked = [a.joint for a in AXES if a.brake]
+            if name not in braked:
+                raise _fail(spec, f"no joint {name!r}" + (did_you_mean(name, braked) or "")
+                            + f"; joints with a brake: {', '.join(braked)}")
+            text = f"front-panel {what} of {name} off: brake set whatever the current limit"
+        else:
+            text = f"front-panel {what} of {name} off: no motor current"
+        fault = _axis_error(spec, ("panel-off", switch, name), text, field, _axis(spec, name), True)
+    fault.kind = kind
+    return fault
+
+
 #: the largest ``load:JOINT=NM`` accepted: well beyond any joint's brake (1.5 x 192 N*m)
 LOAD_MAX_NM = 1000.0
 
@@ -589,8 +663,10 @@ _PARSERS: dict[str, Callable[[str, str, RackConfig], Fault]] = {
     "adc-dead": _parse_adc_dead,
     "ft-noise": _parse_ft_noise,
     "switcher-silent": _parse_switcher_silent,
+    "panel-off": _parse_panel,
 }
-assert set(_PARSERS) == set(KINDS)
+#: a kind with several switches has a row per switch in KINDS (``panel-off:28v`` ...)
+assert set(_PARSERS) == {k.partition(":")[0] for k in KINDS}
 
 
 def parse_fault(spec: str, rack: RackConfig | None = None) -> Fault:
@@ -609,10 +685,11 @@ def parse_fault(spec: str, rack: RackConfig | None = None) -> Fault:
     kind, _, arg = spec.partition(":")
     parser = _PARSERS.get(kind)
     if parser is None:
-        raise _fail(spec, f"unknown kind {kind!r}" + (did_you_mean(kind, KINDS) or "")
-                    + f"; kinds: {', '.join(KINDS)} (pfma fault list)")
+        raise _fail(spec, f"unknown kind {kind!r}" + (did_you_mean(kind, _PARSERS) or "")
+                    + f"; kinds: {', '.join(_PARSERS)} (pfma fault list)")
     fault = parser(spec, arg, rack)
-    fault.kind = kind
+    if not fault.kind:  # the panel's parser names its switch's row (panel-off:pwm)
+        fault.kind = kind
     return fault
 
 
@@ -702,4 +779,5 @@ def _board_parts(f: Fault) -> Iterable[_BoardFault]:
             yield from _board_parts(p)
 
 
-__all__ = ["Active", "Fault", "FaultSet", "KINDS", "attach_usb_hand_controller", "kinds_help", "parse_fault"]
+__all__ = ["Active", "Fault", "FaultSet", "KINDS", "PANEL_SWITCHES", "attach_usb_hand_controller", "kinds_help",
+           "parse_fault"]
