@@ -51,14 +51,17 @@ def test_every_joint_proves_its_brake_then_the_loop_closes_on_the_power_up_pose(
         assert np.max(np.abs(q - q0)) < math.radians(1.0), np.degrees(q - q0)
 
 
-@pytest.mark.parametrize("fault, joint, cause, words", [
-    ("brake-held", "elbow_pitch", CAUSE_BRAKE, "brake not released"),
-    ("amp-off", "wrist_roll", CAUSE_AMP_OFF, "amplifier, PWM stage or current limit off"),
+@pytest.mark.parametrize("spec, joint, cause, words", [
+    ("brake-held:elbow_pitch", "elbow_pitch", CAUSE_BRAKE, "brake not released"),
+    ("amp-off:wrist_roll", "wrist_roll", CAUSE_AMP_OFF, "amplifier, PWM stage or current limit off"),
+    # the servo chassis panel (IRSS 3.6): a joint's brake-release switch, a PWM stage left off
+    ("panel-off:brake:shoulder_yaw", "shoulder_yaw", CAUSE_BRAKE, "brake not released"),
+    ("panel-off:pwm:wrist_pitch", "wrist_pitch", CAUSE_AMP_OFF, "amplifier, PWM stage or current limit off"),
 ])
-def test_a_joint_that_does_not_prove_itself_fails_the_power_up_named(fault, joint, cause, words):
+def test_a_joint_that_does_not_prove_itself_fails_the_power_up_named(spec, joint, cause, words):
     from sim.faults import FaultSet
     with _sim() as sim:
-        FaultSet(sim.world).inject(f"{fault}:{joint}")
+        FaultSet(sim.world).inject(spec)
         _power_up_until_done_or_error(sim)
         servo = sim.rt.servo
         assert servo.fault and servo.error_code == ERR_BRAKE_TEST, _texts(sim)[-5:]
@@ -125,4 +128,20 @@ def test_a_dac_that_drives_one_way_only_fails_the_brake_test_within_its_bound(bi
         sim.step(320)
         moved = abs(sim.joint_angles_rad()[k] - q0)
         assert moved < BRAKE_TEST_MAX_EXCURSION_RAD + math.radians(1.0), math.degrees(moved)  # stopped near the bound
+
+
+@pytest.mark.parametrize("switch", ["28v", "15v"])
+def test_the_chassis_supply_off_fails_the_power_up_naming_every_joint(switch):
+    """+28 V (or the +-15 V converter) off on the servo chassis panel: nothing drives, every
+    brake stays set; the brake test names all six joints, none moves."""
+    from sim.faults import FaultSet
+    with _sim() as sim:
+        q0 = np.array(sim.joint_angles_rad()[:6])
+        FaultSet(sim.world).inject(f"panel-off:{switch}")
+        _power_up_until_done_or_error(sim)
+        servo = sim.rt.servo
+        assert servo.fault and servo.error_code == ERR_BRAKE_TEST, _texts(sim)[-5:]
+        assert all(f"{j} did not move as told" in servo.fault_text for j in JOINT_NAMES), servo.fault_text
+        sim.step(160)
+        assert np.max(np.abs(np.array(sim.joint_angles_rad()[:6]) - q0)) < math.radians(0.1)
 
