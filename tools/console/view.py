@@ -203,8 +203,7 @@ def world_status(r: Reading, rack: str, speed: float | None = None) -> str:
     lines = [rack_line(rack) + ("" if speed is None else f"; time x{speed:.2f}"),
              f"service {r.service_state:<8} frame {r.frame:<9} t {r.t_s:9.3f} s  "
              f"{float(st.rate_hz):6.1f} Hz  fault {name_of(s.fault_code, FAULT_CODE_NAMES)}",
-             f"outputs {outputs_word}  brakes commanded "
-             f"{'released' if int(s.brakes_released) else 'set'}  watchdog "
+             f"outputs {outputs_word}  {brake_summary(r, s)}  watchdog "
              f"{'TRIPPED' if int(s.watchdog_tripped) else 'ok'} (command age {float(s.command_age_s) * 1e3:.1f} ms)"]
     ctl = (f"controller ({r.controller_owner or '?'}): "
            + ("NOT RUNNING" if not r.controller_alive else
@@ -310,19 +309,39 @@ _JOINT_SLOTS: dict[int, tuple[tuple[str, ...], list[int], list[int], list[int]]]
 _BRAKE_WORDS = {0: "SET", 1: "unproven", 2: "released"}
 
 
-def brake_row(r: Reading, s) -> list[str]:
-    """Each joint's brake as the sensors showed it (``servo.brake_state``: the controller's,
-    never the command; issue 30 item 3), under the joint names of :func:`joint_lines`;
-    nothing while no controller runs (the last state it posted would be old)."""
+def _sensed_brakes(r: Reading) -> dict[str, int] | None:
+    """Each joint's ``servo.brake_state`` by joint name; None while no controller runs or it
+    is halted (the last state it posted would be old) or it posts none."""
     states = r.wm.get("servo.brake_state")
-    if states is None or not r.controller_alive:
+    if states is None or not r.controller_alive or bool(r.wm.get("runtime.halted", False)):
+        return None  # halted: the controller senses nothing (its world model is frozen)
+    return {n: int(v) for n, v in zip(JOINT_NAMES, states)}
+
+
+def brake_summary(r: Reading, s) -> str:
+    """The brakes on World Status's outputs line: as the sensors showed them (the
+    controller's ``servo.brake_state``, issue 30 item 3) when every joint's is the same;
+    ``mixed`` with a row per joint under the joint names (:func:`brake_row`) when not; the
+    service's commanded state (its current limits, not proof) while no controller runs or it
+    is halted."""
+    sensed = _sensed_brakes(r)
+    if sensed is None:
+        return f"brakes {'released' if int(s.brakes_released) else 'set'} (commanded)"
+    words = {_BRAKE_WORDS.get(v, "?") for v in sensed.values()}
+    return f"brakes {words.pop()} (sensed)" if len(words) == 1 else "brakes mixed (sensed, by joint below)"
+
+
+def brake_row(r: Reading, s) -> list[str]:
+    """Each joint's brake as the sensors showed it, under the joint names of
+    :func:`joint_lines`, when they differ (:func:`brake_summary` says it in one word else)."""
+    sensed = _sensed_brakes(r)
+    if sensed is None or len(set(sensed.values())) == 1:
         return []
-    by_name = {n: int(v) for n, v in zip(JOINT_NAMES, states)}
     try:
         names = tuple(s.layout.joint_names)
     except (AttributeError, LookupError, ValueError):
         return []
-    return ["brake      " + " ".join(f"{_BRAKE_WORDS.get(by_name.get(n, -1), '?'):>10}" for n in names)]
+    return ["brake      " + " ".join(f"{_BRAKE_WORDS.get(sensed.get(n, -1), '?'):>10}" for n in names)]
 
 
 def joint_lines(s) -> list[str]:

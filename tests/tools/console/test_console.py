@@ -52,7 +52,7 @@ def test_halt_step_resume_from_the_console(sim, console):
         world = console.area_text("world")
         ctl = next(ln for ln in world.splitlines() if ln.startswith("controller ("))
         assert "service HALTED" in world and "HALTED" in ctl
-        assert "brakes commanded set" in world and "watchdog ok" in world
+        assert "brakes set (commanded)" in world and "watchdog ok" in world  # halted: the service's word
         assert np.all(sim.dac_volts() == 0.0) and sim.svc.guard.trips == 0
         before = sim.rt.frames_run
         await pilot.press("s")

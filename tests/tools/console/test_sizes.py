@@ -203,7 +203,7 @@ def test_halted_world_status_shows_measured_motion_and_held_outputs(sim, console
         assert f"{frozen:+.4f}" not in rates
         volts = next(ln for ln in world if ln.startswith("V out"))
         assert volts.split()[2:] == ["+0.000"] * len(names)  # the held outputs: 0 V
-        assert any("outputs safe (0 V)  brakes commanded set" in ln for ln in world)
+        assert any("outputs safe (0 V)  brakes set (commanded)" in ln for ln in world)
         angles = next(ln for ln in world if ln.startswith("rad ")).split()[1:]
         assert all(-np.pi < float(a) <= np.pi for a in angles)
     run_at(console, (120, 40), body)
@@ -249,3 +249,26 @@ def test_the_outputs_banner_heads_every_size_and_the_areas_stay(sim, console, si
         for title in view.AREAS:
             assert title in text, (title, size)
     run_at(console, size, body)
+
+
+def test_the_brakes_by_the_sensors_one_word_when_alike_a_row_when_not():
+    """World Status's brakes (issue 30 item 3): the controller's ``servo.brake_state`` in one
+    word when every joint's is the same, a row under the joint names when not, the service's
+    commanded state while no controller runs or it is halted."""
+    from types import SimpleNamespace
+
+    from controller.params import JOINT_NAMES
+    from tools.console.view import brake_row, brake_summary
+
+    def reading(states, alive=True, halted=False):
+        wm = {"servo.brake_state": states, "runtime.halted": halted}
+        return SimpleNamespace(wm=SimpleNamespace(get=lambda n, d=None: wm.get(n, d)), controller_alive=alive)
+    s = SimpleNamespace(layout=SimpleNamespace(joint_names=JOINT_NAMES), brakes_released=1)
+    assert brake_summary(reading([2] * 6), s) == "brakes released (sensed)" and brake_row(reading([2] * 6), s) == []
+    mixed = reading([2, 2, 0, 2, 1, 2])
+    assert brake_summary(mixed, s) == "brakes mixed (sensed, by joint below)"
+    row = brake_row(mixed, s)[0].split()
+    assert row == ["brake", "released", "released", "SET", "released", "unproven", "released"]
+    assert brake_summary(reading([0] * 6, alive=False), s) == "brakes released (commanded)"
+    assert brake_summary(reading([2] * 6, halted=True), s) == "brakes released (commanded)"
+    assert brake_row(reading([2, 0, 0, 0, 0, 0], halted=True), s) == []
