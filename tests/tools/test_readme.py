@@ -46,6 +46,7 @@ import socket
 import subprocess
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -97,6 +98,22 @@ RUN_ALONE = (
     f"{PFMA} read --bus fake elbow_pitch_angle shoulder_yaw_motor_current",
     f"{PFMA} regs --assumptions",
 )
+
+#: RUN_ALONE commands that use the README's default names (the buffer pfma, the world model
+#: pfma_wm, the Modbus port 5020): one at a time, in README order. The others use private names
+#: and their own files, so they run beside these (a second worker, in README order: two
+#: processes at a time); the benches last, alone (they measure the host)
+ON_DEFAULT_NAMES = (
+    f"{PFMA} serve --duration 3",
+    f"{PFMA} read elbow_pitch_angle",
+    f"{PFMA} serve --duration 3 --modbus 127.0.0.1:5020",
+    f"{PFMA} serve --duration 2 --hid fake",
+    f"{PFMA} serve --duration 3 --scenario scenarios/ft-unplug.toml",
+    f"{PFMA} controller --sim --power-up --duration 0.3 --trace",
+    f"{PFMA} controller --sim --power-up --duration 1.5 --sim-fault resolver-los:shoulder_pitch_angle --sim-fault-at 1",
+    f"{PFMA} wm list",
+)
+BENCHES = (f"{PFMA} bench loop --seconds 1", f"{PFMA} bench stack --minutes 0.05 --realtime")
 
 #: commands that need a running service: the README marks each "(service)"
 RUN_WITH_SERVICE = (
@@ -181,6 +198,12 @@ def test_every_readme_command_is_classified_once():
     stale = sorted(classified - set(commands))
     assert not stale, f"table entries no longer in the README: {stale}"
     assert not set(NOT_RUN) & (set(RUN_ALONE) | set(RUN_WITH_SERVICE))
+
+
+def test_the_commands_run_beside_each_other_are_readme_commands_that_need_nothing():
+    assert set(ON_DEFAULT_NAMES) <= set(RUN_ALONE) and set(BENCHES) <= set(RUN_ALONE)
+    for c in set(RUN_ALONE) - set(ON_DEFAULT_NAMES) - set(BENCHES):  # the second worker's
+        assert " serve" not in c and " controller" not in c and " wm " not in c and "5020" not in c, c
 
 
 def test_readme_marks_exactly_the_commands_that_need_a_service():
@@ -274,9 +297,14 @@ def test_every_readme_command_runs_as_written(tmp_path):
     commands = [c for c, _ in readme_commands(README.read_text())]
     left = _Leftovers()
     try:
-        for cmd in commands:
-            if cmd in RUN_ALONE:
-                _run(cmd, with_service=False)
+        alone = [c for c in commands if c in RUN_ALONE]
+        beside = [c for c in alone if c not in ON_DEFAULT_NAMES and c not in BENCHES]
+        with ThreadPoolExecutor(2) as pool:  # each worker in README order; a failure is raised here
+            for f in [pool.submit(lambda cs=cs: [_run(c, with_service=False) for c in cs])
+                      for cs in ([c for c in alone if c in ON_DEFAULT_NAMES], beside)]:
+                f.result()
+        for cmd in (c for c in alone if c in BENCHES):
+            _run(cmd, with_service=False)
         log = tmp_path / "make-run.log"
         with open(log, "w") as out:
             run = subprocess.Popen(MAKE_RUN, cwd=ROOT, stdin=subprocess.DEVNULL, stdout=out,
