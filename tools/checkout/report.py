@@ -99,6 +99,10 @@ class Report:
     stopped_early: str = ""  #: why the run stopped before the end ("" = it ran to the end)
     config: dict = field(default_factory=dict)
     config_source: str = ""
+    #: the servo chassis' front panel before the joints group, in words, with who said so
+    #: (the operator, the command line, or assumed): a statement, never a measurement
+    #: ("" = not asked: the joints group did not run)
+    panel: str = ""
 
     def count(self, status: str) -> int:
         return sum(1 for r in self.results if r.status == status)
@@ -115,6 +119,8 @@ class Report:
         out = [f"checkout of {self.target}: {self.count(PASS)} passed, {self.count(FAIL)} failed, "
                f"{self.count(SKIP)} skipped in {self.target_time_s:.1f} s "
                f"({self.duration_s:.1f} s wall)"]
+        if self.panel:
+            out.append(f"servo chassis panel: {self.panel}")
         if self.stopped_early:
             out.append(f"stopped early: {self.stopped_early}")
         for r in self.failures():
@@ -130,7 +136,7 @@ class Report:
             "duration_s": round(self.duration_s, 3), "target_time_s": round(self.target_time_s, 4),
             "passed": self.passed, "stopped_early": self.stopped_early,
             "counts": {"pass": self.count(PASS), "fail": self.count(FAIL), "skip": self.count(SKIP)},
-            "groups": self.groups,
+            "groups": self.groups, "panel": self.panel,
             "results": [asdict(r) for r in self.results],
             "config_source": self.config_source, "config": self.config,
         })
@@ -150,6 +156,8 @@ class Report:
         parts: list = [Text(f"checkout of {self.target}: {self.count(PASS)} passed, {self.count(FAIL)} failed, "
                             f"{self.count(SKIP)} skipped in {self.target_time_s:.1f} s "
                             f"({self.duration_s:.1f} s wall)")]
+        if self.panel:
+            parts.append(Text(f"servo chassis panel: {self.panel}"))
         if self.stopped_early:
             parts.append(Text(f"stopped early: {self.stopped_early}", style="yellow"))
         if self.failures():
@@ -180,6 +188,7 @@ class Report:
         fails = "".join(f"<li>{e(r.channel)} ({e(r.group)}, {e(r.check)}): {e(r.measured_text())} "
                         f"{e(r.units)} {e(r.limits_text())} {e(r.detail)}</li>" for r in self.failures())
         fails = f"<h2>Failures</h2><ul>{fails}</ul>" if fails else ""
+        panel = f"<tr><td>Servo chassis panel</td><td>{e(self.panel)}</td></tr>\n" if self.panel else ""
         return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
 <title>pfma checkout {e(verdict)} - {e(self.rack)} - {e(self.started_utc)}</title>
@@ -208,7 +217,7 @@ tr.skip td {{ color: #777; }}
 <tr><td>Groups</td><td>{e(", ".join(self.groups))}</td></tr>
 <tr><td>Counts</td><td>{self.count(PASS)} passed, {self.count(FAIL)} failed, {self.count(SKIP)} skipped</td></tr>
 <tr><td>Tolerances</td><td>{e(self.config_source)}</td></tr>
-</table>
+{panel}</table>
 {early}{fails}
 <h2>Channels</h2>
 <table class="results">

@@ -9,7 +9,14 @@ Groups, in order (``[checkout] groups``; each is a method ``_group_<name>``):
 ``pio``        user I/F box inputs, each operated alone (walking bit);
 ``matrix``     matrix-switcher routes written, read back as applied by the service;
 ``joints``     per joint an open-loop polarity and scaling test: arm with a low current
-               limit, command a small rate each way, check tach and resolver, stop.
+               limit, command a small rate each way, check tach and resolver, stop; then
+               a diagnosis that names the drive or the brake from what the sensors showed.
+
+Before the joints group the servo chassis' front panel (+28 V, +/-15 V, the PWM stage and
+brake-release switches, IRSS 3.6) is asked of the operator, or taken as stated
+(``panel``, ``pfma checkout --panel-off``), and recorded as such ("panel" rows: statements,
+not measurements); a chassis supply stated off skips the joints, a joint's PWM stage or
+brake switch stated off skips that joint.
 
 Before the groups a preflight checks the service state and every board's status and
 error counter. Operator actions go through the target's ``stimulus`` on the
@@ -27,6 +34,7 @@ from typing import Callable
 import numpy as np
 
 from tools.checkout.config import CheckoutConfig
+from tools.checkout.panel import ASSUMED, GRIPPER, PANEL_CHECKS, SWITCH_TEXT, PanelState, ask_panel
 from tools.checkout.report import FAIL, PASS, SKIP, Report, Result
 from tools.checkout.target import ServiceLost, Target
 from bit3.layout import (
@@ -85,12 +93,17 @@ class Checkout:
     :param say: where progress and prompts go (default ``print``)
     :param progress: called with (groups started, groups, text) as each group starts and
         once at the end (``pfma checkout`` draws a bar with it on a terminal)
+    :param panel: the servo chassis' front panel as stated (``--panel-off``); None: asked
+        of the operator before the joints group when ``interactive`` on a rack without a
+        stimulus, else assumed all on (and recorded as assumed)
+    :param ask: shows a prompt and returns the operator's answer line (default ``input``)
     """
 
     def __init__(self, target: Target, config: CheckoutConfig, *, keep_going: bool = False,
                  only: list[str] | None = None, interactive: bool = True,
                  say: Callable[[str], None] = print,
-                 progress: Callable[[int, int, str], None] | None = None) -> None:
+                 progress: Callable[[int, int, str], None] | None = None,
+                 panel: PanelState | None = None, ask: Callable[[str], str] | None = None) -> None:
         self.t = target
         self.progress = progress
         self.cfg = config
@@ -104,6 +117,8 @@ class Checkout:
         self.groups = groups
         self.interactive = interactive
         self.say = say
+        self.ask: Callable[[str], str] = ask if ask is not None else input
+        self.panel = panel
         self.lay = target.layout
         self.poll_s = config.num("checkout", "poll_s")
         self.report = Report(target.describe(), target.rack.name, groups, config=config.as_dict(),
@@ -467,6 +482,14 @@ class Checkout:
     # ------------------------------------------------------------------ joints
     def _group_joints(self) -> None:
         rack = self.t.rack
+        panel = self._panel()
+        if panel.chassis_off:
+            what = " and ".join(SWITCH_TEXT[s] for s in panel.chassis_off)
+            self.record("joints", "joints", "open-loop test", None,
+                        detail=f"not run: {panel.who()} the servo chassis {what} is off: nothing can move "
+                               "(no motor current on any joint, every brake set). Turn +28 VDC and "
+                               "+/-15 V on, then run `pfma checkout --only joints`")
+            return
         for j in self.lay.joint_names:
             roles = {q: rack.find(j, q) for q in ("rate", "angle", "current_limit")}
             missing = [q for q, c in roles.items() if c is None]
@@ -474,7 +497,42 @@ class Checkout:
                 self.record("joints", j, "open-loop test", None,
                             detail=f"no {' or '.join(missing) or 'current_limit'} channel for {j} in this rack")
                 continue
+            off = [k for k in ("pwm", "brake") if panel.is_off(k, j)]
+            if off:
+                why = {"pwm": "its PWM output stage switch is off (no motor current)",
+                       "brake": "its brake-release switch is off (the brake would stay set, the "
+                                "amplifier driving against it)"}
+                switches = " and ".join(f"{SWITCH_TEXT[k]} switch" for k in off)
+                self.record("joints", j, "open-loop test", None,
+                            detail=f"not run: {panel.who()} " + " and ".join(why[k] for k in off)
+                                   + f". Turn its {switches} on, then run `pfma checkout --only joints`")
+                continue
             self._open_loop(j, roles["rate"].signal, roles["angle"].signal, roles["current_limit"].signal)
+
+    def _panel(self) -> PanelState:
+        """The servo chassis' front panel before the arm moves: as stated, asked of the
+        operator (interactive, a rack without a stimulus) or assumed all on; one "panel"
+        row per group of switches, each marked as a statement (SKIP: nothing measured)."""
+        if self.panel is None:
+            if self.interactive and self.t.stimulus is None:
+                self.panel = ask_panel(self.ask, self.say, self.t.rack.joints or self.lay.joint_names)
+            else:
+                self.panel = PanelState(frozenset(), ASSUMED)
+        panel = self.panel
+        joints = list(self.t.rack.joints or self.lay.joint_names)
+        self.report.panel = panel.summary(joints)
+        how = panel.how()
+        for key, channel in (("28v", "servo_chassis_28v"), ("15v", "servo_chassis_15v")):
+            self.record("panel", channel, PANEL_CHECKS[key], None,
+                        "off" if panel.is_off(key) else "on", detail=how)
+        for kind, channel, names in (("pwm", "pwm_stage_switches", [*joints, GRIPPER]),
+                                     ("brake", "brake_release_switches", joints)):
+            off = panel.off_joints(kind, names)
+            note = ("; the checkout does not drive the gripper"
+                    if kind == "pwm" and GRIPPER in off else "")
+            self.record("panel", channel, PANEL_CHECKS[kind], None,
+                        f"off: {', '.join(off)}" if off else "all on", detail=how + note)
+        return panel
 
     def _stop_outputs(self, cmd, n_joints: int, n_limits: int) -> None:
         cmd.set(joint_rate_rad_s=[0.0] * n_joints, current_limit_a=[0.0] * n_limits, arm_request=0)
@@ -492,12 +550,6 @@ class Checkout:
         if not rate:  # a fraction of the full-scale rate: 10 V x the command channel's scale
             rate = float(cfg.joint(j, "rate_fraction")) * fs_v * float(self.t.rack.joint_channel(j, "rate_command").scale)
         rate = float(rate)
-        move_s = float(cfg.joint(j, "move_s"))
-        lag = float(cfg.joint(j, "travel_lag_s"))
-        r_lo, r_hi = (float(x) for x in cfg.joint(j, "rate_ratio"))
-        agree = float(cfg.joint(j, "tach_resolver_tolerance"))
-        max_factor = float(cfg.joint(j, "max_travel_factor"))
-        dt = self.cfg.num("capture", "interval_s")
         # the joint's motor-current monitor must respond while the joint is driven: a dead
         # ADC input reads a constant (0 V passes the idle range) and only shows here
         found = self.t.rack.find(j, "motor_current")
@@ -512,6 +564,9 @@ class Checkout:
         cmd = self.t.commander()
         rates = [0.0] * len(jn)
         limits = [0.0] * n_lim
+        #: what each move showed, kept before its rows are recorded: the diagnosis reads it
+        #: even when a row of the move stops the run
+        moves: list[Move] = []
         try:
             cmd.keepalive = True
             cmd.set(joint_rate_rad_s=rates, current_limit_a=limits, arm_request=0)
@@ -526,100 +581,14 @@ class Checkout:
                 last = [m.text for m in self.t.reader.messages()][-2:]
                 self.record("joints", j, "arm", False, st, detail=f"service did not arm; messages: {last}")
                 return
-            self.t.wait(float(cfg.joint(j, "brake_release_s")))
-            signs = (1, -1) if cfg.joint(j, "bidirectional") else (1,)
-            for sign in signs:
-                v = sign * rate
-                tag = "+" if sign > 0 else "-"
-                a_prev = self.value(angle)
-                travel = 0.0
-                tach_integral = 0.0
-                expected = v * (move_s - lag)
-                t0 = t_prev = self.t.now()
-                x_prev = self.value(tach)
-                rates[ji] = v
-                cmd.set(joint_rate_rad_s=rates)
-                samples: list[tuple[float, float]] = []
-                currents: list[float] = []
-                runaway = ""
-                while self.t.now() - t0 < move_s:
-                    self.t.wait(dt)
-                    s = self.inputs()
-                    now = self.t.now()
-                    a = float(s.value(angle))
-                    x = float(s.value(tach))
-                    travel += float(_wrap(a - a_prev, 2 * math.pi))
-                    tach_integral += 0.5 * (x + x_prev) * (now - t_prev)
-                    a_prev, x_prev, t_prev = a, x, now
-                    samples.append((now - t0, x))
-                    if current:
-                        currents.append(float(s.value(current)))
-                    if abs(travel) > max_factor * abs(expected):
-                        runaway = (f"runaway: {travel:+.4f} rad after {now - t0:.2f} s, more than "
-                                   f"{max_factor:g} x the expected {expected:+.4f} rad; outputs made safe")
-                        self._stop_outputs(cmd, len(jn), n_lim)
-                        break
-                rates[ji] = 0.0
-                if not runaway:
-                    cmd.set(joint_rate_rad_s=rates)
-                ts = np.array([t for t, _ in samples])
-                xs = np.array([x for _, x in samples])
-                win = xs[ts >= ts[-1] * (1.0 - float(cfg.joint(j, "tach_window")))] if len(xs) else xs
-                mean_tach = float(np.mean(win)) if len(win) else math.nan
-                t_lo, t_hi = sorted((v * r_lo, v * r_hi))
-                # a tach that does not change while the joint is driven is dead or stuck, not
-                # reversed (a dead input held at a few mV would otherwise read "reversed")
-                swing = float(np.ptp(xs)) if len(xs) else 0.0
-                travelled = abs(travel) >= r_lo * abs(expected)
-                stuck = travelled and swing < STUCK_TACH_FRACTION * abs(v)
-                diag = ""
-                if stuck:
-                    diag = (f"; TACH NOT RESPONDING (dead or stuck input: it moved {swing:.3g} rad/s "
-                            f"while the resolver travelled {travel:+.4f} rad)")
-                elif mean_tach * v < 0:
-                    diag = "; TACH POLARITY REVERSED"
-                self.record("joints", tach, f"open-loop rate {tag}", t_lo <= mean_tach <= t_hi and not runaway,
-                            round(mean_tach, 5), round(t_lo, 5), round(t_hi, 5), "rad/s",
-                            f"commanded {v:+.4g} rad/s at a {i_lim:.2f} A limit" + diag
-                            + (f"; {runaway}" if runaway else ""))
-                if current and not runaway:
-                    span = float(np.ptp(currents)) if currents else 0.0
-                    self.record("joints", current, f"motor current responds {tag}", span >= min_current,
-                                round(span, 4), round(min_current, 4), None, "A",
-                                f"peak-to-peak while driven at {v:+.4g} rad/s (limit {i_lim:.2f} A)"
-                                + ("" if span >= min_current else
-                                   "; MOTOR CURRENT NOT RESPONDING (dead input or amplifier monitor)"))
-                x_lo, x_hi = sorted((expected * r_lo, expected * r_hi))
-                self.record("joints", angle, f"open-loop travel {tag}", x_lo <= travel <= x_hi and not runaway,
-                            round(travel, 5), round(x_lo, 5), round(x_hi, 5), "rad",
-                            f"{move_s:g} s at {v:+.4g} rad/s" + ("; RESOLVER MOVED THE WRONG WAY"
-                                                                 if travel * v < 0 else ""))
-                ratio = tach_integral / travel if travel else math.nan
-                self.record("joints", tach, f"tach/resolver scale {tag}", abs(ratio - 1) <= agree,
-                            round(ratio, 4), round(1 - agree, 4), round(1 + agree, 4), "1",
-                            f"tach integral {tach_integral:+.5f} rad vs resolver travel {travel:+.5f} rad")
-                if runaway:
-                    return
-                self.t.wait(float(cfg.joint(j, "pause_s")))
-            self.t.wait(float(cfg.joint(j, "stop_s")))
-            mx = float(cfg.joint(j, "max_stopped_rate"))
-            still = self.value(tach)
-            self.record("joints", tach, "stopped (servo)", abs(still) <= mx, round(still, 5), -mx, mx,
-                        "rad/s", "rate command 0, current limit on")
-            limits[li] = 0.0
-            cmd.set(joint_rate_rad_s=rates, current_limit_a=limits)
-            self.t.wait(float(cfg.joint(j, "brake_s")))
-            a0 = self.value(angle)
-            self.t.wait(float(cfg.joint(j, "brake_s")))
-            creep = float(_wrap(self.value(angle) - a0, 2 * math.pi))
-            mc = float(cfg.joint(j, "max_brake_creep_rad"))
-            self.record("joints", angle, "held by brake", abs(creep) <= mc, round(creep, 6), -mc, mc, "rad",
-                        f"current limit 0 for {2 * float(cfg.joint(j, 'brake_s')):g} s")
-            self._stop_outputs(cmd, len(jn), n_lim)
-            safe = self.t.wait_until(lambda: self.inputs().service_state == ServiceState.SAFE,
-                                     float(cfg.joint(j, "arm_timeout_s")), self.poll_s)
-            self.record("joints", j, "disarm", safe, ServiceState(self.inputs().service_state).name,
-                        detail="rates 0, current limits 0 (brakes set), arm request cleared")
+            try:
+                self._moves(j, tach, angle, current, cmd, rates, limits, ji, li, i_lim, rate, min_current,
+                            moves)
+            except StopRun:
+                # the run stops at this joint: its diagnosis still says drive or brake
+                self._diagnose(j, moves, i_lim, current, quiet=True)
+                raise
+            self._diagnose(j, moves, i_lim, current)
         finally:
             try:
                 self._stop_outputs(cmd, len(jn), n_lim)
@@ -628,6 +597,230 @@ class Checkout:
                 pass  # the service is gone: its watchdog has made the outputs safe
             finally:
                 cmd.keepalive = False
+
+    def _moves(self, j: str, tach: str, angle: str, current: str, cmd, rates: list[float],
+               limits: list[float], ji: int, li: int, i_lim: float, rate: float, min_current: float,
+               moves: list[Move]) -> None:
+        """The armed part of a joint's open-loop test: each move and its rows, then stopped,
+        held by brake, disarm (none of those after a runaway). Appends to ``moves``."""
+        cfg = self.cfg
+        jn = list(self.lay.joint_names)
+        n_lim = len(self.lay.current_limit_names)
+        move_s = float(cfg.joint(j, "move_s"))
+        lag = float(cfg.joint(j, "travel_lag_s"))
+        r_lo, r_hi = (float(x) for x in cfg.joint(j, "rate_ratio"))
+        agree = float(cfg.joint(j, "tach_resolver_tolerance"))
+        max_factor = float(cfg.joint(j, "max_travel_factor"))
+        dt = self.cfg.num("capture", "interval_s")
+        self.t.wait(float(cfg.joint(j, "brake_release_s")))
+        signs = (1, -1) if cfg.joint(j, "bidirectional") else (1,)
+        for sign in signs:
+            v = sign * rate
+            tag = "+" if sign > 0 else "-"
+            a_prev = self.value(angle)
+            travel = 0.0
+            tach_integral = 0.0
+            expected = v * (move_s - lag)
+            t0 = t_prev = self.t.now()
+            x_prev = self.value(tach)
+            rates[ji] = v
+            cmd.set(joint_rate_rad_s=rates)
+            samples: list[tuple[float, float]] = []
+            currents: list[float] = []
+            runaway = ""
+            left = ""  # the service state when it was first seen not ARMED during the move
+            while self.t.now() - t0 < move_s:
+                self.t.wait(dt)
+                s = self.inputs()
+                now = self.t.now()
+                a = float(s.value(angle))
+                x = float(s.value(tach))
+                travel += float(_wrap(a - a_prev, 2 * math.pi))
+                tach_integral += 0.5 * (x + x_prev) * (now - t_prev)
+                a_prev, x_prev, t_prev = a, x, now
+                samples.append((now - t0, x))
+                if current:
+                    currents.append(float(s.value(current)))
+                if not left and s.service_state != ServiceState.ARMED:
+                    left = ServiceState(s.service_state).name
+                if abs(travel) > max_factor * abs(expected):
+                    runaway = (f"runaway: {travel:+.4f} rad after {now - t0:.2f} s, more than "
+                               f"{max_factor:g} x the expected {expected:+.4f} rad; outputs made safe")
+                    self._stop_outputs(cmd, len(jn), n_lim)
+                    break
+            rates[ji] = 0.0
+            if not runaway:
+                cmd.set(joint_rate_rad_s=rates)
+            ts = np.array([t for t, _ in samples])
+            xs = np.array([x for _, x in samples])
+            win = xs[ts >= ts[-1] * (1.0 - float(cfg.joint(j, "tach_window")))] if len(xs) else xs
+            mean_tach = float(np.mean(win)) if len(win) else math.nan
+            span = float(np.ptp(currents)) if currents else 0.0
+            peak = float(np.max(np.abs(currents))) if currents else 0.0
+            moves.append(Move(tag, v, expected, travel, mean_tach, peak if current else None, left))
+            t_lo, t_hi = sorted((v * r_lo, v * r_hi))
+            # a tach that does not change while the joint is driven is dead or stuck, not
+            # reversed (a dead input held at a few mV would otherwise read "reversed")
+            swing = float(np.ptp(xs)) if len(xs) else 0.0
+            travelled = abs(travel) >= r_lo * abs(expected)
+            stuck = travelled and swing < STUCK_TACH_FRACTION * abs(v)
+            diag = ""
+            if stuck:
+                diag = (f"; TACH NOT RESPONDING (dead or stuck input: it moved {swing:.3g} rad/s "
+                        f"while the resolver travelled {travel:+.4f} rad)")
+            elif mean_tach * v < 0:
+                diag = "; TACH POLARITY REVERSED"
+            self.record("joints", tach, f"open-loop rate {tag}", t_lo <= mean_tach <= t_hi and not runaway,
+                        round(mean_tach, 5), round(t_lo, 5), round(t_hi, 5), "rad/s",
+                        f"commanded {v:+.4g} rad/s at a {i_lim:.2f} A limit" + diag
+                        + (f"; {runaway}" if runaway else ""))
+            if current and not runaway:
+                self.record("joints", current, f"motor current responds {tag}", span >= min_current,
+                            round(span, 4), round(min_current, 4), None, "A",
+                            f"peak-to-peak while driven at {v:+.4g} rad/s (limit {i_lim:.2f} A)"
+                            + ("" if span >= min_current else
+                               "; MOTOR CURRENT NOT RESPONDING (dead input or amplifier monitor)"))
+            x_lo, x_hi = sorted((expected * r_lo, expected * r_hi))
+            self.record("joints", angle, f"open-loop travel {tag}", x_lo <= travel <= x_hi and not runaway,
+                        round(travel, 5), round(x_lo, 5), round(x_hi, 5), "rad",
+                        f"{move_s:g} s at {v:+.4g} rad/s" + ("; RESOLVER MOVED THE WRONG WAY"
+                                                             if travel * v < 0 else ""))
+            ratio = tach_integral / travel if travel else math.nan
+            self.record("joints", tach, f"tach/resolver scale {tag}", abs(ratio - 1) <= agree,
+                        round(ratio, 4), round(1 - agree, 4), round(1 + agree, 4), "1",
+                        f"tach integral {tach_integral:+.5f} rad vs resolver travel {travel:+.5f} rad")
+            if runaway:
+                return
+            self.t.wait(float(cfg.joint(j, "pause_s")))
+        self.t.wait(float(cfg.joint(j, "stop_s")))
+        mx = float(cfg.joint(j, "max_stopped_rate"))
+        still = self.value(tach)
+        self.record("joints", tach, "stopped (servo)", abs(still) <= mx, round(still, 5), -mx, mx,
+                    "rad/s", "rate command 0, current limit on")
+        limits[li] = 0.0
+        cmd.set(joint_rate_rad_s=rates, current_limit_a=limits)
+        self.t.wait(float(cfg.joint(j, "brake_s")))
+        a0 = self.value(angle)
+        self.t.wait(float(cfg.joint(j, "brake_s")))
+        creep = float(_wrap(self.value(angle) - a0, 2 * math.pi))
+        mc = float(cfg.joint(j, "max_brake_creep_rad"))
+        self.record("joints", angle, "held by brake", abs(creep) <= mc, round(creep, 6), -mc, mc, "rad",
+                    f"current limit 0 for {2 * float(cfg.joint(j, 'brake_s')):g} s")
+        self._stop_outputs(cmd, len(jn), n_lim)
+        safe = self.t.wait_until(lambda: self.inputs().service_state == ServiceState.SAFE,
+                                 float(cfg.joint(j, "arm_timeout_s")), self.poll_s)
+        self.record("joints", j, "disarm", safe, ServiceState(self.inputs().service_state).name,
+                    detail="rates 0, current limits 0 (brakes set), arm request cleared")
+
+    # ------------------------------------------------------------------ drive or brake
+    def _diagnose(self, j: str, moves: list[Move], i_lim: float, current: str, *, quiet: bool = False) -> None:
+        """One row per joint after its open-loop test naming the drive or the brake, from
+        what the resolver, tach and motor-current monitor showed during its moves (never
+        from the command): moved -> the drive answers and the brake released; did not move
+        with the motor current at (near) the test's limit -> the brake (or a jam); did not
+        move with no motor current -> the PWM stage, +28 V or the amplifier.
+
+        ``quiet``: the run is stopping already (a row of this joint failed); a failing
+        diagnosis does not stop it a second time."""
+        if not moves:
+            return
+        f_move = float(self.cfg.joint(j, "diag_moved_fraction"))
+        f_none = float(self.cfg.joint(j, "diag_no_current_fraction"))
+        f_brake = float(self.cfg.joint(j, "diag_brake_current_fraction"))
+        i_none, i_brake = f_none * i_lim, f_brake * i_lim
+        record = self._record_quiet if quiet else self.record
+        check = "drive and brake (diagnosis)"
+        texts = [m.text(i_lim) for m in moves]
+        seen = "; ".join(texts) + (f" ({len(moves)} of 2 moves: the run stopped)" if quiet and len(moves) < 2
+                                   and self.cfg.joint(j, "bidirectional") else "")
+        # a move counts when the resolver or the tach shows at least f_move of the command,
+        # either way (the wrong way is the polarity rows' business: the drive answered) and,
+        # where the rack has the monitor, with motor current (else gravity or a load moved it)
+        answered: list[Move] = []
+        unknown: list[Move] = []  # moves the service stopped (it left ARMED): they show nothing
+        for m in moves:
+            moved = max(m.along, m.against) >= f_move
+            driven = m.peak_a is None or m.peak_a >= i_none
+            if moved and driven:
+                answered.append(m)
+                continue
+            if m.left_armed:
+                unknown.append(m)
+                continue
+            if m.peak_a is None:
+                record("joints", j, check, False, "not moved",
+                       detail=f"did not move in the {m.tag} move and this rack has no motor-current "
+                              f"monitor for {j}: drive and brake cannot be told apart: check its brake-release "
+                              f"switch and brake, its PWM stage switch, +28 V and the amplifier. {seen}")
+            elif m.peak_a < i_none:
+                also = (f" (it moved {m.travel:+.4f} rad without current: gravity or a load, or the current "
+                        "monitor is dead: see its \"motor current responds\" row)" if moved else "")
+                record("joints", j, check, False, "no current",
+                       detail=f"no motor current: check its PWM stage switch, +28 V, and the amplifier{also}. "
+                              f"Peak |current| {m.peak_a:.3g} A < {i_none:.3g} A "
+                              f"({f_none:g} x the {i_lim:.2f} A limit). {seen}")
+            elif m.peak_a >= i_brake:
+                record("joints", j, check, False, "brake held",
+                       detail=f"brake not released (or a jam): check the joint's brake-release switch and "
+                              f"brake. It did not move with the motor current at {m.peak_a:.3g} A >= "
+                              f"{i_brake:.3g} A ({f_brake:g} x the {i_lim:.2f} A limit). {seen}")
+            else:
+                record("joints", j, check, False, "unclear",
+                       detail=f"did not move with some motor current ({m.peak_a:.3g} A, between "
+                              f"{i_none:.3g} and {i_brake:.3g} A): check its brake-release switch and brake, "
+                              f"then the amplifier. {seen}")
+            return
+        stopped = "; ".join(f"the service was not ARMED ({m.left_armed}) in the {m.tag} move" for m in unknown)
+        if not answered:
+            record("joints", j, check, None, "not diagnosed",
+                   detail=f"{stopped}: the motion seen is not the drive's answer; the service's messages "
+                          f"say why. {seen}")
+            return
+        wrong = [m.tag for m in answered if m.against >= f_move and m.along < f_move]
+        record("joints", j, check, True, "moved",
+               detail="drive answers, brake released"
+                      + (f" (it moved against the command in the {', '.join(wrong)} move: see the polarity "
+                         "rows)" if wrong else "")
+                      + (f" ({stopped}: that move shows nothing)" if unknown else "") + f". {seen}")
+
+
+class Move:
+    """What one open-loop move of a joint showed (the diagnosis reads it)."""
+
+    def __init__(self, tag: str, v: float, expected: float, travel: float, mean_tach: float,
+                 peak_a: float | None, left_armed: str) -> None:
+        self.tag = tag  #: "+" or "-"
+        self.v = v  #: the rate commanded, rad/s
+        self.expected = expected  #: the travel expected, rad
+        self.travel = travel  #: resolver travel, rad
+        self.mean_tach = mean_tach  #: tach mean over the move's window, rad/s
+        self.peak_a = peak_a  #: peak |motor current| while driven, A (None: no monitor)
+        self.left_armed = left_armed  #: the service state first seen not ARMED ("" = armed throughout)
+
+    def _fractions(self) -> tuple[float, float]:
+        """(the largest motion along the command, the largest against it) as fractions of
+        the command, from the resolver travel and the tach mean."""
+        fr = []
+        if self.expected:
+            fr.append(self.travel / self.expected)
+        if self.v and math.isfinite(self.mean_tach):
+            fr.append(self.mean_tach / self.v)
+        if not fr:
+            return 0.0, 0.0
+        return max(0.0, max(fr)), max(0.0, -min(fr))
+
+    @property
+    def along(self) -> float:
+        return self._fractions()[0]
+
+    @property
+    def against(self) -> float:
+        return self._fractions()[1]
+
+    def text(self, i_lim: float) -> str:
+        cur = "no current monitor" if self.peak_a is None else f"peak |current| {self.peak_a:.3g} A of {i_lim:.2f} A"
+        return (f"{self.tag} move: resolver {self.travel:+.4f} rad of {self.expected:+.4f} expected, "
+                f"tach {self.mean_tach:+.4g} rad/s of {self.v:+.4g} commanded, {cur}")
 
 
 def _fake_switcher(target: Target, board: str):

@@ -4,7 +4,10 @@ Without ``--buffer`` it starts its own simulated rack and I/O service in this pr
 in simulated time (deterministic, a few seconds); operator steps are done by the fake
 rack's stimulus. With ``--buffer NAME`` it checks the rack behind a running service in
 real time and prompts the operator ("deflect CAE up") for the hand controller and the
-user I/F box (``--non-interactive`` skips those steps). The logic lives in
+user I/F box (``--non-interactive`` skips those steps), and before the joints group asks
+the state of the servo chassis' front-panel switches (``--panel-off`` states it instead,
+and a non-interactive or simulated run without it assumes them all on: the report says
+which). The logic lives in
 ``tools.checkout``; tolerances in ``tools/checkout/checkout_default.toml`` (``--config``
 overrides them). Exit code 0 only when every check passed.
 """
@@ -41,6 +44,11 @@ def add_parser(sub):
                    help="simulated rack only: inject a fault first, any spec of `pfma fault list` "
                         "(e.g. tach-reversed:JOINT, adc-dead:SIGNAL=VOLTS, resolver-los:SIGNAL, "
                         "ft-noise, bus-error:BOARD); repeatable; docs/faults.md")
+    p.add_argument("--panel-off", action="append", default=[], metavar="SWITCHES",
+                   help="state the servo chassis' front panel instead of being asked: the switches "
+                        "that are off, comma-separated: 28v, 15v, pwm:JOINT (or pwm:gripper), "
+                        "brake:JOINT, pwm:all, brake:all; 'none' = every switch on. Without it a "
+                        "non-interactive or simulated run assumes every switch on (the report says so)")
     p.add_argument("-q", "--quiet", action="store_true", help="print only failures and the summary")
     return p
 
@@ -50,8 +58,18 @@ def run(args) -> int:
     from tools.attach import attach_waiting
     from pfma.rack import load_rack
 
+    from tools.checkout.panel import COMMAND_LINE, PanelState, parse_panel_off
+    from pfma.errors import ConfigError
+
     cfg = load_checkout_config(args.config)
     rack_path = None if args.rack in ("fake", "default") else args.rack
+    panel = None
+    if args.panel_off:  # a bad switch is a usage mistake: exit 2 before anything is built
+        try:
+            panel = PanelState(parse_panel_off(args.panel_off, load_rack(rack_path).joints), COMMAND_LINE)
+        except ConfigError as err:
+            print(f"pfma checkout: {err}", file=sys.stderr)
+            return 2
     if args.buffer:
         if args.sim_fault:
             print("pfma checkout: --sim-fault needs the simulated rack (no --buffer)", file=sys.stderr)
@@ -62,7 +80,6 @@ def run(args) -> int:
         interactive = not args.non_interactive
     else:
         if args.sim_fault:  # a bad spec is a usage mistake: exit 2 before anything is built
-            from pfma.errors import ConfigError
             from sim.faults import parse_fault
             rack = load_rack(rack_path)
             for spec in args.sim_fault:
@@ -86,8 +103,17 @@ def run(args) -> int:
                     bars.say(line)
                 else:
                     print(line, file=text, flush=True)
+
+        def ask(prompt: str) -> str:
+            """The operator's answer (the panel questions): the bar leaves the screen and the
+            prompt goes where the row lines go (stdout may be the JSON document)."""
+            if bars is not None:
+                bars.pause()
+            print(prompt, end="", file=text, flush=True)
+            return input()
         chk = Checkout(target, cfg, keep_going=args.keep_going, only=args.only,
-                       interactive=interactive, say=say, progress=bars.update if bars is not None else None)
+                       interactive=interactive, say=say, progress=bars.update if bars is not None else None,
+                       panel=panel, ask=ask)
         report = chk.run()
     finally:
         if bars is not None:

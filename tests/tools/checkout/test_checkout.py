@@ -107,8 +107,12 @@ def test_reversed_tach_fails_naming_the_tach_and_leaves_outputs_safe(sim, cfg):
     assert f.channel == "wrist_yaw_rate" and f.group == "joints"
     assert "REVERSED" in f.detail and f.measured < 0
     assert not rep.passed and "wrist_yaw_rate" in rep.stopped_early
-    # the joints before it passed, the run stopped at the first failure
-    assert all(r.status != FAIL for r in rep.results[:-1])
+    # the joints before it passed, the run stopped at the first failure: after it only the
+    # joint's drive-and-brake diagnosis (the drive answered: the joint moved)
+    k = rep.results.index(f)
+    assert all(r.status != FAIL for r in rep.results[:k])
+    assert [(r.channel, r.check, r.measured) for r in rep.results[k + 1:]] == \
+        [("wrist_yaw", "drive and brake (diagnosis)", "moved")]
     assert any(r.channel == "wrist_pitch" and r.check == "disarm" for r in rep.results) is False
     outputs_safe(sim)
 

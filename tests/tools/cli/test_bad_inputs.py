@@ -165,6 +165,8 @@ ROWS = [
         ("resolver-lo", "did you mean resolver-los")),
     Row("checkout-bad-sim-fault", ("checkout", "-q", "--sim-fault", "bus-error:no_board"), 2,
         ("--sim-fault", "no_board")),
+    Row("checkout-bad-panel-off", ("checkout", "-q", "--panel-off", "brake:gripper"), 2,
+        ("--panel-off", "the gripper has no brake")),
     Row("fault-bad-spec", ("fault", "inject", "stuck-bit:adc", "--buffer", "pfma-bad-nobody"), 2,
         ("stuck-bit",)),
 ]
