@@ -67,7 +67,9 @@ def test_a_brake_switch_left_off_fails_the_live_power_up_naming_the_joint():
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     outs = []
     try:
-        assert wait_for(lambda: live_inputs(name) is not None), "the service did not come up"
+        # publishing frames (a service on a loaded host can take a while before its first)
+        assert wait_for(lambda: (s := live_inputs(name)) is not None and int(s.frame) > 10), \
+            "the service did not come up"
         for _ in range(3):
             ctl = subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", "none", "--power-up",
                                     "--duration", "4", "--messages", "400", *RT], cwd=ROOT,
