@@ -194,19 +194,39 @@ def _register(spec: str, board, text: str) -> tuple[int, str]:
             raise _fail(spec, f"offset 0x{off:X} is outside {board.name}'s 0x{desc.window:X}-byte "
                               f"window ({board.kind})")
         return off, register_name(desc, off)
-    names = [r.name for r in desc.registers]
+    regs = target_registers(desc)
+    names = [r.name for r in regs]
+    listed = f"; registers: {', '.join(register_text(r) for r in regs)}"
     try:
         off = register_offset(desc, text)
     except KeyError:
         raise _fail(spec, f"{board.name} ({board.kind}) has no register {text!r}"
-                    + (did_you_mean(text.partition("[")[0], names) or f"; registers: {', '.join(names)}")
+                    + (did_you_mean(text.partition("[")[0], names) or listed)
                     + f" (pfma regs {board.kind})") from None
     except (ValueError, IndexError) as err:
         raise _fail(spec, f"{board.name} register {text!r}: {err}") from None
     reg = desc.register_at(off)
+    base = text.partition("[")[0]
+    if reg is not None and reg.name != base:  # an overlay (the DAC's CTRL on DAC[0]'s word)
+        raise _fail(spec, f"{board.name} {base} shares its address (+0x{off:02X}) with "
+                          f"{register_name(desc, off)}: the board tells them apart by the word written, "
+                          f"not by the address a fault acts on, so {base} is no fault target" + listed)
     if reg is None or (reg.count > 1 and "[" not in text and text != reg.name):
         raise _fail(spec, f"{board.name} register {text!r} not found")
     return off, register_name(desc, off)
+
+
+def target_registers(desc) -> list:
+    """The registers of a board's table a fault (``bus-error:B@REG``, ``stuck-bit:B@REG:..``)
+    can name: every one but a register that overlays another's address (the VMIVME-4100's
+    CTRL shares offset 0x00 with DAC[0]; the board tells them apart by D15 of the word
+    written, which a fault on an address cannot)."""
+    return [r for r in desc.registers if desc.register_at(r.offset) is r]
+
+
+def register_text(reg) -> str:
+    """``CSR``, or ``SCAN[0..31]`` for a register array."""
+    return f"{reg.name}[0..{reg.count - 1}]" if reg.count > 1 else reg.name
 
 
 def _parse_bus_error(spec: str, arg: str, rack: RackConfig) -> Fault:
@@ -226,14 +246,18 @@ def _parse_bus_error(spec: str, arg: str, rack: RackConfig) -> Fault:
                        f"bus error on that word", board.name, "no_answer", {"offset": off})
 
 
+def _stuck_bit_boards(rack: RackConfig) -> list[str]:
+    """The boards whose fake has the ``stuck_bit`` fault."""
+    return [b.name for b in rack.boards if "stuck_bit" in getattr(_fake_class(b.kind), "FAULTS", ())]
+
+
 def _parse_stuck_bit(spec: str, arg: str, rack: RackConfig) -> Fault:
     m = re.fullmatch(r"([^@:]+)@([^:]+):([^=]+)=(.*)", arg)
     if not m:
         raise _fail(spec, "expected stuck-bit:BOARD@REG:BIT=0|1 (e.g. stuck-bit:adc@SCAN[3]:11=1)")
     board = _board(spec, m.group(1), rack)
-    if "stuck_bit" not in getattr(_fake_class(board.kind), "FAULTS", ()):
-        able = [b.name for b in rack.boards
-                if "stuck_bit" in getattr(_fake_class(b.kind), "FAULTS", ())]
+    able = _stuck_bit_boards(rack)
+    if board.name not in able:
         raise _fail(spec, f"{board.name} ({board.kind}) has no stuck-bit fault; boards with one: "
                           f"{', '.join(able)}")
     off, reg = _register(spec, board, m.group(2))
@@ -284,11 +308,16 @@ def _parse_busy_stuck(spec: str, arg: str, rack: RackConfig) -> Fault:
                     f"A/D {names}: BUSY stuck set, no conversion ends", parts)
 
 
+def _signals(rack: RackConfig, device: str) -> list[str]:
+    """The signal names of the rack's channels on ``device`` boards (rtd, adc)."""
+    return [c.signal for c in rack.channels() if c.device == device]
+
+
 def _channel(spec: str, signal: str, rack: RackConfig, device: str, what: str):
     try:
         ch = rack.channel(signal)
     except KeyError:
-        known = [c.signal for c in rack.channels() if c.device == device]
+        known = _signals(rack, device)
         raise _fail(spec, f"no {what} {signal!r} in rack {rack.name}"
                     + did_you_mean(signal, known)) from None
     if ch.device != device:
@@ -487,10 +516,21 @@ class _ErrorsFault(Fault):
             self._undo = None
 
 
+def _joints() -> list[str]:
+    """The simulated arm's joint names (the rack's), the gripper last."""
+    from fakes.arm_params import AXES
+    return [a.joint for a in AXES]
+
+
+def _braked_joints() -> list[str]:
+    """The joints with a brake (six; the gripper has none, IRSS 3.6)."""
+    from fakes.arm_params import AXES
+    return [a.joint for a in AXES if a.brake]
+
+
 def _axis(spec: str, name: str) -> int:
     """The simulated arm's axis index of the joint ``name`` (the rack's joint names)."""
-    from fakes.arm_params import AXES
-    stems = [a.joint for a in AXES]
+    stems = _joints()
     if name not in stems:
         raise _fail(spec, f"no joint {name!r}" + (did_you_mean(name, stems) or "")
                     + f"; joints: {', '.join(stems)}")
@@ -521,8 +561,8 @@ def _parse_tach(spec: str, arg: str, rack: RackConfig) -> Fault:
 
 def _parse_brake_held(spec: str, arg: str, rack: RackConfig) -> Fault:
     i = _axis(spec, arg)
-    if arg == "gripper":
-        raise _fail(spec, "the gripper has no brake (IRSS 3.6: six brake release cards)")
+    if arg not in _braked_joints():
+        raise _fail(spec, f"the {arg} has no brake (IRSS 3.6: six brake release cards)")
     return _axis_error(spec, ("brake-held", arg), f"brake of {arg} held on", "brake_held", i, True)
 
 
@@ -545,7 +585,6 @@ PANEL_SYNTAX = "panel-off:28v|15v|pwm:JOINT|brake:JOINT"
 def _parse_panel(spec: str, arg: str, rack: RackConfig) -> Fault:
     """A front-panel switch of the servo control chassis turned off (its own SimErrors
     fields: clearing it never clears a ``brake-held`` or ``amp-off``, nor they it)."""
-    from fakes.arm_params import AXES
     switch, _, name = arg.partition(":")
     if not switch:
         raise _fail(spec, f"needs a switch: {PANEL_SYNTAX}")
@@ -575,7 +614,7 @@ def _parse_panel(spec: str, arg: str, rack: RackConfig) -> Fault:
             if name == "gripper":
                 raise _fail(spec, "the gripper has no brake: the right-hand panel switches release the "
                                   "six joints' brakes (IRSS 3.6)")
-            braked = [a.joint for a in AXES if a.brake]
+            braked = _braked_joints()
             if name not in braked:
                 raise _fail(spec, f"no joint {name!r}" + (did_you_mean(name, braked) or "")
                             + f"; joints with a brake: {', '.join(braked)}")
@@ -667,6 +706,74 @@ _PARSERS: dict[str, Callable[[str, str, RackConfig], Fault]] = {
 }
 #: a kind with several switches has a row per switch in KINDS (``panel-off:28v`` ...)
 assert set(_PARSERS) == {k.partition(":")[0] for k in KINDS}
+
+
+def fault_targets(rack: RackConfig | None = None) -> dict[str, dict[str, Any]]:
+    """The names each kind's argument accepts in ``rack`` (default: the simulated rack's),
+    from the lists its parser checks against: kind (a :data:`KINDS` key) -> placeholder of
+    its syntax (``BOARD``, ``REG``, ``SIGNAL``, ``LINE``, ``JOINT``, ``SWITCH``) -> the
+    names, or for ``REG`` board -> the registers (a register array as ``SCAN[0..31]``; a
+    byte offset ``0x04`` is accepted too). A kind with no argument maps to ``{}``."""
+    if rack is None:
+        from pfma.rack import load_rack
+        rack = load_rack()
+    boards = [b.name for b in rack.boards]
+    stuck = _stuck_bit_boards(rack)
+
+    def regs(names: list[str]) -> dict[str, list[str]]:
+        return {n: [register_text(r) for r in target_registers(_resolve_description(rack.board(n).kind))]
+                for n in names}
+    lines = list(_serial_lines(rack))
+    joints, braked = _joints(), _braked_joints()
+    out: dict[str, dict[str, Any]] = {k: {} for k in KINDS}
+    out["bus-error"] = {"BOARD": boards, "REG": regs(boards)}
+    out["stuck-bit"] = {"BOARD": stuck, "REG": regs(stuck)}
+    out["adc-busy-stuck"] = {"BOARD": [b.name for b in rack.boards_of("adc")]}
+    out["resolver-los"] = {"SIGNAL": _signals(rack, "rtd")}
+    out["adc-dead"] = {"SIGNAL": _signals(rack, "adc")}
+    for kind in _LINE_KINDS:
+        out[kind] = {"LINE": lines}
+    for kind in ("tach-reversed", "amp-off", "load", "panel-off:pwm"):
+        out[kind] = {"JOINT": joints}
+    for kind in ("brake-held", "panel-off:brake"):
+        out[kind] = {"JOINT": braked}
+    out["panel-off:28v"] = out["panel-off:15v"] = {"SWITCH": list(PANEL_SWITCHES)}  # panel-off:SWITCH
+    return out
+
+
+def targets_help(rack: RackConfig | None = None, width: int = 100) -> list[str]:
+    """``pfma fault list``'s lines after :func:`kinds_help`: the names each placeholder
+    accepts (:func:`fault_targets`), one entry per list, naming the kinds that take it,
+    wrapped to ``width`` columns."""
+    import textwrap
+    if rack is None:
+        from pfma.rack import load_rack
+        rack = load_rack()
+    groups: dict[tuple[str, tuple[str, ...]], list[str]] = {}  # (label, names) -> kinds
+    for kind, args in fault_targets(rack).items():
+        kind = kind.partition(":")[0] if kind in ("panel-off:28v", "panel-off:15v") else kind
+        for ph, names in args.items():
+            if ph == "REG":
+                for board, regnames in names.items():
+                    groups.setdefault((f"REG of {board}", tuple(regnames)), []).append(kind)
+            else:
+                groups.setdefault((ph, tuple(names)), []).append(kind)
+    merged: dict[tuple[str, tuple[str, ...]], list[str]] = {}  # boards with the same registers
+    for (label, names), kinds in groups.items():
+        if label.startswith("REG of "):
+            same = next((k for k in merged if k[0].startswith("REG of ") and k[1] == names
+                         and merged[k] == kinds), None)
+            if same is not None:
+                merged[(f"{same[0]}, {label[7:]}", names)] = merged.pop(same)
+                continue
+        merged[(label, names)] = kinds
+    order = ("BOARD", "REG", "SIGNAL", "LINE", "JOINT", "SWITCH")
+    lines = [f"targets in rack {rack.name} (REG may also be a byte offset, e.g. 0x04):"]
+    for (label, names), kinds in sorted(merged.items(), key=lambda kv: order.index(kv[0][0].split()[0])):
+        head = f"  {label} ({', '.join(dict.fromkeys(kinds))}): "
+        lines += textwrap.wrap(", ".join(names) or "none", width=width, initial_indent=head,
+                               subsequent_indent="      ", break_long_words=False, break_on_hyphens=False)
+    return lines
 
 
 def parse_fault(spec: str, rack: RackConfig | None = None) -> Fault:

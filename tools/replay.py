@@ -12,7 +12,10 @@ from the recorded frame: resolver angles (RTD boards), ADC input volts (ADC boar
 user I/F box bits (PIO). Then it compares what the service publishes with what was
 recorded, per channel (RTD counts, ADC counts, PIO bits; exact). The F/T sensor, the CRL
 hand controller and the DAC (which follows the controller's commands) are not driven, so
-they are not compared. The verb is ``pfma replay`` (:mod:`tools.cli.replay`).
+they are not compared. Frames missing from the recording are not compared
+(:func:`missing_frames`): one the service skipped is skipped here too (the next frame runs
+its tasks, as the service did); one it may have run is run without its inputs. The verb
+is ``pfma replay`` (:mod:`tools.cli.replay`).
 """
 
 from __future__ import annotations
@@ -101,6 +104,14 @@ class FakeReplayReport:
     frames_recorded: int = 0
     frames_compared: int = 0
     channels: dict[str, ChannelDiff] = field(default_factory=dict)
+    #: frame numbers missing from the recording that the service skipped (its own dropped
+    #: frames: ``service_skipped`` of ``pfma record info``): not run in the replay either
+    skipped_frames: list[int] = field(default_factory=list)
+    #: frame numbers missing from the recording that the service may have run (the recorder
+    #: or the link lost them, or the file cannot tell): run without their inputs
+    lost_frames: list[int] = field(default_factory=list)
+    #: why ``lost_frames`` are missing, for :meth:`describe`
+    lost_why: str = ""
 
     @property
     def mismatches(self) -> dict[str, ChannelDiff]:
@@ -110,10 +121,56 @@ class FakeReplayReport:
         bad = self.mismatches
         lines = [f"replay through the fakes: {self.frames_compared} of {self.frames_recorded} recorded "
                  f"frames compared, {len(self.channels)} channels, {len(bad)} with mismatches"]
+        if self.skipped_frames:
+            lines.append(f"  {len(self.skipped_frames)} frames the service skipped ({_ranges(self.skipped_frames)}): "
+                         f"not compared, and skipped here too (as the service did)")
+        if self.lost_frames:
+            lines.append(f"  {len(self.lost_frames)} frames missing from the recording "
+                         f"({_ranges(self.lost_frames)}; {self.lost_why}): not compared; run without "
+                         f"their inputs")
         for name, d in sorted(bad.items()):
             lines.append(f"  MISMATCH {name}: {d.mismatched}/{d.compared} frames, max |diff| "
                          f"{d.max_abs:g}, first at frame {d.first_frame}")
         return "\n".join(lines)
+
+
+def _ranges(frames: list[int], most: int = 4) -> str:
+    """``101-102, 340`` for sorted frame numbers (the first ``most`` runs, then ``...``)."""
+    runs: list[list[int]] = []
+    for f in frames:
+        if runs and f == runs[-1][1] + 1:
+            runs[-1][1] = f
+        else:
+            runs.append([f, f])
+    text = [f"{a}" if a == b else f"{a}-{b}" for a, b in runs[:most]]
+    return ", ".join(text) + (", ..." if len(runs) > most else "")
+
+
+def missing_frames(order: list[int], meta: dict[str, dict[str, str]]) -> tuple[list[int], list[int], str]:
+    """The frame numbers missing between a recording's frames ``order`` (sorted), split into
+    (skipped by the service, lost or not known which, why the second are missing), from
+    what the recording says of its gaps (``pfma record info``): a remote recording's
+    ``pfma.link`` lists the frames the link lost (any other gap is the service's); a local
+    one's ``pfma.recorder.summary`` counts the publishes the recorder missed: none, and
+    every gap is a frame the service skipped (its sequence numbers were consecutive across
+    the gap); no skipped frame, and every gap is the recorder's. A file without either (a
+    recovered one) or with both kinds cannot say which gap is which."""
+    gaps = [f for a, b in zip(order, order[1:]) for f in range(a + 1, b)]
+    if not gaps:
+        return [], [], ""
+    link = meta.get("pfma.link")
+    if link is not None:
+        import json
+        lost_ranges = json.loads(link.get("lost_ranges", "[]"))
+        lost = {f for f in gaps if any(a <= f <= b for a, b in lost_ranges)}
+        return [f for f in gaps if f not in lost], sorted(lost), "the link lost them"
+    summ = meta.get("pfma.recorder.summary")
+    if summ is not None:
+        if int(summ.get("recorder_missed", -1)) == 0:
+            return gaps, [], ""
+        if int(summ.get("service_skipped", -1)) == 0:
+            return [], gaps, "the recorder missed them"
+    return [], gaps, "recorder missed or service skipped: the file cannot tell"
 
 
 def replay_through_fakes(path: str, *, rack=None, max_frames: int | None = None) -> FakeReplayReport:
@@ -133,7 +190,8 @@ def replay_through_fakes(path: str, *, rack=None, max_frames: int | None = None)
         frames[int(rec["frame"])] = rec
         if max_frames is not None and len(frames) >= max_frames:
             break
-    meta = read_metadata(path).get("pfma.layout", {})
+    meta_all = read_metadata(path)
+    meta = meta_all.get("pfma.layout", {})
     if meta.get("hash") and meta["hash"] != layout.hash_hex:
         raise ConfigError(f"the recording's layout {meta['hash']} is not this rack's "
                          f"{layout.hash_hex}; give --rack")
@@ -142,6 +200,17 @@ def replay_through_fakes(path: str, *, rack=None, max_frames: int | None = None)
         return rep
     order = sorted(frames)
     first, last = order[0], order[-1]
+    rep.skipped_frames, rep.lost_frames, rep.lost_why = missing_frames(order, meta_all)
+    skipped = set(rep.skipped_frames)
+    # a frame after frames the service skipped ran their tasks too (IoService.frame, its
+    # info.missed): the replay's loop drops nothing, so it is told
+    missed_before: dict[int, int] = {}
+    for f in order:
+        n = 0
+        while f - n - 1 in skipped:
+            n += 1
+        if n:
+            missed_before[f] = n
     name = "pfma-replay-" + uuid.uuid4().hex[:8]
     clock = SimClock()
     world = FakeWorld(rack, clock=clock)
@@ -187,6 +256,10 @@ def replay_through_fakes(path: str, *, rack=None, max_frames: int | None = None)
                         d.first_frame = frame
 
         def frame_body(info) -> None:
+            if info.index in skipped:  # the service did not run this frame: nor does the replay
+                return
+            if info.index in missed_before:
+                info.missed = missed_before[info.index]
             rec = frames.get(info.index)
             if rec is not None:
                 drive(rec)

@@ -14,7 +14,7 @@ from bit3.layout import (BOARD_FAULT, BOARD_INIT, BOARD_OK, CHANNEL_BUS_ERROR, L
 from fakes.board import NoAnswer
 from fakes.ft_sensor import FakeFtController
 from pfma.errors import BusError, ConfigError
-from sim.faults import KINDS, FaultSet, kinds_help, parse_fault
+from sim.faults import KINDS, FaultSet, fault_targets, kinds_help, parse_fault, targets_help
 from sim.rig import SimRig
 from sim.scenario import ScenarioRunner, load_scenario, parse_scenario
 
@@ -99,6 +99,72 @@ def test_bad_specs_are_config_errors_naming_the_closest(spec, says):
     with pytest.raises(ConfigError, match="fault") as e:
         parse_fault(spec)
     assert says in str(e.value)
+
+
+def test_the_dac_control_word_is_no_fault_target_and_is_not_listed_as_one():
+    """Issue 32: ``stuck-bit:dac@CTRL:8=1`` said "register 'CTRL' not found" while the error
+    for an unknown name listed CTRL. CTRL overlays DAC[0]'s word (the board tells them apart
+    by D15 of the word written), so a fault on an address cannot name it: said so, and
+    listed nowhere."""
+    for spec in ("stuck-bit:dac@CTRL:8=1", "bus-error:dac@CTRL"):
+        with pytest.raises(ConfigError) as e:
+            parse_fault(spec)
+        assert "dac CTRL shares its address (+0x00) with DAC[0]" in str(e.value)
+        assert "registers: DAC[0..15]" in str(e.value) and "not found" not in str(e.value)
+    with pytest.raises(ConfigError) as e:
+        parse_fault("stuck-bit:dac@FOO:8=1")
+    assert "registers: DAC[0..15]" in str(e.value) and "CTRL" not in str(e.value)
+    assert fault_targets()["stuck-bit"]["REG"]["dac"] == ["DAC[0..15]"]
+    assert parse_fault("stuck-bit:dac@DAC[3]:11=1").description == "dac DAC[3] bit 11 stuck at 1"
+
+
+def test_every_listed_target_is_accepted_by_its_parser():
+    """``pfma fault list``'s targets come from the parsers' own lists: each one parses."""
+    examples = {"adc-dead": "{}=1.5", "load": "{}=10", "panel-off:pwm": "pwm:{}", "panel-off:brake": "brake:{}"}
+    targets = fault_targets()
+    assert set(targets) == set(KINDS)
+    n = 0
+    for kind, args in targets.items():
+        stem = kind.partition(":")[0]
+        if kind == "bus-error":
+            assert set(args["REG"]) == set(args["BOARD"])
+            specs = [f"bus-error:{b}" for b in args["BOARD"]]
+            specs += [f"bus-error:{b}@{r.replace('[0..', '[')}" for b, regs in args["REG"].items() for r in regs]
+        elif kind == "stuck-bit":  # an array as its last element: DAC[0..15] -> DAC[15]
+            assert set(args["REG"]) == set(args["BOARD"])
+            specs = [f"stuck-bit:{b}@{r.replace('[0..', '[')}:3=1" for b, regs in args["REG"].items() for r in regs]
+        elif "SWITCH" in args:
+            assert args["SWITCH"] == ["28v", "15v", "pwm", "brake"]
+            specs = [kind]
+        elif not args:
+            specs = [kind]
+        else:
+            (names,) = args.values()
+            assert names, kind
+            specs = [f"{stem}:{examples.get(kind, '{}').format(x)}" for x in names]
+        for spec in specs:
+            parse_fault(spec)
+            n += 1
+    assert n > 100
+    # and a name outside a list is refused: the gripper has no brake, sio no stuck bit
+    assert "gripper" in targets["amp-off"]["JOINT"] and "gripper" not in targets["brake-held"]["JOINT"]
+    with pytest.raises(ConfigError, match="no brake"):
+        parse_fault("brake-held:gripper")
+    assert "sio" in targets["bus-error"]["BOARD"] and "sio" not in targets["stuck-bit"]["BOARD"]
+
+
+def test_the_targets_section_is_wrapped_and_names_each_list_once():
+    lines = targets_help()
+    assert lines[0] == "targets in rack pfma (REG may also be a byte offset, e.g. 0x04):"
+    assert all(len(line) <= 100 for line in lines)
+    text = "\n".join(lines)
+    assert "  BOARD (stuck-bit): rtd1, rtd2, dac, adc" in lines
+    assert "  REG of dac (bus-error, stuck-bit): DAC[0..15]" in lines
+    assert "  REG of rtd1, rtd2 (bus-error, stuck-bit): CH0, CH1, CH2, CH3, STATUS, CONTROL" in lines
+    assert "  LINE (serial-noise, serial-drop, serial-stall, serial-disconnect): ft_sensor, crl_hand_controller" \
+        in lines
+    assert "  SWITCH (panel-off): 28v, 15v, pwm, brake" in lines
+    assert text.count("cae_up_down") == 1 and "CTRL" not in text.replace("SIO_CTRL", "")
 
 
 def test_same_fault_twice_refused_and_clearing_what_is_not_active_names_the_active(rig):

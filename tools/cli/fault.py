@@ -81,11 +81,13 @@ def run(args) -> int:
     from sim.faults import KINDS, parse_fault
     cmd = args.fault_cmd
     if cmd == "list" and not args.active:
+        from sim.faults import fault_targets, kinds_help, targets_help
         if args.json:
-            _print_json([{"kind": k, "syntax": s, "meaning": m} for k, (s, m) in KINDS.items()])
+            targets = fault_targets()
+            _print_json([{"kind": k, "syntax": s, "meaning": m, "targets": targets[k]}
+                         for k, (s, m) in KINDS.items()])
         else:
-            from sim.faults import kinds_help
-            print("\n".join(kinds_help()))
+            print("\n".join(kinds_help() + targets_help()))
         return 0
     spec = getattr(args, "spec", None)
     if spec is not None and not (cmd == "clear" and spec.strip() == "all"):

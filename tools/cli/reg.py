@@ -24,6 +24,12 @@ from pfma.rack import BoardConfig, RackConfig, board_description, load_rack
 
 FAKE_NOTE = ("With --bus fake (the default) every command starts a fresh fake rack in its "
              "power-up state, so a write is not seen by the next command.")
+#: what a read or dump of the fake rack adds to its line (``pfma read --bus fake`` says
+#: "(simulated rack)" the same way)
+SIMULATED_READ = "(simulated rack, power-up state)"
+#: the line under a write to the fake rack
+SIMULATED_WRITE = ("simulated rack: a fake in this process: nothing real was written, and the value is "
+                   "gone when the command ends")
 
 
 def parse_int(text: str) -> int:
@@ -50,13 +56,20 @@ class UsageError(Exception):
 INTERACTIVE_MODBUS_TIMEOUT_S = 0.5
 
 
+def is_fake_bus(url: str) -> bool:
+    """Whether ``--bus URL`` is the simulated rack: a fake built in this process (also behind
+    ``spy+``). A Modbus gateway is a real bus even when a simulator answers at its far end
+    (this process cannot see that)."""
+    return url.removeprefix("spy+") in ("fake", "fake://", "")
+
+
 def open_cli_bus(url: str, rack: RackConfig):
     """Open ``--bus``; the fake rack (also behind ``spy+``) is built from ``--rack``.
 
     :raises UsageError: for a malformed bus URL
     """
     inner = url[4:] if url.startswith("spy+") else url
-    kwargs: dict = {"rack": rack} if inner in ("fake", "fake://", "") else {}
+    kwargs: dict = {"rack": rack} if is_fake_bus(url) else {}
     if inner.startswith("modbus://") and "timeout=" not in inner:
         kwargs["timeout"] = INTERACTIVE_MODBUS_TIMEOUT_S
     try:
@@ -147,11 +160,16 @@ def cmd_read(args, rack: RackConfig) -> int:
         raise with_rack_context(err, rack) from err
     finally:
         close_bus(bus)
+    simulated = is_fake_bus(args.bus)
     if args.json:
-        print_json({"addr": args.addr, "width": width, "where": where, "value": value,
-                    "fields": {f.name: f.get(value) for f in reg.fields} if reg is not None and reg.fields else {}})
+        doc = {"addr": args.addr, "width": width, "where": where, "value": value,
+               "fields": {f.name: f.get(value) for f in reg.fields} if reg is not None and reg.fields else {}}
+        if simulated:
+            doc["source"] = "simulated rack"
+        print_json(doc)
         return 0
-    print(f"read{width} 0x{args.addr:04X} {where}: {_fmt(value, width)}{_fields(reg, value)}")
+    sim = f"  {SIMULATED_READ}" if simulated else ""
+    print(f"read{width} 0x{args.addr:04X} {where}: {_fmt(value, width)}{_fields(reg, value)}{sim}")
     return 0
 
 
@@ -178,7 +196,11 @@ def cmd_write(args, rack: RackConfig) -> int:
         raise with_rack_context(err, rack) from err
     finally:
         close_bus(bus)
-    print(f"write{width} 0x{args.addr:04X} {where}: {_fmt(args.value, width)} written")
+    simulated = is_fake_bus(args.bus)
+    print(f"write{width} 0x{args.addr:04X} {where}: {_fmt(args.value, width)} written"
+          + (" (simulated rack)" if simulated else ""))
+    if simulated:
+        print(f"  {SIMULATED_WRITE}")
     return 0
 
 
@@ -192,8 +214,10 @@ def cmd_dump(args, rack: RackConfig) -> int:
                          + (did_you_mean(args.board, names) or f"; known: {', '.join(names)}")) from None
     desc = board_description(b.kind)
     rows: list[dict] = []
+    simulated = is_fake_bus(args.bus)
     if not args.json:
-        print(f"{b.name}: {desc.title} at A16 0x{b.base:04X} (window 0x{desc.window:X}, {desc.byte_lanes} lanes)")
+        print(f"{b.name}: {desc.title} at A16 0x{b.base:04X} (window 0x{desc.window:X}, {desc.byte_lanes} lanes)"
+              + (f"  {SIMULATED_READ}" if simulated else ""))
     failures = 0
     bus = open_cli_bus(args.bus, rack)
     try:
@@ -220,8 +244,11 @@ def cmd_dump(args, rack: RackConfig) -> int:
     finally:
         close_bus(bus)
     if args.json:
-        print_json({"board": b.name, "kind": b.kind, "base": b.base, "title": desc.title, "registers": rows,
-                    "failures": failures})
+        doc = {"board": b.name, "kind": b.kind, "base": b.base, "title": desc.title, "registers": rows,
+               "failures": failures}
+        if simulated:
+            doc["source"] = "simulated rack"
+        print_json(doc)
     return 1 if failures else 0
 
 

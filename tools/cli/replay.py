@@ -16,7 +16,9 @@ frame: resolver angles (RTD boards), ADC input volts (ADC boards), the user I/F 
 (PIO). Then compare what the service publishes with what was recorded, per channel
 (RTD counts, ADC counts, PIO bits; exact), and report the mismatches. The F/T sensor,
 the CRL hand controller and the DAC (which follows the controller's commands) are not
-driven, so they are not compared.
+driven, so they are not compared. A frame the service skipped (``pfma record info``:
+service skipped) is skipped in the replay too and said so, not a mismatch; exit 1 only
+for a mismatch (or nothing compared).
 """
 
 from __future__ import annotations

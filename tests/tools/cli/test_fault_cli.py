@@ -146,6 +146,27 @@ def test_a_request_the_loop_does_not_take_changes_nothing(served):
     assert served.world.bus["sio"].peer(0).device is not None
 
 
+def test_fault_list_names_the_targets_after_the_kinds(capsys):
+    """Issue 32: the list names what each argument accepts (the errors always did), after
+    the unchanged one-line-per-kind rows; --json gives each kind its targets."""
+    from sim.faults import KINDS, kinds_help, targets_help
+    assert main(["fault", "list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[:len(KINDS)] == kinds_help()
+    assert lines[len(KINDS):] == targets_help()
+    assert lines[len(KINDS)].startswith("targets in rack pfma")
+    assert "  BOARD (bus-error): rtd1, rtd2, dac, adc, sio, pio_user, pio_video" in lines
+    assert main(["fault", "list", "--json"]) == 0
+    rows = {r["kind"]: r for r in json.loads(capsys.readouterr().out)}
+    assert list(rows) == list(KINDS)
+    assert rows["stuck-bit"]["targets"]["REG"]["dac"] == ["DAC[0..15]"]
+    assert rows["serial-drop"]["targets"] == {"LINE": ["ft_sensor", "crl_hand_controller"]}
+    assert rows["ft-unplugged"]["targets"] == {}
+    assert main(["fault", "inject", "stuck-bit:dac@CTRL:8=1", "--buffer", "pfma-fcli-none"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "shares its address (+0x00) with DAC[0]" in err
+
+
 def test_no_endpoint_real_rack_or_none(capsys):
     name = "pfma-fcli-none-" + uuid.uuid4().hex[:6]
     assert main(["fault", "inject", "ft-unplugged", "--buffer", name]) == 1

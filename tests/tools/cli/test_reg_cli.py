@@ -66,6 +66,28 @@ def test_reg_write_with_confirmation(capsys):
     assert "write16 0xD000 dac DAC[0]/CTRL" in capsys.readouterr().out
 
 
+def test_reg_write_to_the_simulated_rack_says_nothing_real_was_written(capsys):
+    """Issue 32: the default bus is a fake in this process; the write says so."""
+    assert main(["reg", "write", "0xD000", "0xC100", "--yes-i-know"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == ("write16 0xD000 dac DAC[0]/CTRL (vmivme4100 at 0xD000+0x00): 0xC100 (49408) "
+                        "written (simulated rack)")
+    assert lines[1] == ("  simulated rack: a fake in this process: nothing real was written, and the "
+                        "value is gone when the command ends")
+    assert len(lines) == 2
+    assert main(["reg", "write", "0xD000", "0xC100", "--yes-i-know", "--bus", "spy+fake"]) == 0
+    assert "nothing real was written" in capsys.readouterr().out
+
+
+def test_reg_read_and_dump_of_the_simulated_rack_say_so(capsys):
+    assert main(["reg", "read", "0xD000"]) == 0
+    assert capsys.readouterr().out.rstrip().endswith("  (simulated rack, power-up state)")
+    assert main(["reg", "read", "0xD000", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["source"] == "simulated rack"
+    assert main(["reg", "dump", "dac"]) == 0
+    assert capsys.readouterr().out.splitlines()[0].endswith("  (simulated rack, power-up state)")
+
+
 def test_reg_write_value_too_wide_is_refused(capsys):
     assert main(["reg", "write", "0x0021", "0x1FF", "--yes-i-know"]) == 2
     assert "does not fit 8 bits" in capsys.readouterr().err
@@ -89,9 +111,11 @@ def test_reg_read_and_write_over_modbus(rack_gateway, capsys):
     out = capsys.readouterr().out
     assert "rtd1 CH0" in out and "0x1234 (4660)" in out
     assert main(["reg", "write", "0xD000", "0xC100", "--yes-i-know", "--bus", gw.url]) == 0
-    capsys.readouterr()
+    out = capsys.readouterr().out  # a real bus (whatever answers behind the gateway): no simulated note
+    assert out.endswith("written\n") and "simulated" not in out
     assert main(["reg", "read", "0xD000", "--bus", gw.url]) == 0
-    assert "0x4100" in capsys.readouterr().out  # R2: CTRL reads back in bits 14..8
+    out = capsys.readouterr().out
+    assert "0x4100" in out and "simulated" not in out  # R2: CTRL reads back in bits 14..8
     with gw.lock:
         assert rack["dac"].outputs_connected
 

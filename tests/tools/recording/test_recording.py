@@ -296,6 +296,95 @@ def test_replay_through_the_fakes_matches_the_recording(rig, tmp_path):
     assert not rep.mismatches, rep.describe()
 
 
+def _record_with_a_skip(rig: Rig, path) -> None:
+    """A lossless recording in which the service skipped frames 101 and 102 (its wake-up at
+    frame 100 came 3.5 periods late) and the CAE axes moving (ADC channels that change every
+    scan): what ``pfma record`` makes of a host stall."""
+    period = rig.svc.schedule.period_s
+
+    def wiggle(info):
+        x = math.sin(info.index / 20.0)
+        rig.world.set_cae([x, -x, 0.5 * x, 0.0, 0.2, -0.2])
+        if info.index == 100:
+            rig.clock.advance(3.5 * period)
+    rig.on_frame.append(wiggle)
+    cnt = _record(rig, path, 0.5).close()
+    rig.on_frame.remove(wiggle)
+    assert cnt.service_skipped == 2 and cnt.recorder_missed == 0 and cnt.lossless
+
+
+def test_replay_through_the_fakes_skips_the_frames_the_service_skipped(rig, tmp_path, monkeypatch, capsys):
+    """Issue 32: a LOSSLESS recording with a frame the service skipped replayed with "10 with
+    mismatches", all there. The replay now skips that frame too (the next one runs its tasks,
+    as the service did), counts and says it, and compares the rest; ``pfma record info``
+    and ``pfma replay`` agree."""
+    import tools.replay as replay_mod
+    from tools.cli import main
+    path = tmp_path / "skip.mcap"
+    _record_with_a_skip(rig, path)
+    rep = replay_through_fakes(str(path), rack=rig.world.rack_config)
+    assert rep.skipped_frames == [101, 102] and rep.lost_frames == []
+    assert not rep.mismatches, rep.describe()
+    assert rep.frames_compared == rep.frames_recorded - 8  # all but the first major frame (settling)
+    assert rep.describe().splitlines()[1] == (
+        "  2 frames the service skipped (101-102): not compared, and skipped here too (as the service did)")
+    assert main(["replay", str(path), "--through-fakes"]) == 0
+    assert "2 frames the service skipped (101-102)" in capsys.readouterr().out
+    assert main(["record", "info", str(path)]) == 0
+    assert "service_skipped=2" in capsys.readouterr().out
+
+    # what the replay did before: the gap run as frames without their inputs; the frame
+    # after it then differs from the recording (why the skip is reproduced, not excused)
+    monkeypatch.setattr(replay_mod, "missing_frames",
+                        lambda order, meta: ([], [f for f in range(order[0], order[-1]) if f not in order],
+                                             "test"))
+    old = replay_through_fakes(str(path), rack=rig.world.rack_config)
+    assert old.lost_frames == [101, 102] and old.mismatches
+    assert {d.first_frame for d in old.mismatches.values()} <= {103, 104}
+    assert "2 frames missing from the recording (101-102; test)" in old.describe()
+
+
+def test_replay_through_the_fakes_still_finds_a_real_mismatch_next_to_a_skip(rig, tmp_path, monkeypatch, capsys):
+    import tools.replay as replay_mod
+    from tools.cli import main
+    path = tmp_path / "skip.mcap"
+    _record_with_a_skip(rig, path)
+    slot = rig.reader.layout.channel("cae_up_down").slot
+    real = replay_mod.read_frames
+
+    def tampered(p, topics):  # the recording's ADC counts at frame 140 off by 5 (its volts not)
+        for topic, t_ns, rec in real(p, topics):
+            if topic == RAW_TOPIC and int(rec["frame"]) == 140:
+                rec = rec.copy()
+                rec["adc_counts"][slot] += 5
+            yield topic, t_ns, rec
+    monkeypatch.setattr(replay_mod, "read_frames", tampered)
+    rep = replay_through_fakes(str(path), rack=rig.world.rack_config)
+    assert rep.skipped_frames == [101, 102]
+    bad = rep.mismatches
+    assert list(bad) == ["cae_up_down.adc_counts"]
+    assert bad["cae_up_down.adc_counts"].first_frame == 140 and bad["cae_up_down.adc_counts"].mismatched == 1
+    assert main(["replay", str(path), "--through-fakes"]) == 1
+    out = capsys.readouterr().out
+    assert "1 with mismatches" in out and "MISMATCH cae_up_down.adc_counts: 1/" in out
+    assert "2 frames the service skipped (101-102)" in out
+
+
+def test_missing_frames_are_attributed_from_what_the_recording_says():
+    from tools.replay import missing_frames
+    order = [1, 2, 5, 6, 9]
+    assert missing_frames(order, {"pfma.recorder.summary": {"recorder_missed": "0", "service_skipped": "4"}}) \
+        == ([3, 4, 7, 8], [], "")
+    assert missing_frames(order, {"pfma.recorder.summary": {"recorder_missed": "4", "service_skipped": "0"}}) \
+        == ([], [3, 4, 7, 8], "the recorder missed them")
+    skipped, lost, why = missing_frames(order, {"pfma.recorder.summary": {"recorder_missed": "2",
+                                                                           "service_skipped": "2"}})
+    assert skipped == [] and lost == [3, 4, 7, 8] and "cannot tell" in why
+    assert missing_frames(order, {})[1] == [3, 4, 7, 8]  # a recovered file: no summary
+    assert missing_frames(order, {"pfma.link": {"lost_ranges": "[[7, 8]]"}}) == ([3, 4], [7, 8], "the link lost them")
+    assert missing_frames([1, 2, 3], {}) == ([], [], "")
+
+
 @pytest.mark.realtime
 def test_record_cli_waits_with_a_message_and_gives_up(tmp_path):
     name = "pfma-none-" + uuid.uuid4().hex[:8]
