@@ -219,7 +219,9 @@ class BrakeTest:
     passed (then it failed: 0 at once, a stuck joint is not driven back); back at the
     opposite rate until the tach shows that way too and for at least as long as it went out
     (a command that reaches the joint one way only fails here); then 0. Beyond
-    :data:`BRAKE_TEST_MAX_EXCURSION_RAD` from the start it fails at once."""
+    :data:`BRAKE_TEST_MAX_EXCURSION_RAD` from the start it fails at once. The first failure
+    ends the test for every joint (all 0, then the layer sets every current limit to 0): a
+    joint that does not follow is not left powered while the others finish."""
 
     def __init__(self, sup: JointSupervisor, q0: list[float], q_min: list[float], q_max: list[float],
                  rate_limit: list[float]) -> None:
@@ -238,6 +240,8 @@ class BrakeTest:
             room = q0[k] - q_min[k] if away > 0 else q_max[k] - q0[k]
             self.check_back.append(room >= BRAKE_TEST_MAX_EXCURSION_RAD)
         self.stage = [0] * n  # 0 out, 1 back, 2 done
+        #: the tach rate that shows a joint moving (the brake state's own motion threshold)
+        self.moving = [STALL_MOTION_FRACTION * fs for fs in sup.fs]
         self.t = 0.0
         self.t_out = [0.0] * n
         self.t_back = [0.0] * n
@@ -267,7 +271,7 @@ class BrakeTest:
                                  f"{math.degrees(BRAKE_TEST_MAX_EXCURSION_RAD):g} deg")
                 continue
             if self.stage[k] == 0:
-                shown = w_tach[k] * u > 0 and abs(w_tach[k]) >= STALL_MOTION_FRACTION * self.sup.fs[k]
+                shown = w_tach[k] * u > 0 and abs(w_tach[k]) >= self.moving[k]
                 if brake[k] == BRAKE_PROVEN and shown:
                     self.stage[k], self.t_out[k] = 1, self.t
                 elif self.t >= BRAKE_TEST_MAX_S:
@@ -277,7 +281,7 @@ class BrakeTest:
                     out[k] = u
                     continue
             self.t_back[k] += dt
-            if w_tach[k] * u < 0 and abs(w_tach[k]) >= STALL_MOTION_FRACTION * self.sup.fs[k]:
+            if w_tach[k] * u < 0 and abs(w_tach[k]) >= self.moving[k]:
                 self.back[k] = True  # it answers the other direction too (the direction check)
             if (self.back[k] or not self.check_back[k]) and self.t_back[k] >= self.t_out[k]:
                 self.stage[k] = 2
@@ -285,6 +289,9 @@ class BrakeTest:
                 self._fail(k, -u, f"not back within {BRAKE_TEST_MAX_S * 1e3:.0f} ms")
             else:
                 out[k] = -u
+        if self.failed:  # the test ends here for every joint
+            self.stage = [2] * len(self.u)
+            return [0.0] * len(self.u)
         return out
 
     def _fail(self, k: int, u: float, how: str) -> None:
@@ -502,14 +509,8 @@ class ServoLayer(Layer):
         self._testing = False
         if bt.failed:
             k = min(bt.failed)
-            self.trip = Trip(k, "brake test", bt.causes[k], bt.failed[k])
-            self.set_fault(rt, ERR_BRAKE_TEST, "brake test: " + "; ".join(bt.failed[j] for j in sorted(bt.failed))
-                           + "; current limits 0 (brakes on)")
-            self._u_sent = [0.0] * N_JOINTS
-            rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS), "servo.rate_cmd_frame": -1,
-                                              "servo.current_limit_cmd_a": self._zero_limits,
-                                              "servo.trip_joint": k, "servo.trip_cause": bt.causes[k]})
-            self._brake_phase(rt, 5)
+            self._trip(rt, Trip(k, "brake test", bt.causes[k], "brake test: " + "; ".join(
+                bt.failed[j] for j in sorted(bt.failed))), ERR_BRAKE_TEST)
             return TaskState.FAILED
         self.hold = np.array(self._q_powerup, dtype=float)
         self.comp.reset(0.0)
@@ -630,12 +631,13 @@ class ServoLayer(Layer):
             self._brake_posted = list(self.sup.brake_state)
             wm.post_task_outputs("servo", {"servo.brake_state": self._brake_posted})
 
-    def _trip(self, rt: "LayerContext", trip: Trip) -> None:
+    def _trip(self, rt: "LayerContext", trip: Trip, code: int | None = None) -> None:
         """A supervision trip: the layer's fault (one message naming joint, check and likely
         cause), the rates and every current limit to 0 at once (brakes on): the safe stop's
         wait for still joints is no use when a joint does not follow its command."""
         self.trip = trip
-        self.set_fault(rt, SUPERVISION_CODES[trip.check], f"{trip.text}; current limits 0 (brakes on)")
+        self.set_fault(rt, SUPERVISION_CODES[trip.check] if code is None else code,
+                       f"{trip.text}; current limits 0 (brakes on)")
         self._u_sent = [0.0] * N_JOINTS
         rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS), "servo.rate_cmd_frame": -1,
                                           "servo.current_limit_cmd_a": self._zero_limits,

@@ -97,3 +97,18 @@ def power_up_holding(start, armed, hold_s: float = 0.5, attempts: int = 3, log=N
         assert "missed service frames" in out, ("the controller never powered up" if not up else
                                                 "the arm did not hold its pose") + "\n" + out
     raise AssertionError(f"{attempts} power-ups in a row ended in missed service frames:\n" + "\n".join(outs))
+
+
+def start_service(name: str, *args: str) -> subprocess.Popen:
+    """``pfma serve --buffer NAME ARGS`` (real time where permitted, output discarded), once it
+    publishes frames (a service on a loaded host can take a while before its first); stopped,
+    its buffer removed and the test failed when it does not."""
+    serve = subprocess.Popen([*PY, "serve", "--buffer", name, *args, *RT], cwd=ROOT,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    if not wait_for(lambda: (s := live_inputs(name)) is not None and int(s.frame) > 10):
+        stop(serve)
+        from bit3.buffer import Bit3Buffer
+        Bit3Buffer.unlink(name)
+        raise AssertionError(f"the service on {name} did not come up")
+    return serve
+

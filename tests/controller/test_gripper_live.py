@@ -18,7 +18,7 @@ from bit3.client import Client
 from bit3.layout import ServiceState
 from controller.worldmodel import WorldModel
 from pfma.gripper import GripperState
-from tests.controller._live_support import PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for
+from tests.controller._live_support import PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for, start_service
 
 pytestmark = pytest.mark.realtime
 
@@ -40,12 +40,10 @@ def _gripper(wm_name: str) -> dict | None:
 def test_pfma_controller_gripper_open_then_close_moves_the_live_jaw(tmp_path):
     name = "pfma-test-gr-" + uuid.uuid4().hex[:6]
     wm = name + "-wm"
-    serve = subprocess.Popen([*PY, "serve", "--buffer", name, "--duration", "90", *RT], cwd=ROOT,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    serve = start_service(name, "--duration", "90")
     ctl = None
     log = tmp_path / "controller.log"
     try:
-        assert wait_for(lambda: live_inputs(name) is not None), "the service did not come up"
         def start() -> subprocess.Popen:
             with open(log, "w") as out:
                 return subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--power-up", "--duration",

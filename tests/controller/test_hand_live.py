@@ -16,7 +16,7 @@ import pytest
 from bit3.buffer import Bit3Buffer
 from bit3.layout import HAND_CONTROLLERS, ServiceState
 from controller.worldmodel import WorldModel
-from tests.controller._live_support import PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for
+from tests.controller._live_support import PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for, start_service
 
 pytestmark = pytest.mark.realtime
 
@@ -37,11 +37,9 @@ def _hand(name: str, *argv: str) -> subprocess.CompletedProcess:
 def test_the_simulated_stick_flies_the_live_arm_with_the_deadman_only():
     name = "pfma-test-hd-" + uuid.uuid4().hex[:6]
     wm = name + "-wm"
-    serve = subprocess.Popen([*PY, "serve", "--buffer", name, "--duration", "90", *RT], cwd=ROOT,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    serve = start_service(name, "--duration", "90")
     ctl = None
     try:
-        assert wait_for(lambda: live_inputs(name) is not None), "the service did not come up"
         ctl = power_up_holding(
             lambda: subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--power-up", "--teleop",
                                       "cae", "--duration", "60", "--messages", "60", *RT], cwd=ROOT,

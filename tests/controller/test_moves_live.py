@@ -19,7 +19,7 @@ import pytest
 from bit3.buffer import Bit3Buffer
 from controller.decision import Status
 from controller.worldmodel import WorldModel
-from tests.controller._live_support import PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for
+from tests.controller._live_support import PY, ROOT, RT, armed_and_released, power_up_holding, stop, wait_for, start_service
 
 pytestmark = pytest.mark.realtime
 
@@ -53,11 +53,9 @@ def _move(wm: str, *argv: str) -> subprocess.CompletedProcess:
 def test_move_from_the_shell_and_python_keeps_the_orientation_and_a_turning_one_is_refused(tmp_path):
     name = "pfma-test-mv-" + uuid.uuid4().hex[:6]
     wm = name + "-wm"
-    serve = subprocess.Popen([*PY, "serve", "--buffer", name, "--duration", "90", *RT], cwd=ROOT,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    serve = start_service(name, "--duration", "90")
     ctl = None
     try:
-        assert wait_for(lambda: live_inputs(name) is not None), "the service did not come up"
         ctl = power_up_holding(
             lambda: subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--power-up", "--duration",
                                       "60", "--messages", "60", *RT], cwd=ROOT, stdout=subprocess.PIPE,

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from bit3.buffer import Bit3Buffer
-from tests.controller._live_support import PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for
+from tests.controller._live_support import PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for, start_service
 
 pytestmark = pytest.mark.realtime
 
@@ -30,11 +30,9 @@ pytestmark = pytest.mark.realtime
 ])
 def test_a_motion_fault_on_the_live_arm_stops_it_and_names_joint_and_cause(spec, joint, cause):
     name = "pfma-test-sv-" + uuid.uuid4().hex[:6]
-    serve = subprocess.Popen([*PY, "serve", "--buffer", name, "--duration", "60", *RT], cwd=ROOT,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    serve = start_service(name, "--duration", "60")
     ctl = None
     try:
-        assert wait_for(lambda: live_inputs(name) is not None), "the service did not come up"
         ctl = power_up_holding(
             lambda: subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", "none", "--power-up",
                                       "--duration", "8", "--messages", "400", *RT], cwd=ROOT,
@@ -62,14 +60,9 @@ def test_a_brake_switch_left_off_fails_the_live_power_up_naming_the_joint():
     outputs are at 0 V. (A controller descheduled past its missed-frame limit before the test
     ran is started again, as in power_up_holding, at most 3 times.)"""
     name = "pfma-test-bt-" + uuid.uuid4().hex[:6]
-    serve = subprocess.Popen([*PY, "serve", "--buffer", name, "--duration", "60", "--fault",
-                              "panel-off:brake:elbow_pitch", *RT], cwd=ROOT,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    serve = start_service(name, "--duration", "60", "--fault", "panel-off:brake:elbow_pitch")
     outs = []
     try:
-        # publishing frames (a service on a loaded host can take a while before its first)
-        assert wait_for(lambda: (s := live_inputs(name)) is not None and int(s.frame) > 10), \
-            "the service did not come up"
         for _ in range(3):
             ctl = subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", "none", "--power-up",
                                     "--duration", "4", "--messages", "400", *RT], cwd=ROOT,
