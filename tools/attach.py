@@ -38,6 +38,7 @@ from bit3.buffer import Bit3Error, LayoutMismatchError
 from bit3.client import Client
 from bit3.layout import Layout, ServiceState
 from pfma.errors import PfmaTimeoutError
+from tools.bridge.address import REMOTE_PREFIX, remote_target  # noqa: F401  (REMOTE_PREFIX: tools name it here)
 
 
 class Words:
@@ -288,26 +289,6 @@ def buffer_replaced(client: Client) -> bool:
         return b.header().created_ns != client.header().created_ns
     finally:
         b.close()
-
-
-#: a buffer name read through a bridge: zenoh://HOST:PORT/NAME
-REMOTE_PREFIX = "zenoh://"
-
-
-def remote_target(name: str) -> tuple[str, str] | None:
-    """``("tcp/HOST:PORT", NAME)`` for ``zenoh://HOST:PORT/NAME``; None for a shared-memory name.
-
-    :raises PfmaError: a zenoh:// name of another shape
-    """
-    if not name.startswith(REMOTE_PREFIX):
-        return None
-    from pfma.errors import PfmaError
-    where, _, buffer = name[len(REMOTE_PREFIX):].partition("/")
-    host, _, port = where.rpartition(":")
-    if not host or not port.isdigit() or not buffer:
-        raise PfmaError(f"--buffer {name!r}: a remote buffer is zenoh://HOST:PORT/NAME "
-                        f"(e.g. zenoh://127.0.0.1:7447/pfma)")
-    return f"tcp/{host}:{port}", buffer
 
 
 def attach_reader(name: str, rack: str | None = None, *, every_frame: bool = False,

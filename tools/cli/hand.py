@@ -98,7 +98,7 @@ def parse_deflection(text: str) -> list[float]:
 
 
 def _deflect(args) -> int:
-    from tools.cli.fault import HAND_HOLD_MAX_S, NoEndpoint, request
+    from tools.faultctl import HAND_HOLD_MAX_S, NoEndpoint, request
     if args.source != "cae":
         print(f"pfma hand: --deflect holds the simulated CAE stick (--source cae), not {args.source}",
               file=sys.stderr)

@@ -145,8 +145,8 @@ def _unwritable(path: str) -> str:
 
 
 def _record_remote(args) -> int:
-    """``--buffer zenoh://HOST:PORT/NAME``: the recording through a bridge (tools/bridge/record.py)."""
-    from tools.bridge.record import record_remote
+    """``--buffer zenoh://HOST:PORT/NAME``: the recording through a bridge (tools/recording/remote.py)."""
+    from tools.recording.remote import record_remote
     sys.setswitchinterval(0.0005)  # as locally: the Zenoh threads get in while this one writes
     stop = {"flag": False}
 
@@ -238,7 +238,7 @@ def _info(args) -> int:
 
 
 def _link(meta: dict | None) -> dict | None:
-    """A remote recording's ``pfma.link`` metadata (tools/bridge/record.py), typed."""
+    """A remote recording's ``pfma.link`` metadata (tools/recording/remote.py), typed."""
     if not meta:
         return None
     return {"source": meta.get("source"), "inputs_received": int(meta.get("inputs_received", 0)),

@@ -440,7 +440,7 @@ class EditScreen(ModalScreen):
         self.confirm: str | None = None  # the text checked and shown for confirmation
 
     def compose(self) -> ComposeResult:
-        from tools.cli.wm import format_value, value_text
+        from tools.wmtext import format_value, value_text
         now = self.current if self.index is None else self.current[self.index]
         with Vertical(id="edit"):
             yield Static(self._info(value_text(self.spec, self.current)), id="edit-info", markup=False)
@@ -461,7 +461,7 @@ class EditScreen(ModalScreen):
             return text
         import json
 
-        from tools.cli.wm import parse_value
+        from tools.wmtext import parse_value
         v = parse_value(text, self.spec)
         vec = [x.item() if hasattr(x, "item") else x for x in list(self.current)]
         vec[self.index] = v
@@ -469,7 +469,7 @@ class EditScreen(ModalScreen):
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
         from controller.worldmodel import WorldModelError, coerce_user
-        from tools.cli.wm import parse_value, value_text
+        from tools.wmtext import parse_value, value_text
         text = event.value.strip()
         status = self.query_one("#edit-status", Static)
         app = self.app
@@ -913,7 +913,7 @@ class ConsoleApp(App):
                 continue
             name = self.writes.pop(rid)
             if o.applied:
-                from tools.cli.wm import value_text
+                from tools.wmtext import value_text
                 self.write_status = (f"{name} = {value_text(self.link.wm.spec(name), self.link.wm.get(name))} "
                                      f"(write #{rid}, {o.result})")
                 self._note("INFO", self.write_status)

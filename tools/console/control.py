@@ -135,7 +135,7 @@ class ControllerLink:
 
         :raises WorldModelError: why not (not user-settable, powered up, key, value, ring full)
         """
-        from tools.cli.wm import parse_value  # VALUE as `pfma wm set` reads it
+        from tools.wmtext import parse_value  # VALUE as `pfma wm set` reads it
         return int(self.wm.set_user(name, parse_value(text, self.wm.spec(name)), self.key))
 
     def outcome(self, rid: int) -> "WriteOutcome | None":

@@ -71,7 +71,7 @@ class SimulatedSystem:
         ``pfma serve --rack fake``'s (the requests are applied between two frames, in the
         thread that runs them)."""
         from pfma.errors import PfmaError
-        from tools.cli.fault import FaultController, FaultEndpoint, socket_path
+        from tools.faultctl import FaultController, FaultEndpoint, socket_path
         ctl = FaultController(self.sim.svc, self.sim.world)
         ctl.install()
         endpoint = FaultEndpoint(socket_path(self.name), ctl)

@@ -1,7 +1,7 @@
 """Remote tools, issue 19 item 2: ``pfma record``, ``scope``, ``watch`` and ``console`` with
 ``--buffer zenoh://HOST:PORT/NAME`` against a bridge on a simulated service over
 tcp/127.0.0.1. A remote recording equals a local one frame by frame, and the frames it
-lost are named exactly (:class:`tools.bridge.record.LinkLoss`)."""
+lost are named exactly (:class:`tools.recording.remote.LinkLoss`)."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from controller.worldmodel import WorldModel
 from sim.rig import SimRig
 from tests.tools.bridge.test_bridge import free_port, until
 from tools.bridge.bridge import Bridge
-from tools.bridge.record import LinkLoss, RemoteRecording
+from tools.recording.remote import LinkLoss, RemoteRecording
 from tools.bridge.remote import RemoteBuffer
 from tools.bridge.session import open_session
 from tools.cli import main
@@ -54,7 +54,7 @@ def test_link_loss_names_lost_frames_and_keeps_service_skips_apart():
 def test_link_loss_holds_a_bounded_list_of_ranges(monkeypatch):
     """A link losing every other frame for a long time: past MAX_RANGES the gaps merge into
     the last range (still covering every lost frame), counted and said."""
-    import tools.bridge.record as record
+    import tools.recording.remote as record
     monkeypatch.setattr(record, "MAX_RANGES", 5)
     loss = LinkLoss()
     for k in range(40):  # frames 0, 2, 4, ...: every odd frame lost

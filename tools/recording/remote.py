@@ -162,7 +162,7 @@ def record_remote(path: str, url: str, *, rack_arg: str = "fake", json_every: in
     """
     from bit3.seqlock import Bit3Error, LayoutMismatchError
     from pfma.rack import load_rack
-    from tools.attach import remote_target
+    from tools.bridge.address import remote_target
     from tools.recording import Recorder
     target = remote_target(url)
     assert target is not None
