@@ -25,8 +25,11 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -m "not lab and not realtime"
 	$(BIN)/python -m pytest -m "realtime and not lab" --durations=15
 
+# ruff (with the complexity gate, C901 over 20), the length gate (devtools/function_length.py),
+# the import contracts (the floors and no import circle), mypy
 lint: $(STAMP)
 	$(BIN)/ruff check .
+	$(BIN)/python devtools/function_length.py
 	$(BIN)/lint-imports --no-cache
 	$(BIN)/mypy
 
