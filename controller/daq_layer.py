@@ -63,7 +63,7 @@ from controller.messages import Level
 from controller.params import GRIPPER, JOINTS, N_CURRENT_LIMITS, N_JOINTS
 from controller.servo import ERR_NO_OUTPUT
 from controller.worldmodel import VarSpec
-from drivers.pio.routes import box_selections, route_text, set_monitor
+from controller.routes import box_selections, route_text, set_monitor
 from bit3.layout import (
     BOARD_FAULT, CHANNEL_BUS_ERROR, CMD_FOREIGN, CMD_REFUSED, CMD_STALE, CMD_STATUS_NAMES, HAND_CONTROLLERS, HC_AXES,
     LINK_FAULT, LINK_STALE, MODE_HALTED, ServiceState,
@@ -226,7 +226,7 @@ class DataAcquisitionLayer(Layer):
                     doc="the user I/F box's 16 input bits (docs/cameras.md: closed switch = 0)"),
             VarSpec("daq.camera_route", "task_io", "i4", (), w, 0, "bits",
                     doc="matrix switcher route this layer commands (commands.matrix_route; "
-                        "drivers/pio/routes.py)"),
+                        "controller/routes.py)"),
             VarSpec("daq.camera_route_applied", "task_io", "i4", (), w, -1, "bits",
                     doc="route the service has applied to the switcher (inputs.matrix_route)"),
             VarSpec("daq.fault_bits", "error_reports", "i4", (), w, 0,
@@ -298,7 +298,7 @@ class DataAcquisitionLayer(Layer):
     def _camera_routes(self, rt: "LayerContext", rec) -> None:
         """The user I/F box's switches and the console's route requests -> the route this
         layer writes to ``commands.matrix_route`` (with the next command write). A box
-        selection acts when it changes (drivers/pio/routes.py); a console request arrives
+        selection acts when it changes (controller/routes.py); a console request arrives
         from System Up/Down's request task (``updown.route_request``)."""
         word = int(rec["pio_user_inputs"])
         route = self.route

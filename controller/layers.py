@@ -40,8 +40,7 @@ from controller.params import (
 )
 from controller.quat import q_angle
 from controller.worldmodel import VarSpec
-from drivers.pio.registers import decode_matrix_route
-from drivers.pio.routes import camera_name, parse_route_request, route_text
+from controller.routes import camera_name, decode_matrix_route, parse_route_request, route_text
 
 if TYPE_CHECKING:  # pragma: no cover
     from controller.context import LayerContext

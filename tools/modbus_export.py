@@ -69,7 +69,7 @@ import numpy as np
 
 from bit3.client import PRIMARY_FIELD, Client
 from bit3.layout import Layout, default_layout
-from drivers.pio.routes import ALL_ROUTES
+from controller.routes import ALL_ROUTES
 from ioservice.safety import OutputGuard
 from bit3.buffer import Bit3Buffer, Bit3Error
 from pfma.errors import ConfigError, PfmaError
@@ -101,7 +101,7 @@ CHANNEL_KINDS = ("rtd", "adc", "dac", "pio")
 #: command fields the export sets itself; writing them is accepted as a keep-alive only
 KEEPALIVE_FIELDS = ("heartbeat", "t_s", "writer_pid", "writer_token")
 #: the requests a Modbus master may write (writes enabled): the camera route, a value of the
-#: route table (drivers/pio/routes.py ALL_ROUTES), which the service's PIO task applies. No
+#: route table (controller/routes.py ALL_ROUTES), which the service's PIO task applies. No
 #: field that arms or moves the arm is here: Modbus TCP has no authentication and its port
 #: is reachable by every local user (issue 28 item 6)
 REQUEST_FIELDS = ("matrix_route",)
@@ -407,7 +407,7 @@ def modbus_map_markdown(layout: Layout | None = None) -> str:
         "",
         f"- Writable: {', '.join(f'`{n}`' for n in REQUEST_FIELDS)} only: "
         "a camera route, which must be one of the route table's 16 values "
-        "(`drivers/pio/routes.py` `ALL_ROUTES`, docs/cameras.md), else exception 3; the "
+        "(`controller/routes.py` `ALL_ROUTES`, docs/cameras.md), else exception 3; the "
         "service's PIO task applies it and reads it back (`inputs.matrix_route`).",
         "- A write that touches any other command field (`arm_request`, `rearm_counter`, "
         "rates, current limits, gripper, mode, ...) answers **exception 2 "

@@ -9,9 +9,8 @@ from __future__ import annotations
 import pytest
 
 from controller.layers import Request, Response
-from drivers.pio.registers import encode_matrix_route
-from drivers.pio.routes import (
-    ALL_ROUTES, BOX_IDLE, box_selections, parse_route_request, route_request_arg, route_text, set_monitor,
+from controller.routes import (
+    ALL_ROUTES, encode_matrix_route, BOX_IDLE, box_selections, parse_route_request, route_request_arg, route_text, set_monitor,
     switch_word,
 )
 

@@ -16,7 +16,7 @@ from controller.daq_layer import ARM_TIMEOUT_S, INIT_TIMEOUT_S
 from controller.decision import SHORT, Status
 from controller.layers import QUEUE_SLOTS, Request, Response
 from controller.servo import BRAKE_RELEASE_TIMEOUT_S
-from drivers.pio.routes import route_request_arg
+from controller.routes import route_request_arg
 from sim.faults import FaultSet
 
 S = Status

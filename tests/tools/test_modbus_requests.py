@@ -16,7 +16,7 @@ from pymodbus.client import ModbusTcpClient
 
 from bit3.layout import ServiceState
 from controller.layers import Request, Response
-from drivers.pio.routes import route_request_arg
+from controller.routes import route_request_arg
 from tools.modbus_export import REQUESTS_BASE, ModbusExport, map_row, register_map
 
 pytestmark = pytest.mark.realtime  # a TCP server thread and a shared-memory world model

@@ -43,7 +43,7 @@ from bit3.layout import (
 )
 from pfma.errors import PfmaError
 from pfma.show import wrap_angle
-from drivers.pio.routes import ALL_ROUTES, route_text
+from controller.routes import ALL_ROUTES, route_text
 
 #: rtd_status bits (bit3.layout)
 RTD_BITS = {RTD_LOSS_OF_SIGNAL: "loss of signal", RTD_NO_REFERENCE: "no reference",
@@ -427,7 +427,7 @@ class Checkout:
 
     # ------------------------------------------------------------------ matrix switcher
     def _group_matrix(self) -> None:
-        """Every route of the switch-to-route table (drivers/pio/routes.py, named in words),
+        """Every route of the switch-to-route table (controller/routes.py, named in words),
         then the configured port-line patterns that are not routes: each written, strobed and
         acknowledged (the service applies a route only after the switcher's acknowledge), and
         read back as applied; on the fake switcher also its latched byte and one new

@@ -69,7 +69,7 @@ def float_in(lo: float, hi: float, unit: str = "") -> Callable[[str], float]:
 
 def camera_number(text: str) -> int:
     """A camera of the matrix switcher: 1..3, or 0 = blank the monitor (docs/cameras.md)."""
-    from drivers.pio.routes import BLANK, CAMERAS
+    from controller.routes import BLANK, CAMERAS
     v = int(_number(int, text))
     if v != BLANK and v not in CAMERAS:
         raise argparse.ArgumentTypeError(f"{text} is not a camera: {CAMERAS[0]}..{CAMERAS[-1]}, or {BLANK} to blank "
@@ -79,7 +79,7 @@ def camera_number(text: str) -> int:
 
 def monitor_number(text: str) -> int:
     """A monitor of the matrix switcher: 1..2 (docs/cameras.md)."""
-    from drivers.pio.routes import MONITORS
+    from controller.routes import MONITORS
     v = int(_number(int, text))
     if v not in MONITORS:
         raise argparse.ArgumentTypeError(f"{text} is not a monitor: {MONITORS[0]}..{MONITORS[-1]}")

@@ -899,7 +899,7 @@ def _frame_control(args) -> int:
         return 2
     kind = {"halt": Request.HALT, "step": Request.STEP, "resume": Request.RESUME, "route": Request.ROUTE}[args.action]
     if args.action == "route":
-        from drivers.pio.routes import route_request_arg
+        from controller.routes import route_request_arg
         arg = route_request_arg(args.monitor, args.frames)  # monitor * 16 + camera (docs/cameras.md)
     else:
         arg = n if args.action == "step" else int(args.rearm)

@@ -30,7 +30,7 @@ from textual.strip import Strip
 from textual.widget import Widget
 from textual.widgets import Footer, Input, Static
 
-from drivers.pio.routes import MONITORS, route_request_arg
+from controller.routes import MONITORS, route_request_arg
 from tools.console.recording import ConsoleRecording
 from tools.console import debug, view
 from tools.console.control import Answer, ControlError, ControllerLink, Request, Response, parse_move

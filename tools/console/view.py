@@ -27,7 +27,7 @@ from controller.paths import MultiSegmentLayer
 from controller.servo import ServoLayer
 from controller.trajectory import TrajectoryLayer
 from drivers.pio.registers import decode_matrix_route
-from drivers.pio.routes import MONITORS, camera_name, route_text
+from controller.routes import MONITORS, camera_name, route_text
 from pfma.show import flag_names, name_of, named, wrap_angle
 
 #: the seven IRSS layers, highest first: (world-model key, the report's title)

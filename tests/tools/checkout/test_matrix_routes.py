@@ -3,7 +3,7 @@ every route of the switch-to-route table, named in words, written with the strob
 and read back as applied by the service; a switcher that does not acknowledge fails the
 route naming it, with the service's one message."""
 
-from drivers.pio.routes import ALL_ROUTES, route_text
+from controller.routes import ALL_ROUTES, route_text
 from tools.checkout import FAIL, PASS, Checkout
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 
 
-from drivers.pio.routes import switch_word
+from controller.routes import switch_word
 from tools.console import view
 from tools.console.app import CameraScreen, ConsoleApp
 from tools.console.control import ControllerLink

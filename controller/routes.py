@@ -20,19 +20,51 @@ therefore a choice, named once here:
   changes when a monitor's selection changes to a new one, so momentary push-buttons and a
   held selector switch both work, and a route chosen at the console stands until a box
   switch moves.
-- The route byte itself (2-bit source code per monitor, 0 = blank, 1..3 = camera) is the
-  matrix switcher's table, :data:`drivers.pio.registers.MATRIX_SWITCHER` (also ASSUMED,
-  and kept there: the driver and the fake use it).
+- The route byte itself (2-bit source code per monitor, 0 = blank, 1..3 = camera; bits 7..4
+  written 0) is what the controller posts in the Bit3 field ``outputs.matrix_route`` and
+  the service writes unchanged to the switcher. The controller encodes it here
+  (:func:`encode_matrix_route`, :func:`decode_matrix_route`) because it may not import the
+  drivers (the house, docs/architecture.md); the driver and the fake keep the register
+  table, :data:`drivers.pio.registers.MATRIX_SWITCHER` (also ASSUMED). Two encodings of one
+  byte, on two sibling floors: ``tests/controller/test_route_encoding.py`` proves they agree
+  on every route and reject the same cameras.
+
+The switch table and the route requests are the controller's (it reads the box's word and
+chooses the route); tools import them from here.
 """
 
 from __future__ import annotations
-
-from drivers.pio.registers import MATRIX_SWITCHER, decode_matrix_route, encode_matrix_route
 
 #: monitors and cameras of the switcher (IRSS report 3.5.3); camera 0 = blank
 MONITORS: tuple[int, ...] = (1, 2)
 CAMERAS: tuple[int, ...] = (1, 2, 3)
 BLANK = 0
+
+#: the route byte (ASSUMED, the same as ``drivers.pio.registers.MATRIX_SWITCHER``): monitor ->
+#: shift of its 2-bit source code; bits 7..4 carry no source (written 0)
+MONITOR_SHIFT: dict[int, int] = {1: 0, 2: 2}
+_SOURCE_MASK = 0x3
+
+
+def encode_matrix_route(monitor_1_camera: int, monitor_2_camera: int) -> int:
+    """Route byte for the matrix switcher.
+
+    :param monitor_1_camera: 0 = blank, 1..3 = camera
+    :param monitor_2_camera: 0 = blank, 1..3 = camera
+    :raises ValueError: for a camera number outside 0..3
+    """
+    value = 0
+    for monitor, cam in ((1, monitor_1_camera), (2, monitor_2_camera)):
+        if cam not in (BLANK, *CAMERAS):
+            raise ValueError(f"matrix switcher monitor {monitor}: camera {cam} not in 0..3")
+        value |= cam << MONITOR_SHIFT[monitor]
+    return value
+
+
+def decode_matrix_route(value: int) -> tuple[int, int]:
+    """(monitor 1 camera, monitor 2 camera) from a route byte (0 = blank)."""
+    return (value >> MONITOR_SHIFT[1]) & _SOURCE_MASK, (value >> MONITOR_SHIFT[2]) & _SOURCE_MASK
+
 
 #: ASSUMED: user I/F box input bit -> (monitor, camera); camera 0 = blank the monitor
 USER_IF_SWITCHES: dict[int, tuple[int, int]] = {
@@ -47,7 +79,7 @@ ROUTE_SWITCH_MASK = sum(1 << b for b in USER_IF_SWITCHES)
 ALL_ROUTES: tuple[int, ...] = tuple(encode_matrix_route(m1, m2) for m1 in (BLANK, *CAMERAS)
                                     for m2 in (BLANK, *CAMERAS))
 #: route byte bits that carry no source (written 0)
-UNUSED_BITS = MATRIX_SWITCHER["unused_bits"]
+UNUSED_BITS = 0xF0
 
 _BITS_OF_MONITOR = {m: tuple(sorted((b, cam) for b, (mon, cam) in USER_IF_SWITCHES.items() if mon == m))
                     for m in MONITORS}
