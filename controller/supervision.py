@@ -299,48 +299,25 @@ class JointSupervisor:
         command the servo acts on this period (clipped to the soft limits; None: hold).
         Returns the first trip, or None. Plain floats throughout: it runs in the servo's
         period, inside the controller's frame budget."""
-        if self._q is None or dt <= 0 or dt > GAP_S:
-            if self._q is None or dt > GAP_S:
-                self.reset()
-                self._q = q
+        if not self._begin(dt, q, closed, q_cmd):
             return None
-        if dt != self._dt:
-            self._constants(dt)
-        alpha, pull = self._alpha, self._pull
-        if closed and not self._closed:  # the loop closes: the reference starts where the joint is, at rest
-            self._q_model = list(q)
-            self._q_hold = list(q)
-            self._w_m = [0.0] * len(q)
-            self._t_fe = [0.0] * len(q)
-            self._t_stall = [0.0] * len(q)
-            if self.reference is not None:
-                self.reference.reset(0.0)
-        self._closed = closed
-        qc = q_cmd if q_cmd is not None else self._q_hold
-        # the reference's rate commands: the servo's own compensator when it is not a pure gain
-        # (a second instance), else the gain inline below (plain floats, no list per period)
-        u_ref = self.reference.step([c - m for c, m in zip(qc, self._q_model)], self.rate_lim).tolist() \
-            if closed and self.reference is not None else None
-        trip = None
-        q_prev, w_res_l, hist, hi = self._q, self._w_res, self._h, self._hi
-        t_tach, t_fe, t_stall, w_m_l, q_m_l = self._t_tach, self._t_fe, self._t_stall, self._w_m, self._q_model
+        qc, u_ref, trip = self._qc, self._u_ref, None
+        q_prev, w_res_l, hist, hi, alpha, pull = self._q, self._w_res, self._h, self._hi, self._alpha, self._pull
         pi, two_pi = math.pi, 2.0 * math.pi
-        kp_l, rl_l = self.kp, self.rate_lim
-        brake = self.brake_state
-        for (k, jf, fs, jump, over, tach_top, tach_abs, gain, dead, a_m, kaw, fe_min, fe_span, stall_rate,
-             stall_motion, no_current) in self._rows:
+        brake, t_tach, w_m_l, q_m_l, kp_l, rl_l = \
+            self.brake_state, self._t_tach, self._w_m, self._q_model, self.kp, self.rate_lim
+        for (k, jf, fs, jump, over, tach_top, tach_abs, gain, dead, a_m, _, _, _, _, stall_motion, _) in self._rows:
             qk = q[k]
             d = (qk - q_prev[k] + pi) % two_pi - pi
             w_res = w_res_l[k] = w_res_l[k] + alpha * (d / dt - w_res_l[k])
             wt, uk = w_tach[k], u[k]
             h = hist[k]
             h[0][hi], h[1][hi], h[2][hi], h[3][hi], h[4][hi] = uk, wt, w_res, i_meas[k], i_lim[k]
-            bs = brake[k]
             if i_lim[k] <= 0.0:
                 brake[k] = BRAKE_SET if -stall_motion < w_res < stall_motion else BRAKE_UNPROVEN
-            elif bs != BRAKE_PROVEN:
+            elif brake[k] != BRAKE_PROVEN:
                 brake[k] = BRAKE_PROVEN if uk * w_res > 0 and abs(w_res) >= stall_motion else BRAKE_UNPROVEN
-            if trip is not None:
+            if trip is not None:  # the first trip only; later joints still sample (history, brakes)
                 continue
             check = ""
             if d > jump or -d > jump:
@@ -358,16 +335,13 @@ class JointSupervisor:
                                                                   f"rad/s for {t_tach[k] * 1e3:.0f} ms")
                 elif t_tach[k]:
                     t_tach[k] = 0.0
-            if closed:
+            if closed:  # the reference model: the nominal rate loop driven by the reference's command
                 if u_ref is not None:
                     ur = u_ref[k]
                 else:
                     ur = kp_l[k] * (qc[k] - q_m_l[k])
                     lim_r = rl_l[k]
-                    if ur > lim_r:
-                        ur = lim_r
-                    elif ur < -lim_r:
-                        ur = -lim_r
+                    ur = lim_r if ur > lim_r else (-lim_r if ur < -lim_r else ur)
                 m = abs(ur) - dead
                 w_ref = (gain * m if ur > 0 else -gain * m) if m > 0 else 0.0
                 wm = w_m_l[k] = w_m_l[k] + a_m * (w_ref - w_m_l[k])
@@ -377,29 +351,9 @@ class JointSupervisor:
                 q_m_l[k] = qm
                 e = self.ferror_rad[k] = qm - qk
                 if not check:
-                    # the real command's nominal steady rate (its droop and dead band included)
-                    m = abs(uk) - dead
-                    ai = abs(i_meas[k])
-                    lk = i_lim[k]
-                    if (m > 0 and gain * m > stall_rate and abs(w_res) < stall_motion
-                            and (ai >= STALL_CURRENT_FRACTION * lk or ai < no_current
-                                 or ai >= 0.9 * min(lk, kaw * abs(uk - wt)))):
-                        t_stall[k] += dt
-                    elif t_stall[k]:
-                        t_stall[k] = 0.0
-                    if t_stall[k] >= 0.5 * STALL_TIME_S and brake[k] == BRAKE_PROVEN:
-                        brake[k] = BRAKE_UNPROVEN  # told to move and not moving: no longer proven
-                    lim = fe_min + fe_span * min(1.0, abs(wm) / fs)
-                    if e > lim or -e > lim:
-                        t_fe[k] += dt
-                    elif t_fe[k]:
-                        t_fe[k] = 0.0
-                    if t_fe[k] >= self.fe_time[k]:
-                        check, detail = "following error", (f"{e / DEG:+.1f} deg > {lim / DEG:.1f} for "
-                                                            f"{t_fe[k] * 1e3:.0f} ms")
-                    elif t_stall[k] >= STALL_TIME_S:
-                        check, detail = "stall", (f"{uk:+.3f} rad/s commanded, {w_res:+.3f} moving for "
-                                                  f"{t_stall[k] * 1e3:.0f} ms")
+                    found = self._stall_and_ferror(k, dt, e, wm, w_res, wt, i_meas[k], uk, i_lim[k])
+                    if found is not None:
+                        check, detail = found
             if check:
                 cause, evidence = diagnose(jf, check, self.recent(k))
                 trip = Trip(k, check, cause, f"{jf.name} {check} ({detail}): likely {CAUSES[cause]}: {evidence}")
@@ -408,6 +362,64 @@ class JointSupervisor:
         if self._filled < HISTORY:
             self._filled += 1
         return trip
+
+    def _begin(self, dt: float, q: list[float], closed: bool, q_cmd: list[float] | None) -> bool:
+        """The start of :meth:`update`: False for a sample that only primes (the first, or
+        after a gap; a zero period is skipped). Else the period's constants, the loop's
+        closing (the reference starts where the joint is, at rest), the position command
+        (``_qc``; None: hold) and the reference's rate commands (``_u_ref``: the servo's own
+        compensator when it is not a pure gain (a second instance), else None: the gain
+        inline in :meth:`update`, plain floats, no list per period)."""
+        if self._q is None or dt <= 0 or dt > GAP_S:
+            if self._q is None or dt > GAP_S:
+                self.reset()
+                self._q = q
+            return False
+        if dt != self._dt:
+            self._constants(dt)
+        if closed and not self._closed:
+            self._q_model = list(q)
+            self._q_hold = list(q)
+            self._w_m = [0.0] * len(q)
+            self._t_fe = [0.0] * len(q)
+            self._t_stall = [0.0] * len(q)
+            if self.reference is not None:
+                self.reference.reset(0.0)
+        self._closed = closed
+        self._qc = qc = q_cmd if q_cmd is not None else self._q_hold
+        self._u_ref = self.reference.step([c - m for c, m in zip(qc, self._q_model)], self.rate_lim).tolist() \
+            if closed and self.reference is not None else None
+        return True
+
+    def _stall_and_ferror(self, k: int, dt: float, e: float, wm: float, w_res: float, wt: float, ik: float,
+                          uk: float, lk: float) -> tuple[str, str] | None:
+        """Joint ``k``'s stall and following-error checks (the loop closed, the sensors' checks
+        passed), with their timers: (check, detail) of a trip, or None. ``e``: the following
+        error, ``wm``: the reference model's rate."""
+        (_, _, fs, _, _, _, _, gain, dead, _, kaw, fe_min, fe_span, stall_rate, stall_motion,
+         no_current) = self._rows[k]
+        t_stall, t_fe, brake = self._t_stall, self._t_fe, self.brake_state
+        # the real command's nominal steady rate (its droop and dead band included)
+        m = abs(uk) - dead
+        ai = abs(ik)
+        if (m > 0 and gain * m > stall_rate and abs(w_res) < stall_motion
+                and (ai >= STALL_CURRENT_FRACTION * lk or ai < no_current
+                     or ai >= 0.9 * min(lk, kaw * abs(uk - wt)))):
+            t_stall[k] += dt
+        elif t_stall[k]:
+            t_stall[k] = 0.0
+        if t_stall[k] >= 0.5 * STALL_TIME_S and brake[k] == BRAKE_PROVEN:
+            brake[k] = BRAKE_UNPROVEN  # told to move and not moving: no longer proven
+        lim = fe_min + fe_span * min(1.0, abs(wm) / fs)
+        if e > lim or -e > lim:
+            t_fe[k] += dt
+        elif t_fe[k]:
+            t_fe[k] = 0.0
+        if t_fe[k] >= self.fe_time[k]:
+            return "following error", f"{e / DEG:+.1f} deg > {lim / DEG:.1f} for {t_fe[k] * 1e3:.0f} ms"
+        if t_stall[k] >= STALL_TIME_S:
+            return "stall", f"{uk:+.3f} rad/s commanded, {w_res:+.3f} moving for {t_stall[k] * 1e3:.0f} ms"
+        return None
 
     def observe_brakes(self, t_s: float, q: list[float], i_lim: list[float]) -> None:
         """Outside the supervised phases (powered down, the limits at 0): the brake state
