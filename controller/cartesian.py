@@ -324,7 +324,13 @@ class CartesianLayer(Layer):
         if have["jmove"] and int(v["joint.jmove_done_seq"]) != self._jmove_seen:
             self._jmove_seen = int(v["joint.jmove_done_seq"])
             self._hold_joint_command(rt, v["servo.q_cmd_rad"])
-        # synthetic delay settings
+        self._delay_settings(rt, v)
+        self._mode_inputs(rt, v, have)
+        src, deadman, active = self._hand_controller(rt, v, now)
+        self._downlink(rt, now, src, deadman, active)
+
+    def _delay_settings(self, rt: "LayerContext", v: dict) -> None:
+        """The synthetic delay's settings (``delay.round_trip_s``, ``delay.jitter``)."""
         try:
             rtt = SyntheticDelay.check_round_trip(float(v["delay.round_trip_s"]))
         except ConfigError as err:
@@ -336,7 +342,9 @@ class CartesianLayer(Layer):
         jit = float(v["delay.jitter"])
         if 0.0 <= jit <= 0.5:
             self.delay.up.jitter = self.delay.down.jitter = jit
-        # mode (task state transition)
+
+    def _mode_inputs(self, rt: "LayerContext", v: dict, have: dict) -> None:
+        """The mode (task state transition) and the trajectory planner's pose."""
         mode = int(v["cart.mode"])
         if mode not in MODE_NAMES or (mode == MODE_TRAJECTORY and not have["traj"]):
             self._warn_once(rt, f"mode{mode}", f"cart.mode {mode} is not available "
@@ -368,7 +376,10 @@ class CartesianLayer(Layer):
                 self.tele = np.zeros(6)
                 self.blend = np.zeros(6)
                 rt.post(self.key, Level.INFO, "trajectory inactive: holding its last pose")
-        # hand controller through the uplink (operator -> robot)
+
+    def _hand_controller(self, rt: "LayerContext", v: dict, now: float) -> tuple[int, np.ndarray, bool]:
+        """The hand controller through the uplink (operator -> robot): the commanded twist.
+        Returns the source, the deadmen and whether the hand controller is active."""
         src = int(v["cart.hc_source"])
         if not 0 <= src < len(HC_SOURCES):
             self._warn_once(rt, f"src{src}", f"cart.hc_source {src} unknown; using CAE")
@@ -394,7 +405,10 @@ class CartesianLayer(Layer):
                                           f"{'active (deadman held)' if active else 'inactive: zero rate, holding'}")
             self.hc_active = active
         self.twist = twist
-        # telemetry through the downlink (robot -> operator) and force reflection
+        return src, dead, active
+
+    def _downlink(self, rt: "LayerContext", now: float, src: int, dead: np.ndarray, active: bool) -> None:
+        """Telemetry through the downlink (robot -> operator) and force reflection."""
         wrench = self._last_wrench if hasattr(self, "_last_wrench") else np.zeros(6)
         tel = Telemetry(now, tuple(self.meas_pos), tuple(self.meas_quat), tuple(wrench[:3]), tuple(wrench[3:]))
         seen_t = self.delay.send_down(now, tel)
