@@ -62,6 +62,7 @@ from controller.teleop import (
     COARSE_LIN_M_S, COARSE_ROT_RAD_S, FRAME_NAMES, FRAME_TOOL, HC_CRL, HC_SOURCE_NAMES, HC_SOURCES, HcSample, Telemetry, hc_twist, reflect,
 )
 from controller.worldmodel import VarSpec
+from controller.variables import DAQ
 from pfma.errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -236,11 +237,11 @@ class CartesianLayer(Layer):
             self.force = ForceControl(rt.task_period_s("cartesian_fast"), self.tool_load)
         self.force.reset()
         self.delay.reset()
-        v = rt.wm.get_task_inputs(("daq.joint_angle_rad", "cart.mode", "force.zero_seq"))
+        v = rt.wm.get_task_inputs((DAQ.joint_angle_rad, "cart.mode", "force.zero_seq"))
         # the index the Joint Planner's kinematics took at its initialisation (before this start-up)
         self.shoulder_roll_rad = float(rt.wm.get(ROLL_VAR)) if self._check_model(rt)["roll"] else 0.0
         from controller.kinematics import fk
-        p, q = fk(v["daq.joint_angle_rad"], self.shoulder_roll_rad)
+        p, q = fk(v[DAQ.joint_angle_rad], self.shoulder_roll_rad)
         self.meas_pos, self.meas_quat = np.asarray(p, float), q_normalize(q)
         self.hold_pos, self.hold_quat = self.meas_pos.copy(), self.meas_quat.copy()
         self.mode = int(v["cart.mode"]) if int(v["cart.mode"]) in MODE_NAMES else MODE_HOLD
@@ -279,7 +280,7 @@ class CartesianLayer(Layer):
                 self.meas_pos, self.meas_quat = np.asarray(p, float), q_normalize(q)
                 return
         from controller.kinematics import fk
-        p, q = fk(v["daq.joint_angle_rad"], self.shoulder_roll_rad)
+        p, q = fk(v[DAQ.joint_angle_rad], self.shoulder_roll_rad)
         self.meas_pos, self.meas_quat = np.asarray(p, float), q_normalize(q)
 
     def base(self) -> tuple[np.ndarray, np.ndarray]:
@@ -313,7 +314,7 @@ class CartesianLayer(Layer):
             return
         have = self._check_model(rt)
         names = ["cart.mode", "cart.hc_source", "cart.hc_frame", "cart.hc_gain_lin_m_s", "cart.hc_gain_rot_rad_s",
-                 "cart.vernier", "daq.hc_axes", "daq.hc_deadman", "daq.joint_angle_rad",
+                 "cart.vernier", DAQ.hc_axes, DAQ.hc_deadman, DAQ.joint_angle_rad,
                  "delay.round_trip_s", "delay.jitter"]
         names += list(TRAJ_VARS) if have["traj"] else []
         names += list(TOOL_VARS) if have["tool"] else []
@@ -384,8 +385,8 @@ class CartesianLayer(Layer):
         if not 0 <= src < len(HC_SOURCES):
             self._warn_once(rt, f"src{src}", f"cart.hc_source {src} unknown; using CAE")
             src = 0
-        axes = np.asarray(v["daq.hc_axes"], float)
-        dead = np.asarray(v["daq.hc_deadman"], bool)
+        axes = np.asarray(v[DAQ.hc_axes], float)
+        dead = np.asarray(v[DAQ.hc_deadman], bool)
         sample = HcSample(now, src, tuple(float(x) for x in axes[src]), bool(dead[src]))
         seen = self.delay.send_up(now, sample)
         active = (seen is not None and self.mode in (MODE_TELEOP, MODE_TRAJECTORY) and seen.deadman
@@ -451,7 +452,7 @@ class CartesianLayer(Layer):
             return
         dt = rt.task_period_s("cartesian_fast")
         have = self._check_model(rt)
-        names = ["daq.joint_angle_rad", "daq.ft_force_n", "daq.ft_torque_nm", "force.enable", "force.zero_seq",
+        names = [DAQ.joint_angle_rad, DAQ.ft_force_n, DAQ.ft_torque_nm, "force.enable", "force.zero_seq",
                  "force.frame", "force.mass", "force.damping", "force.stiffness", "force.wrench_des"]
         names += list(TOOL_VARS) if have["tool"] else []
         v = rt.wm.get_task_inputs(names)
@@ -503,7 +504,7 @@ class CartesianLayer(Layer):
             else:
                 rt.post(self.key, Level.INFO, f"F/T zero request {zs}: OFF -> ZEROING")
         p_ref, q_ref = self.reference()
-        res = fc.step(rt.now, bool(v["force.enable"]), v["daq.ft_force_n"], v["daq.ft_torque_nm"],
+        res = fc.step(rt.now, bool(v["force.enable"]), v[DAQ.ft_force_n], v[DAQ.ft_torque_nm],
                       self.meas_quat, q_ref, v["force.wrench_des"])
         for e in res.events:
             rt.post(self.key, Level.INFO, f"force control: {e}")

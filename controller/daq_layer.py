@@ -62,11 +62,13 @@ from controller.layers import ERROR_NAMES, Layer, bottom_table
 from controller.messages import Level
 from controller.params import GRIPPER, JOINTS, N_CURRENT_LIMITS, N_JOINTS
 from controller.servo import ERR_NO_OUTPUT
+from controller.variables import (  # noqa: F401  (the fault bits re-exported)
+    DAQ, FAULT_BOARD, FAULT_COMMAND, FAULT_FT, FAULT_NAMES, FAULT_RESOLVER, FAULT_SERVICE, FAULT_STALE, FAULT_TACH,
+)
 from controller.worldmodel import VarSpec
 from controller.routes import box_selections, route_text, set_monitor
 from bit3.layout import (
-    BOARD_FAULT, CHANNEL_BUS_ERROR, CMD_FOREIGN, CMD_REFUSED, CMD_STALE, CMD_STATUS_NAMES, HAND_CONTROLLERS, HC_AXES,
-    LINK_FAULT, LINK_STALE, MODE_HALTED, ServiceState,
+    BOARD_FAULT, CHANNEL_BUS_ERROR, CMD_FOREIGN, CMD_REFUSED, CMD_STALE, CMD_STATUS_NAMES, HAND_CONTROLLERS, LINK_FAULT, LINK_STALE, MODE_HALTED, ServiceState,
 )
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -75,11 +77,6 @@ if TYPE_CHECKING:  # pragma: no cover
 
 _PI, _TAU = math.pi, 2 * math.pi
 
-FAULT_RESOLVER, FAULT_TACH, FAULT_FT, FAULT_BOARD, FAULT_SERVICE, FAULT_STALE = 1, 2, 4, 8, 16, 32
-FAULT_COMMAND = 64
-FAULT_NAMES = {FAULT_RESOLVER: "resolver", FAULT_TACH: "tach ADC", FAULT_FT: "F/T link",
-               FAULT_BOARD: "board fault", FAULT_SERVICE: "service state", FAULT_STALE: "service not publishing",
-               FAULT_COMMAND: "command refused/stale at the service"}
 #: command_status bits that make FAULT_COMMAND (CMD_ABSENT is the service keeping the last
 #: good copy of a torn write: the heartbeat watchdog covers a writer that stopped)
 COMMAND_FAULT_STATUS = CMD_STALE | CMD_REFUSED | CMD_FOREIGN
@@ -197,41 +194,7 @@ class DataAcquisitionLayer(Layer):
         self._has_route_req: bool | None = None
 
     def specs(self) -> list[VarSpec]:
-        z6 = [0.0] * N_JOINTS
-        nh, na = len(HAND_CONTROLLERS), len(HC_AXES)
-        w = "daq"
-        return self.state_specs() + [
-            VarSpec("daq.joint_angle_rad", "task_io", "f8", (N_JOINTS,), w, [j.centre_rad * 0 for j in JOINTS],
-                    "rad", doc="resolver joint angles unwrapped to each joint's range (command-area order)"),
-            VarSpec("daq.joint_rate_rad_s", "task_io", "f8", (N_JOINTS,), w, z6, "rad/s",
-                    doc="tachometer joint rates (filtered tach, ADC)"),
-            VarSpec("daq.motor_current_a", "task_io", "f8", (N_JOINTS,), w, z6, "A",
-                    doc="motor currents (amplifier current monitors, ADC; command-area order)"),
-            VarSpec("daq.ft_force_n", "task_io", "f8", (3,), w, [0.0] * 3, "N", doc="wrist F/T force"),
-            VarSpec("daq.ft_torque_nm", "task_io", "f8", (3,), w, [0.0] * 3, "N*m", doc="wrist F/T torque"),
-            VarSpec("daq.hc_axes", "task_io", "f8", (nh, na), w, [[0.0] * na] * nh, "1",
-                    doc=f"hand-controller axes ({', '.join(HAND_CONTROLLERS)} x {', '.join(HC_AXES)})"),
-            VarSpec("daq.hc_deadman", "task_io", "b1", (nh,), w, [False] * nh, doc="hand-controller deadman"),
-            VarSpec("daq.service_frame", "task_io", "i8", (), w, 0, doc="service frame of the inputs"),
-            VarSpec("daq.gripper_rate_m_s", "task_io", "f8", (), w, 0.0, "m/s",
-                    doc="gripper jaw rate (end-effector tach, ADC; opening positive)"),
-            VarSpec("daq.gripper_current_a", "task_io", "f8", (), w, 0.0, "A",
-                    doc="gripper motor current (end-effector current monitor, ADC)"),
-            VarSpec("daq.service_state", "status_output", "i2", (), w, 0,
-                    doc="I/O service state (bit3.layout.ServiceState)", enum=ServiceState),
-            VarSpec("daq.brakes_released", "task_io", "b1", (), w, False, doc="the service sees a current limit "
-                    "above the brake release level with outputs live"),
-            VarSpec("daq.outputs_enabled", "task_io", "b1", (), w, False, doc="the DAC drives the arm"),
-            VarSpec("daq.user_inputs", "task_io", "i4", (), w, 0, "bits",
-                    doc="the user I/F box's 16 input bits (docs/cameras.md: closed switch = 0)"),
-            VarSpec("daq.camera_route", "task_io", "i4", (), w, 0, "bits",
-                    doc="matrix switcher route this layer commands (commands.matrix_route; "
-                        "controller/routes.py)"),
-            VarSpec("daq.camera_route_applied", "task_io", "i4", (), w, -1, "bits",
-                    doc="route the service has applied to the switcher (inputs.matrix_route)"),
-            VarSpec("daq.fault_bits", "error_reports", "i4", (), w, 0,
-                    doc="hardware checks that tripped (a bit each)", flags=FAULT_NAMES),
-        ]
+        return self.state_specs() + DAQ.specs()
 
     # --- acquire -------------------------------------------------------------------------
     def acquire(self, rt: "LayerContext") -> int:
@@ -254,22 +217,22 @@ class DataAcquisitionLayer(Layer):
         st = int(rec["service_state"])
         nh = len(HAND_CONTROLLERS)
         out = self._acq
-        out["daq.joint_angle_rad"] = q
+        out[DAQ.joint_angle_rad] = q
         adc = rec["adc_value"]
-        out["daq.joint_rate_rad_s"] = adc[self.tach_slots]
-        out["daq.motor_current_a"] = adc[self.current_slots]
-        out["daq.ft_force_n"] = rec["ft_force_n"]
-        out["daq.ft_torque_nm"] = rec["ft_torque_nm"]
-        out["daq.hc_axes"] = rec["hc_axes"][:nh]
-        out["daq.hc_deadman"] = rec["hc_deadman"][:nh].astype(bool)
+        out[DAQ.joint_rate_rad_s] = adc[self.tach_slots]
+        out[DAQ.motor_current_a] = adc[self.current_slots]
+        out[DAQ.ft_force_n] = rec["ft_force_n"]
+        out[DAQ.ft_torque_nm] = rec["ft_torque_nm"]
+        out[DAQ.hc_axes] = rec["hc_axes"][:nh]
+        out[DAQ.hc_deadman] = rec["hc_deadman"][:nh].astype(bool)
         if self.gripper_tach_slot is not None:
-            out["daq.gripper_rate_m_s"] = adc[self.gripper_tach_slot] * self.gripper_tach_scale
+            out[DAQ.gripper_rate_m_s] = adc[self.gripper_tach_slot] * self.gripper_tach_scale
         if self.gripper_current_slot is not None:
-            out["daq.gripper_current_a"] = adc[self.gripper_current_slot]
-        out["daq.service_frame"] = frame
-        out["daq.service_state"] = st
-        out["daq.brakes_released"] = bool(rec["brakes_released"])
-        out["daq.outputs_enabled"] = bool(rec["outputs_enabled"])
+            out[DAQ.gripper_current_a] = adc[self.gripper_current_slot]
+        out[DAQ.service_frame] = frame
+        out[DAQ.service_state] = st
+        out[DAQ.brakes_released] = bool(rec["brakes_released"])
+        out[DAQ.outputs_enabled] = bool(rec["outputs_enabled"])
         rt.wm.post_task_outputs("daq", out)
         self.ft_in_use = self._force_in_use(rt)
         self._camera_routes(rt, rec)
@@ -280,7 +243,7 @@ class DataAcquisitionLayer(Layer):
             self._ft_warning = ""
         if bits != self.fault_bits:
             names = [n for b, n in FAULT_NAMES.items() if bits & b]
-            rt.wm.post_task_outputs("daq", {"daq.fault_bits": bits})
+            rt.wm.post_task_outputs("daq", {DAQ.fault_bits: bits})
             if bits:
                 rt.post(self.key, Level.WARNING if not self.monitoring else Level.ERROR,
                         f"hardware check: {', '.join(names)}: {detail}")
@@ -310,8 +273,8 @@ class DataAcquisitionLayer(Layer):
                 if cam is not None and cam != was:
                     route = set_monitor(route, m, cam)
             self._box_sel = sel
-            rt.wm.post_task_outputs("daq", {"daq.user_inputs": word, "daq.camera_route": self.route} if first
-                                    else {"daq.user_inputs": word})
+            rt.wm.post_task_outputs("daq", {DAQ.user_inputs: word, DAQ.camera_route: self.route} if first
+                                    else {DAQ.user_inputs: word})
             if route != self.route:
                 self._set_route(rt, route, "user I/F box")
         if self._has_route_req is None:
@@ -328,12 +291,12 @@ class DataAcquisitionLayer(Layer):
         applied = int(rec["matrix_route"])
         if applied != self._route_applied:
             self._route_applied = applied
-            rt.wm.post_task_outputs("daq", {"daq.camera_route_applied": applied})
+            rt.wm.post_task_outputs("daq", {DAQ.camera_route_applied: applied})
 
     def _set_route(self, rt: "LayerContext", route: int, why: str) -> None:
         self.route = route
         self._route_dirty = True
-        rt.wm.post_task_outputs("daq", {"daq.camera_route": route})
+        rt.wm.post_task_outputs("daq", {DAQ.camera_route: route})
         rt.post(self.key, Level.INFO, f"camera route {route_text(route)} ({why})")
 
     def _route_field(self, fields: dict) -> dict:

@@ -36,6 +36,7 @@ import numpy as np
 from controller.decision import Status
 from controller.messages import Level
 from controller.worldmodel import VarSpec
+from controller.variables import DAQ
 from pfma.arm import GRIPPER
 from pfma.gripper import (
     ACTION_NAMES, COMPLETE, FAILED, IN_PROGRESS, NOTE, REFUSED, GripperMotion, GripperRequest, GripperState,
@@ -126,8 +127,8 @@ class GripperDrive:
         parameters and the current-limit vector it posts)
     """
 
-    _IN = ("gripper.request", "gripper.request_force_n", "gripper.request_seq", "daq.gripper_rate_m_s",
-           "daq.gripper_current_a")
+    _IN = ("gripper.request", "gripper.request_force_n", "gripper.request_seq", DAQ.gripper_rate_m_s,
+           DAQ.gripper_current_a)
     _MSP = ("msp.gripper_request", "msp.gripper_force_n", "msp.gripper_seq")
 
     def __init__(self, layer) -> None:
@@ -171,7 +172,7 @@ class GripperDrive:
                 self._seen_msp = mseq
                 if mseq:
                     self._request(rt, "msp", mseq, int(v["msp.gripper_request"]), float(v["msp.gripper_force_n"]))
-        ended = self.motion.update(t, float(v["daq.gripper_rate_m_s"]), float(v["daq.gripper_current_a"]))
+        ended = self.motion.update(t, float(v[DAQ.gripper_rate_m_s]), float(v[DAQ.gripper_current_a]))
         if ended is not None:
             self._ended(rt, ended)
         self._publish(rt, on)

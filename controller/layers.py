@@ -41,6 +41,7 @@ from controller.params import (
 from controller.quat import q_angle
 from controller.worldmodel import VarSpec
 from controller.routes import camera_name, decode_matrix_route, parse_route_request, route_text
+from controller.variables import DAQ
 
 if TYPE_CHECKING:  # pragma: no cover
     from controller.context import LayerContext
@@ -640,7 +641,7 @@ class UpDownLayer(Layer):
         assert self._route is not None
         seq, monitor, camera, t0 = self._route
         name = Request.NAMES[Request.ROUTE]
-        applied = int(rt.wm.get("daq.camera_route_applied"))
+        applied = int(rt.wm.get(DAQ.camera_route_applied))
         if applied >= 0 and decode_matrix_route(applied)[monitor - 1] == camera:
             self._route = None
             self._respond(rt, seq, Response.COMPLETE, f"{name}: applied by the service: {route_text(applied)}")
@@ -809,9 +810,9 @@ class JointPlannerLayer(Layer):
         return TaskState.DONE
 
     def seq_startup(self, rt: "LayerContext") -> TaskState:
-        v = rt.wm.get_task_inputs(("daq.joint_angle_rad", "joint.goal_seq"))
+        v = rt.wm.get_task_inputs((DAQ.joint_angle_rad, "joint.goal_seq"))
         self._seen_goal = int(v["joint.goal_seq"])  # goals set while powered down do not jump
-        self.q_cmd = np.asarray(v["daq.joint_angle_rad"], dtype=float).copy()
+        self.q_cmd = np.asarray(v[DAQ.joint_angle_rad], dtype=float).copy()
         self.mode = self.MODE_JOINT
         self._bad_cmd = False
         self._cart_at_goal = None
@@ -840,10 +841,10 @@ class JointPlannerLayer(Layer):
         jm = self._jmove_available(rt)
         names = self._inputs
         if names is None:  # built once: what this model has of the planner's inputs
-            names = self._inputs = (("daq.joint_angle_rad", "joint.goal_rad", "joint.goal_seq")
+            names = self._inputs = ((DAQ.joint_angle_rad, "joint.goal_rad", "joint.goal_seq")
                                     + (self.CART_VARS if cart else ()) + (self.JMOVE_VARS if jm else ()))
         v = rt.wm.get_task_inputs(names)
-        p, quat = kin.fk(v["daq.joint_angle_rad"], self.shoulder_roll_rad)
+        p, quat = kin.fk(v[DAQ.joint_angle_rad], self.shoulder_roll_rad)
         out: dict = {"joint.tool_pos_m": p, "joint.tool_quat": quat}
         if status == Status.START_UP_COMPLETE:
             valid = cart and bool(v["cart.cmd_valid"])

@@ -89,6 +89,7 @@ from controller.paths import MultiSegmentLayer
 from controller.trajectory import TrajectoryLayer
 from controller.servo import ERR_MISSED, ERR_NO_OUTPUT, ServoLayer
 from controller.worldmodel import VarSpec, WorldModel
+from controller.variables import DAQ
 from bit3.layout import ServiceState, Severity
 
 #: frames kept in the trace by default (about 6 s at 320 Hz)
@@ -552,7 +553,7 @@ class ControllerRuntime:
         self.frames_run += 1
         cost = time.perf_counter() - t0
         self._time_frame(cost)
-        bits = self.daq.fault_bits if self._has_daq else int(self.wm.get("daq.fault_bits"))
+        bits = self.daq.fault_bits if self._has_daq else int(self.wm.get(DAQ.fault_bits))
         rec = FrameTrace(self.frame, self.now - self.t0, self._layer_traces(), bits, ran, cost)
         self.trace.append(rec)
         for fn in self.on_frame:

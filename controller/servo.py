@@ -49,6 +49,7 @@ from controller.supervision import (
     STALL_MOTION_FRACTION, JointSupervisor, Trip, diagnose,
 )
 from controller.worldmodel import VarSpec
+from controller.variables import DAQ
 
 if TYPE_CHECKING:  # pragma: no cover
     from controller.context import LayerContext
@@ -471,9 +472,9 @@ class ServoLayer(Layer):
             return TaskState.RUNNING
         if self._testing:
             return self._brake_test_result(rt)
-        v = rt.wm.get_task_inputs(("daq.brakes_released", "daq.joint_angle_rad"))
-        if bool(v["daq.brakes_released"]):
-            self.hold = np.array(v["daq.joint_angle_rad"], dtype=float)
+        v = rt.wm.get_task_inputs((DAQ.brakes_released, DAQ.joint_angle_rad))
+        if bool(v[DAQ.brakes_released]):
+            self.hold = np.array(v[DAQ.joint_angle_rad], dtype=float)
             rt.post(self.key, Level.INFO, f"brakes released {(rt.now - self._t_phase) * 1e3:.1f} ms after the "
                                           f"current limits were raised"
                                           + ("; brake test: each joint out and back" if self.brake_test_on else
@@ -527,9 +528,9 @@ class ServoLayer(Layer):
             rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS), "servo.rate_cmd_frame": -1})
             self._brake_phase(rt, 4)
             return TaskState.RUNNING
-        v = rt.wm.get_task_inputs(("daq.joint_rate_rad_s", "daq.fault_bits"))
-        qdot = np.asarray(v["daq.joint_rate_rad_s"], dtype=float)
-        tach_ok = not int(v["daq.fault_bits"]) & TACH_FAULT_BIT  # a failed tach ADC proves nothing
+        v = rt.wm.get_task_inputs((DAQ.joint_rate_rad_s, DAQ.fault_bits))
+        qdot = np.asarray(v[DAQ.joint_rate_rad_s], dtype=float)
+        tach_ok = not int(v[DAQ.fault_bits]) & TACH_FAULT_BIT  # a failed tach ADC proves nothing
         still = tach_ok and bool(np.all(np.abs(qdot) < SAFE_STOP_RATE_RAD_S))
         if still or rt.now - self._t_phase >= SAFE_STOP_TIMEOUT_S:
             rt.wm.post_task_outputs("servo", {"servo.current_limit_cmd_a": np.zeros(N_CURRENT_LIMITS)})
@@ -544,8 +545,8 @@ class ServoLayer(Layer):
         return self.seq_shutdown(rt)
 
     # --- the control law -----------------------------------------------------------------
-    _BRAKE_IN = ("daq.joint_angle_rad", "daq.service_frame", "servo.current_limit_cmd_a")
-    _IN = ("daq.joint_angle_rad", "daq.service_frame", "daq.joint_rate_rad_s", "daq.motor_current_a",
+    _BRAKE_IN = (DAQ.joint_angle_rad, DAQ.service_frame, "servo.current_limit_cmd_a")
+    _IN = (DAQ.joint_angle_rad, DAQ.service_frame, DAQ.joint_rate_rad_s, DAQ.motor_current_a,
            "servo.current_limit_cmd_a", "servo.q_cmd_rad", "servo.q_cmd_valid")
 
     def control_task(self, rt: "LayerContext") -> None:
@@ -562,14 +563,14 @@ class ServoLayer(Layer):
                 self._sup_frame = -1
             if self.sup is not None:  # the brakes as the sensors show them, powered down too
                 b = wm.get_task_inputs(self._BRAKE_IN)
-                self.sup.observe_brakes(int(b["daq.service_frame"]) * self.frame_period_s,
-                                        np.asarray(b["daq.joint_angle_rad"]).tolist(),
+                self.sup.observe_brakes(int(b[DAQ.service_frame]) * self.frame_period_s,
+                                        np.asarray(b[DAQ.joint_angle_rad]).tolist(),
                                         np.asarray(b["servo.current_limit_cmd_a"]).tolist())
                 self._post_brakes(wm)
             return
         v = wm.get_task_inputs(self._IN)
-        q = np.asarray(v["daq.joint_angle_rad"], dtype=float)
-        frame = int(v["daq.service_frame"])
+        q = np.asarray(v[DAQ.joint_angle_rad], dtype=float)
+        frame = int(v[DAQ.service_frame])
         p = self.params
         q_cmd = np.asarray(v["servo.q_cmd_rad"], dtype=float) if bool(v["servo.q_cmd_valid"]) else self.hold
         q_cmd = np.clip(q_cmd, p["q_min_rad"], p["q_max_rad"])
@@ -578,8 +579,8 @@ class ServoLayer(Layer):
                 self._u_sent = [0.0] * N_JOINTS
             dt = (frame - self._sup_frame) * self.frame_period_s if self._sup_frame >= 0 else 0.0
             self._sup_frame = frame
-            self._tach = np.asarray(v["daq.joint_rate_rad_s"]).tolist()
-            trip = self.sup.update(dt, q.tolist(), self._tach, np.asarray(v["daq.motor_current_a"]).tolist(),
+            self._tach = np.asarray(v[DAQ.joint_rate_rad_s]).tolist()
+            trip = self.sup.update(dt, q.tolist(), self._tach, np.asarray(v[DAQ.motor_current_a]).tolist(),
                                    self._u_sent, np.asarray(v["servo.current_limit_cmd_a"]).tolist(),
                                    closed and self._phase == 3, q_cmd.tolist())
             self._post_brakes(wm)

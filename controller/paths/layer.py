@@ -50,6 +50,7 @@ from controller.paths.store import PathStore, _now_text, path_missing
 from controller.quat import q_angle, q_normalize
 from controller.trajectory import DoneCode, segment_specs
 from controller.worldmodel import VarSpec
+from controller.variables import DAQ
 from pfma.gripper import ACTION_NAMES as GRIPPER_ACTION_NAMES, ACTIONS as GRIPPER_ACTIONS, COMPLETE, IN_PROGRESS
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -111,7 +112,7 @@ GRIPPER_DONE = ("gripper.msp_done_seq", "gripper.msp_done_code")
 MOVE_USER_VARS = ("msp.move_request", "msp.max_turn_rad", "msp.track_tol_m", "msp.track_tol_rad")
 _RUN_VARS = USER_VARS + MOVE_USER_VARS
 #: what the check and the tracking read from the layers below, when the model has them
-JOINT_VARS = ("servo.q_cmd_rad", "servo.q_cmd_valid", "daq.joint_angle_rad")
+JOINT_VARS = ("servo.q_cmd_rad", "servo.q_cmd_valid", DAQ.joint_angle_rad)
 ROLL_VAR = "joint.shoulder_roll_rad"
 CART_MODE = "cart.mode"
 JMOVE_DONE = ("joint.jmove_done_seq", "joint.jmove_done_code")
@@ -477,7 +478,7 @@ class MultiSegmentLayer(Layer):
         v = rt.wm.get_task_inputs(JOINT_VARS)
         if bool(v["servo.q_cmd_valid"]):
             return np.asarray(v["servo.q_cmd_rad"], dtype=float).copy()
-        return np.asarray(v["daq.joint_angle_rad"], dtype=float).copy()
+        return np.asarray(v[DAQ.joint_angle_rad], dtype=float).copy()
 
     def _roll(self, rt) -> float:
         return float(rt.wm.get_task_inputs((ROLL_VAR,))[ROLL_VAR]) if self._has(rt, (ROLL_VAR,)) else 0.0
@@ -658,9 +659,9 @@ class MultiSegmentLayer(Layer):
     def _track(self, rt, job: _Job) -> None:
         """The tracking error now; the worst kept with where it was."""
         if job.kind == "joint":
-            if not self._has(rt, ("daq.joint_angle_rad",)):
+            if not self._has(rt, (DAQ.joint_angle_rad,)):
                 return
-            q = np.asarray(rt.wm.get_task_inputs(("daq.joint_angle_rad",))["daq.joint_angle_rad"], dtype=float)
+            q = np.asarray(rt.wm.get_task_inputs((DAQ.joint_angle_rad,))[DAQ.joint_angle_rad], dtype=float)
             d = job.goal - job.q0
             dd = float(d @ d)
             u = min(1.0, max(0.0, float((q - job.q0) @ d) / dd)) if dd > 1e-12 else 1.0

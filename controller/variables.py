@@ -1,0 +1,90 @@
+"""The layers' world-model variables, declared once as typed attributes
+(:class:`controller.worldmodel.var.VarGroup`): the variable table, ``pfma wm list`` and the
+code that reads and writes them are made from these declarations (docs/world-model.md
+"Variables a tool can follow").
+
+A group lives here rather than in its layer's module when layers that import each other
+read it (``DAQ``: the Servo, Joint Planner, Cartesian, Path Planner and gripper layers).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bit3.layout import HAND_CONTROLLERS, HC_AXES, ServiceState
+from controller.params import JOINTS, N_JOINTS
+from controller.worldmodel.var import Var, VarGroup, var
+
+#: the Data Acquisition layer's hardware checks (``daq.fault_bits``, a bit each)
+FAULT_RESOLVER, FAULT_TACH, FAULT_FT, FAULT_BOARD, FAULT_SERVICE, FAULT_STALE = 1, 2, 4, 8, 16, 32
+FAULT_COMMAND = 64
+FAULT_NAMES = {FAULT_RESOLVER: "resolver", FAULT_TACH: "tach ADC", FAULT_FT: "F/T link",
+               FAULT_BOARD: "board fault", FAULT_SERVICE: "service state", FAULT_STALE: "service not publishing",
+               FAULT_COMMAND: "command refused/stale at the service"}
+
+_NH, _NA = len(HAND_CONTROLLERS), len(HC_AXES)
+_Z6 = [0.0] * N_JOINTS
+
+
+class DaqVars(VarGroup, prefix="daq", writer="daq"):
+    """The Data Acquisition layer's inputs and statuses (its commands and decision-table
+    state are every layer's: ``Layer.state_specs``)."""
+
+    joint_angle_rad: Var[np.ndarray] = var(
+        "task_io", "f8", (N_JOINTS,), [j.centre_rad * 0 for j in JOINTS], "rad",  # -0.0 kept: the table's hash
+        doc="resolver joint angles unwrapped to each joint's range (command-area order)")
+    joint_rate_rad_s: Var[np.ndarray] = var("task_io", "f8", (N_JOINTS,), _Z6, "rad/s",
+                                            doc="tachometer joint rates (filtered tach, ADC)")
+    motor_current_a: Var[np.ndarray] = var(
+        "task_io", "f8", (N_JOINTS,), _Z6, "A",
+        doc="motor currents (amplifier current monitors, ADC; command-area order)")
+    ft_force_n: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0] * 3, "N", doc="wrist F/T force")
+    ft_torque_nm: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0] * 3, "N*m", doc="wrist F/T torque")
+    hc_axes: Var[np.ndarray] = var(
+        "task_io", "f8", (_NH, _NA), [[0.0] * _NA] * _NH, "1",
+        doc=f"hand-controller axes ({', '.join(HAND_CONTROLLERS)} x {', '.join(HC_AXES)})")
+    hc_deadman: Var[np.ndarray] = var("task_io", "b1", (_NH,), [False] * _NH, doc="hand-controller deadman")
+    service_frame: Var[int] = var("task_io", "i8", (), 0, doc="service frame of the inputs")
+    gripper_rate_m_s: Var[float] = var("task_io", "f8", (), 0.0, "m/s",
+                                       doc="gripper jaw rate (end-effector tach, ADC; opening positive)")
+    gripper_current_a: Var[float] = var("task_io", "f8", (), 0.0, "A",
+                                        doc="gripper motor current (end-effector current monitor, ADC)")
+    service_state: Var[int] = var("status_output", "i2", (), 0,
+                                  doc="I/O service state (bit3.layout.ServiceState)", enum=ServiceState)
+    brakes_released: Var[bool] = var("task_io", "b1", (), False,
+                                     doc="the service sees a current limit above the brake release level "
+                                         "with outputs live")
+    outputs_enabled: Var[bool] = var("task_io", "b1", (), False, doc="the DAC drives the arm")
+    user_inputs: Var[int] = var("task_io", "i4", (), 0, "bits",
+                                doc="the user I/F box's 16 input bits (docs/cameras.md: closed switch = 0)")
+    camera_route: Var[int] = var("task_io", "i4", (), 0, "bits",
+                                 doc="matrix switcher route this layer commands (commands.matrix_route; "
+                                     "controller/routes.py)")
+    camera_route_applied: Var[int] = var("task_io", "i4", (), -1, "bits",
+                                         doc="route the service has applied to the switcher (inputs.matrix_route)")
+    fault_bits: Var[int] = var("error_reports", "i4", (), 0, doc="hardware checks that tripped (a bit each)",
+                               flags=FAULT_NAMES)
+
+
+DAQ = DaqVars
+
+
+#: the groups declared here, in the order docs/world-model.md lists them
+GROUPS: tuple[type[VarGroup], ...] = (DaqVars,)
+
+DOC_BEGIN = "<!-- variables: generated from controller/variables.py; regenerate: " \
+            "python -c 'import controller.variables as v; print(v.markdown())' -->"
+DOC_END = "<!-- end of the generated variables -->"
+
+
+def markdown() -> str:
+    """The declared variables as the table docs/world-model.md carries between
+    :data:`DOC_BEGIN` and :data:`DOC_END` (a test keeps the two equal)."""
+    lines = [DOC_BEGIN]
+    for group in GROUPS:
+        lines += ["", f"`{group.__name__}` (`{group.prefix}.*`, writer `{group.writer}`):", "",
+                  "| attribute | name | area | type | units | doc |", "|---|---|---|---|---|---|"]
+        for attr, v in group.attributes():
+            s = v.spec
+            lines.append(f"| `{attr}` | `{v}` | {s.area} | {s.type_text} | {s.units} | {s.doc} |")
+    return "\n".join(lines + ["", DOC_END])

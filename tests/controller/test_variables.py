@@ -1,0 +1,80 @@
+"""World-model variables declared once as typed attributes (controller/variables.py,
+controller/worldmodel/var.py): the names are the old strings, the layer's table is made
+from the declarations, a misspelt variable fails, docs/world-model.md lists them."""
+
+from __future__ import annotations
+
+import json
+import pickle
+from pathlib import Path
+
+import pytest
+
+import controller.variables as variables
+from controller.variables import DAQ, DaqVars
+from controller.worldmodel import VarSpec, WorldModel, WorldModelError
+from controller.worldmodel.var import Var, VarGroup, var
+
+DOC = Path(__file__).resolve().parents[2] / "docs" / "world-model.md"
+
+
+def test_names_are_the_old_strings() -> None:
+    assert DAQ.joint_angle_rad == "daq.joint_angle_rad"
+    assert isinstance(DAQ.joint_angle_rad, str) and isinstance(DAQ.joint_angle_rad, Var)
+    assert [str(v) for v in DAQ.all()] == [
+        "daq.joint_angle_rad", "daq.joint_rate_rad_s", "daq.motor_current_a", "daq.ft_force_n", "daq.ft_torque_nm",
+        "daq.hc_axes", "daq.hc_deadman", "daq.service_frame", "daq.gripper_rate_m_s", "daq.gripper_current_a",
+        "daq.service_state", "daq.brakes_released", "daq.outputs_enabled", "daq.user_inputs", "daq.camera_route",
+        "daq.camera_route_applied", "daq.fault_bits"]
+    assert all(v.writer == "daq" for v in DAQ.all())
+
+
+def test_a_misspelt_variable_fails() -> None:
+    with pytest.raises(AttributeError):
+        DAQ.joint_angl_rad  # type: ignore[attr-defined]  # noqa: B018
+
+
+def test_a_bad_declaration_fails_at_import() -> None:
+    with pytest.raises(WorldModelError, match="dtype"):
+        class Bad(VarGroup, prefix="bad"):  # noqa: F841
+            x: Var[float] = var("task_io", "c16")
+
+
+def test_the_table_is_made_from_the_declarations() -> None:
+    specs = DAQ.specs()
+    assert all(isinstance(s, VarSpec) for s in specs)
+    assert [s.name for s in specs] == list(DAQ.all())
+    assert all(s.name is v for s, v in zip(specs, DAQ.all()))  # the model's tables are keyed by the Var
+    text = json.dumps([s.to_json() for s in specs])
+    assert json.loads(text)[0]["name"] == "daq.joint_angle_rad"
+    assert DAQ.fault_bits.spec.flag_names == variables.FAULT_NAMES
+
+
+def test_a_var_reads_and_writes_the_model_as_its_name() -> None:
+    wm = WorldModel.create(DaqVars.specs())
+    try:
+        wm.post_task_outputs("daq", {DAQ.service_frame: 7})
+        wm.communications_segment()
+        assert int(wm.get(DAQ.service_frame)) == int(wm.get("daq.service_frame")) == 7
+        v = wm.get_task_inputs((DAQ.service_frame, "daq.fault_bits"))
+        assert int(v["daq.service_frame"]) == 7 and int(v[DAQ.fault_bits]) == 0
+    finally:
+        wm.close()
+
+
+def test_a_var_pickles_as_its_name() -> None:
+    back = pickle.loads(pickle.dumps(DAQ.joint_angle_rad))
+    assert back == "daq.joint_angle_rad" and type(back) is str
+
+
+def test_docs_list_the_variables() -> None:
+    text = DOC.read_text()
+    begin, end = text.index(variables.DOC_BEGIN), text.index(variables.DOC_END) + len(variables.DOC_END)
+    assert text[begin:end] == variables.markdown(), \
+        "docs/world-model.md is stale: python -c 'import controller.variables as v; print(v.markdown())'"
+
+
+def test_a_var_shows_as_its_name() -> None:
+    v = DAQ.joint_angle_rad
+    assert repr(v) == repr("daq.joint_angle_rad") and f"{v}" == str(v) == "daq.joint_angle_rad"
+    assert hash(v) == hash("daq.joint_angle_rad")
