@@ -61,7 +61,7 @@ from controller.decision import Status, TaskState
 from controller.layers import ERROR_NAMES, Layer, bottom_table
 from controller.messages import Level
 from controller.params import GRIPPER, JOINTS, N_CURRENT_LIMITS, N_JOINTS
-from controller.servo import ERR_NO_OUTPUT
+from controller.servo import ERR_NO_OUTPUT, SERVO
 from controller.variables import (  # noqa: F401  (the fault bits re-exported)
     DAQ, FAULT_BOARD, FAULT_COMMAND, FAULT_FT, FAULT_NAMES, FAULT_RESOLVER, FAULT_SERVICE, FAULT_STALE, FAULT_TACH,
 )
@@ -468,7 +468,7 @@ class DataAcquisitionLayer(Layer):
             return ""
 
     # --- output --------------------------------------------------------------------------
-    _OUT = ("servo.rate_cmd_rad_s", "servo.rate_cmd_frame", "servo.current_limit_cmd_a", "servo.error",
+    _OUT = (SERVO.rate_cmd_rad_s, SERVO.rate_cmd_frame, SERVO.current_limit_cmd_a, "servo.error",
             "gripper.rate_cmd_m_s")
 
     def output(self, rt: "LayerContext", status: int) -> None:
@@ -490,16 +490,16 @@ class DataAcquisitionLayer(Layer):
             limits = self._zero_limits
         else:
             v = rt.wm.get_task_inputs(self._OUT)
-            limits = v["servo.current_limit_cmd_a"]
+            limits = v[SERVO.current_limit_cmd_a]
             if status in (Status.INITIALIZATION_IN_PROGRESS, Status.INITIALIZATION_COMPLETE, Status.START_UP):
                 limits = self._zero_limits
             if status == Status.START_UP_COMPLETE:
-                s = int(v["servo.rate_cmd_frame"])
+                s = int(v[SERVO.rate_cmd_frame])
                 servo = rt.servo
                 if s < 0:
                     pass  # a sequence task's constant zero
                 elif s >= rt.servo_oldest_frame and not servo.fault and not int(v["servo.error"]):
-                    rates, stamp = v["servo.rate_cmd_rad_s"], s
+                    rates, stamp = v[SERVO.rate_cmd_rad_s], s
                 if not servo.fault:  # the seventh amplifier (controller/gripper.py)
                     grip = float(v["gripper.rate_cmd_m_s"]) * self.gripper_cmd_scale
                 elif rt.servo_catch_up and not servo.fault:
@@ -620,7 +620,7 @@ class DataAcquisitionLayer(Layer):
         if self.task_frames == 0:
             self._t_phase = rt.now
         if self.arm_request:
-            limits = np.asarray(rt.wm.get("servo.current_limit_cmd_a"), dtype=float)
+            limits = np.asarray(rt.wm.get(SERVO.current_limit_cmd_a), dtype=float)
             if np.any(limits != 0) and rt.now - self._t_phase < SHUTDOWN_WAIT_S:
                 return TaskState.RUNNING
             self.arm_request = 0

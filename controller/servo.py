@@ -49,6 +49,7 @@ from controller.supervision import (
     STALL_MOTION_FRACTION, JointSupervisor, Trip, diagnose,
 )
 from controller.worldmodel import VarSpec
+from controller.worldmodel.var import Var, VarGroup, var
 from controller.variables import DAQ
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -306,6 +307,79 @@ class BrakeTest:
         self.stage[k] = 2
 
 
+_Z6 = [0.0] * N_JOINTS
+
+
+def _par(value, units: str, doc: str):
+    """A control-law parameter: one per joint, set by the user only while powered down."""
+    return var("control_flags", "f8", (len(value),), list(value), units, writer="user", protected=True,
+               doc=doc + " (protected: not while powered up)")
+
+
+class ServoVars(VarGroup, prefix="servo", writer="servo"):
+    """Servo Control's parameters (user, protected), statuses and outputs (the Joint
+    Planner's ``servo.q_cmd_rad`` command is the Joint Planner's)."""
+
+    kp_per_s: Var[np.ndarray] = _par([DEFAULT_KP_PER_S] * N_JOINTS, "1/s", "compensator DC gain K (pfma-model 8.4: 8)")
+    tau_z_s: Var[np.ndarray] = _par(_Z6, "s", "compensator zero time constant (0 = none)")
+    tau_p_s: Var[np.ndarray] = _par(_Z6, "s", "compensator pole time constant (0 = none; > 0 if tau_z > 0)")
+    rate_limit_rad_s: Var[np.ndarray] = _par([j.omega_lim_rad_s for j in JOINTS], "rad/s",
+                                             "joint rate limit (pfma-model 8.2: 0.6 omega_fs)")
+    current_limit_a: Var[np.ndarray] = _par(
+        run_current_limits_a(), "A",
+        "current limits while powered up (6 joints), and the most the gripper may use (its grip "
+        "force sets its limit, up to this x 40 N/A)")
+    q_min_rad: Var[np.ndarray] = _par([j.soft_lo_rad for j in JOINTS], "rad", "soft lower joint limits (8.2)")
+    q_max_rad: Var[np.ndarray] = _par([j.soft_hi_rad for j in JOINTS], "rad", "soft upper joint limits (8.2)")
+    ferror_min_rad: Var[np.ndarray] = _par([FERROR_MIN_RAD] * N_JOINTS, "rad",
+                                           "following-error limit at standstill (LinuxCNC MIN_FERROR; docs/safety.md)")
+    ferror_max_rad: Var[np.ndarray] = _par([FERROR_MAX_RAD] * N_JOINTS, "rad",
+                                           "following-error limit at full-scale rate (LinuxCNC FERROR; docs/safety.md)")
+    ferror_time_s: Var[np.ndarray] = _par(
+        [FERROR_TIME_S] * N_JOINTS, "s",
+        "time the following error must stay beyond its limit (CiA 402 following-error time-out)")
+    ferror_rad: Var[np.ndarray] = var(
+        "task_status", "f8", (N_JOINTS,), _Z6, "rad",
+        doc="following error of the last servo run: where the commanded rates should have "
+            "taken each joint minus where it is (controller/supervision.py)")
+    trip_joint: Var[int] = var("task_status", "i2", (), -1,
+                               doc="joint (command-area order) of the last supervision trip, -1 none",
+                               enum={-1: "none", **{n: j.name for n, j in enumerate(JOINTS)}})
+    trip_cause: Var[int] = var("task_status", "i2", (), -1,
+                               doc="likely cause of the last supervision trip (controller.supervision.CAUSES), -1 none",
+                               enum={-1: "none", **dict(enumerate(CAUSES))})
+    rate_cmd_rad_s: Var[np.ndarray] = var("task_io", "f8", (N_JOINTS,), _Z6, "rad/s",
+                                          doc="joint rate commands to Data Acquisition (command-area joint order)")
+    rate_cmd_frame: Var[int] = var(
+        "task_io", "i8", (), -1,
+        doc="service frame of the inputs servo.rate_cmd_rad_s was computed from (-1: a "
+            "constant 0 posted by a sequence task, not computed from inputs)")
+    current_limit_cmd_a: Var[np.ndarray] = var("task_io", "f8", (N_CURRENT_LIMITS,), [0.0] * N_CURRENT_LIMITS, "A",
+                                               doc="current-limit commands (0 = brakes set)")
+    error_rad: Var[np.ndarray] = var("task_status", "f8", (N_JOINTS,), _Z6, "rad",
+                                     doc="position error q_cmd - q of the last servo run")
+    brake_state: Var[np.ndarray] = var(
+        "task_status", "u1", (N_JOINTS,), [BRAKE_UNPROVEN] * N_JOINTS,
+        doc="each joint's brake as the sensors show it, never from the command alone: "
+            + ", ".join(f"{k} {v}" for k, v in BRAKE_STATE_NAMES.items())
+            + " (SET: limit 0, joint still; PROVEN RELEASED: moved as told since its limit was "
+              "raised; controller/supervision.py)")
+    brake_phase: Var[int] = var(
+        "task_status", "i2", (), 0,
+        doc="the brake sequence: set, rate zeroed, limits raised, brake test, released (loop "
+            "closed), stopping, limits zero", enum=BRAKE_PHASE_NAMES)
+    brake_test: Var[int] = var(
+        "control_flags", "i2", (), 1, writer="user", protected=True, enum={0: "off", 1: "on"},
+        doc="the power-up brake test: each joint moves a little out and back (at a quarter of "
+            "its full-scale rate, about 0.2-1 deg) to prove its brake released and its drive "
+            "answering before START UP COMPLETE; a joint that does not fails the power-up, "
+            "named (off: the brakes are taken as released when the limits are raised; "
+            "protected: not while powered up)")
+
+
+SERVO = ServoVars
+
+
 class ServoLayer(Layer):
     """Servo Control (layer 6)."""
 
@@ -354,70 +428,15 @@ class ServoLayer(Layer):
         return out
 
     def specs(self) -> list[VarSpec]:
-        z6 = [0.0] * N_JOINTS
-
-        def par(name, value, units, doc):
-            return VarSpec(f"servo.{name}", "control_flags", "f8", (len(value),), "user", list(value), units,
-                           protected=True, doc=doc + " (protected: not while powered up)")
-        return self.state_specs() + [
-            par("kp_per_s", [DEFAULT_KP_PER_S] * N_JOINTS, "1/s", "compensator DC gain K (pfma-model 8.4: 8)"),
-            par("tau_z_s", z6, "s", "compensator zero time constant (0 = none)"),
-            par("tau_p_s", z6, "s", "compensator pole time constant (0 = none; > 0 if tau_z > 0)"),
-            par("rate_limit_rad_s", [j.omega_lim_rad_s for j in JOINTS], "rad/s",
-                "joint rate limit (pfma-model 8.2: 0.6 omega_fs)"),
-            par("current_limit_a", run_current_limits_a(), "A",
-                "current limits while powered up (6 joints), and the most the gripper may use (its grip "
-                "force sets its limit, up to this x 40 N/A)"),
-            par("q_min_rad", [j.soft_lo_rad for j in JOINTS], "rad", "soft lower joint limits (8.2)"),
-            par("q_max_rad", [j.soft_hi_rad for j in JOINTS], "rad", "soft upper joint limits (8.2)"),
-            par("ferror_min_rad", [FERROR_MIN_RAD] * N_JOINTS, "rad",
-                "following-error limit at standstill (LinuxCNC MIN_FERROR; docs/safety.md)"),
-            par("ferror_max_rad", [FERROR_MAX_RAD] * N_JOINTS, "rad",
-                "following-error limit at full-scale rate (LinuxCNC FERROR; docs/safety.md)"),
-            par("ferror_time_s", [FERROR_TIME_S] * N_JOINTS, "s",
-                "time the following error must stay beyond its limit (CiA 402 following-error time-out)"),
-            VarSpec("servo.ferror_rad", "task_status", "f8", (N_JOINTS,), "servo", z6, "rad",
-                    doc="following error of the last servo run: where the commanded rates should have "
-                        "taken each joint minus where it is (controller/supervision.py)"),
-            VarSpec("servo.trip_joint", "task_status", "i2", (), "servo", -1,
-                    doc="joint (command-area order) of the last supervision trip, -1 none",
-                    enum={-1: "none", **{n: j.name for n, j in enumerate(JOINTS)}}),
-            VarSpec("servo.trip_cause", "task_status", "i2", (), "servo", -1,
-                    doc="likely cause of the last supervision trip (controller.supervision.CAUSES), -1 none",
-                    enum={-1: "none", **dict(enumerate(CAUSES))}),
-            VarSpec("servo.rate_cmd_rad_s", "task_io", "f8", (N_JOINTS,), "servo", z6, "rad/s",
-                    doc="joint rate commands to Data Acquisition (command-area joint order)"),
-            VarSpec("servo.rate_cmd_frame", "task_io", "i8", (), "servo", -1,
-                    doc="service frame of the inputs servo.rate_cmd_rad_s was computed from (-1: a "
-                        "constant 0 posted by a sequence task, not computed from inputs)"),
-            VarSpec("servo.current_limit_cmd_a", "task_io", "f8", (N_CURRENT_LIMITS,), "servo",
-                    [0.0] * N_CURRENT_LIMITS, "A", doc="current-limit commands (0 = brakes set)"),
-            VarSpec("servo.error_rad", "task_status", "f8", (N_JOINTS,), "servo", z6, "rad",
-                    doc="position error q_cmd - q of the last servo run"),
-            VarSpec("servo.brake_state", "task_status", "u1", (N_JOINTS,), "servo", [BRAKE_UNPROVEN] * N_JOINTS,
-                    doc="each joint's brake as the sensors show it, never from the command alone: "
-                        + ", ".join(f"{k} {v}" for k, v in BRAKE_STATE_NAMES.items())
-                        + " (SET: limit 0, joint still; PROVEN RELEASED: moved as told since its limit was "
-                          "raised; controller/supervision.py)"),
-            VarSpec("servo.brake_phase", "task_status", "i2", (), "servo", 0,
-                    doc="the brake sequence: set, rate zeroed, limits raised, brake test, released (loop "
-                        "closed), stopping, limits zero", enum=BRAKE_PHASE_NAMES),
-            VarSpec("servo.brake_test", "control_flags", "i2", (), "user", 1, protected=True,
-                    enum={0: "off", 1: "on"},
-                    doc="the power-up brake test: each joint moves a little out and back (at a quarter of "
-                        "its full-scale rate, about 0.2-1 deg) to prove its brake released and its drive "
-                        "answering before START UP COMPLETE; a joint that does not fails the power-up, "
-                        "named (off: the brakes are taken as released when the limits are raised; "
-                        "protected: not while powered up)"),
-        ] + gripper_specs()
+        return self.state_specs() + SERVO.specs() + gripper_specs()
 
     # --- sequence tasks ------------------------------------------------------------------
     def seq_init(self, rt: "LayerContext") -> TaskState:
         names = ("kp_per_s", "tau_z_s", "tau_p_s", "rate_limit_rad_s", "current_limit_a", "q_min_rad", "q_max_rad",
                  "ferror_min_rad", "ferror_max_rad", "ferror_time_s")
-        v = rt.wm.get_task_inputs([f"servo.{n}" for n in names] + ["servo.brake_test"])
-        self.brake_test_on = bool(int(v["servo.brake_test"]))
-        p = {n: np.array(v[f"servo.{n}"], dtype=float) for n in names}
+        v = rt.wm.get_task_inputs([getattr(SERVO, n) for n in names] + [SERVO.brake_test])
+        self.brake_test_on = bool(int(v[SERVO.brake_test]))
+        p = {n: np.array(v[getattr(SERVO, n)], dtype=float) for n in names}
         self.period_s = rt.task_period_s("servo_control")
         try:
             self.comp = LeadLag(p["kp_per_s"], p["tau_z_s"], p["tau_p_s"], self.period_s)
@@ -454,7 +473,7 @@ class ServoLayer(Layer):
     def _brake_phase(self, rt, phase: int) -> None:
         self._phase = phase
         self._t_phase = rt.now
-        rt.wm.post_task_outputs("servo", {"servo.brake_phase": phase})
+        rt.wm.post_task_outputs("servo", {SERVO.brake_phase: phase})
 
     def seq_startup(self, rt: "LayerContext") -> TaskState:
         """Brake release (pfma-model 8.4): rate 0 V, then raise the current limits, wait
@@ -462,12 +481,12 @@ class ServoLayer(Layer):
         While the runtime is halted the outputs are held safe (brakes set): the wait goes on,
         its time-out counting from the first frame after the resume's re-arm."""
         if self.task_frames == 0:
-            rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS), "servo.rate_cmd_frame": -1})
+            rt.wm.post_task_outputs("servo", {SERVO.rate_cmd_rad_s: np.zeros(N_JOINTS), SERVO.rate_cmd_frame: -1})
             self._testing = False
             self._brake_phase(rt, 1)
             return TaskState.RUNNING
         if self._phase == 1:  # the gripper's stays 0 until its drive runs (START UP COMPLETE)
-            rt.wm.post_task_outputs("servo", {"servo.current_limit_cmd_a": self.limits_cmd(0.0)})
+            rt.wm.post_task_outputs("servo", {SERVO.current_limit_cmd_a: self.limits_cmd(0.0)})
             self._brake_phase(rt, 2)
             return TaskState.RUNNING
         if self._testing:
@@ -525,7 +544,7 @@ class ServoLayer(Layer):
     def seq_shutdown(self, rt: "LayerContext") -> TaskState:
         """Safe stop (pfma-model 8.4): rate 0 V; wait |qdot| < 0.01 rad/s or 0.5 s; limits 0 V."""
         if self.task_frames == 0:
-            rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS), "servo.rate_cmd_frame": -1})
+            rt.wm.post_task_outputs("servo", {SERVO.rate_cmd_rad_s: np.zeros(N_JOINTS), SERVO.rate_cmd_frame: -1})
             self._brake_phase(rt, 4)
             return TaskState.RUNNING
         v = rt.wm.get_task_inputs((DAQ.joint_rate_rad_s, DAQ.fault_bits))
@@ -533,7 +552,7 @@ class ServoLayer(Layer):
         tach_ok = not int(v[DAQ.fault_bits]) & TACH_FAULT_BIT  # a failed tach ADC proves nothing
         still = tach_ok and bool(np.all(np.abs(qdot) < SAFE_STOP_RATE_RAD_S))
         if still or rt.now - self._t_phase >= SAFE_STOP_TIMEOUT_S:
-            rt.wm.post_task_outputs("servo", {"servo.current_limit_cmd_a": np.zeros(N_CURRENT_LIMITS)})
+            rt.wm.post_task_outputs("servo", {SERVO.current_limit_cmd_a: np.zeros(N_CURRENT_LIMITS)})
             rt.post(self.key, Level.INFO, f"safe stop: current limits 0 after "
                                           f"{(rt.now - self._t_phase) * 1e3:.1f} ms "
                                           f"({'joints still' if still else 'timeout'})")
@@ -545,9 +564,9 @@ class ServoLayer(Layer):
         return self.seq_shutdown(rt)
 
     # --- the control law -----------------------------------------------------------------
-    _BRAKE_IN = (DAQ.joint_angle_rad, DAQ.service_frame, "servo.current_limit_cmd_a")
+    _BRAKE_IN = (DAQ.joint_angle_rad, DAQ.service_frame, SERVO.current_limit_cmd_a)
     _IN = (DAQ.joint_angle_rad, DAQ.service_frame, DAQ.joint_rate_rad_s, DAQ.motor_current_a,
-           "servo.current_limit_cmd_a", "servo.q_cmd_rad", "servo.q_cmd_valid")
+           SERVO.current_limit_cmd_a, "servo.q_cmd_rad", "servo.q_cmd_valid")
 
     def control_task(self, rt: "LayerContext") -> None:
         """Supervise the joints (whenever the current limits may be raised), then commanded
@@ -565,7 +584,7 @@ class ServoLayer(Layer):
                 b = wm.get_task_inputs(self._BRAKE_IN)
                 self.sup.observe_brakes(int(b[DAQ.service_frame]) * self.frame_period_s,
                                         np.asarray(b[DAQ.joint_angle_rad]).tolist(),
-                                        np.asarray(b["servo.current_limit_cmd_a"]).tolist())
+                                        np.asarray(b[SERVO.current_limit_cmd_a]).tolist())
                 self._post_brakes(wm)
             return
         v = wm.get_task_inputs(self._IN)
@@ -581,7 +600,7 @@ class ServoLayer(Layer):
             self._sup_frame = frame
             self._tach = np.asarray(v[DAQ.joint_rate_rad_s]).tolist()
             trip = self.sup.update(dt, q.tolist(), self._tach, np.asarray(v[DAQ.motor_current_a]).tolist(),
-                                   self._u_sent, np.asarray(v["servo.current_limit_cmd_a"]).tolist(),
+                                   self._u_sent, np.asarray(v[SERVO.current_limit_cmd_a]).tolist(),
                                    closed and self._phase == 3, q_cmd.tolist())
             self._post_brakes(wm)
             if trip is not None:
@@ -605,9 +624,9 @@ class ServoLayer(Layer):
         self._u_sent = rate.tolist()
         # stamped with the service frame of the inputs it was computed from: Data Acquisition
         # sends it only within its servo period, the service only while young enough
-        wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": rate, "servo.error_rad": e,
-                                       "servo.ferror_rad": self.sup.ferror_rad,
-                                       "servo.rate_cmd_frame": frame})
+        wm.post_task_outputs("servo", {SERVO.rate_cmd_rad_s: rate, SERVO.error_rad: e,
+                                       SERVO.ferror_rad: self.sup.ferror_rad,
+                                       SERVO.rate_cmd_frame: frame})
 
     def _brake_test_step(self, rt: "LayerContext", q: np.ndarray, frame: int) -> None:
         """One servo period of the power-up brake test (:class:`BrakeTest`): its rates,
@@ -624,13 +643,13 @@ class ServoLayer(Layer):
                                         p["q_max_rad"].tolist(), p["rate_limit_rad_s"].tolist())
         rates = self.brake_test.step(self.period_s, q.tolist(), self._tach)
         self._u_sent = rates
-        rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.array(rates), "servo.rate_cmd_frame": frame})
+        rt.wm.post_task_outputs("servo", {SERVO.rate_cmd_rad_s: np.array(rates), SERVO.rate_cmd_frame: frame})
 
     def _post_brakes(self, wm) -> None:
         """``servo.brake_state``, posted when it changes (rarely)."""
         if self.sup is not None and self.sup.brake_state != self._brake_posted:
             self._brake_posted = list(self.sup.brake_state)
-            wm.post_task_outputs("servo", {"servo.brake_state": self._brake_posted})
+            wm.post_task_outputs("servo", {SERVO.brake_state: self._brake_posted})
 
     def _trip(self, rt: "LayerContext", trip: Trip, code: int | None = None) -> None:
         """A supervision trip: the layer's fault (one message naming joint, check and likely
@@ -640,7 +659,7 @@ class ServoLayer(Layer):
         self.set_fault(rt, SUPERVISION_CODES[trip.check] if code is None else code,
                        f"{trip.text}; current limits 0 (brakes on)")
         self._u_sent = [0.0] * N_JOINTS
-        rt.wm.post_task_outputs("servo", {"servo.rate_cmd_rad_s": np.zeros(N_JOINTS), "servo.rate_cmd_frame": -1,
-                                          "servo.current_limit_cmd_a": self._zero_limits,
-                                          "servo.trip_joint": trip.joint, "servo.trip_cause": trip.cause})
+        rt.wm.post_task_outputs("servo", {SERVO.rate_cmd_rad_s: np.zeros(N_JOINTS), SERVO.rate_cmd_frame: -1,
+                                          SERVO.current_limit_cmd_a: self._zero_limits,
+                                          SERVO.trip_joint: trip.joint, SERVO.trip_cause: trip.cause})
         self._brake_phase(rt, 5)

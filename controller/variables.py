@@ -67,24 +67,3 @@ class DaqVars(VarGroup, prefix="daq", writer="daq"):
 
 
 DAQ = DaqVars
-
-
-#: the groups declared here, in the order docs/world-model.md lists them
-GROUPS: tuple[type[VarGroup], ...] = (DaqVars,)
-
-DOC_BEGIN = "<!-- variables: generated from controller/variables.py; regenerate: " \
-            "python -c 'import controller.variables as v; print(v.markdown())' -->"
-DOC_END = "<!-- end of the generated variables -->"
-
-
-def markdown() -> str:
-    """The declared variables as the table docs/world-model.md carries between
-    :data:`DOC_BEGIN` and :data:`DOC_END` (a test keeps the two equal)."""
-    lines = [DOC_BEGIN]
-    for group in GROUPS:
-        lines += ["", f"`{group.__name__}` (`{group.prefix}.*`, writer `{group.writer}`):", "",
-                  "| attribute | name | area | type | units | doc |", "|---|---|---|---|---|---|"]
-        for attr, v in group.attributes():
-            s = v.spec
-            lines.append(f"| `{attr}` | `{v}` | {s.area} | {s.type_text} | {s.units} | {s.doc} |")
-    return "\n".join(lines + ["", DOC_END])

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 import controller.variables as variables
+from controller import vardoc
 from controller.variables import DAQ, DaqVars
 from controller.worldmodel import VarSpec, WorldModel, WorldModelError
 from controller.worldmodel.var import Var, VarGroup, var
@@ -69,12 +70,23 @@ def test_a_var_pickles_as_its_name() -> None:
 
 def test_docs_list_the_variables() -> None:
     text = DOC.read_text()
-    begin, end = text.index(variables.DOC_BEGIN), text.index(variables.DOC_END) + len(variables.DOC_END)
-    assert text[begin:end] == variables.markdown(), \
-        "docs/world-model.md is stale: python -c 'import controller.variables as v; print(v.markdown())'"
+    begin, end = text.index(vardoc.DOC_BEGIN), text.index(vardoc.DOC_END) + len(vardoc.DOC_END)
+    assert text[begin:end] == vardoc.markdown(), "docs/world-model.md is stale: python -m controller.vardoc"
 
 
 def test_a_var_shows_as_its_name() -> None:
     v = DAQ.joint_angle_rad
     assert repr(v) == repr("daq.joint_angle_rad") and f"{v}" == str(v) == "daq.joint_angle_rad"
     assert hash(v) == hash("daq.joint_angle_rad")
+
+
+def test_servo_names_are_the_old_strings() -> None:
+    from controller.servo import SERVO, ServoVars
+    assert SERVO is ServoVars and SERVO.current_limit_cmd_a == "servo.current_limit_cmd_a"
+    assert [str(v) for v in SERVO.all()] == [f"servo.{n}" for n in (
+        "kp_per_s", "tau_z_s", "tau_p_s", "rate_limit_rad_s", "current_limit_a", "q_min_rad", "q_max_rad",
+        "ferror_min_rad", "ferror_max_rad", "ferror_time_s", "ferror_rad", "trip_joint", "trip_cause",
+        "rate_cmd_rad_s", "rate_cmd_frame", "current_limit_cmd_a", "error_rad", "brake_state", "brake_phase",
+        "brake_test")]
+    assert SERVO.kp_per_s.writer == "user" and SERVO.kp_per_s.spec.protected
+    assert SERVO.rate_cmd_rad_s.writer == "servo"

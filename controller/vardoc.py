@@ -1,0 +1,35 @@
+"""docs/world-model.md's list of the declared world-model variables (generated; a test,
+tests/controller/test_variables.py, keeps the file equal to it). A leaf module: it imports
+every module that declares a group (controller/variables.py, controller/servo.py).
+
+Regenerate: ``python -m controller.vardoc`` prints the block.
+"""
+
+from __future__ import annotations
+
+from controller.servo import ServoVars
+from controller.variables import DaqVars
+from controller.worldmodel.var import VarGroup
+
+#: every declared group, in the order the document lists them
+GROUPS: tuple[type[VarGroup], ...] = (DaqVars, ServoVars)
+
+DOC_BEGIN = "<!-- variables: generated from the VarGroup declarations; regenerate: python -m controller.vardoc -->"
+DOC_END = "<!-- end of the generated variables -->"
+
+
+def markdown() -> str:
+    """The declared variables as the table docs/world-model.md carries between
+    :data:`DOC_BEGIN` and :data:`DOC_END`."""
+    lines = [DOC_BEGIN]
+    for group in GROUPS:
+        lines += ["", f"`{group.__name__}` (`{group.prefix}.*`, writer `{group.writer}` unless the row says):", "",
+                  "| attribute | name | area | type | units | writer | doc |", "|---|---|---|---|---|---|---|"]
+        for attr, v in group.attributes():
+            s = v.spec
+            lines.append(f"| `{attr}` | `{v}` | {s.area} | {s.type_text} | {s.units} | {s.writer} | {s.doc} |")
+    return "\n".join(lines + ["", DOC_END])
+
+
+if __name__ == "__main__":  # pragma: no cover
+    print(markdown())
