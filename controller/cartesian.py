@@ -55,7 +55,7 @@ from controller.force import (
     DEFAULT_DAMPING, DEFAULT_MASS, DEFAULT_STIFFNESS, STATE_NAMES, ForceControl, ImpedanceParams,
     ToolLoad,
 )
-from controller.layers import Layer
+from controller.layers import JOINT, Layer
 from controller.messages import Level
 from controller.quat import q_conj, q_from_rotvec, q_mul, q_normalize, q_to_matrix, q_to_rotvec
 from controller.teleop import (
@@ -75,14 +75,14 @@ MAX_LAG_M = 0.05
 MAX_LAG_RAD = 0.20
 #: the shoulder-roll index the Joint Planner took at power-up (8.1: world = base rotated by
 #: it); without it in the model (no Joint Planner) the index is 0
-ROLL_VAR = "joint.shoulder_roll_rad"
+ROLL_VAR = JOINT.shoulder_roll_rad
 #: the trajectory planner's outputs (T's layer); trajectory mode needs them in the model
 TRAJ_VARS = ("traj.pos_m", "traj.quat", "traj.active")
 #: the Joint Planner's measured tool pose (K's layer); without it fk(daq angles) is used
-TOOL_VARS = ("joint.tool_pos_m", "joint.tool_quat")
+TOOL_VARS = (JOINT.tool_pos_m, JOINT.tool_quat)
 #: the Joint Planner's joint moves: when one ends the held pose becomes fk of the joint command
 #: (the pose it reached), so that Cartesian mode resumes there, not at the pose held before it
-JMOVE_VARS = ("joint.jmove_done_seq", "servo.q_cmd_rad")
+JMOVE_VARS = (JOINT.jmove_done_seq, JOINT.q_cmd_rad)
 
 
 def _compose(offset6: np.ndarray, pos_m: np.ndarray, quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -247,7 +247,7 @@ class CartesianLayer(Layer):
         self.mode = int(v["cart.mode"]) if int(v["cart.mode"]) in MODE_NAMES else MODE_HOLD
         self._zero_seq = int(v["force.zero_seq"])
         if self._check_model(rt)["jmove"]:
-            self._jmove_seen = int(rt.wm.get_task_inputs(("joint.jmove_done_seq",))["joint.jmove_done_seq"])
+            self._jmove_seen = int(rt.wm.get_task_inputs((JOINT.jmove_done_seq,))[JOINT.jmove_done_seq])
         self.valid = True
         self._post_command(rt)
         rt.post(self.key, Level.INFO, f"holding the tool at {self._fmt_pose(self.hold_pos, self.hold_quat)}, "
@@ -275,7 +275,7 @@ class CartesianLayer(Layer):
 
     def _measured(self, rt: "LayerContext", v: dict) -> None:
         if self._check_model(rt)["tool"]:
-            p, q = v["joint.tool_pos_m"], v["joint.tool_quat"]
+            p, q = v[JOINT.tool_pos_m], v[JOINT.tool_quat]
             if float(np.dot(q, q)) > 0.5:  # a real quaternion (written by the Joint Planner)
                 self.meas_pos, self.meas_quat = np.asarray(p, float), q_normalize(q)
                 return
@@ -322,9 +322,9 @@ class CartesianLayer(Layer):
         v = rt.wm.get_task_inputs(names)
         self._measured(rt, v)
         now = rt.now
-        if have["jmove"] and int(v["joint.jmove_done_seq"]) != self._jmove_seen:
-            self._jmove_seen = int(v["joint.jmove_done_seq"])
-            self._hold_joint_command(rt, v["servo.q_cmd_rad"])
+        if have["jmove"] and int(v[JOINT.jmove_done_seq]) != self._jmove_seen:
+            self._jmove_seen = int(v[JOINT.jmove_done_seq])
+            self._hold_joint_command(rt, v[JOINT.q_cmd_rad])
         self._delay_settings(rt, v)
         self._mode_inputs(rt, v, have)
         src, deadman, active = self._hand_controller(rt, v, now)

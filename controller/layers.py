@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
@@ -40,6 +40,7 @@ from controller.params import (
 )
 from controller.quat import q_angle
 from controller.worldmodel import VarSpec
+from controller.worldmodel.var import Var, VarGroup, var
 from controller.routes import camera_name, decode_matrix_route, parse_route_request, route_text
 from controller.variables import DAQ
 
@@ -453,9 +454,9 @@ class UpDownLayer(Layer):
     def _roll_note(self, rt) -> str:
         """What POWER UP's first answer says of the shoulder-roll index (no sensor: the
         operator's parameter, shown so that it is confirmed; docs/controller.md)."""
-        if "joint.shoulder_roll_deg" not in rt.wm.names():
+        if JOINT.shoulder_roll_deg not in rt.wm.names():
             return ""
-        deg = float(rt.wm.get("joint.shoulder_roll_deg"))
+        deg = float(rt.wm.get(JOINT.shoulder_roll_deg))
         return f" (shoulder-roll index {shoulder_roll_text(deg)}: no sensor, as set in joint.shoulder_roll_deg)"
 
     def answer(self, rt, seq: int, code: int, text: str) -> None:
@@ -664,6 +665,60 @@ JMOVE_ACCEL_S = 1.0
 JMOVE_REACHED, JMOVE_STOPPED, JMOVE_REFUSED = 0, 1, 2
 
 
+#: ``joint.mode`` by name (``JointPlannerLayer.MODE_JOINT``, ``MODE_CARTESIAN``)
+JOINT_MODE_NAMES = {0: "JOINT GOAL", 1: "CARTESIAN"}
+_Z6 = [0.0] * N_JOINTS
+
+
+class JointVars(VarGroup, prefix="joint", writer="joint"):
+    """The Joint Planner's variables: the user's joint goal, the joint command for Servo
+    Control (named ``servo.*``), the measured tool pose, its statuses, the shoulder-roll
+    index (its initial value is the layer's parameter: ``JointPlannerLayer.specs``)."""
+
+    goal_rad: Var[np.ndarray] = var(
+        "command_input", "f8", (N_JOINTS,), _Z6, "rad", writer="user",
+        doc="user joint goal (command-area joint order); acted on when joint.goal_seq changes")
+    goal_seq: Var[int] = var("command_input", "i4", (), 0, writer="user",
+                             doc="increment to command joint.goal_rad (refused while a Cartesian command is valid)")
+    q_cmd_rad: Var[np.ndarray] = var("task_io", "f8", (N_JOINTS,), _Z6, "rad", name="servo.q_cmd_rad",
+                                     doc="commanded joint positions for Servo Control")
+    q_cmd_valid: Var[bool] = var("task_io", "b1", (), False, name="servo.q_cmd_valid",
+                                 doc="servo.q_cmd_rad is a command (else the servo holds where it started)")
+    tool_pos_m: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0] * 3, "m",
+                                      doc="measured tool point, world: fk(daq.joint_angle_rad), every 80 Hz run")
+    tool_quat: Var[np.ndarray] = var("task_io", "f8", (4,), [0.0] * 4, "1",
+                                     doc="measured tool orientation (w x y z), world; all zero until first computed")
+    singular: Var[bool] = var("task_status", "b1", (), False,
+                              doc="the joint command is near a singular set (wrist yaw +-90, full stretch, "
+                                  "wrist centre on the shoulder-yaw axis) or the step was damped")
+    limited: Var[bool] = var("task_status", "b1", (), False,
+                             doc="a joint is held at a soft limit (Cartesian mode) or a goal was clipped")
+    mode: Var[int] = var("task_status", "i2", (), 0,
+                         doc="what the Joint Planner follows: the joint goal, or the Cartesian command "
+                             "(cart.cmd_valid)", enum=JOINT_MODE_NAMES)
+    cart_err_m: Var[float] = var(
+        "task_status", "f8", (), 0.0, "m",
+        doc="Cartesian mode: tool-point distance from the commanded pose to fk(servo.q_cmd_rad)")
+    cart_err_rad: Var[float] = var(
+        "task_status", "f8", (), 0.0, "rad",
+        doc="Cartesian mode: orientation angle from the commanded pose to fk(servo.q_cmd_rad)")
+    shoulder_roll_deg: Var[float] = var(
+        "control_flags", "f8", (), 0.0, "deg", writer="user", choices=SHOULDER_ROLL_STEPS_DEG,
+        doc="the shoulder roll's index position, set by hand on the arm (no sensor): -90 -45 0 45 90 "
+            "(pfma-model 8.1); set it where the joint is pinned, while powered down; power-up takes it")
+    shoulder_roll_rad: Var[float] = var(
+        "status_output", "f8", (), 0.0, "rad",
+        doc="the shoulder-roll index the kinematics use: joint.shoulder_roll_deg as the last "
+            "power-up took it (pfma-model 8.1: world = base rotated about x by it)")
+    jmove_active: Var[bool] = var("task_io", "b1", (), False, doc="a joint move (msp.jmove_*) commands the joints")
+    jmove_done_seq: Var[int] = var("task_io", "i4", (), 0, doc="the last joint move finished (msp.jmove_seq)")
+    jmove_done_code: Var[int] = var("task_io", "i2", (), 0,
+                                    doc="how joint.jmove_done_seq ended: 0 REACHED 1 STOPPED 2 REFUSED")
+
+
+JOINT = JointVars
+
+
 class JointPlannerLayer(Layer):
     """Joint Planner (80 Hz): produces the commanded joint positions for the servo layer.
 
@@ -715,7 +770,7 @@ class JointPlannerLayer(Layer):
     JMOVE_VARS = ("msp.jmove_seq", "msp.jmove_goal_rad", "msp.jmove_speed", "msp.jmove_stop")
     MODE_JOINT, MODE_CARTESIAN = 0, 1
     #: ``joint.mode`` by name
-    MODE_NAMES = {MODE_JOINT: "JOINT GOAL", MODE_CARTESIAN: "CARTESIAN"}
+    MODE_NAMES = JOINT_MODE_NAMES
 
     def __init__(self, shoulder_roll_deg: int = 0) -> None:
         super().__init__()
@@ -744,47 +799,10 @@ class JointPlannerLayer(Layer):
         self._jm: "_JointMove | None" = None  # the joint move running
 
     def specs(self) -> list[VarSpec]:
-        z = [0.0] * N_JOINTS
-        w = "joint"
-        return self.state_specs() + [
-            VarSpec("joint.goal_rad", "command_input", "f8", (N_JOINTS,), "user", z, "rad",
-                    doc="user joint goal (command-area joint order); acted on when joint.goal_seq changes"),
-            VarSpec("joint.goal_seq", "command_input", "i4", (), "user", 0,
-                    doc="increment to command joint.goal_rad (refused while a Cartesian command is valid)"),
-            VarSpec("servo.q_cmd_rad", "task_io", "f8", (N_JOINTS,), w, z, "rad",
-                    doc="commanded joint positions for Servo Control"),
-            VarSpec("servo.q_cmd_valid", "task_io", "b1", (), w, False,
-                    doc="servo.q_cmd_rad is a command (else the servo holds where it started)"),
-            VarSpec("joint.tool_pos_m", "task_io", "f8", (3,), w, [0.0] * 3, "m",
-                    doc="measured tool point, world: fk(daq.joint_angle_rad), every 80 Hz run"),
-            VarSpec("joint.tool_quat", "task_io", "f8", (4,), w, [0.0] * 4, "1",
-                    doc="measured tool orientation (w x y z), world; all zero until first computed"),
-            VarSpec("joint.singular", "task_status", "b1", (), w, False,
-                    doc="the joint command is near a singular set (wrist yaw +-90, full stretch, "
-                        "wrist centre on the shoulder-yaw axis) or the step was damped"),
-            VarSpec("joint.limited", "task_status", "b1", (), w, False,
-                    doc="a joint is held at a soft limit (Cartesian mode) or a goal was clipped"),
-            VarSpec("joint.mode", "task_status", "i2", (), w, 0,
-                    doc="what the Joint Planner follows: the joint goal, or the Cartesian command "
-                        "(cart.cmd_valid)", enum=self.MODE_NAMES),
-            VarSpec("joint.cart_err_m", "task_status", "f8", (), w, 0.0, "m",
-                    doc="Cartesian mode: tool-point distance from the commanded pose to fk(servo.q_cmd_rad)"),
-            VarSpec("joint.cart_err_rad", "task_status", "f8", (), w, 0.0, "rad",
-                    doc="Cartesian mode: orientation angle from the commanded pose to fk(servo.q_cmd_rad)"),
-            VarSpec("joint.shoulder_roll_deg", "control_flags", "f8", (), "user", float(self.shoulder_roll_deg), "deg",
-                    choices=SHOULDER_ROLL_STEPS_DEG,
-                    doc="the shoulder roll's index position, set by hand on the arm (no sensor): -90 -45 0 45 90 "
-                        "(pfma-model 8.1); set it where the joint is pinned, while powered down; power-up takes it"),
-            VarSpec("joint.shoulder_roll_rad", "status_output", "f8", (), w, self.shoulder_roll_rad, "rad",
-                    doc="the shoulder-roll index the kinematics use: joint.shoulder_roll_deg as the last "
-                        "power-up took it (pfma-model 8.1: world = base rotated about x by it)"),
-            VarSpec("joint.jmove_active", "task_io", "b1", (), w, False,
-                    doc="a joint move (msp.jmove_*) commands the joints"),
-            VarSpec("joint.jmove_done_seq", "task_io", "i4", (), w, 0,
-                    doc="the last joint move finished (msp.jmove_seq)"),
-            VarSpec("joint.jmove_done_code", "task_io", "i2", (), w, 0,
-                    doc="how joint.jmove_done_seq ended: 0 REACHED 1 STOPPED 2 REFUSED"),
-        ]
+        # the shoulder-roll rows start from this layer's parameter (its initial index)
+        start = {JOINT.shoulder_roll_deg: float(self.shoulder_roll_deg), JOINT.shoulder_roll_rad: self.shoulder_roll_rad}
+        return self.state_specs() + [replace(s, initial=start[s.name]) if s.name in start else s
+                                     for s in JOINT.specs()]
 
     def _cart_available(self, rt: "LayerContext") -> bool:
         if self._have_cart is None:
@@ -802,16 +820,16 @@ class JointPlannerLayer(Layer):
         self._cart_available(rt)
         self._dt_s = rt.task_period_s("joint_planner")
         # the shoulder-roll index: a parameter (no sensor), fixed from here to the power-down
-        deg = check_shoulder_roll_deg(float(rt.wm.get("joint.shoulder_roll_deg")))
+        deg = check_shoulder_roll_deg(float(rt.wm.get(JOINT.shoulder_roll_deg)))
         self.shoulder_roll_rad = math.radians(deg)
-        rt.wm.post_task_outputs("joint", {"joint.shoulder_roll_rad": self.shoulder_roll_rad})
+        rt.wm.post_task_outputs("joint", {JOINT.shoulder_roll_rad: self.shoulder_roll_rad})
         rt.post(self.key, Level.INFO, f"shoulder-roll index {shoulder_roll_text(deg)} (joint.shoulder_roll_deg; "
                                       f"no sensor: as the operator set it): the kinematics use it until power-down")
         return TaskState.DONE
 
     def seq_startup(self, rt: "LayerContext") -> TaskState:
-        v = rt.wm.get_task_inputs((DAQ.joint_angle_rad, "joint.goal_seq"))
-        self._seen_goal = int(v["joint.goal_seq"])  # goals set while powered down do not jump
+        v = rt.wm.get_task_inputs((DAQ.joint_angle_rad, JOINT.goal_seq))
+        self._seen_goal = int(v[JOINT.goal_seq])  # goals set while powered down do not jump
         self.q_cmd = np.asarray(v[DAQ.joint_angle_rad], dtype=float).copy()
         self.mode = self.MODE_JOINT
         self._bad_cmd = False
@@ -820,12 +838,12 @@ class JointPlannerLayer(Layer):
         self._jm = None
         if self._jmove_available(rt):  # a joint move sent before this start-up is not run
             self._jm_seen = int(rt.wm.get_task_inputs(("msp.jmove_seq",))["msp.jmove_seq"])
-        rt.wm.post_task_outputs("joint", {"servo.q_cmd_rad": self.q_cmd, "servo.q_cmd_valid": True,
-                                          "joint.mode": self.mode, "joint.jmove_active": False})
+        rt.wm.post_task_outputs("joint", {JOINT.q_cmd_rad: self.q_cmd, JOINT.q_cmd_valid: True,
+                                          JOINT.mode: self.mode, JOINT.jmove_active: False})
         return TaskState.DONE
 
     def seq_shutdown(self, rt: "LayerContext") -> TaskState:
-        out: dict = {"servo.q_cmd_valid": False}
+        out: dict = {JOINT.q_cmd_valid: False}
         if self._jm is not None:
             self._jmove_end(rt, JMOVE_STOPPED, "shut down", out)
         rt.wm.post_task_outputs("joint", out)
@@ -841,14 +859,14 @@ class JointPlannerLayer(Layer):
         jm = self._jmove_available(rt)
         names = self._inputs
         if names is None:  # built once: what this model has of the planner's inputs
-            names = self._inputs = ((DAQ.joint_angle_rad, "joint.goal_rad", "joint.goal_seq")
+            names = self._inputs = ((DAQ.joint_angle_rad, JOINT.goal_rad, JOINT.goal_seq)
                                     + (self.CART_VARS if cart else ()) + (self.JMOVE_VARS if jm else ()))
         v = rt.wm.get_task_inputs(names)
         p, quat = kin.fk(v[DAQ.joint_angle_rad], self.shoulder_roll_rad)
-        out: dict = {"joint.tool_pos_m": p, "joint.tool_quat": quat}
+        out: dict = {JOINT.tool_pos_m: p, JOINT.tool_quat: quat}
         if status == Status.START_UP_COMPLETE:
             valid = cart and bool(v["cart.cmd_valid"])
-            if int(v["joint.goal_seq"]) != self._seen_goal:
+            if int(v[JOINT.goal_seq]) != self._seen_goal:
                 if self._jm is not None:
                     self._jmove_end(rt, JMOVE_STOPPED, "a user joint goal took over", out)
                 self._set_mode(rt, self.MODE_JOINT, out)
@@ -878,7 +896,7 @@ class JointPlannerLayer(Layer):
     def _set_mode(self, rt: "LayerContext", mode: int, out: dict) -> None:
         if mode != self.mode:
             self.mode = mode
-            out["joint.mode"] = mode
+            out[JOINT.mode] = mode
             rt.post(self.key, Level.INFO, "Cartesian mode (cart.cmd_valid)" if mode == self.MODE_CARTESIAN
                     else "joint-goal mode: holding the last command")
             if mode == self.MODE_JOINT:
@@ -888,11 +906,11 @@ class JointPlannerLayer(Layer):
         if (singular, limited) == self._flags:
             return
         if singular != self._flags[0]:
-            out["joint.singular"] = singular
+            out[JOINT.singular] = singular
             if singular:
                 rt.post(self.key, Level.INFO, "near a singular set: damped steps")
         if limited != self._flags[1]:
-            out["joint.limited"] = limited
+            out[JOINT.limited] = limited
             if limited:
                 rt.post(self.key, Level.WARNING, "a joint is held at its soft limit")
         self._flags = (singular, limited)
@@ -922,18 +940,18 @@ class JointPlannerLayer(Layer):
             if np.array_equal(self.q_cmd, self._recover):
                 self._recover = None
             p_c, quat_c = kin.fk(self.q_cmd, self.shoulder_roll_rad)
-            out["servo.q_cmd_rad"] = self.q_cmd
-            out["joint.cart_err_m"] = float(np.linalg.norm(pos - p_c))
-            out["joint.cart_err_rad"] = q_angle(q4, quat_c)
+            out[JOINT.q_cmd_rad] = self.q_cmd
+            out[JOINT.cart_err_m] = float(np.linalg.norm(pos - p_c))
+            out[JOINT.cart_err_rad] = q_angle(q4, quat_c)
             self._post_flags(rt, bool(kin.singular_sets(self.q_cmd)), False, out)
             return
         r = kin.ik_step_ex(self.q_cmd, pos, q4, dt, lo_rad=self.lo, hi_rad=self.hi,
                            shoulder_roll_rad=self.shoulder_roll_rad)
         self.last_step = r
         self.q_cmd = r.q_rad
-        out["servo.q_cmd_rad"] = self.q_cmd
-        out["joint.cart_err_m"] = r.pos_err_m
-        out["joint.cart_err_rad"] = r.rot_err_rad
+        out[JOINT.q_cmd_rad] = self.q_cmd
+        out[JOINT.cart_err_m] = r.pos_err_m
+        out[JOINT.cart_err_rad] = r.rot_err_rad
         singular = r.singular or bool(kin.singular_sets(self.q_cmd))
         self._post_flags(rt, singular, r.limited, out)
         blocked = r.limited and (r.pos_err_m > STUCK_POS_M or r.rot_err_rad > STUCK_ROT_RAD)
@@ -967,7 +985,7 @@ class JointPlannerLayer(Layer):
             rt.post(self.key, Level.INFO, f"joint move {jm.seq}: stop requested")
         s, finished = jm.sample(rt.now)
         self.q_cmd = jm.q0 + s * jm.d
-        out["servo.q_cmd_rad"] = self.q_cmd
+        out[JOINT.q_cmd_rad] = self.q_cmd
         if finished:
             self._jmove_end(rt, JMOVE_STOPPED if jm.stop_t is not None and s < 1.0 - 1e-12 else JMOVE_REACHED,
                             "", out)
@@ -980,7 +998,7 @@ class JointPlannerLayer(Layer):
         if not (np.all(np.isfinite(goal)) and math.isfinite(speed) and 0.0 < speed <= 1.0):
             rt.post(self.key, Level.ERROR, f"joint move {seq} refused: goal {goal.tolist()} / speed {speed!r} "
                                            f"(needs finite angles and a speed 0..1)")
-            out.update({"joint.jmove_done_seq": seq, "joint.jmove_done_code": JMOVE_REFUSED})
+            out.update({JOINT.jmove_done_seq: seq, JOINT.jmove_done_code: JMOVE_REFUSED})
             return
         goal = np.clip(goal, self.lo, self.hi)
         d = goal - self.q_cmd
@@ -991,7 +1009,7 @@ class JointPlannerLayer(Layer):
         else:
             prof = plan_trapezoid(0.0, 1.0, 1.0)
         self._jm = _JointMove(seq, self.q_cmd.copy(), d, rt.now, prof)
-        out["joint.jmove_active"] = True
+        out[JOINT.jmove_active] = True
         rt.post(self.key, Level.INFO, f"joint move {seq}: to " + " ".join(f"{x:+.4f}" for x in goal)
                 + f" rad in {prof.duration_s:.2f} s")
 
@@ -999,23 +1017,23 @@ class JointPlannerLayer(Layer):
         jm = self._jm
         assert jm is not None
         self._jm = None
-        out.update({"joint.jmove_active": False, "joint.jmove_done_seq": jm.seq, "joint.jmove_done_code": code})
+        out.update({JOINT.jmove_active: False, JOINT.jmove_done_seq: jm.seq, JOINT.jmove_done_code: code})
         if code != JMOVE_REACHED:
             rt.post(self.key, Level.INFO, f"joint move {jm.seq} stopped" + (f": {why}" if why else ""))
 
     def _joint_goal(self, rt: "LayerContext", v: dict, out: dict) -> None:
-        seq = int(v["joint.goal_seq"])
+        seq = int(v[JOINT.goal_seq])
         if seq == self._seen_goal:
             return
         self._seen_goal = seq
-        goal = np.asarray(v["joint.goal_rad"], dtype=float)
+        goal = np.asarray(v[JOINT.goal_rad], dtype=float)
         q = np.clip(goal, self.lo, self.hi)
         clipped = bool(np.any(q != goal))
         if clipped:
             rt.post(self.key, Level.WARNING, f"goal {seq} clipped to the soft limits")
         self._post_flags(rt, False, clipped, out)
         self.q_cmd = q
-        out["servo.q_cmd_rad"] = q
+        out[JOINT.q_cmd_rad] = q
         rt.post(self.key, Level.INFO, f"goal {seq}: " + " ".join(f"{x:+.4f}" for x in q) + " rad")
 
 

@@ -83,7 +83,7 @@ from controller.cartesian import CartesianLayer
 from controller.daq_layer import DataAcquisitionLayer
 from controller.decision import SHORT, SHORT_CMD, Command, Status, TaskState
 from controller.frames import MINOR_FRAMES_PER_MAJOR, FrameConfig, ScheduleError
-from controller.layers import ERR_TASK_RAISED, JointPlannerLayer, Layer, Request, Response, UpDownLayer, find_answer
+from controller.layers import ERR_TASK_RAISED, JOINT, JointPlannerLayer, Layer, Request, Response, UpDownLayer, find_answer
 from controller.messages import Level, Message, MessageBoard
 from controller.paths import MultiSegmentLayer
 from controller.trajectory import TrajectoryLayer
@@ -913,16 +913,16 @@ class ControllerRuntime:
 
     def set_joint_goal(self, q_rad: Sequence[float]) -> int:
         """Command joint positions (command-area order) through the Joint Planner."""
-        self._goal_seq = max(self._goal_seq, int(self.wm.get("joint.goal_seq"))) + 1
-        self.wm.set_user("joint.goal_rad", np.asarray(q_rad, dtype=float), self._key)
-        self.wm.set_user("joint.goal_seq", self._goal_seq, self._key)
+        self._goal_seq = max(self._goal_seq, int(self.wm.get(JOINT.goal_seq))) + 1
+        self.wm.set_user(JOINT.goal_rad, np.asarray(q_rad, dtype=float), self._key)
+        self.wm.set_user(JOINT.goal_seq, self._goal_seq, self._key)
         return self._goal_seq
 
     def set_shoulder_roll(self, deg: int) -> int:
         """Set the shoulder-roll index ``joint.shoulder_roll_deg`` (one of -90, -45, 0, 45, 90;
         only while powered down; the next power-up takes it). A user write like ``pfma wm set``:
         returns its request id. :raises WorldModelError: another value, or powered up"""
-        return int(self.wm.set_user("joint.shoulder_roll_deg", float(deg), self._key))
+        return int(self.wm.set_user(JOINT.shoulder_roll_deg, float(deg), self._key))
 
     # --- queries -------------------------------------------------------------------------
     def status(self, key: str = "updown") -> Status:

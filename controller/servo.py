@@ -38,7 +38,7 @@ import numpy as np
 
 from controller.decision import Status, TaskState
 from controller.gripper import GRIPPER_LIMIT_INDEX, GripperDrive, gripper_specs
-from controller.layers import ERROR_NAMES, Layer
+from controller.layers import ERROR_NAMES, JOINT, Layer
 from controller.messages import Level
 from controller.params import (
     DEFAULT_KP_PER_S, GRIPPER_I_MAX_A, JOINTS, N_CURRENT_LIMITS, N_JOINTS, RATE_LOOP_LAMBDA, SAFE_STOP_RATE_RAD_S,
@@ -566,7 +566,7 @@ class ServoLayer(Layer):
     # --- the control law -----------------------------------------------------------------
     _BRAKE_IN = (DAQ.joint_angle_rad, DAQ.service_frame, SERVO.current_limit_cmd_a)
     _IN = (DAQ.joint_angle_rad, DAQ.service_frame, DAQ.joint_rate_rad_s, DAQ.motor_current_a,
-           SERVO.current_limit_cmd_a, "servo.q_cmd_rad", "servo.q_cmd_valid")
+           SERVO.current_limit_cmd_a, JOINT.q_cmd_rad, JOINT.q_cmd_valid)
 
     def control_task(self, rt: "LayerContext") -> None:
         """Supervise the joints (whenever the current limits may be raised), then commanded
@@ -591,7 +591,7 @@ class ServoLayer(Layer):
         q = np.asarray(v[DAQ.joint_angle_rad], dtype=float)
         frame = int(v[DAQ.service_frame])
         p = self.params
-        q_cmd = np.asarray(v["servo.q_cmd_rad"], dtype=float) if bool(v["servo.q_cmd_valid"]) else self.hold
+        q_cmd = np.asarray(v[JOINT.q_cmd_rad], dtype=float) if bool(v[JOINT.q_cmd_valid]) else self.hold
         q_cmd = np.clip(q_cmd, p["q_min_rad"], p["q_max_rad"])
         if live:
             if not closed and self._phase != PHASE_BRAKE_TEST:

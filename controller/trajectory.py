@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, NamedTuple, Sequence
 import numpy as np
 
 from controller.decision import Status
-from controller.layers import Layer
+from controller.layers import JOINT, Layer
 from controller.messages import Level
 from controller.quat import q_conj, q_from_rotvec, q_mul, q_normalize, q_to_rotvec
 from controller.worldmodel import VarSpec
@@ -249,7 +249,7 @@ SEG_VARS = ("msp.seg_seq", "msp.seg_pos_m", "msp.seg_quat", "msp.seg_limits", "m
 CAP_VARS = ("traj.v_lin_max_m_s", "traj.a_lin_max_m_s2", "traj.v_rot_max_rad_s", "traj.a_rot_max_rad_s2")
 #: start-pose sources, in order of preference (read only if the model has them)
 CART_START = ("cart.cmd_valid", "cart.pos_cmd_m", "cart.quat_cmd")
-TOOL_START = ("joint.tool_pos_m", "joint.tool_quat")
+TOOL_START = (JOINT.tool_pos_m, JOINT.tool_quat)
 
 
 def segment_specs() -> list[VarSpec]:
@@ -344,9 +344,9 @@ class TrajectoryLayer(Layer):
                 return np.asarray(v["cart.pos_cmd_m"], float), q_normalize(v["cart.quat_cmd"])
         if self._has(rt, TOOL_START):
             v = rt.wm.get_task_inputs(TOOL_START)
-            q = np.asarray(v["joint.tool_quat"], float)
+            q = np.asarray(v[JOINT.tool_quat], float)
             if float(q @ q) > 0.5:  # fk has run (the initial value may be zeros)
-                return np.asarray(v["joint.tool_pos_m"], float), q_normalize(q)
+                return np.asarray(v[JOINT.tool_pos_m], float), q_normalize(q)
         return None
 
     def _finish(self, rt: "LayerContext", seq: int, code: int, release: bool) -> None:

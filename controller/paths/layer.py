@@ -40,7 +40,7 @@ import numpy as np
 
 from controller.decision import Status
 from controller.gripper import path_request_specs
-from controller.layers import Layer
+from controller.layers import JOINT, Layer
 from controller.messages import Level
 from controller.paths.check import MAX_TURN_RAD, SAMPLES_PER_RUN, MotionCheck, Target
 from controller.paths.model import DEFAULT_LIMITS, Path, PathError, PathPoint
@@ -101,7 +101,7 @@ class MspResult:
              7: "FAILED", 8: "GRIPPER FAILED"}
 
 
-TOOL_POSE = ("joint.tool_pos_m", "joint.tool_quat")
+TOOL_POSE = (JOINT.tool_pos_m, JOINT.tool_quat)
 CMD_POSE = ("cart.cmd_valid", "cart.pos_cmd_m", "cart.quat_cmd")
 USER_VARS = ("msp.mode", "msp.path_id", "msp.teach", "msp.capture", "msp.capture_dist_m", "msp.capture_angle_rad",
              "msp.speed_scale", "msp.record_source")
@@ -112,10 +112,10 @@ GRIPPER_DONE = ("gripper.msp_done_seq", "gripper.msp_done_code")
 MOVE_USER_VARS = ("msp.move_request", "msp.max_turn_rad", "msp.track_tol_m", "msp.track_tol_rad")
 _RUN_VARS = USER_VARS + MOVE_USER_VARS
 #: what the check and the tracking read from the layers below, when the model has them
-JOINT_VARS = ("servo.q_cmd_rad", "servo.q_cmd_valid", DAQ.joint_angle_rad)
-ROLL_VAR = "joint.shoulder_roll_rad"
+JOINT_VARS = (JOINT.q_cmd_rad, JOINT.q_cmd_valid, DAQ.joint_angle_rad)
+ROLL_VAR = JOINT.shoulder_roll_rad
 CART_MODE = "cart.mode"
-JMOVE_DONE = ("joint.jmove_done_seq", "joint.jmove_done_code")
+JMOVE_DONE = (JOINT.jmove_done_seq, JOINT.jmove_done_code)
 #: cart.mode that follows the Trajectory Planner (controller.cartesian MODE_TRAJECTORY)
 CART_TRAJECTORY = 2
 
@@ -298,10 +298,10 @@ class MultiSegmentLayer(Layer):
         if not self._has(rt, TOOL_POSE):
             return None
         v = rt.wm.get_task_inputs(TOOL_POSE)
-        q = np.asarray(v["joint.tool_quat"], dtype=float)
+        q = np.asarray(v[JOINT.tool_quat], dtype=float)
         if float(q @ q) < 0.5:
             return None
-        return np.asarray(v["joint.tool_pos_m"], dtype=float), q_normalize(q)
+        return np.asarray(v[JOINT.tool_pos_m], dtype=float), q_normalize(q)
 
     def _status(self, rt: "LayerContext", **kw: int) -> None:
         rt.wm.post_task_outputs("msp", {f"msp.{k}": v for k, v in kw.items()})
@@ -465,9 +465,9 @@ class MultiSegmentLayer(Layer):
                 return np.asarray(v["cart.pos_cmd_m"], dtype=float), q_normalize(v["cart.quat_cmd"])
         if self._has(rt, TOOL_POSE):
             v = rt.wm.get_task_inputs(TOOL_POSE)
-            q = np.asarray(v["joint.tool_quat"], dtype=float)
+            q = np.asarray(v[JOINT.tool_quat], dtype=float)
             if float(q @ q) > 0.5:
-                return np.asarray(v["joint.tool_pos_m"], dtype=float), q_normalize(q)
+                return np.asarray(v[JOINT.tool_pos_m], dtype=float), q_normalize(q)
         return None
 
     def _joint_start(self, rt) -> np.ndarray | None:
@@ -476,8 +476,8 @@ class MultiSegmentLayer(Layer):
         if not self._has(rt, JOINT_VARS):
             return None
         v = rt.wm.get_task_inputs(JOINT_VARS)
-        if bool(v["servo.q_cmd_valid"]):
-            return np.asarray(v["servo.q_cmd_rad"], dtype=float).copy()
+        if bool(v[JOINT.q_cmd_valid]):
+            return np.asarray(v[JOINT.q_cmd_rad], dtype=float).copy()
         return np.asarray(v[DAQ.joint_angle_rad], dtype=float).copy()
 
     def _roll(self, rt) -> float:
@@ -671,10 +671,10 @@ class MultiSegmentLayer(Layer):
             if not self._has(rt, TOOL_POSE):
                 return
             v = rt.wm.get_task_inputs(TOOL_POSE)
-            qm = np.asarray(v["joint.tool_quat"], dtype=float)
+            qm = np.asarray(v[JOINT.tool_quat], dtype=float)
             if float(qm @ qm) < 0.5:
                 return
-            x = np.asarray(v["joint.tool_pos_m"], dtype=float)
+            x = np.asarray(v[JOINT.tool_pos_m], dtype=float)
             i = self._seg_i
             tol = (job.tol_m, job.tol_rad)
             err_m, err_rad = segment_deviation(x, qm, *self._segment_geometry(job, i), tol=tol)
@@ -770,9 +770,9 @@ class MultiSegmentLayer(Layer):
         if not self._has(rt, JMOVE_DONE):
             return
         v = rt.wm.get_task_inputs(JMOVE_DONE)
-        if int(v["joint.jmove_done_seq"]) != job.jseq:
+        if int(v[JOINT.jmove_done_seq]) != job.jseq:
             return
-        code = int(v["joint.jmove_done_code"])
+        code = int(v[JOINT.jmove_done_code])
         if code == DoneCode.REACHED:
             self._finish(rt, job, f"{job.label} done")
         elif code == DoneCode.STOPPED:

@@ -90,3 +90,14 @@ def test_servo_names_are_the_old_strings() -> None:
         "brake_test")]
     assert SERVO.kp_per_s.writer == "user" and SERVO.kp_per_s.spec.protected
     assert SERVO.rate_cmd_rad_s.writer == "servo"
+
+
+def test_joint_planner_names_are_the_old_strings() -> None:
+    from controller.layers import JOINT, JointPlannerLayer
+    assert JOINT.q_cmd_rad == "servo.q_cmd_rad" and JOINT.q_cmd_rad.writer == "joint"
+    assert JOINT.goal_rad == "joint.goal_rad" and JOINT.goal_rad.writer == "user"
+    assert JointPlannerLayer.MODE_NAMES == dict(JOINT.mode.spec.enum)
+    specs = {s.name: s for s in JointPlannerLayer(shoulder_roll_deg=45).specs()}
+    assert specs["joint.shoulder_roll_deg"].initial == 45.0
+    assert specs["joint.shoulder_roll_rad"].initial == pytest.approx(0.7853981633974483)
+    assert specs["joint.shoulder_roll_deg"].name is JOINT.shoulder_roll_deg  # still the Var
