@@ -306,7 +306,9 @@ class JointSupervisor:
         pi, two_pi = math.pi, 2.0 * math.pi
         brake, t_tach, w_m_l, q_m_l, kp_l, rl_l = \
             self.brake_state, self._t_tach, self._w_m, self._q_model, self.kp, self.rate_lim
-        for (k, jf, fs, jump, over, tach_top, tach_abs, gain, dead, a_m, _, _, _, _, stall_motion, _) in self._rows:
+        t_stall, t_fe, fe_time = self._t_stall, self._t_fe, self.fe_time
+        for (k, jf, fs, jump, over, tach_top, tach_abs, gain, dead, a_m, kaw, fe_min, fe_span, stall_rate,
+             stall_motion, no_current) in self._rows:
             qk = q[k]
             d = (qk - q_prev[k] + pi) % two_pi - pi
             w_res = w_res_l[k] = w_res_l[k] + alpha * (d / dt - w_res_l[k])
@@ -350,10 +352,24 @@ class JointSupervisor:
                     qm -= (qm - qk) * pull
                 q_m_l[k] = qm
                 e = self.ferror_rad[k] = qm - qk
-                if not check:
-                    found = self._stall_and_ferror(k, dt, e, wm, w_res, wt, i_meas[k], uk, i_lim[k])
-                    if found is not None:
-                        check, detail = found
+                if not check:  # stall and following error, with their timers
+                    # the real command's nominal steady rate (its droop and dead band included)
+                    m = abs(uk) - dead
+                    ai = abs(i_meas[k])
+                    lk = i_lim[k]
+                    ts = t_stall[k] = t_stall[k] + dt if (
+                        m > 0 and gain * m > stall_rate and abs(w_res) < stall_motion
+                        and (ai >= STALL_CURRENT_FRACTION * lk or ai < no_current
+                             or ai >= 0.9 * min(lk, kaw * abs(uk - wt)))) else 0.0
+                    if ts >= 0.5 * STALL_TIME_S and brake[k] == BRAKE_PROVEN:
+                        brake[k] = BRAKE_UNPROVEN  # told to move and not moving: no longer proven
+                    lim = fe_min + fe_span * min(1.0, abs(wm) / fs)
+                    tf = t_fe[k] = t_fe[k] + dt if (e > lim or -e > lim) else 0.0
+                    if tf >= fe_time[k]:
+                        check, detail = "following error", f"{e / DEG:+.1f} deg > {lim / DEG:.1f} for {tf * 1e3:.0f} ms"
+                    elif ts >= STALL_TIME_S:
+                        check, detail = "stall", (f"{uk:+.3f} rad/s commanded, {w_res:+.3f} moving for "
+                                                  f"{ts * 1e3:.0f} ms")
             if check:
                 cause, evidence = diagnose(jf, check, self.recent(k))
                 trip = Trip(k, check, cause, f"{jf.name} {check} ({detail}): likely {CAUSES[cause]}: {evidence}")
@@ -390,36 +406,6 @@ class JointSupervisor:
         self._u_ref = self.reference.step([c - m for c, m in zip(qc, self._q_model)], self.rate_lim).tolist() \
             if closed and self.reference is not None else None
         return True
-
-    def _stall_and_ferror(self, k: int, dt: float, e: float, wm: float, w_res: float, wt: float, ik: float,
-                          uk: float, lk: float) -> tuple[str, str] | None:
-        """Joint ``k``'s stall and following-error checks (the loop closed, the sensors' checks
-        passed), with their timers: (check, detail) of a trip, or None. ``e``: the following
-        error, ``wm``: the reference model's rate."""
-        (_, _, fs, _, _, _, _, gain, dead, _, kaw, fe_min, fe_span, stall_rate, stall_motion,
-         no_current) = self._rows[k]
-        t_stall, t_fe, brake = self._t_stall, self._t_fe, self.brake_state
-        # the real command's nominal steady rate (its droop and dead band included)
-        m = abs(uk) - dead
-        ai = abs(ik)
-        if (m > 0 and gain * m > stall_rate and abs(w_res) < stall_motion
-                and (ai >= STALL_CURRENT_FRACTION * lk or ai < no_current
-                     or ai >= 0.9 * min(lk, kaw * abs(uk - wt)))):
-            t_stall[k] += dt
-        elif t_stall[k]:
-            t_stall[k] = 0.0
-        if t_stall[k] >= 0.5 * STALL_TIME_S and brake[k] == BRAKE_PROVEN:
-            brake[k] = BRAKE_UNPROVEN  # told to move and not moving: no longer proven
-        lim = fe_min + fe_span * min(1.0, abs(wm) / fs)
-        if e > lim or -e > lim:
-            t_fe[k] += dt
-        elif t_fe[k]:
-            t_fe[k] = 0.0
-        if t_fe[k] >= self.fe_time[k]:
-            return "following error", f"{e / DEG:+.1f} deg > {lim / DEG:.1f} for {t_fe[k] * 1e3:.0f} ms"
-        if t_stall[k] >= STALL_TIME_S:
-            return "stall", f"{uk:+.3f} rad/s commanded, {w_res:+.3f} moving for {t_stall[k] * 1e3:.0f} ms"
-        return None
 
     def observe_brakes(self, t_s: float, q: list[float], i_lim: list[float]) -> None:
         """Outside the supervised phases (powered down, the limits at 0): the brake state
