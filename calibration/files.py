@@ -37,7 +37,7 @@ import json
 import math
 import os
 import shutil
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +46,7 @@ import numpy as np
 import pfma
 from pfma import nominal
 from pfma.errors import CalibrationError
+from pfma.ft_calibration import FtCalibration, ft_calibration  # noqa: F401 (re-exported: the file's F/T section)
 from pfma.rack import RackConfig
 
 FORMAT = "pfma-calibration"
@@ -81,25 +82,6 @@ def _plain(obj: Any) -> Any:
     if isinstance(obj, np.generic):
         return obj.item()
     return obj
-
-
-@dataclass
-class FtCalibration:
-    """F/T sensor calibration: ``wrench = matrix @ (counts - bias_counts)``; tool payload."""
-
-    bias_counts: np.ndarray  #: (6,) counts subtracted before the matrix
-    matrix: np.ndarray  #: (6, 6) counts -> (Fx, Fy, Fz [N], Tx, Ty, Tz [N*m])
-    payload_mass_kg: float  #: tool + payload mass behind the sensor
-    payload_com_m: np.ndarray  #: (3,) its centre of mass in sensor coordinates
-
-    def wrench(self, counts) -> np.ndarray:
-        """Counts (6) -> wrench (6): forces N, torques N*m, in the sensor frame."""
-        return self.matrix @ (np.asarray(counts, dtype=float) - self.bias_counts)
-
-    def gravity_wrench(self, g_sensor) -> np.ndarray:
-        """The payload's weight in the sensor frame, given gravity (m/s^2) in sensor axes."""
-        f = self.payload_mass_kg * np.asarray(g_sensor, dtype=float)
-        return np.concatenate([f, np.cross(self.payload_com_m, f)])
 
 
 class Calibration:
@@ -597,15 +579,6 @@ def cae_calibration(cal: Calibration):
     return CaeCalibration(axes={a: CaeAxisCal(centre_v=float(e["centre_v"]), deadband_v=float(e["deadband_v"]),
                                               span_v=float(e["span_v"]), sign=int(e["sign"]))
                                 for a, e in cal.cae.items()})
-
-
-def ft_calibration(cal: Calibration) -> FtCalibration | None:
-    """The F/T section (bias, 6x6 matrix, payload); None when absent."""
-    ft = cal.ft
-    if not ft:
-        return None
-    return FtCalibration(np.array(ft["bias_counts"], dtype=float), np.array(ft["matrix"], dtype=float),
-                         float(ft["payload_mass_kg"]), np.array(ft["payload_com_m"], dtype=float))
 
 
 def nominal_ft(cpf: float | None = None, cpt: float | None = None) -> dict:
