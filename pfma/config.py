@@ -153,19 +153,18 @@ class _Fields(dict):
         return "?"
 
 
-def _message(kind: str, path: KeyPath, reason: str, data: Any, known: Callable[[KeyPath], list[str]]) -> str:
+def _message(kind: str, path: KeyPath, reason: str, value: Any, known: Callable[[KeyPath], list[str]]) -> str:
     key = path[-1] if path else ""
     if kind == "unknown":
         keys = known(path[:-1])
-        return f"unknown key {key!r}" + (f"{did_you_mean(str(key), keys)}; known: {', '.join(keys)}" if keys else "")
+        return "unknown key" + (f"{did_you_mean(str(key), keys)}; known: {', '.join(keys)}" if keys else "")
     if kind == "missing":
         return "missing (a required key)"
-    value = _at(data, path)
     return f"{reason[0].lower()}{reason[1:]}, not {value!r}" if reason.startswith("Expected") else reason
 
 
 def convert(data: Any, schema: type[T], *, source: str, text: str | None = None,
-            messages: Mapping[str, str] | None = None, prefix: KeyPath = (),
+            messages: Mapping[str, str] | None = None, named: bool = False, prefix: KeyPath = (),
             error: ErrorFactory = ConfigFileError, whole: Any = None) -> T:
     """``data`` as an instance of ``schema`` (strict types: no bool for a number, no string
     for an int).
@@ -176,6 +175,8 @@ def convert(data: Any, schema: type[T], *, source: str, text: str | None = None,
         ``[bit3]``, ``"*"`` one at the top; ``"amplifier_enable.bit?"``: that key missing) ->
         the whole message after ``FILE:LINE:``, formatted with ``value``, ``key`` and the keys
         of the tables holding the field (``{name}``: the innermost table's ``name``)
+    :param named: the messages say what is wrong with the field, which the :class:`Problem`
+        names (``FILE:LINE: page 1 var 2 format: MESSAGE``); False: they name it themselves
     :param prefix: where ``data`` is inside the file (converting one table of it)
     :param whole: the whole file's data when ``data`` is a part of it (field names)
     :raises: ``error(Problem)`` for the first mistake
@@ -196,12 +197,12 @@ def convert(data: Any, schema: type[T], *, source: str, text: str | None = None,
         template = {"unknown": templates.get(f"{_pattern(path[:-1])}.*".lstrip(".")),
                     "missing": templates.get(f"{_pattern(path)}?"),
                     "value": templates.get(_pattern(path))}[kind]
+        field = field_name(path, root) or "(top level)"
         if template is not None:
-            problem = Problem(source, line_of(text, path), "", template.format_map(fields))
+            problem = Problem(source, line_of(text, path), field if named else "", template.format_map(fields))
         else:
-            where = path[:-1] if kind == "unknown" else path
-            problem = Problem(source, line_of(text, path), field_name(where, root) or "(top level)",
-                              _message(kind, path, reason, root, _known_keys(schema, prefix)))
+            problem = Problem(source, line_of(text, path), field,
+                              _message(kind, path, reason, fields["value"], _known_keys(schema, prefix)))
         raise error(problem) from None
 
 
