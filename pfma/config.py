@@ -49,6 +49,7 @@ class Problem:
     line: int | None
     field: str  #: "" when the message names its field itself
     message: str
+    path: KeyPath = ()  #: the key path of the field in the file's data
 
     def __str__(self) -> str:
         where = f"{self.source}:{self.line}" if self.line else self.source
@@ -164,7 +165,7 @@ def _message(kind: str, path: KeyPath, reason: str, value: Any, known: Callable[
 
 
 def convert(data: Any, schema: type[T], *, source: str, text: str | None = None,
-            messages: Mapping[str, str] | None = None, named: bool = False, prefix: KeyPath = (),
+            messages: Mapping[str, str | Callable[[Mapping[str, Any]], str]] | None = None, named: bool = False, prefix: KeyPath = (),
             error: ErrorFactory = ConfigFileError, whole: Any = None) -> T:
     """``data`` as an instance of ``schema`` (strict types: no bool for a number, no string
     for an int).
@@ -174,7 +175,8 @@ def convert(data: Any, schema: type[T], *, source: str, text: str | None = None,
     :param messages: key pattern (``"board[].base"``; ``"bit3.*"``: an unknown key of
         ``[bit3]``, ``"*"`` one at the top; ``"amplifier_enable.bit?"``: that key missing) ->
         the whole message after ``FILE:LINE:``, formatted with ``value``, ``key`` and the keys
-        of the tables holding the field (``{name}``: the innermost table's ``name``)
+        of the tables holding the field (``{name}``: the innermost table's ``name``), or a
+        function of that mapping returning the message
     :param named: the messages say what is wrong with the field, which the :class:`Problem`
         names (``FILE:LINE: page 1 var 2 format: MESSAGE``); False: they name it themselves
     :param prefix: where ``data`` is inside the file (converting one table of it)
@@ -192,17 +194,18 @@ def convert(data: Any, schema: type[T], *, source: str, text: str | None = None,
             table = _at(data, rel[:n])
             if isinstance(table, dict):
                 fields.update(table)
-        fields.update(value=_at(data, rel), key=path[-1] if path else "", reason=reason)
+        fields.update(value=_at(data, rel), key=path[-1] if path else "", reason=reason, path=path)
         templates = messages or {}
         template = {"unknown": templates.get(f"{_pattern(path[:-1])}.*".lstrip(".")),
                     "missing": templates.get(f"{_pattern(path)}?"),
                     "value": templates.get(_pattern(path))}[kind]
         field = field_name(path, root) or "(top level)"
         if template is not None:
-            problem = Problem(source, line_of(text, path), field if named else "", template.format_map(fields))
+            msg = template(fields) if callable(template) else template.format_map(fields)
+            problem = Problem(source, line_of(text, path), field if named else "", msg, path)
         else:
             problem = Problem(source, line_of(text, path), field,
-                              _message(kind, path, reason, fields["value"], _known_keys(schema, prefix)))
+                              _message(kind, path, reason, fields["value"], _known_keys(schema, prefix)), path)
         raise error(problem) from None
 
 
@@ -229,7 +232,7 @@ def _known_keys(schema: Any, prefix: KeyPath) -> Callable[[KeyPath], list[str]]:
 def fail(source: str, text: str | None, path: KeyPath, message: str, *, field: str = "",
          error: ErrorFactory = ConfigFileError) -> NoReturn:
     """Raise ``error(Problem)`` for a cross-field check, at the line of ``path``."""
-    raise error(Problem(source, line_of(text, path), field, message))
+    raise error(Problem(source, line_of(text, path), field, message, path))
 
 
 # --- where a key is --------------------------------------------------------------------------
