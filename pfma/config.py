@@ -179,7 +179,8 @@ def convert(data: Any, schema: type[T], *, source: str, text: str | None = None,
         function of that mapping returning the message
     :param named: the messages say what is wrong with the field, which the :class:`Problem`
         names (``FILE:LINE: page 1 var 2 format: MESSAGE``); False: they name it themselves
-    :param prefix: where ``data`` is inside the file (converting one table of it)
+    :param prefix: where ``data`` is inside the file (converting one table of it; the
+        ``messages`` patterns are then relative to that table)
     :param whole: the whole file's data when ``data`` is a part of it (field names)
     :raises: ``error(Problem)`` for the first mistake
     """
@@ -196,9 +197,9 @@ def convert(data: Any, schema: type[T], *, source: str, text: str | None = None,
                 fields.update(table)
         fields.update(value=_at(data, rel), key=path[-1] if path else "", reason=reason, path=path)
         templates = messages or {}
-        template = {"unknown": templates.get(f"{_pattern(path[:-1])}.*".lstrip(".")),
-                    "missing": templates.get(f"{_pattern(path)}?"),
-                    "value": templates.get(_pattern(path))}[kind]
+        template = {"unknown": templates.get(f"{_pattern(rel[:-1])}.*".lstrip(".")),
+                    "missing": templates.get(f"{_pattern(rel)}?"),
+                    "value": templates.get(_pattern(rel))}[kind]
         field = field_name(path, root) or "(top level)"
         if template is not None:
             msg = template(fields) if callable(template) else template.format_map(fields)
