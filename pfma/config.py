@@ -165,8 +165,9 @@ def _message(kind: str, path: KeyPath, reason: str, value: Any, known: Callable[
 
 
 def convert(data: Any, schema: type[T], *, source: str, text: str | None = None,
-            messages: Mapping[str, str | Callable[[Mapping[str, Any]], str]] | None = None, named: bool = False, prefix: KeyPath = (),
-            error: ErrorFactory = ConfigFileError, whole: Any = None) -> T:
+            messages: Mapping[str, str | Callable[[Mapping[str, Any]], str]] | None = None, named: bool = False,
+            prefix: KeyPath = (), error: ErrorFactory = ConfigFileError, whole: Any = None,
+            missing_first: bool = False) -> T:
     """``data`` as an instance of ``schema`` (strict types: no bool for a number, no string
     for an int).
 
@@ -182,9 +183,13 @@ def convert(data: Any, schema: type[T], *, source: str, text: str | None = None,
     :param prefix: where ``data`` is inside the file (converting one table of it; the
         ``messages`` patterns are then relative to that table)
     :param whole: the whole file's data when ``data`` is a part of it (field names)
+    :param missing_first: a required key of ``schema`` missing is the first mistake (in
+        the schema's order), before any of a present key (msgspec judges those first)
     :raises: ``error(Problem)`` for the first mistake
     """
     try:
+        if missing_first and isinstance(data, dict):
+            _require(data, schema)
         return msgspec.convert(data, schema, strict=True)
     except msgspec.ValidationError as err:
         rel, kind, reason = _error_path(err)
@@ -208,6 +213,13 @@ def convert(data: Any, schema: type[T], *, source: str, text: str | None = None,
             problem = Problem(source, line_of(text, path), field,
                               _message(kind, path, reason, fields["value"], _known_keys(schema, prefix)), path)
         raise error(problem) from None
+
+
+def _require(data: dict, schema: Any) -> None:
+    """A msgspec-like error for the first required key of ``schema`` missing from ``data``."""
+    for f in msgspec.structs.fields(schema):
+        if f.required and f.encode_name not in data:
+            raise msgspec.ValidationError(f"Object missing required field `{f.encode_name}`")
 
 
 def _known_keys(schema: Any, prefix: KeyPath) -> Callable[[KeyPath], list[str]]:
