@@ -1616,10 +1616,3 @@ def run(seconds: float | None = None, trials: int | None = None, seed: int | Non
     else:
         print_report(rep)
     return rep
-
-
-if __name__ == "__main__":
-    run(trials=int(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT_TRIALS,
-        seed=int(sys.argv[2]) if len(sys.argv) > 2 else DEFAULT_SEED,
-        kinds=tuple(sys.argv[3].split(",")) if len(sys.argv) > 3 else KINDS,
-        realtime="--realtime" in sys.argv)

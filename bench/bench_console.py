@@ -216,7 +216,3 @@ def run(seconds: float = 20.0) -> dict:
               f"{m['terminal_kb_per_s']:.1f} kB/s to the terminal, {m['ft_forces_seen']} different F/T forces "
               f"at 10 Hz")
     return f
-
-
-if __name__ == "__main__":
-    run(float(sys.argv[1]) if len(sys.argv) > 1 else 20.0)

@@ -106,10 +106,6 @@ def run(seconds: float = 5.0) -> dict:
     return out
 
 
-if __name__ == "__main__":
-    run(1.0)
-
-
 def figures(seconds: float = 5.0) -> dict:
     """The controller's minor-frame cost on this host (``cost_figures``: the system simulator
     powered up, ``seconds`` of simulated frames, at least 64)."""

@@ -342,10 +342,3 @@ def run(seconds: float = DEFAULT_SECONDS, rate: float = DEFAULT_RATE, rounds: in
     print(f"  dropped frames per 10 s: quiet {f['quiet_dropped_per_10s']:g}, flooded "
           f"{f['flooded_dropped_per_10s']:g}: extra {f['extra_dropped_per_10s']:g} (goal: <= 5)")
     return f
-
-
-if __name__ == "__main__":
-    run(float(sys.argv[1]) if len(sys.argv) > 1 else 10.0,
-        float(sys.argv[2]) if len(sys.argv) > 2 else DEFAULT_RATE,
-        int(sys.argv[3]) if len(sys.argv) > 3 else 1,
-        len(sys.argv) > 4 and sys.argv[4] == "realtime")

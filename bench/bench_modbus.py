@@ -167,7 +167,3 @@ def run(seconds: float = 5.0) -> dict:
           f"{f['frames']} frames; CPU service {f['service_cpu_percent']:.1f} %, gateway "
           f"{f['gateway_cpu_percent']:.1f} %")
     return f
-
-
-if __name__ == "__main__":
-    run(float(sys.argv[1]) if len(sys.argv) > 1 else 5.0)

@@ -381,10 +381,6 @@ def run(seconds: float = 5.0) -> dict:
     return out
 
 
-if __name__ == "__main__":
-    run()
-
-
 def figures(seconds: float = 5.0) -> dict:
     """The headline figures of the service on the simulated rack at 320 Hz (``split_figures``:
     the real periodic loop in this process, ARMED, the fakes' register emulation and the

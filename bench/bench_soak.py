@@ -534,8 +534,3 @@ def run(seconds: float | None = None, minutes: float = 60.0, as_json: bool = Fal
     else:
         _print(rep)
     return rep
-
-
-if __name__ == "__main__":
-    run(minutes=float(sys.argv[1]) if len(sys.argv) > 1 else 60.0, as_json="--json" in sys.argv,
-        realtime="--realtime" in sys.argv)
