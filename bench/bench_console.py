@@ -31,7 +31,7 @@ import threading
 import time
 import uuid
 
-from pfma.process import cpu_seconds
+from pfma.process import cpu_seconds, default_sigint
 
 #: the console's terminal (the size the console's tests and snapshots use)
 COLS, ROWS = 180, 50
@@ -39,10 +39,6 @@ COLS, ROWS = 180, 50
 SETTLE_S = 3.0
 #: the console must draw its areas within this
 START_TIMEOUT_S = 60.0
-
-
-def _default_sigint() -> None:
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 class _Pty:
@@ -163,7 +159,7 @@ def figures(seconds: float = 20.0) -> dict:
     try:
         sim = subprocess.Popen([py, "-c", _SIMULATOR, name, wm, str(2 * seconds + 4 * SETTLE_S + START_TIMEOUT_S)],
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
-                               preexec_fn=_default_sigint)
+                               preexec_fn=default_sigint)
         procs.append(sim)
         if sim.stdout is None or sim.stdout.readline().strip() != "ready":
             out["error"] = "the simulator did not start: " + (sim.stdout.read()[-400:] if sim.stdout else "")

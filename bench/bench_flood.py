@@ -38,7 +38,7 @@ import threading
 import time
 import uuid
 
-from pfma.process import cpu_seconds
+from pfma.process import cpu_seconds, free_port
 
 #: bound on the service's start
 START_TIMEOUT_S = 30.0
@@ -73,12 +73,6 @@ def _cmdline(pid: int) -> str:
             return f.read().replace(b"\0", b" ").decode(errors="replace")
     except OSError:
         return ""
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _recv_exact(s: socket.socket, n: int) -> bytes:
@@ -183,10 +177,10 @@ def one_run(seconds: float, flood_rate: float | None, connections: int = DEFAULT
     ``flood_rate`` requests/s of valid reads meanwhile; ``realtime``: ``pfma serve
     --realtime`` (SCHED_FIFO, pinned), as on a lab PC."""
     from bit3.buffer import Bit3Buffer
-    from bit3.client import Client
+    from tools.attach import wait_for_frames
 
     py = sys.executable
-    port = _free_port()
+    port = free_port()
     name = "pfma-bench-flood-" + uuid.uuid4().hex[:6]
     svc = subprocess.Popen([py, "-m", "tools.cli", "serve", "--rack", "fake", "--buffer", name,
                             "--modbus", f"127.0.0.1:{port}", *(["--realtime"] if realtime else []),
@@ -195,22 +189,12 @@ def one_run(seconds: float, flood_rate: float | None, connections: int = DEFAULT
     client = None
     flood = None
     try:
-        t_end = time.monotonic() + START_TIMEOUT_S
-        while True:
-            if svc.poll() is not None:
-                return {"error": f"pfma serve exited {svc.returncode}: "
-                                 f"{(svc.stderr.read() if svc.stderr else '').strip()[-300:]}"}
-            try:
-                client = Client.attach(name)
-                if client.read_inputs().frame > 320:
-                    break
-                client.close()
-                client = None
-            except Exception:  # noqa: BLE001 - not created yet
-                client = None
-            if time.monotonic() > t_end:
-                return {"error": f"pfma serve published no frames within {START_TIMEOUT_S:g} s"}
-            time.sleep(0.1)
+        client = wait_for_frames(name, 320, timeout_s=START_TIMEOUT_S, alive=lambda: svc.poll() is None)
+        if client is None and svc.poll() is not None:
+            return {"error": f"pfma serve exited {svc.returncode}: "
+                             f"{(svc.stderr.read() if svc.stderr else '').strip()[-300:]}"}
+        if client is None:
+            return {"error": f"pfma serve published no frames within {START_TIMEOUT_S:g} s"}
         # the export is ready once it answers
         t_end = time.monotonic() + START_TIMEOUT_S
         while True:
