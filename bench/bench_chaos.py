@@ -96,7 +96,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from pfma.process import Child, free_port, pid_alive, until
+from pfma.process import Child, children, cmdline, free_port, listen_port, pid_alive, until
 
 #: prefix of every buffer, world model and file this benchmark makes in /dev/shm
 PREFIX = "pfma-chaos-"
@@ -734,19 +734,8 @@ def _trial_service(trial: Trial, workdir: Path, out: Outcome, realtime: bool = F
 
 
 def _child_of(pid: int) -> int | None:
-    try:
-        with open(f"/proc/{pid}/task/{pid}/children") as f:
-            kids = [int(x) for x in f.read().split()]
-    except OSError:
-        return None
-    for k in kids:
-        try:
-            with open(f"/proc/{k}/cmdline", "rb") as f:
-                if b"tools.modbus_export" in f.read():
-                    return k
-        except OSError:
-            continue
-    return None
+    """The service ``pid``'s Modbus export process (its child), or None."""
+    return next((k for k in children(pid) if "tools.modbus_export" in cmdline(k)), None)
 
 
 def _controller_reports_loss(out: Outcome, ctl: Proc, old) -> None:
@@ -1253,7 +1242,7 @@ def _run_shared(kinds: tuple[str, ...], trials: list[Trial], workdir: Path, prog
         if "export" in kinds:
             pid = until(lambda: _child_of(svc.pid), 10.0)
             if pid:
-                ctx["export"] = _Adopted("export", pid, until(lambda: _listen_port(pid), 10.0))
+                ctx["export"] = _Adopted("export", pid, until(lambda: listen_port(pid), 10.0))
         for t in trials:
             o = Outcome(t)
             t0 = time.monotonic()
@@ -1329,25 +1318,6 @@ def _final_reattach(kind: str, sess: Session, ctx: dict, out: Outcome) -> None:
                       f"{WAIT_S / 2:.0f} s (rearm counter {before} -> {after}): {remote.tail(3)} / {bridge.tail(3)}")
         remote.stop(signal.SIGTERM)
         bridge.stop()
-
-
-def _listen_port(pid: int) -> int | None:
-    """The TCP port process ``pid`` listens on (from /proc/net/tcp and its fds)."""
-    try:
-        inodes = set()
-        for fd in os.listdir(f"/proc/{pid}/fd"):
-            with contextlib.suppress(OSError):
-                t = os.readlink(f"/proc/{pid}/fd/{fd}")
-                if t.startswith("socket:["):
-                    inodes.add(t[8:-1])
-        with open("/proc/net/tcp") as f:
-            for line in f.readlines()[1:]:
-                parts = line.split()
-                if parts[3] == "0A" and parts[9] in inodes:
-                    return int(parts[1].split(":")[1], 16)
-    except OSError:
-        return None
-    return None
 
 
 def run_matrix(trials: int = DEFAULT_TRIALS, seed: int = DEFAULT_SEED, kinds: tuple[str, ...] = KINDS,

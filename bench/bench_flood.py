@@ -38,7 +38,7 @@ import threading
 import time
 import uuid
 
-from pfma.process import cpu_seconds, free_port
+from pfma.process import children, cmdline, cpu_seconds, free_port
 
 #: bound on the service's start
 START_TIMEOUT_S = 30.0
@@ -57,22 +57,6 @@ MAX_EXTRA_DROPPED_PER_10S = 5.0
 #: second in every flooded run. The flood client shares the host's CPUs with the service
 #: and the export, so it does not always send the whole rate (71-100 % here, docs/chaos.md).
 MIN_ANSWERED_SHARE = 0.5
-
-
-def _children(pid: int) -> list[int]:
-    try:
-        with open(f"/proc/{pid}/task/{pid}/children") as f:
-            return [int(x) for x in f.read().split()]
-    except OSError:
-        return []
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        with open(f"/proc/{pid}/cmdline", "rb") as f:
-            return f.read().replace(b"\0", b" ").decode(errors="replace")
-    except OSError:
-        return ""
 
 
 def _recv_exact(s: socket.socket, n: int) -> bytes:
@@ -206,7 +190,7 @@ def one_run(seconds: float, flood_rate: float | None, connections: int = DEFAULT
                     return {"error": f"the Modbus export on 127.0.0.1:{port} did not answer"}
                 time.sleep(0.1)
         time.sleep(1.0)  # settle
-        export_pids = [p for p in _children(svc.pid) if "tools.modbus_export" in _cmdline(p)]
+        export_pids = [p for p in children(svc.pid) if "tools.modbus_export" in cmdline(p)]
         cpu0 = {p: cpu_seconds(p) for p in [svc.pid, *export_pids]}
         if flood_rate:
             flood = Flood(port, flood_rate, connections).start()

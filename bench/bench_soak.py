@@ -58,7 +58,7 @@ import uuid
 from pathlib import Path
 
 from bench.bench_chaos import write_path
-from pfma.process import Child, cpu_seconds_or_none, free_port, rss_mb, until
+from pfma.process import Child, cmdline, cpu_seconds_or_none, free_port, rss_mb, until
 from tools.attach import wait_for_frames
 
 PREFIX = "pfma-soak-"
@@ -427,11 +427,7 @@ def _left_behind(name: str, wm: str, procs: dict[str, Child], rep: dict) -> list
     for d in os.listdir("/proc"):
         if not d.isdigit() or int(d) == os.getpid():
             continue
-        try:
-            with open(f"/proc/{d}/cmdline", "rb") as f:
-                argv = f.read().replace(b"\0", b" ").decode(errors="replace").strip()
-        except OSError:
-            continue
+        argv = cmdline(int(d)).strip()
         if name in argv:
             out.append(f"process {d}: {argv[:120]}")
     return out

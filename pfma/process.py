@@ -84,6 +84,44 @@ def shm_maps(pid: int) -> set[str]:
     return out
 
 
+def children(pid: int) -> list[int]:
+    """The pids of process ``pid``'s children (``/proc/PID/task/PID/children``; empty when gone)."""
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as f:
+            return [int(x) for x in f.read().split()]
+    except OSError:
+        return []
+
+
+def cmdline(pid: int) -> str:
+    """Process ``pid``'s command line, its arguments joined by spaces ("" when gone)."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def listen_port(pid: int) -> int | None:
+    """The TCP port process ``pid`` listens on (from /proc/net/tcp and its fds); None when
+    it listens on none (or is gone)."""
+    try:
+        inodes = set()
+        for fd in os.listdir(f"/proc/{pid}/fd"):
+            with contextlib.suppress(OSError):
+                t = os.readlink(f"/proc/{pid}/fd/{fd}")
+                if t.startswith("socket:["):
+                    inodes.add(t[8:-1])
+        with open("/proc/net/tcp") as f:
+            for line in f.readlines()[1:]:
+                parts = line.split()
+                if parts[3] == "0A" and parts[9] in inodes:
+                    return int(parts[1].split(":")[1], 16)
+    except OSError:
+        return None
+    return None
+
+
 def free_port(host: str = "127.0.0.1") -> int:
     """A TCP port free on ``host`` a moment ago (the kernel's pick; another process may take
     it before the caller binds it)."""
@@ -416,5 +454,6 @@ class HelperWatch:
 
 
 __all__ = ["set_parent_death_signal", "process_state", "cpu_seconds", "cpu_seconds_or_none", "pid_alive", "shm_maps",
+           "children", "cmdline", "listen_port",
            "rss_mb", "free_port", "until", "default_sigint", "Child", "package_env", "ROOT", "spawn_helper",
            "first_line", "stop_helper", "HelperWatch", "bring_up", "NO_WORD"]
