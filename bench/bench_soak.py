@@ -58,6 +58,7 @@ import uuid
 from pathlib import Path
 
 from bench.bench_chaos import write_path
+from bench.bench_stack import MessageCursor, recorder_summary
 from pfma.process import Child, cmdline, cpu_seconds_or_none, free_port, rss_mb, until
 from tools.attach import wait_for_frames
 
@@ -77,6 +78,9 @@ ROLES = ("bridge_reader", "console", "bridge", "recorder", "controller", "servic
 #: The issue states it per hour; a shorter run (CI's 10 minutes) is held to the same 5 MB,
 #: not a share of it: a leak at the budget's rate shows only in the hour-long soak.
 RSS_BUDGET_MB = 5.0
+#: what the report keeps of the recorder's summary
+RECORDER_KEYS = ("frames_recorded", "recorder_missed", "service_skipped", "window_service_frames", "window_recorded",
+                 "window_service_dropped", "messages_missed", "sessions", "lossless")
 
 
 def explain_trip(text: str, t_trip: float, missed_t: list[float], missed_said_t: list[float] = ()) -> str | None:
@@ -228,18 +232,17 @@ class _Messages:
         self.counts: dict[str, int] = {}
         self.said: list[dict] = []  # the service's warnings and errors, the controller's errors
         self.missed_said_t: list[float] = []  # the controller's messages naming missed service frames
-        self.cursor = {"service": 0, "controller": 0}
-        self.lost = 0
+        self.queues = MessageCursor()
         self._missed_prev: int | None = None
 
     def read(self, client, now: float, t0: float) -> None:
-        for q in ("service", "controller"):
+        for q in MessageCursor.QUEUES:
             try:
-                got = client.messages(self.cursor[q], queue=q)
+                got = self.queues.read(client, q)
             except Exception:  # noqa: BLE001 - a torn read: next time
                 got = []
-            for m in got:
-                self._take(q, m, t0)
+            for m, sev in got:
+                self._take(q, m, sev, t0)
         try:
             ev = int(client.read("controller_stats")["missed_events"])
             if self._missed_prev is not None and ev > self._missed_prev:
@@ -248,11 +251,7 @@ class _Messages:
         except Exception:  # noqa: BLE001 - not published yet / no owner
             pass
 
-    def _take(self, q: str, m, t0: float) -> None:
-        if self.cursor[q] and m.first_seq > self.cursor[q] + 1:
-            self.lost += m.first_seq - self.cursor[q] - 1
-        self.cursor[q] = max(self.cursor[q], m.seq)
-        sev = m.severity.name if hasattr(m.severity, "name") else str(m.severity)
+    def _take(self, q: str, m, sev: str, t0: float) -> None:
         self.counts[f"{q} {sev}"] = self.counts.get(f"{q} {sev}", 0) + 1
         if q == "service" and m.text.startswith(self._trip_prefixes) and m.code != self._stop_code:
             self.trips.append({"t_s": m.t_s, "at_s": round(m.t_s - t0, 2), "text": m.text})
@@ -274,7 +273,7 @@ class _Messages:
                            "recovered_from": [_cause(self.said, t, t0) for t in op.recoveries]}
         rep["message_counts"] = self.counts
         rep["warnings_errors"] = self.said
-        rep["messages_lost"] = self.lost
+        rep["messages_lost"] = sum(self.queues.lost.values())
 
 
 class _Samples:
@@ -387,7 +386,7 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
     rep["load_avg_1min"]["end"] = round(os.getloadavg()[0], 2)
     samples.report(rep)
     seen.report(rep, op, t0)
-    rep["recorder"] = _recorder_summary(rec_path)
+    rep["recorder"] = recorder_summary(rec_path, RECORDER_KEYS, digits=1, missing={"error": "no recording"})
     return rep
 
 
@@ -450,21 +449,6 @@ def _cause(said: list[dict], t_rec: float, t0: float) -> dict:
     svc = [m["text"] for m in before if m["queue"] == "service"]
     return {"at_s": round(t_rec - t0, 2), "controller": ctl[0] if ctl else None,
             "service": svc[-1] if svc else None}
-
-
-def _recorder_summary(path: Path) -> dict:
-    if not path.exists():
-        return {"error": "no recording"}
-    try:
-        from tools.recording.reader import read_metadata
-        meta = read_metadata(path).get("pfma.recorder.summary", {})
-    except Exception as err:  # noqa: BLE001 - a cut file: say so
-        return {"error": f"{type(err).__name__}: {err}"}
-    out = {k: meta.get(k) for k in ("frames_recorded", "recorder_missed", "service_skipped", "window_service_frames",
-                                    "window_recorded", "window_service_dropped", "messages_missed", "sessions",
-                                    "lossless")}
-    out["file_mb"] = round(path.stat().st_size / 1e6, 1)
-    return out
 
 
 def _print(rep: dict) -> None:

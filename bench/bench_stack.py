@@ -27,6 +27,7 @@ import tempfile
 import time
 import uuid
 from pathlib import Path
+from typing import Any
 
 from pfma.process import Child, cpu_seconds_or_none
 from tools.attach import wait_for_frames
@@ -84,14 +85,51 @@ class _Proc(Child):
                 "stopped": self.stop_how, "returncode": self.returncode, "died": self.died}
 
 
+class MessageCursor:
+    """The service's and the controller's message queues read on: each :meth:`read` gives
+    the messages of a queue not read before; a gap in the sequence numbers (a message
+    overwritten unread) is counted in :attr:`lost`, per queue."""
+
+    QUEUES = ("service", "controller")
+
+    def __init__(self) -> None:
+        self.cursor = dict.fromkeys(self.QUEUES, 0)
+        self.lost = dict.fromkeys(self.QUEUES, 0)
+
+    def read(self, client, q: str) -> list[tuple[Any, str]]:
+        """Queue ``q``'s new messages, each with its severity's name (raises on a torn read)."""
+        out = []
+        for m in client.messages(self.cursor[q], queue=q):
+            if self.cursor[q] and m.first_seq > self.cursor[q] + 1:  # a long message takes several
+                self.lost[q] += m.first_seq - self.cursor[q] - 1
+            self.cursor[q] = max(self.cursor[q], m.seq)
+            out.append((m, m.severity.name if hasattr(m.severity, "name") else str(m.severity)))
+        return out
+
+
+def recorder_summary(path: Path, keys: tuple[str, ...], *, digits: int = 2, missing: dict | None = None) -> dict:
+    """The ``keys`` of the recorder's summary of the recording at ``path`` (its MCAP
+    metadata) and the file's size (``file_mb``, rounded to ``digits``); ``missing`` (or {})
+    when there is no file, ``{"error": ...}`` for a file cut short."""
+    if not path.exists():
+        return dict(missing or {})
+    from tools.recording.reader import read_metadata
+    try:
+        meta = read_metadata(path).get("pfma.recorder.summary", {})
+    except Exception as err:  # noqa: BLE001 - a cut file: say so
+        return {"error": f"{type(err).__name__}: {err}"}
+    out = {k: meta.get(k) for k in keys}
+    out["file_mb"] = round(path.stat().st_size / 1e6, digits)
+    return out
+
+
 class _Watch:
     """Everything read from the buffer while the stack runs."""
 
     def __init__(self, client, t0: float) -> None:
         self.c = client
         self.t0 = t0
-        self.cursor = {"service": 0, "controller": 0}
-        self.lost = {"service": 0, "controller": 0}
+        self.queues = MessageCursor()
         self.messages: list[dict] = []
         self.counts = {"service": {}, "controller": {}}
         self.stalls: dict[float, float] = {}  # host_stall_t_s -> length
@@ -103,18 +141,13 @@ class _Watch:
 
     def poll(self) -> None:
         c = self.c
-        for q in ("service", "controller"):
+        for q in MessageCursor.QUEUES:
             try:
-                got = c.messages(self.cursor[q], queue=q)
-            except Exception as err:  # noqa: BLE001 - a torn read: try again next time
+                got = self.queues.read(c, q)
+            except Exception:  # noqa: BLE001 - a torn read: try again next time
                 self.counts[q]["read_errors"] = self.counts[q].get("read_errors", 0) + 1
-                _ = err
                 continue
-            for m in got:
-                if self.cursor[q] and m.first_seq > self.cursor[q] + 1:  # a long message takes several
-                    self.lost[q] += m.first_seq - self.cursor[q] - 1
-                self.cursor[q] = max(self.cursor[q], m.seq)
-                sev = m.severity.name if hasattr(m.severity, "name") else str(m.severity)
+            for m, sev in got:
                 self.counts[q][sev] = self.counts[q].get(sev, 0) + 1
                 if sev in ("WARNING", "ERROR", "FATAL"):
                     self.messages.append({"queue": q, "seq": m.seq, "t_s": round(m.t_s, 3),
@@ -270,7 +303,7 @@ def _stop(procs: dict[str, _Proc], watch: _Watch | None, client, name: str, rep:
 def _watch_report(watch: _Watch, rep: dict) -> None:
     rep["messages"] = watch.messages
     rep["message_counts"] = watch.counts
-    rep["messages_lost"] = watch.lost
+    rep["messages_lost"] = watch.queues.lost
     rep["trips"] = _trips(watch.messages)
     rep["layers_in_error"] = _layers_in_error(watch.messages)
     rep["host_stalls"] = {"named": len(watch.stalls),
@@ -286,20 +319,6 @@ def _watch_report(watch: _Watch, rep: dict) -> None:
                       "reads": watch.reads}
     rep["inputs"] = li
     rep["held"] = not rep["layers_in_error"] and not rep["errors"]
-
-
-def _recorder_report(rec_path: Path) -> dict:
-    if not rec_path.exists():
-        return {}
-    from tools.recording.reader import read_metadata
-    try:
-        meta = read_metadata(rec_path).get("pfma.recorder.summary", {})
-        out = {k: meta.get(k) for k in ("frames_recorded", "recorder_missed", "service_skipped",
-                                        "messages_missed", "lossless", "sessions")}
-        out["file_mb"] = _r(rec_path.stat().st_size / 1e6, 2)
-        return out
-    except Exception as err:  # noqa: BLE001 - a cut file: say so
-        return {"error": f"{type(err).__name__}: {err}"}
 
 
 def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = False, hog: bool = False) -> dict:
@@ -335,7 +354,8 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
     rep["tails"] = {k: p.lines(8) for k, p in procs.items()}
     if watch is not None:
         _watch_report(watch, rep)
-    rep["recorder"] = _recorder_report(rec_path)
+    rep["recorder"] = recorder_summary(rec_path, ("frames_recorded", "recorder_missed", "service_skipped",
+                                                  "messages_missed", "lossless", "sessions"))
     return rep
 
 
