@@ -14,8 +14,7 @@ the pseudo-3D vector), after :data:`SETTLE_S` for each to settle. The simulator 
 process, so its CPU is not counted; on a host with fewer free cores than the two processes
 want, the figure includes what contention costs the console (cache, wake-ups).
 
-``pfma bench console --seconds 20`` (the issue's measurement); ``python -m bench.bench_console
-20`` does the same. Figures, never an assert.
+``pfma bench console --seconds 20`` (the issue's measurement). Figures, never an assert.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 host cost): power-up time, fault propagation to System Up/Down for each injected fault,
 and the controller's minor-frame cost on this host.
 
-Run: ``pfma bench controller`` or ``python -m bench.bench_controller``.
+Run: ``pfma bench controller``.
 """
 
 from __future__ import annotations

@@ -14,9 +14,9 @@ The flood client runs on the same host (a 2-core VM here); on a lab PC the HMI i
 machine, so this is the harder case. Nothing controls the arm: the service stays SAFE.
 
 Run: ``pfma bench flood [--seconds S] [--rounds N] [--realtime] [--check]`` (default 10 s,
-one round) or ``python -m bench.bench_flood [SECONDS] [RATE] [ROUNDS] [realtime]`` (rounds
-alternate a quiet and a flooded run, so a change in the host's load falls on both;
-``realtime`` runs ``pfma serve --realtime``, SCHED_FIFO and pinned, as a lab PC does).
+one round, :data:`DEFAULT_RATE` requests per second; rounds alternate a quiet and a flooded
+run, so a change in the host's load falls on both; ``--realtime`` runs ``pfma serve
+--realtime``, SCHED_FIFO and pinned, as a lab PC does).
 
 ``--check`` judges the figures (:func:`judge`): at most :data:`MAX_EXTRA_DROPPED_PER_10S`
 extra dropped frames per 10 s flooded against quiet, over all rounds, and the export
