@@ -1003,9 +1003,3 @@ def layout_markdown(layout: Layout | None = None) -> str:
     out.append("")
     return "\n".join(out)
 
-
-def write_layout_doc(path: str | Path = DOC_PATH, layout: Layout | None = None) -> Path:
-    """Write the generated document (default ``docs/bit3-layout.md``)."""
-    p = Path(path)
-    p.write_text(layout_markdown(layout))
-    return p
