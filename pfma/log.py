@@ -65,6 +65,22 @@ class TerseFormatter(logging.Formatter):
         return line
 
 
+class _StderrHandler(logging.StreamHandler):
+    """Writes to whatever ``sys.stderr`` is at the time of each record (a test's capture, a
+    redirected stream), never to a stream that was closed after :func:`configure`."""
+
+    def __init__(self) -> None:
+        super().__init__(sys.stderr)
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value) -> None:  # StreamHandler's own assignments: stderr is looked up instead
+        pass
+
+
 def level_number(name: str) -> int:
     """The logging level for ``--log-level NAME`` (one of :data:`LEVELS`)."""
     if name.lower() not in LEVELS:
@@ -74,10 +90,11 @@ def level_number(name: str) -> int:
 
 def configure(prog: str, level: str = DEFAULT_LEVEL, stream: TextIO | None = None) -> logging.Handler:
     """Send every pfma logger's records at ``level`` and above to ``stream`` (stderr) in the
-    terse format. Called once per process by its composition root; calling it again replaces
-    the handler (tests, and a verb that starts another)."""
+    terse format (``stream`` None: ``sys.stderr`` as it is at each record). Called once per
+    process by its composition root; calling it again replaces the handler (tests, and a verb
+    that starts another)."""
     out = stream if stream is not None else sys.stderr
-    handler = logging.StreamHandler(out)
+    handler: logging.StreamHandler = logging.StreamHandler(out) if stream is not None else _StderrHandler()
     handler.set_name(_HANDLER_NAME)
     handler.setFormatter(TerseFormatter(prog, journal=to_journal(out)))
     root = logging.getLogger()

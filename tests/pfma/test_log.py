@@ -52,3 +52,14 @@ def test_the_journal_gets_sd_daemon_priorities(monkeypatch):
 def test_an_unknown_level_is_one_clear_message():
     with pytest.raises(ValueError, match="--log-level 'loud': one of debug, info, warning, error"):
         log.level_number("loud")
+
+
+def test_the_default_handler_follows_sys_stderr_so_a_closed_capture_is_never_written(monkeypatch, capsys):
+    first = io.StringIO()
+    monkeypatch.setattr("sys.stderr", first)
+    log.configure("pfma serve", "info")
+    first.close()  # a test's capture, gone
+    second = io.StringIO()
+    monkeypatch.setattr("sys.stderr", second)
+    logging.getLogger("x").warning("still said")
+    assert second.getvalue() == "pfma serve: still said\n"
