@@ -29,6 +29,8 @@ decided; ``*`` marks a change) and the Data Acquisition hardware-check bits.
 
 from __future__ import annotations
 
+import logging
+
 from pfma import log as pfma_log
 from tools.cli.controller import arguments, distributed, local, move, requests
 from tools.cli.controller.common import SYSTEM_ACTIONS, refuse
@@ -40,8 +42,18 @@ def add_parser(sub):
 
 
 def run(args) -> int:
-    """One call per action, after the process's log is set up (``--log-level``)."""
-    pfma_log.configure(PROG, args.log_level)
+    """The process's log set up once (``--log-level``: ``pfma controller: ...`` on stderr),
+    then the action. Its handler is taken off again when the verb returns: ``main()`` called
+    in-process (the tests) leaves no handler on a stderr that is gone by then."""
+    handler = pfma_log.configure(PROG, args.log_level)
+    try:
+        return _act(args)
+    finally:
+        logging.getLogger().removeHandler(handler)
+
+
+def _act(args) -> int:
+    """One call per action."""
     if args.distribute is not None or args.process is not None:
         return distributed.run(args)
     if args.wm is None:

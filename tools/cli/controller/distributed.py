@@ -109,7 +109,8 @@ def _run_process(d: DistributedDriver, args) -> int:
     """The frames of one live process (the POWER UP, with --power-up, once every other
     process's section is seen) and the summary; the stack then leaves the arm safe."""
     from controller.layers import Request
-    imp = d.dp.importer
+    imp, pacer = d.dp.importer, d.pacer
+    assert pacer is not None
     _say_process(d)
     d.rt.on_frame.append(d.show)
     budget = int(round(args.duration / d.period_s)) if args.duration is not None else sys.maxsize
@@ -123,7 +124,7 @@ def _run_process(d: DistributedDriver, args) -> int:
                 continue
             # every other section seen, and this process past its first frames (imports,
             # first allocations, the collector frozen): then the request
-            if imp.seen_all and d.pacer.frames > d.FREEZE_AFTER_FRAMES:
+            if imp.seen_all and pacer.frames > d.FREEZE_AFTER_FRAMES:
                 d.rt.request(Request.POWER_UP)
                 powered = True
             elif not imp.seen_all:

@@ -20,7 +20,7 @@ def setup_paths(d, args) -> dict | None:
     if args.record is not None:
         path = store.load(args.record) if store.exists(args.record) else store.new(args.record,
                                                                                    note="pfma controller --record")
-        settings = {"msp.path_id": path.id, "msp.capture": not args.no_capture,
+        settings: dict = {"msp.path_id": path.id, "msp.capture": not args.no_capture,
                     "msp.record_source": 1 if args.record_command else 0}
         start = {"msp.mode": MspMode.RECORD}
         print(f"recording into path {path.name} (id {path.id}) in {store.dir}")
