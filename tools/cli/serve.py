@@ -27,14 +27,13 @@ Devices beside the rack (docs/devices.md):
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 
 from ioservice.schedule import Schedule
 from pfma.log import add_argument as add_log_level
-from pfma.log import configure as configure_logging
 from tools.cli.fault import add_serve_fault_args, install_serve_faults
 from tools.cli.args import float_in, positive_float, positive_int, shoulder_roll_degrees
+from tools.stacks.logroot import process_logging
 
 
 def add_parser(sub):
@@ -102,10 +101,13 @@ def add_parser(sub):
 def run(args) -> int:
     """Check the options (a usage mistake: one line, exit 2), then run the service process
     (tools/stacks/service.py) to its end."""
+    # the gateway client's retries are not said: the service says which board failed, once
+    with process_logging("pfma serve", args.log_level, hush=("pymodbus",)):
+        return _serve(args)
+
+
+def _serve(args) -> int:
     from tools.stacks.service import ServiceConfig, serve
-    configure_logging("pfma serve", args.log_level)
-    if args.log_level != "debug":  # the gateway client's retries: the service says what failed, once
-        logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     schedule = _schedule(args)
     why = _usage_mistake(args)
     if why:
