@@ -152,8 +152,9 @@ class ServiceStack:
         cfg = self.config
         self._ft_url = ft_url(cfg.ft)
         self._hid = open_hid(cfg.hid)
-        self._stack.callback(self._close_devices)
+        self._stack.callback(self._close_unwired_hid)
         self._open_rack()
+        self._stack.callback(self._close_devices)  # before the bus they may talk over
         cpu = os.cpu_count() - 1 if os.cpu_count() else None
         for i, line in enumerate(realtime_start("pfma serve", cfg.realtime, cpu, 50, watchdog_ms=cfg.watchdog_ms)):
             text = line.removeprefix("pfma serve: ")
@@ -395,11 +396,14 @@ class ServiceStack:
             FrameRing.unlink(self.config.buffer)
 
     def _close_devices(self) -> None:
-        """The hand controllers and the F/T (the HID not yet handed to a service: itself)."""
+        """The service's hand controllers and F/T."""
         if self.svc is not None:
             self.svc.hand.close()
             self.svc.ft.close()
-        elif self._hid is not None:
+
+    def _close_unwired_hid(self) -> None:
+        """The USB 6-axis never handed to a service (it did not start)."""
+        if self.svc is None and self._hid is not None:
             self._hid[0].close()
 
 
