@@ -175,10 +175,10 @@ class RecorderStack:
         """The world model to sample, waited for like the service; False (and the exit status
         set) when there is none in time or a pattern matches nothing (a usage mistake: 2)."""
         from tools.recording.wm import WmUsageError, select, wait_for_wm
-        cfg = self.config
+        cfg, name = self.config, self.config.wm_name or ""
         remaining = self._remaining(bounded_by_wait=True)
         try:
-            wm, why = wait_for_wm(cfg.wm_name, timeout_s=remaining, say=self.say, stop=self.done)
+            wm, why = wait_for_wm(name, timeout_s=remaining, say=self.say, stop=self.done)
         except WmUsageError as err:
             return self._no_recording(2, f"{err}; nothing recorded")
         if wm is None:
@@ -186,7 +186,7 @@ class RecorderStack:
             return self._no_recording(1, f"no running world model /dev/shm/{cfg.wm_name}{limit} ({why}); "
                                          f"nothing recorded")
         try:
-            select(wm.specs, cfg.patterns, wm_name=cfg.wm_name)
+            select(wm.specs, cfg.patterns, wm_name=name)
         except WmUsageError as err:
             wm.close()
             return self._no_recording(2, f"{err}; nothing recorded")

@@ -155,7 +155,8 @@ class ServiceStack:
         self._stack.callback(self._close_unwired_hid)
         self._open_rack()
         self._stack.callback(self._close_devices)  # before the bus they may talk over
-        cpu = os.cpu_count() - 1 if os.cpu_count() else None
+        ncpu = os.cpu_count()
+        cpu = ncpu - 1 if ncpu else None
         for i, line in enumerate(realtime_start("pfma serve", cfg.realtime, cpu, 50, watchdog_ms=cfg.watchdog_ms)):
             text = line.removeprefix("pfma serve: ")
             log.log(logging.WARNING if i or "not permitted" in text else logging.INFO, "%s", text)
@@ -188,7 +189,7 @@ class ServiceStack:
             from drivers.bus import open_bus
             from pfma.errors import PfmaError
             try:
-                self.bus = open_bus(cfg.bus)
+                self.bus = open_bus(str(cfg.bus))
             except (PfmaError, OSError) as err:
                 raise Refused(1, f"cannot open the bus {cfg.bus}: {err}") from None
         self._stack.callback(_close_bus, self.bus)
@@ -213,6 +214,7 @@ class ServiceStack:
     def _open_service(self) -> None:
         from ioservice.service import IoService
         cfg = self.config
+        assert self.buf is not None  # made by _open_buffer
         self.svc = IoService(self.rack, self.bus, self.buf, self.clock, schedule=cfg.schedule,
                              watchdog_s=cfg.watchdog_ms / 1e3, max_input_age_frames=cfg.max_input_age,
                              calibration=cfg.calibration, ft_port=self._ft_url,
@@ -318,25 +320,27 @@ class ServiceStack:
         # the outputs outlive this process on a bus another process reaches: a guardian
         # writes the DAC to 0 V if the service dies or stays stopped (ioservice/guardian.py)
         from ioservice.guardian import GuardianProcess
-        guardian = GuardianProcess(cfg.bus, cfg.rack, cfg.watchdog_ms / 1e3 + self.svc.schedule.period_s)
+        guardian = GuardianProcess(str(cfg.bus), cfg.rack, cfg.watchdog_ms / 1e3 + self.svc.schedule.period_s)
         why = guardian.start()
         if why:
-            guardian = None
             log.warning("warning: no output guardian (%s): if this process is killed "
                         "the DAC keeps its last outputs", why)
         else:
             helpers.callback(guardian.stop)  # after the service's own safe outputs: it leaves without writing
             self.out(f"pfma serve: output guardian pid {guardian.pid}: the DAC goes to 0 V if this "
                      f"service dies or stays stopped")
-        # what stops the arm when the DAC board itself does not answer (docs/safety.md
-        # "Honest outputs"): said once at start, on a hardware bus
+        self._say_amplifier_enable()
+        return None if why else guardian
+
+    def _say_amplifier_enable(self) -> None:
+        """What stops the arm when the DAC board itself does not answer (docs/safety.md
+        "Honest outputs"): said once at start, on a hardware bus."""
         if self.rack.amplifier_enable is not None:
             self.out(f"pfma serve: amplifier enable: charge pump {self.rack.amplifier_enable.describe()}, "
                      f"toggled every frame while ARMED and the DAC answers")
         else:
             log.warning("warning: rack %s has no amplifier-enable output ([amplifier_enable]): if "
                         "the DAC board stops answering, only the hardware E-stop stops the arm", self.rack.name)
-        return guardian
 
     def _start_export(self, helpers: contextlib.ExitStack):
         cfg = self.config
@@ -388,6 +392,7 @@ class ServiceStack:
         removed when it never did. The frame ring goes."""
         from bit3.ring import FrameRing
         buf, ring = self.buf, getattr(self.svc, "ring", None)
+        assert buf is not None  # registered once the buffer is made
         if self._serving:
             buf.release()
         buf.close(unlink=self.private or not self._serving)
