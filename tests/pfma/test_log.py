@@ -63,3 +63,14 @@ def test_the_default_handler_follows_sys_stderr_so_a_closed_capture_is_never_wri
     monkeypatch.setattr("sys.stderr", second)
     logging.getLogger("x").warning("still said")
     assert second.getvalue() == "pfma serve: still said\n"
+
+
+def test_for_process_undoes_itself():
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
+    modbus_level = logging.getLogger("pymodbus").level
+    with log.for_process("pfma serve", "warning", hush=("pymodbus",)):
+        assert logging.getLogger("pymodbus").level == logging.CRITICAL
+        assert root.level == logging.WARNING
+    assert root.handlers == handlers and root.level == level
+    assert logging.getLogger("pymodbus").level == modbus_level

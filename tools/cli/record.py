@@ -39,8 +39,8 @@ import sys
 from pathlib import Path
 
 from pfma.log import add_argument as add_log_level
+from pfma.log import for_process as process_logging
 from tools.cli.args import nonneg_float, positive_float, positive_int
-from tools.stacks.logroot import process_logging
 
 def add_parser(sub):
     p = sub.add_parser("record", help="record every frame of the buffer to MCAP (also: recover, info)",

@@ -31,9 +31,9 @@ import sys
 
 from ioservice.schedule import Schedule
 from pfma.log import add_argument as add_log_level
+from pfma.log import for_process as process_logging
 from tools.cli.fault import add_serve_fault_args, install_serve_faults
 from tools.cli.args import float_in, positive_float, positive_int, shoulder_roll_degrees
-from tools.stacks.logroot import process_logging
 
 
 def add_parser(sub):

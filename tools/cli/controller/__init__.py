@@ -29,8 +29,6 @@ decided; ``*`` marks a change) and the Data Acquisition hardware-check bits.
 
 from __future__ import annotations
 
-import logging
-
 from pfma import log as pfma_log
 from tools.cli.controller import arguments, distributed, local, move, requests
 from tools.cli.controller.common import SYSTEM_ACTIONS, refuse
@@ -45,11 +43,8 @@ def run(args) -> int:
     """The process's log set up once (``--log-level``: ``pfma controller: ...`` on stderr),
     then the action. Its handler is taken off again when the verb returns: ``main()`` called
     in-process (the tests) leaves no handler on a stderr that is gone by then."""
-    handler = pfma_log.configure(PROG, args.log_level)
-    try:
+    with pfma_log.for_process(PROG, args.log_level):
         return _act(args)
-    finally:
-        logging.getLogger().removeHandler(handler)
 
 
 def _act(args) -> int:
