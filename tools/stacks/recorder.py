@@ -29,6 +29,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+from pfma.errors import os_error_text
+
 log = logging.getLogger(__name__)
 
 #: no new frame for this long: look whether the service is still there
@@ -397,14 +399,6 @@ def frame_rate_hz(client) -> tuple[float, str]:
         return 1.0 / period, "the service's statistics (period_s)"
     from ioservice.schedule import Schedule
     return Schedule().frame_rate_hz, "the schedule's default (no statistics published yet)"
-
-
-def os_error_text(err: OSError) -> str:
-    """``strerror: filename`` of an OSError (``str(err)`` when it has neither), as
-    ``pfma`` names a file it could not write."""
-    text = err.strerror or str(err) or type(err).__name__
-    names = [n for n in (err.filename, err.filename2) if n is not None]
-    return ": ".join([text, *map(str, names)])
 
 
 def wm_line(sampler) -> str:
