@@ -7,7 +7,6 @@ inputs latency across ``pfma bridge`` beside a shared-memory reader in the same 
 
 from __future__ import annotations
 
-import sys
 
 from tools.bridge.latency import measure, report
 
@@ -26,7 +25,3 @@ def run(seconds: float = 5.0) -> dict:
     f = figures(seconds)
     print(f.get("skipped") or report(f))
     return f
-
-
-if __name__ == "__main__":
-    run(float(sys.argv[1]) if len(sys.argv) > 1 else 5.0)

@@ -14,7 +14,6 @@ Linux). Default run about 12 s; ``run(quick=True)`` / ``--quick`` about 4 s.
 
 from __future__ import annotations
 
-import argparse
 import multiprocessing
 import os
 import socket
@@ -334,9 +333,3 @@ def run(quick: bool = False, seconds: float | None = None) -> dict:
               f"  ({r['n']} received)")
     print("goal for shm: p50 <= 50 us, p99 <= 500 us (perf-limits.md 8, tier A)")
     return out
-
-
-if __name__ == "__main__":
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="short run (about 4 s)")
-    run(quick=ap.parse_args().quick)

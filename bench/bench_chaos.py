@@ -87,7 +87,6 @@ import random
 import re
 import signal
 import socket
-import subprocess
 import sys
 import tempfile
 import textwrap
@@ -97,7 +96,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-ROOT = Path(__file__).resolve().parent.parent
+from pfma.process import Child, children, cmdline, free_port, listen_port, pid_alive, until
+
 #: prefix of every buffer, world model and file this benchmark makes in /dev/shm
 PREFIX = "pfma-chaos-"
 KINDS = ("service", "controller", "recorder", "console", "bridge", "gateway", "export")
@@ -359,99 +359,17 @@ class RingWatch:
 # --------------------------------------------------------------------------- processes
 
 
-def _env() -> dict:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
-    env.pop("COLUMNS", None)
-    env.pop("LINES", None)
-    return env
-
-
-def _default_sigint() -> None:
-    """In the child before exec: SIGINT back to default (a bench run as a background job)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
-def _shm_maps(pid: int) -> set[str]:
-    """The /dev/shm files process ``pid`` has mapped (from /proc/PID/maps)."""
-    out = set()
-    try:
-        with open(f"/proc/{pid}/maps") as f:
-            for line in f:
-                i = line.find("/dev/shm/")
-                if i >= 0:
-                    out.add(line[i:].strip().removesuffix(" (deleted)"))
-    except OSError:
-        pass
-    return out
-
-
-class Proc:
-    """One subprocess in its own process group, its output in a file."""
+class Proc(Child):
+    """One subprocess of a trial (:class:`pfma.process.Child`): in its own process group,
+    its output in a file; when it had to be killed and is a far end, it was asked first
+    where it hung."""
 
     def __init__(self, role: str, argv: list[str], workdir: Path) -> None:
-        self.role = role
-        self.argv = argv
-        self.log_path = workdir / f"{role}-{uuid.uuid4().hex[:4]}.log"
-        self._log = open(self.log_path, "w")
-        self.p = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                  cwd=ROOT, env=_env(), start_new_session=True, preexec_fn=_default_sigint,
-                                  text=True)
-        self.t0 = time.monotonic()
-        self.stopped = False  #: SIGSTOPped and not continued
-        self.killed = False  #: SIGKILLed by the benchmark (its output may end anywhere)
-        self.exit_how = ""
-        self.maps: set[str] = set()
+        super().__init__(role, argv, workdir)
         self.stop_t: float | None = None  #: when the trial asked it to stop (shutting-down phase)
         self.ready_t: float | None = None  #: when it was seen up (its trial's ready condition)
 
-    @property
-    def pid(self) -> int:
-        return self.p.pid
-
-    def alive(self) -> bool:
-        return self.p.poll() is None
-
-    def note_maps(self) -> None:
-        if self.alive():
-            self.maps |= _shm_maps(self.pid)
-
-    def send(self, sig: int) -> float:
-        """Signal the process (not its group); the time it was sent (CLOCK_MONOTONIC)."""
-        self.note_maps()
-        t = time.monotonic()
-        try:
-            os.kill(self.pid, sig)
-        except ProcessLookupError:
-            return t
-        if sig == signal.SIGSTOP:
-            self.stopped = True
-        elif sig == signal.SIGCONT:
-            self.stopped = False
-        elif sig == signal.SIGKILL:
-            self.killed = True
-        return t
-
-    def stop(self, sig: int = signal.SIGINT, timeout_s: float = STOP_TIMEOUT_S) -> str:
-        """Ask it to stop (SIGCONT first if stopped); SIGKILL its group when it does not exit."""
-        if not self.alive():
-            self.exit_how = self.exit_how or f"had exited ({self.p.returncode})"
-            return self.exit_how
-        self.note_maps()
-        if self.stopped:
-            self.send(signal.SIGCONT)
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(self.pid, sig)
-        try:
-            rc = self.p.wait(timeout=timeout_s)
-            self.exit_how = f"{signal.Signals(sig).name} -> exit {rc}"
-        except subprocess.TimeoutExpired:
-            self.where_hung()
-            self.kill_group()
-            self.exit_how = f"needed SIGKILL ({timeout_s:g} s after {signal.Signals(sig).name})"
-        return self.exit_how
-
-    def where_hung(self) -> None:
+    def before_kill(self) -> None:
         """A far end (``REMOTE_CONTROLLER``) that did not exit: ask it to print its threads'
         stacks (faulthandler on SIGUSR1) into its output before it is killed."""
         if self.role != "remote":
@@ -460,39 +378,9 @@ class Proc:
             os.kill(self.pid, signal.SIGUSR1)
         time.sleep(0.5)
 
-    def wait_exit(self, timeout_s: float = 10.0) -> bool:
-        try:
-            self.p.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            return False
-        return True
-
-    def kill_group(self) -> None:
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(self.pid, signal.SIGCONT)
-            os.killpg(self.pid, signal.SIGKILL)
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            self.p.wait(timeout=10)
-
-    def text(self) -> str:
-        with contextlib.suppress(ValueError, OSError):
-            self._log.flush()
-        try:
-            return self.log_path.read_text(errors="replace")
-        except OSError:
-            return ""
-
-    def tail(self, n: int = 6) -> str:
-        return " | ".join(line.strip() for line in self.text().splitlines()[-n:])
-
-    def close(self) -> None:
-        if self.alive():
-            self.kill_group()
-        self._log.close()
-
 
 def hung_at(text: str) -> str:
-    """Where each thread was in a faulthandler dump (``Proc.where_hung``): the innermost
+    """Where each thread was in a faulthandler dump (``Proc.before_kill``): the innermost
     frame of each, as ``func (file:line)``; "" when ``text`` holds no dump."""
     where, want = [], False
     for line in text.splitlines():
@@ -504,28 +392,6 @@ def hung_at(text: str) -> str:
                 where.append(f"{m.group(3)} ({Path(m.group(1)).name}:{m.group(2)})")
             want = False
     return "; ".join(where)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _until(cond: Callable[[], object], timeout_s: float = WAIT_S, must_live: tuple = (), poll_s: float = 0.01):
-    """Poll ``cond`` until it is truthy (returns its value); None on time-out or when one of
-    ``must_live`` exits."""
-    end = time.monotonic() + timeout_s
-    while True:
-        try:
-            v = cond()
-        except Exception:  # noqa: BLE001 - not there yet (a buffer being replaced, a torn read)
-            v = None
-        if v:
-            return v
-        if time.monotonic() > end or any(not p.alive() for p in must_live):
-            return None
-        time.sleep(poll_s)
 
 
 #: the bridge trials' far ends start their rearm counter at REARM_SEED x (trial + 1), so
@@ -651,24 +517,19 @@ class Session:
     def client(self, service: Proc | None = None, timeout_s: float = WAIT_S):
         """A read-only client of the buffer published by ``service`` (by its pid), once it
         publishes frames; None when it does not within ``timeout_s`` or exits."""
-        from bit3.client import Client
-
-        def attached():
-            c = self._client
-            if c is not None:
-                try:
-                    ok = (service is None or c.owners()["inputs"].pid == service.pid) and \
-                        c.read_inputs().frame > 2 and not _replaced(c, self.name)
-                except Exception:  # noqa: BLE001
-                    ok = False
-                if ok:
+        from tools.attach import wait_for_frames
+        c = self._client
+        if c is not None:
+            try:
+                if (service is None or c.owners()["inputs"].pid == service.pid) and \
+                        c.read_inputs().frame > 2 and not _replaced(c, self.name):
                     return c
-                c.close()
-                self._client = None
-            c = Client.attach(self.name)
-            self._client = c
-            return None
-        return _until(attached, timeout_s, must_live=(service,) if service is not None else (), poll_s=0.05)
+            except Exception:  # noqa: BLE001 - a buffer being replaced
+                pass
+            c.close()
+        self._client = wait_for_frames(self.name, 2, timeout_s=timeout_s, pid=None if service is None else service.pid,
+                                       alive=service.alive if service is not None else lambda: True, poll_s=0.05)
+        return self._client
 
     def ring(self):
         from bit3.ring import FrameRing
@@ -764,7 +625,7 @@ def _at_phase(trial: Trial, victim: Proc, ready: Callable[[], object], stop_sig:
             victim.ready_t = time.monotonic()
             return "up"
         return "starting"
-    got = _until(ready, WAIT_S, must_live=(victim,))
+    got = until(ready, WAIT_S, must_live=(victim,))
     if not got:
         return "never up"
     victim.ready_t = time.monotonic()
@@ -832,7 +693,7 @@ def _trial_service(trial: Trial, workdir: Path, out: Outcome, realtime: bool = F
                 out.check("setup", False, f"service never published: {svc.tail()}")
                 return
             ctl = sess.controller()
-            if not _until(lambda: sess.armed(c), WAIT_S, must_live=(ctl, svc)):
+            if not until(lambda: sess.armed(c), WAIT_S, must_live=(ctl, svc)):
                 out.check("setup", False, f"never ARMED: controller {ctl.tail(3)}")
                 return
         reached = _at_phase(trial, svc, lambda: _child_of(svc.pid))
@@ -850,7 +711,7 @@ def _trial_service(trial: Trial, workdir: Path, out: Outcome, realtime: bool = F
         svc2 = sess.serve()  # a new service on the same name takes over (started at once)
         # the service is dead: its export goes with it
         if export is not None:
-            gone = _until(lambda: not _pid_alive(export), 5.0)
+            gone = until(lambda: not pid_alive(export), 5.0)
             out.check("export_gone", bool(gone), "the Modbus export exited with its service" if gone else
                       f"the Modbus export (pid {export}) still runs 5 s after its service died")
         if ctl is not None and old is not None:
@@ -864,7 +725,7 @@ def _trial_service(trial: Trial, workdir: Path, out: Outcome, realtime: bool = F
             old.close()
         rc, text = _pfma_read(sess.name)
         out.check("reattach", rc == 0 and READ_SIGNAL in text, f"pfma read: exit {rc}: {text[-200:]}")
-        said = _until(lambda: re.search(r"recording continues as session \d+|recording /dev/shm",
+        said = until(lambda: re.search(r"recording continues as session \d+|recording /dev/shm",
                                         rec.text()[said_before:]), 15.0, must_live=(rec,))
         out.check("reattach", bool(said), "the recorder goes on: " + (said.group(0) if said else
                                                                          f"nothing in 15 s: {rec.tail(3)}"))
@@ -873,27 +734,8 @@ def _trial_service(trial: Trial, workdir: Path, out: Outcome, realtime: bool = F
 
 
 def _child_of(pid: int) -> int | None:
-    try:
-        with open(f"/proc/{pid}/task/{pid}/children") as f:
-            kids = [int(x) for x in f.read().split()]
-    except OSError:
-        return None
-    for k in kids:
-        try:
-            with open(f"/proc/{k}/cmdline", "rb") as f:
-                if b"tools.modbus_export" in f.read():
-                    return k
-        except OSError:
-            continue
-    return None
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
+    """The service ``pid``'s Modbus export process (its child), or None."""
+    return next((k for k in children(pid) if "tools.modbus_export" in cmdline(k)), None)
 
 
 def _controller_reports_loss(out: Outcome, ctl: Proc, old) -> None:
@@ -901,7 +743,7 @@ def _controller_reports_loss(out: Outcome, ctl: Proc, old) -> None:
     def said():
         return [m.text for m in old.messages(0, queue="controller") if "service not publishing" in m.text
                 or "service STOPPED" in m.text or "fault 32" in m.text]
-    got = _until(said, 5.0, must_live=(ctl,))
+    got = until(said, 5.0, must_live=(ctl,))
     if not got:
         out.check("loss_reported", False, "the controller did not say the service stopped publishing within 5 s"
                   + ("" if ctl.alive() else f" (it exited: {ctl.tail(3)})"))
@@ -911,7 +753,7 @@ def _controller_reports_loss(out: Outcome, ctl: Proc, old) -> None:
         cmd = old.read_commands()
         return (not int(cmd.arm_request) and not any(float(x) for x in cmd.joint_rate_rad_s)
                 and not any(float(x) for x in cmd.current_limit_a))
-    z = _until(zero, 2.0, must_live=(ctl,))
+    z = until(zero, 2.0, must_live=(ctl,))
     out.check("loss_reported", bool(z), f"{got[0]}; commands 0" if z else
               f"{got[0]}; but its commands are not 0 (arm request, rates, current limits) 2 s later")
 
@@ -951,7 +793,7 @@ def _service_resumed(out: Outcome, sess: Session, svc: Proc, c, t_gone: float, t
         return
     if shutting_down:
         import numpy as np
-        ended = _until(lambda: not svc.alive(), STOP_TIMEOUT_S)
+        ended = until(lambda: not svc.alive(), STOP_TIMEOUT_S)
         s = c.read_inputs()
         volts = float(np.abs(s.dac_volts).max())
         ok = bool(ended) and svc.p.returncode == 0 and int(s.service_state) == STOPPED and volts == 0.0
@@ -961,7 +803,7 @@ def _service_resumed(out: Outcome, sess: Session, svc: Proc, c, t_gone: float, t
                   f"state {int(s.service_state)}, DAC {volts:.3f} V max: {svc.tail()}")
         return
     k0 = c.read_inputs().frame
-    moved = _until(lambda: c.read_inputs().frame > k0 + 10, 10.0, must_live=(svc,))
+    moved = until(lambda: c.read_inputs().frame > k0 + 10, 10.0, must_live=(svc,))
     if not moved:
         out.check("resumed", False, f"the service did not publish again after SIGCONT: {svc.tail()}")
         return
@@ -1165,7 +1007,7 @@ def _trial_export(trial: Trial, workdir: Path, out: Outcome, sess: Session, ctx:
         ctx["export"] = victim
     else:
         new = _start_export(sess)
-        p = _until(lambda: _modbus_port(new), 20.0, must_live=(new,))
+        p = until(lambda: _modbus_port(new), 20.0, must_live=(new,))
         ans = _modbus_read(p) if p else None
         out.check("reattach", ans is not None, f"a new export answers a Modbus read (port {p})" if ans is not None
                   else f"the new export does not answer: {new.tail(3)}")
@@ -1194,10 +1036,10 @@ class _Adopted(Proc):
         return self._pid
 
     def alive(self) -> bool:
-        return _pid_alive(self._pid)
+        return pid_alive(self._pid)
 
     def wait_exit(self, timeout_s: float = 10.0) -> bool:
-        return bool(_until(lambda: not _pid_alive(self._pid), timeout_s))
+        return bool(until(lambda: not pid_alive(self._pid), timeout_s))
 
     def stop(self, sig: int = signal.SIGTERM, timeout_s: float = STOP_TIMEOUT_S) -> str:
         if self.alive():
@@ -1293,7 +1135,7 @@ def _trial_gateway(trial: Trial, workdir: Path, out: Outcome, realtime: bool = F
         svc = None
         c = None
         if trial.phase != "start-up":
-            if not _until(lambda: "Ctrl-C stops" in gw.text(), WAIT_S, must_live=(gw,)):
+            if not until(lambda: "Ctrl-C stops" in gw.text(), WAIT_S, must_live=(gw,)):
                 out.check("setup", False, f"gateway did not start: {gw.tail()}")
                 return
             svc = sess.serve("--bus", url, *GATEWAY_SCHEDULE)
@@ -1335,7 +1177,7 @@ def _trial_gateway(trial: Trial, workdir: Path, out: Outcome, realtime: bool = F
                           if svc.alive() else f"the service stopped: {svc.tail(2)}")
             elif trial.phase == "shutting down" or trial.action != "SIGSTOP+SIGCONT" or \
                     t_back - t_gone > BUS_LOST_S + 0.1:
-                ended = _until(lambda: not svc.alive(), 10.0)
+                ended = until(lambda: not svc.alive(), 10.0)
                 said = "stopped answering" in svc.text() or "bus lost" in svc.text()
                 out.check("takeover", bool(ended) and said,
                           f"the service stopped, saying the bus stopped answering (exit {svc.p.returncode})"
@@ -1346,7 +1188,7 @@ def _trial_gateway(trial: Trial, workdir: Path, out: Outcome, realtime: bool = F
         if trial.action != "SIGSTOP+SIGCONT" or not gw.alive():
             gw.stop()
             gw2 = sess.pfma("gateway", "gateway", "--listen", f"127.0.0.1:{port}")
-            if not _until(lambda: "Ctrl-C stops" in gw2.text(), WAIT_S, must_live=(gw2,)):
+            if not until(lambda: "Ctrl-C stops" in gw2.text(), WAIT_S, must_live=(gw2,)):
                 out.check("reattach", False, f"a new gateway on port {port} did not start: {gw2.tail(2)}")
                 return
         if svc is not None and svc.alive():
@@ -1395,12 +1237,12 @@ def _run_shared(kinds: tuple[str, ...], trials: list[Trial], workdir: Path, prog
             return outs
         if set(kinds) & {"recorder", "console", "export"}:
             ctl = sess.controller()
-            if not _until(lambda: sess.armed(c), WAIT_S, must_live=(ctl, svc)):
+            if not until(lambda: sess.armed(c), WAIT_S, must_live=(ctl, svc)):
                 ctx["note"] = f"the session's controller did not arm the service: {ctl.tail(2)}"
         if "export" in kinds:
-            pid = _until(lambda: _child_of(svc.pid), 10.0)
+            pid = until(lambda: _child_of(svc.pid), 10.0)
             if pid:
-                ctx["export"] = _Adopted("export", pid, _until(lambda: _listen_port(pid), 10.0))
+                ctx["export"] = _Adopted("export", pid, until(lambda: listen_port(pid), 10.0))
         for t in trials:
             o = Outcome(t)
             t0 = time.monotonic()
@@ -1437,7 +1279,7 @@ def _final_reattach(kind: str, sess: Session, ctx: dict, out: Outcome) -> None:
     watch = ctx.get("watch") or ctx.setdefault("watch", RingWatch(sess.name, c))
     if kind == "controller":
         ctl = sess.controller()
-        ok = _until(lambda: watch.armed_since(ctl.t0), WAIT_S, must_live=(ctl,))
+        ok = until(lambda: watch.armed_since(ctl.t0), WAIT_S, must_live=(ctl,))
         out.check("reattach", bool(ok), "a new controller armed the service after the last trial" if ok else
                   f"a new controller did not arm the service: {ctl.tail(3)}")
         ctl.stop()
@@ -1449,7 +1291,7 @@ def _final_reattach(kind: str, sess: Session, ctx: dict, out: Outcome) -> None:
             bridge = sess.pfma("bridge", "bridge", "--buffer", sess.name, "--listen", endpoint, "--commands")
             remote = sess.start("remote", [sys.executable, "-c", REMOTE_CONTROLLER, endpoint, sess.name, "-",
                                            *sess.rt_flag])
-            _until(lambda: (watch.armed_since(bridge.t0) and "up" in remote.text()) or "fault: " in remote.text(),
+            until(lambda: (watch.armed_since(bridge.t0) and "up" in remote.text()) or "fault: " in remote.text(),
                    WAIT_S / 2, must_live=(bridge, remote))
             ok = watch.armed_since(bridge.t0) and "up" in remote.text()
             if ok or "missed service frames" not in remote.text() or attempt == REMOTE_ATTEMPTS:
@@ -1476,25 +1318,6 @@ def _final_reattach(kind: str, sess: Session, ctx: dict, out: Outcome) -> None:
                       f"{WAIT_S / 2:.0f} s (rearm counter {before} -> {after}): {remote.tail(3)} / {bridge.tail(3)}")
         remote.stop(signal.SIGTERM)
         bridge.stop()
-
-
-def _listen_port(pid: int) -> int | None:
-    """The TCP port process ``pid`` listens on (from /proc/net/tcp and its fds)."""
-    try:
-        inodes = set()
-        for fd in os.listdir(f"/proc/{pid}/fd"):
-            with contextlib.suppress(OSError):
-                t = os.readlink(f"/proc/{pid}/fd/{fd}")
-                if t.startswith("socket:["):
-                    inodes.add(t[8:-1])
-        with open("/proc/net/tcp") as f:
-            for line in f.readlines()[1:]:
-                parts = line.split()
-                if parts[3] == "0A" and parts[9] in inodes:
-                    return int(parts[1].split(":")[1], 16)
-    except OSError:
-        return None
-    return None
 
 
 def run_matrix(trials: int = DEFAULT_TRIALS, seed: int = DEFAULT_SEED, kinds: tuple[str, ...] = KINDS,
@@ -1616,10 +1439,3 @@ def run(seconds: float | None = None, trials: int | None = None, seed: int | Non
     else:
         print_report(rep)
     return rep
-
-
-if __name__ == "__main__":
-    run(trials=int(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT_TRIALS,
-        seed=int(sys.argv[2]) if len(sys.argv) > 2 else DEFAULT_SEED,
-        kinds=tuple(sys.argv[3].split(",")) if len(sys.argv) > 3 else KINDS,
-        realtime="--realtime" in sys.argv)

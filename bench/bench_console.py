@@ -14,8 +14,7 @@ the pseudo-3D vector), after :data:`SETTLE_S` for each to settle. The simulator 
 process, so its CPU is not counted; on a host with fewer free cores than the two processes
 want, the figure includes what contention costs the console (cache, wake-ups).
 
-``pfma bench console --seconds 20`` (the issue's measurement); ``python -m bench.bench_console
-20`` does the same. Figures, never an assert.
+``pfma bench console --seconds 20`` (the issue's measurement). Figures, never an assert.
 """
 
 from __future__ import annotations
@@ -31,7 +30,7 @@ import threading
 import time
 import uuid
 
-from pfma.process import cpu_seconds
+from pfma.process import cpu_seconds, default_sigint
 
 #: the console's terminal (the size the console's tests and snapshots use)
 COLS, ROWS = 180, 50
@@ -39,10 +38,6 @@ COLS, ROWS = 180, 50
 SETTLE_S = 3.0
 #: the console must draw its areas within this
 START_TIMEOUT_S = 60.0
-
-
-def _default_sigint() -> None:
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 class _Pty:
@@ -163,7 +158,7 @@ def figures(seconds: float = 20.0) -> dict:
     try:
         sim = subprocess.Popen([py, "-c", _SIMULATOR, name, wm, str(2 * seconds + 4 * SETTLE_S + START_TIMEOUT_S)],
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
-                               preexec_fn=_default_sigint)
+                               preexec_fn=default_sigint)
         procs.append(sim)
         if sim.stdout is None or sim.stdout.readline().strip() != "ready":
             out["error"] = "the simulator did not start: " + (sim.stdout.read()[-400:] if sim.stdout else "")
@@ -216,7 +211,3 @@ def run(seconds: float = 20.0) -> dict:
               f"{m['terminal_kb_per_s']:.1f} kB/s to the terminal, {m['ft_forces_seen']} different F/T forces "
               f"at 10 Hz")
     return f
-
-
-if __name__ == "__main__":
-    run(float(sys.argv[1]) if len(sys.argv) > 1 else 20.0)

@@ -2,7 +2,7 @@
 host cost): power-up time, fault propagation to System Up/Down for each injected fault,
 and the controller's minor-frame cost on this host.
 
-Run: ``pfma bench controller`` or ``python -m bench.bench_controller``.
+Run: ``pfma bench controller``.
 """
 
 from __future__ import annotations
@@ -104,10 +104,6 @@ def run(seconds: float = 5.0) -> dict:
     print(f"controller frame cost over {c['frames']} frames: p50 {c['p50_us']:.0f} us, p99 {c['p99_us']:.0f} us, "
           f"max {c['max_us']:.0f} us of a {c['period_us']:.0f} us minor frame")
     return out
-
-
-if __name__ == "__main__":
-    run(1.0)
 
 
 def figures(seconds: float = 5.0) -> dict:

@@ -14,9 +14,9 @@ The flood client runs on the same host (a 2-core VM here); on a lab PC the HMI i
 machine, so this is the harder case. Nothing controls the arm: the service stays SAFE.
 
 Run: ``pfma bench flood [--seconds S] [--rounds N] [--realtime] [--check]`` (default 10 s,
-one round) or ``python -m bench.bench_flood [SECONDS] [RATE] [ROUNDS] [realtime]`` (rounds
-alternate a quiet and a flooded run, so a change in the host's load falls on both;
-``realtime`` runs ``pfma serve --realtime``, SCHED_FIFO and pinned, as a lab PC does).
+one round, :data:`DEFAULT_RATE` requests per second; rounds alternate a quiet and a flooded
+run, so a change in the host's load falls on both; ``--realtime`` runs ``pfma serve
+--realtime``, SCHED_FIFO and pinned, as a lab PC does).
 
 ``--check`` judges the figures (:func:`judge`): at most :data:`MAX_EXTRA_DROPPED_PER_10S`
 extra dropped frames per 10 s flooded against quiet, over all rounds, and the export
@@ -38,7 +38,7 @@ import threading
 import time
 import uuid
 
-from pfma.process import cpu_seconds
+from pfma.process import children, cmdline, cpu_seconds, free_port
 
 #: bound on the service's start
 START_TIMEOUT_S = 30.0
@@ -57,28 +57,6 @@ MAX_EXTRA_DROPPED_PER_10S = 5.0
 #: second in every flooded run. The flood client shares the host's CPUs with the service
 #: and the export, so it does not always send the whole rate (71-100 % here, docs/chaos.md).
 MIN_ANSWERED_SHARE = 0.5
-
-
-def _children(pid: int) -> list[int]:
-    try:
-        with open(f"/proc/{pid}/task/{pid}/children") as f:
-            return [int(x) for x in f.read().split()]
-    except OSError:
-        return []
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        with open(f"/proc/{pid}/cmdline", "rb") as f:
-            return f.read().replace(b"\0", b" ").decode(errors="replace")
-    except OSError:
-        return ""
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _recv_exact(s: socket.socket, n: int) -> bytes:
@@ -183,10 +161,10 @@ def one_run(seconds: float, flood_rate: float | None, connections: int = DEFAULT
     ``flood_rate`` requests/s of valid reads meanwhile; ``realtime``: ``pfma serve
     --realtime`` (SCHED_FIFO, pinned), as on a lab PC."""
     from bit3.buffer import Bit3Buffer
-    from bit3.client import Client
+    from tools.attach import wait_for_frames
 
     py = sys.executable
-    port = _free_port()
+    port = free_port()
     name = "pfma-bench-flood-" + uuid.uuid4().hex[:6]
     svc = subprocess.Popen([py, "-m", "tools.cli", "serve", "--rack", "fake", "--buffer", name,
                             "--modbus", f"127.0.0.1:{port}", *(["--realtime"] if realtime else []),
@@ -195,22 +173,12 @@ def one_run(seconds: float, flood_rate: float | None, connections: int = DEFAULT
     client = None
     flood = None
     try:
-        t_end = time.monotonic() + START_TIMEOUT_S
-        while True:
-            if svc.poll() is not None:
-                return {"error": f"pfma serve exited {svc.returncode}: "
-                                 f"{(svc.stderr.read() if svc.stderr else '').strip()[-300:]}"}
-            try:
-                client = Client.attach(name)
-                if client.read_inputs().frame > 320:
-                    break
-                client.close()
-                client = None
-            except Exception:  # noqa: BLE001 - not created yet
-                client = None
-            if time.monotonic() > t_end:
-                return {"error": f"pfma serve published no frames within {START_TIMEOUT_S:g} s"}
-            time.sleep(0.1)
+        client = wait_for_frames(name, 320, timeout_s=START_TIMEOUT_S, alive=lambda: svc.poll() is None)
+        if client is None and svc.poll() is not None:
+            return {"error": f"pfma serve exited {svc.returncode}: "
+                             f"{(svc.stderr.read() if svc.stderr else '').strip()[-300:]}"}
+        if client is None:
+            return {"error": f"pfma serve published no frames within {START_TIMEOUT_S:g} s"}
         # the export is ready once it answers
         t_end = time.monotonic() + START_TIMEOUT_S
         while True:
@@ -222,7 +190,7 @@ def one_run(seconds: float, flood_rate: float | None, connections: int = DEFAULT
                     return {"error": f"the Modbus export on 127.0.0.1:{port} did not answer"}
                 time.sleep(0.1)
         time.sleep(1.0)  # settle
-        export_pids = [p for p in _children(svc.pid) if "tools.modbus_export" in _cmdline(p)]
+        export_pids = [p for p in children(svc.pid) if "tools.modbus_export" in cmdline(p)]
         cpu0 = {p: cpu_seconds(p) for p in [svc.pid, *export_pids]}
         if flood_rate:
             flood = Flood(port, flood_rate, connections).start()
@@ -342,10 +310,3 @@ def run(seconds: float = DEFAULT_SECONDS, rate: float = DEFAULT_RATE, rounds: in
     print(f"  dropped frames per 10 s: quiet {f['quiet_dropped_per_10s']:g}, flooded "
           f"{f['flooded_dropped_per_10s']:g}: extra {f['extra_dropped_per_10s']:g} (goal: <= 5)")
     return f
-
-
-if __name__ == "__main__":
-    run(float(sys.argv[1]) if len(sys.argv) > 1 else 10.0,
-        float(sys.argv[2]) if len(sys.argv) > 2 else DEFAULT_RATE,
-        int(sys.argv[3]) if len(sys.argv) > 3 else 1,
-        len(sys.argv) > 4 and sys.argv[4] == "realtime")

@@ -92,7 +92,3 @@ def run(seconds: float = 5.0) -> dict:
     print(f"all but the A/D scan, per round: {rounds} us after a sleep / without: "
           f"cold factor {f['cold_factor']:.2f} (of the medians)")
     return f
-
-
-if __name__ == "__main__":
-    run()

@@ -71,7 +71,3 @@ def run(seconds: float = 5.0) -> dict:
         else:
             print(f"{rate:6g} {'C floor':8} no C compiler found; floor not measured")
     return results
-
-
-if __name__ == "__main__":
-    run()

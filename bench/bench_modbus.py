@@ -16,23 +16,15 @@ Run: ``pfma bench modbus`` or ``pfma bench --json``.
 from __future__ import annotations
 
 import importlib.util
-import socket
 import subprocess
 import sys
 import time
 import uuid
 
-from pfma.process import cpu_seconds
+from pfma.process import cpu_seconds, free_port
 
 #: bound on the gateway's and the service's start
 START_TIMEOUT_S = 30.0
-
-
-def _free_port() -> int:
-    """A TCP port free on 127.0.0.1 right now (the gateway binds it a moment later)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def available() -> str | None:
@@ -55,13 +47,13 @@ def figures(seconds: float = 5.0) -> dict:
     """The service over a loopback gateway for ``seconds`` (after it publishes frames)."""
     from bench.independent_reader import IndependentReader, measure
     from bit3.buffer import Bit3Buffer
-    from bit3.client import Client
+    from tools.attach import wait_for_frames
 
     why = available()
     if why:
         return {"skipped": why}
     py = sys.executable
-    port = _free_port()
+    port = free_port()
     name = "pfma-bench-mb-" + uuid.uuid4().hex[:6]
     url = f"modbus://127.0.0.1:{port}"
     gw = subprocess.Popen([py, "-m", "tools.cli", "gateway", "--listen", f"127.0.0.1:{port}",
@@ -76,21 +68,11 @@ def figures(seconds: float = 5.0) -> dict:
         svc = subprocess.Popen([py, "-m", "tools.cli", "serve", "--bus", url, "--buffer", name,
                                 "--duration", str(seconds + START_TIMEOUT_S), "--schedule", "slow"],
                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-        t_end = time.monotonic() + START_TIMEOUT_S
-        while True:
-            if svc.poll() is not None:
-                return {"error": f"pfma serve over {url} exited {svc.returncode} before publishing frames"}
-            try:
-                client = Client.attach(name)
-                if client.read_inputs().frame > 10:
-                    break
-                client.close()
-                client = None
-            except Exception:  # noqa: BLE001 - not created yet
-                client = None
-            if time.monotonic() > t_end:
-                return {"error": f"pfma serve over {url} published no frames within {START_TIMEOUT_S:g} s"}
-            time.sleep(0.1)
+        client = wait_for_frames(name, 10, timeout_s=START_TIMEOUT_S, alive=lambda: svc.poll() is None)
+        if client is None and svc.poll() is not None:
+            return {"error": f"pfma serve over {url} exited {svc.returncode} before publishing frames"}
+        if client is None:
+            return {"error": f"pfma serve over {url} published no frames within {START_TIMEOUT_S:g} s"}
         time.sleep(0.5)  # settle
         st0 = client.read_stats()  # the client's preallocated copy: the counters are taken now
         n0 = {k: int(st0[k]) for k in ("frames", "overruns", "dropped_frames")}
@@ -167,7 +149,3 @@ def run(seconds: float = 5.0) -> dict:
           f"{f['frames']} frames; CPU service {f['service_cpu_percent']:.1f} %, gateway "
           f"{f['gateway_cpu_percent']:.1f} %")
     return f
-
-
-if __name__ == "__main__":
-    run(float(sys.argv[1]) if len(sys.argv) > 1 else 5.0)

@@ -74,7 +74,3 @@ def run(seconds: float = 10.0) -> dict:
                   f"{r['recover_s']:.2f} s ({r['recover_frames']} frames)")
             print(f"         {r['served']}")
     return out
-
-
-if __name__ == "__main__":
-    run(float(sys.argv[1]) if len(sys.argv) > 1 else 10.0)

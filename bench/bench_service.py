@@ -35,27 +35,16 @@ import numpy as np
 from bit3.client import Client
 from bit3.layout import ServiceState
 from bit3.buffer import Bit3Buffer
-
-
-def _cpu_s(pid: int) -> float:
-    with open(f"/proc/{pid}/stat") as f:
-        parts = f.read().rsplit(")", 1)[1].split()
-    tck = os.sysconf("SC_CLK_TCK")
-    return (int(parts[11]) + int(parts[12])) / tck
+from pfma.process import cpu_seconds
+from tools.attach import wait_for_frames
 
 
 def _attach(name: str, timeout_s: float = 20.0) -> Client:
-    t_end = time.monotonic() + timeout_s
-    while True:
-        try:
-            c = Client.attach(name)
-            if c.read_inputs().frame > 0:
-                return c
-            c.close()
-        except Exception:  # noqa: BLE001 - not created yet
-            if time.monotonic() > t_end:
-                raise
-        time.sleep(0.05)
+    """A client of the service just started on ``name``, once it publishes frames."""
+    c = wait_for_frames(name, 0, timeout_s=timeout_s, poll_s=0.05)
+    if c is None:
+        raise TimeoutError(f"no service published frames on buffer {name!r} within {timeout_s:g} s")
+    return c
 
 
 def _serve(name: str, seconds: float, rate: float) -> subprocess.Popen:
@@ -70,9 +59,9 @@ def loop_figures(rate: float, seconds: float) -> dict:
     try:
         c = _attach(name)
         time.sleep(1.0)  # settle (start-up, F/T stream)
-        cpu0, t0 = _cpu_s(p.pid), time.monotonic()
+        cpu0, t0 = cpu_seconds(p.pid), time.monotonic()
         time.sleep(seconds)
-        cpu = 100 * (_cpu_s(p.pid) - cpu0) / (time.monotonic() - t0)
+        cpu = 100 * (cpu_seconds(p.pid) - cpu0) / (time.monotonic() - t0)
         st = c.read_stats()
         out = {"rate": rate, "work_p50_us": st.work_p50_us, "work_p99_us": st.work_p99_us,
                "wake_p50_us": st.wake_latency_p50_us, "wake_p99_us": st.wake_latency_p99_us,
@@ -93,6 +82,112 @@ def _serial_overruns(svc) -> int:
     return 0 if m is None else sum(p.stats.overruns for p in m[1]._ports.values())
 
 
+class _SplitMeter:
+    """The meters of :func:`split_figures`: the hooks and the frame body it puts around the
+    service's, each timing its share (the arm model, the bench's controller, the fakes'
+    register emulation) so the service's own work is what is left."""
+
+    def __init__(self, world) -> None:
+        self.world = world
+        self.arm_s = 0.0
+        self.arm_cpu = 0.0  # the same, in this thread's CPU time (what the CPU share subtracts)
+        self.ticks = 0  # the hook ticks between frames (each one a wake-up of the loop)
+        self.fake_cpu = 0.0
+        self.in_frame = False
+        self.rows: list[tuple[float, float]] = []
+        self.mark: dict = {}
+        self.armed = 0
+        self.last = -1.0
+        self.rearm = 0
+        self.t_measure = math.inf
+
+    def arm_tick(self, now: float) -> None:
+        t0, c0 = time.perf_counter(), time.thread_time()
+        self.world.tick(now)
+        self.arm_s += time.perf_counter() - t0
+        self.arm_cpu += time.thread_time() - c0
+
+    def attach(self, svc, bus, ctl, meter_s: float) -> None:
+        """Around the service ``svc`` on the metered ``bus``, commanded by ``ctl``."""
+        self.svc, self.bus, self.ctl, self.meter_s = svc, bus, ctl, meter_s
+        self.n_rates = len(ctl.command["joint_rate_rad_s"])
+        self._serial_tick = svc.serial_tick
+        self._body = svc.loop.body
+
+    def ctl_tick(self, now: float) -> None:
+        self.ticks += 1
+        if now - self.last < 0.002:
+            return
+        t0, c0 = time.perf_counter(), time.thread_time()
+        self.last = now
+        state = self.svc.guard.state
+        live = state == ServiceState.ARMED  # arming needs zero rates
+        rates = [0.02 * math.sin(now)] * self.n_rates if live else [0.0] * self.n_rates
+        if state == ServiceState.FAULT:  # e.g. a start-up stall tripped the watchdog
+            self.rearm += 1
+            self.ctl.write_commands(joint_rate_rad_s=rates, rearm_counter=self.rearm)
+        else:
+            self.ctl.write_commands(joint_rate_rad_s=rates)
+        self.arm_s += time.perf_counter() - t0
+        self.arm_cpu += time.thread_time() - c0
+
+    def _fakes_share(self, t0: float, c0: float, s0: float, a0: int) -> tuple[float, float]:
+        """Wall time since ``t0`` and the part inside the bus (the meter's own cost per access
+        counts with the fakes, not the service); gives the fakes that share of the CPU."""
+        dw = time.perf_counter() - t0
+        inside = self.bus.sim_s - s0 + (self.bus.accesses - a0) * self.meter_s
+        if dw > 0:
+            self.fake_cpu += (time.thread_time() - c0) * min(1.0, inside / dw)
+        return dw, inside
+
+    def metered_drain(self, now: float | None = None) -> None:
+        if self.in_frame:  # inside a frame: the frame's share counts it
+            self._serial_tick(now)
+            return
+        t0, c0, s0, a0 = time.perf_counter(), time.thread_time(), self.bus.sim_s, self.bus.accesses
+        self._serial_tick(now)
+        self._fakes_share(t0, c0, s0, a0)
+
+    def frame(self, info) -> None:
+        t0, c0, s0, a0 = time.perf_counter(), time.thread_time(), self.bus.sim_s, self.bus.accesses
+        self.in_frame = True
+        try:
+            self._body(info)
+        finally:
+            self.in_frame = False
+        dw, inside = self._fakes_share(t0, c0, s0, a0)
+        if t0 >= self.t_measure:
+            if not self.mark:
+                self.mark.update(cpu=time.process_time(), sim=self.fake_cpu, arm=self.arm_cpu, t=t0,
+                                 ticks=self.ticks, overruns=_serial_overruns(self.svc))
+            self.rows.append((dw, inside))
+
+    def count_armed(self, info) -> None:
+        n = len(self.rows)
+        self.frame(info)
+        if len(self.rows) > n and self.svc.state == ServiceState.ARMED:  # a measured frame
+            self.armed += 1
+
+    def figures(self, rate: float) -> dict:
+        mark, rows = self.mark, self.rows
+        wall = time.perf_counter() - mark["t"]
+        cpu = time.process_time() - mark["cpu"]
+        # CPU of the fakes (their share of each frame's and drain's CPU), the arm model and the
+        # bench's controller (this thread's CPU clock): their wall time would also count the
+        # time a loaded host did not run this process (own CPU came out negative under load)
+        sim = (self.fake_cpu - mark["sim"]) + (self.arm_cpu - mark["arm"])
+        work = np.array([r[0] for r in rows]) * 1e6
+        fake = np.array([r[1] for r in rows]) * 1e6
+        own = work - fake
+        return {"rate": rate, "frames": len(rows), "armed_frames": self.armed,
+                "ticks_per_s": (self.ticks - mark["ticks"]) / wall,
+                "serial_overruns": _serial_overruns(self.svc) - mark["overruns"],
+                "work_p50_us": float(np.median(work)), "work_p99_us": float(np.percentile(work, 99)),
+                "fake_p50_us": float(np.median(fake)),
+                "own_p50_us": float(np.median(own)), "own_p99_us": float(np.percentile(own, 99)),
+                "cpu_percent": 100 * cpu / wall, "own_cpu_percent": 100 * (cpu - sim) / wall}
+
+
 def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
     """The service's real periodic loop in this process on the simulated rack, each
     frame's work split into the fakes' register emulation and the service's own work."""
@@ -108,16 +203,8 @@ def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
     world = FakeWorld(clock=base)
     bus = MeteredBus(world.bus)
     clock = TickingClock(base, tick_s=LIVE_TICK_S)
-    arm_s = [0.0]
-    arm_cpu = [0.0]  # the same, in this thread's CPU time (what the CPU share subtracts)
-
-    def arm_tick(now: float) -> None:
-        t0, c0 = time.perf_counter(), time.thread_time()
-        world.tick(now)
-        arm_s[0] += time.perf_counter() - t0
-        arm_cpu[0] += time.thread_time() - c0
-
-    clock.hooks.append(arm_tick)
+    m = _SplitMeter(world)
+    clock.hooks.append(m.arm_tick)
     buf = Bit3Buffer.create(name)
     ctl = None
     try:
@@ -127,103 +214,21 @@ def split_figures(rate: float, seconds: float, settle_s: float = 1.0) -> dict:
         # in use): heartbeat every 2 ms, arm at once, small joint rates once armed. Its
         # time is timed apart, like the arm model's, and counted with neither.
         ctl = Client.attach(name, writer="commands", owner="bench-controller")
-        n_rates = len(ctl.command["joint_rate_rad_s"])
         ctl.write_commands(arm_request=1, current_limit_a=[1.0] * len(ctl.command["current_limit_a"]))
-        last = [-1.0]
-        rearm = [0]
-
-        ticks = [0]  # the hook ticks between frames (each one a wake-up of the loop)
-
-        def ctl_tick(now: float) -> None:
-            ticks[0] += 1
-            if now - last[0] < 0.002:
-                return
-            t0, c0 = time.perf_counter(), time.thread_time()
-            last[0] = now
-            state = svc.guard.state
-            live = state == ServiceState.ARMED  # arming needs zero rates
-            rates = [0.02 * math.sin(now)] * n_rates if live else [0.0] * n_rates
-            if state == ServiceState.FAULT:  # e.g. a start-up stall tripped the watchdog
-                rearm[0] += 1
-                ctl.write_commands(joint_rate_rad_s=rates, rearm_counter=rearm[0])
-            else:
-                ctl.write_commands(joint_rate_rad_s=rates)
-            arm_s[0] += time.perf_counter() - t0
-            arm_cpu[0] += time.thread_time() - c0
-
+        m.attach(svc, bus, ctl, meter_s)
         # The fakes' CPU: the bus meter times their wall clock per access (a CPU clock read per
         # access would cost more than a fake register); each frame and each drain between frames
         # gives its CPU time to the fakes in the proportion of its wall time spent inside the
         # bus (so the time a loaded host did not run this process is not counted as CPU)
-        fake_cpu = [0.0]
-        in_frame = [False]
-        serial_tick = svc.serial_tick
-
-        def metered_drain(now: float | None = None) -> None:
-            if in_frame[0]:  # inside a frame: the frame's share counts it
-                serial_tick(now)
-                return
-            t0, c0, s0, a0 = time.perf_counter(), time.thread_time(), bus.sim_s, bus.accesses
-            serial_tick(now)
-            dw = time.perf_counter() - t0
-            if dw > 0:
-                inside = bus.sim_s - s0 + (bus.accesses - a0) * meter_s
-                fake_cpu[0] += (time.thread_time() - c0) * min(1.0, inside / dw)
-
-        svc.serial_tick = metered_drain  # type: ignore[method-assign]  (the frame's drains too)
+        svc.serial_tick = m.metered_drain  # type: ignore[method-assign]  (the frame's drains too)
         # as pfma serve does: the serial drain every tick, the arm model once per frame just
         # before it (TickingClock.pre_deadline_hooks)
-        clock.hooks[:] = [svc.serial_tick, ctl_tick]
-        clock.pre_deadline_hooks[:] = [arm_tick]
-        body = svc.loop.body
-        rows: list[tuple[float, float]] = []
-        mark: dict = {}
-
-        def frame(info) -> None:
-            t0, c0, s0, a0 = time.perf_counter(), time.thread_time(), bus.sim_s, bus.accesses
-            in_frame[0] = True
-            try:
-                body(info)
-            finally:
-                in_frame[0] = False
-            dw = time.perf_counter() - t0
-            # the meter's own cost per access counts with the fakes, not the service
-            inside = bus.sim_s - s0 + (bus.accesses - a0) * meter_s
-            if dw > 0:
-                fake_cpu[0] += (time.thread_time() - c0) * min(1.0, inside / dw)
-            if t0 >= t_measure:
-                if not mark:
-                    mark.update(cpu=time.process_time(), sim=fake_cpu[0], arm=arm_cpu[0], t=t0,
-                                ticks=ticks[0], overruns=_serial_overruns(svc))
-                rows.append((dw, inside))
-
-        svc.loop.body = frame
-        t_measure = time.perf_counter() + settle_s
-        armed = [0]
-
-        def count_armed(info) -> None:
-            n = len(rows)
-            frame(info)
-            if len(rows) > n and svc.state == ServiceState.ARMED:  # a measured frame
-                armed[0] += 1
-        svc.loop.body = count_armed
+        clock.hooks[:] = [svc.serial_tick, m.ctl_tick]
+        clock.pre_deadline_hooks[:] = [m.arm_tick]
+        m.t_measure = time.perf_counter() + settle_s
+        svc.loop.body = m.count_armed
         svc.run(duration_s=settle_s + seconds)
-        wall = time.perf_counter() - mark["t"]
-        cpu = time.process_time() - mark["cpu"]
-        # CPU of the fakes (their share of each frame's and drain's CPU), the arm model and the
-        # bench's controller (this thread's CPU clock): their wall time would also count the
-        # time a loaded host did not run this process (own CPU came out negative under load)
-        sim = (fake_cpu[0] - mark["sim"]) + (arm_cpu[0] - mark["arm"])
-        work = np.array([r[0] for r in rows]) * 1e6
-        fake = np.array([r[1] for r in rows]) * 1e6
-        own = work - fake
-        return {"rate": rate, "frames": len(rows), "armed_frames": armed[0],
-                "ticks_per_s": (ticks[0] - mark["ticks"]) / wall,
-                "serial_overruns": _serial_overruns(svc) - mark["overruns"],
-                "work_p50_us": float(np.median(work)), "work_p99_us": float(np.percentile(work, 99)),
-                "fake_p50_us": float(np.median(fake)),
-                "own_p50_us": float(np.median(own)), "own_p99_us": float(np.percentile(own, 99)),
-                "cpu_percent": 100 * cpu / wall, "own_cpu_percent": 100 * (cpu - sim) / wall}
+        return m.figures(rate)
     finally:
         if ctl is not None:
             ctl.close()
@@ -379,10 +384,6 @@ def run(seconds: float = 5.0) -> dict:
     else:
         print("controller kill: no trial completed")
     return out
-
-
-if __name__ == "__main__":
-    run()
 
 
 def figures(seconds: float = 5.0) -> dict:

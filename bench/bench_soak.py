@@ -57,8 +57,10 @@ import time
 import uuid
 from pathlib import Path
 
-from bench.bench_chaos import Proc, _until, free_port, write_path
-from pfma.process import cpu_seconds, rss_mb
+from bench.bench_chaos import write_path
+from bench.bench_stack import MessageCursor, recorder_summary
+from pfma.process import Child, cmdline, cpu_seconds_or_none, free_port, rss_mb, until
+from tools.attach import wait_for_frames
 
 PREFIX = "pfma-soak-"
 SAMPLE_S = 10.0  #: RSS and CPU sampled this often
@@ -76,13 +78,9 @@ ROLES = ("bridge_reader", "console", "bridge", "recorder", "controller", "servic
 #: The issue states it per hour; a shorter run (CI's 10 minutes) is held to the same 5 MB,
 #: not a share of it: a leak at the budget's rate shows only in the hour-long soak.
 RSS_BUDGET_MB = 5.0
-
-
-def _cpu_s(pid: int) -> float | None:
-    try:
-        return cpu_seconds(pid)
-    except (OSError, IndexError, ValueError):
-        return None
+#: what the report keeps of the recorder's summary
+RECORDER_KEYS = ("frames_recorded", "recorder_missed", "service_skipped", "window_service_frames", "window_recorded",
+                 "window_service_dropped", "messages_missed", "sessions", "lossless")
 
 
 def explain_trip(text: str, t_trip: float, missed_t: list[float], missed_said_t: list[float] = ()) -> str | None:
@@ -163,137 +161,53 @@ class _Operator:
             self.link.wm.close()
 
 
-def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = False) -> dict:
-    from bit3.buffer import Bit3Buffer
-    from controller.worldmodel import WorldModel
-    from ioservice.safety import STOP_CODE, TRIP_PREFIXES
+class _Stack:
+    """The soak's processes on buffer ``name``, by role (:class:`pfma.process.Child`)."""
 
-    py = sys.executable
-    name = PREFIX + uuid.uuid4().hex[:6]
-    wm = name + "-wm"
-    rec_path = workdir / "soak.mcap"
-    path_dir = workdir / "paths"
-    path = write_path(path_dir, "soak")
-    rt = ("--realtime",) if realtime else ()
-    seconds = max(0.0, minutes * 60.0)
-    procs: dict[str, Proc] = {}
-    rep: dict = {"minutes": minutes, "buffer": name, "realtime": realtime, "errors": [], "died": {},
-                 "load_avg_1min": {"start": round(os.getloadavg()[0], 2)}, "cpus": os.cpu_count()}
+    def __init__(self, workdir: Path, realtime: bool) -> None:
+        self.name = PREFIX + uuid.uuid4().hex[:6]
+        self.wm = self.name + "-wm"
+        self.workdir = workdir
+        self.rt = ("--realtime",) if realtime else ()
+        self.procs: dict[str, Child] = {}
 
-    def pfma(role: str, *args: str) -> Proc:
-        p = Proc(role, [py, "-m", "tools.cli", *args], workdir)
-        procs[role] = p
+    def pfma(self, role: str, *args: str) -> Child:
+        p = Child(role, [sys.executable, "-m", "tools.cli", *args], self.workdir)
+        self.procs[role] = p
         return p
 
-    client = None
-    op = _Operator(wm)
-    samples: dict[str, list[tuple[float, float]]] = {}
-    cpu0: dict[str, tuple[float, float]] = {}
-    trips: list[dict] = []
-    missed_t: list[float] = []
-    counts: dict[str, int] = {}
-    said: list[dict] = []  # the service's warnings and errors, the controller's errors
-    missed_said_t: list[float] = []  # the controller's messages naming missed service frames
-    cursor, lost = {"service": 0, "controller": 0}, 0
-    t0 = time.monotonic()
-    try:
-        svc = pfma("service", "serve", "--rack", "fake", "--buffer", name, *rt)
-        client = _until(lambda: _client_of(name, svc.pid), START_TIMEOUT_S, must_live=(svc,), poll_s=0.1)
+    def start(self, rec_path: Path, rep: dict):
+        """Start the stack; a client of the service's buffer, or None (said in ``rep``)."""
+        from controller.worldmodel import WorldModel
+        name, wm, procs = self.name, self.wm, self.procs
+        path_dir = self.workdir / "paths"
+        path = write_path(path_dir, "soak")
+        svc = self.pfma("service", "serve", "--rack", "fake", "--buffer", name, *self.rt)
+        client = wait_for_frames(name, 2, timeout_s=START_TIMEOUT_S, pid=svc.pid, alive=svc.alive)
         if client is None:
             rep["errors"].append(f"the service never published: {svc.tail()}")
-            return rep
+            return None
         # the recorder first: it records the whole session, the controller's start-up included
-        rec = pfma("recorder", "record", str(rec_path), "--buffer", name)
-        _until(lambda: "recording /dev/shm" in rec.text(), START_TIMEOUT_S, must_live=(rec,))
-        pfma("controller", "controller", "--buffer", name, "--wm", wm, "--power-up", "--play", path,
-             "--path-dir", str(path_dir), "--messages", "0", *rt)
+        rec = self.pfma("recorder", "record", str(rec_path), "--buffer", name)
+        until(lambda: "recording /dev/shm" in rec.text(), START_TIMEOUT_S, must_live=(rec,))
+        self.pfma("controller", "controller", "--buffer", name, "--wm", wm, "--power-up", "--play", path,
+                  "--path-dir", str(path_dir), "--messages", "0", *self.rt)
         endpoint = f"127.0.0.1:{free_port()}"
-        pfma("bridge", "bridge", "--buffer", name, "--listen", f"tcp/{endpoint}")
-        if not _until(lambda: _client_of(name, svc.pid) and WorldModel.attach(wm).close_after(lambda m: True),
-                      START_TIMEOUT_S, must_live=(procs["controller"],), poll_s=0.1):
+        self.pfma("bridge", "bridge", "--buffer", name, "--listen", f"tcp/{endpoint}")
+        if not until(lambda: svc.alive() and WorldModel.attach(wm).close_after(lambda m: True),
+                     START_TIMEOUT_S, must_live=(procs["controller"],), poll_s=0.1):
             rep["errors"].append(f"the controller never made its world model: {procs['controller'].tail()}")
-            return rep
-        pfma("console", "console", "--buffer", name, "--wm", wm)
-        _until(lambda: "on tcp" in procs["bridge"].text(), START_TIMEOUT_S, must_live=(procs["bridge"],))
-        pfma("bridge_reader", "watch", "elbow_pitch_angle", "--buffer", f"zenoh://{endpoint}/{name}",
-             "--rate", "2")
-        t0 = time.monotonic()
-        next_sample, next_op, next_report = t0, t0, t0 + 60.0
-        missed_prev = None
-        while (now := time.monotonic()) - t0 < seconds:
-            # the service's messages (every trip) and the controller's (why it went to ERROR)
-            for q in ("service", "controller"):
-                try:
-                    got = client.messages(cursor[q], queue=q)
-                except Exception:  # noqa: BLE001 - a torn read: next time
-                    got = []
-                for m in got:
-                    if cursor[q] and m.first_seq > cursor[q] + 1:
-                        lost += m.first_seq - cursor[q] - 1
-                    cursor[q] = max(cursor[q], m.seq)
-                    sev = m.severity.name if hasattr(m.severity, "name") else str(m.severity)
-                    counts[f"{q} {sev}"] = counts.get(f"{q} {sev}", 0) + 1
-                    if q == "service" and m.text.startswith(TRIP_PREFIXES) and m.code != STOP_CODE:
-                        trips.append({"t_s": m.t_s, "at_s": round(m.t_s - t0, 2), "text": m.text})
-                    if q == "controller" and "missed service frame" in m.text:
-                        missed_said_t.append(m.t_s)
-                    if (sev in ("WARNING", "ERROR", "FATAL") if q == "service" else sev in ("ERROR", "FATAL")) \
-                            and len(said) < 500:
-                        said.append({"queue": q, "t_s": m.t_s, "at_s": round(m.t_s - t0, 2), "severity": sev,
-                                     "text": m.text})
-            # the controller's missed-frame events
-            try:
-                ev = int(client.read("controller_stats")["missed_events"])
-                if missed_prev is not None and ev > missed_prev:
-                    missed_t.append(now)
-                missed_prev = ev
-            except Exception:  # noqa: BLE001 - not published yet / no owner
-                pass
-            if now >= next_op:
-                next_op += LOOP_S
-                op.step(now)
-            if now >= next_sample:
-                next_sample += SAMPLE_S
-                for role, p in procs.items():
-                    r = rss_mb(p.pid) if p.alive() else None
-                    if r is not None:
-                        samples.setdefault(role, []).append((round(now - t0, 1), round(r, 2)))
-                    c = _cpu_s(p.pid) if p.alive() else None
-                    if c is not None:
-                        cpu0.setdefault(role, (now, c))
-                    p.note_maps()
-            if progress and now >= next_report:
-                next_report += 60.0
-                progress(f"{(now - t0) / 60:.0f} min: {len(trips)} trips, {op.laps} laps, "
-                         f"{len(op.recoveries)} recoveries, RSS "
-                         + ", ".join(f"{k} {v[-1][1]:.0f}" for k, v in samples.items()) + " MB")
-            for role, p in procs.items():
-                if not p.alive() and role not in rep["died"]:
-                    rep["died"][role] = f"exited after {now - t0:.0f} s (exit {p.p.returncode}): {p.tail(3)}"
-            time.sleep(POLL_S)
-        rep["run_s"] = round(time.monotonic() - t0, 1)
-        cpu = {}
-        for role, p in procs.items():
-            c = _cpu_s(p.pid) if p.alive() else None
-            if c is not None and role in cpu0:
-                t_c, c0 = cpu0[role]
-                cpu[role] = round(100.0 * (c - c0) / max(1e-9, time.monotonic() - t_c), 1)
-        rep["cpu_percent"] = cpu
-        try:
-            st = client.read("stats")
-            rep["service_stats"] = {k: (round(float(st[k]), 2) if "us" in k or "percent" in k else int(st[k]))
-                                    for k in ("frames", "dropped_frames", "overruns", "stall_events",
-                                              "wake_latency_p99_us", "work_p99_us", "cpu_percent")}
-        except Exception as err:  # noqa: BLE001
-            rep["service_stats"] = f"n/a ({type(err).__name__})"
-    except Exception as err:  # noqa: BLE001 - the report, never a traceback
-        rep["errors"].append(f"{type(err).__name__}: {err}")
-    finally:
-        op.close()
-        if client is not None:
-            client.close()
+            return client
+        self.pfma("console", "console", "--buffer", name, "--wm", wm)
+        until(lambda: "on tcp" in procs["bridge"].text(), START_TIMEOUT_S, must_live=(procs["bridge"],))
+        self.pfma("bridge_reader", "watch", "elbow_pitch_angle", "--buffer", f"zenoh://{endpoint}/{name}",
+                  "--rate", "2")
+        return client
+
+    def stop(self, rep: dict) -> None:
+        """Stop every process in :data:`ROLES` order; what did not stop cleanly into ``rep``."""
         for role in ROLES:
-            p = procs.get(role)
+            p = self.procs.get(role)
             if p is None:
                 continue
             how = p.stop(signal.SIGTERM if role == "bridge_reader" else signal.SIGINT, STOP_TIMEOUT_S)
@@ -301,39 +215,182 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
                 rep["errors"].append(f"{role} {how}")
             if "Traceback (most recent call last)" in p.text():
                 rep["errors"].append(f"traceback in the {role}'s output: {p.tail(2)}")
-        for p in procs.values():
+        for p in self.procs.values():
             p.close()
-        rep["left_behind"] = _left_behind(name, wm, procs, rep)
+
+
+class _Messages:
+    """What the soak reads from the buffer while it runs: both queues' messages (every
+    trip, the service's warnings and errors, the controller's errors) and the controller's
+    missed-frame events."""
+
+    def __init__(self) -> None:
+        from ioservice.safety import STOP_CODE, TRIP_PREFIXES
+        self._stop_code, self._trip_prefixes = STOP_CODE, TRIP_PREFIXES
+        self.trips: list[dict] = []
+        self.missed_t: list[float] = []
+        self.counts: dict[str, int] = {}
+        self.said: list[dict] = []  # the service's warnings and errors, the controller's errors
+        self.missed_said_t: list[float] = []  # the controller's messages naming missed service frames
+        self.queues = MessageCursor()
+        self._missed_prev: int | None = None
+
+    def read(self, client, now: float, t0: float) -> None:
+        for q in MessageCursor.QUEUES:
+            try:
+                got = self.queues.read(client, q)
+            except Exception:  # noqa: BLE001 - a torn read: next time
+                got = []
+            for m, sev in got:
+                self._take(q, m, sev, t0)
+        try:
+            ev = int(client.read("controller_stats")["missed_events"])
+            if self._missed_prev is not None and ev > self._missed_prev:
+                self.missed_t.append(now)
+            self._missed_prev = ev
+        except Exception:  # noqa: BLE001 - not published yet / no owner
+            pass
+
+    def _take(self, q: str, m, sev: str, t0: float) -> None:
+        self.counts[f"{q} {sev}"] = self.counts.get(f"{q} {sev}", 0) + 1
+        if q == "service" and m.text.startswith(self._trip_prefixes) and m.code != self._stop_code:
+            self.trips.append({"t_s": m.t_s, "at_s": round(m.t_s - t0, 2), "text": m.text})
+        if q == "controller" and "missed service frame" in m.text:
+            self.missed_said_t.append(m.t_s)
+        if (sev in ("WARNING", "ERROR", "FATAL") if q == "service" else sev in ("ERROR", "FATAL")) \
+                and len(self.said) < 500:
+            self.said.append({"queue": q, "t_s": m.t_s, "at_s": round(m.t_s - t0, 2), "severity": sev,
+                              "text": m.text})
+
+    def report(self, rep: dict, op: "_Operator", t0: float) -> None:
+        rep["trips"] = []
+        for tr in self.trips:
+            why = explain_trip(tr["text"], tr["t_s"], self.missed_t, self.missed_said_t)
+            rep["trips"].append({"at_s": tr["at_s"], "text": tr["text"], "explained": why})
+        rep["unexplained_trips"] = sum(1 for t in rep["trips"] if t["explained"] is None)
+        rep["controller_missed_events_seen"] = len(self.missed_t)
+        rep["operator"] = {"laps": op.laps, "recoveries": len(op.recoveries), "errors": op.errors,
+                           "recovered_from": [_cause(self.said, t, t0) for t in op.recoveries]}
+        rep["message_counts"] = self.counts
+        rep["warnings_errors"] = self.said
+        rep["messages_lost"] = sum(self.queues.lost.values())
+
+
+class _Samples:
+    """Every process's RSS every :data:`SAMPLE_S`, and its CPU from its first sample on."""
+
+    def __init__(self) -> None:
+        self.rss: dict[str, list[tuple[float, float]]] = {}
+        self.cpu0: dict[str, tuple[float, float]] = {}
+
+    def take(self, procs: dict[str, Child], now: float, t0: float) -> None:
+        for role, p in procs.items():
+            r = rss_mb(p.pid) if p.alive() else None
+            if r is not None:
+                self.rss.setdefault(role, []).append((round(now - t0, 1), round(r, 2)))
+            c = cpu_seconds_or_none(p.pid) if p.alive() else None
+            if c is not None:
+                self.cpu0.setdefault(role, (now, c))
+            p.note_maps()
+
+    def cpu_percent(self, procs: dict[str, Child]) -> dict[str, float]:
+        cpu = {}
+        for role, p in procs.items():
+            c = cpu_seconds_or_none(p.pid) if p.alive() else None
+            if c is not None and role in self.cpu0:
+                t_c, c0 = self.cpu0[role]
+                cpu[role] = round(100.0 * (c - c0) / max(1e-9, time.monotonic() - t_c), 1)
+        return cpu
+
+    def report(self, rep: dict) -> None:
+        rep["rss_mb"] = {}
+        for role, s in self.rss.items():
+            after = [v for t, v in s if t >= WARMUP_S]
+            rep["rss_mb"][role] = {"first": s[0][1], "at_1min": after[0] if after else None, "last": s[-1][1],
+                                   "max": max(v for _, v in s),
+                                   "growth_after_1min": round(after[-1] - after[0], 2) if len(after) > 1 else None,
+                                   "samples": len(s)}
+            late = [(t, v) for t, v in s if t >= rep.get("run_s", 0.0) / 2]
+            rep["rss_mb"][role]["slope_second_half_mb_per_h"] = round(_slope(late) * 3600.0, 2) if len(late) > 2 \
+                else None
+        rep["rss_samples"] = self.rss
+
+
+def _run(stack: _Stack, client, op: _Operator, seen: _Messages, samples: _Samples, rep: dict, seconds: float,
+         progress) -> float:
+    """The soak proper: ``seconds`` of reading, operating and sampling; its start time."""
+    t0 = time.monotonic()
+    next_sample, next_op, next_report = t0, t0, t0 + 60.0
+    while (now := time.monotonic()) - t0 < seconds:
+        seen.read(client, now, t0)
+        if now >= next_op:
+            next_op += LOOP_S
+            op.step(now)
+        if now >= next_sample:
+            next_sample += SAMPLE_S
+            samples.take(stack.procs, now, t0)
+        if progress and now >= next_report:
+            next_report += 60.0
+            progress(f"{(now - t0) / 60:.0f} min: {len(seen.trips)} trips, {op.laps} laps, "
+                     f"{len(op.recoveries)} recoveries, RSS "
+                     + ", ".join(f"{k} {v[-1][1]:.0f}" for k, v in samples.rss.items()) + " MB")
+        for role, p in stack.procs.items():
+            if not p.alive() and role not in rep["died"]:
+                rep["died"][role] = f"exited after {now - t0:.0f} s (exit {p.p.returncode}): {p.tail(3)}"
+        time.sleep(POLL_S)
+    return t0
+
+
+def _service_stats(client) -> dict | str:
+    try:
+        st = client.read("stats")
+        return {k: (round(float(st[k]), 2) if "us" in k or "percent" in k else int(st[k]))
+                for k in ("frames", "dropped_frames", "overruns", "stall_events",
+                          "wake_latency_p99_us", "work_p99_us", "cpu_percent")}
+    except Exception as err:  # noqa: BLE001
+        return f"n/a ({type(err).__name__})"
+
+
+def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = False) -> dict:
+    from bit3.buffer import Bit3Buffer
+    from controller.worldmodel import WorldModel
+
+    stack = _Stack(workdir, realtime)
+    name, wm = stack.name, stack.wm
+    rec_path = workdir / "soak.mcap"
+    rep: dict = {"minutes": minutes, "buffer": name, "realtime": realtime, "errors": [], "died": {},
+                 "load_avg_1min": {"start": round(os.getloadavg()[0], 2)}, "cpus": os.cpu_count()}
+    client = None
+    op = _Operator(wm)
+    seen = _Messages()
+    samples = _Samples()
+    t0 = time.monotonic()
+    try:
+        client = stack.start(rec_path, rep)
+        if client is None or rep["errors"]:
+            return rep
+        t0 = _run(stack, client, op, seen, samples, rep, max(0.0, minutes * 60.0), progress)
+        rep["run_s"] = round(time.monotonic() - t0, 1)
+        rep["cpu_percent"] = samples.cpu_percent(stack.procs)
+        rep["service_stats"] = _service_stats(client)
+    except Exception as err:  # noqa: BLE001 - the report, never a traceback
+        rep["errors"].append(f"{type(err).__name__}: {err}")
+    finally:
+        op.close()
+        if client is not None:
+            client.close()
+        stack.stop(rep)
+        rep["left_behind"] = _left_behind(name, wm, stack.procs, rep)
         Bit3Buffer.unlink(name)
         WorldModel.remove_segment(wm)
     rep["load_avg_1min"]["end"] = round(os.getloadavg()[0], 2)
-    rep["rss_mb"] = {}
-    for role, s in samples.items():
-        after = [v for t, v in s if t >= WARMUP_S]
-        rep["rss_mb"][role] = {"first": s[0][1], "at_1min": after[0] if after else None, "last": s[-1][1],
-                               "max": max(v for _, v in s),
-                               "growth_after_1min": round(after[-1] - after[0], 2) if len(after) > 1 else None,
-                               "samples": len(s)}
-        late = [(t, v) for t, v in s if t >= rep.get("run_s", 0.0) / 2]
-        rep["rss_mb"][role]["slope_second_half_mb_per_h"] = round(_slope(late) * 3600.0, 2) if len(late) > 2 \
-            else None
-    rep["rss_samples"] = samples
-    rep["trips"] = []
-    for tr in trips:
-        why = explain_trip(tr["text"], tr["t_s"], missed_t, missed_said_t)
-        rep["trips"].append({"at_s": tr["at_s"], "text": tr["text"], "explained": why})
-    rep["unexplained_trips"] = sum(1 for t in rep["trips"] if t["explained"] is None)
-    rep["controller_missed_events_seen"] = len(missed_t)
-    rep["operator"] = {"laps": op.laps, "recoveries": len(op.recoveries), "errors": op.errors,
-                       "recovered_from": [_cause(said, t, t0) for t in op.recoveries]}
-    rep["message_counts"] = counts
-    rep["warnings_errors"] = said
-    rep["messages_lost"] = lost
-    rep["recorder"] = _recorder_summary(rec_path)
+    samples.report(rep)
+    seen.report(rep, op, t0)
+    rep["recorder"] = recorder_summary(rec_path, RECORDER_KEYS, digits=1, missing={"error": "no recording"})
     return rep
 
 
-def _left_behind(name: str, wm: str, procs: dict[str, Proc], rep: dict) -> list[str]:
+def _left_behind(name: str, wm: str, procs: dict[str, Child], rep: dict) -> list[str]:
     """After every process stopped: the ``/dev/shm`` files of the soak's name other than
     the buffer and the world model (a stopped service and controller leave those by design;
     the caller removes them), which are removed here too, and the processes still running
@@ -369,11 +426,7 @@ def _left_behind(name: str, wm: str, procs: dict[str, Proc], rep: dict) -> list[
     for d in os.listdir("/proc"):
         if not d.isdigit() or int(d) == os.getpid():
             continue
-        try:
-            with open(f"/proc/{d}/cmdline", "rb") as f:
-                argv = f.read().replace(b"\0", b" ").decode(errors="replace").strip()
-        except OSError:
-            continue
+        argv = cmdline(int(d)).strip()
         if name in argv:
             out.append(f"process {d}: {argv[:120]}")
     return out
@@ -396,31 +449,6 @@ def _cause(said: list[dict], t_rec: float, t0: float) -> dict:
     svc = [m["text"] for m in before if m["queue"] == "service"]
     return {"at_s": round(t_rec - t0, 2), "controller": ctl[0] if ctl else None,
             "service": svc[-1] if svc else None}
-
-
-def _client_of(name: str, pid: int):
-    """A read-only client of buffer ``name`` once the service ``pid`` publishes there."""
-    from bit3.client import Client
-    c = Client.attach(name)
-    if c.owners()["inputs"].pid == pid and c.read_inputs().frame > 2:
-        return c
-    c.close()
-    return None
-
-
-def _recorder_summary(path: Path) -> dict:
-    if not path.exists():
-        return {"error": "no recording"}
-    try:
-        from tools.recording.reader import read_metadata
-        meta = read_metadata(path).get("pfma.recorder.summary", {})
-    except Exception as err:  # noqa: BLE001 - a cut file: say so
-        return {"error": f"{type(err).__name__}: {err}"}
-    out = {k: meta.get(k) for k in ("frames_recorded", "recorder_missed", "service_skipped", "window_service_frames",
-                                    "window_recorded", "window_service_dropped", "messages_missed", "sessions",
-                                    "lossless")}
-    out["file_mb"] = round(path.stat().st_size / 1e6, 1)
-    return out
 
 
 def _print(rep: dict) -> None:
@@ -534,8 +562,3 @@ def run(seconds: float | None = None, minutes: float = 60.0, as_json: bool = Fal
     else:
         _print(rep)
     return rep
-
-
-if __name__ == "__main__":
-    run(minutes=float(sys.argv[1]) if len(sys.argv) > 1 else 60.0, as_json="--json" in sys.argv,
-        realtime="--realtime" in sys.argv)

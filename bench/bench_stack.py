@@ -22,98 +22,20 @@ import json
 import math
 import re
 import signal
-import subprocess
 import sys
 import tempfile
 import time
 import uuid
 from pathlib import Path
+from typing import Any
 
-from pfma.process import cpu_seconds
+from pfma.process import Child, cpu_seconds_or_none
+from tools.attach import wait_for_frames
 
 POLL_S = 0.02  #: reading period of the buffer (messages, F/T link, host stalls)
 START_TIMEOUT_S = 30.0  #: the service must publish frames within this
 STOP_TIMEOUT_S = 15.0  #: each process must exit this long after SIGINT (then SIGKILL)
 LINK_STALE = 8  #: link_status bit (ioservice.service.LINK_STALE)
-
-
-def _cpu_s(pid: int) -> float | None:
-    try:
-        return cpu_seconds(pid)
-    except (OSError, IndexError, ValueError):
-        return None
-
-
-def _default_sigint() -> None:
-    """In the child before exec: SIGINT back to default, so Python installs its handler even
-    when the bench runs as a background job (whose shell ignores SIGINT for it)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
-class _Proc:
-    """One subprocess, its output in a file (no pipe to fill), its CPU over the run."""
-
-    def __init__(self, name: str, argv: list[str], workdir: Path) -> None:
-        self.name = name
-        self.argv = argv
-        self.log_path = workdir / f"{name}.log"
-        self._log = open(self.log_path, "w")
-        self.p = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT, text=True,
-                                  start_new_session=True,  # a Ctrl-C on the bench reaches only us
-                                  preexec_fn=_default_sigint)
-        self.cpu0 = _cpu_s(self.p.pid)
-        self.t0 = time.monotonic()
-        self.cpu_percent: float | None = None
-        self.died: dict | None = None  # exited before we stopped it
-        self.stop_how = "not stopped"
-        self.returncode: int | None = None
-
-    def alive(self) -> bool:
-        return self.p.poll() is None
-
-    def measure_cpu(self) -> None:
-        c = _cpu_s(self.p.pid)
-        wall = time.monotonic() - self.t0
-        if c is not None and self.cpu0 is not None and wall > 0:
-            self.cpu_percent = 100.0 * (c - self.cpu0) / wall
-
-    def note_death(self, t_run: float) -> None:
-        if self.died is None and not self.alive():
-            self.died = {"at_s": round(t_run, 2), "returncode": self.p.returncode, "output_tail": self.tail()}
-
-    def stop(self) -> None:
-        """SIGINT, then wait; SIGKILL if it does not exit in time."""
-        if not self.alive():
-            self.returncode = self.p.returncode
-            self.stop_how = "had exited"
-            return
-        self.measure_cpu()
-        self.p.send_signal(signal.SIGINT)
-        try:
-            self.returncode = self.p.wait(timeout=STOP_TIMEOUT_S)
-            self.stop_how = "SIGINT"
-        except subprocess.TimeoutExpired:
-            self.p.kill()
-            self.returncode = self.p.wait(timeout=10)
-            self.stop_how = f"SIGKILL (no exit {STOP_TIMEOUT_S:g} s after SIGINT)"
-
-    def tail(self, n: int = 12) -> list[str]:
-        try:
-            if not self._log.closed:
-                self._log.flush()
-            return self.log_path.read_text(errors="replace").splitlines()[-n:]
-        except OSError:
-            return []
-
-    def close(self) -> None:
-        if self.alive():
-            self.p.kill()
-            self.p.wait(timeout=10)
-        self._log.close()
-
-    def report(self) -> dict:
-        return {"pid": self.p.pid, "argv": self.argv[1:], "cpu_percent": _r(self.cpu_percent),
-                "stopped": self.stop_how, "returncode": self.returncode, "died": self.died}
 
 
 def _r(x, nd: int = 1):
@@ -122,14 +44,92 @@ def _r(x, nd: int = 1):
     return round(float(x), nd)
 
 
+class _Proc(Child):
+    """One process of the stack (:class:`pfma.process.Child`: its output in a file, no pipe
+    to fill), its CPU over the run and how it ended."""
+
+    def __init__(self, name: str, argv: list[str], workdir: Path) -> None:
+        super().__init__(name, argv, workdir)
+        self.name = name
+        self.cpu0 = cpu_seconds_or_none(self.p.pid)
+        self.cpu_percent: float | None = None
+        self.died: dict | None = None  # exited before we stopped it
+        self.stop_how = "not stopped"
+        self.returncode: int | None = None
+
+    def measure_cpu(self) -> None:
+        c = cpu_seconds_or_none(self.p.pid)
+        wall = time.monotonic() - self.t0
+        if c is not None and self.cpu0 is not None and wall > 0:
+            self.cpu_percent = 100.0 * (c - self.cpu0) / wall
+
+    def note_death(self, t_run: float) -> None:
+        if self.died is None and not self.alive():
+            self.died = {"at_s": round(t_run, 2), "returncode": self.p.returncode, "output_tail": self.lines(12)}
+
+    def stop(self, sig: int = signal.SIGINT, timeout_s: float = STOP_TIMEOUT_S) -> str:
+        """SIGINT, then wait; SIGKILL if it does not exit in time (:attr:`stop_how` says which)."""
+        if not self.alive():
+            self.returncode = self.p.returncode
+            self.stop_how = "had exited"
+            return self.stop_how
+        self.measure_cpu()
+        how = super().stop(sig, timeout_s)
+        self.returncode = self.p.returncode
+        self.stop_how = f"SIGKILL (no exit {timeout_s:g} s after SIGINT)" if how.startswith("needed SIGKILL") \
+            else "SIGINT"
+        return self.stop_how
+
+    def report(self) -> dict:
+        return {"pid": self.p.pid, "argv": self.argv[1:], "cpu_percent": _r(self.cpu_percent),
+                "stopped": self.stop_how, "returncode": self.returncode, "died": self.died}
+
+
+class MessageCursor:
+    """The service's and the controller's message queues read on: each :meth:`read` gives
+    the messages of a queue not read before; a gap in the sequence numbers (a message
+    overwritten unread) is counted in :attr:`lost`, per queue."""
+
+    QUEUES = ("service", "controller")
+
+    def __init__(self) -> None:
+        self.cursor = dict.fromkeys(self.QUEUES, 0)
+        self.lost = dict.fromkeys(self.QUEUES, 0)
+
+    def read(self, client, q: str) -> list[tuple[Any, str]]:
+        """Queue ``q``'s new messages, each with its severity's name (raises on a torn read)."""
+        out = []
+        for m in client.messages(self.cursor[q], queue=q):
+            if self.cursor[q] and m.first_seq > self.cursor[q] + 1:  # a long message takes several
+                self.lost[q] += m.first_seq - self.cursor[q] - 1
+            self.cursor[q] = max(self.cursor[q], m.seq)
+            out.append((m, m.severity.name if hasattr(m.severity, "name") else str(m.severity)))
+        return out
+
+
+def recorder_summary(path: Path, keys: tuple[str, ...], *, digits: int = 2, missing: dict | None = None) -> dict:
+    """The ``keys`` of the recorder's summary of the recording at ``path`` (its MCAP
+    metadata) and the file's size (``file_mb``, rounded to ``digits``); ``missing`` (or {})
+    when there is no file, ``{"error": ...}`` for a file cut short."""
+    if not path.exists():
+        return dict(missing or {})
+    from tools.recording.reader import read_metadata
+    try:
+        meta = read_metadata(path).get("pfma.recorder.summary", {})
+    except Exception as err:  # noqa: BLE001 - a cut file: say so
+        return {"error": f"{type(err).__name__}: {err}"}
+    out = {k: meta.get(k) for k in keys}
+    out["file_mb"] = round(path.stat().st_size / 1e6, digits)
+    return out
+
+
 class _Watch:
     """Everything read from the buffer while the stack runs."""
 
     def __init__(self, client, t0: float) -> None:
         self.c = client
         self.t0 = t0
-        self.cursor = {"service": 0, "controller": 0}
-        self.lost = {"service": 0, "controller": 0}
+        self.queues = MessageCursor()
         self.messages: list[dict] = []
         self.counts = {"service": {}, "controller": {}}
         self.stalls: dict[float, float] = {}  # host_stall_t_s -> length
@@ -141,18 +141,13 @@ class _Watch:
 
     def poll(self) -> None:
         c = self.c
-        for q in ("service", "controller"):
+        for q in MessageCursor.QUEUES:
             try:
-                got = c.messages(self.cursor[q], queue=q)
-            except Exception as err:  # noqa: BLE001 - a torn read: try again next time
+                got = self.queues.read(c, q)
+            except Exception:  # noqa: BLE001 - a torn read: try again next time
                 self.counts[q]["read_errors"] = self.counts[q].get("read_errors", 0) + 1
-                _ = err
                 continue
-            for m in got:
-                if self.cursor[q] and m.first_seq > self.cursor[q] + 1:  # a long message takes several
-                    self.lost[q] += m.first_seq - self.cursor[q] - 1
-                self.cursor[q] = max(self.cursor[q], m.seq)
-                sev = m.severity.name if hasattr(m.severity, "name") else str(m.severity)
+            for m, sev in got:
                 self.counts[q][sev] = self.counts[q].get(sev, 0) + 1
                 if sev in ("WARNING", "ERROR", "FATAL"):
                     self.messages.append({"queue": q, "seq": m.seq, "t_s": round(m.t_s, 3),
@@ -229,101 +224,125 @@ def _trips(messages: list[dict]) -> list[dict]:
 HOG = "import signal, sys\nsignal.signal(signal.SIGINT, lambda *a: sys.exit(0))\nwhile True:\n    pass"
 
 
-def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = False, hog: bool = False) -> dict:
-    from bit3.client import Client
-    from tools.recording.reader import read_metadata
+def _start(procs: dict[str, _Proc], name: str, workdir: Path, rt_flag: list[str], hog: bool, rep: dict):
+    """The hog (with ``--hog``) and the service; a client once it publishes frames, else
+    None (said in ``rep``)."""
+    py = sys.executable
+    if hog:
+        procs["hog"] = _Proc("hog", [py, "-c", HOG], workdir)
+        rep["started"].append("hog")
+    svc = procs["service"] = _Proc("service", [py, "-m", "tools.cli", "serve", "--rack", "fake", "--buffer", name,
+                                               *rt_flag], workdir)
+    rep["started"].append("service")
+    t_start = time.monotonic()
+    client = wait_for_frames(name, 10, timeout_s=START_TIMEOUT_S, alive=svc.alive)
+    if client is None:
+        rep["errors"].append("service exited during start-up" if not svc.alive() else
+                             f"service published no frames within {START_TIMEOUT_S:g} s")
+    rep["service_start_s"] = _r(time.monotonic() - t_start, 2)
+    return client
 
+
+def _run(client, procs: dict[str, _Proc], seconds: float, progress, rep: dict) -> _Watch:
+    """The run proper: the buffer read every :data:`POLL_S` for ``seconds``, then the final
+    counters while everything still runs."""
+    t0 = time.monotonic()
+    watch = _Watch(client, t0)
+    next_report = t0 + 60.0
+    while (now := time.monotonic()) - t0 < seconds:
+        watch.poll()
+        for p in procs.values():
+            p.note_death(now - t0)
+        if progress and now >= next_report:
+            next_report += 60.0
+            progress(f"{(now - t0) / 60:.0f} min: {len(watch.messages)} warnings/errors, "
+                     f"F/T max age {watch.ft_max_age_s * 1e3:.0f} ms")
+        time.sleep(POLL_S)
+    watch.poll()
+    rep["run_s"] = _r(time.monotonic() - t0, 2)
+    for p in procs.values():
+        p.note_death(time.monotonic() - t0)
+        p.measure_cpu()
+    rep["service_stats"] = _area(client, "stats", ("frames", "dropped_frames", "overruns", "stall_events",
+                                                   "wake_latency_p99_us", "wake_latency_max_us",
+                                                   "work_p99_us", "cpu_percent"))
+    rep["controller_stats"] = _area(client, "controller_stats",
+                                    ("frames", "missed_frames", "missed_events", "longest_missed_run",
+                                     "missed_task_slots", "overruns", "rate_hz", "cpu_percent",
+                                     "work_p50_us", "work_p99_us"))
+    return watch
+
+
+def _stop(procs: dict[str, _Proc], watch: _Watch | None, client, name: str, rep: dict) -> None:
+    """Stop the stack, the service last (the others end cleanly), read what the shutdown
+    posted, and remove the run's segments."""
+    for key in ("controller", "recorder", "service", "hog"):
+        p = procs.get(key)
+        if p is not None:
+            try:
+                p.stop()
+            except Exception as err:  # noqa: BLE001
+                rep["errors"].append(f"stopping {key}: {err}")
+    if watch is not None:
+        try:
+            watch.poll()  # the messages the shutdown posted
+        except Exception:  # noqa: BLE001
+            pass
+    if client is not None:
+        client.close()
+    for p in procs.values():
+        p.close()
+    # a stopped service and controller leave their segments for tools to read; a
+    # benchmark's are its own (a new name per run): remove them
+    from bit3.buffer import Bit3Buffer
+    from controller.worldmodel import WorldModel
+    Bit3Buffer.unlink(name)
+    WorldModel.remove_segment(name + "-wm")
+
+
+def _watch_report(watch: _Watch, rep: dict) -> None:
+    rep["messages"] = watch.messages
+    rep["message_counts"] = watch.counts
+    rep["messages_lost"] = watch.queues.lost
+    rep["trips"] = _trips(watch.messages)
+    rep["layers_in_error"] = _layers_in_error(watch.messages)
+    rep["host_stalls"] = {"named": len(watch.stalls),
+                          "longest_ms": _r(max(watch.stalls.values(), default=0.0) * 1e3),
+                          "over_20ms": sum(1 for v in watch.stalls.values() if v > 0.02),
+                          "over_60ms": sum(1 for v in watch.stalls.values() if v > 0.06),
+                          "over_100ms": sum(1 for v in watch.stalls.values() if v > 0.1)}
+    li = watch.last_inputs or {}
+    rep["ft_link"] = {"records": li.get("link_records"), "bad": li.get("link_bad"),
+                      "resyncs": li.get("link_resyncs"), "rate_hz": li.get("link_rate_hz"),
+                      "max_age_ms": _r(watch.ft_max_age_s * 1e3),
+                      "stale_fraction": _r(watch.ft_stale_reads / watch.reads, 4) if watch.reads else None,
+                      "reads": watch.reads}
+    rep["inputs"] = li
+    rep["held"] = not rep["layers_in_error"] and not rep["errors"]
+
+
+def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = False, hog: bool = False) -> dict:
     py = sys.executable
     name = "pfma-stack-" + uuid.uuid4().hex[:6]
     rec_path = workdir / "stack.mcap"
-    seconds = max(0.0, minutes * 60.0)
     procs: dict[str, _Proc] = {}
     rep: dict = {"minutes": minutes, "buffer": name, "started": [], "errors": [], "realtime": realtime, "hog": hog}
     rt_flag = ["--realtime"] if realtime else []  # service SCHED_FIFO on the last CPU, controller on CPU 0
     client = None
     watch = None
     try:
-        if hog:
-            procs["hog"] = _Proc("hog", [py, "-c", HOG], workdir)
-            rep["started"].append("hog")
-        procs["service"] = _Proc("service", [py, "-m", "tools.cli", "serve", "--rack", "fake", "--buffer", name, *rt_flag],
-                                 workdir)
-        rep["started"].append("service")
-        t_start = time.monotonic()
-        while True:  # wait for frames
-            if not procs["service"].alive():
-                rep["errors"].append("service exited during start-up")
-                break
-            try:
-                if client is None:
-                    client = Client.attach(name)
-                if client.read_inputs().frame > 10:
-                    break
-            except Exception:  # noqa: BLE001 - not up yet
-                if client is not None:
-                    client.close()
-                    client = None
-            if time.monotonic() - t_start > START_TIMEOUT_S:
-                rep["errors"].append(f"service published no frames within {START_TIMEOUT_S:g} s")
-                break
-            time.sleep(0.1)
-        rep["service_start_s"] = _r(time.monotonic() - t_start, 2)
+        client = _start(procs, name, workdir, rt_flag, hog, rep)
         if client is not None and not rep["errors"]:
             procs["controller"] = _Proc("controller", [py, "-m", "tools.cli", "controller", "--buffer", name,
                                                        "--wm", name + "-wm", "--power-up", *rt_flag], workdir)
             procs["recorder"] = _Proc("recorder", [py, "-m", "tools.cli", "record", str(rec_path), "--buffer", name,
                                                    "--quiet"], workdir)
             rep["started"] += ["controller", "recorder"]
-            t0 = time.monotonic()
-            watch = _Watch(client, t0)
-            next_report = t0 + 60.0
-            while (now := time.monotonic()) - t0 < seconds:
-                watch.poll()
-                for p in procs.values():
-                    p.note_death(now - t0)
-                if progress and now >= next_report:
-                    next_report += 60.0
-                    progress(f"{(now - t0) / 60:.0f} min: {len(watch.messages)} warnings/errors, "
-                             f"F/T max age {watch.ft_max_age_s * 1e3:.0f} ms")
-                time.sleep(POLL_S)
-            watch.poll()
-            rep["run_s"] = _r(time.monotonic() - t0, 2)
-            for p in procs.values():
-                p.note_death(time.monotonic() - t0)
-                p.measure_cpu()
-            # final counters while everything still runs
-            rep["service_stats"] = _area(client, "stats", ("frames", "dropped_frames", "overruns", "stall_events",
-                                                           "wake_latency_p99_us", "wake_latency_max_us",
-                                                           "work_p99_us", "cpu_percent"))
-            rep["controller_stats"] = _area(client, "controller_stats",
-                                            ("frames", "missed_frames", "missed_events", "longest_missed_run",
-                                             "missed_task_slots", "overruns", "rate_hz", "cpu_percent",
-                                             "work_p50_us", "work_p99_us"))
+            watch = _run(client, procs, max(0.0, minutes * 60.0), progress, rep)
     except Exception as err:  # noqa: BLE001 - the report, never a traceback
         rep["errors"].append(f"{type(err).__name__}: {err}")
     finally:
-        for key in ("controller", "recorder", "service", "hog"):  # the service last: the others end cleanly
-            p = procs.get(key)
-            if p is not None:
-                try:
-                    p.stop()
-                except Exception as err:  # noqa: BLE001
-                    rep["errors"].append(f"stopping {key}: {err}")
-        if watch is not None:
-            try:
-                watch.poll()  # the messages the shutdown posted
-            except Exception:  # noqa: BLE001
-                pass
-        if client is not None:
-            client.close()
-        for p in procs.values():
-            p.close()
-        # a stopped service and controller leave their segments for tools to read; a
-        # benchmark's are its own (a new name per run): remove them
-        from bit3.buffer import Bit3Buffer
-        from controller.worldmodel import WorldModel
-        Bit3Buffer.unlink(name)
-        WorldModel.remove_segment(name + "-wm")
+        _stop(procs, watch, client, name, rep)
     rep["processes"] = {k: p.report() for k, p in procs.items()}
     for k, p in procs.items():
         if k == "hog":
@@ -332,35 +351,11 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
             rep["errors"].append(f"{k} died after {p.died['at_s']} s (exit {p.died['returncode']})")
         elif p.stop_how.startswith("SIGKILL"):
             rep["errors"].append(f"{k} needed SIGKILL")
-    rep["tails"] = {k: p.tail(8) for k, p in procs.items()}
+    rep["tails"] = {k: p.lines(8) for k, p in procs.items()}
     if watch is not None:
-        rep["messages"] = watch.messages
-        rep["message_counts"] = watch.counts
-        rep["messages_lost"] = watch.lost
-        rep["trips"] = _trips(watch.messages)
-        rep["layers_in_error"] = _layers_in_error(watch.messages)
-        rep["host_stalls"] = {"named": len(watch.stalls),
-                              "longest_ms": _r(max(watch.stalls.values(), default=0.0) * 1e3),
-                              "over_20ms": sum(1 for v in watch.stalls.values() if v > 0.02),
-                              "over_60ms": sum(1 for v in watch.stalls.values() if v > 0.06),
-                              "over_100ms": sum(1 for v in watch.stalls.values() if v > 0.1)}
-        li = watch.last_inputs or {}
-        rep["ft_link"] = {"records": li.get("link_records"), "bad": li.get("link_bad"),
-                          "resyncs": li.get("link_resyncs"), "rate_hz": li.get("link_rate_hz"),
-                          "max_age_ms": _r(watch.ft_max_age_s * 1e3),
-                          "stale_fraction": _r(watch.ft_stale_reads / watch.reads, 4) if watch.reads else None,
-                          "reads": watch.reads}
-        rep["inputs"] = li
-        rep["held"] = not rep["layers_in_error"] and not rep["errors"]
-    rep["recorder"] = {}
-    if rec_path.exists():
-        try:
-            meta = read_metadata(rec_path).get("pfma.recorder.summary", {})
-            rep["recorder"] = {k: meta.get(k) for k in ("frames_recorded", "recorder_missed", "service_skipped",
-                                                        "messages_missed", "lossless", "sessions")}
-            rep["recorder"]["file_mb"] = _r(rec_path.stat().st_size / 1e6, 2)
-        except Exception as err:  # noqa: BLE001 - a cut file: say so
-            rep["recorder"] = {"error": f"{type(err).__name__}: {err}"}
+        _watch_report(watch, rep)
+    rep["recorder"] = recorder_summary(rec_path, ("frames_recorded", "recorder_missed", "service_skipped",
+                                                  "messages_missed", "lossless", "sessions"))
     return rep
 
 
@@ -460,7 +455,3 @@ def run(seconds: float | None = None, minutes: float = 10.0, as_json: bool = Fal
     else:
         _print(rep)
     return rep
-
-
-if __name__ == "__main__":
-    run(minutes=float(sys.argv[1]) if len(sys.argv) > 1 else 10.0, as_json="--json" in sys.argv)

@@ -7,14 +7,10 @@ Backings (one class, :class:`Bit3Buffer`):
 - a file or device-file window (``from_file(path)``), e.g. on hardware the dual-port RAM
   window mapped from a device file.
 
-**resource_tracker workaround.** On Python < 3.13 ``SharedMemory`` registers every
-segment it opens -- also one it merely attaches to -- with multiprocessing's resource
-tracker, which unlinks the segment when that process exits (CPython gh-82300). A tool
-that attached, read and quit would delete the service's buffer. So every open is
-followed by ``resource_tracker.unregister`` (3.13+: ``track=False``). The buffer is
-therefore never removed automatically: the creator removes it with
-``close(unlink=True)`` or :meth:`Bit3Buffer.unlink`. (If two processes open the same
-name at the same instant, the tracker may print a harmless KeyError.)
+**The segment** (open, close, remove; the resource_tracker workaround) is
+:mod:`bit3.segment`'s, shared with the controller's world model. The buffer is never
+removed automatically: the creator removes it with ``close(unlink=True)`` or
+:meth:`Bit3Buffer.unlink`.
 
 **Sequence lock**: :mod:`bit3.seqlock` (its memory-ordering conditions are stated there).
 
@@ -34,12 +30,11 @@ import fcntl
 import mmap
 import os
 import struct
-import sys
 import time
 import weakref
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Literal
+from typing import Any, Callable, Literal
 
 import numpy as np
 
@@ -51,14 +46,12 @@ from bit3.layout import (
     Severity, _header, default_layout, resolve_role, struct_field, struct_names,
 )
 from bit3 import access, futex, space
+from bit3.segment import Segment, shm_fd
+from bit3.segment import open_shm as _open_shm
 from bit3.seqlock import (  # noqa: F401  (the errors and constants are part of the buffer's API)
     DEFAULT_READ_TIMEOUT_S, TRY_READ_ATTEMPTS, Bit3Error, LayoutMismatchError, OwnershipError, SeqLock,
     SeqLockTimeout,
 )
-
-
-if TYPE_CHECKING:
-    from multiprocessing.shared_memory import SharedMemory
 
 #: struct formats of the single header/queue words (:meth:`Bit3Buffer._word`)
 WordFormat = Literal["Q", "I", "i", "d"]
@@ -138,20 +131,6 @@ def _pid_alive(pid: int) -> bool:
     except PermissionError:
         return True
     return True
-
-
-def _open_shm(name: str, create: bool, size: int = BUFFER_SIZE):
-    """Open (or create, ``size`` bytes) POSIX shared memory without resource-tracker
-    registration (module docstring). Also used by ``controller.worldmodel``."""
-    from multiprocessing import shared_memory
-    if sys.version_info >= (3, 13):
-        return shared_memory.SharedMemory(name, create=create, size=size if create else 0,
-                                          track=False)
-    shm = shared_memory.SharedMemory(name, create=create, size=size if create else 0)
-    from multiprocessing import resource_tracker
-    # _name: the "/name" the tracker registered (typeshed lists only the public name)
-    resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
-    return shm
 
 
 def _lock_byte(fd: int, index: int, lock: bool) -> None:
@@ -423,10 +402,13 @@ class MessageQueue:
 # the buffer
 
 
-class Bit3Buffer:
-    """The 32 KB buffer. Use :meth:`create`, :meth:`attach` or :meth:`from_file`."""
+class Bit3Buffer(Segment):
+    """The 32 KB buffer. Use :meth:`create`, :meth:`attach` or :meth:`from_file`.
 
-    _shm: SharedMemory  #: set by create/attach only (close() tests hasattr)
+    The segment's lifecycle is :class:`bit3.segment.Segment`'s (``_shm`` is set by
+    create/attach only)."""
+
+    name: str
 
     def __init__(self, mem, layout: Layout, *, name: str, fd: int, readonly: bool,
                  closer, clock_now=time.monotonic) -> None:
@@ -482,7 +464,7 @@ class Bit3Buffer:
         """
         layout = layout or default_layout()
         try:
-            shm = _open_shm(name, create=True)
+            shm = _open_shm(name, create=True, size=BUFFER_SIZE)
         except FileExistsError:
             if not exist_ok:
                 raise Bit3Error(f"Bit3 buffer {name!r} already exists (/dev/shm/{name}); attach "
@@ -492,13 +474,13 @@ class Bit3Buffer:
         try:
             # every page now (bit3/space.py): a full /dev/shm is a one-line error here, not a
             # SIGBUS at the first write. SharedMemory has mapped the file but touched no page
-            space.reserve(shm._fd, BUFFER_SIZE, f"/dev/shm/{name}", f"the Bit3 buffer {name!r}")
-            access.apply_access(shm._fd, f"/dev/shm/{name}", group)
+            space.reserve(shm_fd(shm), BUFFER_SIZE, f"/dev/shm/{name}", f"the Bit3 buffer {name!r}")
+            access.apply_access(shm_fd(shm), f"/dev/shm/{name}", group)
         except BaseException:
             shm.close()
             Bit3Buffer.unlink(name)
             raise
-        buf = cls(shm.buf, layout, name=name, fd=shm._fd, readonly=False, closer=shm.close)
+        buf = cls(shm.buf, layout, name=name, fd=shm_fd(shm), readonly=False, closer=shm.close)
         buf._shm = shm
         buf._initialise()
         return buf
@@ -532,7 +514,7 @@ class Bit3Buffer:
                 os.close(fd)
             buf = cls(mm, layout, name=name, fd=fd, readonly=True, closer=closer)
         else:
-            buf = cls(shm.buf, layout, name=name, fd=shm._fd, readonly=readonly, closer=shm.close)
+            buf = cls(shm.buf, layout, name=name, fd=shm_fd(shm), readonly=readonly, closer=shm.close)
             buf._shm = shm
         try:
             buf._verify()
@@ -638,17 +620,7 @@ class Bit3Buffer:
     @staticmethod
     def unlink(name: str = "pfma") -> bool:
         """Remove POSIX shared memory ``name``; False if it did not exist."""
-        import _posixshmem  # the C module multiprocessing.shared_memory uses on POSIX
-        try:
-            shm = _open_shm(name, create=False)
-        except FileNotFoundError:
-            return False
-        shm.close()
-        try:
-            _posixshmem.shm_unlink("/" + name)  # no tracker round trip
-        except FileNotFoundError:
-            return False
-        return True
+        return Segment.remove_segment(name)
 
     def _initialise(self) -> None:
         lay = self.layout
@@ -988,30 +960,17 @@ class Bit3Buffer:
             self._mv.release()
         self._root.release()
 
+    def _unmap(self) -> None:
+        self.release()
+        self._release_views()
+
     def close(self, unlink: bool = False) -> None:
         """Release claims, unmap; with ``unlink`` also remove the shared-memory name."""
         if self._closer is None:
             return
-        self.release()
-        self._release_views()
-        closer, self._closer = self._closer, None
-        closer()
-        if unlink and hasattr(self, "_shm"):
+        super().close()
+        if unlink and self._shm is not None:
             Bit3Buffer.unlink(self.name)
-
-    def __del__(self) -> None:
-        # release our views before SharedMemory's own finaliser tries to unmap
-        if getattr(self, "_closer", None) is not None:
-            try:
-                self.close()
-            except Exception:
-                pass
-
-    def __enter__(self) -> "Bit3Buffer":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return (f"<Bit3Buffer {self.name} {'ro' if self.readonly else 'rw'} "

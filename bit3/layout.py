@@ -137,22 +137,37 @@ class ServiceState(enum.IntEnum):
 #: is in the service's message queue)
 FIRST_TRIP_TEXT_BYTES = 120
 
-#: ``inputs.fault_code`` values every tool may need to tell apart (issue 28 item 5,
-#: docs/safety.md "Honest outputs"; the others are ``ioservice.service.FAULT_*``):
-#: FAULT_DAC_UNREACHABLE while the DAC board does not answer: the service could not write
-#: 0 V and the outputs may hold their last values (NOT known safe: the console shows a
-#: banner); it becomes FAULT_DAC (2: a DAC write failed, outputs since written 0 V) once a
-#: 0 V write succeeds again. FAULT_AMP_ENABLE: the amplifier-enable charge pump could not
-#: be written (its relay drops the amplifiers).
-FAULT_DAC_UNREACHABLE = 7
-FAULT_AMP_ENABLE = 8
-#: the other ``inputs.fault_code`` values (the service's, ioservice/service.py imports them):
-#: the heartbeat watchdog, a failed DAC write, failed input boards, an unexpected error in
-#: the frame; a refused command (SAFE, not FAULT: a field beyond its limit or NaN / a
-#: writer without the claim); the envelope found a joint over speed (issue 28 item 4)
-FAULT_NONE, FAULT_WATCHDOG, FAULT_DAC, FAULT_INPUTS, FAULT_UNEXPECTED = 0, 1, 2, 3, 4
-FAULT_COMMAND, FAULT_FOREIGN = 5, 6
-FAULT_OVERSPEED = 9
+class FaultCode(enum.IntEnum):
+    """``inputs.fault_code``: why the service is in FAULT (the service writes them, the
+    controller and tools read them; the trips' messages carry the same number as their
+    code). NONE, then: the heartbeat watchdog, a failed DAC write, failed input boards, an
+    unexpected error in the frame; a refused command (SAFE, not FAULT: a field beyond its
+    limit or NaN / a writer without the claim); DAC_UNREACHABLE while the DAC board does not
+    answer (issue 28 item 5, docs/safety.md "Honest outputs": the service could not write 0 V
+    and the outputs may hold their last values, NOT known safe: the console shows a banner),
+    which becomes DAC (a DAC write failed, outputs since written 0 V) once a 0 V write
+    succeeds again; AMP_ENABLE: the amplifier-enable charge pump could not be written (its
+    relay drops the amplifiers); OVERSPEED: the envelope found a joint over speed (issue 28
+    item 4). ``str()`` and ``format()`` give the number, as the bare integers did."""
+
+    NONE = 0
+    WATCHDOG = 1
+    DAC = 2
+    INPUTS = 3
+    UNEXPECTED = 4
+    COMMAND = 5
+    FOREIGN = 6
+    DAC_UNREACHABLE = 7
+    AMP_ENABLE = 8
+    OVERSPEED = 9
+
+
+#: the fault codes by their older names (every importer of ``FAULT_*`` keeps working)
+FAULT_NONE, FAULT_WATCHDOG, FAULT_DAC, FAULT_INPUTS, FAULT_UNEXPECTED = (
+    FaultCode.NONE, FaultCode.WATCHDOG, FaultCode.DAC, FaultCode.INPUTS, FaultCode.UNEXPECTED)
+FAULT_COMMAND, FAULT_FOREIGN = FaultCode.COMMAND, FaultCode.FOREIGN
+FAULT_DAC_UNREACHABLE, FAULT_AMP_ENABLE = FaultCode.DAC_UNREACHABLE, FaultCode.AMP_ENABLE
+FAULT_OVERSPEED = FaultCode.OVERSPEED
 #: ``inputs.fault_code`` by name (``pfma stats``, ``monitor``, ``watch``, the console; pfma/show.py),
 #: at most 11 characters (the console's World Status line): the watchdog tripped, a DAC
 #: write failed, an input board failed, an unexpected error, a command refused, a foreign
@@ -161,6 +176,69 @@ FAULT_CODE_NAMES = {FAULT_NONE: "none", FAULT_WATCHDOG: "WATCHDOG", FAULT_DAC: "
                     FAULT_INPUTS: "INPUT BOARD", FAULT_UNEXPECTED: "UNEXPECTED", FAULT_COMMAND: "CMD REFUSED",
                     FAULT_FOREIGN: "FOREIGN CMD", FAULT_DAC_UNREACHABLE: "DAC LOST", FAULT_AMP_ENABLE: "AMP ENABLE",
                     FAULT_OVERSPEED: "OVERSPEED"}
+
+
+class MessageCode(enum.IntEnum):
+    """The ``code`` of the I/O service's messages (``service_messages`` entries). A trip's
+    message carries its :class:`FaultCode` as its code (1-9: one number space shared with
+    the output guard's notices below; the severity tells a trip, ERROR, from a notice); the
+    rest are named here, their values unchanged."""
+
+    #: the output guard (ioservice/safety.py): arming and disarming
+    DISARMED = 2
+    ARM_PENDING = 3
+    ARM_RATES_NOT_ZERO = 4
+    ARMED = 5
+    ARM_REFUSED = 6
+    #: a command refused while ARMED, and a trip given no fault code (the guard's defaults)
+    REFUSED = 7
+    TRIPPED = 9
+    #: the orderly stop's notice, and the halt's (not trips)
+    STOP = 10
+    HALT = 11
+    #: start-up: started, schedule differs from the documented rates, a slower schedule for
+    #: a slow bus, a non-nominal value let through, the direction check (ioservice/direction.py)
+    STARTED = 100
+    SCHEDULE_DIFFERS = 101
+    SLOW_BUS = 102
+    NONNOMINAL = 103
+    DIRECTION_PENDING = 104
+    DIRECTION_CONFIRMED = 105
+    DIRECTION_DONE = 106
+    #: boards: a start-up that failed, an input sample that failed
+    BOARD_INIT_FAILED = 110
+    INPUT_FAILED = 111
+    #: the F/T sensor: not streaming, its port not opened, streaming after retries, serial
+    #: lines not over a gateway, on a CAN node, CAN trouble
+    FT_NOT_STREAMING = 120
+    FT_PORT_FAILED = 121
+    FT_RETRIED = 122
+    SERIAL_NOT_OVER_GATEWAY = 123
+    FT_CAN = 124
+    FT_CAN_TROUBLE = 125
+    #: hand controllers: CAE not available, HID open / not open / lost / reconnected
+    CAE_UNAVAILABLE = 130
+    HID_OPEN = 131
+    HID_NOT_OPEN = 132
+    HID_LOST = 133
+    HID_RECONNECTED = 134
+    #: parallel ports and the CRL: matrix route applied / failed, force reflection failed
+    MATRIX_ROUTE = 140
+    MATRIX_ROUTE_FAILED = 141
+    CRL_FORCE_FAILED = 142
+    #: stopping: DAC outputs not disabled, stopped, the bus lost
+    DAC_NOT_DISABLED = 150
+    STOPPED = 151
+    BUS_LOST = 152
+    CALIBRATION_LOADED = 160
+    #: timing and commands: host stall, command status (stale, absent, foreign), long frame
+    HOST_STALL = 170
+    COMMAND_STATUS = 171
+    LONG_FRAME = 172
+    #: the motion envelope (ioservice/envelope.py): slew limit, soft-limit envelope, overspeed
+    SLEW = 173
+    ENVELOPE = 174
+    OVERSPEED = 175
 
 
 #: ``commands.mode`` value of a halted controller (IRSS halt / single step, docs/console.md):
@@ -590,21 +668,28 @@ def _inputs(area: AreaSpec, rack: RackConfig) -> tuple[_Record, list[ChannelEntr
     r.add("first_trip_t_s", "<f8", units="s", doc="when that first trip or refusal happened")
     r.add("first_trip_text", "u1", (FIRST_TRIP_TEXT_BYTES,), "utf-8",
           "the first trip or refusal's reason since the last arm (zero-padded; cleared when armed again)")
+    return r, _input_entries(area, rack, {"rtd": rtd, "adc": adc, "dac": dac, "pio": pio, "board": board,
+                                          "link": link, "hc": hc})
 
+
+def _input_entries(area: AreaSpec, rack: RackConfig, groups: dict[str, dict[str, tuple[int, int]]]) -> list[ChannelEntry]:
+    """The named entries of the input area: every rack channel of the slot groups, every
+    board, every serial link and extra link, every hand controller."""
     entries: list[ChannelEntry] = []
-    for kind, group in (("rtd", rtd), ("adc", adc), ("dac", dac), ("pio", pio)):
+    for kind in ("rtd", "adc", "dac", "pio"):
+        group = groups[kind]
         names = [(c.signal, c.units, c.label, c.board, c.channel, c.spare)
                  for b in rack.boards_of(kind) for c in b.channels]
         entries += _entries(area.name, kind, names, group)
     entries += _entries(area.name, "board", [(b.name, "", b.title, b.name, -1, False) for b in rack.boards],
-                        board)
+                        groups["board"])
     links = [(c.signal, c.units, c.label, c.board, c.channel, c.spare)
              for b in rack.boards_of("serial") for c in b.channels]
     links += [(n, "", n.replace("_", " "), "", -1, False) for n in EXTRA_LINKS]
-    entries += _entries(area.name, "link", links, link)
+    entries += _entries(area.name, "link", links, groups["link"])
     entries += _entries(area.name, "hc", [(n, "1", f"{n} hand controller", "", -1, False)
-                               for n in HAND_CONTROLLERS], hc)
-    return r, entries
+                               for n in HAND_CONTROLLERS], groups["hc"])
+    return entries
 
 
 def _stats(area: AreaSpec) -> tuple[_Record, list[ChannelEntry]]:
@@ -873,10 +958,9 @@ def _shape(s: tuple[int, ...]) -> str:
     return "" if not s else "[" + ",".join(map(str, s)) + "]"
 
 
-def layout_markdown(layout: Layout | None = None) -> str:
-    """The text of ``docs/bit3-layout.md`` (generated; a test compares the file with it)."""
-    lay = layout or default_layout()
-    out = [
+def _md_intro(lay: Layout) -> list[str]:
+    """The document's head: the rack, the hash, the rules, and how to attach without the code."""
+    return [
         "# Bit3 buffer layout",
         "",
         "<!-- GENERATED by bit3.layout.layout_markdown(); do not edit. "
@@ -931,6 +1015,12 @@ def layout_markdown(layout: Layout | None = None) -> str:
         "still compute its exact rate: difference of `device_samples` over difference of "
         "`stats.t_s`.",
         "",
+    ]
+
+
+def _md_areas(lay: Layout) -> list[str]:
+    """The area table, the writer roles, the states and severities, the codes."""
+    out = [
         "## Areas",
         "",
         "| area | offset | size | body offset | body size | writer | seqlock | contents |",
@@ -942,8 +1032,19 @@ def layout_markdown(layout: Layout | None = None) -> str:
     out += ["", "Writer roles: " + "; ".join(f"`{r}` owns {', '.join(a)}"
                                               for r, a in WRITER_ROLES.items()) + ".", "",
             "Service states: " + ", ".join(f"{s.value} {s.name}" for s in ServiceState) + ". "
-            "Severities: " + ", ".join(f"{s.value} {s.name}" for s in Severity) + ".", ""]
-    out += ["## Header records", "",
+            "Severities: " + ", ".join(f"{s.value} {s.name}" for s in Severity) + ".", "",
+            "Fault codes (`inputs.fault_code`, `bit3.layout.FaultCode`): "
+            + ", ".join(f"{int(c)} {c.name}" for c in FaultCode) + ".", "",
+            "Message codes of the I/O service (`code` of the `service_messages` entries, "
+            "`bit3.layout.MessageCode`; a trip's message carries its fault code, 1-9, the output "
+            "guard's notices share that range): "
+            + ", ".join(f"{int(c)} {c.name}" for c in MessageCode) + ".", ""]
+    return out
+
+
+def _md_header_records() -> list[str]:
+    """The header's record types (area table, owners) and the message entries."""
+    return ["## Header records", "",
             "`area_table[i]` (32 B): " + _md_record(AREA_ENTRY_DTYPE) + ".", "",
             "`owners[i]` (80 B, i = area index): " + _md_record(OWNER_DTYPE) + ". "
             f"`flags` bits: 0x{OWNER_FLAG_CLAIMED:x} CLAIMED (the slot holds a live or dead claim; "
@@ -965,6 +1066,11 @@ def layout_markdown(layout: Layout | None = None) -> str:
             f"message takes at most {MESSAGE_MAX_ENTRIES} entries (half the ring), so it carries "
             f"up to {MESSAGE_MAX_BYTES} bytes of UTF-8; a longer text is cut there and ends \"~\".",
             ""]
+
+
+def _md_fields(lay: Layout) -> list[str]:
+    """One table of fields per area."""
+    out: list[str] = []
     for a in lay.areas:
         fl = [f for f in lay.fields if f.area == a.name]
         if not fl:
@@ -976,7 +1082,12 @@ def layout_markdown(layout: Layout | None = None) -> str:
             out.append(f"| {f.name} | {f.offset} | {_md_dtype(f.dtype)} | {_shape(f.shape)} | {f.nbytes} | "
                        f"{f.units} | {f.doc} |")
         out.append("")
-    out += ["## Channels", "",
+    return out
+
+
+def _md_channels(lay: Layout) -> list[str]:
+    """Every channel with its slot and element offsets."""
+    out = ["## Channels", "",
             "Every rack channel, board, link, hand controller and device group, with the byte "
             "offset of its element in each slot array.", "",
             "| name | area | kind | slot | units | board/ch | element offsets | label |",
@@ -986,7 +1097,12 @@ def layout_markdown(layout: Layout | None = None) -> str:
         offs = ", ".join(f"{f}[{i}]@{o}" for f, i, o in c.fields)
         out.append(f"| {c.name} | {c.area} | {c.kind} | {c.slot} | {c.units} | {where} | {offs} | "
                    f"{c.label}{' (spare)' if c.spare else ''} |")
-    out += ["", "## Names of the numbers", "",
+    return out
+
+
+def _md_names() -> list[str]:
+    """How the tools name the enumerations and status words."""
+    out = ["", "## Names of the numbers", "",
             "How every tool shows the enumerations and status words above (pfma/show.py; `--json` keeps "
             "the number beside the name). A status word that is healthy reads `ok`: a channel's with no "
             "bit set, a board's present and initialised, a link's open and synchronised; otherwise the "
@@ -994,18 +1110,19 @@ def layout_markdown(layout: Layout | None = None) -> str:
             "sample), or what a board or link lacks (`NOT INITIALISED`, `CLOSED`, `NOT SYNCED`).", "",
             "| word | value: name |", "|---|---|",
             "| service_state | " + ", ".join(f"{int(v)} {v.name}" for v in ServiceState) + " |",
-            "| fault_code | " + ", ".join(f"{v} {n}" for v, n in FAULT_CODE_NAMES.items()) + " |",
+            "| fault_code | " + ", ".join(f"{int(v)} {n}" for v, n in FAULT_CODE_NAMES.items()) + " |",
             "| command_status (bits) | " + ", ".join(f"{v} {n}" for v, n in CMD_STATUS_NAMES.items()) + " |"]
     for kind, names in STATUS_BIT_NAMES.items():
         if names:
             out.append(f"| {kind}_status (bits) | " + ", ".join(f"0x{v:x} {n}" for v, n in names.items())
                        + f"; healthy: 0x{STATUS_HEALTHY[kind]:x} |")
     out.append("")
+    return out
+
+
+def layout_markdown(layout: Layout | None = None) -> str:
+    """The text of ``docs/bit3-layout.md`` (generated; a test compares the file with it)."""
+    lay = layout or default_layout()
+    out = _md_intro(lay) + _md_areas(lay) + _md_header_records() + _md_fields(lay) + _md_channels(lay) + _md_names()
     return "\n".join(out)
 
-
-def write_layout_doc(path: str | Path = DOC_PATH, layout: Layout | None = None) -> Path:
-    """Write the generated document (default ``docs/bit3-layout.md``)."""
-    p = Path(path)
-    p.write_text(layout_markdown(layout))
-    return p

@@ -37,15 +37,18 @@ import json
 import math
 import os
 import shutil
-from dataclasses import dataclass, replace
+from dataclasses import replace
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
+import msgspec
 import numpy as np
 
 import pfma
-from pfma import nominal
+from pfma import config, nominal
 from pfma.errors import CalibrationError
+from pfma.ft_calibration import FtCalibration, ft_calibration  # noqa: F401 (re-exported: the file's F/T section)
 from pfma.rack import RackConfig
 
 FORMAT = "pfma-calibration"
@@ -81,25 +84,6 @@ def _plain(obj: Any) -> Any:
     if isinstance(obj, np.generic):
         return obj.item()
     return obj
-
-
-@dataclass
-class FtCalibration:
-    """F/T sensor calibration: ``wrench = matrix @ (counts - bias_counts)``; tool payload."""
-
-    bias_counts: np.ndarray  #: (6,) counts subtracted before the matrix
-    matrix: np.ndarray  #: (6, 6) counts -> (Fx, Fy, Fz [N], Tx, Ty, Tz [N*m])
-    payload_mass_kg: float  #: tool + payload mass behind the sensor
-    payload_com_m: np.ndarray  #: (3,) its centre of mass in sensor coordinates
-
-    def wrench(self, counts) -> np.ndarray:
-        """Counts (6) -> wrench (6): forces N, torques N*m, in the sensor frame."""
-        return self.matrix @ (np.asarray(counts, dtype=float) - self.bias_counts)
-
-    def gravity_wrench(self, g_sensor) -> np.ndarray:
-        """The payload's weight in the sensor frame, given gravity (m/s^2) in sensor axes."""
-        f = self.payload_mass_kg * np.asarray(g_sensor, dtype=float)
-        return np.concatenate([f, np.cross(self.payload_com_m, f)])
 
 
 class Calibration:
@@ -182,122 +166,189 @@ def _typename(v: Any) -> str:
         type(v), type(v).__name__)
 
 
-def _num(v: Any, field: str, source: str, *, nonzero: bool = False, minimum: float | None = None) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise _fail(field, f"expected a number, got {_typename(v)} {v!r}", source)
-    try:
-        x = float(v)
-    except OverflowError:  # a JSON integer beyond float range
-        raise _fail(field, f"expected a finite number, got an integer of {len(str(abs(v)))} digits",
-                    source) from None
-    if not math.isfinite(x):
-        raise _fail(field, f"expected a finite number, got {v!r}", source)
-    if nonzero and x == 0:
-        raise _fail(field, "must not be 0", source)
-    if minimum is not None and x < minimum:
-        raise _fail(field, f"must be >= {minimum:g}, got {x:g}", source)
-    return x
+def _field(path: tuple) -> str:
+    """``("ft", "matrix", 2, 3)`` -> ``ft.matrix[2][3]`` (how the messages name a field)."""
+    return "".join(f"[{k}]" if isinstance(k, int) else f".{k}" for k in path).lstrip(".") or "(top level)"
 
 
-def _obj(v: Any, field: str, source: str) -> dict:
-    if not isinstance(v, dict):
-        raise _fail(field, f"expected an object, got {_typename(v)}", source)
-    return v
+# --- the schema: a calibration file's keys and types (checked by pfma.config) -------------
+class _Provenance(msgspec.Struct):  # more keys (points, residuals, the method's own) are kept
+    date: str
+    operator: str
+    method: str
+    software_version: str
+    residuals: list[Any] | dict[str, Any] | None = None
+    points: list[Any] | dict[str, Any] | None = None
 
 
-def _str(v: Any, field: str, source: str) -> str:
-    if not isinstance(v, str):
-        raise _fail(field, f"expected a string, got {_typename(v)} {v!r}", source)
-    return v
+class _ChannelEntry(msgspec.Struct):
+    device: Literal["adc", "dac", "rtd"]
+    units: str
+    scale: float
+    offset: float
+    provenance: _Provenance
 
 
-def _int(v: Any, field: str, source: str) -> int:
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise _fail(field, f"expected an integer, got {_typename(v)} {v!r}", source)
-    return v
+class _CaeAxis(msgspec.Struct):
+    centre_v: float
+    deadband_v: float
+    span_v: float
+    sign: int
+    provenance: _Provenance
 
 
-def _vec(v: Any, n: int, field: str, source: str) -> list[float]:
-    if not isinstance(v, list) or len(v) != n:
-        raise _fail(field, f"expected a list of {n} numbers, got {_typename(v)}"
-                    + (f" of {len(v)}" if isinstance(v, list) else ""), source)
-    return [_num(x, f"{field}[{i}]", source) for i, x in enumerate(v)]
+class _Cae(msgspec.Struct, forbid_unknown_fields=True):  # CAE_AXIS_NAMES
+    x: _CaeAxis
+    y: _CaeAxis
+    z: _CaeAxis
+    roll: _CaeAxis
+    pitch: _CaeAxis
+    yaw: _CaeAxis
 
 
-def _provenance(v: Any, field: str, source: str) -> None:
-    p = _obj(v, field, source)
-    for k in PROVENANCE_KEYS:
-        if k not in p:
-            raise _fail(f"{field}.{k}", "missing", source)
-        _str(p[k], f"{field}.{k}", source)
-    for k in ("residuals", "points"):
-        if k in p and not isinstance(p[k], (list, dict)):
-            raise _fail(f"{field}.{k}", f"expected a list, got {_typename(p[k])}", source)
+_Vec6 = tuple[float, float, float, float, float, float]
+
+
+class _Ft(msgspec.Struct):
+    bias_counts: _Vec6
+    matrix: tuple[_Vec6, _Vec6, _Vec6, _Vec6, _Vec6, _Vec6]
+    payload_mass_kg: float
+    payload_com_m: tuple[float, float, float]
+    provenance: dict[str, Any]
+
+
+class _CalibrationFile(msgspec.Struct, forbid_unknown_fields=True):
+    format: str
+    format_version: int
+    rack: str
+    version: int
+    created: str
+    software_version: str
+    channels: dict[str, Any]  # each a _ChannelEntry (converted one by one: errors name the signal)
+    previous_hash: str | None = None
+    cae: Any = None  # a _Cae
+    ft: Any = None  # an _Ft
+    comment: Any = None
+
+
+def _expected(what: str) -> Callable[[Mapping[str, Any]], str]:
+    """The message for a value that is not ``what`` ("a number", "a string", ...)."""
+    def message(f: Mapping[str, Any]) -> str:
+        v = f["value"]
+        if what == "a number" and type(v) is int:  # beyond float range
+            return f"expected a finite number, got an integer of {len(str(abs(v)))} digits"
+        if what == "an object":
+            return f"expected an object, got {_typename(v)}"
+        return f"expected {what}, got {_typename(v)} {v!r}"
+    return message
+
+
+def _list_of(n: int, what: str = "a list of {n} numbers") -> Callable[[Mapping[str, Any]], str]:
+    def message(f: Mapping[str, Any]) -> str:
+        v = f["value"]
+        return f"expected {what.format(n=n)}, got {_typename(v)}" + (f" of {len(v)}" if isinstance(v, list) else "")
+    return message
+
+
+_NUMBER, _STRING, _INT, _OBJECT = (_expected(w) for w in ("a number", "a string", "an integer", "an object"))
+_PROVENANCE = {"provenance": _OBJECT, **{f"provenance.{k}": _STRING for k in PROVENANCE_KEYS},
+               **{f"provenance.{k}?": "missing" for k in PROVENANCE_KEYS},
+               **{f"provenance.{k}": lambda f: f"expected a list, got {_typename(f['value'])}"
+                  for k in ("residuals", "points")}}
+_TOP_MESSAGES = {
+    "": _OBJECT, "*": "unknown top-level key", "channels": _OBJECT,
+    **{f"{k}?": "missing (truncated or partial file?)"
+       for k in ("format", "format_version", "rack", "version", "created", "software_version", "channels")},
+    **{k: _STRING for k in ("format", "rack", "created", "software_version", "previous_hash")},
+    "format_version": _INT, "version": _INT,
+}
+_CHANNEL_MESSAGES = {
+    "": _OBJECT, **{f"{k}?": "missing" for k in ("device", "units", "scale", "offset", "provenance")},
+    "device": "expected one of " + ", ".join(ANALOG_DEVICES) + ", got {value!r}",
+    "units": _STRING, "scale": _NUMBER, "offset": _NUMBER, **_PROVENANCE,
+}
+_CAE_MESSAGES = {
+    "": _OBJECT, "*": "unknown axis (known: " + ", ".join(CAE_AXIS_NAMES) + ")",
+    **{f"{a}?": "missing" for a in CAE_AXIS_NAMES},
+    **{f"{a}{k}": m for a in CAE_AXIS_NAMES for k, m in (
+        ("", _OBJECT), *((f".{k}?", "missing") for k in ("centre_v", "deadband_v", "span_v", "sign", "provenance")),
+        (".centre_v", _NUMBER), (".deadband_v", _NUMBER), (".span_v", _NUMBER), (".sign", _INT),
+        *((f".{p}", m) for p, m in _PROVENANCE.items()))},
+}
+_FT_MESSAGES = {
+    "": _OBJECT, **{f"{k}?": "missing" for k in ("bias_counts", "matrix", "payload_mass_kg", "payload_com_m",
+                                                 "provenance")},
+    "bias_counts": _list_of(6), "bias_counts[]": _NUMBER, "matrix": _list_of(6, "6 rows of 6 numbers"),
+    "matrix[]": _list_of(6), "matrix[][]": _NUMBER, "payload_mass_kg": _NUMBER,
+    "payload_com_m": _list_of(3), "payload_com_m[]": _NUMBER, "provenance": _OBJECT,
+}
+
+
+def _convert(data: Any, schema: type, messages: dict, source: str, prefix: tuple = (), first: bool = True) -> Any:
+    """``data`` into ``schema`` (``first``: its required keys judged first); the first
+    mistake is a CalibrationError naming the field (``channels.SIGNAL.scale``)."""
+    return config.convert(data, schema, source=source, messages=messages, prefix=prefix, missing_first=first,
+                          error=lambda p: _fail(_field(p.path), p.message, source))
+
+
+def _finite(values: dict[str, float], source: str, *, minimum: dict[str, float] | None = None) -> None:
+    """Each value (by field name) a finite number, and at least its ``minimum``."""
+    for field, x in values.items():
+        if not math.isfinite(x):
+            raise _fail(field, f"expected a finite number, got {x!r}", source)
+        low = (minimum or {}).get(field)
+        if low is not None and x < low:
+            raise _fail(field, f"must be >= {low:g}, got {x:g}", source)
 
 
 def validate(data: Any, rack: RackConfig | None = None, source: str = "<data>",
              path: Path | None = None) -> Calibration:
     """Check a calibration's structure and types (and, given ``rack``, that it covers exactly
     the rack's analog channels). :raises CalibrationError: naming the first bad field"""
-    d = _obj(data, "(top level)", source)
-    for key in ("format", "format_version", "rack", "version", "created", "software_version", "channels"):
-        if key not in d:
-            raise _fail(key, "missing (truncated or partial file?)", source)
-    if d["format"] != FORMAT:
-        raise _fail("format", f"expected {FORMAT!r}, got {d['format']!r}", source)
-    if _int(d["format_version"], "format_version", source) != FORMAT_VERSION:
+    top = _convert(data, _CalibrationFile, _TOP_MESSAGES, source)
+    if top.format != FORMAT:
+        raise _fail("format", f"expected {FORMAT!r}, got {top.format!r}", source)
+    if top.format_version != FORMAT_VERSION:
         raise _fail("format_version", f"this software reads version {FORMAT_VERSION}, "
-                    f"got {d['format_version']}", source)
-    _str(d["rack"], "rack", source)
-    if _int(d["version"], "version", source) < 0:
+                    f"got {top.format_version}", source)
+    if top.version < 0:
         raise _fail("version", "must be >= 0", source)
-    _str(d["created"], "created", source)
-    _str(d["software_version"], "software_version", source)
-    if "previous_hash" in d and d["previous_hash"] is not None:
-        _str(d["previous_hash"], "previous_hash", source)
-    chans = _obj(d["channels"], "channels", source)
+    for sig, e in top.channels.items():
+        entry = _convert(e, _ChannelEntry, _CHANNEL_MESSAGES, source, ("channels", sig))
+        _finite({f"channels.{sig}.scale": entry.scale, f"channels.{sig}.offset": entry.offset}, source)
+        if entry.scale == 0:
+            raise _fail(f"channels.{sig}.scale", "must not be 0", source)
     nonnominal: tuple[tuple[str, str], ...] = ()
-    for sig, e in chans.items():
-        f = f"channels.{sig}"
-        _obj(e, f, source)
-        for key in ("device", "units", "scale", "offset", "provenance"):
-            if key not in e:
-                raise _fail(f"{f}.{key}", "missing", source)
-        if e["device"] not in ANALOG_DEVICES:
-            raise _fail(f"{f}.device", f"expected one of {', '.join(ANALOG_DEVICES)}, got {e['device']!r}", source)
-        _str(e["units"], f"{f}.units", source)
-        _num(e["scale"], f"{f}.scale", source, nonzero=True)
-        _num(e["offset"], f"{f}.offset", source)
-        _provenance(e["provenance"], f"{f}.provenance", source)
     if rack is not None:
-        if d["rack"] != rack.name:
-            raise _fail("rack", f"calibration is for rack {d['rack']!r}, the rack configuration "
-                        f"({rack.source}) is {rack.name!r}", source)
-        for c in rack.channels():
-            if c.device not in ANALOG_DEVICES:
-                continue
-            if c.signal not in chans:
-                raise _fail(f"channels.{c.signal}", f"missing: the rack's {c.device} channel "
-                            f"{c.channel} on board {c.board} (A16 0x{c.address:04X}) has no conversion", source)
-            if chans[c.signal]["device"] != c.device:
-                raise _fail(f"channels.{c.signal}.device", f"the rack has it on a {c.device} board "
-                            f"({c.board}), not {chans[c.signal]['device']}", source)
-        known = {c.signal for c in rack.channels() if c.device in ANALOG_DEVICES}
-        extra = sorted(set(chans) - known)
-        if extra:
-            raise _fail(f"channels.{extra[0]}", f"not an analog channel of rack {rack.name} ({rack.source})", source)
-        nonnominal = _check_nominal(chans, rack, source)
-    if d.get("cae") is not None:
-        _validate_cae(d["cae"], source)
-    if d.get("ft") is not None:
-        _validate_ft(d["ft"], source)
-    unknown = set(d) - {"format", "format_version", "rack", "version", "created", "software_version",
-                        "previous_hash", "channels", "cae", "ft", "comment"}
-    if unknown:
-        raise _fail(sorted(unknown)[0], "unknown top-level key", source)
-    cal = Calibration(d, path)
+        _check_rack(top.rack, top.channels, rack, source)
+        nonnominal = _check_nominal(top.channels, rack, source)
+    if top.cae is not None:
+        _validate_cae(top.cae, source)
+    if top.ft is not None:
+        _validate_ft(top.ft, source)
+    cal = Calibration(data, path)
     cal.nonnominal = nonnominal
     return cal
+
+
+def _check_rack(name: str, chans: dict, rack: RackConfig, source: str) -> None:
+    """The calibration is for this rack and has exactly its analog channels, each on its device."""
+    if name != rack.name:
+        raise _fail("rack", f"calibration is for rack {name!r}, the rack configuration "
+                    f"({rack.source}) is {rack.name!r}", source)
+    for c in rack.channels():
+        if c.device not in ANALOG_DEVICES:
+            continue
+        if c.signal not in chans:
+            raise _fail(f"channels.{c.signal}", f"missing: the rack's {c.device} channel "
+                        f"{c.channel} on board {c.board} (A16 0x{c.address:04X}) has no conversion", source)
+        if chans[c.signal]["device"] != c.device:
+            raise _fail(f"channels.{c.signal}.device", f"the rack has it on a {c.device} board "
+                        f"({c.board}), not {chans[c.signal]['device']}", source)
+    known = {c.signal for c in rack.channels() if c.device in ANALOG_DEVICES}
+    extra = sorted(set(chans) - known)
+    if extra:
+        raise _fail(f"channels.{extra[0]}", f"not an analog channel of rack {rack.name} ({rack.source})", source)
 
 
 def _check_nominal(chans: dict, rack: RackConfig, source: str) -> tuple[tuple[str, str], ...]:
@@ -323,44 +374,25 @@ def _check_nominal(chans: dict, rack: RackConfig, source: str) -> tuple[tuple[st
 
 
 def _validate_cae(v: Any, source: str) -> None:
-    cae = _obj(v, "cae", source)
+    cae = _convert(v, _Cae, _CAE_MESSAGES, source, ("cae",), first=False)  # axis by axis, as the file has them
     for axis in CAE_AXIS_NAMES:
-        f = f"cae.{axis}"
-        if axis not in cae:
-            raise _fail(f, "missing", source)
-        e = _obj(cae[axis], f, source)
-        for key in ("centre_v", "deadband_v", "span_v", "sign", "provenance"):
-            if key not in e:
-                raise _fail(f"{f}.{key}", "missing", source)
-        _num(e["centre_v"], f"{f}.centre_v", source)
-        db = _num(e["deadband_v"], f"{f}.deadband_v", source, minimum=0.0)
-        span = _num(e["span_v"], f"{f}.span_v", source)
-        if _int(e["sign"], f"{f}.sign", source) not in (1, -1):
-            raise _fail(f"{f}.sign", f"must be +1 or -1, got {e['sign']}", source)
-        if not db < span:
-            raise _fail(f"{f}.span_v", f"must exceed deadband_v ({db:g}), got {span:g}", source)
-        _provenance(e["provenance"], f"{f}.provenance", source)
-    extra = sorted(set(cae) - set(CAE_AXIS_NAMES))
-    if extra:
-        raise _fail(f"cae.{extra[0]}", f"unknown axis (known: {', '.join(CAE_AXIS_NAMES)})", source)
+        e, f = getattr(cae, axis), f"cae.{axis}"
+        _finite({f"{f}.centre_v": e.centre_v, f"{f}.deadband_v": e.deadband_v, f"{f}.span_v": e.span_v}, source,
+                minimum={f"{f}.deadband_v": 0.0})
+        if e.sign not in (1, -1):
+            raise _fail(f"{f}.sign", f"must be +1 or -1, got {e.sign}", source)
+        if not e.deadband_v < e.span_v:
+            raise _fail(f"{f}.span_v", f"must exceed deadband_v ({e.deadband_v:g}), got {e.span_v:g}", source)
 
 
 def _validate_ft(v: Any, source: str) -> None:
-    ft = _obj(v, "ft", source)
-    for key in ("bias_counts", "matrix", "payload_mass_kg", "payload_com_m", "provenance"):
-        if key not in ft:
-            raise _fail(f"ft.{key}", "missing", source)
-    _vec(ft["bias_counts"], 6, "ft.bias_counts", source)
-    m = ft["matrix"]
-    if not isinstance(m, list) or len(m) != 6:
-        raise _fail("ft.matrix", f"expected 6 rows of 6 numbers, got {_typename(m)}"
-                    + (f" of {len(m)}" if isinstance(m, list) else ""), source)
-    rows = [_vec(r, 6, f"ft.matrix[{i}]", source) for i, r in enumerate(m)]
-    if abs(np.linalg.det(np.array(rows))) < 1e-30:
+    ft = _convert(v, _Ft, _FT_MESSAGES, source, ("ft",))
+    _finite({f"ft.bias_counts[{i}]": x for i, x in enumerate(ft.bias_counts)}, source)
+    _finite({f"ft.matrix[{i}][{j}]": x for i, row in enumerate(ft.matrix) for j, x in enumerate(row)}, source)
+    if abs(np.linalg.det(np.array(ft.matrix))) < 1e-30:
         raise _fail("ft.matrix", "singular", source)
-    _num(ft["payload_mass_kg"], "ft.payload_mass_kg", source, minimum=0.0)
-    _vec(ft["payload_com_m"], 3, "ft.payload_com_m", source)
-    _obj(ft["provenance"], "ft.provenance", source)
+    _finite({"ft.payload_mass_kg": ft.payload_mass_kg}, source, minimum={"ft.payload_mass_kg": 0.0})
+    _finite({f"ft.payload_com_m[{i}]": x for i, x in enumerate(ft.payload_com_m)}, source)
 
 
 # ---------------------------------------------------------------- files
@@ -597,15 +629,6 @@ def cae_calibration(cal: Calibration):
     return CaeCalibration(axes={a: CaeAxisCal(centre_v=float(e["centre_v"]), deadband_v=float(e["deadband_v"]),
                                               span_v=float(e["span_v"]), sign=int(e["sign"]))
                                 for a, e in cal.cae.items()})
-
-
-def ft_calibration(cal: Calibration) -> FtCalibration | None:
-    """The F/T section (bias, 6x6 matrix, payload); None when absent."""
-    ft = cal.ft
-    if not ft:
-        return None
-    return FtCalibration(np.array(ft["bias_counts"], dtype=float), np.array(ft["matrix"], dtype=float),
-                         float(ft["payload_mass_kg"]), np.array(ft["payload_com_m"], dtype=float))
 
 
 def nominal_ft(cpf: float | None = None, cpt: float | None = None) -> dict:

@@ -60,7 +60,9 @@ import struct
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
+from typing import Annotated, Any, Callable, Iterable, Mapping, Protocol, Sequence
+
+import msgspec
 
 from controller.decision import Status, TaskState
 from controller.frames import TASK_DOCS
@@ -68,6 +70,7 @@ from controller.layers import ERR_PROCESS_STOPPING, ERR_SECTION_LOST
 from controller.messages import Level
 from controller.runtime import LAYER_KEYS, ControllerRuntime
 from controller.worldmodel import WorldModel, WorldModelError
+from pfma import config
 from pfma.errors import ConfigError, did_you_mean
 
 #: frames without a new communications segment of a remote process before its section is
@@ -184,10 +187,49 @@ def load_config(path: str | Path) -> DistributedConfig:
     return parse_config(doc, source)
 
 
+class _DistributedTable(msgspec.Struct, forbid_unknown_fields=True):
+    wm: Annotated[str, msgspec.Meta(pattern=_WM_BASE.pattern)] | None = None
+    transport: Any = None  # judged with the endpoints (_transport)
+
+
+class _ProcessTable(msgspec.Struct, forbid_unknown_fields=True):
+    layers: Annotated[list[str], msgspec.Meta(min_length=1)]
+    listen: list[str] = msgspec.field(default_factory=list)
+    connect: list[str] = msgspec.field(default_factory=list)
+
+
+class _Problem(Exception):
+    """One problem of one table (pfma.config.convert's error): collected, not raised on."""
+
+    def __init__(self, p: config.Problem) -> None:
+        super().__init__(p.message)
+        self.message = p.message
+
+
+def _unknown(where: str, keys: Sequence[str]) -> Callable[[Mapping[str, Any]], str]:
+    return lambda f: f"{where}: unknown key {f['key']!r} (keys: {', '.join(keys)}){did_you_mean(f['key'], keys)}"
+
+
+_DISTRIBUTED_MESSAGES: dict[str, Any] = {
+    "": "[distributed] must be a table (wm, transport)",
+    "*": _unknown("[distributed]", _DISTRIBUTED_KEYS),
+    "wm": "[distributed] wm = {value!r}: a world-model base name (letters, digits, '_', '.', '-')",
+}
+
+
+def _process_messages(where: str) -> dict[str, Any]:
+    layers = f"{where}: layers must be a non-empty list of layer keys ({', '.join(LAYER_KEYS)})"
+    ends = {f"{k}{suffix}": f"{where}: {k} must be a list of Zenoh endpoints like \"tcp/127.0.0.1:{DEFAULT_ZENOH_PORT}\""
+            for k in ("listen", "connect") for suffix in ("", "[]")}
+    return {"": f"{where}: must be a table with layers = [...]", "*": _unknown(where, _PROCESS_KEYS),
+            "layers": layers, "layers?": layers, "layers[]": layers, **ends}
+
+
 def parse_config(doc: Mapping[str, Any], source: str = "<config>") -> DistributedConfig:
     """A :class:`DistributedConfig` from a parsed TOML document.
 
-    :raises DistributedConfigError: every mistake, one message each: an unknown key, a
+    :raises DistributedConfigError: every mistake, one message each (the first of each
+        table's keys and types, then every one of the placement): an unknown key, a
         process without layers, an unknown layer, a layer in two processes or in none,
         Servo Control apart from Data Acquisition, a bad endpoint or transport
     """
@@ -196,64 +238,70 @@ def parse_config(doc: Mapping[str, Any], source: str = "<config>") -> Distribute
         if k not in _TOP_KEYS:
             problems.append(f"unknown table {k!r} (tables: [distributed], [process.NAME])"
                             f"{did_you_mean(k, _TOP_KEYS)}")
-    top = doc.get("distributed", {})
-    if not isinstance(top, Mapping):
-        problems.append("[distributed] must be a table (wm, transport)")
-        top = {}
-    for k in top:
-        if k not in _DISTRIBUTED_KEYS:
-            problems.append(f"[distributed]: unknown key {k!r} (keys: {', '.join(_DISTRIBUTED_KEYS)})"
-                            f"{did_you_mean(k, _DISTRIBUTED_KEYS)}")
-    wm = top.get("wm")
-    if wm is not None and (not isinstance(wm, str) or not _WM_BASE.match(wm)):
-        problems.append(f"[distributed] wm = {wm!r}: a world-model base name (letters, digits, '_', '.', '-')")
-        wm = None
+    top = _distributed(doc.get("distributed", {}), source, problems)
     procs_doc = doc.get("process")
-    processes: list[ProcessSpec] = []
     if not isinstance(procs_doc, Mapping) or not procs_doc:
         problems.append("no processes: add a [process.NAME] table with layers = [...] for each process")
         procs_doc = {}
-    for name, body in procs_doc.items():
-        where = f"[process.{name}]"
-        if not _PROCESS_NAME.match(name):
-            problems.append(f"{where}: a process name is a letter, then letters, digits, '_' or '-' (at most 32)")
-            continue
+    processes = [p for p in (_process(name, body, source, problems) for name, body in procs_doc.items()) if p]
+    _placement(processes, problems)
+    transport = _transport(top.transport, processes, problems)
+    if problems:
+        raise DistributedConfigError(source, problems)
+    return DistributedConfig(tuple(processes), top.wm, str(transport), source)
+
+
+def _distributed(top: Any, source: str, problems: list[str]) -> _DistributedTable:
+    """``[distributed]``: wm and transport (what is wrong with it goes to ``problems``)."""
+    try:
+        return config.convert(top, _DistributedTable, source=source, prefix=("distributed",),
+                              messages=_DISTRIBUTED_MESSAGES, error=_Problem)
+    except _Problem as err:
+        problems.append(err.message)
+        return _DistributedTable(transport=top.get("transport") if isinstance(top, Mapping) else None)
+
+
+def _process(name: str, body: Any, source: str, problems: list[str]) -> ProcessSpec | None:
+    """``[process.NAME]``: its layers (known, each once) and endpoints; None when the name
+    or the table cannot be read at all."""
+    where = f"[process.{name}]"
+    if not _PROCESS_NAME.match(name):
+        problems.append(f"{where}: a process name is a letter, then letters, digits, '_' or '-' (at most 32)")
+        return None
+    try:
+        p = config.convert(body, _ProcessTable, source=source, prefix=("process", name),
+                           messages=_process_messages(where), error=_Problem)
+    except _Problem as err:
+        problems.append(err.message)
         if not isinstance(body, Mapping):
-            problems.append(f"{where}: must be a table with layers = [...]")
-            continue
-        for k in body:
-            if k not in _PROCESS_KEYS:
-                problems.append(f"{where}: unknown key {k!r} (keys: {', '.join(_PROCESS_KEYS)})"
-                                f"{did_you_mean(k, _PROCESS_KEYS)}")
-        layers = body.get("layers")
-        if not isinstance(layers, list) or not layers or not all(isinstance(x, str) for x in layers):
-            problems.append(f"{where}: layers must be a non-empty list of layer keys ({', '.join(LAYER_KEYS)})")
-            layers = []
-        keys: list[str] = []
-        for key in layers:
-            if key not in LAYER_KEYS:
-                task = TASK_DOCS.get(key)
-                hint = f"; {key} is a task of layer {task[0]}: name the layer" if task else \
-                    did_you_mean(key, LAYER_KEYS)
-                problems.append(f"{where}: unknown layer {key!r} (layers: {', '.join(LAYER_KEYS)}){hint}")
-            elif key in keys:
-                problems.append(f"{where}: layer {key} named twice")
-            else:
-                keys.append(key)
-        ends: dict[str, tuple[str, ...]] = {}
-        for k in ("listen", "connect"):
-            v = body.get(k, [])
-            if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
-                problems.append(f"{where}: {k} must be a list of Zenoh endpoints like \"tcp/127.0.0.1:{DEFAULT_ZENOH_PORT}\"")
-                v = []
-            for e in v:
-                m = _ENDPOINT.match(e)
-                if not m or not 0 < int(m.group(2)) < 65536:
-                    problems.append(f"{where}: {k} endpoint {e!r} is not tcp/HOST:PORT "
-                                    f"(e.g. tcp/127.0.0.1:{DEFAULT_ZENOH_PORT})")
-            ends[k] = tuple(v)
-        processes.append(ProcessSpec(name, tuple(sorted(keys, key=LAYER_KEYS.index)), ends["listen"],
-                                     ends["connect"]))
+            return None
+        p = _ProcessTable(*(_strings(body.get(k)) for k in _PROCESS_KEYS))  # the rest still judged
+    keys: list[str] = []
+    for key in p.layers:
+        if key not in LAYER_KEYS:
+            task = TASK_DOCS.get(key)
+            hint = f"; {key} is a task of layer {task[0]}: name the layer" if task else did_you_mean(key, LAYER_KEYS)
+            problems.append(f"{where}: unknown layer {key!r} (layers: {', '.join(LAYER_KEYS)}){hint}")
+        elif key in keys:
+            problems.append(f"{where}: layer {key} named twice")
+        else:
+            keys.append(key)
+    for k, ends in (("listen", p.listen), ("connect", p.connect)):
+        for e in ends:
+            m = _ENDPOINT.match(e)
+            if not m or not 0 < int(m.group(2)) < 65536:
+                problems.append(f"{where}: {k} endpoint {e!r} is not tcp/HOST:PORT "
+                                f"(e.g. tcp/127.0.0.1:{DEFAULT_ZENOH_PORT})")
+    return ProcessSpec(name, tuple(sorted(keys, key=LAYER_KEYS.index)), tuple(p.listen), tuple(p.connect))
+
+
+def _strings(v: Any) -> list[str]:
+    """``v`` when it is a list of strings, else [] (a table whose keys were refused)."""
+    return v if isinstance(v, list) and all(isinstance(x, str) for x in v) else []
+
+
+def _placement(processes: list[ProcessSpec], problems: list[str]) -> None:
+    """Every layer in exactly one process; Servo Control with Data Acquisition."""
     where_is: dict[str, list[str]] = {}
     for p in processes:
         for key in p.layers:
@@ -270,15 +318,17 @@ def parse_config(doc: Mapping[str, Any], source: str = "<config>") -> Distribute
         problems.append(f"servo is in process {servo[0]} but daq, the one writer of the Bit3 command area, in "
                         f"process {daq[0]}: they run in one process (the servo's rates go to the command area "
                         f"in the frame they are computed)")
+
+
+def _transport(given: Any, processes: list[ProcessSpec], problems: list[str]) -> str:
+    """``[distributed] transport``: zenoh when endpoints are given, else shm by default."""
     has_ends = any(p.listen or p.connect for p in processes)
-    transport = top.get("transport", "zenoh" if has_ends else "shm")
+    transport = given if given is not None else ("zenoh" if has_ends else "shm")
     if transport not in TRANSPORTS:
         problems.append(f"[distributed] transport = {transport!r}: one of {', '.join(TRANSPORTS)}")
     elif transport == "shm" and has_ends:
         problems.append("listen/connect endpoints need transport = \"zenoh\" (shm: one host, shared memory)")
-    if problems:
-        raise DistributedConfigError(source, problems)
-    return DistributedConfig(tuple(processes), wm, str(transport), source)
+    return str(transport)
 
 
 # --- sections ----------------------------------------------------------------------------

@@ -99,7 +99,7 @@ class ToolLoad:
 def tool_load_from_calibration(cal) -> ToolLoad:
     """The payload of a calibration file (:func:`calibration.files.ft_calibration`) when it
     has one (mass > 0), else the 8.7 default tool."""
-    from calibration.files import ft_calibration
+    from pfma.ft_calibration import ft_calibration
     ft = ft_calibration(cal) if cal is not None else None
     if ft is None or not ft.payload_mass_kg > 0.0:
         return ToolLoad()

@@ -8,7 +8,7 @@ module imports no board code at all). Channel counts are the IRSS report's (3.4.
 
 Who asks: :mod:`pfma.rack` validates a rack file against :func:`board_kind` (device
 class, channel count, register window, serial bit rates); :class:`drivers.rackio.RackIO`
-builds drivers with :meth:`BoardKind.driver_class`; :class:`fakes.rack.FakeRack` builds
+builds drivers from :attr:`BoardKind.driver`; :class:`fakes.rack.FakeRack` builds
 fakes from :attr:`BoardKind.fake`; ``pfma regs`` prints :meth:`BoardKind.description`.
 """
 
@@ -48,9 +48,6 @@ class BoardKind:
     def window(self) -> int:
         """Bytes of A16 space the board decodes from its base (from the register table)."""
         return int(self.description().window)
-
-    def driver_class(self) -> type:
-        return resolve(self.driver)
 
     def serial_rates(self) -> tuple[float, ...]:
         """The bit rates a serial board's baud generator offers (empty for other devices)."""

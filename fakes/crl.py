@@ -96,11 +96,6 @@ class FakeCrlMaster(FaultyLine):
         self.set_axes([v / codec.POS_FULL_SCALE_M for v in xyz_m]
                       + [v / codec.ROT_FULL_SCALE_RAD for v in rpy_rad])
 
-    def set_axes_counts(self, counts: Sequence[int]) -> None:
-        if len(counts) != 6:
-            raise ValueError(f"FakeCrlMaster.set_axes_counts needs 6 values, got {len(counts)}")
-        self.axes_counts = tuple(int(c) for c in counts)
-
     def set_buttons(self, deadman: bool = False, index: bool = False, trigger: bool = False) -> None:
         self.buttons = ((codec.BTN_DEADMAN if deadman else 0) | (codec.BTN_INDEX if index else 0)
                         | (codec.BTN_TRIGGER if trigger else 0))

@@ -35,7 +35,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from pfma.errors import BusError
-from drivers.bus.modbus_server import ModbusServerThread
+from fakes.modbus_server import ModbusServerThread
 
 __all__ = ["ModbusGateway"]
 

@@ -140,18 +140,6 @@ class SimulatedRack:
             self._adc[name] = m
         return self._adc[name]
 
-    def wiring(self) -> list[tuple[str, str, str, int]]:
-        """``(axis, role, board, channel)`` for every channel the simulator drives or reads."""
-        out = []
-        for i, a in enumerate(AXES):
-            out.append((a.name, "rate command (in)", *self.command[i]))
-            out.append((a.name, "current limit (in)", *self.current_limit[i]))
-            if i in self.angle:
-                out.append((a.name, "resolver angle (out)", *self.angle[i]))
-            out.append((a.name, "tach volts (out)", *self.rate[i]))
-            out.append((a.name, "motor current volts (out)", *self.motor_current[i]))
-        return out
-
     # -- truth errors -------------------------------------------------------------------
     def set_errors(self, errors: SimErrors) -> None:
         """Install known truth errors (see :class:`fakes.arm_params.SimErrors`).

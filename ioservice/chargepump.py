@@ -24,11 +24,14 @@ The pump's port is the pump's alone: its other bits are written 0.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from bit3.layout import FAULT_AMP_ENABLE
+from bit3.layout import FaultCode
 from drivers.pio.registers import CHARGE_PUMP
 from pfma.errors import PfmaError
+
+if TYPE_CHECKING:
+    from ioservice.host import TaskHost
 
 #: how the messages name the relay's drop-out time
 DROP_MS = CHARGE_PUMP["drop_s"] * 1e3
@@ -37,10 +40,10 @@ DROP_MS = CHARGE_PUMP["drop_s"] * 1e3
 class ChargePump:
     """The charge-pump output of one service (inactive when the rack has none).
 
-    :param svc: the service (its rack, drivers, buffer views, messages)
+    :param svc: the service as its tasks see it (its rack, drivers, buffer views, a trip)
     """
 
-    def __init__(self, svc) -> None:
+    def __init__(self, svc: TaskHost) -> None:
         self.svc = svc
         self.cfg = svc.rack.amplifier_enable  #: ``pfma.rack.AmplifierEnable`` or None
         self.drv: Any = None
@@ -83,20 +86,19 @@ class ChargePump:
             # ARMED, and the amplifiers are about to drop: FAULT, said (once per arming: the
             # pump runs again only after a re-arm)
             svc = self.svc
-            svc._count_board_error(cfg.board, err)
+            svc.board_error(cfg.board, err)
             self.failed = str(err)
-            svc.fault_code = FAULT_AMP_ENABLE
-            svc.guard.trip(f"amplifier-enable charge pump ({cfg.describe()}) not written: {err}; "
-                           f"the amplifiers drop within {DROP_MS:.0f} ms", code=FAULT_AMP_ENABLE)
+            svc.fault(FaultCode.AMP_ENABLE, f"amplifier-enable charge pump ({cfg.describe()}) not written: "
+                                            f"{err}; the amplifiers drop within {DROP_MS:.0f} ms")
             return
         self.failed = None
         if self.svc.faulted_boards:
-            self.svc._board_answered(cfg.board)
+            self.svc.board_answered(cfg.board)
         self.level = level
         self.toggles += 1
         self.running = True
         if self._slot is not None:
-            self.svc._v["pio_port_bits"][self._slot] = level << cfg.bit
+            self.svc.values["pio_port_bits"][self._slot] = level << cfg.bit
 
     def probe(self) -> None:
         """The pump's bus transaction, timed with the DAC's at start (``IoService.measure_bus``):

@@ -37,6 +37,8 @@ import math
 import os
 from pathlib import Path
 
+from bit3.layout import MessageCode
+
 FORMAT = "pfma-direction-check"
 #: a pending joint's rate command, as a fraction of its rate limit (omega_fs). ASSUMED:
 #: 0.3, the checkout's fastest open-loop test (the wrist roll's 0.3 omega_fs); a
@@ -50,7 +52,8 @@ CURRENT_FRACTION = 0.5
 #: smallest move (0.15 x 0.4 rad/s x 0.6 s = 0.036 rad at the shoulder)
 CONFIRM_TRAVEL_RAD = 0.01
 #: message codes: pending at start, a joint confirmed, the check done (state written)
-PENDING_CODE, CONFIRMED_CODE, DONE_CODE = 104, 105, 106
+PENDING_CODE, CONFIRMED_CODE, DONE_CODE = (MessageCode.DIRECTION_PENDING, MessageCode.DIRECTION_CONFIRMED,
+                                          MessageCode.DIRECTION_DONE)
 #: the quantities whose scale signs make a joint's loop direction
 QUANTITIES = ("rate_command", "rate", "angle")
 _TWO_PI = 2.0 * math.pi

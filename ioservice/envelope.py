@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 
-from bit3.layout import DAC_ENVELOPE, DAC_SLEWED, Severity
+from bit3.layout import DAC_ENVELOPE, DAC_SLEWED, MessageCode, Severity
 from pfma.arm import JOINTS, JointFacts
 from pfma.envelope import Envelope, JointEnvelope
 
@@ -43,7 +43,7 @@ TACH_FULL_SCALE_FRACTION = 0.98
 #: every frame, is named); every episode is counted
 SLEW_NAME_S = 0.1
 #: message codes (the service's queue)
-CODE_SLEW, CODE_ENVELOPE, CODE_OVERSPEED = 173, 174, 175
+CODE_SLEW, CODE_ENVELOPE, CODE_OVERSPEED = MessageCode.SLEW, MessageCode.ENVELOPE, MessageCode.OVERSPEED
 _TWO_PI = 2.0 * math.pi
 
 

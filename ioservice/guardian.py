@@ -48,6 +48,7 @@ runs again.
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import signal
 import sys
@@ -60,6 +61,10 @@ from pfma.process import NO_WORD, bring_up, process_state, spawn_helper, stop_he
 POLL_S = 0.002
 #: how often it reads the DAC's CSR (keep-alive, reachability), s
 KEEPALIVE_S = 1.0
+_log = logging.getLogger(__name__)
+#: how the guardian's stderr lines begin (``pfma.log.configure``): "pfma serve guardian: TEXT"
+PROG = "pfma serve guardian"
+
 #: the line the guardian prints when it is ready
 READY = "guardian ready"
 #: after the service died, the zeros are written again this long after the first write, s:
@@ -90,7 +95,7 @@ class Guardian:
         self.now = now
         self.state = state
         self.parent_alive = parent_alive or (lambda: os.getppid() == parent_pid)
-        self.say = say or (lambda text: print(f"pfma serve guardian: {text}", file=sys.stderr, flush=True))
+        self.say = say or _log.warning  # "pfma serve guardian: TEXT" (pfma.log, configured in main)
         self.stopped_since: float | None = None
         self.acted_this_stop = False
         self.safe_writes = 0  #: times the DAC was written to 0 V
@@ -225,6 +230,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--parent-pid", type=int, required=True)
     p.add_argument("--hold-ms", type=float, required=True)
     args = p.parse_args(argv)
+    from pfma.log import configure
+    configure(PROG)
     # a Ctrl-C goes to the service, which stops us; a SIGTERM decides nothing (above)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)

@@ -38,19 +38,19 @@ Rules (issue "data-acquisition service", item 3; MVME 104 watchdog 15 ms, IRSS 3
 
 from __future__ import annotations
 
-from bit3.layout import ServiceState  # the states as the Bit3 header publishes them
+from bit3.layout import FaultCode, MessageCode, ServiceState  # the states as the Bit3 header publishes them
 from pfma.clock import Clock
 
 __all__ = ["OutputGuard", "ServiceState", "STOP_CODE", "HALT_CODE", "TRIP_PREFIXES"]
 
 #: message code of the orderly stop's notice ("outputs safe: service stopped"): not a trip
-STOP_CODE = 10
+STOP_CODE = MessageCode.STOP
 #: how every trip and stop message of the service begins: "outputs safe" while the DAC
 #: answers, "outputs NOT known safe" while its last write failed (docs/safety.md "Honest
 #: outputs"); tools that count trips look for either
 TRIP_PREFIXES = ("outputs safe", "outputs NOT known safe")
 #: message code of the halt's notices (halted by the controller, halt released): not a trip
-HALT_CODE = 11
+HALT_CODE = MessageCode.HALT
 
 
 class OutputGuard:
@@ -110,7 +110,7 @@ class OutputGuard:
         self._ever_seen = True
         if self.state == ServiceState.ARMED:
             if not fresh:
-                self.trip(self._stale_text(now - self._hb_t, stall_note), code=1)
+                self.trip(self._stale_text(now - self._hb_t, stall_note), code=FaultCode.WATCHDOG)
             elif refusal is not None:
                 self.refuse(refusal)
             elif not arm_enable:
@@ -118,10 +118,10 @@ class OutputGuard:
                     self._halt()
                 else:
                     self.state = ServiceState.SAFE
-                    self.post(0, 2, "disarmed by command")
+                    self.post(0, MessageCode.DISARMED, "disarmed by command")
             return self.state == ServiceState.ARMED
         if self.state == ServiceState.HALTED and not fresh:
-            self.trip(self._stale_text(now - self._hb_t, stall_note) + " (halted)", code=1)
+            self.trip(self._stale_text(now - self._hb_t, stall_note) + " (halted)", code=FaultCode.WATCHDOG)
             return False
         if arm_enable and arm_request != self._arm_request_used and self.state in (
                 ServiceState.SAFE, ServiceState.FAULT, ServiceState.HALTED) and not halted:
@@ -130,19 +130,19 @@ class OutputGuard:
                 # soon as its heartbeat is seen to move; say so once
                 if self._pending_notice != arm_request:
                     self._pending_notice = arm_request
-                    self.post(1, 3, "arm pending: command heartbeat not fresh")
+                    self.post(1, MessageCode.ARM_PENDING, "arm pending: command heartbeat not fresh")
                 return False
             self._arm_request_used = arm_request
             if refusal is not None:
                 self.refusals += 1
-                self.post(2, 6, f"arm refused: {refusal}")
+                self.post(2, MessageCode.ARM_REFUSED, f"arm refused: {refusal}")
             elif not rates_zero:
-                self.post(1, 4, "arm refused: joint rate commands must be 0 when arming")
+                self.post(1, MessageCode.ARM_RATES_NOT_ZERO, "arm refused: joint rate commands must be 0 when arming")
             else:
                 self.state = ServiceState.ARMED
                 self.reason = ""
                 self.first_trip = None  # a new episode begins with the next trip
-                self.post(0, 5, "armed")
+                self.post(0, MessageCode.ARMED, "armed")
                 return True
         if halted and fresh and self.state == ServiceState.SAFE:
             self._halt()
@@ -167,7 +167,7 @@ class OutputGuard:
             self._hb_t = now
         if self.state == ServiceState.ARMED and now - self._hb_t > self.watchdog_s:
             self.trip(self._stale_text(now - self._hb_t, stall_note) + ("" if stall_note else " between frames"),
-                      code=1)
+                      code=FaultCode.WATCHDOG)
             return True
         return False
 
@@ -177,7 +177,7 @@ class OutputGuard:
             return f"stale heartbeat {age_s * 1e3:.0f}>{self.watchdog_s * 1e3:.0f} ms{stall_note}"
         return f"stale heartbeat {age_s * 1e3:.1f}>{self.watchdog_s * 1e3:.0f} ms"
 
-    def refuse(self, reason: str, code: int = 7) -> None:
+    def refuse(self, reason: str, code: int = MessageCode.REFUSED) -> None:
         """A command that must not drive the arm: ARMED -> SAFE (outputs 0 V) and the reason
         posted as an error. Not a latched FAULT: the controller re-arms with a new request
         once its commands are valid again."""
@@ -190,7 +190,7 @@ class OutputGuard:
             self.first_trip = (code, reason, self.clock.now())
         self.post(2, code, reason)
 
-    def trip(self, reason: str, code: int = 9) -> None:
+    def trip(self, reason: str, code: int = MessageCode.TRIPPED) -> None:
         """Latch FAULT (outputs to 0 V) and post the reason; idempotent while faulted."""
         if self.state in (ServiceState.FAULT, ServiceState.STOPPED):
             return

@@ -17,7 +17,11 @@ arguments), validated at start.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
+import msgspec
+
+from pfma import config
 from pfma.errors import ConfigError
 
 MINOR_FRAMES_PER_MAJOR = 16  # IRSS report 2.3.5
@@ -52,6 +56,27 @@ DEFAULT_SLOTS = {
     "pio": TaskSlot(8, 5),
     "publish": TaskSlot(1, 0),
 }
+
+
+class _TaskTable(msgspec.Struct, forbid_unknown_fields=True):
+    divider: int = 1
+    phase: int = 0
+
+
+class _ScheduleTable(msgspec.Struct, forbid_unknown_fields=True):
+    frame_rate_hz: float = 320.0
+    tasks: dict[str, Any] = msgspec.field(default_factory=dict)  # each a _TaskTable (named in its errors)
+
+
+_MESSAGES = {"": "must be a table (frame_rate_hz, tasks)", "*": "unknown key(s) {key}",
+             "frame_rate_hz": "frame_rate_hz must be a number (Hz), not {value!r}",
+             "tasks": "tasks must be a table of task = {{divider = N, phase = K}}"}
+_TASK_MESSAGES = {"": "must be a table {{divider = N, phase = K}}", "*": "unknown key(s) {key}",
+                  "divider": "divider must be an integer, not {value!r}", "phase": "phase must be an integer, not {value!r}"}
+
+
+def _error(p: config.Problem) -> ConfigError:
+    return ConfigError(f"schedule: {p.message}")
 
 
 @dataclass(frozen=True)
@@ -106,19 +131,15 @@ class Schedule:
     @classmethod
     def from_config(cls, cfg: dict | None) -> "Schedule":
         """Build from a ``[schedule]`` table: ``frame_rate_hz = 320`` and
-        ``[schedule.tasks] rtd = {divider = 2, phase = 0}``."""
-        cfg = dict(cfg or {})
-        rate = float(cfg.pop("frame_rate_hz", 320.0))
-        tasks = cfg.pop("tasks", {})
-        if cfg:
-            raise ConfigError(f"schedule: unknown key(s) {', '.join(sorted(cfg))}")
+        ``[schedule.tasks] rtd = {divider = 2, phase = 0}`` (:class:`_ScheduleTable`)."""
+        raw = config.convert(cfg or {}, _ScheduleTable, source="schedule", prefix=("schedule",),
+                             messages=_MESSAGES, error=_error)
         slots = dict(DEFAULT_SLOTS)
-        for name, t in tasks.items():
-            extra = set(t) - {"divider", "phase"}
-            if extra:
-                raise ConfigError(f"schedule: task {name}: unknown key(s) {', '.join(sorted(extra))}")
-            slots[name] = TaskSlot(int(t.get("divider", 1)), int(t.get("phase", 0)))
-        return cls(frame_rate_hz=rate, slots=slots)
+        for name, t in raw.tasks.items():
+            task = config.convert(t, _TaskTable, source="schedule", prefix=("schedule", "tasks", name),
+                                  messages={k: f"task {name}: {v}" for k, v in _TASK_MESSAGES.items()}, error=_error)
+            slots[name] = TaskSlot(task.divider, task.phase)
+        return cls(frame_rate_hz=float(raw.frame_rate_hz), slots=slots)
 
     @classmethod
     def scaled(cls, frame_rate_hz: float) -> "Schedule":

@@ -11,10 +11,12 @@ reach the DAC.
 
 The device work is done by one task object per device class (``ioservice.tasks``:
 RtdTask, AdcTask, DacTask, FtTask, HandTask, PioTask), each wired once at start and run
-in the frames the schedule gives it; :meth:`IoService.frame` runs the command path
-(:meth:`IoService._task_dac`: freshness, limits, refusals, watchdog, safety guard, then
-the DAC task's conversion and write) and then the input tasks due. The drivers do every
-count <-> unit conversion; the tasks apply the rack's scales and the calibration.
+in the frames the schedule gives it, and sees the service only through
+``ioservice.host.TaskHost``; :meth:`IoService.frame` runs the command path
+(``ioservice.command``, the service's base class: claim, limits, refusals, watchdog,
+safety guard, freshness, envelope, then the DAC task's conversion and write) and then the
+input tasks due. The drivers do every count <-> unit conversion; the tasks apply the
+rack's scales and the calibration.
 
 Serial lines are drained between frames by the ``TickingClock`` hook
 (:meth:`IoService.serial_tick`), at the start and end of each frame and between its
@@ -43,14 +45,14 @@ from bit3.layout import (  # noqa: F401 - the status bits are re-exported for ol
     DAC_CLIPPED, DAC_FORCED_SAFE, LINK_FAULT, LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_NO_REFERENCE, ServiceState,
     Severity,
 )
-from bit3.layout import FIRST_TRIP_TEXT_BYTES, MODE_HALTED  # HALTED (issue 18): the halted controller's command-area mode
+from bit3.layout import FIRST_TRIP_TEXT_BYTES, FaultCode, MessageCode
 from bit3.layout import (  # noqa: F401 - inputs.fault_code values, re-exported for older importers
     FAULT_AMP_ENABLE, FAULT_COMMAND, FAULT_DAC, FAULT_DAC_UNREACHABLE, FAULT_FOREIGN, FAULT_INPUTS, FAULT_NONE,
     FAULT_OVERSPEED, FAULT_UNEXPECTED, FAULT_WATCHDOG,
 )
-from ioservice import direction
 from ioservice.chargepump import ChargePump
-from ioservice.envelope import CODE_OVERSPEED, ServiceEnvelope
+from ioservice.command import _AGE_RING_MASK, STALL_BLAME_S, CommandPath  # noqa: F401 - STALL_BLAME_S re-exported
+from ioservice.envelope import ServiceEnvelope
 from ioservice.commandcheck import TWO_WRITER_HOLD_S, ClaimStreamCheck
 from ioservice.direction import DirectionCheck
 from ioservice.loop import FrameInfo, FrameLoop, LoopStats
@@ -70,14 +72,7 @@ from drivers.rackio import RackIO
 
 # the fault codes (inputs.fault_code: FAULT_NONE ... FAULT_OVERSPEED) and their names are
 # bit3.layout's (imported above): the service writes them, the controller and tools read them
-#: a command's age is counted in frames the service ran over the last this-many-plus-one
-#: frames (a ring of the dropped-frame count; an older command is stale whatever the count)
-_AGE_RING_MASK = 63
-#: internal: nobody holds the command area's claim (no controller yet); not published
-_NO_WRITER = 0x100
-#: _fetch_command: the body carries the claim's pid and token but its stream shows a second
-#: writer (ioservice/commandcheck.py); not published (CMD_FOREIGN is, for the hold)
-_TWO_WRITERS = 0x200
+#: the command path's constants (the age ring, the stall blame) are ioservice/command.py's
 #: consecutive failing samples of an input board before the outputs are made safe
 INPUT_FAULT_FRAMES = 3
 #: serial FIFO drains (``IoService.serial_tick``) closer together than this are skipped: at
@@ -111,9 +106,6 @@ HEARTBEAT_CHECK_S = 0.001
 #: an unreachable gateway is not tried again). Assumed: 3, enough for a time-out on a
 #: loaded host, few enough that a missing board costs three bus time-outs
 INIT_ATTEMPTS = 3
-#: a stall is named in trips and stale-command messages for this long after it ended (the
-#: time a controller needs to see new inputs and answer: two watchdog periods, assumed)
-STALL_BLAME_S = 0.030
 #: no register transaction has succeeded for this long (every board failing: a gateway that
 #: stopped answering, a bus adapter gone): the bus is lost and the service stops, its outputs
 #: already safe (the first failed DAC write tripped the guard). Assumed: 0.5 s, long enough
@@ -125,7 +117,7 @@ BUS_LOST_S = 0.5
 BUS_PROBE_REPEATS = 11
 #: message code of a rack-file or calibration value accepted outside the nominal band by
 #: the rack file's ``[checks] allow_nonnominal`` (pfma/nominal.py), posted at start
-NONNOMINAL_CODE = 103
+NONNOMINAL_CODE = MessageCode.NONNOMINAL
 #: the MVME400's receive FIFO: 3 characters, full 1.56 ms after the last drain at 19200
 #: baud (10 bits a character). Over a register gateway every drain is a network round
 #: trip, so the serial lines are not opened there (the F/T may come from a local port)
@@ -147,7 +139,7 @@ class _DeviceCounter:
 STATS_MAX_DEFER_FRAMES = 16
 
 
-class IoService:
+class IoService(CommandPath):
     """The I/O service over any RegisterBus.
 
     :param rack: rack configuration (boards, channels, scales)
@@ -195,22 +187,40 @@ class IoService:
         gateway = getattr(bus, "gateway", None)
         self.gateway: str | None = gateway if isinstance(gateway, str) else None
         self.layout = buffer.layout
-        self.policy = rack.commands
-        if max_input_age_frames is not None:  # overrides the rack file's [commands] value
-            if isinstance(max_input_age_frames, bool) or int(max_input_age_frames) != max_input_age_frames \
-                    or max_input_age_frames < 1:
-                raise ConfigError(f"max_input_age_frames must be a whole number of frames >= 1, "
-                                  f"not {max_input_age_frames!r}")
-            from dataclasses import replace
-            self.policy = replace(self.policy, max_input_age_frames=int(max_input_age_frames))
-        age_s = self.policy.max_input_age_frames * self.schedule.period_s
-        if age_s > watchdog_s + 1e-9:
-            raise ConfigError(f"rack {rack.name}: [commands] max_input_age_frames = "
-                              f"{self.policy.max_input_age_frames} ({age_s * 1e3:.2f} ms at "
-                              f"{self.schedule.frame_rate_hz:g} Hz) exceeds the {watchdog_s * 1e3:g} ms "
-                              f"command watchdog; lower it or raise the watchdog")
+        self.policy = _command_policy(rack, self.schedule, watchdog_s, max_input_age_frames)
         #: the rack is simulated (published in the header's owner slots: HeaderInfo.rack_kind)
         self.simulated = bus_is_simulated(bus) if simulated is None else bool(simulated)
+        self._init_areas(owner)
+        self._init_command_state()
+        self.loop_stats = LoopStats()
+        self.loop = FrameLoop(clock, self.schedule.period_s, self.frame, self.loop_stats)
+        self.io = RackIO(bus, rack, clock)
+        self.state = ServiceState.STARTING
+        self._set_fault(FaultCode.NONE)
+        self._init_counters()
+        self._init_tasks(serial, ft_port)
+        self._cpu0 = self._cpu_s()
+        self._wall0 = clock.now()
+        self.stats_every = max(1, int(round(self.schedule.frame_rate_hz / 2)))  # twice a second
+        self._stats_between_frames = False  # True while run() has idle_tick on the clock
+        self._stats_due_k: int | None = None  # frame that asked for statistics not yet published
+        self._last_hb_check = -math.inf  # clock time of idle_tick's last heartbeat check
+        self.set_state(ServiceState.SAFE)
+        self.post(Severity.INFO, MessageCode.STARTED, f"service started: {rack.name}, "
+                  f"{self.schedule.frame_rate_hz:g} Hz frames, watchdog {watchdog_s * 1e3:g} ms")
+        for diff in self.schedule.check_documented_rates():
+            self.post(Severity.WARNING, MessageCode.SCHEDULE_DIFFERS,
+                      f"schedule differs from the report and the rack file's rate_hz: {diff}")
+        self._say_overrides(self.calibration)
+        self._direction_path = direction_state
+        self.direction: DirectionCheck | None = None  #: the direction check (None: not kept)
+        self._start_direction_check()
+
+    # ------------------------------------------------------------------ set-up
+    def _init_areas(self, owner: str) -> None:
+        """Claim the service's role in the Bit3 buffer; its writers, the command reader, the
+        message queue, and the field views of the records they fill in place."""
+        buffer = self.buf
         buffer.claim("service", owner, simulated=self.simulated)
         self.inputs = buffer.writer("inputs")
         #: optional ``bit3.ring.FrameRing``: every published inputs body is also
@@ -218,10 +228,20 @@ class IoService:
         self.ring = None
         self.stats_writer = buffer.writer("stats")
         self.commands = buffer.reader("commands")
-        #: views of the command record's fields (the record is the reader's, refreshed in place)
+        #: the command area's record (the reader's, refreshed in place by each good read)
+        self.command = self.commands.record
+        #: views of the command record's fields
         self._cv = {name: self.commands.record[name] for name in self.commands.record.dtype.names or ()}
         self.queue = buffer.queue("service_messages")
-        self.guard = OutputGuard(clock, watchdog_s, post=self._post_guard)
+        self._rec = self.inputs.record
+        #: the input area's field views (``TaskHost.values``: the tasks fill them in place)
+        self.values = self._v = {name: self.inputs.record[name] for name in self.inputs.record.dtype.names or ()}
+        self._stats_rec = self.stats_writer.record
+
+    def _init_command_state(self) -> None:
+        """The output guard and what the command path keeps from frame to frame
+        (``ioservice.command``)."""
+        self.guard = OutputGuard(self.clock, self.watchdog_s, post=self._post_guard)
         self._hb_ok: int | None = None  # heartbeat of the last command written by the claim holder
         self._hb_seen: int | None = None  # heartbeat in the command record at the last good read
         #: two writers on one claim (a forger copying the holder's pid and token): issue 28 item 6
@@ -236,31 +256,35 @@ class IoService:
         self._long_frame_max_s = 0.0
         self._long_frame_said = -math.inf
         self._guard_state = self.guard.state
-        self.loop_stats = LoopStats()
-        self.loop = FrameLoop(clock, self.schedule.period_s, self.frame, self.loop_stats)
-        self.io = RackIO(bus, rack, clock)
-        self.state = ServiceState.STARTING
-        self.fault_code = FAULT_NONE
-        self._rec = self.inputs.record
-        self._v = {name: self.inputs.record[name] for name in self.inputs.record.dtype.names or ()}
         self._first_trip: tuple[int, str, float] | None = None  # what inputs.first_trip_* hold
-        self._stats_rec = self.stats_writer.record
+        self._dropped_total = 0  #: frames the loop dropped since start (it did not run them)
+        self._dropped_at = [0] * (_AGE_RING_MASK + 1)  # _dropped_total as it was at frame k (k & mask)
+        #: while the DAC board does not answer: the message that said so (the outputs may hold
+        #: their last values; issue 28 item 5); None while its last write succeeded
+        self.dac_unreachable: str | None = None
+
+    def _init_counters(self) -> None:
+        """Device and board counters, start-up notes, the bus's health."""
         self._devices = {g: _DeviceCounter() for g in ("rtd", "adc", "dac", "ft", "pio", "crl", "hid")}
         #: boards whose last transaction failed (BOARD_FAULT set); one that answers again is
-        #: back to OK (``_board_answered``, ``_input_ok``)
+        #: back to OK (``board_answered``, ``input_ok``)
         self.faulted_boards: set[str] = set()
         self._board_fail_run: dict[str, int] = {}
         self.init_errors: list[str] = []  #: full texts of start-up problems (messages keep MESSAGE_MAX_BYTES)
         self.notes: list[str] = []  #: full texts of start-up decisions the user should know of
-        self._bus_ok_t = clock.now()  # the last register transaction that succeeded
+        self._bus_ok_t = self.clock.now()  # the last register transaction that succeeded
         self._bus_failed = False  # a register transaction failed in the current frame
         self._last_bus_error: Exception | None = None
         self.bus_lost: str | None = None  #: the bus stopped answering: why the run ended, or how it ended
         self.shed_tasks = 0  #: input tasks skipped by frames already late on a failing bus
+
+    def _init_tasks(self, serial: bool, ft_port: str | None) -> None:
+        """The device tasks, the envelope and the charge pump, wired to the boards; the DAC's
+        outputs start disconnected at 0 V; the serial lines, the CAE, the calibration."""
+        rack, lay = self.rack, self.layout
         self.rtd = RtdTask(self)
         self.adc = AdcTask(self)
         self.dac = DacTask(self)
-        lay = self.layout
         #: the motion envelope (issue 28 item 4): slew, braking distance, overspeed
         self.envelope = ServiceEnvelope(
             rack.envelope, [(j, lay.joint_entry("dac", j, "rate_command").channel, lay.joint_slot("rtd", j, "angle"),
@@ -269,22 +293,16 @@ class IoService:
             self.post)
         self._env_status = [0] * max((len(b.channels) for b in rack.boards_of("dac")), default=0)
         self._env_k = 0  # the frame the envelope last ran in
-        self._dropped_total = 0  #: frames the loop dropped since start (it did not run them)
-        self._dropped_at = [0] * (_AGE_RING_MASK + 1)  # _dropped_total as it was at frame k (k & mask)
         self.ft = FtTask(self)
-        self.hand = HandTask(self)
+        self.hand = HandTask(self, self.ft)
         self.pio = PioTask(self)
-        #: while the DAC board does not answer: the message that said so (the outputs may hold
-        #: their last values; issue 28 item 5); None while its last write succeeded
-        self.dac_unreachable: str | None = None
         self.pump = ChargePump(self)  #: the amplifier-enable charge pump (inactive without one)
         self._build_tasks()
         self.rtd.wire()
         self.adc.wire()
         self.dac.wire()
-        self._outputs_enabled = False
         # Outputs start disconnected and at 0 V: write the zeros, keep P3 off.
-        self._init_board(self.dac.cfg, self.dac.drv.disable_outputs)
+        self.init_board(self.dac.cfg, self.dac.drv.disable_outputs)
         self.pio.wire()
         self.pump.wire()
         self._mvme400: tuple[BoardConfig, Any] | None = None  # (board, driver) of the serial board
@@ -298,21 +316,6 @@ class IoService:
             self.ft.wire_url(ft_port)
         self.hand.wire_cae(self.adc)
         self._apply_calibration_extras()  # calibration: resolver offsets, CAE, F/T, header hash
-        self._cpu0 = self._cpu_s()
-        self._wall0 = clock.now()
-        self.stats_every = max(1, int(round(self.schedule.frame_rate_hz / 2)))  # twice a second
-        self._stats_between_frames = False  # True while run() has idle_tick on the clock
-        self._stats_due_k: int | None = None  # frame that asked for statistics not yet published
-        self._last_hb_check = -math.inf  # clock time of idle_tick's last heartbeat check
-        self.set_state(ServiceState.SAFE)
-        self.post(Severity.INFO, 100, f"service started: {rack.name}, "
-                  f"{self.schedule.frame_rate_hz:g} Hz frames, watchdog {watchdog_s * 1e3:g} ms")
-        for diff in self.schedule.check_documented_rates():
-            self.post(Severity.WARNING, 101, f"schedule differs from the report and the rack file's rate_hz: {diff}")
-        self._say_overrides(self.calibration)
-        self._direction_path = direction_state
-        self.direction: DirectionCheck | None = None  #: the direction check (None: not kept)
-        self._start_direction_check()
 
     # ------------------------------------------------------------------ set-up
     def _build_tasks(self) -> None:
@@ -329,13 +332,13 @@ class IoService:
                                   for frame in table)
         self._task_names = names
 
-    def _board_slot(self, board: str) -> int:
+    def board_slot(self, board: str) -> int:
         return self.layout.slot("board", board)
 
     def _slots(self, kind: str, channels) -> np.ndarray:
         return np.array([self.layout.slot(kind, c.signal) for c in channels], dtype=np.intp)
 
-    def _span(self, kind: str, channels) -> np.ndarray | slice:
+    def span(self, kind: str, channels) -> np.ndarray | slice:
         """Like :meth:`_slots`, as a slice when the slots are consecutive (the default
         layout's): the per-frame copies into the input area then avoid fancy indexing."""
         slots = self._slots(kind, channels)
@@ -343,12 +346,12 @@ class IoService:
             return slice(int(slots[0]), int(slots[0]) + len(slots))
         return slots
 
-    def _init_board(self, cfg, action) -> bool:
+    def init_board(self, cfg, action) -> bool:
         """Run a board's start-up ``action``; a bus error is tried again up to
         ``INIT_ATTEMPTS`` times in all (a gateway's one-frame time-out on a loaded host failed
         whole boards at start that then worked), except an unreachable gateway; a board that
         needed more than one attempt is named in :attr:`notes`."""
-        slot = self._board_slot(cfg.name)
+        slot = self.board_slot(cfg.name)
         first: BusError | None = None
         for attempt in range(1, INIT_ATTEMPTS + 1):
             try:
@@ -369,8 +372,8 @@ class IoService:
 
     def _init_failed(self, board: str, slot: int, err: PfmaError) -> bool:
         self._v["board_status"][slot] = BOARD_FAULT
-        self._count_board_error(board, err)
-        self.post(Severity.ERROR, 110, f"{board}: init failed: {err}")
+        self.board_error(board, err)
+        self.post(Severity.ERROR, MessageCode.BOARD_INIT_FAILED, f"{board}: init failed: {err}")
         return False
 
     def _wire_serial(self) -> None:
@@ -385,7 +388,7 @@ class IoService:
         ft_ch = next((c for c in cfg.channels if c.quantity == "force_torque"), None)
         drv = self.io.driver(cfg)
         bauds = [int(ch_.baud or 19200) for ch_ in sorted(cfg.channels, key=lambda c: c.channel)]
-        if not self._init_board(cfg, lambda: drv.init(baud_a=bauds[0], baud_b=bauds[1])):
+        if not self.init_board(cfg, lambda: drv.init(baud_a=bauds[0], baud_b=bauds[1])):
             return
         self._mvme400 = (cfg, drv)
         if ft_ch is not None and self._ft_url is None:
@@ -404,7 +407,7 @@ class IoService:
                 f"each drain would be a network round trip; running with {ft} and without the "
                 f"CRL hand controller")
         self.notes.append(text)
-        self.post(Severity.WARNING, 123, "serial not over gateway: " + ("F/T on local port" if ft_port
+        self.post(Severity.WARNING, MessageCode.SERIAL_NOT_OVER_GATEWAY, "serial not over gateway: " + ("F/T on local port" if ft_port
                                                                          else "no F/T, no CRL"))
 
     # -- private names older code and tests reach (the state is the tasks')
@@ -459,24 +462,28 @@ class IoService:
         self.direction = DirectionCheck(self.rack, self.layout, self._direction_path, self.dac.limit)
         text = self.direction.start_text()
         if text:
-            self.post(Severity.WARNING, direction.PENDING_CODE, text)
+            self.post(Severity.WARNING, MessageCode.DIRECTION_PENDING, text)
             self.notes.append(text)
-
-    def _direction(self, eng: list[float]) -> str | None:
-        """This frame's direction-check refusal (a pending joint moved the wrong way, or the
-        command is not a direction-check move), None when there is none; posts what the
-        check found (a joint confirmed, the record written)."""
-        d = self.direction
-        assert d is not None
-        v = self._v
-        why = d.observe(eng, v["rtd_angle_rad"], v["adc_value"], self.guard.state == ServiceState.ARMED)
-        for sev, code, text in d.events:
-            self.post((Severity.INFO, Severity.WARNING, Severity.ERROR)[sev], code, text)
-        d.events.clear()
-        return why or d.restriction(eng)
 
     def post(self, severity: int, code: int, text: str) -> None:
         self.queue.post(text, severity=severity, code=code, t_s=self.clock.now())
+
+    def fault(self, code: FaultCode, reason: str, trip_code: int | None = None) -> None:
+        """FAULT (``TaskHost.fault``): ``code`` published as ``inputs.fault_code``, the guard
+        tripped with ``reason`` (posted with ``trip_code``, default ``code``); the outputs go
+        safe in this frame."""
+        self._set_fault(code)
+        self.guard.trip(reason, code=code if trip_code is None else trip_code)
+
+    def armed(self) -> bool:
+        """The guard lets the commands drive the arm (``TaskHost.armed``)."""
+        return self.guard.state == ServiceState.ARMED
+
+    def device_error(self, group: str) -> int:
+        """Count an error of a device group (``TaskHost.device_error``); returns the count."""
+        d = self._devices[group]
+        d.errors += 1
+        return d.errors
 
     def _post_guard(self, severity: int, code: int, text: str) -> None:
         self.post((Severity.INFO, Severity.WARNING, Severity.ERROR)[min(severity, 2)], code, text)
@@ -486,46 +493,45 @@ class IoService:
         self.buf.set_service_state(state)
         self._v["service_state"][...] = int(state)
 
-    def _count_board_error(self, board: str, err: Exception) -> None:
+    def board_error(self, board: str, err: Exception) -> None:
         self._bus_failed = True
         self._last_bus_error = err
-        slot = self._board_slot(board)
+        slot = self.board_slot(board)
         self._v["board_errors"][slot] += 1
         self._v["board_status"][slot] |= BOARD_FAULT
         self._v["board_last_error_addr"][slot] = getattr(err, "addr", 0) or 0
         self._v["board_last_error_t_s"][slot] = self.clock.now()
         self.faulted_boards.add(board)
 
-    def _board_answered(self, board: str) -> None:
+    def board_answered(self, board: str) -> None:
         """A board in :attr:`faulted_boards` answered a whole transaction again (a DAC
         write-all, a serial drain, a matrix route): an initialised board's status goes back
         to OK (its error count and last error stay). Callers test ``faulted_boards`` first,
         so a healthy frame pays one set test."""
         if board in self.faulted_boards:
             self.faulted_boards.discard(board)
-            slot = self._board_slot(board)
+            slot = self.board_slot(board)
             if self._v["board_status"][slot] & BOARD_INIT:
                 self._v["board_status"][slot] = BOARD_OK | BOARD_INIT
 
-    def _input_failed(self, board: str, group: str, err: Exception) -> None:
-        self._count_board_error(board, err)
+    def input_failed(self, board: str, group: str, err: Exception) -> None:
+        self.board_error(board, err)
         self._devices[group].errors += 1
         run = self._board_fail_run.get(board, 0) + 1
         self._board_fail_run[board] = run
         if run == 1:
-            self.post(Severity.ERROR, 111, f"{board}: {err}")
+            self.post(Severity.ERROR, MessageCode.INPUT_FAILED, f"{board}: {err}")
         if run == INPUT_FAULT_FRAMES:
-            self.fault_code = FAULT_INPUTS
-            self.guard.trip(f"{board} failed {run} samples in a row: {err}", code=FAULT_INPUTS)
+            self.fault(FaultCode.INPUTS, f"{board} failed {run} samples in a row: {err}")
 
-    def _input_ok(self, board: str, slot: int) -> None:
+    def input_ok(self, board: str, slot: int) -> None:
         self._bus_ok_t = self.clock.now()
         if self._board_fail_run.get(board):
             self._board_fail_run[board] = 0
             self._v["board_status"][slot] = BOARD_OK | BOARD_INIT
             self.faulted_boards.discard(board)
 
-    def _sampled(self, group: str, t: float) -> None:
+    def sampled(self, group: str, t: float) -> None:
         d = self._devices[group]
         d.samples += 1
         d.t_last = t
@@ -575,8 +581,7 @@ class IoService:
                     if task.drain_after:
                         self._drain_if_due()  # a slow input scan must not overrun the FIFOs
         except Exception as err:  # noqa: BLE001 - a fault we cannot explain: outputs safe
-            self.fault_code = FAULT_UNEXPECTED
-            self.guard.trip(f"unexpected {type(err).__name__} in frame {k}: {err}", code=FAULT_UNEXPECTED)
+            self.fault(FaultCode.UNEXPECTED, f"unexpected {type(err).__name__} in frame {k}: {err}")
             self._apply_safe()
         if self._bus_failed and self.bus_lost is None:
             self._check_bus_lost()
@@ -604,11 +609,12 @@ class IoService:
             "; outputs made safe, service stopping" if self.dac_unreachable is None else
             "; outputs NOT known safe (the DAC did not answer: they may hold their last values; "
             "press the hardware E-stop), service stopping")
-        self.post(Severity.ERROR, 152, f"bus lost: {self.bus_name}")
-        self.fault_code = FAULT_DAC if self.fault_code == FAULT_NONE else self.fault_code
+        self.post(Severity.ERROR, MessageCode.BUS_LOST, f"bus lost: {self.bus_name}")
+        if self.fault_code == FaultCode.NONE:
+            self._set_fault(FaultCode.DAC)
         # outputs: the DAC write of this frame has already failed (and tripped the guard);
         # stop() disables them once more on the way out; no third attempt in this frame
-        self.guard.trip(f"bus {self.bus_name} lost", code=FAULT_DAC)
+        self.guard.trip(f"bus {self.bus_name} lost", code=FaultCode.DAC)
         self.loop.stop()
 
     def _bus_silence(self, silent: float) -> str:
@@ -624,7 +630,7 @@ class IoService:
                 " when the run ended; outputs made safe" if self.dac_unreachable is None else
                 " when the run ended; outputs NOT known safe (the DAC did not answer: they may hold "
                 "their last values; press the hardware E-stop)")
-            self.post(Severity.ERROR, 152, f"bus lost: {self.bus_name}")
+            self.post(Severity.ERROR, MessageCode.BUS_LOST, f"bus lost: {self.bus_name}")
 
     # ------------------------------------------------------------------ what the bus can keep
     def measure_bus(self, repeats: int = BUS_PROBE_REPEATS) -> tuple[dict[str, float], float]:
@@ -635,13 +641,15 @@ class IoService:
         The DAC probe writes the shadow's codes (0 V while the outputs are disconnected, as
         they are until the first arm)."""
         tasks: dict[str, Any] = {"dac": self.dac, "rtd": self.rtd, "adc": self.adc, "pio": self.pio}
+        probes = {name: tasks[name].probe for name in BUS_TASKS}
+        probes["dac"] = self._probe_dac
         now = self.clock.now
         serial = self._mvme400[1] if self._mvme400 is not None else None
         times: dict[str, list[float]] = {name: [] for name in (*BUS_TASKS, "serial")}
         for _ in range(repeats):  # round by round: a burst of host load hits every task alike
             for name in BUS_TASKS:
                 t0 = now()
-                tasks[name].probe()
+                probes[name]()
                 times[name].append(now() - t0)
             if serial is not None:  # the drains at the start and end of every frame
                 t0 = now()
@@ -653,6 +661,11 @@ class IoService:
         out = {name: float(np.median(times[name])) for name in BUS_TASKS}
         every = 2 * float(np.median(times["serial"])) if serial is not None else 0.0
         return out, every
+
+    def _probe_dac(self) -> None:
+        """The DAC's probe, and the charge pump's: its write follows the DAC's in every ARMED frame."""
+        self.dac.probe()
+        self.pump.probe()
 
     def fit_schedule(self, slow: bool = False, repeats: int = BUS_PROBE_REPEATS) -> str | None:
         """Measure the bus (:meth:`measure_bus`) and check that every frame of the schedule
@@ -691,7 +704,7 @@ class IoService:
                 f"{b_s * 1e3:.2f} ms in the busiest frame ({'+'.join(b_names)}) of "
                 f"{better.period_s * 1e3:.3f} ms (it could not keep {describe_rates(sched)}: "
                 f"{frame_s * 1e3:.2f} ms)")
-        self.post(Severity.WARNING, 102, f"slow bus: rtd {better.rate_hz('rtd'):g} Hz, "
+        self.post(Severity.WARNING, MessageCode.SLOW_BUS, f"slow bus: rtd {better.rate_hz('rtd'):g} Hz, "
                                          f"dac {better.rate_hz('dac'):g} Hz")
         return text
 
@@ -714,7 +727,8 @@ class IoService:
         self.stats_every = max(1, int(round(schedule.frame_rate_hz / 2)))
         self._claim_check.hold_frames = int(round(TWO_WRITER_HOLD_S * schedule.frame_rate_hz))
         for diff in schedule.check_documented_rates():
-            self.post(Severity.WARNING, 101, f"schedule differs from the report and the rack file's rate_hz: {diff}")
+            self.post(Severity.WARNING, MessageCode.SCHEDULE_DIFFERS,
+                      f"schedule differs from the report and the rack file's rate_hz: {diff}")
 
     # one input task on its own, outside the frame (``bench/bench_service.py`` times them)
     def _task_rtd(self) -> None:
@@ -733,36 +747,6 @@ class IoService:
         self.pio.run(self.loop.k)
 
 
-    # ------------------------------------------------------------------ the command path
-    def _fetch_command(self) -> int:
-        """One bounded read of the command area (a writer killed mid-write leaves its
-        counter odd: the frame goes on and the command counts as absent, the record keeps
-        the last good copy) and the claim check (pid and token in the body must be the
-        owner slot's). Returns 0 for a good command, CMD_ABSENT, CMD_FOREIGN, or
-        _NO_WRITER (nobody holds the claim). Only a good command's heartbeat is noted in
-        ``_hb_ok``: a foreign write never feeds the watchdog."""
-        if not self.commands.try_read():
-            return CMD_ABSENT
-        c = self._cv
-        pid, token = self.buf.owner_pid_token("commands")
-        body_pid = int(c["writer_pid"])
-        if pid <= 0 or body_pid == 0:  # nobody holds the claim, or the holder has not written yet
-            return _NO_WRITER
-        if body_pid != pid or int(c["writer_token"]) != token:
-            return CMD_FOREIGN
-        hb = int(c["heartbeat"])
-        if self._claim_check.note(pid, token, self.commands.last_seq, hb, int(c["controller_frame"])):
-            return _TWO_WRITERS  # the claim's stamps, but not one writer's stream: no heartbeat
-        self._hb_ok = hb
-        return 0
-
-    def _stall_note(self) -> str:
-        """" (stall N ms)" while a recent host stall explains a late command, else "" (the
-        stall itself was announced as "host stall: ..." when it ended)."""
-        if self.clock.now() - self._stall_end <= STALL_BLAME_S:
-            return f" (stall {self._stall_s * 1e3:.0f} ms)"
-        return ""
-
     def _note_alive(self, now: float) -> None:
         """Called at every frame start and hook tick: a gap longer than HOST_STALL_S since the
         service last ran (a tick, or the end of a frame's work) is a host stall, recorded and
@@ -777,7 +761,7 @@ class IoService:
             v = self._v
             v["host_stall_s"][...] = self._stall_s
             v["host_stall_t_s"][...] = now
-            self.post(Severity.WARNING, 170, f"host stall: service did not run for {self._stall_s * 1e3:.0f} ms")
+            self.post(Severity.WARNING, MessageCode.HOST_STALL, f"host stall: service did not run for {self._stall_s * 1e3:.0f} ms")
 
     def _long_frame(self, k: int, took_s: float, now: float) -> None:
         """A frame whose own run took longer than HOST_STALL_S (its work, or the host taking
@@ -790,161 +774,7 @@ class IoService:
         n, longest = self._long_frames, self._long_frame_max_s
         self._long_frame_said, self._long_frames, self._long_frame_max_s = now, 0, 0.0
         more = f" ({n} such frames, longest {longest * 1e3:.0f} ms)" if n > 1 else ""
-        self.post(Severity.WARNING, 172, f"long frame: frame {k} ran {took_s * 1e3:.0f} ms{more}")
-
-    def _check_limits(self, eng: list[float]) -> str | None:
-        """The first command value that is not finite or beyond its limit (x (1 + margin)),
-        as a message giving field, value and limit; None when every value is acceptable."""
-        isfinite = math.isfinite
-        dac = self.dac
-        neg_margin = -self.policy.limit_margin
-        for ch, (e, lim, is_lim) in enumerate(zip(eng, dac.refuse, dac.is_limit)):
-            if not isfinite(e):
-                bad = True
-            elif is_lim:
-                bad = e > lim or e < neg_margin * dac.limit[ch]
-            else:
-                bad = e > lim or e < -lim
-            if bad:
-                lo = "0.." if is_lim else "+-"
-                return (f"refused {dac.names[ch]}={e:.4g} {dac.units[ch]}, "
-                        f"limit {lo}{dac.limit[ch]:g}")
-        c = self._cv
-        for f in ("crl_reflect_force_n", "crl_reflect_torque_nm"):
-            if not all(map(isfinite, c[f].tolist())):
-                return f"refused {f} not finite"
-        return None
-
-    def _announce(self, bits: int, text: str, severity: int = Severity.ERROR) -> None:
-        """Post ``text`` when a command-status condition starts (not every frame it lasts)."""
-        if not self._cmd_episode & bits:
-            self._cmd_episode |= bits
-            self.post(severity, 171, text)
-
-    def _task_dac(self, k: int = 0) -> None:
-        """The command path, first in every frame: fetch and check the command, update the
-        safety guard, and have the DAC task convert and write it (or the safe zeros)."""
-        v = self._v
-        dac = self.dac
-        status = self._fetch_command()
-        c = self._cv
-        refusal = None
-        hb_now = int(c["heartbeat"])
-        new_write = self._hb_seen is not None and hb_now != self._hb_seen
-        if not status & CMD_ABSENT:
-            self._hb_seen = hb_now
-        if status & CMD_ABSENT:
-            v["absent_commands"] += 1
-            self._announce(CMD_ABSENT, "command area: no stable copy (writer died mid-write?)",
-                           Severity.WARNING)
-        elif status & CMD_FOREIGN:
-            # the body is not the claim holder's: never obeyed; a new such write is counted
-            pid, _tok = self.buf.owner_pid_token("commands")
-            if new_write:
-                v["foreign_writes"] += 1
-            refusal = f"refused write by pid {int(c['writer_pid'])}: owner pid {pid}"
-        new_two, two = self._claim_check.frame(k)
-        if two is not None:  # two writers on the claim, now or within the hold
-            status |= CMD_FOREIGN
-            if new_two:
-                v["foreign_writes"] += 1
-                if self.guard.state != ServiceState.ARMED:  # (ARMED: the guard's refusal says it)
-                    self._announce(CMD_FOREIGN, two)
-                self._cmd_episode |= CMD_FOREIGN
-            if refusal is None:
-                refusal = two
-        status &= CMD_ABSENT | CMD_FOREIGN  # _NO_WRITER, _TWO_WRITERS are not published
-        # engineering command per DAC channel, in plain Python (16 values)
-        eng = [0.0] * dac.n
-        rates = c["joint_rate_rad_s"].tolist()
-        for ch, x in zip(dac.rate_list, rates):
-            eng[ch] = x
-        for ch, x in zip(dac.limit_list, c["current_limit_a"].tolist()):
-            eng[ch] = x
-        if dac.gripper_ch is not None:
-            eng[dac.gripper_ch] = float(c["gripper"])
-        if refusal is None:
-            refusal = self._check_limits(eng)
-            if refusal is None and self.direction is not None and self.direction.pending:
-                refusal = self._direction(eng)
-            if refusal is not None:
-                status |= CMD_REFUSED
-        hb = self._hb_ok if self._hb_ok is not None else -1
-        live = self.guard.update(hb, bool(c["arm_request"]), int(c["rearm_counter"]),
-                                 not any(rates), refusal=refusal, stall_note=self._stall_note(),
-                                 halted=int(c["mode"]) == MODE_HALTED)  # HALTED (issue 18): a halted controller
-        if self.guard.refusals != self._refusals_seen:  # one refusal, one message (the guard's)
-            self._refusals_seen = self.guard.refusals
-            v["refused_commands"] += 1
-            self.fault_code = FAULT_FOREIGN if status & CMD_FOREIGN else FAULT_COMMAND
-        v["command_heartbeat"][...] = hb if hb >= 0 else 0
-        v["command_age_s"][...] = self.guard.heartbeat_age_s()
-        if self.guard.state == ServiceState.FAULT and self.state != ServiceState.FAULT:
-            if self.fault_code == FAULT_NONE:
-                self.fault_code = FAULT_WATCHDOG
-            v["watchdog_tripped"][...] = self.fault_code == FAULT_WATCHDOG
-        if self.guard.state == ServiceState.ARMED and self._guard_state != ServiceState.ARMED:
-            # a successful (re-)arm: what made the outputs safe before is over
-            self.fault_code = FAULT_NONE
-            v["watchdog_tripped"][...] = 0
-            self._cmd_episode = 0
-        self._guard_state = self.guard.state
-        # freshness: how old are the inputs these commands were computed from?
-        f_in = int(c["inputs_frame"])
-        age = k - f_in
-        if 0 < age <= _AGE_RING_MASK:
-            # counted in frames the service ran: frames it dropped (it did not run, so no newer
-            # inputs existed for the controller to answer) do not age the command
-            age -= self._dropped_total - self._dropped_at[f_in & _AGE_RING_MASK]
-        v["command_inputs_frame"][...] = f_in
-        v["command_input_age_frames"][...] = age if 0 <= age < 0xFFFFFFFF else 0xFFFFFFFF
-        env = self.envelope
-        over = env.sample(v["rtd_angle_rad"], v["adc_value"], float(v["t_rtd_s"]))
-        if over is not None and live:  # the envelope's overspeed: every channel 0 V, brakes set
-            self.fault_code = FAULT_OVERSPEED
-            self.guard.trip(over, code=CODE_OVERSPEED)
-            live = False
-        if not live:
-            v["command_status"][...] = status
-            # a condition that ended may be announced again; refusals stay announced until re-armed
-            self._cmd_episode &= status | CMD_REFUSED | CMD_FOREIGN
-            env.reset()
-            self._apply_safe()
-            return
-        if not self._outputs_enabled:
-            dac.drv.enable_outputs()  # the shadow holds the zeros written while safe
-            self._outputs_enabled = True
-        stale = age < 0 or age > self.policy.max_input_age_frames
-        if stale:
-            status |= CMD_STALE
-            v["stale_commands"] += 1
-            self._announce(CMD_STALE, f"rates 0V: cmd inputs {age} fr old > "
-                                      f"{self.policy.max_input_age_frames}{self._stall_note()}")
-        self._cmd_episode &= status | CMD_REFUSED | CMD_FOREIGN
-        v["command_status"][...] = status
-        est = self._env_status
-        if not stale:
-            for ch in dac.rate_list:
-                est[ch] = 0
-            env.apply(eng, self.schedule.period_s * max(1, k - self._env_k), est)
-        else:
-            env.reset()
-        self._env_k = k
-        volts, st_out = dac.volts(eng, stale)
-        if not stale:
-            for ch in dac.rate_list:
-                st_out[ch] |= est[ch]
-        self._write_dac(volts, st_out, eng)
-
-    def _apply_safe(self) -> None:
-        if self.state == ServiceState.ARMED or self.guard.state == ServiceState.FAULT:
-            self.set_state(self.guard.state)
-        self._write_dac(self.dac.zeros, self.dac.forced_safe, self.dac.zeros)
-
-    def _write_dac(self, volts: list[float], status: list[int], eng: list[float]) -> None:
-        ok = self.dac.write(volts, status, eng)
-        # the amplifier-enable charge pump: one edge per frame while ARMED and the DAC answers
-        self.pump.frame(ok and self.guard.state == ServiceState.ARMED)
+        self.post(Severity.WARNING, MessageCode.LONG_FRAME, f"long frame: frame {k} ran {took_s * 1e3:.0f} ms{more}")
 
     def _publish(self, info: FrameInfo) -> None:
         v = self._v
@@ -989,10 +819,10 @@ class IoService:
         try:
             m[1].poll()
         except PfmaError as err:
-            self._count_board_error(m[0].name, err)
+            self.board_error(m[0].name, err)
         else:
             if self.faulted_boards:
-                self._board_answered(m[0].name)
+                self.board_answered(m[0].name)
         fts = self.ft
         ft = fts.ft
         if ft is not None and fts.in_tick:
@@ -1001,21 +831,21 @@ class IoService:
             except PfmaError:
                 due = True  # let the decode count the failure
             if due:
-                self._decode_serial(hand=False)
+                self.decode_serial(hand=False)
 
     def _drain_if_due(self) -> None:
         """Inside a frame, at a task boundary: drain the serial FIFOs if ``SERIAL_MIN_GAP_S``
         has passed since the last drain (a slow scan, or a host that preempted the frame)."""
         self.serial_tick()
 
-    def _decode_serial(self, hand: bool = True) -> None:
+    def decode_serial(self, hand: bool = True) -> None:
         try:
             self.ft.decode()
             if hand:
                 self.hand.decode()
         except PfmaError as err:
             if self._mvme400 is not None:
-                self._count_board_error(self._mvme400[0].name, err)
+                self.board_error(self._mvme400[0].name, err)
             self._devices["ft"].errors += 1
 
     # ------------------------------------------------------------------ statistics
@@ -1043,7 +873,7 @@ class IoService:
             self._fetch_command()  # only a good command's heartbeat counts (_hb_ok)
             hb = self._hb_ok if self._hb_ok is not None else -1
             if self.guard.check_between_frames(hb, stall_note=self._stall_note()):
-                self.fault_code = FAULT_WATCHDOG
+                self._set_fault(FaultCode.WATCHDOG)
                 self._v["watchdog_tripped"][...] = 1
                 self._apply_safe()
         if self._stats_due_k is not None:
@@ -1120,19 +950,18 @@ class IoService:
             self.dac.drv.disable_outputs()
         except PfmaError as err:
             self.guard.outputs_known_safe = False  # the stop's notice must not call them safe
-            self.fault_code = FAULT_DAC_UNREACHABLE
-            self.post(Severity.ERROR, 150, f"could not disable DAC outputs: {err}")
+            self._set_fault(FaultCode.DAC_UNREACHABLE)
+            self.post(Severity.ERROR, MessageCode.DAC_NOT_DISABLED, f"could not disable DAC outputs: {err}")
         else:
             self.guard.outputs_known_safe = True
             self.dac_unreachable = None
-            if self.fault_code == FAULT_DAC_UNREACHABLE:  # written 0 V and disconnected after all
-                self.fault_code = FAULT_DAC
+            if self.fault_code == FaultCode.DAC_UNREACHABLE:  # written 0 V and disconnected after all
+                self._set_fault(FaultCode.DAC)
         self._v["fault_code"][...] = self.fault_code
         self.guard.stop(reason if self.guard.outputs_known_safe else
                         f"{reason}; the DAC did not answer: its outputs may hold their last values "
                         f"({self.dac.last_values_text()}); {self.pump.stopped_text()}; press the hardware E-stop")
-        self._outputs_enabled = False
-        self.dac.publish_stopped()
+        self.dac.publish_stopped()  # the outputs disconnected: no outputs, no brakes
         self.set_state(ServiceState.STOPPED)
         self.publish_stats()
         if self.guard.first_trip is not self._first_trip:
@@ -1142,7 +971,7 @@ class IoService:
             self.ring.write(self.inputs.raw)
         self.buf.wake_frame_waiters()  # a reader waiting for the next frame sees STOPPED now
         self.ft.stop()
-        self.post(Severity.INFO, 151, f"{reason} (pid {os.getpid()})")
+        self.post(Severity.INFO, MessageCode.STOPPED, f"{reason} (pid {os.getpid()})")
 
     # ------------------------------------------------------------------ calibration
     # (calibration issue) Scales and offsets come from the rack configuration with the
@@ -1174,7 +1003,7 @@ class IoService:
         self.adc.calibrate(rack)
         self.dac.calibrate(rack)
         self._apply_calibration_extras()
-        self.post(Severity.INFO, 160, f"calibration v{cal.version} loaded ({cal.hash().hex()})")
+        self.post(Severity.INFO, MessageCode.CALIBRATION_LOADED, f"calibration v{cal.version} loaded ({cal.hash().hex()})")
         self._start_direction_check()  # the calibration may have changed a sign
         self._say_overrides(cal)
 
@@ -1218,6 +1047,27 @@ def _bus_name(bus) -> str:
         except Exception:  # noqa: BLE001 - a name for messages only
             pass
     return type(bus).__name__
+
+
+def _command_policy(rack: RackConfig, schedule: Schedule, watchdog_s: float,
+                    max_input_age_frames: int | None):
+    """The rack file's ``[commands]``, its ``max_input_age_frames`` overridden when given;
+    refused (ConfigError) when the age exceeds the command watchdog."""
+    policy = rack.commands
+    if max_input_age_frames is not None:  # overrides the rack file's [commands] value
+        if isinstance(max_input_age_frames, bool) or int(max_input_age_frames) != max_input_age_frames \
+                or max_input_age_frames < 1:
+            raise ConfigError(f"max_input_age_frames must be a whole number of frames >= 1, "
+                              f"not {max_input_age_frames!r}")
+        from dataclasses import replace
+        policy = replace(policy, max_input_age_frames=int(max_input_age_frames))
+    age_s = policy.max_input_age_frames * schedule.period_s
+    if age_s > watchdog_s + 1e-9:
+        raise ConfigError(f"rack {rack.name}: [commands] max_input_age_frames = "
+                          f"{policy.max_input_age_frames} ({age_s * 1e3:.2f} ms at "
+                          f"{schedule.frame_rate_hz:g} Hz) exceeds the {watchdog_s * 1e3:g} ms "
+                          f"command watchdog; lower it or raise the watchdog")
+    return policy
 
 
 def _calibrated_rack(rack: RackConfig, calibration):

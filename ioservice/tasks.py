@@ -3,15 +3,15 @@
 Each task is wired once at start (``wire``: its boards, drivers, buffer slots and
 calibration looked up from the rack configuration and the Bit3 layout) and run by
 the service's frame in the minor frames the schedule gives it
-(``run(k)``, k = the frame index). A task reaches the service it belongs to for the
-shared bookkeeping: the input area's value views (``svc._v``), the clock, board and device
-counters, messages.
+(``run(k)``, k = the frame index). A task reaches the service it belongs to only through
+``ioservice.host.TaskHost`` (the input area's value views, the clock, the board and device
+counters, messages, a trip); this module does not import the service.
 
 - :class:`RtdTask`: the resolver boards (angles, status) at 160 Hz
 - :class:`AdcTask`: the A/D boards (32-channel scans, engineering values) at 160 Hz
 - :class:`DacTask`: the DAC board: its channels' roles, limits and conversion of the
   engineering commands to volts, and the write; the command path that decides what is
-  written (freshness, refusals, watchdog, safety guard) is the service's
+  written (freshness, refusals, watchdog, safety guard) is ``ioservice.command``
 - :class:`FtTask`: the F/T sensor (serial line: start-up dialogue, decoding; or a CAN node)
   and its link status at 80 Hz
 - :class:`HandTask`: the CRL (serial), CAE (A/D) and USB HID (SpaceMouse) hand
@@ -37,12 +37,13 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from bit3.layout import (
-    CHANNEL_BUS_ERROR, DAC_CLIPPED, DAC_FORCED_SAFE, FAULT_DAC_UNREACHABLE, LINK_FAULT, LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_NO_REFERENCE,
-    ServiceState, Severity,
+    CHANNEL_BUS_ERROR, DAC_CLIPPED, DAC_FORCED_SAFE, LINK_FAULT, LINK_OPEN, LINK_STALE, LINK_SYNCED, RTD_NO_REFERENCE,
+    MessageCode, Severity,
 )
 from pfma.errors import PfmaError
 
 if TYPE_CHECKING:
+    from ioservice.host import TaskHost
     from calibration.files import FtCalibration
     from drivers.crl.cae import CaeHandController
     from drivers.crl.crl import CrlHandController
@@ -85,7 +86,7 @@ class RtdTask:
     name = "rtd"
     drain_after = True  # a slow input scan must not overrun the serial FIFOs
 
-    def __init__(self, svc) -> None:
+    def __init__(self, svc: TaskHost) -> None:
         self.svc = svc
         self.boards: list[tuple] = []
         self.cal: dict[str, tuple[list[float], list[float]]] = {}
@@ -95,9 +96,9 @@ class RtdTask:
         self.boards = []
         for cfg in svc.rack.boards_of("rtd"):
             drv = svc.io.driver(cfg)
-            slots = svc._span("rtd", cfg.channels)
-            self.boards.append((cfg, drv, slots, svc._board_slot(cfg.name)))
-            svc._init_board(cfg, drv.status)
+            slots = svc.span("rtd", cfg.channels)
+            self.boards.append((cfg, drv, slots, svc.board_slot(cfg.name)))
+            svc.init_board(cfg, drv.status)
 
     def probe(self) -> None:
         """The run's transactions (counts and status of each board), nothing published."""
@@ -120,14 +121,14 @@ class RtdTask:
 
     def run(self, k: int = 0) -> None:
         svc = self.svc
-        v = svc._v
+        v = svc.values
         t_ok = None
         for cfg, drv, slots, bslot in self.boards:
             t = svc.clock.now()
             try:
                 counts, status = drv.read_counts_status()  # one bus transaction per board
             except PfmaError as err:
-                svc._input_failed(cfg.name, "rtd", err)
+                svc.input_failed(cfg.name, "rtd", err)
                 v["rtd_status"][slots] |= CHANNEL_BUS_ERROR
                 continue
             v["rtd_counts"][slots] = counts
@@ -140,11 +141,11 @@ class RtdTask:
                                              for a, k_, off in zip(angles, *cal, strict=True)]
             ref = 0 if status.reference_present else RTD_NO_REFERENCE
             v["rtd_status"][slots] = [int(f) | ref for f in status.faults]
-            svc._input_ok(cfg.name, bslot)
+            svc.input_ok(cfg.name, bslot)
             v["t_rtd_s"][...] = t
             t_ok = t
         if t_ok is not None:
-            svc._sampled("rtd", t_ok)
+            svc.sampled("rtd", t_ok)
 
 
 class AdcTask:
@@ -154,7 +155,7 @@ class AdcTask:
     name = "adc"
     drain_after = True
 
-    def __init__(self, svc) -> None:
+    def __init__(self, svc: TaskHost) -> None:
         self.svc = svc
         self.boards: list[tuple] = []
         self._started: dict[str, float] = {}  # boards whose scan start() began this frame: when
@@ -165,13 +166,13 @@ class AdcTask:
         for cfg in svc.rack.boards_of("adc"):
             drv = svc.io.driver(cfg)
             chans = _by_channel(cfg.channels)
-            slots = svc._span("adc", chans)
+            slots = svc.span("adc", chans)
             scale = np.array([c.scale for c in chans])
             offset = np.array([c.offset for c in chans])
             counts = np.zeros(len(chans), dtype=np.int64)
             volts = np.zeros(len(chans))
-            self.boards.append((cfg, drv, slots, scale, offset, counts, volts, svc._board_slot(cfg.name)))
-            svc._init_board(cfg, lambda d=drv: d.read_counts(0))
+            self.boards.append((cfg, drv, slots, scale, offset, counts, volts, svc.board_slot(cfg.name)))
+            svc.init_board(cfg, lambda d=drv: d.read_counts(0))
 
     def probe(self) -> None:
         """The run's transactions (one scan of each board into a scratch array)."""
@@ -211,7 +212,7 @@ class AdcTask:
 
     def run(self, k: int = 0) -> None:
         svc = self.svc
-        v = svc._v
+        v = svc.values
         started = self._started
         for cfg, drv, slots, scale, offset, counts, volts, bslot in self.boards:
             t = started.pop(cfg.name, None)
@@ -222,7 +223,7 @@ class AdcTask:
                     t = svc.clock.now()
                     drv.scan(counts)
             except PfmaError as err:
-                svc._input_failed(cfg.name, "adc", err)
+                svc.input_failed(cfg.name, "adc", err)
                 v["adc_status"][slots] |= CHANNEL_BUS_ERROR
                 continue
             drv.volts_from_counts(counts, out=volts)
@@ -230,9 +231,9 @@ class AdcTask:
             v["adc_volts"][slots] = volts
             v["adc_value"][slots] = volts * scale + offset
             v["adc_status"][slots] = 0
-            svc._input_ok(cfg.name, bslot)
+            svc.input_ok(cfg.name, bslot)
             v["t_adc_s"][...] = t
-            svc._sampled("adc", t)
+            svc.sampled("adc", t)
 
 
 class DacTask:
@@ -243,8 +244,11 @@ class DacTask:
 
     name = "dac"
 
-    def __init__(self, svc) -> None:
+    def __init__(self, svc: TaskHost) -> None:
         self.svc = svc
+        self.v = svc.values  # the input area's views, published by the service
+        self.sampled = svc.sampled
+        self.enabled = False  #: the outputs are connected (P3 on): since the first ARMED frame
 
     def wire(self) -> None:
         svc = self.svc
@@ -257,7 +261,7 @@ class DacTask:
         self.drv = svc.io.driver(cfg)
         n = len(cfg.channels)
         chans = _by_channel(cfg.channels)
-        self.slots = svc._span("dac", chans)
+        self.slots = svc.span("dac", chans)
         self.n = n
         self.scale_l = [c.scale for c in chans]  # volts = (engineering - offset) / scale
         self.offset_l = [c.offset for c in chans]
@@ -276,14 +280,14 @@ class DacTask:
         if self.gripper_ch is not None:
             self.is_rate[self.gripper_ch] = True  # a motor command too: 0 V when stale
         self.set_limits(chans)
-        self.board_slot = svc._board_slot(cfg.name)
+        self.board_slot = svc.board_slot(cfg.name)
 
     def set_limits(self, chans) -> None:
         """Per DAC channel: the engineering limit a command is refused beyond (``limit``
         in the rack file, default the DAC's full range), the saturation volts within it,
         and the names the refusal message uses."""
         r = self.drv.range_volts
-        m = 1.0 + self.svc.policy.limit_margin
+        m = 1.0 + self.svc.rack.commands.limit_margin
         self.limit = []  # engineering limit per channel (rates: |x|, current limits: 0..x)
         self.refuse = []  # limit x (1 + margin)
         self.sat_v = []  # saturation volts: the DAC range or the limit, whichever is lower
@@ -305,7 +309,6 @@ class DacTask:
             drv.write_volts_all(list(drv.shadow_volts), clamp=True)
         except PfmaError:
             pass
-        self.svc.pump.probe()  # the charge pump's write follows the DAC's in every ARMED frame
 
     def calibrate(self, rack) -> None:
         chans = _by_channel(rack.board(self.cfg.name).channels)
@@ -340,94 +343,51 @@ class DacTask:
             st_out.append(st)
         return volts, st_out
 
-    def write(self, volts: list[float], status: list[int], eng: list[float]) -> bool:
+    def write(self, volts: list[float], status: list[int], eng: list[float], t: float,
+              armed: bool) -> Exception | None:
         """Write the volts (the driver converts to codes) and publish codes, volts, values,
-        status, the outputs and brakes flags. A failed write trips the guard and says the
-        outputs are NOT known safe (:meth:`not_answering`); the service keeps writing 0 V
-        every frame, and the first write that succeeds again says so (:meth:`answering_again`).
-        Returns whether the write succeeded."""
-        svc = self.svc
-        v = svc._v
-        t = svc.clock.now()
+        status, the outputs and brakes flags, the sample time ``t`` (taken before the write).
+        Returns None when the write succeeded, else its error: nothing is published then
+        (the service makes the board's failure known: ``IoService._dac_not_answering``)."""
         drv = self.drv
         try:
             drv.write_volts_all(volts, clamp=True)
         except PfmaError as err:
-            svc._count_board_error(self.cfg.name, err)
-            svc._devices["dac"].errors += 1
-            self.not_answering(err)
-            return False
-        svc._bus_ok_t = t
-        if svc.faulted_boards:
-            svc._board_answered(self.cfg.name)
-        if svc.dac_unreachable is not None:
-            self.answering_again(volts)
+            return err
+        v = self.v
         slots = self.slots
         v["dac_counts"][slots] = drv.shadow_counts
         v["dac_volts"][slots] = drv.shadow_volts
         v["dac_value"][slots] = eng
         v["dac_status"][slots] = status
-        enabled = svc._outputs_enabled
-        v["outputs_enabled"][...] = enabled and svc.guard.state == ServiceState.ARMED
+        enabled = self.enabled
+        v["outputs_enabled"][...] = enabled and armed
         v["brakes_released"][...] = enabled and \
             any(volts[ch] > BRAKE_RELEASE_V for ch in self.limit_list)
         v["t_dac_s"][...] = t
-        svc._sampled("dac", t)
-        if svc.guard.state != svc.state and svc.state not in (ServiceState.STOPPED,):
-            svc.set_state(svc.guard.state)
-        return True
+        self.sampled("dac", t)
+        return None
+
+    def enable(self) -> None:
+        """Connect the outputs (P3 on); the shadow holds the zeros written while safe."""
+        self.drv.enable_outputs()
+        self.enabled = True
 
     def last_values_text(self) -> str:
         """What the DAC holds as far as the service knows: the codes of the last writes that
         reached it (the driver's shadow: a failed block write keeps a channel's old code),
         the non-zero channels named."""
-        if not self.svc._outputs_enabled:
+        if not self.enabled:
             return "last written 0 V with the outputs disconnected (P3 off)"
         held = [(v, name) for v, name in zip(self.drv.shadow_volts.tolist(), self.names) if abs(v) >= 0.005]
         if not held:
             return "last written 0 V on every channel"
         return "last written " + ", ".join(f"{v:+.2f} V on {name}" for v, name in held)
 
-    def not_answering(self, err: Exception) -> None:
-        """A DAC write failed: every safe action of the service, its stop and the output
-        guardian go through this board, so nothing in software can make the outputs safe
-        now. FAULT with FAULT_DAC_UNREACHABLE and one message saying so, naming what the
-        outputs may hold and what to do (the guard trips, or says it when already FAULT);
-        later failures of the same episode are counted, not said again, unless a re-arm made
-        the service ARMED meanwhile: that is a new trip, said by the guard."""
-        svc = self.svc
-        svc.fault_code = FAULT_DAC_UNREACHABLE
-        svc.guard.outputs_known_safe = False
-        first = svc.dac_unreachable is None
-        if first:
-            svc.dac_unreachable = (
-                f"DAC not answering ({err}): its outputs may hold their last values "
-                f"({self.last_values_text()}); {svc.pump.stopped_text()}; press the hardware "
-                f"E-stop if the arm moves; the service keeps writing 0 V every frame")
-        text = svc.dac_unreachable
-        was = svc.guard.state
-        # a re-arm while the board is still silent trips again (and says so once more)
-        svc.guard.trip(text, code=FAULT_DAC_UNREACHABLE)
-        if first and was in (ServiceState.FAULT, ServiceState.STOPPED):  # the guard said nothing
-            svc.post(Severity.ERROR, FAULT_DAC_UNREACHABLE, f"{svc.guard.outputs_word()}: {text}")
-
-    def answering_again(self, volts: list[float]) -> None:
-        """The first write that succeeded after :meth:`not_answering`: the outputs are known
-        again (0 V: the guard is FAULT, so the zeros were written); FAULT stays until a re-arm."""
-        from ioservice.service import FAULT_DAC
-        svc = self.svc
-        svc.dac_unreachable = None
-        svc.guard.outputs_known_safe = True
-        if svc.fault_code == FAULT_DAC_UNREACHABLE:
-            svc.fault_code = FAULT_DAC
-        zero = not any(volts)
-        svc.post(Severity.WARNING, FAULT_DAC,
-                 "DAC answering again: outputs " + ("0 V" if zero else "written")
-                 + f"; the service stays {svc.guard.state.name} until re-armed")
-
     def publish_stopped(self) -> None:
         """After the outputs were disabled: the shadow (0 V) and no outputs, no brakes."""
-        v = self.svc._v
+        self.enabled = False
+        v = self.v
         slots = self.slots
         v["dac_counts"][slots] = self.drv.shadow_counts
         v["dac_volts"][slots] = self.drv.shadow_volts
@@ -445,7 +405,7 @@ class FtTask:
     name = "ft"
     drain_after = False
 
-    def __init__(self, svc) -> None:
+    def __init__(self, svc: TaskHost) -> None:
         self.svc = svc
         self.ft: FtSensor | CanFtSensor | None = None
         self.in_tick = False
@@ -499,7 +459,7 @@ class FtTask:
                     port.autopoll = False
                 self.ft = ft
                 if attempt > 1:
-                    svc.post(Severity.WARNING, 122, f"F/T sensor on {where}: streaming after "
+                    svc.post(Severity.WARNING, MessageCode.FT_RETRIED, f"F/T sensor on {where}: streaming after "
                              f"{attempt} attempts ({str(err)[:40]})")
                 return
             except PfmaError as e:
@@ -512,8 +472,8 @@ class FtTask:
                 except PfmaError:
                     pass
         svc.init_errors.append(str(err))
-        svc.post(Severity.ERROR, 120, f"F/T sensor on {where}: not streaming: {err}")
-        svc._v["link_status"][svc.layout.slot("link", "ft_sensor")] = LINK_FAULT
+        svc.post(Severity.ERROR, MessageCode.FT_NOT_STREAMING, f"F/T sensor on {where}: not streaming: {err}")
+        svc.values["link_status"][svc.layout.slot("link", "ft_sensor")] = LINK_FAULT
 
     def wire_url(self, url: str) -> None:
         """The F/T sensor on a URL instead of the MVME400: ``can://INTERFACE/CHANNEL``
@@ -537,8 +497,8 @@ class FtTask:
         svc = self.svc
         self.open_error = f"F/T {why}" if why.startswith(url) else f"F/T port {url}: {why}"
         svc.init_errors.append(self.open_error)
-        svc.post(Severity.ERROR, 121, self.open_error)
-        svc._v["link_status"][svc.layout.slot("link", "ft_sensor")] = LINK_FAULT
+        svc.post(Severity.ERROR, MessageCode.FT_PORT_FAILED, self.open_error)
+        svc.values["link_status"][svc.layout.slot("link", "ft_sensor")] = LINK_FAULT
 
     def _wire_can(self, url: str) -> None:
         """The F/T node on a CAN bus: request/response, so nothing to start; each F/T slot
@@ -556,7 +516,7 @@ class FtTask:
         self.ft = ft
         self.in_tick = False
         self.can = ft
-        svc.post(Severity.INFO, 124, f"F/T on CAN node {ft.node_id}")
+        svc.post(Severity.INFO, MessageCode.FT_CAN, f"F/T on CAN node {ft.node_id}")
 
     def _can_trouble(self, ft: CanFtSensor) -> None:
         """A CAN request unanswered, an answer that did not pair, a send or receive that
@@ -564,7 +524,7 @@ class FtTask:
         self._can_errors = ft.errors
         if not self._can_quiet:
             self._can_quiet = True
-            self.svc.post(Severity.WARNING, 125, f"F/T CAN node {ft.node_id}: {ft.last_error}")
+            self.svc.post(Severity.WARNING, MessageCode.FT_CAN_TROUBLE, f"F/T CAN node {ft.node_id}: {ft.last_error}")
 
     def close(self) -> None:
         """Release what :meth:`wire_url` opened on a CAN bus (the serial ports are closed
@@ -582,11 +542,11 @@ class FtTask:
 
     def run(self, k: int = 0) -> None:
         svc = self.svc
-        svc._decode_serial()
+        svc.decode_serial()
         ft = self.ft
         if ft is None:
             return
-        v = svc._v
+        v = svc.values
         slot = svc.layout.slot("link", "ft_sensor")
         r = self.latest
         st = ft.stats()
@@ -614,7 +574,7 @@ class FtTask:
             v["ft_status"][...] = r.status
             v["ft_t_s"][...] = r.t_s
             v["t_ft_s"][...] = r.t_s
-            svc._sampled("ft", r.t_s)
+            svc.sampled("ft", r.t_s)
 
 
 class HandTask:
@@ -628,8 +588,9 @@ class HandTask:
     name = "hand"
     drain_after = False
 
-    def __init__(self, svc) -> None:
+    def __init__(self, svc: TaskHost, ft: FtTask) -> None:
         self.svc = svc
+        self.ft_task = ft  # the CRL's line is decoded here when no F/T task decodes the serial lines
         self.crl: CrlHandController | None = None
         self.crl_latest: Any = None  #: the newest CRL state
         self.crl_tx = 0
@@ -668,10 +629,10 @@ class HandTask:
         kind = "SIMULATED: a fake device, no hardware" if simulated else sm.product or "SpaceMouse"
         if up:
             svc.notes.append(f"{self.hid_label}: {where} ({kind})")
-            svc.post(Severity.INFO, 131, f"{self.hid_label}: {where}"[:56])
+            svc.post(Severity.INFO, MessageCode.HID_OPEN, f"{self.hid_label}: {where}"[:56])
         else:
             svc.init_errors.append(f"{self.hid_label} {where}: {sm.last_error}")
-            svc.post(Severity.ERROR, 132, f"{self.hid_label}: not open: {sm.last_error}")
+            svc.post(Severity.ERROR, MessageCode.HID_NOT_OPEN, f"{self.hid_label}: not open: {sm.last_error}")
         if thread:
             self._hid_stop.clear()
             self._hid_thread = threading.Thread(target=self._hid_reconnect_loop, name="pfma-hid-reconnect",
@@ -712,7 +673,7 @@ class HandTask:
         try:
             self.cae = CaeHandController(rack=svc.rack, clock=svc.clock)
         except (PfmaError, KeyError) as err:
-            svc.post(Severity.WARNING, 130, f"CAE hand controller not available: {err}")
+            svc.post(Severity.WARNING, MessageCode.CAE_UNAVAILABLE, f"CAE hand controller not available: {err}")
             return
         # where the CAE channels sit among the ADC board's scanned volts (the rack's
         # hand_controller channels, in channel order: up/down, forward/backward,
@@ -725,7 +686,7 @@ class HandTask:
 
     def _put(self, name: str, s) -> None:
         svc = self.svc
-        v = svc._v
+        v = svc.values
         i = svc.layout.slot("hc", name)
         v["hc_axes"][i] = s.axes
         v["hc_deadman"][i] = s.deadman
@@ -736,25 +697,25 @@ class HandTask:
 
     def run(self, k: int = 0) -> None:
         svc = self.svc
-        if self.crl is not None and svc.ft.ft is None:
-            svc._decode_serial()
+        if self.crl is not None and self.ft_task.ft is None:
+            svc.decode_serial()
         if self.cae is not None and self.cae_volts is not None:
             self._put("cae", self.cae.from_volts(self.cae_volts[self.cae_idx].tolist(),
-                                                 t_s=float(svc._v["t_adc_s"][()])))
+                                                 t_s=float(svc.values["t_adc_s"][()])))
         if self.crl is not None:
             self.send_force()
         if self.crl_latest is not None and self.crl is not None:
             self._put("crl", self.crl_latest)
             stats = self.crl.link_stats()
             slot = svc.layout.slot("link", "crl_hand_controller")
-            v = svc._v
+            v = svc.values
             v["link_records"][slot] = stats["frames_ok"]
             v["link_bad"][slot] = stats["frames_bad"]
             v["link_resyncs"][slot] = stats["resyncs"]
             v["link_status"][slot] = LINK_OPEN | (LINK_FAULT if stats["tripped"] else LINK_SYNCED)
             v["link_rate_hz"][slot] = stats["rate_hz"]
             v["link_age_s"][slot] = stats["age_s"]
-            svc._sampled("crl", self.crl_latest.t_s)
+            svc.sampled("crl", self.crl_latest.t_s)
         if self.hid is not None:
             self.run_hid()
 
@@ -769,7 +730,7 @@ class HandTask:
             return
         s = sm.update(connect=self._hid_inline)
         self._put("hid", s)
-        v = svc._v
+        v = svc.values
         slot = svc.layout.slot("link", "hid_hand_controller")
         now = s.t_s
         v["link_records"][slot] = sm.reports
@@ -780,14 +741,14 @@ class HandTask:
         up = sm.connected
         v["link_status"][slot] = LINK_OPEN | LINK_SYNCED if up else LINK_FAULT | LINK_STALE
         if up:
-            svc._sampled("hid", now)
+            svc.sampled("hid", now)
         if up != self.hid_up:
             self.hid_up = up
             if up:
-                svc.post(Severity.INFO, 134, f"{self.hid_label} reconnected")
+                svc.post(Severity.INFO, MessageCode.HID_RECONNECTED, f"{self.hid_label} reconnected")
             else:
-                svc._devices["hid"].errors += 1
-                svc.post(Severity.ERROR, 133, f"{self.hid_label} lost: slot invalid")
+                svc.device_error("hid")
+                svc.post(Severity.ERROR, MessageCode.HID_LOST, f"{self.hid_label} lost: slot invalid")
 
     def send_force(self) -> None:
         """Force reflection to the CRL at half the hand-controller rate (40 Hz; its
@@ -797,16 +758,15 @@ class HandTask:
         if not self.crl_tx or self.crl is None:
             return
         svc = self.svc
-        c = svc.commands.record
-        live = svc.guard.state == ServiceState.ARMED and bool(c["crl_reflect_enable"])
+        c = svc.command
+        live = svc.armed() and bool(c["crl_reflect_enable"])
         f = tuple(float(x) for x in c["crl_reflect_force_n"]) if live else (0.0, 0.0, 0.0)
         t = tuple(float(x) for x in c["crl_reflect_torque_nm"]) if live else (0.0, 0.0, 0.0)
         try:
             self.crl.send_force(f, t, enable=live)
         except (PfmaError, ValueError) as err:
-            svc._devices["crl"].errors += 1
-            if svc._devices["crl"].errors == 1:
-                svc.post(Severity.ERROR, 142, f"CRL force reflection: {err}")
+            if svc.device_error("crl") == 1:
+                svc.post(Severity.ERROR, MessageCode.CRL_FORCE_FAILED, f"CRL force reflection: {err}")
 
 
 class PioTask:
@@ -817,7 +777,7 @@ class PioTask:
     name = "pio"
     drain_after = False
 
-    def __init__(self, svc) -> None:
+    def __init__(self, svc: TaskHost) -> None:
         self.svc = svc
         self.inputs: list[tuple] = []
         self.out: tuple[Any, Any, dict] | None = None  #: (board, driver, slots) of the matrix switcher
@@ -834,11 +794,11 @@ class PioTask:
             for c in cfg.channels:
                 dirs[c.channel] = c.direction
             slots = {c.channel: svc.layout.slot("pio", c.signal) for c in cfg.channels}
-            if svc._init_board(cfg, lambda d=drv, dd=dirs: d.configure(dd)):
+            if svc.init_board(cfg, lambda d=drv, dd=dirs: d.configure(dd)):
                 if any(c.signal == "matrix_switcher_route" for c in cfg.channels):
                     self.out = (cfg, drv, slots)
                 if any(c.signal.startswith("user_if_box_inputs") for c in cfg.channels):
-                    self.inputs.append((cfg, drv, slots, svc._board_slot(cfg.name)))
+                    self.inputs.append((cfg, drv, slots, svc.board_slot(cfg.name)))
 
     def probe(self) -> None:
         """The run's transactions: the user inputs of each input board (the matrix route is
@@ -851,33 +811,33 @@ class PioTask:
 
     def run(self, k: int = 0) -> None:
         svc = self.svc
-        v = svc._v
+        v = svc.values
         t = svc.clock.now()
         for cfg, drv, slots, bslot in self.inputs:
             try:
                 word = drv.read_user_inputs()
             except PfmaError as err:
-                svc._input_failed(cfg.name, "pio", err)
+                svc.input_failed(cfg.name, "pio", err)
                 continue
             v["pio_user_inputs"][...] = word
             v["pio_port_bits"][slots[0]] = word & 0xFF
             v["pio_port_bits"][slots[1]] = word >> 8
-            svc._input_ok(cfg.name, bslot)
+            svc.input_ok(cfg.name, bslot)
             v["t_pio_s"][...] = t
-            svc._sampled("pio", t)
+            svc.sampled("pio", t)
         if self.out is not None:
-            route = int(svc.commands.record["matrix_route"])
+            route = int(svc.command["matrix_route"])
             if route != self.matrix_applied:
                 cfg, drv, slots = self.out
                 try:
                     drv.write_matrix_route(route)
                     self.matrix_applied = route
                     if svc.faulted_boards:
-                        svc._board_answered(cfg.name)
+                        svc.board_answered(cfg.name)
                     v["matrix_route"][...] = route
                     v["pio_port_bits"][slots[0]] = route & 0xFF
-                    svc.post(Severity.INFO, 140, f"matrix switcher route 0x{route:02X}")
+                    svc.post(Severity.INFO, MessageCode.MATRIX_ROUTE, f"matrix switcher route 0x{route:02X}")
                 except (PfmaError, ValueError) as err:
-                    svc._count_board_error(cfg.name, err)
+                    svc.board_error(cfg.name, err)
                     self.matrix_applied = route  # do not retry every frame; posted once
-                    svc.post(Severity.ERROR, 141, f"{cfg.name}: matrix route 0x{route:02X} failed: {err}")
+                    svc.post(Severity.ERROR, MessageCode.MATRIX_ROUTE_FAILED, f"{cfg.name}: matrix route 0x{route:02X} failed: {err}")

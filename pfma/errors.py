@@ -80,3 +80,11 @@ class LinkError(PfmaError, IOError):
 
 class PfmaTimeoutError(PfmaError, TimeoutError):
     """A bounded wait ran out."""
+
+
+def os_error_text(err: OSError) -> str:
+    """``strerror: filename`` of an OSError (``str(err)`` when it has neither), as ``pfma``
+    names a file it could not read or write."""
+    text = err.strerror or str(err) or type(err).__name__
+    names = [n for n in (err.filename, err.filename2) if n is not None]
+    return ": ".join([text, *map(str, names)])

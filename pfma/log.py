@@ -17,9 +17,11 @@ Formats, chosen from where stderr goes:
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import sys
+from collections.abc import Iterator
 from typing import TextIO
 
 LEVELS = ("debug", "info", "warning", "error")
@@ -30,6 +32,8 @@ _SD_PRIORITY = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, logging.E
                 logging.CRITICAL: 2}
 
 _HANDLER_NAME = "pfma"
+#: libraries whose chatter stays out of the operator's stream (WARNING and up only)
+_NOISY = ("pymodbus", "zenoh", "asyncio", "matplotlib", "PIL")
 
 
 def to_journal(stream: TextIO) -> bool:
@@ -65,6 +69,22 @@ class TerseFormatter(logging.Formatter):
         return line
 
 
+class _StderrHandler(logging.StreamHandler):
+    """Writes to whatever ``sys.stderr`` is at the time of each record (a test's capture, a
+    redirected stream), never to a stream that was closed after :func:`configure`."""
+
+    def __init__(self) -> None:
+        super().__init__(sys.stderr)
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value) -> None:  # StreamHandler's own assignments: stderr is looked up instead
+        pass
+
+
 def level_number(name: str) -> int:
     """The logging level for ``--log-level NAME`` (one of :data:`LEVELS`)."""
     if name.lower() not in LEVELS:
@@ -74,10 +94,11 @@ def level_number(name: str) -> int:
 
 def configure(prog: str, level: str = DEFAULT_LEVEL, stream: TextIO | None = None) -> logging.Handler:
     """Send every pfma logger's records at ``level`` and above to ``stream`` (stderr) in the
-    terse format. Called once per process by its composition root; calling it again replaces
-    the handler (tests, and a verb that starts another)."""
+    terse format (``stream`` None: ``sys.stderr`` as it is at each record). Called once per
+    process by its composition root; calling it again replaces the handler (tests, and a verb
+    that starts another)."""
     out = stream if stream is not None else sys.stderr
-    handler = logging.StreamHandler(out)
+    handler: logging.StreamHandler = logging.StreamHandler(out) if stream is not None else _StderrHandler()
     handler.set_name(_HANDLER_NAME)
     handler.setFormatter(TerseFormatter(prog, journal=to_journal(out)))
     root = logging.getLogger()
@@ -86,9 +107,35 @@ def configure(prog: str, level: str = DEFAULT_LEVEL, stream: TextIO | None = Non
     root.addHandler(handler)
     root.setLevel(level_number(level))
     # third-party chatter stays out of the operator's stream unless asked for
-    for noisy in ("pymodbus", "zenoh", "asyncio", "matplotlib", "PIL"):
+    for noisy in _NOISY:
         logging.getLogger(noisy).setLevel(max(logging.WARNING, root.level))
     return handler
+
+
+@contextlib.contextmanager
+def for_process(prog: str, level: str, *, hush: tuple[str, ...] = ()) -> Iterator[logging.Handler]:
+    """A process root's logging (:func:`configure`) while the block runs, undone when it
+    ends: a verb run in-process (the tests, a verb that starts another) leaves no handler
+    and no library's level changed behind it.
+
+    :param hush: loggers of libraries whose own chatter the process words itself (the Modbus
+        client's connection retries: the service names the board that failed): only CRITICAL
+        from them, unless ``level`` is debug
+    """
+    root = logging.getLogger()
+    before = root.level
+    levels = {name: logging.getLogger(name).level for name in (*_NOISY, *hush)}
+    handler = configure(prog, level)
+    if level != "debug":
+        for name in hush:
+            logging.getLogger(name).setLevel(logging.CRITICAL)
+    try:
+        yield handler
+    finally:
+        root.removeHandler(handler)
+        root.setLevel(before)
+        for name, lvl in levels.items():
+            logging.getLogger(name).setLevel(lvl)
 
 
 def add_argument(parser) -> None:

@@ -1,11 +1,28 @@
-"""Small Linux process helpers shared by the service's helper processes."""
+"""Small Linux process helpers shared by the service's helper processes and the benchmarks."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import signal
+import socket
+import subprocess
+import time
+import uuid
+from pathlib import Path
 from typing import Any, Callable, Protocol
+
+#: the root of this package's tree (the directory holding ``pfma/``)
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def package_env(drop: tuple[str, ...] = ()) -> dict[str, str]:
+    """This process's environment with the package's root first on PYTHONPATH (so a child
+    ``python -m ...`` finds this tree), without the variables named in ``drop``."""
+    env = {k: v for k, v in os.environ.items() if k not in drop}
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH", "")) if p)
+    return env
 
 
 def set_parent_death_signal(sig: int = signal.SIGTERM) -> bool:
@@ -40,6 +57,213 @@ def cpu_seconds(pid: int) -> float:
     return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def cpu_seconds_or_none(pid: int) -> float | None:
+    """:func:`cpu_seconds`, or None when process ``pid`` is gone (or its stat unreadable)."""
+    try:
+        return cpu_seconds(pid)
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def pid_alive(pid: int) -> bool:
+    """Process ``pid`` runs (it exists and is not a zombie)."""
+    return process_state(pid) not in ("", "Z")
+
+
+def shm_maps(pid: int) -> set[str]:
+    """The /dev/shm files process ``pid`` has mapped (from /proc/PID/maps; empty when gone)."""
+    out = set()
+    try:
+        with open(f"/proc/{pid}/maps") as f:
+            for line in f:
+                i = line.find("/dev/shm/")
+                if i >= 0:
+                    out.add(line[i:].strip().removesuffix(" (deleted)"))
+    except OSError:
+        pass
+    return out
+
+
+def children(pid: int) -> list[int]:
+    """The pids of process ``pid``'s children (``/proc/PID/task/PID/children``; empty when gone)."""
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as f:
+            return [int(x) for x in f.read().split()]
+    except OSError:
+        return []
+
+
+def cmdline(pid: int) -> str:
+    """Process ``pid``'s command line, its arguments joined by spaces ("" when gone)."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def listen_port(pid: int) -> int | None:
+    """The TCP port process ``pid`` listens on (from /proc/net/tcp and its fds); None when
+    it listens on none (or is gone)."""
+    try:
+        inodes = set()
+        for fd in os.listdir(f"/proc/{pid}/fd"):
+            with contextlib.suppress(OSError):
+                t = os.readlink(f"/proc/{pid}/fd/{fd}")
+                if t.startswith("socket:["):
+                    inodes.add(t[8:-1])
+        with open("/proc/net/tcp") as f:
+            for line in f.readlines()[1:]:
+                parts = line.split()
+                if parts[3] == "0A" and parts[9] in inodes:
+                    return int(parts[1].split(":")[1], 16)
+    except OSError:
+        return None
+    return None
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port free on ``host`` a moment ago (the kernel's pick; another process may take
+    it before the caller binds it)."""
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+def until(cond: Callable[[], Any], timeout_s: float, must_live: tuple = (), poll_s: float = 0.01) -> Any:
+    """Poll ``cond`` until it is truthy and return its value; None on time-out, or when one
+    of ``must_live`` (anything with ``alive()``, such as a :class:`Child`) has ended. An
+    exception from ``cond`` counts as not yet (a buffer being replaced, a torn read)."""
+    end = time.monotonic() + timeout_s
+    while True:
+        try:
+            v = cond()
+        except Exception:  # noqa: BLE001 - not there yet
+            v = None
+        if v:
+            return v
+        if time.monotonic() > end or any(not p.alive() for p in must_live):
+            return None
+        time.sleep(poll_s)
+
+
+def default_sigint() -> None:
+    """In a child before exec: SIGINT back to default, so Python installs its handler even
+    when the parent runs as a background job (whose shell ignores SIGINT for it)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+class Child:
+    """A child process in its own session (a Ctrl-C on the parent reaches only the parent),
+    SIGINT at its default in it, stdin from /dev/null, its output (stdout and stderr) in a
+    file ``workdir/ROLE-xxxx.log`` (no pipe to fill); run from the package's root with
+    :func:`package_env` (no COLUMNS, LINES). :meth:`stop` is bounded: ask, wait, then
+    SIGKILL its group. The /dev/shm files it mapped are noted (:attr:`maps`) whenever it is
+    signalled or stopped, so they can be looked for after it has gone."""
+
+    def __init__(self, role: str, argv: list[str], workdir: Path) -> None:
+        self.role = role
+        self.argv = argv
+        self.log_path = Path(workdir) / f"{role}-{uuid.uuid4().hex[:4]}.log"
+        self._log = open(self.log_path, "w")
+        self.p = subprocess.Popen(argv, stdout=self._log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                  cwd=ROOT, env=package_env(("COLUMNS", "LINES")), start_new_session=True,
+                                  preexec_fn=default_sigint, text=True)
+        self.t0 = time.monotonic()
+        self.stopped = False  #: SIGSTOPped and not continued
+        self.killed = False  #: SIGKILLed by the parent (its output may end anywhere)
+        self.exit_how = ""  #: how :meth:`stop` ended it
+        self.maps: set[str] = set()
+
+    @property
+    def pid(self) -> int:
+        return self.p.pid
+
+    def alive(self) -> bool:
+        return self.p.poll() is None
+
+    def note_maps(self) -> None:
+        if self.alive():
+            self.maps |= shm_maps(self.pid)
+
+    def send(self, sig: int) -> float:
+        """Signal the process (not its group); the time it was sent (CLOCK_MONOTONIC)."""
+        self.note_maps()
+        t = time.monotonic()
+        try:
+            os.kill(self.pid, sig)
+        except ProcessLookupError:
+            return t
+        if sig == signal.SIGSTOP:
+            self.stopped = True
+        elif sig == signal.SIGCONT:
+            self.stopped = False
+        elif sig == signal.SIGKILL:
+            self.killed = True
+        return t
+
+    def stop(self, sig: int = signal.SIGINT, timeout_s: float = 15.0) -> str:
+        """Ask it to stop with ``sig`` (SIGCONT first if stopped); SIGKILL its group when it
+        has not exited ``timeout_s`` later. How it ended: "had exited (RC)", "SIGINT -> exit
+        RC" or "needed SIGKILL (...)" (also :attr:`exit_how`)."""
+        if not self.alive():
+            self.exit_how = self.exit_how or f"had exited ({self.p.returncode})"
+            return self.exit_how
+        self.note_maps()
+        if self.stopped:
+            self.send(signal.SIGCONT)
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(self.pid, sig)
+        try:
+            rc = self.p.wait(timeout=timeout_s)
+            self.exit_how = f"{signal.Signals(sig).name} -> exit {rc}"
+        except subprocess.TimeoutExpired:
+            self.before_kill()
+            self.kill_group()
+            self.exit_how = f"needed SIGKILL ({timeout_s:g} s after {signal.Signals(sig).name})"
+        return self.exit_how
+
+    def before_kill(self) -> None:
+        """Called when :meth:`stop` gives up, before the SIGKILL (a subclass asks for a dump)."""
+
+    def wait_exit(self, timeout_s: float = 10.0) -> bool:
+        try:
+            self.p.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            return False
+        return True
+
+    def kill_group(self) -> None:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(self.pid, signal.SIGCONT)
+            os.killpg(self.pid, signal.SIGKILL)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.p.wait(timeout=10)
+
+    def text(self) -> str:
+        """Its output so far."""
+        with contextlib.suppress(ValueError, OSError):
+            self._log.flush()
+        try:
+            return self.log_path.read_text(errors="replace")
+        except OSError:
+            return ""
+
+    def lines(self, n: int) -> list[str]:
+        """The last ``n`` lines of its output."""
+        return self.text().splitlines()[-n:]
+
+    def tail(self, n: int = 6) -> str:
+        """The last ``n`` lines of its output on one line, `` | `` between them."""
+        return " | ".join(line.strip() for line in self.lines(n))
+
+    def close(self) -> None:
+        """SIGKILL its group if it still runs; close its output file."""
+        if self.alive():
+            self.kill_group()
+        self._log.close()
+
+
 def rss_mb(pid: int) -> float | None:
     """Resident memory of process ``pid``, MB (``VmRSS``); None when it is gone."""
     try:
@@ -60,13 +284,8 @@ def spawn_helper(argv: list[str], *, stdin_pipe: bool = False) -> Any:
     :param stdin_pipe: the helper's stdin is a pipe from this process (``proc.stdin``): it
         reads end-of-file when this process is gone, whatever killed it
     """
-    import subprocess
-    from pathlib import Path
-    root = Path(__file__).resolve().parent.parent
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(root), env.get("PYTHONPATH", "")) if p)
     return subprocess.Popen(argv, stdout=subprocess.PIPE, stdin=subprocess.PIPE if stdin_pipe else subprocess.DEVNULL,
-                            text=True, env=env)
+                            text=True, env=package_env())
 
 
 def first_line(proc: Any, timeout_s: float = 0.0) -> str | None:
@@ -77,7 +296,6 @@ def first_line(proc: Any, timeout_s: float = 0.0) -> str | None:
     a helper that prints half a line cannot hang the service's thread. Its stdout is closed
     once the line is read."""
     import select
-    import time
     out = proc.stdout
     if out is None or out.closed:
         return ""
@@ -98,7 +316,6 @@ def first_line(proc: Any, timeout_s: float = 0.0) -> str | None:
 
 def stop_helper(proc: Any, timeout_s: float = 5.0) -> None:
     """SIGTERM, then SIGKILL after ``timeout_s``; waits for the process (None: nothing)."""
-    import subprocess
     if proc is None:
         return
     if proc.poll() is None:
@@ -166,7 +383,6 @@ class HelperWatch:
     """
 
     def __init__(self, say: Callable[[bool, str], None], now: Callable[[], float] | None = None) -> None:
-        import time
         self.say = say
         self.now = now or time.monotonic
         self._helpers: list[Restartable] = []
@@ -237,5 +453,7 @@ class HelperWatch:
         self.say(True, f"{h.label} did not restart: {why}; trying again in {wait:g} s")
 
 
-__all__ = ["set_parent_death_signal", "process_state", "cpu_seconds", "rss_mb", "spawn_helper", "first_line",
-           "stop_helper", "HelperWatch", "bring_up", "NO_WORD"]
+__all__ = ["set_parent_death_signal", "process_state", "cpu_seconds", "cpu_seconds_or_none", "pid_alive", "shm_maps",
+           "children", "cmdline", "listen_port",
+           "rss_mb", "free_port", "until", "default_sigint", "Child", "package_env", "ROOT", "spawn_helper",
+           "first_line", "stop_helper", "HelperWatch", "bring_up", "NO_WORD"]

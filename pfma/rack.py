@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import math
 import re
-import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NoReturn
+from typing import Annotated, Any, Literal, NoReturn
 
+import msgspec
+
+from pfma import config, nominal
 from pfma import envelope as envelope_cfg
-from pfma import nominal
 from pfma.errors import ConfigError, did_you_mean
 
 DEFAULT_RACK = Path(__file__).with_name("rack_default.toml")
@@ -244,109 +246,13 @@ class RackConfig:
         return [c for c in self.channels() if c.quantity == quantity]
 
 
-class _Lines:
-    """Finds the line of a board, one of its keys, or a channel entry in the TOML text.
-
-    Channel entries are counted as TOML writes them: inline tables (``{ ... }``, one line
-    each, several allowed per line, keys in any order) inside a board's ``channels``
-    array, or ``[[board.channels]]`` tables.
-    """
-
-    _HEADER = re.compile(r"^\[\[?\s*([A-Za-z0-9_.\s]+?)\s*\]\]?\s*(#.*)?$")
-
-    def __init__(self, text: str) -> None:
-        self.board_lines: list[int] = []
-        self.key_lines: list[dict[str, int]] = []
-        self.channel_lines: list[list[int]] = []
-        in_board = in_channels = False
-        self._depth = 0  # bracket depth inside a channels = [...] array
-        for n, line in enumerate(text.splitlines(), start=1):
-            s = line.strip()
-            header = self._HEADER.match(s)
-            if header:
-                name = header.group(1).replace(" ", "")
-                in_channels = False
-                if s.startswith("[[") and name == "board":
-                    in_board = True
-                    self.board_lines.append(n)
-                    self.key_lines.append({})
-                    self.channel_lines.append([])
-                elif s.startswith("[[") and name == "board.channels" and in_board:
-                    self.channel_lines[-1].append(n)
-                else:
-                    in_board = False
-                continue
-            if not in_board:
-                continue
-            key = re.match(r"^([A-Za-z0-9_]+)\s*=", s)
-            if key and not in_channels:
-                self.key_lines[-1].setdefault(key.group(1), n)
-                if key.group(1) != "channels":
-                    continue
-                in_channels, self._depth = True, 0
-                s = s[key.end():]
-            if in_channels:
-                in_channels = self._scan_channels(s, n)
-
-    @staticmethod
-    def _code(s: str) -> str:
-        """``s`` without string contents and comments."""
-        out, quote, i = [], None, 0
-        while i < len(s):
-            c = s[i]
-            if quote:
-                if c == "\\" and quote == '"':
-                    i += 1
-                elif c == quote:
-                    quote = None
-            elif c in "\"'":
-                quote = c
-            elif c == "#":
-                break
-            else:
-                out.append(c)
-            i += 1
-        return "".join(out)
-
-    def _scan_channels(self, s: str, n: int) -> bool:
-        """Note line ``n`` for each channel table opened on it; False once the array closed."""
-        for c in self._code(s):
-            if c in "[{":
-                if c == "{" and self._depth == 1:
-                    self.channel_lines[-1].append(n)
-                self._depth += 1
-            elif c in "]}":
-                self._depth -= 1
-                if self._depth == 0:
-                    return False
-        return True
-
-    def of(self, board: int, channel: int | None = None, key: str | None = None) -> int | None:
-        if board >= len(self.board_lines):
-            return None
-        if channel is not None and channel < len(self.channel_lines[board]):
-            return self.channel_lines[board][channel]
-        if key is not None and key in self.key_lines[board]:
-            return self.key_lines[board][key]
-        return self.board_lines[board]
-
-
 def load_rack(path: str | Path | None = None) -> RackConfig:
     """Load and validate a rack file (the seed's default when ``path`` is None or "fake").
 
     :raises ConfigError: naming file and line of the first problem
     """
     p = DEFAULT_RACK if path in (None, "fake", "default") else Path(path)
-    try:
-        raw = p.read_bytes()
-    except OSError as err:
-        raise ConfigError(f"cannot read rack file {p}: {err.strerror}") from err
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as err:
-        line = raw.count(b"\n", 0, err.start) + 1
-        raise ConfigError(f"{p}:{line}: not UTF-8 text (byte 0x{raw[err.start]:02X} at offset "
-                          f"{err.start}); TOML files are UTF-8") from None
+    text = config.read_text(p, "rack file")
     return parse_rack(text, str(p))
 
 
@@ -355,350 +261,397 @@ def _is_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def _is_int(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
+# --- the schema: keys, types and ranges of a rack file (checked by pfma.config) ----------
+_Snake = Annotated[str, msgspec.Meta(pattern=SIGNAL_RE.pattern)]
+_Address = Annotated[int, msgspec.Meta(ge=0)]
 
 
-def _section_key_line(text: str, section: str, key: str | None = None) -> int | None:
-    """Line of ``[section]`` (or of ``key = ...`` inside it) in TOML text."""
-    header = None
-    for n, line in enumerate(text.splitlines(), start=1):
-        s = line.strip()
-        if s.startswith("["):
-            if header is not None:
-                break
-            if re.match(rf"^\[\s*{re.escape(section)}\s*\]\s*(#.*)?$", s):
-                header = n
-                if key is None:
-                    return n
-            continue
-        # key is a str here: with key=None the function returned at the header line
-        if header is not None and re.match(rf"^{re.escape(key)}\s*=", s):  # type: ignore[type-var]
-            return n
-    return header
+class _ChannelEntry(msgspec.Struct, forbid_unknown_fields=True):
+    ch: int
+    signal: _Snake
+    label: str
+    units: str
+    direction: Literal["in", "out"] | None = None
+    spare: bool = False
+    scale: float = 1.0
+    offset: float = 0.0
+    baud: Any = None  # judged against the board kind's rates (code below)
+    limit: float | None = None
+    joint: Annotated[str, msgspec.Meta(pattern=r"^$|" + SIGNAL_RE.pattern)] = ""
+    quantity: str = ""
+
+
+class _BoardEntry(msgspec.Struct, forbid_unknown_fields=True):
+    name: Annotated[str, msgspec.Meta(min_length=1)]
+    kind: str
+    base: Annotated[int, msgspec.Meta(ge=0, le=0xFFFF)]
+    channels: list[_ChannelEntry]
+    device: str | None = None
+    rate_hz: float | None = None
+    title: str | None = None
+
+
+class _Bit3(msgspec.Struct, forbid_unknown_fields=True):
+    size: Annotated[int, msgspec.Meta(ge=BIT3_SIZE, le=BIT3_SIZE)] = BIT3_SIZE
+    computational_window: tuple[_Address, _Address] | None = None
+    io_window: tuple[_Address, _Address] | None = None
+
+
+class _Commands(msgspec.Struct, forbid_unknown_fields=True):
+    max_input_age_frames: Annotated[int, msgspec.Meta(ge=1, le=64)] = CommandPolicy.max_input_age_frames
+    limit_margin: Annotated[float, msgspec.Meta(ge=0, le=0.5)] = CommandPolicy.limit_margin
+
+
+class _Arm(msgspec.Struct, forbid_unknown_fields=True):
+    joints: list[_Snake] = msgspec.field(default_factory=list)
+
+
+class _Checks(msgspec.Struct, forbid_unknown_fields=True):
+    allow_nonnominal: list[str] = msgspec.field(default_factory=list)
+
+
+class _AmplifierEnable(msgspec.Struct, forbid_unknown_fields=True):
+    board: str
+    port: int
+    bit: Annotated[int, msgspec.Meta(ge=0, le=7)]
+
+
+class _RackFile(msgspec.Struct, forbid_unknown_fields=True):
+    board: Annotated[list[_BoardEntry], msgspec.Meta(min_length=1)]
+    rack: dict[str, Any] = msgspec.field(default_factory=dict)
+    bit3: _Bit3 = msgspec.field(default_factory=_Bit3)
+    commands: _Commands = msgspec.field(default_factory=_Commands)
+    arm: _Arm = msgspec.field(default_factory=_Arm)
+    checks: _Checks = msgspec.field(default_factory=_Checks)
+    amplifier_enable: _AmplifierEnable | None = None
+    envelope: dict[str, Any] = msgspec.field(default_factory=dict)
+
+
+_WINDOW = "[bit3] {key} must be a [lo, hi] pair of addresses (integers), not {%s!r}"
+#: the rack file's own wording for a key of the wrong type or range (pfma.config.convert)
+_MESSAGES = {
+    "*": "unknown top-level section(s): {key}",
+    "board": "no [[board]] entries",
+    "board[]": "board entry {key} is not a table",
+    "board[].*": "board entry has unknown key(s) {key}",
+    "board[].name": "board name must be a string, not {value!r}",
+    "board[].kind": "board {name}: unknown device kind {value!r}",
+    "board[].base": "board {name}: base {value!r} is not an A16 address (integer 0..0xFFFF)",
+    "board[].rate_hz": "board {name}: rate_hz must be a number (Hz), not {value!r}",
+    "board[].device": "board {name}: device must be a string, not {value!r}",
+    "board[].title": "board {name}: title must be a string, not {value!r}",
+    "board[].channels": "board {name}: channels must be an array of channel tables",
+    "board[].channels[]": "board {name}: channel entry {key} is not a table",
+    "board[].channels[].*": "board {name}: channel entry has unknown key(s) {key}",
+    "board[].channels[].ch": "board {name}: channel {value!r} is not a channel number (an integer 0..)",
+    "board[].channels[].signal": "board {name}: signal {value!r} is not a snake_case name",
+    "board[].channels[].label": "board {name}: channel {ch} label must be a string, not {value!r}",
+    "board[].channels[].units": "board {name}: channel {ch} units must be a string, not {value!r}",
+    "board[].channels[].direction": "board {name}: channel {ch} needs direction 'in' or 'out', not {value!r}",
+    "board[].channels[].spare": "board {name}: channel {ch} spare must be true or false, not {value!r}",
+    "board[].channels[].scale": "board {name}: channel {ch} scale must be a number, not {value!r}",
+    "board[].channels[].offset": "board {name}: channel {ch} offset must be a number, not {value!r}",
+    "board[].channels[].limit": "board {name}: channel {ch} limit must be a positive number, not {value!r}",
+    "board[].channels[].joint": "board {name}: channel {ch} joint {value!r} is not a snake_case name",
+    "board[].channels[].quantity": "board {name}: channel {ch} quantity {value!r} is not one of "
+                                   + ", ".join(QUANTITIES),
+    **{f"board[].{k}?": f"board entry is missing {k!r}" for k in ("name", "kind", "base", "channels")},
+    **{f"board[].channels[].{k}?": f"board {{name}}: channel entry is missing {k!r}"
+       for k in ("ch", "signal", "label", "units")},
+    "rack": "[rack] must be a table",
+    "bit3": "[bit3] must be a table",
+    "bit3.*": "[bit3]: unknown key(s) {key}; known: " + ", ".join(sorted(BIT3_KEYS)),
+    "bit3.size": "[bit3] size must be %d (the Bit3 window, bytes), not {value!r}" % BIT3_SIZE,
+    "bit3.computational_window": _WINDOW % "computational_window",
+    "bit3.computational_window[]": _WINDOW % "computational_window",
+    "bit3.io_window": _WINDOW % "io_window",
+    "bit3.io_window[]": _WINDOW % "io_window",
+    "commands": "[commands] must be a table",
+    "commands.*": "[commands]: unknown key(s) {key}; known: " + ", ".join(sorted(COMMANDS_KEYS)),
+    "commands.max_input_age_frames": "[commands] max_input_age_frames must be an integer 1..64, not {value!r}",
+    "commands.limit_margin": "[commands] limit_margin must be a number 0..0.5, not {value!r}",
+    "arm": "[arm] must be a table",
+    "arm.*": "[arm]: unknown key(s) {key}; known: " + ", ".join(sorted(ARM_KEYS)),
+    "arm.joints": "[arm] joints must be a list of snake_case joint names, not {joints!r}",
+    "arm.joints[]": "[arm] joints must be a list of snake_case joint names, not {joints!r}",
+    "checks": "[checks] must be a table",
+    "checks.*": "[checks]: unknown key(s) {key}; known: " + ", ".join(sorted(CHECKS_KEYS)),
+    "checks.allow_nonnominal": "[checks] allow_nonnominal must be a list of \"signal.field\" strings, "
+                               "not {allow_nonnominal!r}",
+    "checks.allow_nonnominal[]": "[checks] allow_nonnominal must be a list of \"signal.field\" strings, "
+                                 "not {allow_nonnominal!r}",
+    "amplifier_enable": "[amplifier_enable] must be a table",
+    "amplifier_enable.*": "[amplifier_enable]: unknown key(s) {key}; known: "
+                          + ", ".join(sorted(AMPLIFIER_ENABLE_KEYS)),
+    "amplifier_enable.board?": "[amplifier_enable] needs board (board = a pio board, port = 0..3, bit = 0..7)",
+    "amplifier_enable.port?": "[amplifier_enable] needs port (board = a pio board, port = 0..3, bit = 0..7)",
+    "amplifier_enable.bit?": "[amplifier_enable] needs bit (board = a pio board, port = 0..3, bit = 0..7)",
+    "amplifier_enable.board": "[amplifier_enable] board {value!r} is not a pio board of this rack",
+    "amplifier_enable.port": "[amplifier_enable] port must be an integer, not {value!r}",
+    "amplifier_enable.bit": "[amplifier_enable] bit must be an integer 0..7, not {value!r}",
+    "envelope": "[envelope] must be a table",
+}
+
+
+class _Reader:
+    """One rack file being read: its text (for lines) and the first-problem ``fail``."""
+
+    def __init__(self, text: str, source: str) -> None:
+        self.text, self.source = text, source
+        self.signals: dict[str, tuple[int, int]] = {}
+        self.roles: dict[tuple[str, str], str] = {}  # (joint, quantity) -> signal
+        self.overrides: tuple[str, ...] = ()
+        self.nonnominal: list[tuple[str, str]] = []
+
+    def fail(self, msg: str, *path: str | int) -> NoReturn:
+        """A ConfigError ``SOURCE:LINE: msg``, the line that of ``path`` (or the nearest table)."""
+        config.fail(self.source, self.text, path, msg, error=lambda p: ConfigError(str(p)))
 
 
 def parse_rack(text: str, source: str = "<string>") -> RackConfig:
     """Parse and validate rack TOML text. See :func:`load_rack`."""
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"{source}: not valid TOML: {err}") from err
-    except RecursionError:
-        raise ConfigError(f"{source}: not a rack file: arrays or tables nested too deeply to read") from None
-    lines = _Lines(text)
-
-    def fail(msg: str, board: int | None = None, channel: int | None = None,
-             key: str | None = None) -> NoReturn:
-        line = lines.of(board, channel, key) if board is not None else None
-        where = f"{source}:{line}" if line else source
-        raise ConfigError(f"{where}: {msg}")
-
-    rack = data.get("rack", {})
-    if not isinstance(rack, dict):
-        fail("[rack] must be a table")
-    boards_raw = data.get("board")
-    if not isinstance(boards_raw, list) or not boards_raw:
-        fail("no [[board]] entries")
-    unknown_top = set(data) - {"rack", "bit3", "board", "commands", "arm", "checks", "amplifier_enable", "envelope"}
-    if unknown_top:
-        fail(f"unknown top-level section(s): {', '.join(sorted(unknown_top))}")
-
-    overrides = _overrides(data.get("checks", {}), text, source)
-    nonnominal: list[tuple[str, str]] = []
+    data = config.parse_toml(text, source, "a rack file")
+    if not data.get("board"):
+        raise ConfigError(f"{source}: no [[board]] entries")
+    raw = config.convert(data, _RackFile, source=source, text=text, messages=_MESSAGES,
+                         error=lambda p: ConfigError(str(p)))
+    r = _Reader(text, source)
+    r.overrides = _overrides(raw.checks, r)
     boards: list[BoardConfig] = []
-    signals: dict[str, tuple[int, int]] = {}
-    roles: dict[tuple[str, str], str] = {}  # (joint, quantity) -> signal
-    for bi, b in enumerate(boards_raw):
-        if not isinstance(b, dict):
-            fail(f"board entry {bi + 1} is not a table", bi)
-        extra = set(b) - BOARD_KEYS
-        if extra:
-            fail(f"board entry has unknown key(s) {', '.join(sorted(extra))}", bi)
-        for key in ("name", "kind", "base", "channels"):
-            if key not in b:
-                fail(f"board entry is missing {key!r}", bi)
-        name, kind = b["name"], b["kind"]
-        if not isinstance(name, str) or not name:
-            fail(f"board name must be a string, not {name!r}", bi, key="name")
-        catalog = _catalog().CATALOG
-        if not isinstance(kind, str) or kind not in catalog:
-            fail(f"board {name}: unknown device kind {kind!r}; known: {', '.join(sorted(catalog))}", bi,
-                 key="kind")
-        entry = catalog[kind]
-        device, n_channels = entry.device, entry.channels
-        if b.get("device", device) != device:
-            fail(f"board {name}: kind {kind} is a {device} board, not {b['device']!r}", bi, key="device")
-        base = b["base"]
-        if not _is_int(base) or not 0 <= base <= 0xFFFF:
-            fail(f"board {name}: base {base!r} is not an A16 address (integer 0..0xFFFF)", bi, key="base")
-        if base % 2:
-            fail(f"board {name}: base 0x{base:04X} is odd; the boards' 16-bit registers need an "
-                 f"even A16 base", bi, key="base")
-        window = entry.window
-        if base + window > 0x10000:
-            fail(f"board {name}: window 0x{base:04X}+0x{window:X} runs past the A16 space", bi, key="base")
-        for other in boards:
-            if base < other.base + other.window and other.base < base + window:
-                fail(f"board {name} at 0x{base:04X}-0x{base + window - 1:04X} overlaps board "
-                     f"{other.name} at 0x{other.base:04X}-0x{other.base + other.window - 1:04X}", bi,
-                     key="base")
-            if other.name == name:
-                fail(f"board name {name!r} used twice", bi, key="name")
-        scheduled = SCHEDULED_RATES_HZ.get(device)
-        rate = b.get("rate_hz", scheduled or 0)
-        if not _is_number(rate):
-            fail(f"board {name}: rate_hz must be a number (Hz), not {rate!r}", bi, key="rate_hz")
-        rate = float(rate)
-        if rate <= 0:
-            fail(f"board {name}: rate_hz must be positive", bi, key="rate_hz")
-        if scheduled is not None and abs(rate - scheduled) > 1e-9:
-            fail(f"board {name}: rate_hz = {rate:g}, but the service's schedule runs {device} boards at "
-                 f"{scheduled:g} Hz; rate_hz only documents the schedule (write {scheduled:g} or leave it "
-                 f"out; the supported rates are {_scheduled_rates()}; pfma serve --frame-rate or "
-                 f"--schedule sets what runs)", bi, key="rate_hz")
-        if not isinstance(b["channels"], list):
-            fail(f"board {name}: channels must be an array of channel tables", bi, key="channels")
-        chans: list[Channel] = []
-        seen: set[int] = set()
-        for ci, c in enumerate(b["channels"]):
-            if not isinstance(c, dict):
-                fail(f"board {name}: channel entry {ci} is not a table", bi, ci)
-            extra = set(c) - CHANNEL_KEYS
-            if extra:
-                fail(f"board {name}: channel entry has unknown key(s) {', '.join(sorted(extra))}", bi, ci)
-            for key in ("ch", "signal", "label", "units"):
-                if key not in c:
-                    fail(f"board {name}: channel entry is missing {key!r}", bi, ci)
-            ch = c["ch"]
-            if not _is_int(ch) or not 0 <= ch < n_channels:
-                fail(f"board {name}: channel {ch!r} out of range 0..{n_channels - 1} for a {kind}", bi, ci)
-            if ch in seen:
-                fail(f"board {name}: channel {ch} listed twice", bi, ci)
-            seen.add(ch)
-            sig = c["signal"]
-            if not isinstance(sig, str) or not SIGNAL_RE.match(sig):
-                fail(f"board {name}: signal {sig!r} is not a snake_case name", bi, ci)
-            if sig in signals:
-                fail(f"signal {sig!r} used twice (also board entry {signals[sig][0] + 1})", bi, ci)
-            signals[sig] = (bi, ci)
-            direction = c.get("direction", DEFAULT_DIRECTION.get(device))
-            if direction not in ("in", "out"):
-                fail(f"board {name}: channel {ch} needs direction 'in' or 'out', not {direction!r}", bi, ci)
-            for key in ("scale", "offset"):
-                if key in c and not _is_number(c[key]):
-                    fail(f"board {name}: channel {ch} {key} must be a number, not {c[key]!r}", bi, ci)
-            scale = float(c.get("scale", 1.0))
-            if scale == 0:
-                fail(f"board {name}: channel {ch} scale must not be 0", bi, ci)
-            baud = c.get("baud")
-            if baud is not None:
-                if device != "serial":
-                    fail(f"board {name}: channel {ch}: 'baud' applies to serial channels only", bi, ci)
-                rates = entry.serial_rates()
-                if not _is_number(baud) or baud not in rates:
-                    fail(f"board {name}: channel {ch} baud {baud!r} is not a rate the {kind} offers "
-                         f"({', '.join(f'{r:g}' for r in rates)})", bi, ci)
-            if not isinstance(c.get("spare", False), bool):
-                fail(f"board {name}: channel {ch} spare must be true or false, not {c['spare']!r}", bi, ci)
-            limit = c.get("limit")
-            if limit is not None:
-                if device != "dac":
-                    fail(f"board {name}: channel {ch}: 'limit' applies to DAC command channels only", bi, ci)
-                if isinstance(limit, bool) or not isinstance(limit, (int, float)) or \
-                        not math.isfinite(limit) or limit <= 0:
-                    fail(f"board {name}: channel {ch} limit must be a positive number, not {limit!r}", bi, ci)
-                limit = float(limit)
-            quantity, joint = c.get("quantity", ""), c.get("joint", "")
-            if quantity and QUANTITIES.get(quantity) is None:
-                fail(f"board {name}: channel {ch} quantity {quantity!r} is not one of "
-                     f"{', '.join(QUANTITIES)}", bi, ci)
-            if quantity and QUANTITIES[quantity] != device:
-                fail(f"board {name}: channel {ch}: a {device} channel cannot carry {quantity!r} "
-                     f"(a {QUANTITIES[quantity]} quantity)", bi, ci)
-            if not isinstance(joint, str) or (joint and not SIGNAL_RE.match(joint)):
-                fail(f"board {name}: channel {ch} joint {joint!r} is not a snake_case name", bi, ci)
-            if joint and not quantity:
-                fail(f"board {name}: channel {ch} names joint {joint!r} but no quantity", bi, ci)
-            if quantity and quantity not in ("hand_controller", "force_torque") and not joint:
-                fail(f"board {name}: channel {ch} quantity {quantity!r} needs the joint it belongs to", bi, ci)
-            for finding in nominal.check(device, joint, quantity, str(c["units"]), scale,
-                                         float(c.get("offset", 0.0)), limit):
-                what = f"{sig}.{finding.field}"
-                if finding.overridable and what in overrides:
-                    nonnominal.append((what, f"{what} = {finding.value:g} accepted outside the nominal band "
-                                             f"by [checks] allow_nonnominal ({source}): {finding.why}"))
-                    continue
-                fail(f"board {name}: channel {ch} ({sig}) {finding.field} = {finding.value:g}: {finding.why}"
-                     + (f"; a lab that knows better lists \"{what}\" in [checks] allow_nonnominal"
-                        if finding.overridable else ""), bi, ci)
-            if joint:
-                if (joint, quantity) in roles:
-                    fail(f"joint {joint!r} has two {quantity} channels ({roles[(joint, quantity)]} "
-                         f"and {sig})", bi, ci)
-                roles[(joint, quantity)] = sig
-            chans.append(Channel(
-                device=device, board=name, kind=kind, address=base, channel=ch, signal=sig,
-                label=str(c["label"]), units=str(c["units"]), direction=direction, rate_hz=rate,
-                spare=bool(c.get("spare", False)), scale=scale, offset=float(c.get("offset", 0.0)),
-                baud=c.get("baud"), limit=limit, joint=joint, quantity=quantity))
-        missing = sorted(set(range(n_channels)) - seen)
-        if missing:
-            fail(f"board {name}: channel(s) {', '.join(map(str, missing))} not listed "
-                 f"(list unused ones with spare = true)", bi)
-        chans.sort(key=lambda x: x.channel)
-        boards.append(BoardConfig(name=name, kind=kind, device=device, base=base, window=window,
-                                  rate_hz=rate, title=str(b.get("title", kind)), channels=tuple(chans)))
-    analog = {c.signal: c for b in boards for c in b.channels}
-    for o in overrides:
-        sig, _, fld = o.rpartition(".")
-        c = analog.get(sig)
-        if c is None or nominal.nominal(c.device, c.joint, c.quantity) is None:
-            checked = [s for s, x in analog.items() if nominal.nominal(x.device, x.joint, x.quantity)]
-            _section_fail(text, source, "checks", "allow_nonnominal",
-                          f"[checks] allow_nonnominal names {o!r}, but {sig!r} is not a channel the "
-                          f"nominal checks judge" + did_you_mean(sig, checked))
-        if fld == "limit" and c.device != "dac":
-            _section_fail(text, source, "checks", "allow_nonnominal",
-                          f"[checks] allow_nonnominal names {o!r}, but only DAC channels have a limit")
-    amp = data.get("amplifier_enable")
-    joints = _arm_joints(data.get("arm", {}), roles, text, source)
-    return RackConfig(name=str(rack.get("name", "rack")), boards=tuple(boards),
-                      bit3=_bit3(data.get("bit3", {}), text, source), source=source,
-                      commands=_command_policy(data.get("commands", {}), text, source),
-                      joints=joints,
-                      envelope=_envelope(data.get("envelope", {}), joints, text, source),
-                      overrides=overrides, nonnominal=tuple(nonnominal),
-                      amplifier_enable=None if amp is None else _amplifier_enable(amp, boards, text, source))
+    for bi, b in enumerate(raw.board):
+        boards.append(_board(b, bi, boards, r))
+    _check_overrides(boards, r)
+    joints = _arm_joints(raw.arm, r)
+    return RackConfig(name=str(raw.rack.get("name", "rack")), boards=tuple(boards),
+                      bit3=_bit3(raw.bit3, r), source=source,
+                      commands=CommandPolicy(raw.commands.max_input_age_frames, float(raw.commands.limit_margin)),
+                      joints=joints, envelope=_envelope(raw.envelope, joints, r),
+                      overrides=r.overrides, nonnominal=tuple(r.nonnominal),
+                      amplifier_enable=None if raw.amplifier_enable is None else
+                      _amplifier_enable(raw.amplifier_enable, boards, r))
+
+
+def _board(b: _BoardEntry, bi: int, boards: list[BoardConfig], r: _Reader) -> BoardConfig:
+    """One ``[[board]]``: its kind, A16 window (no overlap), rate, then its channels."""
+    name, kind, base = b.name, b.kind, b.base
+    catalog = _catalog().CATALOG
+    if kind not in catalog:
+        r.fail(f"board {name}: unknown device kind {kind!r}; known: {', '.join(sorted(catalog))}", "board", bi, "kind")
+    entry = catalog[kind]
+    device, window = entry.device, entry.window
+    if b.device is not None and b.device != device:
+        r.fail(f"board {name}: kind {kind} is a {device} board, not {b.device!r}", "board", bi, "device")
+    if base % 2:
+        r.fail(f"board {name}: base 0x{base:04X} is odd; the boards' 16-bit registers need an "
+               f"even A16 base", "board", bi, "base")
+    if base + window > 0x10000:
+        r.fail(f"board {name}: window 0x{base:04X}+0x{window:X} runs past the A16 space", "board", bi, "base")
+    for other in boards:
+        if base < other.base + other.window and other.base < base + window:
+            r.fail(f"board {name} at 0x{base:04X}-0x{base + window - 1:04X} overlaps board "
+                   f"{other.name} at 0x{other.base:04X}-0x{other.base + other.window - 1:04X}", "board", bi, "base")
+        if other.name == name:
+            r.fail(f"board name {name!r} used twice", "board", bi, "name")
+    rate = _board_rate(b, bi, device, r)
+    chans: list[Channel] = []
+    seen: set[int] = set()
+    for ci, c in enumerate(b.channels):
+        chans.append(_channel(c, bi, ci, b, entry, rate, seen, r))
+    missing = sorted(set(range(entry.channels)) - seen)
+    if missing:
+        r.fail(f"board {name}: channel(s) {', '.join(map(str, missing))} not listed "
+               f"(list unused ones with spare = true)", "board", bi)
+    chans.sort(key=lambda x: x.channel)
+    return BoardConfig(name=name, kind=kind, device=device, base=base, window=window,
+                       rate_hz=rate, title=b.title if b.title is not None else kind, channels=tuple(chans))
+
+
+def _board_rate(b: _BoardEntry, bi: int, device: str, r: _Reader) -> float:
+    """``rate_hz``: documents the service's schedule for the board's device class."""
+    scheduled = SCHEDULED_RATES_HZ.get(device)
+    rate = b.rate_hz if b.rate_hz is not None else (scheduled or 0)
+    if not math.isfinite(rate):
+        r.fail(f"board {b.name}: rate_hz must be a number (Hz), not {rate!r}", "board", bi, "rate_hz")
+    rate = float(rate)
+    if rate <= 0:
+        r.fail(f"board {b.name}: rate_hz must be positive", "board", bi, "rate_hz")
+    if scheduled is not None and abs(rate - scheduled) > 1e-9:
+        r.fail(f"board {b.name}: rate_hz = {rate:g}, but the service's schedule runs {device} boards at "
+               f"{scheduled:g} Hz; rate_hz only documents the schedule (write {scheduled:g} or leave it "
+               f"out; the supported rates are {_scheduled_rates()}; pfma serve --frame-rate or "
+               f"--schedule sets what runs)", "board", bi, "rate_hz")
+    return rate
+
+
+def _channel(c: _ChannelEntry, bi: int, ci: int, b: _BoardEntry, entry, rate: float, seen: set[int],
+             r: _Reader) -> Channel:
+    """One channel entry: its number on the board, a signal name unique in the rack, the
+    direction, conversion, baud and limit its device class allows, its role."""
+    name, kind, device, ch, sig = b.name, b.kind, entry.device, c.ch, c.signal
+
+    def fail(msg: str) -> NoReturn:
+        r.fail(msg, "board", bi, "channels", ci)
+
+    if not 0 <= ch < entry.channels:
+        fail(f"board {name}: channel {ch!r} out of range 0..{entry.channels - 1} for a {kind}")
+    if ch in seen:
+        fail(f"board {name}: channel {ch} listed twice")
+    seen.add(ch)
+    if sig in r.signals:
+        fail(f"signal {sig!r} used twice (also board entry {r.signals[sig][0] + 1})")
+    r.signals[sig] = (bi, ci)
+    direction = c.direction or DEFAULT_DIRECTION.get(device)
+    if direction not in ("in", "out"):
+        fail(f"board {name}: channel {ch} needs direction 'in' or 'out', not {direction!r}")
+    for key, v in (("scale", c.scale), ("offset", c.offset)):
+        if not math.isfinite(v):
+            fail(f"board {name}: channel {ch} {key} must be a number, not {v!r}")
+    if c.scale == 0:
+        fail(f"board {name}: channel {ch} scale must not be 0")
+    if c.baud is not None:
+        if device != "serial":
+            fail(f"board {name}: channel {ch}: 'baud' applies to serial channels only")
+        rates = entry.serial_rates()
+        if not _is_number(c.baud) or c.baud not in rates:
+            fail(f"board {name}: channel {ch} baud {c.baud!r} is not a rate the {kind} offers "
+                 f"({', '.join(f'{x:g}' for x in rates)})")
+    limit = c.limit
+    if limit is not None:
+        if device != "dac":
+            fail(f"board {name}: channel {ch}: 'limit' applies to DAC command channels only")
+        if not math.isfinite(limit) or limit <= 0:
+            fail(f"board {name}: channel {ch} limit must be a positive number, not {limit!r}")
+        limit = float(limit)
+    _role(c, device, name, fail, r)
+    _nominal(c, device, name, limit, fail, r)
+    return Channel(device=device, board=name, kind=kind, address=b.base, channel=ch, signal=sig,
+                   label=c.label, units=c.units, direction=direction, rate_hz=rate, spare=c.spare,
+                   scale=float(c.scale), offset=float(c.offset), baud=c.baud, limit=limit, joint=c.joint,
+                   quantity=c.quantity)
+
+
+def _role(c: _ChannelEntry, device: str, name: str, fail: Callable[[str], NoReturn], r: _Reader) -> None:
+    """``quantity`` and ``joint``: a quantity of this device class, a joint when it needs
+    one, and one channel per (joint, quantity) in the rack."""
+    ch, quantity, joint = c.ch, c.quantity, c.joint
+    if quantity and QUANTITIES.get(quantity) is None:
+        fail(f"board {name}: channel {ch} quantity {quantity!r} is not one of {', '.join(QUANTITIES)}")
+    if quantity and QUANTITIES[quantity] != device:
+        fail(f"board {name}: channel {ch}: a {device} channel cannot carry {quantity!r} "
+             f"(a {QUANTITIES[quantity]} quantity)")
+    if joint and not quantity:
+        fail(f"board {name}: channel {ch} names joint {joint!r} but no quantity")
+    if quantity and quantity not in ("hand_controller", "force_torque") and not joint:
+        fail(f"board {name}: channel {ch} quantity {quantity!r} needs the joint it belongs to")
+    if joint:
+        if (joint, quantity) in r.roles:
+            fail(f"joint {joint!r} has two {quantity} channels ({r.roles[(joint, quantity)]} and {c.signal})")
+        r.roles[(joint, quantity)] = c.signal
+
+
+def _nominal(c: _ChannelEntry, device: str, name: str, limit: float | None, fail: Callable[[str], NoReturn],
+             r: _Reader) -> None:
+    """The file checks of :mod:`pfma.nominal` (a value outside the band is refused unless
+    ``[checks] allow_nonnominal`` names it)."""
+    for finding in nominal.check(device, c.joint, c.quantity, c.units, float(c.scale), float(c.offset), limit):
+        what = f"{c.signal}.{finding.field}"
+        if finding.overridable and what in r.overrides:
+            r.nonnominal.append((what, f"{what} = {finding.value:g} accepted outside the nominal band "
+                                       f"by [checks] allow_nonnominal ({r.source}): {finding.why}"))
+            continue
+        fail(f"board {name}: channel {c.ch} ({c.signal}) {finding.field} = {finding.value:g}: {finding.why}"
+             + (f"; a lab that knows better lists \"{what}\" in [checks] allow_nonnominal"
+                if finding.overridable else ""))
 
 
 def _scheduled_rates() -> str:
     return ", ".join(f"{d} {r:g} Hz" for d, r in SCHEDULED_RATES_HZ.items())
 
 
-def _section_fail(text: str, source: str, section: str, key: str | None, msg: str) -> NoReturn:
-    line = _section_key_line(text, section, key)
-    raise ConfigError(f"{source}:{line}: {msg}" if line else f"{source}: {msg}")
-
-
-def _overrides(raw, text: str, source: str) -> tuple[str, ...]:
+def _overrides(raw: _Checks, r: _Reader) -> tuple[str, ...]:
     """``[checks] allow_nonnominal``: a list of ``"signal.field"`` (field: scale, offset,
     limit); the signals are checked against the channels once they are read."""
-    fail = _section(raw, "checks", CHECKS_KEYS, text, source)
-    names = raw.get("allow_nonnominal", [])
+    names = raw.allow_nonnominal
     fields = nominal.OVERRIDABLE_FIELDS
-    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
-        fail(f"[checks] allow_nonnominal must be a list of \"signal.field\" strings, not {names!r}",
-             "allow_nonnominal")
     for n in names:
         sig, dot, fld = n.rpartition(".")
         if not dot or not SIGNAL_RE.match(sig) or fld not in fields:
-            fail(f"[checks] allow_nonnominal entry {n!r} is not \"signal.field\" with field one of "
-                 f"{', '.join(fields)}", "allow_nonnominal")
+            r.fail(f"[checks] allow_nonnominal entry {n!r} is not \"signal.field\" with field one of "
+                   f"{', '.join(fields)}", "checks", "allow_nonnominal")
     if len(set(names)) != len(names):
-        fail(f"[checks] allow_nonnominal names an entry twice: {names!r}", "allow_nonnominal")
+        r.fail(f"[checks] allow_nonnominal names an entry twice: {names!r}", "checks", "allow_nonnominal")
     return tuple(names)
 
 
-def _amplifier_enable(raw, boards: list[BoardConfig], text: str, source: str) -> AmplifierEnable:
+def _check_overrides(boards: list[BoardConfig], r: _Reader) -> None:
+    """Each ``allow_nonnominal`` entry names a channel the nominal checks judge (a limit: a DAC's)."""
+    analog = {c.signal: c for b in boards for c in b.channels}
+    for o in r.overrides:
+        sig, _, fld = o.rpartition(".")
+        c = analog.get(sig)
+        if c is None or nominal.nominal(c.device, c.joint, c.quantity) is None:
+            checked = [s for s, x in analog.items() if nominal.nominal(x.device, x.joint, x.quantity)]
+            r.fail(f"[checks] allow_nonnominal names {o!r}, but {sig!r} is not a channel the "
+                   f"nominal checks judge" + did_you_mean(sig, checked), "checks", "allow_nonnominal")
+        if fld == "limit" and c.device != "dac":
+            r.fail(f"[checks] allow_nonnominal names {o!r}, but only DAC channels have a limit",
+                   "checks", "allow_nonnominal")
+
+
+def _amplifier_enable(raw: _AmplifierEnable, boards: list[BoardConfig], r: _Reader) -> AmplifierEnable:
     """Validate ``[amplifier_enable]``: ``board`` a pio board of the rack, ``port`` one of
     its channels with ``direction = "out"`` and no other use (not the matrix switcher),
     ``bit`` 0..7."""
-    fail = _section(raw, "amplifier_enable", AMPLIFIER_ENABLE_KEYS, text, source)
-    missing = sorted(AMPLIFIER_ENABLE_KEYS - set(raw))
-    if missing:
-        fail(f"[amplifier_enable] needs {', '.join(missing)} (board = a pio board, port = 0..3, bit = 0..7)")
-    name, port, bit = raw["board"], raw["port"], raw["bit"]
+    name, port, bit = raw.board, raw.port, raw.bit
     pio = [b for b in boards if b.device == "pio"]
     found = [b for b in pio if b.name == name]
     if not found:
-        fail(f"[amplifier_enable] board {name!r} is not a pio board of this rack; pio boards: "
-             f"{', '.join(b.name for b in pio) or 'none'}", "board")
+        r.fail(f"[amplifier_enable] board {name!r} is not a pio board of this rack; pio boards: "
+               f"{', '.join(b.name for b in pio) or 'none'}", "amplifier_enable", "board")
     board = found[0]
-    if not _is_int(port) or not 0 <= port < len(board.channels):
-        fail(f"[amplifier_enable] port must be an integer 0..{len(board.channels) - 1}, not {port!r}", "port")
-    if not _is_int(bit) or not 0 <= bit <= 7:
-        fail(f"[amplifier_enable] bit must be an integer 0..7, not {bit!r}", "bit")
+    if not 0 <= port < len(board.channels):
+        r.fail(f"[amplifier_enable] port must be an integer 0..{len(board.channels) - 1}, not {port!r}",
+               "amplifier_enable", "port")
     ch = board.signal(port)
     if ch.direction != "out" or ch.signal == "matrix_switcher_route" or ch.signal.startswith("user_if_box"):
-        fail(f"[amplifier_enable] {name} port {port} ({ch.signal}) must be an output of its own: give "
-             f"that channel direction = \"out\" and a signal of its own (not the matrix switcher's or "
-             f"the user inputs')", "port")
-    return AmplifierEnable(str(name), int(port), int(bit))
+        r.fail(f"[amplifier_enable] {name} port {port} ({ch.signal}) must be an output of its own: give "
+               f"that channel direction = \"out\" and a signal of its own (not the matrix switcher's or "
+               f"the user inputs')", "amplifier_enable", "port")
+    return AmplifierEnable(name, port, bit)
 
 
-def _envelope(raw, joints: tuple[str, ...], text: str, source: str) -> envelope_cfg.Envelope:
+def _envelope(raw: dict, joints: tuple[str, ...], r: _Reader) -> envelope_cfg.Envelope:
     """``[envelope]``: the service's motion envelope per joint (:mod:`pfma.envelope`)."""
-    if not isinstance(raw, dict):
-        _section_fail(text, source, "envelope", None, "[envelope] must be a table")
-
     def fail(msg: str, key: str | None = None) -> NoReturn:
-        _section_fail(text, source, "envelope", key, msg)
+        r.fail(msg, "envelope", *([key] if key else []))
     return envelope_cfg.parse(raw, joints, fail)
 
 
-def _arm_joints(raw, roles: dict[tuple[str, str], str], text: str, source: str) -> tuple[str, ...]:
+def _arm_joints(raw: _Arm, r: _Reader) -> tuple[str, ...]:
     """Validate ``[arm] joints``: distinct names, each with an angle, a rate, a rate
     command and a current-limit channel in the rack (what the service and the controller
     need of a servoed joint)."""
-    fail = _section(raw, "arm", ARM_KEYS, text, source)
-    joints = raw.get("joints", [])
-    if not isinstance(joints, list) or not all(isinstance(j, str) and SIGNAL_RE.match(j) for j in joints):
-        fail(f"[arm] joints must be a list of snake_case joint names, not {joints!r}", "joints")
+    joints = raw.joints
     if len(set(joints)) != len(joints):
-        fail(f"[arm] joints lists a joint twice: {joints!r}", "joints")
+        r.fail(f"[arm] joints lists a joint twice: {joints!r}", "arm", "joints")
     for j in joints:
-        missing = [q for q in ("angle", "rate", "rate_command", "current_limit") if (j, q) not in roles]
+        missing = [q for q in ("angle", "rate", "rate_command", "current_limit") if (j, q) not in r.roles]
         if missing:
-            fail(f"[arm] joint {j!r} has no {', '.join(missing)} channel (channel keys joint = {j!r}, "
-                 f"quantity = ...)", "joints")
+            r.fail(f"[arm] joint {j!r} has no {', '.join(missing)} channel (channel keys joint = {j!r}, "
+                   f"quantity = ...)", "arm", "joints")
     return tuple(joints)
 
 
-def _section(raw, section: str, known: set[str], text: str, source: str):
-    """Check that ``[section]`` is a table with only ``known`` keys; return its ``fail(msg,
-    key=None)``, which raises a ConfigError naming the file and the line of the section (or
-    of ``key`` in it)."""
-    def fail(msg: str, key: str | None = None) -> NoReturn:
-        _section_fail(text, source, section, key, msg)
-
-    if not isinstance(raw, dict):
-        fail(f"[{section}] must be a table")
-    extra = set(raw) - known
-    if extra:
-        fail(f"[{section}]: unknown key(s) {', '.join(sorted(extra))}; known: {', '.join(sorted(known))}",
-             sorted(extra)[0])
-    return fail
-
-
-def _command_policy(raw, text: str, source: str) -> CommandPolicy:
-    fail = _section(raw, "commands", COMMANDS_KEYS, text, source)
-    age = raw.get("max_input_age_frames", CommandPolicy.max_input_age_frames)
-    if isinstance(age, bool) or not isinstance(age, int) or not 1 <= age <= 64:
-        fail(f"[commands] max_input_age_frames must be an integer 1..64, not {age!r}", "max_input_age_frames")
-    margin = raw.get("limit_margin", CommandPolicy.limit_margin)
-    if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin <= 0.5:
-        fail(f"[commands] limit_margin must be a number 0..0.5, not {margin!r}", "limit_margin")
-    return CommandPolicy(int(age), float(margin))
-
-
-
-def _bit3(raw, text: str, source: str) -> dict:
-    """Validate ``[bit3]``: ``size`` (32768, the adapter's window) and ``*_window`` keys,
-    each ``[lo, hi]`` integers with ``hi - lo + 1 == size``."""
-    fail = _section(raw, "bit3", BIT3_KEYS, text, source)
-    size = raw.get("size", BIT3_SIZE)
-    if not _is_int(size) or size != BIT3_SIZE:
-        fail(f"[bit3] size must be {BIT3_SIZE} (the Bit3 window, bytes), not {size!r}", "size")
-    out = {"size": size}
+def _bit3(raw: _Bit3, r: _Reader) -> dict:
+    """``[bit3]``: ``size`` (32768, the adapter's window) and ``*_window`` keys, each
+    ``[lo, hi]`` with ``hi - lo + 1 == size``."""
+    out: dict = {"size": raw.size}
     for key in sorted(BIT3_KEYS - {"size"}):
-        if key not in raw:
+        w = getattr(raw, key)
+        if w is None:
             continue
-        w = raw[key]
-        if not (isinstance(w, list) and len(w) == 2 and all(_is_int(x) and x >= 0 for x in w)):
-            fail(f"[bit3] {key} must be a [lo, hi] pair of addresses (integers), not {w!r}", key)
         lo, hi = w
-        if hi - lo + 1 != size:
-            fail(f"[bit3] {key} [0x{lo:X}, 0x{hi:X}] spans {hi - lo + 1} bytes, not size {size}", key)
+        if hi - lo + 1 != raw.size:
+            r.fail(f"[bit3] {key} [0x{lo:X}, 0x{hi:X}] spans {hi - lo + 1} bytes, not size {raw.size}", "bit3", key)
         out[key] = (lo, hi)
     return out

@@ -15,7 +15,7 @@ and offset, resolver offsets, tach scale, payload) are set on the simulated rack
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -92,59 +92,94 @@ class SimOperator:
     def prompt(self, step: str, text: str, **p: Any) -> float | None:
         self.log.append((step, p))
         self.show(f"  >>> {text}  [simulated operator: {step}]")
-        sim = self.world.sim
-        if step == "adc.reference":
-            for sig in p["signals"]:
-                if sig in CAE_AXIS_SIGNALS:
-                    self._cae[CAE_AXIS_SIGNALS.index(sig)] = p["volts"]
-                elif sig in CAE_DISCRETE_SIGNALS:
-                    self._disc[CAE_DISCRETE_SIGNALS.index(sig)] = float(p["volts"])
-                else:
-                    sim.hold_adc_volts(sig, p["volts"])
-            self._set_cae()
-        elif step == "adc.restore":
-            self._cae = np.array([self.stick.centre_v[axis] for _, axis, _ in CAE_AXES])
-            self._disc = [False, False, False]
-            self._set_cae()
-            for sig in p.get("signals", ()):
-                if sig not in CAE_AXIS_SIGNALS and sig not in CAE_DISCRETE_SIGNALS:
-                    sim.hold_adc_volts(sig, 0.0)
-        elif step == "resolver.index":
-            q = sim.arm.q.copy()
-            q[p["axis"]] = p["index_rad"]
-            sim.arm.set_state(q=q, qdot=np.zeros_like(q))
-        elif step == "cae.release":
-            rest = self.stick.rest(self._rest_k)
-            self._rest_k += 1
-            self._cae = np.array([rest[axis] for _, axis, _ in CAE_AXES])
-            self._disc = [False, False, False]
-            self._set_cae()
-        elif step == "cae.deflect":
-            axis, d = p["axis"], p["direction"]
-            i = [a for _, a, _ in CAE_AXES].index(axis)
-            self._cae = np.array([self.stick.centre_v[a] for _, a, _ in CAE_AXES])
-            self._cae[i] = self.stick.plus_v[axis] if d > 0 else self.stick.minus_v[axis]
-            self._set_cae()
-        elif step in ("ft.unload", "ft.mount", "ft.apply_load", "ft.release_load"):
-            if self.sensor is None:
-                self.sensor = SensorTruth(self.world)
-            if step == "ft.unload":
-                self.sensor.tool_on = False
-            elif step == "ft.mount":
-                self.sensor.tool_on = True
-            elif step == "ft.apply_load":
-                self.sensor.fixture = np.asarray(p["wrench"], dtype=float)
-            else:
-                self.sensor.fixture = np.zeros(6)
-        elif step == "ft.pose":
-            q = sim.arm.q.copy()
-            q[:6] = p["q_rad"]
-            sim.arm.set_state(q=q, qdot=np.zeros_like(q))
-        elif step == "ft.known_weight":
-            sim.set_errors(replace(sim.errors, payload_kg=sim.errors.payload_kg + p["mass_kg"]))
-        elif step == "ft.remove_weight":
-            sim.set_errors(replace(sim.errors, payload_kg=max(0.0, sim.errors.payload_kg - p["mass_kg"])))
+        act = self._ACTIONS.get(step)
+        if act is not None:
+            act(self, step, p)
         return None
+
+    def _centred_cae(self) -> np.ndarray:
+        return np.array([self.stick.centre_v[axis] for _, axis, _ in CAE_AXES])
+
+    def _set_arm_q(self, index: Any, value: Any) -> None:
+        sim = self.world.sim
+        q = sim.arm.q.copy()
+        q[index] = value
+        sim.arm.set_state(q=q, qdot=np.zeros_like(q))
+
+    def _adc_reference(self, step: str, p: dict) -> None:
+        for sig in p["signals"]:
+            if sig in CAE_AXIS_SIGNALS:
+                self._cae[CAE_AXIS_SIGNALS.index(sig)] = p["volts"]
+            elif sig in CAE_DISCRETE_SIGNALS:
+                self._disc[CAE_DISCRETE_SIGNALS.index(sig)] = float(p["volts"])
+            else:
+                self.world.sim.hold_adc_volts(sig, p["volts"])
+        self._set_cae()
+
+    def _adc_restore(self, step: str, p: dict) -> None:
+        self._cae = self._centred_cae()
+        self._disc = [False, False, False]
+        self._set_cae()
+        for sig in p.get("signals", ()):
+            if sig not in CAE_AXIS_SIGNALS and sig not in CAE_DISCRETE_SIGNALS:
+                self.world.sim.hold_adc_volts(sig, 0.0)
+
+    def _resolver_index(self, step: str, p: dict) -> None:
+        self._set_arm_q(p["axis"], p["index_rad"])
+
+    def _cae_release(self, step: str, p: dict) -> None:
+        rest = self.stick.rest(self._rest_k)
+        self._rest_k += 1
+        self._cae = np.array([rest[axis] for _, axis, _ in CAE_AXES])
+        self._disc = [False, False, False]
+        self._set_cae()
+
+    def _cae_deflect(self, step: str, p: dict) -> None:
+        axis, d = p["axis"], p["direction"]
+        i = [a for _, a, _ in CAE_AXES].index(axis)
+        self._cae = self._centred_cae()
+        self._cae[i] = self.stick.plus_v[axis] if d > 0 else self.stick.minus_v[axis]
+        self._set_cae()
+
+    def _ft_sensor(self, step: str, p: dict) -> None:
+        """The tool and fixture loads on the F/T sensor (created on first use)."""
+        if self.sensor is None:
+            self.sensor = SensorTruth(self.world)
+        if step == "ft.unload":
+            self.sensor.tool_on = False
+        elif step == "ft.mount":
+            self.sensor.tool_on = True
+        elif step == "ft.apply_load":
+            self.sensor.fixture = np.asarray(p["wrench"], dtype=float)
+        else:
+            self.sensor.fixture = np.zeros(6)
+
+    def _ft_pose(self, step: str, p: dict) -> None:
+        self._set_arm_q(slice(None, 6), p["q_rad"])
+
+    def _ft_known_weight(self, step: str, p: dict) -> None:
+        sim = self.world.sim
+        sim.set_errors(replace(sim.errors, payload_kg=sim.errors.payload_kg + p["mass_kg"]))
+
+    def _ft_remove_weight(self, step: str, p: dict) -> None:
+        sim = self.world.sim
+        sim.set_errors(replace(sim.errors, payload_kg=max(0.0, sim.errors.payload_kg - p["mass_kg"])))
+
+    #: prompt step -> what the operator does
+    _ACTIONS: dict[str, Callable[[SimOperator, str, dict], None]] = {
+        "adc.reference": _adc_reference,
+        "adc.restore": _adc_restore,
+        "resolver.index": _resolver_index,
+        "cae.release": _cae_release,
+        "cae.deflect": _cae_deflect,
+        "ft.unload": _ft_sensor,
+        "ft.mount": _ft_sensor,
+        "ft.apply_load": _ft_sensor,
+        "ft.release_load": _ft_sensor,
+        "ft.pose": _ft_pose,
+        "ft.known_weight": _ft_known_weight,
+        "ft.remove_weight": _ft_remove_weight,
+    }
 
 
 class CalibrationRig(_BaseSimRig):

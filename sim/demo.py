@@ -21,12 +21,15 @@ poses the gripper opens or closes (:func:`demo_gripper`) on a part placed betwee
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import signal
 import sys
 import time
 
 from bit3.client import Client
+
+log = logging.getLogger(__name__)
 
 #: current limits while armed (A): enough to release the brakes and hold the arm
 DEMO_CURRENT_LIMIT_A = (5.0, 5.0, 5.0, 2.5, 2.5, 2.5, 0.0)
@@ -118,7 +121,7 @@ def run(buffer: str = "pfma", duration_s: float = 30.0, wait_s: float = 10.0) ->
             break
         except Exception as err:  # the service may not have created the buffer yet
             if time.monotonic() > deadline:
-                print(f"demo controller: cannot attach to Bit3 buffer {buffer!r}: {err}", file=sys.stderr)
+                log.error("cannot attach to Bit3 buffer %r: %s", buffer, err)
                 return 1
             time.sleep(0.1)
     joints = list(c.layout.joint_names)
@@ -158,10 +161,13 @@ def run(buffer: str = "pfma", duration_s: float = 30.0, wait_s: float = 10.0) ->
 
 
 def main(argv=None) -> int:
+    from pfma.log import add_argument, configure
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--buffer", default="pfma")
     p.add_argument("--duration", type=float, default=30.0)
+    add_argument(p)
     a = p.parse_args(argv)
+    configure("demo controller", a.log_level)
     return run(a.buffer, a.duration)
 
 

@@ -25,12 +25,15 @@ injected; an error names the file, the step's line and the field.
 from __future__ import annotations
 
 import math
-import re
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated, Any, NoReturn
 
+import msgspec
+
+from pfma import config
 from pfma.errors import ConfigError, did_you_mean
 from pfma.rack import RackConfig
 from sim.faults import Fault, FaultSet, parse_fault
@@ -64,9 +67,34 @@ class Scenario:
     source: str = "<string>"
 
 
-def _step_lines(text: str) -> list[int]:
-    """The 1-based line of each ``[[step]]`` header, in order."""
-    return [i for i, ln in enumerate(text.splitlines(), 1) if re.match(r"\s*\[\[\s*step\s*\]\]", ln)]
+class _StepEntry(msgspec.Struct, forbid_unknown_fields=True):
+    at_s: Annotated[float, msgspec.Meta(ge=0)]
+    inject: str | None = None
+    clear: str | None = None
+
+
+class _ScenarioFile(msgspec.Struct, forbid_unknown_fields=True):
+    step: Annotated[list[_StepEntry], msgspec.Meta(min_length=1)]
+    name: str | None = None
+    description: str = ""
+
+
+_NO_STEPS = "no steps; add [[step]] tables with at_s and inject or clear"
+_AT_S = "at_s must be a number of seconds >= 0, not {value!r}"
+_STRINGS = "name and description must be strings"
+#: the scenario's wording per field (pfma.config.convert)
+_MESSAGES: dict[str, Any] = {
+    "*": lambda f: (f"unknown key {f['key']!r}"
+                    + (did_you_mean(f["key"], _TOP_KEYS) or f"; keys: {', '.join(_TOP_KEYS)}")),
+    "name": _STRINGS, "description": _STRINGS,
+    "step": _NO_STEPS, "step?": _NO_STEPS,
+    "step[]": "a step is a [[step]] table",
+    "step[].*": lambda f: (f"unknown field {f['key']!r}"
+                           + (did_you_mean(f["key"], _STEP_KEYS) or f"; fields: {', '.join(_STEP_KEYS)}")),
+    "step[].at_s": _AT_S, "step[].at_s?": _AT_S,
+    "step[].inject": "inject must be a fault spec string, not {value!r}",
+    "step[].clear": "clear must be a fault spec string, not {value!r}",
+}
 
 
 def parse_scenario(text: str, source: str = "<string>", rack: RackConfig | None = None) -> Scenario:
@@ -75,44 +103,35 @@ def parse_scenario(text: str, source: str = "<string>", rack: RackConfig | None 
     :raises ConfigError: naming ``source``, the step's line and the field
     """
     try:
-        raw = tomllib.loads(text)
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"scenario {source}: not valid TOML: {err}") from None
-    for key in raw:
-        if key not in _TOP_KEYS:
-            raise ConfigError(f"scenario {source}: unknown key {key!r}"
-                              + (did_you_mean(key, _TOP_KEYS) or f"; keys: {', '.join(_TOP_KEYS)}"))
-    name = raw.get("name", Path(source).stem)
-    desc = raw.get("description", "")
-    if not isinstance(name, str) or not isinstance(desc, str):
-        raise ConfigError(f"scenario {source}: name and description must be strings")
-    steps_raw = raw.get("step", [])
-    if not isinstance(steps_raw, list) or not steps_raw:
-        raise ConfigError(f"scenario {source}: no steps; add [[step]] tables with at_s and inject or clear")
-    lines = _step_lines(text)
+
+    def error(p: config.Problem) -> ConfigError:
+        if len(p.path) >= 2 and p.path[0] == "step" and isinstance(p.path[1], int):
+            line = config.line_of(text, p.path[:2])
+            where = f"scenario {source}" + (f" line {line}" if line else "") + f" (step {p.path[1] + 1})"
+            return ConfigError(f"{where}: {p.message}")
+        return ConfigError(f"scenario {source}: {p.message}")
+
+    raw = config.convert(data, _ScenarioFile, source=source, text=text, messages=_MESSAGES, error=error)
     steps: list[Step] = []
-    for i, st in enumerate(steps_raw):
-        line = lines[i] if i < len(lines) else None
-        where = f"scenario {source}" + (f" line {line}" if line else "") + f" (step {i + 1})"
-        if not isinstance(st, dict):
-            raise ConfigError(f"{where}: a step is a [[step]] table")
-        for key in st:
-            if key not in _STEP_KEYS:
-                raise ConfigError(f"{where}: unknown field {key!r}"
-                                  + (did_you_mean(key, _STEP_KEYS) or f"; fields: {', '.join(_STEP_KEYS)}"))
-        at = st.get("at_s")
-        if isinstance(at, bool) or not isinstance(at, (int, float)) or not math.isfinite(at) or at < 0:
-            raise ConfigError(f"{where}: at_s must be a number of seconds >= 0, not {at!r}")
-        actions = [k for k in ("inject", "clear") if k in st]
+    for i, st in enumerate(raw.step):
+        def fail(msg: str) -> NoReturn:
+            config.fail(source, text, ("step", i), msg, error=error)
+        if not math.isfinite(st.at_s):
+            fail(_AT_S.format(value=st.at_s))
+        actions = [k for k in ("inject", "clear") if getattr(st, k) is not None]
         if len(actions) != 1:
-            raise ConfigError(f"{where}: give exactly one of inject = \"SPEC\" or clear = \"SPEC\"|\"all\"")
+            fail("give exactly one of inject = \"SPEC\" or clear = \"SPEC\"|\"all\"")
         action = actions[0]
-        spec = st[action]
-        if not isinstance(spec, str) or not spec.strip():
-            raise ConfigError(f"{where}: {action} must be a fault spec string, not {spec!r}")
-        steps.append(Step(float(at), action, spec.strip(), line))
+        spec = getattr(st, action)
+        if not spec.strip():
+            fail(f"{action} must be a fault spec string, not {spec!r}")
+        steps.append(Step(float(st.at_s), action, spec.strip(), config.line_of(text, ("step", i))))
     order = sorted(range(len(steps)), key=lambda j: steps[j].at_s)  # stable: file order on ties
-    scenario = Scenario(name, desc, [steps[j] for j in order], source)
+    name = Path(source).stem if raw.name is None else raw.name
+    scenario = Scenario(name, raw.description, [steps[j] for j in order], source)
     _check_specs(scenario, rack)
     return scenario
 

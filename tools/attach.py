@@ -9,7 +9,9 @@ while a server is still starting (anchors.md 4.3 and 11, item 8). The rules here
   yet": it is raised at once.
 - :func:`wait_for_service` retries it with a clear message while no service is up, a
   reminder every few seconds, until a service is there, a time-out or ``stop()``;
-  :func:`attach_waiting` is the same wait that raises :class:`PfmaTimeoutError`.
+  :func:`attach_waiting` is the same wait that raises :class:`PfmaTimeoutError`;
+  :func:`wait_for_frames` the same, silent, until the service has published N frames
+  (for a program that has just started it).
 - :class:`ServiceLink` notices a service that went away (its owner process is gone, it
   stopped, or the shared memory was re-created by a new service) and reattaches;
   :func:`buffer_replaced` tells a long-running reader (``pfma record``) the same.
@@ -238,6 +240,29 @@ def wait_for_service(name: str, layout: Layout | None = None, *,
     when ``stop()`` turns true; raises LayoutMismatchError for a buffer of another layout."""
     return _wait(name, layout=layout, rack=rack, words=words, timeout_s=timeout_s, notice_s=remind_every_s,
                  poll_s=poll_s, say=say, stop=stop, sleep=sleep, now=now)[0]
+
+
+def wait_for_frames(name: str, frames: int = 0, *, timeout_s: float, pid: int | None = None,
+                    alive: Callable[[], bool] = lambda: True, poll_s: float = 0.1) -> Client | None:
+    """A client of the live service on buffer ``name`` once it has published more than
+    ``frames`` frames (and, with ``pid``, is that process): :func:`wait_for_service`, silent,
+    then its frame counter. None on time-out or once ``alive()`` turns false (the service's
+    process ended). For a program that has just started ``pfma serve`` (the benchmarks)."""
+    end = time.monotonic() + timeout_s
+    while True:
+        c = wait_for_service(name, timeout_s=max(0.0, end - time.monotonic()), poll_s=poll_s,
+                             say=lambda _text: None, stop=lambda: not alive())
+        if c is None:
+            return None
+        try:
+            if (pid is None or c.owners()["inputs"].pid == pid) and c.read_inputs().frame > frames:
+                return c
+        except Exception:  # noqa: BLE001 - a torn read, a buffer being replaced: not yet
+            pass
+        c.close()
+        if time.monotonic() >= end or not alive():
+            return None
+        time.sleep(poll_s)
 
 
 def _say_to(stream: TextIO | None) -> Callable[[str], None]:

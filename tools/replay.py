@@ -173,23 +173,121 @@ def missing_frames(order: list[int], meta: dict[str, dict[str, str]]) -> tuple[l
     return [], gaps, "recorder missed or service skipped: the file cannot tell"
 
 
-def replay_through_fakes(path: str, *, rack=None, max_frames: int | None = None) -> FakeReplayReport:
-    """Drive a simulated rack from a recording and compare the service's output (see module doc)."""
-    from fakes.world import FakeWorld
-    from bit3.layout import build_layout, default_layout
-    from ioservice.service import IoService
-    from bit3.buffer import Bit3Buffer
-    from ioservice.ticking import TickingClock
-    from pfma.clock import SimClock
-    from pfma.errors import ConfigError
-    from pfma.rack import load_rack
-    rack = rack or load_rack()
-    layout = default_layout() if rack.source.endswith("rack_default.toml") else build_layout(rack)
+def _recorded_frames(path: str, max_frames: int | None) -> dict[int, np.ndarray]:
+    """The recording's raw inputs frames by frame number (the first ``max_frames``)."""
     frames: dict[int, np.ndarray] = {}
     for _, _, rec in read_frames(path, (RAW_TOPIC,)):
         frames[int(rec["frame"])] = rec
         if max_frames is not None and len(frames) >= max_frames:
             break
+    return frames
+
+
+def _missed_before(order: list[int], skipped: set[int]) -> dict[int, int]:
+    """Frame -> how many frames the service skipped just before it (a frame after frames
+    the service skipped ran their tasks too: IoService.frame, its ``info.missed``)."""
+    missed: dict[int, int] = {}
+    for f in order:
+        n = 0
+        while f - n - 1 in skipped:
+            n += 1
+        if n:
+            missed[f] = n
+    return missed
+
+
+class _ReplayChannels:
+    """The recorded channels the replay drives into the fake boards (resolver counts, ADC
+    volts, the user I/F box bits) and compares with what the service publishes."""
+
+    def __init__(self, layout) -> None:
+        chans = [c for c in layout.channels if c.area == "inputs" and not c.spare]
+        self.rtd = [(c.name, c.slot, c.board, c.channel) for c in chans if c.kind == "rtd"]
+        self.adc_boards: dict[str, list[tuple[int, int]]] = defaultdict(list)
+        for c in chans:
+            if c.kind == "adc":
+                self.adc_boards[c.board].append((c.channel, c.slot))
+        pio = [(c.name, c.slot) for c in chans if c.kind == "pio" and c.name.startswith("user_if_box")]
+        #: (channel name, field, slot) compared, in report order
+        self.compared = [(n, "rtd_counts", s) for n, s, *_ in self.rtd]
+        self.compared += [(c.name, "adc_counts", c.slot) for c in chans if c.kind == "adc"]
+        self.compared += [(n, "pio_port_bits", s) for n, s in pio]
+
+    def drive(self, world, rec: np.ndarray) -> None:
+        """Set the fake boards' physical inputs from recorded frame ``rec``."""
+        for _, slot, board, ch in self.rtd:
+            world.bus[board].set_counts(ch, int(rec["rtd_counts"][slot]))
+        for board, pairs in self.adc_boards.items():
+            fake = world.bus[board]
+            v = np.array(fake.input_volts if hasattr(fake, "input_volts") else np.zeros(32), dtype=float)
+            for ch, slot in pairs:
+                v[ch] = float(rec["adc_volts"][slot])
+            fake.set_inputs_volts(v)
+        world.set_user_inputs(int(rec["pio_user_inputs"]))
+
+    def compare(self, rep: FakeReplayReport, out: np.ndarray, rec: np.ndarray, frame: int) -> None:
+        """Count the channels of published record ``out`` that differ from ``rec``."""
+        rep.frames_compared += 1
+        for name_, fld, slot in self.compared:
+            a, b = float(out[fld][slot]), float(rec[fld][slot])
+            d = rep.channels.setdefault(f"{name_}.{fld}", ChannelDiff())
+            d.compared += 1
+            if a != b:
+                d.mismatched += 1
+                d.max_abs = max(d.max_abs, abs(a - b))
+                if d.first_frame < 0:
+                    d.first_frame = frame
+
+
+def _run_replay(rack, layout, buf, frames: dict[int, np.ndarray], rep: FakeReplayReport) -> None:
+    """The real IoService on ``buf`` over the simulated rack, frame numbers as recorded,
+    each recorded frame's inputs driven before it and compared after it."""
+    from fakes.world import FakeWorld
+    from ioservice.service import IoService
+    from ioservice.ticking import TickingClock
+    from pfma.clock import SimClock
+    order = sorted(frames)
+    first, last = order[0], order[-1]
+    skipped = set(rep.skipped_frames)
+    # the replay's loop drops nothing, so it is told of the frames the service skipped
+    missed_before = _missed_before(order, skipped)
+    clock = SimClock()
+    world = FakeWorld(rack, clock=clock)
+    tclock = TickingClock(clock)
+    tclock.hooks.append(world.tick)
+    svc = IoService(rack, world.bus, buf, tclock, schedule=None)
+    tclock.hooks.append(svc.serial_tick)
+    channels = _ReplayChannels(layout)
+    body = svc.frame
+
+    def frame_body(info) -> None:
+        if info.index in skipped:  # the service did not run this frame: nor does the replay
+            return
+        if info.index in missed_before:
+            info.missed = missed_before[info.index]
+        rec = frames.get(info.index)
+        if rec is not None:
+            channels.drive(world, rec)
+        body(info)
+        if rec is not None and info.index >= first + 8:  # one major frame to settle
+            channels.compare(rep, svc.inputs.record, rec, info.index)
+
+    svc.loop.body = frame_body
+    svc.loop.t0 = clock.now() - first * svc.schedule.period_s
+    svc.loop.k = first
+    svc.loop.run(frames=last - first + 1, freeze_gc=False)
+    svc.stop()
+
+
+def replay_through_fakes(path: str, *, rack=None, max_frames: int | None = None) -> FakeReplayReport:
+    """Drive a simulated rack from a recording and compare the service's output (see module doc)."""
+    from bit3.buffer import Bit3Buffer
+    from bit3.layout import build_layout, default_layout
+    from pfma.errors import ConfigError
+    from pfma.rack import load_rack
+    rack = rack or load_rack()
+    layout = default_layout() if rack.source.endswith("rack_default.toml") else build_layout(rack)
+    frames = _recorded_frames(path, max_frames)
     meta_all = read_metadata(path)
     meta = meta_all.get("pfma.layout", {})
     if meta.get("hash") and meta["hash"] != layout.hash_hex:
@@ -198,80 +296,11 @@ def replay_through_fakes(path: str, *, rack=None, max_frames: int | None = None)
     rep = FakeReplayReport(frames_recorded=len(frames))
     if not frames:
         return rep
-    order = sorted(frames)
-    first, last = order[0], order[-1]
-    rep.skipped_frames, rep.lost_frames, rep.lost_why = missing_frames(order, meta_all)
-    skipped = set(rep.skipped_frames)
-    # a frame after frames the service skipped ran their tasks too (IoService.frame, its
-    # info.missed): the replay's loop drops nothing, so it is told
-    missed_before: dict[int, int] = {}
-    for f in order:
-        n = 0
-        while f - n - 1 in skipped:
-            n += 1
-        if n:
-            missed_before[f] = n
+    rep.skipped_frames, rep.lost_frames, rep.lost_why = missing_frames(sorted(frames), meta_all)
     name = "pfma-replay-" + uuid.uuid4().hex[:8]
-    clock = SimClock()
-    world = FakeWorld(rack, clock=clock)
-    tclock = TickingClock(clock)
-    tclock.hooks.append(world.tick)
     buf = Bit3Buffer.create(name, layout)
     try:
-        svc = IoService(rack, world.bus, buf, tclock, schedule=None)
-        tclock.hooks.append(svc.serial_tick)
-        chans = [c for c in layout.channels if c.area == "inputs" and not c.spare]
-        rtd = [(c.name, c.slot, c.board, c.channel) for c in chans if c.kind == "rtd"]
-        adc_boards: dict[str, list[tuple[int, int]]] = defaultdict(list)
-        for c in chans:
-            if c.kind == "adc":
-                adc_boards[c.board].append((c.channel, c.slot))
-        pio = [(c.name, c.slot) for c in chans if c.kind == "pio" and c.name.startswith("user_if_box")]
-        body = svc.frame
-
-        def drive(rec: np.ndarray) -> None:
-            for _, slot, board, ch in rtd:
-                world.bus[board].set_counts(ch, int(rec["rtd_counts"][slot]))
-            for board, pairs in adc_boards.items():
-                fake = world.bus[board]
-                v = np.array(fake.input_volts if hasattr(fake, "input_volts") else np.zeros(32), dtype=float)
-                for ch, slot in pairs:
-                    v[ch] = float(rec["adc_volts"][slot])
-                fake.set_inputs_volts(v)
-            world.set_user_inputs(int(rec["pio_user_inputs"]))
-
-        def compare(out: np.ndarray, rec: np.ndarray, frame: int) -> None:
-            rep.frames_compared += 1
-            items = [(n, "rtd_counts", s) for n, _s, *_ in rtd for s in (_s,)]
-            items += [(c.name, "adc_counts", c.slot) for c in chans if c.kind == "adc"]
-            items += [(n, "pio_port_bits", s) for n, s in pio]
-            for name_, fld, slot in items:
-                a, b = float(out[fld][slot]), float(rec[fld][slot])
-                d = rep.channels.setdefault(f"{name_}.{fld}", ChannelDiff())
-                d.compared += 1
-                if a != b:
-                    d.mismatched += 1
-                    d.max_abs = max(d.max_abs, abs(a - b))
-                    if d.first_frame < 0:
-                        d.first_frame = frame
-
-        def frame_body(info) -> None:
-            if info.index in skipped:  # the service did not run this frame: nor does the replay
-                return
-            if info.index in missed_before:
-                info.missed = missed_before[info.index]
-            rec = frames.get(info.index)
-            if rec is not None:
-                drive(rec)
-            body(info)
-            if rec is not None and info.index >= first + 8:  # one major frame to settle
-                compare(svc.inputs.record, rec, info.index)
-
-        svc.loop.body = frame_body
-        svc.loop.t0 = clock.now() - first * svc.schedule.period_s
-        svc.loop.k = first
-        svc.loop.run(frames=last - first + 1, freeze_gc=False)
-        svc.stop()
+        _run_replay(rack, layout, buf, frames, rep)
     finally:
         buf.close()
         Bit3Buffer.unlink(name)

@@ -29,8 +29,9 @@ from typing import Any, Callable, Iterable, Mapping, NamedTuple
 
 import numpy as np
 
-from bit3.buffer import open_shm, pid_alive
+from bit3.buffer import pid_alive
 from bit3.layout import SEQ_BLOCK  # the SeqLock counter block before the body
+from bit3.segment import Segment, open_shm
 from controller.worldmodel.requests import UserRequestRing
 from controller.worldmodel.segment import (
     APPLIED, FORMAT_VERSION, HEADER_FIELDS, HEADER_SIZE, MAGIC, READ_TIMEOUT_S, REJECTED, REQUEST_SLOTS,
@@ -134,14 +135,13 @@ def _fast_raw(h: _Hot, value: Any) -> bytes | None:
     return None
 
 
-class WorldModel(UserRequestRing):
-    """The world model. Use :meth:`create` (the owner) or :meth:`attach` (inspection)."""
+class WorldModel(UserRequestRing, Segment):
+    """The world model. Use :meth:`create` (the owner) or :meth:`attach` (inspection).
+    The segment's lifecycle (close, ``with``, :meth:`remove_segment`) is
+    :class:`bit3.segment.Segment`'s."""
 
     def __init__(self) -> None:  # use create()/attach()
         self._views: list[memoryview] = []
-        self._closer = None
-        self._shm = None
-        self._fd = -1
         self.name: str | None = None
         self.readonly = True
         self._qlock = threading.Lock()          # the pending-post queue
@@ -198,9 +198,7 @@ class WorldModel(UserRequestRing):
             mem = bytearray(lay.total_size)
             self._closer = lambda: None
         else:
-            shm = cls._create_shm(name, lay.total_size)
-            self._shm, self._fd, self._closer = shm, shm._fd, shm.close
-            mem = shm.buf
+            mem = self._hold(cls._create_shm(name, lay.total_size))
         self._root = memoryview(mem)
         try:
             self._setup(specs, lay, writable=True)
@@ -273,8 +271,7 @@ class WorldModel(UserRequestRing):
                                   f"running?{hint}") from None
         self = cls()
         self.name = name
-        self._shm, self._fd, self._closer = shm, shm._fd, shm.close
-        self._root = memoryview(shm.buf)
+        self._root = memoryview(self._hold(shm))
         try:
             specs, lay = decode(self._root, name)
             self._setup(specs, lay, writable=False)
@@ -780,10 +777,8 @@ class WorldModel(UserRequestRing):
 
     # --- closing -------------------------------------------------------------------------
 
-    def close(self) -> None:
-        """Unmap (the owner's segment stays until :meth:`unlink`)."""
-        if self._closer is None:
-            return
+    def _unmap(self) -> None:
+        """Before :meth:`close` unmaps (the owner's segment stays until :meth:`unlink`)."""
         if not self.readonly and self._shm is not None:
             try:
                 self._words["owner_pid"][0] = 0  # no owner any more: tools say so
@@ -798,37 +793,12 @@ class WorldModel(UserRequestRing):
         root = getattr(self, "_root", None)
         if root is not None:
             root.release()
-        closer, self._closer = self._closer, None
-        closer()
 
     def unlink(self) -> bool:
         """Remove this model's shared-memory name (owner; after or instead of close)."""
         if self.name is None:
             return False
         return self.remove_segment(self.name)
-
-    @staticmethod
-    def remove_segment(name: str) -> bool:
-        """Remove POSIX shared memory ``name``; False if it did not exist."""
-        from multiprocessing import shared_memory
-        try:
-            shared_memory._posixshmem.shm_unlink("/" + name)  # no tracker round trip
-        except FileNotFoundError:
-            return False
-        return True
-
-    def __del__(self) -> None:
-        if getattr(self, "_closer", None) is not None:
-            try:
-                self.close()
-            except Exception:
-                pass
-
-    def __enter__(self) -> "WorldModel":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return (f"<WorldModel {self.name or 'private'} {'ro' if self.readonly else 'owner'} "

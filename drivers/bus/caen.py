@@ -63,7 +63,8 @@ from typing import Any, Callable
 from urllib.parse import parse_qsl, urlsplit
 
 from drivers.bus import BusUrlError, check_addr, check_block, check_value, check_words
-from pfma.errors import AlignmentError, BusError, LinkError
+from drivers.bus.base import BusBase
+from pfma.errors import BusError, LinkError
 
 __all__ = ["CaenBus", "open_caen_bus", "load_binding", "AM_A16_USER", "AM_A16_SUPER",
            "MULTI_CYCLES_MAX", "MISSING_BINDING", "MISSING_LIBRARY"]
@@ -105,7 +106,7 @@ def load_binding() -> ModuleType:
     return caenvme
 
 
-class CaenBus:
+class CaenBus(BusBase):
     """RegisterBus on an open ``caenvme.Device``: A16 cycles with address modifier ``am``.
 
     :param device: an open ``caenvme.Device`` (or a double with the same methods)
@@ -148,12 +149,6 @@ class CaenBus:
                 return call(*args)
             except self._cv.Error as err:
                 raise self._fail(addr, width, op, err) from err
-
-    @staticmethod
-    def _even(addr: int, op: str) -> None:
-        check_addr(addr)
-        if addr % 2:
-            raise AlignmentError(addr, 16, op, reason="16-bit access at an odd address")
 
     # -- RegisterBus ----------------------------------------------------------------
     def read8(self, addr: int) -> int:
@@ -215,9 +210,8 @@ class CaenBus:
             except RuntimeError as err:  # the binding: "multi_read failed at cycles {i: 'BUS_ERROR'}"
                 raise self._multi_failure(op, addrs, err) from err
         if data is None:
-            return [self.read16(a) for a in addrs]
-        for a, v in zip(addrs, data):
-            self.write16(a, v)
+            return self._read_singly(addrs)
+        self._write_singly(addrs, data)
         return []
 
     def _multi_failure(self, op: str, addrs: list[int], err: RuntimeError) -> BusError:
@@ -242,12 +236,6 @@ class CaenBus:
         self._closed = True
         with self._lock:
             self._dev.close()
-
-    def __enter__(self) -> "CaenBus":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return f"CaenBus({self.where!r}, am=0x{int(self.am):02X})"

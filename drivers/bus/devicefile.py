@@ -49,14 +49,15 @@ from urllib.parse import parse_qsl, urlsplit
 from collections.abc import Sequence
 
 from drivers.bus import check_addr, check_block, check_value, check_words
-from pfma.errors import AlignmentError, BusError, LinkError
+from drivers.bus.base import BusBase
+from pfma.errors import BusError, LinkError
 
 __all__ = ["DeviceFileBus", "open_devicefile_bus", "vme_user_set_master"]
 
 _SWAP = sys.byteorder == "little"
 
 
-class DeviceFileBus:
+class DeviceFileBus(BusBase):
     """RegisterBus on an mmap of a file holding (part of) the A16 space.
 
     :param path: the device file (``/dev/bus/vme/m0``) or any regular file
@@ -98,9 +99,10 @@ class DeviceFileBus:
 
     # -- helpers ------------------------------------------------------------------
     def _index(self, addr: int, width: int, op: str) -> int:
-        check_addr(addr)
-        if width == 16 and addr % 2:
-            raise AlignmentError(addr, 16, op, reason="16-bit access at an odd address")
+        if width == 16:
+            self._even(addr, op)
+        else:
+            check_addr(addr)
         i = addr - self.base
         if not 0 <= i <= self.size - width // 8:
             raise BusError(addr, width, op, reason=f"outside the mapped window 0x{self.base:04X}-"
@@ -182,12 +184,6 @@ class DeviceFileBus:
         self._bytes.release()
         self._mm.close()
         os.close(self._fd)
-
-    def __enter__(self) -> "DeviceFileBus":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return f"DeviceFileBus({self.path!r}, size=0x{self.size:X}, offset=0x{self.offset:X}, base=0x{self.base:04X})"

@@ -62,8 +62,9 @@ from urllib.parse import parse_qsl, urlsplit
 from pymodbus.client import ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException
 
-from drivers.bus import check_addr, check_block, check_value, check_words
-from pfma.errors import AlignmentError, BusError
+from drivers.bus import check_block, check_words
+from drivers.bus.base import WordBus
+from pfma.errors import BusError
 
 __all__ = ["ModbusTcpBus", "open_modbus_bus", "EXCEPTION_REASONS", "DEFAULT_TIMEOUT_S",
            "MAX_READ_WORDS", "MAX_WRITE_WORDS", "MAX_RW_WRITE_WORDS"]
@@ -96,7 +97,7 @@ EXCEPTION_REASONS: dict[int, str] = {
 }
 
 
-class ModbusTcpBus:
+class ModbusTcpBus(WordBus):
     """RegisterBus over a Modbus TCP gateway (holding register N = A16 word 2N).
 
     :param host: gateway host name or address
@@ -156,37 +157,10 @@ class ModbusTcpBus:
         rr = self._call(addr, width, "read", self._client.read_holding_registers, (addr & ~1) >> 1)
         return rr.registers[0] & 0xFFFF
 
-    # -- RegisterBus ----------------------------------------------------------------------
-    def read16(self, addr: int) -> int:
-        """Read the word at even A16 ``addr`` (holding register ``addr // 2``)."""
-        check_addr(addr)
-        if addr % 2:
-            raise AlignmentError(addr, 16, "read", reason="16-bit access at an odd address")
-        return self._read_word(addr, 16)
+    def _write_word(self, addr: int, word: int, width: int) -> None:
+        self._call(addr, width, "write", self._client.write_register, addr >> 1, word)
 
-    def read8(self, addr: int) -> int:
-        """Read the byte at ``addr``: high byte of the word for even, low byte for odd."""
-        check_addr(addr)
-        word = self._read_word(addr, 8)
-        return word & 0xFF if addr % 2 else word >> 8
-
-    def write16(self, addr: int, value: int) -> None:
-        """Write the word at even A16 ``addr`` (function code 6)."""
-        check_addr(addr)
-        value = check_value(addr, value, 16)
-        if addr % 2:
-            raise AlignmentError(addr, 16, "write", reason="16-bit access at an odd address")
-        self._call(addr, 16, "write", self._client.write_register, addr >> 1, value)
-
-    def write8(self, addr: int, value: int) -> None:
-        """Write the byte at odd A16 ``addr`` as the word ``0x00 << 8 | value`` (no read first)."""
-        check_addr(addr)
-        value = check_value(addr, value, 8)
-        if addr % 2 == 0:
-            raise AlignmentError(addr, 8, "write", reason="an even-byte write cannot be expressed over "
-                                 "Modbus (it would also write the odd byte)")
-        self._call(addr, 8, "write", self._client.write_register, addr >> 1, value)
-
+    # -- RegisterBus (read8/read16/write8/write16: drivers.bus.base.WordBus) -------------------
     def read_block16(self, addr: int, n: int) -> list[int]:
         """The ``n`` words from even A16 ``addr`` on: function code 3, one request per
         :data:`MAX_READ_WORDS` words; a failing request's BusError names its first word."""
@@ -231,12 +205,6 @@ class ModbusTcpBus:
 
     def close(self) -> None:
         self._client.close()
-
-    def __enter__(self) -> "ModbusTcpBus":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return f"ModbusTcpBus({self.host!r}, {self.port}, unit={self.unit}, timeout={self.timeout:g})"

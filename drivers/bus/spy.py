@@ -15,6 +15,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from drivers.bus.base import BusBase
+
 if TYPE_CHECKING:
     from drivers.bus import RegisterBus
 
@@ -48,7 +50,7 @@ class Access:
         return f"{text}  !! {self.error}" if self.error else text
 
 
-class SpyBus:
+class SpyBus(BusBase):
     """Wrap ``bus`` and record every access.
 
     :param bus: any RegisterBus
@@ -137,11 +139,6 @@ class SpyBus:
             raise AttributeError(name)
         return getattr(self.bus, name)
 
-    def __enter__(self) -> "SpyBus":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def open_spy_bus(url: str, **kwargs) -> SpyBus:

@@ -52,8 +52,9 @@ from typing import Any
 from urllib.parse import parse_qsl, urlsplit
 
 from drivers.bus import check_addr, check_block, check_value, check_words
+from drivers.bus.base import BusBase
 from drivers.bus.devicefile import VME_DATA, VME_SCT, VME_SUPER, VME_USER, vme_user_set_master
-from pfma.errors import AlignmentError, BusError, LinkError
+from pfma.errors import BusError, LinkError
 
 __all__ = ["VmeUserBus", "open_vme_bus", "AM_CYCLES"]
 
@@ -65,7 +66,7 @@ AM_CYCLES: dict[int, int] = {
 A16_SIZE = 0x10000
 
 
-class VmeUserBus:
+class VmeUserBus(BusBase):
     """RegisterBus on a ``vme_user`` master window set up for the whole A16 space.
 
     :param path: the master window (``/dev/bus/vme/m0`` .. ``m3``)
@@ -145,12 +146,6 @@ class VmeUserBus:
             raise BusError(first, width, "write", reason=f"VME bus error (short write to {self.path}: "
                            f"no board answered AM 0x{self.am:02X})")
 
-    @staticmethod
-    def _even(addr: int, op: str) -> None:
-        check_addr(addr)
-        if addr % 2:
-            raise AlignmentError(addr, 16, op, reason="16-bit access at an odd address")
-
     # -- RegisterBus ----------------------------------------------------------------
     def read8(self, addr: int) -> int:
         """One 1-byte ``pread`` at A16 ``addr`` (a D08(O) cycle at an odd address)."""
@@ -195,12 +190,6 @@ class VmeUserBus:
             if self._fd is not None:
                 os.close(self._fd)
                 self._fd = None
-
-    def __enter__(self) -> "VmeUserBus":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return f"VmeUserBus({self.path!r}, am=0x{self.am:02X})"

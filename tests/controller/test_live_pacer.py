@@ -1,4 +1,4 @@
-"""The live controller's pacer (tools.cli.controller.LivePacer) returns once the service has
+"""The live controller's pacer (tools.stacks.controller.LivePacer) returns once the service has
 published the next frame: woken by the publish where futexes exist (bit3.futex), and still
 within its bounded waits when the service does not wake it (an older service)."""
 
@@ -12,7 +12,7 @@ import pytest
 
 from bit3 import futex
 from bit3.client import Client
-from tools.cli.controller import LivePacer
+from tools.stacks.controller import LivePacer
 
 pytestmark = pytest.mark.realtime
 

@@ -52,3 +52,25 @@ def test_the_journal_gets_sd_daemon_priorities(monkeypatch):
 def test_an_unknown_level_is_one_clear_message():
     with pytest.raises(ValueError, match="--log-level 'loud': one of debug, info, warning, error"):
         log.level_number("loud")
+
+
+def test_the_default_handler_follows_sys_stderr_so_a_closed_capture_is_never_written(monkeypatch, capsys):
+    first = io.StringIO()
+    monkeypatch.setattr("sys.stderr", first)
+    log.configure("pfma serve", "info")
+    first.close()  # a test's capture, gone
+    second = io.StringIO()
+    monkeypatch.setattr("sys.stderr", second)
+    logging.getLogger("x").warning("still said")
+    assert second.getvalue() == "pfma serve: still said\n"
+
+
+def test_for_process_undoes_itself():
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
+    modbus_level = logging.getLogger("pymodbus").level
+    with log.for_process("pfma serve", "warning", hush=("pymodbus",)):
+        assert logging.getLogger("pymodbus").level == logging.CRITICAL
+        assert root.level == logging.WARNING
+    assert root.handlers == handlers and root.level == level
+    assert logging.getLogger("pymodbus").level == modbus_level

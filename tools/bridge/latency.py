@@ -97,69 +97,107 @@ def measure(seconds: float = 10.0) -> dict:
     (``delivered_percent``, from the sequence numbers; ``frames_percent`` also counts frame
     numbers the service itself skipped as missing); the publishes the bridge missed in its
     whole run; the bridge's CPU (% of a core) over the window."""
-    from bit3.buffer import Bit3Buffer
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
     name = "pfma-lat-" + uuid.uuid4().hex[:6]
+    a, b, bridge_said, cpu_percent = _run(name, _free_endpoint(), seconds)
+    return _figures(seconds, a, b, bridge_said, cpu_percent)
+
+
+def _free_endpoint() -> str:
+    """A free TCP port on loopback as a Zenoh endpoint."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
-        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
-    def start(*argv: str, out=subprocess.PIPE, err=subprocess.DEVNULL) -> subprocess.Popen:
-        return subprocess.Popen([sys.executable, *argv], cwd=ROOT, env=env, stdout=out, stderr=err, text=True)
-    serve = start("-m", "tools.cli", "serve", "--buffer", name, "--duration", str(seconds + 60),
-                  out=subprocess.DEVNULL)
+
+def _start(*argv: str, out=subprocess.PIPE, err=subprocess.DEVNULL) -> subprocess.Popen:
+    """A Python process in the project's root with the project on its path."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.Popen([sys.executable, *argv], cwd=ROOT, env=env, stdout=out, stderr=err, text=True)
+
+
+def _run(name: str, endpoint: str, seconds: float) -> tuple[dict, dict, list[str], float]:
+    """The service, the bridge and both readers on buffer ``name``: the shared-memory
+    reader's and the subscriber's results, the bridge's last words and its CPU (% of a
+    core) over the shared-memory reader's window. Every process is stopped at the end."""
+    from bit3.buffer import Bit3Buffer
+    serve = _start("-m", "tools.cli", "serve", "--buffer", name, "--duration", str(seconds + 60),
+                   out=subprocess.DEVNULL)
     procs = [serve]
     try:
         _wait(lambda: Bit3Buffer.owner_alive(name)[0], "the service up", 30, procs)
-        bridge = start("-m", "tools.cli", "bridge", "--buffer", name, "--listen", endpoint,
-                       err=subprocess.PIPE)
-        procs.append(bridge)
-        assert bridge.stderr is not None
-        said = bridge.stderr.readline()  # "pfma bridge: buffer ... on ...": it publishes
-        if not said.startswith("pfma bridge: buffer"):
-            raise RuntimeError(f"pfma bridge did not start: {said.strip()}")
-        zen = start("-c", ZENOH_READER, endpoint, name, str(seconds + 1.0), err=subprocess.PIPE)
+        bridge = _start_bridge(name, endpoint, procs)
+        zen = _start("-c", ZENOH_READER, endpoint, name, str(seconds + 1.0), err=subprocess.PIPE)
         procs.append(zen)
         assert zen.stdout is not None
         zen.stdout.readline()  # "ready": subscribed
         time.sleep(0.5)  # the subscription reaches the bridge (a measurement: a crude wait is fine)
         c0, t0 = _cpu_s(bridge.pid), time.monotonic()
-        shm = start("-c", SHM_READER, name, str(seconds))
+        shm = _start("-c", SHM_READER, name, str(seconds))
         a = json.loads(shm.communicate(timeout=seconds + 60)[0])
         c1, t1 = _cpu_s(bridge.pid), time.monotonic()
-        out, err = zen.communicate(timeout=seconds + 60)
-        if zen.returncode:
-            raise RuntimeError(f"the Zenoh subscriber failed: {err.strip().splitlines()[-1:]}")
-        b = json.loads(out)
+        b = _subscriber_result(zen, seconds)
         procs.remove(zen)
         bridge.send_signal(signal.SIGINT)
         bridge_said = bridge.communicate(timeout=30)[1].strip().splitlines()
         procs.remove(bridge)
     finally:
-        for p in procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        for p in procs:
-            try:
-                p.communicate(timeout=30)
-            except subprocess.TimeoutExpired:  # never leave a service or bridge running
-                p.kill()
-                p.communicate()
-        from bit3.buffer import Bit3Buffer
-        Bit3Buffer.unlink(name)  # the measurement's own buffer (a stopped service leaves it)
+        _stop_all(procs, name)
+    return a, b, bridge_said, 100.0 * (c1 - c0) / (t1 - t0)
+
+
+def _start_bridge(name: str, endpoint: str, procs: list[subprocess.Popen]) -> subprocess.Popen:
+    """``pfma bridge`` on ``endpoint``, added to ``procs``, once it says it publishes."""
+    bridge = _start("-m", "tools.cli", "bridge", "--buffer", name, "--listen", endpoint, err=subprocess.PIPE)
+    procs.append(bridge)
+    assert bridge.stderr is not None
+    said = bridge.stderr.readline()  # "pfma bridge: buffer ... on ...": it publishes
+    if not said.startswith("pfma bridge: buffer"):
+        raise RuntimeError(f"pfma bridge did not start: {said.strip()}")
+    return bridge
+
+
+def _subscriber_result(zen: subprocess.Popen, seconds: float) -> dict:
+    """The Zenoh subscriber's results (latencies, frame and sequence numbers)."""
+    out, err = zen.communicate(timeout=seconds + 60)
+    if zen.returncode:
+        raise RuntimeError(f"the Zenoh subscriber failed: {err.strip().splitlines()[-1:]}")
+    return json.loads(out)
+
+
+def _stop_all(procs: list[subprocess.Popen], name: str) -> None:
+    """Stop what still runs (SIGINT, then kill after 30 s) and unlink the measurement's buffer."""
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    for p in procs:
+        try:
+            p.communicate(timeout=30)
+        except subprocess.TimeoutExpired:  # never leave a service or bridge running
+            p.kill()
+            p.communicate()
+    from bit3.buffer import Bit3Buffer
+    Bit3Buffer.unlink(name)  # the measurement's own buffer (a stopped service leaves it)
+
+
+def _missed(bridge_said: list[str]) -> int | None:
+    """The publishes the bridge says it missed (its ``stopped`` line), None if it did not say."""
+    return next((int(w) for line in bridge_said if "missed" in line
+                 for w, nxt in zip(line.split(), line.split()[1:]) if nxt == "publishes"), None)
+
+
+def _figures(seconds: float, a: dict, b: dict, bridge_said: list[str], cpu_percent: float) -> dict:
+    """:func:`measure`'s figures from the readers' results and the bridge's last words."""
     frames, seqs = b["frames"], b["seqs"]
     seen = set(frames)
     span = max(seen) - min(seen) + 1 if seen else 0
     gaps = [(s1 - s0) // 2 - 1 for s0, s1 in zip(seqs, seqs[1:]) if s0 is not None and s1 is not None]
     lost = sum(g for g in gaps if g > 0)
-    missed = next((int(w) for line in bridge_said if "missed" in line
-                   for w, nxt in zip(line.split(), line.split()[1:]) if nxt == "publishes"), None)
     return {"seconds": seconds, "rate_hz": 320.0, "shm": _us(a["lat"]), "bridge": _us(b["lat"]),
             "frames_delivered": len(seen), "frames_window": span,
             "delivered_percent": 100.0 * len(seen) / (len(seen) + lost) if seen else None,
             "frames_percent": 100.0 * len(seen) / span if span else None,
-            "publishes_lost": lost, "bridge_missed_total": missed,
-            "bridge_cpu_percent": 100.0 * (c1 - c0) / (t1 - t0),
+            "publishes_lost": lost, "bridge_missed_total": _missed(bridge_said),
+            "bridge_cpu_percent": cpu_percent,
             "host_cores": os.cpu_count(), "host_load_1min": os.getloadavg()[0]}
 
 

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import copy
 import fnmatch
-import tomllib
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
+import msgspec
+
+from pfma import config
 from pfma.errors import ConfigError
 
 DEFAULT_PATH = Path(__file__).with_name("checkout_default.toml")
@@ -23,13 +25,37 @@ def _merge(base: dict, over: dict) -> dict:
 
 
 def _read(path: Path) -> dict:
-    try:
-        with open(path, "rb") as f:
-            return tomllib.load(f)
-    except OSError as err:
-        raise ConfigError(f"checkout configuration {path}: {err.strerror}") from err
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"checkout configuration {path}: {err}") from err
+    text = config.read_text(path, "checkout configuration")
+    return config.parse_toml(text, f"checkout configuration {path}")
+
+
+# The keys checked when the configuration is made (the rest are looked up, by name, when
+# a check runs: CheckoutConfig.get/num/joint)
+class _AdcGroup(msgspec.Struct, forbid_unknown_fields=True):
+    name: str
+    match: list[str]
+    quantity: Literal["value", "volts"]
+    low: float
+    high: float
+
+
+class _Adc(msgspec.Struct):
+    group: list[_AdcGroup] = msgspec.field(default_factory=list)
+
+
+class _Checkout(msgspec.Struct):
+    groups: list[Literal[GROUPS]]  # type: ignore[valid-type]
+
+
+class _CheckoutFile(msgspec.Struct):
+    checkout: _Checkout
+    adc: _Adc = msgspec.field(default_factory=_Adc)
+
+
+_MESSAGES = {
+    "checkout.groups[]": "[checkout] groups: unknown [{value!r}]; known: " + ", ".join(GROUPS),
+    "adc.group[].quantity": "[[adc.group]] {name}: quantity must be 'value' or 'volts'",
+}
 
 
 class CheckoutConfig:
@@ -43,10 +69,8 @@ class CheckoutConfig:
     def __init__(self, data: dict, source: str = "") -> None:
         self.data = data
         self.source = source
-        groups = self.get("checkout", "groups")
-        bad = [g for g in groups if g not in GROUPS]
-        if bad:
-            raise ConfigError(f"{source}: [checkout] groups: unknown {bad}; known: {', '.join(GROUPS)}")
+        config.convert(data, _CheckoutFile, source=f"checkout configuration {source}", messages=_MESSAGES,
+                       error=lambda p: ConfigError(str(p)))
 
     def get(self, *keys: str) -> Any:
         d: Any = self.data

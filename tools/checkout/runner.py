@@ -604,94 +604,104 @@ class Checkout:
         """The armed part of a joint's open-loop test: each move and its rows, then stopped,
         held by brake, disarm (none of those after a runaway). Appends to ``moves``."""
         cfg = self.cfg
-        jn = list(self.lay.joint_names)
-        n_lim = len(self.lay.current_limit_names)
-        move_s = float(cfg.joint(j, "move_s"))
-        lag = float(cfg.joint(j, "travel_lag_s"))
-        r_lo, r_hi = (float(x) for x in cfg.joint(j, "rate_ratio"))
-        agree = float(cfg.joint(j, "tach_resolver_tolerance"))
-        max_factor = float(cfg.joint(j, "max_travel_factor"))
-        dt = self.cfg.num("capture", "interval_s")
+        p = _MoveParams(cfg, j)
         self.t.wait(float(cfg.joint(j, "brake_release_s")))
         signs = (1, -1) if cfg.joint(j, "bidirectional") else (1,)
         for sign in signs:
             v = sign * rate
+            expected = v * (p.move_s - p.lag)
+            m = self._drive_move(tach, angle, current, cmd, rates, ji, v, expected, p)
             tag = "+" if sign > 0 else "-"
-            a_prev = self.value(angle)
-            travel = 0.0
-            tach_integral = 0.0
-            expected = v * (move_s - lag)
-            t0 = t_prev = self.t.now()
-            x_prev = self.value(tach)
-            rates[ji] = v
-            cmd.set(joint_rate_rad_s=rates)
-            samples: list[tuple[float, float]] = []
-            currents: list[float] = []
-            runaway = ""
-            left = ""  # the service state when it was first seen not ARMED during the move
-            while self.t.now() - t0 < move_s:
-                self.t.wait(dt)
-                s = self.inputs()
-                now = self.t.now()
-                a = float(s.value(angle))
-                x = float(s.value(tach))
-                travel += float(_wrap(a - a_prev, 2 * math.pi))
-                tach_integral += 0.5 * (x + x_prev) * (now - t_prev)
-                a_prev, x_prev, t_prev = a, x, now
-                samples.append((now - t0, x))
-                if current:
-                    currents.append(float(s.value(current)))
-                if not left and s.service_state != ServiceState.ARMED:
-                    left = ServiceState(s.service_state).name
-                if abs(travel) > max_factor * abs(expected):
-                    runaway = (f"runaway: {travel:+.4f} rad after {now - t0:.2f} s, more than "
-                               f"{max_factor:g} x the expected {expected:+.4f} rad; outputs made safe")
-                    self._stop_outputs(cmd, len(jn), n_lim)
-                    break
-            rates[ji] = 0.0
-            if not runaway:
-                cmd.set(joint_rate_rad_s=rates)
-            ts = np.array([t for t, _ in samples])
-            xs = np.array([x for _, x in samples])
-            win = xs[ts >= ts[-1] * (1.0 - float(cfg.joint(j, "tach_window")))] if len(xs) else xs
-            mean_tach = float(np.mean(win)) if len(win) else math.nan
-            span = float(np.ptp(currents)) if currents else 0.0
-            peak = float(np.max(np.abs(currents))) if currents else 0.0
-            moves.append(Move(tag, v, expected, travel, mean_tach, peak if current else None, left))
-            t_lo, t_hi = sorted((v * r_lo, v * r_hi))
-            # a tach that does not change while the joint is driven is dead or stuck, not
-            # reversed (a dead input held at a few mV would otherwise read "reversed")
-            swing = float(np.ptp(xs)) if len(xs) else 0.0
-            travelled = abs(travel) >= r_lo * abs(expected)
-            stuck = travelled and swing < STUCK_TACH_FRACTION * abs(v)
-            diag = ""
-            if stuck:
-                diag = (f"; TACH NOT RESPONDING (dead or stuck input: it moved {swing:.3g} rad/s "
-                        f"while the resolver travelled {travel:+.4f} rad)")
-            elif mean_tach * v < 0:
-                diag = "; TACH POLARITY REVERSED"
-            self.record("joints", tach, f"open-loop rate {tag}", t_lo <= mean_tach <= t_hi and not runaway,
-                        round(mean_tach, 5), round(t_lo, 5), round(t_hi, 5), "rad/s",
-                        f"commanded {v:+.4g} rad/s at a {i_lim:.2f} A limit" + diag
-                        + (f"; {runaway}" if runaway else ""))
-            if current and not runaway:
-                self.record("joints", current, f"motor current responds {tag}", span >= min_current,
-                            round(span, 4), round(min_current, 4), None, "A",
-                            f"peak-to-peak while driven at {v:+.4g} rad/s (limit {i_lim:.2f} A)"
-                            + ("" if span >= min_current else
-                               "; MOTOR CURRENT NOT RESPONDING (dead input or amplifier monitor)"))
-            x_lo, x_hi = sorted((expected * r_lo, expected * r_hi))
-            self.record("joints", angle, f"open-loop travel {tag}", x_lo <= travel <= x_hi and not runaway,
-                        round(travel, 5), round(x_lo, 5), round(x_hi, 5), "rad",
-                        f"{move_s:g} s at {v:+.4g} rad/s" + ("; RESOLVER MOVED THE WRONG WAY"
-                                                             if travel * v < 0 else ""))
-            ratio = tach_integral / travel if travel else math.nan
-            self.record("joints", tach, f"tach/resolver scale {tag}", abs(ratio - 1) <= agree,
-                        round(ratio, 4), round(1 - agree, 4), round(1 + agree, 4), "1",
-                        f"tach integral {tach_integral:+.5f} rad vs resolver travel {travel:+.5f} rad")
-            if runaway:
+            self._move_rows(j, tach, angle, current, tag, v, expected, m, i_lim, min_current, p, moves)
+            if m.runaway:
                 return
             self.t.wait(float(cfg.joint(j, "pause_s")))
+        self._stop_and_hold(j, tach, angle, cmd, rates, limits, li)
+
+    def _drive_move(self, tach: str, angle: str, current: str, cmd, rates: list[float], ji: int,
+                    v: float, expected: float, p: "_MoveParams") -> "_Sampled":
+        """One open-loop move at ``v`` rad/s for ``move_s``: what the resolver, tach and
+        motor current showed; a runaway makes the outputs safe at once and ends it."""
+        m = _Sampled()
+        a_prev = self.value(angle)
+        t0 = t_prev = self.t.now()
+        x_prev = self.value(tach)
+        rates[ji] = v
+        cmd.set(joint_rate_rad_s=rates)
+        while self.t.now() - t0 < p.move_s:
+            self.t.wait(p.dt)
+            s = self.inputs()
+            now = self.t.now()
+            a = float(s.value(angle))
+            x = float(s.value(tach))
+            m.travel += float(_wrap(a - a_prev, 2 * math.pi))
+            m.tach_integral += 0.5 * (x + x_prev) * (now - t_prev)
+            a_prev, x_prev, t_prev = a, x, now
+            m.samples.append((now - t0, x))
+            if current:
+                m.currents.append(float(s.value(current)))
+            if not m.left and s.service_state != ServiceState.ARMED:
+                m.left = ServiceState(s.service_state).name
+            if abs(m.travel) > p.max_factor * abs(expected):
+                m.runaway = (f"runaway: {m.travel:+.4f} rad after {now - t0:.2f} s, more than "
+                             f"{p.max_factor:g} x the expected {expected:+.4f} rad; outputs made safe")
+                self._stop_outputs(cmd, len(self.lay.joint_names), len(self.lay.current_limit_names))
+                break
+        rates[ji] = 0.0
+        if not m.runaway:
+            cmd.set(joint_rate_rad_s=rates)
+        return m
+
+    def _move_rows(self, j: str, tach: str, angle: str, current: str, tag: str, v: float, expected: float,
+                   m: "_Sampled", i_lim: float, min_current: float, p: "_MoveParams",
+                   moves: list[Move]) -> None:
+        """The rows of one move (tach rate, motor current, travel, tach/resolver scale); the
+        move appended to ``moves`` first (the diagnosis reads it even when a row stops the run)."""
+        cfg = self.cfg
+        travel, runaway = m.travel, m.runaway
+        ts = np.array([t for t, _ in m.samples])
+        xs = np.array([x for _, x in m.samples])
+        win = xs[ts >= ts[-1] * (1.0 - float(cfg.joint(j, "tach_window")))] if len(xs) else xs
+        mean_tach = float(np.mean(win)) if len(win) else math.nan
+        span = float(np.ptp(m.currents)) if m.currents else 0.0
+        peak = float(np.max(np.abs(m.currents))) if m.currents else 0.0
+        moves.append(Move(tag, v, expected, travel, mean_tach, peak if current else None, m.left))
+        t_lo, t_hi = sorted((v * p.r_lo, v * p.r_hi))
+        # a tach that does not change while the joint is driven is dead or stuck, not
+        # reversed (a dead input held at a few mV would otherwise read "reversed")
+        swing = float(np.ptp(xs)) if len(xs) else 0.0
+        travelled = abs(travel) >= p.r_lo * abs(expected)
+        stuck = travelled and swing < STUCK_TACH_FRACTION * abs(v)
+        diag = ""
+        if stuck:
+            diag = (f"; TACH NOT RESPONDING (dead or stuck input: it moved {swing:.3g} rad/s "
+                    f"while the resolver travelled {travel:+.4f} rad)")
+        elif mean_tach * v < 0:
+            diag = "; TACH POLARITY REVERSED"
+        self.record("joints", tach, f"open-loop rate {tag}", t_lo <= mean_tach <= t_hi and not runaway,
+                    round(mean_tach, 5), round(t_lo, 5), round(t_hi, 5), "rad/s",
+                    f"commanded {v:+.4g} rad/s at a {i_lim:.2f} A limit" + diag
+                    + (f"; {runaway}" if runaway else ""))
+        if current and not runaway:
+            self.record("joints", current, f"motor current responds {tag}", span >= min_current,
+                        round(span, 4), round(min_current, 4), None, "A",
+                        f"peak-to-peak while driven at {v:+.4g} rad/s (limit {i_lim:.2f} A)"
+                        + ("" if span >= min_current else
+                           "; MOTOR CURRENT NOT RESPONDING (dead input or amplifier monitor)"))
+        x_lo, x_hi = sorted((expected * p.r_lo, expected * p.r_hi))
+        self.record("joints", angle, f"open-loop travel {tag}", x_lo <= travel <= x_hi and not runaway,
+                    round(travel, 5), round(x_lo, 5), round(x_hi, 5), "rad",
+                    f"{p.move_s:g} s at {v:+.4g} rad/s" + ("; RESOLVER MOVED THE WRONG WAY"
+                                                           if travel * v < 0 else ""))
+        ratio = m.tach_integral / travel if travel else math.nan
+        self.record("joints", tach, f"tach/resolver scale {tag}", abs(ratio - 1) <= p.agree,
+                    round(ratio, 4), round(1 - p.agree, 4), round(1 + p.agree, 4), "1",
+                    f"tach integral {m.tach_integral:+.5f} rad vs resolver travel {travel:+.5f} rad")
+
+    def _stop_and_hold(self, j: str, tach: str, angle: str, cmd, rates: list[float],
+                       limits: list[float], li: int) -> None:
+        """After the moves: stopped by the servo, held by the brake, disarmed (their rows)."""
+        cfg = self.cfg
         self.t.wait(float(cfg.joint(j, "stop_s")))
         mx = float(cfg.joint(j, "max_stopped_rate"))
         still = self.value(tach)
@@ -706,7 +716,7 @@ class Checkout:
         mc = float(cfg.joint(j, "max_brake_creep_rad"))
         self.record("joints", angle, "held by brake", abs(creep) <= mc, round(creep, 6), -mc, mc, "rad",
                     f"current limit 0 for {2 * float(cfg.joint(j, 'brake_s')):g} s")
-        self._stop_outputs(cmd, len(jn), n_lim)
+        self._stop_outputs(cmd, len(self.lay.joint_names), len(self.lay.current_limit_names))
         safe = self.t.wait_until(lambda: self.inputs().service_state == ServiceState.SAFE,
                                  float(cfg.joint(j, "arm_timeout_s")), self.poll_s)
         self.record("joints", j, "disarm", safe, ServiceState(self.inputs().service_state).name,
@@ -782,6 +792,30 @@ class Checkout:
                       + (f" (it moved against the command in the {', '.join(wrong)} move: see the polarity "
                          "rows)" if wrong else "")
                       + (f" ({stopped}: that move shows nothing)" if unknown else "") + f". {seen}")
+
+
+class _MoveParams:
+    """A joint's open-loop move settings from the checkout configuration."""
+
+    def __init__(self, cfg: CheckoutConfig, j: str) -> None:
+        self.move_s = float(cfg.joint(j, "move_s"))
+        self.lag = float(cfg.joint(j, "travel_lag_s"))
+        self.r_lo, self.r_hi = (float(x) for x in cfg.joint(j, "rate_ratio"))
+        self.agree = float(cfg.joint(j, "tach_resolver_tolerance"))
+        self.max_factor = float(cfg.joint(j, "max_travel_factor"))
+        self.dt = cfg.num("capture", "interval_s")
+
+
+class _Sampled:
+    """What the resolver, tach and motor current showed during one move."""
+
+    def __init__(self) -> None:
+        self.travel = 0.0  #: resolver travel, rad
+        self.tach_integral = 0.0  #: the tach integrated over the move, rad
+        self.samples: list[tuple[float, float]] = []  #: (time into the move, tach)
+        self.currents: list[float] = []  #: motor current samples (a monitor present)
+        self.runaway = ""  #: why the move was cut short ("" = it was not)
+        self.left = ""  #: the service state when first seen not ARMED ("" = armed throughout)
 
 
 class Move:

@@ -117,16 +117,65 @@ def clip(text: str, width: int) -> str:
     return text if len(text) <= width else text[:width - 1] + "~"
 
 
-def monitor_data(client, filter_text: str | None = None, messages: int = 5) -> dict[str, Any]:
-    """The monitor's snapshot as data: the service header, one dict per input channel
-    (name, kind, value, units, raw, status, rate_hz, where, spare) and the last messages.
-    ``pfma monitor --once --json`` prints it; :func:`monitor_lines` draws it."""
-    s = client.read_inputs()
-    st = client.read_stats()
+class _Reading(NamedTuple):
+    """One input channel as the monitor shows it; ``rate``/``where`` None: the kind's default."""
+
+    value: Any
+    raw: str
+    code: int = 0  # the status word as published (--json: "status_bits")
+    rate: float | None = None
+    where: str | None = None
+
+
+def _read_rtd(s, c, i: int, dev_rate: dict[str, float]) -> _Reading:
+    value = wrap_angle(float(s.rtd_angle_rad[i]))  # the resolver's 0..2 pi shown in (-pi, pi]
+    return _Reading(value, f"{int(s.rtd_counts[i])} cnt {math.degrees(value):+.1f} deg", int(s.rtd_status[i]))
+
+
+def _read_adc(s, c, i: int, dev_rate: dict[str, float]) -> _Reading:
+    return _Reading(float(s.adc_value[i]), f"{s.adc_volts[i]:+.3f} V {int(s.adc_counts[i])} cnt",
+                    int(s.adc_status[i]))
+
+
+def _read_dac(s, c, i: int, dev_rate: dict[str, float]) -> _Reading:
+    return _Reading(float(s.dac_value[i]), f"{s.dac_volts[i]:+.3f} V {int(s.dac_counts[i])} cnt",
+                    int(s.dac_status[i]))
+
+
+def _read_pio(s, c, i: int, dev_rate: dict[str, float]) -> _Reading:
+    b = int(s.pio_port_bits[i])
+    return _Reading(b, f"{b:08b}")
+
+
+def _read_board(s, c, i: int, dev_rate: dict[str, float]) -> _Reading:
+    addr = int(s.board_last_error_addr[i])
+    return _Reading(int(s.board_errors[i]), f"last error at A16 0x{addr:04X}" if addr else "",
+                    int(s.board_status[i]), float("nan"), c.board)
+
+
+def _read_link(s, c, i: int, dev_rate: dict[str, float]) -> _Reading:
+    raw = (f"bad {int(s.link_bad[i])} resyncs {int(s.link_resyncs[i])} "
+           f"age {s.link_age_s[i] * 1e3:.0f} ms")
+    return _Reading(int(s.link_records[i]), raw, int(s.link_status[i]), float(s.link_rate_hz[i]))
+
+
+def _read_hc(s, c, i: int, dev_rate: dict[str, float]) -> _Reading:
+    return _Reading([round(float(x), 3) for x in s.hc_axes[i]], f"btn 0x{int(s.hc_buttons[i]):X}",
+                    rate=dev_rate.get(HC_DEVICE.get(c.name, ""), float("nan")))
+
+
+#: how the monitor reads each kind of input entry (other kinds are not shown)
+_READERS: dict[str, Callable[[Any, Any, int, dict[str, float]], _Reading]] = {
+    "rtd": _read_rtd, "adc": _read_adc, "dac": _read_dac, "pio": _read_pio,
+    "board": _read_board, "link": _read_link, "hc": _read_hc,
+}
+
+
+def _monitor_service(client, s, st, dev_rate: dict[str, float]) -> dict[str, Any]:
+    """The service header of :func:`monitor_data`."""
     lay = client.layout
-    dev_rate = {g: float(st.device_rate_hz[lay.slot("device", g)]) for g in DEVICE_GROUPS}
     hdr = client.header()
-    out: dict[str, Any] = {
+    return {
         "buffer": client.buffer.name, "rack": hdr.rack_name, "state": name_of(s.service_state, ServiceState),
         "frame": int(s.frame), "t_s": float(s.t_s), "fault_code": int(s.fault_code),
         "fault_name": name_of(s.fault_code, FAULT_CODE_NAMES),  # the number stays in fault_code
@@ -137,55 +186,44 @@ def monitor_data(client, filter_text: str | None = None, messages: int = 5) -> d
         "devices": {g: {"rate_hz": dev_rate[g], "errors": int(st.device_errors[lay.slot("device", g)])}
                     for g in DEVICE_GROUPS if int(st.device_samples[lay.slot("device", g)])},
     }
-    rows: list[dict[str, Any]] = []
-    for c in lay.channels:
-        if c.area != "inputs" or not matches(filter_text, c.name, c.label, c.kind, c.board):
-            continue
-        i = c.slot
-        where = f"{c.board}/{c.channel}" if c.channel >= 0 else c.board
-        rate = dev_rate.get(KIND_DEVICE.get(c.kind, ""), float("nan"))
-        value: Any
-        code = 0  # the status word as published (--json: "status_bits")
-        if c.kind == "rtd":
-            value = wrap_angle(float(s.rtd_angle_rad[i]))  # the resolver's 0..2 pi shown in (-pi, pi]
-            raw = f"{int(s.rtd_counts[i])} cnt {math.degrees(value):+.1f} deg"
-            code = int(s.rtd_status[i])
-        elif c.kind == "adc":
-            value, raw = float(s.adc_value[i]), f"{s.adc_volts[i]:+.3f} V {int(s.adc_counts[i])} cnt"
-            code = int(s.adc_status[i])
-        elif c.kind == "dac":
-            value, raw = float(s.dac_value[i]), f"{s.dac_volts[i]:+.3f} V {int(s.dac_counts[i])} cnt"
-            code = int(s.dac_status[i])
-        elif c.kind == "pio":
-            b = int(s.pio_port_bits[i])
-            value, raw = b, f"{b:08b}"
-        elif c.kind == "board":
-            value = int(s.board_errors[i])
-            addr = int(s.board_last_error_addr[i])
-            raw = f"last error at A16 0x{addr:04X}" if addr else ""
-            code, rate, where = int(s.board_status[i]), float("nan"), c.board
-        elif c.kind == "link":
-            value = int(s.link_records[i])
-            raw = (f"bad {int(s.link_bad[i])} resyncs {int(s.link_resyncs[i])} "
-                   f"age {s.link_age_s[i] * 1e3:.0f} ms")
-            code, rate = int(s.link_status[i]), float(s.link_rate_hz[i])
-        elif c.kind == "hc":
-            value = [round(float(x), 3) for x in s.hc_axes[i]]
-            raw = f"btn 0x{int(s.hc_buttons[i]):X}"
-            rate = dev_rate.get(HC_DEVICE.get(c.name, ""), float("nan"))
-        else:
-            continue
-        stat = entry_status(s, c) or "-"
-        units = "recs" if c.kind == "link" else ("err" if c.kind == "board" else c.units)
-        rows.append({"name": c.name, "kind": c.kind, "value": value, "units": units, "raw": raw,
-                     "status": stat, "status_bits": code, "rate_hz": rate, "where": where, "spare": bool(c.spare)})
-    for name, units in (("ft_force_n", "N"), ("ft_torque_nm", "N*m")):
-        if matches(filter_text, name, "ft force torque"):
-            rows.append({"name": name, "kind": "ft", "value": [round(float(x), 3) for x in s[name]],
-                         "units": units, "raw": f"status 0x{int(s.ft_status):X} t {s.ft_t_s:.3f} s",
-                         "status": status_text("ft", int(s.ft_status)), "status_bits": int(s.ft_status),
-                         "rate_hz": dev_rate["ft"], "where": "sio", "spare": False})
-    out["channels"] = rows
+
+
+def _monitor_row(s, c, dev_rate: dict[str, float]) -> dict[str, Any] | None:
+    """One input entry of :func:`monitor_data` (None: a kind the monitor does not show)."""
+    read = _READERS.get(c.kind)
+    if read is None:
+        return None
+    r = read(s, c, c.slot, dev_rate)
+    where = f"{c.board}/{c.channel}" if c.channel >= 0 else c.board
+    rate = dev_rate.get(KIND_DEVICE.get(c.kind, ""), float("nan"))
+    return {"name": c.name, "kind": c.kind, "value": r.value, "units": entry_units(c), "raw": r.raw,
+            "status": entry_status(s, c) or "-", "status_bits": r.code,
+            "rate_hz": rate if r.rate is None else r.rate, "where": where if r.where is None else r.where,
+            "spare": bool(c.spare)}
+
+
+def _monitor_ft_rows(s, filter_text: str | None, dev_rate: dict[str, float]) -> list[dict[str, Any]]:
+    """The F/T sensor's force and torque rows of :func:`monitor_data`."""
+    return [{"name": name, "kind": "ft", "value": [round(float(x), 3) for x in s[name]],
+             "units": units, "raw": f"status 0x{int(s.ft_status):X} t {s.ft_t_s:.3f} s",
+             "status": status_text("ft", int(s.ft_status)), "status_bits": int(s.ft_status),
+             "rate_hz": dev_rate["ft"], "where": "sio", "spare": False}
+            for name, units in (("ft_force_n", "N"), ("ft_torque_nm", "N*m"))
+            if matches(filter_text, name, "ft force torque")]
+
+
+def monitor_data(client, filter_text: str | None = None, messages: int = 5) -> dict[str, Any]:
+    """The monitor's snapshot as data: the service header, one dict per input channel
+    (name, kind, value, units, raw, status, rate_hz, where, spare) and the last messages.
+    ``pfma monitor --once --json`` prints it; :func:`monitor_lines` draws it."""
+    s = client.read_inputs()
+    st = client.read_stats()
+    lay = client.layout
+    dev_rate = {g: float(st.device_rate_hz[lay.slot("device", g)]) for g in DEVICE_GROUPS}
+    out = _monitor_service(client, s, st, dev_rate)
+    rows = [_monitor_row(s, c, dev_rate) for c in lay.channels
+            if c.area == "inputs" and matches(filter_text, c.name, c.label, c.kind, c.board)]
+    out["channels"] = [r for r in rows if r is not None] + _monitor_ft_rows(s, filter_text, dev_rate)
     out["messages"] = [{"t_s": float(m.t_s), "queue": m.queue, "seq": int(m.seq), "severity": m.severity.name,
                         "source": m.source, "code": int(m.code), "text": m.text}
                        for m in (client.messages()[-messages:] if messages else [])]

@@ -13,7 +13,7 @@ import struct
 import sys
 from pathlib import Path
 
-from pfma.errors import PfmaError
+from pfma.errors import PfmaError, os_error_text
 
 #: the first 8 bytes of every MCAP file
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -61,15 +61,8 @@ def main(argv: list[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
     except OSError as err:  # a file the user named: missing, unreadable, a directory ...
-        print(f"pfma {args.verb}: {_os_error_text(err)}", file=sys.stderr)
+        print(f"pfma {args.verb}: {os_error_text(err)}", file=sys.stderr)
         return 1
-
-
-def _os_error_text(err: OSError) -> str:
-    """``strerror: filename`` of an OSError (``str(err)`` when it has neither)."""
-    text = err.strerror or str(err) or type(err).__name__
-    names = [n for n in (err.filename, err.filename2) if n is not None]
-    return ": ".join([text, *map(str, names)])
 
 
 def _mcap_damage() -> tuple[type[BaseException], ...]:

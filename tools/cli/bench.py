@@ -123,32 +123,35 @@ def _json_set(names: list[str], args) -> int:
     return 1 if failed else 0
 
 
-def run(args) -> int:
+def _refusal(args) -> tuple[str | None, tuple[str, ...] | None]:
+    """Why these options are refused (one line, without the ``pfma bench: `` prefix), or
+    None; and the ``--kinds`` asked for (None: all)."""
     if args.seconds is not None and args.seconds <= 0:
-        print(f"pfma bench: --seconds {args.seconds:g}: must be positive", file=sys.stderr)
-        return 2
+        return f"--seconds {args.seconds:g}: must be positive", None
     if args.minutes is not None and args.minutes < 0:
-        print(f"pfma bench: --minutes {args.minutes:g}: must not be negative", file=sys.stderr)
-        return 2
+        return f"--minutes {args.minutes:g}: must not be negative", None
     if getattr(args, "trials", None) is not None and args.trials <= 0:
-        print(f"pfma bench: --trials {args.trials}: must be positive", file=sys.stderr)
-        return 2
+        return f"--trials {args.trials}: must be positive", None
     if getattr(args, "rounds", None) is not None and args.rounds <= 0:
-        print(f"pfma bench: --rounds {args.rounds}: must be positive", file=sys.stderr)
-        return 2
+        return f"--rounds {args.rounds}: must be positive", None
     if getattr(args, "check", False) and not (len(args.names) == 1 and args.names[0] in CHECKED):
-        print(f"pfma bench: --check judges one of {', '.join(CHECKED)}, named alone (got: "
-              f"{' '.join(args.names) or 'all benchmarks'})", file=sys.stderr)
+        return (f"--check judges one of {', '.join(CHECKED)}, named alone (got: "
+                f"{' '.join(args.names) or 'all benchmarks'})"), None
+    if not getattr(args, "kinds", None):
+        return None, None
+    from bench.bench_chaos import KINDS
+    kinds = tuple(k.strip() for k in args.kinds.split(",") if k.strip())
+    bad = [k for k in kinds if k not in KINDS]
+    if bad or not kinds:
+        return f"--kinds {args.kinds}: unknown {', '.join(bad) or 'nothing'}; known: {', '.join(KINDS)}", None
+    return None, kinds
+
+
+def run(args) -> int:
+    why, kinds = _refusal(args)
+    if why:
+        print(f"pfma bench: {why}", file=sys.stderr)
         return 2
-    kinds = None
-    if getattr(args, "kinds", None):
-        from bench.bench_chaos import KINDS
-        kinds = tuple(k.strip() for k in args.kinds.split(",") if k.strip())
-        bad = [k for k in kinds if k not in KINDS]
-        if bad or not kinds:
-            print(f"pfma bench: --kinds {args.kinds}: unknown {', '.join(bad) or 'nothing'}; known: "
-                  f"{', '.join(KINDS)}", file=sys.stderr)
-            return 2
     if not args.realtime:  # every process a bench starts stays time-shared and unpinned (a
         # 2-core host is not filled with SCHED_FIFO processes): ioservice.loop.REALTIME_ENV
         from ioservice.loop import REALTIME_ENV
@@ -166,47 +169,52 @@ def run(args) -> int:
             print(f"pfma bench: --json measures {', '.join(JSON_SET)}; not {', '.join(other)}", file=sys.stderr)
             return 2
         return _json_set(names, args)
-    names = args.names or [n for n in known if n not in ON_REQUEST]
-    seconds = 5.0 if args.seconds is None else args.seconds
-    for name in names:
-        mod = importlib.import_module(f"bench.bench_{name}")
-        if name == "stack":
-            if not args.json:
-                print(f"== bench {name} ==")
-            minutes = STACK_MINUTES if args.minutes is None else args.minutes
-            rep = mod.run(seconds=args.seconds, minutes=minutes, as_json=args.json, realtime=args.realtime,
-                          hog=args.hog)
-            if rep.get("errors") and args.json:
-                return 1
-            continue
-        if name in ("chaos", "soak"):
-            if not args.json:
-                print(f"== bench {name} ==")
-            if name == "chaos":
-                rep = mod.run(trials=args.trials, seed=args.seed, as_json=args.json, realtime=args.realtime,
-                              **({"kinds": kinds} if kinds else {}))
-            else:
-                rep = mod.run(minutes=SOAK_MINUTES if args.minutes is None else args.minutes, as_json=args.json,
-                              realtime=args.realtime)
-                if args.check:
-                    return _verdict(mod, rep, args.json)
-            if not args.json:
-                print()
-            continue
-        print(f"== bench {name} ==")
-        if name == "supervision":
-            mod.run(trials=args.trials)
-            print()
-            continue
-        if name == "flood":
-            rep = mod.run(seconds=seconds if args.seconds is not None else mod.DEFAULT_SECONDS,
-                          rounds=args.rounds or 1, realtime=args.realtime)
-            if args.check:
-                return _verdict(mod, rep, False)
-        else:
-            mod.run(seconds=seconds)
-        print()
+    for name in args.names or [n for n in known if n not in ON_REQUEST]:
+        rc = _run_one(name, args, kinds)
+        if rc is not None:
+            return rc
     return 0
+
+
+def _run_one(name: str, args, kinds: tuple[str, ...] | None) -> int | None:
+    """Run benchmark ``name`` and print it; an exit code when the run ends here (``--check``,
+    a stack's errors with ``--json``), else None."""
+    mod = importlib.import_module(f"bench.bench_{name}")
+    if name in ("stack", "chaos", "soak"):
+        return _run_long(name, mod, args, kinds)
+    print(f"== bench {name} ==")
+    if name == "supervision":
+        mod.run(trials=args.trials)
+    elif name == "flood":
+        rep = mod.run(seconds=args.seconds if args.seconds is not None else mod.DEFAULT_SECONDS,
+                      rounds=args.rounds or 1, realtime=args.realtime)
+        if args.check:
+            return _verdict(mod, rep, False)
+    else:
+        mod.run(seconds=5.0 if args.seconds is None else args.seconds)
+    print()
+    return None
+
+
+def _run_long(name: str, mod, args, kinds: tuple[str, ...] | None) -> int | None:
+    """``stack``, ``chaos``, ``soak``: their own whole report with ``--json``."""
+    if not args.json:
+        print(f"== bench {name} ==")
+    if name == "stack":
+        rep = mod.run(seconds=args.seconds, minutes=STACK_MINUTES if args.minutes is None else args.minutes,
+                      as_json=args.json, realtime=args.realtime, hog=args.hog)
+        return 1 if rep.get("errors") and args.json else None
+    if name == "chaos":
+        mod.run(trials=args.trials, seed=args.seed, as_json=args.json, realtime=args.realtime,
+                **({"kinds": kinds} if kinds else {}))
+    else:
+        rep = mod.run(minutes=SOAK_MINUTES if args.minutes is None else args.minutes, as_json=args.json,
+                      realtime=args.realtime)
+        if args.check:
+            return _verdict(mod, rep, args.json)
+    if not args.json:
+        print()
+    return None
 
 
 def _verdict(mod, rep: dict, as_json: bool) -> int:

@@ -58,23 +58,10 @@ def run(args) -> int:
     from bit3.client import Client
     from tools.attach import no_service
     from tools.bridge.bridge import Bridge
-    from tools.bridge.session import (
-        CREDENTIALS_ENV, DEFAULT_LISTEN, ZenohAuth, access_control, check_endpoint, check_name, open_session,
-        read_credentials,
-    )
+    from tools.bridge.session import DEFAULT_LISTEN, open_session
 
-    auth = None
     try:
-        check_name(args.buffer)
-        for e in (args.listen or []) + (args.connect or []):
-            check_endpoint(e)
-        if args.operator and not args.users:
-            raise PfmaError("--operator needs --users (the users file it names an entry of)")
-        if args.users:
-            own = ZenohAuth.from_file(os.environ[CREDENTIALS_ENV]) if os.environ.get(CREDENTIALS_ENV) else None
-            auth = ZenohAuth(own.user if own else None, own.password if own else None, args.users)
-            # checked here: a bad users file or an operator not in it is one line, exit 2
-            access_control(args.buffer, [u for u, _ in read_credentials(Path(args.users))], args.operator)
+        auth = _checked_auth(args)
     except PfmaError as err:
         print(f"pfma bridge: {err}", file=sys.stderr)
         return 2
@@ -82,13 +69,8 @@ def run(args) -> int:
     if why is not None:
         raise PfmaError(why)
     listen = args.listen or ([] if args.connect else [DEFAULT_LISTEN])
-    secured = "" if auth is None else f"; users of {args.users} only, operators: {', '.join(args.operator) or 'none'}"
     reader = Client.attach(args.buffer, rack=args.rack)
-    # SIGTERM (a process manager) and SIGINT (also where a shell started it with SIGINT
-    # ignored) end the loop: the orderly close below (its summary; a command claim released)
-    stop = {"signal": 0}
-    old_handlers = {s: signal.signal(s, lambda signum, _f: stop.__setitem__("signal", signum))
-                    for s in (signal.SIGINT, signal.SIGTERM)}
+    stop, old_handlers = _stop_on_signals()
     commander = None
     session = bridge = None
     try:
@@ -98,36 +80,83 @@ def run(args) -> int:
                                operators=args.operator)
         bridge = Bridge(session, args.buffer, reader, commander=commander, now=time.monotonic,
                         ring=_ring(args.buffer, reader))
-        ring_gone = bridge.ring is not None
+        secured = "" if auth is None else (f"; users of {args.users} only, operators: "
+                                           f"{', '.join(args.operator) or 'none'}")
         print(f"pfma bridge: buffer {args.buffer} on {', '.join(listen + (args.connect or []))}"
               f"{' (remote commands on)' if commander else ' (read-only)'}{secured}", file=sys.stderr, flush=True)
-        end = None if args.duration is None else time.monotonic() + args.duration
-        polls = 0
-        while (end is None or time.monotonic() < end) and not stop["signal"]:
-            bridge.poll()
-            polls += 1
-            if bridge.ring is None and not polls % RING_LOOK_POLLS and not ring_gone:
-                ring = _ring(args.buffer, reader)  # a service that is still starting makes it later
-                if ring is not None:
-                    bridge.attach_ring(ring)
-                    ring_gone = True  # found once; a replaced ring later means a restarted service
-            time.sleep(POLL_S)
+        _serve(args, bridge, reader, stop)
         return 0
     finally:
-        if bridge is not None:
-            if bridge.ring is not None:
-                bridge.ring.close()
-            print(f"pfma bridge: stopped; published {bridge.published['inputs']} inputs bodies, missed "
-                  f"{bridge.missed} publishes of the service (polled too late){_applied(bridge)}",
-                  file=sys.stderr, flush=True)
-            bridge.close()
-        if session is not None:
-            session.close()
-        if commander is not None:
-            commander.close()
-        reader.close()
-        for sig, h in old_handlers.items():
-            signal.signal(sig, h)
+        _close(bridge, session, commander, reader, old_handlers)
+
+
+def _checked_auth(args):
+    """The arguments checked (buffer name, endpoints, ``--operator`` with ``--users``) and
+    the Zenoh authentication of ``--users`` (None without it).
+
+    :raises PfmaError: for a bad argument or users file (``pfma bridge`` exits 2)
+    """
+    from tools.bridge.session import (
+        CREDENTIALS_ENV, ZenohAuth, access_control, check_endpoint, check_name, read_credentials,
+    )
+    check_name(args.buffer)
+    for e in (args.listen or []) + (args.connect or []):
+        check_endpoint(e)
+    if args.operator and not args.users:
+        raise PfmaError("--operator needs --users (the users file it names an entry of)")
+    if not args.users:
+        return None
+    own = ZenohAuth.from_file(os.environ[CREDENTIALS_ENV]) if os.environ.get(CREDENTIALS_ENV) else None
+    auth = ZenohAuth(own.user if own else None, own.password if own else None, args.users)
+    # checked here: a bad users file or an operator not in it is one line, exit 2
+    access_control(args.buffer, [u for u, _ in read_credentials(Path(args.users))], args.operator)
+    return auth
+
+
+def _stop_on_signals() -> tuple[dict[str, int], dict]:
+    """SIGTERM (a process manager) and SIGINT (also where a shell started it with SIGINT
+    ignored) end the loop: the orderly close (its summary; a command claim released).
+    Returns the stop flag (``{"signal": signum}``) and the handlers they replaced."""
+    stop = {"signal": 0}
+    old_handlers = {s: signal.signal(s, lambda signum, _f: stop.__setitem__("signal", signum))
+                    for s in (signal.SIGINT, signal.SIGTERM)}
+    return stop, old_handlers
+
+
+def _serve(args, bridge, reader, stop: dict[str, int]) -> None:
+    """Poll until ``--duration`` or a stop signal; while the bridge has no frame ring, look
+    for the service's now and then."""
+    ring_gone = bridge.ring is not None
+    end = None if args.duration is None else time.monotonic() + args.duration
+    polls = 0
+    while (end is None or time.monotonic() < end) and not stop["signal"]:
+        bridge.poll()
+        polls += 1
+        if bridge.ring is None and not polls % RING_LOOK_POLLS and not ring_gone:
+            ring = _ring(args.buffer, reader)  # a service that is still starting makes it later
+            if ring is not None:
+                bridge.attach_ring(ring)
+                ring_gone = True  # found once; a replaced ring later means a restarted service
+        time.sleep(POLL_S)
+
+
+def _close(bridge, session, commander, reader, old_handlers: dict) -> None:
+    """The orderly close: the bridge with its summary, the session, the command claim, the
+    reader; the signal handlers restored."""
+    if bridge is not None:
+        if bridge.ring is not None:
+            bridge.ring.close()
+        print(f"pfma bridge: stopped; published {bridge.published['inputs']} inputs bodies, missed "
+              f"{bridge.missed} publishes of the service (polled too late){_applied(bridge)}",
+              file=sys.stderr, flush=True)
+        bridge.close()
+    if session is not None:
+        session.close()
+    if commander is not None:
+        commander.close()
+    reader.close()
+    for sig, h in old_handlers.items():
+        signal.signal(sig, h)
 
 
 def _applied(bridge) -> str:

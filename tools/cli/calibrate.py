@@ -100,54 +100,81 @@ def _show(cal, out) -> None:
 
 
 def _file_verb(args, out) -> int:
-    from calibration import files
-    from tools.cli.output import print_json
     args.json = getattr(args, "json", False)  # callers that build the namespace themselves
     if args.json and args.what == "init":
         print("pfma calibrate: --json is for show, history and diff (init writes a file)", file=sys.stderr)
         return 2
-    path = Path(args.file)
-    if args.what == "init":
-        rack = _rack(args)
-        if path.exists():
-            raise CalibrationError(f"{path} exists; procedures update it (history is kept)")
-        cal = files.save_calibration(files.nominal_calibration(rack, args.operator), path, rack=rack)
-        print(f"wrote {cal.describe()}", file=out)
+    return _FILE_VERB_RUN.get(args.what, _file_diff)(args, Path(args.file), out)
+
+
+def _file_init(args, path: Path, out) -> int:
+    """``pfma calibrate init``: version 0 from the rack's nominal scales."""
+    from calibration import files
+    rack = _rack(args)
+    if path.exists():
+        raise CalibrationError(f"{path} exists; procedures update it (history is kept)")
+    cal = files.save_calibration(files.nominal_calibration(rack, args.operator), path, rack=rack)
+    print(f"wrote {cal.describe()}", file=out)
+    return 0
+
+
+def _file_show(args, path: Path, out) -> int:
+    """``pfma calibrate show``: every conversion with its provenance."""
+    from calibration import files
+    from tools.cli.output import print_json
+    cal = files.load_calibration(path)
+    if args.json:
+        print_json({"file": str(path), "version": cal.version, "created": cal.created,
+                    "hash": files.calibration_hash(cal).hex(), "calibration": cal.data}, file=out)
         return 0
-    if args.what == "show":
-        cal = files.load_calibration(path)
-        if args.json:
-            print_json({"file": str(path), "version": cal.version, "created": cal.created,
-                        "hash": files.calibration_hash(cal).hex(), "calibration": cal.data}, file=out)
-            return 0
-        _show(cal, out)
+    _show(cal, out)
+    return 0
+
+
+def _methods(cal) -> list[str]:
+    """The methods a calibration version's channels were calibrated by, sorted."""
+    return sorted({e["provenance"]["method"] for e in cal.channels.values()})
+
+
+def _file_history(args, path: Path, out) -> int:
+    """``pfma calibrate history``: every kept version with date, hash and methods."""
+    from calibration import files
+    from tools.cli.output import print_json, print_table, table
+    hist = files.history(path)
+    if not hist:
+        raise CalibrationError(f"no calibration at {path}")
+    if args.json:
+        print_json([{"version": c.version, "created": c.created, "hash": c.hash().hex(), "path": c.path,
+                     "methods": _methods(c)}
+                    for c in hist], file=out)
         return 0
-    if args.what == "history":
-        hist = files.history(path)
-        if not hist:
-            raise CalibrationError(f"no calibration at {path}")
-        if args.json:
-            print_json([{"version": c.version, "created": c.created, "hash": c.hash().hex(), "path": c.path,
-                         "methods": sorted({e["provenance"]["method"] for e in c.channels.values()})}
-                        for c in hist], file=out)
-            return 0
-        from tools.cli.output import print_table, table
-        t = table("#", "created", "hash", "file", "methods", file=out)
-        for c in hist:
-            methods = sorted({e["provenance"]["method"] for e in c.channels.values()})
-            t.add_row(f"v{c.version}", c.created, c.hash().hex(), str(c.path), "; ".join(methods))
-        print_table(t, out)
-        return 0
-    # diff
+    t = table("#", "created", "hash", "file", "methods", file=out)
+    for c in hist:
+        t.add_row(f"v{c.version}", c.created, c.hash().hex(), str(c.path), "; ".join(_methods(c)))
+    print_table(t, out)
+    return 0
+
+
+def _diff_versions(args, path: Path) -> tuple:
+    """The two versions ``pfma calibrate diff`` compares: ``--from``/``--to`` (``--to``
+    default the current one, ``--from`` default the one before it), else the last two."""
+    from calibration import files
     hist = files.history(path)
     if args.v_from is not None or args.v_to is not None:
         b = files.load_version(path, args.v_to) if args.v_to is not None else files.load_calibration(path)
         a = files.load_version(path, args.v_from) if args.v_from is not None else hist[max(0, hist.index(
             next(c for c in hist if c.version == b.version)) - 1)]
-    else:
-        if len(hist) < 2:
-            raise CalibrationError(f"{path}: only {len(hist)} version(s); nothing to compare")
-        a, b = hist[-2], hist[-1]
+        return a, b
+    if len(hist) < 2:
+        raise CalibrationError(f"{path}: only {len(hist)} version(s); nothing to compare")
+    return hist[-2], hist[-1]
+
+
+def _file_diff(args, path: Path, out) -> int:
+    """``pfma calibrate diff``: what changed between two versions."""
+    from calibration import files
+    from tools.cli.output import print_json
+    a, b = _diff_versions(args, path)
     rows = files.diff(a, b)
     if args.json:
         print_json({"file": str(path), "from": a.version, "to": b.version, "changes": rows}, file=out)
@@ -161,8 +188,11 @@ def _file_verb(args, out) -> int:
     return 0
 
 
+#: the file verbs (anything else reaching _file_verb is a diff, as before)
+_FILE_VERB_RUN = {"init": _file_init, "show": _file_show, "history": _file_history, "diff": _file_diff}
+
+
 def run(args, out=None) -> int:
-    from tools.cli.output import ProgressBars, is_terminal
     out = out or sys.stdout
     if args.what in FILE_VERBS:
         return _file_verb(args, out)
@@ -171,11 +201,21 @@ def run(args, out=None) -> int:
               f"(its report is the calibration file: pfma calibrate show --json)", file=sys.stderr)
         return 2
     from calibration import files
-    from calibration.procedures import Context, run_procedure
-    from calibration.session import ConsoleOperator, LiveSession, SimSession
     rack = _rack(args)
     path = Path(args.file)
-    options = {}
+    options = _options(args)
+    _check_names(rack, options)  # before anything is written
+    if not path.exists():  # version 0 = the nominal scales, so history starts there
+        files.save_calibration(files.nominal_calibration(rack, args.operator), path, rack=rack)
+        print(f"pfma calibrate: created {path} (version 0, nominal scales)", file=out)
+    cal = files.load_calibration(path, rack)
+    plot_dir = Path(args.plots) if args.plots else path.parent / (path.stem + "-plots")
+    return _run_procedure(args, rack, cal, path, plot_dir, options, out)
+
+
+def _options(args) -> dict:
+    """The procedure's options from ``--joints``, ``--signals`` and ``--index``."""
+    options: dict = {}
     if args.joints:
         options["joints"] = [j.strip() for j in args.joints.split(",") if j.strip()]
     if args.signals:
@@ -185,23 +225,30 @@ def run(args, out=None) -> int:
             options["index_rad"] = {k.strip(): float(v) for k, v in (kv.split("=") for kv in args.index.split(","))}
         except ValueError:
             raise CalibrationError(f"--index {args.index!r}: expected JOINT=RAD,... e.g. wrist_roll=0.5") from None
-    _check_names(rack, options)  # before anything is written
-    if not path.exists():  # version 0 = the nominal scales, so history starts there
-        files.save_calibration(files.nominal_calibration(rack, args.operator), path, rack=rack)
-        print(f"pfma calibrate: created {path} (version 0, nominal scales)", file=out)
-    cal = files.load_calibration(path, rack)
-    plot_dir = Path(args.plots) if args.plots else path.parent / (path.stem + "-plots")
-    rig = None
+    return options
+
+
+def _session(args, cal, out) -> tuple:
+    """The session, operator and (simulated rack only) rig a procedure runs with:
+    ``--buffer`` a running service and the person at the terminal, else the simulated rack."""
+    from calibration.session import ConsoleOperator, LiveSession, SimSession
     if args.buffer:
         session = LiveSession(args.buffer, rack=None if args.rack in (None, "fake", "default") else args.rack)
-        operator = ConsoleOperator(out, interactive=not args.non_interactive)
-    else:
-        from sim.calibration import CalibrationRig, SimOperator
-        rig = CalibrationRig(calibration=cal)
-        session = SimSession(rig)
-        operator = SimOperator(rig.world, out=out)
-        operator.show = lambda text: print(text, file=out, flush=True)
-        print("pfma calibrate: simulated rack, simulated time, simulated operator", file=out)
+        return session, ConsoleOperator(out, interactive=not args.non_interactive), None
+    from sim.calibration import CalibrationRig, SimOperator
+    rig = CalibrationRig(calibration=cal)
+    session = SimSession(rig)
+    operator = SimOperator(rig.world, out=out)
+    operator.show = lambda text: print(text, file=out, flush=True)
+    print("pfma calibrate: simulated rack, simulated time, simulated operator", file=out)
+    return session, operator, rig
+
+
+def _run_procedure(args, rack, cal, path: Path, plot_dir: Path, options: dict, out) -> int:
+    """Run procedure ``args.what`` (progress bars on a terminal); 0 when it passed, else 1."""
+    from calibration.procedures import Context, run_procedure
+    from tools.cli.output import ProgressBars, is_terminal
+    session, operator, rig = _session(args, cal, out)
     bars = None
     if is_terminal(out):  # a bar on a terminal; a pipe keeps the plain [###...] lines
         bars = ProgressBars(out)

@@ -53,72 +53,74 @@ def add_parser(sub):
     return p
 
 
-def run(args) -> int:
-    from tools.checkout import Checkout, LiveTarget, load_checkout_config, make_sim_target
-    from tools.attach import attach_waiting
-    from pfma.rack import load_rack
-
-    from tools.checkout.panel import COMMAND_LINE, PanelState, parse_panel_off
+def _usage_error(args, rack_path: str | None):
+    """``(message, panel)``: the first usage mistake of ``--panel-off``/``--sim-fault`` (exit 2
+    before anything is built; None if none), and the panel stated by ``--panel-off``."""
     from pfma.errors import ConfigError
-
-    cfg = load_checkout_config(args.config)
-    rack_path = None if args.rack in ("fake", "default") else args.rack
+    from pfma.rack import load_rack
+    from tools.checkout.panel import COMMAND_LINE, PanelState, parse_panel_off
     panel = None
-    if args.panel_off:  # a bad switch is a usage mistake: exit 2 before anything is built
+    if args.panel_off:
         try:
             panel = PanelState(parse_panel_off(args.panel_off, load_rack(rack_path).joints), COMMAND_LINE)
         except ConfigError as err:
-            print(f"pfma checkout: {err}", file=sys.stderr)
-            return 2
+            return f"pfma checkout: {err}", None
+    if args.sim_fault and args.buffer:
+        return "pfma checkout: --sim-fault needs the simulated rack (no --buffer)", panel
+    if args.sim_fault:
+        from sim.faults import parse_fault
+        rack = load_rack(rack_path)
+        for spec in args.sim_fault:
+            try:
+                parse_fault(spec, rack)
+            except ConfigError as err:
+                return f"pfma checkout: --sim-fault {err}", panel
+    return None, panel
+
+
+def _target(args, rack_path: str | None, cfg):
+    """``(target, interactive)``: the running service's rack (``--buffer``) or a simulated one
+    (the stimulus acts for the operator)."""
+    from tools.checkout import LiveTarget, make_sim_target
     if args.buffer:
-        if args.sim_fault:
-            print("pfma checkout: --sim-fault needs the simulated rack (no --buffer)", file=sys.stderr)
-            return 2
+        from pfma.rack import load_rack
+        from tools.attach import attach_waiting
         client = attach_waiting(args.buffer, rack_path, wait_s=args.wait)
         target = LiveTarget(client, load_rack(rack_path),
                             service_timeout_s=cfg.num("checkout", "service_timeout_s"))
-        interactive = not args.non_interactive
-    else:
-        if args.sim_fault:  # a bad spec is a usage mistake: exit 2 before anything is built
-            from sim.faults import parse_fault
-            rack = load_rack(rack_path)
-            for spec in args.sim_fault:
-                try:
-                    parse_fault(spec, rack)
-                except ConfigError as err:
-                    print(f"pfma checkout: --sim-fault {err}", file=sys.stderr)
-                    return 2
-        target = make_sim_target(rack_path)
-        interactive = False  # the stimulus acts for the operator
-    from tools.cli.output import ProgressBars, console, is_terminal, print_json
-    text = sys.stderr if args.json == "-" else sys.stdout  # stdout is the JSON document then
-    bars = ProgressBars(text) if is_terminal(text) else None
-    try:
-        for spec in args.sim_fault:
-            print(f"pfma checkout: injected fault: {target.inject_fault(spec)}", file=text)
+        return target, not args.non_interactive
+    return make_sim_target(rack_path), False
 
-        def say(line: str) -> None:
-            if not args.quiet or line.startswith(("FAIL", ">>>")):
-                if bars is not None:
-                    bars.say(line)
-                else:
-                    print(line, file=text, flush=True)
 
-        def ask(prompt: str) -> str:
-            """The operator's answer (the panel questions): the bar leaves the screen and the
-            prompt goes where the row lines go (stdout may be the JSON document)."""
+def _check(args, target, cfg, panel, interactive: bool, text, bars):
+    """Inject the simulated faults, run the checkout; the Checkout and its report."""
+    from tools.checkout import Checkout
+    for spec in args.sim_fault:
+        print(f"pfma checkout: injected fault: {target.inject_fault(spec)}", file=text)
+
+    def say(line: str) -> None:
+        if not args.quiet or line.startswith(("FAIL", ">>>")):
             if bars is not None:
-                bars.pause()
-            print(prompt, end="", file=text, flush=True)
-            return input()
-        chk = Checkout(target, cfg, keep_going=args.keep_going, only=args.only,
-                       interactive=interactive, say=say, progress=bars.update if bars is not None else None,
-                       panel=panel, ask=ask)
-        report = chk.run()
-    finally:
+                bars.say(line)
+            else:
+                print(line, file=text, flush=True)
+
+    def ask(prompt: str) -> str:
+        """The operator's answer (the panel questions): the bar leaves the screen and the
+        prompt goes where the row lines go (stdout may be the JSON document)."""
         if bars is not None:
-            bars.close()
-        target.close()
+            bars.pause()
+        print(prompt, end="", file=text, flush=True)
+        return input()
+    chk = Checkout(target, cfg, keep_going=args.keep_going, only=args.only,
+                   interactive=interactive, say=say, progress=bars.update if bars is not None else None,
+                   panel=panel, ask=ask)
+    return chk, chk.run()
+
+
+def _say_report(args, report, text, bars) -> None:
+    """The summary, the JSON and HTML reports."""
+    from tools.cli.output import console, print_json
     print(file=text)
     if bars is not None:
         console(text).print(report.summary_table())
@@ -131,6 +133,28 @@ def run(args) -> int:
         print(f"JSON report: {report.write_json(args.json)}", file=text)
     if args.html:
         print(f"HTML report: {report.write_html(args.html)}", file=text)
+
+
+def run(args) -> int:
+    from tools.checkout import load_checkout_config
+    from tools.cli.output import ProgressBars, is_terminal
+
+    cfg = load_checkout_config(args.config)
+    rack_path = None if args.rack in ("fake", "default") else args.rack
+    mistake, panel = _usage_error(args, rack_path)
+    if mistake is not None:
+        print(mistake, file=sys.stderr)
+        return 2
+    target, interactive = _target(args, rack_path, cfg)
+    text = sys.stderr if args.json == "-" else sys.stdout  # stdout is the JSON document then
+    bars = ProgressBars(text) if is_terminal(text) else None
+    try:
+        chk, report = _check(args, target, cfg, panel, interactive, text, bars)
+    finally:
+        if bars is not None:
+            bars.close()
+        target.close()
+    _say_report(args, report, text, bars)
     if chk.interrupted:
         return 130
     return 0 if report.passed else 1

@@ -117,41 +117,14 @@ def _ints(text: str, what: str) -> list[int]:
 
 
 def _edit(store, args) -> int:
-    from dataclasses import replace
-
-    from controller.paths import (
-        PathError, delete_points, insert_gripper, insert_point, move_point, set_limits, set_speed,
-    )
-    from controller.trajectory import Limits
-    p = store.load(args.name)
-    orig = p
-    keep = args.quat == "keep"
-    quat = _floats(args.quat, (4,), "--quat") if args.quat and not keep else None
-    if args.delete:
-        p = delete_points(p, _ints(args.delete, "--delete"))
-    if args.insert is not None:
-        if not args.pos:
-            raise PathError("--insert needs --pos")
-        p = insert_point(p, args.insert, _floats(args.pos, (3,), "--pos"), quat)
-    if args.move is not None:
-        if not (args.pos or args.offset or args.quat):
-            raise PathError("--move needs --pos, --offset or --quat")
-        p = move_point(p, args.move, _floats(args.pos, (3,), "--pos") if args.pos else None, quat,
-                       _floats(args.offset, (3,), "--offset") if args.offset else None, keep_orientation=keep)
-    if args.speed:
-        idx = None if args.speed == "all" else _ints(args.speed, "--speed")
-        if not args.clear and args.v_lin is None and args.v_rot is None:
-            raise PathError("--speed needs --v-lin and/or --v-rot (or --clear)")
-        p = set_speed(p, idx, args.v_lin, args.v_rot, clear=args.clear)
-    if args.limits:
-        p = set_limits(p, **dict(zip(Limits._fields, _floats(args.limits, (4,), "--limits"))))
-    for index, text in args.gripper:
-        try:
-            i = int(index)
-        except ValueError:
-            raise PathError(f"--gripper: {index!r} is not a point number") from None
-        p = insert_gripper(p, i, *gripper_event(text))
+    """``pfma path edit``: the changes in the order delete, insert, move, speed, limits,
+    gripper, note, saved as one new revision; then the rename."""
+    orig = store.load(args.name)
+    p = _edit_points(orig, args)
+    p = _edit_speeds(p, args)
+    p = _edit_grippers(p, args)
     if args.note is not None:
+        from dataclasses import replace
         p = replace(p, note=args.note)
     if p == orig and not args.rename:
         print("nothing to change (see pfma path edit --help)", file=sys.stderr)
@@ -165,55 +138,122 @@ def _edit(store, args) -> int:
     return 0
 
 
+def _edit_points(p, args):
+    """``--delete``, ``--insert`` and ``--move`` (with ``--pos``, ``--offset``, ``--quat``)."""
+    from controller.paths import PathError, delete_points, insert_point, move_point
+    keep = args.quat == "keep"
+    quat = _floats(args.quat, (4,), "--quat") if args.quat and not keep else None
+    if args.delete:
+        p = delete_points(p, _ints(args.delete, "--delete"))
+    if args.insert is not None:
+        if not args.pos:
+            raise PathError("--insert needs --pos")
+        p = insert_point(p, args.insert, _floats(args.pos, (3,), "--pos"), quat)
+    if args.move is not None:
+        if not (args.pos or args.offset or args.quat):
+            raise PathError("--move needs --pos, --offset or --quat")
+        p = move_point(p, args.move, _floats(args.pos, (3,), "--pos") if args.pos else None, quat,
+                       _floats(args.offset, (3,), "--offset") if args.offset else None, keep_orientation=keep)
+    return p
+
+
+def _edit_speeds(p, args):
+    """``--speed`` (with ``--v-lin``, ``--v-rot`` or ``--clear``) and ``--limits``."""
+    from controller.paths import PathError, set_limits, set_speed
+    from controller.trajectory import Limits
+    if args.speed:
+        idx = None if args.speed == "all" else _ints(args.speed, "--speed")
+        if not args.clear and args.v_lin is None and args.v_rot is None:
+            raise PathError("--speed needs --v-lin and/or --v-rot (or --clear)")
+        p = set_speed(p, idx, args.v_lin, args.v_rot, clear=args.clear)
+    if args.limits:
+        p = set_limits(p, **dict(zip(Limits._fields, _floats(args.limits, (4,), "--limits"))))
+    return p
+
+
+def _edit_grippers(p, args):
+    """Each ``--gripper I ACTION[:N]``, in the order given."""
+    from controller.paths import PathError, insert_gripper
+    for index, text in args.gripper:
+        try:
+            i = int(index)
+        except ValueError:
+            raise PathError(f"--gripper: {index!r} is not a point number") from None
+        p = insert_gripper(p, i, *gripper_event(text))
+    return p
+
+
+def _list(store, args) -> int:
+    """``pfma path list``: name, id, points, length, revision; unreadable files on stderr."""
+    infos = store.list()
+    if not infos:
+        print(f"no paths in {store.dir}")
+    else:
+        print(f"{'name':<24} {'id':>5} {'points':>7} {'length m':>9} {'rev':>4}  modified")
+        for i in infos:
+            print(f"{i.name:<24} {i.id:>5} {i.points:>7} {i.length_m:>9.3f} {i.revision:>4}  {i.modified}")
+    for prob in store.problems():
+        print(f"unreadable: {prob}", file=sys.stderr)
+    return 0
+
+
+def _show(store, args) -> int:
+    """``pfma path show``: point by point (``--plan``: and the playback plan), or ``--json``."""
+    from controller.paths import plan_duration_s, plan_path
+    p = store.load(args.name)
+    if args.json:
+        print(json.dumps(p.to_json(), indent=1))
+        return 0
+    print(p.describe())
+    if args.plan and p.points:
+        plan = plan_path(p)
+        keep = " with the orientation of the first point that has one" if any(
+            x.quat is None for x in p.points) else ""
+        print(f"  playback plan: {len(plan)} segments to key points "
+              f"{', '.join(str(s.index) for s in plan)}; {plan_duration_s(p):.2f} s at the limits "
+              f"(from point 0{keep}, without the approach)")
+    return 0
+
+
+def _new_points(args) -> list:
+    """The points of ``pfma path new``: each ``--point``, and each ``--gripper`` event at its
+    place among them with the pose of the point before it."""
+    from controller.paths import PathError, make_point
+    pts = []
+    for i, text in enumerate(args.point):
+        v = _floats(text, (3, 7), f"--point {i}")
+        pts.append(make_point(v[:3], v[3:] if len(v) == 7 else None, "teach", where=f"--point {i}"))
+    for k, (after, text) in enumerate(args.gripper):  # in the order given; k events inserted before
+        if not pts:
+            raise PathError("--gripper: a gripper event needs a --point to take its pose from")
+        action, force = gripper_event(text)
+        at = after + k
+        ref = pts[at - 1] if at > 0 else pts[0]  # the point before it (the first, for an event before any)
+        pts.insert(at, make_point(ref.pos_m, ref.quat, "gripper", where=f"--gripper {text}",
+                                  gripper=action, force_n=force))
+    return pts
+
+
+def _new(store, args) -> int:
+    """``pfma path new``: a new path from points."""
+    p = store.new(args.name, _new_points(args), note=args.note)
+    print(f"path {p.name}: id {p.id}, {len(p.points)} points, {store.file(p.name)}")
+    return 0
+
+
+def _delete(store, args) -> int:
+    """``pfma path delete``."""
+    store.delete(args.name)
+    print(f"path {args.name} deleted")
+    return 0
+
+
+#: ``pfma path CMD`` -> what runs it
+_COMMANDS = {"list": _list, "show": _show, "new": _new, "edit": _edit, "delete": _delete}
+
+
 def run(args) -> int:
-    from controller.paths import PathError, PathStore, make_point, plan_duration_s, plan_path
+    from controller.paths import PathStore
     store = PathStore(args.dir)
-    cmd = args.path_cmd or "list"
-    if cmd == "list":
-        infos = store.list()
-        if not infos:
-            print(f"no paths in {store.dir}")
-        else:
-            print(f"{'name':<24} {'id':>5} {'points':>7} {'length m':>9} {'rev':>4}  modified")
-            for i in infos:
-                print(f"{i.name:<24} {i.id:>5} {i.points:>7} {i.length_m:>9.3f} {i.revision:>4}  {i.modified}")
-        for prob in store.problems():
-            print(f"unreadable: {prob}", file=sys.stderr)
-        return 0
-    if cmd == "show":
-        p = store.load(args.name)
-        if args.json:
-            print(json.dumps(p.to_json(), indent=1))
-            return 0
-        print(p.describe())
-        if args.plan and p.points:
-            plan = plan_path(p)
-            keep = " with the orientation of the first point that has one" if any(
-                x.quat is None for x in p.points) else ""
-            print(f"  playback plan: {len(plan)} segments to key points "
-                  f"{', '.join(str(s.index) for s in plan)}; {plan_duration_s(p):.2f} s at the limits "
-                  f"(from point 0{keep}, without the approach)")
-        return 0
-    if cmd == "new":
-        pts = []
-        for i, text in enumerate(args.point):
-            v = _floats(text, (3, 7), f"--point {i}")
-            pts.append(make_point(v[:3], v[3:] if len(v) == 7 else None, "teach", where=f"--point {i}"))
-        for k, (after, text) in enumerate(args.gripper):  # in the order given; k events inserted before
-            if not pts:
-                raise PathError("--gripper: a gripper event needs a --point to take its pose from")
-            action, force = gripper_event(text)
-            at = after + k
-            ref = pts[at - 1] if at > 0 else pts[0]  # the point before it (the first, for an event before any)
-            pts.insert(at, make_point(ref.pos_m, ref.quat, "gripper", where=f"--gripper {text}",
-                                      gripper=action, force_n=force))
-        p = store.new(args.name, pts, note=args.note)
-        print(f"path {p.name}: id {p.id}, {len(p.points)} points, {store.file(p.name)}")
-        return 0
-    if cmd == "edit":
-        return _edit(store, args)
-    if cmd == "delete":
-        store.delete(args.name)
-        print(f"path {args.name} deleted")
-        return 0
-    return 2
+    command = _COMMANDS.get(args.path_cmd or "list")
+    return 2 if command is None else command(store, args)

@@ -22,7 +22,11 @@ import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, NoReturn
+
+import msgspec
+
+from pfma import config
 
 #: the console's refresh rate: a page cannot refresh faster (tools.console.app.REFRESH_HZ)
 MAX_REFRESH_HZ = 10.0
@@ -87,26 +91,64 @@ class Menu:
                                     f"{v.format!r} does not format a {wm.spec(v.name).dtype} value ({err})") from None
 
 
-def _lines(text: str) -> dict[tuple[int, int, str | None], int]:
-    """Where each table and key is: (page, var, key) -> line (page/var -1: none; key None:
-    the table's header). Only the plain layout of the module doc is located; anything else
-    falls back to its table's header line."""
-    where: dict[tuple[int, int, str | None], int] = {}
-    p = v = -1
-    key_re = re.compile(r"^\s*([A-Za-z0-9_\-]+)\s*=")
-    for n, raw in enumerate(text.splitlines(), 1):
-        s = raw.strip()
-        if s.startswith("[[") and s.split("#")[0].strip().replace(" ", "") == "[[page]]":
-            p, v = p + 1, -1
-            where[(p, v, None)] = n
-        elif s.startswith("[[") and s.split("#")[0].strip().replace(" ", "") == "[[page.var]]":
-            v += 1
-            where[(p, v, None)] = n
-        else:
-            m = key_re.match(raw)
-            if m:
-                where.setdefault((p, v, m.group(1)), n)
-    return where
+class _VarEntry(msgspec.Struct, forbid_unknown_fields=True):
+    name: Annotated[str, msgspec.Meta(min_length=1)]
+    format: str = DEFAULT_FORMAT
+    label: str | None = None
+
+
+class _PageEntry(msgspec.Struct, forbid_unknown_fields=True):
+    name: Annotated[str, msgspec.Meta(pattern=r"\S")]
+    var: Annotated[list[_VarEntry], msgspec.Meta(min_length=1)]
+    refresh_hz: Annotated[float, msgspec.Meta(gt=0, le=MAX_REFRESH_HZ)] = MAX_REFRESH_HZ
+
+
+class _MenuFile(msgspec.Struct, forbid_unknown_fields=True):
+    page: Annotated[list[_PageEntry], msgspec.Meta(min_length=1)]
+    title: str | None = None
+
+
+_NO_PAGES = "no pages: add [[page]] tables, each with name and [[page.var]] tables"
+_NO_VARS = "a page needs variables: [[page.var]] tables with a name"
+#: what is wrong with a field (pfma.config.convert names the field: ``page 1 var 2 format``)
+_MESSAGES = {
+    "*": f"unknown field (a menu file has {', '.join(TOP_FIELDS)})",
+    "title": "must be a string",
+    "page": _NO_PAGES, "page?": _NO_PAGES,
+    "page[]": "must be a table ([[page]])",
+    "page[].*": f"unknown field (a page has {', '.join(PAGE_FIELDS)})",
+    "page[].name": "a page needs a name (a non-empty string)", "page[].name?": "a page needs a name (a non-empty string)",
+    "page[].refresh_hz": f"{{value!r}} is not a rate in (0, {MAX_REFRESH_HZ:g}] Hz (the console refreshes at "
+                         f"{MAX_REFRESH_HZ:g} Hz)",
+    "page[].var": _NO_VARS, "page[].var?": _NO_VARS,
+    "page[].var[]": "must be a table ([[page.var]])",
+    "page[].var[].*": f"unknown field (a variable has {', '.join(VAR_FIELDS)})",
+    "page[].var[].name": "a variable needs a name (a world-model variable)",
+    "page[].var[].name?": "a variable needs a name (a world-model variable)",
+    "page[].var[].format": "must be a string: a Python format spec such as '+.4f'",
+    "page[].var[].label": "must be a string",
+}
+
+
+def _menu_error(p: config.Problem) -> MenuError:
+    return MenuError(p.source, p.line or 1, p.field, p.message)
+
+
+def _read(path: str) -> tuple[str, dict]:
+    """The file's text and TOML data. :raises MenuError: unreadable or not TOML"""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise MenuError(path, 0, "file", f"cannot read it ({err.__class__.__name__}: "
+                                         f"{getattr(err, 'strerror', None) or err})") from None
+    try:
+        return text, tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        msg = str(err)
+        m = re.search(r"\(at line (\d+), column \d+\)", msg)
+        line = int(m.group(1)) if m else 0
+        raise MenuError(path, line, "TOML", re.sub(r"\s*\(at line \d+, column \d+\)", "", msg)
+                        or "not TOML") from None
 
 
 def load(path: str | Path) -> Menu:
@@ -115,81 +157,33 @@ def load(path: str | Path) -> Menu:
     :raises MenuError: unreadable, not TOML, a missing, unknown or bad field
     """
     path = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise MenuError(path, 0, "file", f"cannot read it ({err.__class__.__name__}: "
-                                         f"{getattr(err, 'strerror', None) or err})") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        msg = str(err)
-        m = re.search(r"\(at line (\d+), column \d+\)", msg)
-        line = int(m.group(1)) if m else 0
-        raise MenuError(path, line, "TOML", re.sub(r"\s*\(at line \d+, column \d+\)", "", msg)
-                        or "not TOML") from None
-    where = _lines(text)
+    text, data = _read(path)
+    raw = config.convert(data, _MenuFile, source=path, text=text, messages=_MESSAGES, named=True,
+                         error=_menu_error)
 
-    def line(p: int, v: int, key: str | None) -> int:
-        return where.get((p, v, key)) or where.get((p, v, None)) or where.get((p, -1, None)) or 1
+    def fail(where: config.KeyPath, msg: str) -> NoReturn:
+        config.fail(path, text, where, msg, field=config.field_name(where), error=_menu_error)
 
-    def fail(p: int, v: int, key: str | None, field: str, msg: str):
-        raise MenuError(path, line(p, v, key), field, msg)
+    def line(where: config.KeyPath) -> int:
+        return config.line_of(text, where) or 1
 
-    for k in data:
-        if k not in TOP_FIELDS:
-            fail(-1, -1, k, k, f"unknown field (a menu file has {', '.join(TOP_FIELDS)})")
-    title = data.get("title", Path(path).stem)
-    if not isinstance(title, str):
-        fail(-1, -1, "title", "title", "must be a string")
-    raw_pages = data.get("page")
-    if not isinstance(raw_pages, list) or not raw_pages:
-        fail(-1, -1, "page", "page", "no pages: add [[page]] tables, each with name and [[page.var]] tables")
     pages = []
     seen: dict[str, int] = {}
-    for pi, pg in enumerate(raw_pages):
-        w = f"page {pi + 1}"
-        if not isinstance(pg, dict):
-            fail(pi, -1, None, w, "must be a table ([[page]])")
-        for k in pg:
-            if k not in PAGE_FIELDS:
-                fail(pi, -1, k, f"{w} {k}", f"unknown field (a page has {', '.join(PAGE_FIELDS)})")
-        name = pg.get("name")
-        if not isinstance(name, str) or not name.strip():
-            fail(pi, -1, "name", f"{w} name", "a page needs a name (a non-empty string)")
-        if name in seen:
-            fail(pi, -1, "name", f"{w} name", f"page name {name!r} is used by page {seen[name]} too")
-        seen[name] = pi + 1
-        rate = pg.get("refresh_hz", MAX_REFRESH_HZ)
-        if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0 < rate <= MAX_REFRESH_HZ:
-            fail(pi, -1, "refresh_hz", f"{w} refresh_hz",
-                 f"{rate!r} is not a rate in (0, {MAX_REFRESH_HZ:g}] Hz (the console refreshes at {MAX_REFRESH_HZ:g} Hz)")
-        raw_vars = pg.get("var")
-        if not isinstance(raw_vars, list) or not raw_vars:
-            fail(pi, -1, "var", f"{w} var", "a page needs variables: [[page.var]] tables with a name")
+    for pi, pg in enumerate(raw.page):
+        if pg.name in seen:
+            fail(("page", pi, "name"), f"page name {pg.name!r} is used by page {seen[pg.name]} too")
+        seen[pg.name] = pi + 1
         vars_ = []
-        for vi, vv in enumerate(raw_vars):
-            wv = f"{w} var {vi + 1}"
-            if not isinstance(vv, dict):
-                fail(pi, vi, None, wv, "must be a table ([[page.var]])")
-            for k in vv:
-                if k not in VAR_FIELDS:
-                    fail(pi, vi, k, f"{wv} {k}", f"unknown field (a variable has {', '.join(VAR_FIELDS)})")
-            vname = vv.get("name")
-            if not isinstance(vname, str) or not vname:
-                fail(pi, vi, "name", f"{wv} name", "a variable needs a name (a world-model variable)")
-            fmt = vv.get("format", DEFAULT_FORMAT)
-            if not isinstance(fmt, str):
-                fail(pi, vi, "format", f"{wv} format", "must be a string: a Python format spec such as '+.4f'")
+        for vi, vv in enumerate(pg.var):
+            at = ("page", pi, "var", vi)
             try:
-                format(0, fmt) if re.search(r"[bcdoxXn]$", fmt) else format(0.0, fmt)
+                format(0, vv.format) if re.search(r"[bcdoxXn]$", vv.format) else format(0.0, vv.format)
             except ValueError as err:
-                fail(pi, vi, "format", f"{wv} format", f"{fmt!r} is not a format spec ({err}); e.g. '+.4f', '.6g', 'd'")
-            label = vv.get("label", vname)
-            if not isinstance(label, str):
-                fail(pi, vi, "label", f"{wv} label", "must be a string")
-            vars_.append(MenuVar(vname, fmt, label, line(pi, vi, "name"), line(pi, vi, "format")))
-        pages.append(MenuPage(name, float(rate), tuple(vars_)))
+                fail((*at, "format"), f"{vv.format!r} is not a format spec ({err}); e.g. '+.4f', '.6g', 'd'")
+            label = vv.name if vv.label is None else vv.label
+            vars_.append(MenuVar(vv.name, vv.format, label, line((*at, "name")), line((*at, "format"))))
+        pages.append(MenuPage(pg.name, float(pg.refresh_hz), tuple(vars_)))
+    title = Path(path).stem if raw.title is None else raw.title
     return Menu(path, title, tuple(pages))
 
 

@@ -20,7 +20,7 @@ import numpy as np
 from bit3.layout import DEVICE_GROUPS, FAULT_CODE_NAMES, FAULT_DAC_UNREACHABLE, HAND_CONTROLLERS, ServiceState, Severity
 from controller.cartesian import CartesianLayer
 from controller.daq_layer import FAULT_NAMES, DataAcquisitionLayer
-from controller.decision import Command, Status, status_text
+from controller.decision import Command, status_text
 from controller.layers import TASK_NAMES, JointPlannerLayer, UpDownLayer
 from controller.params import JOINT_NAMES, shoulder_roll_text
 from controller.paths import MultiSegmentLayer
@@ -491,10 +491,6 @@ def global_commands(r: Reading, rearm: bool, last: str) -> str:
         line = f"{line}   {it}" if line else it
     lines += [line, "m  messages   w  world model", "p  parameters  l  menus  f  force", "q  quit   tab, pgup/pgdn: scroll"]
     return "\n".join(lines)
-
-
-def status_name(v: int) -> str:
-    return status_text(v) if v in Status._value2member_map_ else str(v)
 
 
 # --- the world-model browser (issue 18 item 2) --------------------------------------

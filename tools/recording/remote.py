@@ -25,12 +25,15 @@ only the frame numbers: every frame-number gap then counts as lost (said in the 
 from __future__ import annotations
 
 import json
+import logging
 import sys
 import time
 from dataclasses import dataclass, field
 from typing import Callable
 
 from tools.bridge.remote import RemoteBuffer
+
+log = logging.getLogger(__name__)
 
 #: no inputs body for this long: say so once (the link or the service may be down); the
 #: recorder keeps listening (Zenoh reconnects by itself)
@@ -177,11 +180,11 @@ def record_remote(path: str, url: str, *, rack_arg: str = "fake", json_every: in
             remote = RemoteBuffer.connect(endpoint, name, rack=rack_arg, queue_inputs=True,
                                           timeout_s=max(0.1, round(min(5.0, left), 1)) if left is not None else 5.0)
         except LayoutMismatchError as err:
-            print(f"pfma record: {err}; nothing recorded", file=sys.stderr)
+            log.error("%s; nothing recorded", err)
             return 1
         except Bit3Error as err:
             if done() or (wait_s is not None and time.monotonic() - t0 >= wait_s):
-                print(f"pfma record: {err}; nothing recorded", file=sys.stderr)
+                log.error("%s; nothing recorded", err)
                 return 1
             if not said:
                 say(f"waiting for the bridge of {url} ({err}; Ctrl-C gives up)")

@@ -217,18 +217,38 @@ class Recorder:
             return 0
         frame = int(r["frame"])
         t_s = float(r["t_s"])
-        cnt = self.counters
-        consecutive = self._last_seq < 0 or seq - self._last_seq == 2
-        if self._last_seq >= 0 and seq - self._last_seq > 2:
-            cnt.recorder_missed += (seq - self._last_seq) // 2 - 1
-        self._last_seq = seq
+        consecutive = self._count_seq(seq)
         head = {"t_s": t_s, "frame": frame}
         t_ns = _ns(t_s, self.offset_ns)
         self._log_ns = t_ns
         if frame == self._last_frame:  # the same frame published again (stop: STOPPED state)
-            cnt.republished += 1
+            self.counters.republished += 1
             self._put("/pfma/status", t_ns, _dumps(self.t.status(r, head)))
             return 0
+        self._count_frame(frame, consecutive)
+        if self._stats_pending is not None and frame >= self._stats_pending[0] - 1:
+            self._count_stats()
+        self._put(RAW_TOPIC, t_ns, self._raw_bytes(snap.record))
+        self._put("/pfma/status", t_ns, _dumps(self.t.status(r, head)))
+        self._json_n += 1
+        if self._json_n % self.json_every:
+            return 1
+        self._derived(r, frame, head, t_ns)
+        return 1
+
+    def _count_seq(self, seq: int) -> bool:
+        """Count the publishes missed before sequence number ``seq``; True when it follows
+        the last one read directly (or is the first)."""
+        consecutive = self._last_seq < 0 or seq - self._last_seq == 2
+        if self._last_seq >= 0 and seq - self._last_seq > 2:
+            self.counters.recorder_missed += (seq - self._last_seq) // 2 - 1
+        self._last_seq = seq
+        return consecutive
+
+    def _count_frame(self, frame: int, consecutive: bool) -> None:
+        """Count a new frame: a restart, the frames missing before it (the service's skips
+        when no publish was missed), first and last frame, the ring of recent frames."""
+        cnt = self.counters
         if self._last_frame >= 0:
             if frame < self._last_frame:  # the service restarted on the same buffer
                 self.counters.sessions += 1
@@ -247,13 +267,10 @@ class Recorder:
         cnt.frames_recorded += 1
         self._ring[self._ring_i % _RING] = frame
         self._ring_i += 1
-        if self._stats_pending is not None and frame >= self._stats_pending[0] - 1:
-            self._count_stats()
-        self._put(RAW_TOPIC, t_ns, self._raw_bytes(snap.record))
-        self._put("/pfma/status", t_ns, _dumps(self.t.status(r, head)))
-        self._json_n += 1
-        if self._json_n % self.json_every:
-            return 1
+
+    def _derived(self, r, frame: int, head: dict, t_ns: int) -> None:
+        """The JSON topics derived from an inputs frame, each when it changed: the devices'
+        samples, the hand controller, the boards, the links."""
         lt = self._last_t
         for topic, tf, fn in self._device_topics:
             ts = float(r[tf])
@@ -272,7 +289,6 @@ class Recorder:
         if lk != self._links_key:
             self._links_key = lk
             self._put("/pfma/links", t_ns, _dumps(self.t.links(r, head)))
-        return 1
 
     def _raw_bytes(self, record: np.ndarray) -> bytes:
         """The stored part of the body, from the snapshot's private copy (one copy)."""

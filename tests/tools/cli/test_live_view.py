@@ -10,7 +10,7 @@ import pytest
 from sim import demo
 from bit3.layout import ServiceState, default_layout
 from sim.rig import SimRig
-from tools.cli.serve import _live_header, _live_lines, _live_message, _wrap_pi
+from tools.stacks.service_views import live_header as _live_header, live_lines as _live_lines, live_message as _live_message, wrap_pi as _wrap_pi
 
 JOINTS = default_layout().joint_names
 

@@ -27,7 +27,7 @@ from bit3.buffer import Bit3Buffer
 pytestmark = pytest.mark.realtime
 
 REPO = Path(__file__).resolve().parents[3]
-_RECORD = ("import sys; import tools.cli.record as r; r.STALE_S = 3600.0; from tools.cli import main; "
+_RECORD = ("import sys; import tools.stacks.recorder as r; r.STALE_S = 3600.0; from tools.cli import main; "
            "sys.exit(main(['record', sys.argv[1], '--buffer', sys.argv[2]]))")
 
 

@@ -1,7 +1,7 @@
 """A pymodbus TCP server for one ``SimDevice`` in a background thread with its own loop.
 
-Shared by the service's Modbus export (``tools.modbus_export``) and the fake
-Modbus gateway of the tests (``fakes.modbus_gateway``). pymodbus 3.16 pitfalls
+The server of the fake Modbus gateway of the tests (``fakes.modbus_gateway``; the
+service's Modbus export, ``tools.modbus_export``, has its own). pymodbus 3.16 pitfalls
 (reference notes on the package): build ``ModbusTcpServer`` inside the running loop,
 ``serve_forever(background=True)`` returns once listening (or, when the bind fails,
 with no transport), ``shutdown()`` resolves ``serving``.
