@@ -11,7 +11,8 @@ misspelt variable is an ``AttributeError`` at import or wiring (and a mypy error
 parameter says what a read gives (``Var[np.ndarray]``, ``Var[int]``, ``Var[bool]``).
 
 The names are unchanged: the CLI, the console, recordings and the segment's table JSON see
-plain strings (``VarSpec.name`` is stored as a plain ``str``).
+plain strings (a ``Var``'s repr, str, format, hash and equality are its name's; it pickles
+as a plain ``str``).
 
 Declaring::
 
@@ -20,10 +21,10 @@ Declaring::
 
     DAQ = DaqVars  # DAQ.joint_angle_rad is the Var "daq.joint_angle_rad"
 
-Speed: a ``Var`` is a ``str`` subclass with a cached hash; a dict lookup with it costs what a
-lookup with a string costs when the dict's key is the same object, and a little more
-(a full string compare) otherwise. Per-frame code keeps its names in module or class
-constants, as it kept literals (measured: docs/world-model.md "Variables").
+Speed: the variable's ``VarSpec.name`` is the ``Var`` object itself, so the model's tables
+are keyed by it and a lookup with the ``Var`` hits by identity; a plain string still finds
+it (a string compare). Per-frame code keeps its name tuples in module or class constants,
+as it kept literals (measured: docs/world-model.md "Variables a tool can follow").
 """
 
 from __future__ import annotations
