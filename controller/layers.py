@@ -992,7 +992,7 @@ class JointPlannerLayer(Layer):
 
     def _jmove_start(self, rt: "LayerContext", seq: int, v: dict, out: dict) -> None:
         from controller.kinematics import RATE_LIMIT_RAD_S
-        from controller.trajectory import plan_trapezoid
+        from controller.profile import plan_trapezoid
         goal = np.asarray(v["msp.jmove_goal_rad"], dtype=float)
         speed = float(v["msp.jmove_speed"])
         if not (np.all(np.isfinite(goal)) and math.isfinite(speed) and 0.0 < speed <= 1.0):
