@@ -262,47 +262,73 @@ def judge_outputs(rows: list[dict], messages: list, t_gone: float, *, watchdog_s
 
     :param messages: the service's messages (``bit3.buffer.Message``: ``t_s``, ``code``, ``text``)
     """
-    limit = watchdog_s + period_s
     before = [r for r in rows if r["t_s"] <= t_gone]
     after = [r for r in rows if r["t_s"] > t_gone]
     if not before or not after:
         return False, (f"the frame ring does not cover the kill ({len(before)} frames before, "
                        f"{len(after)} after)"), {}
     if before[-1]["state"] != ARMED:
-        if writer_returns:  # a paused writer may arm once it runs again: only unarmed output is wrong
-            bad = [r for r in after if r["state"] != ARMED and r["vmax"] > 0.0]
-        else:
-            bad = [r for r in after if r["state"] == ARMED or r["vmax"] > 0.0]
-        fig = {"armed_at_kill": False}
-        if bad:
-            r = bad[0]
-            return False, (f"not armed at the kill, yet frame {r['frame']} is "
-                           f"{'ARMED' if r['state'] == ARMED else 'state %d' % r['state']} with "
-                           f"{r['vmax']:.3f} V"), fig
-        return True, f"not armed at the kill (state {before[-1]['state']}); 0 V in all {len(after)} frames after", fig
+        return _judge_unarmed(before[-1], after, writer_returns)
+    return _judge_armed(after, messages, t_gone, watchdog_s + period_s)
+
+
+def _judge_unarmed(last: dict, after: list[dict], writer_returns: bool) -> tuple[bool, str, dict]:
+    """:func:`judge_outputs` when the service was not ARMED at the kill (``last``: its last
+    frame before): no output after (and no arming, unless the writer comes back)."""
+    if writer_returns:  # a paused writer may arm once it runs again: only unarmed output is wrong
+        bad = [r for r in after if r["state"] != ARMED and r["vmax"] > 0.0]
+    else:
+        bad = [r for r in after if r["state"] == ARMED or r["vmax"] > 0.0]
+    fig = {"armed_at_kill": False}
+    if bad:
+        r = bad[0]
+        return False, (f"not armed at the kill, yet frame {r['frame']} is "
+                       f"{'ARMED' if r['state'] == ARMED else 'state %d' % r['state']} with "
+                       f"{r['vmax']:.3f} V"), fig
+    return True, f"not armed at the kill (state {last['state']}); 0 V in all {len(after)} frames after", fig
+
+
+def _watchdog_trip(messages: list, hb_t: float, off: dict):
+    """The service's last watchdog message (stale heartbeat) between the last heartbeat
+    ``hb_t`` and the frame ``off`` that left ARMED, or None."""
+    trip = [m for m in messages if m.code == TRIP_CODE and "stale heartbeat" in m.text
+            and hb_t - 1e-3 <= m.t_s <= off["t_s"] + 1e-3]
+    return trip[-1] if trip else None
+
+
+def _judge_armed(after: list[dict], messages: list, t_gone: float, limit: float) -> tuple[bool, str, dict]:
+    """:func:`judge_outputs` when the service was ARMED at the kill: 0 V at the first frame
+    that left ARMED, within ``limit`` (the watchdog plus a frame) of the last heartbeat, and
+    nothing driven after."""
     off = next((r for r in after if r["state"] != ARMED), None)
     if off is None:
         return False, (f"still ARMED {after[-1]['t_s'] - t_gone:.3f} s after the kill "
                        f"(frame {after[-1]['frame']}, {after[-1]['vmax']:.3f} V)"), {"armed_at_kill": True}
     hb_t = off["t_s"] - off["age_s"]
-    trip = [m for m in messages if m.code == TRIP_CODE and "stale heartbeat" in m.text
-            and hb_t - 1e-3 <= m.t_s <= off["t_s"] + 1e-3]
-    t_trip = trip[-1].t_s if trip else off["t_s"]
+    trip = _watchdog_trip(messages, hb_t, off)
+    t_trip = trip.t_s if trip else off["t_s"]
     age = t_trip - hb_t
     fig = {"armed_at_kill": True, "trip_age_ms": round(age * 1e3, 2),
            "kill_to_0v_ms": round((t_trip - t_gone) * 1e3, 2)}
-    text = trip[-1].text if trip else "(no watchdog message)"
+    text = trip.text if trip else "(no watchdog message)"
+    return (*_trip_verdict(off, after, age, limit, text), fig)
+
+
+def _trip_verdict(off: dict, after: list[dict], age: float, limit: float, text: str) -> tuple[bool, str]:
+    """The verdict on a trip: ``off`` (the first frame not ARMED) at 0 V, no frame after it
+    driving or ARMED, the outputs at 0 V ``age`` after the last heartbeat within ``limit``;
+    ``text``: the watchdog's message."""
     if off["vmax"] != 0.0:
         return False, (f"frame {off['frame']} left ARMED for state {off['state']} with {off['vmax']:.3f} V "
-                       f"({text})"), fig
+                       f"({text})")
     later = [r for r in after if r["t_s"] > off["t_s"] and (r["vmax"] > 0.0 or r["state"] == ARMED)]
     if later:
-        return False, f"frame {later[0]['frame']} after the trip has {later[0]['vmax']:.3f} V", fig
+        return False, f"frame {later[0]['frame']} after the trip has {later[0]['vmax']:.3f} V"
     if age > limit:
         why = "host stall named by the service" if "stall" in text else "late"
         return False, (f"{why}: 0 V {age * 1e3:.1f} ms after the last heartbeat > watchdog + one frame "
-                       f"{limit * 1e3:.1f} ms ({text})"), fig
-    return True, f"0 V {age * 1e3:.1f} ms after the last heartbeat ({text})", fig
+                       f"{limit * 1e3:.1f} ms ({text})")
+    return True, f"0 V {age * 1e3:.1f} ms after the last heartbeat ({text})"
 
 
 class RingWatch:
@@ -566,27 +592,43 @@ class Session:
     def check_leftovers(self, out: Outcome | None) -> None:
         from bit3.buffer import Bit3Buffer
         from controller.worldmodel import WorldModel
-        mine = sorted(f for f in os.listdir("/dev/shm") if f.startswith(self.name))
-        by_design = {self.name, self.wm}
-        stale = [f for f in mine if f not in by_design]
-        left = {m: [p for p in self.procs if m in p.maps] for p in self.procs for m in p.maps
-                if not Path(m).name.startswith(self.name) and os.path.exists(m)}
-        gone_not = sorted(f"{m} (mapped by {', '.join(f'the {p.role}' for p in ps)})"
-                          for m, ps in left.items() if not m.endswith(".zenoh"))
-        zenoh = sorted(m for m in left if m.endswith(".zenoh"))
-        if out is not None and zenoh:  # zenoh's own: the next zenoh session removes stale ones
-            out.notes.append(f"zenoh shared-memory files still there after its processes stopped: "
-                             f"{', '.join(zenoh)} (zenoh removes them when a zenoh session next starts)")
-            out.figures["zenoh_files_left"] = len(zenoh)
+        stale = self._stale_files()
+        gone_not, zenoh = self._mapped_files_left()
         if out is not None:
-            out.check("no_leftovers", not stale and not gone_not,
-                      "none" if not stale and not gone_not else
-                      f"left in /dev/shm: {', '.join(stale + gone_not)}")
+            _say_leftovers(out, stale, gone_not, zenoh)
         for f in stale:  # ours: remove, so the next trial starts clean
             with contextlib.suppress(OSError):
                 os.unlink(f"/dev/shm/{f}")
         Bit3Buffer.unlink(self.name)
         WorldModel.remove_segment(self.wm)
+
+    def _stale_files(self) -> list[str]:
+        """The /dev/shm files of this session's name other than the buffer and the world
+        model (a stopped service and controller leave those by design)."""
+        mine = sorted(f for f in os.listdir("/dev/shm") if f.startswith(self.name))
+        by_design = {self.name, self.wm}
+        return [f for f in mine if f not in by_design]
+
+    def _mapped_files_left(self) -> tuple[list[str], list[str]]:
+        """The files of other names the processes mapped that are still there: the others
+        (each with the roles that mapped it), zenoh's own ``.zenoh`` files."""
+        left = {m: [p for p in self.procs if m in p.maps] for p in self.procs for m in p.maps
+                if not Path(m).name.startswith(self.name) and os.path.exists(m)}
+        gone_not = sorted(f"{m} (mapped by {', '.join(f'the {p.role}' for p in ps)})"
+                          for m, ps in left.items() if not m.endswith(".zenoh"))
+        zenoh = sorted(m for m in left if m.endswith(".zenoh"))
+        return gone_not, zenoh
+
+
+def _say_leftovers(out: Outcome, stale: list[str], gone_not: list[str], zenoh: list[str]) -> None:
+    """The ``no_leftovers`` check of :meth:`Session.check_leftovers`, and a note for zenoh's files."""
+    if zenoh:  # zenoh's own: the next zenoh session removes stale ones
+        out.notes.append(f"zenoh shared-memory files still there after its processes stopped: "
+                         f"{', '.join(zenoh)} (zenoh removes them when a zenoh session next starts)")
+        out.figures["zenoh_files_left"] = len(zenoh)
+    out.check("no_leftovers", not stale and not gone_not,
+              "none" if not stale and not gone_not else
+              f"left in /dev/shm: {', '.join(stale + gone_not)}")
 
 
 def _replaced(client, name: str) -> bool:
@@ -1135,72 +1177,101 @@ def _trial_gateway(trial: Trial, workdir: Path, out: Outcome, realtime: bool = F
         svc = None
         c = None
         if trial.phase != "start-up":
-            if not until(lambda: "Ctrl-C stops" in gw.text(), WAIT_S, must_live=(gw,)):
-                out.check("setup", False, f"gateway did not start: {gw.tail()}")
-                return
-            svc = sess.serve("--bus", url, *GATEWAY_SCHEDULE)
-            c = sess.client(svc)
+            svc, c = _gateway_service(sess, gw, url, out)
             if c is None:
-                out.check("setup", False, f"service over the gateway never published: {svc.tail()}")
                 return
         watch = RingWatch(sess.name, c) if c is not None else None
         reached = _at_phase(trial, gw, lambda: "Ctrl-C stops" in gw.text())
         out.notes.append(f"gateway {reached} at the {trial.action}")
         t_gone, t_back = _signal_victim(gw, trial)
         if svc is not None and watch is not None:
-            time.sleep(max(0.0, t_gone + SETTLE_S - time.monotonic()))
-            after = watch.window(t_gone, t_gone + SETTLE_S)
-            first = next((r for r in after if r["state"] == FAULT and r["vmax"] == 0.0), None)
-            period = float(_safe(lambda: c.read_stats()["period_s"]) or 1.0 / FRAME_RATE_HZ)
-            limit = WATCHDOG_S + period
-            early = [r for r in watch.window(gw.stop_t or t_gone, t_gone) if r["state"] == FAULT]
-            if early:  # shutting down: it stopped answering after its SIGINT, before the kill
-                dt = early[0]["t_s"] - (gw.stop_t or t_gone)
-                out.check("outputs_safe", dt <= limit and all(r["vmax"] == 0.0 for r in early + after),
-                          f"FAULT at 0 V published {dt * 1e3:.1f} ms after the gateway was asked to stop "
-                          f"(before the {trial.action})")
-            elif first is None:
-                out.check("outputs_safe", False, f"no FAULT at 0 V published after the gateway died "
-                                                 f"({len(after)} frames after)")
-            else:
-                dt = first["t_s"] - t_gone
-                out.figures["kill_to_0v_ms"] = round(dt * 1e3, 2)
-                out.check("outputs_safe", dt <= limit, f"FAULT at 0 V published {dt * 1e3:.1f} ms after the kill"
-                          + ("" if dt <= limit else f" > {limit * 1e3:.1f} ms"))
+            _gateway_outputs_check(trial, out, gw, c, watch, t_gone)
             watch.close()
-            if trial.phase != "shutting down" and trial.action == "SIGSTOP+SIGCONT" and \
-                    t_back - t_gone < BUS_LOST_S - 0.1:
-                time.sleep(0.5)  # the bus answers again: the service rides through, latched safe
-                st = _safe(lambda: c.read_inputs().service_state)
-                out.check("resumed", svc.alive() and st != ARMED,
-                          f"the service rode through a {(t_back - t_gone) * 1e3:.0f} ms gateway stop (state {st})"
-                          if svc.alive() else f"the service stopped: {svc.tail(2)}")
-            elif trial.phase == "shutting down" or trial.action != "SIGSTOP+SIGCONT" or \
-                    t_back - t_gone > BUS_LOST_S + 0.1:
-                ended = until(lambda: not svc.alive(), 10.0)
-                said = "stopped answering" in svc.text() or "bus lost" in svc.text()
-                out.check("takeover", bool(ended) and said,
-                          f"the service stopped, saying the bus stopped answering (exit {svc.p.returncode})"
-                          if ended and said else
-                          f"the service {'ran on' if not ended else 'stopped without saying bus lost'}: "
-                          f"{svc.tail(2)}")
+            _gateway_service_after(trial, out, svc, c, t_gone, t_back)
         # a new gateway and service take over (the old controller is left on the old segment)
-        if trial.action != "SIGSTOP+SIGCONT" or not gw.alive():
-            gw.stop()
-            gw2 = sess.pfma("gateway", "gateway", "--listen", f"127.0.0.1:{port}")
-            if not until(lambda: "Ctrl-C stops" in gw2.text(), WAIT_S, must_live=(gw2,)):
-                out.check("reattach", False, f"a new gateway on port {port} did not start: {gw2.tail(2)}")
-                return
-        if svc is not None and svc.alive():
-            svc.stop()
-        svc2 = sess.serve("--bus", url, *GATEWAY_SCHEDULE)
-        c2 = sess.client(svc2)
-        out.check("reattach", c2 is not None, "a new service publishes over the new gateway" if c2 is not None
-                  else f"the new service never published: {svc2.tail(2)}")
+        _gateway_takeover(trial, sess, out, gw, svc, port, url)
     finally:
         if watch is not None:
             watch.close()
         sess.close(out, order=("controller", "service", "gateway"))
+
+
+def _gateway_service(sess: Session, gw: Proc, url: str, out: Outcome):
+    """Once the gateway is up, a service over it that publishes: (service, its client), the
+    client None (a failed ``setup`` check) when either does not come."""
+    if not until(lambda: "Ctrl-C stops" in gw.text(), WAIT_S, must_live=(gw,)):
+        out.check("setup", False, f"gateway did not start: {gw.tail()}")
+        return None, None
+    svc = sess.serve("--bus", url, *GATEWAY_SCHEDULE)
+    c = sess.client(svc)
+    if c is None:
+        out.check("setup", False, f"service over the gateway never published: {svc.tail()}")
+    return svc, c
+
+
+def _gateway_outputs_check(trial: Trial, out: Outcome, gw: Proc, c, watch: RingWatch, t_gone: float) -> None:
+    """The ``outputs_safe`` check of a gateway trial: FAULT at 0 V published within the
+    watchdog plus a frame of the kill (or of the gateway's SIGINT, when it stopped answering
+    while shutting down, before the kill)."""
+    time.sleep(max(0.0, t_gone + SETTLE_S - time.monotonic()))
+    after = watch.window(t_gone, t_gone + SETTLE_S)
+    first = next((r for r in after if r["state"] == FAULT and r["vmax"] == 0.0), None)
+    period = float(_safe(lambda: c.read_stats()["period_s"]) or 1.0 / FRAME_RATE_HZ)
+    limit = WATCHDOG_S + period
+    early = [r for r in watch.window(gw.stop_t or t_gone, t_gone) if r["state"] == FAULT]
+    if early:  # shutting down: it stopped answering after its SIGINT, before the kill
+        dt = early[0]["t_s"] - (gw.stop_t or t_gone)
+        out.check("outputs_safe", dt <= limit and all(r["vmax"] == 0.0 for r in early + after),
+                  f"FAULT at 0 V published {dt * 1e3:.1f} ms after the gateway was asked to stop "
+                  f"(before the {trial.action})")
+    elif first is None:
+        out.check("outputs_safe", False, f"no FAULT at 0 V published after the gateway died "
+                                         f"({len(after)} frames after)")
+    else:
+        dt = first["t_s"] - t_gone
+        out.figures["kill_to_0v_ms"] = round(dt * 1e3, 2)
+        out.check("outputs_safe", dt <= limit, f"FAULT at 0 V published {dt * 1e3:.1f} ms after the kill"
+                  + ("" if dt <= limit else f" > {limit * 1e3:.1f} ms"))
+
+
+def _gateway_service_after(trial: Trial, out: Outcome, svc: Proc, c, t_gone: float, t_back: float) -> None:
+    """What the service did after the gateway went: a short stop (SIGSTOP+SIGCONT well under
+    BUS_LOST_S) ridden through latched safe (``resumed``); a gateway gone for good (or well
+    over BUS_LOST_S) makes it stop saying so (``takeover``); near BUS_LOST_S neither is checked."""
+    stopped_s = t_back - t_gone
+    paused = trial.phase != "shutting down" and trial.action == "SIGSTOP+SIGCONT"
+    if paused and stopped_s < BUS_LOST_S - 0.1:
+        time.sleep(0.5)  # the bus answers again: the service rides through, latched safe
+        st = _safe(lambda: c.read_inputs().service_state)
+        out.check("resumed", svc.alive() and st != ARMED,
+                  f"the service rode through a {stopped_s * 1e3:.0f} ms gateway stop (state {st})"
+                  if svc.alive() else f"the service stopped: {svc.tail(2)}")
+    elif not paused or stopped_s > BUS_LOST_S + 0.1:
+        ended = until(lambda: not svc.alive(), 10.0)
+        said = "stopped answering" in svc.text() or "bus lost" in svc.text()
+        out.check("takeover", bool(ended) and said,
+                  f"the service stopped, saying the bus stopped answering (exit {svc.p.returncode})"
+                  if ended and said else
+                  f"the service {'ran on' if not ended else 'stopped without saying bus lost'}: "
+                  f"{svc.tail(2)}")
+
+
+def _gateway_takeover(trial: Trial, sess: Session, out: Outcome, gw: Proc, svc: Proc | None,
+                      port: int, url: str) -> None:
+    """A new gateway (unless the old one was only paused and runs) and a new service over it
+    must publish (the ``reattach`` check)."""
+    if trial.action != "SIGSTOP+SIGCONT" or not gw.alive():
+        gw.stop()
+        gw2 = sess.pfma("gateway", "gateway", "--listen", f"127.0.0.1:{port}")
+        if not until(lambda: "Ctrl-C stops" in gw2.text(), WAIT_S, must_live=(gw2,)):
+            out.check("reattach", False, f"a new gateway on port {port} did not start: {gw2.tail(2)}")
+            return
+    if svc is not None and svc.alive():
+        svc.stop()
+    svc2 = sess.serve("--bus", url, *GATEWAY_SCHEDULE)
+    c2 = sess.client(svc2)
+    out.check("reattach", c2 is not None, "a new service publishes over the new gateway" if c2 is not None
+              else f"the new service never published: {svc2.tail(2)}")
 
 
 # --------------------------------------------------------------------------- sessions
@@ -1278,46 +1349,63 @@ def _final_reattach(kind: str, sess: Session, ctx: dict, out: Outcome) -> None:
         r.stop(signal.SIGTERM)
     watch = ctx.get("watch") or ctx.setdefault("watch", RingWatch(sess.name, c))
     if kind == "controller":
-        ctl = sess.controller()
-        ok = until(lambda: watch.armed_since(ctl.t0), WAIT_S, must_live=(ctl,))
-        out.check("reattach", bool(ok), "a new controller armed the service after the last trial" if ok else
-                  f"a new controller did not arm the service: {ctl.tail(3)}")
-        ctl.stop()
+        _reattach_controller(sess, watch, out)
         return
     for i in (1, 2):  # two far ends that do not seed their rearm counter, each through a new bridge
-        before = int(c.read_commands().rearm_counter)
-        for attempt in range(1, REMOTE_ATTEMPTS + 1):
-            endpoint = f"tcp/127.0.0.1:{free_port()}"
-            bridge = sess.pfma("bridge", "bridge", "--buffer", sess.name, "--listen", endpoint, "--commands")
-            remote = sess.start("remote", [sys.executable, "-c", REMOTE_CONTROLLER, endpoint, sess.name, "-",
-                                           *sess.rt_flag])
-            until(lambda: (watch.armed_since(bridge.t0) and "up" in remote.text()) or "fault: " in remote.text(),
-                   WAIT_S / 2, must_live=(bridge, remote))
-            ok = watch.armed_since(bridge.t0) and "up" in remote.text()
-            if ok or "missed service frames" not in remote.text() or attempt == REMOTE_ATTEMPTS:
-                break
-            # a far end descheduled past its missed-frame limit while powering up stops itself
-            # (servo fault 12, by design: docs/controller.md "Missed frames"): a new one, said
-            out.notes.append(f"remote controller {i} of 2, attempt {attempt}: {remote.tail(1)}; started again")
-            remote.stop(signal.SIGTERM)
-            bridge.stop()
-        for p in (bridge, remote):
-            p.note_maps()
-        after = int(c.read_commands().rearm_counter)
-        if ok:
-            out.check("reattach", True, f"remote controller {i} of 2 (its rearm counter not seeded) armed the service")
-        elif after == before:
-            out.check("reattach", False, f"remote controller {i} of 2 through a new bridge never armed the service: "
-                      f"its arm request carries rearm_counter {after}, the counter of the service's last arm "
-                      f"(a RemoteCommander must carry on from the area's counter, tools/bridge/remote.py; the service "
-                      f"takes an arm request only with a new counter)")
-        else:
-            armed = watch.armed_since(bridge.t0)
-            out.check("reattach", False, f"remote controller {i} of 2 "
-                      f"{'armed the service but was not up' if armed else 'never armed the service'} in "
-                      f"{WAIT_S / 2:.0f} s (rearm counter {before} -> {after}): {remote.tail(3)} / {bridge.tail(3)}")
+        _reattach_far_end(i, sess, c, watch, out)
+
+
+def _reattach_controller(sess: Session, watch: RingWatch, out: Outcome) -> None:
+    """A new controller must arm the service after the last controller trial."""
+    ctl = sess.controller()
+    ok = until(lambda: watch.armed_since(ctl.t0), WAIT_S, must_live=(ctl,))
+    out.check("reattach", bool(ok), "a new controller armed the service after the last trial" if ok else
+              f"a new controller did not arm the service: {ctl.tail(3)}")
+    ctl.stop()
+
+
+def _start_far_end(i: int, sess: Session, watch: RingWatch, out: Outcome) -> tuple[Proc, Proc, bool]:
+    """A new bridge and a remote controller through it that does not seed its rearm counter,
+    started again (said) while it stops itself for missed frames: (bridge, remote, armed and up)."""
+    for attempt in range(1, REMOTE_ATTEMPTS + 1):
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        bridge = sess.pfma("bridge", "bridge", "--buffer", sess.name, "--listen", endpoint, "--commands")
+        remote = sess.start("remote", [sys.executable, "-c", REMOTE_CONTROLLER, endpoint, sess.name, "-",
+                                       *sess.rt_flag])
+        until(lambda: (watch.armed_since(bridge.t0) and "up" in remote.text()) or "fault: " in remote.text(),
+              WAIT_S / 2, must_live=(bridge, remote))
+        ok = watch.armed_since(bridge.t0) and "up" in remote.text()
+        if ok or "missed service frames" not in remote.text() or attempt == REMOTE_ATTEMPTS:
+            break
+        # a far end descheduled past its missed-frame limit while powering up stops itself
+        # (servo fault 12, by design: docs/controller.md "Missed frames"): a new one, said
+        out.notes.append(f"remote controller {i} of 2, attempt {attempt}: {remote.tail(1)}; started again")
         remote.stop(signal.SIGTERM)
         bridge.stop()
+    return bridge, remote, ok
+
+
+def _reattach_far_end(i: int, sess: Session, c, watch: RingWatch, out: Outcome) -> None:
+    """Far end ``i`` of 2 after the last bridge trial must arm the service through a new bridge."""
+    before = int(c.read_commands().rearm_counter)
+    bridge, remote, ok = _start_far_end(i, sess, watch, out)
+    for p in (bridge, remote):
+        p.note_maps()
+    after = int(c.read_commands().rearm_counter)
+    if ok:
+        out.check("reattach", True, f"remote controller {i} of 2 (its rearm counter not seeded) armed the service")
+    elif after == before:
+        out.check("reattach", False, f"remote controller {i} of 2 through a new bridge never armed the service: "
+                  f"its arm request carries rearm_counter {after}, the counter of the service's last arm "
+                  f"(a RemoteCommander must carry on from the area's counter, tools/bridge/remote.py; the service "
+                  f"takes an arm request only with a new counter)")
+    else:
+        armed = watch.armed_since(bridge.t0)
+        out.check("reattach", False, f"remote controller {i} of 2 "
+                  f"{'armed the service but was not up' if armed else 'never armed the service'} in "
+                  f"{WAIT_S / 2:.0f} s (rearm counter {before} -> {after}): {remote.tail(3)} / {bridge.tail(3)}")
+    remote.stop(signal.SIGTERM)
+    bridge.stop()
 
 
 def run_matrix(trials: int = DEFAULT_TRIALS, seed: int = DEFAULT_SEED, kinds: tuple[str, ...] = KINDS,
