@@ -482,10 +482,8 @@ def _print(rep: dict) -> None:
     print(f"  recorder: {rep.get('recorder')}")
 
 
-def judge(rep: dict) -> list[str]:
-    """Issue 20's criteria on a soak report (:func:`measure`'s): one line per criterion that
-    failed, naming it and its figure; empty when the soak passed."""
-    bad = []
+def _rss_failures(rep: dict) -> list[str]:
+    """The RSS criteria: growth after the first minute within budget, and measured, in every process."""
     rss = rep.get("rss_mb", {})
     over, unmeasured = [], []
     for role in ROLES:
@@ -494,34 +492,64 @@ def judge(rep: dict) -> list[str]:
             unmeasured.append(role)
         elif g > RSS_BUDGET_MB:
             over.append(f"{role} {g:+.2f} MB")
+    bad = []
     if over:
         bad.append(f"RSS growth after the first minute <= {RSS_BUDGET_MB:g} MB: {', '.join(over)}")
     if unmeasured:
         bad.append(f"RSS growth after the first minute measured in every process: none for "
                    f"{', '.join(unmeasured)} (it needs two samples from 1 min on)")
+    return bad
+
+
+def _trip_failures(rep: dict) -> list[str]:
     trips = rep.get("trips", [])
     unexplained = [t for t in trips if t.get("explained") is None]
-    if unexplained or rep.get("unexplained_trips"):
-        n = max(len(unexplained), rep.get("unexplained_trips") or 0)
-        bad.append(f"no unexplained trip: {n} of {len(trips)}: "
-                   + "; ".join(f"{t['at_s']:g} s {t['text']}" for t in unexplained[:3]))
+    if not unexplained and not rep.get("unexplained_trips"):
+        return []
+    n = max(len(unexplained), rep.get("unexplained_trips") or 0)
+    return [f"no unexplained trip: {n} of {len(trips)}: "
+            + "; ".join(f"{t['at_s']:g} s {t['text']}" for t in unexplained[:3])]
+
+
+def _recording_failures(rep: dict) -> list[str]:
     rec = rep.get("recorder") or {"error": "no summary"}
-    if str(rec.get("lossless")).lower() != "true":  # MCAP metadata: "True"; a report from JSON: true
-        figs = rec["error"] if "error" in rec else ", ".join(
-            f"{k} {rec.get(k)}" for k in ("frames_recorded", "recorder_missed", "window_service_frames",
-                                          "window_recorded", "messages_missed"))
-        bad.append(f"the recording lossless: not lossless ({figs})")
+    if str(rec.get("lossless")).lower() == "true":  # MCAP metadata: "True"; a report from JSON: true
+        return []
+    figs = rec["error"] if "error" in rec else ", ".join(
+        f"{k} {rec.get(k)}" for k in ("frames_recorded", "recorder_missed", "window_service_frames",
+                                      "window_recorded", "messages_missed"))
+    return [f"the recording lossless: not lossless ({figs})"]
+
+
+def _laps_failures(rep: dict) -> list[str]:
     laps = (rep.get("operator") or {}).get("laps") or 0
-    if laps <= 0:
-        bad.append(f"the stack ran (path laps > 0): {laps} laps")
-    if rep.get("died"):
-        bad.append("every process alive to the end: "
-                   + "; ".join(f"{role} died: {why}" for role, why in rep["died"].items()))
-    if rep.get("errors"):
-        bad.append("the stack ran without a problem: " + "; ".join(rep["errors"]))
-    if rep.get("left_behind"):
-        bad.append("nothing left behind: " + "; ".join(rep["left_behind"]))
-    return [f"soak: FAILED {b}" for b in bad]
+    return [f"the stack ran (path laps > 0): {laps} laps"] if laps <= 0 else []
+
+
+def _died_failures(rep: dict) -> list[str]:
+    if not rep.get("died"):
+        return []
+    return ["every process alive to the end: "
+            + "; ".join(f"{role} died: {why}" for role, why in rep["died"].items())]
+
+
+def _error_failures(rep: dict) -> list[str]:
+    return ["the stack ran without a problem: " + "; ".join(rep["errors"])] if rep.get("errors") else []
+
+
+def _left_failures(rep: dict) -> list[str]:
+    return ["nothing left behind: " + "; ".join(rep["left_behind"])] if rep.get("left_behind") else []
+
+
+#: issue 20's criteria, in the order :func:`judge` says them: each a report's failed lines
+CRITERIA = (_rss_failures, _trip_failures, _recording_failures, _laps_failures, _died_failures,
+            _error_failures, _left_failures)
+
+
+def judge(rep: dict) -> list[str]:
+    """Issue 20's criteria on a soak report (:func:`measure`'s): one line per criterion that
+    failed, naming it and its figure; empty when the soak passed."""
+    return [f"soak: FAILED {b}" for criterion in CRITERIA for b in criterion(rep)]
 
 
 def passed_line(rep: dict) -> str:
