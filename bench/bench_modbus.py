@@ -45,7 +45,6 @@ STATS_WAIT_S = 3.0
 
 def figures(seconds: float = 5.0) -> dict:
     """The service over a loopback gateway for ``seconds`` (after it publishes frames)."""
-    from bench.independent_reader import IndependentReader, measure
     from bit3.buffer import Bit3Buffer
     from tools.attach import wait_for_frames
 
@@ -73,56 +72,74 @@ def figures(seconds: float = 5.0) -> dict:
             return {"error": f"pfma serve over {url} exited {svc.returncode} before publishing frames"}
         if client is None:
             return {"error": f"pfma serve over {url} published no frames within {START_TIMEOUT_S:g} s"}
-        time.sleep(0.5)  # settle
-        st0 = client.read_stats()  # the client's preallocated copy: the counters are taken now
-        n0 = {k: int(st0[k]) for k in ("frames", "overruns", "dropped_frames")}
-        cpu_s0, cpu_g0, t0 = cpu_seconds(svc.pid), cpu_seconds(gw.pid), time.monotonic()
-        # meanwhile, the refresh rates as a reader that shares no code with the project sees
-        # them (bench/independent_reader.py: stdlib only, layout from the published JSON)
-        reader = IndependentReader(client.layout.as_json(), f"/dev/shm/{name}")
-        try:
-            seen = measure(reader, lambda: time.sleep(0.0002), seconds)
-        finally:
-            reader.close()
-        wall = time.monotonic() - t0
-        cpu_s, cpu_g = cpu_seconds(svc.pid) - cpu_s0, cpu_seconds(gw.pid) - cpu_g0
-        # the service publishes its statistics about once a second: a short run waits (at most
-        # STATS_WAIT_S) for a publication made after the measurement started
-        t_stats = time.monotonic() + STATS_WAIT_S
-        while int(client.read_stats()["frames"]) == n0["frames"] and time.monotonic() < t_stats \
-                and svc.poll() is None:
-            time.sleep(0.05)
-        st = client.read_stats()
-        lay = client.layout
-        rates = {g: float(st.device_rate_hz[lay.slot("device", g)]) for g in ("rtd", "adc", "dac")}
-        period = float(st.period_s)
-        return {"seconds": round(wall, 2), "url": url,
-                "frame_rate_hz": round(1.0 / period, 2) if period > 0 else None,
-                "rates_hz": {k: round(v, 2) for k, v in rates.items()},
-                "independent_reader_hz": {g: round(seen[f"t_{g}_s"], 2) for g in ("rtd", "adc", "dac")},
-                "work_p50_us": float(st.work_p50_us), "work_p99_us": float(st.work_p99_us),
-                "frames": int(st.frames) - n0["frames"], "overruns": int(st.overruns) - n0["overruns"],
-                "dropped": int(st.dropped_frames) - n0["dropped_frames"],
-                "service_cpu_percent": round(100 * cpu_s / wall, 2),
-                "gateway_cpu_percent": round(100 * cpu_g / wall, 2),
-                "schedule": _schedule_line(svc)}
+        return _measure(client, svc, gw, name, url, seconds)
     finally:
         if client is not None:
             client.close()
-        for p in (svc, gw):
-            if p is not None and p.poll() is None:
-                p.terminate()
-        for p in (svc, gw):
-            if p is not None:
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait()
-                for f in (p.stdout, p.stderr):
-                    if f is not None:
-                        f.close()
+        _stop((svc, gw))
         Bit3Buffer.unlink(name)
+
+
+def _measure(client, svc: subprocess.Popen, gw: subprocess.Popen, name: str, url: str, seconds: float) -> dict:
+    """:func:`figures` of a service publishing over the gateway at ``url`` (``client``: a
+    reader of its buffer ``name``), measured for ``seconds``."""
+    from bench.independent_reader import IndependentReader, measure
+
+    time.sleep(0.5)  # settle
+    st0 = client.read_stats()  # the client's preallocated copy: the counters are taken now
+    n0 = {k: int(st0[k]) for k in ("frames", "overruns", "dropped_frames")}
+    cpu_s0, cpu_g0, t0 = cpu_seconds(svc.pid), cpu_seconds(gw.pid), time.monotonic()
+    # meanwhile, the refresh rates as a reader that shares no code with the project sees
+    # them (bench/independent_reader.py: stdlib only, layout from the published JSON)
+    reader = IndependentReader(client.layout.as_json(), f"/dev/shm/{name}")
+    try:
+        seen = measure(reader, lambda: time.sleep(0.0002), seconds)
+    finally:
+        reader.close()
+    wall = time.monotonic() - t0
+    cpu_s, cpu_g = cpu_seconds(svc.pid) - cpu_s0, cpu_seconds(gw.pid) - cpu_g0
+    st = _stats_after(client, n0["frames"], svc)
+    lay = client.layout
+    rates = {g: float(st.device_rate_hz[lay.slot("device", g)]) for g in ("rtd", "adc", "dac")}
+    period = float(st.period_s)
+    return {"seconds": round(wall, 2), "url": url,
+            "frame_rate_hz": round(1.0 / period, 2) if period > 0 else None,
+            "rates_hz": {k: round(v, 2) for k, v in rates.items()},
+            "independent_reader_hz": {g: round(seen[f"t_{g}_s"], 2) for g in ("rtd", "adc", "dac")},
+            "work_p50_us": float(st.work_p50_us), "work_p99_us": float(st.work_p99_us),
+            "frames": int(st.frames) - n0["frames"], "overruns": int(st.overruns) - n0["overruns"],
+            "dropped": int(st.dropped_frames) - n0["dropped_frames"],
+            "service_cpu_percent": round(100 * cpu_s / wall, 2),
+            "gateway_cpu_percent": round(100 * cpu_g / wall, 2),
+            "schedule": _schedule_line(svc)}
+
+
+def _stats_after(client, frames0: int, svc: subprocess.Popen):
+    """The service's statistics published after the measurement started (``frames0``: its
+    frame count then). It publishes them about once a second: a short run waits (at most
+    STATS_WAIT_S) for a publication made after the measurement started."""
+    t_stats = time.monotonic() + STATS_WAIT_S
+    while int(client.read_stats()["frames"]) == frames0 and time.monotonic() < t_stats \
+            and svc.poll() is None:
+        time.sleep(0.05)
+    return client.read_stats()
+
+
+def _stop(procs) -> None:
+    """Terminate the processes still running, then wait for each (kill after 10 s) and close its pipes."""
+    for p in procs:
+        if p is not None and p.poll() is None:
+            p.terminate()
+    for p in procs:
+        if p is not None:
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+            for f in (p.stdout, p.stderr):
+                if f is not None:
+                    f.close()
 
 
 def _schedule_line(svc: subprocess.Popen) -> str:
