@@ -373,34 +373,14 @@ def _pairs_text(d) -> str:
 
 
 def _print(rep: dict) -> None:
-    pr = rep.get("processes", {})
     print(f"stack on buffer {rep['buffer']}: {rep.get('run_s', 0):g} s measured "
           f"(service up in {rep.get('service_start_s')} s){', beside a CPU hog' if rep.get('hog') else ''}")
     if "held" in rep:
         print(f"  {'HELD: no layer went to ERROR' if rep['held'] else 'NOT HELD: see the problems and layers below'}")
-    for k, p in pr.items():
-        died = f", DIED at {p['died']['at_s']} s (exit {p['died']['returncode']})" if p["died"] else ""
-        print(f"  {k:<10} pid {p['pid']:<7} CPU {p['cpu_percent']} % of a core, stopped by {p['stopped']} "
-              f"(exit {p['returncode']}){died}")
-    for e in rep["errors"]:
-        print(f"  PROBLEM: {e}")
-    s = rep.get("service_stats")
-    if isinstance(s, dict):
-        print(f"  service: frames {s['frames']}, dropped {s['dropped_frames']}, overruns {s['overruns']}, "
-              f"stall events {s['stall_events']}, wake p99/max {s['wake_latency_p99_us']:.0f}/"
-              f"{s['wake_latency_max_us']:.0f} us, work p99 {s['work_p99_us']:.0f} us")
-    c = rep.get("controller_stats")
-    if isinstance(c, dict):
-        print(f"  controller: frames {c['frames']}, missed {c['missed_frames']} in {c['missed_events']} events "
-              f"(longest run {c['longest_missed_run']}), missed task slots {c['missed_task_slots']}, "
-              f"overruns {c['overruns']}")
-    else:
-        print(f"  controller: no statistics ({c})")
-    f = rep.get("ft_link")
-    if f:
-        print(f"  F/T link: records {f['records']}, bad {f['bad']}, resyncs {f['resyncs']}, rate {f['rate_hz']} Hz, "
-              f"max age {f['max_age_ms']} ms (read every {POLL_S * 1e3:.0f} ms), stale in "
-              f"{100 * (f['stale_fraction'] or 0):.2f} % of reads")
+    _print_processes(rep)
+    _print_service(rep.get("service_stats"))
+    _print_controller(rep.get("controller_stats"))
+    _print_ft_link(rep.get("ft_link"))
     h = rep.get("host_stalls")
     if h:
         print(f"  host stalls named by the service: {h['named']} (longest {h['longest_ms']} ms; >20 ms "
@@ -409,18 +389,56 @@ def _print(rep: dict) -> None:
     if r:
         print(f"  recorder: {_pairs_text(r)}")
     if "trips" in rep:
-        print(f"  trips (service): {len(rep['trips'])}")
-        for m in rep["trips"][:20]:
-            print(f"    {m['at_s']:8.2f} s {m['severity']:<7} {m['text']}")
-        print(f"  layers that went to ERROR: {len(rep['layers_in_error'])}")
-        for m in rep["layers_in_error"]:
-            print(f"    {m['layer']} at {m['at_s']} s ({m['count']}x): {m['why']}")
-        counts = "; ".join(f"{q} {_pairs_text(c) or 'none'}" for q, c in rep["message_counts"].items())
-        print(f"  warnings/errors: {counts} (lost unread: {_pairs_text(rep['messages_lost']) or 'none'})")
-        for m in rep["messages"][:40]:
-            print(f"    {m['at_s']:8.2f} s {m['queue']:<10} {m['severity']:<7} {m['code']:>4} {m['text']}")
-        if len(rep["messages"]) > 40:
-            print(f"    ... {len(rep['messages']) - 40} more (--json has them all)")
+        _print_messages(rep)
+
+
+def _print_processes(rep: dict) -> None:
+    """Each process (its CPU, how it stopped, whether it died), then the problems."""
+    for k, p in rep.get("processes", {}).items():
+        died = f", DIED at {p['died']['at_s']} s (exit {p['died']['returncode']})" if p["died"] else ""
+        print(f"  {k:<10} pid {p['pid']:<7} CPU {p['cpu_percent']} % of a core, stopped by {p['stopped']} "
+              f"(exit {p['returncode']}){died}")
+    for e in rep["errors"]:
+        print(f"  PROBLEM: {e}")
+
+
+def _print_service(s) -> None:
+    if isinstance(s, dict):
+        print(f"  service: frames {s['frames']}, dropped {s['dropped_frames']}, overruns {s['overruns']}, "
+              f"stall events {s['stall_events']}, wake p99/max {s['wake_latency_p99_us']:.0f}/"
+              f"{s['wake_latency_max_us']:.0f} us, work p99 {s['work_p99_us']:.0f} us")
+
+
+def _print_controller(c) -> None:
+    if isinstance(c, dict):
+        print(f"  controller: frames {c['frames']}, missed {c['missed_frames']} in {c['missed_events']} events "
+              f"(longest run {c['longest_missed_run']}), missed task slots {c['missed_task_slots']}, "
+              f"overruns {c['overruns']}")
+    else:
+        print(f"  controller: no statistics ({c})")
+
+
+def _print_ft_link(f) -> None:
+    if f:
+        print(f"  F/T link: records {f['records']}, bad {f['bad']}, resyncs {f['resyncs']}, rate {f['rate_hz']} Hz, "
+              f"max age {f['max_age_ms']} ms (read every {POLL_S * 1e3:.0f} ms), stale in "
+              f"{100 * (f['stale_fraction'] or 0):.2f} % of reads")
+
+
+def _print_messages(rep: dict) -> None:
+    """The trips, the layers that went to ERROR and the warnings/errors (the first 40)."""
+    print(f"  trips (service): {len(rep['trips'])}")
+    for m in rep["trips"][:20]:
+        print(f"    {m['at_s']:8.2f} s {m['severity']:<7} {m['text']}")
+    print(f"  layers that went to ERROR: {len(rep['layers_in_error'])}")
+    for m in rep["layers_in_error"]:
+        print(f"    {m['layer']} at {m['at_s']} s ({m['count']}x): {m['why']}")
+    counts = "; ".join(f"{q} {_pairs_text(c) or 'none'}" for q, c in rep["message_counts"].items())
+    print(f"  warnings/errors: {counts} (lost unread: {_pairs_text(rep['messages_lost']) or 'none'})")
+    for m in rep["messages"][:40]:
+        print(f"    {m['at_s']:8.2f} s {m['queue']:<10} {m['severity']:<7} {m['code']:>4} {m['text']}")
+    if len(rep["messages"]) > 40:
+        print(f"    ... {len(rep['messages']) - 40} more (--json has them all)")
 
 
 def figures(minutes: float = 0.5, realtime: bool = False, hog: bool = False) -> dict:
