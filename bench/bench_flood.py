@@ -160,7 +160,6 @@ def one_run(seconds: float, flood_rate: float | None, connections: int = DEFAULT
     """One ``pfma serve --rack fake --modbus`` process measured for ``seconds``; with
     ``flood_rate`` requests/s of valid reads meanwhile; ``realtime``: ``pfma serve
     --realtime`` (SCHED_FIFO, pinned), as on a lab PC."""
-    from bit3.buffer import Bit3Buffer
     from tools.attach import wait_for_frames
 
     py = sys.executable
@@ -171,7 +170,6 @@ def one_run(seconds: float, flood_rate: float | None, connections: int = DEFAULT
                             "--duration", str(seconds + START_TIMEOUT_S + 2 * STATS_WAIT_S + 5)],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     client = None
-    flood = None
     try:
         client = wait_for_frames(name, 320, timeout_s=START_TIMEOUT_S, alive=lambda: svc.poll() is None)
         if client is None and svc.poll() is not None:
@@ -179,54 +177,72 @@ def one_run(seconds: float, flood_rate: float | None, connections: int = DEFAULT
                              f"{(svc.stderr.read() if svc.stderr else '').strip()[-300:]}"}
         if client is None:
             return {"error": f"pfma serve published no frames within {START_TIMEOUT_S:g} s"}
-        # the export is ready once it answers
-        t_end = time.monotonic() + START_TIMEOUT_S
-        while True:
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
-                break
-            except OSError:
-                if time.monotonic() > t_end:
-                    return {"error": f"the Modbus export on 127.0.0.1:{port} did not answer"}
-                time.sleep(0.1)
+        if not _export_answers(port):
+            return {"error": f"the Modbus export on 127.0.0.1:{port} did not answer"}
         time.sleep(1.0)  # settle
-        export_pids = [p for p in children(svc.pid) if "tools.modbus_export" in cmdline(p)]
-        cpu0 = {p: cpu_seconds(p) for p in [svc.pid, *export_pids]}
-        if flood_rate:
-            flood = Flood(port, flood_rate, connections).start()
+        return _measure(client, svc, port, seconds, flood_rate, connections)
+    finally:
+        if client is not None:
+            client.close()
+        _stop_service(svc, name)
+
+
+def _export_answers(port: int) -> bool:
+    """The export is ready once it answers: whether it does within START_TIMEOUT_S."""
+    t_end = time.monotonic() + START_TIMEOUT_S
+    while True:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+            return True
+        except OSError:
+            if time.monotonic() > t_end:
+                return False
+            time.sleep(0.1)
+
+
+def _measure(client, svc: subprocess.Popen, port: int, seconds: float, flood_rate: float | None,
+             connections: int) -> dict:
+    """The figures of :func:`one_run` over a window of ``seconds``, flooded meanwhile at
+    ``flood_rate`` (None: quiet): frames, dropped frames, overruns, CPU, the flood's answers."""
+    export_pids = [p for p in children(svc.pid) if "tools.modbus_export" in cmdline(p)]
+    cpu0 = {p: cpu_seconds(p) for p in [svc.pid, *export_pids]}
+    flood = Flood(port, flood_rate, connections).start() if flood_rate else None
+    try:
         t0 = time.monotonic()
         w = _window(client, seconds, svc)
         wall = time.monotonic() - t0
-        if flood is not None:
-            flood.stop()
-        cpu = {p: round(100 * (cpu_seconds(p) - c) / wall, 1) for p, c in cpu0.items() if os.path.exists(f"/proc/{p}")}
-        out = {**w, "dropped_per_10s": round(10.0 * w["dropped_frames"] / w["window_s"], 1),
-               "service_cpu_percent": cpu.get(svc.pid),
-               "export_cpu_percent": sum(v for p, v in cpu.items() if p != svc.pid) if export_pids else None,
-               "export_in": "its own process" if export_pids else "the service process"}
-        if flood is not None:
-            out.update(flood_rate=flood_rate, connections=connections,
-                       answered_per_s=round(flood.answered / wall, 1), refused=flood.refused,
-                       failed=flood.failed)
-        return out
     finally:
         if flood is not None:
             flood.stop()
-        if client is not None:
-            client.close()
-        if svc.poll() is None:
-            svc.terminate()
-        try:
-            svc.wait(15)
-        except subprocess.TimeoutExpired:
-            svc.kill()
-            svc.wait()
-        for f in (svc.stdout, svc.stderr):
-            if f is not None:
-                f.close()
-        Bit3Buffer.unlink(name)
-        from bit3.ring import FrameRing
-        FrameRing.unlink(name)
+    cpu = {p: round(100 * (cpu_seconds(p) - c) / wall, 1) for p, c in cpu0.items() if os.path.exists(f"/proc/{p}")}
+    out = {**w, "dropped_per_10s": round(10.0 * w["dropped_frames"] / w["window_s"], 1),
+           "service_cpu_percent": cpu.get(svc.pid),
+           "export_cpu_percent": sum(v for p, v in cpu.items() if p != svc.pid) if export_pids else None,
+           "export_in": "its own process" if export_pids else "the service process"}
+    if flood is not None:
+        out.update(flood_rate=flood_rate, connections=connections,
+                   answered_per_s=round(flood.answered / wall, 1), refused=flood.refused,
+                   failed=flood.failed)
+    return out
+
+
+def _stop_service(svc: subprocess.Popen, name: str) -> None:
+    """Stop the service (SIGTERM, SIGKILL after 15 s), close its pipes, remove its buffer and ring."""
+    from bit3.buffer import Bit3Buffer
+    from bit3.ring import FrameRing
+
+    if svc.poll() is None:
+        svc.terminate()
+    try:
+        svc.wait(15)
+    except subprocess.TimeoutExpired:
+        svc.kill()
+        svc.wait()
+    for f in (svc.stdout, svc.stderr):
+        if f is not None:
+            f.close()
+    Bit3Buffer.unlink(name)
+    FrameRing.unlink(name)
 
 
 def figures(seconds: float = 10.0, rate: float = DEFAULT_RATE, connections: int = DEFAULT_CONNECTIONS,
