@@ -123,27 +123,51 @@ def _json_set(names: list[str], args) -> int:
     return 1 if failed else 0
 
 
+#: the numeric options' rules, in the order they are checked: (option, refused when, why)
+_NUMBER_RULES = (
+    ("seconds", lambda v: v <= 0, lambda v: f"--seconds {v:g}: must be positive"),
+    ("minutes", lambda v: v < 0, lambda v: f"--minutes {v:g}: must not be negative"),
+    ("trials", lambda v: v <= 0, lambda v: f"--trials {v}: must be positive"),
+    ("rounds", lambda v: v <= 0, lambda v: f"--rounds {v}: must be positive"),
+)
+
+
 def _refusal(args) -> tuple[str | None, tuple[str, ...] | None]:
     """Why these options are refused (one line, without the ``pfma bench: `` prefix), or
     None; and the ``--kinds`` asked for (None: all)."""
-    if args.seconds is not None and args.seconds <= 0:
-        return f"--seconds {args.seconds:g}: must be positive", None
-    if args.minutes is not None and args.minutes < 0:
-        return f"--minutes {args.minutes:g}: must not be negative", None
-    if getattr(args, "trials", None) is not None and args.trials <= 0:
-        return f"--trials {args.trials}: must be positive", None
-    if getattr(args, "rounds", None) is not None and args.rounds <= 0:
-        return f"--rounds {args.rounds}: must be positive", None
-    if getattr(args, "check", False) and not (len(args.names) == 1 and args.names[0] in CHECKED):
-        return (f"--check judges one of {', '.join(CHECKED)}, named alone (got: "
-                f"{' '.join(args.names) or 'all benchmarks'})"), None
+    why = _bad_number(args) or _bad_check(args)
+    if why:
+        return why, None
     if not getattr(args, "kinds", None):
         return None, None
+    return _kinds(args.kinds)
+
+
+def _bad_number(args) -> str | None:
+    """The first numeric option out of its range (:data:`_NUMBER_RULES`), said; None: all good."""
+    for option, refused, why in _NUMBER_RULES:
+        v = getattr(args, option, None)
+        if v is not None and refused(v):
+            return why(v)
+    return None
+
+
+def _bad_check(args) -> str | None:
+    """``--check`` with other than one of :data:`CHECKED` named alone, said; else None."""
+    if getattr(args, "check", False) and not (len(args.names) == 1 and args.names[0] in CHECKED):
+        return (f"--check judges one of {', '.join(CHECKED)}, named alone (got: "
+                f"{' '.join(args.names) or 'all benchmarks'})")
+    return None
+
+
+def _kinds(text: str) -> tuple[str | None, tuple[str, ...] | None]:
+    """``--kinds`` (comma-separated) as the kill matrix's kinds: (refusal, None) when one is
+    unknown or none is named, else (None, the kinds)."""
     from bench.bench_chaos import KINDS
-    kinds = tuple(k.strip() for k in args.kinds.split(",") if k.strip())
+    kinds = tuple(k.strip() for k in text.split(",") if k.strip())
     bad = [k for k in kinds if k not in KINDS]
     if bad or not kinds:
-        return f"--kinds {args.kinds}: unknown {', '.join(bad) or 'nothing'}; known: {', '.join(KINDS)}", None
+        return f"--kinds {text}: unknown {', '.join(bad) or 'nothing'}; known: {', '.join(KINDS)}", None
     return None, kinds
 
 
