@@ -722,6 +722,18 @@ def _stats(area: AreaSpec) -> tuple[_Record, list[ChannelEntry]]:
 
 def _commands(area: AreaSpec, rack: RackConfig) -> tuple[_Record, list[ChannelEntry], tuple, tuple]:
     """Command area; joint order and limit order come from the rack's DAC channels."""
+    joints, limits, grippers = _command_dacs(rack)
+    r, offsets = _command_record(area, joints, limits, grippers)
+    entries = _command_entries(area.name, joints, limits, grippers, offsets)
+    return (r, entries, tuple(c.joint for c in joints),
+            tuple(c.signal for c in limits))
+
+
+def _command_dacs(rack: RackConfig) -> tuple[list, list, list]:
+    """The rack's rate, current-limit and gripper DAC channels (in board order).
+
+    :raises ConfigError: when there are more than the command area has room for
+    """
     dac = [c for b in rack.boards_of("dac") for c in b.channels if not c.spare]
     joints = [c for c in dac if c.quantity == "rate_command"]
     limits = [c for c in dac if c.quantity == "current_limit"]
@@ -730,6 +742,12 @@ def _commands(area: AreaSpec, rack: RackConfig) -> tuple[_Record, list[ChannelEn
         raise ConfigError(f"Bit3 layout: rack {rack.name} has {len(joints)} rate, {len(limits)} "
                           f"current-limit and {len(grippers)} gripper DAC channels; the command "
                           f"area has room for {N_JOINTS}, {N_CURRENT_LIMITS} and 1")
+    return joints, limits, grippers
+
+
+def _command_record(area: AreaSpec, joints: list, limits: list,
+                    grippers: list) -> tuple[_Record, tuple[int, int, int]]:
+    """The command area's record, and the offsets of its joint rates, gripper and current limits."""
     r = _Record(area.name, area.body_offset, area.body_size)
     r.add("heartbeat", "<u8", units="1", doc="incremented on every write by the controller")
     r.add("t_s", "<f8", units="s", doc="controller clock time of this write")
@@ -753,19 +771,24 @@ def _commands(area: AreaSpec, rack: RackConfig) -> tuple[_Record, list[ChannelEn
     r.add("controller_frame", "<u8", units="1", doc="the writer's own frame counter")
     r.add("writer_pid", "<i4", units="1", doc="pid of the writing process (must hold the claim)")
     r.add("writer_token", "<u8", units="1", doc="the claim's token (owners[commands].claimed_ns)")
+    return r, (jr, gr, cl)
+
+
+def _command_entries(area: str, joints: list, limits: list, grippers: list,
+                     offsets: tuple[int, int, int]) -> list[ChannelEntry]:
+    """The command channels: joint rates, the gripper, current limits (in that order)."""
+    jr, gr, cl = offsets
     entries = []
     for i, c in enumerate(joints):
-        entries.append(ChannelEntry(c.signal, "command", area.name, i, c.units, c.label,
+        entries.append(ChannelEntry(c.signal, "command", area, i, c.units, c.label,
                                     (("joint_rate_rad_s", i, jr + 8 * i),), c.board, c.channel))
     for c in grippers:
-        entries.append(ChannelEntry(c.signal, "command", area.name, 0, c.units, c.label,
+        entries.append(ChannelEntry(c.signal, "command", area, 0, c.units, c.label,
                                     (("gripper", 0, gr),), c.board, c.channel))
     for i, c in enumerate(limits):
-        entries.append(ChannelEntry(c.signal, "command", area.name, i, c.units, c.label,
+        entries.append(ChannelEntry(c.signal, "command", area, i, c.units, c.label,
                                     (("current_limit_a", i, cl + 8 * i),), c.board, c.channel))
-    return (r, entries, tuple(c.joint for c in joints),
-            tuple(c.signal for c in limits))
-
+    return entries
 
 def struct_field(dt: np.dtype | None, name: str) -> tuple[np.dtype, int]:
     """(dtype, byte offset) of field ``name`` of the structured dtype ``dt``.

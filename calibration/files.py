@@ -645,16 +645,36 @@ def nominal_ft(cpf: float | None = None, cpt: float | None = None) -> dict:
 # ---------------------------------------------------------------- comparison
 def diff(a: Calibration, b: Calibration, rel_tol: float = 1e-12) -> list[dict]:
     """Entries that differ between ``a`` (older) and ``b`` (newer): one dict per value."""
+    return _diff_channels(a, b, rel_tol) + _diff_cae(a, b) + _diff_ft(a, b)
+
+
+def _change(va, vb):
+    """``vb - va``, or None when either side is missing."""
+    return None if va is None or vb is None else vb - va
+
+
+def _channel_differs(va, vb, rel_tol: float) -> bool:
+    """A channel's scale or offset differs: missing on either side, or not close."""
+    return va is None or vb is None or not math.isclose(va, vb, rel_tol=rel_tol, abs_tol=1e-15)
+
+
+def _diff_channels(a: Calibration, b: Calibration, rel_tol: float) -> list[dict]:
+    """The ``channels.SIG.scale|offset`` entries that differ (beyond ``rel_tol``)."""
     out = []
     for sig in sorted(set(a.channels) | set(b.channels)):
-        ea, eb = a.channels.get(sig), b.channels.get(sig)
+        ea, eb = a.channels.get(sig) or {}, b.channels.get(sig)
+        method = (eb or {}).get("provenance", {}).get("method")
         for key in ("scale", "offset"):
-            va = None if ea is None else ea.get(key)
-            vb = None if eb is None else eb.get(key)
-            if va is None or vb is None or not math.isclose(va, vb, rel_tol=rel_tol, abs_tol=1e-15):
+            va, vb = ea.get(key), (eb or {}).get(key)
+            if _channel_differs(va, vb, rel_tol):
                 out.append({"entry": f"channels.{sig}.{key}", "old": va, "new": vb,
-                            "change": None if va is None or vb is None else vb - va,
-                            "method": (eb or {}).get("provenance", {}).get("method")})
+                            "change": _change(va, vb), "method": method})
+    return out
+
+
+def _diff_cae(a: Calibration, b: Calibration) -> list[dict]:
+    """The ``cae.AXIS.KEY`` entries that differ."""
+    out = []
     for sec, keys in (("cae", ("centre_v", "deadband_v", "span_v", "sign")),):
         sa, sb = a.data.get(sec) or {}, b.data.get(sec) or {}
         for axis in sorted(set(sa) | set(sb)):
@@ -662,13 +682,21 @@ def diff(a: Calibration, b: Calibration, rel_tol: float = 1e-12) -> list[dict]:
                 va, vb = (sa.get(axis) or {}).get(key), (sb.get(axis) or {}).get(key)
                 if va != vb:
                     out.append({"entry": f"{sec}.{axis}.{key}", "old": va, "new": vb,
-                                "change": None if va is None or vb is None else vb - va, "method": None})
-    fa, fb = a.ft or {}, b.ft or {}
-    for key in ("bias_counts", "matrix", "payload_mass_kg", "payload_com_m"):
-        va, vb = fa.get(key), fb.get(key)
-        if va != vb:
-            change = None
-            if va is not None and vb is not None:
-                change = float(np.max(np.abs(np.asarray(vb, float) - np.asarray(va, float))))
-            out.append({"entry": f"ft.{key}", "old": va, "new": vb, "change": change, "method": None})
+                                "change": _change(va, vb), "method": None})
     return out
+
+
+def _ft_change(va, vb) -> float | None:
+    """The largest absolute element change between two F/T values (None when either is missing)."""
+    if va is None or vb is None:
+        return None
+    return float(np.max(np.abs(np.asarray(vb, float) - np.asarray(va, float))))
+
+
+def _diff_ft(a: Calibration, b: Calibration) -> list[dict]:
+    """The ``ft.KEY`` entries that differ."""
+    fa, fb = a.ft or {}, b.ft or {}
+    return [{"entry": f"ft.{key}", "old": fa.get(key), "new": fb.get(key),
+             "change": _ft_change(fa.get(key), fb.get(key)), "method": None}
+            for key in ("bias_counts", "matrix", "payload_mass_kg", "payload_com_m")
+            if fa.get(key) != fb.get(key)]

@@ -355,43 +355,52 @@ class Checkout:
         axes = [a["signal"] for a in h["axes"]]
         names = {c.name for c in self.lay.channels if c.kind == "adc"}
         for a in h["axes"]:
-            sig, d = a["signal"], int(a.get("direction", 1))
-            if sig not in names:
-                self.record("hand", sig, "deflect", None, detail="not in this rack")
-                continue
-            seen = self.operate(a["prompt"], lambda st, s_=sig, v=d * stim_v: st.cae_axis(s_, v),
-                                lambda s_=sig, d_=d: d_ * self.volts(s_) >= thr)
-            if seen is None:
-                self.record("hand", sig, "deflect", None, detail="operator step skipped (non-interactive)")
-                continue
-            v = self.volts(sig)
-            others = {o: self.volts(o) for o in axes if o != sig and o in names}
-            moved = {o: x for o, x in others.items() if abs(x) > tol}
-            hc, _, valid = self._hc()
-            detail = (f"hand-controller slot cae: axes {np.round(hc, 3).tolist()} (valid {valid})"
-                      + (f"; ALSO MOVED: {', '.join(f'{o} {x:+.2f} V' for o, x in moved.items())}" if moved else ""))
-            lo, hi = (thr, None) if d > 0 else (None, -thr)
-            self.record("hand", sig, "deflect " + ("+" if d > 0 else "-"), bool(seen) and not moved,
-                        round(v, 3), lo, hi, "V", detail if seen else "no deflection seen; " + detail)
-            back = self.operate(f"Release the CAE stick ({sig})", lambda st, s_=sig: st.cae_axis(s_, 0.0),
-                                lambda s_=sig: abs(self.volts(s_)) <= tol)
-            self.record("hand", sig, "return to centre", bool(back), round(self.volts(sig), 3), -tol, tol, "V")
+            self._hand_axis(a, axes, names, thr, tol, stim_v)
         for dsc in h["discretes"]:
-            sig = dsc["signal"]
-            if sig not in names:
-                self.record("hand", sig, "press", None, detail="not in this rack")
-                continue
-            seen = self.operate(dsc["prompt"], lambda st, s_=sig: st.cae_discrete(s_, True),
-                                lambda s_=sig: self.volts(s_) >= on_v)
-            if seen is None:
-                self.record("hand", sig, "press", None, detail="operator step skipped (non-interactive)")
-                continue
-            _, buttons, _ = self._hc()
-            self.record("hand", sig, "press", bool(seen), round(self.volts(sig), 3), on_v, None, "V",
-                        f"hand-controller buttons 0x{buttons:X}")
-            off = self.operate(f"Release {sig}", lambda st, s_=sig: st.cae_discrete(s_, False),
-                               lambda s_=sig: self.volts(s_) < on_v)
-            self.record("hand", sig, "release", bool(off), round(self.volts(sig), 3), None, on_v, "V")
+            self._hand_discrete(dsc, names, on_v)
+
+    def _hand_axis(self, a: dict, axes: list[str], names: set[str], thr: float, tol: float,
+                   stim_v: float) -> None:
+        """One CAE axis: deflected alone (no other axis moving), then back to centre."""
+        sig, d = a["signal"], int(a.get("direction", 1))
+        if sig not in names:
+            self.record("hand", sig, "deflect", None, detail="not in this rack")
+            return
+        seen = self.operate(a["prompt"], lambda st, s_=sig, v=d * stim_v: st.cae_axis(s_, v),
+                            lambda s_=sig, d_=d: d_ * self.volts(s_) >= thr)
+        if seen is None:
+            self.record("hand", sig, "deflect", None, detail="operator step skipped (non-interactive)")
+            return
+        v = self.volts(sig)
+        others = {o: self.volts(o) for o in axes if o != sig and o in names}
+        moved = {o: x for o, x in others.items() if abs(x) > tol}
+        hc, _, valid = self._hc()
+        detail = (f"hand-controller slot cae: axes {np.round(hc, 3).tolist()} (valid {valid})"
+                  + (f"; ALSO MOVED: {', '.join(f'{o} {x:+.2f} V' for o, x in moved.items())}" if moved else ""))
+        lo, hi = (thr, None) if d > 0 else (None, -thr)
+        self.record("hand", sig, "deflect " + ("+" if d > 0 else "-"), bool(seen) and not moved,
+                    round(v, 3), lo, hi, "V", detail if seen else "no deflection seen; " + detail)
+        back = self.operate(f"Release the CAE stick ({sig})", lambda st, s_=sig: st.cae_axis(s_, 0.0),
+                            lambda s_=sig: abs(self.volts(s_)) <= tol)
+        self.record("hand", sig, "return to centre", bool(back), round(self.volts(sig), 3), -tol, tol, "V")
+
+    def _hand_discrete(self, dsc: dict, names: set[str], on_v: float) -> None:
+        """One CAE discrete: pressed, then released."""
+        sig = dsc["signal"]
+        if sig not in names:
+            self.record("hand", sig, "press", None, detail="not in this rack")
+            return
+        seen = self.operate(dsc["prompt"], lambda st, s_=sig: st.cae_discrete(s_, True),
+                            lambda s_=sig: self.volts(s_) >= on_v)
+        if seen is None:
+            self.record("hand", sig, "press", None, detail="operator step skipped (non-interactive)")
+            return
+        _, buttons, _ = self._hc()
+        self.record("hand", sig, "press", bool(seen), round(self.volts(sig), 3), on_v, None, "V",
+                    f"hand-controller buttons 0x{buttons:X}")
+        off = self.operate(f"Release {sig}", lambda st, s_=sig: st.cae_discrete(s_, False),
+                           lambda s_=sig: self.volts(s_) < on_v)
+        self.record("hand", sig, "release", bool(off), round(self.volts(sig), 3), None, on_v, "V")
 
     # ------------------------------------------------------------------ PIO inputs
     def _group_pio(self) -> None:
@@ -734,65 +743,81 @@ class Checkout:
         diagnosis does not stop it a second time."""
         if not moves:
             return
-        f_move = float(self.cfg.joint(j, "diag_moved_fraction"))
-        f_none = float(self.cfg.joint(j, "diag_no_current_fraction"))
-        f_brake = float(self.cfg.joint(j, "diag_brake_current_fraction"))
-        i_none, i_brake = f_none * i_lim, f_brake * i_lim
+        lim = _DiagLimits(self.cfg, j, i_lim)
         record = self._record_quiet if quiet else self.record
         check = "drive and brake (diagnosis)"
         texts = [m.text(i_lim) for m in moves]
         seen = "; ".join(texts) + (f" ({len(moves)} of 2 moves: the run stopped)" if quiet and len(moves) < 2
                                    and self.cfg.joint(j, "bidirectional") else "")
-        # a move counts when the resolver or the tach shows at least f_move of the command,
-        # either way (the wrong way is the polarity rows' business: the drive answered) and,
-        # where the rack has the monitor, with motor current (else gravity or a load moved it)
         answered: list[Move] = []
         unknown: list[Move] = []  # moves the service stopped (it left ARMED): they show nothing
         for m in moves:
-            moved = max(m.along, m.against) >= f_move
-            driven = m.peak_a is None or m.peak_a >= i_none
-            if moved and driven:
+            if lim.answered(m):
                 answered.append(m)
-                continue
-            if m.left_armed:
+            elif m.left_armed:
                 unknown.append(m)
-                continue
-            if m.peak_a is None:
-                record("joints", j, check, False, "not moved",
-                       detail=f"did not move in the {m.tag} move and this rack has no motor-current "
-                              f"monitor for {j}: drive and brake cannot be told apart: check its brake-release "
-                              f"switch and brake, its PWM stage switch, +28 V and the amplifier. {seen}")
-            elif m.peak_a < i_none:
-                also = (f" (it moved {m.travel:+.4f} rad without current: gravity or a load, or the current "
-                        "monitor is dead: see its \"motor current responds\" row)" if moved else "")
-                record("joints", j, check, False, "no current",
-                       detail=f"no motor current: check its PWM stage switch, +28 V, and the amplifier{also}. "
-                              f"Peak |current| {m.peak_a:.3g} A < {i_none:.3g} A "
-                              f"({f_none:g} x the {i_lim:.2f} A limit). {seen}")
-            elif m.peak_a >= i_brake:
-                record("joints", j, check, False, "brake held",
-                       detail=f"brake not released (or a jam): check the joint's brake-release switch and "
-                              f"brake. It did not move with the motor current at {m.peak_a:.3g} A >= "
-                              f"{i_brake:.3g} A ({f_brake:g} x the {i_lim:.2f} A limit). {seen}")
             else:
-                record("joints", j, check, False, "unclear",
-                       detail=f"did not move with some motor current ({m.peak_a:.3g} A, between "
-                              f"{i_none:.3g} and {i_brake:.3g} A): check its brake-release switch and brake, "
-                              f"then the amplifier. {seen}")
-            return
+                value, detail = lim.not_answered(m, j, seen)
+                record("joints", j, check, False, value, detail=detail)
+                return
         stopped = "; ".join(f"the service was not ARMED ({m.left_armed}) in the {m.tag} move" for m in unknown)
         if not answered:
             record("joints", j, check, None, "not diagnosed",
                    detail=f"{stopped}: the motion seen is not the drive's answer; the service's messages "
                           f"say why. {seen}")
             return
-        wrong = [m.tag for m in answered if m.against >= f_move and m.along < f_move]
+        wrong = [m.tag for m in answered if m.against >= lim.f_move and m.along < lim.f_move]
         record("joints", j, check, True, "moved",
                detail="drive answers, brake released"
                       + (f" (it moved against the command in the {', '.join(wrong)} move: see the polarity "
                          "rows)" if wrong else "")
                       + (f" ({stopped}: that move shows nothing)" if unknown else "") + f". {seen}")
 
+
+class _DiagLimits:
+    """A joint's drive-or-brake diagnosis thresholds, for a test at current limit ``i_lim``."""
+
+    def __init__(self, cfg: CheckoutConfig, j: str, i_lim: float) -> None:
+        self.f_move = float(cfg.joint(j, "diag_moved_fraction"))
+        self.f_none = float(cfg.joint(j, "diag_no_current_fraction"))
+        self.f_brake = float(cfg.joint(j, "diag_brake_current_fraction"))
+        self.i_lim = i_lim
+        self.i_none, self.i_brake = self.f_none * i_lim, self.f_brake * i_lim
+
+    def moved(self, m: Move) -> bool:
+        """The resolver or the tach shows at least ``f_move`` of the command, either way
+        (the wrong way is the polarity rows' business: the drive answered)."""
+        return max(m.along, m.against) >= self.f_move
+
+    def answered(self, m: Move) -> bool:
+        """The move counts: it moved and, where the rack has the monitor, with motor
+        current (else gravity or a load moved it)."""
+        return self.moved(m) and (m.peak_a is None or m.peak_a >= self.i_none)
+
+    def not_answered(self, m: Move, j: str, seen: str) -> tuple[str, str]:
+        """The value and detail of the failing diagnosis row for a move that did not answer."""
+        i_lim, i_none, i_brake = self.i_lim, self.i_none, self.i_brake
+        if m.peak_a is None:
+            return "not moved", (
+                f"did not move in the {m.tag} move and this rack has no motor-current "
+                f"monitor for {j}: drive and brake cannot be told apart: check its brake-release "
+                f"switch and brake, its PWM stage switch, +28 V and the amplifier. {seen}")
+        if m.peak_a < i_none:
+            also = (f" (it moved {m.travel:+.4f} rad without current: gravity or a load, or the current "
+                    "monitor is dead: see its \"motor current responds\" row)" if self.moved(m) else "")
+            return "no current", (
+                f"no motor current: check its PWM stage switch, +28 V, and the amplifier{also}. "
+                f"Peak |current| {m.peak_a:.3g} A < {i_none:.3g} A "
+                f"({self.f_none:g} x the {i_lim:.2f} A limit). {seen}")
+        if m.peak_a >= i_brake:
+            return "brake held", (
+                f"brake not released (or a jam): check the joint's brake-release switch and "
+                f"brake. It did not move with the motor current at {m.peak_a:.3g} A >= "
+                f"{i_brake:.3g} A ({self.f_brake:g} x the {i_lim:.2f} A limit). {seen}")
+        return "unclear", (
+            f"did not move with some motor current ({m.peak_a:.3g} A, between "
+            f"{i_none:.3g} and {i_brake:.3g} A): check its brake-release switch and brake, "
+            f"then the amplifier. {seen}")
 
 class _MoveParams:
     """A joint's open-loop move settings from the checkout configuration."""

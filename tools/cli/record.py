@@ -145,6 +145,12 @@ def _recover(args) -> int:
     return 0
 
 
+#: the ``pfma.recorder.summary`` counters ``info`` prints
+_RECORDER_KEYS = ("frames_recorded", "recorder_missed", "service_skipped", "frame_gaps",
+                  "window_service_frames", "window_recorded", "window_service_dropped",
+                  "messages_missed", "sessions", "lossless")
+
+
 def _info(args) -> int:
     from tools.recording.reader import read_metadata
     from tools.cli import check_mcap, mcap_errors
@@ -155,48 +161,67 @@ def _info(args) -> int:
     s = check_mcap(path)  # raises naming the file: missing, not an MCAP, damaged, unfinished
     st = s.statistics
     dur = (st.message_end_time - st.message_start_time) / 1e9
-    topics = []
-    for cid, n in sorted(st.channel_message_counts.items()):
-        ch = s.channels[cid]
-        topics.append({"topic": ch.topic, "messages": n, "rate_hz": n / dur if dur > 0 else 0.0,
-                       "encoding": ch.message_encoding})
+    topics = _topics(s, dur)
     with mcap_errors(path):
         meta = read_metadata(path)
-    summ = meta.get("pfma.recorder.summary")
-    keys = ("frames_recorded", "recorder_missed", "service_skipped", "frame_gaps",
-            "window_service_frames", "window_recorded", "window_service_dropped",
-            "messages_missed", "sessions", "lossless")
     if args.json:
-        from tools.cli.output import print_json
-        wm, wsum = meta.get("pfma.wm"), meta.get("pfma.wm.summary")
-        print_json({"file": path, "messages": st.message_count, "chunks": st.chunk_count, "duration_s": dur,
-                    "attachments": st.attachment_count, "metadata": st.metadata_count, "topics": topics,
-                    "recorder": {k: summ.get(k) for k in keys} if summ else None,
-                    "world_model": None if not wm else {
-                        "name": wm.get("name"), "patterns": json.loads(wm.get("patterns", "[]")),
-                        "variables": json.loads(wm.get("variables", "[]")),
-                        "summary": {k: wsum.get(k) for k in _WM_KEYS} if wsum else None},
-                    "link": _link(meta.get("pfma.link"))})
+        _print_info_json(path, st, dur, topics, meta)
         return 0
     print(f"{path}: {st.message_count} messages, {st.chunk_count} chunks, {dur:.3f} s, "
           f"{st.attachment_count} attachments, {st.metadata_count} metadata")
     width = max([22] + [len(t["topic"]) for t in topics])
     for t in topics:
         print(f"  {t['topic']:{width}} {t['messages']:9d}  {t['rate_hz']:8.1f}/s  {t['encoding']}")
+    summ = meta.get("pfma.recorder.summary")
     if summ:
-        print("  recorder: " + ", ".join(f"{k}={summ.get(k)}" for k in keys))
-    wm, wsum = meta.get("pfma.wm"), meta.get("pfma.wm.summary")
-    if wm:
-        nvars = len(json.loads(wm.get("variables", "[]")))
-        print(f"  world model {wm.get('name')!r}: {nvars} variables from "
-              f"{', '.join(json.loads(wm.get('patterns', '[]')))}"
-              + (": " + ", ".join(f"{k}={wsum.get(k)}" for k in _WM_KEYS) if wsum else ""))
-    link = _link(meta.get("pfma.link"))
-    if link:
-        ranges = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in link["lost_ranges"]) or "none"
-        print(f"  remote source {link['source']}: {link['inputs_received']} inputs bodies, frames lost "
-              f"{link['frames_lost']} ({ranges}), service skipped {link['service_skipped']}")
+        print("  recorder: " + ", ".join(f"{k}={summ.get(k)}" for k in _RECORDER_KEYS))
+    _print_wm(meta.get("pfma.wm"), meta.get("pfma.wm.summary"))
+    _print_link(_link(meta.get("pfma.link")))
     return 0
+
+
+def _topics(s, dur: float) -> list[dict]:
+    """Per channel of the summary ``s``: topic, messages, rate and encoding."""
+    topics = []
+    for cid, n in sorted(s.statistics.channel_message_counts.items()):
+        ch = s.channels[cid]
+        topics.append({"topic": ch.topic, "messages": n, "rate_hz": n / dur if dur > 0 else 0.0,
+                       "encoding": ch.message_encoding})
+    return topics
+
+
+def _print_info_json(path: str, st, dur: float, topics: list[dict], meta: dict) -> None:
+    """``pfma record info --json``."""
+    from tools.cli.output import print_json
+    summ = meta.get("pfma.recorder.summary")
+    wm, wsum = meta.get("pfma.wm"), meta.get("pfma.wm.summary")
+    print_json({"file": path, "messages": st.message_count, "chunks": st.chunk_count, "duration_s": dur,
+                "attachments": st.attachment_count, "metadata": st.metadata_count, "topics": topics,
+                "recorder": {k: summ.get(k) for k in _RECORDER_KEYS} if summ else None,
+                "world_model": None if not wm else {
+                    "name": wm.get("name"), "patterns": json.loads(wm.get("patterns", "[]")),
+                    "variables": json.loads(wm.get("variables", "[]")),
+                    "summary": {k: wsum.get(k) for k in _WM_KEYS} if wsum else None},
+                "link": _link(meta.get("pfma.link"))})
+
+
+def _print_wm(wm: dict | None, wsum: dict | None) -> None:
+    """The world model line of ``pfma record info`` (nothing without ``pfma.wm`` metadata)."""
+    if not wm:
+        return
+    nvars = len(json.loads(wm.get("variables", "[]")))
+    print(f"  world model {wm.get('name')!r}: {nvars} variables from "
+          f"{', '.join(json.loads(wm.get('patterns', '[]')))}"
+          + (": " + ", ".join(f"{k}={wsum.get(k)}" for k in _WM_KEYS) if wsum else ""))
+
+
+def _print_link(link: dict | None) -> None:
+    """The remote source line of ``pfma record info`` (nothing for a local recording)."""
+    if not link:
+        return
+    ranges = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in link["lost_ranges"]) or "none"
+    print(f"  remote source {link['source']}: {link['inputs_received']} inputs bodies, frames lost "
+          f"{link['frames_lost']} ({ranges}), service skipped {link['service_skipped']}")
 
 
 def _link(meta: dict | None) -> dict | None:

@@ -42,85 +42,124 @@ class RecoverReport:
 
 
 
+class _Rewrite:
+    """The state of one recovery: the records read so far, rewritten into ``w``."""
+
+    def __init__(self, w: Writer, rep: RecoverReport):
+        self.w, self.rep = w, rep
+        self.started = False
+        self.schemas: dict[int, Any] = {}
+        self.sid_map: dict[int, int] = {}
+        self.cid_map: dict[int, int] = {}
+        self.topic_of: dict[int, str] = {}
+        self.counts: dict[str, int] = defaultdict(int)
+        self.last_frame = -1
+        self.raw_dt = None
+        self.raw_schema_d = None
+
+    def start(self, profile: str = PROFILE, library: str = LIBRARY) -> None:
+        """Start the output (once): with the source's header, else with ours."""
+        if not self.started:
+            self.w.start(profile=profile, library=library)
+            self.started = True
+
+    def header(self, rec) -> None:
+        self.w.start(profile=rec.profile, library=rec.library)
+        self.started = True
+
+    def schema(self, rec) -> None:
+        if rec.id not in self.sid_map:
+            self.schemas[rec.id] = rec
+            self.sid_map[rec.id] = self.w.register_schema(rec.name, rec.encoding, rec.data)
+            self.rep.schemas += 1
+
+    def channel(self, rec) -> None:
+        if rec.id in self.cid_map:
+            return
+        self.cid_map[rec.id] = self.w.register_channel(rec.topic, rec.message_encoding,
+                                                       self.sid_map.get(rec.schema_id, 0), rec.metadata)
+        self.topic_of[rec.id] = rec.topic
+        self.rep.channels += 1
+        if rec.topic == RAW_TOPIC and rec.schema_id in self.schemas:
+            self.raw_schema_d = json.loads(self.schemas[rec.schema_id].data)
+            self.raw_dt = raw_dtype(self.raw_schema_d)
+
+    def message(self, rec) -> None:
+        if rec.channel_id not in self.cid_map:
+            return
+        self.w.add_message(self.cid_map[rec.channel_id], rec.log_time, rec.data, rec.publish_time,
+                           rec.sequence)
+        self.rep.messages += 1
+        topic = self.topic_of[rec.channel_id]
+        self.counts[topic] += 1
+        if topic == RAW_TOPIC and self.raw_dt is not None:
+            self._count_frame(int(decode_raw(self.raw_schema_d, rec.data, self.raw_dt)["frame"]))
+
+    def _count_frame(self, fr: int) -> None:
+        """Count a raw inputs frame, and the frame numbers missing before it."""
+        if self.last_frame >= 0 and fr > self.last_frame + 1:
+            self.rep.frame_gaps += fr - self.last_frame - 1
+        self.last_frame = fr
+        self.rep.frames += 1
+
+    def attachment(self, rec) -> None:
+        self.w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data)
+        self.rep.attachments += 1
+
+    def metadata(self, rec) -> None:
+        self.w.add_metadata(rec.name, rec.metadata)
+        self.rep.metadata += 1
+
+    def footer(self, rec) -> None:
+        self.rep.had_footer = True
+
+    def take(self, rec) -> None:
+        """Rewrite one record (a record of a kind not listed is skipped)."""
+        from mcap.records import Attachment, Channel, Footer, Header, Message, Metadata, Schema
+        if isinstance(rec, Header):
+            self.header(rec)
+            return
+        self.start()
+        handlers = ((Schema, self.schema), (Channel, self.channel), (Message, self.message),
+                    (Attachment, self.attachment), (Metadata, self.metadata), (Footer, self.footer))
+        for kind, handle in handlers:
+            if isinstance(rec, kind):
+                handle(rec)
+                return
+
+    def finish(self, src: Path) -> None:
+        """Close the output: the per-topic counts, and a ``pfma.recovered`` metadata record."""
+        self.start()
+        rep = self.rep
+        rep.topic_counts = dict(self.counts)
+        self.w.add_metadata("pfma.recovered", {"source": str(src), "messages": str(rep.messages),
+                                               "had_footer": str(rep.had_footer),
+                                               "stopped_by": rep.stopped_by})
+        rep.metadata += 1
+        self.w.finish()
+
+
 def recover(src: str | Path, dst: str | Path | None = None, *,
             compression: CompressionType = CompressionType.ZSTD) -> RecoverReport:
     """Rewrite what is readable of ``src`` (e.g. a recorder killed mid-file) as a whole MCAP.
 
     :param dst: output path (default ``<src stem>-recovered.mcap``)
     """
-    from mcap.records import Attachment, Channel, Footer, Header, Message, Metadata, Schema
     src = Path(src)
     dst = Path(dst) if dst is not None else src.with_name(src.stem + "-recovered.mcap")
     if dst.resolve() == src.resolve():
         raise ValueError("recover: the output must differ from the input")
     rep = RecoverReport(str(src), str(dst))
-    schemas: dict[int, Any] = {}
-    sid_map: dict[int, int] = {}
-    cid_map: dict[int, int] = {}
-    topic_of: dict[int, str] = {}
-    counts: dict[str, int] = defaultdict(int)
-    last_frame = -1
-    raw_dt = None
-    raw_schema_d = None
     with open(dst, "wb") as out:
         w = Writer(out, compression=compression, chunk_size=CHUNK_SIZE)
         spool = spool_chunk_indexes(w, dst.resolve().parent)  # an hour's recording: ~29,000 chunks
-        started = False
+        rw = _Rewrite(w, rep)
         for rec, reason in iter_records_tolerant(src):
             if rec is None:
                 rep.stopped_by = reason
                 break
-            if isinstance(rec, Header):
-                w.start(profile=rec.profile, library=rec.library)
-                started = True
-                continue
-            if not started:
-                w.start(profile=PROFILE, library=LIBRARY)
-                started = True
-            if isinstance(rec, Schema):
-                if rec.id not in sid_map:
-                    schemas[rec.id] = rec
-                    sid_map[rec.id] = w.register_schema(rec.name, rec.encoding, rec.data)
-                    rep.schemas += 1
-            elif isinstance(rec, Channel):
-                if rec.id not in cid_map:
-                    cid_map[rec.id] = w.register_channel(rec.topic, rec.message_encoding,
-                                                         sid_map.get(rec.schema_id, 0), rec.metadata)
-                    topic_of[rec.id] = rec.topic
-                    rep.channels += 1
-                    if rec.topic == RAW_TOPIC and rec.schema_id in schemas:
-                        raw_schema_d = json.loads(schemas[rec.schema_id].data)
-                        raw_dt = raw_dtype(raw_schema_d)
-            elif isinstance(rec, Message):
-                if rec.channel_id not in cid_map:
-                    continue
-                w.add_message(cid_map[rec.channel_id], rec.log_time, rec.data, rec.publish_time,
-                              rec.sequence)
-                rep.messages += 1
-                topic = topic_of[rec.channel_id]
-                counts[topic] += 1
-                if topic == RAW_TOPIC and raw_dt is not None:
-                    fr = int(decode_raw(raw_schema_d, rec.data, raw_dt)["frame"])
-                    if last_frame >= 0 and fr > last_frame + 1:
-                        rep.frame_gaps += fr - last_frame - 1
-                    last_frame = fr
-                    rep.frames += 1
-            elif isinstance(rec, Attachment):
-                w.add_attachment(rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data)
-                rep.attachments += 1
-            elif isinstance(rec, Metadata):
-                w.add_metadata(rec.name, rec.metadata)
-                rep.metadata += 1
-            elif isinstance(rec, Footer):
-                rep.had_footer = True
-        if not started:
-            w.start(profile=PROFILE, library=LIBRARY)
-        rep.topic_counts = dict(counts)
-        w.add_metadata("pfma.recovered", {"source": str(src), "messages": str(rep.messages),
-                                          "had_footer": str(rep.had_footer),
-                                          "stopped_by": rep.stopped_by})
-        rep.metadata += 1
-        w.finish()
+            rw.take(rec)
+        rw.finish(src)
         if spool is not None:
             spool.close()
     return rep
