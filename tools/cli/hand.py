@@ -35,14 +35,11 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import replace
-import math
 import sys
 
 from pfma.clock import MonotonicClock
 from tools.cli.args import positive_float, positive_int
-
-POLL_S = 0.02  # the drivers are polled at the CRL frame rate (50 Hz)
+from tools.hand import SOURCES, hold_stick, parse_deflection, state_lines
 
 
 def add_parser(sub):
@@ -71,34 +68,8 @@ def add_parser(sub):
     return p
 
 
-def parse_deflection(text: str) -> list[float]:
-    """``x=0.4,z=-0.2`` -> the six CAE axis voltages (``CAE_AXES`` order, +-10 V full).
-
-    :raises ValueError: a name not in AXES (the closest named), a value not a number in -1..1
-    """
-    from drivers.crl.cae import CAE_AXES, FULL_SCALE_V
-    from drivers.crl.state import AXES
-    from pfma.errors import did_you_mean
-    frac = dict.fromkeys(AXES, 0.0)
-    for part in (p.strip() for p in text.split(",")):
-        if not part:
-            continue
-        name, eq, value = part.partition("=")
-        name = name.strip()
-        if name not in frac:
-            raise ValueError(f"no axis {name!r} (axes: {' '.join(AXES)})" + did_you_mean(name, AXES, n=1))
-        try:
-            v = float(value) if eq else float("nan")
-        except ValueError:
-            v = float("nan")
-        if not -1.0 <= v <= 1.0:
-            raise ValueError(f"{part!r}: give NAME=VALUE with VALUE in -1..1 (of full deflection)")
-        frac[name] = v
-    return [sign * frac[axis] * FULL_SCALE_V + 0.0 for _, axis, sign in CAE_AXES]  # + 0.0: no -0.0
-
-
 def _deflect(args) -> int:
-    from tools.faultctl import HAND_HOLD_MAX_S, NoEndpoint, request
+    from tools.faultctl import HAND_HOLD_MAX_S, NoEndpoint
     if args.source != "cae":
         print(f"pfma hand: --deflect holds the simulated CAE stick (--source cae), not {args.source}",
               file=sys.stderr)
@@ -112,9 +83,8 @@ def _deflect(args) -> int:
     except ValueError as err:
         print(f"pfma hand: --deflect: {err}", file=sys.stderr)
         return 2
-    req = {"op": "hand", "source": "cae", "volts": volts, "deadman": bool(args.deadman), "for_s": args.for_s}
     try:
-        reply = request(args.buffer, req)
+        reply = hold_stick(args.buffer, volts, args.deadman, args.for_s)
     except NoEndpoint:
         print(f"pfma hand: service {args.buffer} runs a real rack (or none): a stick is deflected only on the "
               f"simulated rack; on the rack, move the stick by hand", file=sys.stderr)
@@ -127,154 +97,6 @@ def _deflect(args) -> int:
     else:
         print(f"pfma hand: {reply['text']} (then centred, deadman up)")
     return 0
-
-
-def _wave(t_s: float, k: int, amp: float = 0.6) -> float:
-    return amp * math.sin(2 * math.pi * t_s / (4.0 + 1.3 * k))
-
-
-class _Source:
-    """poll() -> state; extra() -> text after the state; close()."""
-
-    header = ""
-
-    def poll(self):
-        raise NotImplementedError
-
-    def extra(self) -> str:
-        return ""
-
-    def close(self) -> None:
-        pass
-
-
-class _Cae(_Source):
-    def __init__(self, args, clock) -> None:
-        from drivers.adc import Dvme611
-        from drivers.crl.cae import CAE_AXES, CAE_DISCRETES, CaeHandController
-        from pfma.rack import load_rack
-
-        rack = load_rack(args.rack)
-        board = rack.board(rack.channel("cae_up_down").board)
-        port = args.bus or "fake"
-        self.fake_adc = None
-        if port in ("fake", "fake://"):
-            from fakes.rack import FakeRack
-
-            self.bus = FakeRack.from_config(rack)
-            self.fake_adc = self.bus[board.name]
-            self.header = f"CAE on a fake rack: {board.name} @0x{board.base:04X}, simulated stick"
-        else:
-            from tools.cli.reg import open_cli_bus
-
-            self.bus = open_cli_bus(port, rack)
-            self.header = f"CAE on {port}: {board.name} @0x{board.base:04X}"
-        self.adc = Dvme611(self.bus, board.base, name=board.name)
-        self.cae = CaeHandController(rack=rack, clock=clock)
-        self.axis_channels = [rack.channel(s).channel for s, _, _ in CAE_AXES]
-        self.deadman_channel = rack.channel(CAE_DISCRETES[0][0]).channel
-        self.clock, self.t0 = clock, clock.now()
-
-    def poll(self):
-        if self.fake_adc is not None:
-            t = self.clock.now() - self.t0
-            for k, ch in enumerate(self.axis_channels):
-                self.fake_adc.set_input_volts(ch, 10.0 * _wave(t, k))
-            self.fake_adc.set_input_volts(self.deadman_channel, 5.0 if t > 0.5 else 0.0)
-        return self.cae.read(self.adc.read_volts)
-
-    def close(self) -> None:
-        from tools.cli.reg import close_bus
-
-        close_bus(self.bus)
-
-
-class _Crl(_Source):
-    def __init__(self, args, clock) -> None:
-        from drivers.crl import CrlHandController
-
-        port = args.bus or "fake"
-        self.fake = self.pty = None
-        self.clock, self.t0 = clock, clock.now()
-        if port == "fake":
-            from fakes.crl import FakeCrlMaster, gentle_axes
-            from fakes.pty import PtyDevice
-
-            self.fake = FakeCrlMaster(axes_fn=gentle_axes)
-            self.pty = PtyDevice(self.fake).start()
-            port = self.pty.port_name
-            self.header = f"CRL: fake master on pty {port} (placeholder framing), spring force sent back"
-        else:
-            self.header = f"CRL on {port} (placeholder framing), zero force frames sent"
-        self.drv = CrlHandController.open(port, clock)
-
-    def poll(self):
-        if self.fake is not None:
-            self.fake.deadman = self.clock.now() - self.t0 > 0.5
-        st = self.drv.update()
-        if self.fake is not None:  # a soft spring towards the centre, only on the fake
-            self.drv.send_force(tuple(-20.0 * a for a in st.axes[:3]), tuple(-1.0 * a for a in st.axes[3:]))
-        else:
-            self.drv.send_force((0.0,) * 3, (0.0,) * 3, enable=False)
-        return st
-
-    def extra(self) -> str:
-        s = self.drv.link_stats()
-        txt = f" | ok {s['frames_ok']} bad {s['frames_bad']} lost {s['frames_lost']} trips {s['watchdog_trips']}"
-        if self.fake is not None:
-            f = self.fake.displayed_force_n
-            txt += f" | display F=({f[0]:+5.1f},{f[1]:+5.1f},{f[2]:+5.1f}) N"
-        return txt
-
-    def close(self) -> None:
-        self.drv.close()
-        if self.pty is not None:
-            self.pty.stop()
-
-
-class _Hid(_Source):
-    def __init__(self, args, clock) -> None:
-        from drivers.crl import HidSpaceMouse
-
-        port = args.bus or "auto"
-        self.fake = None
-        self.clock, self.t0 = clock, clock.now()
-        if port == "auto":
-            try:
-                self.sm = HidSpaceMouse(clock=clock)
-                found = self.sm.enumerate()
-            except (ImportError, OSError) as err:
-                print(f"pfma hand: hidapi unavailable ({err})", file=sys.stderr)
-                found = []
-            if found:
-                self.header = f"SpaceMouse {found[0].get('product_string') or ''} at {found[0].get('path')!r}"
-                return
-            print("pfma hand: no SpaceMouse found; using a FAKE device (fakes.hid.FakeHidDevice)",
-                  file=sys.stderr)
-            port = "fake"
-        if port == "fake":
-            from fakes.hid import FakeHidDevice
-
-            self.fake = FakeHidDevice()
-            self.sm = HidSpaceMouse(opener=self.fake, clock=clock)
-            self.header = "SpaceMouse: FAKE device (no hardware), simulated puck"
-        else:
-            self.sm = HidSpaceMouse(path=port, clock=clock)
-            self.header = f"SpaceMouse at {port}"
-
-    def poll(self):
-        if self.fake is not None:
-            t = self.clock.now() - self.t0
-            w = [int(350 * _wave(t, k)) for k in range(6)]
-            self.fake.set_axes(w[:3], w[3:])
-            self.fake.set_buttons(1 if t > 0.5 else 0)
-        return self.sm.update()
-
-    def close(self) -> None:
-        self.sm.close()
-
-
-SOURCES = {"cae": _Cae, "crl": _Crl, "hid": _Hid}
 
 
 def run(args) -> int:
@@ -294,33 +116,16 @@ def run(args) -> int:
         print("pfma hand: --port is deprecated; use --bus (same meaning)", file=sys.stderr)
         args.bus = args.port_alias
     clock = MonotonicClock()
-    source = SOURCES[args.source](args, clock)
+    source = SOURCES[args.source](args.bus, args.rack, clock)
+    for note in source.notes:
+        print(f"pfma hand: {note}", file=sys.stderr)
     try:
         if not args.json:
             print(f"# {source.header}")
-        t0 = clock.now()
-        next_poll = next_print = t0
-        lines = 0
-        while True:
-            now = clock.now()
-            if args.duration is not None and now - t0 >= args.duration:
-                break
-            state = source.poll()
-            if now >= next_print:
-                # shown as seconds since this command started (the driver stamps its clock's
-                # time: on the host's monotonic clock that is the machine's uptime)
-                state = replace(state, t_s=state.t_s - t0)
-                if args.json:
-                    print(json.dumps(state.as_dict()))
-                else:
-                    print(state.format() + source.extra())
-                sys.stdout.flush()
-                lines += 1
-                next_print += 1.0 / args.rate_hz
-                if args.count is not None and lines >= args.count:
-                    break
-            next_poll += POLL_S
-            clock.sleep_until(next_poll)
+        for line in state_lines(source, clock, count=args.count, duration=args.duration, rate_hz=args.rate_hz,
+                                as_json=args.json):
+            print(line)
+            sys.stdout.flush()
     finally:
         source.close()
     return 0

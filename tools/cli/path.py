@@ -25,6 +25,8 @@ import argparse
 import json
 import sys
 
+from tools.paths import apply_edits, new_points, plan_line
+
 
 def add_parser(sub):
     p = sub.add_parser("path", help="list, show, edit and delete recorded paths",
@@ -81,51 +83,11 @@ class _GripperAfterPoints(argparse.Action):
         setattr(namespace, self.dest, events)
 
 
-def gripper_event(text: str, what: str = "--gripper") -> tuple[str, float | None]:
-    """``ACTION[:N]`` -> (action, grip force or None); a PathError names what is wrong."""
-    from controller.paths import PathError
-    from controller.paths.model import PATH_GRIPPER_ACTIONS
-    action, _, force = text.partition(":")
-    if action not in PATH_GRIPPER_ACTIONS:
-        raise PathError(f"{what}: {text!r}: the action is one of {', '.join(PATH_GRIPPER_ACTIONS)} "
-                        f"(then :N for a grip force in N)")
-    if not force:
-        return action, None
-    try:
-        return action, float(force)
-    except ValueError:
-        raise PathError(f"{what}: {text!r}: the grip force {force!r} is not a number (N)") from None
-
-
-def _floats(text: str, n: tuple[int, ...], what: str) -> list[float]:
-    from controller.paths import PathError
-    try:
-        vals = [float(x) for x in text.split(",")]
-    except ValueError:
-        raise PathError(f"{what}: {text!r} is not a comma-separated list of numbers") from None
-    if len(vals) not in n:
-        raise PathError(f"{what}: {text!r} needs {' or '.join(map(str, n))} numbers")
-    return vals
-
-
-def _ints(text: str, what: str) -> list[int]:
-    from controller.paths import PathError
-    try:
-        return [int(x) for x in text.split(",")]
-    except ValueError:
-        raise PathError(f"{what}: {text!r} is not a comma-separated list of point numbers") from None
-
-
 def _edit(store, args) -> int:
-    """``pfma path edit``: the changes in the order delete, insert, move, speed, limits,
-    gripper, note, saved as one new revision; then the rename."""
+    """``pfma path edit``: the changes (:func:`tools.paths.apply_edits`) saved as one new
+    revision; then the rename."""
     orig = store.load(args.name)
-    p = _edit_points(orig, args)
-    p = _edit_speeds(p, args)
-    p = _edit_grippers(p, args)
-    if args.note is not None:
-        from dataclasses import replace
-        p = replace(p, note=args.note)
+    p = apply_edits(orig, args)
     if p == orig and not args.rename:
         print("nothing to change (see pfma path edit --help)", file=sys.stderr)
         return 2
@@ -136,51 +98,6 @@ def _edit(store, args) -> int:
         p = store.rename(p.name, args.rename)
         print(f"path {args.name} renamed {p.name} (id {p.id}, revision {p.revision})")
     return 0
-
-
-def _edit_points(p, args):
-    """``--delete``, ``--insert`` and ``--move`` (with ``--pos``, ``--offset``, ``--quat``)."""
-    from controller.paths import PathError, delete_points, insert_point, move_point
-    keep = args.quat == "keep"
-    quat = _floats(args.quat, (4,), "--quat") if args.quat and not keep else None
-    if args.delete:
-        p = delete_points(p, _ints(args.delete, "--delete"))
-    if args.insert is not None:
-        if not args.pos:
-            raise PathError("--insert needs --pos")
-        p = insert_point(p, args.insert, _floats(args.pos, (3,), "--pos"), quat)
-    if args.move is not None:
-        if not (args.pos or args.offset or args.quat):
-            raise PathError("--move needs --pos, --offset or --quat")
-        p = move_point(p, args.move, _floats(args.pos, (3,), "--pos") if args.pos else None, quat,
-                       _floats(args.offset, (3,), "--offset") if args.offset else None, keep_orientation=keep)
-    return p
-
-
-def _edit_speeds(p, args):
-    """``--speed`` (with ``--v-lin``, ``--v-rot`` or ``--clear``) and ``--limits``."""
-    from controller.paths import PathError, set_limits, set_speed
-    from controller.trajectory import Limits
-    if args.speed:
-        idx = None if args.speed == "all" else _ints(args.speed, "--speed")
-        if not args.clear and args.v_lin is None and args.v_rot is None:
-            raise PathError("--speed needs --v-lin and/or --v-rot (or --clear)")
-        p = set_speed(p, idx, args.v_lin, args.v_rot, clear=args.clear)
-    if args.limits:
-        p = set_limits(p, **dict(zip(Limits._fields, _floats(args.limits, (4,), "--limits"))))
-    return p
-
-
-def _edit_grippers(p, args):
-    """Each ``--gripper I ACTION[:N]``, in the order given."""
-    from controller.paths import PathError, insert_gripper
-    for index, text in args.gripper:
-        try:
-            i = int(index)
-        except ValueError:
-            raise PathError(f"--gripper: {index!r} is not a point number") from None
-        p = insert_gripper(p, i, *gripper_event(text))
-    return p
 
 
 def _list(store, args) -> int:
@@ -199,44 +116,19 @@ def _list(store, args) -> int:
 
 def _show(store, args) -> int:
     """``pfma path show``: point by point (``--plan``: and the playback plan), or ``--json``."""
-    from controller.paths import plan_duration_s, plan_path
     p = store.load(args.name)
     if args.json:
         print(json.dumps(p.to_json(), indent=1))
         return 0
     print(p.describe())
     if args.plan and p.points:
-        plan = plan_path(p)
-        keep = " with the orientation of the first point that has one" if any(
-            x.quat is None for x in p.points) else ""
-        print(f"  playback plan: {len(plan)} segments to key points "
-              f"{', '.join(str(s.index) for s in plan)}; {plan_duration_s(p):.2f} s at the limits "
-              f"(from point 0{keep}, without the approach)")
+        print(plan_line(p))
     return 0
-
-
-def _new_points(args) -> list:
-    """The points of ``pfma path new``: each ``--point``, and each ``--gripper`` event at its
-    place among them with the pose of the point before it."""
-    from controller.paths import PathError, make_point
-    pts = []
-    for i, text in enumerate(args.point):
-        v = _floats(text, (3, 7), f"--point {i}")
-        pts.append(make_point(v[:3], v[3:] if len(v) == 7 else None, "teach", where=f"--point {i}"))
-    for k, (after, text) in enumerate(args.gripper):  # in the order given; k events inserted before
-        if not pts:
-            raise PathError("--gripper: a gripper event needs a --point to take its pose from")
-        action, force = gripper_event(text)
-        at = after + k
-        ref = pts[at - 1] if at > 0 else pts[0]  # the point before it (the first, for an event before any)
-        pts.insert(at, make_point(ref.pos_m, ref.quat, "gripper", where=f"--gripper {text}",
-                                  gripper=action, force_n=force))
-    return pts
 
 
 def _new(store, args) -> int:
     """``pfma path new``: a new path from points."""
-    p = store.new(args.name, _new_points(args), note=args.note)
+    p = store.new(args.name, new_points(args.point, args.gripper), note=args.note)
     print(f"path {p.name}: id {p.id}, {len(p.points)} points, {store.file(p.name)}")
     return 0
 

@@ -18,7 +18,7 @@ from sim.rig import SimRig
 from tests.tools.cli.test_fault_cli import while_stepping
 from tools.cli import main
 from tools.cli.fault import MSG_HAND, install_serve_faults
-from tools.cli.hand import parse_deflection
+from tools.hand import parse_deflection
 
 CAE = HAND_CONTROLLERS.index("cae")
 

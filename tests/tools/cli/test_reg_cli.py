@@ -235,7 +235,7 @@ def test_help_says_the_fake_rack_starts_fresh(capsys):
 def test_interactive_tools_wait_longer_than_one_frame_for_a_gateway_unless_the_url_says():
     from drivers.bus.modbus import DEFAULT_TIMEOUT_S
     from pfma.rack import load_rack
-    from tools.cli.reg import INTERACTIVE_MODBUS_TIMEOUT_S, open_cli_bus
+    from tools.regs import INTERACTIVE_MODBUS_TIMEOUT_S, open_cli_bus
     rack = load_rack()
     assert open_cli_bus("modbus://127.0.0.1:9", rack).timeout == INTERACTIVE_MODBUS_TIMEOUT_S > DEFAULT_TIMEOUT_S
     assert open_cli_bus("modbus://127.0.0.1:9?timeout=0.01", rack).timeout == 0.01
