@@ -40,6 +40,7 @@ import sys
 from pfma.clock import MonotonicClock
 from tools.cli.args import positive_float, positive_int
 from tools.hand import SOURCES, hold_stick, parse_deflection, state_lines
+from tools.regs import UsageError
 
 
 def add_parser(sub):
@@ -116,7 +117,11 @@ def run(args) -> int:
         print("pfma hand: --port is deprecated; use --bus (same meaning)", file=sys.stderr)
         args.bus = args.port_alias
     clock = MonotonicClock()
-    source = SOURCES[args.source](args.bus, args.rack, clock)
+    try:
+        source = SOURCES[args.source](args.bus, args.rack, clock)
+    except UsageError as err:  # a bus URL of the wrong shape: one line, nothing opened
+        print(f"pfma hand: {err}", file=sys.stderr)
+        return 2
     for note in source.notes:
         print(f"pfma hand: {note}", file=sys.stderr)
     try:

@@ -149,6 +149,7 @@ ROWS = [
           (("serve", "--watchdog-ms", "-3"), "--watchdog-ms", "greater than 0"),
           (("serve", "--max-input-age", "0"), "--max-input-age", "1 or more"),
           (("hand", "--source", "cae", "--count", "-1"), "--count", "1 or more"),
+          (("hand", "--source", "cae", "--bus", "modbus://"), "--bus modbus://", "needs a host and a port"),
           (("controller", "--sim", "--speed", "0"), "--speed", "greater than 0"),
           (("controller", "--sim", "--delay", "-1"), "--delay", "not be negative"),
           (("controller", "--sim", "--duration", "nan"), "--duration", "not a finite number"),
