@@ -29,6 +29,7 @@ from controller.trajectory import TrajectoryLayer
 from drivers.pio.registers import decode_matrix_route
 from controller.routes import MONITORS, camera_name, route_text
 from pfma.show import flag_names, name_of, named, wrap_angle
+from tools.wmview import GRIPPER_VARS  # the gripper's world-model variables (controller/gripper.py)
 
 #: the seven IRSS layers, highest first: (world-model key, the report's title)
 _LAYER_CLASSES = (UpDownLayer, MultiSegmentLayer, TrajectoryLayer, CartesianLayer, JointPlannerLayer, ServoLayer,
@@ -276,10 +277,6 @@ def first_cause_lines(r: Reading) -> list[str]:
         if text:
             out.append(f"controller first cause: {text}")
     return out
-
-
-#: the gripper's world-model variables the console reads (controller/gripper.py)
-GRIPPER_VARS = ("gripper.state", "gripper.force_n", "gripper.motor_force_n", "gripper.jaw_m", "gripper.jaw_known")
 
 
 def gripper_status_line(r: Reading) -> str:
