@@ -50,16 +50,15 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from controller.decision import Status, TaskState
-from controller.delay import SyntheticDelay
+from controller.delay import DELAY, SyntheticDelay
 from controller.force import (
-    DEFAULT_DAMPING, DEFAULT_MASS, DEFAULT_STIFFNESS, STATE_NAMES, ForceControl, ImpedanceParams,
-    ToolLoad,
+    FORCE, STATE_NAMES, ForceControl, ImpedanceParams, ToolLoad,
 )
 from controller.layers import JOINT, Layer
 from controller.messages import Level
 from controller.quat import q_conj, q_from_rotvec, q_mul, q_normalize, q_to_matrix, q_to_rotvec
 from controller.teleop import (
-    COARSE_LIN_M_S, COARSE_ROT_RAD_S, FRAME_NAMES, FRAME_TOOL, HC_CRL, HC_SOURCE_NAMES, HC_SOURCES, HcSample, Telemetry, hc_twist, reflect,
+    TELEOP, COARSE_LIN_M_S, COARSE_ROT_RAD_S, FRAME_NAMES, FRAME_TOOL, HC_CRL, HC_SOURCE_NAMES, HC_SOURCES, HcSample, Telemetry, hc_twist, reflect,
 )
 from controller.worldmodel import VarSpec
 from controller.variables import DAQ
@@ -166,24 +165,8 @@ class CartesianLayer(Layer):
                     doc="rate at full deflection, roll pitch yaw (then limited to 0.25 rad/s coarse, 0.05 vernier)"),
             VarSpec("cart.vernier", "command_input", "b1", (), u, False,
                     doc="vernier rates (x0.2, limits 0.03 m/s 0.05 rad/s; pfma-model 8.2)"),
-            VarSpec("force.enable", "command_input", "b1", (), u, False,
-                    doc="impedance control on (zeroes the F/T sensor first)"),
-            VarSpec("force.zero_seq", "command_input", "i4", (), u, 0,
-                    doc="increment to zero the F/T sensor (only while impedance is off; no contact!)"),
-            VarSpec("force.frame", "command_input", "i2", (), u, 0, doc="impedance axes: world or tool frame",
-                    enum=FRAME_NAMES),
-            VarSpec("force.mass", "command_input", "f8", (6,), u, list(DEFAULT_MASS), "kg|kg*m^2",
-                    doc="impedance mass per axis x y z roll pitch yaw"),
-            VarSpec("force.damping", "command_input", "f8", (6,), u, list(DEFAULT_DAMPING), "N*s/m|N*m*s/rad",
-                    doc="impedance damping per axis"),
-            VarSpec("force.stiffness", "command_input", "f8", (6,), u, list(DEFAULT_STIFFNESS), "N/m|N*m/rad",
-                    doc="impedance stiffness per axis (0: pure damping)"),
-            VarSpec("force.wrench_des", "command_input", "f8", (6,), u, [0.0] * 6, "N|N*m",
-                    doc="desired contact wrench on the tool point, world (or tool) frame"),
-            VarSpec("delay.round_trip_s", "command_input", "f8", (), u, 0.0, "s",
-                    doc="synthetic round-trip delay, split equally up/down (0..8 s)"),
-            VarSpec("delay.jitter", "command_input", "f8", (), u, 0.0, "1",
-                    doc="synthetic delay jitter fraction per packet (0 or 0.1; order preserved)"),
+            *(v.spec for v in FORCE.all() if v.writer == "user"),
+            *DELAY.specs(),
             # outputs to the Joint Planner
             VarSpec("cart.pos_cmd_m", "task_io", "f8", (3,), w, [0.0] * 3, "m", doc="commanded tool point, world"),
             VarSpec("cart.quat_cmd", "task_io", "f8", (4,), w, [1.0, 0.0, 0.0, 0.0], "1",
@@ -197,24 +180,8 @@ class CartesianLayer(Layer):
                     doc="reference orientation before the force offset"),
             VarSpec("cart.hc_active", "task_status", "b1", (), w, False,
                     doc="the (delayed) hand controller moves the reference (deadman held)"),
-            VarSpec("force.state", "task_status", "i2", (), w, 0, doc="force control state", enum=STATE_NAMES),
-            VarSpec("force.offset", "task_status", "f8", (6,), w, [0.0] * 6, "m|rad",
-                    doc="compliant offset (world dp, rotation vector)"),
-            VarSpec("force.wrench_n", "task_io", "f8", (6,), w, [0.0] * 6, "N|N*m",
-                    doc="processed tool-point wrench, world (bias, gravity, 10 Hz, deadband)"),
-            VarSpec("force.bias", "task_status", "f8", (6,), w, [0.0] * 6, "N|N*m", doc="F/T bias (sensor axes)"),
-            VarSpec("teleop.reflect_force_n", "task_io", "f8", (3,), w, [0.0] * 3, "N",
-                    doc="force to display on the CRL (hand-controller frame; not yet routed to the Bit3 area)"),
-            VarSpec("teleop.reflect_torque_nm", "task_io", "f8", (3,), w, [0.0] * 3, "N*m",
-                    doc="torque to display on the CRL"),
-            VarSpec("teleop.reflect_enabled", "task_io", "b1", (), w, False,
-                    doc="force reflection on (CRL in use, deadman, round trip <= 0.5 s)"),
-            VarSpec("teleop.seen_pos_m", "task_io", "f8", (3,), w, [0.0] * 3, "m",
-                    doc="tool position as the operator sees it (after the downlink delay)"),
-            VarSpec("teleop.seen_quat", "task_io", "f8", (4,), w, [1.0, 0.0, 0.0, 0.0], "1",
-                    doc="tool orientation as the operator sees it"),
-            VarSpec("teleop.seen_force_n", "task_io", "f8", (3,), w, [0.0] * 3, "N",
-                    doc="tool-point force as the operator sees it"),
+            *(v.spec for v in FORCE.all() if v.writer != "user"),
+            *TELEOP.specs(),
         ]
 
     def _check_model(self, rt: "LayerContext") -> dict[str, bool]:
@@ -237,7 +204,7 @@ class CartesianLayer(Layer):
             self.force = ForceControl(rt.task_period_s("cartesian_fast"), self.tool_load)
         self.force.reset()
         self.delay.reset()
-        v = rt.wm.get_task_inputs((DAQ.joint_angle_rad, "cart.mode", "force.zero_seq"))
+        v = rt.wm.get_task_inputs((DAQ.joint_angle_rad, "cart.mode", FORCE.zero_seq))
         # the index the Joint Planner's kinematics took at its initialisation (before this start-up)
         self.shoulder_roll_rad = float(rt.wm.get(ROLL_VAR)) if self._check_model(rt)["roll"] else 0.0
         from controller.kinematics import fk
@@ -245,7 +212,7 @@ class CartesianLayer(Layer):
         self.meas_pos, self.meas_quat = np.asarray(p, float), q_normalize(q)
         self.hold_pos, self.hold_quat = self.meas_pos.copy(), self.meas_quat.copy()
         self.mode = int(v["cart.mode"]) if int(v["cart.mode"]) in MODE_NAMES else MODE_HOLD
-        self._zero_seq = int(v["force.zero_seq"])
+        self._zero_seq = int(v[FORCE.zero_seq])
         if self._check_model(rt)["jmove"]:
             self._jmove_seen = int(rt.wm.get_task_inputs((JOINT.jmove_done_seq,))[JOINT.jmove_done_seq])
         self.valid = True
@@ -258,10 +225,10 @@ class CartesianLayer(Layer):
         self.valid = False
         if self.force is not None:
             self.force.reset()
-        rt.wm.post_task_outputs(self.key, {"cart.cmd_valid": False, "force.state": 0, "cart.hc_active": False,
-                                           "teleop.reflect_enabled": False,
-                                           "teleop.reflect_force_n": np.zeros(3),
-                                           "teleop.reflect_torque_nm": np.zeros(3)})
+        rt.wm.post_task_outputs(self.key, {"cart.cmd_valid": False, FORCE.state: 0, "cart.hc_active": False,
+                                           TELEOP.reflect_enabled: False,
+                                           TELEOP.reflect_force_n: np.zeros(3),
+                                           TELEOP.reflect_torque_nm: np.zeros(3)})
         return TaskState.DONE
 
     @staticmethod
@@ -315,7 +282,7 @@ class CartesianLayer(Layer):
         have = self._check_model(rt)
         names = ["cart.mode", "cart.hc_source", "cart.hc_frame", "cart.hc_gain_lin_m_s", "cart.hc_gain_rot_rad_s",
                  "cart.vernier", DAQ.hc_axes, DAQ.hc_deadman, DAQ.joint_angle_rad,
-                 "delay.round_trip_s", "delay.jitter"]
+                 DELAY.round_trip_s, DELAY.jitter]
         names += list(TRAJ_VARS) if have["traj"] else []
         names += list(TOOL_VARS) if have["tool"] else []
         names += list(JMOVE_VARS) if have["jmove"] else []
@@ -333,14 +300,14 @@ class CartesianLayer(Layer):
     def _delay_settings(self, rt: "LayerContext", v: dict) -> None:
         """The synthetic delay's settings (``delay.round_trip_s``, ``delay.jitter``)."""
         try:
-            rtt = SyntheticDelay.check_round_trip(float(v["delay.round_trip_s"]))
+            rtt = SyntheticDelay.check_round_trip(float(v[DELAY.round_trip_s]))
         except ConfigError as err:
             rtt = self.delay.round_trip_s
             self._warn_once(rt, "rtt", f"{err}; keeping {rtt:g} s")
         if rtt != self.delay.round_trip_s:
             rt.post(self.key, Level.INFO, f"synthetic delay: round trip {self.delay.round_trip_s:g} s -> {rtt:g} s")
             self.delay.set_round_trip(rtt)
-        jit = float(v["delay.jitter"])
+        jit = float(v[DELAY.jitter])
         if 0.0 <= jit <= 0.5:
             self.delay.up.jitter = self.delay.down.jitter = jit
 
@@ -415,13 +382,13 @@ class CartesianLayer(Layer):
         seen_t = self.delay.send_down(now, tel)
         out = {"cart.hc_active": active}
         if seen_t is not None:
-            out.update({"teleop.seen_pos_m": seen_t.pos_m, "teleop.seen_quat": seen_t.quat,
-                        "teleop.seen_force_n": seen_t.force_n})
+            out.update({TELEOP.seen_pos_m: seen_t.pos_m, TELEOP.seen_quat: seen_t.quat,
+                        TELEOP.seen_force_n: seen_t.force_n})
             f, t, on = reflect(seen_t.force_n, seen_t.torque_nm, self.delay.round_trip_s,
                                src == HC_CRL and bool(dead[src]) and self.mode != MODE_HOLD)
         else:
             f, t, on = np.zeros(3), np.zeros(3), False
-        out.update({"teleop.reflect_force_n": f, "teleop.reflect_torque_nm": t, "teleop.reflect_enabled": on})
+        out.update({TELEOP.reflect_force_n: f, TELEOP.reflect_torque_nm: t, TELEOP.reflect_enabled: on})
         rt.wm.post_task_outputs(self.key, out)
 
     def _hold_joint_command(self, rt: "LayerContext", q_cmd) -> None:
@@ -452,8 +419,8 @@ class CartesianLayer(Layer):
             return
         dt = rt.task_period_s("cartesian_fast")
         have = self._check_model(rt)
-        names = [DAQ.joint_angle_rad, DAQ.ft_force_n, DAQ.ft_torque_nm, "force.enable", "force.zero_seq",
-                 "force.frame", "force.mass", "force.damping", "force.stiffness", "force.wrench_des"]
+        names = [DAQ.joint_angle_rad, DAQ.ft_force_n, DAQ.ft_torque_nm, FORCE.enable, FORCE.zero_seq,
+                 FORCE.frame, FORCE.mass, FORCE.damping, FORCE.stiffness, FORCE.wrench_des]
         names += list(TOOL_VARS) if have["tool"] else []
         v = rt.wm.get_task_inputs(names)
         self._measured(rt, v)
@@ -485,7 +452,7 @@ class CartesianLayer(Layer):
         # force control (task state transitions inside ForceControl)
         fc = self.force
         out: dict = {}
-        key = (tuple(v["force.mass"]), tuple(v["force.damping"]), tuple(v["force.stiffness"]))
+        key = (tuple(v[FORCE.mass]), tuple(v[FORCE.damping]), tuple(v[FORCE.stiffness]))
         if key != self._params_key:
             try:
                 fc.set_params(ImpedanceParams(*key))
@@ -494,8 +461,8 @@ class CartesianLayer(Layer):
             except ConfigError as err:
                 rt.post(self.key, Level.WARNING, f"impedance parameters refused, keeping the previous ones: {err}")
             self._params_key = key
-        fc.frame = int(v["force.frame"])
-        zs = int(v["force.zero_seq"])
+        fc.frame = int(v[FORCE.frame])
+        zs = int(v[FORCE.zero_seq])
         if zs != self._zero_seq:
             self._zero_seq = zs
             if not fc.request_zero(rt.now):
@@ -504,11 +471,11 @@ class CartesianLayer(Layer):
             else:
                 rt.post(self.key, Level.INFO, f"F/T zero request {zs}: OFF -> ZEROING")
         p_ref, q_ref = self.reference()
-        res = fc.step(rt.now, bool(v["force.enable"]), v[DAQ.ft_force_n], v[DAQ.ft_torque_nm],
-                      self.meas_quat, q_ref, v["force.wrench_des"])
+        res = fc.step(rt.now, bool(v[FORCE.enable]), v[DAQ.ft_force_n], v[DAQ.ft_torque_nm],
+                      self.meas_quat, q_ref, v[FORCE.wrench_des])
         for e in res.events:
             rt.post(self.key, Level.INFO, f"force control: {e}")
-            out["force.bias"] = fc.ft.bias
+            out[FORCE.bias] = fc.ft.bias
         if res.fold is not None:  # leaving impedance: keep the pose it reached
             if self.mode == MODE_TRAJECTORY:
                 self.blend = self.blend + res.fold
@@ -517,7 +484,7 @@ class CartesianLayer(Layer):
             p_ref, q_ref = self.reference()
         self.offset = res.offset_world
         self._last_wrench = res.wrench_world
-        out.update({"force.state": res.state, "force.offset": self.offset, "force.wrench_n": res.wrench_world})
+        out.update({FORCE.state: res.state, FORCE.offset: self.offset, FORCE.wrench_n: res.wrench_world})
         rt.wm.post_task_outputs(self.key, out)
         self._post_command(rt, p_ref, q_ref)
 

@@ -58,10 +58,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from controller.decision import Status, TaskState
+from controller.force import FORCE
 from controller.layers import ERROR_NAMES, Layer, bottom_table
 from controller.messages import Level
 from controller.params import GRIPPER, JOINTS, N_CURRENT_LIMITS, N_JOINTS
 from controller.servo import ERR_NO_OUTPUT, SERVO
+from controller.teleop import TELEOP
 from controller.variables import (  # noqa: F401  (the fault bits re-exported)
     DAQ, FAULT_BOARD, FAULT_COMMAND, FAULT_FT, FAULT_NAMES, FAULT_RESOLVER, FAULT_SERVICE, FAULT_STALE, FAULT_TACH,
 )
@@ -317,11 +319,11 @@ class DataAcquisitionLayer(Layer):
         variables (a bare runtime) the F/T is taken to be in use."""
         if self._force_vars is None:  # which of them this model has: looked up once, not every frame
             names = set(rt.wm.names())
-            self._force_vars = tuple(n for n in ("force.state", "teleop.reflect_enabled") if n in names)
-        if "force.state" not in self._force_vars:
+            self._force_vars = tuple(n for n in (FORCE.state, TELEOP.reflect_enabled) if n in names)
+        if FORCE.state not in self._force_vars:
             return True
         v = rt.wm.get_task_inputs(self._force_vars)
-        return int(v["force.state"]) != 0 or bool(v.get("teleop.reflect_enabled", False))
+        return int(v[FORCE.state]) != 0 or bool(v.get(TELEOP.reflect_enabled, False))
 
     def _note_stalls(self, rec) -> None:
         """Keep each host stall the service publishes (its measured length and end time; the
@@ -548,7 +550,7 @@ class DataAcquisitionLayer(Layer):
             return {}
         return {"crl_reflect_force_n": self._zero3, "crl_reflect_torque_nm": self._zero3, "crl_reflect_enable": 0}
 
-    _REFLECT = ("teleop.reflect_force_n", "teleop.reflect_torque_nm", "teleop.reflect_enabled")
+    _REFLECT = (TELEOP.reflect_force_n, TELEOP.reflect_torque_nm, TELEOP.reflect_enabled)
 
     def _reflection(self, rt: "LayerContext", status: int) -> dict:
         """CRL force reflection (the Cartesian engine's teleop output) for the command area;
@@ -559,10 +561,10 @@ class DataAcquisitionLayer(Layer):
         if not self._has_reflect:
             return {}
         v = rt.wm.get_task_inputs(self._REFLECT)
-        on = status == Status.START_UP_COMPLETE and bool(v["teleop.reflect_enabled"])
+        on = status == Status.START_UP_COMPLETE and bool(v[TELEOP.reflect_enabled])
         zero = self._zero3  # write_commands copies it into the command record
-        return {"crl_reflect_force_n": v["teleop.reflect_force_n"] if on else zero,
-                "crl_reflect_torque_nm": v["teleop.reflect_torque_nm"] if on else zero,
+        return {"crl_reflect_force_n": v[TELEOP.reflect_force_n] if on else zero,
+                "crl_reflect_torque_nm": v[TELEOP.reflect_torque_nm] if on else zero,
                 "crl_reflect_enable": int(on)}
 
     # --- sequence tasks ------------------------------------------------------------------

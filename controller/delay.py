@@ -21,6 +21,7 @@ import random
 from collections import deque
 from typing import Any, Generic, TypeVar
 
+from controller.worldmodel.var import Var, VarGroup, var
 from pfma.errors import ConfigError
 
 SOURCE = "pfma-model.md 6 and 8.10 (time-delay defaults, assumed)"
@@ -151,3 +152,15 @@ class SyntheticDelay(Generic[T]):
         self.up.clear()
         self.down.clear()
         self.up_value = self.down_value = None
+
+
+class DelayVars(VarGroup, prefix="delay", writer="user"):
+    """The synthetic delay's user controls (read by the Cartesian layer)."""
+
+    round_trip_s: Var[float] = var("command_input", "f8", (), 0.0, "s",
+                                   doc="synthetic round-trip delay, split equally up/down (0..8 s)")
+    jitter: Var[float] = var("command_input", "f8", (), 0.0, "1",
+                             doc="synthetic delay jitter fraction per packet (0 or 0.1; order preserved)")
+
+
+DELAY = DelayVars

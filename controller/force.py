@@ -49,6 +49,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controller.quat import q_to_matrix
+from controller.teleop import FRAME_NAMES
+from controller.worldmodel.var import Var, VarGroup, var
 from pfma.errors import ConfigError
 
 SOURCE = "pfma-model.md 5, 8.1, 8.7, 8.9 (assumed)"
@@ -317,3 +319,32 @@ class ForceControl:
             off = self.adm.step(w, self.period_s, wrench_des)
         self._offset_world = off
         return ForceStep(self.state, off.copy(), w, None, ev)
+
+
+class ForceVars(VarGroup, prefix="force", writer="cartesian"):
+    """Force control's world-model variables: the user's impedance controls and the
+    Cartesian layer's force state (controller/cartesian.py)."""
+
+    enable: Var[bool] = var("command_input", "b1", (), False, writer="user",
+                            doc="impedance control on (zeroes the F/T sensor first)")
+    zero_seq: Var[int] = var("command_input", "i4", (), 0, writer="user",
+                             doc="increment to zero the F/T sensor (only while impedance is off; no contact!)")
+    frame: Var[int] = var("command_input", "i2", (), 0, writer="user", doc="impedance axes: world or tool frame",
+                          enum=FRAME_NAMES)
+    mass: Var[np.ndarray] = var("command_input", "f8", (6,), list(DEFAULT_MASS), "kg|kg*m^2", writer="user",
+                                doc="impedance mass per axis x y z roll pitch yaw")
+    damping: Var[np.ndarray] = var("command_input", "f8", (6,), list(DEFAULT_DAMPING), "N*s/m|N*m*s/rad",
+                                   writer="user", doc="impedance damping per axis")
+    stiffness: Var[np.ndarray] = var("command_input", "f8", (6,), list(DEFAULT_STIFFNESS), "N/m|N*m/rad",
+                                     writer="user", doc="impedance stiffness per axis (0: pure damping)")
+    wrench_des: Var[np.ndarray] = var("command_input", "f8", (6,), [0.0] * 6, "N|N*m", writer="user",
+                                      doc="desired contact wrench on the tool point, world (or tool) frame")
+    state: Var[int] = var("task_status", "i2", (), 0, doc="force control state", enum=STATE_NAMES)
+    offset: Var[np.ndarray] = var("task_status", "f8", (6,), [0.0] * 6, "m|rad",
+                                  doc="compliant offset (world dp, rotation vector)")
+    wrench_n: Var[np.ndarray] = var("task_io", "f8", (6,), [0.0] * 6, "N|N*m",
+                                    doc="processed tool-point wrench, world (bias, gravity, 10 Hz, deadband)")
+    bias: Var[np.ndarray] = var("task_status", "f8", (6,), [0.0] * 6, "N|N*m", doc="F/T bias (sensor axes)")
+
+
+FORCE = ForceVars

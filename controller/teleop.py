@@ -30,6 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controller.worldmodel.var import Var, VarGroup, var
+
 SOURCE = "pfma-model.md 8.2, 8.5, 8.6 (assumed)"
 #: hand-controller sources, the rows of daq.hc_axes (bit3.layout.HAND_CONTROLLERS)
 HC_SOURCES: tuple[str, ...] = ("cae", "crl", "hid")
@@ -113,3 +115,25 @@ def reflect(force_world_n, torque_world_nm, round_trip_s: float, active: bool,
     f = _clip_norm(gain * np.asarray(force_world_n, dtype=float), REFLECT_FORCE_LIMIT_N)
     t = _clip_norm(gain * np.asarray(torque_world_nm, dtype=float), REFLECT_TORQUE_LIMIT_NM)
     return f, t, True
+
+
+class TeleopVars(VarGroup, prefix="teleop", writer="cartesian"):
+    """Teleoperation's world-model variables, written by the Cartesian layer: force
+    reflection to the CRL and the tool as the operator sees it (after the downlink delay)."""
+
+    reflect_force_n: Var[np.ndarray] = var(
+        "task_io", "f8", (3,), [0.0] * 3, "N",
+        doc="force to display on the CRL (hand-controller frame; not yet routed to the Bit3 area)")
+    reflect_torque_nm: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0] * 3, "N*m",
+                                             doc="torque to display on the CRL")
+    reflect_enabled: Var[bool] = var("task_io", "b1", (), False,
+                                     doc="force reflection on (CRL in use, deadman, round trip <= 0.5 s)")
+    seen_pos_m: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0] * 3, "m",
+                                      doc="tool position as the operator sees it (after the downlink delay)")
+    seen_quat: Var[np.ndarray] = var("task_io", "f8", (4,), [1.0, 0.0, 0.0, 0.0], "1",
+                                     doc="tool orientation as the operator sees it")
+    seen_force_n: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0] * 3, "N",
+                                        doc="tool-point force as the operator sees it")
+
+
+TELEOP = TeleopVars

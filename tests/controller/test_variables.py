@@ -101,3 +101,21 @@ def test_joint_planner_names_are_the_old_strings() -> None:
     assert specs["joint.shoulder_roll_deg"].initial == 45.0
     assert specs["joint.shoulder_roll_rad"].initial == pytest.approx(0.7853981633974483)
     assert specs["joint.shoulder_roll_deg"].name is JOINT.shoulder_roll_deg  # still the Var
+
+
+def test_force_delay_teleop_names_are_the_old_strings() -> None:
+    from controller.cartesian import CartesianLayer
+    from controller.delay import DELAY
+    from controller.force import FORCE
+    from controller.teleop import TELEOP
+    assert [str(v) for v in FORCE.all()] == [f"force.{n}" for n in (
+        "enable", "zero_seq", "frame", "mass", "damping", "stiffness", "wrench_des", "state", "offset", "wrench_n",
+        "bias")]
+    assert [str(v) for v in DELAY.all()] == ["delay.round_trip_s", "delay.jitter"]
+    assert [str(v) for v in TELEOP.all()] == [f"teleop.{n}" for n in (
+        "reflect_force_n", "reflect_torque_nm", "reflect_enabled", "seen_pos_m", "seen_quat", "seen_force_n")]
+    assert FORCE.enable.writer == "user" and FORCE.state.writer == "cartesian"
+    assert all(v.writer == "user" for v in DELAY.all()) and all(v.writer == "cartesian" for v in TELEOP.all())
+    specs = {s.name: s for s in CartesianLayer().specs()}
+    for v in (*FORCE.all(), *DELAY.all(), *TELEOP.all()):
+        assert specs[v].name is v  # the layer's table is made from the declarations
