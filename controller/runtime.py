@@ -89,6 +89,7 @@ from controller.paths import MultiSegmentLayer
 from controller.trajectory import TrajectoryLayer
 from controller.servo import ERR_MISSED, ERR_NO_OUTPUT, ServoLayer
 from controller.worldmodel import VarSpec, WorldModel
+from controller.worldmodel.var import Var, VarGroup, var
 from controller.variables import DAQ
 from bit3.layout import ServiceState, Severity
 
@@ -118,7 +119,7 @@ def first_cause_text(wm) -> str:
     """A world model's ``runtime.first_cause`` as text ("" without an ERROR episode, or a
     world model without the variable)."""
     try:
-        raw = wm.get("runtime.first_cause")
+        raw = wm.get(RUNTIME.first_cause)
     except Exception:  # noqa: BLE001 - an older world model, or one without the runtime's variables
         return ""
     return bytes(np.asarray(raw, dtype=np.uint8)).rstrip(b"\0").decode(errors="replace")
@@ -183,41 +184,47 @@ class FrameTiming:
         return (float(wp[0]), float(wp[1]), float(w.max()), float(kp[0]), float(kp[1]), float(k.max()))
 
 
+class RuntimeVars(VarGroup, prefix="runtime", writer="runtime"):
+    """The runtime's own world-model variables (frame timing, missed frames, halt and
+    single step, the first cause of an ERROR episode)."""
+
+    frames: Var[int] = var("task_status", "i8", (), 0, doc="controller frames run")
+    missed_frames: Var[int] = var("task_status", "i8", (), 0,
+                                  doc="service frames the controller did not run (their tasks caught up)")
+    missed_events: Var[int] = var("task_status", "i8", (), 0, doc="times one or more frames were missed")
+    longest_missed_run: Var[int] = var("task_status", "i4", (), 0, doc="most frames missed in a row")
+    missed_task_slots: Var[int] = var(
+        "task_status", "i8", (), 0,
+        doc="periodic task slots that fell in missed frames (caught up once in the next frame)")
+    overruns: Var[int] = var("task_status", "i8", (), 0, doc="frames whose work ended after the next service frame")
+    rate_hz: Var[float] = var("task_status", "f8", (), 0.0, "Hz", doc="measured controller frame rate")
+    wake_latency_us: Var[np.ndarray] = var("task_status", "f8", (3,), [0.0] * 3, "us",
+                                           doc="wake latency after the service's frame time: p50 p99 max")
+    work_us: Var[np.ndarray] = var("task_status", "f8", (3,), [0.0] * 3, "us",
+                                   doc="controller frame work (host time): p50 p99 max")
+    halted: Var[bool] = var("status_output", "b1", (), False,
+                            doc="halted (IRSS halt): no frames run, outputs held in the service's HALTED state")
+    steps_left: Var[int] = var("status_output", "i4", (), 0, doc="single-step frames still to run")
+    step_frames: Var[int] = var("status_output", "i8", (), 0, doc="frames run by single steps since the start")
+    step_trace: Var[np.ndarray] = var("response_output", "u1", (STEP_TRACE_BYTES,), [0] * STEP_TRACE_BYTES,
+                                      doc="trace of the last single-step run (UTF-8 text, zero-padded)")
+    first_cause: Var[np.ndarray] = var(
+        "error_reports", "u1", (FIRST_CAUSE_BYTES,), [0] * FIRST_CAUSE_BYTES,
+        doc="the first cause of the current ERROR episode: the root message that started it "
+            "(\"LAYER: text\", UTF-8, zero-padded; empty: no episode); kept until an ERROR RESET "
+            "completes (docs/controller.md \"First cause\")")
+    first_cause_code: Var[int] = var("error_reports", "i4", (), 0,
+                                     doc="the first cause's layer error code (0: none, or a message without a code)")
+    first_cause_frame: Var[int] = var("error_reports", "i8", (), -1,
+                                      doc="the minor frame of the first cause's message (-1: no episode)")
+
+
+RUNTIME = RuntimeVars
+
+
 def runtime_specs() -> list[VarSpec]:
-    """The runtime's own world-model variables (frame timing and missed frames)."""
-    w = "runtime"
-    return [
-        VarSpec("runtime.frames", "task_status", "i8", (), w, 0, doc="controller frames run"),
-        VarSpec("runtime.missed_frames", "task_status", "i8", (), w, 0,
-                doc="service frames the controller did not run (their tasks caught up)"),
-        VarSpec("runtime.missed_events", "task_status", "i8", (), w, 0, doc="times one or more frames were missed"),
-        VarSpec("runtime.longest_missed_run", "task_status", "i4", (), w, 0, doc="most frames missed in a row"),
-        VarSpec("runtime.missed_task_slots", "task_status", "i8", (), w, 0,
-                doc="periodic task slots that fell in missed frames (caught up once in the next frame)"),
-        VarSpec("runtime.overruns", "task_status", "i8", (), w, 0,
-                doc="frames whose work ended after the next service frame"),
-        VarSpec("runtime.rate_hz", "task_status", "f8", (), w, 0.0, "Hz", doc="measured controller frame rate"),
-        VarSpec("runtime.wake_latency_us", "task_status", "f8", (3,), w, [0.0] * 3, "us",
-                doc="wake latency after the service's frame time: p50 p99 max"),
-        VarSpec("runtime.work_us", "task_status", "f8", (3,), w, [0.0] * 3, "us",
-                doc="controller frame work (host time): p50 p99 max"),
-        VarSpec("runtime.halted", "status_output", "b1", (), w, False,
-                doc="halted (IRSS halt): no frames run, outputs held in the service's HALTED state"),
-        VarSpec("runtime.steps_left", "status_output", "i4", (), w, 0,
-                doc="single-step frames still to run"),
-        VarSpec("runtime.step_frames", "status_output", "i8", (), w, 0,
-                doc="frames run by single steps since the start"),
-        VarSpec("runtime.step_trace", "response_output", "u1", (STEP_TRACE_BYTES,), w, [0] * STEP_TRACE_BYTES,
-                doc="trace of the last single-step run (UTF-8 text, zero-padded)"),
-        VarSpec("runtime.first_cause", "error_reports", "u1", (FIRST_CAUSE_BYTES,), w, [0] * FIRST_CAUSE_BYTES,
-                doc="the first cause of the current ERROR episode: the root message that started it "
-                    "(\"LAYER: text\", UTF-8, zero-padded; empty: no episode); kept until an ERROR RESET "
-                    "completes (docs/controller.md \"First cause\")"),
-        VarSpec("runtime.first_cause_code", "error_reports", "i4", (), w, 0,
-                doc="the first cause's layer error code (0: none, or a message without a code)"),
-        VarSpec("runtime.first_cause_frame", "error_reports", "i8", (), w, -1,
-                doc="the minor frame of the first cause's message (-1: no episode)"),
-    ]
+    """The runtime's own world-model variables (:class:`RuntimeVars`)."""
+    return RUNTIME.specs()
 
 
 @dataclass(frozen=True)
@@ -461,8 +468,8 @@ class ControllerRuntime:
         words = np.zeros(FIRST_CAUSE_BYTES, dtype=np.uint8)
         words[:len(raw)] = np.frombuffer(raw, dtype=np.uint8)
         self.wm.post_task_outputs("runtime", {
-            "runtime.first_cause": words, "runtime.first_cause_code": 0 if fc is None else fc.code,
-            "runtime.first_cause_frame": -1 if fc is None else fc.frame})
+            RUNTIME.first_cause: words, RUNTIME.first_cause_code: 0 if fc is None else fc.code,
+            RUNTIME.first_cause_frame: -1 if fc is None else fc.frame})
 
     def _forward(self, m: Message) -> None:
         """Every layer's message, whole, into the Bit3 controller message queue (a long text
@@ -655,8 +662,8 @@ class ControllerRuntime:
         self.caught_up = tuple(n for n in self._order if n in names)
         where = f"frame {first}" if missed == 1 else f"frames {first}..{last}"
         self.wm.post_task_outputs("runtime", {
-            "runtime.missed_frames": self.missed_frames, "runtime.missed_events": self.missed_events,
-            "runtime.longest_missed_run": self.longest_missed_run, "runtime.missed_task_slots": self.missed_task_slots})
+            RUNTIME.missed_frames: self.missed_frames, RUNTIME.missed_events: self.missed_events,
+            RUNTIME.longest_missed_run: self.longest_missed_run, RUNTIME.missed_task_slots: self.missed_task_slots})
         if self.now - self._miss_msg_t >= MISSED_MESSAGE_INTERVAL_S:
             more = ""
             if self._miss_quiet[0]:
@@ -718,13 +725,13 @@ class ControllerRuntime:
         """Publish :meth:`stats` into ``runtime.*`` and the Bit3 ``controller_stats`` area."""
         st = self.stats()
         self.wm.post_task_outputs("runtime", {
-            "runtime.frames": st["frames"], "runtime.missed_frames": st["missed_frames"],
-            "runtime.missed_events": st["missed_events"], "runtime.longest_missed_run": st["longest_missed_run"],
-            "runtime.missed_task_slots": st["missed_task_slots"], "runtime.overruns": st["overruns"],
-            "runtime.rate_hz": st["rate_hz"],
-            "runtime.wake_latency_us": (st["wake_latency_p50_us"], st["wake_latency_p99_us"],
+            RUNTIME.frames: st["frames"], RUNTIME.missed_frames: st["missed_frames"],
+            RUNTIME.missed_events: st["missed_events"], RUNTIME.longest_missed_run: st["longest_missed_run"],
+            RUNTIME.missed_task_slots: st["missed_task_slots"], RUNTIME.overruns: st["overruns"],
+            RUNTIME.rate_hz: st["rate_hz"],
+            RUNTIME.wake_latency_us: (st["wake_latency_p50_us"], st["wake_latency_p99_us"],
                                         st["wake_latency_max_us"]),
-            "runtime.work_us": (st["work_p50_us"], st["work_p99_us"], st["work_max_us"])})
+            RUNTIME.work_us: (st["work_p50_us"], st["work_p99_us"], st["work_max_us"])})
         w = self._stats_w
         if w is not None:
             rec = w.record
@@ -865,13 +872,13 @@ class ControllerRuntime:
                    + "\n".join(keep)).encode()
         buf = np.zeros(STEP_TRACE_BYTES, dtype=np.uint8)
         buf[:len(raw)] = np.frombuffer(raw, dtype=np.uint8)
-        self.wm.post_task_outputs("runtime", {"runtime.step_trace": buf})
+        self.wm.post_task_outputs("runtime", {RUNTIME.step_trace: buf})
         self._post_halt_state()
         self.updown.answer(self, seq, Response.COMPLETE, f"SINGLE STEP: {len(lines)} frame(s) run, last {self.frame}")
 
     def _post_halt_state(self) -> None:
-        self.wm.post_task_outputs("runtime", {"runtime.halted": self.halted, "runtime.steps_left": self.steps_left,
-                                              "runtime.step_frames": self.step_frames})
+        self.wm.post_task_outputs("runtime", {RUNTIME.halted: self.halted, RUNTIME.steps_left: self.steps_left,
+                                              RUNTIME.step_frames: self.step_frames})
 
     def release_halt(self) -> None:
         """Leave a halt without re-arming (the process is ending): the mode is cleared and

@@ -1,7 +1,8 @@
 """docs/world-model.md's list of the declared world-model variables (generated; a test,
 tests/controller/test_variables.py, keeps the file equal to it). A leaf module: it imports
 every module that declares a group (controller/variables.py, controller/servo.py,
-controller/layers.py, controller/force.py, controller/delay.py, controller/teleop.py).
+controller/layers.py, controller/force.py, controller/delay.py, controller/teleop.py,
+controller/runtime.py).
 
 Regenerate: ``python -m controller.vardoc`` prints the block.
 """
@@ -11,13 +12,14 @@ from __future__ import annotations
 from controller.delay import DelayVars
 from controller.force import ForceVars
 from controller.layers import JointVars
+from controller.runtime import RuntimeVars
 from controller.servo import ServoVars
 from controller.teleop import TeleopVars
 from controller.variables import DaqVars
 from controller.worldmodel.var import VarGroup
 
 #: every declared group, in the order the document lists them
-GROUPS: tuple[type[VarGroup], ...] = (DaqVars, ServoVars, JointVars, ForceVars, DelayVars, TeleopVars)
+GROUPS: tuple[type[VarGroup], ...] = (DaqVars, ServoVars, JointVars, ForceVars, DelayVars, TeleopVars, RuntimeVars)
 
 DOC_BEGIN = "<!-- variables: generated from the VarGroup declarations; regenerate: python -m controller.vardoc -->"
 DOC_END = "<!-- end of the generated variables -->"
@@ -32,7 +34,8 @@ def markdown() -> str:
                   "| attribute | name | area | type | units | writer | doc |", "|---|---|---|---|---|---|---|"]
         for attr, v in group.attributes():
             s = v.spec
-            lines.append(f"| `{attr}` | `{v}` | {s.area} | {s.type_text} | {s.units} | {s.writer} | {s.doc} |")
+            units, doc = s.units.replace("|", "\\|"), s.doc.replace("|", "\\|")  # a table cell
+            lines.append(f"| `{attr}` | `{v}` | {s.area} | {s.type_text} | {units} | {s.writer} | {doc} |")
     return "\n".join(lines + ["", DOC_END])
 
 

@@ -119,3 +119,18 @@ def test_force_delay_teleop_names_are_the_old_strings() -> None:
     specs = {s.name: s for s in CartesianLayer().specs()}
     for v in (*FORCE.all(), *DELAY.all(), *TELEOP.all()):
         assert specs[v].name is v  # the layer's table is made from the declarations
+
+
+def test_runtime_names_are_the_old_strings() -> None:
+    from controller.runtime import RUNTIME, runtime_specs
+    assert [str(v) for v in RUNTIME.all()] == [f"runtime.{n}" for n in (
+        "frames", "missed_frames", "missed_events", "longest_missed_run", "missed_task_slots", "overruns", "rate_hz",
+        "wake_latency_us", "work_us", "halted", "steps_left", "step_frames", "step_trace", "first_cause",
+        "first_cause_code", "first_cause_frame")]
+    assert all(v.writer == "runtime" for v in RUNTIME.all())
+    assert [s.name for s in runtime_specs()] == list(RUNTIME.all())
+
+
+def test_a_table_cell_keeps_its_bars() -> None:
+    from controller.force import FORCE
+    assert f"| {FORCE.mass.units.replace('|', chr(92) + '|')} |" in vardoc.markdown()
