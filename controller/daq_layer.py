@@ -59,6 +59,7 @@ import numpy as np
 
 from controller.decision import Status, TaskState
 from controller.force import FORCE
+from controller.gripper import GRIP
 from controller.layers import ERROR_NAMES, Layer, bottom_table
 from controller.messages import Level
 from controller.params import GRIPPER, JOINTS, N_CURRENT_LIMITS, N_JOINTS
@@ -471,7 +472,7 @@ class DataAcquisitionLayer(Layer):
 
     # --- output --------------------------------------------------------------------------
     _OUT = (SERVO.rate_cmd_rad_s, SERVO.rate_cmd_frame, SERVO.current_limit_cmd_a, "servo.error",
-            "gripper.rate_cmd_m_s")
+            GRIP.rate_cmd_m_s)
 
     def output(self, rt: "LayerContext", status: int) -> None:
         """Write this frame's commands with a new heartbeat, ``inputs_frame`` and
@@ -503,7 +504,7 @@ class DataAcquisitionLayer(Layer):
                 elif s >= rt.servo_oldest_frame and not servo.fault and not int(v["servo.error"]):
                     rates, stamp = v[SERVO.rate_cmd_rad_s], s
                 if not servo.fault:  # the seventh amplifier (controller/gripper.py)
-                    grip = float(v["gripper.rate_cmd_m_s"]) * self.gripper_cmd_scale
+                    grip = float(v[GRIP.rate_cmd_m_s]) * self.gripper_cmd_scale
                 elif rt.servo_catch_up and not servo.fault:
                     self.catch_up_zeros += 1  # the missed slot runs in this frame: 0 for one frame
                 else:

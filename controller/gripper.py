@@ -37,6 +37,7 @@ from controller.decision import Status
 from controller.messages import Level
 from controller.worldmodel import VarSpec
 from controller.variables import DAQ
+from controller.worldmodel.var import Var, VarGroup, var
 from pfma.arm import GRIPPER
 from pfma.gripper import (
     ACTION_NAMES, COMPLETE, FAILED, IN_PROGRESS, NOTE, REFUSED, GripperMotion, GripperRequest, GripperState,
@@ -57,48 +58,61 @@ RESPONSE_ENUM = {0: "NONE", **_RESPONSE_NAMES}
 _LOOP_CLOSED = 3
 
 
+class GripperVars(VarGroup, prefix="gripper", writer="servo"):
+    """The gripper's world-model variables (declared by Servo Control; writer ``servo``
+    unless the row says): the user's requests, the answers, the gripper's state, its drive
+    command and the events a path recording stores."""
+
+    request: Var[int] = var(
+        "command_input", "i2", (), 0, writer="user",
+        doc="gripper request: 1 OPEN 2 CLOSE 3 STOP 4 FORCE (acted on when gripper.request_seq changes)",
+        enum=GripperRequest)
+    request_force_n: Var[float] = var("command_input", "f8", (), 0.0, "N", writer="user",
+                                      doc="grip force for the request (0 keeps the present one; FORCE needs it)")
+    request_seq: Var[int] = var("command_input", "i4", (), 0, writer="user",
+                                doc="gripper request number: increment to make a new request")
+    response: Var[int] = var(
+        "response_output", "i2", (), 0,
+        doc="answer to gripper request gripper.response_seq: 1 IN PROGRESS 2 COMPLETE 3 REFUSED 4 FAILED",
+        enum=RESPONSE_ENUM)
+    response_seq: Var[int] = var("response_output", "i4", (), 0,
+                                 doc="the gripper request number gripper.response answers")
+    response_text: Var[np.ndarray] = var("response_output", "u1", (GRIPPER_TEXT_BYTES,), [0] * GRIPPER_TEXT_BYTES,
+                                         doc="the gripper's answer in words (UTF-8, zero-padded)")
+    state: Var[int] = var("status_output", "i2", (), int(GripperState.OFF),
+                          doc="gripper: 0 OFF 1 STOPPED 2 OPENING 3 CLOSING 4 OPEN 5 CLOSED 6 GRIPPING 7 STALLED",
+                          enum=GripperState)
+    force_n: Var[float] = var("status_output", "f8", (), 0.0, "N",
+                              doc="the grip force in force (the gripper's current limit x 40 N/A)")
+    motor_force_n: Var[float] = var(
+        "task_status", "f8", (), 0.0, "N",
+        doc="jaw force from the motor current monitor (40 N/A x |current|; not a force sensor)")
+    jaw_m: Var[float] = var(
+        "task_status", "f8", (), 0.0, "m",
+        doc="estimated jaw opening (tach integrated from the open stop; valid when gripper.jaw_known)")
+    jaw_known: Var[bool] = var("task_status", "b1", (), False,
+                               doc="gripper.jaw_m is an estimate (an open reached the stop since the power-up)")
+    rate_cmd_m_s: Var[float] = var(
+        "task_io", "f8", (), 0.0, "m/s",
+        doc="gripper drive command for Data Acquisition (opening positive; 0.05 m/s = 10 V)")
+    msp_done_seq: Var[int] = var("task_io", "i4", (), 0,
+                                 doc="the path planner's gripper request (msp.gripper_seq) answered last")
+    msp_done_code: Var[int] = var("task_io", "i2", (), 0,
+                                  doc="its answer: 2 COMPLETE 3 REFUSED 4 FAILED (1 while IN PROGRESS)",
+                                  enum=RESPONSE_ENUM)
+    event_seq: Var[int] = var("task_io", "i4", (), 0,
+                              doc="counts the user's gripper requests accepted (a path recording stores each)")
+    event: Var[int] = var("task_io", "i2", (), 0, doc="the last accepted request (1 OPEN 2 CLOSE 3 STOP 4 FORCE)",
+                          enum=GripperRequest)
+    event_force_n: Var[float] = var("task_io", "f8", (), 0.0, "N", doc="the grip force in force after it")
+
+
+GRIP = GripperVars
+
+
 def gripper_specs() -> list[VarSpec]:
-    """The gripper's world-model variables (declared by Servo Control; writer ``servo``)."""
-    w = "servo"
-    return [
-        VarSpec("gripper.request", "command_input", "i2", (), "user", 0,
-                doc="gripper request: 1 OPEN 2 CLOSE 3 STOP 4 FORCE (acted on when gripper.request_seq changes)",
-                enum=GripperRequest),
-        VarSpec("gripper.request_force_n", "command_input", "f8", (), "user", 0.0, "N",
-                doc="grip force for the request (0 keeps the present one; FORCE needs it)"),
-        VarSpec("gripper.request_seq", "command_input", "i4", (), "user", 0,
-                doc="gripper request number: increment to make a new request"),
-        VarSpec("gripper.response", "response_output", "i2", (), w, 0,
-                doc="answer to gripper request gripper.response_seq: 1 IN PROGRESS 2 COMPLETE 3 REFUSED 4 FAILED",
-                enum=RESPONSE_ENUM),
-        VarSpec("gripper.response_seq", "response_output", "i4", (), w, 0,
-                doc="the gripper request number gripper.response answers"),
-        VarSpec("gripper.response_text", "response_output", "u1", (GRIPPER_TEXT_BYTES,), w,
-                [0] * GRIPPER_TEXT_BYTES, doc="the gripper's answer in words (UTF-8, zero-padded)"),
-        VarSpec("gripper.state", "status_output", "i2", (), w, int(GripperState.OFF),
-                doc="gripper: 0 OFF 1 STOPPED 2 OPENING 3 CLOSING 4 OPEN 5 CLOSED 6 GRIPPING 7 STALLED",
-                enum=GripperState),
-        VarSpec("gripper.force_n", "status_output", "f8", (), w, 0.0, "N",
-                doc="the grip force in force (the gripper's current limit x 40 N/A)"),
-        VarSpec("gripper.motor_force_n", "task_status", "f8", (), w, 0.0, "N",
-                doc="jaw force from the motor current monitor (40 N/A x |current|; not a force sensor)"),
-        VarSpec("gripper.jaw_m", "task_status", "f8", (), w, 0.0, "m",
-                doc="estimated jaw opening (tach integrated from the open stop; valid when gripper.jaw_known)"),
-        VarSpec("gripper.jaw_known", "task_status", "b1", (), w, False,
-                doc="gripper.jaw_m is an estimate (an open reached the stop since the power-up)"),
-        VarSpec("gripper.rate_cmd_m_s", "task_io", "f8", (), w, 0.0, "m/s",
-                doc="gripper drive command for Data Acquisition (opening positive; 0.05 m/s = 10 V)"),
-        VarSpec("gripper.msp_done_seq", "task_io", "i4", (), w, 0,
-                doc="the path planner's gripper request (msp.gripper_seq) answered last"),
-        VarSpec("gripper.msp_done_code", "task_io", "i2", (), w, 0,
-                doc="its answer: 2 COMPLETE 3 REFUSED 4 FAILED (1 while IN PROGRESS)", enum=RESPONSE_ENUM),
-        VarSpec("gripper.event_seq", "task_io", "i4", (), w, 0,
-                doc="counts the user's gripper requests accepted (a path recording stores each)"),
-        VarSpec("gripper.event", "task_io", "i2", (), w, 0, doc="the last accepted request (1 OPEN 2 CLOSE 3 STOP 4 FORCE)",
-                enum=GripperRequest),
-        VarSpec("gripper.event_force_n", "task_io", "f8", (), w, 0.0, "N",
-                doc="the grip force in force after it"),
-    ]
+    """The gripper's world-model variables (:class:`GripperVars`; declared by Servo Control)."""
+    return GRIP.specs()
 
 
 def path_request_specs() -> list[VarSpec]:
@@ -127,7 +141,7 @@ class GripperDrive:
         parameters and the current-limit vector it posts)
     """
 
-    _IN = ("gripper.request", "gripper.request_force_n", "gripper.request_seq", DAQ.gripper_rate_m_s,
+    _IN = (GRIP.request, GRIP.request_force_n, GRIP.request_seq, DAQ.gripper_rate_m_s,
            DAQ.gripper_current_a)
     _MSP = ("msp.gripper_request", "msp.gripper_force_n", "msp.gripper_seq")
 
@@ -162,10 +176,10 @@ class GripperDrive:
             self._ended(rt, ended)
         if not on:
             self._posted_limit = None  # the safe stop zeroed every limit: post it again at the next power-up
-        seq = int(v["gripper.request_seq"])
+        seq = int(v[GRIP.request_seq])
         if seq != self._seen_user:
             self._seen_user = seq
-            self._request(rt, "user", seq, int(v["gripper.request"]), float(v["gripper.request_force_n"]))
+            self._request(rt, "user", seq, int(v[GRIP.request]), float(v[GRIP.request_force_n]))
         if self._has_msp:
             mseq = int(v["msp.gripper_seq"])
             if mseq != self._seen_msp:
@@ -180,7 +194,7 @@ class GripperDrive:
     def halted(self, rt: "LayerContext") -> None:
         """Between frames while halted (no task runs): a new user request is REFUSED at once
         (it is not kept to run after the resume)."""
-        seq = int(rt.wm.get("gripper.request_seq"))
+        seq = int(rt.wm.get(GRIP.request_seq))
         if seq != self._seen_user:
             self._seen_user = seq
             self._answer(rt, "user", seq, REFUSED, "the controller is HALTED: outputs held safe, the gripper "
@@ -209,8 +223,8 @@ class GripperDrive:
         self._answer(rt, channel, seq, out.code, f"{name}: {out.text}")
         if channel == "user":
             self._events += 1
-            rt.wm.post_task_outputs("servo", {"gripper.event_seq": self._events, "gripper.event": int(kind),
-                                              "gripper.event_force_n": self.motion.force_n})
+            rt.wm.post_task_outputs("servo", {GRIP.event_seq: self._events, GRIP.event: int(kind),
+                                              GRIP.event_force_n: self.motion.force_n})
 
     def _ended(self, rt: "LayerContext", out: Outcome) -> None:
         if out.code == NOTE or self._active is None:
@@ -226,19 +240,19 @@ class GripperDrive:
                               f"-> {_RESPONSE_NAMES.get(code, code)}")
         self.answers = (self.answers + [(channel, seq, code, text)])[-32:]
         if channel == "user":
-            rt.wm.post_task_outputs("servo", {"gripper.response": code, "gripper.response_seq": seq,
-                                              "gripper.response_text": text_words(text)})
+            rt.wm.post_task_outputs("servo", {GRIP.response: code, GRIP.response_seq: seq,
+                                              GRIP.response_text: text_words(text)})
         else:
-            rt.wm.post_task_outputs("servo", {"gripper.msp_done_seq": seq, "gripper.msp_done_code": code})
+            rt.wm.post_task_outputs("servo", {GRIP.msp_done_seq: seq, GRIP.msp_done_code: code})
 
     # --- outputs ------------------------------------------------------------------------
     def _publish(self, rt: "LayerContext", on: bool) -> None:
         m = self.motion
         out: dict = {}
         jaw = m.jaw_m
-        now = {"gripper.state": int(m.state), "gripper.force_n": m.force_n, "gripper.motor_force_n": m.motor_force_n,
-               "gripper.jaw_m": jaw if jaw is not None else 0.0, "gripper.jaw_known": jaw is not None,
-               "gripper.rate_cmd_m_s": m.rate_cmd_m_s}
+        now = {GRIP.state: int(m.state), GRIP.force_n: m.force_n, GRIP.motor_force_n: m.motor_force_n,
+               GRIP.jaw_m: jaw if jaw is not None else 0.0, GRIP.jaw_known: jaw is not None,
+               GRIP.rate_cmd_m_s: m.rate_cmd_m_s}
         for k, val in now.items():
             if self._posted.get(k) != val:
                 self._posted[k] = val

@@ -83,6 +83,7 @@ from controller.cartesian import CartesianLayer
 from controller.daq_layer import DataAcquisitionLayer
 from controller.decision import SHORT, SHORT_CMD, Command, Status, TaskState
 from controller.frames import MINOR_FRAMES_PER_MAJOR, FrameConfig, ScheduleError
+from controller.gripper import GRIP
 from controller.layers import ERR_TASK_RAISED, JOINT, JointPlannerLayer, Layer, Request, Response, UpDownLayer, find_answer
 from controller.messages import Level, Message, MessageBoard
 from controller.paths import MultiSegmentLayer
@@ -908,10 +909,10 @@ class ControllerRuntime:
         """Post a gripper request (``pfma.gripper.GripperRequest``: 1 OPEN 2 CLOSE 3 STOP 4 FORCE;
         ``force_n`` > 0 sets the grip force) to Servo Control; returns its number. The answer
         appears in ``gripper.response`` / ``gripper.response_seq`` / ``gripper.response_text``."""
-        self._gripper_seq = max(self._gripper_seq, int(self.wm.get("gripper.request_seq"))) + 1
-        self.wm.set_user("gripper.request_force_n", float(force_n), self._key)
-        self.wm.set_user("gripper.request", int(kind), self._key)
-        self.wm.set_user("gripper.request_seq", self._gripper_seq, self._key)
+        self._gripper_seq = max(self._gripper_seq, int(self.wm.get(GRIP.request_seq))) + 1
+        self.wm.set_user(GRIP.request_force_n, float(force_n), self._key)
+        self.wm.set_user(GRIP.request, int(kind), self._key)
+        self.wm.set_user(GRIP.request_seq, self._gripper_seq, self._key)
         return self._gripper_seq
 
     def answer(self, seq: int) -> tuple[int, str] | None:

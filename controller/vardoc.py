@@ -1,8 +1,8 @@
 """docs/world-model.md's list of the declared world-model variables (generated; a test,
 tests/controller/test_variables.py, keeps the file equal to it). A leaf module: it imports
 every module that declares a group (controller/variables.py, controller/servo.py,
-controller/layers.py, controller/force.py, controller/delay.py, controller/teleop.py,
-controller/runtime.py).
+controller/layers.py, controller/gripper.py, controller/force.py, controller/delay.py,
+controller/teleop.py, controller/runtime.py).
 
 Regenerate: ``python -m controller.vardoc`` prints the block.
 """
@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from controller.delay import DelayVars
 from controller.force import ForceVars
+from controller.gripper import GripperVars
 from controller.layers import JointVars
 from controller.runtime import RuntimeVars
 from controller.servo import ServoVars
@@ -19,7 +20,8 @@ from controller.variables import DaqVars
 from controller.worldmodel.var import VarGroup
 
 #: every declared group, in the order the document lists them
-GROUPS: tuple[type[VarGroup], ...] = (DaqVars, ServoVars, JointVars, ForceVars, DelayVars, TeleopVars, RuntimeVars)
+GROUPS: tuple[type[VarGroup], ...] = (DaqVars, ServoVars, GripperVars, JointVars, ForceVars, DelayVars, TeleopVars,
+                                      RuntimeVars)
 
 DOC_BEGIN = "<!-- variables: generated from the VarGroup declarations; regenerate: python -m controller.vardoc -->"
 DOC_END = "<!-- end of the generated variables -->"

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from controller.decision import Status
-from controller.gripper import path_request_specs
+from controller.gripper import GRIP, path_request_specs
 from controller.layers import JOINT, Layer
 from controller.messages import Level
 from controller.paths.check import MAX_TURN_RAD, SAMPLES_PER_RUN, MotionCheck, Target
@@ -106,8 +106,8 @@ CMD_POSE = ("cart.cmd_valid", "cart.pos_cmd_m", "cart.quat_cmd")
 USER_VARS = ("msp.mode", "msp.path_id", "msp.teach", "msp.capture", "msp.capture_dist_m", "msp.capture_angle_rad",
              "msp.speed_scale", "msp.record_source")
 #: the gripper's accepted user requests (Servo Control, controller/gripper.py): a recording stores each
-GRIPPER_EVENT = ("gripper.event_seq", "gripper.event", "gripper.event_force_n")
-GRIPPER_DONE = ("gripper.msp_done_seq", "gripper.msp_done_code")
+GRIPPER_EVENT = (GRIP.event_seq, GRIP.event, GRIP.event_force_n)
+GRIPPER_DONE = (GRIP.msp_done_seq, GRIP.msp_done_code)
 #: the user variables of moves and of the checks (read with USER_VARS every run)
 MOVE_USER_VARS = ("msp.move_request", "msp.max_turn_rad", "msp.track_tol_m", "msp.track_tol_rad")
 _RUN_VARS = USER_VARS + MOVE_USER_VARS
@@ -349,7 +349,7 @@ class MultiSegmentLayer(Layer):
         self._rec, self._rec_t0 = [], rt.now
         self._teach_seen = int(v["msp.teach"])
         if self._has(rt, GRIPPER_EVENT):
-            self._grip_event_seen = int(rt.wm.get("gripper.event_seq"))
+            self._grip_event_seen = int(rt.wm.get(GRIP.event_seq))
         self.state = MspMode.RECORD
         if bool(v["msp.capture"]):
             self._add_point(rt, *pose, "capture")
@@ -388,16 +388,16 @@ class MultiSegmentLayer(Layer):
         if not self._has(rt, GRIPPER_EVENT):
             return
         g = rt.wm.get_task_inputs(GRIPPER_EVENT)
-        seq = int(g["gripper.event_seq"])
+        seq = int(g[GRIP.event_seq])
         if seq == self._grip_event_seen:
             return
         self._grip_event_seen = seq
-        action = GRIPPER_ACTION_NAMES.get(int(g["gripper.event"]))
+        action = GRIPPER_ACTION_NAMES.get(int(g[GRIP.event]))
         if action not in ("open", "close", "stop"):
             return  # a grip force alone: each event carries the force in force
         self._rec.append(PathPoint(tuple(float(x) for x in p), tuple(float(x) for x in q), "gripper",
                                    round(rt.now - self._rec_t0, 6), gripper=action,
-                                   force_n=round(float(g["gripper.event_force_n"]), 3)))
+                                   force_n=round(float(g[GRIP.event_force_n]), 3)))
         rt.post(self.key, Level.INFO, f"gripper event {len(self._rec) - 1}: {action} at "
                                       f"{float(g['gripper.event_force_n']):.0f} N")
 
@@ -745,9 +745,9 @@ class MultiSegmentLayer(Layer):
         """The path's gripper event: go on when Servo Control answers it COMPLETE; end the
         playback (GRIPPER FAILED) when it refuses or fails it."""
         v = rt.wm.get_task_inputs(GRIPPER_DONE)
-        if int(v["gripper.msp_done_seq"]) != self._grip_seq:
+        if int(v[GRIP.msp_done_seq]) != self._grip_seq:
             return
-        code = int(v["gripper.msp_done_code"])
+        code = int(v[GRIP.msp_done_code])
         if code == IN_PROGRESS:
             return
         self._grip_wait = False

@@ -134,3 +134,14 @@ def test_runtime_names_are_the_old_strings() -> None:
 def test_a_table_cell_keeps_its_bars() -> None:
     from controller.force import FORCE
     assert f"| {FORCE.mass.units.replace('|', chr(92) + '|')} |" in vardoc.markdown()
+
+
+def test_gripper_names_are_the_old_strings() -> None:
+    from controller.gripper import GRIP, GripperVars, gripper_specs
+    assert GRIP is GripperVars
+    assert [str(v) for v in GRIP.all()] == [f"gripper.{n}" for n in (
+        "request", "request_force_n", "request_seq", "response", "response_seq", "response_text", "state", "force_n",
+        "motor_force_n", "jaw_m", "jaw_known", "rate_cmd_m_s", "msp_done_seq", "msp_done_code", "event_seq", "event",
+        "event_force_n")]
+    assert [v.writer for v in GRIP.all()[:3]] == ["user"] * 3 and all(v.writer == "servo" for v in GRIP.all()[3:])
+    assert all(s.name is v for s, v in zip(gripper_specs(), GRIP.all()))
