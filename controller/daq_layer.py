@@ -60,7 +60,7 @@ import numpy as np
 from controller.decision import Status, TaskState
 from controller.force import FORCE
 from controller.gripper import GRIP
-from controller.layers import ERROR_NAMES, Layer, bottom_table
+from controller.layers import ERROR_NAMES, UI, Layer, bottom_table
 from controller.messages import Level
 from controller.params import GRIPPER, JOINTS, N_CURRENT_LIMITS, N_JOINTS
 from controller.servo import ERR_NO_OUTPUT, SERVO
@@ -281,12 +281,12 @@ class DataAcquisitionLayer(Layer):
             if route != self.route:
                 self._set_route(rt, route, "user I/F box")
         if self._has_route_req is None:
-            self._has_route_req = "updown.route_request_seq" in set(rt.wm.names())
+            self._has_route_req = UI.route_request_seq in set(rt.wm.names())
         if self._has_route_req:
-            seq = int(rt.wm.get("updown.route_request_seq"))
+            seq = int(rt.wm.get(UI.route_request_seq))
             if seq != self._route_req_seq:
                 self._route_req_seq = seq
-                monitor, camera = divmod(int(rt.wm.get("updown.route_request")), 16)
+                monitor, camera = divmod(int(rt.wm.get(UI.route_request)), 16)
                 try:
                     self._set_route(rt, set_monitor(self.route, monitor, camera), f"console request {seq}")
                 except ValueError as err:  # System Up/Down checked it; a bad one is a message, not a crash

@@ -135,8 +135,57 @@ QUEUE_SLOTS = 8
 #: answer is found by its number even when others were answered since (assumed: a client
 #: polls every few ms; 16 answers is several frames of answers even with cancellations)
 ANSWER_SLOTS = 16
+#: bytes of ``ui.response_text`` (the answer in words)
+RESPONSE_TEXT_BYTES = 160
+_KINDS = " ".join(f"{c} {k.name}" for c, k in REQUEST_KINDS.items())
+_ARGS = "; ".join(f"{k.name}: {k.arg}" for k in REQUEST_KINDS.values() if k.arg)
+
+
+class UiVars(VarGroup, prefix="ui", writer="updown_requests"):
+    """System Up/Down's request/response variables (:class:`UpDownLayer`): the user's
+    requests, the queue, the answers and the answer log; with the CAMERA ROUTE request it
+    hands Data Acquisition (``updown.route_request*``)."""
+
+    request: Var[np.ndarray] = var(
+        "command_input", "i4", (2,), [0, 0], writer="user",
+        doc=f"a user request to System Up/Down: (kind, argument); each write is one request, "
+            f"its number the write's request id. Kinds: {_KINDS}. Arguments: {_ARGS}")
+    request_seq: Var[int] = var("status_output", "i4", (), 0,
+                                doc="the newest request System Up/Down received (its number)")
+    queue: Var[np.ndarray] = var(
+        "status_output", "i4", (QUEUE_SLOTS, 3), [[0, 0, 0]] * QUEUE_SLOTS,
+        doc="the requests waiting in System Up/Down's queue, oldest first: (number, kind, "
+            "argument) rows, 0 after the last")
+    active: Var[np.ndarray] = var(
+        "status_output", "i4", (2,), [0, 0],
+        doc="the request in progress (POWER UP, POWER DOWN, ERROR RESET): (number, kind); 0 none")
+    route_request: Var[int] = var(
+        "task_io", "i4", (), 0, name="updown.route_request",
+        doc="the newest CAMERA ROUTE request for Data Acquisition: monitor * 16 + camera")
+    route_request_seq: Var[int] = var(
+        "task_io", "i4", (), 0, name="updown.route_request_seq",
+        doc="its request number (Data Acquisition applies it when this changes)")
+    response_text: Var[np.ndarray] = var("response_output", "u1", (RESPONSE_TEXT_BYTES,), [0] * RESPONSE_TEXT_BYTES,
+                                         doc="the answer in words (UTF-8, zero-padded)")
+    response: Var[int] = var("response_output", "i2", (), 0,
+                             doc="answer to the request ui.response_seq (the newest request answered)",
+                             enum=Response.NAMES)
+    response_seq: Var[int] = var("response_output", "i4", (), 0, doc="the request number ui.response answers")
+    answer_count: Var[int] = var(
+        "response_output", "i8", (), 0,
+        doc=f"answers given so far; the answer log's newest entry is slot (count - 1) % {ANSWER_SLOTS}")
+    answer_seq: Var[np.ndarray] = var("response_output", "i4", (ANSWER_SLOTS,), [0] * ANSWER_SLOTS,
+                                      doc="answer log: the request number each entry answers")
+    answer_code: Var[np.ndarray] = var("response_output", "i2", (ANSWER_SLOTS,), [0] * ANSWER_SLOTS,
+                                       doc="answer log: each entry's answer (as ui.response)")
+    answer_text: Var[np.ndarray] = var(
+        "response_output", "u1", (ANSWER_SLOTS, RESPONSE_TEXT_BYTES), [[0] * RESPONSE_TEXT_BYTES] * ANSWER_SLOTS,
+        doc="answer log: each entry's answer in words (UTF-8, zero-padded)")
+
+
+UI = UiVars
 #: what a client reads of the answer log, the active request and the queue (:func:`find_answer`)
-ANSWER_VARS = ("ui.answer_count", "ui.answer_seq", "ui.answer_code", "ui.answer_text", "ui.active", "ui.queue")
+ANSWER_VARS = (UI.answer_count, UI.answer_seq, UI.answer_code, UI.answer_text, UI.active, UI.queue)
 
 
 def find_answer(wm, seq: int) -> tuple[int, str] | None:
@@ -146,23 +195,21 @@ def find_answer(wm, seq: int) -> tuple[int, str] | None:
     when it has none (not received yet, or finished more than ANSWER_SLOTS answers ago).
     Returns (Response code, text)."""
     v = wm.get_task_inputs(ANSWER_VARS)
-    n, seqs = int(v["ui.answer_count"]), v["ui.answer_seq"]
+    n, seqs = int(v[UI.answer_count]), v[UI.answer_seq]
     for j in range(n - 1, max(n - ANSWER_SLOTS, 0) - 1, -1):  # newest first
         k = j % ANSWER_SLOTS
         if int(seqs[k]) == seq:
-            return int(v["ui.answer_code"][k]), bytes(v["ui.answer_text"][k]).rstrip(b"\0").decode(errors="replace")
-    active, kind = (int(x) for x in v["ui.active"])
+            return int(v[UI.answer_code][k]), bytes(v[UI.answer_text][k]).rstrip(b"\0").decode(errors="replace")
+    active, kind = (int(x) for x in v[UI.active])
     if seq and active == seq:
         return Response.IN_PROGRESS, f"{Request.NAMES.get(kind, kind)}: in progress"
-    for i, (q, kind, _arg) in enumerate(v["ui.queue"]):
+    for i, (q, kind, _arg) in enumerate(v[UI.queue]):
         if seq and int(q) == seq:
             return Response.QUEUED, f"{Request.NAMES.get(int(kind), kind)}: queued ({i} ahead)"
     return None
 
 
 _NO_SUBORDINATE = int(Status.NO_SUBORDINATE)
-#: bytes of ``ui.response_text`` (the answer in words)
-RESPONSE_TEXT_BYTES = 160
 #: time a CAMERA ROUTE request waits for the service to report the route applied before its
 #: answer is FAILED (assumed: the service writes the route at its 40 Hz PIO rate, 25 ms; ten of those)
 ROUTE_TIMEOUT_S = 0.25
@@ -398,41 +445,7 @@ class UpDownLayer(Layer):
         self.periodic["updown_requests"] = self.requests_task
 
     def specs(self) -> list[VarSpec]:
-        kinds = " ".join(f"{c} {k.name}" for c, k in REQUEST_KINDS.items())
-        args = "; ".join(f"{k.name}: {k.arg}" for k in REQUEST_KINDS.values() if k.arg)
-        return self.state_specs() + [
-            VarSpec("ui.request", "command_input", "i4", (2,), "user", [0, 0],
-                    doc=f"a user request to System Up/Down: (kind, argument); each write is one request, "
-                        f"its number the write's request id. Kinds: {kinds}. Arguments: {args}"),
-            VarSpec("ui.request_seq", "status_output", "i4", (), "updown_requests", 0,
-                    doc="the newest request System Up/Down received (its number)"),
-            VarSpec("ui.queue", "status_output", "i4", (QUEUE_SLOTS, 3), "updown_requests",
-                    [[0, 0, 0]] * QUEUE_SLOTS,
-                    doc="the requests waiting in System Up/Down's queue, oldest first: (number, kind, "
-                        "argument) rows, 0 after the last"),
-            VarSpec("ui.active", "status_output", "i4", (2,), "updown_requests", [0, 0],
-                    doc="the request in progress (POWER UP, POWER DOWN, ERROR RESET): (number, kind); 0 none"),
-            VarSpec("updown.route_request", "task_io", "i4", (), "updown_requests", 0,
-                    doc="the newest CAMERA ROUTE request for Data Acquisition: monitor * 16 + camera"),
-            VarSpec("updown.route_request_seq", "task_io", "i4", (), "updown_requests", 0,
-                    doc="its request number (Data Acquisition applies it when this changes)"),
-            VarSpec("ui.response_text", "response_output", "u1", (RESPONSE_TEXT_BYTES,), "updown_requests",
-                    [0] * RESPONSE_TEXT_BYTES, doc="the answer in words (UTF-8, zero-padded)"),
-            VarSpec("ui.response", "response_output", "i2", (), "updown_requests", 0,
-                    doc="answer to the request ui.response_seq (the newest request answered)",
-                    enum=Response.NAMES),
-            VarSpec("ui.response_seq", "response_output", "i4", (), "updown_requests", 0,
-                    doc="the request number ui.response answers"),
-            VarSpec("ui.answer_count", "response_output", "i8", (), "updown_requests", 0,
-                    doc=f"answers given so far; the answer log's newest entry is slot (count - 1) % {ANSWER_SLOTS}"),
-            VarSpec("ui.answer_seq", "response_output", "i4", (ANSWER_SLOTS,), "updown_requests",
-                    [0] * ANSWER_SLOTS, doc="answer log: the request number each entry answers"),
-            VarSpec("ui.answer_code", "response_output", "i2", (ANSWER_SLOTS,), "updown_requests",
-                    [0] * ANSWER_SLOTS, doc="answer log: each entry's answer (as ui.response)"),
-            VarSpec("ui.answer_text", "response_output", "u1", (ANSWER_SLOTS, RESPONSE_TEXT_BYTES),
-                    "updown_requests", [[0] * RESPONSE_TEXT_BYTES] * ANSWER_SLOTS,
-                    doc="answer log: each entry's answer in words (UTF-8, zero-padded)"),
-        ]
+        return self.state_specs() + UI.specs()
 
     # --- answers -------------------------------------------------------------------------
     def _respond(self, rt, seq: int, code: int, text: str) -> None:
@@ -443,11 +456,11 @@ class UpDownLayer(Layer):
         self._ans_seq[k], self._ans_code[k] = seq, code
         self._ans_text[k, :] = 0
         self._ans_text[k, :len(raw)] = np.frombuffer(raw, dtype=np.uint8)
-        out: dict = {"ui.answer_count": self._ans_count, "ui.answer_seq": self._ans_seq,
-                     "ui.answer_code": self._ans_code, "ui.answer_text": self._ans_text}
+        out: dict = {UI.answer_count: self._ans_count, UI.answer_seq: self._ans_seq,
+                     UI.answer_code: self._ans_code, UI.answer_text: self._ans_text}
         if seq >= self._answered_seq:  # ui.response keeps the newest request's answer
             self._answered_seq = seq
-            out.update({"ui.response": code, "ui.response_seq": seq, "ui.response_text": self._ans_text[k]})
+            out.update({UI.response: code, UI.response_seq: seq, UI.response_text: self._ans_text[k]})
         rt.wm.post_task_outputs("updown_requests", out)
         rt.post(self.key, lvl, f"request {seq}: {text} -> {Response.NAMES[code]}")
 
@@ -505,7 +518,7 @@ class UpDownLayer(Layer):
                     why.append("halted: taken at the next frame run, a step or the resume")
                 if why:  # else the request task takes it in this frame: no need to say it waits
                     self._respond(rt, seq, Response.QUEUED, f"{k.name}: queued ({'; '.join(why)})")
-        rt.wm.post_task_outputs("updown_requests", {"ui.request_seq": self._received_seq})
+        rt.wm.post_task_outputs("updown_requests", {UI.request_seq: self._received_seq})
         self._post_queue(rt)
 
     def _cancel_queued(self, rt, why: str) -> None:
@@ -519,7 +532,7 @@ class UpDownLayer(Layer):
         rows[:] = 0
         for i, item in enumerate(self._queue):
             rows[i] = item
-        rt.wm.post_task_outputs("updown_requests", {"ui.queue": rows})
+        rt.wm.post_task_outputs("updown_requests", {UI.queue: rows})
 
     def queued(self) -> tuple[tuple[int, int, int], ...]:
         """The requests waiting, oldest first: (number, kind, argument)."""
@@ -562,12 +575,12 @@ class UpDownLayer(Layer):
     def _start(self, rt, kind: int, seq: int, cmd: Command, note: str = "") -> None:
         self._active, self._active_seq = kind, seq
         self._command(rt, cmd)
-        rt.wm.post_task_outputs("updown_requests", {"ui.active": (seq, kind)})
+        rt.wm.post_task_outputs("updown_requests", {UI.active: (seq, kind)})
         self._respond(rt, seq, Response.IN_PROGRESS, Request.NAMES[kind] + note)
 
     def _finish(self, rt, code: int, text: str) -> None:
         seq, self._active, self._active_seq = self._active_seq, Request.NONE, 0
-        rt.wm.post_task_outputs("updown_requests", {"ui.active": (0, 0)})
+        rt.wm.post_task_outputs("updown_requests", {UI.active: (0, 0)})
         self._respond(rt, seq, code, text)
 
     # --- the kinds (REQUEST_KINDS) ------------------------------------------------------------
@@ -633,7 +646,7 @@ class UpDownLayer(Layer):
         except ValueError as err:
             self._respond(rt, seq, Response.REFUSED, f"{name}: {err}")
             return True
-        rt.wm.post_task_outputs("updown_requests", {"updown.route_request": arg, "updown.route_request_seq": seq})
+        rt.wm.post_task_outputs("updown_requests", {UI.route_request: arg, UI.route_request_seq: seq})
         self._route = (seq, monitor, camera, rt.now)
         self._respond(rt, seq, Response.IN_PROGRESS, f"{name}: monitor {monitor} <- {camera_name(camera)}")
         return True

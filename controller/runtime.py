@@ -84,7 +84,9 @@ from controller.daq_layer import DataAcquisitionLayer
 from controller.decision import SHORT, SHORT_CMD, Command, Status, TaskState
 from controller.frames import MINOR_FRAMES_PER_MAJOR, FrameConfig, ScheduleError
 from controller.gripper import GRIP
-from controller.layers import ERR_TASK_RAISED, JOINT, JointPlannerLayer, Layer, Request, Response, UpDownLayer, find_answer
+from controller.layers import (
+    ERR_TASK_RAISED, JOINT, UI, JointPlannerLayer, Layer, Request, Response, UpDownLayer, find_answer,
+)
 from controller.messages import Level, Message, MessageBoard
 from controller.paths import MultiSegmentLayer
 from controller.trajectory import TrajectoryLayer
@@ -333,7 +335,7 @@ class ControllerRuntime:
         specs = [s for l in self.layers for s in l.specs()] + runtime_specs()
         self.wm = WorldModel.create(specs, name=wm_name, clock=clock, access_key=access_key, owner="controller")
         if "updown" in self.local_keys:
-            self.wm.keep_user_writes("ui.request")  # each write is a request (UpDownLayer)
+            self.wm.keep_user_writes(UI.request)  # each write is a request (UpDownLayer)
         self._key = self.wm.access_key
         self.messages = MessageBoard()
         self.trace: deque[FrameTrace] = deque(maxlen=trace_frames)
@@ -898,12 +900,12 @@ class ControllerRuntime:
         write of ``ui.request``; returns its number (the write's request id). Its answers
         appear in the answer log (:meth:`answer`) and, while it is the newest request
         answered, in ``ui.response`` / ``ui.response_seq`` / ``ui.response_text``."""
-        return int(self.wm.set_user("ui.request", [int(kind), int(arg)], self._key))
+        return int(self.wm.set_user(UI.request, [int(kind), int(arg)], self._key))
 
     def response(self) -> tuple[int, int]:
         """(request number answered, Response code) of ``ui.response``."""
-        v = self.wm.get_task_inputs(("ui.response_seq", "ui.response"))
-        return int(v["ui.response_seq"]), int(v["ui.response"])
+        v = self.wm.get_task_inputs((UI.response_seq, UI.response))
+        return int(v[UI.response_seq]), int(v[UI.response])
 
     def gripper_request(self, kind: int, force_n: float = 0.0) -> int:
         """Post a gripper request (``pfma.gripper.GripperRequest``: 1 OPEN 2 CLOSE 3 STOP 4 FORCE;

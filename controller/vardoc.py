@@ -12,7 +12,7 @@ from __future__ import annotations
 from controller.delay import DelayVars
 from controller.force import ForceVars
 from controller.gripper import GripperVars
-from controller.layers import JointVars
+from controller.layers import JointVars, UiVars
 from controller.runtime import RuntimeVars
 from controller.servo import ServoVars
 from controller.teleop import TeleopVars
@@ -20,8 +20,9 @@ from controller.variables import DaqVars
 from controller.worldmodel.var import VarGroup
 
 #: every declared group, in the order the document lists them
+#: (the layers' from the bottom up, then System Up/Down's requests and the runtime's own)
 GROUPS: tuple[type[VarGroup], ...] = (DaqVars, ServoVars, GripperVars, JointVars, ForceVars, DelayVars, TeleopVars,
-                                      RuntimeVars)
+                                      UiVars, RuntimeVars)
 
 DOC_BEGIN = "<!-- variables: generated from the VarGroup declarations; regenerate: python -m controller.vardoc -->"
 DOC_END = "<!-- end of the generated variables -->"

@@ -145,3 +145,16 @@ def test_gripper_names_are_the_old_strings() -> None:
         "event_force_n")]
     assert [v.writer for v in GRIP.all()[:3]] == ["user"] * 3 and all(v.writer == "servo" for v in GRIP.all()[3:])
     assert all(s.name is v for s, v in zip(gripper_specs(), GRIP.all()))
+
+
+def test_ui_names_are_the_old_strings() -> None:
+    from controller.layers import ANSWER_VARS, UI, UpDownLayer
+    assert [str(v) for v in UI.all()] == [
+        "ui.request", "ui.request_seq", "ui.queue", "ui.active", "updown.route_request", "updown.route_request_seq",
+        "ui.response_text", "ui.response", "ui.response_seq", "ui.answer_count", "ui.answer_seq", "ui.answer_code",
+        "ui.answer_text"]
+    assert UI.request.writer == "user" and all(v.writer == "updown_requests" for v in UI.all()[1:])
+    assert "Kinds: " in UI.request.doc and ANSWER_VARS[0] is UI.answer_count
+    specs = UpDownLayer().specs()
+    assert [s.name for s in specs if s.name in set(UI.all())] == list(UI.all())
+    assert all(s.name is v for s, v in zip(specs[-len(UI.all()):], UI.all()))
