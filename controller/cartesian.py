@@ -58,17 +58,17 @@ from controller.layers import JOINT, Layer
 from controller.messages import Level
 from controller.quat import q_conj, q_from_rotvec, q_mul, q_normalize, q_to_matrix, q_to_rotvec
 from controller.teleop import (
-    TELEOP, COARSE_LIN_M_S, COARSE_ROT_RAD_S, FRAME_NAMES, FRAME_TOOL, HC_CRL, HC_SOURCE_NAMES, HC_SOURCES, HcSample, Telemetry, hc_twist, reflect,
+    TELEOP, COARSE_LIN_M_S, COARSE_ROT_RAD_S, FRAME_TOOL, HC_CRL, HC_SOURCES, HcSample, Telemetry, hc_twist, reflect,
 )
 from controller.worldmodel import VarSpec
-from controller.variables import DAQ
+from controller.variables import (  # noqa: F401  (the modes re-exported)
+    CART, DAQ, MODE_HOLD, MODE_NAMES, MODE_TELEOP, MODE_TRAJECTORY,
+)
 from pfma.errors import ConfigError
 
 if TYPE_CHECKING:  # pragma: no cover
     from controller.context import LayerContext
 
-MODE_HOLD, MODE_TELEOP, MODE_TRAJECTORY = 0, 1, 2
-MODE_NAMES = {MODE_HOLD: "HOLD", MODE_TELEOP: "TELEOP", MODE_TRAJECTORY: "TRAJECTORY"}
 #: largest reference-to-measured distance a hand-controller twist may grow (assumed)
 MAX_LAG_M = 0.05
 MAX_LAG_RAD = 0.20
@@ -151,35 +151,13 @@ class CartesianLayer(Layer):
 
     # --- world model ---------------------------------------------------------------------
     def specs(self) -> list[VarSpec]:
-        u, w = "user", "cartesian"
         return self.state_specs() + [
             # user controls (command input)
-            VarSpec("cart.mode", "command_input", "i2", (), u, 0, doc="Cartesian mode", enum=MODE_NAMES),
-            VarSpec("cart.hc_source", "command_input", "i2", (), u, 0, doc="the hand controller teleoperation follows",
-                    enum=HC_SOURCE_NAMES),
-            VarSpec("cart.hc_frame", "command_input", "i2", (), u, 0,
-                    doc="hand-controller rates in the world frame or the tool frame", enum=FRAME_NAMES),
-            VarSpec("cart.hc_gain_lin_m_s", "command_input", "f8", (3,), u, [COARSE_LIN_M_S] * 3, "m/s",
-                    doc="rate at full deflection, x y z (then limited to 0.15 m/s coarse, 0.03 vernier)"),
-            VarSpec("cart.hc_gain_rot_rad_s", "command_input", "f8", (3,), u, [COARSE_ROT_RAD_S] * 3, "rad/s",
-                    doc="rate at full deflection, roll pitch yaw (then limited to 0.25 rad/s coarse, 0.05 vernier)"),
-            VarSpec("cart.vernier", "command_input", "b1", (), u, False,
-                    doc="vernier rates (x0.2, limits 0.03 m/s 0.05 rad/s; pfma-model 8.2)"),
+            *(v.spec for v in CART.all() if v.writer == "user"),
             *(v.spec for v in FORCE.all() if v.writer == "user"),
             *DELAY.specs(),
-            # outputs to the Joint Planner
-            VarSpec("cart.pos_cmd_m", "task_io", "f8", (3,), w, [0.0] * 3, "m", doc="commanded tool point, world"),
-            VarSpec("cart.quat_cmd", "task_io", "f8", (4,), w, [1.0, 0.0, 0.0, 0.0], "1",
-                    doc="commanded tool orientation (w x y z), world"),
-            VarSpec("cart.cmd_valid", "task_io", "b1", (), w, False, doc="the Cartesian command is valid"),
-            VarSpec("cart.cmd_seq", "task_io", "i4", (), w, 0, doc="new with every Cartesian command (80 Hz)"),
-            # internal status
-            VarSpec("cart.ref_pos_m", "task_status", "f8", (3,), w, [0.0] * 3, "m",
-                    doc="reference before the force offset"),
-            VarSpec("cart.ref_quat", "task_status", "f8", (4,), w, [1.0, 0.0, 0.0, 0.0], "1",
-                    doc="reference orientation before the force offset"),
-            VarSpec("cart.hc_active", "task_status", "b1", (), w, False,
-                    doc="the (delayed) hand controller moves the reference (deadman held)"),
+            # outputs to the Joint Planner, internal status
+            *(v.spec for v in CART.all() if v.writer != "user"),
             *(v.spec for v in FORCE.all() if v.writer != "user"),
             *TELEOP.specs(),
         ]
@@ -204,14 +182,14 @@ class CartesianLayer(Layer):
             self.force = ForceControl(rt.task_period_s("cartesian_fast"), self.tool_load)
         self.force.reset()
         self.delay.reset()
-        v = rt.wm.get_task_inputs((DAQ.joint_angle_rad, "cart.mode", FORCE.zero_seq))
+        v = rt.wm.get_task_inputs((DAQ.joint_angle_rad, CART.mode, FORCE.zero_seq))
         # the index the Joint Planner's kinematics took at its initialisation (before this start-up)
         self.shoulder_roll_rad = float(rt.wm.get(ROLL_VAR)) if self._check_model(rt)["roll"] else 0.0
         from controller.kinematics import fk
         p, q = fk(v[DAQ.joint_angle_rad], self.shoulder_roll_rad)
         self.meas_pos, self.meas_quat = np.asarray(p, float), q_normalize(q)
         self.hold_pos, self.hold_quat = self.meas_pos.copy(), self.meas_quat.copy()
-        self.mode = int(v["cart.mode"]) if int(v["cart.mode"]) in MODE_NAMES else MODE_HOLD
+        self.mode = int(v[CART.mode]) if int(v[CART.mode]) in MODE_NAMES else MODE_HOLD
         self._zero_seq = int(v[FORCE.zero_seq])
         if self._check_model(rt)["jmove"]:
             self._jmove_seen = int(rt.wm.get_task_inputs((JOINT.jmove_done_seq,))[JOINT.jmove_done_seq])
@@ -225,7 +203,7 @@ class CartesianLayer(Layer):
         self.valid = False
         if self.force is not None:
             self.force.reset()
-        rt.wm.post_task_outputs(self.key, {"cart.cmd_valid": False, FORCE.state: 0, "cart.hc_active": False,
+        rt.wm.post_task_outputs(self.key, {CART.cmd_valid: False, FORCE.state: 0, CART.hc_active: False,
                                            TELEOP.reflect_enabled: False,
                                            TELEOP.reflect_force_n: np.zeros(3),
                                            TELEOP.reflect_torque_nm: np.zeros(3)})
@@ -280,8 +258,8 @@ class CartesianLayer(Layer):
         if not self._running(rt):
             return
         have = self._check_model(rt)
-        names = ["cart.mode", "cart.hc_source", "cart.hc_frame", "cart.hc_gain_lin_m_s", "cart.hc_gain_rot_rad_s",
-                 "cart.vernier", DAQ.hc_axes, DAQ.hc_deadman, DAQ.joint_angle_rad,
+        names = [CART.mode, CART.hc_source, CART.hc_frame, CART.hc_gain_lin_m_s, CART.hc_gain_rot_rad_s,
+                 CART.vernier, DAQ.hc_axes, DAQ.hc_deadman, DAQ.joint_angle_rad,
                  DELAY.round_trip_s, DELAY.jitter]
         names += list(TRAJ_VARS) if have["traj"] else []
         names += list(TOOL_VARS) if have["tool"] else []
@@ -313,7 +291,7 @@ class CartesianLayer(Layer):
 
     def _mode_inputs(self, rt: "LayerContext", v: dict, have: dict) -> None:
         """The mode (task state transition) and the trajectory planner's pose."""
-        mode = int(v["cart.mode"])
+        mode = int(v[CART.mode])
         if mode not in MODE_NAMES or (mode == MODE_TRAJECTORY and not have["traj"]):
             self._warn_once(rt, f"mode{mode}", f"cart.mode {mode} is not available "
                                                f"({'no trajectory planner in the world model' if mode == 2 else 'unknown'}); "
@@ -348,7 +326,7 @@ class CartesianLayer(Layer):
     def _hand_controller(self, rt: "LayerContext", v: dict, now: float) -> tuple[int, np.ndarray, bool]:
         """The hand controller through the uplink (operator -> robot): the commanded twist.
         Returns the source, the deadmen and whether the hand controller is active."""
-        src = int(v["cart.hc_source"])
+        src = int(v[CART.hc_source])
         if not 0 <= src < len(HC_SOURCES):
             self._warn_once(rt, f"src{src}", f"cart.hc_source {src} unknown; using CAE")
             src = 0
@@ -359,9 +337,9 @@ class CartesianLayer(Layer):
         active = (seen is not None and self.mode in (MODE_TELEOP, MODE_TRAJECTORY) and seen.deadman
                   and seen.source == src)
         if active:
-            lin, ang = hc_twist(seen.axes, v["cart.hc_gain_lin_m_s"], v["cart.hc_gain_rot_rad_s"],
-                                bool(v["cart.vernier"]))
-            if int(v["cart.hc_frame"]) == FRAME_TOOL:
+            lin, ang = hc_twist(seen.axes, v[CART.hc_gain_lin_m_s], v[CART.hc_gain_rot_rad_s],
+                                bool(v[CART.vernier]))
+            if int(v[CART.hc_frame]) == FRAME_TOOL:
                 _, q_ref = self.reference()
                 r = q_to_matrix(q_ref)
                 lin, ang = r @ lin, r @ ang
@@ -380,7 +358,7 @@ class CartesianLayer(Layer):
         wrench = self._last_wrench if hasattr(self, "_last_wrench") else np.zeros(6)
         tel = Telemetry(now, tuple(self.meas_pos), tuple(self.meas_quat), tuple(wrench[:3]), tuple(wrench[3:]))
         seen_t = self.delay.send_down(now, tel)
-        out = {"cart.hc_active": active}
+        out = {CART.hc_active: active}
         if seen_t is not None:
             out.update({TELEOP.seen_pos_m: seen_t.pos_m, TELEOP.seen_quat: seen_t.quat,
                         TELEOP.seen_force_n: seen_t.force_n})
@@ -493,7 +471,7 @@ class CartesianLayer(Layer):
             p_ref, q_ref = self.reference()
         p, q = _compose(self.offset, p_ref, q_ref)
         self.seq = (self.seq + 1) & 0x7FFFFFFF
-        rt.wm.post_task_outputs(self.key, {"cart.pos_cmd_m": p, "cart.quat_cmd": q, "cart.cmd_valid": self.valid,
-                                           "cart.cmd_seq": self.seq, "cart.ref_pos_m": p_ref,
-                                           "cart.ref_quat": q_ref})
+        rt.wm.post_task_outputs(self.key, {CART.pos_cmd_m: p, CART.quat_cmd: q, CART.cmd_valid: self.valid,
+                                           CART.cmd_seq: self.seq, CART.ref_pos_m: p_ref,
+                                           CART.ref_quat: q_ref})
 

@@ -42,7 +42,7 @@ from controller.quat import q_angle
 from controller.worldmodel import VarSpec
 from controller.worldmodel.var import Var, VarGroup, var
 from controller.routes import camera_name, decode_matrix_route, parse_route_request, route_text
-from controller.variables import DAQ
+from controller.variables import CART, DAQ
 
 if TYPE_CHECKING:  # pragma: no cover
     from controller.context import LayerContext
@@ -778,7 +778,7 @@ class JointPlannerLayer(Layer):
     title = "Joint Planner"
     short = "JNTP"
     #: the Cartesian Engine's command (writer "cartesian"); without them only joint goals work
-    CART_VARS = ("cart.pos_cmd_m", "cart.quat_cmd", "cart.cmd_valid", "cart.cmd_seq")
+    CART_VARS = (CART.pos_cmd_m, CART.quat_cmd, CART.cmd_valid, CART.cmd_seq)
     #: the Multi-Segment Path Planner's joint moves (writer "msp"); without them none
     JMOVE_VARS = ("msp.jmove_seq", "msp.jmove_goal_rad", "msp.jmove_speed", "msp.jmove_stop")
     MODE_JOINT, MODE_CARTESIAN = 0, 1
@@ -878,19 +878,19 @@ class JointPlannerLayer(Layer):
         p, quat = kin.fk(v[DAQ.joint_angle_rad], self.shoulder_roll_rad)
         out: dict = {JOINT.tool_pos_m: p, JOINT.tool_quat: quat}
         if status == Status.START_UP_COMPLETE:
-            valid = cart and bool(v["cart.cmd_valid"])
+            valid = cart and bool(v[CART.cmd_valid])
             if int(v[JOINT.goal_seq]) != self._seen_goal:
                 if self._jm is not None:
                     self._jmove_end(rt, JMOVE_STOPPED, "a user joint goal took over", out)
                 self._set_mode(rt, self.MODE_JOINT, out)
                 self._joint_goal(rt, v, out)
-                self._cart_at_goal = (np.array(v["cart.pos_cmd_m"], dtype=float),
-                                      np.array(v["cart.quat_cmd"], dtype=float)) if valid else None
+                self._cart_at_goal = (np.array(v[CART.pos_cmd_m], dtype=float),
+                                      np.array(v[CART.quat_cmd], dtype=float)) if valid else None
             elif jm and (self._jm is not None or int(v["msp.jmove_seq"]) != self._jm_seen):
                 self._joint_move(rt, v, out)
                 if valid and self._jm is None:  # ended: joint mode until the Cartesian command changes
-                    self._cart_at_goal = (np.array(v["cart.pos_cmd_m"], dtype=float),
-                                          np.array(v["cart.quat_cmd"], dtype=float))
+                    self._cart_at_goal = (np.array(v[CART.pos_cmd_m], dtype=float),
+                                          np.array(v[CART.quat_cmd], dtype=float))
             elif valid and (self.mode == self.MODE_CARTESIAN or self._cart_moved(v)):
                 self._cart_at_goal = None
                 self._cartesian(rt, kin, v, out)
@@ -903,8 +903,8 @@ class JointPlannerLayer(Layer):
         if self._cart_at_goal is None:
             return True
         p, q = self._cart_at_goal
-        return not (np.array_equal(p, np.asarray(v["cart.pos_cmd_m"], dtype=float))
-                    and np.array_equal(q, np.asarray(v["cart.quat_cmd"], dtype=float)))
+        return not (np.array_equal(p, np.asarray(v[CART.pos_cmd_m], dtype=float))
+                    and np.array_equal(q, np.asarray(v[CART.quat_cmd], dtype=float)))
 
     def _set_mode(self, rt: "LayerContext", mode: int, out: dict) -> None:
         if mode != self.mode:
@@ -932,8 +932,8 @@ class JointPlannerLayer(Layer):
         if self.mode != self.MODE_CARTESIAN:
             # continue from the command in force (a joint goal, or the start-up angles): no jump
             self._set_mode(rt, self.MODE_CARTESIAN, out)
-        pos = np.asarray(v["cart.pos_cmd_m"], dtype=float)
-        q4 = np.asarray(v["cart.quat_cmd"], dtype=float)
+        pos = np.asarray(v[CART.pos_cmd_m], dtype=float)
+        q4 = np.asarray(v[CART.quat_cmd], dtype=float)
         n = float(np.dot(q4, q4)) if np.all(np.isfinite(q4)) else 0.0
         if not (np.all(np.isfinite(pos)) and 0.5 < n < 2.0):
             if not self._bad_cmd:

@@ -41,6 +41,7 @@ from controller.messages import Level
 from controller.profile import Trapezoid, plan_trapezoid
 from controller.quat import q_conj, q_from_rotvec, q_mul, q_normalize, q_to_rotvec
 from controller.worldmodel import VarSpec
+from controller.variables import CART
 
 if TYPE_CHECKING:  # pragma: no cover
     from controller.context import LayerContext
@@ -197,7 +198,7 @@ class SegmentRun:
 SEG_VARS = ("msp.seg_seq", "msp.seg_pos_m", "msp.seg_quat", "msp.seg_limits", "msp.seg_last", "msp.seg_stop")
 CAP_VARS = ("traj.v_lin_max_m_s", "traj.a_lin_max_m_s2", "traj.v_rot_max_rad_s", "traj.a_rot_max_rad_s2")
 #: start-pose sources, in order of preference (read only if the model has them)
-CART_START = ("cart.cmd_valid", "cart.pos_cmd_m", "cart.quat_cmd")
+CART_START = (CART.cmd_valid, CART.pos_cmd_m, CART.quat_cmd)
 TOOL_START = (JOINT.tool_pos_m, JOINT.tool_quat)
 
 
@@ -289,8 +290,8 @@ class TrajectoryLayer(Layer):
             return self.hold_p, self.hold_q
         if self._has(rt, CART_START):
             v = rt.wm.get_task_inputs(CART_START)
-            if bool(v["cart.cmd_valid"]):
-                return np.asarray(v["cart.pos_cmd_m"], float), q_normalize(v["cart.quat_cmd"])
+            if bool(v[CART.cmd_valid]):
+                return np.asarray(v[CART.pos_cmd_m], float), q_normalize(v[CART.quat_cmd])
         if self._has(rt, TOOL_START):
             v = rt.wm.get_task_inputs(TOOL_START)
             q = np.asarray(v[JOINT.tool_quat], float)

@@ -16,13 +16,13 @@ from controller.layers import JointVars, UiVars
 from controller.runtime import RuntimeVars
 from controller.servo import ServoVars
 from controller.teleop import TeleopVars
-from controller.variables import DaqVars
+from controller.variables import CartVars, DaqVars
 from controller.worldmodel.var import VarGroup
 
 #: every declared group, in the order the document lists them
 #: (the layers' from the bottom up, then System Up/Down's requests and the runtime's own)
-GROUPS: tuple[type[VarGroup], ...] = (DaqVars, ServoVars, GripperVars, JointVars, ForceVars, DelayVars, TeleopVars,
-                                      UiVars, RuntimeVars)
+GROUPS: tuple[type[VarGroup], ...] = (DaqVars, ServoVars, GripperVars, JointVars, CartVars, ForceVars, DelayVars,
+                                      TeleopVars, UiVars, RuntimeVars)
 
 DOC_BEGIN = "<!-- variables: generated from the VarGroup declarations; regenerate: python -m controller.vardoc -->"
 DOC_END = "<!-- end of the generated variables -->"

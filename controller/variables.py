@@ -4,7 +4,9 @@ code that reads and writes them are made from these declarations (docs/world-mod
 "Variables a tool can follow").
 
 A group lives here rather than in its layer's module when layers that import each other
-read it (``DAQ``: the Servo, Joint Planner, Cartesian, Path Planner and gripper layers).
+read it (``DAQ``: the Servo, Joint Planner, Cartesian, Path Planner and gripper layers;
+``CART``: the Cartesian layer's command, read by the Joint Planner, the trajectory planner
+and the Path Planner).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import numpy as np
 
 from bit3.layout import HAND_CONTROLLERS, HC_AXES, ServiceState
 from controller.params import JOINTS, N_JOINTS
+from controller.teleop import COARSE_LIN_M_S, COARSE_ROT_RAD_S, FRAME_NAMES, HC_SOURCE_NAMES
 from controller.worldmodel.var import Var, VarGroup, var
 
 #: the Data Acquisition layer's hardware checks (``daq.fault_bits``, a bit each)
@@ -67,3 +70,40 @@ class DaqVars(VarGroup, prefix="daq", writer="daq"):
 
 
 DAQ = DaqVars
+
+#: ``cart.mode``: the Cartesian layer's modes (controller/cartesian.py)
+MODE_HOLD, MODE_TELEOP, MODE_TRAJECTORY = 0, 1, 2
+MODE_NAMES = {MODE_HOLD: "HOLD", MODE_TELEOP: "TELEOP", MODE_TRAJECTORY: "TRAJECTORY"}
+
+
+class CartVars(VarGroup, prefix="cart", writer="cartesian"):
+    """The Cartesian layer's user controls (writer ``user``), its command to the Joint
+    Planner and its status (controller/cartesian.py)."""
+
+    mode: Var[int] = var("command_input", "i2", (), 0, writer="user", doc="Cartesian mode", enum=MODE_NAMES)
+    hc_source: Var[int] = var("command_input", "i2", (), 0, writer="user",
+                              doc="the hand controller teleoperation follows", enum=HC_SOURCE_NAMES)
+    hc_frame: Var[int] = var("command_input", "i2", (), 0, writer="user",
+                             doc="hand-controller rates in the world frame or the tool frame", enum=FRAME_NAMES)
+    hc_gain_lin_m_s: Var[np.ndarray] = var(
+        "command_input", "f8", (3,), [COARSE_LIN_M_S] * 3, "m/s", writer="user",
+        doc="rate at full deflection, x y z (then limited to 0.15 m/s coarse, 0.03 vernier)")
+    hc_gain_rot_rad_s: Var[np.ndarray] = var(
+        "command_input", "f8", (3,), [COARSE_ROT_RAD_S] * 3, "rad/s", writer="user",
+        doc="rate at full deflection, roll pitch yaw (then limited to 0.25 rad/s coarse, 0.05 vernier)")
+    vernier: Var[bool] = var("command_input", "b1", (), False, writer="user",
+                             doc="vernier rates (x0.2, limits 0.03 m/s 0.05 rad/s; pfma-model 8.2)")
+    pos_cmd_m: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0] * 3, "m", doc="commanded tool point, world")
+    quat_cmd: Var[np.ndarray] = var("task_io", "f8", (4,), [1.0, 0.0, 0.0, 0.0], "1",
+                                    doc="commanded tool orientation (w x y z), world")
+    cmd_valid: Var[bool] = var("task_io", "b1", (), False, doc="the Cartesian command is valid")
+    cmd_seq: Var[int] = var("task_io", "i4", (), 0, doc="new with every Cartesian command (80 Hz)")
+    ref_pos_m: Var[np.ndarray] = var("task_status", "f8", (3,), [0.0] * 3, "m",
+                                     doc="reference before the force offset")
+    ref_quat: Var[np.ndarray] = var("task_status", "f8", (4,), [1.0, 0.0, 0.0, 0.0], "1",
+                                    doc="reference orientation before the force offset")
+    hc_active: Var[bool] = var("task_status", "b1", (), False,
+                               doc="the (delayed) hand controller moves the reference (deadman held)")
+
+
+CART = CartVars

@@ -50,7 +50,7 @@ from controller.paths.store import PathStore, _now_text, path_missing
 from controller.quat import q_angle, q_normalize
 from controller.trajectory import DoneCode, segment_specs
 from controller.worldmodel import VarSpec
-from controller.variables import DAQ
+from controller.variables import CART, DAQ
 from pfma.gripper import ACTION_NAMES as GRIPPER_ACTION_NAMES, ACTIONS as GRIPPER_ACTIONS, COMPLETE, IN_PROGRESS
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -102,7 +102,7 @@ class MspResult:
 
 
 TOOL_POSE = (JOINT.tool_pos_m, JOINT.tool_quat)
-CMD_POSE = ("cart.cmd_valid", "cart.pos_cmd_m", "cart.quat_cmd")
+CMD_POSE = (CART.cmd_valid, CART.pos_cmd_m, CART.quat_cmd)
 USER_VARS = ("msp.mode", "msp.path_id", "msp.teach", "msp.capture", "msp.capture_dist_m", "msp.capture_angle_rad",
              "msp.speed_scale", "msp.record_source")
 #: the gripper's accepted user requests (Servo Control, controller/gripper.py): a recording stores each
@@ -114,7 +114,7 @@ _RUN_VARS = USER_VARS + MOVE_USER_VARS
 #: what the check and the tracking read from the layers below, when the model has them
 JOINT_VARS = (JOINT.q_cmd_rad, JOINT.q_cmd_valid, DAQ.joint_angle_rad)
 ROLL_VAR = JOINT.shoulder_roll_rad
-CART_MODE = "cart.mode"
+CART_MODE = CART.mode
 JMOVE_DONE = (JOINT.jmove_done_seq, JOINT.jmove_done_code)
 #: cart.mode that follows the Trajectory Planner (controller.cartesian MODE_TRAJECTORY)
 CART_TRAJECTORY = 2
@@ -292,9 +292,9 @@ class MultiSegmentLayer(Layer):
             if not self._has(rt, CMD_POSE):
                 return None
             v = rt.wm.get_task_inputs(CMD_POSE)
-            if not bool(v["cart.cmd_valid"]):
+            if not bool(v[CART.cmd_valid]):
                 return None
-            return np.asarray(v["cart.pos_cmd_m"], dtype=float), q_normalize(v["cart.quat_cmd"])
+            return np.asarray(v[CART.pos_cmd_m], dtype=float), q_normalize(v[CART.quat_cmd])
         if not self._has(rt, TOOL_POSE):
             return None
         v = rt.wm.get_task_inputs(TOOL_POSE)
@@ -461,8 +461,8 @@ class MultiSegmentLayer(Layer):
         Cartesian command if valid, else the measured tool pose)."""
         if self._has(rt, CMD_POSE):
             v = rt.wm.get_task_inputs(CMD_POSE)
-            if bool(v["cart.cmd_valid"]):
-                return np.asarray(v["cart.pos_cmd_m"], dtype=float), q_normalize(v["cart.quat_cmd"])
+            if bool(v[CART.cmd_valid]):
+                return np.asarray(v[CART.pos_cmd_m], dtype=float), q_normalize(v[CART.quat_cmd])
         if self._has(rt, TOOL_POSE):
             v = rt.wm.get_task_inputs(TOOL_POSE)
             q = np.asarray(v[JOINT.tool_quat], dtype=float)
