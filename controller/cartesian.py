@@ -57,6 +57,7 @@ from controller.force import (
 from controller.layers import JOINT, Layer
 from controller.messages import Level
 from controller.quat import q_conj, q_from_rotvec, q_mul, q_normalize, q_to_matrix, q_to_rotvec
+from controller.trajectory import TRAJ
 from controller.teleop import (
     TELEOP, COARSE_LIN_M_S, COARSE_ROT_RAD_S, FRAME_TOOL, HC_CRL, HC_SOURCES, HcSample, Telemetry, hc_twist, reflect,
 )
@@ -76,7 +77,7 @@ MAX_LAG_RAD = 0.20
 #: it); without it in the model (no Joint Planner) the index is 0
 ROLL_VAR = JOINT.shoulder_roll_rad
 #: the trajectory planner's outputs (T's layer); trajectory mode needs them in the model
-TRAJ_VARS = ("traj.pos_m", "traj.quat", "traj.active")
+TRAJ_VARS = (TRAJ.pos_m, TRAJ.quat, TRAJ.active)
 #: the Joint Planner's measured tool pose (K's layer); without it fk(daq angles) is used
 TOOL_VARS = (JOINT.tool_pos_m, JOINT.tool_quat)
 #: the Joint Planner's joint moves: when one ends the held pose becomes fk of the joint command
@@ -297,10 +298,10 @@ class CartesianLayer(Layer):
                                                f"({'no trajectory planner in the world model' if mode == 2 else 'unknown'}); "
                                                f"holding")
             mode = MODE_HOLD
-        traj_active = bool(v["traj.active"]) if have["traj"] else False
+        traj_active = bool(v[TRAJ.active]) if have["traj"] else False
         if have["traj"] and traj_active:
-            self.traj_pos = np.asarray(v["traj.pos_m"], float)
-            tq = np.asarray(v["traj.quat"], float)
+            self.traj_pos = np.asarray(v[TRAJ.pos_m], float)
+            tq = np.asarray(v[TRAJ.quat], float)
             if float(tq @ tq) > 0.5:
                 self.traj_quat = q_normalize(tq)
         if mode != self.mode:

@@ -42,6 +42,7 @@ from controller.profile import Trapezoid, plan_trapezoid
 from controller.quat import q_conj, q_from_rotvec, q_mul, q_normalize, q_to_rotvec
 from controller.worldmodel import VarSpec
 from controller.variables import CART
+from controller.worldmodel.var import Var, VarGroup, var
 
 if TYPE_CHECKING:  # pragma: no cover
     from controller.context import LayerContext
@@ -196,7 +197,6 @@ class SegmentRun:
 
 #: segment variables the Multi-Segment Path Planner posts (writer "msp")
 SEG_VARS = ("msp.seg_seq", "msp.seg_pos_m", "msp.seg_quat", "msp.seg_limits", "msp.seg_last", "msp.seg_stop")
-CAP_VARS = ("traj.v_lin_max_m_s", "traj.a_lin_max_m_s2", "traj.v_rot_max_rad_s", "traj.a_rot_max_rad_s2")
 #: start-pose sources, in order of preference (read only if the model has them)
 CART_START = (CART.cmd_valid, CART.pos_cmd_m, CART.quat_cmd)
 TOOL_START = (JOINT.tool_pos_m, JOINT.tool_quat)
@@ -218,6 +218,43 @@ def segment_specs() -> list[VarSpec]:
         VarSpec("msp.seg_stop", "task_io", "b1", (), "msp", False,
                 doc="stop: decelerate the running segment to rest and release the trajectory"),
     ]
+
+
+class TrajVars(VarGroup, prefix="traj", writer="trajectory"):
+    """The Trajectory Planner's outputs (read by the Cartesian Engine and the Path Planner)
+    and the user's caps (writer ``user``, protected)."""
+
+    pos_m: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0, 0.0, 0.0], "m",
+                                 doc="trajectory tool position (world frame), valid while traj.active")
+    quat: Var[np.ndarray] = var("task_io", "f8", (4,), [1.0, 0.0, 0.0, 0.0],
+                                doc="trajectory tool orientation (unit quaternion w,x,y,z, tool in world)")
+    vel_m_s: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0, 0.0, 0.0], "m/s",
+                                   doc="trajectory linear velocity (world frame; feed-forward)")
+    omega_rad_s: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0, 0.0, 0.0], "rad/s",
+                                       doc="trajectory angular velocity (world frame; feed-forward)")
+    t_s: Var[float] = var("task_io", "f8", (), 0.0, "s",
+                          doc="controller time (rt.now) at which traj.pos_m/traj.quat were evaluated")
+    active: Var[bool] = var("task_io", "b1", (), False,
+                            doc="a trajectory commands the pose (running a segment or holding between segments)")
+    seg_seq: Var[int] = var("task_io", "i4", (), 0, doc="the segment being executed (msp.seg_seq)")
+    progress: Var[float] = var("task_io", "f8", (), 0.0, doc="path parameter s of the running segment (0..1)")
+    done_seq: Var[int] = var("task_io", "i4", (), 0, doc="the last segment finished (the request for the next one)")
+    done_code: Var[int] = var("task_io", "i2", (), 0, doc="how traj.done_seq ended", enum=DoneCode.NAMES)
+    v_lin_max_m_s: Var[float] = var("control_flags", "f8", (), DEFAULT_CAP.v_lin_m_s, "m/s", writer="user",
+                                    protected=True,
+                                    doc="trajectory translation speed cap (pfma-model 8.2 coarse teleop limit)")
+    a_lin_max_m_s2: Var[float] = var("control_flags", "f8", (), DEFAULT_CAP.a_lin_m_s2, "m/s^2", writer="user",
+                                     protected=True, doc="trajectory translation acceleration cap (assumed)")
+    v_rot_max_rad_s: Var[float] = var("control_flags", "f8", (), DEFAULT_CAP.v_rot_rad_s, "rad/s", writer="user",
+                                      protected=True,
+                                      doc="trajectory rotation speed cap (pfma-model 8.2 coarse teleop limit)")
+    a_rot_max_rad_s2: Var[float] = var("control_flags", "f8", (), DEFAULT_CAP.a_rot_rad_s2, "rad/s^2",
+                                       writer="user", protected=True,
+                                       doc="trajectory rotation acceleration cap (assumed)")
+
+
+TRAJ = TrajVars
+CAP_VARS = (TRAJ.v_lin_max_m_s, TRAJ.a_lin_max_m_s2, TRAJ.v_rot_max_rad_s, TRAJ.a_rot_max_rad_s2)
 
 
 class TrajectoryLayer(Layer):
@@ -246,38 +283,7 @@ class TrajectoryLayer(Layer):
         self.samples_posted = 0
 
     def specs(self) -> list[VarSpec]:
-        z3 = [0.0, 0.0, 0.0]
-        cap = DEFAULT_CAP
-        return self.state_specs() + [
-            VarSpec("traj.pos_m", "task_io", "f8", (3,), "trajectory", z3, "m",
-                    doc="trajectory tool position (world frame), valid while traj.active"),
-            VarSpec("traj.quat", "task_io", "f8", (4,), "trajectory", [1.0, 0.0, 0.0, 0.0],
-                    doc="trajectory tool orientation (unit quaternion w,x,y,z, tool in world)"),
-            VarSpec("traj.vel_m_s", "task_io", "f8", (3,), "trajectory", z3, "m/s",
-                    doc="trajectory linear velocity (world frame; feed-forward)"),
-            VarSpec("traj.omega_rad_s", "task_io", "f8", (3,), "trajectory", z3, "rad/s",
-                    doc="trajectory angular velocity (world frame; feed-forward)"),
-            VarSpec("traj.t_s", "task_io", "f8", (), "trajectory", 0.0, "s",
-                    doc="controller time (rt.now) at which traj.pos_m/traj.quat were evaluated"),
-            VarSpec("traj.active", "task_io", "b1", (), "trajectory", False,
-                    doc="a trajectory commands the pose (running a segment or holding between segments)"),
-            VarSpec("traj.seg_seq", "task_io", "i4", (), "trajectory", 0,
-                    doc="the segment being executed (msp.seg_seq)"),
-            VarSpec("traj.progress", "task_io", "f8", (), "trajectory", 0.0,
-                    doc="path parameter s of the running segment (0..1)"),
-            VarSpec("traj.done_seq", "task_io", "i4", (), "trajectory", 0,
-                    doc="the last segment finished (the request for the next one)"),
-            VarSpec("traj.done_code", "task_io", "i2", (), "trajectory", 0,
-                    doc="how traj.done_seq ended", enum=DoneCode.NAMES),
-            VarSpec("traj.v_lin_max_m_s", "control_flags", "f8", (), "user", cap.v_lin_m_s, "m/s", protected=True,
-                    doc="trajectory translation speed cap (pfma-model 8.2 coarse teleop limit)"),
-            VarSpec("traj.a_lin_max_m_s2", "control_flags", "f8", (), "user", cap.a_lin_m_s2, "m/s^2",
-                    protected=True, doc="trajectory translation acceleration cap (assumed)"),
-            VarSpec("traj.v_rot_max_rad_s", "control_flags", "f8", (), "user", cap.v_rot_rad_s, "rad/s",
-                    protected=True, doc="trajectory rotation speed cap (pfma-model 8.2 coarse teleop limit)"),
-            VarSpec("traj.a_rot_max_rad_s2", "control_flags", "f8", (), "user", cap.a_rot_rad_s2, "rad/s^2",
-                    protected=True, doc="trajectory rotation acceleration cap (assumed)"),
-        ]
+        return self.state_specs() + TRAJ.specs()
 
     # --- helpers ---------------------------------------------------------------------------
     def _has(self, rt: "LayerContext", names: Sequence[str]) -> bool:
@@ -304,13 +310,13 @@ class TrajectoryLayer(Layer):
         if release:
             self.active = False
         rt.wm.post_task_outputs("trajectory", {
-            "traj.done_seq": seq, "traj.done_code": code, "traj.active": self.active,
-            "traj.vel_m_s": np.zeros(3), "traj.omega_rad_s": np.zeros(3)})
+            TRAJ.done_seq: seq, TRAJ.done_code: code, TRAJ.active: self.active,
+            TRAJ.vel_m_s: np.zeros(3), TRAJ.omega_rad_s: np.zeros(3)})
 
     def _post_pose(self, rt: "LayerContext", p, q, v, w, s: float) -> None:
         rt.wm.post_task_outputs("trajectory", {
-            "traj.pos_m": p, "traj.quat": q, "traj.vel_m_s": v, "traj.omega_rad_s": w,
-            "traj.progress": s, "traj.active": True, "traj.t_s": float(rt.now)})
+            TRAJ.pos_m: p, TRAJ.quat: q, TRAJ.vel_m_s: v, TRAJ.omega_rad_s: w,
+            TRAJ.progress: s, TRAJ.active: True, TRAJ.t_s: float(rt.now)})
         self.samples_posted += 1
 
     def release(self, rt: "LayerContext", why: str) -> None:
@@ -322,7 +328,7 @@ class TrajectoryLayer(Layer):
             self._finish(rt, seq, DoneCode.STOPPED, True)
         elif self.active:
             self.active = False
-            rt.wm.post_task_outputs("trajectory", {"traj.active": False})
+            rt.wm.post_task_outputs("trajectory", {TRAJ.active: False})
 
     def seq_shutdown(self, rt: "LayerContext"):
         self.release(rt, "shut down")
@@ -346,7 +352,7 @@ class TrajectoryLayer(Layer):
         if self.run is None:
             if self.active and stop:  # playback cancelled while holding
                 self.active = False
-                rt.wm.post_task_outputs("trajectory", {"traj.active": False})
+                rt.wm.post_task_outputs("trajectory", {TRAJ.active: False})
             return
         r = self.run
         if stop and r.stop_t_s is None:
@@ -383,7 +389,7 @@ class TrajectoryLayer(Layer):
         self._last_flag = bool(v["msp.seg_last"])
         self.run = SegmentRun(seg, rt.now, seq)
         self.active = True
-        rt.wm.post_task_outputs("trajectory", {"traj.seg_seq": seq})
+        rt.wm.post_task_outputs("trajectory", {TRAJ.seg_seq: seq})
         rt.post(self.key, Level.DEBUG, f"segment {seq}: {seg.length_m * 1e3:.1f} mm, "
                                        f"{math.degrees(seg.angle_rad):.2f} deg in {seg.duration_s:.3f} s")
         s, sdot, _, _ = self.run.sample(rt.now)

@@ -2,7 +2,7 @@
 tests/controller/test_variables.py, keeps the file equal to it). A leaf module: it imports
 every module that declares a group (controller/variables.py, controller/servo.py,
 controller/layers.py, controller/gripper.py, controller/force.py, controller/delay.py,
-controller/teleop.py, controller/runtime.py).
+controller/teleop.py, controller/trajectory.py, controller/runtime.py).
 
 Regenerate: ``python -m controller.vardoc`` prints the block.
 """
@@ -16,12 +16,13 @@ from controller.layers import JointVars, UiVars
 from controller.runtime import RuntimeVars
 from controller.servo import ServoVars
 from controller.teleop import TeleopVars
+from controller.trajectory import TrajVars
 from controller.variables import CartVars, DaqVars
 from controller.worldmodel.var import VarGroup
 
 #: every declared group, in the order the document lists them
 #: (the layers' from the bottom up, then System Up/Down's requests and the runtime's own)
-GROUPS: tuple[type[VarGroup], ...] = (DaqVars, ServoVars, GripperVars, JointVars, CartVars, ForceVars, DelayVars,
+GROUPS: tuple[type[VarGroup], ...] = (DaqVars, ServoVars, GripperVars, JointVars, CartVars, TrajVars, ForceVars, DelayVars,
                                       TeleopVars, UiVars, RuntimeVars)
 
 DOC_BEGIN = "<!-- variables: generated from the VarGroup declarations; regenerate: python -m controller.vardoc -->"

@@ -48,7 +48,7 @@ from controller.paths.move import MOVE_REQUEST_LEN, MoveKind, MoveRequest
 from controller.paths.planner import PlannedSegment, plan_path, segment_deviation
 from controller.paths.store import PathStore, _now_text, path_missing
 from controller.quat import q_angle, q_normalize
-from controller.trajectory import DoneCode, segment_specs
+from controller.trajectory import TRAJ, DoneCode, segment_specs
 from controller.worldmodel import VarSpec
 from controller.variables import CART, DAQ
 from pfma.gripper import ACTION_NAMES as GRIPPER_ACTION_NAMES, ACTIONS as GRIPPER_ACTIONS, COMPLETE, IN_PROGRESS
@@ -717,10 +717,10 @@ class MultiSegmentLayer(Layer):
         if self._grip_wait:
             self._wait_gripper(rt, job)
             return
-        v = rt.wm.get_task_inputs(("traj.done_seq", "traj.done_code"))
-        if int(v["traj.done_seq"]) != self._seg_seq:
+        v = rt.wm.get_task_inputs((TRAJ.done_seq, TRAJ.done_code))
+        if int(v[TRAJ.done_seq]) != self._seg_seq:
             return
-        code = int(v["traj.done_code"])
+        code = int(v[TRAJ.done_code])
         if code == DoneCode.REFUSED:
             self._end(rt, MspResult.REFUSED, f"{job.label}: segment {self._seg_i + 1} refused by the "
                                              f"Trajectory Planner", move_seq=job.move_seq)

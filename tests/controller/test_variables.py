@@ -170,3 +170,14 @@ def test_cart_names_are_the_old_strings() -> None:
     assert cartesian.MODE_NAMES is variables.MODE_NAMES and cartesian.MODE_TRAJECTORY == 2  # still importable there
     specs = {s.name: s for s in cartesian.CartesianLayer().specs()}
     assert all(specs[v].name is v for v in CART.all())
+
+
+def test_traj_names_are_the_old_strings() -> None:
+    from controller.trajectory import CAP_VARS, TRAJ, TrajectoryLayer
+    assert [str(v) for v in TRAJ.all()] == [f"traj.{n}" for n in (
+        "pos_m", "quat", "vel_m_s", "omega_rad_s", "t_s", "active", "seg_seq", "progress", "done_seq", "done_code",
+        "v_lin_max_m_s", "a_lin_max_m_s2", "v_rot_max_rad_s", "a_rot_max_rad_s2")]
+    assert all(v.writer == "user" and v.spec.protected for v in CAP_VARS)
+    assert all(v.writer == "trajectory" for v in TRAJ.all()[:10])
+    specs = {s.name: s for s in TrajectoryLayer().specs()}
+    assert all(specs[v].name is v for v in TRAJ.all())
