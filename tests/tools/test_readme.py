@@ -73,6 +73,7 @@ NOT_RUN = {
 #: commands that need nothing running (the `serve` lines need the buffer free)
 RUN_ALONE = (
     f"{PFMA} serve --duration 3",
+    f"{PFMA} serve --duration 1 --log-level warning",
     f"{PFMA} read elbow_pitch_angle",  # no service: its documented exit 1 (EXIT_CODES)
     f"{PFMA} read --bus fake elbow_pitch_angle",
     f"{PFMA} layout --json",
@@ -105,6 +106,7 @@ RUN_ALONE = (
 #: processes at a time); the benches last, alone (they measure the host)
 ON_DEFAULT_NAMES = (
     f"{PFMA} serve --duration 3",
+    f"{PFMA} serve --duration 1 --log-level warning",
     f"{PFMA} read elbow_pitch_angle",
     f"{PFMA} serve --duration 3 --modbus 127.0.0.1:5020",
     f"{PFMA} serve --duration 2 --hid fake",
