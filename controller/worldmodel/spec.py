@@ -135,6 +135,18 @@ class VarSpec:
 
     def __post_init__(self) -> None:
         where = f"world-model variable {self.name!r}"
+        dt, shape = self._check_type(where)
+        self._check_named_values(where, dt)
+        self._check_initial(where)
+        self._check_user(where)
+        self._check_choices(where, shape)
+        # derived once: the controller reads variables thousands of times a second
+        object.__setattr__(self, "_np_dtype", np.dtype(self.dtype))
+        object.__setattr__(self, "_count", int(np.prod(self.shape, dtype=np.int64)))
+
+    def _check_type(self, where: str) -> tuple[np.dtype, tuple]:
+        """Name, area, dtype, shape and writer checked; dtype and shape made canonical.
+        Returns the dtype and the shape as given (as a tuple, for later messages)."""
         if not isinstance(self.name, str) or not _NAME_RE.match(self.name):
             raise WorldModelError(f"{where}: bad name (letters, digits, '_', '.', '-'; "
                                   f"starts with a letter; at most 64 characters)")
@@ -148,6 +160,10 @@ class VarSpec:
         object.__setattr__(self, "shape", tuple(int(n) for n in shape))
         if not isinstance(self.writer, str) or not self.writer.strip():
             raise WorldModelError(f"{where}: needs exactly one writer (a task or layer name)")
+        return dt, shape
+
+    def _check_named_values(self, where: str, dt: np.dtype) -> None:
+        """``enum`` and ``flags`` stored as sorted pairs (and as maps), checked to fit."""
         for what in ("enum", "flags"):
             pairs = _named_values(getattr(self, what), f"{where}: {what}")
             if pairs and (self.shape != () or dt.kind not in "iu"):
@@ -159,12 +175,18 @@ class VarSpec:
             raise WorldModelError(f"{where}: an enumeration or a bit set, not both")
         object.__setattr__(self, "_enum_map", dict(self.enum))
         object.__setattr__(self, "_flag_map", dict(self.flags))
+
+    def _check_initial(self, where: str) -> None:
         try:
             value = coerce(self, self.initial)
         except WorldModelValueError as err:
             raise WorldModelError(f"{where}: initial value is not valid (report rule 4: every "
                                   f"variable holds a valid value after initialisation): {err}") from None
         object.__setattr__(self, "initial", _freeze(value))
+
+    def _check_user(self, where: str) -> None:
+        """``user`` derived if not given and checked against the writer and area; ``protected``
+        kept equal to ``user == "powered_down"``."""
         user = self.user or default_user(self.area, self.writer, bool(self.protected))
         if user not in USER_MODES:
             raise WorldModelError(f"{where}: user {self.user!r} is not one of {', '.join(USER_MODES)}")
@@ -178,25 +200,25 @@ class VarSpec:
                 f"write would give it a second writer")
         object.__setattr__(self, "user", user)
         object.__setattr__(self, "protected", user == USER_POWERED_DOWN)
-        if self.choices:
-            if shape != ():
-                raise WorldModelError(f"{where}: choices need a scalar variable, not shape {shape}")
-            if self.enum or self.flags:
-                raise WorldModelError(f"{where}: choices or an enumeration/bit set, not both "
-                                      f"(an enumeration already limits its values)")
-            try:
-                choices = tuple(coerce(self, c).item() for c in self.choices)
-            except WorldModelValueError as err:
-                raise WorldModelError(f"{where}: a choice is not a valid value: {err}") from None
-            object.__setattr__(self, "choices", choices)
-            if self.initial not in choices:
-                raise WorldModelError(f"{where}: initial value {self.initial!r} is not one of its choices "
-                                      f"{', '.join(map(str, choices))}")
-        else:
+
+    def _check_choices(self, where: str, shape: tuple) -> None:
+        """``choices`` coerced to the variable's type and checked (``shape``: as given)."""
+        if not self.choices:
             object.__setattr__(self, "choices", ())
-        # derived once: the controller reads variables thousands of times a second
-        object.__setattr__(self, "_np_dtype", np.dtype(self.dtype))
-        object.__setattr__(self, "_count", int(np.prod(self.shape, dtype=np.int64)))
+            return
+        if shape != ():
+            raise WorldModelError(f"{where}: choices need a scalar variable, not shape {shape}")
+        if self.enum or self.flags:
+            raise WorldModelError(f"{where}: choices or an enumeration/bit set, not both "
+                                  f"(an enumeration already limits its values)")
+        try:
+            choices = tuple(coerce(self, c).item() for c in self.choices)
+        except WorldModelValueError as err:
+            raise WorldModelError(f"{where}: a choice is not a valid value: {err}") from None
+        object.__setattr__(self, "choices", choices)
+        if self.initial not in choices:
+            raise WorldModelError(f"{where}: initial value {self.initial!r} is not one of its choices "
+                                  f"{', '.join(map(str, choices))}")
 
     @property
     def np_dtype(self) -> np.dtype:
@@ -364,30 +386,51 @@ def coerce(spec: VarSpec, value: Any) -> np.ndarray:
     except (ValueError, TypeError) as err:  # ragged lists
         raise WorldModelValueError(f"{_where(spec)}: {value!r} is not a regular array ({err})") from None
     if a.shape != spec.shape:
-        got = "a scalar" if a.shape == () else f"shape {a.shape}"
-        want = "a scalar" if spec.shape == () else f"shape {spec.shape}"
-        raise WorldModelValueError(f"{_where(spec)}: {got} given, {want} expected")
+        raise WorldModelValueError(_shape_refusal(spec, a))
     k = a.dtype.kind
     if k not in "biuf":
         raise WorldModelValueError(f"{_where(spec)}: {value!r} is not a number (numpy kind {k!r})")
     if dt.kind == "b":
-        if k != "b" and not (k in "iu" and bool(np.all((a == 0) | (a == 1)))):
-            raise WorldModelValueError(f"{_where(spec)}: boolean variable needs true/false or 0/1, got {value!r}")
-        return np.array(a, dtype=dt, order="C")
+        return _coerce_bool(spec, dt, a, value)
     if k == "b":
         raise WorldModelValueError(f"{_where(spec)}: a boolean given for a {dt.name} variable")
     if dt.kind in "iu":
-        if k == "f":
-            raise WorldModelValueError(f"{_where(spec)}: a float given for an integer variable ({value!r})")
-        if a.size:
-            info = np.iinfo(dt)
-            lo, hi = int(a.min()), int(a.max())
-            if lo < info.min or hi > info.max:
-                raise WorldModelValueError(f"{_where(spec)}: {lo if lo < info.min else hi} is outside "
-                                           f"{dt.name} range [{info.min}, {info.max}]")
-        if spec.enum and int(a.item()) not in spec.enum_names:
-            raise WorldModelValueError(spec.value_refusal(int(a.item())))
-        return np.array(a, dtype=dt, order="C")
+        return _coerce_int(spec, dt, a, value)
+    return _coerce_float(spec, dt, a)
+
+
+def _shape_refusal(spec: VarSpec, a: np.ndarray) -> str:
+    got = "a scalar" if a.shape == () else f"shape {a.shape}"
+    want = "a scalar" if spec.shape == () else f"shape {spec.shape}"
+    return f"{_where(spec)}: {got} given, {want} expected"
+
+
+def _coerce_bool(spec: VarSpec, dt: np.dtype, a: np.ndarray, value: Any) -> np.ndarray:
+    """:func:`coerce` for a boolean variable: booleans, or integers 0/1."""
+    k = a.dtype.kind
+    if k != "b" and not (k in "iu" and bool(np.all((a == 0) | (a == 1)))):
+        raise WorldModelValueError(f"{_where(spec)}: boolean variable needs true/false or 0/1, got {value!r}")
+    return np.array(a, dtype=dt, order="C")
+
+
+def _coerce_int(spec: VarSpec, dt: np.dtype, a: np.ndarray, value: Any) -> np.ndarray:
+    """:func:`coerce` for an integer variable (``a``: integers or floats, not booleans):
+    no floats, in the dtype's range, one of the enumeration if any."""
+    if a.dtype.kind == "f":
+        raise WorldModelValueError(f"{_where(spec)}: a float given for an integer variable ({value!r})")
+    if a.size:
+        info = np.iinfo(dt)
+        lo, hi = int(a.min()), int(a.max())
+        if lo < info.min or hi > info.max:
+            raise WorldModelValueError(f"{_where(spec)}: {lo if lo < info.min else hi} is outside "
+                                       f"{dt.name} range [{info.min}, {info.max}]")
+    if spec.enum and int(a.item()) not in spec.enum_names:
+        raise WorldModelValueError(spec.value_refusal(int(a.item())))
+    return np.array(a, dtype=dt, order="C")
+
+
+def _coerce_float(spec: VarSpec, dt: np.dtype, a: np.ndarray) -> np.ndarray:
+    """:func:`coerce` for a float variable (``a``: numbers, not booleans): finite as ``dt``."""
     with np.errstate(over="ignore", invalid="ignore"):
         out = np.array(a, dtype=dt, order="C")
     if not bool(np.all(np.isfinite(out))):
