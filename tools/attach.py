@@ -40,7 +40,7 @@ from bit3.buffer import Bit3Error, LayoutMismatchError
 from bit3.client import Client
 from bit3.layout import Layout, ServiceState
 from pfma.errors import PfmaTimeoutError
-from tools.bridge.address import REMOTE_PREFIX, remote_target  # noqa: F401  (REMOTE_PREFIX: tools name it here)
+from tools.bridge.address import remote_target
 
 
 class Words:

@@ -262,7 +262,7 @@ def test_panel_switches_from_scenario_steps():
 
 
 def test_panel_switches_through_the_fault_control_and_pfma_fault(capsys):
-    from tools.cli.fault import MSG_FAULT_ON, FaultController
+    from tools.faultctl import MSG_FAULT_ON, FaultController
     with SimRig(prefix="pfma-panel-") as r:
         ctl = FaultController(r.svc, r.world, say=None)
         reply = ctl.handle({"op": "inject", "spec": "panel-off:pwm:gripper"})

@@ -31,9 +31,8 @@ from typing import Any
 
 from pfma.errors import ConfigError, PfmaError
 
-from tools.faultctl import (  # noqa: F401  (the endpoint and its client; names used by tests and tools)
-    HAND_HOLD_MAX_S, MAX_REQUEST_BYTES, MSG_FAULT_OFF, MSG_FAULT_ON, MSG_HAND, MSG_SCENARIO_STEP_FAILED, NO_ENDPOINT,
-    REPLY_TIMEOUT_S, FaultController, FaultEndpoint, NoEndpoint, request, socket_path)
+from tools.faultctl import (
+    FaultController, FaultEndpoint, NoEndpoint, request, socket_path)
 
 
 def add_parser(sub):

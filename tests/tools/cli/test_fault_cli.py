@@ -28,8 +28,8 @@ from bit3.layout import LINK_STALE
 from sim.rig import SimRig
 from sim.scenario import load_scenario
 from tools.cli import main
-from tools.cli.fault import (MSG_FAULT_OFF, MSG_FAULT_ON, NO_ENDPOINT, add_serve_fault_args,
-                             install_serve_faults, request, socket_path)
+from tools.cli.fault import add_serve_fault_args, install_serve_faults
+from tools.faultctl import MSG_FAULT_OFF, MSG_FAULT_ON, NO_ENDPOINT, request, socket_path
 
 ROOT = Path(__file__).resolve().parents[3]
 

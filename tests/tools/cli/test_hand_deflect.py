@@ -1,5 +1,5 @@
 """``pfma hand --deflect`` (issue 30 item 6): the simulated CAE stick of a running service,
-held through its control endpoint (tools/cli/fault.py), read back by the service's own CAE
+held through its control endpoint (tools/faultctl.py), read back by the service's own CAE
 driver into the Bit3 inputs, and let go after ``--for``; refused without a simulated rack.
 In-process: a SimRig's service with the endpoint, the client in a thread while the test
 steps the frames (tests/tools/cli/test_fault_cli.py's pattern)."""
@@ -17,7 +17,8 @@ from fakes.sim_rack import CAE_AXIS_SIGNALS
 from sim.rig import SimRig
 from tests.tools.cli.test_fault_cli import while_stepping
 from tools.cli import main
-from tools.cli.fault import MSG_HAND, install_serve_faults
+from tools.cli.fault import install_serve_faults
+from tools.faultctl import MSG_HAND
 from tools.hand import parse_deflection
 
 CAE = HAND_CONTROLLERS.index("cae")

@@ -127,7 +127,7 @@ def test_a_remote_buffer_for_the_simulated_system_is_one_message_exit_2(capsys):
 def test_the_simulated_system_keeps_what_serve_keeps_and_removes_it_all(name):
     """The frame ring (pfma record, watch, scope), the fault socket (pfma fault) and a named
     world model (pfma wm, pfma console) beside the buffer; none of them after close."""
-    from tools.cli.fault import socket_path
+    from tools.faultctl import socket_path
     from tools.console.simrun import SimulatedSystem
     wm = f"{name}_wm"
     system = SimulatedSystem(buffer=name, wm=wm)
