@@ -48,7 +48,6 @@ import numpy as np
 import pfma
 from pfma import config, nominal
 from pfma.errors import CalibrationError
-from pfma.ft_calibration import FtCalibration, ft_calibration  # noqa: F401 (re-exported: the file's F/T section)
 from pfma.rack import RackConfig
 
 FORMAT = "pfma-calibration"

@@ -99,7 +99,7 @@ class ToolLoad:
 
 
 def tool_load_from_calibration(cal) -> ToolLoad:
-    """The payload of a calibration file (:func:`calibration.files.ft_calibration`) when it
+    """The payload of a calibration file (:func:`pfma.ft_calibration.ft_calibration`) when it
     has one (mass > 0), else the 8.7 default tool."""
     from pfma.ft_calibration import ft_calibration
     ft = ft_calibration(cal) if cal is not None else None

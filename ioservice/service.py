@@ -978,7 +978,8 @@ class IoService(CommandPath):
     # calibration applied (calibration.files.apply_to_rack); resolver offsets, the CAE
     # and F/T sections and the header hash are applied here.
     def _apply_calibration_extras(self) -> None:
-        from calibration.files import cae_calibration, calibration_hash, ft_calibration
+        from calibration.files import cae_calibration, calibration_hash
+        from pfma.ft_calibration import ft_calibration
         self.rtd.calibrate(self.rack)
         cal = self.calibration
         self.ft.cal = ft_calibration(cal) if cal is not None else None

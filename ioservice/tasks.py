@@ -44,7 +44,7 @@ from pfma.errors import PfmaError
 
 if TYPE_CHECKING:
     from ioservice.host import TaskHost
-    from calibration.files import FtCalibration
+    from pfma.ft_calibration import FtCalibration
     from drivers.crl.cae import CaeHandController
     from drivers.crl.crl import CrlHandController
     from drivers.crl.hid import HidSpaceMouse

@@ -29,7 +29,8 @@ import math
 import numpy as np
 
 from calibration import fit as F
-from calibration.files import FtCalibration, ft_calibration, nominal_ft
+from calibration.files import nominal_ft
+from pfma.ft_calibration import FtCalibration, ft_calibration
 from calibration.kinematics import GRAVITY_M_S2, gravity_in_sensor
 from calibration.plot import Panel, Series, plot_fit, residual_panel
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name

@@ -8,6 +8,7 @@ import pytest
 from calibration import files
 from calibration.plot import Panel, Series, figure, plot_fit, read_png_size, residual_panel
 from pfma.errors import CalibrationError
+from pfma.ft_calibration import ft_calibration
 from pfma.rack import load_rack
 
 
@@ -87,7 +88,7 @@ def test_consumers_apply_to_rack_cae_ft(tmp_path, rack):
     assert r2.channel("wrist_roll_angle").offset == -0.1
     assert rack.channel("shoulder_yaw_rate").scale == 0.04  # the input is untouched
     assert files.cae_calibration(cal) is None
-    ft = files.ft_calibration(cal)
+    ft = ft_calibration(cal)
     assert np.allclose(ft.wrench([16, 0, 0, 200, 0, 0]), [1, 0, 0, 1, 0, 0])
 
 
