@@ -51,7 +51,7 @@ from bit3.layout import (  # noqa: F401 - inputs.fault_code values, re-exported 
     FAULT_OVERSPEED, FAULT_UNEXPECTED, FAULT_WATCHDOG,
 )
 from ioservice.chargepump import ChargePump
-from ioservice.command import _AGE_RING_MASK, STALL_BLAME_S, CommandPath  # noqa: F401 - STALL_BLAME_S re-exported
+from ioservice.command import _AGE_RING_MASK, CommandPath
 from ioservice.envelope import ServiceEnvelope
 from ioservice.commandcheck import TWO_WRITER_HOLD_S, ClaimStreamCheck
 from ioservice.direction import DirectionCheck

@@ -16,7 +16,7 @@ import json
 import sys
 
 from tools.cli import add_bus_arguments
-from tools.cli.reg import UsageError, close_bus, is_fake_bus, open_cli_bus
+from tools.regs import UsageError, close_bus, is_fake_bus, open_cli_bus
 from bit3.layout import RTD_NO_REFERENCE, RTD_LOSS_OF_SIGNAL, status_text
 from pfma.errors import PfmaError
 from pfma.rack import load_rack

@@ -17,9 +17,9 @@ import sys
 
 from tools.cli import add_bus_arguments
 from tools.cli.output import add_json_flag, print_json
-from tools.regs import (  # noqa: F401 - UsageError, open_cli_bus, close_bus, is_fake_bus: `pfma read` imports them from here
-    UsageError, close_bus, dump_board_config, dump_doc, dump_header, dump_rows,
-    is_fake_bus, open_cli_bus, plan_write, read_register, write_register)
+from tools.regs import (
+    UsageError, dump_board_config, dump_doc, dump_header, dump_rows,
+    is_fake_bus, plan_write, read_register, write_register)
 from pfma.rack import RackConfig, load_rack
 
 FAKE_NOTE = ("With --bus fake (the default) every command starts a fresh fake rack in its "
