@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -15,6 +16,23 @@ from typing import Any, Callable, Protocol
 
 #: the root of this package's tree (the directory holding ``pfma/``)
 ROOT = Path(__file__).resolve().parent.parent
+
+
+#: what a live stack prints when the host, not the software, kept a process from its frames:
+#: the controller's servo fault 12 (descheduled past its missed-frame limit,
+#: controller/servo.py), the service's watchdog trip on a late heartbeat (ioservice/safety.py)
+#: and a command computed from inputs too old (ioservice/command.py). On a 2-core VM these
+#: come even under SCHED_FIFO (the vCPU itself is descheduled); live tests and the kill
+#: matrix start a process again, or a test once more, on these causes only, and say so. The
+#: controller's own catch-up warning ("missed service frames 12..13 (2): caught up") is not one.
+HOST_TIMING_CAUSE = re.compile(r"fault 12: controller missed service frames[^\n]*"
+                               r"|stale heartbeat [\d.]+>[\d.]+ ms[^\n]*|command stale[^\n]*")
+
+
+def host_timing_cause(text: str) -> str | None:
+    """The first host-timing cause (:data:`HOST_TIMING_CAUSE`) ``text`` names, or None."""
+    m = HOST_TIMING_CAUSE.search(text)
+    return m.group(0) if m else None
 
 
 def package_env(drop: tuple[str, ...] = ()) -> dict[str, str]:

@@ -16,10 +16,10 @@ import pytest
 from bit3.buffer import Bit3Buffer
 from bit3.client import Client
 from bit3.layout import ServiceState
-from tests.controller._live_support import stop, wait_for
+from tests.controller._live_support import RERUN_ON_HOST_TIMING, host_timing_named, stop, wait_for
 from controller.worldmodel import WorldModel
 
-pytestmark = pytest.mark.realtime
+pytestmark = [pytest.mark.realtime, RERUN_ON_HOST_TIMING]
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -40,25 +40,26 @@ def test_halt_at_launch_holds_halted_while_waiting_and_steps_on_command():
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ctl = None
     try:
-        assert wait_for(lambda: _state(name) is not None), "the service did not come up"
-        ctl = subprocess.Popen([*py, "controller", "--buffer", name, "--wm", wm, "--halt"], cwd=ROOT,
-                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        assert wait_for(lambda: _state(name) == ServiceState.HALTED), "the service never showed HALTED"
-        time.sleep(0.5)  # waiting at the prompt: 160 service frames, thirty watchdog periods
-        assert _state(name) == ServiceState.HALTED  # held, not tripped
-        assert ctl.stdin is not None
-        ctl.stdin.write("s 2\n")
-        ctl.stdin.flush()
-        time.sleep(0.5)
-        ctl.stdin.write("q\n")
-        ctl.stdin.flush()
-        out, _ = ctl.communicate(timeout=30)
-        assert ctl.returncode == 0, out
-        assert "SINGLE STEP: 2 frame(s) run" in out, out
-        with Client.attach(name) as c:
-            texts = [m.text for m in c.messages()]
-        assert any("halted by the controller" in t for t in texts), texts
-        assert not any("stale heartbeat" in t for t in texts), texts  # no watchdog trip
+        with host_timing_named(lambda: ctl):
+            assert wait_for(lambda: _state(name) is not None), "the service did not come up"
+            ctl = subprocess.Popen([*py, "controller", "--buffer", name, "--wm", wm, "--halt"], cwd=ROOT,
+                                   stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            assert wait_for(lambda: _state(name) == ServiceState.HALTED), "the service never showed HALTED"
+            time.sleep(0.5)  # waiting at the prompt: 160 service frames, thirty watchdog periods
+            assert _state(name) == ServiceState.HALTED  # held, not tripped
+            assert ctl.stdin is not None
+            ctl.stdin.write("s 2\n")
+            ctl.stdin.flush()
+            time.sleep(0.5)
+            ctl.stdin.write("q\n")
+            ctl.stdin.flush()
+            out, _ = ctl.communicate(timeout=30)
+            assert ctl.returncode == 0, out
+            assert "SINGLE STEP: 2 frame(s) run" in out, out
+            with Client.attach(name) as c:
+                texts = [m.text for m in c.messages()]
+            assert any("halted by the controller" in t for t in texts), texts
+            assert not any("stale heartbeat" in t for t in texts), texts  # no watchdog trip
     finally:
         stop(ctl, serve)
         Bit3Buffer.unlink(name)

@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-from tests.controller._live_support import power_up_holding
+from tests.controller._live_support import HostTimingFault, host_timing_named, power_up_holding
 
 
 def _controller(text: str) -> subprocess.Popen:
@@ -58,5 +58,47 @@ def test_another_cause_fails_with_the_controllers_output():
 
 
 def test_three_missed_frames_faults_in_a_row_fail():
-    with pytest.raises(AssertionError, match="3 power-ups in a row ended in missed service frames"):
+    with pytest.raises(HostTimingFault, match="3 power-ups in a row ended in a host-timing fault"):
         power_up_holding(_say("fault 12: controller missed service frames"), _armed([True, False] * 3), hold_s=0.0)
+
+
+def test_a_stale_heartbeat_trip_starts_a_new_power_up_too():
+    starts = []
+
+    def start():
+        starts.append(1)
+        return _controller("daq ERROR service: command stale +1: outputs safe: stale heartbeat 15.3>15 ms (code 16)")
+    ctl = power_up_holding(start, _armed([False] * 400 + [True]), hold_s=0.0)
+    try:
+        assert len(starts) >= 1 and ctl.poll() is None
+    finally:
+        ctl.kill()
+        ctl.communicate()
+
+
+def test_the_catch_up_warning_is_not_a_host_timing_fault():
+    """The controller's own catch-up line is how it rides through a late frame, not a fault."""
+    with pytest.raises(AssertionError, match="the arm did not hold its pose") as e:
+        power_up_holding(_say("runtime WARNING missed service frames 12..13 (2): caught up servo_control"),
+                         _armed([True, False]), hold_s=0.0)
+    assert not isinstance(e.value, HostTimingFault)
+
+
+def test_host_timing_named_names_the_cause_from_the_output_and_passes_other_failures(tmp_path):
+    log = tmp_path / "controller.log"
+    log.write_text("servo ERROR fault 12: controller missed service frames 1000..1002 (3 in a row > max_missed_run 2)\n")
+    with pytest.raises(HostTimingFault, match="^the host, not the software: fault 12: controller missed service "
+                                              "frames 1000..1002") as e:
+        with host_timing_named(log):
+            raise AssertionError("gripper request 1: OPEN -> REFUSED")
+    assert "gripper request 1" in str(e.value)
+    piped = _controller("service: command stale (computed from inputs frame 676, 7 frames old)")
+    with pytest.raises(HostTimingFault, match="command stale"):
+        with host_timing_named(lambda: piped):
+            raise AssertionError("never armed")
+    assert piped.poll() is not None  # stopped to read its output
+    log.write_text("joint ERROR fault 1: shoulder_pitch following error\n")
+    with pytest.raises(AssertionError, match="^tool did not move$") as e:
+        with host_timing_named(log, lambda: None):
+            raise AssertionError("tool did not move")
+    assert not isinstance(e.value, HostTimingFault)

@@ -17,9 +17,9 @@ import pytest
 
 from bit3.buffer import Bit3Buffer
 from controller.worldmodel import WorldModel
-from tests.controller._live_support import PY, ROOT, RT, armed_and_released, live_inputs, stop, wait_for
+from tests.controller._live_support import RERUN_ON_HOST_TIMING, host_timing_named, PY, ROOT, RT, armed_and_released, live_inputs, stop, wait_for
 
-pytestmark = pytest.mark.realtime
+pytestmark = [pytest.mark.realtime, RERUN_ON_HOST_TIMING]
 
 
 
@@ -33,26 +33,27 @@ def test_serve_and_controller_at_45_deg_power_up_and_report_the_index():
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     ctl = None
     try:
-        assert wait_for(lambda: live_inputs(name) is not None), "the service did not come up"
-        ctl = subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--shoulder-roll", "45",
-                                "--power-up", "--duration", "4", "--messages", "0", *RT], cwd=ROOT,
-                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        assert wait_for(lambda: armed_and_released(name)), "the controller never powered up"
-        got = subprocess.run([*PY, "wm", "get", "joint.shoulder_roll_rad", "joint.shoulder_roll_deg", "--name", wm,
-                              "--json"], cwd=ROOT, capture_output=True, text=True, timeout=30)
-        assert got.returncode == 0, got.stdout + got.stderr
-        values = json.loads(got.stdout)["variables"]
-        assert values["joint.shoulder_roll_rad"]["value"] == pytest.approx(math.radians(45), abs=1e-6)
-        assert values["joint.shoulder_roll_deg"]["value"] == 45.0
-        out, _ = ctl.communicate(timeout=60)
-        assert ctl.returncode == 0, out
-        assert "power-up with the shoulder-roll index +45 deg (confirmed by --shoulder-roll 45)" in out
-        assert "shoulder-roll index +45 deg (joint.shoulder_roll_deg); the kinematics use +45 deg" in out
-        # held at +45 deg: no joint tripped its supervision (a host too loaded for the live
-        # controller may still miss frames: that fault is the host's, not the index's)
-        # (a supervision trip reads "JOINT CHECK (detail)"; "host stall" in a missed-frames
-        # warning is not one: seen beside a CPU hog)
-        assert not re.search(r"\b(resolver jump|overspeed|tach against resolver|stall|following error) \(", out), out
+        with host_timing_named(lambda: ctl, lambda: serve):
+            assert wait_for(lambda: live_inputs(name) is not None), "the service did not come up"
+            ctl = subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--shoulder-roll", "45",
+                                    "--power-up", "--duration", "4", "--messages", "0", *RT], cwd=ROOT,
+                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            assert wait_for(lambda: armed_and_released(name)), "the controller never powered up"
+            got = subprocess.run([*PY, "wm", "get", "joint.shoulder_roll_rad", "joint.shoulder_roll_deg", "--name", wm,
+                                  "--json"], cwd=ROOT, capture_output=True, text=True, timeout=30)
+            assert got.returncode == 0, got.stdout + got.stderr
+            values = json.loads(got.stdout)["variables"]
+            assert values["joint.shoulder_roll_rad"]["value"] == pytest.approx(math.radians(45), abs=1e-6)
+            assert values["joint.shoulder_roll_deg"]["value"] == 45.0
+            out, _ = ctl.communicate(timeout=60)
+            assert ctl.returncode == 0, out
+            assert "power-up with the shoulder-roll index +45 deg (confirmed by --shoulder-roll 45)" in out
+            assert "shoulder-roll index +45 deg (joint.shoulder_roll_deg); the kinematics use +45 deg" in out
+            # held at +45 deg: no joint tripped its supervision (a host too loaded for the live
+            # controller may still miss frames: that fault is the host's, not the index's)
+            # (a supervision trip reads "JOINT CHECK (detail)"; "host stall" in a missed-frames
+            # warning is not one: seen beside a CPU hog)
+            assert not re.search(r"\b(resolver jump|overspeed|tach against resolver|stall|following error) \(", out), out
     finally:
         stop(ctl, serve)
         Bit3Buffer.unlink(name)
