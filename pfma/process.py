@@ -20,13 +20,16 @@ ROOT = Path(__file__).resolve().parent.parent
 
 #: what a live stack prints when the host, not the software, kept a process from its frames:
 #: the controller's servo fault 12 (descheduled past its missed-frame limit,
-#: controller/servo.py), the service's watchdog trip on a late heartbeat (ioservice/safety.py)
-#: and a command computed from inputs too old (ioservice/command.py). On a 2-core VM these
+#: controller/servo.py), the service's watchdog trip on a late heartbeat (ioservice/safety.py),
+#: a command computed from inputs too old (ioservice/command.py) and Data Acquisition's
+#: fault 32 on a service frame that did not move (the service itself descheduled,
+#: controller/daq_layer.py; a test that kills the service does not ask). On a 2-core VM these
 #: come even under SCHED_FIFO (the vCPU itself is descheduled); live tests and the kill
 #: matrix start a process again, or a test once more, on these causes only, and say so. The
 #: controller's own catch-up warning ("missed service frames 12..13 (2): caught up") is not one.
 HOST_TIMING_CAUSE = re.compile(r"fault 12: controller missed service frames[^\n]*"
-                               r"|stale heartbeat [\d.]+>[\d.]+ ms[^\n]*|command stale[^\n]*")
+                               r"|stale heartbeat [\d.]+>[\d.]+ ms[^\n]*|command stale[^\n]*"
+                               r"|fault 32: service frame \d+ unchanged for \d+ frames[^\n]*")
 
 
 def host_timing_cause(text: str) -> str | None:

@@ -102,3 +102,19 @@ def test_host_timing_named_names_the_cause_from_the_output_and_passes_other_fail
         with host_timing_named(log, lambda: None):
             raise AssertionError("tool did not move")
     assert not isinstance(e.value, HostTimingFault)
+
+
+@pytest.mark.parametrize("line, cause", [
+    ("servo ERROR fault 12: controller missed service frames 1000..1002 (3 in a row > max_missed_run 2): x",
+     "fault 12: controller missed service frames 1000..1002 (3 in a row > max_missed_run 2): x"),
+    ("outputs safe: stale heartbeat 15.3>15 ms (code 16)", "stale heartbeat 15.3>15 ms (code 16)"),
+    ("service: command stale (computed from inputs frame 1332, 5 frames old)",
+     "command stale (computed from inputs frame 1332, 5 frames old)"),
+    ("daq ERROR fault 32: service frame 998 unchanged for 4 frames", "fault 32: service frame 998 unchanged for 4 frames"),
+    ("runtime WARNING missed service frames 1812..1813 (2): caught up servo_control", None),
+    ("joint ERROR fault 1: shoulder_pitch following error 2.1 deg", None),
+    ("service: command foreign writer (computed from inputs frame 10282, 1 frames old)", None),
+])
+def test_host_timing_causes_are_the_hosts_only(line, cause):
+    from pfma.process import host_timing_cause
+    assert host_timing_cause("prefix\n" + line + "\nnext line") == cause
