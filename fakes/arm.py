@@ -91,7 +91,8 @@ class ArmModel:
         self.viscous = f(lambda a: a.viscous)
         self.coulomb = f(lambda a: a.coulomb)
         self.torque_per_amp = f(lambda a: a.torque_per_amp)
-        self.k_a = np.array(params.k_a())
+        self._k_a_nominal = np.array(params.k_a())
+        self.k_a = self._k_a_nominal.copy()
         self.k_w = f(lambda a: a.k_w)
         self.i_max = f(lambda a: a.i_max_a)
         self.hard_lo = f(lambda a: a.hard_lo)
@@ -117,9 +118,11 @@ class ArmModel:
 
     # -- configuration ----------------------------------------------------------
     def set_errors(self, errors: SimErrors) -> None:
-        """Install new truth errors (tach scale, payload) for the following steps."""
+        """Install new truth errors (tach scale, amplifier gain, payload, motion faults) for
+        the following steps."""
         self.errors = errors
         self.k_w_true = self.k_w * (1.0 + np.asarray(errors.tach_scale_error, dtype=float))
+        self.k_a = self._k_a_nominal * (1.0 + np.asarray(errors.amp_gain_error, dtype=float))
         # motion faults (sim.faults brake-held / amp-off / load) and the servo control
         # chassis' front-panel switches (sim.faults panel-off:...), kept apart in SimErrors
         # and combined here: either one sets a brake or turns a PWM stage off

@@ -201,7 +201,9 @@ NOMINAL = ArmParams()
 class SimErrors:
     """Known, settable departures of the simulated truth from the nominal model.
 
-    All zero by default. Calibration tests set them and check that a fit finds them.
+    All zero by default. Calibration tests set them and check that a fit finds them;
+    ``--sim-errors SEED`` draws a plausible set (:func:`sim.errors.seeded`). They are the
+    fake's ground truth, never published in the Bit3 buffer.
     """
 
     resolver_offset_rad: tuple[float, ...] = (0.0,) * N_JOINTS
@@ -227,6 +229,15 @@ class SimErrors:
     load_nm: tuple[float, ...] = (0.0,) * N_AXES
     """Motion fault: an external torque on each axis, N*m (gripper: N): a snagged cable,
     an unexpected payload, a collision held against the arm."""
+    amp_gain_error: tuple[float, ...] = (0.0,) * N_AXES
+    """Fractional amplifier (rate servo card) gain spread per axis: K_a (1 + e). The rate
+    loop's droop, and so the velocity a command gives under load, moves with it."""
+    ft_offset: tuple[float, ...] = (0.0,) * 6
+    """The F/T transducer's own bias at t = 0 (strain-gauge offset; N, N, N, N*m, N*m, N*m,
+    sensor axes): read whatever the load."""
+    ft_drift_per_s: tuple[float, ...] = (0.0,) * 6
+    """How that bias drifts, per second of the simulated clock (thermal drift; same units
+    per s): the bias at t is ft_offset + t * ft_drift_per_s."""
     # The servo control chassis' front-panel switches (IRSS 3.6), the operator's: kept
     # apart from the faults above (a seized brake, a failed stage) so that turning a switch
     # back on never clears one of them; the arm model combines both.
@@ -252,8 +263,11 @@ class SimErrors:
             raise ValueError(f"resolver_offset_rad needs {N_JOINTS} values, got {len(self.resolver_offset_rad)}")
         if len(self.tach_scale_error) != N_AXES:
             raise ValueError(f"tach_scale_error needs {N_AXES} values, got {len(self.tach_scale_error)}")
-        for name in ("brake_held", "amp_off", "load_nm", "panel_pwm_off", "panel_brake_off"):
+        for name in ("brake_held", "amp_off", "load_nm", "panel_pwm_off", "panel_brake_off", "amp_gain_error"):
             if len(getattr(self, name)) != N_AXES:
                 raise ValueError(f"{name} needs {N_AXES} values, got {len(getattr(self, name))}")
+        for name in ("ft_offset", "ft_drift_per_s"):
+            if len(getattr(self, name)) != 6:
+                raise ValueError(f"{name} needs 6 values (Fx Fy Fz Tx Ty Tz), got {len(getattr(self, name))}")
         if self.payload_kg < 0:
             raise ValueError(f"payload_kg must be >= 0, got {self.payload_kg}")

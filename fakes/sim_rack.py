@@ -211,11 +211,11 @@ class SimulatedRack:
         """Feed the arm's F/T load to an F/T fake: sets its ``load_fn`` if it has one,
         otherwise calls its ``set_load(force_n, torque_nm)`` after every step."""
         if hasattr(fake, "load_fn"):
-            fake.load_fn = lambda t_s: self.arm.ft_load()
+            fake.load_fn = self.ft_reading
             self._ft_push = None
         elif hasattr(fake, "set_load"):
             self._ft_push = fake
-            fake.set_load(*self.arm.ft_load())
+            fake.set_load(*self.ft_reading(self.clock.now()))
         else:
             raise TypeError(f"{type(fake).__name__} has neither load_fn nor set_load")
 
@@ -249,7 +249,7 @@ class SimulatedRack:
             self.fake_rack.step(dt_s)
         self._write_sensors()
         if self._ft_push is not None:
-            self._ft_push.set_load(*self.arm.ft_load())
+            self._ft_push.set_load(*self.ft_reading(self.clock.now()))
 
     def advance(self, dt_s: float) -> None:
         """``step(dt_s)`` and move the clock by ``dt_s`` (single-step mode, tests)."""
@@ -278,6 +278,19 @@ class SimulatedRack:
     def true_state(self) -> ArmState:
         """The arm's true state (for tests and calibration truth)."""
         return self.arm.state()
+
+    def ft_bias(self, t_s: float) -> np.ndarray:
+        """The F/T transducer's own bias at ``t_s`` (``SimErrors.ft_offset`` drifting by
+        ``ft_drift_per_s``), six values in sensor axes: N, N*m."""
+        e = self.errors
+        return np.asarray(e.ft_offset, dtype=float) + t_s * np.asarray(e.ft_drift_per_s, dtype=float)
+
+    def ft_reading(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """What the F/T transducer puts out at ``t_s``: the arm's load (:meth:`ft_load`) plus
+        its own bias (:meth:`ft_bias`)."""
+        f, t = self.arm.ft_load()
+        b = self.ft_bias(t_s)
+        return f + b[:3], t + b[3:]
 
     def ft_load(self) -> tuple[np.ndarray, np.ndarray]:
         """F/T load in the sensor frame, see :meth:`ArmModel.ft_load`."""

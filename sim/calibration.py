@@ -46,7 +46,8 @@ class StickTruth:
 
 
 class SensorTruth:
-    """The real F/T sensor: output = coupling @ load + offset (N, N*m), then the
+    """The real F/T sensor: output = coupling @ load + offset (N, N*m) + the rack's
+    ``SimErrors`` F/T bias and its drift (``SimulatedRack.ft_bias``), then the
     controller's nominal counts per unit. Loads: the arm's tool (when mounted) plus a
     fixture load (calibration rig) in sensor axes."""
 
@@ -63,7 +64,7 @@ class SensorTruth:
         if self.tool_on:
             f, t = self.world.sim.ft_load()
             w[:3], w[3:] = f, t
-        out = self.coupling @ (w + self.fixture) + self.offset
+        out = self.coupling @ (w + self.fixture) + self.offset + self.world.sim.ft_bias(t_s)
         return tuple(out[:3]), tuple(out[3:])
 
 

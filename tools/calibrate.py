@@ -178,19 +178,29 @@ def check_names(rack, options: dict) -> None:
                                    + (did_you_mean(j, joints) or f"; joints: {', '.join(joints)}"))
 
 
-def _session(buffer: str | None, rack: str | None, interactive: bool, cal, out) -> tuple:
+def _session(buffer: str | None, rack: str | None, interactive: bool, cal, out, sim_errors: int = 0,
+             sim_faults: tuple[str, ...] = ()) -> tuple:
     """The session, operator and (simulated rack only) rig a procedure runs with:
-    ``buffer`` a running service and the person at the terminal, else the simulated rack."""
+    ``buffer`` a running service and the person at the terminal, else the simulated rack,
+    with the imperfections of seed ``sim_errors`` (sim/errors.py) and the faults
+    ``sim_faults`` (sim/faults.py specs, checked by the verb) in force from the start."""
     from calibration.session import ConsoleOperator, LiveSession, SimSession
     if buffer:
         session = LiveSession(buffer, rack=None if rack in (None, "fake", "default") else rack)
         return session, ConsoleOperator(out, interactive=interactive), None
     from sim.calibration import CalibrationRig, SimOperator
-    rig = CalibrationRig(calibration=cal)
+    from sim.errors import seeded
+    from sim.faults import FaultSet
+    rig = CalibrationRig(calibration=cal, errors=seeded(sim_errors, rack_of(rack)))
+    faults = FaultSet(rig.world)
+    said = [faults.inject(spec, since=rig.clock.now()).description for spec in sim_faults]
     session = SimSession(rig)
     operator = SimOperator(rig.world, out=out)
     operator.show = lambda text: print(text, file=out, flush=True)
-    print("pfma calibrate: simulated rack, simulated time, simulated operator", file=out)
+    rack_is = f"simulated rack with the imperfections of seed {sim_errors}" if sim_errors else "simulated rack"
+    print(f"pfma calibrate: {rack_is}, simulated time, simulated operator", file=out)
+    for text in said:
+        print(f"pfma calibrate: simulated fault: {text}", file=out)
     return session, operator, rig
 
 
@@ -201,7 +211,8 @@ def run_on(what: str, args, config, cal, path: Path, plot_dir: Path, options: di
     ``save_failed``). ``bars`` (a terminal's :class:`tools.cli.output.ProgressBars`, or None
     for the plain ``[###...]`` lines) shows the progress. 0 when it passed, else 1."""
     from calibration.procedures import Context, run_procedure
-    session, operator, rig = _session(args.buffer, args.rack, not args.non_interactive, cal, out)
+    session, operator, rig = _session(args.buffer, args.rack, not args.non_interactive, cal, out,
+                                      getattr(args, "sim_errors", 0), tuple(getattr(args, "sim_fault", None) or ()))
     if bars is not None:
         _draw_progress(operator, bars)
     try:

@@ -170,7 +170,8 @@ class FaultController:
             return self.hand(req)
         try:
             if op == "list":
-                return {"ok": True, "faults": self.faults.listing()}
+                from sim.errors import describe
+                return {"ok": True, "faults": self.faults.listing(), "rack_errors": describe(self.world.sim.errors)}
             if op not in ("inject", "clear") or not isinstance(spec, str):
                 return {"ok": False, "exit": 2, "error": f"bad request {req!r}"}
             if not (op == "clear" and spec.strip() == "all"):

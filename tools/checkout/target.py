@@ -162,11 +162,12 @@ class SimTarget(Target):
     kind = "simulated rack"
 
     def __init__(self, rack: RackConfig | None = None, buffer_name: str | None = None,
-                 **service_kw) -> None:
+                 sim_errors: int = 0, **service_kw) -> None:
+        from sim.errors import seeded
         from sim.rig import SimRig
         rack = rack if rack is not None else load_rack()
         self.rig = SimRig(rack, name=buffer_name or f"pfma-checkout-{os.getpid()}-{uuid.uuid4().hex[:6]}",
-                          service_kw=service_kw)
+                          service_kw=service_kw, errors=seeded(sim_errors, rack))
         self.buffer_name = self.rig.name
         self.clock = self.rig.clock
         self.world = self.rig.world
@@ -292,11 +293,12 @@ class LiveTarget(Target):
         super().release_commands()
 
 
-def make_sim_target(rack: str | RackConfig | None = None) -> SimTarget:
-    """A :class:`SimTarget` for ``rack`` ("fake"/None = the IRSS rack, or a TOML path)."""
+def make_sim_target(rack: str | RackConfig | None = None, sim_errors: int = 0) -> SimTarget:
+    """A :class:`SimTarget` for ``rack`` ("fake"/None = the IRSS rack, or a TOML path), with
+    the imperfections of seed ``sim_errors`` (sim/errors.py; 0: none)."""
     if isinstance(rack, RackConfig):
-        return SimTarget(rack)
-    return SimTarget(load_rack(None if rack in (None, "fake", "default") else rack))
+        return SimTarget(rack, sim_errors=sim_errors)
+    return SimTarget(load_rack(None if rack in (None, "fake", "default") else rack), sim_errors=sim_errors)
 
 
 __all__ = ["Commander", "FakeStimulus", "LiveTarget", "ServiceLost", "SimTarget", "Target",

@@ -86,6 +86,24 @@ def monitor_number(text: str) -> int:
     return v
 
 
+def sim_errors_seed(text: str) -> int:
+    """``--sim-errors SEED``: the seed of a simulated rack's imperfections (sim/errors.py);
+    0 is the perfect rack."""
+    from sim.errors import parse_seed
+    try:
+        return parse_seed(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err).removeprefix("--sim-errors takes ")) from None
+
+
+def add_sim_errors(parser) -> None:
+    """``--sim-errors SEED`` on a verb that starts a simulated rack."""
+    parser.add_argument("--sim-errors", type=sim_errors_seed, default=0, metavar="SEED",
+                        help="simulated rack only: give it a real rack's imperfections, drawn from SEED: "
+                             "ADC/DAC gain and offset, resolver zeros, tach scales, amplifier gains, F/T "
+                             "bias and drift (docs/simulated-arm.md; 0, the default: none)")
+
+
 def shoulder_roll_degrees(text: str) -> int:
     """A shoulder-roll index position in degrees: -90, -45, 0, 45 or 90 (pfma-model 8.1);
     another value is refused naming them."""

@@ -26,6 +26,7 @@ import sys
 from pathlib import Path
 
 from tools import calibrate as calib
+from tools.cli.args import add_sim_errors
 from tools.cli.output import print_json, print_table, table
 
 DEFAULT_FILE = "pfma-calibration.json"
@@ -52,6 +53,10 @@ def add_parser(sub):
                    help="resolver: known index positions (default: the DH zero of every joint, assumed)")
     p.add_argument("--save-failed", action="store_true", help="save the result even when a check failed")
     p.add_argument("--json", action="store_true", help="show, history, diff: one JSON document")
+    add_sim_errors(p)
+    p.add_argument("--sim-fault", action="append", default=[], metavar="SPEC",
+                   help="simulated rack only: a fault in force from the start, any spec of `pfma fault list` "
+                        "(as pfma checkout --sim-fault); repeatable; docs/faults.md")
     return p
 
 
@@ -118,6 +123,22 @@ def _file_diff(args, path: Path, out) -> int:
 _FILE_VERB_RUN = {"init": _file_init, "show": _file_show, "history": _file_history, "diff": _file_diff}
 
 
+def _sim_mistake(args, rack) -> str:
+    """``--sim-errors``/``--sim-fault`` with a running service, or a fault spec that is not
+    one: the message ("" when none), before anything is written."""
+    from pfma.errors import ConfigError
+    from sim.faults import parse_fault
+    faults = getattr(args, "sim_fault", None) or []
+    if args.buffer and (faults or getattr(args, "sim_errors", 0)):
+        return "--sim-errors and --sim-fault need the simulated rack (no --buffer)"
+    for spec in faults:
+        try:
+            parse_fault(spec, rack)
+        except ConfigError as err:
+            return f"--sim-fault {err}"
+    return ""
+
+
 def run(args, out=None) -> int:
     out = out or sys.stdout
     if args.what in FILE_VERBS:
@@ -129,6 +150,10 @@ def run(args, out=None) -> int:
     from calibration import files
     from tools.cli.output import ProgressBars, is_terminal
     rack = calib.rack_of(args.rack)
+    why = _sim_mistake(args, rack)
+    if why:
+        print(f"pfma calibrate: {why}", file=sys.stderr)
+        return 2
     path = Path(args.file)
     options = calib.procedure_options(args.joints, args.signals, args.index)
     calib.check_names(rack, options)  # before anything is written

@@ -18,7 +18,7 @@ import argparse
 import sys
 
 from tools.checkout.config import GROUPS
-from tools.cli.args import nonneg_float
+from tools.cli.args import add_sim_errors, nonneg_float
 
 
 def add_parser(sub):
@@ -44,6 +44,7 @@ def add_parser(sub):
                    help="simulated rack only: inject a fault first, any spec of `pfma fault list` "
                         "(e.g. tach-reversed:JOINT, adc-dead:SIGNAL=VOLTS, resolver-los:SIGNAL, "
                         "ft-noise, bus-error:BOARD); repeatable; docs/faults.md")
+    add_sim_errors(p)
     p.add_argument("--panel-off", action="append", default=[], metavar="SWITCHES",
                    help="state the servo chassis' front panel instead of being asked: the switches "
                         "that are off, comma-separated: 28v, 15v, pwm:JOINT (or pwm:gripper), "
@@ -67,6 +68,8 @@ def _usage_error(args, rack_path: str | None):
             return f"pfma checkout: {err}", None
     if args.sim_fault and args.buffer:
         return "pfma checkout: --sim-fault needs the simulated rack (no --buffer)", panel
+    if args.sim_errors and args.buffer:
+        return "pfma checkout: --sim-errors gives the simulated rack its imperfections (no --buffer)", panel
     if args.sim_fault:
         from sim.faults import parse_fault
         rack = load_rack(rack_path)
@@ -89,7 +92,7 @@ def _target(args, rack_path: str | None, cfg):
         target = LiveTarget(client, load_rack(rack_path),
                             service_timeout_s=cfg.num("checkout", "service_timeout_s"))
         return target, not args.non_interactive
-    return make_sim_target(rack_path), False
+    return make_sim_target(rack_path, sim_errors=args.sim_errors), False
 
 
 def _check(args, target, cfg, panel, interactive: bool, text, bars):

@@ -92,6 +92,8 @@ def run(args) -> int:
             print(f"no simulated fault active in service {args.buffer}")
         for f in faults:
             print(f"{f['spec']}  (since frame {f['since']})  {f['description']}")
+        for line in reply.get("rack_errors", []):  # --sim-errors SEED: the simulated rack's imperfections
+            print(line)
     else:
         verb = "injected" if cmd == "inject" else "cleared"
         if not faults:

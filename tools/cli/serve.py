@@ -33,7 +33,7 @@ from ioservice.schedule import Schedule
 from pfma.log import add_argument as add_log_level
 from pfma.log import for_process as process_logging
 from tools.cli.fault import add_serve_fault_args, install_serve_faults
-from tools.cli.args import float_in, positive_float, positive_int, shoulder_roll_degrees
+from tools.cli.args import add_sim_errors, float_in, positive_float, positive_int, shoulder_roll_degrees
 
 
 def add_parser(sub):
@@ -94,6 +94,7 @@ def add_parser(sub):
                         "-90, -45, 0, 45 or 90 deg (default 0); the controller is told with its own "
                         "--shoulder-roll (docs/controller.md \"The shoulder-roll index\")")
     add_serve_fault_args(p)
+    add_sim_errors(p)
     add_log_level(p)
     return p
 
@@ -120,7 +121,7 @@ def _serve(args) -> int:
         ft=args.ft_port, hid=args.hid, watchdog_ms=args.watchdog_ms, max_input_age=args.max_input_age,
         live=args.live, quiet=args.quiet, demo=args.demo, realtime=args.realtime,
         calibration=getattr(args, "calibration", None), direction_state=_direction_state(args),
-        shoulder_roll=args.shoulder_roll)
+        shoulder_roll=args.shoulder_roll, sim_errors=args.sim_errors)
 
     def faults(svc, world) -> None:  # --fault, --scenario and the endpoint `pfma fault` reaches
         args.buffer = svc.buf.name  # a private buffer (--private-if-busy) has its own endpoint
@@ -154,6 +155,8 @@ def _usage_mistake(args) -> str:
     if args.shoulder_roll is not None and not (args.rack == "fake" and args.bus in (None, "fake")):
         return ("--shoulder-roll pins the simulated arm (--rack fake); a real arm's shoulder roll is "
                 "pinned by hand (tell the controller: pfma controller --shoulder-roll DEG)")
+    if args.sim_errors and not (args.rack == "fake" and args.bus in (None, "fake")):
+        return "--sim-errors gives the simulated rack (--rack fake) a real rack's imperfections; a real rack has its own"
     return ""
 
 

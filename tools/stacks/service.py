@@ -86,6 +86,8 @@ class ServiceConfig:
     calibration: str | None = None
     direction_state: str | None = None
     shoulder_roll: int | None = None
+    #: the simulated rack's imperfections (sim/errors.py), 0: none
+    sim_errors: int = 0
 
     @property
     def simulated(self) -> bool:
@@ -182,7 +184,9 @@ class ServiceStack:
         self.clock = TickingClock(base, tick_s=LIVE_TICK_S)
         if cfg.simulated:
             from fakes.world import FakeWorld
-            self.world = FakeWorld(self.rack, clock=base, shoulder_roll_rad=math.radians(cfg.shoulder_roll or 0))
+            from sim.errors import seeded
+            self.world = FakeWorld(self.rack, clock=base, shoulder_roll_rad=math.radians(cfg.shoulder_roll or 0),
+                                   errors=seeded(cfg.sim_errors, self.rack))
             self.bus = self.world.bus
             self.clock.hooks.append(self.world.tick)
         else:
