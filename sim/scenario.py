@@ -38,7 +38,7 @@ from pfma.errors import ConfigError, did_you_mean
 from pfma.rack import RackConfig
 from sim.faults import Fault, FaultSet, parse_fault
 
-_TOP_KEYS = ("name", "description", "step")
+_TOP_KEYS = ("name", "description", "errors_seed", "step")
 _STEP_KEYS = ("at_s", "inject", "clear")
 
 
@@ -65,6 +65,9 @@ class Scenario:
     description: str = ""
     steps: list[Step] = field(default_factory=list)
     source: str = "<string>"
+    #: the simulated rack's imperfections the scenario runs on (sim/errors.py; None: the
+    #: service's own, ``--sim-errors``)
+    errors_seed: int | None = None
 
 
 class _StepEntry(msgspec.Struct, forbid_unknown_fields=True):
@@ -77,6 +80,7 @@ class _ScenarioFile(msgspec.Struct, forbid_unknown_fields=True):
     step: Annotated[list[_StepEntry], msgspec.Meta(min_length=1)]
     name: str | None = None
     description: str = ""
+    errors_seed: Annotated[int, msgspec.Meta(ge=0)] | None = None
 
 
 _NO_STEPS = "no steps; add [[step]] tables with at_s and inject or clear"
@@ -87,6 +91,8 @@ _MESSAGES: dict[str, Any] = {
     "*": lambda f: (f"unknown key {f['key']!r}"
                     + (did_you_mean(f["key"], _TOP_KEYS) or f"; keys: {', '.join(_TOP_KEYS)}")),
     "name": _STRINGS, "description": _STRINGS,
+    "errors_seed": "errors_seed must be a whole number >= 0 (the seed of pfma serve --sim-errors), not {value!r}",
+    "errors_seed?": "errors_seed must be a whole number >= 0 (the seed of pfma serve --sim-errors), not {value!r}",
     "step": _NO_STEPS, "step?": _NO_STEPS,
     "step[]": "a step is a [[step]] table",
     "step[].*": lambda f: (f"unknown field {f['key']!r}"
@@ -131,7 +137,7 @@ def parse_scenario(text: str, source: str = "<string>", rack: RackConfig | None 
         steps.append(Step(float(st.at_s), action, spec.strip(), config.line_of(text, ("step", i))))
     order = sorted(range(len(steps)), key=lambda j: steps[j].at_s)  # stable: file order on ties
     name = Path(source).stem if raw.name is None else raw.name
-    scenario = Scenario(name, raw.description, [steps[j] for j in order], source)
+    scenario = Scenario(name, raw.description, [steps[j] for j in order], source, raw.errors_seed)
     _check_specs(scenario, rack)
     return scenario
 

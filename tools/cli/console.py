@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import sys
 
+from tools.cli.args import add_sim_errors
+
 
 def add_parser(sub):
     p = sub.add_parser("console", help="the operator console: five areas over the live system, "
@@ -35,6 +37,7 @@ def add_parser(sub):
                         "pfma and world model pfma_wm, so every tool reaches it with its defaults; while another "
                         "system uses either, on a private pair, named in one line"),
     p.add_argument("--no-demo", action="store_true", help="--sim: power up but fly no demo path")
+    add_sim_errors(p)
     p.add_argument("--menu", metavar="FILE.toml", default=None,
                    help="live menus (key l): named pages of world-model variables with a format each and a refresh "
                         "rate (examples/console-menu.toml); a mistake is named with file, line and field, exit 2")
@@ -120,7 +123,8 @@ def _run_sim(args, menu=None) -> int:
     try:  # the defaults unless another system runs on them (then a private pair, said); a name given: as given
         names = claim(args.buffer or DEFAULT_BUFFER, args.wm or DEFAULT_WM,
                       fallback=args.buffer is None and args.wm is None)
-        system = SimulatedSystem(demo=not args.no_demo, buffer=names.buffer, wm=names.wm)
+        system = SimulatedSystem(demo=not args.no_demo, buffer=names.buffer, wm=names.wm,
+                                 sim_errors=getattr(args, "sim_errors", 0))
     except PfmaError as err:  # in use (or taken since the check): one line
         print(f"pfma console: {err}", file=sys.stderr)
         return 1

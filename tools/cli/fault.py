@@ -140,6 +140,21 @@ def add_serve_fault_args(parser: argparse.ArgumentParser) -> None:
                              "inject/clear) on the loop's frame time, e.g. scenarios/ft-unplug.toml")
 
 
+def _scenario_errors(args, scenario, world) -> None:
+    """A scenario's ``errors_seed``: the simulated rack's imperfections it runs on, installed
+    before anything runs; a different ``--sim-errors`` seed is a mistake (exit 2)."""
+    seed = getattr(scenario, "errors_seed", None)
+    if seed is None:
+        return
+    given = getattr(args, "sim_errors", 0)
+    if given and given != seed:
+        print(f"pfma serve: --sim-errors {given} and the scenario's errors_seed {seed} disagree; give one",
+              file=sys.stderr)
+        raise SystemExit(2)
+    from sim.errors import seeded
+    world.sim.set_errors(seeded(seed, world.rack_config))
+
+
 def install_serve_faults(args, svc, world) -> None:
     """After the service is built and before its loop runs: inject ``--fault`` specs, schedule
     the ``--scenario`` steps on the loop's frames, and open the control endpoint
@@ -170,6 +185,7 @@ def install_serve_faults(args, svc, world) -> None:
     except OSError as err:
         print(f"pfma serve: scenario {scenario}: {err.strerror or err}", file=sys.stderr)
         raise SystemExit(2) from None
+    _scenario_errors(args, scenario, world)
     ctl = FaultController(svc, world)
     usb = getattr(getattr(getattr(svc, "hand", None), "hid", None), "opener", None)
     if hasattr(usb, "unplug") and hasattr(usb, "replug"):  # --hid fake: hand-unplugged pulls it too

@@ -36,12 +36,14 @@ class SimulatedSystem:
     :param buffer: Bit3 shared-memory name (None: a private random one), taken as given (the
         caller decides it is free: :func:`tools.runnames.claim`)
     :param wm: world-model shared-memory name (None: private memory), removed by :meth:`close`
+    :param sim_errors: the simulated rack's imperfections (sim/errors.py; 0: none)
     """
 
     def __init__(self, *, demo: bool = True, power_up: bool = True, buffer: str | None = None,
-                 wm: str | None = None) -> None:
+                 wm: str | None = None, sim_errors: int = 0) -> None:
+        from sim.errors import seeded
         self.wm_name = wm
-        self.sim = SystemSimulator(name=buffer, wm_name=wm, ring=True)
+        self.sim = SystemSimulator(name=buffer, wm_name=wm, ring=True, errors=seeded(sim_errors))
         #: why ``pfma fault`` cannot reach this system (None: it can), said by the caller
         self.fault_note: str | None = None
         self._faults = None

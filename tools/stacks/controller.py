@@ -196,6 +196,7 @@ class ControllerOptions:
     quiet: bool = False  #: do not say state changes, WARNINGs and ERRORs as they happen
     sim_faults: tuple[str, ...] = ()  #: with ``sim``: fault specs injected at ``sim_fault_at_s``
     sim_fault_at_s: float = 0.0
+    sim_errors: int = 0  #: with ``sim``: the simulated rack's imperfections (sim/errors.py), 0: none
     realtime: bool | None = None  #: SCHED_FIFO: True asked, False refused, None the default
     trace: bool = False  #: print each frame's trace line
     changes: bool = False  #: ... only of frames in which a status changed
@@ -433,10 +434,11 @@ class ControllerStack(contextlib.ExitStack):
         return self.driver.rt
 
     def _open_sim(self, frames) -> Driver:
+        from sim.errors import seeded
         from sim.system import SystemSimulator
         o = self.options
         sim = self.enter_context(SystemSimulator(frames=frames, wm_name=o.wm, require_ft=o.require_ft,
-                                                 shoulder_roll_deg=o.shoulder_roll_deg))
+                                                 shoulder_roll_deg=o.shoulder_roll_deg, errors=seeded(o.sim_errors)))
         sim.step(10)  # the service's first frames (links open)
         return LocalDriver(sim.rt, o, sim=sim)
 

@@ -7,7 +7,7 @@ import argparse
 
 from pfma.log import add_argument as add_log_level_argument
 from tools.cli.args import (
-    camera_number, monitor_number, nonneg_float, nonneg_int, positive_float, positive_int, shoulder_roll_degrees,
+    add_sim_errors, camera_number, monitor_number, nonneg_float, nonneg_int, positive_float, positive_int, shoulder_roll_degrees,
     whole_number,
 )
 from tools.cli.controller.common import GRIPPER_VERBS, SYSTEM_ACTIONS
@@ -65,6 +65,7 @@ def add_parser(sub, description: str):
                         "repeatable; docs/faults.md) at --sim-fault-at")
     p.add_argument("--sim-fault-at", type=nonneg_float, default=0.0, metavar="S",
                    help="simulated seconds from the start at which --sim-fault is injected (default 0)")
+    add_sim_errors(p)
     p.add_argument("--no-ft", action="store_true", help="a stale F/T link is not a fault")
     p.add_argument("--tables", action="store_true", help="print the decision tables and the schedule")
     p.add_argument("--realtime", action=argparse.BooleanOptionalAction, default=None,

@@ -39,7 +39,7 @@ def stack_options(args, distributed: Distribution | None = None) -> ControllerOp
         profile=args.profile, wm=None if no_wm(args) else args.wm, sim=args.sim, buffer=args.buffer,
         require_ft=not args.no_ft, shoulder_roll_deg=getattr(args, "shoulder_roll", None) or 0,
         quiet=getattr(args, "quiet", False), sim_faults=tuple(getattr(args, "sim_fault", None) or ()),
-        sim_fault_at_s=args.sim_fault_at, realtime=args.realtime, changes=args.changes,
+        sim_fault_at_s=args.sim_fault_at, sim_errors=getattr(args, "sim_errors", 0), realtime=args.realtime, changes=args.changes,
         trace=args.trace or (distributed is None and (args.step is not None or args.halt)),
         distributed=distributed)
 

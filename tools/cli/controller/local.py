@@ -128,8 +128,10 @@ def _interactive_live(d: Driver, budget: int) -> None:
 
 
 def _sim_fault_mistake(args) -> int:
-    """``--sim-fault`` without ``--sim``, or a bad spec: a usage mistake, said before anything
+    """``--sim-fault`` or ``--sim-errors`` without ``--sim``, or a bad spec: a usage mistake, said before anything
     is built (2); 0 when there is none."""
+    if getattr(args, "sim_errors", 0) and not args.sim:
+        return refuse("--sim-errors needs --sim (a running service takes `pfma serve --sim-errors SEED`)")
     if not args.sim_fault:
         return 0
     if not args.sim:
