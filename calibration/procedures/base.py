@@ -87,6 +87,10 @@ class ProcedureResult:
     found: dict[str, Any] = field(default_factory=dict)  #: identified values, for reports/tests
     plots: list[Path] = field(default_factory=list)
     drift: list[dict] = field(default_factory=list)
+    #: why a channel's scale changed (signal -> reason), said under its drift line when the
+    #: change is beyond ``scale_tolerance`` (a large change that passes must say why)
+    why: dict[str, str] = field(default_factory=dict)
+    scale_tolerance: float = 0.01  #: relative; the procedure's stated gain tolerance
     calibration: Calibration | None = None  #: previous + these updates (validated)
     saved: Calibration | None = None
 
@@ -98,6 +102,15 @@ class ProcedureResult:
         c = Check(name, float(value), limit, units, ok)
         self.checks.append(c)
         return c
+
+    def _why_scale(self, d: dict) -> str:
+        """Why a scale moved beyond the tolerance ("" when it did not, or it is no scale)."""
+        rel = _scale_change(d)
+        if rel is None or abs(rel) <= self.scale_tolerance:
+            return ""
+        sig = str(d["entry"]).split(".")[1]
+        return self.why.get(sig) or (f"{rel:+.1%}, beyond the {self.scale_tolerance:.1%} tolerance: the fit above "
+                                     f"found it (no cause known to the procedure)")
 
     def report(self) -> str:
         lines = [f"calibration procedure {self.procedure}: {'PASSED' if self.passed else 'FAILED'}"]
@@ -117,9 +130,22 @@ class ProcedureResult:
                        ("(list)" if isinstance(v, list) else str(v)))
                 lines.append(f"    {d['entry']}: {fmt(old)} -> {fmt(new)}"
                              + (f" (change {ch:+.4g})" if isinstance(ch, float) else ""))
+                why = self._why_scale(d)
+                if why:
+                    lines.append(f"      why: {why}")
         for p in self.plots:
             lines.append(f"  plot: {p}")
         return "\n".join(lines)
+
+
+def _scale_change(d: dict) -> float | None:
+    """The relative change of a drift entry ``channels.<signal>.scale`` (None for another
+    entry, or no old value)."""
+    old, new = d.get("old"), d.get("new")
+    if not str(d.get("entry", "")).endswith(".scale") or not isinstance(old, (int, float)) or \
+            not isinstance(new, (int, float)) or old == 0:
+        return None
+    return float(new) / float(old) - 1.0
 
 
 def finish(ctx: Context, res: ProcedureResult) -> ProcedureResult:

@@ -125,6 +125,9 @@ def run(ctx: Context) -> ProcedureResult:
                                                           excluded_legs=stuck,
                                                           x=["command rad/s", "1", "sign"], y="velocity rad/s")}
         dac_gain = f["gain"] / loop
+        res.why[sig] = (f"the amplifier's proportional rate loop reaches {loop:.3f} of a commanded rate in viscous "
+                        f"friction (pfma-model 8.3/8.4), times this channel's DAC gain {dac_gain:.4f}: the new "
+                        f"scale makes a command reach its rate")
         res.found[sig] = {"gain": f["gain"], "null_rad_s": f["null"], "friction_rad_s": f["friction"],
                           "scale": scale, "offset": offset, "loop_gain": loop, "dac_gain": dac_gain,
                           "excluded_legs": stuck}

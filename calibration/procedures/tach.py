@@ -53,6 +53,8 @@ def run(ctx: Context) -> ProcedureResult:
                                                           k_v_per_rad_s=k, c_v=c, x="velocity rad/s",
                                                           y="tach V")}
         res.found[sig] = {"k_v_per_rad_s": k, "c_v": c, "k_nominal": k_nom}
+        res.why[sig] = (f"the tach reads {k:.4g} V per rad/s against the nominal {k_nom:.4g} ({k / k_nom - 1:+.1%}): "
+                        f"its own constant and its ADC channel's gain together")
         res.check(f"{sig} max residual", f.max_abs, 0.01 * float(np.max(np.abs(tach))) + 2 * LSB_V, "V")
         res.check(f"{sig} k / K_w nominal - 1", k / k_nom - 1.0, NOMINAL_BAND)
         col = COLOURS[i % len(COLOURS)]

@@ -142,3 +142,21 @@ def test_the_perfect_rack_gives_the_nominal_values(bringup):
     assert all(abs(f["resolver_offset_rad"]) <= 2 * LSB_RAD for f in res["resolver"].found.values())
     assert all(abs(f["offset_v"]) <= 2 * LSB_V for f in res["current-offsets"].found.values())
     assert np.all(np.abs(res["ft-bias"].found["bias_counts"]) <= 2.0)
+
+
+def test_each_run_says_what_it_calibrates_and_a_large_scale_change_says_why(bringup):
+    errors, res, _, out = bringup
+    for name in ORDER:
+        start = out.index(f"== {name}: ")
+        head = out[start:start + 1200].splitlines()
+        assert head[1].startswith("   calibrates: ") and head[2].startswith("   does not: "), head[:3]
+    report = res["dac-rate"].report()
+    # wrist roll's scale moves ~38 % (the loop's droop): said under its drift line, with the loop gain
+    lines = report.splitlines()
+    i = next(k for k, ln in enumerate(lines) if "channels.wrist_roll_command.scale" in ln)
+    assert lines[i + 1].startswith("      why: the amplifier's proportional rate loop reaches 0.6"), lines[i:i + 2]
+    # a change within the tolerance has no why line
+    for k, ln in enumerate(lines):
+        if ".scale:" in ln and "(change " in ln:
+            old, new = (float(x) for x in ln.split(": ", 1)[1].split(" (")[0].split(" -> "))
+            assert (abs(new / old - 1) > res["dac-rate"].scale_tolerance) == lines[k + 1].startswith("      why:"), ln
