@@ -4,7 +4,9 @@ Benchmarks print measurements; they never assert. Each ``bench/bench_<name>.py``
 module has ``run(seconds=...)`` (its text report). ``stack`` (the whole stack for
 ``--minutes``, default 10), ``chaos`` (the kill matrix: ``--trials`` per process kind,
 default 3, ``--seed``, ``--kinds``), ``supervision`` (every motion fault on every joint of a
-flying arm, ``--trials`` seeds each: the confusion matrix of docs/safety.md) and ``soak`` (the simulated stack flying a looping path
+flying arm, ``--trials`` seeds each: the confusion matrix of docs/safety.md), ``faults`` (the
+checkout fault matrix of docs/checkout.md: every fault on every target, or ``--trials N``
+of them) and ``soak`` (the simulated stack flying a looping path
 for ``--minutes``, default 60) run only when named; ``pfma bench chaos --json`` and ``pfma
 bench soak --json`` print their whole report.
 
@@ -47,11 +49,11 @@ def _names() -> list[str]:
 
 
 #: benchmarks that run only when named (long)
-ON_REQUEST = ("stack", "chaos", "soak", "supervision")
+ON_REQUEST = ("stack", "chaos", "soak", "supervision", "faults")
 #: benchmarks ``--check`` judges (each module's ``judge(report) -> list[str]`` and ``passed_line``)
 CHECKED = ("soak", "flood")
 #: benchmarks named alone with ``--json``: their own whole report (not the JSON set)
-FULL_JSON = ("stack", "chaos", "soak")
+FULL_JSON = ("stack", "chaos", "soak", "faults")
 #: ``--minutes`` of the soak when none is given
 SOAK_MINUTES = 60.0
 #: what ``pfma bench --json`` measures, in this order
@@ -83,8 +85,10 @@ def add_parser(sub):
                    help="flood: pairs of a quiet and a flooded run, alternated (default 1)")
     p.add_argument("--trials", type=int, default=None,
                    help="chaos: trials per process kind (default 3; 100 for the full matrix); supervision: "
-                        "seeded trials per fault and joint (default 3)")
-    p.add_argument("--seed", type=int, default=None, help="chaos: the seed of the kill plan (default 20)")
+                        "seeded trials per fault and joint (default 3); faults: a seeded sample of this many "
+                        "cases (default: the whole checkout fault matrix)")
+    p.add_argument("--seed", type=int, default=None,
+                   help="chaos: the seed of the kill plan (default 20); faults: the sample's (default 1)")
     p.add_argument("--kinds", default=None, metavar="KIND,...",
                    help="chaos: which process kinds (default all: service, controller, recorder, console, "
                         "bridge, gateway, export)")
@@ -204,7 +208,7 @@ def _run_one(name: str, args, kinds: tuple[str, ...] | None) -> int | None:
     """Run benchmark ``name`` and print it; an exit code when the run ends here (``--check``,
     a stack's errors with ``--json``), else None."""
     mod = importlib.import_module(f"bench.bench_{name}")
-    if name in ("stack", "chaos", "soak"):
+    if name in FULL_JSON:
         return _run_long(name, mod, args, kinds)
     print(f"== bench {name} ==")
     if name == "supervision":
@@ -231,6 +235,8 @@ def _run_long(name: str, mod, args, kinds: tuple[str, ...] | None) -> int | None
     if name == "chaos":
         mod.run(trials=args.trials, seed=args.seed, as_json=args.json, realtime=args.realtime,
                 **({"kinds": kinds} if kinds else {}))
+    elif name == "faults":
+        mod.run(trials=args.trials, seed=args.seed, as_json=args.json)
     else:
         rep = mod.run(minutes=SOAK_MINUTES if args.minutes is None else args.minutes, as_json=args.json,
                       realtime=args.realtime)
