@@ -183,22 +183,26 @@ def named_kind(text: str) -> str:
 
 def judge(case: Case, failures: list[dict], rack: RackConfig) -> Verdict:
     """A verdict on the checkout's failures (report rows: ``channel``, ``check``,
-    ``detail``...) for ``case``, from the first one as the user reads it."""
+    ``detail``...) for ``case``: the rows a run that stops at its first failure reports,
+    that failure and the diagnosis row it adds (a joint's drive-or-brake row), as the user
+    reads them in the summary."""
     if not failures:
         return Verdict(case, False, False, False, "?", "")
-    f = failures[0]
-    text = " ".join(str(f.get(k) or "") for k in ("channel", "check", "detail"))
+    rows = [" ".join(str(f.get(k) or "") for k in ("channel", "check", "detail")) for f in failures]
+    text = " | ".join(rows)
     low = text.lower()
-    ch = str(f.get("channel") or "")
+    chans = {str(f.get("channel") or "") for f in failures}
     if case.signals:
-        part = ch in case.signals or any(s in low for s in case.signals)
+        part = bool(chans & case.signals) or any(s in low for s in case.signals)
     elif case.board is not None:
         on_board = {c.signal for c in rack.board(case.board).channels}
-        part = ch in on_board or case.board.lower() in low
+        part = bool(chans & on_board) or case.board.lower() in low
     else:  # a whole-chassis fault (a panel supply): any joint's failure points at it
         part = True
     kind_ok = any(w in low for w in KIND_WORDS[case.kind])
-    return Verdict(case, True, part, kind_ok, named_kind(text), text)
+    # the kind the report names: its last row that names one (a diagnosis explains the failure)
+    named = next((k for k in (named_kind(r) for r in reversed(rows)) if k), "")
+    return Verdict(case, True, part, kind_ok, named, text)
 
 
 def run_case(case: Case, rack: RackConfig, config=None,

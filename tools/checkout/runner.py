@@ -218,14 +218,33 @@ class Checkout:
         state = ServiceState(s.service_state)
         self.record("service", "service", "state", state not in (ServiceState.STARTING, ServiceState.STOPPED),
                     state.name, detail="the I/O service must be running")
+        said = self.service_said()
         for c in boards:
             st = int(s.board_status[c.slot])
             new = int(s.board_errors[c.slot]) - before[c.name]
             ok = bool(st & BOARD_OK) and not st & BOARD_FAULT and new == 0
             addr = int(s.board_last_error_addr[c.slot])
+            why = said.get(c.name, "") if not ok else ""
             self.record("service", c.name, "board status", ok, new, None, 0, "errors",
                         f"status {bits_text(st, BOARD_BITS)}" +
-                        (f", last error at A16 0x{addr:04X}" if addr else ""))
+                        (f", last error at A16 0x{addr:04X}" if addr else "") +
+                        (f"; the service: {why}" if why else ""))
+
+    def service_said(self) -> dict[str, str]:
+        """The service's newest message about each board (its text begins with the board's
+        name: ``adc: busy stuck scanning ...``, ``rtd2: bus error: ...``), the board's name
+        cut off: the cause in the service's own words, for a failure's detail."""
+        names = {c.name for c in self.lay.channels if c.kind == "board"}
+        out: dict[str, str] = {}
+        try:
+            msgs = self.t.reader.messages()
+        except Exception:  # noqa: BLE001 - the words are a courtesy; the check stands without them
+            return out
+        for m in msgs:
+            head, sep, rest = m.text.partition(": ")
+            if sep and head in names:
+                out[head] = rest
+        return out
 
     # ------------------------------------------------------------------ idle capture
     def capture(self) -> dict[str, np.ndarray]:
@@ -324,8 +343,10 @@ class Checkout:
             resyncs = int(s.link_resyncs[c.slot]) - y0
             status = int(s.link_status[c.slot])
             mn = float(lc.get("min_rate_hz", 0.0))
+            silent = (f"; silent: no record in {dt:.2f} s (the cable, the far end's power or its port; "
+                      f"a bad line would still send bytes)" if rate == 0.0 else "")
             self.record("links", c.name, "record rate", rate >= mn, round(rate, 2), mn, None, "records/s",
-                        f"over {dt:.2f} s; service figure {float(s.link_rate_hz[c.slot]):.1f}/s")
+                        f"over {dt:.2f} s; service figure {float(s.link_rate_hz[c.slot]):.1f}/s{silent}")
             mb = int(lc.get("max_bad", 0))
             self.record("links", c.name, "bad records", bad <= mb, bad, 0, mb, "records", f"over {dt:.2f} s")
             my = int(lc.get("max_resyncs", 0))
@@ -682,11 +703,20 @@ class Checkout:
         travelled = abs(travel) >= p.r_lo * abs(expected)
         stuck = travelled and swing < STUCK_TACH_FRACTION * abs(v)
         diag = ""
+        moved = abs(travel) >= MOVED_FRACTION * abs(expected)
+        no_current = bool(current) and peak < float(cfg.joint(j, "diag_no_current_fraction")) * i_lim
         if stuck:
             diag = (f"; TACH NOT RESPONDING (dead or stuck input: it moved {swing:.3g} rad/s "
                     f"while the resolver travelled {travel:+.4f} rad)")
-        elif mean_tach * v < 0:
+        elif (moved and mean_tach * travel < 0) or (not moved and mean_tach * v < 0):
+            # the tach against the resolver's motion (or, with no motion to compare, against the command)
             diag = "; TACH POLARITY REVERSED"
+        elif mean_tach * v < 0 and no_current:
+            diag = ("; MOVED AGAINST THE COMMAND WITH NO MOTOR CURRENT (tach and resolver agree): the drive "
+                    "does not answer (its PWM stage switch, +28 V, the amplifier); gravity or a load moved it")
+        elif mean_tach * v < 0:
+            diag = ("; MOVED AGAINST THE COMMAND (tach and resolver agree, with motor current): a reversed "
+                    "drive (motor or amplifier wiring)")
         self.record("joints", tach, f"open-loop rate {tag}", t_lo <= mean_tach <= t_hi and not runaway,
                     round(mean_tach, 5), round(t_lo, 5), round(t_hi, 5), "rad/s",
                     f"commanded {v:+.4g} rad/s at a {i_lim:.2f} A limit" + diag
@@ -772,6 +802,12 @@ class Checkout:
                       + (f" (it moved against the command in the {', '.join(wrong)} move: see the polarity "
                          "rows)" if wrong else "")
                       + (f" ({stopped}: that move shows nothing)" if unknown else "") + f". {seen}")
+
+
+#: a move's resolver travel of at least this fraction of the expected counts as motion
+#: when the tach's sign is compared with it (assumed: well above a resolver LSB, far below a
+#: working joint's travel)
+MOVED_FRACTION = 0.1
 
 
 class _DiagLimits:
