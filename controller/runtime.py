@@ -434,13 +434,7 @@ class ControllerRuntime:
         impl: dict[str, Callable] = {}
         for l in self.run_layers:
             impl.update(l.periodic)
-        remote = {n for l in self.remote_layers for n in l.periodic}  # another process runs them
-        problems = [f"task {t.name} has no implementation in layer {t.layer}"
-                    for t in self.frames.tasks if t.name not in impl and t.name not in remote]
-        problems += [f"task {n} of a layer is not in the schedule" for n in impl
-                     if n not in {t.name for t in self.frames.tasks}]
-        if problems:
-            raise ScheduleError("controller schedule: " + "; ".join(problems))
+        self._check_schedule(impl)
         self._table = tuple(tuple((t.name, impl[t.name]) for t in frame if t.name in impl)
                             for frame in self.frames.table())
         self._table_names = tuple(tuple(n for n, _ in frame) for frame in self._table)
@@ -450,6 +444,20 @@ class ControllerRuntime:
         self._per_major = sum(len(fr) for fr in self._table)
         self._has_servo = any(t.name == SERVO_TASK for t in self.frames.tasks) and SERVO_TASK in impl
         self._servo_div = self.frames.divider(self.frames.task(SERVO_TASK)) if self._has_servo else 1
+
+    def _check_schedule(self, impl: dict[str, Callable]) -> None:
+        """Every scheduled task has an implementation (here or, distributed, in another
+        process) and every task of the layers run here (``impl``) is scheduled.
+
+        :raises ScheduleError: listing every such problem
+        """
+        remote = {n for l in self.remote_layers for n in l.periodic}  # another process runs them
+        problems = [f"task {t.name} has no implementation in layer {t.layer}"
+                    for t in self.frames.tasks if t.name not in impl and t.name not in remote]
+        problems += [f"task {n} of a layer is not in the schedule" for n in impl
+                     if n not in {t.name for t in self.frames.tasks}]
+        if problems:
+            raise ScheduleError("controller schedule: " + "; ".join(problems))
 
     def task_period_s(self, name: str) -> float:
         for t in self.frames.tasks:
