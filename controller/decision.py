@@ -229,17 +229,13 @@ class CompiledTable:
         return out
 
 
-@lru_cache(maxsize=32)
-def compile_table(table: DecisionTable) -> CompiledTable:
-    """Validate ``table`` over its whole input space and build the lookup.
+#: problems of each kind listed one by one; past this many only their count is given
+_MAX_LISTED = 10
 
-    :raises TableError: listing every incomplete or ambiguous combination (first 10) and
-        every dead row
-    """
+
+def _row_problems(table: DecisionTable) -> list[str]:
+    """What is wrong with the rows themselves, whatever the inputs."""
     problems: list[str] = []
-    size = encode(len(Command) - 1, 9, 9, 3, True) + 1
-    lookup: list = [None] * size
-    coverage = {r.rid: 0 for r in table.rows}
     ids = [r.rid for r in table.rows]
     if len(set(ids)) != len(ids):
         problems.append("row ids are not unique")
@@ -248,36 +244,71 @@ def compile_table(table: DecisionTable) -> CompiledTable:
             problems.append(f"row {r.rid}: NO SUBORDINATE is not a layer status")
         if not table.has_subordinate and r.next_status == Status.WAITING_FOR_SUBORDINATE_TO_INIT:
             problems.append(f"row {r.rid}: a bottom layer cannot wait for a subordinate")
+    return problems
+
+
+def _by_section(table: DecisionTable) -> list[list[Row]]:
+    """The rows grouped by section, lowest section first, each group in table order."""
     sections = sorted({r.section for r in table.rows})
-    by_section = {sec: [r for r in table.rows if r.section == sec] for sec in sections}
-    missing = ambiguous = 0
-    for c, s, b, t, f in table.input_space():
-        decided = None
-        for sec in sections:
-            hits = [r for r in by_section[sec] if r.matches(c, s, b, t, f)]
-            if len(hits) > 1:
-                ambiguous += 1
-                if ambiguous <= 10:
-                    problems.append(f"not deterministic: rows {', '.join(str(h.rid) for h in hits)} all "
-                                    f"match command={Command(c).name} status={Status(s).name} "
-                                    f"sub={Status(b).name} task={TaskState(t).name} fault={f}")
-            if hits:
-                decided = hits[0]
-                break
-        if decided is None:
-            missing += 1
-            if missing <= 10:
-                problems.append(f"incomplete: no row for command={Command(c).name} status={Status(s).name} "
-                                f"sub={Status(b).name} task={TaskState(t).name} fault={f}")
-            continue
-        coverage[decided.rid] += 1
-        lookup[encode(c, s, b, t, f)] = Outcome(decided.next_status, decided.command_down,
-                                                decided.action, decided.rid, decided.note)
-    if missing > 10 or ambiguous > 10:
+    return [[r for r in table.rows if r.section == sec] for sec in sections]
+
+
+def _first_hits(groups: list[list[Row]], c, s, b, t, f) -> list[Row]:
+    """The rows of the first section with a row matching the inputs (empty: none does);
+    more than one is a non-deterministic table, the first of them decides."""
+    for group in groups:
+        hits = [r for r in group if r.matches(c, s, b, t, f)]
+        if hits:
+            return hits
+    return []
+
+
+def _inputs_text(c, s, b, t, f) -> str:
+    return (f"command={Command(c).name} status={Status(s).name} "
+            f"sub={Status(b).name} task={TaskState(t).name} fault={f}")
+
+
+def _tail_problems(missing: int, ambiguous: int, coverage: dict) -> list[str]:
+    """The count of combinations past the listed ones, then the dead rows."""
+    problems: list[str] = []
+    if missing > _MAX_LISTED or ambiguous > _MAX_LISTED:
         problems.append(f"({missing} incomplete and {ambiguous} ambiguous combinations in all)")
     dead = [rid for rid, n in coverage.items() if n == 0]
     if dead:
         problems.append(f"dead rows (never decide anything): {', '.join(map(str, dead))}")
+    return problems
+
+
+@lru_cache(maxsize=32)
+def compile_table(table: DecisionTable) -> CompiledTable:
+    """Validate ``table`` over its whole input space and build the lookup.
+
+    :raises TableError: listing every incomplete or ambiguous combination (first 10) and
+        every dead row
+    """
+    problems = _row_problems(table)
+    size = encode(len(Command) - 1, 9, 9, 3, True) + 1
+    lookup: list = [None] * size
+    coverage = {r.rid: 0 for r in table.rows}
+    groups = _by_section(table)
+    missing = ambiguous = 0
+    for c, s, b, t, f in table.input_space():
+        hits = _first_hits(groups, c, s, b, t, f)
+        if len(hits) > 1:
+            ambiguous += 1
+            if ambiguous <= _MAX_LISTED:
+                problems.append(f"not deterministic: rows {', '.join(str(h.rid) for h in hits)} all "
+                                f"match {_inputs_text(c, s, b, t, f)}")
+        if not hits:
+            missing += 1
+            if missing <= _MAX_LISTED:
+                problems.append(f"incomplete: no row for {_inputs_text(c, s, b, t, f)}")
+            continue
+        decided = hits[0]
+        coverage[decided.rid] += 1
+        lookup[encode(c, s, b, t, f)] = Outcome(decided.next_status, decided.command_down,
+                                                decided.action, decided.rid, decided.note)
+    problems += _tail_problems(missing, ambiguous, coverage)
     if problems:
         raise TableError(f"decision table {table.name}: " + "; ".join(problems))
     return CompiledTable(table, tuple(lookup), coverage)

@@ -177,28 +177,40 @@ class FrameConfig:
             out.append(f"decision tables ({self.tables_budget_s * 1e6:.0f} us) and the communications "
                        f"segment leave no time in a {self.period_s * 1e3:.3f} ms minor frame")
         for t in self.tasks:
-            if t.rate_hz <= 0:
-                out.append(f"task {t.name}: rate {t.rate_hz} Hz must be positive")
-                continue
-            ratio = self.frame_rate_hz / t.rate_hz
-            div = int(round(ratio))
-            if abs(ratio - div) > 1e-6 * ratio or div < 1 or MINOR_FRAMES_PER_MAJOR % div:
-                ok = sorted({self.frame_rate_hz / d for d in (1, 2, 4, 8, 16)}, reverse=True)
-                out.append(f"task {t.name}: {t.rate_hz:g} Hz cannot fit its period: on "
-                           f"{self.frame_rate_hz:g} Hz minor frames a task runs every 1, 2, 4, 8 or 16 "
-                           f"frames ({', '.join(f'{r:g}' for r in ok)} Hz)")
-                continue
-            if not 0 <= t.phase < div:
-                out.append(f"task {t.name}: phase {t.phase} not in 0..{div - 1} for {t.rate_hz:g} Hz")
-            if t.budget_s > usable:
-                out.append(f"task {t.name}: budget {t.budget_s * 1e6:.0f} us cannot fit its period: "
-                           f"{usable * 1e6:.0f} us of a minor frame are left for tasks")
+            out += self._task_problems(t, usable)
         if not out:
-            for k, frame in enumerate(self.table()):
-                total = sum(t.budget_s for t in frame)
-                if total > usable:
-                    out.append(f"minor frame {k}: tasks {', '.join(t.name for t in frame)} need "
-                               f"{total * 1e6:.0f} us, {usable * 1e6:.0f} us available: move a phase")
+            out += self._frame_problems(usable)
+        return out
+
+    def _task_problems(self, t: TaskSpec, usable: float) -> list[str]:
+        """What is wrong with one task's rate, phase and budget (``usable``: seconds of a
+        minor frame left for tasks)."""
+        if t.rate_hz <= 0:
+            return [f"task {t.name}: rate {t.rate_hz} Hz must be positive"]
+        ratio = self.frame_rate_hz / t.rate_hz
+        div = int(round(ratio))
+        if abs(ratio - div) > 1e-6 * ratio or div < 1 or MINOR_FRAMES_PER_MAJOR % div:
+            ok = sorted({self.frame_rate_hz / d for d in (1, 2, 4, 8, 16)}, reverse=True)
+            return [f"task {t.name}: {t.rate_hz:g} Hz cannot fit its period: on "
+                    f"{self.frame_rate_hz:g} Hz minor frames a task runs every 1, 2, 4, 8 or 16 "
+                    f"frames ({', '.join(f'{r:g}' for r in ok)} Hz)"]
+        out: list[str] = []
+        if not 0 <= t.phase < div:
+            out.append(f"task {t.name}: phase {t.phase} not in 0..{div - 1} for {t.rate_hz:g} Hz")
+        if t.budget_s > usable:
+            out.append(f"task {t.name}: budget {t.budget_s * 1e6:.0f} us cannot fit its period: "
+                       f"{usable * 1e6:.0f} us of a minor frame are left for tasks")
+        return out
+
+    def _frame_problems(self, usable: float) -> list[str]:
+        """The minor frames whose tasks' budgets together exceed ``usable`` seconds (checked
+        only once every task fits on its own: the table needs valid dividers)."""
+        out: list[str] = []
+        for k, frame in enumerate(self.table()):
+            total = sum(t.budget_s for t in frame)
+            if total > usable:
+                out.append(f"minor frame {k}: tasks {', '.join(t.name for t in frame)} need "
+                           f"{total * 1e6:.0f} us, {usable * 1e6:.0f} us available: move a phase")
         return out
 
     def validate(self) -> "FrameConfig":

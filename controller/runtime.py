@@ -286,6 +286,30 @@ def build_layers(client, require_ft: bool = True) -> list[Layer]:
     return layers
 
 
+def _stats_writer(client):
+    """The writer of the Bit3 ``controller_stats`` area when ``client`` is the controller's
+    writer and its buffer has the area (None: the statistics go to the world model only)."""
+    if getattr(client, "role", None) != "controller":
+        return None
+    try:
+        return client.buffer.writer("controller_stats")
+    except Exception:  # noqa: BLE001 - an older buffer without the area: world model only
+        return None
+
+
+def _local_keys(local_layers: Sequence[str] | None) -> frozenset[str]:
+    """The keys of the layers a process runs: all seven when ``local_layers`` is None.
+
+    :raises ValueError: an unknown key, or none
+    """
+    if local_layers is None:
+        return frozenset(LAYER_KEYS)
+    unknown = [k for k in local_layers if k not in LAYER_KEYS]
+    if unknown or not local_layers:
+        raise ValueError(f"local_layers {list(local_layers)}: layer keys are {', '.join(LAYER_KEYS)}")
+    return frozenset(local_layers)
+
+
 class ControllerRuntime:
     """The controller: seven layers over a world model, driven one minor frame at a time.
 
@@ -311,32 +335,12 @@ class ControllerRuntime:
         self.frames = (frames or FrameConfig()).validate()
         self.client = client
         self.clock = clock
-        if local_layers is not None:
-            unknown = [k for k in local_layers if k not in LAYER_KEYS]
-            if unknown or not local_layers:
-                raise ValueError(f"local_layers {list(local_layers)}: layer keys are {', '.join(LAYER_KEYS)}")
+        local_keys = _local_keys(local_layers)
         #: a distributed controller's process (``local_layers`` given)
         self.distributed = local_layers is not None
-        self.local_keys = frozenset(LAYER_KEYS if local_layers is None else local_layers)
-        self._has_daq = "daq" in self.local_keys
-        self.layers = build_layers(client if self._has_daq else _InputsOnly(client), require_ft)
-        #: the layers this process runs (all seven in one process), highest first
-        self.run_layers = tuple(l for l in self.layers if l.key in self.local_keys)
-        #: the others (a distributed controller): their state is read from the world model
-        self.remote_layers = tuple(l for l in self.layers if l.key not in self.local_keys)
-        self._remote_status: dict[str, int] = {l.key: int(Status.SHUT_DOWN) for l in self.remote_layers}
-        #: called right before each step's first communications segment (a distributed
-        #: controller's import of the other processes' sections)
-        self.before_segment: Callable[[], None] | None = None
-        self.by_key = {l.key: l for l in self.layers}
-        self.daq: DataAcquisitionLayer = self.by_key["daq"]  # type: ignore[assignment]
-        self.servo: ServoLayer = self.by_key["servo"]  # type: ignore[assignment]
-        self.updown: UpDownLayer = self.by_key["updown"]  # type: ignore[assignment]
-        specs = [s for l in self.layers for s in l.specs()] + runtime_specs()
-        self.wm = WorldModel.create(specs, name=wm_name, clock=clock, access_key=access_key, owner="controller")
-        if "updown" in self.local_keys:
-            self.wm.keep_user_writes(UI.request)  # each write is a request (UpDownLayer)
-        self._key = self.wm.access_key
+        self.local_keys = local_keys
+        self._init_layers(client, require_ft)
+        self._init_world_model(wm_name, clock, access_key)
         self.messages = MessageBoard()
         self.trace: deque[FrameTrace] = deque(maxlen=trace_frames)
         self.frame = -1
@@ -392,12 +396,7 @@ class ControllerRuntime:
         self._pub_cpu = time.process_time()
         self._pub_host = time.perf_counter()
         self.stats_published = 0
-        self._stats_w = None
-        if getattr(client, "role", None) == "controller":
-            try:
-                self._stats_w = client.buffer.writer("controller_stats")
-            except Exception:  # noqa: BLE001 - an older buffer without the area: world model only
-                self._stats_w = None
+        self._stats_w = _stats_writer(client)
         self._build_schedule()
         if forward_messages:
             self.messages.listeners.append(self._forward)
@@ -405,18 +404,37 @@ class ControllerRuntime:
                                          f"profile {self.frames.profile_name}, world model "
                                          f"{wm_name or '(private)'}")
 
+    def _init_layers(self, client, require_ft: bool) -> None:
+        """The seven layers, those this process runs and the others (``local_keys`` set)."""
+        self._has_daq = "daq" in self.local_keys
+        self.layers = build_layers(client if self._has_daq else _InputsOnly(client), require_ft)
+        #: the layers this process runs (all seven in one process), highest first
+        self.run_layers = tuple(l for l in self.layers if l.key in self.local_keys)
+        #: the others (a distributed controller): their state is read from the world model
+        self.remote_layers = tuple(l for l in self.layers if l.key not in self.local_keys)
+        self._remote_status: dict[str, int] = {l.key: int(Status.SHUT_DOWN) for l in self.remote_layers}
+        #: called right before each step's first communications segment (a distributed
+        #: controller's import of the other processes' sections)
+        self.before_segment: Callable[[], None] | None = None
+        self.by_key = {l.key: l for l in self.layers}
+        self.daq: DataAcquisitionLayer = self.by_key["daq"]  # type: ignore[assignment]
+        self.servo: ServoLayer = self.by_key["servo"]  # type: ignore[assignment]
+        self.updown: UpDownLayer = self.by_key["updown"]  # type: ignore[assignment]
+
+    def _init_world_model(self, wm_name: str | None, clock, access_key: str | None) -> None:
+        """The world model of every layer's variables and the runtime's (``layers`` set)."""
+        specs = [s for l in self.layers for s in l.specs()] + runtime_specs()
+        self.wm = WorldModel.create(specs, name=wm_name, clock=clock, access_key=access_key, owner="controller")
+        if "updown" in self.local_keys:
+            self.wm.keep_user_writes(UI.request)  # each write is a request (UpDownLayer)
+        self._key = self.wm.access_key
+
     # --- set-up ----------------------------------------------------------------------------
     def _build_schedule(self) -> None:
         impl: dict[str, Callable] = {}
         for l in self.run_layers:
             impl.update(l.periodic)
-        remote = {n for l in self.remote_layers for n in l.periodic}  # another process runs them
-        problems = [f"task {t.name} has no implementation in layer {t.layer}"
-                    for t in self.frames.tasks if t.name not in impl and t.name not in remote]
-        problems += [f"task {n} of a layer is not in the schedule" for n in impl
-                     if n not in {t.name for t in self.frames.tasks}]
-        if problems:
-            raise ScheduleError("controller schedule: " + "; ".join(problems))
+        self._check_schedule(impl)
         self._table = tuple(tuple((t.name, impl[t.name]) for t in frame if t.name in impl)
                             for frame in self.frames.table())
         self._table_names = tuple(tuple(n for n, _ in frame) for frame in self._table)
@@ -426,6 +444,20 @@ class ControllerRuntime:
         self._per_major = sum(len(fr) for fr in self._table)
         self._has_servo = any(t.name == SERVO_TASK for t in self.frames.tasks) and SERVO_TASK in impl
         self._servo_div = self.frames.divider(self.frames.task(SERVO_TASK)) if self._has_servo else 1
+
+    def _check_schedule(self, impl: dict[str, Callable]) -> None:
+        """Every scheduled task has an implementation (here or, distributed, in another
+        process) and every task of the layers run here (``impl``) is scheduled.
+
+        :raises ScheduleError: listing every such problem
+        """
+        remote = {n for l in self.remote_layers for n in l.periodic}  # another process runs them
+        problems = [f"task {t.name} has no implementation in layer {t.layer}"
+                    for t in self.frames.tasks if t.name not in impl and t.name not in remote]
+        problems += [f"task {n} of a layer is not in the schedule" for n in impl
+                     if n not in {t.name for t in self.frames.tasks}]
+        if problems:
+            raise ScheduleError("controller schedule: " + "; ".join(problems))
 
     def task_period_s(self, name: str) -> float:
         for t in self.frames.tasks:
