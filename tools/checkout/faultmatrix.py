@@ -42,16 +42,16 @@ KIND_WORDS: dict[str, tuple[str, ...]] = {
     "ft-unplugged": ("silent", "no record", "stale", "unplugged", "nothing"),
     "hand-unplugged": ("silent", "no record", "stale", "unplugged", "nothing"),
     "tach-reversed": ("tach polarity reversed",),
-    "adc-dead": ("does not follow", "dead", "stuck at"),
+    "amp-off": ("no motor current", "pwm stage", "amplifier"),
+    "brake-held": ("brake not released", "brake held", "brake-release"),
+    "adc-dead": ("does not follow", "dead input", "input stuck"),
     "ft-noise": ("noise", "bad record", "checksum", "garbage"),
-    "brake-held": ("brake",),
-    "amp-off": ("amplifier", "pwm stage", "no motor current", "current limit off"),
     "load": ("load", "collision"),
     "switcher-silent": ("switcher", "acknowledge"),
-    "panel-off:28v": ("28 v", "+28", "panel"),
-    "panel-off:15v": ("15 v", "+/-15", "panel"),
-    "panel-off:pwm": ("pwm", "panel"),
-    "panel-off:brake": ("brake", "panel"),
+    "panel-off:28v": ("+28 v", "panel"),
+    "panel-off:15v": ("+/-15 v", "panel"),
+    "panel-off:pwm": ("pwm stage switch", "panel"),
+    "panel-off:brake": ("brake-release switch", "panel"),
 }
 
 #: value for the faults that take one: an A/D input held at 2.5 V (mid-range, not 0), a

@@ -124,6 +124,8 @@ class Checkout:
         self.report = Report(target.describe(), target.rack.name, groups, config=config.as_dict(),
                              config_source=config.source)
         self.interrupted = False
+        #: every resolver and A/D code the run read (the data-bit diagnosis reads them)
+        self.codes = CodeLog()
         self._capture: dict[str, np.ndarray] | None = None
         self._group = "service"
 
@@ -140,13 +142,15 @@ class Checkout:
         return r
 
     def inputs(self):
-        return self.t.inputs()
+        s = self.t.inputs()
+        self.codes.note(s)
+        return s
 
     def value(self, signal: str) -> float:
-        return float(self.t.inputs().value(signal))
+        return float(self.inputs().value(signal))
 
     def volts(self, signal: str) -> float:
-        return float(self.t.inputs().channel(signal)["adc_volts"])
+        return float(self.inputs().channel(signal)["adc_volts"])
 
     def operate(self, prompt: str, stimulate: Callable, cond: Callable[[], bool]) -> bool | None:
         """One operator action: the stimulus does it on the simulated rack, an operator on a
@@ -178,10 +182,13 @@ class Checkout:
                 if self.progress is not None:
                     self.progress(k, len(self.groups), f"{g}: {GROUP_TITLES[g]}")
                 getattr(self, f"_group_{g}")()
+            self._group = "data bits"
+            self._data_bits(stopping=False)
             if self.progress is not None:
                 self.progress(len(self.groups), len(self.groups), "done")
         except StopRun as stop:
             rep.stopped_early = str(stop)
+            self._data_bits(stopping=True)
         except ServiceLost as err:
             rep.stopped_early = str(err)
             self._record_quiet(self._group, "service", "publishing", False, detail=str(err))
@@ -245,6 +252,35 @@ class Checkout:
             if sep and head in names:
                 out[head] = rest
         return out
+
+    # ------------------------------------------------------------------ data bits
+    def _data_bits(self, *, stopping: bool) -> None:
+        """The resolver and A/D channels' data bits over every code the run read: a bit that
+        never changed while the channel's codes swept densely across where it must have
+        (:func:`stuck_bits`) is stuck. After a failure (``stopping``) only a stuck bit is
+        said, as that failure's diagnosis; at the end of a whole run a row per board."""
+        seen: dict[str, tuple[int, int]] = {}
+        for c in self.lay.channels:
+            if c.kind not in DATA_BITS:
+                continue
+            codes = self.codes.of(c.kind, c.slot)
+            found = stuck_bits(codes, DATA_BITS[c.kind])
+            n, k = seen.get(c.board, (0, 0))
+            seen[c.board] = (n + len(codes), k + bool(found))
+            for bit, v in found:
+                u = np.unique(codes)
+                self._record_quiet("data bits", c.name, "data bits (diagnosis)" if stopping else "data bits",
+                                   False, f"bit {bit} stuck at {v}", detail=(
+                                       f"bit {bit} stuck at {v}: {len(u)} distinct codes {int(u[0])}..{int(u[-1])} "
+                                       f"over the run, never a {1 - v} in bit {bit} (board {c.board} ch "
+                                       f"{c.channel}; a data bit of the board or its cable)"))
+        if stopping:
+            return
+        for board, (n, k) in seen.items():
+            if not k:
+                self.record("data bits", board, "data bits", True, n, detail=(
+                    "no stuck bit seen: a bit is judged where a channel's codes swept across it densely "
+                    "(low bits of moving joints and driven inputs; a bit no channel swept is not judged)"))
 
     # ------------------------------------------------------------------ idle capture
     def capture(self) -> dict[str, np.ndarray]:
@@ -700,23 +736,8 @@ class Checkout:
         # a tach that does not change while the joint is driven is dead or stuck, not
         # reversed (a dead input held at a few mV would otherwise read "reversed")
         swing = float(np.ptp(xs)) if len(xs) else 0.0
-        travelled = abs(travel) >= p.r_lo * abs(expected)
-        stuck = travelled and swing < STUCK_TACH_FRACTION * abs(v)
-        diag = ""
-        moved = abs(travel) >= MOVED_FRACTION * abs(expected)
         no_current = bool(current) and peak < float(cfg.joint(j, "diag_no_current_fraction")) * i_lim
-        if stuck:
-            diag = (f"; TACH NOT RESPONDING (dead or stuck input: it moved {swing:.3g} rad/s "
-                    f"while the resolver travelled {travel:+.4f} rad)")
-        elif (moved and mean_tach * travel < 0) or (not moved and mean_tach * v < 0):
-            # the tach against the resolver's motion (or, with no motion to compare, against the command)
-            diag = "; TACH POLARITY REVERSED"
-        elif mean_tach * v < 0 and no_current:
-            diag = ("; MOVED AGAINST THE COMMAND WITH NO MOTOR CURRENT (tach and resolver agree): the drive "
-                    "does not answer (its PWM stage switch, +28 V, the amplifier); gravity or a load moved it")
-        elif mean_tach * v < 0:
-            diag = ("; MOVED AGAINST THE COMMAND (tach and resolver agree, with motor current): a reversed "
-                    "drive (motor or amplifier wiring)")
+        diag = _tach_diag(v, expected, travel, mean_tach, swing, no_current, p.r_lo)
         self.record("joints", tach, f"open-loop rate {tag}", t_lo <= mean_tach <= t_hi and not runaway,
                     round(mean_tach, 5), round(t_lo, 5), round(t_hi, 5), "rad/s",
                     f"commanded {v:+.4g} rad/s at a {i_lim:.2f} A limit" + diag
@@ -804,6 +825,101 @@ class Checkout:
                       + (f" ({stopped}: that move shows nothing)" if unknown else "") + f". {seen}")
 
 
+#: the channel kinds whose raw codes the data-bit diagnosis reads, and their data bits
+#: (drivers/rtd ANGLE 14 bits, drivers/adc code 12 bits)
+DATA_BITS = {"rtd": 14, "adc": 12}
+#: samples of codes a run keeps (a whole checkout reads a few thousand)
+CODE_LOG_KEEP = 50_000
+
+
+class CodeLog:
+    """Every resolver and A/D code a checkout read (its inputs' ``rtd_counts``, ``adc_counts``)."""
+
+    def __init__(self) -> None:
+        self._rows: dict[str, list[np.ndarray]] = {"rtd": [], "adc": []}
+        self._last: int | None = None
+
+    def note(self, s) -> None:
+        frame = int(s.frame)
+        if frame == self._last or len(self._rows["adc"]) >= CODE_LOG_KEEP:
+            return  # the same frame read twice adds nothing
+        self._last = frame
+        self._rows["rtd"].append(np.array(s["rtd_counts"], dtype=np.int64))
+        self._rows["adc"].append(np.array(s["adc_counts"], dtype=np.int64))
+
+    def of(self, kind: str, slot: int) -> np.ndarray:
+        rows = self._rows[kind]
+        return np.array([r[slot] for r in rows], dtype=np.int64) if rows else np.zeros(0, dtype=np.int64)
+
+
+def stuck_bits(codes: np.ndarray, nbits: int) -> list[tuple[int, int]]:
+    """The bits of ``codes`` (a channel's raw codes over a run) stuck at 0 or 1: (bit, value).
+
+    A bit is judged only where the codes swept across it densely. With bit ``b`` stuck, a
+    sweep reads in blocks of 2^b codes with the other 2^b missing: neighbouring distinct codes
+    are at most :data:`SWEEP_STEP` apart inside a block and 2^b + 1 .. 2^b + SWEEP_STEP across
+    a missing one. A run of such neighbours spanning 2^(b+1) + 2 codes or more is a sweep that
+    must have had the bit both 0 and 1 (a healthy one would: every 2^(b+1) consecutive codes
+    hold both); codes in clusters far apart (two poses, a few stimulus levels) are no sweep.
+    At least :data:`MIN_DISTINCT` distinct codes are needed at all."""
+    u = np.unique(codes)
+    if len(u) < MIN_DISTINCT:
+        return []
+    gaps = np.diff(u)
+    out = []
+    for b in range(nbits):
+        bit = (u >> b) & 1
+        if bit.min() != bit.max():
+            continue
+        w = 1 << b
+        joined = (gaps <= SWEEP_STEP) | ((gaps > w) & (gaps <= w + SWEEP_STEP))
+        if _longest_run_span(u, joined) >= 2 * w + 2:
+            out.append((b, int(bit[0])))
+    return out
+
+
+def _longest_run_span(u: np.ndarray, joined: np.ndarray) -> int:
+    """The largest ``u[j] - u[i]`` over runs of neighbours all ``joined``."""
+    best, start = 0, 0
+    for k, ok in enumerate(joined):
+        if not ok:
+            start = k + 1
+            continue
+        best = max(best, int(u[k + 1] - u[start]))
+    return best
+
+
+#: the largest step between neighbouring distinct codes of a sweep (a moving joint's resolver
+#: advances about one count a sample; a driven tach or monitor a few) (assumed)
+SWEEP_STEP = 3
+#: distinct codes a channel needs before its bits are judged
+MIN_DISTINCT = 8
+
+
+def _tach_diag(v: float, expected: float, travel: float, mean_tach: float, swing: float, no_current: bool,
+               r_lo: float) -> str:
+    """What an open-loop rate row adds about the tach: a tach that does not change while the
+    joint is driven is dead or stuck, not reversed (a dead input held at a few mV would
+    otherwise read "reversed"); a tach against the resolver's motion (or, with no motion to
+    compare, against the command) is reversed; a joint that moved against the command with
+    the tach agreeing was moved by gravity or a load (no motor current: the drive does not
+    answer) or is driven the wrong way. "" when none."""
+    if abs(travel) >= r_lo * abs(expected) and swing < STUCK_TACH_FRACTION * abs(v):
+        return (f"; TACH NOT RESPONDING (dead or stuck input: it moved {swing:.3g} rad/s "
+                f"while the resolver travelled {travel:+.4f} rad)")
+    moved = abs(travel) >= MOVED_FRACTION * abs(expected)
+    if (moved and mean_tach * travel < 0) or (not moved and mean_tach * v < 0):
+        return "; TACH POLARITY REVERSED"
+    if mean_tach * v < 0 and no_current:
+        return ("; MOVED AGAINST THE COMMAND WITH NO MOTOR CURRENT (tach and resolver agree): the drive "
+                "does not answer (its PWM stage switch, +28 V and +/-15 V, the amplifier); gravity or a load "
+                "moved it")
+    if mean_tach * v < 0:
+        return ("; MOVED AGAINST THE COMMAND (tach and resolver agree, with motor current): a reversed "
+                "drive (motor or amplifier wiring)")
+    return ""
+
+
 #: a move's resolver travel of at least this fraction of the expected counts as motion
 #: when the tach's sign is compared with it (assumed: well above a resolver LSB, far below a
 #: working joint's travel)
@@ -842,7 +958,8 @@ class _DiagLimits:
             also = (f" (it moved {m.travel:+.4f} rad without current: gravity or a load, or the current "
                     "monitor is dead: see its \"motor current responds\" row)" if self.moved(m) else "")
             return "no current", (
-                f"no motor current: check its PWM stage switch, +28 V, and the amplifier{also}. "
+                f"no motor current: check its PWM stage switch, +28 V and +/-15 V (the servo chassis panel), "
+                f"and the amplifier{also}. "
                 f"Peak |current| {m.peak_a:.3g} A < {i_none:.3g} A "
                 f"({self.f_none:g} x the {i_lim:.2f} A limit). {seen}")
         if m.peak_a >= i_brake:

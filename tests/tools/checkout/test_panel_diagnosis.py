@@ -62,7 +62,7 @@ def test_a_pwm_stage_off_is_named_no_motor_current(sim, cfg):
     assert not rep.passed
     d = diagnosis(rep, "wrist_roll")
     assert d.status == FAIL and d.measured == "no current"
-    assert d.detail.startswith("no motor current: check its PWM stage switch, +28 V, and the amplifier")
+    assert d.detail.startswith("no motor current: check its PWM stage switch, +28 V and +/-15 V (the servo chassis panel), and the amplifier")
     assert "brake" not in d.detail.split(".")[0]
     outputs_safe(sim)
 
