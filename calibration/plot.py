@@ -88,6 +88,30 @@ def fit_grid(fits: Sequence[Fit], xlabel: str, ylabel: str, units: str, columns:
     return panels
 
 
+def _whole_numbers():
+    """A tick formatter writing each tick's whole value with the digits its spacing needs
+    (1.0002 beside 1.0001; 5e-14 beside 1e-13), and 0 as 0."""
+    from matplotlib.ticker import Formatter
+
+    class WholeNumbers(Formatter):
+        digits, step = 3, 0.0
+
+        def set_locs(self, locs):
+            v = np.sort(np.abs(np.asarray(locs, float)))
+            steps = np.diff(np.sort(np.asarray(locs, float)))
+            self.step = float(steps.min()) if steps.size else 0.0
+            if self.step > 0 and v.size and v[-1] > 0:
+                # the largest tick's leading digit down to the spacing's, and one more
+                self.digits = max(2, int(np.floor(np.log10(v[-1])) - np.floor(np.log10(self.step))) + 2)
+
+        def __call__(self, x, pos=None):
+            if abs(x) <= 1e-9 * self.step:  # a tick at zero, computed a rounding error away
+                return "0"
+            return f"{x:.{self.digits}g}"
+
+    return WholeNumbers()
+
+
 def _draw_panel(ax, panel: Panel, small: bool) -> None:
     for s in panel.series:
         x, y = np.asarray(s.x, float).ravel(), np.asarray(s.y, float).ravel()
@@ -99,6 +123,10 @@ def _draw_panel(ax, panel: Panel, small: bool) -> None:
             ax.plot(x, y, "o", color=colour, ms=3 if small else 3.5, label=s.label or None)
     if panel.zero_line:
         ax.axhline(0.0, color="0.6", lw=0.8)
+    # each tick says its whole number: an offset or a "1e-5" multiplier over the axes is
+    # read late or not at all, and it sits where the title is
+    ax.xaxis.set_major_formatter(_whole_numbers())
+    ax.yaxis.set_major_formatter(_whole_numbers())
     if panel.xticks:
         ax.set_xticks(range(len(panel.xticks)), list(panel.xticks), rotation=30, ha="right")
         ax.set_xlim(-0.5, len(panel.xticks) - 0.5)

@@ -6,8 +6,9 @@ figures in which, by matplotlib's own bounding boxes after a draw:
 - no legend covers a plotted data point, nor a drawn line between two points;
 - no two entries of one legend share a colour, and no legend has more entries than the
   palette's distinct colours (more channels go to small multiples, one panel each);
-- no legend covers a title (the figure's or a panel's), and no two titles overlap (small
-  panels' titles are narrow).
+- no legend covers a title (the figure's or a panel's), no two titles overlap (small
+  panels' titles are narrow), no axis's offset text or multiplier ("1e-5") overlaps a title,
+  and every title lies inside the figure.
 
 The checkout (tools/checkout) draws no plots: nothing of it to check here.
 """
@@ -121,8 +122,16 @@ def _titles(fig, renderer):
 
 def _title_faults(fig, renderer) -> list[str]:
     titles = _titles(fig, renderer)
-    return [f"titles {a!r} and {b!r} overlap" for k, (a, box_a) in enumerate(titles)
-            for b, box_b in titles[k + 1:] if box_a.overlaps(box_b)]
+    page = fig.bbox
+    faults = [f"titles {a!r} and {b!r} overlap" for k, (a, box_a) in enumerate(titles)
+              for b, box_b in titles[k + 1:] if box_a.overlaps(box_b)]
+    faults += [f"the title {a!r} runs off the figure" for a, box in titles
+               if box.x0 < page.x0 or box.x1 > page.x1 or box.y0 < page.y0 or box.y1 > page.y1]
+    offsets = [(ax, t) for ax in fig.axes for t in (ax.xaxis.get_offset_text(), ax.yaxis.get_offset_text())
+               if t.get_visible() and t.get_text()]
+    faults += [f"the offset text {t.get_text()!r} of {ax.get_title()!r} overlaps the title {a!r}"
+               for ax, t in offsets for a, box in titles if t.get_window_extent(renderer).overlaps(box)]
+    return faults
 
 
 def legibility_faults(fig) -> list[str]:
@@ -174,3 +183,24 @@ def test_the_checker_sees_a_crowded_legend():
     faults = legibility_faults(fig)
     assert any("repeats a colour" in f for f in faults) and any("covers" in f for f in faults)
     assert any("entries (more than" in f for f in faults)
+
+
+def test_fit_grid_puts_each_channel_residuals_under_its_fit_and_says_the_roles_once():
+    x = np.linspace(-9, 9, 5)
+    fits = [plot.Fit(f"ch{i}", x, x, x, 1e-13 * x, f"gain {1 + i / 1e4:.4f}") for i in range(5)]
+    fig = plot.figure(plot.fit_grid(fits, "reference (V)", "reading (V)", "V", 3), "ADC", 720, 180, 3)
+    assert len(fig.axes) == 10  # 5 fits + 5 residuals; the short last row's empty cells are gone
+    titles = [ax.get_title() for ax in fig.axes]
+    assert titles[:3] == ["ch0\ngain 1.0000", "ch1\ngain 1.0001", "ch2\ngain 1.0002"]
+    assert titles[3].startswith("ch0 residuals\n(largest")
+    by_title = {ax.get_title().split("\n")[0]: ax for ax in fig.axes}
+    _drawn(fig)
+    fit_box, res_box = by_title["ch1"].get_window_extent(), by_title["ch1 residuals"].get_window_extent()
+    assert res_box.y1 < fit_box.y0 and abs(res_box.x0 - fit_box.x0) < 1  # right under its fit
+    assert all(ax.get_legend() is None for ax in fig.axes)
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["measured", "fit"]
+    assert legibility_faults(fig) == []
+    # each tick its whole value, no "1e-13" multiplier over the axes
+    res = by_title["ch0 residuals"]
+    assert res.yaxis.get_offset_text().get_text() == ""
+    assert any("e-13" in t.get_text() for t in res.get_yticklabels())
