@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibration import fit as F
-from calibration.plot import Panel, Series, plot_fit, residual_panel
+from calibration.plot import Fit, fit_grid, plot_fit
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name, require
 
 NAME = "adc"
@@ -26,7 +26,7 @@ RESIDUAL_LIMIT_V = 2 * LSB_V
 GAIN_LIMIT = 0.05
 OFFSET_LIMIT_V = 0.25
 DEFAULT_POINTS_V = (-9.0, -5.0, 0.0, 5.0, 9.0)
-COLOURS = ("blue", "red", "green", "orange", "purple", "black")
+PLOT_COLUMNS = 4  #: small panels per row (one per channel)
 
 
 def default_signals(ctx: Context) -> list[str]:
@@ -63,7 +63,7 @@ def run(ctx: Context) -> ProcedureResult:
                         signals=signals)
     refs = np.array(refs)
     readings = np.array(readings)  # points x channels
-    panels_pts, panels_res = [], []
+    fits = []
     for i, sig in enumerate(signals):
         f = F.linear(readings[:, i], refs, what=f"ADC {sig}")
         res.fits[sig] = f
@@ -79,12 +79,11 @@ def run(ctx: Context) -> ProcedureResult:
         res.check(f"{sig} max residual", f.max_abs, RESIDUAL_LIMIT_V, "V")
         res.check(f"{sig} gain - 1", f["gain"] - 1.0, GAIN_LIMIT)
         res.check(f"{sig} offset", f["offset"], OFFSET_LIMIT_V, "V")
-        c = COLOURS[i % len(COLOURS)]
-        panels_pts += [Series(refs, readings[:, i], "points", c, sig),
-                       Series(refs, (refs - f["offset"]) / f["gain"], "line", c)]
-        panels_res.append(Series(refs, f.residuals, "points", c, sig))
-    res.plots.append(plot_fit(plot_name(ctx, NAME, "fit"), [
-        Panel(panels_pts, "ADC reading vs reference voltage (points), fitted line", "reference (V)",
-              "ADC reading (V)"),
-        residual_panel(panels_res, "fit", "V", "reference (V)")], title="ADC gain and offset"))
+        fits.append(Fit(sig, refs, readings[:, i], (refs - f["offset"]) / f["gain"], f.residuals,
+                        f"gain {f['gain']:.4f}, offset {f['offset'] * 1e3:+.1f} mV"))
+    cols = min(PLOT_COLUMNS, len(fits))
+    res.plots.append(plot_fit(plot_name(ctx, NAME, "fit"),
+                              fit_grid(fits, "reference (V)", "ADC reading (V)", "V", cols),
+                              "ADC reading vs reference voltage per channel, fitted line; residuals below",
+                              width=240 * cols, height_per_panel=190, columns=cols))
     return finish(ctx, res)

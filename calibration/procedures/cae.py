@@ -26,8 +26,6 @@ from calibration.plot import Panel, Series, plot_fit
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name
 from drivers.crl.cae import CAE_AXES
 
-COLOURS_CYCLE = ("blue", "red", "green", "orange", "purple", "black")
-
 NAME = "cae"
 LSB_V = 20.0 / 4096
 MIN_DEADBAND_V = 0.2
@@ -77,7 +75,7 @@ def run(ctx: Context) -> ProcedureResult:
     cae_update = {}
     defaults = {axis: sign for _, axis, sign in CAE_AXES}
     prev = ctx.calibration.cae or {}
-    pts = []
+    pts: dict[str, list[float]] = {"plus": [], "minus": []}
     for i, (sig, axis, _) in enumerate(CAE_AXES):
         plus, minus = ext[(axis, 1)] - centre[i], ext[(axis, -1)] - centre[i]
         span = float(min(abs(plus), abs(minus)))
@@ -98,11 +96,13 @@ def run(ctx: Context) -> ProcedureResult:
         res.check(f"{sig} rest noise", float(np.max(np.array(noise)[:, i])), 3 * LSB_V, "V")
         if axis in prev:
             pass  # drift is reported by finish()
-        pts.append(Series(np.array([-1, 0, 1]) + 4 * i, np.array([minus, 0.0, plus]), "points",
-                          COLOURS_CYCLE[i % len(COLOURS_CYCLE)], sig))
+        pts["plus"].append(plus)
+        pts["minus"].append(minus)
     res.cae = cae_update
     res.plots.append(plot_fit(plot_name(ctx, NAME, "sweep"), [
-        Panel(pts, "stick at full minus, rest and full plus, per axis (4 units apart)",
-              "axis: deflection -1, 0, +1", "volts from null (V)", zero_line=True)],
+        Panel([Series(np.arange(len(sigs)), np.array(pts["plus"]), "points", "red", "full plus"),
+               Series(np.arange(len(sigs)), np.array(pts["minus"]), "points", "blue", "full minus")],
+              "stick at full plus and full minus, per axis (the rest is the null, 0 V)", "axis",
+              "volts from null (V)", zero_line=True, xticks=sigs)],
         title="CAE hand controller sweep"))
     return finish(ctx, res)

@@ -60,6 +60,7 @@ def run(ctx: Context) -> ProcedureResult:
         series.append(Series(np.full(len(volts), i), volts[:, i], "points", "blue"))
     ctx.progress(2, 2, "done")
     res.plots.append(plot_fit(plot_name(ctx, NAME, "offsets"), [
-        Panel(series, "monitor volts with the amplifiers disabled: " + ", ".join(f"{i} {s}" for i, s in enumerate(signals)),
-              "channel (index)", "monitor (V)", zero_line=True)], title="Motor-current monitor offsets"))
+        Panel(series, "monitor volts with the amplifiers disabled (every sample)", "motor-current monitor",
+              "monitor (V)", zero_line=True, xticks=[s.removesuffix("_motor_current") for s in signals])],
+        title="Motor-current monitor offsets"))
     return finish(ctx, res)

@@ -42,7 +42,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibration import fit as F
-from calibration.plot import Panel, Series, plot_fit, residual_panel
+from calibration.plot import Fit, fit_grid, plot_fit
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name
 from calibration.procedures.motion import run_legs
 from fakes.arm_params import AXES, NOMINAL
@@ -54,7 +54,7 @@ FRACTIONS = (0.25, -0.25, 0.4, -0.4, 0.15, -0.15)
 MIN_SPEED_RAD_S = 0.01  #: legs slower than this (stuck in friction) are left out
 MIN_MOVING = 4  #: moving legs needed for the 3-unknown fit (2 each way)
 DAC_GAIN_BAND = 0.10  #: |dac_gain - 1| above this fails
-COLOURS = ("blue", "red", "green", "orange", "purple", "black")
+PLOT_COLUMNS = 3  #: small panels per row (one per joint)
 
 
 def _check_service_calibration(ctx: Context) -> None:
@@ -96,7 +96,7 @@ def run(ctx: Context) -> ProcedureResult:
                                             "DAC gain": f"within {DAC_GAIN_BAND:.0%} of 1 (fit gain / nominal loop gain)",
                                             "legs": f">= {MIN_MOVING} moving, 2 each way; stuck legs excluded"})
     expected = dict(ctx.options.get("expected_gain") or {})
-    pts, resid = [], []
+    fits = []
     for i, j in enumerate(joints):
         cmd = np.array([leg.rate_cmd[j] for leg in legs])
         vel = np.array([leg.velocity[j] for leg in legs])
@@ -134,11 +134,12 @@ def run(ctx: Context) -> ProcedureResult:
         res.check(f"{sig} max residual", f.max_abs, 0.02 * float(np.max(np.abs(vel))) + 1e-4, "rad/s")
         res.check(f"{sig} DAC gain - 1 (fit gain {f['gain']:.4f} / loop gain {loop:.4f})", dac_gain - 1.0,
                   DAC_GAIN_BAND)
-        col = COLOURS[i % len(COLOURS)]
-        pts += [Series(cmd, vel, "points", col, j), Series(cmd, a_mat @ f.coef, "line", col)]
-        resid.append(Series(cmd, f.residuals, "points", col, j))
-    res.plots.append(plot_fit(plot_name(ctx, NAME, "fit"), [
-        Panel(pts, "joint velocity (resolver) vs rate command (points), fit with friction", "command (rad/s)",
-              "velocity (rad/s)"),
-        residual_panel(resid, "fit", "rad/s", "command (rad/s)")], title="DAC-to-rate calibration"))
+        fits.append(Fit(j, cmd, vel, a_mat @ f.coef, f.residuals,
+                        f"gain {f['gain']:.4f}, null {f['null']:+.4f} rad/s"))
+    cols = max(1, min(PLOT_COLUMNS, len(fits)))
+    res.plots.append(plot_fit(plot_name(ctx, NAME, "fit"),
+                              fit_grid(fits, "command (rad/s)", "velocity (rad/s)", "rad/s", cols,
+                                       fitted="fit with friction"),
+                              "DAC-to-rate: velocity vs command per joint; residuals below",
+                              width=max(2, cols) * 280, height_per_panel=200, columns=cols))
     return finish(ctx, res)

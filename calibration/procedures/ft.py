@@ -32,7 +32,7 @@ from calibration import fit as F
 from calibration.files import nominal_ft
 from pfma.ft_calibration import FtCalibration, ft_calibration
 from calibration.kinematics import GRAVITY_M_S2, gravity_in_sensor
-from calibration.plot import Panel, Series, plot_fit, residual_panel
+from calibration.plot import Fit, Panel, Series, fit_grid, plot_fit, residual_panel
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name
 from calibration.procedures.motion import COUNTS_PER_REV
 
@@ -91,10 +91,12 @@ def run_bias(ctx: Context) -> ProcedureResult:
                                   residuals=[f.rms for f in fits], samples=len(counts))
     res.ft = _ft_section(ft, **prov)
     res.found["bias_counts"] = mean
+    # one small panel per gauge: their biases differ by far more than their noise
     res.plots.append(plot_fit(plot_name(ctx, "ft-bias", "counts"), [
-        Panel([Series(np.arange(len(counts)), counts[:, i], "line", c, AXIS_NAMES[i])
-               for i, c in enumerate(("blue", "red", "green", "orange", "purple", "black"))],
-              "gauge counts, sensor unloaded", "sample", "counts")], title="F/T bias"))
+        Panel([Series(np.arange(len(counts)), counts[:, i], "line", "blue")],
+              f"{AXIS_NAMES[i]} gauge\nmean {f['mean']:.1f}, {f.rms:.2f} rms (counts)", "sample", "counts")
+        for i, f in enumerate(fits)], title="F/T bias: gauge counts, sensor unloaded", width=840,
+        height_per_panel=200, columns=3))
     return finish(ctx, res)
 
 
@@ -247,11 +249,12 @@ def run_matrix(ctx: Context) -> ProcedureResult:
     prov["bias"] = prov["matrix"]
     res.ft = _ft_section(new, **prov)
     res.found.update(matrix=m, bias_counts=bias)
-    colours = ("blue", "red", "green", "orange", "purple", "black")
+    # small multiples per axis, forces (N) then torques (N*m): each with its own units
+    fitted = a @ f.coef
+    per_axis = [Fit(AXIS_NAMES[i], y[:, i], fitted[:, i], y[:, i], f.residuals[:, i]) for i in range(6)]
     res.plots.append(plot_fit(plot_name(ctx, "ft-matrix", "residuals"), [
-        Panel([Series(y[:, i], (a @ f.coef)[:, i], "points", col, AXIS_NAMES[i]) for i, col in enumerate(colours)],
-              "fitted vs applied fixture load (N and N*m)", "applied load (N, N*m)", "fitted load (N, N*m)"),
-        residual_panel([Series(np.arange(len(y)), f.residuals[:, i], "points", col, AXIS_NAMES[i])
-                        for i, col in enumerate(colours)], "matrix fit", "N, N*m", "load case")],
-        title="F/T 6x6 matrix"))
+        *fit_grid(per_axis[:3], "applied load (N)", "fitted load (N)", "N", 3, "fitted", "applied (ideal)"),
+        *fit_grid(per_axis[3:], "applied load (N*m)", "fitted load (N*m)", "N*m", 3, "fitted", "applied (ideal)")],
+        "F/T 6x6 matrix: fitted vs applied fixture load per axis; residuals below", width=840,
+        height_per_panel=200, columns=3))
     return finish(ctx, res)

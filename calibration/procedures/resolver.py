@@ -66,7 +66,7 @@ def run(ctx: Context) -> ProcedureResult:
         idx_list.append(k)
     ctx.progress(len(joints), len(joints), "done")
     res.plots.append(plot_fit(plot_name(ctx, NAME, "offsets"), [
-        Panel([Series(np.array(idx_list), np.array(found), "points", "blue", "resolver offset")],
-              "resolver offset at the index mark: " + ", ".join(f"{k} {j}" for k, j in enumerate(joints)),
-              "joint (index)", "offset (rad)", zero_line=True)], title="Resolver offsets"))
+        Panel([Series(np.array(idx_list), np.array(found), "points", "blue")],
+              "resolver offset at the index mark, per joint", "joint", "offset (rad)", zero_line=True,
+              xticks=joints)], title="Resolver offsets"))
     return finish(ctx, res)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibration import fit as F
-from calibration.plot import Panel, Series, plot_fit, residual_panel
+from calibration.plot import Fit, fit_grid, plot_fit
 from calibration.procedures.base import Context, ProcedureResult, finish, plot_name
 from calibration.procedures.motion import full_scale_rad_s, run_legs
 
@@ -26,7 +26,7 @@ LSB_V = 20.0 / 4096
 FRACTIONS = (0.25, -0.25, 0.4, -0.4)
 MIN_SPEED_RAD_S = 0.01  #: legs slower than this (stuck in friction) are left out
 NOMINAL_BAND = 0.2
-COLOURS = ("blue", "red", "green", "orange", "purple", "black")
+PLOT_COLUMNS = 3  #: small panels per row (one per joint)
 
 
 def run(ctx: Context) -> ProcedureResult:
@@ -34,7 +34,7 @@ def run(ctx: Context) -> ProcedureResult:
     legs = run_legs(ctx, joints, list(ctx.options.get("fractions") or FRACTIONS))
     res = ProcedureResult(NAME, tolerances={"residual": "<= 1 % of max tach volts + 2 LSB",
                                             "k": f"within {NOMINAL_BAND:.0%} of nominal K_w"})
-    pts, resid = [], []
+    fits = []
     for i, j in enumerate(joints):
         vel = np.array([leg.velocity[j] for leg in legs])
         tach = np.array([leg.tach_v[j] for leg in legs])
@@ -57,10 +57,10 @@ def run(ctx: Context) -> ProcedureResult:
                         f"its own constant and its ADC channel's gain together")
         res.check(f"{sig} max residual", f.max_abs, 0.01 * float(np.max(np.abs(tach))) + 2 * LSB_V, "V")
         res.check(f"{sig} k / K_w nominal - 1", k / k_nom - 1.0, NOMINAL_BAND)
-        col = COLOURS[i % len(COLOURS)]
-        pts += [Series(vel, tach, "points", col, j), Series(vel, k * vel + c, "line", col)]
-        resid.append(Series(vel, f.residuals, "points", col, j))
-    res.plots.append(plot_fit(plot_name(ctx, NAME, "fit"), [
-        Panel(pts, "tach volts vs joint velocity (resolver), fitted line", "velocity (rad/s)", "tach (V)"),
-        residual_panel(resid, "fit", "V", "velocity (rad/s)")], title="Tachometer scale"))
+        fits.append(Fit(j, vel, tach, k * vel + c, f.residuals, f"k {k:.4g} V/(rad/s) ({k / k_nom - 1:+.1%})"))
+    cols = max(1, min(PLOT_COLUMNS, len(fits)))
+    res.plots.append(plot_fit(plot_name(ctx, NAME, "fit"),
+                              fit_grid(fits, "velocity (rad/s)", "tach (V)", "V", cols),
+                              "Tachometer scale: tach volts vs joint velocity (resolver) per joint, fitted line; "
+                              "residuals below", width=max(2, cols) * 280, height_per_panel=200, columns=cols))
     return finish(ctx, res)
