@@ -77,6 +77,7 @@ from bit3.layout import (
 if TYPE_CHECKING:  # pragma: no cover
     from controller.context import LayerContext
     from bit3.client import Client
+    from bit3.layout import ChannelEntry, Layout
 
 _PI, _TAU = math.pi, 2 * math.pi
 
@@ -122,36 +123,10 @@ class DataAcquisitionLayer(Layer):
         self.client = client
         self.require_ft = require_ft
         lay = client.layout
-        self.joint_order = tuple(lay.joint_names)
-        if self.joint_order != tuple(j.name for j in JOINTS):
-            raise ValueError(f"Bit3 command joints {self.joint_order} differ from controller.params "
-                             f"{tuple(j.name for j in JOINTS)}")
-        # the joints' channels by their role in the rack (channel keys joint, quantity)
-        angles = [lay.joint_entry("rtd", j, "angle") for j in self.joint_order]
-        tachs = [lay.joint_entry("adc", j, "rate") for j in self.joint_order]
-        currents = [lay.joint_entry("adc", j, "motor_current") for j in self.joint_order]
-        rates = [lay.joint_entry("dac", j, "rate_command") for j in self.joint_order]
-        self.rtd_slots = np.array([e.slot for e in angles], dtype=np.intp)
-        self.tach_slots = np.array([e.slot for e in tachs], dtype=np.intp)
-        self.current_slots = np.array([e.slot for e in currents], dtype=np.intp)
-        self.centre = np.array([j.centre_rad for j in JOINTS])
-        self._joint_centres = tuple((k, float(c)) for k, c in zip(self.rtd_slots.tolist(), self.centre.tolist()))
+        servo_entries = self._map_joints(lay)
         self._acq: dict = {}  # the acquire post, refilled every frame (same keys, same order)
-        # the gripper (controller/gripper.py): its tach (volts on the default rack: converted with
-        # the nominal 10 V / omega_fs) and motor current; None where the rack has no such channel
-        self.gripper_tach_slot, self.gripper_current_slot = self._gripper_slot(lay, "rate"), \
-            self._gripper_slot(lay, "motor_current")
-        self.gripper_tach_scale = 1.0 / GRIPPER.k_w_v_per_m_s if self._gripper_units(lay, "rate") == "V" else 1.0
-        self.gripper_cmd_scale = GRIPPER.k_w_v_per_m_s  #: volts per m/s of the gripper command (DAC channel 6)
-        ft = next((c for c in lay.channels if c.kind == "link" and c.quantity == "force_torque"), None)
-        # the boards the servo depends on: those carrying the joints' angles, tachs and rate
-        # commands, and the F/T sensor's serial board when force sensing is required
-        need = list(dict.fromkeys(e.board for e in angles + tachs + rates))
-        if require_ft and ft is not None:
-            need.append(ft.board)
-        self.board_slots = np.array([lay.slot("board", b) for b in need], dtype=np.intp)
-        self.board_names = need
-        self.ft_slot = ft.slot if ft is not None else None
+        self._map_gripper(lay)
+        self._map_boards(lay, servo_entries, require_ft)
         self.monitoring = False  #: faults count once initialised
         self.fault_bits = 0
         self.fault_detail = ""
@@ -195,6 +170,46 @@ class DataAcquisitionLayer(Layer):
         self._route_req_seq = 0  # the newest console route request applied (updown.route_request_seq)
         self._route_applied = -1  # the service's applied route last posted
         self._has_route_req: bool | None = None
+
+    def _map_joints(self, lay: "Layout") -> list["ChannelEntry"]:
+        """The joints' channels by their role in the rack (channel keys joint, quantity): the
+        slots of the angles, tachs and motor currents. Returns the entries the servo depends
+        on (angles, tachs, rate commands, in that order) for :meth:`_map_boards`."""
+        self.joint_order = tuple(lay.joint_names)
+        if self.joint_order != tuple(j.name for j in JOINTS):
+            raise ValueError(f"Bit3 command joints {self.joint_order} differ from controller.params "
+                             f"{tuple(j.name for j in JOINTS)}")
+        angles = [lay.joint_entry("rtd", j, "angle") for j in self.joint_order]
+        tachs = [lay.joint_entry("adc", j, "rate") for j in self.joint_order]
+        currents = [lay.joint_entry("adc", j, "motor_current") for j in self.joint_order]
+        rates = [lay.joint_entry("dac", j, "rate_command") for j in self.joint_order]
+        self.rtd_slots = np.array([e.slot for e in angles], dtype=np.intp)
+        self.tach_slots = np.array([e.slot for e in tachs], dtype=np.intp)
+        self.current_slots = np.array([e.slot for e in currents], dtype=np.intp)
+        self.centre = np.array([j.centre_rad for j in JOINTS])
+        self._joint_centres = tuple((k, float(c)) for k, c in zip(self.rtd_slots.tolist(), self.centre.tolist()))
+        return angles + tachs + rates
+
+    def _map_gripper(self, lay: "Layout") -> None:
+        """The gripper (controller/gripper.py): its tach (volts on the default rack: converted
+        with the nominal 10 V / omega_fs) and motor current; None where the rack has no such
+        channel."""
+        self.gripper_tach_slot, self.gripper_current_slot = self._gripper_slot(lay, "rate"), \
+            self._gripper_slot(lay, "motor_current")
+        self.gripper_tach_scale = 1.0 / GRIPPER.k_w_v_per_m_s if self._gripper_units(lay, "rate") == "V" else 1.0
+        self.gripper_cmd_scale = GRIPPER.k_w_v_per_m_s  #: volts per m/s of the gripper command (DAC channel 6)
+
+    def _map_boards(self, lay: "Layout", servo_entries: list["ChannelEntry"], require_ft: bool) -> None:
+        """The boards the servo depends on: those carrying ``servo_entries`` (the joints'
+        angles, tachs and rate commands), and the F/T sensor's serial board when force
+        sensing is required; and the F/T link's slot (None: the rack has none)."""
+        ft = next((c for c in lay.channels if c.kind == "link" and c.quantity == "force_torque"), None)
+        need = list(dict.fromkeys(e.board for e in servo_entries))
+        if require_ft and ft is not None:
+            need.append(ft.board)
+        self.board_slots = np.array([lay.slot("board", b) for b in need], dtype=np.intp)
+        self.board_names = need
+        self.ft_slot = ft.slot if ft is not None else None
 
     def specs(self) -> list[VarSpec]:
         return self.state_specs() + DAQ.specs()

@@ -168,18 +168,11 @@ class Trip:
         return CAUSES[self.cause]
 
 
-def diagnose(jf: JointFacts, check: str, recent: np.ndarray) -> tuple[int, str]:
-    """The most likely physical cause of a trip of ``check`` on joint ``jf``, from its
-    newest samples (rows of the five columns U ... I_LIM): (a CAUSES index, the evidence
-    in words)."""
-    if check == "resolver jump":
-        return CAUSE_RESOLVER, "the angle jumped further than the joint can move"
-    u, wt, wr, i, i_lim = (float(x) for x in recent.mean(axis=0))
-    i_lim = max(i_lim, 0.0)
+def _sensor_cause(jf: JointFacts, check: str, wt: float, wr: float, i: float, i_lim: float,
+                  i_pred: float) -> tuple[int, str] | None:
+    """:func:`diagnose`'s first questions, about the sensors and the amplifier's power: a
+    reversed or wrong-gain tach, an amplifier that gives no current; None: none of them."""
     fs = jf.omega_fs_rad_s
-    kaw = amp_gain_a_per_rad_s(jf)
-    i_pred = max(-i_lim, min(i_lim, kaw * (u - wt)))
-    volts = 10.0 / fs  # rate -> DAC/tach volts
     moving = abs(wr) > 0.05 * fs
     if moving and wt * wr < 0 and abs(wt) > 0.05 * fs:
         return CAUSE_TACH_REVERSED, f"tach {wt:+.3f} rad/s against resolver {wr:+.3f} rad/s"
@@ -187,11 +180,13 @@ def diagnose(jf: JointFacts, check: str, recent: np.ndarray) -> tuple[int, str]:
         return CAUSE_TACH_GAIN, f"tach {wt:+.3f} rad/s, resolver {wr:+.3f} rad/s"
     if i_lim > 0.05 * jf.i_max_a and abs(i_pred) > 0.25 * i_lim and abs(i) < 0.03 * jf.i_max_a:
         return CAUSE_AMP_OFF, f"no motor current ({i:+.2f} A) where the amplifier should give {i_pred:+.2f} A"
-    saturated = i_lim > 0 and abs(i) >= 0.8 * i_lim
-    u_acted = i / kaw + wt  # the rate command the amplifier's current says it acts on
-    if not saturated and abs(u_acted - u) > 0.1 * fs:
-        return CAUSE_DAC, (f"the amplifier acts on {u_acted * volts:+.1f} V, commanded {u * volts:+.1f} V "
-                           f"({i:+.2f} A at {wt:+.3f} rad/s)")
+    return None
+
+
+def _motion_cause(check: str, fs: float, u: float, wt: float, wr: float, i: float, i_lim: float, i_pred: float,
+                  saturated: bool) -> tuple[int, str]:
+    """:func:`diagnose`'s last questions, once the amplifier acts on the command it was
+    given: does the motor drive, and does the joint move as that drive should make it."""
     # the amplifier drives as told (the current the model predicts, in the command's direction)
     driving = i * u > 0 and (saturated or abs(i) >= 0.75 * abs(i_pred))
     if driving and abs(wr) < 0.03 * fs:
@@ -203,6 +198,36 @@ def diagnose(jf: JointFacts, check: str, recent: np.ndarray) -> tuple[int, str]:
         return CAUSE_LOAD, f"joint driven at {wr:+.3f} rad/s against a {u:+.3f} rad/s command"
     return CAUSE_UNKNOWN, (f"command {u:+.3f} rad/s, tach {wt:+.3f}, resolver {wr:+.3f} rad/s, "
                            f"current {i:+.2f} A (limit {i_lim:.2f})")
+
+
+def diagnose(jf: JointFacts, check: str, recent: np.ndarray) -> tuple[int, str]:
+    """The most likely physical cause of a trip of ``check`` on joint ``jf``, from its
+    newest samples (rows of the five columns U ... I_LIM): (a CAUSES index, the evidence
+    in words). The questions are asked in a fixed order, the first answer wins: the
+    sensors and the amplifier's power (:func:`_sensor_cause`), the DAC, then the motion
+    (:func:`_motion_cause`)."""
+    if check == "resolver jump":
+        return CAUSE_RESOLVER, "the angle jumped further than the joint can move"
+    u, wt, wr, i, i_lim = (float(x) for x in recent.mean(axis=0))
+    i_lim = max(i_lim, 0.0)
+    fs = jf.omega_fs_rad_s
+    kaw = amp_gain_a_per_rad_s(jf)
+    i_pred = max(-i_lim, min(i_lim, kaw * (u - wt)))
+    volts = 10.0 / fs  # rate -> DAC/tach volts
+    sensor = _sensor_cause(jf, check, wt, wr, i, i_lim, i_pred)
+    if sensor is not None:
+        return sensor
+    saturated = i_lim > 0 and abs(i) >= 0.8 * i_lim
+    u_acted = i / kaw + wt  # the rate command the amplifier's current says it acts on
+    if not saturated and abs(u_acted - u) > 0.1 * fs:
+        return CAUSE_DAC, (f"the amplifier acts on {u_acted * volts:+.1f} V, commanded {u * volts:+.1f} V "
+                           f"({i:+.2f} A at {wt:+.3f} rad/s)")
+    return _motion_cause(check, fs, u, wt, wr, i, i_lim, i_pred, saturated)
+
+
+def _floats(values) -> list[float]:
+    """A per-joint parameter as a list of floats."""
+    return [float(x) for x in values]
 
 
 class JointSupervisor:
@@ -223,19 +248,9 @@ class JointSupervisor:
                  rate_limit_rad_s=None) -> None:
         n = len(joints)
         self.joints = joints
-        self.fe_min = [float(x) for x in (ferror_min_rad if ferror_min_rad is not None else [FERROR_MIN_RAD] * n)]
-        self.fe_max = [float(x) for x in (ferror_max_rad if ferror_max_rad is not None else [FERROR_MAX_RAD] * n)]
-        self.fe_time = [float(x) for x in (ferror_time_s if ferror_time_s is not None else [FERROR_TIME_S] * n)]
-        for i, j in enumerate(joints):
-            if not 0 < self.fe_min[i] <= self.fe_max[i] or not 0 < self.fe_time[i] <= 2.0:
-                raise ValueError(f"{j.name} following-error limits {self.fe_min[i]:g}..{self.fe_max[i]:g} rad over "
-                                 f"{self.fe_time[i]:g} s: need 0 < min <= max and 0 < time <= 2 s")
+        self._set_ferror_limits(ferror_min_rad, ferror_max_rad, ferror_time_s)
         self.fs = [j.omega_fs_rad_s for j in joints]
-        # the nominal rate loop per joint: steady gain, Coulomb dead band (rad/s of command), lag
-        self._gain = [RATE_LOOP_LAMBDA / (RATE_LOOP_LAMBDA + j.viscous_nm_s / j.inertia_kg_m2) for j in joints]
-        self._kaw = [amp_gain_a_per_rad_s(j) for j in joints]
-        self._dead = [j.coulomb_nm / j.inertia_kg_m2 / RATE_LOOP_LAMBDA for j in joints]
-        self._tau = [1.0 / (RATE_LOOP_LAMBDA + j.viscous_nm_s / j.inertia_kg_m2) + MODEL_DELAY_S for j in joints]
+        self._set_rate_loop_model()
         self.reference = reference
         self.kp = [float(x) for x in (kp_per_s if isinstance(kp_per_s, (list, tuple, np.ndarray))
                                       else [kp_per_s] * n)]
@@ -256,6 +271,26 @@ class JointSupervisor:
         self._bq_t = 0.0
         self._bq_w = [0.0] * n
         self.reset()
+
+    def _set_ferror_limits(self, ferror_min_rad, ferror_max_rad, ferror_time_s) -> None:
+        """The following-error limits per joint (None: the module's defaults), checked."""
+        n = len(self.joints)
+        self.fe_min = _floats(ferror_min_rad if ferror_min_rad is not None else [FERROR_MIN_RAD] * n)
+        self.fe_max = _floats(ferror_max_rad if ferror_max_rad is not None else [FERROR_MAX_RAD] * n)
+        self.fe_time = _floats(ferror_time_s if ferror_time_s is not None else [FERROR_TIME_S] * n)
+        for i, j in enumerate(self.joints):
+            if not 0 < self.fe_min[i] <= self.fe_max[i] or not 0 < self.fe_time[i] <= 2.0:
+                raise ValueError(f"{j.name} following-error limits {self.fe_min[i]:g}..{self.fe_max[i]:g} rad over "
+                                 f"{self.fe_time[i]:g} s: need 0 < min <= max and 0 < time <= 2 s")
+
+    def _set_rate_loop_model(self) -> None:
+        """The nominal rate loop per joint: steady gain, amplifier gain, Coulomb dead band
+        (rad/s of command), lag."""
+        joints = self.joints
+        self._gain = [RATE_LOOP_LAMBDA / (RATE_LOOP_LAMBDA + j.viscous_nm_s / j.inertia_kg_m2) for j in joints]
+        self._kaw = [amp_gain_a_per_rad_s(j) for j in joints]
+        self._dead = [j.coulomb_nm / j.inertia_kg_m2 / RATE_LOOP_LAMBDA for j in joints]
+        self._tau = [1.0 / (RATE_LOOP_LAMBDA + j.viscous_nm_s / j.inertia_kg_m2) + MODEL_DELAY_S for j in joints]
 
     def command_for_rate(self, k: int, rate: float) -> float:
         """The rate command (rad/s) whose nominal steady rate on joint ``k`` is ``rate`` (>= 0):

@@ -73,16 +73,10 @@ class PathPoint:
         return d
 
 
-def make_point(pos_m: Sequence[float], quat: Sequence[float] | None, kind: str = "capture", t_s: float = 0.0,
-               v_lin_m_s: float | None = None, v_rot_rad_s: float | None = None, where: str = "point",
-               gripper: str | None = None, force_n: float | None = None) -> PathPoint:
-    """A checked :class:`PathPoint` (finite position, unit quaternion or None - keep the
-    tool's orientation -, known kind, speeds > 0; a gripper event has an action of
-    :data:`PATH_GRIPPER_ACTIONS` and a grip force within the gripper's range or none, and only
-    a gripper event has them).
-
-    :raises PathError: naming ``where``
-    """
+def _check_pose(pos_m: Sequence[float], quat: Sequence[float] | None,
+                where: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """:func:`make_point`'s position (3 finite numbers) and quaternion (4 finite numbers of
+    unit length, returned normalised, or None)."""
     try:
         p = np.asarray(pos_m, dtype=float).reshape(3)
         q = None if quat is None else np.asarray(quat, dtype=float).reshape(4)
@@ -95,23 +89,51 @@ def make_point(pos_m: Sequence[float], quat: Sequence[float] | None, kind: str =
         if abs(n - 1.0) > 1e-3:
             raise PathError(f"{where}: quaternion {q.tolist()} is not unit length (norm {n:.6f})")
         q = q / n
-    if kind not in POINT_KINDS:
-        raise PathError(f"{where}: kind {kind!r} is not one of {', '.join(POINT_KINDS)}")
+    return p, q
+
+
+def _check_speeds(v_lin_m_s: float | None, v_rot_rad_s: float | None, where: str) -> None:
+    """:func:`make_point`'s speed overrides: each a number > 0 or None."""
     for nm, val in (("v_lin_m_s", v_lin_m_s), ("v_rot_rad_s", v_rot_rad_s)):
         if val is not None and not (isinstance(val, (int, float)) and math.isfinite(val) and val > 0):
             raise PathError(f"{where}: {nm} {val!r} must be a number > 0 (or absent)")
-    if kind == "gripper":
-        if gripper not in PATH_GRIPPER_ACTIONS:
-            raise PathError(f"{where}: a gripper event needs gripper = one of {', '.join(PATH_GRIPPER_ACTIONS)}, "
-                            f"not {gripper!r}")
-        if force_n is not None:
-            why = check_force(force_n, GRIPPER.force_max_n) if isinstance(force_n, (int, float)) \
-                and not isinstance(force_n, bool) else f"grip force {force_n!r} is not a number"
-            if why:
-                raise PathError(f"{where}: {why}")
-            force_n = float(force_n)
-    elif gripper is not None or force_n is not None:
-        raise PathError(f"{where}: gripper/force_n belong to a point of kind 'gripper', not {kind!r}")
+
+
+def _check_gripper(kind: str, gripper: str | None, force_n: float | None, where: str) -> float | None:
+    """:func:`make_point`'s gripper event: an action and a grip force (as a float, or None)
+    on a point of kind "gripper", neither on any other point. Returns the force."""
+    if kind != "gripper":
+        if gripper is not None or force_n is not None:
+            raise PathError(f"{where}: gripper/force_n belong to a point of kind 'gripper', not {kind!r}")
+        return force_n
+    if gripper not in PATH_GRIPPER_ACTIONS:
+        raise PathError(f"{where}: a gripper event needs gripper = one of {', '.join(PATH_GRIPPER_ACTIONS)}, "
+                        f"not {gripper!r}")
+    if force_n is None:
+        return None
+    # bool is an int to isinstance, but a grip force of True is a mistake in the file
+    why = check_force(force_n, GRIPPER.force_max_n) if isinstance(force_n, (int, float)) \
+        and not isinstance(force_n, bool) else f"grip force {force_n!r} is not a number"
+    if why:
+        raise PathError(f"{where}: {why}")
+    return float(force_n)
+
+
+def make_point(pos_m: Sequence[float], quat: Sequence[float] | None, kind: str = "capture", t_s: float = 0.0,
+               v_lin_m_s: float | None = None, v_rot_rad_s: float | None = None, where: str = "point",
+               gripper: str | None = None, force_n: float | None = None) -> PathPoint:
+    """A checked :class:`PathPoint` (finite position, unit quaternion or None - keep the
+    tool's orientation -, known kind, speeds > 0; a gripper event has an action of
+    :data:`PATH_GRIPPER_ACTIONS` and a grip force within the gripper's range or none, and only
+    a gripper event has them).
+
+    :raises PathError: naming ``where``
+    """
+    p, q = _check_pose(pos_m, quat, where)
+    if kind not in POINT_KINDS:
+        raise PathError(f"{where}: kind {kind!r} is not one of {', '.join(POINT_KINDS)}")
+    _check_speeds(v_lin_m_s, v_rot_rad_s, where)
+    force_n = _check_gripper(kind, gripper, force_n, where)
     return PathPoint(tuple(float(x) for x in p), None if q is None else tuple(float(x) for x in q), kind,
                      float(t_s),
                      None if v_lin_m_s is None else float(v_lin_m_s),
@@ -171,17 +193,12 @@ class Path:
 
     @classmethod
     def from_json(cls, d: Any, where: str = "path") -> "Path":
-        """Parse and check a path document.
+        """Parse and check a path document: format and version, name, id, limits, points,
+        revision, in that order (the first fault is the one reported).
 
         :raises PathError: naming ``where`` and the point index
         """
-        if not isinstance(d, dict) or d.get("format") != FORMAT:
-            raise PathError(f"{where}: not a {FORMAT} document")
-        ver = d.get("version")
-        if not isinstance(ver, int) or ver < 1:
-            raise PathError(f"{where}: bad format version {ver!r}")
-        if ver > FORMAT_VERSION:
-            raise PathError(f"{where}: format version {ver} is newer than this program's {FORMAT_VERSION}")
+        ver = _read_version(d, where)
         name = d.get("name")
         try:
             check_name(name)
@@ -190,29 +207,12 @@ class Path:
         pid = d.get("id")
         if not isinstance(pid, int) or isinstance(pid, bool) or not 1 <= pid <= 2**31 - 1:
             raise PathError(f"{where}: id {pid!r} must be an integer 1 .. 2^31-1")
-        lim_d = d.get("limits", {})
-        if not isinstance(lim_d, dict):
-            raise PathError(f"{where}: limits must be an object")
-        lim = check_limits([lim_d.get(k, dv) for k, dv in zip(Limits._fields, DEFAULT_LIMITS)], f"{where}: limits")
-        pts = d.get("points", [])
-        if not isinstance(pts, list):
-            raise PathError(f"{where}: points must be a list")
-        out = []
-        for i, p in enumerate(pts):
-            w = f"{where}: point {i}"
-            if not isinstance(p, dict):
-                raise PathError(f"{w}: not an object")
-            if p.get("quat") is None and ver < 2:
-                raise PathError(f"{w}: no quat (a point without an orientation needs format version 2)")
-            if p.get("kind") == "gripper" and ver < 2:
-                raise PathError(f"{w}: a gripper event needs format version 2")
-            out.append(make_point(p.get("pos_m"), p.get("quat"), p.get("kind", "capture"), p.get("t_s", 0.0),
-                                  p.get("v_lin_m_s"), p.get("v_rot_rad_s"), where=w,
-                                  gripper=p.get("gripper"), force_n=p.get("force_n")))
+        lim = _read_limits(d, where)
+        out = _read_points(d, ver, where)
         rev = d.get("revision", 0)
         if not isinstance(rev, int) or rev < 0:
             raise PathError(f"{where}: revision {rev!r} must be an integer >= 0")
-        return cls(name, pid, tuple(out), lim, rev, str(d.get("created", "")), str(d.get("modified", "")),
+        return cls(name, pid, out, lim, rev, str(d.get("created", "")), str(d.get("modified", "")),
                    str(d.get("note", "")))
 
     @property
@@ -244,6 +244,51 @@ class Path:
                          + "   " + (" ".join(f"{x:>8.5f}" for x in p.quat) if p.quat is not None
                                     else f"{'keep the orientation before it':>35}") + f"  {sp}")
         return "\n".join(lines)
+
+
+# --- reading a path document (Path.from_json) ---------------------------------------------
+
+
+def _read_version(d: Any, where: str) -> int:
+    """The format version of a path document: a :data:`FORMAT` object of a version 1 ..
+    :data:`FORMAT_VERSION`."""
+    if not isinstance(d, dict) or d.get("format") != FORMAT:
+        raise PathError(f"{where}: not a {FORMAT} document")
+    ver = d.get("version")
+    if not isinstance(ver, int) or ver < 1:
+        raise PathError(f"{where}: bad format version {ver!r}")
+    if ver > FORMAT_VERSION:
+        raise PathError(f"{where}: format version {ver} is newer than this program's {FORMAT_VERSION}")
+    return ver
+
+
+def _read_limits(d: dict, where: str) -> Limits:
+    """A path document's limits object; a limit it leaves out is :data:`DEFAULT_LIMITS`'."""
+    lim_d = d.get("limits", {})
+    if not isinstance(lim_d, dict):
+        raise PathError(f"{where}: limits must be an object")
+    return check_limits([lim_d.get(k, dv) for k, dv in zip(Limits._fields, DEFAULT_LIMITS)], f"{where}: limits")
+
+
+def _read_points(d: dict, ver: int, where: str) -> tuple[PathPoint, ...]:
+    """A path document's points, each checked by :func:`make_point`; a point without an
+    orientation or a gripper event needs format version 2."""
+    pts = d.get("points", [])
+    if not isinstance(pts, list):
+        raise PathError(f"{where}: points must be a list")
+    out = []
+    for i, p in enumerate(pts):
+        w = f"{where}: point {i}"
+        if not isinstance(p, dict):
+            raise PathError(f"{w}: not an object")
+        if p.get("quat") is None and ver < 2:
+            raise PathError(f"{w}: no quat (a point without an orientation needs format version 2)")
+        if p.get("kind") == "gripper" and ver < 2:
+            raise PathError(f"{w}: a gripper event needs format version 2")
+        out.append(make_point(p.get("pos_m"), p.get("quat"), p.get("kind", "capture"), p.get("t_s", 0.0),
+                              p.get("v_lin_m_s"), p.get("v_rot_rad_s"), where=w,
+                              gripper=p.get("gripper"), force_n=p.get("force_n")))
+    return tuple(out)
 
 
 # --- pure edits (each returns a new Path) ------------------------------------------------
