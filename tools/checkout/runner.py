@@ -251,6 +251,10 @@ class Checkout:
             head, sep, rest = m.text.partition(": ")
             if sep and head in names:
                 out[head] = rest
+                continue
+            for name in names:  # said inside another message ("... (bus error: write16 dac DAC[0] ...")
+                if f" {name} " in m.text and ("bus error" in m.text or "not answering" in m.text):
+                    out[name] = m.text
         return out
 
     # ------------------------------------------------------------------ data bits
