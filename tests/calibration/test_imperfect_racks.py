@@ -15,53 +15,28 @@ gain is not observable apart from the amplifier's through motion, docs/calibrati
 
 from __future__ import annotations
 
-import io
-import uuid
 
 import numpy as np
 import pytest
 
-from calibration.files import load_calibration, nominal_calibration, save_calibration
-from calibration.procedures import Context, run_procedure
 from calibration.procedures.motion import LSB_RAD
-from calibration.session import SimSession
 from fakes.arm_params import AXES, NOMINAL
 from fakes.ft_sensor import NOMINAL as FT_NOMINAL
-from sim.calibration import CalibrationRig, SimOperator
 from sim.errors import seeded
+from tests.calibration.conftest import BRINGUP_ORDER, bringup_run
 
 LSB_V = 20.0 / 4096
-ORDER = ("adc", "current-offsets", "tach", "resolver", "dac-rate", "cae", "ft-bias", "ft-payload", "ft-matrix")
+ORDER = BRINGUP_ORDER
 SEEDS = (0, 1, 2, 3)  # 0: the perfect rack
 
 
 @pytest.fixture(scope="module", params=SEEDS, ids=lambda s: f"seed{s}")
 def bringup(request, tmp_path_factory):
     """The nine procedures in order on one rack of seed ``request.param``: (errors, results,
-    the simulated time at the end)."""
-    seed = request.param
-    d = tmp_path_factory.mktemp(f"cal{seed}")
-    errors = seeded(seed)
-    rig = CalibrationRig(name="pfma-imperfect-" + uuid.uuid4().hex[:8], errors=errors)
-    rack = rig.world.rack_config
-    path = d / "cal.json"
-    save_calibration(nominal_calibration(rack, operator="test"), path, rack=rack)
-    session = SimSession(rig)
-    out = io.StringIO()
-    operator = SimOperator(rig.world, out=out)
-    operator.show = lambda text: print(text, file=out)
-    results = {}
-    try:
-        for name in ORDER:
-            ctx = Context(session, operator, load_calibration(path, rack), rack, d / "plots", operator_name="test")
-            res = run_procedure(name, ctx, save_to=path)
-            assert res.passed, f"seed {seed}: {name} failed:\n{res.report()}\n{out.getvalue()[-2000:]}"
-            session.reload_service(path)
-            results[name] = res
-        yield errors, results, rig.clock.now(), out.getvalue()
-    finally:
-        session.close()
-        rig.close()
+    the simulated time at the end, the operator's output)."""
+    errors = seeded(request.param)
+    with bringup_run(errors, tmp_path_factory.mktemp(f"cal{request.param}")) as (results, t_end, out):
+        yield errors, results, t_end, out
 
 
 def test_the_adc_channels_come_back_to_their_true_gain_and_offset(bringup):

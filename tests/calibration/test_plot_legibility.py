@@ -15,20 +15,15 @@ The checkout (tools/checkout) draws no plots: nothing of it to check here.
 
 from __future__ import annotations
 
-import io
-import uuid
 
 import numpy as np
 import pytest
 
 import calibration.plot as plot
-from calibration.files import load_calibration, nominal_calibration, save_calibration
-from calibration.procedures import Context, run_procedure
-from calibration.session import SimSession
-from sim.calibration import CalibrationRig, SimOperator
 from sim.errors import seeded
+from tests.calibration.conftest import bringup_run
 
-ORDER = ("adc", "current-offsets", "tach", "resolver", "dac-rate", "cae", "ft-bias", "ft-payload", "ft-matrix")
+ORDER = BRINGUP_ORDER
 SEED = 7  # a rack with every error drawn (README's example); the plots then show real scatter
 MAX_ENTRIES = 6  #: ASSUMED: more entries than this cannot be told apart at a glance
 STEPS_PER_SEGMENT = 20  #: points sampled along each drawn line segment
@@ -47,29 +42,11 @@ def figures(tmp_path_factory):
         drawn.setdefault(current[0], []).append(fig)
         return fig
 
-    rig = CalibrationRig(name="pfma-legible-" + uuid.uuid4().hex[:8], errors=seeded(SEED))
-    rack = rig.world.rack_config
-    path = d / "cal.json"
-    save_calibration(nominal_calibration(rack, operator="test"), path, rack=rack)
-    session = SimSession(rig)
-    out = io.StringIO()
-    operator = SimOperator(rig.world, out=out)
-    operator.show = lambda text: print(text, file=out)
-    try:
-        with pytest.MonkeyPatch.context() as mp:
-            mp.setattr(plot, "figure", keep)
-            for name in ORDER:
-                current[0] = name
-                ctx = Context(session, operator, load_calibration(path, rack), rack, d / "plots",
-                              operator_name="test")
-                res = run_procedure(name, ctx, save_to=path)
-                assert res.passed, f"{name} failed:\n{res.report()}\n{out.getvalue()[-2000:]}"
-                assert res.plots and all(p.exists() for p in res.plots), name
-                session.reload_service(path)
-        yield drawn
-    finally:
-        session.close()
-        rig.close()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(plot, "figure", keep)
+        with bringup_run(seeded(SEED), d, before=lambda name: current.__setitem__(0, name)):
+            pass
+    yield drawn
 
 
 def _drawn(fig):
