@@ -21,7 +21,7 @@ import pytest
 
 import calibration.plot as plot
 from sim.errors import seeded
-from tests.calibration.conftest import bringup_run
+from tests.calibration.conftest import BRINGUP_ORDER, bringup_run
 
 ORDER = BRINGUP_ORDER
 SEED = 7  # a rack with every error drawn (README's example); the plots then show real scatter
