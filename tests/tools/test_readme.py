@@ -91,6 +91,7 @@ RUN_ALONE = (
     f"{PFMA} checkout --rack fake --non-interactive --json out/checkout.json --html out/checkout.html",
     f"{PFMA} calibrate adc --rack fake --file out/pfma-cal.json --non-interactive",
     f"{PFMA} calibrate show --file out/pfma-cal.json",
+    f"{PFMA} calibrate tach --sim-errors 7 --file out/imperfect-cal.json --non-interactive",
     f"{PFMA} controller --sim --power-up --duration 0.3 --trace",
     f"{PFMA} controller --sim --power-up --duration 1.5 --sim-fault resolver-los:shoulder_pitch_angle --sim-fault-at 1",
     f"{PFMA} wm list",  # the world model the line above left (the README says so)
