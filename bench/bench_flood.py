@@ -228,19 +228,11 @@ def _measure(client, svc: subprocess.Popen, port: int, seconds: float, flood_rat
 
 def _stop_service(svc: subprocess.Popen, name: str) -> None:
     """Stop the service (SIGTERM, SIGKILL after 15 s), close its pipes, remove its buffer and ring."""
+    from bench.bench_modbus import stop_all
     from bit3.buffer import Bit3Buffer
     from bit3.ring import FrameRing
 
-    if svc.poll() is None:
-        svc.terminate()
-    try:
-        svc.wait(15)
-    except subprocess.TimeoutExpired:
-        svc.kill()
-        svc.wait()
-    for f in (svc.stdout, svc.stderr):
-        if f is not None:
-            f.close()
+    stop_all((svc,), 15.0)
     Bit3Buffer.unlink(name)
     FrameRing.unlink(name)
 

@@ -76,7 +76,7 @@ def figures(seconds: float = 5.0) -> dict:
     finally:
         if client is not None:
             client.close()
-        _stop((svc, gw))
+        stop_all((svc, gw))
         Bit3Buffer.unlink(name)
 
 
@@ -125,18 +125,16 @@ def _stats_after(client, frames0: int, svc: subprocess.Popen):
     return client.read_stats()
 
 
-def _stop(procs) -> None:
-    """Terminate the processes still running, then wait for each (kill after 10 s) and close its pipes."""
+def stop_all(procs, timeout_s: float = 10.0) -> None:
+    """Terminate the processes still running (all at once), then wait for each
+    (``pfma.process.stop_helper``: SIGKILL after ``timeout_s``) and close its pipes."""
+    from pfma.process import stop_helper
     for p in procs:
         if p is not None and p.poll() is None:
             p.terminate()
     for p in procs:
         if p is not None:
-            try:
-                p.wait(10)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+            stop_helper(p, timeout_s)
             for f in (p.stdout, p.stderr):
                 if f is not None:
                     f.close()

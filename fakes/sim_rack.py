@@ -149,6 +149,8 @@ class SimulatedRack:
         """
         self.errors = errors
         self.arm.set_errors(errors)
+        self._ft_offset = np.asarray(errors.ft_offset, dtype=float)
+        self._ft_drift = np.asarray(errors.ft_drift_per_s, dtype=float)
         self._resolver_offset = np.asarray(errors.resolver_offset_rad, dtype=float)
         for m in self._adc.values():
             n = len(m.volts)
@@ -282,8 +284,7 @@ class SimulatedRack:
     def ft_bias(self, t_s: float) -> np.ndarray:
         """The F/T transducer's own bias at ``t_s`` (``SimErrors.ft_offset`` drifting by
         ``ft_drift_per_s``), six values in sensor axes: N, N*m."""
-        e = self.errors
-        return np.asarray(e.ft_offset, dtype=float) + t_s * np.asarray(e.ft_drift_per_s, dtype=float)
+        return self._ft_offset + t_s * self._ft_drift
 
     def ft_reading(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """What the F/T transducer puts out at ``t_s``: the arm's load (:meth:`ft_load`) plus

@@ -191,7 +191,8 @@ def _session(buffer: str | None, rack: str | None, interactive: bool, cal, out, 
     from sim.calibration import CalibrationRig, SimOperator
     from sim.errors import seeded
     from sim.faults import FaultSet
-    rig = CalibrationRig(calibration=cal, errors=seeded(sim_errors, rack_of(rack)))
+    rig = CalibrationRig(calibration=cal)
+    rig.world.sim.set_errors(seeded(sim_errors, rig.world.rack_config))
     faults = FaultSet(rig.world)
     said = [faults.inject(spec, since=rig.clock.now()).description for spec in sim_faults]
     session = SimSession(rig)

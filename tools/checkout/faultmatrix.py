@@ -205,15 +205,14 @@ def judge(case: Case, failures: list[dict], rack: RackConfig) -> Verdict:
     return Verdict(case, True, part, kind_ok, named, text)
 
 
-def run_case(case: Case, rack: RackConfig, config=None,
-             factory: Callable[..., Any] | None = None) -> Verdict:
+def run_case(case: Case, rack: RackConfig, config=None) -> Verdict:
     """Checkout (stop at the first failure, non-interactive) on a simulated rack with
     ``case`` injected."""
     from tools.checkout import Checkout, load_checkout_config
     from tools.checkout.target import SimTarget
     cfg = config if config is not None else load_checkout_config(None)
     t0 = time.monotonic()
-    target = (factory or SimTarget)(rack)
+    target = SimTarget(rack)
     try:
         target.inject_fault(case.spec)
         report = Checkout(target, cfg, interactive=False, say=lambda line: None).run()

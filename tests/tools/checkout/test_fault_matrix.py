@@ -77,7 +77,7 @@ def _cannot(case: Case) -> str | None:
     return None
 
 
-def test_a_seeded_sample_through_the_real_checkout(request):
+def test_a_seeded_sample_through_the_real_checkout():
     """One case of every kind and a few stuck bits (seed 3): every kind is found and named
     right (the board or channel and the kind) but those :func:`_cannot` names (found, if at
     all, as it says), an A/D input held dead (found on its channel; its kind is not told apart
