@@ -397,6 +397,12 @@ class MessageQueue:
         self._reader.read()
         return int(self._reader.record["head_seq"])
 
+    def copy(self) -> np.ndarray:
+        """A whole, consistent copy of the queue's body, to decode later or elsewhere
+        (:func:`decode_messages`; the recorder's capture thread takes these)."""
+        self._reader.read()
+        return self._reader.record.copy()
+
 
 # ----------------------------------------------------------------------------------------
 # the buffer

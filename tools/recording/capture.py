@@ -26,6 +26,13 @@ AREA_POLL_S = 0.0002
 #: 320 Hz), so a poll every 10 ms loses nothing and wakes the process ~100 times a second
 #: instead of ~5000 (measured: the recorder's CPU is mostly its wake-ups; docs/deployment.md)
 RING_POLL_S = 0.01
+#: the message queues' bodies are copied at most this often (only when their head moved):
+#: each queue keeps its last 50 entries, and a power-up posts ~50 in ~100 ms, a trip and its
+#: error reset ~100 in ~100 ms (measured in simulated time), so the recorder's writing
+#: thread, which may spend tens of ms on a backlog of frames, must not be the one to read them
+MESSAGES_POLL_S = 0.005
+#: the queues, by the names the recorder writes (``/pfma/messages`` ``queue``)
+MESSAGE_QUEUES = ("service", "controller")
 
 
 @dataclass(frozen=True)
@@ -34,6 +41,16 @@ class RingSwitch:
     first of the new one; :meth:`InputsCapture.drain` stops there and sets ``replaced_note``."""
 
     note: str
+
+
+@dataclass(frozen=True)
+class MessagesCopy:
+    """Queued by :class:`InputsCapture` (``messages=True``) when a message queue's head
+    moved: a consistent copy of its body, decoded by the writing thread
+    (``Recorder.feed_messages``) in order with the frames around it."""
+
+    queue: str  #: "service" or "controller"
+    body: np.ndarray
 
 
 class InputsCapture:
@@ -58,10 +75,16 @@ class InputsCapture:
     :meth:`drain` stops there and sets :attr:`replaced_note`, so the recorder can start
     the new session (``Recorder.attach`` with the new service's client) before the new
     ring's frames.
+
+    With ``messages=True`` the thread also copies the two message queues when their head
+    moved (:class:`MessagesCopy`, at most every :data:`MESSAGES_POLL_S`): the 50-entry
+    queues are then read as promptly as the frames, not after the writing thread has
+    worked off a backlog. After a ring switch it copies none until :meth:`messages_from`
+    names the new service's client.
     """
 
     def __init__(self, client: Client, poll_s: float | None = None, max_queue: int = 8192,
-                 ring=None) -> None:
+                 ring=None, messages: bool = False) -> None:
         self.client = client
         self.poll_s = poll_s if poll_s is not None else (AREA_POLL_S if ring is None else RING_POLL_S)
         self.max_queue = max_queue
@@ -76,6 +99,10 @@ class InputsCapture:
         #: set by :meth:`drain` when it reached a ring switch (the caller clears it)
         self.replaced_note: str | None = None
         self.queue: deque = deque()
+        #: copy the message queues (None: not now; see :meth:`messages_from`)
+        self._msg_client: Client | None = client if messages else None
+        self._msg_heads: dict[str, int] = {}
+        self._msg_next = 0.0  # monotonic time of the next look at the message queues
         self.error: BaseException | None = None  #: what stopped the thread (e.g. SeqLockTimeout)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="pfma-record-capture", daemon=True)
@@ -91,6 +118,7 @@ class InputsCapture:
                 self._run_ring()
                 return
             while not stop.is_set():
+                self.take_messages()
                 if c.changed("inputs"):
                     snap = c.read_inputs()
                     if snap.seq and len(q) < self.max_queue:
@@ -104,6 +132,7 @@ class InputsCapture:
         self._ring_k = self.ring.count()  # frames already in the ring are history
         idle = 0
         while not self._stop.is_set():
+            self.take_messages()
             if self.take_from_ring():
                 idle = 0
                 continue
@@ -127,6 +156,8 @@ class InputsCapture:
         except RingError:
             return False
         self.take_from_ring()  # the old ring's memory stays valid: finish it
+        self.take_messages(force=True)  # and the old buffer's messages (its client is open)
+        self._msg_client = None  # the old client is closed soon: none until messages_from
         self.queue.append(RingSwitch(
             f"frame ring {old.path} was replaced (service restarted?): the old ring ended after "
             f"{old.count()} frames; reading the new ring from its first frame"))
@@ -158,6 +189,30 @@ class InputsCapture:
         self._ring_k = k
         return taken
 
+    def take_messages(self, force: bool = False) -> int:
+        """Queue a :class:`MessagesCopy` of each message queue whose head moved, at most
+        every :data:`MESSAGES_POLL_S` (``force``: now); returns how many were queued."""
+        c = self._msg_client
+        now = time.monotonic()
+        if c is None or (now < self._msg_next and not force):
+            return 0
+        self._msg_next = now + MESSAGES_POLL_S
+        n = 0
+        for q in MESSAGE_QUEUES:
+            body = c.buffer.queue(q + "_messages").copy()
+            head = int(body["head_seq"])
+            if head != self._msg_heads.get(q):
+                self._msg_heads[q] = head
+                self.queue.append(MessagesCopy(q, body))
+                n += 1
+        return n
+
+    def messages_from(self, client: Client) -> None:
+        """Copy the message queues of ``client`` from now on (after a ring switch: the new
+        service's; the recorder's cursors start at their heads, ``Recorder.attach``)."""
+        self._msg_heads = {}
+        self._msg_client = client
+
     @property
     def alive(self) -> bool:
         return self._thread.is_alive()
@@ -177,8 +232,12 @@ class InputsCapture:
         q = self.queue
         while q:
             snap = q.popleft()
-            if type(snap) is RingSwitch:  # the frames after it are the new service's
+            kind = type(snap)
+            if kind is RingSwitch:  # the frames after it are the new service's
                 self.replaced_note = snap.note
                 return n
+            if kind is MessagesCopy:
+                rec.feed_messages(snap.queue, snap.body)
+                continue
             n += rec.feed_inputs(snap)
         return n

@@ -14,7 +14,8 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from bit3.client import Client
-from bit3.layout import Layout
+from bit3.buffer import decode_messages
+from bit3.layout import MESSAGE_QUEUE_LEN, Layout
 from tools.recording.spool import spool_chunk_indexes
 from tools.recording.schema import (
     CHUNK_SIZE, COUNTERS_EVERY_S, FLUSH_EVERY_S, LIBRARY, PROFILE, RAW_ENCODING, RAW_SCHEMA, RAW_SCHEMA_ENCODING,
@@ -105,6 +106,11 @@ class Recorder:
         self._win_new = False
         self._closed = False
         self._log_ns = self.offset_ns
+        #: True while a capture thread copies the message queues (``InputsCapture(messages=
+        #: True)``, written through :meth:`feed_messages`): :meth:`poll` then reads none
+        self.messages_captured = False
+        #: what went wrong as it happened (lost message entries), for the process to say
+        self.notes: list[str] = []
         if client is not None:
             self.attach(client)
 
@@ -354,6 +360,8 @@ class Recorder:
         self._ring[:] = -1
 
     def _messages(self) -> None:
+        if self.messages_captured:  # the capture thread copies them (feed_messages)
+            return
         c = self.client
         for q in ("service", "controller"):
             cur = self._msg_cursor[q]
@@ -361,18 +369,35 @@ class Recorder:
                 head = c.buffer.queue(q + "_messages").head_seq
             except Exception:  # noqa: BLE001
                 continue
-            if head == cur:
-                continue
-            if head < cur:  # a new buffer (service restart): start over
-                cur = 0
-            got = c.messages(cur, q)
-            if got and got[0].first_seq > cur + 1:  # a long message takes several entries
-                self.counters.messages_missed += got[0].first_seq - cur - 1
-            for m in got:
-                self._put("/pfma/messages", _ns(m.t_s, self.offset_ns), _dumps({
-                    "queue": q, "seq": m.seq, "t_s": m.t_s, "severity": m.severity.name,
-                    "code": m.code, "source": m.source, "text": m.text}))
-            self._msg_cursor[q] = got[-1].seq if got else head
+            if head != cur:
+                self._write_messages(q, head, c.messages(0 if head < cur else cur, q))
+
+    def feed_messages(self, queue: str, body) -> None:
+        """Write the messages new in ``body``, a copy of one message queue's body taken
+        elsewhere (the capture thread's ``MessagesCopy``), as :meth:`poll` does."""
+        cur, head = self._msg_cursor[queue], int(body["head_seq"])
+        if cur is None or head == cur:
+            return
+        self._write_messages(queue, head, decode_messages(queue + "_messages", body,
+                                                          0 if head < cur else cur))
+
+    def _write_messages(self, q: str, head: int, got: list) -> None:
+        """Write ``got``, the messages of queue ``q`` after its cursor (now at ``head``); a
+        gap before the first is counted (``messages_missed``) and said (:attr:`notes`)."""
+        cur = self._msg_cursor[q]
+        if head < cur:  # a new buffer (service restart): start over
+            cur = 0
+        if got and got[0].first_seq > cur + 1:  # a long message takes several entries
+            lost = got[0].first_seq - cur - 1
+            self.counters.messages_missed += lost
+            self.notes.append(f"{lost} {q} message entries ({cur + 1}..{got[0].first_seq - 1}) were "
+                              f"overwritten before the recorder read them (the queue holds "
+                              f"{MESSAGE_QUEUE_LEN}); the recording is not lossless")
+        for m in got:
+            self._put("/pfma/messages", _ns(m.t_s, self.offset_ns), _dumps({
+                "queue": q, "seq": m.seq, "t_s": m.t_s, "severity": m.severity.name,
+                "code": m.code, "source": m.source, "text": m.text}))
+        self._msg_cursor[q] = got[-1].seq if got else head
 
     def _finish_counters(self) -> RecorderCounters:
         self._count_stats()

@@ -254,20 +254,34 @@ class RecorderStack:
 
     def _session(self, client) -> None:
         """Record one service's frames until it stops (or the recording ends)."""
-        from tools.recording import InputsCapture
         self.client = client
         gc.collect()
         gc.freeze()  # long-lived objects out of the collector's way: short GC pauses
         self.idle_since = time.monotonic()
         self.warned = False
-        self.capture = InputsCapture(client, ring=ring_of(self.config.buffer, client)).start()  # every publish
+        self.capture = self._new_capture(client)
         while not self.done() and self._step():
             pass
         self.capture.stop()
         self.capture.drain(self.rec)
+        self.rec.messages_captured = False  # the thread has ended: the last look is ours
         self.rec.poll(inputs=False)
+        self._say_notes()
         self.rec.client = None
         self.client.close()
+
+    def _new_capture(self, client):
+        """The capture thread: every frame (from the frame ring where there is one) and every
+        change of the message queues, into a queue this thread writes from."""
+        from tools.recording import InputsCapture
+        self.rec.messages_captured = True
+        return InputsCapture(client, ring=ring_of(self.config.buffer, client), messages=True).start()
+
+    def _say_notes(self) -> None:
+        """Say what the recorder noticed going wrong (lost message entries), as it happens."""
+        notes = self.rec.notes
+        while notes:
+            self.say(notes.pop(0))
 
     def _step(self) -> bool:
         """One pass of a session: the frames captured, the commands, stats and messages; False
@@ -280,6 +294,7 @@ class RecorderStack:
         except SeqLockTimeout as e:  # the service died mid-write
             self.say(f"{e}")
             n = 0
+        self._say_notes()
         if capture.replaced_note is not None:
             return self._ring_replaced()
         if capture.error is not None:
@@ -302,6 +317,7 @@ class RecorderStack:
         self.say(capture.replaced_note)
         capture.replaced_note = None
         if not buffer_replaced(client) and client.buffer.owner("inputs").alive:
+            capture.messages_from(client)
             return True  # this session's client already is the new service's (it made
             # its buffer before its ring, and we attached in between)
         rec.flush()
@@ -316,6 +332,7 @@ class RecorderStack:
         client.close()
         self.client = capture.client = new
         rec.attach(new)
+        capture.messages_from(new)
         self.say(f"service restarted: recording continues as session {rec.counters.sessions}")
         self.idle_since = time.monotonic()
         return True
@@ -324,14 +341,13 @@ class RecorderStack:
         """The capture thread ended: a torn read is said and the thread started again; any
         other error ends the recording (raised)."""
         from bit3.buffer import SeqLockTimeout
-        from tools.recording import InputsCapture
         error = self.capture.error
         if not isinstance(error, SeqLockTimeout):
             raise error
         self.say(f"{error}")
         self.capture.stop()  # the thread has ended; this closes its ring
         self.capture.drain(self.rec)
-        self.capture = InputsCapture(self.client, ring=ring_of(self.config.buffer, self.client)).start()
+        self.capture = self._new_capture(self.client)
 
     def _still_there(self, now: float) -> bool:
         """No frame for STALE_S: False (said) when the service is gone; said once when it is
