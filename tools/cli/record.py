@@ -63,6 +63,10 @@ def add_parser(sub):
     p.add_argument("--var", action="append", default=[], metavar="PATTERN[@RATE]",
                    help="world-model variables to record: a glob over names (servo.*, ui.state, "
                         "*.status), optionally @RATE in Hz (default: every controller frame); repeatable")
+    p.add_argument("--realtime", action=argparse.BooleanOptionalAction, default=None,
+                   help="the capture thread (every frame, every message) at SCHED_FIFO priority 10, below "
+                        "the service and controller: taken by default where this user may, said in one "
+                        "line; --no-realtime opts out")
     add_log_level(p)
     return p
 
@@ -107,7 +111,8 @@ def _run(args) -> int:
     from tools.stacks.recorder import RecorderConfig, record
     return record(RecorderConfig(args.target[0], buffer=args.buffer, rack=args.rack, duration_s=args.duration,
                                  json_every=args.json_every, flush_s=args.flush_s, wait_s=args.wait,
-                                 quiet=args.quiet, wm_name=args.wm, patterns=patterns))
+                                 quiet=args.quiet, wm_name=args.wm, patterns=patterns,
+                                 realtime=args.realtime))
 
 
 def _unwritable(path: str) -> str:

@@ -33,6 +33,11 @@ RING_POLL_S = 0.01
 MESSAGES_POLL_S = 0.005
 #: the queues, by the names the recorder writes (``/pfma/messages`` ``queue``)
 MESSAGE_QUEUES = ("service", "controller")
+#: SCHED_FIFO priority of the capture thread where real-time is permitted: below the
+#: service (50) and the controller (49), above every time-shared process (the console, the
+#: bridge). The soak showed why (stop 36): a time-shared recorder beside a busy console
+#: was descheduled long enough for a trip's and recovery's ~100 entries to wrap a queue.
+CAPTURE_FIFO_PRIORITY = 10
 
 
 @dataclass(frozen=True)
@@ -84,7 +89,7 @@ class InputsCapture:
     """
 
     def __init__(self, client: Client, poll_s: float | None = None, max_queue: int = 8192,
-                 ring=None, messages: bool = False) -> None:
+                 ring=None, messages: bool = False, realtime: bool | None = False) -> None:
         self.client = client
         self.poll_s = poll_s if poll_s is not None else (AREA_POLL_S if ring is None else RING_POLL_S)
         self.max_queue = max_queue
@@ -103,17 +108,28 @@ class InputsCapture:
         self._msg_client: Client | None = client if messages else None
         self._msg_heads: dict[str, int] = {}
         self._msg_next = 0.0  # monotonic time of the next look at the message queues
+        #: the thread's real-time set-up (``ioservice.loop.realtime_start``'s flag: None is
+        #: "where permitted", False none) and what it said (:meth:`start` waits for it)
+        self.realtime = realtime
+        self.realtime_lines: list[str] = []
+        self._set_up = threading.Event()
         self.error: BaseException | None = None  #: what stopped the thread (e.g. SeqLockTimeout)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="pfma-record-capture", daemon=True)
 
     def start(self) -> "InputsCapture":
         self._thread.start()
+        self._set_up.wait(2.0)
         return self
 
     def _run(self) -> None:
         c, q, sleep, stop = self.client, self.queue, time.sleep, self._stop
         try:
+            if self.realtime is not False:  # this thread only (Linux: policy is per thread)
+                from ioservice.loop import realtime_start
+                self.realtime_lines = realtime_start("pfma record: capture thread", self.realtime, None,
+                                                     CAPTURE_FIFO_PRIORITY)
+            self._set_up.set()
             if self.ring is not None:
                 self._run_ring()
                 return
@@ -127,6 +143,7 @@ class InputsCapture:
                     sleep(self.poll_s)
         except BaseException as err:  # noqa: BLE001 - handed to the writing thread
             self.error = err
+            self._set_up.set()
 
     def _run_ring(self) -> None:
         self._ring_k = self.ring.count()  # frames already in the ring are history

@@ -59,6 +59,8 @@ class RecorderConfig:
     wm_name: str | None = None
     #: the ``--var`` patterns (tools.recording.wm.parse_var)
     patterns: list = field(default_factory=list)
+    #: ``--realtime``/``--no-realtime`` for the capture thread (None: where permitted)
+    realtime: bool | None = None
 
 
 def _print(line: str) -> None:
@@ -97,6 +99,7 @@ class RecorderStack:
         self.idle_since = 0.0
         self.warned = False
         self._recording = False
+        self._said_realtime = False
         self._t_end: float | None = None
         self._stack = contextlib.ExitStack()
 
@@ -275,7 +278,13 @@ class RecorderStack:
         change of the message queues, into a queue this thread writes from."""
         from tools.recording import InputsCapture
         self.rec.messages_captured = True
-        return InputsCapture(client, ring=ring_of(self.config.buffer, client), messages=True).start()
+        cap = InputsCapture(client, ring=ring_of(self.config.buffer, client), messages=True,
+                            realtime=self.config.realtime).start()
+        if not self._said_realtime:  # once a recording (a restarted capture says nothing new)
+            self._said_realtime = True
+            for line in cap.realtime_lines:
+                self.say(line)
+        return cap
 
     def _say_notes(self) -> None:
         """Say what the recorder noticed going wrong (lost message entries), as it happens."""
