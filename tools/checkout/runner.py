@@ -642,7 +642,10 @@ class Checkout:
             cmd.set(joint_rate_rad_s=rates, current_limit_a=limits, arm_request=0)
             self.t.wait(0.05)
             rc = int(cmd.record["rearm_counter"]) + 1
-            limits[li] = i_lim
+            bits = bool(cfg.joint(j, "dac_bits")) and bool(current)
+            # the DAC-bit check first, brake set; then the moves' limit
+            limits[li] = float(cfg.joint(j, "dac_bits_limit_v")) * float(self.t.rack.channel(limit).scale) \
+                if bits else i_lim
             cmd.set(joint_rate_rad_s=rates, current_limit_a=limits, arm_request=1, rearm_counter=rc)
             armed = self.t.wait_until(lambda: self.inputs().service_state == ServiceState.ARMED,
                                       float(cfg.joint(j, "arm_timeout_s")), self.poll_s)
@@ -651,6 +654,10 @@ class Checkout:
                 last = [m.text for m in self.t.reader.messages()][-2:]
                 self.record("joints", j, "arm", False, st, detail=f"service did not arm; messages: {last}")
                 return
+            if bits:
+                DacBits(self, j, current, cmd, rates, limits, ji, li).run()
+                limits[li] = i_lim
+                cmd.set(joint_rate_rad_s=rates, current_limit_a=limits)
             try:
                 self._moves(j, tach, angle, current, cmd, rates, limits, ji, li, i_lim, rate, min_current,
                             moves)
@@ -813,6 +820,10 @@ class Checkout:
                 unknown.append(m)
             else:
                 value, detail = lim.not_answered(m, j, seen)
+                limit = self.t.rack.find(j, "current_limit")
+                if value == "no current" and limit is not None and not lim.moved(m):  # (moved: brake released)
+                    detail += (f" A current limit that never leaves 0 V reads the same: data bit D11 of "
+                               f"DAC channel {limit.signal} stuck at 0.")
                 record("joints", j, check, False, value, detail=detail)
                 return
         stopped = "; ".join(f"the service was not ARMED ({m.left_armed}) in the {m.tag} move" for m in unknown)
@@ -834,6 +845,122 @@ class Checkout:
 DATA_BITS = {"rtd": 14, "adc": 12}
 #: samples of codes a run keeps (a whole checkout reads a few thousand)
 CODE_LOG_KEEP = 50_000
+
+
+#: the rate command's test codes (12-bit offset binary, +-10 V): -1 LSB has D0..D10 at 1
+#: and D11 at 0, 0 V the opposite, so every data bit is at 1 in one and at 0 in the other
+DAC_BITS_CODES = (0x7FF, 0x800)
+DAC_ZERO_CODE = 0x800
+DAC_CODES = 4096
+
+
+class DacBits:
+    """One joint's rate-command DAC data-bit check, brake set (``[joints] dac_bits``): each
+    test code placed exactly (the service's calibration between rad/s and code is read back
+    from the buffer's ``dac_counts``, the code written) and the motor current it draws
+    against the brake; one row, its diagnosis from the current's sign."""
+
+    def __init__(self, co: "Checkout", j: str, current: str, cmd, rates: list[float], limits: list[float],
+                 ji: int, li: int) -> None:
+        self.co, self.j, self.current, self.cmd = co, j, current, cmd
+        self.rates, self.ji, self.limit_a = rates, ji, limits[li]
+        rack = co.t.rack
+        self.signal = rack.joint_channel(j, "rate_command").signal
+        self.limit_signal = rack.joint_channel(j, "current_limit").signal
+        fs_v = float(co.cfg.joint(j, "dac_full_scale_v"))
+        #: rad/s of one code step: 2 x full scale / 4096 codes x the command channel's scale
+        self.rate_per_code = 2.0 * fs_v / DAC_CODES * float(rack.joint_channel(j, "rate_command").scale)
+
+    def place(self, code: int) -> int:
+        """Command the rate whose code is ``code`` (a few corrections from the code read back);
+        returns the code written."""
+        r = (code - DAC_ZERO_CODE) * self.rate_per_code
+        got = -1
+        for _ in range(4):
+            self.rates[self.ji] = r
+            self.cmd.set(joint_rate_rad_s=self.rates)
+            self.co.t.wait(0.01)
+            got = int(self.co.inputs().channel(self.signal)["dac_counts"])
+            if got == code:
+                break
+            r += (code - got) * self.rate_per_code
+        return got
+
+    def mean_current(self) -> float:
+        """The motor current after ``dac_bits_settle_s``, averaged over ``dac_bits_window_s``."""
+        cfg, t = self.co.cfg, self.co.t
+        t.wait(float(cfg.joint(self.j, "dac_bits_settle_s")))
+        vals, end = [], t.now() + float(cfg.joint(self.j, "dac_bits_window_s"))
+        while t.now() < end:
+            vals.append(self.co.value(self.current))
+            t.wait(self.co.poll_s)
+        return float(np.mean(vals)) if vals else float("nan")
+
+    def current_at(self, code: int) -> tuple[int, float]:
+        got = self.place(code)
+        return got, self.mean_current()
+
+    def saturated_current(self) -> float:
+        """The current at ``dac_bits_drive_v`` (a bounded rate command whose K_a x V exceeds the
+        test limit on every joint): the amplifier's limit itself, so the limit channel's bits
+        show; brake set, the joint does not move."""
+        v = float(self.co.cfg.joint(self.j, "dac_bits_drive_v"))
+        self.rates[self.ji] = v * self.rate_per_code * DAC_CODES / (2.0 * float(self.co.cfg.joint(self.j, "dac_full_scale_v")))
+        self.cmd.set(joint_rate_rad_s=self.rates)
+        i = self.mean_current()
+        self.rates[self.ji] = 0.0
+        self.cmd.set(joint_rate_rad_s=self.rates)
+        return i
+
+    def run(self) -> None:
+        co, j = self.co, self.j
+        thr = float(co.cfg.joint(j, "dac_bits_tolerance")) * self.limit_a
+        seen = [self.current_at(c) for c in DAC_BITS_CODES]
+        i_sat = self.saturated_current()
+        placed = all(got == c for (got, _), c in zip(seen, DAC_BITS_CODES))
+        (_, i_lo), (_, i_zero) = seen
+        worst = max(abs(i_lo), abs(i_zero))
+        ok = bool(worst <= thr) if placed else None
+        drew = (f"codes 0x{DAC_BITS_CODES[0]:03X} and 0x{DAC_BITS_CODES[1]:03X} drew {i_lo:+.3f} A and "
+                f"{i_zero:+.3f} A against the set brake (limit {self.limit_a:.3f} A, healthy within "
+                f"+/-{thr:.3f} A)")
+        if not placed:
+            detail = (f"not run: the service wrote codes {[f'0x{g:03X}' for g, _ in seen]} for "
+                      f"{[f'0x{c:03X}' for c in DAC_BITS_CODES]} (its calibration of {self.signal})")
+        else:
+            detail = drew if ok else f"{self.diagnosis(i_lo, i_zero, thr)}: {drew}"
+        co.record("joints", self.signal, "DAC data bits (brake set)", ok, round(worst, 4), -thr, thr, "A", detail)
+        lim_ok = bool(abs(abs(i_sat) - self.limit_a) <= thr)
+        drew = (f"a {float(co.cfg.joint(j, 'dac_bits_drive_v')):g} V rate command drew {i_sat:+.3f} A "
+                f"against the set brake, the limit written is {self.limit_a:.3f} A")
+        if lim_ok:
+            why = ""
+        elif abs(i_sat) < float(co.cfg.joint(j, "diag_no_current_fraction")) * self.limit_a:
+            # no current at all: the drive, a dead monitor or a limit stuck at 0 V read the same
+            # with the brake set; the moves tell them apart (their drive-and-brake row)
+            lim_ok = None
+            why = ": no motor current seen, so the limit's bits are not judged here: the moves say why"
+        else:
+            why = (f": a stuck data bit on DAC channel {self.limit_signal} (the current limit; or the "
+                   "amplifier's own current limit is off)")
+        co.record("joints", self.limit_signal, "DAC data bits: the current limit (brake set)", lim_ok,
+                  round(i_sat, 4), self.limit_a - thr, self.limit_a + thr, "A", drew + why)
+
+    def diagnosis(self, i_lo: float, i_zero: float, thr: float) -> str:
+        """Which way the output went, and so which bits: at 0x7FF a bit of D0..D10 stuck at 0
+        lowers it, D11 stuck at 1 raises it to +10 V; at 0x800 a bit of D0..D10 stuck at 1
+        raises it, D11 stuck at 0 lowers it to -10 V."""
+        said = []
+        if i_lo < -thr:
+            said.append("a data bit of D0..D10 stuck at 0 (code 0x7FF drove the joint negative)")
+        elif i_lo > thr:
+            said.append("data bit D11 stuck at 1 (code 0x7FF drove the joint positive)")
+        if i_zero > thr:
+            said.append("a data bit of D0..D10 stuck at 1 (code 0x800 drove the joint positive)")
+        elif i_zero < -thr:
+            said.append("data bit D11 stuck at 0 (code 0x800 drove the joint negative)")
+        where = f"DAC channel {self.signal}"
+        return f"{where}: " + "; ".join(said) + " (or the amplifier draws current at a zero command)"
 
 
 class CodeLog:

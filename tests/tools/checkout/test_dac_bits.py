@@ -1,0 +1,69 @@
+"""The rate command's DAC data bits, checked through the loop with the brake set (issue 32
+item 3): before a joint's moves its current limit sits below the brake-release cards'
+0.3 V engage threshold, the rate command at codes 0x7FF and 0x800 (every data bit at 1 and
+at 0 between them), then at a bounded saturating voltage; the motor current against the
+set brake names a stuck bit on the rate channel or the current-limit channel."""
+
+import pytest
+
+from fakes.arm_params import AXES
+from tools.checkout import FAIL, PASS, SKIP
+
+from tests.tools.checkout.test_checkout import first_failure, run
+
+JOINTS = ("shoulder_pitch", "shoulder_yaw", "elbow_pitch", "wrist_yaw", "wrist_pitch", "wrist_roll")
+
+
+def test_a_healthy_rack_passes_both_rows_on_every_joint(sim, cfg):
+    rep, _ = run(sim, cfg, only=["joints"])
+    rows = {(r.channel, r.check): r for r in rep.results if r.check.startswith("DAC data bits")}
+    for j in JOINTS:
+        assert rows[(f"{j}_command", "DAC data bits (brake set)")].status == PASS
+        assert rows[(f"{j}_current_limit", "DAC data bits: the current limit (brake set)")].status == PASS
+    assert rep.passed
+
+
+@pytest.mark.parametrize("spec, channel, words", [
+    ("stuck-bit:dac@DAC[0]:5=0", "shoulder_pitch_command", "a data bit of D0..D10 stuck at 0"),
+    ("stuck-bit:dac@DAC[0]:11=1", "shoulder_pitch_command", "data bit D11 stuck at 1"),
+    ("stuck-bit:dac@DAC[2]:11=0", "elbow_pitch_command", "data bit D11 stuck at 0"),
+    ("stuck-bit:dac@DAC[5]:7=1", "wrist_roll_command", "a data bit of D0..D10 stuck at 1"),
+    ("stuck-bit:dac@DAC[8]:9=1", "shoulder_yaw_current_limit", "a stuck data bit on DAC channel shoulder_yaw_current_limit"),
+    ("stuck-bit:dac@DAC[8]:5=0", "shoulder_yaw_current_limit", "a stuck data bit on DAC channel shoulder_yaw_current_limit"),
+])
+def test_a_stuck_dac_bit_is_the_first_failure_on_its_channel(sim, cfg, spec, channel, words):
+    sim.inject_fault(spec)
+    rep, _ = run(sim, cfg, only=["joints"])
+    f = first_failure(rep)
+    assert (f.group, f.channel, f.status) == ("joints", channel, FAIL)
+    assert words in f.detail
+
+
+def test_the_check_keeps_the_brake_set_and_the_joint_still_even_at_plus_10_volts(sim, cfg):
+    """D11 stuck at 1 turns the -1 LSB code into +10 V: the joint still does not move (the
+    brake holds against at most the test limit's current), and the run stops there."""
+    sim.inject_fault("stuck-bit:dac@DAC[0]:11=1")  # shoulder pitch: the arm's weight on it
+    arm = sim.world.sim.arm
+    ax = [a.joint for a in AXES].index("shoulder_pitch")
+    seen = []
+    sim.on_frame.append(lambda info: seen.append((bool(arm.brake_engaged[ax]), float(arm.q[ax]),
+                                                  float(sim.world.bus["dac"].output_volts_all()[0]))))
+    rep, _ = run(sim, cfg, only=["joints"])
+    assert first_failure(rep).channel == "shoulder_pitch_command"
+    assert max(v for _, _, v in seen) > 9.9  # the stuck bit did drive +10 V
+    assert all(b for b, _, _ in seen)
+    qs = [q for _, q, _ in seen]
+    assert max(qs) - min(qs) < float(cfg.joint("shoulder_pitch", "max_brake_creep_rad"))
+
+
+def test_a_current_limit_stuck_at_zero_volts_is_named_by_the_moves_diagnosis(sim, cfg):
+    """No current at all reads the same, brake set, for the drive, a dead monitor and a
+    limit stuck at 0 V: the check skips its limit row and the moves tell (no motion, no
+    current: the drive, or D11 of the limit channel stuck at 0)."""
+    sim.inject_fault("stuck-bit:dac@DAC[9]:11=0")  # elbow pitch's current limit
+    rep, _ = run(sim, cfg, only=["joints"])
+    lim = next(r for r in rep.results if r.channel == "elbow_pitch_current_limit")
+    assert lim.status == SKIP and "not judged here" in lim.detail
+    diag = next(r for r in rep.failures() if r.check == "drive and brake (diagnosis)")
+    assert "no motor current" in diag.detail
+    assert "data bit D11 of DAC channel elbow_pitch_current_limit stuck at 0" in diag.detail
