@@ -25,7 +25,8 @@ def run(seconds: float | None = None, trials: int | None = None, seed: int | Non
 
     def progress(i: int, n: int, v) -> None:
         if not as_json:
-            mark = ("named right" if v.part_right and v.kind_right else "detected") if v.detected else "MISSED"
+            mark = ("named right" if v.part_right and v.kind_right else "detected") if v.detected else \
+                ("undetectable" if v.undetectable else "MISSED")
             print(f"  {i}/{n} {v.case.spec}: {mark}" + (f" ({v.first[:100]})" if v.detected else ""), flush=True)
     rep = run_matrix(which, progress=progress).as_dict()
     rep.update(matrix_cases=len(every), seed=None if trials is None else (DEFAULT_SEED if seed is None else seed))
@@ -34,7 +35,9 @@ def run(seconds: float | None = None, trials: int | None = None, seed: int | Non
         return rep
     print(f"checkout fault matrix: {rep['cases']} of {len(every)} cases: detected {rep['detected']} "
           f"({rep['detected_fraction']:.1%}), named right {rep['named_right']} "
-          f"({(rep['named_right_fraction_of_detected'] or 0):.1%} of those detected)")
+          f"({(rep['named_right_fraction_of_detected'] or 0):.1%} of those detected); "
+          f"{rep['detectable']} detectable (the rest: a stuck bit that never changed a word, or on a spare "
+          f"channel), detected {rep['detectable_detected']} ({(rep['detected_fraction_of_detectable'] or 0):.1%})")
     print(f"  {'kind':<18}{'cases':>6}{'detected':>10}{'part right':>12}{'kind right':>12}")
     for kind, k in rep["per_kind"].items():
         print(f"  {kind:<18}{k['cases']:>6}{k['detected']:>10}{k['part_right']:>12}{k['kind_right']:>12}")

@@ -53,6 +53,13 @@ class FakeBoard:
         self.log_traffic = True
 
     # -- faults ---------------------------------------------------------------
+    @property
+    def stuck_bits_altered(self) -> int | None:
+        """Words this board's stuck bits changed so far (None: the board has none; 0: they
+        never took a value other than the true one, so nothing could tell them)."""
+        stuck = getattr(self, "_stuck", None)
+        return stuck.altered if stuck else None
+
     def inject(self, fault: str, **params) -> None:
         """Switch on a named fault (board-specific names, plus ``no_answer``)."""
         known = ("no_answer",) + tuple(getattr(self, "FAULTS", ()))

@@ -78,6 +78,9 @@ class StuckBits:
     def __init__(self, desc: BoardDescription) -> None:
         self.desc = desc
         self._by_offset: dict[int, tuple[int, int]] = {}  # offset -> (mask, forced bits)
+        #: words the stuck bits changed (read, or latched): 0 means a run with them looked
+        #: bit for bit like a healthy one (each stuck bit only ever held its true value)
+        self.altered = 0
 
     def add(self, register: int | str = 0, bit: int = 0, value: int = 1) -> None:
         off = register_offset(self.desc, register)
@@ -91,6 +94,7 @@ class StuckBits:
 
     def clear(self) -> None:
         self._by_offset.clear()
+        self.altered = 0
 
     def __bool__(self) -> bool:
         return bool(self._by_offset)
@@ -101,7 +105,10 @@ class StuckBits:
         if entry is None:
             return word
         mask, forced = entry
-        return (word & ~mask) | forced
+        out = (word & ~mask) | forced
+        if out != word:
+            self.altered += 1
+        return out
 
 
 def fake_rack_of_kinds(kinds: Iterable[str], clock=None, rack=None):

@@ -80,11 +80,18 @@ class Verdict:
     named: str  #: the kind the first failure's words name ("" none, "?" no failure)
     first: str  #: the first failure's line ("" when the checkout passed)
     seconds: float = 0.0
+    #: why no checkout could have seen this case in this run ("" when one could): from the
+    #: simulated rack's ground truth (:func:`undetectable`)
+    undetectable: str = ""
+
+    @property
+    def right(self) -> bool:
+        return self.detected and self.part_right and self.kind_right
 
     def as_dict(self) -> dict[str, Any]:
         return {"spec": self.case.spec, "kind": self.case.kind, "detected": self.detected,
                 "part_right": self.part_right, "kind_right": self.kind_right, "named": self.named,
-                "first": self.first, "seconds": round(self.seconds, 2)}
+                "first": self.first, "seconds": round(self.seconds, 2), "undetectable": self.undetectable}
 
 
 def _expand(reg: str) -> list[str]:
@@ -205,6 +212,27 @@ def judge(case: Case, failures: list[dict], rack: RackConfig) -> Verdict:
     return Verdict(case, True, part, kind_ok, named, text)
 
 
+#: why a stuck bit could not be seen, by what the simulated rack knows of the run
+NEVER_ALTERED = ("its stuck value was the true value every time the bit was read or latched "
+                 "in this run: the run was bit for bit a healthy rack's")
+SPARE_CHANNEL = "nothing is wired to a spare DAC channel: its output reaches nothing the rack measures"
+
+
+def undetectable(case: Case, target, rack: RackConfig) -> str:
+    """Why no software could have told ``case`` from a healthy rack in the run just made on
+    ``target`` (a :class:`SimTarget`), or "" when something could: a stuck bit that never
+    changed a word (the fake counts, ``FakeBoard.stuck_bits_altered``), or one on a spare
+    DAC channel (wired to nothing). Every other case counts as detectable."""
+    if case.kind != "stuck-bit" or case.board is None:
+        return ""
+    if not target.world.bus[case.board].stuck_bits_altered:
+        return NEVER_ALTERED
+    if rack.board(case.board).device == "dac" and case.signals and all(
+            rack.channel(sg).spare for sg in case.signals):
+        return SPARE_CHANNEL
+    return ""
+
+
 def run_case(case: Case, rack: RackConfig, config=None) -> Verdict:
     """Checkout (stop at the first failure, non-interactive) on a simulated rack with
     ``case`` injected."""
@@ -216,10 +244,12 @@ def run_case(case: Case, rack: RackConfig, config=None) -> Verdict:
     try:
         target.inject_fault(case.spec)
         report = Checkout(target, cfg, interactive=False, say=lambda line: None).run()
+        why = undetectable(case, target, rack)
     finally:
         target.close()
     fails = [r for r in report.as_dict()["results"] if r.get("status") == "FAIL"]
     v = judge(case, fails, rack)
+    v.undetectable = why
     v.seconds = time.monotonic() - t0
     return v
 
@@ -251,12 +281,17 @@ class Figures:
     def as_dict(self) -> dict[str, Any]:
         n = len(self.verdicts)
         det = sum(v.detected for v in self.verdicts)
-        right = sum(v.detected and v.part_right and v.kind_right for v in self.verdicts)
+        right = sum(v.right for v in self.verdicts)
+        can = [v for v in self.verdicts if not v.undetectable]
+        can_det = sum(v.detected for v in can)
         return {"cases": n, "detected": det, "named_right": right,
                 "detected_fraction": round(det / n, 4) if n else None,
                 "named_right_fraction_of_detected": round(right / det, 4) if det else None,
+                "detectable": len(can), "detectable_detected": can_det,
+                "detected_fraction_of_detectable": round(can_det / len(can), 4) if can else None,
+                "undetectable": [v.as_dict() for v in self.verdicts if v.undetectable],
                 "per_kind": self.per_kind(), "confusion": self.confusion(),
-                "misses": [v.as_dict() for v in self.verdicts if not (v.detected and v.part_right and v.kind_right)]}
+                "misses": [v.as_dict() for v in can if not v.right]}
 
 
 def run_matrix(which: list[Case], rack: RackConfig | None = None,

@@ -11,7 +11,8 @@ import pytest
 
 from pfma.rack import load_rack
 from sim.faults import KINDS
-from tools.checkout.faultmatrix import Case, cases, judge, named_kind, run_matrix, sample
+from tools.checkout.faultmatrix import (NEVER_ALTERED, SPARE_CHANNEL, Case, cases, judge, named_kind, run_case,
+                                         run_matrix, sample)
 from tools.checkout.runner import stuck_bits
 
 RACK = load_rack()
@@ -100,3 +101,18 @@ def test_a_seeded_sample_through_the_real_checkout():
         if not ok:
             bad.append(f"{v.case.spec}: detected {v.detected}, part {v.part_right}, kind {v.kind_right}: {v.first}")
     assert not bad, "\n".join(bad)
+
+
+@pytest.mark.parametrize("spec, why", [
+    ("stuck-bit:adc@DATA:11=1", NEVER_ALTERED),  # the driver reads SCAN: DATA's bits change no word read
+    ("stuck-bit:dac@DAC[14]:5=1", SPARE_CHANNEL),  # 0x800 latched as 0x820 on a channel wired to nothing
+    ("stuck-bit:dac@DAC[0]:11=1", ""),  # the rate command's D11: the DAC-bit check finds and names it
+])
+def test_the_matrix_tells_the_undetectable_cases_from_the_rack_s_ground_truth(spec, why):
+    case = next(c for c in cases(RACK) if c.spec == spec)
+    v = run_case(case, RACK)
+    assert v.undetectable == why
+    if why:
+        assert not v.detected  # bit for bit a healthy run, or nothing measured it: the checkout passed
+    else:
+        assert v.right, v.first
