@@ -324,6 +324,27 @@ class Checkout:
                         max_noise, "counts",
                         f"mean {wrap_angle(float(np.mean(ang))):.4f} rad over "
                         f"{len(ang)} samples")
+            self._within_travel(c.name, float(np.mean(ang)))
+
+    def _within_travel(self, signal: str, angle: float) -> None:
+        """A resolver angle outside its joint's hard stops (pfma-model 8.2, ``pfma.arm``) is
+        not where the joint can be: a high bit of the angle word stuck, a zero far off, or
+        wiring. One row per joint's resolver (a rack's joint the nominal arm lacks: none)."""
+        from pfma.arm import JOINTS
+        joint = self.t.rack.channel(signal).joint
+        jf = next((f for f in JOINTS if f.name == joint), None)
+        if jf is None:
+            return
+        margin = math.radians(float(self.cfg.num("resolvers", "travel_margin_deg")))
+        a = jf.centre_rad + wrap_angle(angle - jf.centre_rad)
+        lo, hi = jf.hard_lo_rad - margin, jf.hard_hi_rad + margin
+        ok = lo <= a <= hi
+        self.record("resolvers", signal, "within travel (hard stops)", ok, round(math.degrees(a), 2),
+                    round(math.degrees(lo), 1), round(math.degrees(hi), 1), "deg",
+                    f"{joint}'s hard stops {math.degrees(jf.hard_lo_rad):g}..{math.degrees(jf.hard_hi_rad):g} deg "
+                    f"(+/- {math.degrees(margin):g})" + ("" if ok else
+                    ": the joint cannot be there: a stuck bit in the angle word (a high bit, stuck at the "
+                    "other value), a resolver zero far off, or its wiring"))
 
     # ------------------------------------------------------------------ ADC
     def _group_adc(self) -> None:

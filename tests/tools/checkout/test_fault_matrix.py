@@ -107,6 +107,7 @@ def test_a_seeded_sample_through_the_real_checkout():
     ("stuck-bit:adc@DATA:11=1", NEVER_ALTERED),  # the driver reads SCAN: DATA's bits change no word read
     ("stuck-bit:dac@DAC[14]:5=1", SPARE_CHANNEL),  # 0x800 latched as 0x820 on a channel wired to nothing
     ("stuck-bit:dac@DAC[0]:11=1", ""),  # the rate command's D11: the DAC-bit check finds and names it
+    ("stuck-bit:rtd2@CH1:13=1", ""),  # read as 210 deg, outside the stops: "within travel" names it
 ])
 def test_the_matrix_tells_the_undetectable_cases_from_the_rack_s_ground_truth(spec, why):
     case = next(c for c in cases(RACK) if c.spec == spec)
