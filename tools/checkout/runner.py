@@ -371,9 +371,12 @@ class Checkout:
                 mean = float(np.mean(x))
                 worst = float(x[np.argmax(np.abs(x - (lo + hi) / 2))])
                 ok = bool(np.all((x >= lo) & (x <= hi)))
+                why = "" if ok else "; " + _idle_why(int(round(float(np.mean(cap["adc_counts"][:, c.slot])))),
+                                                    lo, hi, self.t.rack.channel(c.name).scale
+                                                    if g["quantity"] == "value" else 1.0)
                 self.record("adc", c.name, f"idle: {g['name']}", ok, round(mean, 5), lo, hi, units,
                             f"worst sample {worst:.4g} {units}; {float(np.mean(cap['adc_volts'][:, c.slot])):.4f} V "
-                            f"({where})")
+                            f"({where}){why}")
             counts = cap["adc_counts"][:, c.slot].astype(int)
             pp = int(counts.max() - counts.min())
             self.record("adc", c.name, "noise (peak-peak)", pp <= max_noise, pp, 0, max_noise, "counts",
@@ -866,6 +869,28 @@ class Checkout:
 DATA_BITS = {"rtd": 14, "adc": 12}
 #: samples of codes a run keeps (a whole checkout reads a few thousand)
 CODE_LOG_KEEP = 50_000
+
+
+#: the A/D's codes: 12-bit offset binary over +-10 V (drivers/adc)
+ADC_ZERO_CODE, ADC_VOLTS_PER_CODE, ADC_BITS = 0x800, 20.0 / 4096, 12
+#: a code that one flipped data bit puts this near the idle value's code is named a stuck
+#: bit first (ASSUMED: 8 codes, 39 mV, above the idle noise of a healthy input)
+IDLE_FLIP_CODES = 8
+
+
+def _idle_why(code: int, lo: float, hi: float, scale: float) -> str:
+    """Why an A/D input is not at its idle value, from its code: when flipping one data
+    bit (D3 and up) would put the code within :data:`IDLE_FLIP_CODES` of the idle range's
+    centre (``lo``..``hi`` in engineering units, ``scale`` per volt), that bit stuck is
+    named first; a dead input (or its wiring, or the sensor) reads the same at rest."""
+    centre = ADC_ZERO_CODE + (lo + hi) / 2 / (scale or 1.0) / ADC_VOLTS_PER_CODE
+    bits = [b for b in range(ADC_BITS - 1, 2, -1) if abs((code ^ (1 << b)) - centre) <= IDLE_FLIP_CODES]
+    if not bits:
+        return (f"code 0x{code:03X}: not one data bit away from the idle value: a dead input, its "
+                "wiring or the sensor")
+    b = bits[0]
+    return (f"code 0x{code:03X} is the idle value's 0x{code ^ (1 << b):03X} with D{b} flipped: data bit D{b} "
+            f"stuck at {(code >> b) & 1}? Or a dead input (or its wiring, or the sensor) reads the same at rest")
 
 
 #: the rate command's test codes (12-bit offset binary, +-10 V): -1 LSB has D0..D10 at 1

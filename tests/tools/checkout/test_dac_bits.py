@@ -67,3 +67,15 @@ def test_a_current_limit_stuck_at_zero_volts_is_named_by_the_moves_diagnosis(sim
     diag = next(r for r in rep.failures() if r.check == "drive and brake (diagnosis)")
     assert "no motor current" in diag.detail
     assert "data bit D11 of DAC channel elbow_pitch_current_limit stuck at 0" in diag.detail
+
+
+@pytest.mark.parametrize("code, lo, hi, scale, said", [
+    (0xA00, -0.25, 0.25, 1.0, "data bit D9 stuck at 1?"),  # 2.5 V on a 0 A motor-current input
+    (0x000, -0.5, 0.5, 1.0, "data bit D11 stuck at 0?"),  # -10 V on a centred CAE axis
+    (0x90A, -0.5, 0.5, 1.0, "not one data bit away"),  # 1.3 V: 10 codes off once D8 is flipped
+    (0x804, -0.25, 0.25, 1.0, "not one data bit away"),  # D2 flips are noise, never named
+])
+def test_an_idle_reading_one_flipped_bit_from_its_idle_code_names_that_bit_first(code, lo, hi, scale, said):
+    from tools.checkout.runner import _idle_why
+    text = _idle_why(code, lo, hi, scale)
+    assert said in text and "dead input" in text
