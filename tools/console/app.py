@@ -697,7 +697,7 @@ class ConsoleApp(App):
     TITLE = "PFMA operator console"
     BINDINGS = [
         Binding("left", "layer(-1)", "layer", show=False), Binding("right", "layer(1)", "layer", show=False),
-        Binding("up", "layer(-1)", "tree", show=False), Binding("down", "layer(1)", "tree", show=False),
+        Binding("up", "tree(-1)", "tree", show=False), Binding("down", "tree(1)", "tree", show=False),
         Binding("u", "power_up", "power up"),
         Binding("d", "request('POWER_DOWN')", "power down"),
         Binding("e", "request('ERROR_RESET')", "error reset"),
@@ -730,7 +730,8 @@ class ConsoleApp(App):
         self.auto = auto_refresh
         self.on_tick = on_tick
         self.clock = clock
-        self.selected = 0
+        self.status_layer = 0  #: the layer Local Status details (left/right), index into view.LAYERS
+        self.command_layer = 0  #: the layer Local Commands shows (up/down through the tree): its own selection
         self.rearm = False
         self.last_answer = ""
         self.pending: list[int] = []  # requests waiting for their final answers, oldest first (queued requests)
@@ -798,11 +799,11 @@ class ConsoleApp(App):
             scr.redraw()
         if isinstance(scr, COVERING):  # a debug display covers the areas: redrawn when it closes
             return
-        self._set("local", view.local_status(r, self.selected))
+        self._set("local", view.local_status(r, self.status_layer))
         speed = self.sources.speed() if self.sources.speed is not None else None
         self._set("world", view.world_status(r, self.sources.rack, speed))
         self._set("messages", view.messages_area(self.sources.messages), follow=True)
-        self._set("commands", view.local_commands(r, self.selected, self.sources.wm))
+        self._set("commands", view.local_commands(r, self.command_layer, self.sources.wm))
         self._set("global", view.global_commands(r, self.rearm, self.last_answer))
         self._follow_move()
         if isinstance(self.screen, (CameraScreen, MessagesScreen, MoveScreen)) and self.screen.is_mounted:  # live too
@@ -922,12 +923,21 @@ class ConsoleApp(App):
 
     # --- actions ------------------------------------------------------------------------
     def action_layer(self, d: int) -> None:
-        self.selected = (self.selected + d) % len(view.LAYERS)
+        """Left/right: the layer Local Status details (Local Commands keeps its own)."""
+        self.status_layer = (self.status_layer + d) % len(view.LAYERS)
         self.refresh_areas()
         # the selected layer's row in view (Local Status scrolls on a short terminal; row 0 is the header)
         area = self.query_one("#local-area", Area)
-        self.call_after_refresh(area.scroll_to_region, Region(0, self.selected + 1, 1, 1), animate=False,
+        self.call_after_refresh(area.scroll_to_region, Region(0, self.status_layer + 1, 1, 1), animate=False,
                                 immediate=True)
+
+    def action_tree(self, d: int) -> None:
+        """Up/down: the layer Local Commands shows, up or down the layer tree (Local Status
+        keeps its own; report 2.2.8: the two areas move independently)."""
+        self.command_layer = (self.command_layer + d) % len(view.LAYERS)
+        self.refresh_areas()
+        area = self.query_one("#commands-area", Area)  # its first line names the layer: in view
+        self.call_after_refresh(area.scroll_home, animate=False, immediate=True)
 
     def _send(self, kind: int, arg: int = 0) -> None:
         if self.link is None:
