@@ -298,19 +298,27 @@ class ParamScreen(DebugDisplay):
 
 class MenuScreen(DebugDisplay):
     """The user's live menus (``pfma console --menu FILE.toml``): one page at a time, each
-    refreshed at its own rate (every :meth:`MenuPage.every`-th console refresh)."""
+    refreshed at its own rate (every :meth:`MenuPage.every`-th console refresh). Up/down
+    select a variable, Enter/``e`` modifies it where the ownership rules let a user: the
+    browser's write path (:meth:`ConsoleApp.begin_edit`: the rule's check, the editor, the
+    keyed write), its refusals and outcomes shown on the page as in the browser."""
 
     BINDINGS = [Binding("escape,l,q", "app.pop_screen", "close"),
-                Binding("left", "page(-1)", "page"), Binding("right,tab", "page(1)", "page")]
+                Binding("left", "page(-1)", "page"), Binding("right,tab", "page(1)", "page"),
+                Binding("up", "row(-1)", "variable"), Binding("down", "row(1)", "variable"),
+                Binding("enter,e", "edit", "modify")]
 
     def __init__(self, menu, wm) -> None:
         super().__init__()
         self.menu = menu
         self.wm = wm
         self.index = 0
+        self.row = 0  #: the variable under the cursor on the page shown
         self.ticks = 0
         self.draws = 0  #: page redraws (tests: the refresh rate)
         self._names: tuple[str, ...] = ()
+        self._status = ""  # the write status the page shows
+        self._lines = -1  # the number of lines drawn last
 
     def compose(self) -> ComposeResult:
         yield Static("", id="menu", markup=False)
@@ -318,10 +326,17 @@ class MenuScreen(DebugDisplay):
     def on_mount(self) -> None:
         self.redraw()
 
+    def on_screen_resume(self) -> None:  # back from the editor: its outcome or refusal
+        self.redraw()
+
+    def _app_status(self) -> str:
+        return self.app.write_status if isinstance(self.app, ConsoleApp) else ""
+
     def tick(self) -> None:
-        """One console refresh: redraw the page when its rate says so."""
+        """One console refresh: redraw the page when its rate says so, or at once when a
+        write's outcome or refusal arrived."""
         self.ticks += 1
-        if self.ticks % self.menu.pages[self.index].every(REFRESH_HZ) == 0:
+        if self.ticks % self.menu.pages[self.index].every(REFRESH_HZ) == 0 or self._app_status() != self._status:
             self.redraw()
 
     def redraw(self) -> None:
@@ -330,15 +345,33 @@ class MenuScreen(DebugDisplay):
         if len(self._names) != len(page.vars) or self._names[0] != page.vars[0].name:
             self._names = tuple(v.name for v in page.vars)  # one tuple per page: the model caches its plan
         self.draws += 1
-        self.query_one("#menu", Static).update(page_text(self.menu, self.index, self.wm.get_task_inputs(self._names),
-                                                         self.wm), layout=False)
+        self._status = self._app_status()
+        text = page_text(self.menu, self.index, self.wm.get_task_inputs(self._names), self.wm, self.row, self._status)
+        lines = text.count("\n")  # a layout pass only when the number of lines changed (a page, a status)
+        self.query_one("#menu", Static).update(text, layout=lines != self._lines)
+        self._lines = lines
 
     def text(self) -> str:
         return str(self.query_one("#menu", Static).render())
 
+    def selected(self) -> str:
+        """The variable under the cursor."""
+        page = self.menu.pages[self.index]
+        return page.vars[self.row % len(page.vars)].name
+
     def action_page(self, d: int) -> None:
         self.index = (self.index + d) % len(self.menu.pages)
-        self._names, self.ticks = (), 0
+        self._names, self.ticks, self.row = (), 0, 0
+        self.redraw()
+
+    def action_row(self, d: int) -> None:
+        self.row = (self.row + d) % len(self.menu.pages[self.index].vars)
+        self.redraw()
+
+    def action_edit(self) -> None:
+        app = self.app
+        if isinstance(app, ConsoleApp):
+            app.begin_edit(self.selected())
         self.redraw()
 
 

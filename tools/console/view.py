@@ -451,7 +451,7 @@ def _msg_line(m: ConsoleMessage) -> str:
 def local_commands(r: Reading, selected: int, wm) -> str:
     """The command of the layer selected here (up/down through the layer tree; its own
     selection, not Local Status's) and the variables a user may set in it (read-only here;
-    ``w`` and ``p`` modify). Lines fit 36 columns (docs/console.md "Sizes")."""
+    ``w``, ``p`` and the live menus modify). Lines fit 36 columns (docs/console.md "Sizes")."""
     k, title = LAYERS[selected]
     lines = [f"{title}: command {_enum(Command, int(r.wm.get(f'{k}.command', 0)))}",
              f"  sent by {'the user requests' if k == 'updown' else LAYERS[selected - 1][1]}"]
