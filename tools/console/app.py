@@ -298,19 +298,27 @@ class ParamScreen(DebugDisplay):
 
 class MenuScreen(DebugDisplay):
     """The user's live menus (``pfma console --menu FILE.toml``): one page at a time, each
-    refreshed at its own rate (every :meth:`MenuPage.every`-th console refresh)."""
+    refreshed at its own rate (every :meth:`MenuPage.every`-th console refresh). Up/down
+    select a variable, Enter/``e`` modifies it where the ownership rules let a user: the
+    browser's write path (:meth:`ConsoleApp.begin_edit`: the rule's check, the editor, the
+    keyed write), its refusals and outcomes shown on the page as in the browser."""
 
     BINDINGS = [Binding("escape,l,q", "app.pop_screen", "close"),
-                Binding("left", "page(-1)", "page"), Binding("right,tab", "page(1)", "page")]
+                Binding("left", "page(-1)", "page"), Binding("right,tab", "page(1)", "page"),
+                Binding("up", "row(-1)", "variable"), Binding("down", "row(1)", "variable"),
+                Binding("enter,e", "edit", "modify")]
 
     def __init__(self, menu, wm) -> None:
         super().__init__()
         self.menu = menu
         self.wm = wm
         self.index = 0
+        self.row = 0  #: the variable under the cursor on the page shown
         self.ticks = 0
         self.draws = 0  #: page redraws (tests: the refresh rate)
         self._names: tuple[str, ...] = ()
+        self._status = ""  # the write status the page shows
+        self._lines = -1  # the number of lines drawn last
 
     def compose(self) -> ComposeResult:
         yield Static("", id="menu", markup=False)
@@ -318,10 +326,17 @@ class MenuScreen(DebugDisplay):
     def on_mount(self) -> None:
         self.redraw()
 
+    def on_screen_resume(self) -> None:  # back from the editor: its outcome or refusal
+        self.redraw()
+
+    def _app_status(self) -> str:
+        return self.app.write_status if isinstance(self.app, ConsoleApp) else ""
+
     def tick(self) -> None:
-        """One console refresh: redraw the page when its rate says so."""
+        """One console refresh: redraw the page when its rate says so, or at once when a
+        write's outcome or refusal arrived."""
         self.ticks += 1
-        if self.ticks % self.menu.pages[self.index].every(REFRESH_HZ) == 0:
+        if self.ticks % self.menu.pages[self.index].every(REFRESH_HZ) == 0 or self._app_status() != self._status:
             self.redraw()
 
     def redraw(self) -> None:
@@ -330,15 +345,33 @@ class MenuScreen(DebugDisplay):
         if len(self._names) != len(page.vars) or self._names[0] != page.vars[0].name:
             self._names = tuple(v.name for v in page.vars)  # one tuple per page: the model caches its plan
         self.draws += 1
-        self.query_one("#menu", Static).update(page_text(self.menu, self.index, self.wm.get_task_inputs(self._names),
-                                                         self.wm), layout=False)
+        self._status = self._app_status()
+        text = page_text(self.menu, self.index, self.wm.get_task_inputs(self._names), self.wm, self.row, self._status)
+        lines = text.count("\n")  # a layout pass only when the number of lines changed (a page, a status)
+        self.query_one("#menu", Static).update(text, layout=lines != self._lines)
+        self._lines = lines
 
     def text(self) -> str:
         return str(self.query_one("#menu", Static).render())
 
+    def selected(self) -> str:
+        """The variable under the cursor."""
+        page = self.menu.pages[self.index]
+        return page.vars[self.row % len(page.vars)].name
+
     def action_page(self, d: int) -> None:
         self.index = (self.index + d) % len(self.menu.pages)
-        self._names, self.ticks = (), 0
+        self._names, self.ticks, self.row = (), 0, 0
+        self.redraw()
+
+    def action_row(self, d: int) -> None:
+        self.row = (self.row + d) % len(self.menu.pages[self.index].vars)
+        self.redraw()
+
+    def action_edit(self) -> None:
+        app = self.app
+        if isinstance(app, ConsoleApp):
+            app.begin_edit(self.selected())
         self.redraw()
 
 
@@ -697,7 +730,7 @@ class ConsoleApp(App):
     TITLE = "PFMA operator console"
     BINDINGS = [
         Binding("left", "layer(-1)", "layer", show=False), Binding("right", "layer(1)", "layer", show=False),
-        Binding("up", "layer(-1)", "tree", show=False), Binding("down", "layer(1)", "tree", show=False),
+        Binding("up", "tree(-1)", "tree", show=False), Binding("down", "tree(1)", "tree", show=False),
         Binding("u", "power_up", "power up"),
         Binding("d", "request('POWER_DOWN')", "power down"),
         Binding("e", "request('ERROR_RESET')", "error reset"),
@@ -730,7 +763,8 @@ class ConsoleApp(App):
         self.auto = auto_refresh
         self.on_tick = on_tick
         self.clock = clock
-        self.selected = 0
+        self.status_layer = 0  #: the layer Local Status details (left/right), index into view.LAYERS
+        self.command_layer = 0  #: the layer Local Commands shows (up/down through the tree): its own selection
         self.rearm = False
         self.last_answer = ""
         self.pending: list[int] = []  # requests waiting for their final answers, oldest first (queued requests)
@@ -798,11 +832,11 @@ class ConsoleApp(App):
             scr.redraw()
         if isinstance(scr, COVERING):  # a debug display covers the areas: redrawn when it closes
             return
-        self._set("local", view.local_status(r, self.selected))
+        self._set("local", view.local_status(r, self.status_layer))
         speed = self.sources.speed() if self.sources.speed is not None else None
         self._set("world", view.world_status(r, self.sources.rack, speed))
         self._set("messages", view.messages_area(self.sources.messages), follow=True)
-        self._set("commands", view.local_commands(r, self.selected, self.sources.wm))
+        self._set("commands", view.local_commands(r, self.command_layer, self.sources.wm))
         self._set("global", view.global_commands(r, self.rearm, self.last_answer))
         self._follow_move()
         if isinstance(self.screen, (CameraScreen, MessagesScreen, MoveScreen)) and self.screen.is_mounted:  # live too
@@ -922,12 +956,21 @@ class ConsoleApp(App):
 
     # --- actions ------------------------------------------------------------------------
     def action_layer(self, d: int) -> None:
-        self.selected = (self.selected + d) % len(view.LAYERS)
+        """Left/right: the layer Local Status details (Local Commands keeps its own)."""
+        self.status_layer = (self.status_layer + d) % len(view.LAYERS)
         self.refresh_areas()
         # the selected layer's row in view (Local Status scrolls on a short terminal; row 0 is the header)
         area = self.query_one("#local-area", Area)
-        self.call_after_refresh(area.scroll_to_region, Region(0, self.selected + 1, 1, 1), animate=False,
+        self.call_after_refresh(area.scroll_to_region, Region(0, self.status_layer + 1, 1, 1), animate=False,
                                 immediate=True)
+
+    def action_tree(self, d: int) -> None:
+        """Up/down: the layer Local Commands shows, up or down the layer tree (Local Status
+        keeps its own; report 2.2.8: the two areas move independently)."""
+        self.command_layer = (self.command_layer + d) % len(view.LAYERS)
+        self.refresh_areas()
+        area = self.query_one("#commands-area", Area)  # its first line names the layer: in view
+        self.call_after_refresh(area.scroll_home, animate=False, immediate=True)
 
     def _send(self, kind: int, arg: int = 0) -> None:
         if self.link is None:

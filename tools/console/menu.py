@@ -11,6 +11,9 @@ TOML file (``pfma console --menu FILE.toml``; ``examples/console-menu.toml``)::
     format = "+.4f"               # optional: a Python format spec per element; default ".6g"
     label = "joint angles"        # optional: default the name
 
+A page shows live and modifies: the console's Enter on a variable takes the world-model
+browser's write path (the ownership rules decide; ``MenuScreen`` in tools/console/app.py).
+
 A mistake is one :class:`MenuError` naming the file, the line and the field
 (``menu.toml:7: page 1 var 2 format: ...``); ``pfma console`` prints it and exits 2
 before it shows anything.
@@ -195,15 +198,24 @@ def _fmt(v: Any, spec) -> str:
     return "  ".join(format(x, spec) for x in a.ravel().tolist())
 
 
-def page_text(menu: Menu, index: int, values: dict[str, Any], wm) -> str:
-    """One page: the tabs, then one line per variable (label, formatted value(s), units)."""
+#: the menu page's line on modifying (the write path of the world-model browser, docs/console.md)
+MODIFY_HELP = "up/down select   Enter/e modify (where the ownership rules let a user: the browser's write path)"
+
+
+def page_text(menu: Menu, index: int, values: dict[str, Any], wm, row: int = 0, status: str = "") -> str:
+    """One page: the tabs, then one line per variable (label, formatted value(s), units),
+    ``>`` marking the variable at ``row`` (Enter/``e`` modifies it), then ``status`` (the
+    last write's outcome or refusal) when there is one."""
     page = menu.pages[index % len(menu.pages)]
     tabs = "  ".join(f"[{p.name}]" if p is page else p.name for p in menu.pages)
     width = max(len(v.label) for v in page.vars)
     lines = [f"{menu.title}: {tabs}",
              f"page {index % len(menu.pages) + 1}/{len(menu.pages)}, refresh {page.refresh_hz:g} Hz   "
-             f"<- -> / tab page   Escape/l close   ({menu.path})", ""]
-    for v in page.vars:
+             f"<- -> / tab page   Escape/l close   ({menu.path})", MODIFY_HELP]
+    for k, v in enumerate(page.vars):
         units = wm.spec(v.name).units
-        lines.append(f"{v.label:<{width}}  {_fmt(values[v.name], v.format)}" + (f"  {units}" if units else ""))
+        mark = ">" if k == row % len(page.vars) else " "
+        lines.append(f"{mark} {v.label:<{width}}  {_fmt(values[v.name], v.format)}" + (f"  {units}" if units else ""))
+    if status:
+        lines += ["", status]
     return "\n".join(lines)

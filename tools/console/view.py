@@ -176,7 +176,8 @@ def rack_line(rack: str) -> str:
 
 def local_status(r: Reading, selected: int) -> str:
     """One line per layer (state, command; a layer's subordinate is the row under it), the
-    selected one marked and detailed. Lines fit 76 columns (docs/console.md "Sizes")."""
+    selected one (left/right; Local Commands has its own selection) marked and detailed.
+    Lines fit 76 columns (docs/console.md "Sizes")."""
     lines = [f"  {'LAYER':<26} {'STATE':<31} COMMAND"]
     w = r.wm
     for i, (k, title) in enumerate(LAYERS):
@@ -448,8 +449,9 @@ def _msg_line(m: ConsoleMessage) -> str:
 
 
 def local_commands(r: Reading, selected: int, wm) -> str:
-    """The selected layer's command and the variables a user may set in it (read-only here;
-    ``w`` and ``p`` modify). Lines fit 36 columns (docs/console.md "Sizes")."""
+    """The command of the layer selected here (up/down through the layer tree; its own
+    selection, not Local Status's) and the variables a user may set in it (read-only here;
+    ``w``, ``p`` and the live menus modify). Lines fit 36 columns (docs/console.md "Sizes")."""
     k, title = LAYERS[selected]
     lines = [f"{title}: command {_enum(Command, int(r.wm.get(f'{k}.command', 0)))}",
              f"  sent by {'the user requests' if k == 'updown' else LAYERS[selected - 1][1]}"]

@@ -105,19 +105,44 @@ def test_power_up_sent_while_halted_is_followed_through_the_steps_to_its_answer(
     run_app(console, body)
 
 
-def test_arrows_move_between_layers(console):
+def _selected(console) -> tuple[str, str]:
+    """The layer each area shows as selected: Local Status's ``>`` row, Local Commands' heading."""
+    row = next(ln for ln in console.area_text("local").splitlines() if ln.startswith("> "))
+    status = next(title for _, title in view.LAYERS if row[2:].startswith(title))
+    command = console.area_text("commands").splitlines()[0].partition(": command ")[0]
+    return status, command
+
+
+def test_local_status_and_local_commands_move_independently(sim, console):
+    """Issue 33 item 7 (report 2.2.8): left/right move the layer Local Status details, up/down
+    the layer Local Commands shows (the layer tree); neither moves the other, across refreshes."""
+    titles = [title for _, title in view.LAYERS]
+
     async def body(pilot):
         assert console.area_text("local").splitlines()[0].split() == ["LAYER", "STATE", "COMMAND"]
-        assert console.area_text("local").splitlines()[1].startswith("> System Up/Down")
-        await pilot.press("right", "right")
+        assert _selected(console) == (titles[0], titles[0])
+        await pilot.press("right", "right")  # Local Status only
+        frames(sim, console, 5)
         await pilot.pause()
-        local = console.area_text("local")
-        assert local.splitlines()[3].startswith("> Trajectory Planner")
-        assert "Trajectory Planner: command" in console.area_text("commands")
-        await pilot.press("up", "up", "up")
+        assert _selected(console) == (titles[2], titles[0])
+        assert console.area_text("local").splitlines()[3].startswith("> Trajectory Planner")
+        assert f"{titles[2]}: row " in console.area_text("local")  # the detail follows Local Status's layer
+        assert console.area_text("commands").splitlines()[1] == "  sent by the user requests"
+        await pilot.press("down")  # Local Commands only
+        frames(sim, console, 5)
         await pilot.pause()
+        assert _selected(console) == (titles[2], titles[1])
+        assert console.area_text("commands").splitlines()[1] == f"  sent by {titles[0]}"
+        await pilot.press("up", "up", "up")  # round the tree: 1 - 3 = Servo Control
+        await pilot.pause()
+        assert _selected(console) == (titles[2], titles[5])
+        assert "servo.kp_per_s *" in console.area_text("commands")  # Servo's settable variables
+        await pilot.press("left", "left", "left")  # round the layers: 2 - 3 = Data Acquisition
+        await pilot.pause()
+        assert _selected(console) == (titles[6], titles[5])
         assert console.area_text("local").splitlines()[7].startswith("> Data Acquisition")
         assert "hardware checks:" in console.area_text("local")
+        assert console.status_layer == 6 and console.command_layer == 5
     run_app(console, body)
 
 

@@ -222,7 +222,7 @@ def test_the_example_menu_loads_and_its_pages_show_live_at_their_rates(sim):
         assert scr.draws == draws and scr.text().splitlines()[-1] == frames0  # not yet its turn
         app.refresh_areas()
         assert scr.draws == draws + 1
-        assert scr.text().splitlines()[-1] == f"controller frames      {int(sim.rt.wm.get('runtime.frames'))}"
+        assert scr.text().splitlines()[-1] == f"  controller frames      {int(sim.rt.wm.get('runtime.frames'))}"
         draws = scr.draws
         await pilot.press("left")  # Servo, 2 Hz: drawn at once, then every fifth
         for _ in range(10):
@@ -285,6 +285,118 @@ def test_a_missing_menu_file_is_one_message_exit_2(tmp_path, capsys):
     rc = main(["console", "--menu", str(tmp_path / "none.toml")])
     _out, err = capsys.readouterr()
     assert rc == 2 and err.startswith(f"pfma console: --menu {tmp_path / 'none.toml'}: cannot read it")
+
+
+# --- (c') user menus modify what the ownership rules allow (issue 33 item 7, report 2.2.8) -------
+EDIT_MENU = """title = "edit"
+[[page]]
+name = "Mixed"
+[[page.var]]
+name = "daq.joint_angle_rad"
+format = "+.4f"
+[[page.var]]
+name = "msp.speed_scale"
+format = ".3f"
+[[page.var]]
+name = "traj.v_lin_max_m_s"
+format = ".3f"
+"""
+
+
+def _menu_console(sim, reader, tmp_path) -> ConsoleApp:
+    from tools.console import menu as menus
+    f = tmp_path / "edit.toml"
+    f.write_text(EDIT_MENU)
+    m = menus.load(f)
+    m.check(sim.rt.wm)
+    return ConsoleApp(view.Sources(reader, sim.rt.wm, rack="simulated"), ControllerLink(sim.rt.wm),
+                      auto_refresh=False, menu=m)
+
+
+async def _menu_to(pilot, app, row: int):
+    """``l``, then down to the page's ``row``-th variable (keys only)."""
+    from tools.console.app import MenuScreen
+    await pilot.press("l", *["down"] * row)
+    await pilot.pause()
+    scr = app.screen
+    assert isinstance(scr, MenuScreen) and scr.row == row
+    assert scr.text().splitlines()[3 + row].startswith(f"> {scr.selected()} ")
+    return scr
+
+
+def test_a_user_menu_modifies_a_variable_the_rules_let_a_user_set(sim, reader, tmp_path):
+    """From a live menu: Enter on msp.speed_scale (users may set it any time) and on
+    traj.v_lin_max_m_s (powered down only; the system is) opens the browser's editor; the
+    keyed write lands and the page says so."""
+    app = _menu_console(sim, reader, tmp_path)
+
+    async def body(pilot):
+        assert not sim.rt.wm.powered_up
+        scr = await _menu_to(pilot, app, 1)
+        assert scr.selected() == "msp.speed_scale"
+        await pilot.press("enter")
+        await pilot.pause()
+        assert isinstance(app.screen, EditScreen) and app.screen.var == "msp.speed_scale"
+        await _type(pilot, "0.4")
+        await pilot.press("enter", "enter")  # check, confirm and send
+        await pilot.pause()
+        assert app.screen is scr and len(app.writes) == 1
+        frames(sim, app, 2)
+        await pilot.pause()
+        assert float(sim.rt.wm.get("msp.speed_scale")) == 0.4
+        assert "> msp.speed_scale 0.400" in " ".join(scr.text().split())  # the page shows the new value
+        assert "msp.speed_scale = 0.4 (write #" in scr.text() and "applied at frame" in scr.text()
+        await pilot.press("down", "e")  # traj.v_lin_max_m_s: powered down only, and it is
+        await pilot.pause()
+        assert isinstance(app.screen, EditScreen) and app.screen.var == "traj.v_lin_max_m_s"
+        await _type(pilot, "0.125")
+        await pilot.press("enter", "enter")
+        await pilot.pause()
+        frames(sim, app, 2)
+        await pilot.pause()
+        assert float(sim.rt.wm.get("traj.v_lin_max_m_s")) == 0.125
+        assert "traj.v_lin_max_m_s = 0.125 (write #" in scr.text()
+    run_app(app, body)
+
+
+def test_a_user_menu_write_the_rules_forbid_is_refused_naming_why(sim, reader, tmp_path):
+    """From a live menu: a task output is refused (users may never set it), and a powered-down
+    parameter while powered up (the rule's reason): no editor opens, nothing is written, the
+    reason is the browser's own, on the page and in Messages."""
+    from controller.worldmodel import WorldModelError
+    app = _menu_console(sim, reader, tmp_path)
+    wm = sim.rt.wm
+
+    def rule(name: str) -> str:  # the ownership rule's reason, as the browser's write path gives it
+        with pytest.raises(WorldModelError) as e:
+            wm.check_user_settable(name)
+        return f"{name}: refused: {e.value}"
+
+    async def body(pilot):
+        scr = await _menu_to(pilot, app, 0)
+        before = wm.get("daq.joint_angle_rad").copy()
+        await pilot.press("enter")
+        await pilot.pause()
+        assert app.screen is scr  # no editor: refused at once
+        why = f"daq.joint_angle_rad is an output of task {wm.spec('daq.joint_angle_rad').writer}; users may not set it"
+        assert why in scr.text() and scr.text().splitlines()[-1] == rule("daq.joint_angle_rad")
+        assert why in view.messages_area(app.sources.messages)
+        assert not app.writes
+        frames(sim, app, 2)
+        assert np.array_equal(wm.get("daq.joint_angle_rad"), before)
+        sim.power_up(max_frames=400)
+        assert wm.powered_up
+        v0 = float(wm.get("traj.v_lin_max_m_s"))
+        await pilot.press("up")  # round to the last: traj.v_lin_max_m_s
+        await pilot.press("e")
+        await pilot.pause()
+        assert app.screen is scr and scr.selected() == "traj.v_lin_max_m_s"
+        why = "traj.v_lin_max_m_s is protected: it may be set only while powered down (the system is powered up)"
+        assert why in scr.text() and scr.text().splitlines()[-1] == rule("traj.v_lin_max_m_s")
+        assert why in view.messages_area(app.sources.messages)
+        frames(sim, app, 2)
+        assert not app.writes and float(wm.get("traj.v_lin_max_m_s")) == v0
+    run_app(app, body)
 
 
 # --- (d) the force displays ----------------------------------------------------------------------

@@ -170,21 +170,22 @@ def test_live_menu(rig, snap_compare, monkeypatch):
         q = wm.get("daq.joint_angle_rad")
         assert lines[0] == "snapshot menu: [Joints]  Servo"
         assert lines[1].startswith("page 1/2, refresh 10 Hz   <- -> / tab page   Escape/l close   (snapshot-menu.toml)")
-        assert lines[3] == "measured angle     " + "  ".join(f"{float(x):+.4f}" for x in q) + "  rad"
-        assert lines[4] == f"controller frames  {int(wm.get('runtime.frames'))}"
+        assert lines[2].startswith("up/down select   Enter/e modify")
+        assert lines[3] == "> measured angle     " + "  ".join(f"{float(x):+.4f}" for x in q) + "  rad"
+        assert lines[4] == f"  controller frames  {int(wm.get('runtime.frames'))}"
         await pilot.press("right")
         await pilot.pause()
         lines = [ln.rstrip() for ln in screen_text(app).splitlines()]
         assert lines[0] == "snapshot menu: Joints  [Servo]" and lines[1].startswith("page 2/2, refresh 2 Hz")
         kp, cl = wm.get("servo.kp_per_s"), wm.get("servo.current_limit_a")
         units_kp, units_cl = wm.spec("servo.kp_per_s").units, wm.spec("servo.current_limit_a").units
-        assert lines[3] == "gain K         " + "  ".join(f"{float(x):.2f}" for x in kp) + f"  {units_kp}"
-        assert lines[4] == "current limit  " + "  ".join(f"{float(x):.1f}" for x in cl) + f"  {units_cl}"
+        assert lines[3] == "> gain K         " + "  ".join(f"{float(x):.2f}" for x in kp) + f"  {units_kp}"
+        assert lines[4] == "  current limit  " + "  ".join(f"{float(x):.1f}" for x in cl) + f"  {units_cl}"
         await pilot.press("left")
         sim.step(40)
         app.refresh_areas()
         await pilot.pause()
-        assert screen_text(app).splitlines()[4].rstrip() == f"controller frames  {int(wm.get('runtime.frames'))}"
+        assert screen_text(app).splitlines()[4].rstrip() == f"  controller frames  {int(wm.get('runtime.frames'))}"
     assert snap_compare(app, terminal_size=SIZE, run_before=run_before)
 
 
