@@ -667,6 +667,9 @@ class Checkout:
             self.t.wait(0.05)
             rc = int(cmd.record["rearm_counter"]) + 1
             bits = bool(cfg.joint(j, "dac_bits")) and bool(current)
+            # the monitor's reading while no current can flow (not armed, limits 0): the
+            # DAC-bit check's zero, and a monitor fault named on the monitor, not the DAC
+            zero = DacBits.monitor_zero(self, j, current, limit) if bits else 0.0
             # the DAC-bit check first, brake set; then the moves' limit
             limits[li] = float(cfg.joint(j, "dac_bits_limit_v")) * float(self.t.rack.channel(limit).scale) \
                 if bits else i_lim
@@ -679,7 +682,7 @@ class Checkout:
                 self.record("joints", j, "arm", False, st, detail=f"service did not arm; messages: {last}")
                 return
             if bits:
-                DacBits(self, j, current, cmd, rates, limits, ji, li).run()
+                DacBits(self, j, current, cmd, rates, limits, ji, li, zero).run()
                 limits[li] = i_lim
                 cmd.set(joint_rate_rad_s=rates, current_limit_a=limits)
             try:
@@ -907,8 +910,10 @@ class DacBits:
     against the brake; one row, its diagnosis from the current's sign."""
 
     def __init__(self, co: "Checkout", j: str, current: str, cmd, rates: list[float], limits: list[float],
-                 ji: int, li: int) -> None:
+                 ji: int, li: int, zero: float = 0.0) -> None:
         self.co, self.j, self.current, self.cmd = co, j, current, cmd
+        self.zero = zero  #: the monitor's reading with no current (:meth:`monitor_zero`)
+        self.codes: list[int] = []  #: the monitor's mean A/D code at each step, in order
         self.rates, self.ji, self.limit_a = rates, ji, limits[li]
         rack = co.t.rack
         self.signal = rack.joint_channel(j, "rate_command").signal
@@ -932,15 +937,42 @@ class DacBits:
             r += (code - got) * self.rate_per_code
         return got
 
+    @staticmethod
+    def monitor_zero(co: "Checkout", j: str, current: str, limit: str) -> float:
+        """The motor-current monitor's reading while no current can flow (the service not
+        armed, every current limit 0): its own zero. Beyond the DAC-bit tolerance it fails
+        on the monitor's channel (with the data bit that, flipped, would zero it), so the
+        DAC check that follows does not blame the DAC for it."""
+        i0, codes = [], []
+        end = co.t.now() + float(co.cfg.joint(j, "dac_bits_window_s"))
+        while co.t.now() < end:
+            ch = co.inputs().channel(current)
+            i0.append(float(ch["adc_value"]))
+            codes.append(int(ch["adc_counts"]))
+            co.t.wait(co.poll_s)
+        zero = float(np.mean(i0)) if i0 else 0.0
+        scale = float(co.t.rack.channel(limit).scale)
+        thr = float(co.cfg.joint(j, "dac_bits_tolerance")) * float(co.cfg.joint(j, "dac_bits_limit_v")) * scale
+        ok = abs(zero) <= thr
+        why = "" if ok else "; " + _idle_why(int(round(float(np.mean(codes)))), -thr, thr,
+                                             float(co.t.rack.channel(current).scale))
+        co.record("joints", current, "zero with no current (limits 0)", ok, round(zero, 4), -thr, thr, "A",
+                  f"the monitor with the service not armed and every current limit at 0{why}")
+        return zero
+
     def mean_current(self) -> float:
-        """The motor current after ``dac_bits_settle_s``, averaged over ``dac_bits_window_s``."""
+        """The motor current after ``dac_bits_settle_s``, averaged over ``dac_bits_window_s``,
+        less the monitor's zero."""
         cfg, t = self.co.cfg, self.co.t
         t.wait(float(cfg.joint(self.j, "dac_bits_settle_s")))
-        vals, end = [], t.now() + float(cfg.joint(self.j, "dac_bits_window_s"))
+        vals, codes, end = [], [], t.now() + float(cfg.joint(self.j, "dac_bits_window_s"))
         while t.now() < end:
-            vals.append(self.co.value(self.current))
+            ch = self.co.inputs().channel(self.current)
+            vals.append(float(ch["adc_value"]))
+            codes.append(int(ch["adc_counts"]))
             t.wait(self.co.poll_s)
-        return float(np.mean(vals)) if vals else float("nan")
+        self.codes.append(int(round(float(np.mean(codes)))) if codes else -1)
+        return float(np.mean(vals)) - self.zero if vals else float("nan")
 
     def current_at(self, code: int) -> tuple[int, float]:
         got = self.place(code)
@@ -1006,7 +1038,21 @@ class DacBits:
         elif i_zero < -thr:
             said.append("data bit D11 stuck at 0 (code 0x800 drove the joint negative)")
         where = f"DAC channel {self.signal}"
-        return f"{where}: " + "; ".join(said) + " (or the amplifier draws current at a zero command)"
+        return f"{where}: " + "; ".join(said) + " (or the amplifier draws current at a zero command)" \
+            + self.monitor_bit()
+
+    def monitor_bit(self) -> str:
+        """The other reading of a small current at the test codes: the monitor's own data bit
+        (one flipped bit of its code puts it back near zero current; a saturated current is
+        never one bit away, so it is the DAC's)."""
+        for code in self.codes[:2]:
+            bits = [b for b in range(ADC_BITS - 1, 2, -1)
+                    if abs((code ^ (1 << b)) - ADC_ZERO_CODE) <= IDLE_FLIP_CODES]
+            if code >= 0 and bits and abs(code - ADC_ZERO_CODE) > IDLE_FLIP_CODES:
+                b = bits[0]
+                return (f"; or the motor-current monitor {self.current}: its code 0x{code:03X} is "
+                        f"0x{code ^ (1 << b):03X} with D{b} flipped (data bit D{b} stuck at {(code >> b) & 1}?)")
+        return ""
 
 
 class CodeLog:

@@ -79,3 +79,23 @@ def test_an_idle_reading_one_flipped_bit_from_its_idle_code_names_that_bit_first
     from tools.checkout.runner import _idle_why
     text = _idle_why(code, lo, hi, scale)
     assert said in text and "dead input" in text
+
+
+def test_a_monitor_bit_stuck_at_1_fails_on_the_monitor_before_the_dac_is_judged(sim, cfg):
+    """D4 of the wrist roll's current monitor stuck at 1 reads 0.039 A with no current
+    possible (not armed, limits 0): named on the monitor, not on the DAC."""
+    sim.inject_fault("stuck-bit:adc@SCAN[6]:4=1")
+    rep, _ = run(sim, cfg, only=["joints"])
+    f = first_failure(rep)
+    assert (f.channel, f.check) == ("wrist_roll_motor_current", "zero with no current (limits 0)")
+    assert "data bit D4 stuck at 1?" in f.detail
+
+
+def test_a_small_current_at_a_test_code_names_the_monitor_bit_as_the_other_reading(sim, cfg):
+    """D3 of a current monitor stuck at 0 shows only at a negative current: at code 0x7FF the
+    reading is one bit away from the true small current, so both readings are named."""
+    sim.inject_fault("stuck-bit:adc@SCAN[0]:3=0")  # shoulder yaw's monitor
+    rep, _ = run(sim, cfg, only=["joints"])
+    f = first_failure(rep)
+    assert f.channel == "shoulder_yaw_command"
+    assert "or the motor-current monitor shoulder_yaw_motor_current" in f.detail and "D3 stuck at 0?" in f.detail
