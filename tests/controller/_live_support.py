@@ -107,7 +107,7 @@ def _output_of(src) -> str:
 
 @contextlib.contextmanager
 def host_timing_named(*sources):
-    """Around a live test's body: an AssertionError whose message, or whose processes' output
+    """Around a live test's body: an AssertionError (or ``pytest.fail``) whose message, or whose processes' output
     (``sources``: log files, piped Popens, or a callable giving one, e.g. ``lambda: ctl``;
     read after the failure), names a host-timing cause becomes a :class:`HostTimingFault` saying
     that cause first (and, with :data:`RERUN_ON_HOST_TIMING`, runs the test again). Any other
@@ -116,7 +116,7 @@ def host_timing_named(*sources):
         yield
     except HostTimingFault:
         raise
-    except AssertionError as err:
+    except (AssertionError, pytest.fail.Exception) as err:  # a failed assert, or pytest.fail(...)
         texts = (_output_of(s() if callable(s) else s) for s in sources)
         cause = host_timing_cause(str(err)) or next((c for c in map(host_timing_cause, texts) if c), None)
         if cause is None:
