@@ -173,7 +173,10 @@ class InputsCapture:
         except RingError:
             return False
         self.take_from_ring()  # the old ring's memory stays valid: finish it
-        self.take_messages(force=True)  # and the old buffer's messages (its client is open)
+        try:  # and the old buffer's messages (its client is open; a killed service may
+            self.take_messages(force=True)  # have left a queue mid-post: then they are lost)
+        except Exception:  # noqa: BLE001 - the new ring must be taken regardless
+            pass
         self._msg_client = None  # the old client is closed soon: none until messages_from
         self.queue.append(RingSwitch(
             f"frame ring {old.path} was replaced (service restarted?): the old ring ended after "
