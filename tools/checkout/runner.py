@@ -44,6 +44,8 @@ from bit3.layout import (
 from pfma.errors import PfmaError
 from pfma.show import wrap_angle
 from controller.routes import ALL_ROUTES, route_text
+from drivers.adc.registers import DVME611
+from drivers.dac.registers import VMIVME4100
 
 #: rtd_status bits (bit3.layout)
 RTD_BITS = {RTD_LOSS_OF_SIGNAL: "loss of signal", RTD_NO_REFERENCE: "no reference",
@@ -874,11 +876,23 @@ DATA_BITS = {"rtd": 14, "adc": 12}
 CODE_LOG_KEEP = 50_000
 
 
-#: the A/D's codes: 12-bit offset binary over +-10 V (drivers/adc)
-ADC_ZERO_CODE, ADC_VOLTS_PER_CODE, ADC_BITS = 0x800, 20.0 / 4096, 12
+#: the A/D's and the DAC's codes, from their register tables: 12-bit offset binary over
+#: +-10 V, 0 V at half scale
+ADC_BITS = int(DVME611.constants["adc_bits"])
+ADC_ZERO_CODE = int(DVME611.constants["full_scale_counts"]) // 2
+ADC_VOLTS_PER_CODE = float(DVME611.constants["lsb_volts"])
+DAC_ZERO_CODE = int(VMIVME4100.constants["zero_code"])
+DAC_CODES = int(VMIVME4100.constants["full_scale_counts"])
 #: a code that one flipped data bit puts this near the idle value's code is named a stuck
 #: bit first (ASSUMED: 8 codes, 39 mV, above the idle noise of a healthy input)
 IDLE_FLIP_CODES = 8
+
+
+def one_bit_away(code: int, centre: float) -> int | None:
+    """The highest A/D data bit (D3 and up) that, flipped, puts ``code`` within
+    :data:`IDLE_FLIP_CODES` of ``centre``; None when no one bit does."""
+    bits = [b for b in range(ADC_BITS - 1, 2, -1) if abs((code ^ (1 << b)) - centre) <= IDLE_FLIP_CODES]
+    return bits[0] if bits else None
 
 
 def _idle_why(code: int, lo: float, hi: float, scale: float) -> str:
@@ -887,11 +901,10 @@ def _idle_why(code: int, lo: float, hi: float, scale: float) -> str:
     centre (``lo``..``hi`` in engineering units, ``scale`` per volt), that bit stuck is
     named first; a dead input (or its wiring, or the sensor) reads the same at rest."""
     centre = ADC_ZERO_CODE + (lo + hi) / 2 / (scale or 1.0) / ADC_VOLTS_PER_CODE
-    bits = [b for b in range(ADC_BITS - 1, 2, -1) if abs((code ^ (1 << b)) - centre) <= IDLE_FLIP_CODES]
-    if not bits:
+    b = one_bit_away(code, centre)
+    if b is None:
         return (f"code 0x{code:03X}: not one data bit away from the idle value: a dead input, its "
                 "wiring or the sensor")
-    b = bits[0]
     return (f"code 0x{code:03X} is the idle value's 0x{code ^ (1 << b):03X} with D{b} flipped: data bit D{b} "
             f"stuck at {(code >> b) & 1}? Or a dead input (or its wiring, or the sensor) reads the same at rest")
 
@@ -899,8 +912,6 @@ def _idle_why(code: int, lo: float, hi: float, scale: float) -> str:
 #: the rate command's test codes (12-bit offset binary, +-10 V): -1 LSB has D0..D10 at 1
 #: and D11 at 0, 0 V the opposite, so every data bit is at 1 in one and at 0 in the other
 DAC_BITS_CODES = (0x7FF, 0x800)
-DAC_ZERO_CODE = 0x800
-DAC_CODES = 4096
 
 
 class DacBits:
@@ -918,9 +929,10 @@ class DacBits:
         rack = co.t.rack
         self.signal = rack.joint_channel(j, "rate_command").signal
         self.limit_signal = rack.joint_channel(j, "current_limit").signal
-        fs_v = float(co.cfg.joint(j, "dac_full_scale_v"))
-        #: rad/s of one code step: 2 x full scale / 4096 codes x the command channel's scale
-        self.rate_per_code = 2.0 * fs_v / DAC_CODES * float(rack.joint_channel(j, "rate_command").scale)
+        #: rad/s per volt of the rate command (the command channel's scale)
+        self.rate_per_volt = float(rack.joint_channel(j, "rate_command").scale)
+        #: rad/s of one code step: 2 x full scale / 4096 codes x the rate per volt
+        self.rate_per_code = 2.0 * float(co.cfg.joint(j, "dac_full_scale_v")) / DAC_CODES * self.rate_per_volt
 
     def place(self, code: int) -> int:
         """Command the rate whose code is ``code`` (a few corrections from the code read back);
@@ -938,18 +950,24 @@ class DacBits:
         return got
 
     @staticmethod
+    def sample(co: "Checkout", j: str, current: str) -> tuple[list[float], list[int]]:
+        """The motor-current monitor's values and A/D codes over ``dac_bits_window_s``."""
+        vals, codes = [], []
+        end = co.t.now() + float(co.cfg.joint(j, "dac_bits_window_s"))
+        while co.t.now() < end:
+            ch = co.inputs().channel(current)
+            vals.append(float(ch["adc_value"]))
+            codes.append(int(ch["adc_counts"]))
+            co.t.wait(co.poll_s)
+        return vals, codes
+
+    @staticmethod
     def monitor_zero(co: "Checkout", j: str, current: str, limit: str) -> float:
         """The motor-current monitor's reading while no current can flow (the service not
         armed, every current limit 0): its own zero. Beyond the DAC-bit tolerance it fails
         on the monitor's channel (with the data bit that, flipped, would zero it), so the
         DAC check that follows does not blame the DAC for it."""
-        i0, codes = [], []
-        end = co.t.now() + float(co.cfg.joint(j, "dac_bits_window_s"))
-        while co.t.now() < end:
-            ch = co.inputs().channel(current)
-            i0.append(float(ch["adc_value"]))
-            codes.append(int(ch["adc_counts"]))
-            co.t.wait(co.poll_s)
+        i0, codes = DacBits.sample(co, j, current)
         zero = float(np.mean(i0)) if i0 else 0.0
         scale = float(co.t.rack.channel(limit).scale)
         thr = float(co.cfg.joint(j, "dac_bits_tolerance")) * float(co.cfg.joint(j, "dac_bits_limit_v")) * scale
@@ -963,14 +981,8 @@ class DacBits:
     def mean_current(self) -> float:
         """The motor current after ``dac_bits_settle_s``, averaged over ``dac_bits_window_s``,
         less the monitor's zero."""
-        cfg, t = self.co.cfg, self.co.t
-        t.wait(float(cfg.joint(self.j, "dac_bits_settle_s")))
-        vals, codes, end = [], [], t.now() + float(cfg.joint(self.j, "dac_bits_window_s"))
-        while t.now() < end:
-            ch = self.co.inputs().channel(self.current)
-            vals.append(float(ch["adc_value"]))
-            codes.append(int(ch["adc_counts"]))
-            t.wait(self.co.poll_s)
+        self.co.t.wait(float(self.co.cfg.joint(self.j, "dac_bits_settle_s")))
+        vals, codes = self.sample(self.co, self.j, self.current)
         self.codes.append(int(round(float(np.mean(codes)))) if codes else -1)
         return float(np.mean(vals)) - self.zero if vals else float("nan")
 
@@ -983,7 +995,7 @@ class DacBits:
         test limit on every joint): the amplifier's limit itself, so the limit channel's bits
         show; brake set, the joint does not move."""
         v = float(self.co.cfg.joint(self.j, "dac_bits_drive_v"))
-        self.rates[self.ji] = v * self.rate_per_code * DAC_CODES / (2.0 * float(self.co.cfg.joint(self.j, "dac_full_scale_v")))
+        self.rates[self.ji] = v * self.rate_per_volt
         self.cmd.set(joint_rate_rad_s=self.rates)
         i = self.mean_current()
         self.rates[self.ji] = 0.0
@@ -1046,10 +1058,8 @@ class DacBits:
         (one flipped bit of its code puts it back near zero current; a saturated current is
         never one bit away, so it is the DAC's)."""
         for code in self.codes[:2]:
-            bits = [b for b in range(ADC_BITS - 1, 2, -1)
-                    if abs((code ^ (1 << b)) - ADC_ZERO_CODE) <= IDLE_FLIP_CODES]
-            if code >= 0 and bits and abs(code - ADC_ZERO_CODE) > IDLE_FLIP_CODES:
-                b = bits[0]
+            b = one_bit_away(code, ADC_ZERO_CODE)
+            if code >= 0 and b is not None and abs(code - ADC_ZERO_CODE) > IDLE_FLIP_CODES:
                 return (f"; or the motor-current monitor {self.current}: its code 0x{code:03X} is "
                         f"0x{code ^ (1 << b):03X} with D{b} flipped (data bit D{b} stuck at {(code >> b) & 1}?)")
         return ""
