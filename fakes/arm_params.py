@@ -238,6 +238,14 @@ class SimErrors:
     ft_drift_per_s: tuple[float, ...] = (0.0,) * 6
     """How that bias drifts, per second of the simulated clock (thermal drift; same units
     per s): the bias at t is ft_offset + t * ft_drift_per_s."""
+    adc_noise_counts: float = 0.0
+    """Noise of every A/D conversion, counts (1 sigma, all A/D boards): the converter's
+    transition noise and the wiring's pick-up. 0: a noiseless converter."""
+    resolver_noise_counts: float = 0.0
+    """Noise of every resolver reading, counts (1 sigma): pfma-model 8.4 "noise +-1 LSB".
+    0: a noiseless converter."""
+    noise_seed: int = 0
+    """Seed of the noise generators (the same rack reads the same noise)."""
     # The servo control chassis' front-panel switches (IRSS 3.6), the operator's: kept
     # apart from the faults above (a seized brake, a failed stage) so that turning a switch
     # back on never clears one of them; the arm model combines both.
@@ -269,5 +277,7 @@ class SimErrors:
         for name in ("ft_offset", "ft_drift_per_s"):
             if len(getattr(self, name)) != 6:
                 raise ValueError(f"{name} needs 6 values (Fx Fy Fz Tx Ty Tz), got {len(getattr(self, name))}")
+        if self.adc_noise_counts < 0 or self.resolver_noise_counts < 0:
+            raise ValueError("adc_noise_counts and resolver_noise_counts must be >= 0")
         if self.payload_kg < 0:
             raise ValueError(f"payload_kg must be >= 0, got {self.payload_kg}")

@@ -25,6 +25,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from drivers.rtd.registers import VMIVME4940
 from fakes.arm import ArmModel, ArmState
 from fakes.arm_params import AXES, N_JOINTS, SimErrors
 from fakes.environment import Environment
@@ -41,6 +42,8 @@ CAE_DISCRETE_HIGH_V = 5.0
 IDLE_JOINTS = ("shoulder_roll",)
 
 _TWO_PI = 2.0 * math.pi
+#: one resolver count (drivers/rtd: the ANGLE word's LSB)
+_RESOLVER_LSB_RAD = float(VMIVME4940.constants["lsb_rad"])
 
 
 class _AdcBoardMap:
@@ -152,6 +155,11 @@ class SimulatedRack:
         self._ft_offset = np.asarray(errors.ft_offset, dtype=float)
         self._ft_drift = np.asarray(errors.ft_drift_per_s, dtype=float)
         self._resolver_offset = np.asarray(errors.resolver_offset_rad, dtype=float)
+        self._resolver_noise_rad = errors.resolver_noise_counts * _RESOLVER_LSB_RAD
+        self._noise = np.random.default_rng(errors.noise_seed)
+        for k, board in enumerate(sorted(self._adc)):
+            self.fake_rack[board].noise_counts = errors.adc_noise_counts
+            self.fake_rack[board].seed_noise(errors.noise_seed * 1000 + k)
         for m in self._adc.values():
             n = len(m.volts)
             m.gain, m.offset = np.ones(n), np.zeros(n)
@@ -261,8 +269,10 @@ class SimulatedRack:
     def _write_sensors(self) -> None:
         arm = self.arm
         q = arm.q
+        noise = self._noise.normal(0.0, self._resolver_noise_rad, len(self._resolver_offset)) \
+            if self._resolver_noise_rad else self._resolver_offset * 0.0
         for axis, (board, ch) in self.angle.items():
-            self.fake_rack[board].set_angle_rad(ch, (q[axis] + self._resolver_offset[axis]) % _TWO_PI)
+            self.fake_rack[board].set_angle_rad(ch, (q[axis] + self._resolver_offset[axis] + noise[axis]) % _TWO_PI)
         tach, imon = arm.tach_output_volts, arm.current_monitor_volts  # 0 V without the +/-15 V
         for m in self._adc.values():
             m.volts[m.rate_ch] = tach[m.rate_axis]

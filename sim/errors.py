@@ -50,6 +50,15 @@ BOUNDS: dict[str, Bound] = {
     "ft_drift_torque": Bound(0.0001, "N*m/s", "F/T torque bias drift, +-0.0001 N*m/s"),
 }
 
+#: the seeded noise figures, drawn uniformly in ``low``..``limit`` (1 sigma, counts). ASSUMED
+#: for the A/D (no DVME-611 noise figure is public: a 12-bit VME A/D's transition noise and the
+#: rack wiring's pick-up); the resolver's from pfma-model 8.4 ("noise +-1 LSB", read as a
+#: peak within about 3 sigma)
+NOISE: dict[str, tuple[float, Bound]] = {
+    "adc_noise_counts": (0.4, Bound(1.2, "counts", "A/D conversion noise, 0.4..1.2 LSB rms")),
+    "resolver_noise_counts": (0.2, Bound(0.4, "counts", "resolver noise, 0.2..0.4 LSB rms (+-1 LSB peak)")),
+}
+
 
 def parse_seed(text: str) -> int:
     """``--sim-errors SEED``: a whole number >= 0 (0: the perfect rack).
@@ -67,7 +76,8 @@ def parse_seed(text: str) -> int:
 def seeded(seed: int, rack: RackConfig | None = None) -> SimErrors:
     """The errors of seed ``seed`` on ``rack`` (default: the report's): every ADC and DAC
     channel's gain and offset, every resolver's zero, every tach's scale, every amplifier's
-    gain and the F/T bias and drift, each uniform within :data:`BOUNDS`. Seed 0: no errors.
+    gain and the F/T bias and drift, each uniform within :data:`BOUNDS`, and the A/D and
+    resolver noise within :data:`NOISE`. Seed 0: no errors, no noise.
     The motion faults and panel switches stay off (``--sim-fault`` sets those)."""
     if seed == 0:
         return SimErrors()
@@ -80,7 +90,7 @@ def seeded(seed: int, rack: RackConfig | None = None) -> SimErrors:
 
     adc = [c.signal for c in rack.channels() if c.device == "adc"]
     dac = [c.signal for c in rack.channels() if c.device == "dac"]
-    return SimErrors(
+    errors = dict(
         resolver_offset_rad=tuple(draw("resolver_offset_rad", N_JOINTS)),
         tach_scale_error=tuple(draw("tach_scale_error", N_AXES)),
         amp_gain_error=tuple(draw("amp_gain_error", N_AXES)),
@@ -91,6 +101,10 @@ def seeded(seed: int, rack: RackConfig | None = None) -> SimErrors:
         ft_offset=tuple(draw("ft_offset_force", 3) + draw("ft_offset_torque", 3)),
         ft_drift_per_s=tuple(draw("ft_drift_force", 3) + draw("ft_drift_torque", 3)),
     )
+    # drawn after the errors above, so a seed's errors are the same as before noise was added
+    for name, (low, b) in NOISE.items():
+        errors[name] = float(rng.uniform(low, b.limit))
+    return SimErrors(**errors, noise_seed=seed)
 
 
 def describe(errors: SimErrors) -> list[str]:
@@ -118,6 +132,9 @@ def describe(errors: SimErrors) -> list[str]:
         line = worst(values, scale, fmt, units)
         if line:
             out.append(f"rack error: {label}: {line}")
+    if errors.adc_noise_counts or errors.resolver_noise_counts:
+        out.append(f"rack error: noise (1 sigma): A/D {errors.adc_noise_counts:.2f} counts, resolvers "
+                   f"{errors.resolver_noise_counts:.2f} counts")
     if any(errors.ft_offset) or any(errors.ft_drift_per_s):
         f, d = errors.ft_offset, errors.ft_drift_per_s
         out.append("rack error: F/T bias (N, N*m) " + " ".join(f"{v:+.3f}" for v in f)

@@ -14,7 +14,7 @@ import pytest
 from fakes.arm_params import NOMINAL, SimErrors
 from fakes.world import FakeWorld
 from pfma.rack import load_rack
-from sim.errors import BOUNDS, describe, parse_seed, seeded
+from sim.errors import BOUNDS, NOISE, describe, parse_seed, seeded
 from sim.rig import SimRig
 from tools.cli import main
 
@@ -34,6 +34,9 @@ def test_a_seed_gives_the_same_errors_each_time_within_their_bounds_and_0_none()
         assert v.max() <= BOUNDS[name].limit and v.max() > 0.3 * BOUNDS[name].limit, name
     assert np.all(np.abs(a.ft_offset[:3]) <= BOUNDS["ft_offset_force"].limit)
     assert np.all(np.abs(a.ft_drift_per_s[3:]) <= BOUNDS["ft_drift_torque"].limit)
+    for name, (low, bound) in NOISE.items():
+        assert low <= getattr(a, name) <= bound.limit, name
+    assert a.noise_seed == 5 and seeded(0, rack).adc_noise_counts == 0.0
     # the motion faults and panel switches are --sim-fault's, never drawn
     assert not any(a.brake_held) and not any(a.amp_off) and not a.panel_28v_off
 
@@ -64,6 +67,25 @@ def test_the_fake_reads_and_moves_with_the_errors():
     assert np.allclose(w0.sim.arm.k_a, NOMINAL.k_a())
 
 
+def test_a_seeded_rack_reads_noise_a_perfect_one_none():
+    """Each A/D conversion and each resolver reading of a seeded rack carries its seeded
+    noise (1 sigma, counts); the perfect rack's are exact."""
+    e = seeded(4)
+    for world, adc_sigma, rtd_sigma in ((FakeWorld(), 0.0, 0.0),
+                                        (FakeWorld(errors=e), e.adc_noise_counts, e.resolver_noise_counts)):
+        board, _ = world.sim._where("adc_spare_25")
+        codes = np.array([world.sim.fake_rack[board].code_for_volts(1.2345) for _ in range(4000)])
+        assert np.std(codes) == pytest.approx(adc_sigma, abs=0.08), (adc_sigma, np.std(codes))
+        rboard, rch = next(iter(world.sim.angle.values()))
+        counts = []
+        for _ in range(4000):
+            world.sim._write_sensors()
+            counts.append(world.sim.fake_rack[rboard].counts(rch))
+        # the converter truncates to whole counts: a noiseless reading never moves
+        spread = np.std(counts)
+        assert (spread == 0.0) if rtd_sigma == 0.0 else (0.5 * rtd_sigma < spread < 2.0 * rtd_sigma + 0.5), spread
+
+
 def test_fault_list_active_says_the_rack_errors_and_the_buffer_never_holds_them():
     from tools.faultctl import FaultController
     e = seeded(9)
@@ -72,7 +94,7 @@ def test_fault_list_active_says_the_rack_errors_and_the_buffer_never_holds_them(
         reply = ctl.handle({"op": "list"})
         assert reply["ok"] and reply["faults"] == []
         lines = reply["rack_errors"]
-        assert lines == describe(e) and len(lines) == 8
+        assert lines == describe(e) and len(lines) == 9  # 8 kinds of error and the noise
         worst = max(e.resolver_offset_rad, key=abs)
         assert any(ln.startswith("rack error: resolver zero: 6 channel(s), largest") and
                    f"{math.degrees(worst):+.3f} deg" in ln for ln in lines), lines
