@@ -4,7 +4,9 @@ injected, its first failure judged: detected, the right part named, the right ki
 
 ``pfma bench faults`` runs the whole matrix (~1,500 cases, about 2 s each: most of an hour
 on a 2-core host); ``--trials N`` a seeded sample of N (at least one case of every kind),
-``--seed`` its seed (default 1); ``--json`` prints the figures and every miss. Prints
+``--seed`` its seed (default 1); ``--sim-errors SEED`` runs it on a rack with a real rack's
+imperfections (noise among them; default 0, the perfect rack); ``--json`` prints the
+figures and every miss. Prints
 figures, never asserts (the sample in make test is tests/tools/checkout/test_fault_matrix.py).
 """
 
@@ -18,7 +20,7 @@ DEFAULT_SEED = 1
 
 
 def run(seconds: float | None = None, trials: int | None = None, seed: int | None = None,
-        as_json: bool = False) -> dict:
+        as_json: bool = False, sim_errors: int = 0) -> dict:
     """The matrix (or a sample of ``trials`` cases); its figures, printed."""
     every = cases()
     which = every if trials is None else sample(every, trials, DEFAULT_SEED if seed is None else seed)
@@ -28,12 +30,14 @@ def run(seconds: float | None = None, trials: int | None = None, seed: int | Non
             mark = ("named right" if v.part_right and v.kind_right else "detected") if v.detected else \
                 ("undetectable" if v.undetectable else "MISSED")
             print(f"  {i}/{n} {v.case.spec}: {mark}" + (f" ({v.first[:100]})" if v.detected else ""), flush=True)
-    rep = run_matrix(which, progress=progress).as_dict()
-    rep.update(matrix_cases=len(every), seed=None if trials is None else (DEFAULT_SEED if seed is None else seed))
+    rep = run_matrix(which, progress=progress, sim_errors=sim_errors).as_dict()
+    rep.update(matrix_cases=len(every), seed=None if trials is None else (DEFAULT_SEED if seed is None else seed),
+               sim_errors=sim_errors)
     if as_json:
         print(json.dumps(rep, indent=1))
         return rep
-    print(f"checkout fault matrix: {rep['cases']} of {len(every)} cases: detected {rep['detected']} "
+    print(f"checkout fault matrix ({f'rack errors of seed {sim_errors}' if sim_errors else 'perfect rack'}): "
+          f"{rep['cases']} of {len(every)} cases: detected {rep['detected']} "
           f"({rep['detected_fraction']:.1%}), named right {rep['named_right']} "
           f"({(rep['named_right_fraction_of_detected'] or 0):.1%} of those detected); "
           f"{rep['detectable']} detectable (the rest: a stuck bit that never changed a word, or on a spare "

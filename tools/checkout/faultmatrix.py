@@ -233,14 +233,15 @@ def undetectable(case: Case, target, rack: RackConfig) -> str:
     return ""
 
 
-def run_case(case: Case, rack: RackConfig, config=None) -> Verdict:
+def run_case(case: Case, rack: RackConfig, config=None, sim_errors: int = 0) -> Verdict:
     """Checkout (stop at the first failure, non-interactive) on a simulated rack with
-    ``case`` injected."""
+    ``case`` injected; ``sim_errors``: the seed of the rack's imperfections (sim/errors.py;
+    0: the perfect rack)."""
     from tools.checkout import Checkout, load_checkout_config
     from tools.checkout.target import SimTarget
     cfg = config if config is not None else load_checkout_config(None)
     t0 = time.monotonic()
-    target = SimTarget(rack)
+    target = SimTarget(rack, sim_errors=sim_errors)
     try:
         target.inject_fault(case.spec)
         report = Checkout(target, cfg, interactive=False, say=lambda line: None).run()
@@ -295,14 +296,15 @@ class Figures:
 
 
 def run_matrix(which: list[Case], rack: RackConfig | None = None,
-               progress: Callable[[int, int, Verdict], None] | None = None) -> Figures:
-    """Checkout on every case of ``which``; the figures."""
+               progress: Callable[[int, int, Verdict], None] | None = None, sim_errors: int = 0) -> Figures:
+    """Checkout on every case of ``which`` (on the rack with the imperfections of seed
+    ``sim_errors``); the figures."""
     from tools.checkout import load_checkout_config
     rack = rack if rack is not None else load_rack()
     cfg = load_checkout_config(None)
     figs = Figures()
     for i, c in enumerate(which):
-        v = run_case(c, rack, cfg)
+        v = run_case(c, rack, cfg, sim_errors)
         figs.verdicts.append(v)
         if progress is not None:
             progress(i + 1, len(which), v)

@@ -271,9 +271,10 @@ class Checkout:
                 continue
             codes = self.codes.of(c.kind, c.slot)
             found = stuck_bits(codes, DATA_BITS[c.kind])
+            found += [f for f in noise_split(codes, DATA_BITS[c.kind]) + self._idle_split(c) if f not in found]
             n, k = seen.get(c.board, (0, 0))
             seen[c.board] = (n + len(codes), k + bool(found))
-            for bit, v in found:
+            for bit, v in dict.fromkeys(found):
                 u = np.unique(codes)
                 self._record_quiet("data bits", c.name, "data bits (diagnosis)" if stopping else "data bits",
                                    False, f"bit {bit} stuck at {v}", detail=(
@@ -287,6 +288,24 @@ class Checkout:
                 self.record("data bits", board, "data bits", True, n, detail=(
                     "no stuck bit seen: a bit is judged where a channel's codes swept across it densely "
                     "(low bits of moving joints and driven inputs; a bit no channel swept is not judged)"))
+
+    def _idle_split(self, c, evidence: int | None = None) -> list[tuple[int, int]]:
+        """:func:`noise_split` of channel ``c``'s codes in the idle capture (none taken: [])."""
+        if self._capture is None or c.kind not in DATA_BITS:
+            return []
+        return noise_split(self._capture[f"{c.kind}_counts"][:, c.slot].astype(np.int64), DATA_BITS[c.kind],
+                           evidence)
+
+    def _split_why(self, c) -> str:
+        """A quiet channel's idle noise split by a stuck data bit, said for its failing idle or
+        noise row ("" when its noise shows none). The row has failed already, so one sample
+        one bit away from the rest is reason enough to name the bit."""
+        found = self._idle_split(c, evidence=1)
+        if not found:
+            return ""
+        b, v = found[0]
+        return (f"; data bit D{b} stuck at {v}: its idle noise reads in two groups {1 << b} codes apart "
+                f"(D{b} the same in every code; with D{b} put back they join into one)")
 
     # ------------------------------------------------------------------ idle capture
     def capture(self) -> dict[str, np.ndarray]:
@@ -325,7 +344,7 @@ class Checkout:
             self.record("resolvers", c.name, "noise (peak-peak)", pp <= max_noise, round(pp, 2), 0,
                         max_noise, "counts",
                         f"mean {wrap_angle(float(np.mean(ang))):.4f} rad over "
-                        f"{len(ang)} samples")
+                        f"{len(ang)} samples" + ("" if pp <= max_noise else self._split_why(c)))
             self._within_travel(c.name, float(np.mean(ang)))
 
     def _within_travel(self, signal: str, angle: float) -> None:
@@ -373,7 +392,7 @@ class Checkout:
                 mean = float(np.mean(x))
                 worst = float(x[np.argmax(np.abs(x - (lo + hi) / 2))])
                 ok = bool(np.all((x >= lo) & (x <= hi)))
-                why = "" if ok else "; " + _idle_why(int(round(float(np.mean(cap["adc_counts"][:, c.slot])))),
+                why = "" if ok else self._split_why(c) or "; " + _idle_why(int(round(float(np.mean(cap["adc_counts"][:, c.slot])))),
                                                     lo, hi, self.t.rack.channel(c.name).scale
                                                     if g["quantity"] == "value" else 1.0)
                 self.record("adc", c.name, f"idle: {g['name']}", ok, round(mean, 5), lo, hi, units,
@@ -382,7 +401,7 @@ class Checkout:
             counts = cap["adc_counts"][:, c.slot].astype(int)
             pp = int(counts.max() - counts.min())
             self.record("adc", c.name, "noise (peak-peak)", pp <= max_noise, pp, 0, max_noise, "counts",
-                        f"{len(counts)} samples ({where})")
+                        f"{len(counts)} samples ({where})" + ("" if pp <= max_noise else self._split_why(c)))
 
     # ------------------------------------------------------------------ links
     def _group_links(self) -> None:
@@ -1076,6 +1095,8 @@ class CodeLog:
         frame = int(s.frame)
         if frame == self._last or len(self._rows["adc"]) >= CODE_LOG_KEEP:
             return  # the same frame read twice adds nothing
+        if ServiceState(int(s.service_state)) in (ServiceState.STARTING, ServiceState.STOPPED):
+            return  # no sample yet (the area's zeros), or none any more: no code read
         self._last = frame
         self._rows["rtd"].append(np.array(s["rtd_counts"], dtype=np.int64))
         self._rows["adc"].append(np.array(s["adc_counts"], dtype=np.int64))
@@ -1111,6 +1132,75 @@ def stuck_bits(codes: np.ndarray, nbits: int) -> list[tuple[int, int]]:
     return out
 
 
+def noise_split(codes: np.ndarray, nbits: int, evidence: int | None = None) -> list[tuple[int, int]]:
+    """The bits of a quiet input's ``codes`` stuck at 0 or 1: (bit, value), read from its noise.
+
+    A quiet input's noise reads as one unimodal group of neighbouring codes. Where the group
+    straddles the edge of a 2^b block, bit ``b`` stuck moves the codes on one side by 2^b:
+    the group reads with a hole, bit ``b`` is the same in every code, and each code read
+    could have been itself or itself with bit ``b`` flipped. The bit is named when (1) some
+    window narrower than what was read holds one of the two for every code, and the codes it
+    holds fill it with no hole but chance's (the group put back together), and (2) the hole is
+    no chance: between two codes read ``n1`` and ``n2`` times, a healthy unimodal group has
+    each missing code at least min(n1, n2) times on average, so their product with the
+    missing codes must reach :data:`NOISE_EVIDENCE` (a stray tail sample beyond a hole is
+    noise; ``evidence`` instead where a failure has already been judged and only its cause is
+    asked: 1). A healthy group has no such hole, or no window narrower. A group wider than
+    :data:`NOISE_SPAN` is no quiet input's noise and is not judged here."""
+    u, n = np.unique(codes, return_counts=True)
+    if len(u) < 2:
+        return []
+    if _hole_evidence(u, n) < (NOISE_EVIDENCE if evidence is None else evidence):
+        return []
+    out = []
+    for b in range(nbits):
+        bit = (u >> b) & 1
+        if bit.min() != bit.max():
+            continue
+        alt = u ^ (1 << b)
+        for lo in np.unique(np.concatenate([u, alt])):
+            # the narrowest window from lo: each code's nearest reading at or above lo
+            near = np.where(u >= lo, np.where(alt >= lo, np.minimum(u, alt), u), alt)
+            if (near < lo).any():
+                continue
+            hi = int(near.max())
+            if hi - lo >= int(u[-1] - u[0]) or hi - lo > NOISE_SPAN:
+                continue
+            if _hole_evidence(*_held(u, alt, n, lo, hi)) < NOISE_EVIDENCE:
+                out.append((b, int(bit[0])))
+                break
+    return out
+
+
+def _hole_evidence(u: np.ndarray, n: np.ndarray) -> int:
+    """How sure a hole in a group of codes ``u`` (read ``n`` times each) is no chance: the most,
+    over its holes, of missing codes x the fewer reads of the codes either side (0: none)."""
+    if len(u) < 2:
+        return 0
+    return int(((np.diff(u) - 1) * np.minimum(n[:-1], n[1:])).max())
+
+
+def _held(u: np.ndarray, alt: np.ndarray, n: np.ndarray, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+    """The codes in ``lo``..``hi`` that each read code could have been (itself or ``alt``), and
+    how often each could have been read: the group put back together."""
+    got: dict[int, int] = {}
+    for x, y, k in zip(u.tolist(), alt.tolist(), n.tolist()):
+        for c in {x, y}:
+            if lo <= c <= hi:
+                got[c] = got.get(c, 0) + k
+    keys = sorted(got)
+    return np.array(keys, dtype=np.int64), np.array([got[c] for c in keys], dtype=np.int64)
+
+
+#: the widest group of codes a quiet input's noise reads (assumed: +-8 codes, beyond any
+#: healthy A/D's or resolver's noise, ``[adc] max_noise_counts``)
+NOISE_SPAN = 16
+#: how many samples a hole in a quiet input's codes must have missed before it counts as a
+#: stuck bit's (missing codes x the fewer reads of the codes either side; assumed: a
+#: healthy code read 8 times on average is missed in a run with probability e^-8, 0.03 %)
+NOISE_EVIDENCE = 8
+
+
 def _longest_run_span(u: np.ndarray, joined: np.ndarray) -> int:
     """The largest ``u[j] - u[i]`` over runs of neighbours all ``joined``."""
     best, start = 0, 0
@@ -1141,16 +1231,18 @@ def _tach_diag(v: float, expected: float, travel: float, mean_tach: float, swing
         return (f"; TACH NOT RESPONDING (dead or stuck input: it moved {swing:.3g} rad/s "
                 f"while the resolver travelled {travel:+.4f} rad)")
     moved = abs(travel) >= MOVED_FRACTION * abs(expected)
-    if (moved and mean_tach * travel < 0) or (not moved and mean_tach * v < 0):
+    # a tach reading below MOVED_FRACTION of the command is its noise about 0: no sign to judge
+    against = mean_tach * v < 0 and abs(mean_tach) >= MOVED_FRACTION * abs(v)
+    if (moved and mean_tach * travel < 0) or (not moved and against):
         return "; TACH POLARITY REVERSED"
-    if mean_tach * v < 0 and no_current:
+    if not against:
+        return ""
+    if no_current:
         return ("; MOVED AGAINST THE COMMAND WITH NO MOTOR CURRENT (tach and resolver agree): the drive "
                 "does not answer (its PWM stage switch, +28 V and +/-15 V, the amplifier); gravity or a load "
                 "moved it")
-    if mean_tach * v < 0:
-        return ("; MOVED AGAINST THE COMMAND (tach and resolver agree, with motor current): a reversed "
-                "drive (motor or amplifier wiring)")
-    return ""
+    return ("; MOVED AGAINST THE COMMAND (tach and resolver agree, with motor current): a reversed "
+            "drive (motor or amplifier wiring)")
 
 
 #: a move's resolver travel of at least this fraction of the expected counts as motion

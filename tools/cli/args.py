@@ -101,7 +101,8 @@ def add_sim_errors(parser) -> None:
     parser.add_argument("--sim-errors", type=sim_errors_seed, default=0, metavar="SEED",
                         help="simulated rack only: give it a real rack's imperfections, drawn from SEED: "
                              "ADC/DAC gain and offset, resolver zeros, tach scales, amplifier gains, F/T "
-                             "bias and drift (docs/simulated-arm.md; 0, the default: none)")
+                             "bias and drift, A/D and resolver noise (docs/simulated-arm.md; 0, the default: "
+                             "none)")
 
 
 def shoulder_roll_degrees(text: str) -> int:

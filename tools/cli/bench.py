@@ -41,6 +41,7 @@ import os
 import sys
 
 import bench
+from tools.cli.args import sim_errors_seed
 
 
 def _names() -> list[str]:
@@ -89,6 +90,9 @@ def add_parser(sub):
                         "cases (default: the whole checkout fault matrix)")
     p.add_argument("--seed", type=int, default=None,
                    help="chaos: the seed of the kill plan (default 20); faults: the sample's (default 1)")
+    p.add_argument("--sim-errors", type=sim_errors_seed, default=0, metavar="SEED",
+                   help="faults: run the matrix on a simulated rack with a real rack's imperfections drawn "
+                        "from SEED (noise among them; docs/simulated-arm.md; 0, the default: the perfect rack)")
     p.add_argument("--kinds", default=None, metavar="KIND,...",
                    help="chaos: which process kinds (default all: service, controller, recorder, console, "
                         "bridge, gateway, export)")
@@ -236,7 +240,7 @@ def _run_long(name: str, mod, args, kinds: tuple[str, ...] | None) -> int | None
         mod.run(trials=args.trials, seed=args.seed, as_json=args.json, realtime=args.realtime,
                 **({"kinds": kinds} if kinds else {}))
     elif name == "faults":
-        mod.run(trials=args.trials, seed=args.seed, as_json=args.json)
+        mod.run(trials=args.trials, seed=args.seed, as_json=args.json, sim_errors=args.sim_errors)
     else:
         rep = mod.run(minutes=SOAK_MINUTES if args.minutes is None else args.minutes, as_json=args.json,
                       realtime=args.realtime)

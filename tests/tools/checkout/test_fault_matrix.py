@@ -117,3 +117,61 @@ def test_the_matrix_tells_the_undetectable_cases_from_the_rack_s_ground_truth(sp
         assert not v.detected  # bit for bit a healthy run, or nothing measured it: the checkout passed
     else:
         assert v.right, v.first
+
+
+def _stick(codes, bit: int, value: int):
+    import numpy as np
+    return (np.asarray(codes) & ~(1 << bit)) | (value << bit)
+
+
+def test_a_quiet_inputs_noise_split_by_a_stuck_bit_names_the_bit_and_healthy_noise_never():
+    """:func:`noise_split` on seeded Gaussian noise (the simulated rack's, 0.3..2 counts rms)
+    about many idle values: no healthy group is ever named; a group about 0 V with a bit
+    stuck (every bit of the 12, each value) is named that bit and no other."""
+    import numpy as np
+    from tools.checkout.runner import noise_split
+    rng = np.random.default_rng(11)
+    for centre in np.linspace(2040.0, 2070.0, 31):
+        for sigma in (0.3, 0.8, 1.2, 2.0):
+            for n in (32, 1000):
+                codes = np.round(rng.normal(centre, sigma, n)).astype(np.int64)
+                assert noise_split(codes, 12) == [], (centre, sigma, sorted(set(codes.tolist())))
+    for bit in range(12):
+        for value in (0, 1):
+            # a group about 0 V (0x7FF | 0x800: every bit's block edge): a bit stuck moves
+            # the codes on one side away from the other (0x7FC.. down with D2 at 0, 0x800.. up
+            # with D2 at 1); stuck towards the group it folds onto it and shows no hole
+            codes = np.round(rng.normal(2047.5, 1.0, 1000)).astype(np.int64)
+            stuck = _stick(codes, bit, value)
+            assert (stuck != codes).any()
+            assert noise_split(stuck, 12) == [(bit, value)], (bit, value, sorted(set(stuck.tolist())))
+
+
+def test_one_stray_sample_beyond_a_hole_is_noise_unless_a_failure_asks_why():
+    import numpy as np
+    from tools.checkout.runner import noise_split
+    codes = np.array([2048] * 10 + [2049] * 12 + [2050] * 8 + [2051] * 3 + [2043])  # 0x7FB: 0x7FF with D2 at 0
+    assert noise_split(codes, 12) == []  # one sample: no evidence the idle noise is split
+    assert noise_split(codes, 12, evidence=1) == [(2, 0)]  # a failed row asks which bit explains it
+
+
+def test_checkout_on_a_noisy_rack_names_a_low_a_d_bit_from_the_idle_noise():
+    """On a seeded rack (its A/D noise), a motor-current monitor's D2 stuck at 0 splits the
+    idle noise: the row that fails names the bit; the same rack healthy passes."""
+    from tools.checkout import Checkout, load_checkout_config
+    from tools.checkout.target import make_sim_target
+    cfg = load_checkout_config(None)
+    for fault in (None, "stuck-bit:adc@SCAN[3]:2=0"):
+        t = make_sim_target(None, sim_errors=2)
+        try:
+            if fault:
+                t.inject_fault(fault)
+            rep = Checkout(t, cfg, interactive=False, say=lambda line: None).run()
+        finally:
+            t.close()
+        fails = [r for r in rep.as_dict()["results"] if r["status"] == "FAIL"]
+        if fault is None:
+            assert fails == []
+        else:
+            assert fails and fails[0]["channel"] == "elbow_pitch_motor_current"
+            assert "data bit D2 stuck at 0" in fails[0]["detail"], fails[0]
