@@ -346,6 +346,7 @@ class Checkout:
                         f"mean {wrap_angle(float(np.mean(ang))):.4f} rad over "
                         f"{len(ang)} samples" + ("" if pp <= max_noise else self._split_why(c)))
             self._within_travel(c.name, float(np.mean(ang)))
+            self._as_seen(c, float(np.mean(ang)), int(np.median(cap["rtd_counts"][:, c.slot])))
 
     def _within_travel(self, signal: str, angle: float) -> None:
         """A resolver angle outside its joint's hard stops (pfma-model 8.2, ``pfma.arm``) is
@@ -366,6 +367,52 @@ class Checkout:
                     f"(+/- {math.degrees(margin):g})" + ("" if ok else
                     ": the joint cannot be there: a stuck bit in the angle word (a high bit, stuck at the "
                     "other value), a resolver zero far off, or its wiring"))
+
+    def _seen_angle(self, joint: str, reads_deg: float) -> tuple[float | None, str]:
+        """The joint's angle as a person reads it on the arm (deg) and who read it: the
+        simulated rack's stimulus (its true angle), the operator (interactive), or nobody."""
+        st = self.t.stimulus
+        if st is not None:
+            q = st.joint_angle_rad(joint)
+            return (None if q is None else math.degrees(wrap_angle(q))), "the simulated arm's true angle (stimulus)"
+        if not self.interactive:
+            return None, "not checked: no operator (non-interactive)"
+        answer = self.ask(f">>> OPERATOR: {joint}: the resolver reads {reads_deg:+.1f} deg. Its angle on the "
+                          "arm's scale in deg (Enter: skip): ").strip()
+        if not answer:
+            return None, "skipped by the operator"
+        try:
+            v = float(answer)
+        except ValueError:
+            return None, f"not checked: {answer!r} is not an angle in degrees"
+        return (v if math.isfinite(v) else None), "read by the operator on the arm"
+
+    def _as_seen(self, c, angle: float, code: int) -> None:
+        """The resolver's angle against the joint's as a person sees it on the arm: a high
+        data bit stuck at the other value moves the reading by 2^b counts and stays within
+        the joint's travel, so only a look at the arm finds it (``seen_tolerance_deg``)."""
+        from drivers.rtd.registers import VMIVME4940
+        joint = self.t.rack.channel(c.name).joint
+        if not joint:
+            return
+        reads = math.degrees(wrap_angle(angle))
+        seen, who = self._seen_angle(joint, reads)
+        tol = float(self.cfg.num("resolvers", "seen_tolerance_deg"))
+        if seen is None:
+            self.record("resolvers", c.name, "angle as seen on the arm", None, detail=who)
+            return
+        diff = math.degrees(wrap_angle(math.radians(reads - seen)))
+        ok = abs(diff) <= tol
+        why = ""
+        if not ok:
+            lsb = math.degrees(float(VMIVME4940.constants["lsb_rad"]))
+            bits = [b for b in range(DATA_BITS["rtd"]) if abs(abs(diff) - (1 << b) * lsb) <= tol / 2
+                    and (code >> b) & 1 == (diff > 0)]
+            why = (f": {abs(diff):.1f} deg is {1 << bits[-1]} counts: data bit D{bits[-1]} stuck at {int(diff > 0)} "
+                   f"(board {c.board} ch {c.channel}; or the resolver's zero is that far off)" if bits else
+                   ": the resolver's zero is off, or its wiring (no one data bit explains it)")
+        self.record("resolvers", c.name, "angle as seen on the arm", ok, round(diff, 2), -tol, tol, "deg",
+                    f"the resolver reads {reads:+.2f} deg, {who} {seen:+.2f} deg{why}")
 
     # ------------------------------------------------------------------ ADC
     def _group_adc(self) -> None:

@@ -140,6 +140,13 @@ class FakeStimulus:
         """Drive the 16 user I/F box inputs."""
         self.world.set_user_inputs(int(word))
 
+    def joint_angle_rad(self, joint: str) -> float | None:
+        """The joint's true angle, as a person reads it on the arm's scale (the simulated
+        arm's state, not the resolver's reading); None for a joint the arm model lacks."""
+        from fakes.arm_params import AXES
+        axis = next((i for i, a in enumerate(AXES) if a.joint == joint), None)
+        return None if axis is None else float(self.world.sim.arm.q[axis])
+
     def release(self) -> None:
         """Stick centred, switches open (inputs keep their last word)."""
         self._axes = [0.0] * 6

@@ -175,3 +175,53 @@ def test_checkout_on_a_noisy_rack_names_a_low_a_d_bit_from_the_idle_noise():
         else:
             assert fails and fails[0]["channel"] == "elbow_pitch_motor_current"
             assert "data bit D2 stuck at 0" in fails[0]["detail"], fails[0]
+
+
+def _resolver_rows(fault: str | None, *, operator: dict[str, str] | None = None) -> list[dict]:
+    """The resolvers group's rows on seeded rack 1 with ``fault``; with ``operator`` (joint ->
+    the answer typed) the stimulus is taken away and an operator is asked instead."""
+    from tools.checkout import Checkout, load_checkout_config
+    from tools.checkout.target import make_sim_target
+    t = make_sim_target(None, sim_errors=1)
+    asked: list[str] = []
+
+    def ask(prompt: str) -> str:
+        asked.append(prompt)
+        return next((a for j, a in (operator or {}).items() if f"OPERATOR: {j}:" in prompt), "")
+    try:
+        if fault:
+            t.inject_fault(fault)
+        if operator is not None:
+            t.stimulus = None
+        rep = Checkout(t, load_checkout_config(None), only=["resolvers"], interactive=operator is not None,
+                       say=lambda line: None, ask=ask, keep_going=True).run()
+    finally:
+        t.close()
+    rows = [r for r in rep.as_dict()["results"] if r["check"] == "angle as seen on the arm"]
+    assert operator is None or len(asked) == len(rows)
+    return rows
+
+
+def test_a_resolvers_high_bit_stuck_within_the_travel_is_found_by_the_angle_seen_on_the_arm():
+    """D12 of the shoulder pitch's resolver stuck at 1 reads the joint 90 deg off (inside its
+    travel: no other row can tell); the angle a person sees on the arm (here the simulated
+    arm's true angle) finds it and names the bit; the healthy rack agrees within 5 deg."""
+    healthy = _resolver_rows(None)
+    assert len(healthy) == 6 and all(r["status"] == "PASS" for r in healthy), healthy
+    rows = _resolver_rows("stuck-bit:rtd2@CH1:12=1")
+    bad = [r for r in rows if r["status"] == "FAIL"]
+    assert [r["channel"] for r in bad] == ["shoulder_pitch_angle"], rows
+    assert "data bit D12 stuck at 1" in bad[0]["detail"] and "true angle (stimulus)" in bad[0]["detail"]
+
+
+def test_on_a_real_rack_the_operator_reads_the_angle_and_may_skip():
+    """Without a stimulus the operator is asked each joint's angle: a reading that agrees
+    passes, one 120 deg off fails naming no bit (none explains it), a blank is a skip."""
+    rows = _resolver_rows(None, operator={"shoulder_yaw": "0", "shoulder_pitch": "150", "elbow_pitch": "x"})
+    by = {r["channel"]: r for r in rows}
+    assert by["shoulder_yaw_angle"]["status"] == "PASS", by["shoulder_yaw_angle"]
+    assert by["shoulder_pitch_angle"]["status"] == "FAIL"
+    assert "read by the operator" in by["shoulder_pitch_angle"]["detail"]
+    assert "no one data bit explains it" in by["shoulder_pitch_angle"]["detail"]
+    assert by["elbow_pitch_angle"]["status"] == "SKIP" and "not an angle" in by["elbow_pitch_angle"]["detail"]
+    assert by["wrist_roll_angle"]["status"] == "SKIP" and "skipped by the operator" in by["wrist_roll_angle"]["detail"]
