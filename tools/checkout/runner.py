@@ -270,11 +270,16 @@ class Checkout:
             if c.kind not in DATA_BITS:
                 continue
             codes = self.codes.of(c.kind, c.slot)
-            found = stuck_bits(codes, DATA_BITS[c.kind])
-            found += [f for f in noise_split(codes, DATA_BITS[c.kind]) + self._idle_split(c) if f not in found]
+            nbits = DATA_BITS[c.kind]
+            found = stuck_bits(codes, nbits)
+            found += noise_split(codes, nbits) + self._idle_split(c)
+            for group in code_groups(codes):  # each level the input held (idle, deflected, driven)
+                found += noise_split(group, nbits)
+            if c.kind == "rtd":
+                found += angle_jumps(self.codes.of(c.kind, c.slot, in_order=True), nbits)
             n, k = seen.get(c.board, (0, 0))
             seen[c.board] = (n + len(codes), k + bool(found))
-            for bit, v in dict.fromkeys(found):
+            for bit, v in list(dict.fromkeys(found))[:1]:  # the first reading names it; one row a channel
                 u = np.unique(codes)
                 self._record_quiet("data bits", c.name, "data bits (diagnosis)" if stopping else "data bits",
                                    False, f"bit {bit} stuck at {v}", detail=(
@@ -670,6 +675,119 @@ class Checkout:
                                    + f". Turn its {switches} on, then run `pfma checkout --only joints`")
                 continue
             self._open_loop(j, roles["rate"].signal, roles["angle"].signal, roles["current_limit"].signal)
+        self._gripper(panel)
+
+    def _gripper(self, panel: PanelState) -> None:
+        """The gripper's open-loop test (``[gripper]``): open, then close by as much, at a
+        bounded command and current limit, every joint's limit 0 (brakes set); the tach's
+        sign and size against the command and the motor current's, one row per move, each
+        failure with what the readings say (no current, tach reversed, a held jaw)."""
+        rack = self.t.rack
+        ch = {q: rack.find(GRIPPER, q) for q in ("gripper_command", "rate", "motor_current", "current_limit")}
+        missing = [q for q, c in ch.items() if c is None]
+        if missing or ch["current_limit"].signal not in self.lay.current_limit_names:
+            self.record("joints", GRIPPER, "open-loop test", None,
+                        detail=f"no {' or '.join(missing) or 'current_limit'} channel for the gripper in this rack")
+            return
+        if panel.is_off("pwm", GRIPPER):
+            self.record("joints", GRIPPER, "open-loop test", None,
+                        detail=f"not run: {panel.who()} its PWM output stage switch is off (no motor current). "
+                               f"Turn its {SWITCH_TEXT['pwm']} switch on, then run `pfma checkout --only joints`")
+            return
+        g = lambda key: self.cfg.get("gripper", key)  # noqa: E731 - one table's lookups
+        limit = ch["current_limit"].signal
+        names = list(self.lay.current_limit_names)
+        limits = [0.0] * len(names)
+        i_lim = float(g("current_limit_fraction")) * float(self.cfg.joint(GRIPPER, "dac_full_scale_v")) \
+            * float(rack.channel(limit).scale)
+        limits[names.index(limit)] = i_lim
+        cmd = self.t.commander()
+        n_joints = len(self.lay.joint_names)
+        try:
+            cmd.keepalive = True
+            if not self._arm(cmd, GRIPPER, [0.0] * n_joints, limits, None, gripper=0.0):
+                return
+            for sign in (1, -1):
+                self._gripper_move(cmd, sign * float(g("command_v")), ch["rate"].signal,
+                                   ch["motor_current"].signal, i_lim)
+                self.t.wait(float(g("pause_s")))
+        finally:
+            try:
+                cmd.set(gripper=0.0)
+                self._stop_outputs(cmd, n_joints, len(names))
+                self.t.wait(0.02)
+            except PfmaError:
+                pass  # the service is gone: its watchdog has made the outputs safe
+            finally:
+                cmd.keepalive = False
+
+    def _gripper_move(self, cmd, v: float, tach: str, current: str, i_lim: float) -> None:
+        """One gripper move at ``v`` volts: its row, with the diagnosis when it fails."""
+        g = lambda key: self.cfg.get("gripper", key)  # noqa: E731 - one table's lookups
+        move_s = float(g("move_s"))
+        cmd.set(gripper=v)
+        t0, xs, peak = self.t.now(), [], 0.0
+        while self.t.now() - t0 < move_s:
+            self.t.wait(self.poll_s)
+            s = self.inputs()
+            if self.t.now() - t0 >= move_s * (1.0 - float(g("tach_window"))):
+                xs.append(float(s.value(tach)))
+            i = float(s.value(current))
+            peak = i if abs(i) > abs(peak) else peak
+        cmd.set(gripper=0.0)
+        expected = v * float(g("tach_per_command"))
+        mean = float(np.mean(xs)) if xs else float("nan")
+        lo, hi = (float(r) * expected for r in g("rate_ratio"))
+        lo, hi = min(lo, hi), max(lo, hi)
+        ok = lo <= mean <= hi and abs(peak) >= float(g("min_current_fraction")) * i_lim
+        tag = "open" if v > 0 else "close"
+        why = "" if ok else "; " + self._gripper_why(mean, peak, expected, i_lim)
+        self.record("joints", tach, f"gripper open-loop {tag}", ok, round(mean, 4), round(lo, 4), round(hi, 4), "V",
+                    f"command {v:+.2f} V at a {i_lim:.2f} A limit: tach mean {mean:+.3f} V of {expected:+.2f} V, "
+                    f"peak motor current {peak:+.3f} A ({current}){why}")
+
+    def _gripper_why(self, tach: float, peak: float, expected: float, i_lim: float) -> str:
+        """What a failed gripper move's tach and motor current say (the jaw has no position
+        sensor: the current's sign is the drive's, the tach's the jaw's)."""
+        g = lambda key: float(self.cfg.get("gripper", key))  # noqa: E731 - one table's lookups
+        moved = abs(tach) >= 0.1 * abs(expected)
+        over = max(abs(float(r)) for r in self.cfg.get("gripper", "rate_ratio")) * abs(expected)
+        if abs(tach) > over:  # driven far past the command: its DAC output is not the command
+            off = tach - expected
+            b = round(math.log2(abs(off) / DAC_VOLTS_PER_CODE))
+            bit = f"data bit D{b} stuck at {int(off > 0)} ({1 << b} codes)" if 0 <= b < 12 else "a data bit stuck"
+            return (f"the jaw ran at {tach:+.2f} V for {expected:+.2f} V: the drive's input is not the command: "
+                    f"{bit} on DAC channel {self.t.rack.find(GRIPPER, 'gripper_command').signal}, or the amplifier")
+        if abs(peak) < g("no_current_fraction") * i_lim:
+            return ("no motor current: check the gripper's PWM stage switch, +28 V and +/-15 V (the servo "
+                    "chassis panel), and the amplifier" + ("" if not moved else "; yet the tach moved: its monitor?"))
+        if moved and tach * expected < 0 and peak * expected > 0:
+            return "TACH POLARITY REVERSED (the motor current pushes the commanded way, the tach reads the other)"
+        if moved and tach * expected < 0:
+            return "a reversed drive (motor current and tach both against the command: motor or amplifier wiring)"
+        if not moved and abs(peak) >= g("stalled_current_fraction") * i_lim:
+            return ("the jaw does not move with the motor current at its limit: held by a load (an object in "
+                    "the jaws, a snag) or jammed")
+        return "the tach's size is off the command's: its scale, its filter card, or a data bit (the data-bit rows)"
+
+    def _arm(self, cmd, who: str, rates: list[float], limits: list[float],
+             disarmed: Callable[[], None] | None = None, **fields) -> bool:
+        """Arm the service with these rates and current limits (and ``fields``), after
+        ``disarmed`` ran with it disarmed (it may change ``limits``); a failed arm is a row
+        naming ``who`` and the service's last words. True when armed."""
+        cmd.set(joint_rate_rad_s=rates, current_limit_a=limits, arm_request=0, **fields)
+        self.t.wait(0.05)
+        rc = int(cmd.record["rearm_counter"]) + 1
+        if disarmed is not None:
+            disarmed()
+        cmd.set(joint_rate_rad_s=rates, current_limit_a=limits, arm_request=1, rearm_counter=rc, **fields)
+        if self.t.wait_until(lambda: self.inputs().service_state == ServiceState.ARMED,
+                             float(self.cfg.joint(who, "arm_timeout_s")), self.poll_s):
+            return True
+        st = ServiceState(self.inputs().service_state).name
+        last = [m.text for m in self.t.reader.messages()][-2:]
+        self.record("joints", who, "arm", False, st, detail=f"service did not arm; messages: {last}")
+        return False
 
     def _panel(self) -> PanelState:
         """The servo chassis' front panel before the arm moves: as stated, asked of the
@@ -690,10 +808,8 @@ class Checkout:
         for kind, channel, names in (("pwm", "pwm_stage_switches", [*joints, GRIPPER]),
                                      ("brake", "brake_release_switches", joints)):
             off = panel.off_joints(kind, names)
-            note = ("; the checkout does not drive the gripper"
-                    if kind == "pwm" and GRIPPER in off else "")
             self.record("panel", channel, PANEL_CHECKS[kind], None,
-                        f"off: {', '.join(off)}" if off else "all on", detail=how + note)
+                        f"off: {', '.join(off)}" if off else "all on", detail=how)
         return panel
 
     def _stop_outputs(self, cmd, n_joints: int, n_limits: int) -> None:
@@ -731,26 +847,21 @@ class Checkout:
         moves: list[Move] = []
         try:
             cmd.keepalive = True
-            cmd.set(joint_rate_rad_s=rates, current_limit_a=limits, arm_request=0)
-            self.t.wait(0.05)
-            rc = int(cmd.record["rearm_counter"]) + 1
             bits = bool(cfg.joint(j, "dac_bits")) and bool(current)
-            # the monitor's reading while no current can flow (not armed, limits 0): the
-            # DAC-bit check's zero, and a monitor fault named on the monitor, not the DAC
-            zero = DacBits.monitor_zero(self, j, current, limit) if bits else 0.0
-            # the DAC-bit check first, brake set; then the moves' limit
-            limits[li] = float(cfg.joint(j, "dac_bits_limit_v")) * float(self.t.rack.channel(limit).scale) \
-                if bits else i_lim
-            cmd.set(joint_rate_rad_s=rates, current_limit_a=limits, arm_request=1, rearm_counter=rc)
-            armed = self.t.wait_until(lambda: self.inputs().service_state == ServiceState.ARMED,
-                                      float(cfg.joint(j, "arm_timeout_s")), self.poll_s)
-            if not armed:
-                st = ServiceState(self.inputs().service_state).name
-                last = [m.text for m in self.t.reader.messages()][-2:]
-                self.record("joints", j, "arm", False, st, detail=f"service did not arm; messages: {last}")
+            zero = [0.0]
+
+            def disarmed() -> None:
+                # the monitor's reading while no current can flow (not armed, limits 0): the
+                # DAC-bit check's zero, and a monitor fault named on the monitor, not the DAC
+                if bits:
+                    zero[0] = DacBits.monitor_zero(self, j, current, limit)
+                # the DAC-bit check first, brake set; then the moves' limit
+                limits[li] = float(cfg.joint(j, "dac_bits_limit_v")) * float(self.t.rack.channel(limit).scale) \
+                    if bits else i_lim
+            if not self._arm(cmd, j, rates, limits, disarmed):
                 return
             if bits:
-                DacBits(self, j, current, cmd, rates, limits, ji, li, zero).run()
+                DacBits(self, j, current, cmd, rates, limits, ji, li, zero[0]).run()
                 limits[li] = i_lim
                 cmd.set(joint_rate_rad_s=rates, current_limit_a=limits)
             try:
@@ -949,6 +1060,7 @@ ADC_ZERO_CODE = int(DVME611.constants["full_scale_counts"]) // 2
 ADC_VOLTS_PER_CODE = float(DVME611.constants["lsb_volts"])
 DAC_ZERO_CODE = int(VMIVME4100.constants["zero_code"])
 DAC_CODES = int(VMIVME4100.constants["full_scale_counts"])
+DAC_VOLTS_PER_CODE = float(VMIVME4100.constants["lsb_volts"])
 #: a code that one flipped data bit puts this near the idle value's code is named a stuck
 #: bit first (ASSUMED: 8 codes, 39 mV, above the idle noise of a healthy input)
 IDLE_FLIP_CODES = 8
@@ -1148,7 +1260,9 @@ class CodeLog:
         self._rows["rtd"].append(np.array(s["rtd_counts"], dtype=np.int64))
         self._rows["adc"].append(np.array(s["adc_counts"], dtype=np.int64))
 
-    def of(self, kind: str, slot: int) -> np.ndarray:
+    def of(self, kind: str, slot: int, in_order: bool = False) -> np.ndarray:
+        """One channel's codes, in the order read (``in_order``; the same either way: the log
+        keeps them so)."""
         rows = self._rows[kind]
         return np.array([r[slot] for r in rows], dtype=np.int64) if rows else np.zeros(0, dtype=np.int64)
 
@@ -1195,8 +1309,8 @@ def noise_split(codes: np.ndarray, nbits: int, evidence: int | None = None) -> l
     asked: 1). A healthy group has no such hole, or no window narrower. A group wider than
     :data:`NOISE_SPAN` is no quiet input's noise and is not judged here."""
     u, n = np.unique(codes, return_counts=True)
-    if len(u) < 2:
-        return []
+    if len(u) < (NOISE_MIN_CODES if evidence is None else 2):
+        return []  # too few codes to be noise: a signal held at two values is no split group
     if _hole_evidence(u, n) < (NOISE_EVIDENCE if evidence is None else evidence):
         return []
     out = []
@@ -1239,6 +1353,58 @@ def _held(u: np.ndarray, alt: np.ndarray, n: np.ndarray, lo: int, hi: int) -> tu
     return np.array(keys, dtype=np.int64), np.array([got[c] for c in keys], dtype=np.int64)
 
 
+def code_groups(codes: np.ndarray) -> list[np.ndarray]:
+    """The levels an input held over a run: its codes cut where neighbouring distinct codes
+    are more than :data:`GROUP_GAP` apart, each group with at least :data:`GROUP_SAMPLES`
+    reads (a passing transient is no level). Each is one quiet input's noise for
+    :func:`noise_split` (idle, a deflected stick, a joint driven at a steady rate)."""
+    if len(codes) == 0:
+        return []
+    u = np.unique(codes)
+    cuts = u[1:][np.diff(u) > GROUP_GAP]
+    edges = [int(u[0])] + [int(c) for c in cuts] + [int(u[-1]) + 1]
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        g = codes[(codes >= lo) & (codes < hi)]
+        if len(g) >= GROUP_SAMPLES:
+            out.append(g)
+    return out
+
+
+#: levels are cut where the codes leave more than this many codes out (assumed: wider than
+#: a quiet input's noise, ``NOISE_SPAN``, narrower than a stuck bit D6 and up moves a code,
+#: which :func:`noise_split` judges on the whole run or the idle capture)
+GROUP_GAP = 32
+#: reads a level needs to be judged (a transient passes through in a few)
+GROUP_SAMPLES = 40
+
+
+def angle_jumps(codes: np.ndarray, nbits: int) -> list[tuple[int, int]]:
+    """A resolver's data bits stuck, from its angle jumping as the joint moves (codes in the
+    order read): crossing the edge of a 2^b block with bit ``b`` stuck, the reading jumps by
+    2^b (plus the motion between two reads) and the bit is the same on both sides: the
+    stuck value. A healthy angle moves a few counts a read (wrapping at a turn); only bits
+    whose jump is well above that (D6 and up, 64 counts) are judged. [] when none."""
+    if len(codes) < 2:
+        return []
+    full = 1 << nbits
+    d = (np.diff(codes) + full // 2) % full - full // 2
+    out = []
+    for b in range(JUMP_MIN_BIT, nbits):
+        w = 1 << b
+        at = np.flatnonzero(np.abs(np.abs(d) - w) <= JUMP_SLACK)
+        same = [(int(codes[i]) >> b) & 1 for i in at if (int(codes[i]) >> b) & 1 == (int(codes[i + 1]) >> b) & 1]
+        if same and len(set(same)) == 1:
+            out.append((b, same[0]))
+    return out
+
+
+#: the lowest resolver bit judged from a jump, and how far from 2^b counts a jump may be (the
+#: motion between two reads; the checkout's moves, a runaway's 0.25 rad/s at most, move under
+#: 12 counts a read) (assumed)
+JUMP_MIN_BIT, JUMP_SLACK = 6, 16
+
+
 #: the widest group of codes a quiet input's noise reads (assumed: +-8 codes, beyond any
 #: healthy A/D's or resolver's noise, ``[adc] max_noise_counts``)
 NOISE_SPAN = 16
@@ -1246,6 +1412,9 @@ NOISE_SPAN = 16
 #: stuck bit's (missing codes x the fewer reads of the codes either side; assumed: a
 #: healthy code read 8 times on average is missed in a run with probability e^-8, 0.03 %)
 NOISE_EVIDENCE = 8
+#: the fewest distinct codes a group must read to be judged as noise (a noiseless input that
+#: sat at two values, 0x800 and a few codes below, is not a split group) (assumed)
+NOISE_MIN_CODES = 4
 
 
 def _longest_run_span(u: np.ndarray, joined: np.ndarray) -> int:

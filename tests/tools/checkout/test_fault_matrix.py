@@ -225,3 +225,31 @@ def test_on_a_real_rack_the_operator_reads_the_angle_and_may_skip():
     assert "no one data bit explains it" in by["shoulder_pitch_angle"]["detail"]
     assert by["elbow_pitch_angle"]["status"] == "SKIP" and "not an angle" in by["elbow_pitch_angle"]["detail"]
     assert by["wrist_roll_angle"]["status"] == "SKIP" and "skipped by the operator" in by["wrist_roll_angle"]["detail"]
+
+
+def test_a_resolver_bit_stuck_shows_as_a_jump_of_2_to_the_b_as_the_joint_moves():
+    """A joint moving through 600 counts at 3 counts a read: healthy, no jump (a turn's wrap
+    is no jump either); with D8 stuck at 1 (or D9 at 0 across its edge) the reading jumps by
+    2^b with the bit the same on both sides, which names it."""
+    import numpy as np
+    from tools.checkout.runner import angle_jumps
+    true = np.arange(16200, 16200 + 1800, 3) % (1 << 14)  # crosses the turn at 16384
+    assert angle_jumps(true, 14) == []
+    assert angle_jumps(_stick(true, 8, 1), 14) == [(8, 1)]
+    assert angle_jumps(_stick(true, 9, 0), 14) == [(9, 0)]
+
+
+def test_each_level_an_input_held_is_judged_for_its_noise():
+    """Idle, then a stick held at +5 V, each with noise: two levels (a transient between them
+    is none); D3 stuck at 1 splits the held level's noise, and only that level shows it."""
+    import numpy as np
+    from tools.checkout.runner import code_groups, noise_split
+    rng = np.random.default_rng(4)
+    idle = np.round(rng.normal(2048.3, 0.9, 400)).astype(np.int64)
+    held = np.round(rng.normal(3071.6, 0.9, 400)).astype(np.int64)  # 0xBFF | 0xC00
+    ramp = np.arange(2060, 3060, 50)
+    codes = np.concatenate([idle, ramp, held])
+    groups = code_groups(codes)
+    assert len(groups) == 2 and all(noise_split(g, 12) == [] for g in groups)
+    stuck = np.concatenate([idle, ramp, _stick(held, 3, 1)])
+    assert [noise_split(g, 12) for g in code_groups(stuck)] == [[], [(3, 1)]]

@@ -117,11 +117,11 @@ def test_non_interactive_run_records_the_panel_as_stated_and_skips_those_joints(
     assert all(r["status"] == SKIP and r["detail"].startswith("stated on the command line (--panel-off), "
                                                               "not checked by a person")
                for r in panel.values())
-    assert "the checkout does not drive the gripper" in panel["pwm_stage_switches"]["detail"]
     skipped = {r["channel"]: r["detail"] for r in res if r["check"] == "open-loop test"}
-    assert set(skipped) == {"elbow_pitch", "wrist_roll"}
+    assert set(skipped) == {"elbow_pitch", "wrist_roll", "gripper"}
     assert skipped["elbow_pitch"].startswith("not run: the command line (--panel-off) states its brake-release")
     assert "PWM output stage switch is off" in skipped["wrist_roll"]
+    assert "PWM output stage switch is off" in skipped["gripper"]
     assert all("pfma checkout --only joints" in t for t in skipped.values())
     ran = {r["channel"] for r in res if r["check"] == DIAG and r["status"] == PASS}
     assert ran == set(JOINTS) - {"elbow_pitch", "wrist_roll"}
