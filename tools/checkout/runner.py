@@ -349,7 +349,8 @@ class Checkout:
             self.record("resolvers", c.name, "noise (peak-peak)", pp <= max_noise, round(pp, 2), 0,
                         max_noise, "counts",
                         f"mean {wrap_angle(float(np.mean(ang))):.4f} rad over "
-                        f"{len(ang)} samples" + ("" if pp <= max_noise else self._split_why(c)))
+                        f"{len(ang)} samples" + ("" if pp <= max_noise else
+                                                 _drifted(ang, lsb, c.name) or self._split_why(c)))
             self._within_travel(c.name, float(np.mean(ang)))
             self._as_seen(c, float(np.mean(ang)), int(np.median(cap["rtd_counts"][:, c.slot])))
 
@@ -751,6 +752,11 @@ class Checkout:
         sensor: the current's sign is the drive's, the tach's the jaw's)."""
         g = lambda key: float(self.cfg.get("gripper", key))  # noqa: E731 - one table's lookups
         moved = abs(tach) >= 0.1 * abs(expected)
+        if abs(peak) < g("no_current_fraction") * i_lim:
+            return ("no motor current: check the gripper's PWM stage switch, +28 V and +/-15 V (the servo "
+                    "chassis panel), and the amplifier" + ("" if not moved else "; yet the tach moved: its monitor?"))
+        if moved and tach * expected < 0 and peak * expected > 0:
+            return "TACH POLARITY REVERSED (the motor current pushes the commanded way, the tach reads the other)"
         over = max(abs(float(r)) for r in self.cfg.get("gripper", "rate_ratio")) * abs(expected)
         if abs(tach) > over:  # driven far past the command: its DAC output is not the command
             off = tach - expected
@@ -758,11 +764,6 @@ class Checkout:
             bit = f"data bit D{b} stuck at {int(off > 0)} ({1 << b} codes)" if 0 <= b < 12 else "a data bit stuck"
             return (f"the jaw ran at {tach:+.2f} V for {expected:+.2f} V: the drive's input is not the command: "
                     f"{bit} on DAC channel {self.t.rack.find(GRIPPER, 'gripper_command').signal}, or the amplifier")
-        if abs(peak) < g("no_current_fraction") * i_lim:
-            return ("no motor current: check the gripper's PWM stage switch, +28 V and +/-15 V (the servo "
-                    "chassis panel), and the amplifier" + ("" if not moved else "; yet the tach moved: its monitor?"))
-        if moved and tach * expected < 0 and peak * expected > 0:
-            return "TACH POLARITY REVERSED (the motor current pushes the commanded way, the tach reads the other)"
         if moved and tach * expected < 0:
             return "a reversed drive (motor current and tach both against the command: motor or amplifier wiring)"
         if not moved and abs(peak) >= g("stalled_current_fraction") * i_lim:
@@ -893,7 +894,7 @@ class Checkout:
         for sign in signs:
             v = sign * rate
             expected = v * (p.move_s - p.lag)
-            m = self._drive_move(tach, angle, current, cmd, rates, ji, v, expected, p)
+            m = self._drive_move(tach, angle, current, cmd, rates, ji, v, expected, p, i_lim)
             tag = "+" if sign > 0 else "-"
             self._move_rows(j, tach, angle, current, tag, v, expected, m, i_lim, min_current, p, moves)
             if m.runaway:
@@ -902,7 +903,7 @@ class Checkout:
         self._stop_and_hold(j, tach, angle, cmd, rates, limits, li)
 
     def _drive_move(self, tach: str, angle: str, current: str, cmd, rates: list[float], ji: int,
-                    v: float, expected: float, p: "_MoveParams") -> "_Sampled":
+                    v: float, expected: float, p: "_MoveParams", i_lim: float) -> "_Sampled":
         """One open-loop move at ``v`` rad/s for ``move_s``: what the resolver, tach and
         motor current showed; a runaway makes the outputs safe at once and ends it."""
         m = _Sampled()
@@ -927,7 +928,8 @@ class Checkout:
                 m.left = ServiceState(s.service_state).name
             if abs(m.travel) > p.max_factor * abs(expected):
                 m.runaway = (f"runaway: {m.travel:+.4f} rad after {now - t0:.2f} s, more than "
-                             f"{p.max_factor:g} x the expected {expected:+.4f} rad; outputs made safe")
+                             f"{p.max_factor:g} x the expected {expected:+.4f} rad; outputs made safe"
+                             + _runaway_cause(m.currents, m.travel, i_lim))
                 self._stop_outputs(cmd, len(self.lay.joint_names), len(self.lay.current_limit_names))
                 break
         rates[ji] = 0.0
@@ -1459,6 +1461,33 @@ def _tach_diag(v: float, expected: float, travel: float, mean_tach: float, swing
                 "moved it")
     return ("; MOVED AGAINST THE COMMAND (tach and resolver agree, with motor current): a reversed "
             "drive (motor or amplifier wiring)")
+
+
+def _drifted(ang: np.ndarray, lsb: float, signal: str) -> str:
+    """A resolver that went one way over the idle capture (its end at least 80 % of its
+    peak-to-peak from its start, over 16 counts): the joint moved with every brake set and no
+    current, which noise never does. "" otherwise."""
+    moved = float(ang[-1] - ang[0])
+    if abs(moved) / lsb < 16 or abs(moved) < 0.8 * float(ang.max() - ang.min()):
+        return ""
+    return (f"; the joint moved {math.degrees(moved):+.1f} deg while idle (brakes set, no current): an "
+            f"external load beyond the brake's hold (a snag, a collision held against the arm) or a slipping "
+            f"brake ({signal})")
+
+
+def _runaway_cause(currents: list[float], travel: float, i_lim: float) -> str:
+    """What the motor current says of a runaway (its last reads, at least a tenth of the test's
+    limit ``i_lim``): against the motion, the amplifier holds back while something else drives
+    the joint (a load); with it, the motor drives it on (the rate loop's feedback). "" without
+    a monitor or with no current to read."""
+    i = float(np.mean(currents[-5:])) if currents else 0.0
+    if abs(i) < 0.1 * i_lim:
+        return ""
+    if i * travel < 0:
+        return (f"; the motor current holds back ({i:+.2f} A) while the joint runs on: an external load "
+                "drives it (a snag, a collision held against the arm, a payload beyond the counterbalance)")
+    return (f"; the motor drives it on ({i:+.2f} A): the rate loop's tach feedback (a dead or reversed tach) "
+            "or the amplifier")
 
 
 #: a move's resolver travel of at least this fraction of the expected counts as motion
