@@ -957,6 +957,10 @@ class Checkout:
         swing = float(np.ptp(xs)) if len(xs) else 0.0
         no_current = bool(current) and peak < float(cfg.joint(j, "diag_no_current_fraction")) * i_lim
         diag = _tach_diag(v, expected, travel, mean_tach, swing, no_current, p.r_lo)
+        x_lo, x_hi = sorted((expected * p.r_lo, expected * p.r_hi))
+        if not diag and not runaway and not t_lo <= mean_tach <= t_hi and x_lo <= travel <= x_hi:
+            # the joint moved as commanded and the tach reads otherwise: the tach's reading
+            diag = self._tach_bit(mean_tach - travel / max(p.move_s - p.lag, 1e-3), tach)
         self.record("joints", tach, f"open-loop rate {tag}", t_lo <= mean_tach <= t_hi and not runaway,
                     round(mean_tach, 5), round(t_lo, 5), round(t_hi, 5), "rad/s",
                     f"commanded {v:+.4g} rad/s at a {i_lim:.2f} A limit" + diag
@@ -967,15 +971,29 @@ class Checkout:
                         f"peak-to-peak while driven at {v:+.4g} rad/s (limit {i_lim:.2f} A)"
                         + ("" if span >= min_current else
                            "; MOTOR CURRENT NOT RESPONDING (dead input or amplifier monitor)"))
-        x_lo, x_hi = sorted((expected * p.r_lo, expected * p.r_hi))
         self.record("joints", angle, f"open-loop travel {tag}", x_lo <= travel <= x_hi and not runaway,
                     round(travel, 5), round(x_lo, 5), round(x_hi, 5), "rad",
                     f"{p.move_s:g} s at {v:+.4g} rad/s" + ("; RESOLVER MOVED THE WRONG WAY"
                                                            if travel * v < 0 else ""))
         ratio = m.tach_integral / travel if travel else math.nan
-        self.record("joints", tach, f"tach/resolver scale {tag}", abs(ratio - 1) <= p.agree,
+        ok = abs(ratio - 1) <= p.agree
+        self.record("joints", tach, f"tach/resolver scale {tag}", ok,
                     round(ratio, 4), round(1 - p.agree, 4), round(1 + p.agree, 4), "1",
-                    f"tach integral {m.tach_integral:+.5f} rad vs resolver travel {travel:+.5f} rad")
+                    f"tach integral {m.tach_integral:+.5f} rad vs resolver travel {travel:+.5f} rad"
+                    + ("" if ok or not travel else self._tach_bit((m.tach_integral - travel) / p.move_s, tach)))
+
+    def _tach_bit(self, off_rad_s: float, tach: str) -> str:
+        """The A/D data bit a tach's offset from the resolver's rate (``off_rad_s`` over the
+        move) would be, when it is within 30 % of 2^b codes (D3 and up): said as a question,
+        the tach's scale the other answer. "" when no bit fits."""
+        scale = float(self.t.rack.channel(tach).scale) or 1.0
+        codes = off_rad_s / scale / ADC_VOLTS_PER_CODE
+        fits = [b for b in range(3, ADC_BITS) if abs(abs(codes) - (1 << b)) <= 0.3 * (1 << b)]
+        if not fits:
+            return ""
+        b = fits[0]
+        return (f"; the tach reads {codes:+.0f} A/D codes off the resolver's rate: data bit D{b} of its A/D channel "
+                f"stuck at {int(codes > 0)}? (or the tach's scale or filter card)")
 
     def _stop_and_hold(self, j: str, tach: str, angle: str, cmd, rates: list[float],
                        limits: list[float], li: int) -> None:
