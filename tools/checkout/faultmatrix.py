@@ -216,13 +216,16 @@ def judge(case: Case, failures: list[dict], rack: RackConfig) -> Verdict:
 NEVER_ALTERED = ("its stuck value was the true value every time the bit was read or latched "
                  "in this run: the run was bit for bit a healthy rack's")
 SPARE_CHANNEL = "nothing is wired to a spare DAC channel: its output reaches nothing the rack measures"
+UNCABLED_RESOLVER = ("a spare resolver channel is not cabled: its angle word means nothing (the checkout "
+                     "does not read it, `[resolvers] check_spares`)")
 
 
 def undetectable(case: Case, target, rack: RackConfig) -> str:
     """Why no software could have told ``case`` from a healthy rack in the run just made on
     ``target`` (a :class:`SimTarget`), or "" when something could: a stuck bit that never
     changed a word (the fake counts, ``FakeBoard.stuck_bits_altered``), or one on a spare
-    DAC channel (wired to nothing). Every other case counts as detectable."""
+    DAC channel (wired to nothing) or a spare resolver channel (not cabled). Every other case
+    counts as detectable."""
     if case.kind != "stuck-bit" or case.board is None:
         return ""
     if not target.world.bus[case.board].stuck_bits_altered:
@@ -230,6 +233,9 @@ def undetectable(case: Case, target, rack: RackConfig) -> str:
     if rack.board(case.board).device == "dac" and case.signals and all(
             rack.channel(sg).spare for sg in case.signals):
         return SPARE_CHANNEL
+    if rack.board(case.board).device == "rtd" and case.signals and all(
+            rack.channel(sg).spare for sg in case.signals):
+        return UNCABLED_RESOLVER
     return ""
 
 

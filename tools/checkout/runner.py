@@ -1229,8 +1229,11 @@ class DacBits:
             lim_ok = None
             why = ": no motor current seen, so the limit's bits are not judged here: the moves say why"
         else:
-            why = (f": a stuck data bit on DAC channel {self.limit_signal} (the current limit; or the "
-                   "amplifier's own current limit is off)")
+            # which bit is not said: the drive's own K_a x V may bound the current first
+            high = abs(i_sat) > self.limit_a
+            why = (f": a data bit of DAC channel {self.limit_signal} stuck at {int(high)} (the current limit reads "
+                   f"{'high' if high else 'low'}; or the amplifier's own current limit is off)"
+                   f"{self.monitor_excess(abs(i_sat) - self.limit_a)}")
         co.record("joints", self.limit_signal, "DAC data bits: the current limit (brake set)", lim_ok,
                   round(i_sat, 4), self.limit_a - thr, self.limit_a + thr, "A", drew + why)
 
@@ -1250,6 +1253,18 @@ class DacBits:
         where = f"DAC channel {self.signal}"
         return f"{where}: " + "; ".join(said) + " (or the amplifier draws current at a zero command)" \
             + self.monitor_bit()
+
+    def monitor_excess(self, excess_a: float) -> str:
+        """The other reading of a current off the limit by ``excess_a``: the motor-current
+        monitor's own data bit, when the excess is within 30 % of 2^b of its A/D codes (D3 and
+        up). "" when no bit fits."""
+        scale = float(self.co.t.rack.channel(self.current).scale) or 1.0
+        codes = excess_a / scale / ADC_VOLTS_PER_CODE
+        fits = [b for b in range(3, ADC_BITS) if abs(abs(codes) - (1 << b)) <= 0.3 * (1 << b)]
+        if not fits:
+            return ""
+        return (f"; or the motor-current monitor {self.current}: {codes:+.0f} A/D codes off, its data bit "
+                f"D{fits[0]} stuck at {int(codes > 0)}?")
 
     def monitor_bit(self) -> str:
         """The other reading of a small current at the test codes: the monitor's own data bit
@@ -1434,7 +1449,7 @@ NOISE_SPAN = 16
 NOISE_EVIDENCE = 8
 #: the fewest distinct codes a group must read to be judged as noise (a noiseless input that
 #: sat at two values, 0x800 and a few codes below, is not a split group) (assumed)
-NOISE_MIN_CODES = 4
+NOISE_MIN_CODES = 3
 
 
 def _longest_run_span(u: np.ndarray, joined: np.ndarray) -> int:

@@ -28,8 +28,10 @@ def test_a_healthy_rack_passes_both_rows_on_every_joint(sim, cfg):
     ("stuck-bit:dac@DAC[0]:11=1", "shoulder_pitch_command", "data bit D11 stuck at 1"),
     ("stuck-bit:dac@DAC[2]:11=0", "elbow_pitch_command", "data bit D11 stuck at 0"),
     ("stuck-bit:dac@DAC[5]:7=1", "wrist_roll_command", "a data bit of D0..D10 stuck at 1"),
-    ("stuck-bit:dac@DAC[8]:9=1", "shoulder_yaw_current_limit", "a stuck data bit on DAC channel shoulder_yaw_current_limit"),
-    ("stuck-bit:dac@DAC[8]:5=0", "shoulder_yaw_current_limit", "a stuck data bit on DAC channel shoulder_yaw_current_limit"),
+    ("stuck-bit:dac@DAC[8]:9=1", "shoulder_yaw_current_limit",
+     "a data bit of DAC channel shoulder_yaw_current_limit stuck at 1 (the current limit reads high"),
+    ("stuck-bit:dac@DAC[8]:5=0", "shoulder_yaw_current_limit",
+     "a data bit of DAC channel shoulder_yaw_current_limit stuck at 0 (the current limit reads low"),
 ])
 def test_a_stuck_dac_bit_is_the_first_failure_on_its_channel(sim, cfg, spec, channel, words):
     sim.inject_fault(spec)
