@@ -1112,6 +1112,15 @@ def _idle_why(code: int, lo: float, hi: float, scale: float) -> str:
 DAC_BITS_CODES = (0x7FF, 0x800)
 
 
+#: the current limit's walk (``[joints] dac_bits_limit_walk``): from 32 codes (0.156 V) up by
+#: 4, 8 and 16 codes, at most 48 codes (0.234 V), below the brake-release cards' 0.3 V engage
+#: threshold (pfma-model 8.4), so the brake stays set. D0 and D1 (1-2 codes, 2.4-4.9 mA) are
+#: below what the monitor's noise lets a short window tell; D5 and up are the 0.2 V test
+#: limit's (its code 0x829) and the moves'
+LIMIT_WALK_BASE = DAC_ZERO_CODE + 0x20
+LIMIT_WALK_BITS = (2, 3, 4)
+
+
 class DacBits:
     """One joint's rate-command DAC data-bit check, brake set (``[joints] dac_bits``): each
     test code placed exactly (the service's calibration between rad/s and code is read back
@@ -1123,6 +1132,8 @@ class DacBits:
         self.co, self.j, self.current, self.cmd = co, j, current, cmd
         self.zero = zero  #: the monitor's reading with no current (:meth:`monitor_zero`)
         self.codes: list[int] = []  #: the monitor's mean A/D code at each step, in order
+        self.limits, self.li = limits, li
+        self.walk: list[tuple[int, int, float]] = []  #: the limit walk (:meth:`limit_walk`)
         self.rates, self.ji, self.limit_a = rates, ji, limits[li]
         rack = co.t.rack
         self.signal = rack.joint_channel(j, "rate_command").signal
@@ -1196,9 +1207,68 @@ class DacBits:
         self.rates[self.ji] = v * self.rate_per_volt
         self.cmd.set(joint_rate_rad_s=self.rates)
         i = self.mean_current()
+        self.walk = self.limit_walk()
         self.rates[self.ji] = 0.0
         self.cmd.set(joint_rate_rad_s=self.rates)
         return i
+
+    def place_limit(self, code: int, per_code: float) -> int:
+        """Write the current-limit code ``code`` (corrected from the code read back, as
+        :meth:`place`); returns the code written."""
+        a, got = (code - DAC_ZERO_CODE) * per_code, -1
+        for _ in range(4):
+            self.limits[self.li] = a
+            self.cmd.set(current_limit_a=self.limits)
+            self.co.t.wait(0.01)
+            got = int(self.co.inputs().channel(self.limit_signal)["dac_counts"])
+            if got == code:
+                break
+            a += (code - got) * per_code
+        return got
+
+    def limit_walk(self) -> list[tuple[int, int, float]]:
+        """The current limit's middle bits, walked while the drive saturates against the set
+        brake (:data:`LIMIT_WALK_BASE`, then that plus 2^b for each of
+        :data:`LIMIT_WALK_BITS`, all below the brake-release cards' 0.3 V): (code asked, code
+        written, current) each; the test limit is written back after."""
+        if not bool(self.co.cfg.joint(self.j, "dac_bits_limit_walk")):
+            return []
+        per_code = DAC_VOLTS_PER_CODE * float(self.co.t.rack.channel(self.limit_signal).scale)
+        out = []
+        for code in (LIMIT_WALK_BASE, *(LIMIT_WALK_BASE + (1 << b) for b in LIMIT_WALK_BITS)):
+            got = self.place_limit(code, per_code)
+            out.append((code, got, self.mean_current()))
+        self.limits[self.li] = self.limit_a
+        self.cmd.set(current_limit_a=self.limits)
+        return out
+
+    def walk_row(self) -> None:
+        """The limit walk's row: each step's current above the base's must be 2^b codes' worth
+        (within half of it, the drive saturated at the limit); a step that adds nothing is
+        bit b stuck, its value from the base's current (stuck at 1 lifts it by 2^b)."""
+        if not self.walk:
+            return
+        co = self.co
+        per_code = DAC_VOLTS_PER_CODE * float(co.t.rack.channel(self.limit_signal).scale)
+        if any(c != g for c, g, _ in self.walk):
+            co.record("joints", self.limit_signal, "DAC data bits: the current limit walked (brake set)", None,
+                      detail=f"not run: the service wrote codes {[f'0x{g:03X}' for _, g, _ in self.walk]} for "
+                             f"{[f'0x{c:03X}' for c, _, _ in self.walk]}")
+            return
+        base = self.walk[0][2]
+        steps = [(b, i - base, (1 << b) * per_code) for b, (_, _, i) in zip(LIMIT_WALK_BITS, self.walk[1:])]
+        bad = [(b, d, want) for b, d, want in steps if abs(d - want) > 0.5 * want]
+        said = ", ".join(f"+2^{b}: {d * 1e3:+.1f} mA of {want * 1e3:.1f}" for b, d, want in steps)
+        why = ""
+        if bad:
+            b, _, want = bad[0]
+            lifted = base - (LIMIT_WALK_BASE - DAC_ZERO_CODE) * per_code > 0.5 * want
+            why = (f": data bit D{b} of DAC channel {self.limit_signal} stuck at {int(lifted)} (adding 2^{b} codes "
+                   f"did not raise the current){self.monitor_excess(bad[0][1] - want) if abs(bad[0][1]) > want else ''}")
+        worst = max(abs(d - want) / want for _, d, want in steps)
+        co.record("joints", self.limit_signal, "DAC data bits: the current limit walked (brake set)", not bad,
+                  round(worst, 3), None, 0.5, "of a step",
+                  f"the limit at 0x{LIMIT_WALK_BASE:03X} drew {base:+.4f} A; {said}{why}")
 
     def run(self) -> None:
         co, j = self.co, self.j
@@ -1236,6 +1306,8 @@ class DacBits:
                    f"{self.monitor_excess(abs(i_sat) - self.limit_a)}")
         co.record("joints", self.limit_signal, "DAC data bits: the current limit (brake set)", lim_ok,
                   round(i_sat, 4), self.limit_a - thr, self.limit_a + thr, "A", drew + why)
+        if lim_ok:
+            self.walk_row()
 
     def diagnosis(self, i_lo: float, i_zero: float, thr: float) -> str:
         """Which way the output went, and so which bits: at 0x7FF a bit of D0..D10 stuck at 0

@@ -20,6 +20,7 @@ def test_a_healthy_rack_passes_both_rows_on_every_joint(sim, cfg):
     for j in JOINTS:
         assert rows[(f"{j}_command", "DAC data bits (brake set)")].status == PASS
         assert rows[(f"{j}_current_limit", "DAC data bits: the current limit (brake set)")].status == PASS
+        assert rows[(f"{j}_current_limit", "DAC data bits: the current limit walked (brake set)")].status == PASS
     assert rep.passed
 
 
@@ -32,6 +33,13 @@ def test_a_healthy_rack_passes_both_rows_on_every_joint(sim, cfg):
      "a data bit of DAC channel shoulder_yaw_current_limit stuck at 1 (the current limit reads high"),
     ("stuck-bit:dac@DAC[8]:5=0", "shoulder_yaw_current_limit",
      "a data bit of DAC channel shoulder_yaw_current_limit stuck at 0 (the current limit reads low"),
+    # the limit's middle bits, walked from 0x820 by 4, 8 and 16 codes (a bit stuck adds nothing)
+    ("stuck-bit:dac@DAC[8]:3=0", "shoulder_yaw_current_limit",
+     "data bit D3 of DAC channel shoulder_yaw_current_limit stuck at 0"),
+    ("stuck-bit:dac@DAC[12]:2=1", "wrist_roll_current_limit",
+     "data bit D2 of DAC channel wrist_roll_current_limit stuck at 1"),
+    ("stuck-bit:dac@DAC[10]:4=0", "wrist_yaw_current_limit",
+     "data bit D4 of DAC channel wrist_yaw_current_limit stuck at 0"),
 ])
 def test_a_stuck_dac_bit_is_the_first_failure_on_its_channel(sim, cfg, spec, channel, words):
     sim.inject_fault(spec)
