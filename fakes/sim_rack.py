@@ -269,10 +269,11 @@ class SimulatedRack:
     def _write_sensors(self) -> None:
         arm = self.arm
         q = arm.q
-        noise = self._noise.normal(0.0, self._resolver_noise_rad, len(self._resolver_offset)) \
-            if self._resolver_noise_rad else self._resolver_offset * 0.0
+        at = self._resolver_offset  # the perfect rack's resolvers read no noise: nothing drawn
+        if self._resolver_noise_rad:
+            at = at + self._noise.normal(0.0, self._resolver_noise_rad, len(at))
         for axis, (board, ch) in self.angle.items():
-            self.fake_rack[board].set_angle_rad(ch, (q[axis] + self._resolver_offset[axis] + noise[axis]) % _TWO_PI)
+            self.fake_rack[board].set_angle_rad(ch, (q[axis] + at[axis]) % _TWO_PI)
         tach, imon = arm.tach_output_volts, arm.current_monitor_volts  # 0 V without the +/-15 V
         for m in self._adc.values():
             m.volts[m.rate_ch] = tach[m.rate_axis]
