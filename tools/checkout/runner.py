@@ -1146,16 +1146,21 @@ class DacBits:
     def place(self, code: int) -> int:
         """Command the rate whose code is ``code`` (a few corrections from the code read back);
         returns the code written."""
-        r = (code - DAC_ZERO_CODE) * self.rate_per_code
-        got = -1
+        return self._place(code, "joint_rate_rad_s", self.rates, self.ji, self.signal, self.rate_per_code)
+
+    def _place(self, code: int, field: str, values: list[float], i: int, signal: str, per_code: float) -> int:
+        """Write ``values[i]`` (command field ``field``) so that DAC channel ``signal`` latches
+        ``code``: a few corrections from the code read back (``dac_counts``, the service's
+        own calibration between units and codes); returns the code written."""
+        x, got = (code - DAC_ZERO_CODE) * per_code, -1
         for _ in range(4):
-            self.rates[self.ji] = r
-            self.cmd.set(joint_rate_rad_s=self.rates)
+            values[i] = x
+            self.cmd.set(**{field: values})
             self.co.t.wait(0.01)
-            got = int(self.co.inputs().channel(self.signal)["dac_counts"])
+            got = int(self.co.inputs().channel(signal)["dac_counts"])
             if got == code:
                 break
-            r += (code - got) * self.rate_per_code
+            x += (code - got) * per_code
         return got
 
     @staticmethod
@@ -1215,16 +1220,7 @@ class DacBits:
     def place_limit(self, code: int, per_code: float) -> int:
         """Write the current-limit code ``code`` (corrected from the code read back, as
         :meth:`place`); returns the code written."""
-        a, got = (code - DAC_ZERO_CODE) * per_code, -1
-        for _ in range(4):
-            self.limits[self.li] = a
-            self.cmd.set(current_limit_a=self.limits)
-            self.co.t.wait(0.01)
-            got = int(self.co.inputs().channel(self.limit_signal)["dac_counts"])
-            if got == code:
-                break
-            a += (code - got) * per_code
-        return got
+        return self._place(code, "current_limit_a", self.limits, self.li, self.limit_signal, per_code)
 
     def limit_walk(self) -> list[tuple[int, int, float]]:
         """The current limit's middle bits, walked while the drive saturates against the set
