@@ -96,3 +96,19 @@ def test_a_usage_mistake_is_one_line_at_any_log_level(capsys, level):
     assert cap.err == "pfma controller halt: --rearm belongs to resume\n" and cap.out == ""
     # the verb's log handler is gone with it: no later record goes to a stderr that is closed
     assert not [h for h in logging.getLogger().handlers if h.get_name() == "pfma"]
+
+
+def test_every_live_driver_stops_between_frames_on_a_taken_signal():
+    """The live frame of every driver (one process or one of a distributed controller) checks
+    for a SIGINT/SIGTERM that :meth:`ControllerStack.stop_on_signals` took before it waits
+    for the service's frame, so the stop comes between two frames (a KeyboardInterrupt inside
+    one could leave the world model mid-write and the power-down hung); while closing (the
+    power-down's own frames) it does not."""
+    from tools.stacks.controller import DistributedDriver, Driver
+    d = DistributedDriver.__new__(DistributedDriver)  # no service: the check comes first
+    d.stop_signal, d.closing, d.pacer = signal.SIGINT, False, None
+    with pytest.raises(KeyboardInterrupt):
+        Driver.frame(d)
+    d.closing = True
+    with pytest.raises(AssertionError):  # past the check: the pacer it would wait on
+        Driver.frame(d)

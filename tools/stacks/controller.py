@@ -243,7 +243,10 @@ class Driver:
         return self.rt.frames.period_s
 
     def frame(self) -> None:
-        """One minor frame locked to the live service's next frame."""
+        """One minor frame locked to the live service's next frame (a SIGTERM or SIGINT taken
+        by :meth:`ControllerStack.stop_on_signals` stops here, between two frames)."""
+        if self.stop_signal and not self.closing:
+            raise KeyboardInterrupt
         pacer = self.pacer
         assert pacer is not None
         gave_up = pacer.gave_up

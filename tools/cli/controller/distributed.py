@@ -5,10 +5,11 @@ distributed simulator."""
 
 from __future__ import annotations
 
+import signal
 import sys
 import time
 
-from tools.cli.controller.common import first_cause_line, no_wm, refuse, stack_options, summary
+from tools.cli.controller.common import first_cause_line, log, no_wm, refuse, stack_options, summary
 from tools.stacks.controller import PROG, ControllerStack, Distribution, DistributedDriver
 
 #: live seconds a process with --power-up waits for every other process's section before it
@@ -95,6 +96,9 @@ def run(args) -> int:
         return refuse(str(e), code=1)
     with stack:
         assert isinstance(stack.driver, DistributedDriver)
+        # SIGINT and SIGTERM acted on between frames, as for one process: a KeyboardInterrupt
+        # inside a frame could leave the world model mid-write and the power-down hung
+        stack.stop_on_signals()
         return _run_process(stack.driver, args)
 
 
@@ -141,6 +145,8 @@ def _run_process(d: DistributedDriver, args) -> int:
         summary(d, args)
     except KeyboardInterrupt:
         print()
+        if d.stop_signal:
+            log.warning(f"{signal.Signals(d.stop_signal).name}: stopping (powering down in order)")
         summary(d, args)  # Ctrl-C too: what happened, before the power-down
     return code
 
