@@ -276,7 +276,7 @@ class Checkout:
             for group in code_groups(codes):  # each level the input held (idle, deflected, driven)
                 found += noise_split(group, nbits)
             if c.kind == "rtd":
-                found += angle_jumps(self.codes.of(c.kind, c.slot, in_order=True), nbits)
+                found += angle_jumps(codes, nbits)
             n, k = seen.get(c.board, (0, 0))
             seen[c.board] = (n + len(codes), k + bool(found))
             for bit, v in list(dict.fromkeys(found))[:1]:  # the first reading names it; one row a channel
@@ -988,10 +988,9 @@ class Checkout:
         the tach's scale the other answer. "" when no bit fits."""
         scale = float(self.t.rack.channel(tach).scale) or 1.0
         codes = off_rad_s / scale / ADC_VOLTS_PER_CODE
-        fits = [b for b in range(3, ADC_BITS) if abs(abs(codes) - (1 << b)) <= 0.3 * (1 << b)]
-        if not fits:
+        b = bit_of_offset(codes)
+        if b is None:
             return ""
-        b = fits[0]
         return (f"; the tach reads {codes:+.0f} A/D codes off the resolver's rate: data bit D{b} of its A/D channel "
                 f"stuck at {int(codes > 0)}? (or the tach's scale or filter card)")
 
@@ -1091,6 +1090,13 @@ def one_bit_away(code: int, centre: float) -> int | None:
     :data:`IDLE_FLIP_CODES` of ``centre``; None when no one bit does."""
     bits = [b for b in range(ADC_BITS - 1, 2, -1) if abs((code ^ (1 << b)) - centre) <= IDLE_FLIP_CODES]
     return bits[0] if bits else None
+
+
+def bit_of_offset(codes: float) -> int | None:
+    """The A/D data bit (D3 and up) whose 2^b codes an offset of ``codes`` is, within 30 %;
+    None when none is."""
+    fits = [b for b in range(3, ADC_BITS) if abs(abs(codes) - (1 << b)) <= 0.3 * (1 << b)]
+    return fits[0] if fits else None
 
 
 def _idle_why(code: int, lo: float, hi: float, scale: float) -> str:
@@ -1328,11 +1334,11 @@ class DacBits:
         up). "" when no bit fits."""
         scale = float(self.co.t.rack.channel(self.current).scale) or 1.0
         codes = excess_a / scale / ADC_VOLTS_PER_CODE
-        fits = [b for b in range(3, ADC_BITS) if abs(abs(codes) - (1 << b)) <= 0.3 * (1 << b)]
-        if not fits:
+        b = bit_of_offset(codes)
+        if b is None:
             return ""
         return (f"; or the motor-current monitor {self.current}: {codes:+.0f} A/D codes off, its data bit "
-                f"D{fits[0]} stuck at {int(codes > 0)}?")
+                f"D{b} stuck at {int(codes > 0)}?")
 
     def monitor_bit(self) -> str:
         """The other reading of a small current at the test codes: the monitor's own data bit
@@ -1363,9 +1369,8 @@ class CodeLog:
         self._rows["rtd"].append(np.array(s["rtd_counts"], dtype=np.int64))
         self._rows["adc"].append(np.array(s["adc_counts"], dtype=np.int64))
 
-    def of(self, kind: str, slot: int, in_order: bool = False) -> np.ndarray:
-        """One channel's codes, in the order read (``in_order``; the same either way: the log
-        keeps them so)."""
+    def of(self, kind: str, slot: int) -> np.ndarray:
+        """One channel's codes, in the order read."""
         rows = self._rows[kind]
         return np.array([r[slot] for r in rows], dtype=np.int64) if rows else np.zeros(0, dtype=np.int64)
 
