@@ -115,16 +115,25 @@ def gripper_specs() -> list[VarSpec]:
     return GRIP.specs()
 
 
+class PathGripperVars(VarGroup, prefix="msp", writer="msp"):
+    """The path planner's gripper request: posted by the Multi-Segment Path Planner (writer
+    ``msp``), read by Servo Control's gripper drive (declared here, where it is read)."""
+
+    gripper_request: Var[int] = var("task_io", "i2", (), 0,
+                                    doc="path playback's gripper request: 1 OPEN 2 CLOSE 3 STOP 4 FORCE",
+                                    enum=GripperRequest)
+    gripper_force_n: Var[float] = var("task_io", "f8", (), 0.0, "N", doc="its grip force (0 keeps the present one)")
+    gripper_seq: Var[int] = var(
+        "task_io", "i4", (), 0,
+        doc="path playback's gripper request number (Servo Control answers in gripper.msp_done_*)")
+
+
+MSP_GRIP = PathGripperVars
+
+
 def path_request_specs() -> list[VarSpec]:
     """The path planner's gripper request (declared by the Multi-Segment Path Planner)."""
-    return [
-        VarSpec("msp.gripper_request", "task_io", "i2", (), "msp", 0,
-                doc="path playback's gripper request: 1 OPEN 2 CLOSE 3 STOP 4 FORCE", enum=GripperRequest),
-        VarSpec("msp.gripper_force_n", "task_io", "f8", (), "msp", 0.0, "N",
-                doc="its grip force (0 keeps the present one)"),
-        VarSpec("msp.gripper_seq", "task_io", "i4", (), "msp", 0,
-                doc="path playback's gripper request number (Servo Control answers in gripper.msp_done_*)"),
-    ]
+    return MSP_GRIP.specs()
 
 
 def text_words(text: str, n: int = GRIPPER_TEXT_BYTES) -> np.ndarray:
@@ -143,7 +152,7 @@ class GripperDrive:
 
     _IN = (GRIP.request, GRIP.request_force_n, GRIP.request_seq, DAQ.gripper_rate_m_s,
            DAQ.gripper_current_a)
-    _MSP = ("msp.gripper_request", "msp.gripper_force_n", "msp.gripper_seq")
+    _MSP = MSP_GRIP.all()
 
     def __init__(self, layer) -> None:
         self.layer = layer
@@ -181,11 +190,11 @@ class GripperDrive:
             self._seen_user = seq
             self._request(rt, "user", seq, int(v[GRIP.request]), float(v[GRIP.request_force_n]))
         if self._has_msp:
-            mseq = int(v["msp.gripper_seq"])
+            mseq = int(v[MSP_GRIP.gripper_seq])
             if mseq != self._seen_msp:
                 self._seen_msp = mseq
                 if mseq:
-                    self._request(rt, "msp", mseq, int(v["msp.gripper_request"]), float(v["msp.gripper_force_n"]))
+                    self._request(rt, "msp", mseq, int(v[MSP_GRIP.gripper_request]), float(v[MSP_GRIP.gripper_force_n]))
         ended = self.motion.update(t, float(v[DAQ.gripper_rate_m_s]), float(v[DAQ.gripper_current_a]))
         if ended is not None:
             self._ended(rt, ended)

@@ -683,6 +683,27 @@ JOINT_MODE_NAMES = {0: "JOINT GOAL", 1: "CARTESIAN"}
 _Z6 = [0.0] * N_JOINTS
 
 
+#: a joint move's speed: the fraction of each joint's software rate limit (msp.jmove_speed's
+#: initial value; the Path Planner scales it by msp.speed_scale)
+JMOVE_SPEED = 0.25
+
+
+class JointMoveVars(VarGroup, prefix="msp", writer="msp"):
+    """The joint-move hand-over: posted by the Multi-Segment Path Planner (writer ``msp``),
+    read by the Joint Planner (declared here, where it is read)."""
+
+    jmove_seq: Var[int] = var("task_io", "i4", (), 0,
+                              doc="joint move number: a new value is a new joint move for the Joint Planner")
+    jmove_goal_rad: Var[np.ndarray] = var("task_io", "f8", (6,), [0.0] * 6, "rad",
+                                          doc="joint move goal (command-area order; a straight line in joint space)")
+    jmove_speed: Var[float] = var("task_io", "f8", (), JMOVE_SPEED, "1",
+                                  doc="joint move speed: fraction of the software rate limits (0..1)")
+    jmove_stop: Var[bool] = var("task_io", "b1", (), False, doc="stop: decelerate the running joint move to rest")
+
+
+JMOVE = JointMoveVars
+
+
 class JointVars(VarGroup, prefix="joint", writer="joint"):
     """The Joint Planner's variables: the user's joint goal, the joint command for Servo
     Control (named ``servo.*``), the measured tool pose, its statuses, the shoulder-roll
@@ -780,7 +801,7 @@ class JointPlannerLayer(Layer):
     #: the Cartesian Engine's command (writer "cartesian"); without them only joint goals work
     CART_VARS = (CART.pos_cmd_m, CART.quat_cmd, CART.cmd_valid, CART.cmd_seq)
     #: the Multi-Segment Path Planner's joint moves (writer "msp"); without them none
-    JMOVE_VARS = ("msp.jmove_seq", "msp.jmove_goal_rad", "msp.jmove_speed", "msp.jmove_stop")
+    JMOVE_VARS = JMOVE.all()
     MODE_JOINT, MODE_CARTESIAN = 0, 1
     #: ``joint.mode`` by name
     MODE_NAMES = JOINT_MODE_NAMES
@@ -850,7 +871,7 @@ class JointPlannerLayer(Layer):
         self._last_pose, self._stuck_runs, self._recover = None, 0, None
         self._jm = None
         if self._jmove_available(rt):  # a joint move sent before this start-up is not run
-            self._jm_seen = int(rt.wm.get_task_inputs(("msp.jmove_seq",))["msp.jmove_seq"])
+            self._jm_seen = int(rt.wm.get_task_inputs((JMOVE.jmove_seq,))[JMOVE.jmove_seq])
         rt.wm.post_task_outputs("joint", {JOINT.q_cmd_rad: self.q_cmd, JOINT.q_cmd_valid: True,
                                           JOINT.mode: self.mode, JOINT.jmove_active: False})
         return TaskState.DONE
@@ -886,7 +907,7 @@ class JointPlannerLayer(Layer):
                 self._joint_goal(rt, v, out)
                 self._cart_at_goal = (np.array(v[CART.pos_cmd_m], dtype=float),
                                       np.array(v[CART.quat_cmd], dtype=float)) if valid else None
-            elif jm and (self._jm is not None or int(v["msp.jmove_seq"]) != self._jm_seen):
+            elif jm and (self._jm is not None or int(v[JMOVE.jmove_seq]) != self._jm_seen):
                 self._joint_move(rt, v, out)
                 if valid and self._jm is None:  # ended: joint mode until the Cartesian command changes
                     self._cart_at_goal = (np.array(v[CART.pos_cmd_m], dtype=float),
@@ -982,7 +1003,7 @@ class JointPlannerLayer(Layer):
 
     # --- joint moves (msp.jmove_*) -------------------------------------------------------
     def _joint_move(self, rt: "LayerContext", v: dict, out: dict) -> None:
-        seq = int(v["msp.jmove_seq"])
+        seq = int(v[JMOVE.jmove_seq])
         if seq != self._jm_seen:
             self._jm_seen = seq
             if self._jm is not None:
@@ -993,7 +1014,7 @@ class JointPlannerLayer(Layer):
                 return
         jm = self._jm
         assert jm is not None
-        if bool(v["msp.jmove_stop"]) and jm.stop_t is None:
+        if bool(v[JMOVE.jmove_stop]) and jm.stop_t is None:
             jm.request_stop(rt.now)
             rt.post(self.key, Level.INFO, f"joint move {jm.seq}: stop requested")
         s, finished = jm.sample(rt.now)
@@ -1006,8 +1027,8 @@ class JointPlannerLayer(Layer):
     def _jmove_start(self, rt: "LayerContext", seq: int, v: dict, out: dict) -> None:
         from controller.kinematics import RATE_LIMIT_RAD_S
         from controller.profile import plan_trapezoid
-        goal = np.asarray(v["msp.jmove_goal_rad"], dtype=float)
-        speed = float(v["msp.jmove_speed"])
+        goal = np.asarray(v[JMOVE.jmove_goal_rad], dtype=float)
+        speed = float(v[JMOVE.jmove_speed])
         if not (np.all(np.isfinite(goal)) and math.isfinite(speed) and 0.0 < speed <= 1.0):
             rt.post(self.key, Level.ERROR, f"joint move {seq} refused: goal {goal.tolist()} / speed {speed!r} "
                                            f"(needs finite angles and a speed 0..1)")

@@ -195,8 +195,28 @@ class SegmentRun:
                 self._stop_v - a * tau, -a, False)
 
 
+class SegmentVars(VarGroup, prefix="msp", writer="msp"):
+    """The segment hand-over: posted by the Multi-Segment Path Planner (writer ``msp``),
+    read by the Trajectory Planner (declared here, where it is read)."""
+
+    seg_seq: Var[int] = var("task_io", "i4", (), 0,
+                            doc="segment number: a new value is a new segment for the Trajectory Planner")
+    seg_pos_m: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0, 0.0, 0.0], "m",
+                                     doc="segment target tool position (world frame)")
+    seg_quat: Var[np.ndarray] = var("task_io", "f8", (4,), [1.0, 0.0, 0.0, 0.0],
+                                    doc="segment target tool orientation (unit quaternion w,x,y,z, tool in world)")
+    seg_limits: Var[np.ndarray] = var(
+        "task_io", "f8", (4,), list(DEFAULT_CAP),
+        doc="segment limits: v_lin m/s, a_lin m/s^2, v_rot rad/s, a_rot rad/s^2 (capped by traj.*_max)")
+    seg_last: Var[bool] = var("task_io", "b1", (), False,
+                              doc="the segment is the last of the playback (traj.active drops when it is done)")
+    seg_stop: Var[bool] = var("task_io", "b1", (), False,
+                              doc="stop: decelerate the running segment to rest and release the trajectory")
+
+
+SEG = SegmentVars
 #: segment variables the Multi-Segment Path Planner posts (writer "msp")
-SEG_VARS = ("msp.seg_seq", "msp.seg_pos_m", "msp.seg_quat", "msp.seg_limits", "msp.seg_last", "msp.seg_stop")
+SEG_VARS = SEG.all()
 #: start-pose sources, in order of preference (read only if the model has them)
 CART_START = (CART.cmd_valid, CART.pos_cmd_m, CART.quat_cmd)
 TOOL_START = (JOINT.tool_pos_m, JOINT.tool_quat)
@@ -204,20 +224,7 @@ TOOL_START = (JOINT.tool_pos_m, JOINT.tool_quat)
 
 def segment_specs() -> list[VarSpec]:
     """The segment hand-over variables (owned by the Multi-Segment Path Planner, "msp")."""
-    return [
-        VarSpec("msp.seg_seq", "task_io", "i4", (), "msp", 0,
-                doc="segment number: a new value is a new segment for the Trajectory Planner"),
-        VarSpec("msp.seg_pos_m", "task_io", "f8", (3,), "msp", [0.0, 0.0, 0.0], "m",
-                doc="segment target tool position (world frame)"),
-        VarSpec("msp.seg_quat", "task_io", "f8", (4,), "msp", [1.0, 0.0, 0.0, 0.0],
-                doc="segment target tool orientation (unit quaternion w,x,y,z, tool in world)"),
-        VarSpec("msp.seg_limits", "task_io", "f8", (4,), "msp", list(DEFAULT_CAP),
-                doc="segment limits: v_lin m/s, a_lin m/s^2, v_rot rad/s, a_rot rad/s^2 (capped by traj.*_max)"),
-        VarSpec("msp.seg_last", "task_io", "b1", (), "msp", False,
-                doc="the segment is the last of the playback (traj.active drops when it is done)"),
-        VarSpec("msp.seg_stop", "task_io", "b1", (), "msp", False,
-                doc="stop: decelerate the running segment to rest and release the trajectory"),
-    ]
+    return SEG.specs()
 
 
 class TrajVars(VarGroup, prefix="traj", writer="trajectory"):
@@ -342,7 +349,7 @@ class TrajectoryLayer(Layer):
                 self.release(rt, "Trajectory Planner not running")
             return
         v = rt.wm.get_task_inputs(SEG_VARS + CAP_VARS)
-        seq, stop = int(v["msp.seg_seq"]), bool(v["msp.seg_stop"])
+        seq, stop = int(v[SEG.seg_seq]), bool(v[SEG.seg_stop])
         if self.run is None and seq != self._seen_seq:
             self._seen_seq = seq
             if stop:  # a segment that arrives already cancelled
@@ -380,13 +387,13 @@ class TrajectoryLayer(Layer):
             return
         p0, q0 = start
         try:
-            lim = Limits(*(float(x) for x in v["msp.seg_limits"])).clipped(cap)
-            seg = plan_segment(p0, q0, v["msp.seg_pos_m"], v["msp.seg_quat"], lim)
+            lim = Limits(*(float(x) for x in v[SEG.seg_limits])).clipped(cap)
+            seg = plan_segment(p0, q0, v[SEG.seg_pos_m], v[SEG.seg_quat], lim)
         except ValueError as err:
             rt.post(self.key, Level.ERROR, f"segment {seq} refused: {err}")
             self._finish(rt, seq, DoneCode.REFUSED, True)
             return
-        self._last_flag = bool(v["msp.seg_last"])
+        self._last_flag = bool(v[SEG.seg_last])
         self.run = SegmentRun(seg, rt.now, seq)
         self.active = True
         rt.wm.post_task_outputs("trajectory", {TRAJ.seg_seq: seq})
@@ -398,4 +405,4 @@ class TrajectoryLayer(Layer):
 
 
 __all__ = ["Limits", "Trapezoid", "plan_trapezoid", "CartesianSegment", "plan_segment", "SegmentRun",
-           "TrajectoryLayer", "DoneCode", "DEFAULT_CAP", "segment_specs", "SEG_VARS"]
+           "TrajectoryLayer", "DoneCode", "DEFAULT_CAP", "segment_specs", "SEG_VARS", "SEG", "SegmentVars"]

@@ -2,7 +2,8 @@
 tests/controller/test_variables.py, keeps the file equal to it). A leaf module: it imports
 every module that declares a group (controller/variables.py, controller/servo.py,
 controller/layers.py, controller/gripper.py, controller/force.py, controller/delay.py,
-controller/teleop.py, controller/trajectory.py, controller/runtime.py).
+controller/teleop.py, controller/trajectory.py, controller/paths/layer.py,
+controller/runtime.py).
 
 Regenerate: ``python -m controller.vardoc`` prints the block.
 """
@@ -11,19 +12,21 @@ from __future__ import annotations
 
 from controller.delay import DelayVars
 from controller.force import ForceVars
-from controller.gripper import GripperVars
-from controller.layers import JointVars, UiVars
+from controller.gripper import GripperVars, PathGripperVars
+from controller.layers import JointMoveVars, JointVars, UiVars
+from controller.paths.layer import MspVars
 from controller.runtime import RuntimeVars
 from controller.servo import ServoVars
 from controller.teleop import TeleopVars
-from controller.trajectory import TrajVars
+from controller.trajectory import SegmentVars, TrajVars
 from controller.variables import CartVars, DaqVars
 from controller.worldmodel.var import VarGroup
 
 #: every declared group, in the order the document lists them
 #: (the layers' from the bottom up, then System Up/Down's requests and the runtime's own)
 GROUPS: tuple[type[VarGroup], ...] = (DaqVars, ServoVars, GripperVars, JointVars, CartVars, TrajVars, ForceVars, DelayVars,
-                                      TeleopVars, UiVars, RuntimeVars)
+                                      TeleopVars, MspVars, SegmentVars, JointMoveVars, PathGripperVars, UiVars,
+                                      RuntimeVars)
 
 DOC_BEGIN = "<!-- variables: generated from the VarGroup declarations; regenerate: python -m controller.vardoc -->"
 DOC_END = "<!-- end of the generated variables -->"

@@ -39,8 +39,8 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from controller.decision import Status
-from controller.gripper import GRIP, path_request_specs
-from controller.layers import JOINT, Layer
+from controller.gripper import GRIP, MSP_GRIP, path_request_specs
+from controller.layers import JMOVE, JMOVE_SPEED, JOINT, Layer
 from controller.messages import Level
 from controller.paths.check import MAX_TURN_RAD, SAMPLES_PER_RUN, MotionCheck, Target
 from controller.paths.model import DEFAULT_LIMITS, Path, PathError, PathPoint
@@ -48,9 +48,10 @@ from controller.paths.move import MOVE_REQUEST_LEN, MoveKind, MoveRequest
 from controller.paths.planner import PlannedSegment, plan_path, segment_deviation
 from controller.paths.store import PathStore, _now_text, path_missing
 from controller.quat import q_angle, q_normalize
-from controller.trajectory import TRAJ, DoneCode, segment_specs
+from controller.trajectory import SEG, TRAJ, DoneCode, segment_specs
 from controller.worldmodel import VarSpec
 from controller.variables import CART, DAQ
+from controller.worldmodel.var import Var, VarGroup, var
 from pfma.gripper import ACTION_NAMES as GRIPPER_ACTION_NAMES, ACTIONS as GRIPPER_ACTIONS, COMPLETE, IN_PROGRESS
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -66,7 +67,6 @@ TRACK_TOL_M = 0.02
 TRACK_TOL_RAD = math.radians(5.0)
 #: a joint move's speed: this fraction of the software rate limits (8.2), times msp.speed_scale
 #: (assumed: a quarter, as a path's default speeds are half the trajectory caps)
-JMOVE_SPEED = 0.25
 #: the start pose may move this much while the motion is checked (else refused: checked
 #: from another start; assumed, a tenth of the check's sampling)
 START_MOVED_M = 0.5e-3
@@ -103,14 +103,9 @@ class MspResult:
 
 TOOL_POSE = (JOINT.tool_pos_m, JOINT.tool_quat)
 CMD_POSE = (CART.cmd_valid, CART.pos_cmd_m, CART.quat_cmd)
-USER_VARS = ("msp.mode", "msp.path_id", "msp.teach", "msp.capture", "msp.capture_dist_m", "msp.capture_angle_rad",
-             "msp.speed_scale", "msp.record_source")
 #: the gripper's accepted user requests (Servo Control, controller/gripper.py): a recording stores each
 GRIPPER_EVENT = (GRIP.event_seq, GRIP.event, GRIP.event_force_n)
 GRIPPER_DONE = (GRIP.msp_done_seq, GRIP.msp_done_code)
-#: the user variables of moves and of the checks (read with USER_VARS every run)
-MOVE_USER_VARS = ("msp.move_request", "msp.max_turn_rad", "msp.track_tol_m", "msp.track_tol_rad")
-_RUN_VARS = USER_VARS + MOVE_USER_VARS
 #: what the check and the tracking read from the layers below, when the model has them
 JOINT_VARS = (JOINT.q_cmd_rad, JOINT.q_cmd_valid, DAQ.joint_angle_rad)
 ROLL_VAR = JOINT.shoulder_roll_rad
@@ -122,16 +117,7 @@ CART_TRAJECTORY = 2
 
 def joint_move_specs() -> list[VarSpec]:
     """The joint-move hand-over to the Joint Planner (owned by the Multi-Segment Path Planner)."""
-    return [
-        VarSpec("msp.jmove_seq", "task_io", "i4", (), "msp", 0,
-                doc="joint move number: a new value is a new joint move for the Joint Planner"),
-        VarSpec("msp.jmove_goal_rad", "task_io", "f8", (6,), "msp", [0.0] * 6, "rad",
-                doc="joint move goal (command-area order; a straight line in joint space)"),
-        VarSpec("msp.jmove_speed", "task_io", "f8", (), "msp", JMOVE_SPEED, "1",
-                doc="joint move speed: fraction of the software rate limits (0..1)"),
-        VarSpec("msp.jmove_stop", "task_io", "b1", (), "msp", False,
-                doc="stop: decelerate the running joint move to rest"),
-    ]
+    return JMOVE.specs()
 
 
 def _request_problem(req: MoveRequest) -> str:
@@ -181,6 +167,79 @@ class RecordSource:
     NAMES = {0: "MEASURED", 1: "COMMAND"}
 
 
+class MspVars(VarGroup, prefix="msp", writer="msp"):
+    """The Multi-Segment Path Planner's user requests (writer ``user``) and statuses. Its
+    hand-overs to the layers below are declared where they are read: ``SEG``
+    (controller.trajectory), ``JMOVE`` (controller.layers), ``MSP_GRIP`` (controller.gripper)."""
+
+    mode: Var[int] = var("command_input", "i2", (), 0, writer="user",
+                         doc="path planner mode (RECORD into, PLAY: path msp.path_id)",
+                         enum={k: v for k, v in MspMode.NAMES.items() if k != MspMode.MOVE})
+    path_id: Var[int] = var("command_input", "i4", (), 0, writer="user",
+                            doc="the path to record into or play (the id in its file; pfma path list)")
+    teach: Var[int] = var("command_input", "i4", (), 0, writer="user",
+                          doc="increment while recording to store the present tool pose as a teach point")
+    capture: Var[bool] = var("command_input", "b1", (), True, writer="user",
+                             doc="while recording, also capture points continuously (distance/angle threshold)")
+    capture_dist_m: Var[float] = var("command_input", "f8", (), CAPTURE_DIST_M, "m", writer="user",
+                                     doc="continuous capture: a point each time the tool moved this far")
+    capture_angle_rad: Var[float] = var("command_input", "f8", (), CAPTURE_ANGLE_RAD, "rad", writer="user",
+                                        doc="continuous capture: a point each time the tool turned this far")
+    record_source: Var[int] = var(
+        "command_input", "i2", (), RecordSource.MEASURED, writer="user",
+        doc="recording stores the MEASURED tool pose (joint.tool_*) or the Cartesian COMMAND "
+            "(cart.pos_cmd_m/quat_cmd: playback repeats the recorded motion)", enum=RecordSource.NAMES)
+    speed_scale: Var[float] = var("command_input", "f8", (), 1.0, writer="user",
+                                  doc="playback speed factor on the path's speeds (capped by traj.*_max)")
+    max_turn_rad: Var[float] = var(
+        "command_input", "f8", (), MAX_TURN_RAD, "rad", writer="user",
+        doc="a playback or move that would turn the tool more than this from its starting orientation "
+            "is refused before it starts (a move request may carry its own)")
+    track_tol_m: Var[float] = var(
+        "command_input", "f8", (), TRACK_TOL_M, "m", writer="user",
+        doc="tracking tolerance: a playback or move ends OK only if the measured tool point stayed "
+            "this close to the path")
+    track_tol_rad: Var[float] = var(
+        "command_input", "f8", (), TRACK_TOL_RAD, "rad", writer="user",
+        doc="tracking tolerance: tool orientation from the path's (a joint move: joint deviation from its line)")
+    move_request: Var[np.ndarray] = var(
+        "command_input", "f8", (MOVE_REQUEST_LEN,), [0.0] * MOVE_REQUEST_LEN, writer="user",
+        doc="move-to request: [seq, kind 0 stop 1 pose 2 joints, x y z m, qw qx qy qz (0: keep the "
+            "orientation), 6 joint rad, max turn rad (0: msp.max_turn_rad)]; a new seq is a new request")
+    state: Var[int] = var("status_output", "i2", (), 0,
+                          doc="path planner state: idle, recording, playing, moving (a move request)",
+                          enum=MspMode.NAMES)
+    points: Var[int] = var("status_output", "i4", (), 0,
+                           doc="points recorded so far (recording) or in the path (playing)")
+    segment: Var[int] = var("status_output", "i4", (), 0, doc="playback: the segment running (1-based; 0 none)")
+    segments: Var[int] = var("status_output", "i4", (), 0, doc="playback: segments in the plan")
+    finished: Var[int] = var("status_output", "i4", (), 0,
+                             doc="counts recordings saved and playbacks ended (msp.result says how)")
+    result: Var[int] = var(
+        "status_output", "i2", (), 0,
+        doc="how the last recording/playback/move ended (FAILED: not followed within the tracking tolerance)",
+        enum=MspResult.NAMES)
+    result_text: Var[np.ndarray] = var(
+        "status_output", "u1", (RESULT_TEXT_BYTES,), [0] * RESULT_TEXT_BYTES,
+        doc="how the last recording/playback/move ended, in words (UTF-8, zero-padded)")
+    move_seq: Var[int] = var("status_output", "i4", (), 0, doc="the move request taken last (msp.move_request[0])")
+    move_done_seq: Var[int] = var("status_output", "i4", (), 0,
+                                  doc="the move request answered last (msp.result, msp.result_text say how)")
+    track_err_m: Var[float] = var(
+        "status_output", "f8", (), 0.0, "m",
+        doc="worst tracking error of the running (or last) playback or move: tool point")
+    track_err_rad: Var[float] = var("status_output", "f8", (), 0.0, "rad",
+                                    doc="worst tracking error: tool orientation (a joint move: joint deviation)")
+
+
+MSP = MspVars
+USER_VARS = (MSP.mode, MSP.path_id, MSP.teach, MSP.capture, MSP.capture_dist_m, MSP.capture_angle_rad,
+             MSP.speed_scale, MSP.record_source)
+#: the user variables of moves and of the checks (read with USER_VARS every run)
+MOVE_USER_VARS = (MSP.move_request, MSP.max_turn_rad, MSP.track_tol_m, MSP.track_tol_rad)
+_RUN_VARS = USER_VARS + MOVE_USER_VARS
+
+
 class MultiSegmentLayer(Layer):
     """Multi-Segment Path Planner: path recording and playback (see the module doc).
 
@@ -225,61 +284,7 @@ class MultiSegmentLayer(Layer):
         self.last_error = ""
 
     def specs(self) -> list[VarSpec]:
-        return self.state_specs() + segment_specs() + joint_move_specs() + path_request_specs() + [
-            VarSpec("msp.mode", "command_input", "i2", (), "user", 0,
-                    doc="path planner mode (RECORD into, PLAY: path msp.path_id)",
-                    enum={k: v for k, v in MspMode.NAMES.items() if k != MspMode.MOVE}),
-            VarSpec("msp.path_id", "command_input", "i4", (), "user", 0,
-                    doc="the path to record into or play (the id in its file; pfma path list)"),
-            VarSpec("msp.teach", "command_input", "i4", (), "user", 0,
-                    doc="increment while recording to store the present tool pose as a teach point"),
-            VarSpec("msp.capture", "command_input", "b1", (), "user", True,
-                    doc="while recording, also capture points continuously (distance/angle threshold)"),
-            VarSpec("msp.capture_dist_m", "command_input", "f8", (), "user", CAPTURE_DIST_M, "m",
-                    doc="continuous capture: a point each time the tool moved this far"),
-            VarSpec("msp.capture_angle_rad", "command_input", "f8", (), "user", CAPTURE_ANGLE_RAD, "rad",
-                    doc="continuous capture: a point each time the tool turned this far"),
-            VarSpec("msp.record_source", "command_input", "i2", (), "user", RecordSource.MEASURED,
-                    doc="recording stores the MEASURED tool pose (joint.tool_*) or the Cartesian COMMAND "
-                        "(cart.pos_cmd_m/quat_cmd: playback repeats the recorded motion)", enum=RecordSource.NAMES),
-            VarSpec("msp.speed_scale", "command_input", "f8", (), "user", 1.0,
-                    doc="playback speed factor on the path's speeds (capped by traj.*_max)"),
-            VarSpec("msp.max_turn_rad", "command_input", "f8", (), "user", MAX_TURN_RAD, "rad",
-                    doc="a playback or move that would turn the tool more than this from its starting orientation "
-                        "is refused before it starts (a move request may carry its own)"),
-            VarSpec("msp.track_tol_m", "command_input", "f8", (), "user", TRACK_TOL_M, "m",
-                    doc="tracking tolerance: a playback or move ends OK only if the measured tool point stayed "
-                        "this close to the path"),
-            VarSpec("msp.track_tol_rad", "command_input", "f8", (), "user", TRACK_TOL_RAD, "rad",
-                    doc="tracking tolerance: tool orientation from the path's (a joint move: joint deviation "
-                        "from its line)"),
-            VarSpec("msp.move_request", "command_input", "f8", (MOVE_REQUEST_LEN,), "user", [0.0] * MOVE_REQUEST_LEN,
-                    doc="move-to request: [seq, kind 0 stop 1 pose 2 joints, x y z m, qw qx qy qz (0: keep the "
-                        "orientation), 6 joint rad, max turn rad (0: msp.max_turn_rad)]; a new seq is a new request"),
-            VarSpec("msp.state", "status_output", "i2", (), "msp", 0,
-                    doc="path planner state: idle, recording, playing, moving (a move request)", enum=MspMode.NAMES),
-            VarSpec("msp.points", "status_output", "i4", (), "msp", 0,
-                    doc="points recorded so far (recording) or in the path (playing)"),
-            VarSpec("msp.segment", "status_output", "i4", (), "msp", 0,
-                    doc="playback: the segment running (1-based; 0 none)"),
-            VarSpec("msp.segments", "status_output", "i4", (), "msp", 0,
-                    doc="playback: segments in the plan"),
-            VarSpec("msp.finished", "status_output", "i4", (), "msp", 0,
-                    doc="counts recordings saved and playbacks ended (msp.result says how)"),
-            VarSpec("msp.result", "status_output", "i2", (), "msp", 0,
-                    doc="how the last recording/playback/move ended (FAILED: not followed within the tracking "
-                        "tolerance)", enum=MspResult.NAMES),
-            VarSpec("msp.result_text", "status_output", "u1", (RESULT_TEXT_BYTES,), "msp", [0] * RESULT_TEXT_BYTES,
-                    doc="how the last recording/playback/move ended, in words (UTF-8, zero-padded)"),
-            VarSpec("msp.move_seq", "status_output", "i4", (), "msp", 0,
-                    doc="the move request taken last (msp.move_request[0])"),
-            VarSpec("msp.move_done_seq", "status_output", "i4", (), "msp", 0,
-                    doc="the move request answered last (msp.result, msp.result_text say how)"),
-            VarSpec("msp.track_err_m", "status_output", "f8", (), "msp", 0.0, "m",
-                    doc="worst tracking error of the running (or last) playback or move: tool point"),
-            VarSpec("msp.track_err_rad", "status_output", "f8", (), "msp", 0.0, "rad",
-                    doc="worst tracking error: tool orientation (a joint move: joint deviation)"),
-        ]
+        return self.state_specs() + segment_specs() + joint_move_specs() + path_request_specs() + MSP.specs()
 
     # --- helpers ---------------------------------------------------------------------------
     def _has(self, rt: "LayerContext", names: Sequence[str]) -> bool:
@@ -304,7 +309,7 @@ class MultiSegmentLayer(Layer):
         return np.asarray(v[JOINT.tool_pos_m], dtype=float), q_normalize(q)
 
     def _status(self, rt: "LayerContext", **kw: int) -> None:
-        rt.wm.post_task_outputs("msp", {f"msp.{k}": v for k, v in kw.items()})
+        rt.wm.post_task_outputs("msp", {getattr(MSP, k): v for k, v in kw.items()})
 
     def _end(self, rt: "LayerContext", result: int, text: str, idle: bool = True, move_seq: int = 0) -> None:
         """A recording, playback or move ended: msp.finished, msp.result, msp.result_text (and
@@ -323,9 +328,9 @@ class MultiSegmentLayer(Layer):
         if len(raw) > RESULT_TEXT_BYTES:  # the result stays readable at the end
             raw = text.encode()[:RESULT_TEXT_BYTES - len(tail) - 3] + b"..." + tail.encode()
         words[:len(raw)] = np.frombuffer(raw, dtype=np.uint8)
-        out = {"msp.finished": n, "msp.result": result, "msp.result_text": words}
+        out = {MSP.finished: n, MSP.result: result, MSP.result_text: words}
         if move_seq:
-            out["msp.move_done_seq"] = move_seq
+            out[MSP.move_done_seq] = move_seq
         rt.wm.post_task_outputs("msp", out)
         lvl = Level.INFO if result == MspResult.OK else Level.WARNING
         rt.post(self.key, lvl, line)
@@ -336,22 +341,22 @@ class MultiSegmentLayer(Layer):
                                    round(rt.now - self._rec_t0, 6)))
 
     def _start_record(self, rt, v) -> None:
-        self._source = int(v["msp.record_source"])
+        self._source = int(v[MSP.record_source])
         if self._source not in RecordSource.NAMES:
             rt.post(self.key, Level.WARNING, f"msp.record_source {self._source} unknown; recording the measured pose")
             self._source = RecordSource.MEASURED
         pose = self._tool_pose(rt)
-        self._rec_id = int(v["msp.path_id"])
+        self._rec_id = int(v[MSP.path_id])
         if pose is None:
             self._end(rt, MspResult.NO_POSE, f"record: no {RecordSource.NAMES[self._source].lower()} tool pose "
                                              f"({'cart.pos_cmd_m' if self._source else 'joint.tool_pos_m'})")
             return
         self._rec, self._rec_t0 = [], rt.now
-        self._teach_seen = int(v["msp.teach"])
+        self._teach_seen = int(v[MSP.teach])
         if self._has(rt, GRIPPER_EVENT):
             self._grip_event_seen = int(rt.wm.get(GRIP.event_seq))
         self.state = MspMode.RECORD
-        if bool(v["msp.capture"]):
+        if bool(v[MSP.capture]):
             self._add_point(rt, *pose, "capture")
         self._status(rt, state=MspMode.RECORD, points=len(self._rec))
         rt.post(self.key, Level.INFO, f"recording path id {self._rec_id} "
@@ -363,20 +368,20 @@ class MultiSegmentLayer(Layer):
             return
         p, q = pose
         n0 = len(self._rec)
-        teach = int(v["msp.teach"])
+        teach = int(v[MSP.teach])
         if teach != self._teach_seen:
             self._teach_seen = teach
             self._add_point(rt, p, q, "teach")
             rt.post(self.key, Level.INFO, f"teach point {len(self._rec) - 1}: "
                                           + " ".join(f"{x:+.4f}" for x in p) + " m")
-        elif bool(v["msp.capture"]):
+        elif bool(v[MSP.capture]):
             if not self._rec:
                 self._add_point(rt, p, q, "capture")
             else:
                 last = self._rec[-1]
                 moved = float(np.linalg.norm(p - np.array(last.pos_m)))
                 turned = q_angle(q, last.quat)
-                if moved >= float(v["msp.capture_dist_m"]) or turned >= float(v["msp.capture_angle_rad"]):
+                if moved >= float(v[MSP.capture_dist_m]) or turned >= float(v[MSP.capture_angle_rad]):
                     self._add_point(rt, p, q, "capture")
         self._record_gripper(rt, p, q)
         if len(self._rec) != n0:
@@ -405,7 +410,7 @@ class MultiSegmentLayer(Layer):
         pose = self._tool_pose(rt)
         if pose is not None:
             self._record_gripper(rt, *pose)  # a request answered since the last run is part of the path
-        if pose is not None and bool(v["msp.capture"]) and self._rec:
+        if pose is not None and bool(v[MSP.capture]) and self._rec:
             last = self._rec[-1]
             if np.linalg.norm(pose[0] - np.array(last.pos_m)) > 1e-4 or q_angle(pose[1], last.quat) > 1e-3:
                 self._add_point(rt, *pose, "capture")  # the end of the motion is part of the path
@@ -505,7 +510,7 @@ class MultiSegmentLayer(Layer):
         return False
 
     def _start_play(self, rt, v, first: bool = True) -> None:
-        pid = int(v["msp.path_id"])
+        pid = int(v[MSP.path_id])
         start = self._traj_start(rt)
         if start is None:
             self._end(rt, MspResult.NO_POSE, f"play path id {pid}: no start pose (no valid Cartesian command and no "
@@ -513,7 +518,7 @@ class MultiSegmentLayer(Layer):
             return
         try:
             path = self.store.by_id(pid)
-            plan = plan_path(path, float(v["msp.speed_scale"]), start_quat=start[1])
+            plan = plan_path(path, float(v[MSP.speed_scale]), start_quat=start[1])
         except PathError as err:
             self.last_error = str(err)
             self._end(rt, MspResult.NO_PATH if path_missing(err) else MspResult.EMPTY,
@@ -555,17 +560,17 @@ class MultiSegmentLayer(Layer):
         if not self._cart_mode_ok(rt, f"{label} ({req.describe()})", req, first):
             return
         quat = start[1] if req.quat is None else np.asarray(req.quat, dtype=float)
-        base = DEFAULT_LIMITS.scaled(float(v["msp.speed_scale"]))
+        base = DEFAULT_LIMITS.scaled(float(v[MSP.speed_scale]))
         self._plan = [PlannedSegment(0, np.asarray(req.pos_m, dtype=float), quat, base)]
         self._begin(rt, v, job, start, [Target("the target", self._plan[0].pos_m, quat)], req.max_turn_rad)
 
     def _begin(self, rt, v, job: _Job, start, targets, max_turn: float | None = None) -> None:
         """Set the job up and start its check (or, with no joint angles in the model, start
         at once, saying the motion was not checked)."""
-        job.tol_m, job.tol_rad = float(v["msp.track_tol_m"]), float(v["msp.track_tol_rad"])
-        turn = max_turn if max_turn else float(v["msp.max_turn_rad"])
-        bad = [f"{n} {x!r}" for n, x in (("msp.track_tol_m", job.tol_m), ("msp.track_tol_rad", job.tol_rad),
-                                         ("msp.max_turn_rad", turn)) if not (math.isfinite(x) and x > 0.0)]
+        job.tol_m, job.tol_rad = float(v[MSP.track_tol_m]), float(v[MSP.track_tol_rad])
+        turn = max_turn if max_turn else float(v[MSP.max_turn_rad])
+        bad = [f"{n} {x!r}" for n, x in ((MSP.track_tol_m, job.tol_m), (MSP.track_tol_rad, job.tol_rad),
+                                         (MSP.max_turn_rad, turn)) if not (math.isfinite(x) and x > 0.0)]
         if bad:
             self._end(rt, MspResult.REFUSED, f"{job.label} refused: {', '.join(bad)} must be > 0",
                       move_seq=job.move_seq)
@@ -577,7 +582,7 @@ class MultiSegmentLayer(Layer):
         if job.move_seq:
             out["move_seq"] = job.move_seq
         self._status(rt, **out)
-        rt.wm.post_task_outputs("msp", {"msp.track_err_m": 0.0, "msp.track_err_rad": 0.0})
+        rt.wm.post_task_outputs("msp", {MSP.track_err_m: 0.0, MSP.track_err_rad: 0.0})
         roll = self._roll(rt)
         if job.kind == "joint":
             job.check = MotionCheck.joint(job.q0, job.goal, max_turn_rad=turn, shoulder_roll_rad=roll)
@@ -627,9 +632,9 @@ class MultiSegmentLayer(Layer):
         if job.kind == "joint":
             self._jmove_seq += 1
             job.jseq = self._jmove_seq
-            speed = min(1.0, JMOVE_SPEED * float(rt.wm.get_task_inputs(("msp.speed_scale",))["msp.speed_scale"]))
-            rt.wm.post_task_outputs("msp", {"msp.jmove_seq": job.jseq, "msp.jmove_goal_rad": job.goal,
-                                            "msp.jmove_speed": speed, "msp.jmove_stop": False, "msp.segment": 1})
+            speed = min(1.0, JMOVE_SPEED * float(rt.wm.get_task_inputs((MSP.speed_scale,))[MSP.speed_scale]))
+            rt.wm.post_task_outputs("msp", {JMOVE.jmove_seq: job.jseq, JMOVE.jmove_goal_rad: job.goal,
+                                            JMOVE.jmove_speed: speed, JMOVE.jmove_stop: False, MSP.segment: 1})
             return
         if job.kind == "path":
             rt.post(self.key, Level.INFO, f"playing {job.label}: {len(self._plan)} segments from {job.points} points")
@@ -639,9 +644,9 @@ class MultiSegmentLayer(Layer):
         s = self._plan[self._seg_i]
         self._seg_seq += 1
         rt.wm.post_task_outputs("msp", {
-            "msp.seg_seq": self._seg_seq, "msp.seg_pos_m": s.pos_m, "msp.seg_quat": s.quat,
-            "msp.seg_limits": np.array(s.limits, dtype=float), "msp.seg_last": self._seg_i == len(self._plan) - 1,
-            "msp.seg_stop": False, "msp.segment": self._seg_i + 1})
+            SEG.seg_seq: self._seg_seq, SEG.seg_pos_m: s.pos_m, SEG.seg_quat: s.quat,
+            SEG.seg_limits: np.array(s.limits, dtype=float), SEG.seg_last: self._seg_i == len(self._plan) - 1,
+            SEG.seg_stop: False, MSP.segment: self._seg_i + 1})
 
     def _segment_geometry(self, job: _Job, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(p0, q0, p1, q1) of segment ``i`` of the plan (segment 0 from the start pose)."""
@@ -686,7 +691,7 @@ class MultiSegmentLayer(Layer):
         if err_m <= job.err_m and err_rad <= job.err_rad:
             return
         job.err_m, job.err_rad = max(job.err_m, err_m), max(job.err_rad, err_rad)
-        rt.wm.post_task_outputs("msp", {"msp.track_err_m": job.err_m, "msp.track_err_rad": job.err_rad})
+        rt.wm.post_task_outputs("msp", {MSP.track_err_m: job.err_m, MSP.track_err_rad: job.err_rad})
         frac = max(err_m / job.tol_m, err_rad / job.tol_rad)
         if frac > job.worst_frac:
             job.worst_frac, job.where = frac, where
@@ -733,9 +738,9 @@ class MultiSegmentLayer(Layer):
         if s.gripper:  # the segment's end is a gripper event: do it before going on
             self._grip_seq += 1
             self._grip_wait = True
-            rt.wm.post_task_outputs("msp", {"msp.gripper_request": int(GRIPPER_ACTIONS[s.gripper]),
-                                            "msp.gripper_force_n": s.force_n or 0.0,
-                                            "msp.gripper_seq": self._grip_seq})
+            rt.wm.post_task_outputs("msp", {MSP_GRIP.gripper_request: int(GRIPPER_ACTIONS[s.gripper]),
+                                            MSP_GRIP.gripper_force_n: s.force_n or 0.0,
+                                            MSP_GRIP.gripper_seq: self._grip_seq})
             rt.post(self.key, Level.INFO, f"{job.label}: segment {self._seg_i + 1} reached; gripper {s.gripper}"
                                           + (f" at {s.force_n:g} N" if s.force_n else ""))
             return
@@ -786,10 +791,10 @@ class MultiSegmentLayer(Layer):
         if self._grip_wait:  # a gripper move of the path: stop it too
             self._grip_wait = False
             self._grip_seq += 1
-            rt.wm.post_task_outputs("msp", {"msp.gripper_request": int(GRIPPER_ACTIONS["stop"]),
-                                            "msp.gripper_force_n": 0.0, "msp.gripper_seq": self._grip_seq})
+            rt.wm.post_task_outputs("msp", {MSP_GRIP.gripper_request: int(GRIPPER_ACTIONS["stop"]),
+                                            MSP_GRIP.gripper_force_n: 0.0, MSP_GRIP.gripper_seq: self._grip_seq})
         if job is not None and job.running:
-            rt.wm.post_task_outputs("msp", {"msp.jmove_stop": True} if job.kind == "joint" else {"msp.seg_stop": True})
+            rt.wm.post_task_outputs("msp", {JMOVE.jmove_stop: True} if job.kind == "joint" else {SEG.seg_stop: True})
         what = "playback" if job is None or job.kind == "path" else job.label
         self._end(rt, MspResult.CANCELLED, f"{what} stopped: {why}", move_seq=job.move_seq if job is not None else 0)
 
@@ -817,7 +822,7 @@ class MultiSegmentLayer(Layer):
             self._end(rt, MspResult.REFUSED, f"move {req.seq} ({req.describe()}) refused: busy ({busy}; stop it "
                                              f"first)", idle=False, move_seq=req.seq)
             return
-        rt.wm.post_task_outputs("msp", {"msp.move_seq": req.seq})
+        rt.wm.post_task_outputs("msp", {MSP.move_seq: req.seq})
         rt.post(self.key, Level.INFO, f"move {req.seq}: {req.describe()}")
         self._start_move(rt, v, req)
 
@@ -851,7 +856,7 @@ class MultiSegmentLayer(Layer):
             else:
                 self._start_play(rt, v, first=False)
             return
-        mode = int(v["msp.mode"])
+        mode = int(v[MSP.mode])
         if mode != self._mode_seen:
             old, self._mode_seen = self._mode_seen, mode
             if self.state == MspMode.RECORD:
@@ -865,10 +870,10 @@ class MultiSegmentLayer(Layer):
             elif mode != MspMode.IDLE:
                 rt.post(self.key, Level.WARNING, f"msp.mode {mode} unknown (0 idle, 1 record, 2 play)")
             return
-        seq = int(v["msp.move_request"][0])
+        seq = int(v[MSP.move_request][0])
         if seq != self._move_seen:
             self._move_seen = seq
-            self._move_request(rt, v, MoveRequest.from_array(v["msp.move_request"]))
+            self._move_request(rt, v, MoveRequest.from_array(v[MSP.move_request]))
             return
         if self.state == MspMode.RECORD:
             self._record(rt, v)
@@ -880,7 +885,7 @@ class MultiSegmentLayer(Layer):
 
     def _refuse_while_down(self, rt) -> None:
         """A move request while the layer is not running is answered at once (never run later)."""
-        seq = int(rt.wm.get_task_inputs(("msp.move_request",))["msp.move_request"][0])
+        seq = int(rt.wm.get_task_inputs((MSP.move_request,))[MSP.move_request][0])
         if seq != self._move_seen:
             self._move_seen = seq
             self._end(rt, MspResult.REFUSED, f"move {seq} refused: the Multi-Segment Path Planner is not running "

@@ -181,3 +181,27 @@ def test_traj_names_are_the_old_strings() -> None:
     assert all(v.writer == "trajectory" for v in TRAJ.all()[:10])
     specs = {s.name: s for s in TrajectoryLayer().specs()}
     assert all(specs[v].name is v for v in TRAJ.all())
+
+
+def test_every_layer_variable_is_declared_in_a_group() -> None:
+    """Every row of the six upper layers' tables (and the runtime's) is a declared ``Var``,
+    so "find references" follows it; only the decision-table state every layer has
+    (``<key>.command``, ``.status``, ``.row``, ``.task``, ``.error``) is made from the key."""
+    from controller.cartesian import CartesianLayer
+    from controller.layers import JMOVE, JointPlannerLayer, UpDownLayer
+    from controller.paths.layer import MSP, MultiSegmentLayer
+    from controller.runtime import runtime_specs
+    from controller.servo import ServoLayer
+    from controller.trajectory import SEG, TrajectoryLayer
+
+    layers = [UpDownLayer(), MultiSegmentLayer(background_save=False), TrajectoryLayer(), CartesianLayer(),
+              JointPlannerLayer(), ServoLayer()]
+    for layer in layers:
+        state = {s.name for s in layer.state_specs()}
+        strays = [s.name for s in layer.specs() if s.name not in state and not isinstance(s.name, Var)]
+        assert strays == [], f"{layer.key}: declared as plain strings: {strays}"
+    assert all(isinstance(s.name, Var) for s in runtime_specs())
+    assert MSP.mode == "msp.mode" and MSP.mode.writer == "user" and MSP.state.writer == "msp"
+    assert [str(v) for v in SEG.all()] == ["msp.seg_seq", "msp.seg_pos_m", "msp.seg_quat", "msp.seg_limits",
+                                           "msp.seg_last", "msp.seg_stop"]
+    assert JMOVE.jmove_speed.spec.initial == 0.25
