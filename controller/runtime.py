@@ -19,9 +19,9 @@ One minor frame (:meth:`ControllerRuntime.step`), locked to the I/O service's fr
    service's frame number so that the servo runs in the frames with fresh resolver
    data.
 
-A status change therefore climbs one layer per minor frame: an error seen by Data
-Acquisition in frame k is System Up/Down's ERROR in frame k + 6 (report 2.2.4: "within
-6 minor frames").
+A status change therefore climbs one layer per minor frame (report 2.2.4), except an
+ERROR: it climbs every layer in the frame it is decided (:meth:`ControllerRuntime._climb_errors`),
+so an error seen by Data Acquisition in frame k is System Up/Down's ERROR in frame k.
 
 Missed frames (docs/controller.md, "Missed frames and command freshness"): when the
 service frame jumped by more than 1 since the last step, the frames in between were
@@ -571,6 +571,8 @@ class ControllerRuntime:
             self._reset_servo_event()
         for l in self.run_layers:
             l.run_table(self)
+        if self._changed:
+            self._climb_errors()
         daq_status = self._decided(self.daq)
         for l in self.run_layers:
             l.run_sequence(self)
@@ -601,6 +603,26 @@ class ControllerRuntime:
         for fn in self.on_frame:
             fn(rec)
         return rec
+
+    def _climb_errors(self) -> None:
+        """An ERROR decided this frame reaches System Up/Down in the same frame (issue 33
+        item 4; docs/controller.md "Error response"). The report's tables see a neighbour's
+        status one communications segment later, so an error climbs one layer a minor frame
+        (its 2.2.4: the top "notified within 6 minor frames"); with the one or two frames a
+        fault takes to be detected, that is 7-8 frames from the event. Here, when a layer's
+        table has just decided ERROR and its superior (run by this process) has not, a
+        communications segment carries the status up and the superior's table decides again,
+        bottom up, so every layer above decides in the frame the fault was detected. Other
+        status changes (power-up, shut-down, resets) climb one layer a frame as the report
+        draws it. A superior in another process (a distributed controller) sees it at its
+        next frame, as before."""
+        changed, local = self._changed, self.local_keys
+        for l in reversed(self.run_layers):  # bottom up: each re-run may carry it one further
+            up = l.superior
+            if l.key in changed and l.decided == Status.ERROR and up is not None and up.key in local \
+                    and up.decided != Status.ERROR:
+                self.wm.communications_segment()
+                up.run_table(self)
 
     # --- a distributed controller's process (controller/distributed.py) ---------------------
     def _inputs_frame(self) -> int:

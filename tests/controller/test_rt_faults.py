@@ -1,12 +1,16 @@
-"""Faults injected at the bottom reach System Up/Down within 6 minor frames and the
-DAC goes to 0 V (simulated time)."""
+"""Faults injected at the bottom reach System Up/Down within 6 minor frames of the event
+(issue 33 item 4: an ERROR climbs every layer in the frame it is detected) and the DAC
+goes to 0 V (simulated time)."""
+
+import math
 
 import numpy as np
 import pytest
 
-from controller.daq_layer import FAULT_BOARD, FAULT_FT, FAULT_RESOLVER, FAULT_TACH
+from controller.daq_layer import FAULT_BOARD, FAULT_FT, FAULT_RESOLVER, FAULT_TACH, FT_BAD_FRAMES
 from controller.decision import Status
 from controller.layers import Request, Response
+from ioservice.tasks import FT_STALE_S
 
 S = Status
 RATE_CHANNELS = slice(0, 6)  # DAC channels 0..5: the joint rate commands (rack_default.toml)
@@ -47,14 +51,18 @@ def test_fault_reaches_system_up_down_within_6_minor_frames_and_dac_is_0_v(power
     rt = powered.rt
     if bit == FAULT_FT:
         _force_on(powered)
-    k_detect, k_updown, _ = inject_and_measure(powered, inject)
+    k_detect, k_updown, k_event = inject_and_measure(powered, inject)
     assert powered.detected_bits & bit
-    assert k_updown - k_detect <= 6, f"{fault}: {k_updown - k_detect} frames"
-    # every layer is in ERROR, and the chain went up one layer per frame
+    # from the event (the frame it was injected in, as issue 33 counts), plus, for a link that
+    # goes quiet, the deadline before quiet is a fault: the service's F/T stale age and the
+    # controller's FT_BAD_FRAMES on top (a late record is not a fault)
+    deadline = math.ceil(FT_STALE_S / powered.period_s) + FT_BAD_FRAMES if bit == FAULT_FT else 0
+    assert k_updown - k_event <= 6 + deadline, f"{fault}: {k_updown - k_event} frames from the event"
+    # every layer is in ERROR, all of them decided in the frame the fault was detected
     assert rt.all_status(S.ERROR)
     err = [rt.first_change(k, S.ERROR, k_detect - 1) for k in
            ("daq", "servo", "joint", "cartesian", "trajectory", "msp", "updown")]
-    assert err == list(range(k_detect, k_detect + 7))
+    assert err == [k_detect] * 7
     assert np.all(powered.dac_volts()[RATE_CHANNELS] == 0.0)
     # the safe stop ends with the current limits at 0 and the arm request withdrawn: all 0 V
     powered.run_until(lambda: np.all(powered.dac_volts() == 0.0), 250)
@@ -122,7 +130,7 @@ def test_a_resolver_jump_is_an_error_of_the_servo_layer(powered):
     powered.world.sim.set_errors(SimErrors(resolver_offset_rad=tuple(offs)))
     powered.run_until(lambda: rt.status("updown") == S.ERROR, 40)
     k_servo = rt.first_change("servo", S.ERROR)
-    assert rt.first_change("updown", S.ERROR) - k_servo == 5  # five layers above the servo
+    assert rt.first_change("updown", S.ERROR) == k_servo  # the five layers above, in that frame
     assert int(rt.wm.get("servo.error")) == 14
     assert rt.servo.trip is not None and rt.servo.trip.joint == 2 and rt.servo.trip.cause_name == "resolver bit or loss"
     powered.step(2)
