@@ -159,7 +159,7 @@ class DelayVars(VarGroup, prefix="delay", writer="user"):
 
     round_trip_s: Var[float] = var("command_input", "f8", (), 0.0, "s",
                                    doc="synthetic round-trip delay, split equally up/down (0..8 s)")
-    jitter: Var[float] = var("command_input", "f8", (), 0.0, "1",
+    jitter: Var[float] = var("command_input", "f8", (), 0.0, "1", valid=(0.0, 0.5),
                              doc="synthetic delay jitter fraction per packet (0 or 0.1; order preserved)")
 
 

@@ -40,7 +40,7 @@ from controller.params import (
 )
 from controller.quat import q_angle
 from controller.worldmodel import VarSpec
-from controller.worldmodel.var import Var, VarGroup, var
+from controller.worldmodel.var import UNIT_QUATERNION, Var, VarGroup, var
 from controller.routes import camera_name, decode_matrix_route, parse_route_request, route_text
 from controller.variables import CART, DAQ
 
@@ -223,9 +223,11 @@ TASK_NAMES = {int(k) * 10 + int(t): ("IDLE" if k == Action.NONE and t == TaskSta
 #: error report codes any layer may post in ``<key>.error`` (docs/controller.md): a task of
 #: the layer raised; a neighbour's process is lost, or this process stops while the system
 #: is up (controller.distributed). Each layer adds its own (``Layer.error_names``).
-ERR_TASK_RAISED, ERR_SECTION_LOST, ERR_PROCESS_STOPPING = 90, 91, 92
+#: A task that posts a value outside its variable's type or valid range (report 2.2.2 rule 4)
+#: has its post refused (the variable keeps its last valid value) and its layer in ERROR.
+ERR_TASK_RAISED, ERR_SECTION_LOST, ERR_PROCESS_STOPPING, ERR_INVALID_VALUE = 90, 91, 92, 93
 ERROR_NAMES = {0: "none", ERR_TASK_RAISED: "a task raised", ERR_SECTION_LOST: "neighbour process lost",
-               ERR_PROCESS_STOPPING: "this process stopping"}
+               ERR_PROCESS_STOPPING: "this process stopping", ERR_INVALID_VALUE: "a task posted an invalid value"}
 
 
 class Layer:
@@ -696,7 +698,7 @@ class JointMoveVars(VarGroup, prefix="msp", writer="msp"):
                               doc="joint move number: a new value is a new joint move for the Joint Planner")
     jmove_goal_rad: Var[np.ndarray] = var("task_io", "f8", (6,), [0.0] * 6, "rad",
                                           doc="joint move goal (command-area order; a straight line in joint space)")
-    jmove_speed: Var[float] = var("task_io", "f8", (), JMOVE_SPEED, "1",
+    jmove_speed: Var[float] = var("task_io", "f8", (), JMOVE_SPEED, "1", valid=(0.0, 1.0),
                                   doc="joint move speed: fraction of the software rate limits (0..1)")
     jmove_stop: Var[bool] = var("task_io", "b1", (), False, doc="stop: decelerate the running joint move to rest")
 
@@ -720,7 +722,7 @@ class JointVars(VarGroup, prefix="joint", writer="joint"):
                                  doc="servo.q_cmd_rad is a command (else the servo holds where it started)")
     tool_pos_m: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0] * 3, "m",
                                       doc="measured tool point, world: fk(daq.joint_angle_rad), every 80 Hz run")
-    tool_quat: Var[np.ndarray] = var("task_io", "f8", (4,), [0.0] * 4, "1",
+    tool_quat: Var[np.ndarray] = var("task_io", "f8", (4,), [0.0] * 4, "1", valid=UNIT_QUATERNION,
                                      doc="measured tool orientation (w x y z), world; all zero until first computed")
     singular: Var[bool] = var("task_status", "b1", (), False,
                               doc="the joint command is near a singular set (wrist yaw +-90, full stretch, "

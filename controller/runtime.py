@@ -85,13 +85,13 @@ from controller.decision import SHORT, SHORT_CMD, Command, Status, TaskState
 from controller.frames import MINOR_FRAMES_PER_MAJOR, FrameConfig, ScheduleError
 from controller.gripper import GRIP
 from controller.layers import (
-    ERR_TASK_RAISED, JOINT, UI, JointPlannerLayer, Layer, Request, Response, UpDownLayer, find_answer,
+    ERR_INVALID_VALUE, ERR_TASK_RAISED, JOINT, UI, JointPlannerLayer, Layer, Request, Response, UpDownLayer, find_answer,
 )
 from controller.messages import Level, Message, MessageBoard
 from controller.paths import MultiSegmentLayer
 from controller.trajectory import TrajectoryLayer
 from controller.servo import ERR_MISSED, ERR_NO_OUTPUT, ServoLayer
-from controller.worldmodel import VarSpec, WorldModel
+from controller.worldmodel import VarSpec, WorldModel, WorldModelValueError
 from controller.worldmodel.var import Var, VarGroup, var
 from controller.variables import DAQ
 from bit3.layout import ServiceState, Severity
@@ -586,6 +586,9 @@ class ControllerRuntime:
         for name, fn in due:
             try:
                 fn(self)
+            except WorldModelValueError as err:  # rule 4: refused, the variable keeps its value
+                layer = next(l for l in self.layers if name in l.periodic)
+                layer.set_fault(self, ERR_INVALID_VALUE, f"task {name} posted an invalid value: {err}")
             except Exception as err:  # noqa: BLE001 - a task error is its layer's fault
                 layer = next(l for l in self.layers if name in l.periodic)
                 layer.set_fault(self, ERR_TASK_RAISED, f"task {name} raised {type(err).__name__}: {err}")

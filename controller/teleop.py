@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.worldmodel.var import Var, VarGroup, var
+from controller.worldmodel.var import UNIT_QUATERNION, Var, VarGroup, var
 
 SOURCE = "pfma-model.md 8.2, 8.5, 8.6 (assumed)"
 #: hand-controller sources, the rows of daq.hc_axes (bit3.layout.HAND_CONTROLLERS)
@@ -130,7 +130,7 @@ class TeleopVars(VarGroup, prefix="teleop", writer="cartesian"):
                                      doc="force reflection on (CRL in use, deadman, round trip <= 0.5 s)")
     seen_pos_m: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0] * 3, "m",
                                       doc="tool position as the operator sees it (after the downlink delay)")
-    seen_quat: Var[np.ndarray] = var("task_io", "f8", (4,), [1.0, 0.0, 0.0, 0.0], "1",
+    seen_quat: Var[np.ndarray] = var("task_io", "f8", (4,), [1.0, 0.0, 0.0, 0.0], "1", valid=UNIT_QUATERNION,
                                      doc="tool orientation as the operator sees it")
     seen_force_n: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0] * 3, "N",
                                         doc="tool-point force as the operator sees it")

@@ -16,7 +16,7 @@ import numpy as np
 from bit3.layout import HAND_CONTROLLERS, HC_AXES, ServiceState
 from controller.params import JOINTS, N_JOINTS
 from controller.teleop import COARSE_LIN_M_S, COARSE_ROT_RAD_S, FRAME_NAMES, HC_SOURCE_NAMES
-from controller.worldmodel.var import Var, VarGroup, var
+from controller.worldmodel.var import UNIT_QUATERNION, Var, VarGroup, var
 
 #: the Data Acquisition layer's hardware checks (``daq.fault_bits``, a bit each)
 FAULT_RESOLVER, FAULT_TACH, FAULT_FT, FAULT_BOARD, FAULT_SERVICE, FAULT_STALE = 1, 2, 4, 8, 16, 32
@@ -43,8 +43,8 @@ class DaqVars(VarGroup, prefix="daq", writer="daq"):
         doc="motor currents (amplifier current monitors, ADC; command-area order)")
     ft_force_n: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0] * 3, "N", doc="wrist F/T force")
     ft_torque_nm: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0] * 3, "N*m", doc="wrist F/T torque")
-    hc_axes: Var[np.ndarray] = var(
-        "task_io", "f8", (_NH, _NA), [[0.0] * _NA] * _NH, "1",
+    hc_axes: Var[np.ndarray] = var(  # deflections about -1..1; a wider bound leaves room for calibration
+        "task_io", "f8", (_NH, _NA), [[0.0] * _NA] * _NH, "1", valid=(-10.0, 10.0),
         doc=f"hand-controller axes ({', '.join(HAND_CONTROLLERS)} x {', '.join(HC_AXES)})")
     hc_deadman: Var[np.ndarray] = var("task_io", "b1", (_NH,), [False] * _NH, doc="hand-controller deadman")
     service_frame: Var[int] = var("task_io", "i8", (), 0, doc="service frame of the inputs")
@@ -94,13 +94,13 @@ class CartVars(VarGroup, prefix="cart", writer="cartesian"):
     vernier: Var[bool] = var("command_input", "b1", (), False, writer="user",
                              doc="vernier rates (x0.2, limits 0.03 m/s 0.05 rad/s; pfma-model 8.2)")
     pos_cmd_m: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0] * 3, "m", doc="commanded tool point, world")
-    quat_cmd: Var[np.ndarray] = var("task_io", "f8", (4,), [1.0, 0.0, 0.0, 0.0], "1",
+    quat_cmd: Var[np.ndarray] = var("task_io", "f8", (4,), [1.0, 0.0, 0.0, 0.0], "1", valid=UNIT_QUATERNION,
                                     doc="commanded tool orientation (w x y z), world")
     cmd_valid: Var[bool] = var("task_io", "b1", (), False, doc="the Cartesian command is valid")
     cmd_seq: Var[int] = var("task_io", "i4", (), 0, doc="new with every Cartesian command (80 Hz)")
     ref_pos_m: Var[np.ndarray] = var("task_status", "f8", (3,), [0.0] * 3, "m",
                                      doc="reference before the force offset")
-    ref_quat: Var[np.ndarray] = var("task_status", "f8", (4,), [1.0, 0.0, 0.0, 0.0], "1",
+    ref_quat: Var[np.ndarray] = var("task_status", "f8", (4,), [1.0, 0.0, 0.0, 0.0], "1", valid=UNIT_QUATERNION,
                                     doc="reference orientation before the force offset")
     hc_active: Var[bool] = var("task_status", "b1", (), False,
                                doc="the (delayed) hand controller moves the reference (deadman held)")

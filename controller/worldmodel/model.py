@@ -37,7 +37,7 @@ from controller.worldmodel.segment import (
     APPLIED, FORMAT_VERSION, HEADER_FIELDS, HEADER_SIZE, MAGIC, READ_TIMEOUT_S, REJECTED, REQUEST_SLOTS,
     ModelInfo, _Layout, _WMSeqLock, decode, list_segments,
 )
-from controller.worldmodel.spec import AREAS, VarSpec, WorldModelError, coerce
+from controller.worldmodel.spec import AREAS, VarSpec, WorldModelError, WorldModelValueError, coerce
 from pfma.clock import MonotonicClock
 from pfma.errors import did_you_mean
 
@@ -82,6 +82,9 @@ class _Hot(NamedTuple):
     hi: int  #: or the empty 1, 0 when it has gaps: every post then goes through coerce)
     is_state: bool
     f8: bool
+    flo: float  #: a float variable's bounds (VarSpec.bounds; -inf, inf: finite is enough)
+    fhi: float
+    ranged: bool  #: a float array with bounds: the fast path checks its min and max
 
 
 def _hot(s: VarSpec, offset: int) -> _Hot:
@@ -95,7 +98,14 @@ def _hot(s: VarSpec, offset: int) -> _Hot:
     if s.enum:  # no extra check per post: a contiguous enumeration is a range
         values = [v for v, _ in s.enum]
         lo, hi = (values[0], values[-1]) if values[-1] - values[0] + 1 == len(values) else (1, 0)
-    return _Hot(s.writer, offset, dt, s.count, tuple(s.shape), dt.kind, scalar, vector, lo, hi, s.is_state, f8)
+    flo, fhi = -math.inf, math.inf
+    if s.bounds:
+        if dt.kind in "iu":
+            lo, hi = max(lo, int(s.bounds[0])), min(hi, int(s.bounds[1]))
+        else:
+            flo, fhi = s.bounds
+    return _Hot(s.writer, offset, dt, s.count, tuple(s.shape), dt.kind, scalar, vector, lo, hi, s.is_state, f8,
+                flo, fhi, dt.kind == "f" and bool(s.bounds) and s.shape != ())
 
 
 def _fast_raw(h: _Hot, value: Any) -> bytes | None:
@@ -108,7 +118,7 @@ def _fast_raw(h: _Hot, value: Any) -> bytes | None:
     if st is not None:
         k = h.kind
         if k == "f":
-            if h.f8 and (t is float or t is np.float64) and math.isfinite(value):
+            if h.f8 and (t is float or t is np.float64) and math.isfinite(value) and h.flo <= value <= h.fhi:
                 return st.pack(value)
         elif k == "b":
             if t is bool or t is np.bool_:
@@ -121,15 +131,17 @@ def _fast_raw(h: _Hot, value: Any) -> bytes | None:
             return None
         # a sum of finite floats is finite unless it overflows (then: the general way); any
         # inf or nan makes it non-finite
-        if h.kind == "f" and not math.isfinite(sum(value.ravel().tolist())):
-            return None
+        if h.kind == "f":
+            xs = value.ravel().tolist()
+            if not math.isfinite(sum(xs)) or (h.ranged and (min(xs) < h.flo or max(xs) > h.fhi)):
+                return None
         return value.tobytes()
     vec = h.vector
     if vec is not None and (t is tuple or t is list) and len(value) == h.count:
         for x in value:
             if type(x) is not float:
                 return None
-        if not math.isfinite(sum(value)):
+        if not math.isfinite(sum(value)) or (h.ranged and (min(value) < h.flo or max(value) > h.fhi)):
             return None
         return vec.pack(*value)
     return None
@@ -150,8 +162,9 @@ class WorldModel(UserRequestRing, Segment):
         self._queue: dict[int, bytes] = {}
         self._in_comm = False
         self._flush_thread = 0
-        self._stats = {"frames": 0, "posts": 0, "posts_applied": 0, "deferred_posts": 0,
+        self._stats = {"frames": 0, "posts": 0, "posts_applied": 0, "deferred_posts": 0, "refused_posts": 0,
                        "user_applied": 0, "user_rejected": 0}
+        self.last_refusal = ""  #: the last task post refused (rule 4), in words
         self._key = ""
         self.clock = MonotonicClock()
         # a distributed controller's sections (set_sections, set_importer): none in one process
@@ -514,8 +527,21 @@ class WorldModel(UserRequestRing, Segment):
             if i is None or hot[i].writer != writer:
                 i = self._check_writer(writer, name)  # raises, naming the owner
             raw = fast(hot[i], value)
-            staged.append((i, raw if raw is not None else coerce(self._specs[i], value).tobytes()))
+            if raw is None:
+                try:
+                    raw = coerce(self._specs[i], value).tobytes()
+                except WorldModelValueError as err:
+                    self._refused(err)
+                    raise
+            staged.append((i, raw))
         self._enqueue(staged)
+
+    def _refused(self, err: Exception) -> None:
+        """A task's post refused (rule 4: the variable keeps its last valid value): counted
+        (``stats()["refused_posts"]``) and kept (:attr:`last_refusal`); the post raises on,
+        and the runtime puts the posting task's layer in ERROR naming it."""
+        self._stats["refused_posts"] += 1
+        self.last_refusal = str(err)
 
     def _enqueue(self, staged: list[tuple[int, bytes]]) -> None:
         with self._qlock:

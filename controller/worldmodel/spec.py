@@ -19,6 +19,7 @@ Rules kept here (IRSS report 2.2.2 rules 3 and 4, 2.3.6 areas):
 from __future__ import annotations
 
 import enum
+import math
 import re
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping
@@ -51,6 +52,25 @@ _AREA_ROLE = {"task_io": "an output of task", "task_status": "a status of task",
               "error_reports": "an error report posted by"}
 
 _NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_.\-]{0,63}$")
+
+_TAU = 2.0 * math.pi
+#: Rule 4 of report 2.2.2 ("always a valid value, in type, scope and magnitude"): the valid
+#: range a float variable has by its units when it declares none of its own (``valid=``).
+#: Assumed, and deliberately wide: several times anything the PFMA can reach or drive
+#: (pfma-model: a reach of about 2 m, joint rates about 1 rad/s, amplifier currents about
+#: 10 A, an F/T range of hundreds of N), so that a value outside is no reading or command of
+#: this arm, whatever produced it, and a healthy arm never meets a bound. A float whose units
+#: have no row here ("", "1") declares its own; tests/controller/test_valid_values.py checks
+#: that every variable of the controller's table has one.
+UNIT_RANGES: dict[str, tuple[float, float]] = {
+    "rad": (-2 * _TAU, 2 * _TAU), "deg": (-720.0, 720.0), "rad/s": (-50.0, 50.0), "rad/s^2": (-1e3, 1e3),
+    "m": (-10.0, 10.0), "m/s": (-10.0, 10.0), "m/s^2": (-1e3, 1e3), "m|rad": (-2 * _TAU, 2 * _TAU),
+    "A": (-100.0, 100.0), "N": (-1e4, 1e4), "N*m": (-1e4, 1e4), "N|N*m": (-1e4, 1e4),
+    "N/m|N*m/rad": (0.0, 1e7), "N*s/m|N*m*s/rad": (0.0, 1e6), "kg|kg*m^2": (0.0, 1e4),
+    "1/s": (0.0, 1e4), "Hz": (0.0, 1e6), "s": (0.0, 1e9), "us": (-1e9, 1e9),
+}
+#: ``valid=`` of a unit quaternion's components (and rounding: |q| = 1 + 2e-16)
+UNIT_QUATERNION = (-1.0 - 1e-6, 1.0 + 1e-6)
 
 
 class WorldModelError(PfmaError):
@@ -117,6 +137,10 @@ class VarSpec:
         (:func:`coerce_user`). Task posts are not checked against them (the frame path).
         Both refusals read the same: ``"msp.mode: 7 is not one of its values (0 IDLE, ...)"``
         (:meth:`value_refusal`).
+    :param valid: ``(lo, hi)``, the closed range every element must lie in, whoever posts it
+        (report 2.2.2 rule 4); a float variable without one takes its units' range from
+        :data:`UNIT_RANGES` (:attr:`bounds`). A post outside is refused naming the variable
+        and the range (:meth:`range_refusal`), as a user write is.
     """
 
     name: str
@@ -132,11 +156,13 @@ class VarSpec:
     enum: Any = ()
     flags: Any = ()
     choices: tuple = ()
+    valid: tuple = ()
 
     def __post_init__(self) -> None:
         where = f"world-model variable {self.name!r}"
         dt, shape = self._check_type(where)
         self._check_named_values(where, dt)
+        self._check_valid(where, dt)
         self._check_initial(where)
         self._check_user(where)
         self._check_choices(where, shape)
@@ -200,6 +226,47 @@ class VarSpec:
                 f"write would give it a second writer")
         object.__setattr__(self, "user", user)
         object.__setattr__(self, "protected", user == USER_POWERED_DOWN)
+
+    def _check_valid(self, where: str, dt: np.dtype) -> None:
+        """``valid`` checked (two finite numbers, lo <= hi, a number variable that is not
+        enumerated) and :attr:`bounds` derived: it, or the units' range for a float."""
+        bounds: tuple = ()
+        if self.valid:
+            try:
+                lo, hi = (float(x) for x in self.valid)
+            except (TypeError, ValueError):
+                raise WorldModelError(f"{where}: valid={self.valid!r} is not a (lo, hi) pair of numbers") from None
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+                raise WorldModelError(f"{where}: valid={self.valid!r}: two finite numbers, lo <= hi")
+            if dt.kind == "b" or self.enum or self.flags:
+                raise WorldModelError(f"{where}: valid= is for a number variable that is not an "
+                                      f"enumeration or a bit set")
+            if dt.kind in "iu":
+                lo, hi = int(math.ceil(lo)), int(math.floor(hi))
+            bounds = (lo, hi)
+            object.__setattr__(self, "valid", bounds)
+        elif dt.kind == "f" and self.units in UNIT_RANGES:
+            bounds = UNIT_RANGES[self.units]
+        object.__setattr__(self, "_bounds", bounds)
+
+    @property
+    def bounds(self) -> tuple:
+        """``(lo, hi)`` every element must lie in (its own ``valid`` or its units' range);
+        ``()``: its type's whole (finite) range."""
+        return self._bounds
+
+    def range_text(self) -> str:
+        """``"-50..50 rad/s"``; empty without bounds."""
+        if not self._bounds:
+            return ""
+        lo, hi = self._bounds
+        return f"{lo:g}..{hi:g}" + (f" {self.units}" if self.units else "")
+
+    def range_refusal(self, bad: Any) -> str:
+        """The one refusal of a value outside :attr:`bounds`:
+        ``"servo.rate_cmd_rad_s: 80 rad/s is outside its valid range -50..50 rad/s"``."""
+        return f"{self.name}: {bad:g}" + (f" {self.units}" if self.units else "") + \
+            f" is outside its valid range {self.range_text()}"
 
     def _check_choices(self, where: str, shape: tuple) -> None:
         """``choices`` coerced to the variable's type and checked (``shape``: as given)."""
@@ -306,6 +373,8 @@ class VarSpec:
             out["flags"] = [[v, n] for v, n in self.flags]
         if self.choices:
             out["choices"] = list(self.choices)
+        if self.valid:
+            out["valid"] = list(self.valid)
         return out
 
     @classmethod
@@ -320,7 +389,7 @@ class VarSpec:
                    protected=protected, doc=d.get("doc", ""), user=user,
                    enum=tuple((int(v), str(n)) for v, n in d.get("enum", ())),
                    flags=tuple((int(v), str(n)) for v, n in d.get("flags", ())),
-                   choices=tuple(d.get("choices", ())))
+                   choices=tuple(d.get("choices", ())), valid=tuple(d.get("valid", ())))
 
 
 def _named_values(given: Any, where: str) -> tuple[tuple[int, str], ...]:
@@ -426,7 +495,20 @@ def _coerce_int(spec: VarSpec, dt: np.dtype, a: np.ndarray, value: Any) -> np.nd
                                        f"{dt.name} range [{info.min}, {info.max}]")
     if spec.enum and int(a.item()) not in spec.enum_names:
         raise WorldModelValueError(spec.value_refusal(int(a.item())))
-    return np.array(a, dtype=dt, order="C")
+    out = np.array(a, dtype=dt, order="C")
+    _check_bounds(spec, out)
+    return out
+
+
+def _check_bounds(spec: VarSpec, out: np.ndarray) -> None:
+    """Every element inside the variable's :attr:`VarSpec.bounds` (rule 4)."""
+    b = spec.bounds
+    if b and out.size:
+        lo, hi = b
+        xs = out.ravel().tolist()  # Python numbers: no numpy reduction on the frame path
+        amin, amax = min(xs), max(xs)
+        if amin < lo or amax > hi:
+            raise WorldModelValueError(spec.range_refusal(amin if amin < lo else amax))
 
 
 def _coerce_float(spec: VarSpec, dt: np.dtype, a: np.ndarray) -> np.ndarray:
@@ -436,6 +518,7 @@ def _coerce_float(spec: VarSpec, dt: np.dtype, a: np.ndarray) -> np.ndarray:
     if not bool(np.all(np.isfinite(out))):
         bad = (a if a.shape == () else a[~np.isfinite(out)][0]).item()
         raise WorldModelValueError(f"{_where(spec)}: value {bad!r} is not finite as {dt.name}")
+    _check_bounds(spec, out)
     return out
 
 

@@ -31,7 +31,9 @@ from __future__ import annotations
 
 from typing import Any, ClassVar, Generic, TypeVar
 
-from controller.worldmodel.spec import VarSpec, WorldModelError
+from controller.worldmodel.spec import UNIT_QUATERNION, VarSpec, WorldModelError
+
+__all__ = ["UNIT_QUATERNION", "Var", "VarGroup", "var"]
 
 T = TypeVar("T")
 
