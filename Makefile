@@ -22,7 +22,7 @@ run: $(STAMP)
 # two passes: the deterministic tests on two workers, then the real-time ones (marked
 # realtime: they start processes or wait on wall-clock time) alone, so load cannot fail them
 test: $(STAMP)
-	$(BIN)/python -m pytest -n 2 -m "not lab and not realtime"
+	$(BIN)/python -m pytest -n 2 -m "not lab and not realtime" --durations=20
 	$(BIN)/python -m pytest -m "realtime and not lab" --durations=15
 
 # ruff (with the complexity gate, C901 over 20), the length gate (devtools/function_length.py),

@@ -203,10 +203,10 @@ class SegmentVars(VarGroup, prefix="msp", writer="msp"):
                             doc="segment number: a new value is a new segment for the Trajectory Planner")
     seg_pos_m: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0, 0.0, 0.0], "m",
                                      doc="segment target tool position (world frame)")
-    seg_quat: Var[np.ndarray] = var("task_io", "f8", (4,), [1.0, 0.0, 0.0, 0.0], valid=UNIT_QUATERNION,
+    seg_quat: Var[np.ndarray] = var("task_io", "f8", (4,), [1.0, 0.0, 0.0, 0.0], "1", valid=UNIT_QUATERNION,
                                     doc="segment target tool orientation (unit quaternion w,x,y,z, tool in world)")
     seg_limits: Var[np.ndarray] = var(
-        "task_io", "f8", (4,), list(DEFAULT_CAP), valid=(0.0, 1e3),
+        "task_io", "f8", (4,), list(DEFAULT_CAP), "m/s|m/s^2|rad/s|rad/s^2", valid=(0.0, 1e3),
         doc="segment limits: v_lin m/s, a_lin m/s^2, v_rot rad/s, a_rot rad/s^2 (capped by traj.*_max)")
     seg_last: Var[bool] = var("task_io", "b1", (), False,
                               doc="the segment is the last of the playback (traj.active drops when it is done)")
@@ -233,7 +233,7 @@ class TrajVars(VarGroup, prefix="traj", writer="trajectory"):
 
     pos_m: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0, 0.0, 0.0], "m",
                                  doc="trajectory tool position (world frame), valid while traj.active")
-    quat: Var[np.ndarray] = var("task_io", "f8", (4,), [1.0, 0.0, 0.0, 0.0], valid=UNIT_QUATERNION,
+    quat: Var[np.ndarray] = var("task_io", "f8", (4,), [1.0, 0.0, 0.0, 0.0], "1", valid=UNIT_QUATERNION,
                                 doc="trajectory tool orientation (unit quaternion w,x,y,z, tool in world)")
     vel_m_s: Var[np.ndarray] = var("task_io", "f8", (3,), [0.0, 0.0, 0.0], "m/s",
                                    doc="trajectory linear velocity (world frame; feed-forward)")
@@ -244,7 +244,7 @@ class TrajVars(VarGroup, prefix="traj", writer="trajectory"):
     active: Var[bool] = var("task_io", "b1", (), False,
                             doc="a trajectory commands the pose (running a segment or holding between segments)")
     seg_seq: Var[int] = var("task_io", "i4", (), 0, doc="the segment being executed (msp.seg_seq)")
-    progress: Var[float] = var("task_io", "f8", (), 0.0, valid=(-1e-6, 1.0 + 1e-6),
+    progress: Var[float] = var("task_io", "f8", (), 0.0, "1", valid=(-1e-6, 1.0 + 1e-6),
                                doc="path parameter s of the running segment (0..1)")
     done_seq: Var[int] = var("task_io", "i4", (), 0, doc="the last segment finished (the request for the next one)")
     done_code: Var[int] = var("task_io", "i2", (), 0, doc="how traj.done_seq ended", enum=DoneCode.NAMES)

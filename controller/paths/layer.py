@@ -189,7 +189,7 @@ class MspVars(VarGroup, prefix="msp", writer="msp"):
         "command_input", "i2", (), RecordSource.MEASURED, writer="user",
         doc="recording stores the MEASURED tool pose (joint.tool_*) or the Cartesian COMMAND "
             "(cart.pos_cmd_m/quat_cmd: playback repeats the recorded motion)", enum=RecordSource.NAMES)
-    speed_scale: Var[float] = var("command_input", "f8", (), 1.0, writer="user", valid=(0.0, 10.0),
+    speed_scale: Var[float] = var("command_input", "f8", (), 1.0, "1", writer="user", valid=(0.0, 10.0),
                                   doc="playback speed factor on the path's speeds (capped by traj.*_max)")
     max_turn_rad: Var[float] = var(
         "command_input", "f8", (), MAX_TURN_RAD, "rad", writer="user",
@@ -203,7 +203,8 @@ class MspVars(VarGroup, prefix="msp", writer="msp"):
         "command_input", "f8", (), TRACK_TOL_RAD, "rad", writer="user",
         doc="tracking tolerance: tool orientation from the path's (a joint move: joint deviation from its line)")
     move_request: Var[np.ndarray] = var(
-        "command_input", "f8", (MOVE_REQUEST_LEN,), [0.0] * MOVE_REQUEST_LEN, writer="user", valid=(-1e9, 1e9),
+        "command_input", "f8", (MOVE_REQUEST_LEN,), [0.0] * MOVE_REQUEST_LEN, "mixed", writer="user",
+        valid=(-1e9, 1e9),  # a packed record: the layer checks each field (_request_problem)
         doc="move-to request: [seq, kind 0 stop 1 pose 2 joints, x y z m, qw qx qy qz (0: keep the "
             "orientation), 6 joint rad, max turn rad (0: msp.max_turn_rad)]; a new seq is a new request")
     state: Var[int] = var("status_output", "i2", (), 0,

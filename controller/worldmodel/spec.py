@@ -260,13 +260,15 @@ class VarSpec:
         if not self._bounds:
             return ""
         lo, hi = self._bounds
-        return f"{lo:g}..{hi:g}" + (f" {self.units}" if self.units else "")
+        return f"{lo:g}..{hi:g}" + self._unit_suffix()
+
+    def _unit_suffix(self) -> str:
+        return f" {self.units}" if self.units not in ("", "1") else ""
 
     def range_refusal(self, bad: Any) -> str:
         """The one refusal of a value outside :attr:`bounds`:
         ``"servo.rate_cmd_rad_s: 80 rad/s is outside its valid range -50..50 rad/s"``."""
-        return f"{self.name}: {bad:g}" + (f" {self.units}" if self.units else "") + \
-            f" is outside its valid range {self.range_text()}"
+        return f"{self.name}: {bad:g}{self._unit_suffix()} is outside its valid range {self.range_text()}"
 
     def _check_choices(self, where: str, shape: tuple) -> None:
         """``choices`` coerced to the variable's type and checked (``shape``: as given)."""

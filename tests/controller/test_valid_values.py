@@ -35,6 +35,7 @@ def test_every_float_variable_of_the_controller_has_a_valid_range() -> None:
     specs = _upper_specs()
     floats = [s for s in specs if s.np_dtype.kind == "f"]
     assert len(floats) > 80
+    assert [s.name for s in floats if not s.units] == [], "declare the units (1: dimensionless)"
     unbounded = [s.name for s in floats if not s.bounds]
     assert unbounded == [], f"declare valid= (or units with a row in UNIT_RANGES): {unbounded}"
     for s in floats:
