@@ -12,6 +12,7 @@ import numpy as np
 from controller.decision import Status
 from sim.system import SystemSimulator
 
+
 def _resolver_jump(world) -> None:
     """The elbow's resolver reads 100 degrees off (a wrong offset in the plant): the servo
     layer's supervision detects it (a jump no joint can make), not a hardware-check bit."""

@@ -60,7 +60,7 @@ import numpy as np
 from controller.decision import Status, TaskState
 from controller.force import FORCE
 from controller.gripper import GRIP
-from controller.layers import ERROR_NAMES, UI, Layer, bottom_table
+from controller.layers import ERR_INVALID_VALUE, ERROR_NAMES, UI, Layer, bottom_table
 from controller.messages import Level
 from controller.params import GRIPPER, JOINTS, N_CURRENT_LIMITS, N_JOINTS
 from controller.servo import ERR_NO_OUTPUT, SERVO
@@ -68,7 +68,7 @@ from controller.teleop import TELEOP
 from controller.variables import (  # noqa: F401  (the fault bits re-exported)
     DAQ, FAULT_BOARD, FAULT_COMMAND, FAULT_FT, FAULT_NAMES, FAULT_RESOLVER, FAULT_SERVICE, FAULT_STALE, FAULT_TACH,
 )
-from controller.worldmodel import VarSpec
+from controller.worldmodel import VarSpec, WorldModelValueError
 from controller.routes import box_selections, route_text, set_monitor
 from bit3.layout import (
     BOARD_FAULT, CHANNEL_BUS_ERROR, CMD_FOREIGN, CMD_REFUSED, CMD_STALE, CMD_STATUS_NAMES, HAND_CONTROLLERS, LINK_FAULT, LINK_STALE, MODE_HALTED, ServiceState,
@@ -138,6 +138,7 @@ class DataAcquisitionLayer(Layer):
         self._force_vars: tuple[str, ...] | None = None
         self._ft_warned = False
         self._ft_warning = ""
+        self._invalid_said = ""  # the refused-input text last reported (said once, not every frame)
         self._stalls = np.zeros((8, 2))  #: the last 8 host stalls the service published: end time, length (s)
         self._stall_n = 0
         self._stall_seen_t = 0.0
@@ -251,7 +252,11 @@ class DataAcquisitionLayer(Layer):
         out[DAQ.service_state] = st
         out[DAQ.brakes_released] = bool(rec["brakes_released"])
         out[DAQ.outputs_enabled] = bool(rec["outputs_enabled"])
-        rt.wm.post_task_outputs("daq", out)
+        invalid = ""
+        try:
+            rt.wm.post_task_outputs("daq", out)
+        except WorldModelValueError as err:  # rule 4: not posted, the inputs keep their last valid values
+            invalid = f"inputs refused: {err}"
         self.ft_in_use = self._force_in_use(rt)
         self._camera_routes(rt, rec)
         bits, detail = self.check(snap, st)
@@ -271,8 +276,13 @@ class DataAcquisitionLayer(Layer):
         if self.monitoring and bits:
             code = next(b for b in FAULT_NAMES if bits & b)
             self.set_fault(rt, code, detail)
-        elif self.fault and not bits:
+        elif self.monitoring and invalid:  # a published input outside its valid range: a fault, named
+            self.set_fault(rt, ERR_INVALID_VALUE, invalid)
+        elif self.fault and not bits and not invalid:
             self.clear_fault(rt)  # the flag follows the hardware; ERROR itself is latched by the table
+        if invalid and invalid != self._invalid_said and not self.monitoring:
+            rt.post(self.key, Level.WARNING, invalid)
+        self._invalid_said = invalid
         return frame
 
     # --- camera routes (docs/cameras.md) ------------------------------------------------------

@@ -32,8 +32,8 @@ latest frame, which is what a layer's table in one process sees of its neighbour
 decision is applied at the end of the frame that made it). A status therefore still climbs
 one layer per minor frame across a process boundary: the power-up figures are those of one
 process (``sim.distributed``). An ERROR climbs every layer of one process in the frame it
-is decided and crosses each boundary at the next frame (one frame per boundary). Data crossing a boundary
-upward (the Data Acquisition inputs, the Joint Planner's measured tool pose read by the
+is decided and crosses each boundary at the next frame (one frame per boundary). Data
+crossing a boundary upward (the Data Acquisition inputs, the Joint Planner's measured tool pose read by the
 Cartesian Engine) are one frame older than in one process, because one process acquires
 before its own communications segment.
 

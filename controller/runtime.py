@@ -586,12 +586,12 @@ class ControllerRuntime:
         for name, fn in due:
             try:
                 fn(self)
-            except WorldModelValueError as err:  # rule 4: refused, the variable keeps its value
-                layer = next(l for l in self.layers if name in l.periodic)
-                layer.set_fault(self, ERR_INVALID_VALUE, f"task {name} posted an invalid value: {err}")
             except Exception as err:  # noqa: BLE001 - a task error is its layer's fault
                 layer = next(l for l in self.layers if name in l.periodic)
-                layer.set_fault(self, ERR_TASK_RAISED, f"task {name} raised {type(err).__name__}: {err}")
+                if isinstance(err, WorldModelValueError):  # rule 4: refused, the variable keeps its value
+                    layer.set_fault(self, ERR_INVALID_VALUE, f"task {name} posted an invalid value: {err}")
+                else:
+                    layer.set_fault(self, ERR_TASK_RAISED, f"task {name} raised {type(err).__name__}: {err}")
         # output last, after a second communications segment: the rates leave in the frame
         # whose inputs they were computed from (the service sees them 1-2 frames old, not 2-3)
         self.wm.communications_segment()

@@ -82,9 +82,9 @@ class _Hot(NamedTuple):
     hi: int  #: or the empty 1, 0 when it has gaps: every post then goes through coerce)
     is_state: bool
     f8: bool
-    flo: float  #: a float variable's bounds (VarSpec.bounds; -inf, inf: finite is enough)
+    flo: float  #: the variable's bounds (VarSpec.bounds; -inf, inf: none, finite is enough)
     fhi: float
-    ranged: bool  #: a float array with bounds: the fast path checks its min and max
+    ranged: bool  #: an array with bounds: the fast path checks its min and max
 
 
 def _hot(s: VarSpec, offset: int) -> _Hot:
@@ -98,14 +98,11 @@ def _hot(s: VarSpec, offset: int) -> _Hot:
     if s.enum:  # no extra check per post: a contiguous enumeration is a range
         values = [v for v, _ in s.enum]
         lo, hi = (values[0], values[-1]) if values[-1] - values[0] + 1 == len(values) else (1, 0)
-    flo, fhi = -math.inf, math.inf
-    if s.bounds:
-        if dt.kind in "iu":
-            lo, hi = max(lo, int(s.bounds[0])), min(hi, int(s.bounds[1]))
-        else:
-            flo, fhi = s.bounds
+    flo, fhi = s.bounds or (-math.inf, math.inf)
+    if s.bounds and dt.kind in "iu":  # an integer scalar's fast path checks lo..hi
+        lo, hi = max(lo, int(flo)), min(hi, int(fhi))
     return _Hot(s.writer, offset, dt, s.count, tuple(s.shape), dt.kind, scalar, vector, lo, hi, s.is_state, f8,
-                flo, fhi, dt.kind == "f" and bool(s.bounds) and s.shape != ())
+                flo, fhi, bool(s.bounds) and s.shape != ())
 
 
 def _fast_raw(h: _Hot, value: Any) -> bytes | None:
@@ -131,9 +128,9 @@ def _fast_raw(h: _Hot, value: Any) -> bytes | None:
             return None
         # a sum of finite floats is finite unless it overflows (then: the general way); any
         # inf or nan makes it non-finite
-        if h.kind == "f":
+        if h.kind == "f" or h.ranged:
             xs = value.ravel().tolist()
-            if not math.isfinite(sum(xs)) or (h.ranged and (min(xs) < h.flo or max(xs) > h.fhi)):
+            if (h.kind == "f" and not math.isfinite(sum(xs))) or (h.ranged and (min(xs) < h.flo or max(xs) > h.fhi)):
                 return None
         return value.tobytes()
     vec = h.vector

@@ -243,6 +243,8 @@ class VarSpec:
                                       f"enumeration or a bit set")
             if dt.kind in "iu":
                 lo, hi = int(math.ceil(lo)), int(math.floor(hi))
+                if lo > hi:
+                    raise WorldModelError(f"{where}: valid={self.valid!r} holds no integer")
             bounds = (lo, hi)
             object.__setattr__(self, "valid", bounds)
         elif dt.kind == "f" and self.units in UNIT_RANGES:

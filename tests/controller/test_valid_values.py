@@ -120,3 +120,43 @@ def test_a_layer_whose_task_posts_an_invalid_value_goes_to_error_with_outputs_sa
     sim.step(3)
     assert np.all(sim.dac_volts()[RATE_CHANNELS] == 0.0)
     assert any("posted an invalid value" in m.text for m in rt.messages.recent(100, source="cartesian"))
+
+
+def test_an_integer_array_s_own_range_binds_the_fast_path_too() -> None:
+    wm = WorldModel.create([VarSpec("x.codes", "task_io", "i4", (3,), "x", [0, 0, 0], valid=(0, 9))])
+    try:
+        with pytest.raises(WorldModelValueError, match=r"x\.codes: 10 is outside its valid range 0\.\.9"):
+            wm.post_task_outputs("x", {"x.codes": np.array([1, 10, 2], dtype=np.int32)})  # the array's own bytes
+        wm.post_task_outputs("x", {"x.codes": np.array([1, 9, 2], dtype=np.int32)})
+        wm.communications_segment()
+        assert list(wm.get("x.codes")) == [1, 9, 2] and wm.stats()["refused_posts"] == 1
+    finally:
+        wm.close()
+
+
+def test_a_published_input_outside_its_range_is_a_named_fault_not_a_crash(powered) -> None:
+    """The service publishes a shoulder-yaw tach reading of 80 rad/s (the default rack cannot:
+    its scales are held to 0.5x..2x nominal at parse, but a lab's allow_nonnominal
+    calibration could): the Data Acquisition layer's post is refused, the inputs keep their
+    last valid values, the layer faults with code 93 naming the variable, the ERROR climbs
+    and the rates go to 0 V; the controller's frame does not raise."""
+    sim, rt = powered, powered.rt
+    daq = rt.daq
+    real = daq.client.read_inputs
+    slot = int(daq.tach_slots[1])
+
+    def wild():
+        snap = real()
+        snap.record["adc_value"][slot] = 80.0
+        return snap
+
+    daq.client.read_inputs = wild
+    before = np.array(rt.wm.get(DAQ.joint_rate_rad_s))
+    sim.run_until(lambda: rt.status("updown") == Status.ERROR, 10)
+    assert daq.error_code == ERR_INVALID_VALUE
+    assert "daq.joint_rate_rad_s: 80 rad/s is outside its valid range -50..50 rad/s" in daq.fault_text
+    assert np.all(np.array(rt.wm.get(DAQ.joint_rate_rad_s)) == before)  # never 80
+    sim.step(3)
+    assert np.all(sim.dac_volts()[RATE_CHANNELS] == 0.0)
+    said = [m.text for m in rt.messages.recent(200, source="daq") if m.text.startswith("fault 93: inputs refused")]
+    assert len(said) == 1  # said once, not every frame
