@@ -7,7 +7,8 @@ import socket
 import pytest
 
 from drivers.bus import open_bus
-from drivers.bus.modbus import DEFAULT_TIMEOUT_S, ModbusTcpBus, open_modbus_bus
+from drivers.bus.modbus import (DEFAULT_TIMEOUT_S, FREE_RECONNECTS, RECONNECT_INTERVAL_S, ModbusTcpBus,
+                                open_modbus_bus)
 from fakes.modbus_gateway import ModbusGateway
 from pfma.errors import AlignmentError, BusError
 from tests.drivers.bus.tinybus import TinyBus, free_port, quiet_pymodbus
@@ -149,17 +150,36 @@ def _five_accesses(b) -> list[str]:
     return errors
 
 
+class Clock:
+    """Simulated seconds for the reconnect interval (the timeouts stay real)."""
+
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
 @pytest.mark.realtime
-def test_a_gateway_that_stops_answering_costs_one_request_per_access(gateway):
-    """A real pymodbus server that receives requests and never replies: every access sends
-    exactly one request (a block stops at its first unanswered request), waits one timeout
-    (the default: one minor frame) and reconnects at most once; no retries, no storm."""
+def test_a_gateway_that_stops_answering_costs_one_request_per_access_then_one_per_interval(gateway):
+    """A real pymodbus server that receives requests and never replies: each of the first
+    FREE_RECONNECTS accesses sends exactly one request (a block stops at its first unanswered
+    request), waits one timeout (the default: one minor frame) and reconnects once; no retries.
+    Then no storm: the accesses within RECONNECT_INTERVAL_S fail at once, saying the last
+    error, without a connection; one after the interval sends one request again."""
     gateway.silent = True
-    with ModbusTcpBus("127.0.0.1", gateway.port) as b:
+    clock = Clock()
+    with ModbusTcpBus("127.0.0.1", gateway.port, clock=clock) as b:
         errors = _five_accesses(b)
-        assert b.requests == 5 and b.connects == 5  # one request, one (re)connect per access
+        assert b.requests == FREE_RECONNECTS and b.connects == FREE_RECONNECTS
+        assert b.failures == 5
+        clock.t += RECONNECT_INTERVAL_S
+        with pytest.raises(BusError):
+            b.read16(0x1000)
+        assert (b.requests, b.connects) == (FREE_RECONNECTS + 1, FREE_RECONNECTS + 1)
     assert all(f"no reply from gateway 127.0.0.1:{gateway.port} within 0.003125 s" in e for e in errors)
-    assert gateway.wait_requests(5) == 5  # the server got exactly one request per access
+    assert all(f"reconnecting every {RECONNECT_INTERVAL_S * 1e3:g} ms" in e for e in errors[FREE_RECONNECTS:])
+    assert gateway.wait_requests(FREE_RECONNECTS + 1) == FREE_RECONNECTS + 1  # one per connection
 
 
 @pytest.mark.realtime
@@ -177,12 +197,33 @@ def test_a_gateway_that_answers_again_is_used_again(gateway, tiny):
 
 
 @pytest.mark.realtime
-def test_a_gateway_that_is_gone_costs_one_connect_attempt_per_access():
+def test_a_gateway_that_is_gone_costs_one_connect_attempt_per_access_then_one_per_interval():
     port = free_port()
-    with quiet_pymodbus(), ModbusTcpBus("127.0.0.1", port) as b:
+    clock = Clock()
+    with quiet_pymodbus(), ModbusTcpBus("127.0.0.1", port, clock=clock) as b:
         errors = _five_accesses(b)
-        assert (b.connects, b.requests) == (5, 0)
+        assert (b.connects, b.requests) == (FREE_RECONNECTS, 0)
+        clock.t += RECONNECT_INTERVAL_S
+        with pytest.raises(BusError, match="unreachable"):
+            b.read16(0x1000)
+        assert (b.connects, b.requests) == (FREE_RECONNECTS + 1, 0)
     assert all("unreachable" in e for e in errors)
+
+
+@pytest.mark.realtime
+def test_a_gateway_back_after_the_interval_is_used_and_the_count_starts_again(gateway, tiny):
+    tiny.words[0x1000] = 0x1234
+    clock = Clock()
+    with ModbusTcpBus("127.0.0.1", gateway.port, timeout=0.2, clock=clock) as b:
+        gateway.silent = True
+        for _ in range(FREE_RECONNECTS + 2):
+            with pytest.raises(BusError, match="no reply"):
+                b.read16(0x1000)
+        gateway.silent = False
+        with pytest.raises(BusError, match="accesses in a row failed"):
+            b.read16(0x1000)  # within the interval: not tried, though the gateway is back
+        clock.t += RECONNECT_INTERVAL_S
+        assert b.read16(0x1000) == 0x1234 and b.failures == 0
 
 
 @pytest.mark.realtime
