@@ -337,6 +337,13 @@ class Client:
                             ) from None
         return c.fields[0][0], c.fields[0][1]
 
+    @property
+    def service_frame(self) -> int:
+        """The newest frame number the service has published (a command writer's view)."""
+        self._writer_check()
+        assert self._frame_word is not None
+        return int(self._frame_word[0])
+
     def publish_commands(self) -> int:
         """Publish :attr:`command` as it is (heartbeat + 1, t_s = now)."""
         w = self._writer_check()

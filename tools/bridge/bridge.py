@@ -52,6 +52,10 @@ REFUSAL_INTERVAL_S = 60.0
 #: polls between two looks whether the frame ring was replaced (one ``stat``; ~0.5 s at
 #: the CLI's 0.5 ms poll)
 RING_CHECK_POLLS = 1000
+#: service frames between the safe start written for a new remote writer and the writer's first
+#: body (Bridge._safe_start): the frame under way at the write may have read the command area
+#: before it, the next one reads it
+SAFE_START_FRAMES = 2
 #: every published body carries, as its Zenoh attachment, the area's sequence counter at
 #: the copy (8 bytes, little-endian): the service bumps it by 2 per publish, so a far side
 #: that sees a jump of more than 2 knows publishes were lost on the way (at the bridge or
@@ -146,6 +150,9 @@ class Bridge:
                                    REFUSAL_INTERVAL_S, self._now)
         self._said: set[str] = set()
         self._holder_said = ""
+        self._writing: str | None = None  # the remote writer whose bodies are written
+        self._safe_at = -1  # the service frame when the safe start was written (-1: none pending)
+        self._safe_for = ""  # the writer the pending safe start is for
         self._tokens_over = 0  # writer tokens beyond MAX_WRITERS, counted by Zenoh's thread
         self._tokens_said = 0
         self._closed = False
@@ -305,6 +312,8 @@ class Bridge:
             return
         import numpy as np
         rec = self.commander.command
+        if sender != self._writing and not self._safe_start(rec, got):
+            return
         remote = np.frombuffer(body, dtype=rec.dtype, count=1)[0]
         for f in rec.dtype.names or ():
             if f not in STAMPED:
@@ -312,6 +321,33 @@ class Bridge:
         # the remote said which inputs it used; the service judges their age (unchanged)
         self.commander.write_commands(inputs_frame=int(remote["inputs_frame"]))
         self.applied += 1
+
+    def _safe_start(self, rec, got: tuple[str, bytes]) -> bool:
+        """A new remote writer's first body: first the safe command a Data Acquisition layer
+        writes when it starts (0 rates, 0 limits, gripper 0, no arm request,
+        ``controller_frame`` 0), published by the bridge and held until the service has read
+        it (its frame number moved on by :data:`SAFE_START_FRAMES`), the writer's body kept
+        pending meanwhile. Returns True once the writer's bodies may be written.
+
+        Why: the writer's first bodies may have been lost before its token came (its frame 0
+        among them), and the service's claim check takes a ``controller_frame`` step back to a
+        non-zero value for a second writer, a step back to 0 for a writer started again
+        (ioservice/commandcheck.py); the service sees only the bodies it reads, so the safe
+        start must be read before the writer's next body replaces it."""
+        assert self.commander is not None
+        sender = got[0]
+        frame = self.commander.service_frame
+        if self._safe_at < 0 or self._safe_for != sender:
+            for f in ("joint_rate_rad_s", "current_limit_a"):
+                rec[f] = 0.0
+            self.commander.write_commands(gripper=0.0, arm_request=0, controller_frame=0)
+            self._safe_at, self._safe_for = frame, sender
+        if frame - self._safe_at < SAFE_START_FRAMES:
+            if self._pending is None:  # a newer body that came meanwhile wins
+                self._pending = got
+            return False
+        self._writing, self._safe_at = sender, -1
+        return True
 
     def _count_refused(self, sender: str) -> None:
         who = sender if sender in self.refused or len(self.refused) < MAX_NAMED_SENDERS else OTHER_SENDERS

@@ -13,7 +13,7 @@ import pytest
 from bit3.layout import ServiceState
 from bit3.seqlock import OwnershipError
 from sim.rig import SimRig
-from tools.bridge.bridge import Bridge
+from tools.bridge.bridge import SAFE_START_FRAMES, Bridge
 from tools.bridge.remote import RemoteBuffer, RemoteCommander
 from tools.bridge.session import open_session
 
@@ -103,11 +103,15 @@ def _arm(cmd: RemoteCommander, rig, bridge) -> None:
 
 
 def _deliver(rig, bridge, cmd_write, what: str) -> None:
-    """One command write delivered to the bridge, then one frame."""
+    """One command write delivered to the bridge, then frames until it is written: one, or a
+    new writer's first body SAFE_START_FRAMES more (the bridge's safe start comes first)."""
     before = bridge.applied
     cmd_write()
     until(lambda: bridge._pending is not None or bridge.applied > before, what)
-    step(rig, bridge)
+    for _ in range(SAFE_START_FRAMES + 1):
+        step(rig, bridge)
+        if bridge.applied > before:
+            break
     assert bridge.applied == before + 1, what
 
 
@@ -213,3 +217,39 @@ def test_the_bridge_writes_only_the_holders_commands(link):
     assert any("commands from 'second' refused" in t and "'first'" in t for t in texts)
     a.close()
     b.close()
+
+
+def test_a_new_remote_writer_whose_first_bodies_were_lost_is_not_a_second_writer(link):
+    """The service's claim check (ioservice/commandcheck.py) takes a step back of
+    ``controller_frame`` to a smaller non-zero value for a second writer; a step back to 0 is a
+    Data Acquisition layer started again. A remote controller's first bodies can be lost before
+    its token reaches the bridge (its frame 0 among them), so its first body applied says frame
+    5 after the last writer's 300: the bridge writes the safe start (0 rates, no arm request,
+    ``controller_frame`` 0) when a new writer's first body comes, and the new writer arms
+    (the kill matrix's bridge trial once failed on "command foreign writer" here)."""
+    rig, bridge, peer = link
+    s = peer()
+    remote = RemoteBuffer(s, rig.name)
+    cmd = RemoteCommander(remote, "ops-laptop")
+    until(lambda: bridge.holder == "ops-laptop", "the bridge sees the writer's token")
+    settle(rig, bridge, remote)
+    zero = [0.0] * len(rig.layout.joint_names)
+    limits = [1.0] * len(rig.layout.current_limit_names)
+    _deliver(rig, bridge, lambda: cmd.write_commands(joint_rate_rad_s=zero, current_limit_a=limits, arm_request=1,
+                                                     rearm_counter=1, controller_frame=299), "the arm request")
+    _deliver(rig, bridge, lambda: cmd.write_commands(controller_frame=300), "a heartbeat")
+    assert ServiceState(rig.reader.read_inputs().service_state) is ServiceState.ARMED
+    s.close()
+    until(lambda: bridge.holder is None, "the lost writer's token gone")
+    step(rig, bridge, int(np.ceil(rig.svc.guard.watchdog_s * rig.svc.schedule.frame_rate_hz)) + 2)
+
+    cmd2 = RemoteCommander(RemoteBuffer(peer(), rig.name), "ops-laptop-2")
+    until(lambda: bridge.holder == "ops-laptop-2", "the new writer's token")
+    counter = int(cmd2.command["rearm_counter"]) + 1
+    _deliver(rig, bridge, lambda: cmd2.write_commands(joint_rate_rad_s=zero, current_limit_a=limits, arm_request=1,
+                                                      rearm_counter=counter, controller_frame=5), "the re-arm")
+    for f in (6, 7, 8):
+        _deliver(rig, bridge, lambda: cmd2.write_commands(controller_frame=f), "a heartbeat")
+    said = [m.text for m in rig.reader.messages(queue="service")]
+    assert not [t for t in said if "two writers" in t], said
+    assert ServiceState(rig.reader.read_inputs().service_state) is ServiceState.ARMED
