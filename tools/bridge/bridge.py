@@ -150,9 +150,12 @@ class Bridge:
                                    REFUSAL_INTERVAL_S, self._now)
         self._said: set[str] = set()
         self._holder_said = ""
-        self._writing: str | None = None  # the remote writer whose bodies are written
+        #: holder tokens withdrawn (Zenoh's thread counts): a remote writer is its name and this
+        #: count, so a controller started again under the same name is a new writer
+        self._holder_lost = 0
+        self._writing: tuple[str, int] | None = None  # the remote writer whose bodies are written
         self._safe_at = -1  # the service frame when the safe start was written (-1: none pending)
-        self._safe_for = ""  # the writer the pending safe start is for
+        self._safe_for: tuple[str, int] | None = None  # the writer the pending safe start is for
         self._tokens_over = 0  # writer tokens beyond MAX_WRITERS, counted by Zenoh's thread
         self._tokens_said = 0
         self._closed = False
@@ -199,6 +202,8 @@ class Bridge:
                     return
                 writers.append(owner)
         elif owner in writers:
+            if writers[0] == owner:
+                self._holder_lost += 1  # a writer with the same name later is a new writer
             writers.remove(owner)
         self.writers = writers  # one assignment: the poller sees the old or the new list
 
@@ -312,7 +317,8 @@ class Bridge:
             return
         import numpy as np
         rec = self.commander.command
-        if sender != self._writing and not self._safe_start(rec, got):
+        who = (sender, self._holder_lost)
+        if who != self._writing and not self._safe_start(rec, got, who):
             return
         remote = np.frombuffer(body, dtype=rec.dtype, count=1)[0]
         for f in rec.dtype.names or ():
@@ -322,7 +328,7 @@ class Bridge:
         self.commander.write_commands(inputs_frame=int(remote["inputs_frame"]))
         self.applied += 1
 
-    def _safe_start(self, rec, got: tuple[str, bytes]) -> bool:
+    def _safe_start(self, rec, got: tuple[str, bytes], who: tuple[str, int]) -> bool:
         """A new remote writer's first body: first the safe command a Data Acquisition layer
         writes when it starts (0 rates, 0 limits, gripper 0, no arm request,
         ``controller_frame`` 0), published by the bridge and held until the service has read
@@ -335,18 +341,17 @@ class Bridge:
         (ioservice/commandcheck.py); the service sees only the bodies it reads, so the safe
         start must be read before the writer's next body replaces it."""
         assert self.commander is not None
-        sender = got[0]
         frame = self.commander.service_frame
-        if self._safe_at < 0 or self._safe_for != sender:
+        if self._safe_at < 0 or self._safe_for != who:
             for f in ("joint_rate_rad_s", "current_limit_a"):
                 rec[f] = 0.0
             self.commander.write_commands(gripper=0.0, arm_request=0, controller_frame=0)
-            self._safe_at, self._safe_for = frame, sender
+            self._safe_at, self._safe_for = frame, who
         if frame - self._safe_at < SAFE_START_FRAMES:
             if self._pending is None:  # a newer body that came meanwhile wins
                 self._pending = got
             return False
-        self._writing, self._safe_at = sender, -1
+        self._writing, self._safe_at = who, -1
         return True
 
     def _count_refused(self, sender: str) -> None:
