@@ -121,6 +121,14 @@ DEFAULT_SEED = 20
 #: the service's command watchdog and frame rate (pfma serve's defaults, given explicitly)
 WATCHDOG_S = 0.015
 FRAME_RATE_HZ = 320.0
+#: the bridge kind's service: a command watchdog and input age sized for a remote controller's
+#: round trip through the bridge (``pfma serve --watchdog-ms 30 --max-input-age 9``, docs/bridge.md
+#: "Sizing the command checks for the link"). With the defaults (15 ms, 4 frames) the far end's
+#: Data Acquisition layer faulted on a stale command every second or two on a loaded 2-core
+#: host (ages measured: 2-3 frames median, 5 and more in a few per cent of frames), so a far
+#: end was rarely still flying when the kill came
+LINK_WATCHDOG_S = 0.030
+LINK_MAX_INPUT_AGE = 9
 #: what the recorder may lose when killed: its flush period (docs/recording.md, "Crash
 #: safety": less than --flush-s 0.25 s), plus the frames it had taken but not yet written,
 #: which the frame ring lets lag by at most 255 frames (0.8 s)
@@ -456,7 +464,7 @@ REMOTE_ATTEMPTS = 3
 #: kind's far end; one minor frame per inputs body received, a joint goal once started up;
 #: argv: endpoint, buffer, [rearm counter seed], [--realtime])
 REMOTE_CONTROLLER = textwrap.dedent("""
-    import faulthandler, signal, sys, time
+    import faulthandler, gc, signal, sys, time
     faulthandler.register(signal.SIGUSR1, all_threads=True)  # the bench asks where it hangs before a SIGKILL
     stop = []
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # while connecting (blocked in zenoh): end at once
@@ -466,6 +474,8 @@ REMOTE_CONTROLLER = textwrap.dedent("""
     from controller.runtime import ControllerRuntime
     from pfma.clock import MonotonicClock
     from tools.bridge.remote import RemoteClient
+    from tools.stacks.controller import LivePacer
+    GC_EVERY_FRAMES = LivePacer.GC_EVERY_FRAMES
     from bit3.seqlock import Bit3Error
     try:  # a bridge killed or stopped in its start-up: one line, exit 1 (as a tool would)
         c = RemoteClient.connect(sys.argv[1], sys.argv[2], "chaos-remote-controller", timeout_s=30)
@@ -491,11 +501,21 @@ REMOTE_CONTROLLER = textwrap.dedent("""
     signal.signal(signal.SIGTERM, lambda *a: stop.append(1))  # in the loop: finish, close the session
     signal.signal(signal.SIGINT, lambda *a: stop.append(1))
     said = None
+    # the garbage collector as pfma controller keeps it (tools/stacks/controller.py): start-up's
+    # objects frozen, no automatic collection inside a frame (an old-generation pass took the
+    # far end's command past the service's input age), the young generations after a frame
+    gc.collect()
+    gc.freeze()
+    gc.disable()
+    ticks = 0
     while not stop:
         if not c.changed("inputs"):
             time.sleep(0.0002)
             continue
         rt.tick()
+        ticks += 1
+        if ticks % GC_EVERY_FRAMES == 0:
+            gc.collect(1)
         if rt.first_cause is not None and rt.first_cause is not said:  # say a fault as it happens
             said = rt.first_cause
             print("fault: " + said.format(), flush=True)
@@ -530,6 +550,9 @@ class Session:
 
     def __init__(self, kind: str, workdir: Path, realtime: bool = False) -> None:
         self.kind = kind
+        #: the service's command watchdog and input age (the bridge kind's: the link's)
+        self.watchdog_s = LINK_WATCHDOG_S if kind == "bridge" else WATCHDOG_S
+        self._age: tuple[str, ...] = ("--max-input-age", str(LINK_MAX_INPUT_AGE)) if kind == "bridge" else ()
         self.realtime = realtime  #: the service and the controllers run with --realtime
         self.rt_flag: tuple[str, ...] = ("--realtime",) if realtime else ()
         self.name = f"{PREFIX}{kind[:4]}-{uuid.uuid4().hex[:6]}"
@@ -551,7 +574,7 @@ class Session:
 
     def serve(self, *extra: str) -> Proc:
         return self.pfma("service", "serve", "--rack", "fake", "--buffer", self.name, "--watchdog-ms",
-                         f"{WATCHDOG_S * 1e3:g}", *self.rt_flag, *extra)
+                         f"{self.watchdog_s * 1e3:g}", *self._age, *self.rt_flag, *extra)
 
     def controller(self, *extra: str) -> Proc:
         return self.pfma("controller", "controller", "--buffer", self.name, "--wm", self.wm, "--power-up",
@@ -717,12 +740,15 @@ def _service_messages(c) -> list:
         return []
 
 
-def _outputs_check(out: Outcome, watch: RingWatch, c, t_gone: float, writer_returns: bool = False) -> None:
+def _outputs_check(out: Outcome, watch: RingWatch, c, t_gone: float, writer_returns: bool = False,
+                   watchdog_s: float = WATCHDOG_S) -> None:
     """Check (a) on every frame from 1 s before ``t_gone`` to SETTLE_S after it."""
     time.sleep(max(0.0, t_gone + SETTLE_S - time.monotonic()))
     rows = watch.window(t_gone - 1.0, t_gone + SETTLE_S)
-    ok, detail, fig = judge_outputs(rows, _service_messages(c), t_gone, writer_returns=writer_returns)
+    ok, detail, fig = judge_outputs(rows, _service_messages(c), t_gone, writer_returns=writer_returns,
+                                    watchdog_s=watchdog_s)
     out.figures.update(fig)
+    out.figures["watchdog_ms"] = round(watchdog_s * 1e3, 3)
     out.check("outputs_safe", ok, detail)
 
 
@@ -1179,7 +1205,8 @@ def _trial_bridge(trial: Trial, workdir: Path, out: Outcome, sess: Session, ctx:
     elif trial.index > 0 or reached == "up":
         out.check("reattach", True, "a new bridge and its remote controller armed the service")
     t_gone, _ = _signal_victim(bridge, trial)
-    _outputs_check(out, watch, c, t_gone, writer_returns=trial.action == "SIGSTOP+SIGCONT")
+    _outputs_check(out, watch, c, t_gone, writer_returns=trial.action == "SIGSTOP+SIGCONT",
+                   watchdog_s=sess.watchdog_s)
     bridge.stop()
 
 

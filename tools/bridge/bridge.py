@@ -140,7 +140,8 @@ class Bridge:
         self._entities: list[Any] = []
         #: remote writers by the order their tokens appeared; the first is the holder
         self.writers: list[str] = []
-        self._pending: tuple[str, bytes] | None = None  #: newest (sender, body) not yet written
+        #: newest (sender, body, holder tokens withdrawn when it came) not yet written
+        self._pending: tuple[str, bytes, int] | None = None
         self.applied = 0  #: remote bodies written to the command area
         #: remote command bodies not written, by sender (the first MAX_NAMED_SENDERS; the
         #: rest under OTHER_SENDERS)
@@ -184,7 +185,10 @@ class Bridge:
     def _on_set(self, sample: Any) -> None:
         a = sample.attachment
         sender = a.to_bytes()[:4 * MAX_SENDER_CHARS].decode("utf-8", "replace")[:MAX_SENDER_CHARS] if a else ""
-        self._pending = (sender, sample.payload.to_bytes())
+        # tagged with the holder tokens withdrawn so far: a body that came before its writer's
+        # token went is that writer's, never written for a writer after it under the same name
+        # (assumption: Zenoh delivers a writer's last body before its token's withdrawal)
+        self._pending = (sender, sample.payload.to_bytes(), self._holder_lost)
 
     def _on_query(self, query: Any) -> None:
         area = str(query.key_expr).rsplit("/", 1)[-1]
@@ -294,7 +298,9 @@ class Bridge:
         got, self._pending = self._pending, None
         if got is None:
             return
-        sender, body = got
+        sender, body, gen = got
+        if gen != self._holder_lost:
+            return  # its writer's token was withdrawn since: a lost writer's last word
         if holder is None:
             # no token seen yet: a writer's first body may overtake its token; keep the
             # newest body until a token decides (a body without a token is never written)
@@ -317,7 +323,7 @@ class Bridge:
             return
         import numpy as np
         rec = self.commander.command
-        who = (sender, self._holder_lost)
+        who = (sender, gen)
         if who != self._writing and not self._safe_start(rec, got, who):
             return
         remote = np.frombuffer(body, dtype=rec.dtype, count=1)[0]
@@ -328,7 +334,7 @@ class Bridge:
         self.commander.write_commands(inputs_frame=int(remote["inputs_frame"]))
         self.applied += 1
 
-    def _safe_start(self, rec, got: tuple[str, bytes], who: tuple[str, int]) -> bool:
+    def _safe_start(self, rec, got: tuple[str, bytes, int], who: tuple[str, int]) -> bool:
         """A new remote writer's first body: first the safe command a Data Acquisition layer
         writes when it starts (0 rates, 0 limits, gripper 0, no arm request,
         ``controller_frame`` 0), published by the bridge and held until the service has read

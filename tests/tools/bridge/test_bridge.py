@@ -228,7 +228,9 @@ def test_a_new_remote_writer_whose_first_bodies_were_lost_is_not_a_second_writer
     5 after the last writer's 300: the bridge writes the safe start (0 rates, no arm request,
     ``controller_frame`` 0) when a new writer's first body comes, and the new writer arms
     (the kill matrix's bridge trial once failed on "command foreign writer" here). A writer
-    started again under the same name (the bench's far end) is a new writer too."""
+    started again under the same name (the bench's far end) is a new writer too, and the last
+    body of the writer before it, still at the bridge when its token went, is never written
+    for it (the bench once saw "controller_frame 1 after 507" so)."""
     rig, bridge, peer = link
     s = peer()
     remote = RemoteBuffer(s, rig.name)
@@ -241,12 +243,17 @@ def test_a_new_remote_writer_whose_first_bodies_were_lost_is_not_a_second_writer
                                                      rearm_counter=1, controller_frame=299), "the arm request")
     _deliver(rig, bridge, lambda: cmd.write_commands(controller_frame=300), "a heartbeat")
     assert ServiceState(rig.reader.read_inputs().service_state) is ServiceState.ARMED
+    cmd.write_commands(controller_frame=301)  # its last word, at the bridge, not written yet
+    until(lambda: bridge._pending is not None, "the lost writer's last body at the bridge")
     s.close()
     until(lambda: bridge.holder is None, "the lost writer's token gone")
     step(rig, bridge, int(np.ceil(rig.svc.guard.watchdog_s * rig.svc.schedule.frame_rate_hz)) + 2)
 
     cmd2 = RemoteCommander(RemoteBuffer(peer(), rig.name), second)
     until(lambda: bridge.holder == second, "the new writer's token")
+    applied = bridge.applied
+    step(rig, bridge, SAFE_START_FRAMES + 2)
+    assert bridge.applied == applied and bridge._pending is None  # the lost writer's body: never written
     counter = int(cmd2.command["rearm_counter"]) + 1
     _deliver(rig, bridge, lambda: cmd2.write_commands(joint_rate_rad_s=zero, current_limit_a=limits, arm_request=1,
                                                       rearm_counter=counter, controller_frame=5), "the re-arm")
