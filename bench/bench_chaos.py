@@ -786,8 +786,16 @@ def _trial_service(trial: Trial, workdir: Path, out: Outcome, realtime: bool = F
             if not until(lambda: sess.armed(c), WAIT_S, must_live=(ctl, svc)):
                 out.check("setup", False, f"never ARMED: controller {ctl.tail(3)}")
                 return
-        reached = _at_phase(trial, svc, lambda: _child_of(svc.pid))
-        export = _child_of(svc.pid)
+        seen: list[int] = []  # the export's pid when the service was up: shutting down, it may be
+        # gone before the kill (then it went with its service all the same)
+
+        def up() -> int | None:
+            k = _child_of(svc.pid)
+            if k is not None:
+                seen.append(k)
+            return k
+        reached = _at_phase(trial, svc, up)
+        export = seen[-1] if seen else _child_of(svc.pid)
         out.notes.append(f"service {reached} at the {trial.action}")
         old = sess._client
         sess._client = None  # keep the old segment's client for the controller's side
