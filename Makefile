@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test lint bench soak flood clean
+.PHONY: run test lint bench soak flood chaos clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -23,7 +23,13 @@ run: $(STAMP)
 # realtime: they start processes or wait on wall-clock time) alone, so load cannot fail them
 test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 -m "not lab and not realtime" --durations=20
-	$(BIN)/python -m pytest -m "realtime and not lab" --durations=15
+	$(BIN)/python -m pytest -m "realtime and not lab and not chaos" --durations=15
+
+# the kill matrix, CI-sized (tests/chaos/test_kill_matrix.py, ~2.5 min): real processes killed
+# under the simulated stack, every check asserted; CI runs it after make test (a chaos run is a
+# benchmark's length, so make test stays shorter); pfma bench chaos --trials 100 is the full one
+chaos: $(STAMP)
+	$(BIN)/python -m pytest -m chaos tests/chaos
 
 # ruff (with the complexity gate, C901 over 20), the length gate (devtools/function_length.py),
 # the import contracts (the floors and no import circle), mypy

@@ -1,7 +1,9 @@
 """The kill matrix, CI-sized (issue 20 item 1): ``bench.bench_chaos`` with a fixed seed, two
 trials per process kind (service, controller, recorder, console, bridge, gateway, export),
 every check of every trial asserted. Real processes, real signals: marked realtime (run it
-alone, not beside other tests; ``pfma bench chaos --trials 100`` is the full matrix).
+alone, not beside other tests; ``pfma bench chaos --trials 100`` is the full matrix) and
+chaos: ``make chaos`` runs it, CI's step after ``make test`` (a chaos run is a benchmark's
+length, ~2.5 min here, not make test's).
 
 Seed 4's plan (``bench.bench_chaos.plan(4, 2)``) holds every phase and every action, a
 controller and a bridge killed while flying, a recorder killed while recording and a
@@ -21,7 +23,7 @@ SEED, TRIALS = 4, 2
 CHECKS = ("outputs_safe", "loss_reported", "takeover", "export_gone", "reattach", "unaffected", "recoverable",
           "resumed", "no_leftovers", "clean_exits")
 
-pytestmark = pytest.mark.realtime
+pytestmark = [pytest.mark.realtime, pytest.mark.chaos]
 
 
 @pytest.fixture(scope="module")
