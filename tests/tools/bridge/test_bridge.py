@@ -96,6 +96,18 @@ def test_remote_read_equals_local_read(link):
     remote.close()
 
 
+def _writer(link, name: str):
+    """A remote writer on a new peer, its token seen by the bridge and the inputs flowing:
+    (its session, its RemoteCommander)."""
+    rig, bridge, peer = link
+    s = peer()
+    remote = RemoteBuffer(s, rig.name)
+    cmd = RemoteCommander(remote, name)
+    until(lambda: bridge.holder == name, "the bridge sees the writer's token")
+    settle(rig, bridge, remote)
+    return s, cmd
+
+
 def _arm(cmd: RemoteCommander, rig, bridge) -> None:
     joints = len(rig.layout.joint_names)
     cmd.write_commands(joint_rate_rad_s=[0.0] * joints, current_limit_a=[1.0] * len(rig.layout.current_limit_names),
@@ -117,11 +129,7 @@ def _deliver(rig, bridge, cmd_write, what: str) -> None:
 
 def test_a_remote_commander_drives_the_service_and_its_loss_trips_the_watchdog(link):
     rig, bridge, peer = link
-    s = peer()
-    remote = RemoteBuffer(s, rig.name)
-    cmd = RemoteCommander(remote, "ops-laptop")
-    until(lambda: bridge.holder == "ops-laptop", "the bridge sees the writer's token")
-    settle(rig, bridge, remote)
+    s, cmd = _writer(link, "ops-laptop")
     _deliver(rig, bridge, lambda: _arm(cmd, rig, bridge), "the arm request")
     rate = [0.0] * len(rig.layout.joint_names)
     rate[2] = 0.2
@@ -158,11 +166,7 @@ def test_a_new_remote_writer_carries_on_from_the_command_area_and_can_re_arm(lin
     """A writer taking over (a controller restarted elsewhere) starts from the area's record:
     its re-arm counter goes on from the one the service has used, so a re-arm is taken."""
     rig, bridge, peer = link
-    s = peer()
-    remote = RemoteBuffer(s, rig.name)
-    cmd = RemoteCommander(remote, "ops-laptop")
-    until(lambda: bridge.holder == "ops-laptop", "the bridge sees the writer's token")
-    settle(rig, bridge, remote)
+    s, cmd = _writer(link, "ops-laptop")
     zero = [0.0] * len(rig.layout.joint_names)
     _deliver(rig, bridge, lambda: _arm(cmd, rig, bridge), "the arm request")
     for _ in range(3):
@@ -232,11 +236,7 @@ def test_a_new_remote_writer_whose_first_bodies_were_lost_is_not_a_second_writer
     body of the writer before it, still at the bridge when its token went, is never written
     for it (the bench once saw "controller_frame 1 after 507" so)."""
     rig, bridge, peer = link
-    s = peer()
-    remote = RemoteBuffer(s, rig.name)
-    cmd = RemoteCommander(remote, "ops-laptop")
-    until(lambda: bridge.holder == "ops-laptop", "the bridge sees the writer's token")
-    settle(rig, bridge, remote)
+    s, cmd = _writer(link, "ops-laptop")
     zero = [0.0] * len(rig.layout.joint_names)
     limits = [1.0] * len(rig.layout.current_limit_names)
     _deliver(rig, bridge, lambda: cmd.write_commands(joint_rate_rad_s=zero, current_limit_a=limits, arm_request=1,
