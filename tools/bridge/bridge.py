@@ -155,8 +155,8 @@ class Bridge:
         #: count, so a controller started again under the same name is a new writer
         self._holder_lost = 0
         self._writing: tuple[str, int] | None = None  # the remote writer whose bodies are written
-        self._safe_at = -1  # the service frame when the safe start was written (-1: none pending)
-        self._safe_for: tuple[str, int] | None = None  # the writer the pending safe start is for
+        #: the safe start written and not yet read: (the writer it is for, the service frame then)
+        self._safe: tuple[tuple[str, int], int] | None = None
         self._tokens_over = 0  # writer tokens beyond MAX_WRITERS, counted by Zenoh's thread
         self._tokens_said = 0
         self._closed = False
@@ -346,18 +346,18 @@ class Bridge:
         non-zero value for a second writer, a step back to 0 for a writer started again
         (ioservice/commandcheck.py); the service sees only the bodies it reads, so the safe
         start must be read before the writer's next body replaces it."""
-        assert self.commander is not None
-        frame = self.commander.service_frame
-        if self._safe_at < 0 or self._safe_for != who:
-            for f in ("joint_rate_rad_s", "current_limit_a"):
-                rec[f] = 0.0
-            self.commander.write_commands(gripper=0.0, arm_request=0, controller_frame=0)
-            self._safe_at, self._safe_for = frame, who
-        if frame - self._safe_at < SAFE_START_FRAMES:
+        c = self.commander
+        assert c is not None
+        frame = c.service_frame
+        if self._safe is None or self._safe[0] != who:
+            c.write_commands(joint_rate_rad_s=0.0 * rec["joint_rate_rad_s"], current_limit_a=0.0 * rec["current_limit_a"],
+                             gripper=0.0, arm_request=0, controller_frame=0)
+            self._safe = (who, frame)
+        if frame - self._safe[1] < SAFE_START_FRAMES:
             if self._pending is None:  # a newer body that came meanwhile wins
                 self._pending = got
             return False
-        self._writing, self._safe_at = who, -1
+        self._writing, self._safe = who, None
         return True
 
     def _count_refused(self, sender: str) -> None:
