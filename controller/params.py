@@ -26,7 +26,7 @@ from __future__ import annotations
 # the joint table lives in pfma.arm (the service's envelope and the file checks read it too)
 from pfma.arm import (  # noqa: F401  (re-exported: the controller's one import of arm facts)
     DEG, GRIPPER, GRIPPER_I_MAX_A, JOINT_NAMES, JOINTS, N_JOINTS, SOURCE, JointFacts, joint, unwrap_angle,
-    RATE_LOOP_LAMBDA, RUN_CURRENT_FRACTION, TACH_TAU_S,
+    GAIN_SWITCH_POSITIONS, RATE_LOOP_LAMBDA, RUN_CURRENT_FRACTION, TACH_TAU_S,
     SHOULDER_ROLL_STEPS_DEG, SHOULDER_ROLL_STEPS_TEXT, check_shoulder_roll_deg, shoulder_roll_text,
 )
 

@@ -31,7 +31,7 @@ otherwise. Tests compare the simulated arm's response with it.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -41,7 +41,7 @@ from controller.gripper import GRIPPER_LIMIT_INDEX, GripperDrive, gripper_specs
 from controller.layers import ERROR_NAMES, JOINT, Layer
 from controller.messages import Level
 from controller.params import (
-    DEFAULT_KP_PER_S, GRIPPER_I_MAX_A, JOINTS, N_CURRENT_LIMITS, N_JOINTS, RATE_LOOP_LAMBDA, SAFE_STOP_RATE_RAD_S,
+    DEFAULT_KP_PER_S, GAIN_SWITCH_POSITIONS, GRIPPER_I_MAX_A, JOINTS, N_CURRENT_LIMITS, N_JOINTS, SAFE_STOP_RATE_RAD_S,
     SAFE_STOP_TIMEOUT_S, TACH_TAU_S, JointFacts, run_current_limits_a,
 )
 from controller.supervision import (
@@ -181,7 +181,7 @@ def predict_step(jf: JointFacts, step_rad: float, *, kp: float = DEFAULT_KP_PER_
     lim = jf.omega_lim_rad_s if rate_limit is None else rate_limit
     i_lim = (0.5 * jf.i_max_a) if current_limit_a is None else current_limit_a
     acc_max = jf.torque_per_amp * i_lim / jf.inertia_kg_m2
-    lam, tf, damp = RATE_LOOP_LAMBDA, TACH_TAU_S, jf.viscous_nm_s / jf.inertia_kg_m2
+    lam, tf, damp = jf.rate_loop_lambda, TACH_TAU_S, jf.viscous_nm_s / jf.inertia_kg_m2
     dt = servo_period_s / substeps
     n = int(round(duration_s / dt))
     q = w = y = 0.0
@@ -375,6 +375,12 @@ class ServoVars(VarGroup, prefix="servo", writer="servo"):
             "answering before START UP COMPLETE; a joint that does not fails the power-up, "
             "named (off: the brakes are taken as released when the limits are raised; "
             "protected: not while powered up)")
+    gain_switch: Var[np.ndarray] = var(
+        "control_flags", "f8", (N_JOINTS,), [1.0] * N_JOINTS, "1", writer="user", protected=True,
+        valid=(min(GAIN_SWITCH_POSITIONS.values()), max(GAIN_SWITCH_POSITIONS.values())),
+        doc="each rate servo card's gain adjustment switch as set on the chassis (IRSS 3.6.1), a factor on "
+            "the rate loop's lambda: 0.5 low, 1 nominal, 2 high (assumed positions, pfma.arm); the joint "
+            "supervision's model uses it (protected: not while powered up)")
 
 
 SERVO = ServoVars
@@ -433,7 +439,7 @@ class ServoLayer(Layer):
     # --- sequence tasks ------------------------------------------------------------------
     def seq_init(self, rt: "LayerContext") -> TaskState:
         names = ("kp_per_s", "tau_z_s", "tau_p_s", "rate_limit_rad_s", "current_limit_a", "q_min_rad", "q_max_rad",
-                 "ferror_min_rad", "ferror_max_rad", "ferror_time_s")
+                 "ferror_min_rad", "ferror_max_rad", "ferror_time_s", "gain_switch")
         v = rt.wm.get_task_inputs([getattr(SERVO, n) for n in names] + [SERVO.brake_test])
         self.brake_test_on = bool(int(v[SERVO.brake_test]))
         p = {n: np.array(v[getattr(SERVO, n)], dtype=float) for n in names}
@@ -449,13 +455,17 @@ class ServoLayer(Layer):
                                     f"not inside the hard limits")
                 if not 0 <= p["current_limit_a"][i] <= j.i_max_a:
                     problems.append(f"{j.name} current limit {p['current_limit_a'][i]} A outside 0..{j.i_max_a}")
+                if float(p["gain_switch"][i]) not in GAIN_SWITCH_POSITIONS.values():
+                    problems.append(f"{j.name} gain switch {p['gain_switch'][i]:g} is no position of the card's "
+                                    f"switch ({', '.join(f'{k} {v:g}' for k, v in GAIN_SWITCH_POSITIONS.items())})")
             g = p["current_limit_a"][GRIPPER_LIMIT_INDEX]
             if not 0 <= g <= GRIPPER_I_MAX_A:
                 problems.append(f"gripper current limit {g} A outside 0..{GRIPPER_I_MAX_A}")
             if problems:
                 raise ValueError("; ".join(problems))
             pure = not (np.any(p["tau_z_s"]) or np.any(p["tau_p_s"]))  # the reference: the same compensator
-            self.sup = JointSupervisor(p["ferror_min_rad"], p["ferror_max_rad"], p["ferror_time_s"],
+            joints = tuple(replace(j, gain_switch=float(g)) for j, g in zip(JOINTS, p["gain_switch"]))
+            self.sup = JointSupervisor(p["ferror_min_rad"], p["ferror_max_rad"], p["ferror_time_s"], joints=joints,
                                        reference=None if pure else LeadLag(p["kp_per_s"], p["tau_z_s"],
                                                                            p["tau_p_s"], self.period_s),
                                        kp_per_s=p["kp_per_s"].tolist(), rate_limit_rad_s=p["rate_limit_rad_s"])

@@ -15,7 +15,9 @@ overspeed              the resolver rate exceeds ``OVERSPEED_FACTOR x omega_fs``
                        tach reads at least ``TACH_FULL_SCALE_FRACTION`` of full scale (the
                        ADC clips there: beyond it the tach cannot say how fast)
 tach against resolver  sign or magnitude disagree by more than ``TACH_ABS_TOL x omega_fs +
-                       TACH_REL_TOL x |rate|`` for ``TACH_TIME_S``
+                       TACH_REL_TOL x |rate|`` for ``TACH_TIME_S`` (the resolver's rate
+                       through the tach's own filters first: the 10 Hz tach card and the
+                       anti-aliasing board's lag, so that the two are compared alike)
 stall                  (loop closed) a rate command worth more than ``STALL_RATE_FRACTION x
                        omega_fs`` with the joint still and the motor current at its limit
                        (brake held, jam) or none at all (amplifier off), for ``STALL_TIME_S``
@@ -61,7 +63,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pfma.arm import JOINTS, RATE_LOOP_LAMBDA, TACH_TAU_S, JointFacts  # noqa: F401 (re-exported)
+from pfma.arm import JOINTS, RATE_LOOP_LAMBDA, TACH_TAU_S, JointFacts, anti_alias_delay_s  # noqa: F401
+
+#: the anti-aliasing board's lag on the tach channel (pfma.arm.ANTI_ALIAS_HZ), modelled as
+#: one more first-order lag of its group delay on the resolver rate the tach is compared with
+AA_TAU_S = anti_alias_delay_s()
 
 DEG = math.pi / 180.0
 
@@ -287,10 +293,11 @@ class JointSupervisor:
         """The nominal rate loop per joint: steady gain, amplifier gain, Coulomb dead band
         (rad/s of command), lag."""
         joints = self.joints
-        self._gain = [RATE_LOOP_LAMBDA / (RATE_LOOP_LAMBDA + j.viscous_nm_s / j.inertia_kg_m2) for j in joints]
+        lam = [j.rate_loop_lambda for j in joints]  # with each card's gain switch
+        self._gain = [lk / (lk + j.viscous_nm_s / j.inertia_kg_m2) for lk, j in zip(lam, joints)]
         self._kaw = [amp_gain_a_per_rad_s(j) for j in joints]
-        self._dead = [j.coulomb_nm / j.inertia_kg_m2 / RATE_LOOP_LAMBDA for j in joints]
-        self._tau = [1.0 / (RATE_LOOP_LAMBDA + j.viscous_nm_s / j.inertia_kg_m2) + MODEL_DELAY_S for j in joints]
+        self._dead = [j.coulomb_nm / j.inertia_kg_m2 / lk for lk, j in zip(lam, joints)]
+        self._tau = [1.0 / (lk + j.viscous_nm_s / j.inertia_kg_m2) + MODEL_DELAY_S for lk, j in zip(lam, joints)]
 
     def command_for_rate(self, k: int, rate: float) -> float:
         """The rate command (rad/s) whose nominal steady rate on joint ``k`` is ``rate`` (>= 0):
@@ -302,6 +309,7 @@ class JointSupervisor:
         n = len(self.joints)
         self._q: list[float] | None = None
         self._w_res = [0.0] * n
+        self._w_aa = [0.0] * n  # the resolver rate through the anti-aliasing lag too
         self._w_m = [0.0] * n
         self._q_model = [0.0] * n
         self._closed = False
@@ -317,6 +325,7 @@ class JointSupervisor:
         servo's period is constant; a missed frame changes it for one sample)."""
         self._dt = dt
         self._alpha = 1.0 - math.exp(-dt / TACH_TAU_S)
+        self._alpha_aa = 1.0 - math.exp(-dt / AA_TAU_S)
         self._pull = dt / (PULL_S + dt)
         self._rows = tuple(
             (k, jf, fs, max(JUMP_MIN_RAD, JUMP_SPEED_FACTOR * fs * dt), OVERSPEED_FACTOR * fs,
@@ -338,6 +347,7 @@ class JointSupervisor:
             return None
         qc, u_ref, trip = self._qc, self._u_ref, None
         q_prev, w_res_l, hist, hi, alpha, pull = self._q, self._w_res, self._h, self._hi, self._alpha, self._pull
+        w_aa_l, alpha_aa = self._w_aa, self._alpha_aa
         pi, two_pi = math.pi, 2.0 * math.pi
         brake, t_tach, w_m_l, q_m_l, kp_l, rl_l = \
             self.brake_state, self._t_tach, self._w_m, self._q_model, self.kp, self.rate_lim
@@ -347,6 +357,7 @@ class JointSupervisor:
             qk = q[k]
             d = (qk - q_prev[k] + pi) % two_pi - pi
             w_res = w_res_l[k] = w_res_l[k] + alpha * (d / dt - w_res_l[k])
+            w_aa = w_aa_l[k] = w_aa_l[k] + alpha_aa * (w_res - w_aa_l[k])
             wt, uk = w_tach[k], u[k]
             h = hist[k]
             h[0][hi], h[1][hi], h[2][hi], h[3][hi], h[4][hi] = uk, wt, w_res, i_meas[k], i_lim[k]
@@ -364,11 +375,11 @@ class JointSupervisor:
                                               f"{fs:g}")
             else:
                 aw = abs(wt)
-                ar = abs(w_res)
-                if abs(wt - w_res) > tach_abs + TACH_REL_TOL * (aw if aw > ar else ar):
+                ar = abs(w_aa)
+                if abs(wt - w_aa) > tach_abs + TACH_REL_TOL * (aw if aw > ar else ar):
                     t_tach[k] += dt
                     if t_tach[k] >= TACH_TIME_S:
-                        check, detail = "tach against resolver", (f"tach {wt:+.3f} rad/s, resolver {w_res:+.3f} "
+                        check, detail = "tach against resolver", (f"tach {wt:+.3f} rad/s, resolver {w_aa:+.3f} "
                                                                   f"rad/s for {t_tach[k] * 1e3:.0f} ms")
                 elif t_tach[k]:
                     t_tach[k] = 0.0

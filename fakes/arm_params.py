@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from pfma.arm import GRIPPER
+from pfma.arm import ANTI_ALIAS_HZ, GAIN_SWITCH_POSITIONS, GRIPPER
 
 SOURCE = "pfma-model.md 8.1-8.7 (nominal model, assumed); IRSS report 3.6"
 _G = GRIPPER  # the gripper's row below
@@ -170,6 +170,14 @@ class ArmParams:
     counterbalance_fraction: float = 0.9  #: 8.3: tau_cb = -0.9 tau_grav,links on J2-J4 (and J1, J5 here)
     rate_loop_lambda: float = 40.0  #: 8.4: K_a = lambda J / (N eta K_t K_w), rad/s
     tach_filter_hz: float = 10.0  #: IRSS 3.6.3 (sourced) / 8.4: tau_f = 15.9 ms
+    #: the anti-aliasing board's 4-pole filters in front of the A/D on the tach, motor
+    #: current and CAE channels (IRSS 3.4.2; corner assumed: pfma.arm.ANTI_ALIAS_HZ);
+    #: None: not modelled (the simulator as it was before the board was)
+    anti_alias_hz: float | None = ANTI_ALIAS_HZ
+    #: each rate servo card's gain adjustment switch (IRSS 3.6.1), a factor on lambda (K_a):
+    #: pfma.arm.GAIN_SWITCH_POSITIONS (assumed positions), nominal 1 on every axis. The
+    #: amplifier gain spread (SimErrors.amp_gain_error) varies around it.
+    gain_switch: tuple[float, ...] = (1.0,) * N_AXES
     brake_engage_v: float = 0.3  #: 8.4: brake engaged when V_ilim < 0.3 V
     brake_release_v: float = 0.5  #: 8.4: released when V_ilim > 0.5 V
     brake_slip_factor: float = 1.5  #: 8.4: slip torque = 1.5 x max joint torque
@@ -191,7 +199,14 @@ class ArmParams:
 
     def k_a(self) -> tuple[float, ...]:
         """Amplifier rate-loop gains, A/V (8.4: 3.33, 3.33, 1.67, 0.50, 0.50, 0.22; gripper 0.1)."""
-        return tuple(self.rate_loop_lambda * a.inertia / (a.torque_per_amp * a.k_w) for a in self.axes)
+        return tuple(self.rate_loop_lambda * g * a.inertia / (a.torque_per_amp * a.k_w)
+                     for a, g in zip(self.axes, self.gain_switch, strict=True))
+
+    def __post_init__(self) -> None:
+        bad = [g for g in self.gain_switch if g not in GAIN_SWITCH_POSITIONS.values()]
+        if len(self.gain_switch) != len(self.axes) or bad:
+            raise ValueError(f"gain_switch needs {len(self.axes)} positions of "
+                             f"{sorted(GAIN_SWITCH_POSITIONS.values())}, got {self.gain_switch}")
 
 
 NOMINAL = ArmParams()

@@ -14,6 +14,12 @@ boards' physical-side hooks:
 - motor current monitor 10 I / I_max (0 V without the +/-15 V) -> ADC ``<joint>_motor_current``;
 - CAE hand-controller volts (``set_cae``) -> ADC ``cae_*``.
 
+The tach, motor-current and CAE axis channels pass through the anti-aliasing filter board
+on their way to the A/D (IRSS 3.4.2: four-pole low-pass filters, ``fakes/anti_alias.py``;
+corner ``ArmParams.anti_alias_hz``, assumed): their readings lag the signals by about
+10 ms. The filters advance in :meth:`SimulatedRack.step` only; a hand-controller voltage
+set between steps reaches the A/D through them over the following steps.
+
 Every channel is found by signal name in the rack configuration; nothing here knows a
 channel number. The drivers are not used: this module only talks to the fakes.
 """
@@ -26,6 +32,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from drivers.rtd.registers import VMIVME4940
+from fakes.anti_alias import AntiAliasBank
 from fakes.arm import ArmModel, ArmState
 from fakes.arm_params import AXES, N_JOINTS, SimErrors
 from fakes.environment import Environment
@@ -98,7 +105,20 @@ class SimulatedRack:
         self.set_errors(self.errors)
         self._cae_axes = np.zeros(len(CAE_AXIS_SIGNALS))
         self._cae_discretes = np.zeros(len(CAE_DISCRETE_SIGNALS))
+        #: the anti-aliasing filters of the tach (7), motor-current (7) and CAE axis (6) channels
+        self.anti_alias = AntiAliasBank(2 * len(AXES) + len(CAE_AXIS_SIGNALS), self.arm.params.anti_alias_hz)
+        self.settle_filters()
+
+    def settle_filters(self) -> None:
+        """Put the anti-aliasing filters at rest on what their inputs show now (at
+        construction, and after a test or a calibration has placed the arm)."""
+        self.anti_alias.settle(self._filter_inputs())
         self._write_sensors()
+
+    def _filter_inputs(self) -> np.ndarray:
+        """What enters the anti-aliasing board: tach volts, current-monitor volts, CAE axes."""
+        arm = self.arm
+        return np.concatenate((arm.tach_output_volts, arm.current_monitor_volts, self._cae_axes))
 
     # -- wiring -----------------------------------------------------------------------
     def _where(self, signal: str) -> tuple[str, int]:
@@ -257,6 +277,7 @@ class SimulatedRack:
         self.arm.step(dt_s, v_cmd, v_ilim)
         if boards:
             self.fake_rack.step(dt_s)
+        self.anti_alias.step(dt_s, self._filter_inputs())
         self._write_sensors()
         if self._ft_push is not None:
             self._ft_push.set_load(*self.ft_reading(self.clock.now()))
@@ -274,11 +295,14 @@ class SimulatedRack:
             at = at + self._noise.normal(0.0, self._resolver_noise_rad, len(at))
         for axis, (board, ch) in self.angle.items():
             self.fake_rack[board].set_angle_rad(ch, (q[axis] + at[axis]) % _TWO_PI)
-        tach, imon = arm.tach_output_volts, arm.current_monitor_volts  # 0 V without the +/-15 V
+        # through the anti-aliasing board: tach (0 V without the +/-15 V), current monitor, CAE
+        out = self.anti_alias.output() if self.anti_alias.corner_hz else self._filter_inputs()
+        n = len(AXES)
+        tach, imon, cae = out[:n], out[n:2 * n], out[2 * n:]
         for m in self._adc.values():
             m.volts[m.rate_ch] = tach[m.rate_axis]
             m.volts[m.cur_ch] = imon[m.cur_axis]
-        for (board, ch), v in zip(self.cae_axes, self._cae_axes):
+        for (board, ch), v in zip(self.cae_axes, cae):
             self._adc[board].volts[ch] = v
         for (board, ch), v in zip(self.cae_discretes, self._cae_discretes):
             self._adc[board].volts[ch] = v

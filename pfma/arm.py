@@ -27,11 +27,32 @@ DEG = math.pi / 180.0
 RATE_LOOP_LAMBDA = 40.0
 #: the 10 Hz tach filter cards' time constant (s): IRSS report 3.6.3 (sourced), pfma-model 8.4
 TACH_TAU_S = 1.0 / (2.0 * math.pi * 10.0)
+#: the anti-aliasing filter board in front of the A/D (IRSS report 3.4.2, sourced: "four
+#: pole low pass" filters on the tach, motor-current and CAE hand-controller channels).
+#: ASSUMED (the schematics are not public): Butterworth, corner 40 Hz (half the 80 Hz
+#: Nyquist frequency of the 160 Hz A/D rate), unity gain. The simulator models it
+#: (fakes/anti_alias.py); the joint supervision allows for its lag.
+ANTI_ALIAS_HZ = 40.0
+ANTI_ALIAS_POLES = 4
+
+
+def anti_alias_delay_s(corner_hz: float = ANTI_ALIAS_HZ, poles: int = ANTI_ALIAS_POLES) -> float:
+    """The group delay at DC of the Butterworth anti-aliasing filter (s): the lag its
+    channels' readings carry, sum over the pole pairs of 2 zeta / w (10.4 ms at 40 Hz)."""
+    w = 2.0 * math.pi * corner_hz
+    return sum(2.0 * math.sin(math.pi * (2 * k + 1) / (2 * poles)) for k in range(poles // 2)) / w
+
+
 #: Current limit while powered up, as a fraction of I_max. Assumed (this project): half
 #: of I_max holds the counterbalanced arm with margin (192 N*m max at the shoulder vs
 #: ~47 N*m residual gravity) and halves the torque in a collision; the controller, the demo
 #: controller and the service's envelope (its braking deceleration) use this one figure.
 RUN_CURRENT_FRACTION = 0.5
+#: the rate servo cards' gain adjustment switch (IRSS report 3.6.1, sourced: "a gain
+#: adjustment switch is provided" on each joint's card): its positions as a factor on the
+#: rate loop's lambda (K_a). ASSUMED (the card's drawings are not public): three positions,
+#: half, nominal and double; the nominal model of pfma-model 8.4 is the middle one.
+GAIN_SWITCH_POSITIONS = {"low": 0.5, "nominal": 1.0, "high": 2.0}
 
 
 @dataclass(frozen=True)
@@ -51,6 +72,14 @@ class JointFacts:
     k_t_nm_per_a: float  #: motor torque constant K_t (8.2)
     coulomb_nm: float = 0.0  #: joint-side Coulomb friction (8.3), for the prediction model
     eta: float = 0.8  #: gear efficiency (8.2)
+    #: the rate servo card's gain switch as set on the chassis (GAIN_SWITCH_POSITIONS), a
+    #: factor on the rate loop's lambda; 1: nominal (``servo.gain_switch`` sets it)
+    gain_switch: float = 1.0
+
+    @property
+    def rate_loop_lambda(self) -> float:
+        """The rate loop's bandwidth lambda (1/s) with this joint's gain switch (8.4)."""
+        return RATE_LOOP_LAMBDA * self.gain_switch
 
     @property
     def torque_per_amp(self) -> float:
@@ -71,14 +100,14 @@ class JointFacts:
     def amp_gain_a_per_rad_s(self) -> float:
         """The amplifier's motor current per rad/s of rate error, K_a K_w = lambda J / (N eta K_t)
         (pfma-model.md 8.4)."""
-        return RATE_LOOP_LAMBDA * self.inertia_kg_m2 / self.torque_per_amp
+        return self.rate_loop_lambda * self.inertia_kg_m2 / self.torque_per_amp
 
     @property
     def breakaway_rate_rad_s(self) -> float:
         """The smallest rate command that moves the joint from rest: below it the amplifier's
         torque at zero speed, N eta K_t K_a K_w u = lambda J u, does not beat the Coulomb
         friction (pfma-model.md 8.3-8.4; nominal values, gravity not counted)."""
-        return self.coulomb_nm / (RATE_LOOP_LAMBDA * self.inertia_kg_m2)
+        return self.coulomb_nm / (self.rate_loop_lambda * self.inertia_kg_m2)
 
     @property
     def breakaway_current_a(self) -> float:

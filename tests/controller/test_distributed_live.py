@@ -177,7 +177,7 @@ def test_sections_over_zenoh_on_loopback_power_up():
             sim.after_step.append(publish)
             sim.step(10)
             frames = sim.power_up(1000)
-            assert frames == 77  # as through shared memory, the brake test included (tests/controller/test_distributed.py)
+            assert frames == 83  # as through shared memory, the brake test included (tests/controller/test_distributed.py)
             assert sim.all_status(Status.START_UP_COMPLETE)
             assert all(link.published >= frames for link in links.values())
             assert all(src.received >= frames for link in links.values() for src in link.remote.values())

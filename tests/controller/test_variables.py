@@ -87,7 +87,7 @@ def test_servo_names_are_the_old_strings() -> None:
         "kp_per_s", "tau_z_s", "tau_p_s", "rate_limit_rad_s", "current_limit_a", "q_min_rad", "q_max_rad",
         "ferror_min_rad", "ferror_max_rad", "ferror_time_s", "ferror_rad", "trip_joint", "trip_cause",
         "rate_cmd_rad_s", "rate_cmd_frame", "current_limit_cmd_a", "error_rad", "brake_state", "brake_phase",
-        "brake_test")]
+        "brake_test", "gain_switch")]
     assert SERVO.kp_per_s.writer == "user" and SERVO.kp_per_s.spec.protected
     assert SERVO.rate_cmd_rad_s.writer == "servo"
 

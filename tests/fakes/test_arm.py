@@ -166,6 +166,28 @@ def test_tach_scale_error_changes_the_true_rate():
     assert arm.tach_volts[SY] == pytest.approx(25.0 * 1.1 * arm.qdot[SY], rel=1e-3)
 
 
+@pytest.mark.parametrize("position", [0.5, 2.0])
+def test_the_gain_switch_scales_the_rate_loop_and_moves_its_droop(position):
+    """IRSS 3.6.1: each rate servo card's gain switch; K_a scales with it, and with it the
+    viscous droop of the wrist roll (b/J = 25 1/s against lambda = 40 1/s nominal)."""
+    switched = dataclasses.replace(NOMINAL, gain_switch=tuple(position if i == WR else 1.0 for i in range(N_AXES)))
+    arms = {g: ArmModel(params=p) for g, p in ((1.0, NOMINAL), (position, switched))}
+    rates = {}
+    for g, arm in arms.items():
+        run(arm, 0.8, cmd_on(WR, 5.0))
+        rates[g] = arm.qdot[WR]
+        assert arm.qdot[WR] == pytest.approx(steady_rate(arm, WR, 5.0), rel=0.01)
+    assert arms[position].k_a[WR] == pytest.approx(position * arms[1.0].k_a[WR])
+    assert arms[position].k_a[SY] == arms[1.0].k_a[SY]  # the other cards keep theirs
+    # pfma-model 8.4's steady rate (lambda' J u - F_c) / (lambda' J + b), lambda' = position x 40
+    a, u = AXES[WR], 5.0 / AXES[WR].k_w
+    for g in (1.0, position):
+        lam_j = g * 40.0 * a.inertia
+        assert rates[g] == pytest.approx((lam_j * u - a.coulomb) / (lam_j + a.viscous), rel=0.01)
+    with pytest.raises(ValueError, match="gain_switch"):
+        dataclasses.replace(NOMINAL, gain_switch=(1.5,) * N_AXES)
+
+
 def test_current_saturates_at_the_current_limit():
     arm = ArmModel()
     ilim = np.full(N_AXES, 2.0)  # I_lim = 10 A * 2 V / 10 = 2 A on SY

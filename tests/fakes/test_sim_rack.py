@@ -100,7 +100,7 @@ def test_every_axis_reports_on_its_own_channels():
     rig.power_up()
     q = (0.3, 0.2, -0.7, 0.5, -0.4, 2.5, 0.03)
     rig.sim.arm.set_state(q=q, qdot=(0.01, 0.02, -0.03, 0.04, -0.05, 0.06, 0.007))
-    rig.sim.step(0.0)  # publish without moving
+    rig.sim.settle_filters()  # publish without moving, the anti-aliasing filters at rest on it
     st = rig.sim.true_state()
     for i, a in enumerate(AXES):
         assert rig.adc_volts(f"{ADC_STEM.get(a.joint, a.joint)}_rate") == pytest.approx(st.tach_volts[i], abs=ADC_LSB), a.name
@@ -117,10 +117,18 @@ def test_every_axis_reports_on_its_own_channels():
 def test_current_limit_shows_on_the_current_monitor():
     rig = Rig()
     rig.power_up(limit_v=10.0)
+    # a held brake keeps the joint still, so the current stays at its limit
+    rig.sim.set_errors(SimErrors(brake_held=tuple(a.name == "WR" for a in AXES)))
     rig.write("wrist_roll_current_limit", 4.0)  # 5 A * 0.4 = 2 A -> monitor 4 V
     rig.write("wrist_roll_command", 10.0)
     rig.sim.advance(DT)
     rig.sim.advance(DT)
+    assert rig.sim.true_state().current_monitor_volts[5] == pytest.approx(4.0, abs=ADC_LSB)
+    # the monitor's anti-aliasing filter (10 ms lag) has not caught up after 6 ms ...
+    assert rig.adc_volts("wrist_roll_motor_current") < 2.0
+    for _ in range(32):  # ... and has 100 ms later
+        rig.sim.advance(DT)
+    assert rig.sim.true_state().current_monitor_volts[5] == pytest.approx(4.0, abs=ADC_LSB)
     assert rig.adc_volts("wrist_roll_motor_current") == pytest.approx(4.0, abs=2 * ADC_LSB)
 
 
@@ -128,11 +136,13 @@ def test_cae_volts_appear_on_the_cae_channels():
     rig = Rig()
     axes = (1.0, -2.0, 3.0, -4.0, 5.0, -6.0)
     rig.sim.set_cae(axes, (True, False, 2.5))
+    for sig in CAE_AXIS_SIGNALS:  # the axes reach the A/D through the anti-aliasing filters ...
+        assert rig.adc_volts(sig) == pytest.approx(0.0, abs=ADC_LSB)
+    for sig, v in zip(CAE_DISCRETE_SIGNALS, (5.0, 0.0, 2.5)):  # ... the discretes directly
+        assert rig.adc_volts(sig) == pytest.approx(v, abs=ADC_LSB)
+    rig.run(0.1)  # settled after 100 ms (the Butterworth's 11 % overshoot rung out), and stays set
     for sig, v in zip(CAE_AXIS_SIGNALS, axes):
         assert rig.adc_volts(sig) == pytest.approx(v, abs=ADC_LSB)
-    for sig, v in zip(CAE_DISCRETE_SIGNALS, (5.0, 0.0, 2.5)):
-        assert rig.adc_volts(sig) == pytest.approx(v, abs=ADC_LSB)
-    rig.run(0.05)  # stays set across steps
     assert rig.adc_volts("cae_roll") == pytest.approx(-6.0, abs=ADC_LSB)
     with pytest.raises(ValueError, match="6 axis voltages"):
         rig.sim.set_cae((0.0,) * 5)

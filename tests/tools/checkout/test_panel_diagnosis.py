@@ -7,6 +7,7 @@ from what the sensors showed. Simulated rack, simulated time; faults `brake-held
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -49,8 +50,11 @@ def test_a_held_brake_is_named_in_the_joints_diagnosis_and_fails(sim, cfg):
     d = diagnosis(rep, "elbow_pitch")
     assert d.status == FAIL and d.measured == "brake held"
     assert d.detail.startswith("brake not released (or a jam): check the joint's brake-release switch and brake")
-    # from the sensors: no travel, the motor current at the test's limit (2 A on the elbow)
-    assert "resolver +0.0000 rad" in d.detail and "peak |current| 2 A of 2.00 A" in d.detail
+    # from the sensors: no travel, the motor current at the test's limit (2 A on the elbow;
+    # its step read through the anti-aliasing filter peaks up to its 10.8 % overshoot above)
+    assert "resolver +0.0000 rad" in d.detail
+    peak = re.search(r"peak \|current\| ([0-9.]+) A of 2\.00 A", d.detail)
+    assert peak is not None and 2.0 <= float(peak.group(1)) <= 2.25, d.detail
     # the joints tested before it were diagnosed healthy
     assert diagnosis(rep, "shoulder_yaw").status == PASS
     outputs_safe(sim)
