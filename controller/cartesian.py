@@ -116,6 +116,12 @@ class CartesianLayer(Layer):
     key = "cartesian"
     title = "Cartesian Engine"
     short = "CART"
+    #: other layers' variables read (controller/neighbours.py; the far ones are listed there)
+    reads = (
+        "daq.ft_force_n", "daq.ft_torque_nm", "daq.hc_axes", "daq.hc_deadman", "daq.joint_angle_rad",
+        "joint.jmove_done_seq", "joint.shoulder_roll_rad", "joint.tool_pos_m", "joint.tool_quat",
+        "servo.q_cmd_rad", "traj.active", "traj.pos_m", "traj.quat",
+    )
 
     def __init__(self, tool_load: ToolLoad | None = None) -> None:
         super().__init__()

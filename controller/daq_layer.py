@@ -114,6 +114,12 @@ class DataAcquisitionLayer(Layer):
     key = "daq"
     title = "Data Acquisition"
     short = "DAQ "
+    #: other layers' variables read (controller/neighbours.py; the far ones are listed there)
+    reads = (
+        "force.state", "gripper.rate_cmd_m_s", "servo.current_limit_cmd_a", "servo.error",
+        "servo.rate_cmd_frame", "servo.rate_cmd_rad_s", "teleop.reflect_enabled", "teleop.reflect_force_n",
+        "teleop.reflect_torque_nm", "updown.route_request", "updown.route_request_seq",
+    )
     #: ``daq.error``: the lowest hardware-check bit that tripped (FAULT_NAMES), or every layer's
     error_names = {**ERROR_NAMES, **FAULT_NAMES}
 

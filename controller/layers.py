@@ -243,6 +243,10 @@ class Layer:
     #: any other code is refused when posted)
     error_names: dict[int, str] = ERROR_NAMES
     short = "LAYR"  #: four letters for the trace
+    #: the variables of other layers this layer's table and tasks read (its own need no
+    #: entry): checked against the neighbours rule when the runtime is wired, and the world
+    #: model refuses any read the layer did not declare (controller/neighbours.py)
+    reads: tuple[str, ...] = ()
 
     def __init__(self) -> None:
         self.superior: Layer | None = None
@@ -427,6 +431,10 @@ class UpDownLayer(Layer):
     key = "updown"
     title = "System Up/Down"
     short = "UPDN"
+    #: other layers' variables read (controller/neighbours.py; the far ones are listed there)
+    reads = (
+        "daq.camera_route_applied", "joint.shoulder_roll_deg",
+    )
 
     def __init__(self) -> None:
         super().__init__()
@@ -800,6 +808,11 @@ class JointPlannerLayer(Layer):
     key = "joint"
     title = "Joint Planner"
     short = "JNTP"
+    #: other layers' variables read (controller/neighbours.py; the far ones are listed there)
+    reads = (
+        "cart.cmd_seq", "cart.cmd_valid", "cart.pos_cmd_m", "cart.quat_cmd", "daq.joint_angle_rad",
+        "msp.jmove_goal_rad", "msp.jmove_seq", "msp.jmove_speed", "msp.jmove_stop",
+    )
     #: the Cartesian Engine's command (writer "cartesian"); without them only joint goals work
     CART_VARS = (CART.pos_cmd_m, CART.quat_cmd, CART.cmd_valid, CART.cmd_seq)
     #: the Multi-Segment Path Planner's joint moves (writer "msp"); without them none

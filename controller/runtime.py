@@ -88,6 +88,7 @@ from controller.layers import (
     ERR_INVALID_VALUE, ERR_TASK_RAISED, JOINT, UI, JointPlannerLayer, Layer, Request, Response, UpDownLayer, find_answer,
 )
 from controller.messages import Level, Message, MessageBoard
+from controller.neighbours import read_rules
 from controller.paths import MultiSegmentLayer
 from controller.trajectory import TrajectoryLayer
 from controller.servo import ERR_MISSED, ERR_NO_OUTPUT, ServoLayer
@@ -425,6 +426,11 @@ class ControllerRuntime:
         """The world model of every layer's variables and the runtime's (``layers`` set)."""
         specs = [s for l in self.layers for s in l.specs()] + runtime_specs()
         self.wm = WorldModel.create(specs, name=wm_name, clock=clock, access_key=access_key, owner="controller")
+        try:  # data between neighbours: each layer's declared reads checked, then enforced
+            self.wm.set_read_rules(read_rules(self.layers, specs))
+        except BaseException:
+            self.wm.close()
+            raise
         if "updown" in self.local_keys:
             self.wm.keep_user_writes(UI.request)  # each write is a request (UpDownLayer)
         self._key = self.wm.access_key
@@ -440,6 +446,8 @@ class ControllerRuntime:
         self._table_names = tuple(tuple(n for n, _ in frame) for frame in self._table)
         self._lt_cache: dict[tuple, LayerTrace] = {}
         self._impl = impl
+        #: the layer of each task (its reads are checked against that layer's rule)
+        self._task_layer = {n: l.key for l in self.run_layers for n in l.periodic}
         self._order = tuple(t.name for t in self.frames.tasks if t.name in impl)  # catch-up: schedule order
         self._per_major = sum(len(fr) for fr in self._table)
         self._has_servo = any(t.name == SERVO_TASK for t in self.frames.tasks) and SERVO_TASK in impl
@@ -530,11 +538,23 @@ class ControllerRuntime:
     # --- the minor frame ---------------------------------------------------------------------
     def step(self) -> FrameTrace:
         """Run one minor frame (also the single step while halted)."""
+        try:
+            return self._step()
+        finally:
+            self.wm.read_as(None)  # whatever happened, the runtime and its callers read as nobody
+
+    def _step(self) -> FrameTrace:
+        read_as = self.wm.read_as  # each layer's table and tasks read under its rule
         t0 = time.perf_counter()
         self._raw_now = raw = self._clock_now()
         self.now = raw - self.halt_offset_s
         self._changed.clear()
-        self.frame = f = self.daq.acquire(self) if self._has_daq else self._inputs_frame()
+        if self._has_daq:
+            read_as("daq")
+            self.frame = f = self.daq.acquire(self)
+            read_as(None)
+        else:
+            self.frame = f = self._inputs_frame()
         prev = self.prev_frame
         catch: frozenset[str] = frozenset()
         t_f = float(self.daq.snapshot.t_s) if self._has_daq and self.daq.snapshot is not None else self.now
@@ -566,15 +586,19 @@ class ControllerRuntime:
         if self.remote_layers:
             self._observe_remote()
         if "updown" in self.local_keys:
+            read_as("updown")
             self.updown.receive_requests(self)
+            read_as(None)
         if self.servo.fault and self.servo.error_code in SERVO_EVENT_FAULTS:
             self._reset_servo_event()
         for l in self.run_layers:
+            read_as(l.key)
             l.run_table(self)
         if self._changed:
             self._climb_errors()
         daq_status = self._decided(self.daq)
         for l in self.run_layers:
+            read_as(l.key)
             l.run_sequence(self)
         slot = f % MINOR_FRAMES_PER_MAJOR
         due = self._table[slot]
@@ -583,7 +607,9 @@ class ControllerRuntime:
             names = set(catch).union(n for n, _ in due)
             due = tuple((n, self._impl[n]) for n in self._order if n in names)
             ran = tuple(n for n, _ in due)
+        task_layer = self._task_layer
         for name, fn in due:
+            read_as(task_layer[name])
             try:
                 fn(self)
             except Exception as err:  # noqa: BLE001 - a task error is its layer's fault
@@ -594,9 +620,12 @@ class ControllerRuntime:
                     layer.set_fault(self, ERR_TASK_RAISED, f"task {name} raised {type(err).__name__}: {err}")
         # output last, after a second communications segment: the rates leave in the frame
         # whose inputs they were computed from (the service sees them 1-2 frames old, not 2-3)
+        read_as(None)
         self.wm.communications_segment()
         if self._has_daq:
+            read_as("daq")
             self.daq.output(self, daq_status)
+            read_as(None)
         self.frames_run += 1
         cost = time.perf_counter() - t0
         self._time_frame(cost)
@@ -625,6 +654,7 @@ class ControllerRuntime:
             if l.key in changed and l.decided == Status.ERROR and up is not None and up.key in local \
                     and up.decided != Status.ERROR:
                 self.wm.communications_segment()
+                self.wm.read_as(up.key)
                 up.run_table(self)
 
     # --- a distributed controller's process (controller/distributed.py) ---------------------

@@ -276,6 +276,11 @@ class TrajectoryLayer(Layer):
     key = "trajectory"
     title = "Trajectory Planner"
     short = "TRAJ"
+    #: other layers' variables read (controller/neighbours.py; the far ones are listed there)
+    reads = (
+        "cart.cmd_valid", "cart.pos_cmd_m", "cart.quat_cmd", "joint.tool_pos_m", "joint.tool_quat",
+        "msp.seg_last", "msp.seg_limits", "msp.seg_pos_m", "msp.seg_quat", "msp.seg_seq", "msp.seg_stop",
+    )
 
     def __init__(self) -> None:
         super().__init__()

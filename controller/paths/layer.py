@@ -253,6 +253,14 @@ class MultiSegmentLayer(Layer):
     key = "msp"
     title = "Multi-Segment Path Planner"
     short = "MSPP"
+    #: other layers' variables read (controller/neighbours.py; the far ones are listed there)
+    reads = (
+        "cart.cmd_valid", "cart.mode", "cart.pos_cmd_m", "cart.quat_cmd", "daq.joint_angle_rad",
+        "gripper.event", "gripper.event_force_n", "gripper.event_seq", "gripper.msp_done_code",
+        "gripper.msp_done_seq", "joint.jmove_done_code", "joint.jmove_done_seq", "joint.shoulder_roll_rad",
+        "joint.tool_pos_m", "joint.tool_quat", "servo.q_cmd_rad", "servo.q_cmd_valid", "traj.done_code",
+        "traj.done_seq",
+    )
 
     def __init__(self, store: PathStore | None = None, background_save: bool = True) -> None:
         super().__init__()

@@ -318,6 +318,12 @@ class WorldModel(UserRequestRing, Segment):
         self._req_step = lay.req_slot_size // 4
         self._hot = tuple(_hot(s, o) for s, o in zip(specs, lay.offsets))
         self._plans: dict[tuple, tuple[tuple[str, int], ...]] = {}
+        #: data between neighbours (controller/neighbours.py): per layer key, what it may
+        #: read; the layer whose table or task runs now (None: no layer, nothing refused)
+        self._may_read: dict[str, frozenset[str]] = {}
+        self._reader: str | None = None
+        self._reader_may: frozenset[str] = frozenset()
+        self._read_state: dict[str | None, tuple[frozenset[str], dict]] = {None: (frozenset(), self._plans)}
         self._words = {k: self._word(k) for k in ("powered_up", "owner_pid", "frame", "frame_t_s",
                                                   "req_next_id", "user_applied", "user_rejected")}
 
@@ -409,8 +415,35 @@ class WorldModel(UserRequestRing, Segment):
         a = np.frombuffer(self._body, h.dtype, h.count, h.offset)
         return a[0] if h.shape == () else a.reshape(h.shape).copy()
 
+    # --- data between neighbours (issue 33 item 2) ----------------------------------------
+    def set_read_rules(self, rules: dict[str, frozenset[str]]) -> None:
+        """What each layer may read (controller/neighbours.py ``read_rules``); from now on a
+        read made while :meth:`read_as` names a layer is refused outside its rule."""
+        self._may_read = dict(rules)
+        none = self._read_state[None]
+        self._read_state = {None: none, **{k: (v, {}) for k, v in self._may_read.items()}}
+
+    def read_as(self, key: str | None) -> None:
+        """The layer whose table or task runs from now (None: none; the runtime, tools).
+        Each reader has its own cache of checked name tuples."""
+        if key is self._reader:
+            return
+        state = self._read_state.get(key)
+        if state is None:
+            raise WorldModelError(f"no read rule for layer {key!r}")
+        self._reader = key
+        self._reader_may, self._plans = state
+
+    def _refuse_read(self, name: str) -> None:
+        spec = self.spec(name)
+        raise WorldModelError(f"layer {self._reader} reads {name} (written by {spec.writer}) without declaring it "
+                              f"in its reads: data passes between neighbours only (report 2.3.2; "
+                              f"controller/neighbours.py)")
+
     def get(self, name: str) -> Any:
         """A consistent copy of one variable: a numpy scalar, or a new array."""
+        if self._reader is not None and name not in self._reader_may:
+            self._refuse_read(name)
         i = self._index.get(name)
         if i is None:
             self.spec(name)
@@ -452,12 +485,16 @@ class WorldModel(UserRequestRing, Segment):
         return frame
 
     def _plan(self, names: Iterable[str]) -> tuple[tuple[str, int], ...]:
-        """(name, index) of ``names`` (unknown names raise), kept for a tuple of names."""
+        """(name, index) of ``names`` (unknown names raise), kept for a tuple of names (per
+        reader: each plan is checked once against the reading layer's rule)."""
         plan = []
+        may = self._reader_may if self._reader is not None else None
         for n in names:
             i = self._index.get(n)
             if i is None:
                 self.spec(n)
+            if may is not None and n not in may:
+                self._refuse_read(n)
             plan.append((n, i))
         out = tuple(plan)
         if type(names) is tuple and len(self._plans) < PLAN_CACHE:
@@ -470,6 +507,8 @@ class WorldModel(UserRequestRing, Segment):
 
     def get_state_variable(self, name: str) -> int:
         """A short integer state variable (layer command/status) as a Python int."""
+        if self._reader is not None and name not in self._reader_may:
+            self._refuse_read(name)
         i = self._index.get(name)
         if i is not None and not self.readonly:
             h = self._hot[i]
@@ -826,3 +865,4 @@ class WorldModel(UserRequestRing, Segment):
     def __repr__(self) -> str:
         return (f"<WorldModel {self.name or 'private'} {'ro' if self.readonly else 'owner'} "
                 f"{len(self._specs)} variables frame={self.frame}>")
+

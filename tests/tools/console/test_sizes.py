@@ -186,6 +186,7 @@ def test_halted_world_status_shows_measured_motion_and_held_outputs(sim, console
         qdot = np.zeros(len(AXES))
         qdot[i] = -0.23  # rad/s: the elbow moving when the operator halts
         arm.set_state(qdot=qdot)
+        sim.world.sim.settle_filters()  # the anti-aliasing filters at rest on that rate
         sim.step(2)  # one A/D scan: the controller's last frame sees the elbow moving
         await pilot.press("h")
         frames(sim, console, 320)  # 1 s halted: the brakes have stopped the arm
