@@ -125,8 +125,8 @@ def read_rules(layers: Iterable["Layer"], specs: Iterable[VarSpec]) -> dict[str,
                 problems.append(f"{l.key} declares a read of {name!r}, which no layer declares")
             elif why_allowed(l.key, spec, order) is None:
                 owner = owner_layer(spec)
-                problems.append(f"{l.key} may not read {name} (written by {owner}, "
-                                f"{abs(order.index(owner) - order.index(l.key))} layers away): data passes "
+                away = f", {abs(order.index(owner) - order.index(l.key))} layers away" if owner in order else ""
+                problems.append(f"{l.key} may not read {name} (written by {owner}{away}): data passes "
                                 f"between neighbours only (report 2.3.2)")
             allowed.add(name)
         rules[l.key] = frozenset(allowed)

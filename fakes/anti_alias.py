@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from pfma.arm import ANTI_ALIAS_HZ, ANTI_ALIAS_POLES
+from pfma.arm import ANTI_ALIAS_HZ, ANTI_ALIAS_POLES, butterworth_zetas
 
 
 def butterworth_state_space(corner_hz: float, poles: int = ANTI_ALIAS_POLES) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -37,8 +37,7 @@ def butterworth_state_space(corner_hz: float, poles: int = ANTI_ALIAS_POLES) -> 
     n = poles
     a = np.zeros((n, n))
     b = np.zeros(n)
-    for s in range(n // 2):
-        zeta = math.sin(math.pi * (2 * s + 1) / (2 * n))  # the Butterworth pole pair's damping
+    for s, zeta in enumerate(butterworth_zetas(n)):
         i = 2 * s
         a[i, i + 1] = 1.0
         a[i + 1, i] = -w * w

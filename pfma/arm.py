@@ -36,11 +36,15 @@ ANTI_ALIAS_HZ = 40.0
 ANTI_ALIAS_POLES = 4
 
 
+def butterworth_zetas(poles: int = ANTI_ALIAS_POLES) -> tuple[float, ...]:
+    """The damping ratios of a Butterworth low-pass's pole pairs (``poles`` even)."""
+    return tuple(math.sin(math.pi * (2 * k + 1) / (2 * poles)) for k in range(poles // 2))
+
+
 def anti_alias_delay_s(corner_hz: float = ANTI_ALIAS_HZ, poles: int = ANTI_ALIAS_POLES) -> float:
     """The group delay at DC of the Butterworth anti-aliasing filter (s): the lag its
     channels' readings carry, sum over the pole pairs of 2 zeta / w (10.4 ms at 40 Hz)."""
-    w = 2.0 * math.pi * corner_hz
-    return sum(2.0 * math.sin(math.pi * (2 * k + 1) / (2 * poles)) for k in range(poles // 2)) / w
+    return sum(2.0 * z for z in butterworth_zetas(poles)) / (2.0 * math.pi * corner_hz)
 
 
 #: Current limit while powered up, as a fraction of I_max. Assumed (this project): half

@@ -320,7 +320,6 @@ class WorldModel(UserRequestRing, Segment):
         self._plans: dict[tuple, tuple[tuple[str, int], ...]] = {}
         #: data between neighbours (controller/neighbours.py): per layer key, what it may
         #: read; the layer whose table or task runs now (None: no layer, nothing refused)
-        self._may_read: dict[str, frozenset[str]] = {}
         self._reader: str | None = None
         self._reader_may: frozenset[str] = frozenset()
         self._read_state: dict[str | None, tuple[frozenset[str], dict]] = {None: (frozenset(), self._plans)}
@@ -419,9 +418,7 @@ class WorldModel(UserRequestRing, Segment):
     def set_read_rules(self, rules: dict[str, frozenset[str]]) -> None:
         """What each layer may read (controller/neighbours.py ``read_rules``); from now on a
         read made while :meth:`read_as` names a layer is refused outside its rule."""
-        self._may_read = dict(rules)
-        none = self._read_state[None]
-        self._read_state = {None: none, **{k: (v, {}) for k, v in self._may_read.items()}}
+        self._read_state = {None: self._read_state[None], **{k: (v, {}) for k, v in rules.items()}}
 
     def read_as(self, key: str | None) -> None:
         """The layer whose table or task runs from now (None: none; the runtime, tools).
@@ -865,4 +862,3 @@ class WorldModel(UserRequestRing, Segment):
     def __repr__(self) -> str:
         return (f"<WorldModel {self.name or 'private'} {'ro' if self.readonly else 'owner'} "
                 f"{len(self._specs)} variables frame={self.frame}>")
-

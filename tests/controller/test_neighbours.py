@@ -54,13 +54,15 @@ def test_every_read_still_skipping_a_layer_is_declared_and_would_be_refused(wire
 def test_wiring_refuses_a_far_read_naming_layer_variable_and_owner(wired, monkeypatch):
     layers, specs = wired
     updown = layers[0]
-    monkeypatch.setattr(type(updown), "reads", updown.reads + ("servo.rate_cmd_rad_s", "servo.no_such_thing"))
+    monkeypatch.setattr(type(updown), "reads", updown.reads + ("servo.rate_cmd_rad_s", "servo.no_such_thing",
+                                                               "runtime.first_cause"))
     with pytest.raises(WorldModelError) as err:
         read_rules(layers, specs)
     text = str(err.value)
     assert "updown may not read servo.rate_cmd_rad_s (written by servo, 5 layers away)" in text
     assert "data passes between neighbours only (report 2.3.2)" in text
     assert "updown declares a read of 'servo.no_such_thing', which no layer declares" in text
+    assert "updown may not read runtime.first_cause (written by runtime)" in text  # no layer: no distance
     by_name = {s.name: s for s in specs}
     assert why_allowed("servo", by_name["servo.rate_cmd_rad_s"], ORDER) == "its own"
     assert why_allowed("daq", by_name["servo.rate_cmd_rad_s"], ORDER) == "a neighbour's"

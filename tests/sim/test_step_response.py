@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from calibration.plot import figure
-from controller.params import GAIN_SWITCH_POSITIONS, joint
+from controller.params import DEFAULT_KP_PER_S, GAIN_SWITCH_POSITIONS, joint
 from controller.servo import predict_step
 from drivers.rtd.registers import VMIVME4940
 from pfma.arm import anti_alias_delay_s
@@ -56,8 +56,9 @@ def test_every_gain_switch_position_overshoots_no_more_than_predicted(position):
     pred = predict_step(dataclasses.replace(joint("wrist_roll"), gain_switch=g), 0.2)
     tol = 0.75 * VMIVME4940.constants["lsb_rad"]  # resolver quantisation, as tests/controller/test_rt_servo.py
     assert max(0.0, float(run.q_rad.max()) - 0.2) <= pred.overshoot_rad + tol
-    # and it got there but for the Coulomb dead band F_c / (lambda' J K) (1 N*m, K = 8 1/s)
-    dead = 1.0 / (40.0 * g * joint("wrist_roll").inertia_kg_m2 * 8.0)
+    # and it got there but for the Coulomb dead band F_c / (lambda' J K)
+    jf = dataclasses.replace(joint("wrist_roll"), gain_switch=g)
+    dead = jf.coulomb_nm / (jf.rate_loop_lambda * jf.inertia_kg_m2 * DEFAULT_KP_PER_S)
     assert 0.2 - dead - 0.01 <= run.q_rad[-1] <= 0.2 + tol
 
 
