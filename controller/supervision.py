@@ -24,7 +24,11 @@ stall                  (loop closed) a rate command worth more than ``STALL_RATE
 following error        (loop closed) the joint is further than the limit from where the
                        commanded rates should have taken it, for ``ferror_time_s``; the
                        limit is ``ferror_min_rad`` at standstill rising linearly to
-                       ``ferror_max_rad`` at full-scale rate (LinuxCNC's MIN_FERROR/FERROR)
+                       ``ferror_max_rad`` at full-scale rate (LinuxCNC's MIN_FERROR/FERROR);
+                       after only ``RUNAWAY_TIME_S`` while the joint runs away: it moves
+                       against the command, faster than the stall's rate and not slowing,
+                       with the motor at its current limit pushing the commanded way (a
+                       load beyond the motor's torque: no transient looks like that)
 =====================  =================================================================
 
 "Where the commanded rates should have taken it" is a reference joint: the nominal closed
@@ -105,6 +109,10 @@ STALL_TIME_S = 0.25
 FERROR_MIN_RAD = 2.0 * DEG
 FERROR_MAX_RAD = 8.0 * DEG
 FERROR_TIME_S = 0.1
+#: ... or beyond it for this long while the joint runs away against its command (assumed:
+#: four servo periods; at the 10 deg bound a wrist roll pushed 2.5 times past its holding
+#: torque ran 11.3 deg on the 0.1 s timer)
+RUNAWAY_TIME_S = 0.025
 #: the reference joint: lag beyond the rate loop's own (half the tach filter's 15.9 ms and
 #: about two frames of I/O delay), and its pull-back towards an obedient joint (assumed)
 MODEL_DELAY_S = 0.015
@@ -317,6 +325,7 @@ class JointSupervisor:
         self._t_tach = [0.0] * n
         self._t_stall = [0.0] * n
         self._t_fe = [0.0] * n
+        self._t_run = [0.0] * n
         self._hi = self._filled = 0
         self.ferror_rad = [0.0] * n
 
@@ -351,12 +360,13 @@ class JointSupervisor:
         pi, two_pi = math.pi, 2.0 * math.pi
         brake, t_tach, w_m_l, q_m_l, kp_l, rl_l = \
             self.brake_state, self._t_tach, self._w_m, self._q_model, self.kp, self.rate_lim
-        t_stall, t_fe, fe_time = self._t_stall, self._t_fe, self.fe_time
+        t_stall, t_fe, t_run, fe_time = self._t_stall, self._t_fe, self._t_run, self.fe_time
         for (k, jf, fs, jump, over, tach_top, tach_abs, gain, dead, a_m, kaw, fe_min, fe_span, stall_rate,
              stall_motion, no_current) in self._rows:
             qk = q[k]
             d = (qk - q_prev[k] + pi) % two_pi - pi
-            w_res = w_res_l[k] = w_res_l[k] + alpha * (d / dt - w_res_l[k])
+            w_was = w_res_l[k]
+            w_res = w_res_l[k] = w_was + alpha * (d / dt - w_was)
             w_aa = w_aa_l[k] = w_aa_l[k] + alpha_aa * (w_res - w_aa_l[k])
             wt, uk = w_tach[k], u[k]
             h = hist[k]
@@ -410,9 +420,16 @@ class JointSupervisor:
                     if ts >= 0.5 * STALL_TIME_S and brake[k] == BRAKE_PROVEN:
                         brake[k] = BRAKE_UNPROVEN  # told to move and not moving: no longer proven
                     lim = fe_min + fe_span * min(1.0, abs(wm) / fs)
-                    tf = t_fe[k] = t_fe[k] + dt if (e > lim or -e > lim) else 0.0
-                    if tf >= fe_time[k]:
-                        check, detail = "following error", f"{e / DEG:+.1f} deg > {lim / DEG:.1f} for {tf * 1e3:.0f} ms"
+                    beyond = e > lim or -e > lim
+                    tf = t_fe[k] = t_fe[k] + dt if beyond else 0.0
+                    # running away: against the command, not slowing, the motor at its limit the commanded way
+                    tr = t_run[k] = (t_run[k] + dt) * (
+                        beyond and uk * w_res < 0 and abs(w_res) > stall_rate and abs(w_res) >= abs(w_was)
+                        and uk * i_meas[k] > 0 and ai >= STALL_CURRENT_FRACTION * lk)
+                    if tf >= fe_time[k] or tr >= RUNAWAY_TIME_S:
+                        check, detail = "following error", f"{e / DEG:+.1f} deg > {lim / DEG:.1f}" + (
+                            f" for {tf * 1e3:.0f} ms" if tf >= fe_time[k] else
+                            f", running away against the command for {tr * 1e3:.0f} ms")
                     elif ts >= STALL_TIME_S:
                         check, detail = "stall", (f"{uk:+.3f} rad/s commanded, {w_res:+.3f} moving for "
                                                   f"{ts * 1e3:.0f} ms")
@@ -444,6 +461,7 @@ class JointSupervisor:
             self._q_hold = list(q)
             self._w_m = [0.0] * len(q)
             self._t_fe = [0.0] * len(q)
+            self._t_run = [0.0] * len(q)
             self._t_stall = [0.0] * len(q)
             if self.reference is not None:
                 self.reference.reset(0.0)

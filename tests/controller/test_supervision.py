@@ -13,14 +13,14 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from controller.decision import Status
 from controller.params import JOINT_NAMES, JOINTS
 from controller.supervision import (
     CAUSE_AMP_OFF, CAUSE_BRAKE, CAUSE_DAC, CAUSE_LOAD, CAUSE_RESOLVER, CAUSE_TACH_GAIN, CAUSE_TACH_REVERSED,
-    CAUSE_UNKNOWN, JointSupervisor, amp_gain_a_per_rad_s, diagnose,
+    CAUSE_UNKNOWN, FERROR_TIME_S, RUNAWAY_TIME_S, JointSupervisor, amp_gain_a_per_rad_s, diagnose,
 )
 from sim.motion_faults import BOUND_DEG, FAULTS, confusion, run_trial
 
@@ -108,6 +108,43 @@ def test_tach_against_resolver_needs_the_disagreement_to_last():
     assert trip is None
 
 
+def _wrist_roll_against_its_command(speed):
+    """The wrist roll commanded -1.2 rad/s, its motor at the current limit pushing that
+    way, while the joint moves at ``speed(t)`` (rad/s) the other way; the loop closed, the
+    position command held. Returns the trip (or None), its sample, the longest runaway time."""
+    sup = JointSupervisor()
+    lim = [j.i_max_a / 2 for j in JOINTS] + [0.0]
+    i = [0.0] * 5 + [-lim[5]]
+    u = [0.0] * 5 + [-1.2]
+    q, run = 0.0, 0.0
+    for k in range(64):
+        w = speed(k * DT)
+        q += w * DT
+        trip = sup.update(DT, [0.0] * 5 + [q], [0.0] * 5 + [w], i, u, lim, True)
+        run = max(run, sup._t_run[5])
+        if trip is not None:
+            return trip, k, run
+    return None, 64, run
+
+
+def test_a_joint_running_away_against_its_command_trips_in_25_ms_not_100():
+    """A load beyond the motor's torque: the joint moves against the command, not slowing,
+    the motor at its limit the commanded way. The 0.1 s timer let a wrist roll run 11.3 deg."""
+    trip, k, _ = _wrist_roll_against_its_command(lambda t: 1.0)
+    assert trip is not None and trip.joint == 5 and trip.check == "following error"
+    assert "running away against the command for 25 ms" in trip.text and trip.cause == CAUSE_LOAD
+    # beyond 2 deg at standstill after ~6 samples at 1 rad/s, then four periods, not sixteen
+    assert k <= 6 + round(RUNAWAY_TIME_S / DT) + 1 < 6 + round(FERROR_TIME_S / DT)
+
+
+def test_a_joint_slowing_through_a_reversal_is_not_running_away():
+    """The same currents and command, the joint slowing to a stop (a reversal at the current
+    limit): never a runaway; only the ordinary following-error timer may trip it."""
+    trip, k, run = _wrist_roll_against_its_command(lambda t: max(0.0, 1.0 - 5.0 * t))
+    assert run == 0.0
+    assert trip is None or "running away" not in trip.text
+
+
 def test_limits_are_checked_when_latched():
     with pytest.raises(ValueError, match="following-error limits"):
         JointSupervisor(ferror_min_rad=[0.1] * 6, ferror_max_rad=[0.05] * 6)
@@ -142,6 +179,7 @@ def test_every_motion_fault_on_every_joint_is_stopped_and_named(fault):
 
 @settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(fault=st.sampled_from(list(FAULTS)), joint=st.sampled_from(JOINT_NAMES), seed=st.integers(1, 10_000))
+@example(fault="load", joint="wrist_roll", seed=483)  # 12.1 N m: ran 11.3 deg on the 0.1 s timer alone
 def test_any_motion_fault_at_any_time_and_move_is_stopped_within_the_bound(fault, joint, seed):
     r = run_trial(fault, joint, seed)
     assert r.tripped and r.trip_joint == joint, (r.spec, r.message)
