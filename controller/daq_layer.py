@@ -37,6 +37,9 @@ bit    meaning
        from inputs older than the service's ``max_input_age_frames``), a refused
        value, or a foreign writer; or its stale/refused/foreign counters went up
        since the last frame (a refusal between two controller frames)
+128    no servo output: the servo's rates were not there for the current servo
+       period, so this layer sent 0 V (its own output check, not a reading; an event,
+       so it stays until the layer's command is ERROR RESET)
 =====  ======================================================================
 
 Freshness of the rate commands (docs/controller.md, "Missed frames and command
@@ -44,8 +47,9 @@ freshness"): every write carries ``inputs_frame`` (the service frame of the inpu
 rates were computed from: the servo's stamp ``servo.rate_cmd_frame``, or this frame for
 zero rates, which depend on no inputs) and ``controller_frame`` (this layer's write
 counter). A servo output is sent only if it belongs to the current servo period
-(:attr:`LayerContext.servo_oldest_frame`); otherwise the rates are 0 and it is a fault
-of the Servo Control layer (code 13), which its decision table propagates - except in the
+(:attr:`LayerContext.servo_oldest_frame`); otherwise the rates are 0 and it is this layer's
+own fault (bit 128, no servo output), reported through its status like the hardware checks
+(report 2.3.2: a layer never sets another's flag) - except in the
 one frame that catches up a servo slot missed with the controller's frame
 (:attr:`LayerContext.servo_catch_up`), which sends 0 rates without a fault.
 """
@@ -57,16 +61,17 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from controller.decision import Status, TaskState
+from controller.decision import Command, Status, TaskState
 from controller.force import FORCE
 from controller.gripper import GRIP
 from controller.layers import ERR_INVALID_VALUE, ERROR_NAMES, UI, Layer, bottom_table
 from controller.messages import Level
 from controller.params import GRIPPER, JOINTS, N_CURRENT_LIMITS, N_JOINTS
-from controller.servo import ERR_NO_OUTPUT, SERVO
+from controller.servo import SERVO
 from controller.teleop import TELEOP
 from controller.variables import (  # noqa: F401  (the fault bits re-exported)
-    DAQ, FAULT_BOARD, FAULT_COMMAND, FAULT_FT, FAULT_NAMES, FAULT_RESOLVER, FAULT_SERVICE, FAULT_STALE, FAULT_TACH,
+    DAQ, FAULT_BOARD, FAULT_COMMAND, FAULT_FT, FAULT_NAMES, FAULT_NO_OUTPUT, FAULT_RESOLVER, FAULT_SERVICE,
+    FAULT_STALE, FAULT_TACH,
 )
 from controller.worldmodel import VarSpec, WorldModelValueError
 from controller.routes import box_selections, route_text, set_monitor
@@ -136,6 +141,7 @@ class DataAcquisitionLayer(Layer):
         self.monitoring = False  #: faults count once initialised
         self.fault_bits = 0
         self.fault_detail = ""
+        self.no_output = ""  #: the latched "no servo output" event (its text), until ERROR RESET
         self.snapshot = None
         self._last_frame = -1
         self._same_frames = 0
@@ -265,6 +271,9 @@ class DataAcquisitionLayer(Layer):
             invalid = f"inputs refused: {err}"
         self.ft_in_use = self._force_in_use(rt)
         self._camera_routes(rt, rec)
+        if self.no_output and rt.wm.get_state_variable(self.v_command) == Command.ERROR_RESET:
+            rt.post(self.key, Level.INFO, "error reset: no servo output was an event; cleared")
+            self.no_output = ""
         bits, detail = self.check(snap, st)
         if self._ft_warning:
             rt.post(self.key, Level.WARNING, f"{self._ft_warning}: force data not valid (force control off: "
@@ -455,6 +464,9 @@ class DataAcquisitionLayer(Layer):
         if cmd:
             bits |= FAULT_COMMAND
             why.append(cmd)
+        if self.no_output:
+            bits |= FAULT_NO_OUTPUT
+            why.append(self.no_output)
         return bits, "; ".join(why)
 
     def _command_check(self, snap) -> str:
@@ -514,7 +526,8 @@ class DataAcquisitionLayer(Layer):
         stamp is at least :attr:`LayerContext.servo_oldest_frame` (this frame minus the
         servo divider: the output of its latest slot) and the servo reports no error;
         otherwise the rates are 0 and, unless this frame catches up a missed servo slot or
-        the servo already has a fault, it is one (code 13)."""
+        the servo already has a fault, it is this layer's own (bit 128, latched: the table
+        reads it next frame)."""
         frame = rt.frame
         if self.halted:  # a single step while halted: the outputs stay in the halted safe state
             self.hold_output(frame)
@@ -529,22 +542,22 @@ class DataAcquisitionLayer(Layer):
                 limits = self._zero_limits
             if status == Status.START_UP_COMPLETE:
                 s = int(v[SERVO.rate_cmd_frame])
-                servo = rt.servo
+                servo_ok = not int(v["servo.error"])  # the neighbour's own report, not its flag
+                if servo_ok:  # the seventh amplifier (controller/gripper.py)
+                    grip = float(v[GRIP.rate_cmd_m_s]) * self.gripper_cmd_scale
                 if s < 0:
                     pass  # a sequence task's constant zero
-                elif s >= rt.servo_oldest_frame and not servo.fault and not int(v["servo.error"]):
+                elif s >= rt.servo_oldest_frame and servo_ok:
                     rates, stamp = v[SERVO.rate_cmd_rad_s], s
-                if not servo.fault:  # the seventh amplifier (controller/gripper.py)
-                    grip = float(v[GRIP.rate_cmd_m_s]) * self.gripper_cmd_scale
-                elif rt.servo_catch_up and not servo.fault:
+                elif rt.servo_catch_up and servo_ok:
                     self.catch_up_zeros += 1  # the missed slot runs in this frame: 0 for one frame
                 else:
                     self.stale_outputs += 1
-                    if not servo.fault:
-                        servo.set_fault(rt, ERR_NO_OUTPUT,
-                                        f"no servo output for the servo period of frame {rt.servo_oldest_frame} "
-                                        f"at frame {frame}: the last was computed from frame {s} "
-                                        f"({frame - s} frames old); rates 0")
+                    if servo_ok and not self.no_output:
+                        self.no_output = (f"no servo output for the servo period of frame {rt.servo_oldest_frame} "
+                                          f"at frame {frame}: the last was computed from frame {s} "
+                                          f"({frame - s} frames old); rates 0")
+                        self.set_fault(rt, FAULT_NO_OUTPUT, self.no_output)
         reflect = self._reflection(rt, status)
         self.client.write_commands(joint_rate_rad_s=rates, gripper=grip, current_limit_a=limits,
                                    arm_request=self.arm_request, rearm_counter=self.rearm_counter,

@@ -91,7 +91,7 @@ from controller.messages import Level, Message, MessageBoard
 from controller.neighbours import read_rules
 from controller.paths import MultiSegmentLayer
 from controller.trajectory import TrajectoryLayer
-from controller.servo import ERR_MISSED, ERR_NO_OUTPUT, ServoLayer
+from controller.servo import ERR_MISSED, ServoLayer
 from controller.worldmodel import VarSpec, WorldModel, WorldModelValueError
 from controller.worldmodel.var import Var, VarGroup, var
 from controller.variables import DAQ
@@ -152,7 +152,7 @@ MAX_STEP_FRAMES = 3200
 #: as Data Acquisition's start-up waits ARM_TIMEOUT_S)
 RESUME_ARM_FRAMES = 64
 #: servo faults that are events (a missed period, an output too old): cleared by an error reset
-SERVO_EVENT_FAULTS = (ERR_MISSED, ERR_NO_OUTPUT)
+SERVO_EVENT_FAULTS = (ERR_MISSED,)
 #: distinct per-layer trace records kept for reuse (they repeat frame after frame; a
 #: LayerTrace is immutable, so one object serves every frame with the same values)
 LAYER_TRACE_CACHE = 4096
@@ -723,8 +723,8 @@ class ControllerRuntime:
         return self.clock.now() if self.clock is not None else time.monotonic()
 
     def _reset_servo_event(self) -> None:
-        """A missed servo period (ERR_MISSED, raised here) or a servo output too old to send
-        (ERR_NO_OUTPUT, Data Acquisition) is an event, not a condition that lasts: nothing
+        """A missed servo period (ERR_MISSED, raised here) is an event, not a condition that
+        lasts (Data Acquisition's "no servo output" is the same, latched there): nothing
         would ever clear the flag, and the decision tables run an error reset only once the
         fault is gone, so ERROR RESET hung with the servo in ERROR. The flag is cleared when
         the servo's command is ERROR RESET (the table then resets it like any layer)."""
@@ -782,7 +782,9 @@ class ControllerRuntime:
         """Record this step's wake latency, work and overrun; publish the statistics when due."""
         snap = self.daq.snapshot
         raw = self._raw_now  # clock time (not controller time, which stands still while halted)
-        t_frame = float(snap.t_s) if snap is not None else raw
+        # no frame time before the service's first published frame (its record reads t_s 0
+        # then): no wake latency to record (it read as the host's uptime, past its valid range)
+        t_frame = float(snap.t_s) if snap is not None and snap.t_s > 0 else raw
         period = self.frames.period_s
         end = self._clock_now()
         wake_us = (raw - t_frame) * 1e6

@@ -80,8 +80,9 @@ BRAKE_TEST_MAX_EXCURSION_RAD = math.radians(2.0)
 TACH_FAULT_BIT = 2
 #: error report codes of the servo layer: 10 soft limit, 11 bad parameters, 12 the controller
 #: missed more frames in a row than FrameConfig.max_missed_run (the servo slot did not run in
-#: its period), 13 no servo output for the current servo period at Data Acquisition's output
-ERR_LIMIT, ERR_PARAMS, ERR_MISSED, ERR_NO_OUTPUT = 10, 11, 12, 13
+#: its period). (13, no servo output at Data Acquisition's output, is now Data Acquisition's
+#: own fault, ``daq.fault_bits`` 128, reported through its status: the neighbours rule)
+ERR_LIMIT, ERR_PARAMS, ERR_MISSED = 10, 11, 12
 #: error report codes of the joint supervision (controller.supervision), one per check:
 #: 14 resolver jump, 15 overspeed, 16 tach against resolver, 17 stall, 18 following error;
 #: 19 the power-up brake test: a joint did not prove its brake released and its drive answering
@@ -89,7 +90,7 @@ SUPERVISION_CODES = {check: 14 + n for n, check in enumerate(CHECKS)}
 ERR_BRAKE_TEST = 19
 #: ``servo.error`` by name: the codes above and every layer's (controller.layers.ERROR_NAMES)
 SERVO_ERROR_NAMES = {**ERROR_NAMES, ERR_LIMIT: "soft limit", ERR_PARAMS: "bad parameters",
-                     ERR_MISSED: "controller missed frames", ERR_NO_OUTPUT: "no servo output",
+                     ERR_MISSED: "controller missed frames",
                      **{code: check for check, code in SUPERVISION_CODES.items()}, ERR_BRAKE_TEST: "brake test"}
 #: ``servo.brake_phase`` by name (the brake release and stop sequence)
 BRAKE_PHASE_NAMES = {0: "BRAKES SET", 1: "RATE ZEROED", 2: "LIMITS RAISED", 3: "RELEASED",

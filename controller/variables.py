@@ -21,9 +21,12 @@ from controller.worldmodel.var import UNIT_QUATERNION, Var, VarGroup, var
 #: the Data Acquisition layer's hardware checks (``daq.fault_bits``, a bit each)
 FAULT_RESOLVER, FAULT_TACH, FAULT_FT, FAULT_BOARD, FAULT_SERVICE, FAULT_STALE = 1, 2, 4, 8, 16, 32
 FAULT_COMMAND = 64
+#: not a hardware reading but Data Acquisition's own output check: the servo's rates were
+#: not there for the current servo period, so 0 V went out (an event: latched until ERROR RESET)
+FAULT_NO_OUTPUT = 128
 FAULT_NAMES = {FAULT_RESOLVER: "resolver", FAULT_TACH: "tach ADC", FAULT_FT: "F/T link",
                FAULT_BOARD: "board fault", FAULT_SERVICE: "service state", FAULT_STALE: "service not publishing",
-               FAULT_COMMAND: "command refused/stale at the service"}
+               FAULT_COMMAND: "command refused/stale at the service", FAULT_NO_OUTPUT: "no servo output"}
 
 _NH, _NA = len(HAND_CONTROLLERS), len(HC_AXES)
 _Z6 = [0.0] * N_JOINTS

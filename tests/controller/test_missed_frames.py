@@ -13,7 +13,7 @@ import pytest
 from hypothesis import Phase, given, settings
 from hypothesis import strategies as st
 
-from controller.daq_layer import FAULT_COMMAND
+from controller.daq_layer import FAULT_COMMAND, FAULT_NO_OUTPUT
 from controller.decision import Status
 from controller.frames import FrameConfig
 from controller.servo import ERR_MISSED, LeadLag
@@ -106,6 +106,35 @@ def test_a_raising_servo_task_zeroes_the_rates_at_once(powered):
     assert np.all(powered.dac_volts()[RATE_CHANNELS] == 0.0)
     powered.run_until(lambda: rt.status("updown") == S.ERROR, 10)
     assert rt.first_change("updown", S.ERROR) - k <= 7
+
+
+def test_a_servo_output_that_is_not_there_is_data_acquisitions_own_fault(powered):
+    """The servo task stops computing (a remote servo's output late, a task that returns
+    nothing): Data Acquisition sends 0 V and reports it through its own status (fault bit
+    128), never by setting Servo Control's flag (report 2.3.2); the tables carry it up. It
+    is an event: ERROR RESET clears it."""
+    from controller.layers import Request, Response
+    rt = powered.rt
+    _goal_yaw(powered, 0.3)
+    powered.step(40)
+    assert np.any(powered.dac_volts()[RATE_CHANNELS] != 0.0)
+    servo = rt.servo
+    real = servo.periodic["servo_control"]
+    servo.periodic["servo_control"] = lambda rt_: None
+    rt._build_schedule()
+    powered.run_until(lambda: rt.status("daq") == S.ERROR, 10)
+    assert rt.daq.error_code == FAULT_NO_OUTPUT and int(rt.wm.get("daq.error")) == FAULT_NO_OUTPUT
+    assert "no servo output for the servo period of frame" in rt.daq.fault_text
+    assert not servo.error_code and int(rt.wm.get("servo.error")) == 0  # not the servo's flag
+    powered.run_until(lambda: rt.status("updown") == S.ERROR, 2)
+    powered.step(2)
+    assert np.all(powered.dac_volts()[RATE_CHANNELS] == 0.0)
+    servo.periodic["servo_control"] = real
+    rt._build_schedule()
+    powered.step(200)  # safe tasks finished
+    code, text = powered.request(Request.ERROR_RESET, max_frames=600)
+    assert code == Response.COMPLETE, text
+    assert rt.all_status(S.SHUT_DOWN) and not rt.daq.no_output and int(rt.wm.get("daq.fault_bits")) == 0
 
 
 def test_missed_frames_while_shut_down_are_only_counted(sim):

@@ -14,7 +14,7 @@ import pytest
 from controller.daq_layer import FAULT_NAMES, DataAcquisitionLayer
 from controller.decision import Command, Status
 from controller.layers import ERR_PROCESS_STOPPING, ERR_SECTION_LOST, ERR_TASK_RAISED, Layer, TASK_NAMES
-from controller.servo import ERR_LIMIT, ERR_MISSED, ERR_NO_OUTPUT, ERR_PARAMS, SUPERVISION_CODES, ServoLayer
+from controller.servo import ERR_LIMIT, ERR_MISSED, ERR_PARAMS, SUPERVISION_CODES, ServoLayer
 from controller.worldmodel import VarSpec, WorldModel, WorldModelError, WorldModelValueError, coerce
 from sim.faults import FaultSet
 from sim.system import SystemSimulator
@@ -114,7 +114,7 @@ def test_a_user_write_outside_the_enumeration_is_refused_now_and_when_applied(wm
 def test_every_error_code_a_layer_posts_is_in_its_enumeration():
     for cls in (Layer, ServoLayer, DataAcquisitionLayer):
         assert {0, ERR_TASK_RAISED, ERR_SECTION_LOST, ERR_PROCESS_STOPPING} <= set(cls.error_names), cls
-    assert {ERR_LIMIT, ERR_PARAMS, ERR_MISSED, ERR_NO_OUTPUT, *SUPERVISION_CODES.values()} <= set(ServoLayer.error_names)
+    assert {ERR_LIMIT, ERR_PARAMS, ERR_MISSED, *SUPERVISION_CODES.values()} <= set(ServoLayer.error_names)
     assert set(FAULT_NAMES) <= set(DataAcquisitionLayer.error_names)  # daq.error: the lowest check bit
     assert TASK_NAMES[0] == "IDLE" and TASK_NAMES[42] == "SAFE DONE"
 
