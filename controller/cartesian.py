@@ -49,7 +49,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from controller.decision import Status, TaskState
+from controller.decision import TaskState
 from controller.delay import DELAY, SyntheticDelay
 from controller.force import (
     FORCE, STATE_NAMES, ForceControl, ImpedanceParams, ToolLoad,
@@ -223,7 +223,9 @@ class CartesianLayer(Layer):
 
     # --- helpers -------------------------------------------------------------------------
     def _running(self, rt: "LayerContext") -> bool:
-        return self.valid and rt.wm.get_state_variable(self.v_status) == Status.START_UP_COMPLETE
+        """The model has what the tasks need (they exist only while START UP COMPLETE:
+        controller/tables/cartesian.py)."""
+        return self.valid
 
     def _measured(self, rt: "LayerContext", v: dict) -> None:
         if self._check_model(rt)["tool"]:

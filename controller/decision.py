@@ -181,12 +181,27 @@ def row(rid: int, section: int, *, command=ANY, status=ANY, sub=ANY, task=ANY, f
 
 @dataclass(frozen=True)
 class DecisionTable:
-    """A named, ordered collection of rows; ``has_subordinate`` selects the input space."""
+    """A named, ordered collection of rows; ``has_subordinate`` selects the input space.
+
+    A layer's own table (``controller/tables/<layer>.py``) also names the layer
+    (``key``, ``title``) and the layer below (``sub_key``: the variables of its parts 1
+    and 4), and its periodic tasks with the statuses each runs in (``tasks``): from
+    these the compiled rows' actions create and delete the tasks (:class:`Outcome`)."""
 
     name: str
     rows: tuple[Row, ...]
     has_subordinate: bool = True
     doc: str = ""
+    key: str = ""
+    title: str = ""
+    sub_key: str = ""
+    sub_title: str = ""
+    #: (task name, the statuses it runs in): a task runs while its layer is in one of them
+    tasks: tuple[tuple[str, frozenset], ...] = ()
+
+    def running_in(self, status: int) -> frozenset:
+        """The periodic tasks that run while the layer is in ``status``."""
+        return frozenset(name for name, statuses in self.tasks if status in statuses)
 
     def input_space(self):
         subs = LAYER_STATUSES if self.has_subordinate else (Status.NO_SUBORDINATE,)
@@ -204,6 +219,10 @@ class Outcome:
     action: Action
     rid: int
     note: str
+    #: the periodic tasks this decision creates and deletes (they run, or stop, from the
+    #: next minor frame: the tasks of a frame run in the status its table read)
+    create: frozenset = frozenset()
+    delete: frozenset = frozenset()
 
 
 def encode(c: int, s: int, b: int, t: int, f: bool) -> int:
@@ -239,6 +258,12 @@ def _row_problems(table: DecisionTable) -> list[str]:
     ids = [r.rid for r in table.rows]
     if len(set(ids)) != len(ids):
         problems.append("row ids are not unique")
+    names = [name for name, _ in table.tasks]
+    if len(set(names)) != len(names):
+        problems.append("periodic task names are not unique")
+    for name, statuses in table.tasks:
+        if not statuses or not set(statuses) <= set(LAYER_STATUSES):
+            problems.append(f"task {name}: runs in no status, or in one that is not a layer status")
     for r in table.rows:
         if r.next_status == Status.NO_SUBORDINATE:
             problems.append(f"row {r.rid}: NO SUBORDINATE is not a layer status")
@@ -292,6 +317,7 @@ def compile_table(table: DecisionTable) -> CompiledTable:
     coverage = {r.rid: 0 for r in table.rows}
     groups = _by_section(table)
     missing = ambiguous = 0
+    outcomes: dict = {}  # (row, status): one Outcome object for each
     for c, s, b, t, f in table.input_space():
         hits = _first_hits(groups, c, s, b, t, f)
         if len(hits) > 1:
@@ -306,212 +332,70 @@ def compile_table(table: DecisionTable) -> CompiledTable:
             continue
         decided = hits[0]
         coverage[decided.rid] += 1
-        lookup[encode(c, s, b, t, f)] = Outcome(decided.next_status, decided.command_down,
-                                                decided.action, decided.rid, decided.note)
+        out = outcomes.get((decided.rid, s))
+        if out is None:
+            was, now = table.running_in(s), table.running_in(decided.next_status)
+            out = outcomes[decided.rid, s] = Outcome(decided.next_status, decided.command_down, decided.action,
+                                                     decided.rid, decided.note, now - was, was - now)
+        lookup[encode(c, s, b, t, f)] = out
     problems += _tail_problems(missing, ambiguous, coverage)
     if problems:
         raise TableError(f"decision table {table.name}: " + "; ".join(problems))
     return CompiledTable(table, tuple(lookup), coverage)
 
 
-# --------------------------------------------------------------------------------------
-# The two tables of the seven layers
-S = Status
-C = Command
-T = TaskState
-A = Action
-ACTIVE = (S.SHUT_DOWN, S.INITIALIZATION_IN_PROGRESS, S.WAITING_FOR_SUBORDINATE_TO_INIT,
-          S.INITIALIZATION_COMPLETE, S.START_UP, S.START_UP_COMPLETE, S.SHUT_DOWN_IN_PROGRESS)
-NOT_ERROR = tuple(s for s in LAYER_STATUSES if s != S.ERROR)
-PENDING = (T.IDLE, T.RUNNING)
-ERR_OUT = dict(then=S.ERROR, down=C.SHUT_DOWN, action=A.SAFE)
+
+def _status_names(statuses) -> str:
+    if set(statuses) >= set(LAYER_STATUSES):
+        return "every status"
+    return "|".join(SHORT[st] for st in sorted(statuses))
 
 
-def _common_tail(first_id: int, bottom: bool) -> list[Row]:
-    """Rows shared by both tables: START UP COMPLETE, shut-down, error and error reset."""
-    i = first_id
-    sub_down = (S.NO_SUBORDINATE,) if bottom else (S.SHUT_DOWN,)
-    sub_not_down = () if bottom else tuple(s for s in LAYER_STATUSES if s != S.SHUT_DOWN)
-    rows = [
-        # -- START UP COMPLETE: hold; a shut-down or reset command starts the shut-down
-        row(i + 0, 2, status=S.START_UP_COMPLETE, command=C.START_UP,
-            sub=None if bottom else S.START_UP_COMPLETE, then=S.START_UP_COMPLETE,
-            note="powered up: hold"),
-        row(i + 1, 2, status=S.START_UP_COMPLETE, command=(C.SHUT_DOWN, C.ERROR_RESET),
-            then=S.SHUT_DOWN_IN_PROGRESS, down=C.SHUT_DOWN, action=A.SHUTDOWN,
-            note="shut down: pass SHUT DOWN down at once, run own shut-down task"),
-        row(i + 2, 2, status=S.START_UP_COMPLETE, command=(C.NONE, C.INIT_TO_START), **ERR_OUT,
-            note="inappropriate command while powered up"),
-        # -- SHUT DOWN IN PROGRESS: finish whatever the command; SHUT DOWN when own task and
-        #    the subordinate are down
-        row(i + 3, 2, status=S.SHUT_DOWN_IN_PROGRESS, task=PENDING, then=S.SHUT_DOWN_IN_PROGRESS,
-            note="own shut-down task running"),
-        row(i + 4, 2, status=S.SHUT_DOWN_IN_PROGRESS, task=T.DONE, sub=sub_down, then=S.SHUT_DOWN,
-            note="shut down (own task done, subordinate down)"),
-        # -- ERROR: stays until ERROR RESET, the safe task has finished and no fault is active
-        row(i + 5, 2, status=S.ERROR, command=C.ERROR_RESET, fault=False, task=(T.DONE, T.FAILED),
-            then=S.ERROR_RESET, down=C.ERROR_RESET, action=A.RESET, note="error reset: pass it down"),
-        row(i + 6, 2, status=S.ERROR, command=C.ERROR_RESET, fault=True, then=S.ERROR,
-            note="error reset refused: fault still present"),
-        row(i + 7, 2, status=S.ERROR, command=C.ERROR_RESET, fault=False, task=PENDING, then=S.ERROR,
-            note="error reset waits for the safe task"),
-        row(i + 8, 2, status=S.ERROR, command=(C.NONE, C.INIT_TO_START, C.START_UP, C.SHUT_DOWN),
-            then=S.ERROR, note="in ERROR: only ERROR RESET is accepted"),
-        # -- ERROR RESET in progress
-        row(i + 9, 2, status=S.ERROR_RESET, fault=True, **ERR_OUT, note="fault during error reset"),
-        row(i + 10, 2, status=S.ERROR_RESET, fault=False, task=T.FAILED, **ERR_OUT,
-            note="error-reset task failed"),
-        row(i + 11, 2, status=S.ERROR_RESET, fault=False, task=PENDING, then=S.ERROR_RESET,
-            note="own reset task running"),
-        row(i + 12, 2, status=S.ERROR_RESET, fault=False, task=T.DONE, sub=sub_down, then=S.SHUT_DOWN,
-            note="error reset complete: SHUT DOWN"),
-    ]
-    if not bottom:
-        rows += [
-            row(i + 13, 2, status=S.SHUT_DOWN_IN_PROGRESS, task=T.DONE, sub=sub_not_down,
-                then=S.SHUT_DOWN_IN_PROGRESS, note="waiting for the subordinate to shut down"),
-            row(i + 14, 2, status=S.ERROR_RESET, fault=False, task=T.DONE, sub=sub_not_down,
-                then=S.ERROR_RESET, note="waiting for the subordinate's error reset"),
-            row(i + 15, 2, status=S.START_UP_COMPLETE, command=C.START_UP,
-                sub=tuple(s for s in LAYER_STATUSES if s not in (S.START_UP_COMPLETE, S.ERROR)), **ERR_OUT,
-                note="subordinate left START UP COMPLETE"),
-        ]
-    return rows
-
-
-def _layer_table() -> DecisionTable:
-    """The table of every layer that has a subordinate (System Up/Down ... Servo Control)."""
-    sub_ok = tuple(s for s in LAYER_STATUSES if s != S.ERROR)
-    rows = [
-        # ---- section 1: error check of the subordinate and of this layer
-        row(1, 1, status=ACTIVE, sub=S.ERROR, **ERR_OUT, note="subordinate in ERROR"),
-        row(2, 1, status=ACTIVE, sub=sub_ok, fault=True, **ERR_OUT, note="own fault"),
-        row(3, 1, status=ACTIVE, sub=sub_ok, fault=False, task=T.FAILED, **ERR_OUT,
-            note="own sequence task failed"),
-        # ---- section 2: the case statement on the command
-        # SHUT DOWN (powered down)
-        row(10, 2, status=S.SHUT_DOWN, command=(C.NONE, C.SHUT_DOWN, C.ERROR_RESET), then=S.SHUT_DOWN,
-            note="shut down: idle"),
-        row(11, 2, status=S.SHUT_DOWN, command=C.INIT_TO_START, then=S.INITIALIZATION_IN_PROGRESS,
-            action=A.INIT, note="INIT TO START: schedule own initialisation task"),
-        row(12, 2, status=S.SHUT_DOWN, command=C.START_UP, **ERR_OUT,
-            note="START UP before INITIALIZATION COMPLETE"),
-        # INITIALIZATION IN PROGRESS (SHUT DOWN is not accepted before INITIALIZATION COMPLETE:
-        # the initialisation goes on; the shut-down command is acted on once complete)
-        row(20, 2, status=S.INITIALIZATION_IN_PROGRESS, command=(C.NONE, C.INIT_TO_START, C.SHUT_DOWN,
-            C.ERROR_RESET), task=PENDING, then=S.INITIALIZATION_IN_PROGRESS, note="own init task running"),
-        row(21, 2, status=S.INITIALIZATION_IN_PROGRESS, command=(C.NONE, C.INIT_TO_START, C.SHUT_DOWN,
-            C.ERROR_RESET), task=T.DONE, then=S.WAITING_FOR_SUBORDINATE_TO_INIT, down=C.INIT_TO_START,
-            action=A.CLEAR, note="own init done: command INIT TO START below"),
-        row(22, 2, status=S.INITIALIZATION_IN_PROGRESS, command=C.START_UP, **ERR_OUT,
-            note="START UP before INITIALIZATION COMPLETE"),
-        # WAITING FOR SUBORDINATE TO INIT
-        row(30, 2, status=S.WAITING_FOR_SUBORDINATE_TO_INIT, command=(C.NONE, C.INIT_TO_START, C.SHUT_DOWN,
-            C.ERROR_RESET), sub=(S.SHUT_DOWN, S.INITIALIZATION_IN_PROGRESS, S.WAITING_FOR_SUBORDINATE_TO_INIT),
-            then=S.WAITING_FOR_SUBORDINATE_TO_INIT, note="waiting for the subordinate's INITIALIZATION COMPLETE"),
-        row(31, 2, status=S.WAITING_FOR_SUBORDINATE_TO_INIT, command=(C.NONE, C.INIT_TO_START, C.SHUT_DOWN,
-            C.ERROR_RESET), sub=S.INITIALIZATION_COMPLETE, then=S.INITIALIZATION_COMPLETE,
-            note="subordinate initialised: INITIALIZATION COMPLETE"),
-        row(32, 2, status=S.WAITING_FOR_SUBORDINATE_TO_INIT, command=(C.NONE, C.INIT_TO_START, C.SHUT_DOWN,
-            C.ERROR_RESET), sub=(S.START_UP, S.START_UP_COMPLETE, S.SHUT_DOWN_IN_PROGRESS, S.ERROR_RESET),
-            **ERR_OUT, note="subordinate in an impossible state during init"),
-        row(33, 2, status=S.WAITING_FOR_SUBORDINATE_TO_INIT, command=C.START_UP, **ERR_OUT,
-            note="START UP before INITIALIZATION COMPLETE"),
-        # INITIALIZATION COMPLETE
-        row(40, 2, status=S.INITIALIZATION_COMPLETE, command=(C.NONE, C.INIT_TO_START),
-            sub=S.INITIALIZATION_COMPLETE, then=S.INITIALIZATION_COMPLETE, note="initialised: hold"),
-        row(41, 2, status=S.INITIALIZATION_COMPLETE, command=(C.NONE, C.INIT_TO_START, C.START_UP),
-            sub=tuple(s for s in sub_ok if s != S.INITIALIZATION_COMPLETE), **ERR_OUT,
-            note="subordinate left INITIALIZATION COMPLETE"),
-        row(42, 2, status=S.INITIALIZATION_COMPLETE, command=C.START_UP, sub=S.INITIALIZATION_COMPLETE,
-            then=S.START_UP, down=C.START_UP, action=A.CLEAR, note="START UP: pass it down at once"),
-        row(43, 2, status=S.INITIALIZATION_COMPLETE, command=(C.SHUT_DOWN, C.ERROR_RESET),
-            then=S.SHUT_DOWN_IN_PROGRESS, down=C.SHUT_DOWN, action=A.SHUTDOWN,
-            note="shut down: pass SHUT DOWN down at once, run own shut-down task"),
-        # START UP (in progress): wait for the subordinate's START UP COMPLETE, then run the
-        # own start-up task
-        row(50, 2, status=S.START_UP, command=C.START_UP, sub=(S.INITIALIZATION_COMPLETE, S.START_UP),
-            then=S.START_UP, note="waiting for the subordinate's START UP COMPLETE"),
-        row(51, 2, status=S.START_UP, command=C.START_UP, sub=S.START_UP_COMPLETE, task=T.IDLE,
-            then=S.START_UP, action=A.STARTUP, note="subordinate up: schedule own start-up task"),
-        row(52, 2, status=S.START_UP, command=C.START_UP, sub=S.START_UP_COMPLETE, task=T.RUNNING,
-            then=S.START_UP, note="own start-up task running"),
-        row(53, 2, status=S.START_UP, command=C.START_UP, sub=S.START_UP_COMPLETE, task=T.DONE,
-            then=S.START_UP_COMPLETE, note="START UP COMPLETE"),
-        row(54, 2, status=S.START_UP, command=C.START_UP, sub=(S.SHUT_DOWN, S.INITIALIZATION_IN_PROGRESS,
-            S.WAITING_FOR_SUBORDINATE_TO_INIT, S.SHUT_DOWN_IN_PROGRESS, S.ERROR_RESET), **ERR_OUT,
-            note="subordinate in an impossible state during start-up"),
-        row(55, 2, status=S.START_UP, command=(C.SHUT_DOWN, C.ERROR_RESET), then=S.SHUT_DOWN_IN_PROGRESS,
-            down=C.SHUT_DOWN, action=A.SHUTDOWN, note="shut down during start-up"),
-        row(56, 2, status=S.START_UP, command=(C.NONE, C.INIT_TO_START), **ERR_OUT,
-            note="inappropriate command during start-up"),
-    ] + _common_tail(60, bottom=False)
-    return DecisionTable("layer", tuple(rows), True,
-                         "every layer with a subordinate: System Up/Down down to Servo Control")
-
-
-def _bottom_table() -> DecisionTable:
-    """The bottom layer's table (Data Acquisition): no subordinate; its fault flag is the
-    hardware check. A fault while SHUT DOWN is only reported (the rack may be idle)."""
-    rows = [
-        row(1, 1, status=tuple(s for s in ACTIVE if s != S.SHUT_DOWN), fault=True, **ERR_OUT,
-            note="hardware fault"),
-        row(2, 1, status=tuple(s for s in ACTIVE if s != S.SHUT_DOWN), fault=False, task=T.FAILED,
-            **ERR_OUT, note="own sequence task failed"),
-        row(3, 1, status=S.SHUT_DOWN, task=T.FAILED, **ERR_OUT, note="own sequence task failed"),
-        row(10, 2, status=S.SHUT_DOWN, command=(C.NONE, C.SHUT_DOWN, C.ERROR_RESET), task=(T.IDLE, T.RUNNING,
-            T.DONE), then=S.SHUT_DOWN, note="shut down: idle (faults only reported)"),
-        row(11, 2, status=S.SHUT_DOWN, command=C.INIT_TO_START, task=(T.IDLE, T.RUNNING, T.DONE),
-            then=S.INITIALIZATION_IN_PROGRESS, action=A.INIT, note="INIT TO START: schedule init task"),
-        row(12, 2, status=S.SHUT_DOWN, command=C.START_UP, task=(T.IDLE, T.RUNNING, T.DONE), **ERR_OUT,
-            note="START UP before INITIALIZATION COMPLETE"),
-        row(20, 2, status=S.INITIALIZATION_IN_PROGRESS, command=(C.NONE, C.INIT_TO_START, C.SHUT_DOWN,
-            C.ERROR_RESET), task=PENDING, then=S.INITIALIZATION_IN_PROGRESS, note="init task running"),
-        row(21, 2, status=S.INITIALIZATION_IN_PROGRESS, command=(C.NONE, C.INIT_TO_START, C.SHUT_DOWN,
-            C.ERROR_RESET), task=T.DONE, then=S.INITIALIZATION_COMPLETE, action=A.CLEAR,
-            note="bottom layer initialised: INITIALIZATION COMPLETE"),
-        row(22, 2, status=S.INITIALIZATION_IN_PROGRESS, command=C.START_UP, **ERR_OUT,
-            note="START UP before INITIALIZATION COMPLETE"),
-        row(30, 2, status=S.WAITING_FOR_SUBORDINATE_TO_INIT, **ERR_OUT,
-            note="impossible: the bottom layer has no subordinate"),
-        row(40, 2, status=S.INITIALIZATION_COMPLETE, command=(C.NONE, C.INIT_TO_START),
-            then=S.INITIALIZATION_COMPLETE, note="initialised: hold"),
-        row(42, 2, status=S.INITIALIZATION_COMPLETE, command=C.START_UP, then=S.START_UP,
-            action=A.STARTUP, note="START UP reached the bottom: schedule the start-up task"),
-        row(43, 2, status=S.INITIALIZATION_COMPLETE, command=(C.SHUT_DOWN, C.ERROR_RESET),
-            then=S.SHUT_DOWN_IN_PROGRESS, action=A.SHUTDOWN, note="shut down: run the shut-down task"),
-        row(50, 2, status=S.START_UP, command=C.START_UP, task=PENDING, then=S.START_UP,
-            note="start-up task running"),
-        row(53, 2, status=S.START_UP, command=C.START_UP, task=T.DONE, then=S.START_UP_COMPLETE,
-            note="START UP COMPLETE"),
-        row(55, 2, status=S.START_UP, command=(C.SHUT_DOWN, C.ERROR_RESET), then=S.SHUT_DOWN_IN_PROGRESS,
-            action=A.SHUTDOWN, note="shut down during start-up"),
-        row(56, 2, status=S.START_UP, command=(C.NONE, C.INIT_TO_START), **ERR_OUT,
-            note="inappropriate command during start-up"),
-    ] + _common_tail(60, bottom=True)
-    return DecisionTable("bottom", tuple(rows), False, "the bottom layer: Data Acquisition")
-
-
-#: the table of System Up/Down ... Servo Control
-LAYER_TABLE = _layer_table()
-#: the table of Data Acquisition
-BOTTOM_TABLE = _bottom_table()
+def row_tasks(table: DecisionTable, r: Row) -> str:
+    """The periodic tasks a row creates (+) and deletes (-), over the statuses it decides in."""
+    create: set[str] = set()
+    delete: set[str] = set()
+    now = table.running_in(r.next_status)
+    for st in (r.status if r.status is not None else LAYER_STATUSES):
+        was = table.running_in(st)
+        create |= now - was
+        delete |= was - now
+    return " ".join([f"+{n}" for n in sorted(create)] + [f"-{n}" for n in sorted(delete)])
 
 
 def describe(table: DecisionTable) -> str:
-    """The table as readable text (docs, ``pfma controller --tables``)."""
+    """The table as readable text in the report's four parts (docs, ``pfma controller
+    --tables``): what it reads, the error check, the case statement on the command (each
+    row with the periodic tasks it creates and deletes), what it posts."""
     def fmt(vals, enum_cls):
         if vals is None:
             return "*"
         return "|".join(sorted(SHORT.get(v, v.name) if enum_cls is Status else
                                (SHORT_CMD[v] if enum_cls is Command else v.name) for v in vals))
-    lines = [f"decision table {table.name}: {table.doc}",
-             f"{'row':>4} {'sec':>3}  {'command':<22} {'status':<16} {'sub':<28} {'task':<14} "
-             f"{'fault':<6} -> next / down / action   note"]
-    for r in table.rows:
-        fl = "*" if r.fault is None else "|".join(sorted("T" if x else "F" for x in r.fault))
-        down = "keep" if r.command_down == KEEP else SHORT_CMD[Command(r.command_down)]
-        lines.append(f"{r.rid:>4} {r.section:>3}  {fmt(r.command, Command):<22} {fmt(r.status, Status):<16} "
-                     f"{fmt(r.sub, Status):<28} {fmt(r.task, TaskState):<14} {fl:<6} -> "
-                     f"{SHORT[r.next_status]} / {down} / {r.action.name}   {r.note}")
+    k = table.key or "<layer>"
+    title = f"{table.title} ({table.key})" if table.key else table.name
+    sub = (f"{table.sub_key}.status ({table.sub_title})" if table.sub_key else "its subordinate's status") \
+        if table.has_subordinate else "no subordinate (the bottom layer)"
+    down = f"{table.sub_key}.command" if table.sub_key else "the subordinate's command"
+    tasks = ", ".join(f"{n} ({_status_names(st)})" for n, st in table.tasks) or "none"
+    head = (f"{'row':>4}  {'command':<22} {'status':<16} {'sub':<28} {'task':<14} "
+            f"{'fault':<6} -> next / down / action   tasks   note")
+    lines = [f"decision table {title}: {table.doc}",
+             f"  part 1, read: {k}.command, {k}.status, {sub}, {k}.task (mailbox), the fault flag",
+             f"  periodic tasks (running in): {tasks}"]
+    for sec, label in ((1, "part 2, error check of the subordinate and of the layer"),
+                       (2, "part 3, the case statement on the command")):
+        lines += [f"  {label}:", head]
+        for r in table.rows:
+            if r.section != sec:
+                continue
+            fl = "*" if r.fault is None else "|".join(sorted("T" if x else "F" for x in r.fault))
+            cmd = "keep" if r.command_down == KEEP else SHORT_CMD[Command(r.command_down)]
+            tk = row_tasks(table, r) or "-"
+            lines.append(f"{r.rid:>4}  {fmt(r.command, Command):<22} {fmt(r.status, Status):<16} "
+                         f"{fmt(r.sub, Status):<28} {fmt(r.task, TaskState):<14} {fl:<6} -> "
+                         f"{SHORT[r.next_status]} / {cmd} / {r.action.name}   {tk}   {r.note}")
+    post = f"{k}.status, {down}" if table.has_subordinate else f"{k}.status"
+    lines.append(f"  part 4, post: {post}, {k}.row, {k}.task; the tasks created and deleted "
+                 f"(they run from the next minor frame)")
     return "\n".join(lines)

@@ -15,7 +15,11 @@ Acquisition. Every layer here has
 * **sequence tasks** the table creates - init, start-up, shut-down, safe (error) and
   error-reset - each run once per minor frame until it reports DONE or FAILED in the
   layer's mailbox, which the table reads in the next frame;
-* **periodic tasks** run by the scheduling table (:mod:`controller.frames`).
+* **periodic tasks** run by the scheduling table (:mod:`controller.frames`) while they
+  exist: the layer's own decision table (:mod:`controller.tables`) creates and deletes
+  them (a task runs only in the statuses its table gives it, from the minor frame after
+  the row that created it; :meth:`Layer.task_deleted` is what a layer does when one of
+  its tasks is deleted).
 
 The layers above the Joint Planner are in their own modules (:mod:`controller.cartesian`,
 :mod:`controller.trajectory`, :mod:`controller.paths`).
@@ -31,9 +35,9 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from controller.decision import (
-    BOTTOM_TABLE, LAYER_STATUSES, LAYER_TABLE, Action, Command, CompiledTable, KEEP, Status, TaskState,
-    compile_table, command_text, status_text,
+    LAYER_STATUSES, Action, Command, CompiledTable, KEEP, Status, TaskState, compile_table, command_text, status_text,
 )
+from controller.tables import table_for
 from controller.messages import Level
 from controller.params import (
     JOINTS, N_JOINTS, SHOULDER_ROLL_STEPS_DEG, check_shoulder_roll_deg, shoulder_roll_text,
@@ -251,7 +255,11 @@ class Layer:
     def __init__(self) -> None:
         self.superior: Layer | None = None
         self.subordinate: Layer | None = None
-        self.table: CompiledTable = compile_table(LAYER_TABLE)
+        self.table: CompiledTable = compile_table(table_for(self.key))
+        #: the periodic tasks that exist (run when due), and those the table's last
+        #: decision leaves existing from the next minor frame
+        self.running: frozenset[str] = self.table.table.running_in(Status.SHUT_DOWN)
+        self._next_running = self.running
         # mailbox (local to the layer, IRSS task mail boxes)
         self.task_kind = Action.NONE
         self.task_state = TaskState.IDLE
@@ -307,6 +315,8 @@ class Layer:
     def run_table(self, rt: "LayerContext") -> None:
         """Read command, own status and the subordinate's status; decide; post."""
         wm = rt.wm
+        if self._next_running is not self.running:  # the tasks the last decision created or deleted
+            self._apply_tasks(rt)
         get = wm.get_state_variable
         sub = self.subordinate
         c = get(self._v_command)
@@ -339,6 +349,24 @@ class Layer:
             rt.last_rid[self.key] = out.rid
         if out.action != Action.NONE:
             self._act(rt, out.action)
+        if out.create or out.delete:
+            self._next_running = (self._next_running | out.create) - out.delete
+
+    def _apply_tasks(self, rt: "LayerContext") -> None:
+        """The periodic tasks the table's last decision created and deleted exist (or not)
+        from this minor frame on."""
+        gone = self.running - self._next_running
+        new = self._next_running - self.running
+        self.running = self._next_running
+        for name in sorted(new):
+            rt.post(self.key, Level.DEBUG, f"task {name} created")
+        for name in sorted(gone):
+            rt.post(self.key, Level.DEBUG, f"task {name} deleted")
+            self.task_deleted(rt, name)
+
+    def task_deleted(self, rt: "LayerContext", name: str) -> None:
+        """One of this layer's periodic tasks was deleted by its table (override: what the
+        task leaves behind, e.g. a segment in progress)."""
 
     def _act(self, rt: "LayerContext", action: Action) -> None:
         if action == Action.CLEAR:
@@ -901,9 +929,8 @@ class JointPlannerLayer(Layer):
     def plan_task(self, rt: "LayerContext") -> None:
         from controller import kinematics as kin  # (import here: layers.py stays light)
 
+        # (it exists from INITIALIZATION COMPLETE to START UP COMPLETE: controller/tables/joint.py)
         status = rt.wm.get_state_variable(self.v_status)
-        if status not in (Status.INITIALIZATION_COMPLETE, Status.START_UP, Status.START_UP_COMPLETE):
-            return
         cart = self._cart_available(rt)
         jm = self._jmove_available(rt)
         names = self._inputs
@@ -1111,4 +1138,5 @@ class _JointMove:
 
 
 def bottom_table() -> CompiledTable:
-    return compile_table(BOTTOM_TABLE)
+    """Data Acquisition's table (controller/tables/daq.py)."""
+    return compile_table(table_for("daq", bottom=True))

@@ -446,8 +446,10 @@ class ControllerRuntime:
         self._table_names = tuple(tuple(n for n, _ in frame) for frame in self._table)
         self._lt_cache: dict[tuple, LayerTrace] = {}
         self._impl = impl
-        #: the layer of each task (its reads are checked against that layer's rule)
+        #: the layer of each task (its reads are checked against that layer's rule; it runs
+        #: while its layer's table has it: ``Layer.running``)
         self._task_layer = {n: l.key for l in self.run_layers for n in l.periodic}
+        self._task_owner = {n: l for l in self.run_layers for n in l.periodic}
         self._order = tuple(t.name for t in self.frames.tasks if t.name in impl)  # catch-up: schedule order
         self._per_major = sum(len(fr) for fr in self._table)
         self._has_servo = any(t.name == SERVO_TASK for t in self.frames.tasks) and SERVO_TASK in impl
@@ -462,6 +464,13 @@ class ControllerRuntime:
         remote = {n for l in self.remote_layers for n in l.periodic}  # another process runs them
         problems = [f"task {t.name} has no implementation in layer {t.layer}"
                     for t in self.frames.tasks if t.name not in impl and t.name not in remote]
+        for l in self.run_layers:  # a layer's tasks are its table's to create and delete
+            declared = {n for n, _ in l.table.table.tasks}
+            if l.table.table.key:
+                problems += [f"task {n} of layer {l.key} is not in its decision table (controller/tables)"
+                             for n in l.periodic if n not in declared]
+            else:  # a stand-in layer on the shared rows alone: its tasks always exist
+                l.running = l._next_running = l.running | frozenset(l.periodic)
         problems += [f"task {n} of a layer is not in the schedule" for n in impl
                      if n not in {t.name for t in self.frames.tasks}]
         if problems:
@@ -607,17 +616,7 @@ class ControllerRuntime:
             names = set(catch).union(n for n, _ in due)
             due = tuple((n, self._impl[n]) for n in self._order if n in names)
             ran = tuple(n for n, _ in due)
-        task_layer = self._task_layer
-        for name, fn in due:
-            read_as(task_layer[name])
-            try:
-                fn(self)
-            except Exception as err:  # noqa: BLE001 - a task error is its layer's fault
-                layer = next(l for l in self.layers if name in l.periodic)
-                if isinstance(err, WorldModelValueError):  # rule 4: refused, the variable keeps its value
-                    layer.set_fault(self, ERR_INVALID_VALUE, f"task {name} posted an invalid value: {err}")
-                else:
-                    layer.set_fault(self, ERR_TASK_RAISED, f"task {name} raised {type(err).__name__}: {err}")
+        ran = self._run_periodic(due, ran)
         # output last, after a second communications segment: the rates leave in the frame
         # whose inputs they were computed from (the service sees them 1-2 frames old, not 2-3)
         read_as(None)
@@ -635,6 +634,27 @@ class ControllerRuntime:
         for fn in self.on_frame:
             fn(rec)
         return rec
+
+    def _run_periodic(self, due, ran: tuple[str, ...]) -> tuple[str, ...]:
+        """Run the periodic tasks due this frame that exist (their layer's table created
+        them); returns the names of those that ran."""
+        read_as = self.wm.read_as
+        task_owner = self._task_owner
+        skipped: tuple[str, ...] = ()
+        for name, fn in due:
+            owner = task_owner[name]
+            if name not in owner.running:  # its table has not created it (or has deleted it)
+                skipped += (name,)
+                continue
+            read_as(owner.key)
+            try:
+                fn(self)
+            except Exception as err:  # noqa: BLE001 - a task error is its layer's fault
+                if isinstance(err, WorldModelValueError):  # rule 4: refused, the variable keeps its value
+                    owner.set_fault(self, ERR_INVALID_VALUE, f"task {name} posted an invalid value: {err}")
+                else:
+                    owner.set_fault(self, ERR_TASK_RAISED, f"task {name} raised {type(err).__name__}: {err}")
+        return tuple(n for n in ran if n not in skipped) if skipped else ran
 
     def _climb_errors(self) -> None:
         """An ERROR decided this frame reaches System Up/Down in the same frame (issue 33

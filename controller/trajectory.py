@@ -35,7 +35,6 @@ from typing import TYPE_CHECKING, NamedTuple, Sequence
 
 import numpy as np
 
-from controller.decision import Status
 from controller.layers import JOINT, Layer
 from controller.messages import Level
 from controller.profile import Trapezoid, plan_trapezoid
@@ -347,13 +346,15 @@ class TrajectoryLayer(Layer):
         self.release(rt, "shut down")
         return super().seq_shutdown(rt)
 
+    def task_deleted(self, rt: "LayerContext", name: str) -> None:
+        """The table deleted the planner task (the layer left START UP COMPLETE): a segment
+        in progress is released, answered as stopped."""
+        if self.run is not None or self.active:
+            self.release(rt, "Trajectory Planner not running")
+
     # --- the periodic task -----------------------------------------------------------------
     def plan_task(self, rt: "LayerContext") -> None:
-        self.runs["trajectory_planner"] += 1
-        if rt.wm.get_state_variable(self.v_status) != Status.START_UP_COMPLETE:
-            if self.run is not None or self.active:
-                self.release(rt, "Trajectory Planner not running")
-            return
+        self.runs["trajectory_planner"] += 1  # (it exists only while START UP COMPLETE: controller/tables)
         v = rt.wm.get_task_inputs(SEG_VARS + CAP_VARS)
         seq, stop = int(v[SEG.seg_seq]), bool(v[SEG.seg_stop])
         if self.run is None and seq != self._seen_seq:

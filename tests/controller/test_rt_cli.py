@@ -34,10 +34,16 @@ def test_halt_single_steps_from_the_keyboard(capsys, monkeypatch):
     assert "UPDN=START UP COMPLETE" in out  # 't' after 100 single steps
 
 
-def test_tables_option_prints_tables_and_schedule(capsys):
-    assert main(["controller", "--tables", "--profile", "overview"]) == 0
+def test_tables_option_prints_seven_tables_and_the_schedule(capsys):
+    assert main(["controller", "--sim", "--power-up", "--tables", "--profile", "overview"]) == 0
     out = capsys.readouterr().out
-    assert "decision table layer" in out and "decision table bottom" in out
+    titles = ("System Up/Down (updown)", "Multi-Segment Path Planner (msp)", "Trajectory Path Planner (trajectory)",
+              "Cartesian Engine (cartesian)", "Joint Planner (joint)", "Servo Control (servo)",
+              "Data Acquisition (daq)")
+    blocks = out.split("decision table ")[1:]
+    assert [b.split(":")[0] for b in blocks] == list(titles)
+    assert len({b.split("\n", 1)[1] for b in blocks}) == 7  # seven distinct tables, not one printed seven times
+    assert "+trajectory_planner" in blocks[2] and "-joint_planner" in blocks[4]
     assert "servo_control" in out and "134 Hz" in out
 
 

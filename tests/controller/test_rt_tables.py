@@ -5,9 +5,8 @@ import dataclasses
 
 import pytest
 
-from controller.decision import (
-    BOTTOM_TABLE, LAYER_TABLE, Action, Command, Status, TableError, TaskState, compile_table, describe, row,
-)
+from controller.decision import Action, Command, Status, TableError, TaskState, compile_table, describe, row
+from controller.tables.shared import BOTTOM_TABLE, LAYER_TABLE
 from controller.frames import FrameConfig, ScheduleError, TaskSpec
 from controller.messages import MessageBoard
 
@@ -59,10 +58,12 @@ def test_key_decisions_of_the_layer_table():
     assert ct.decide(C.ERROR_RESET, S.ERROR, S.SHUT_DOWN, T.DONE, True).next_status == S.ERROR
 
 
-def test_describe_lists_every_row():
+def test_describe_lists_every_row_in_four_parts():
     text = describe(LAYER_TABLE)
-    assert text.count("\n") == len(LAYER_TABLE.rows) + 1
+    assert text.count("\n") == len(LAYER_TABLE.rows) + 7  # title, read, tasks, two labels and headers, post
     assert "INIT TO START: schedule own initialisation task" in text
+    for part in ("part 1, read:", "part 2, error check", "part 3, the case statement", "part 4, post:"):
+        assert part in text
 
 
 def test_default_schedule_rates_and_phases():

@@ -6,7 +6,8 @@ import dataclasses
 
 import pytest
 
-from controller.decision import LAYER_TABLE, Status, TableError, compile_table, row
+from controller.decision import Status, TableError, compile_table, row
+from controller.tables.shared import LAYER_TABLE
 from controller.frames import FrameConfig, ScheduleError, TaskSpec, default_tasks
 from controller.runtime import ControllerRuntime
 

@@ -23,13 +23,14 @@ HELP = """single-step commands (IRSS halt / manual interrupt):
 
 
 def print_tables(profile: str) -> int:
-    """``pfma controller --tables``: the decision tables and the scheduling table."""
-    from controller.decision import BOTTOM_TABLE, LAYER_TABLE, describe
+    """``pfma controller --tables``: the seven layers' decision tables (highest first) and
+    the scheduling table."""
+    from controller.decision import describe
     from controller.frames import FrameConfig
-    print(describe(LAYER_TABLE))
-    print()
-    print(describe(BOTTOM_TABLE))
-    print()
+    from controller.tables import TABLES
+    for table in TABLES.values():
+        print(describe(table))
+        print()
     print(FrameConfig.profile(profile).validate().describe())
     return 0
 
