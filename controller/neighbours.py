@@ -53,8 +53,6 @@ HARDWARE_DATA: Mapping[str, str] = {
 NOT_YET_NEIGHBOURS: Mapping[tuple[str, str], str] = {
     **{("msp", n): "the tool pose for teach points and playback starts: to come relayed by the "
                    "Trajectory Planner from the Cartesian engine" for n in ("joint.tool_pos_m", "joint.tool_quat")},
-    **{("trajectory", n): "a segment's start pose: to come from the Cartesian engine's own copy"
-       for n in ("joint.tool_pos_m", "joint.tool_quat")},
     **{("msp", n): "the Cartesian command a path starts from: to come relayed by the Trajectory Planner"
        for n in ("cart.cmd_valid", "cart.pos_cmd_m", "cart.quat_cmd")},
     **{("msp", n): "a joint move's start and its end: joint moves skip the Trajectory Planner and the "
