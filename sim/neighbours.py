@@ -3,11 +3,8 @@ reads (controller/neighbours.py ``markdown``) from a wired runtime of the system
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from controller.neighbours import DOC_BEGIN, DOC_END, markdown
-
-DOC = Path(__file__).resolve().parent.parent / "docs" / "controller.md"
+from sim.docblock import CONTROLLER_DOC, rewrite
 
 
 def generated() -> str:
@@ -18,11 +15,7 @@ def generated() -> str:
 
 
 def main() -> int:
-    text = DOC.read_text()
-    begin, end = text.index(DOC_BEGIN), text.index(DOC_END) + len(DOC_END)
-    DOC.write_text(text[:begin] + generated() + text[end:])
-    print(DOC)
-    return 0
+    return rewrite(CONTROLLER_DOC, DOC_BEGIN, DOC_END, generated())
 
 
 if __name__ == "__main__":

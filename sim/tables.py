@@ -3,19 +3,12 @@ seven tables (controller/tables ``markdown``)."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from controller.tables import DOC_BEGIN, DOC_END, markdown
-
-DOC = Path(__file__).resolve().parent.parent / "docs" / "controller.md"
+from sim.docblock import CONTROLLER_DOC, rewrite
 
 
 def main() -> int:
-    text = DOC.read_text()
-    begin, end = text.index(DOC_BEGIN), text.index(DOC_END) + len(DOC_END)
-    DOC.write_text(text[:begin] + markdown() + text[end:])
-    print(DOC)
-    return 0
+    return rewrite(CONTROLLER_DOC, DOC_BEGIN, DOC_END, markdown())
 
 
 if __name__ == "__main__":
