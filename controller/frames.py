@@ -72,6 +72,7 @@ class TaskSpec:
 TASK_DOCS = {
     "updown_requests": ("updown", "user requests -> Up/Down command; responses (request/response)"),
     "msp_planner": ("msp", "multi-segment path planner: path recording, files, playback segments"),
+    "msp_requests": ("msp", "multi-segment path planner while not running: move requests refused at once"),
     "trajectory_planner": ("trajectory", "trajectory planner: one Cartesian segment, speed profile"),
     "cartesian_slow": ("cartesian", "Cartesian engine: trajectory and hand-controller composition"),
     "cartesian_fast": ("cartesian", "Cartesian engine: force/torque offsets"),
@@ -90,6 +91,7 @@ PROFILES: dict[str, tuple[float, dict[str, tuple[float, int]]]] = {
         "cartesian_slow": (40.0, 5),
         "trajectory_planner": (40.0, 7),
         "msp_planner": (20.0, 9),
+        "msp_requests": (20.0, 9),  # never with msp_planner: its table has one or the other
         "gripper_control": (40.0, 3),
     }),
     "overview": (268.0, {
@@ -100,6 +102,7 @@ PROFILES: dict[str, tuple[float, dict[str, tuple[float, int]]]] = {
         "cartesian_slow": (67.0, 3),
         "trajectory_planner": (33.5, 5),
         "msp_planner": (33.5, 7),
+        "msp_requests": (33.5, 7),
         "gripper_control": (33.5, 2),
     }),
 }
@@ -111,7 +114,7 @@ PROFILES: dict[str, tuple[float, dict[str, tuple[float, int]]]] = {
 TASK_BUDGETS_S = {
     "updown_requests": 50e-6, "servo_control": 250e-6, "joint_planner": 500e-6,
     "cartesian_fast": 300e-6, "cartesian_slow": 300e-6, "trajectory_planner": 200e-6,
-    "msp_planner": 200e-6, "gripper_control": 100e-6,
+    "msp_planner": 200e-6, "msp_requests": 50e-6, "gripper_control": 100e-6,
 }
 
 

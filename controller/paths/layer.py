@@ -38,7 +38,6 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from controller.decision import Status
 from controller.gripper import GRIP, MSP_GRIP, path_request_specs
 from controller.layers import JMOVE, JMOVE_SPEED, JOINT, Layer
 from controller.messages import Level
@@ -266,7 +265,8 @@ class MultiSegmentLayer(Layer):
         super().__init__()
         self.store = store if store is not None else PathStore()
         self.background_save = background_save
-        self.periodic["msp_planner"] = self.plan_task
+        self.periodic["msp_planner"] = self.plan_task  # while START UP COMPLETE (controller/tables/msp.py)
+        self.periodic["msp_requests"] = self.requests_task  # in every other status
         self.runs = {"msp_planner": 0}  #: task runs (as the placeholder counted them)
         self.state = MspMode.IDLE
         self._mode_seen = MspMode.IDLE
@@ -847,15 +847,24 @@ class MultiSegmentLayer(Layer):
         self._leave(rt, "shut down")
         return super().seq_shutdown(rt)
 
+    def task_deleted(self, rt: "LayerContext", name: str) -> None:
+        """The table deleted the planner (the layer left START UP COMPLETE): what it was
+        recording, playing or moving ends, and a mode still set acts again at the next
+        start up."""
+        if name != "msp_planner":
+            return
+        if self.state != MspMode.IDLE:
+            self._leave(rt, "Multi-Segment Path Planner not running")
+        self._mode_seen = MspMode.IDLE
+        self._deferred = None
+
+    def requests_task(self, rt: "LayerContext") -> None:
+        """While the layer is not START UP COMPLETE (the planner does not exist): a move
+        request is answered at once, refused."""
+        self._refuse_while_down(rt)
+
     def plan_task(self, rt: "LayerContext") -> None:
         self.runs["msp_planner"] += 1
-        if rt.wm.get_state_variable(self.v_status) != Status.START_UP_COMPLETE:
-            if self.state != MspMode.IDLE:
-                self._leave(rt, "Multi-Segment Path Planner not running")
-            self._mode_seen = MspMode.IDLE  # a mode still set at the next start up acts again
-            self._deferred = None
-            self._refuse_while_down(rt)
-            return
         v = rt.wm.get_task_inputs(_RUN_VARS)
         if self._deferred is not None:  # a start that waited one run for cart.mode
             retry = self._deferred

@@ -60,8 +60,13 @@ def test_the_tables_differ_in_the_tasks_they_create_and_delete():
     assert row_tasks(cart, r53) == "+cartesian_fast +cartesian_slow"
     assert row_tasks(joint, r53) == "" and row_tasks(joint, r31) == "+joint_planner"
     assert row_tasks(traj, r61) == "-trajectory_planner" and row_tasks(joint, r61) == "-joint_planner"
-    for key in ("updown", "msp", "servo"):  # their tasks run in every status: never created or deleted
+    for key in ("updown", "servo"):  # their tasks run in every status: never created or deleted
         assert all(row_tasks(TABLES[key], r) == "" for r in TABLES[key].rows)
+    # the Path Planner's planner and its requests task take turns: never both, never neither
+    msp = TABLES["msp"]
+    assert row_tasks(msp, r53) == "+msp_planner -msp_requests"
+    assert row_tasks(msp, r61) == "+msp_requests -msp_planner"
+    assert all(len(msp.running_in(s)) == 1 for s in S if s != S.NO_SUBORDINATE)
 
 
 def test_a_layer_task_its_table_does_not_know_is_refused_at_wiring():
