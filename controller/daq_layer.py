@@ -38,8 +38,9 @@ bit    meaning
        value, or a foreign writer; or its stale/refused/foreign counters went up
        since the last frame (a refusal between two controller frames)
 128    no servo output: the servo's rates were not there for the current servo
-       period, so this layer sent 0 V (its own output check, not a reading; an event,
-       so it stays until the layer's command is ERROR RESET)
+       period in more than STALE_OUTPUT_RUN frames in a row, so this layer sent 0 V
+       (its own output check, not a reading; an event, so it stays until the layer's
+       command is ERROR RESET)
 =====  ======================================================================
 
 Freshness of the rate commands (docs/controller.md, "Missed frames and command
@@ -106,6 +107,11 @@ ARM_TIMEOUT_S = 0.2
 #: time the shut-down task waits for the servo's safe stop (current limits 0) before
 #: disarming anyway (assumed: the servo's 0.5 s safe stop plus margin)
 SHUTDOWN_WAIT_S = 1.0
+#: frames in a row whose servo output is not of the current servo period, each sent as 0 V,
+#: before it is this layer's fault (bit 128): as many as the controller may miss in a row
+#: (frames.DEFAULT_MAX_MISSED_RUN; assumed: a burst of late inputs after a host or link
+#: stall sends 0 V for a frame or two, a servo that stays behind stops the arm)
+STALE_OUTPUT_RUN = 2
 #: boards whose faults matter to the controller (the rest are reported only)
 
 
@@ -172,6 +178,7 @@ class DataAcquisitionLayer(Layer):
         #: the runtime is halted (docs/console.md): every write is the halted safe command
         self.halted = False
         self.stale_outputs = 0  #: frames whose servo output was not of the current servo period
+        self._stale_run = 0  # such frames in a row (0 V each; a fault beyond STALE_OUTPUT_RUN)
         self.catch_up_zeros = 0  #: frames with 0 rates while a missed servo slot was caught up
         self.sent_input_frame = -1  #: inputs_frame of the last write
         # camera routes (docs/cameras.md): this layer is the one writer of commands.matrix_route;
@@ -549,11 +556,13 @@ class DataAcquisitionLayer(Layer):
                     pass  # a sequence task's constant zero
                 elif s >= rt.servo_oldest_frame and servo_ok:
                     rates, stamp = v[SERVO.rate_cmd_rad_s], s
+                    self._stale_run = 0
                 elif rt.servo_catch_up and servo_ok:
                     self.catch_up_zeros += 1  # the missed slot runs in this frame: 0 for one frame
                 else:
                     self.stale_outputs += 1
-                    if servo_ok and not self.no_output:
+                    self._stale_run += 1
+                    if servo_ok and not self.no_output and self._stale_run > STALE_OUTPUT_RUN:
                         self.no_output = (f"no servo output for the servo period of frame {rt.servo_oldest_frame} "
                                           f"at frame {frame}: the last was computed from frame {s} "
                                           f"({frame - s} frames old); rates 0")
