@@ -65,7 +65,7 @@ import numpy as np
 from controller.decision import Command, Status, TaskState
 from controller.force import FORCE
 from controller.gripper import GRIP
-from controller.layers import ERR_INVALID_VALUE, ERROR_NAMES, UI, Layer, bottom_table
+from controller.layers import ERR_INVALID_VALUE, ERROR_NAMES, UI, Layer
 from controller.messages import Level
 from controller.params import GRIPPER, JOINTS, N_CURRENT_LIMITS, N_JOINTS
 from controller.servo import SERVO
@@ -136,7 +136,6 @@ class DataAcquisitionLayer(Layer):
 
     def __init__(self, client: "Client", require_ft: bool = True) -> None:
         super().__init__()
-        self.table = bottom_table()
         self.client = client
         self.require_ft = require_ft
         lay = client.layout
@@ -553,7 +552,7 @@ class DataAcquisitionLayer(Layer):
                 if servo_ok:  # the seventh amplifier (controller/gripper.py)
                     grip = float(v[GRIP.rate_cmd_m_s]) * self.gripper_cmd_scale
                 if s < 0:
-                    pass  # a sequence task's constant zero
+                    self._stale_run = 0  # a sequence task's constant zero (a new start-up)
                 elif s >= rt.servo_oldest_frame and servo_ok:
                     rates, stamp = v[SERVO.rate_cmd_rad_s], s
                     self._stale_run = 0

@@ -1135,8 +1135,3 @@ class _JointMove:
         tau = min(t - self.stop_t, dur)
         s = min(1.0, self._stop_s + self._stop_v * tau - 0.5 * a * tau * tau)
         return s, t - self.stop_t >= dur
-
-
-def bottom_table() -> CompiledTable:
-    """Data Acquisition's table (controller/tables/daq.py)."""
-    return compile_table(table_for("daq", bottom=True))
