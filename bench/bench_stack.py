@@ -2,7 +2,7 @@
 + ``pfma record``, each a subprocess with this venv's python, for M minutes (issue 14).
 
 Reported (text or ``--json``): watchdog/safety trips and every WARNING/ERROR message of the
-service's and the controller's queues (read every 20 ms, so none of the 50 entries is
+service's and the controller's queues (read every 20 ms, so none of their 50 and 127 entries is
 overwritten unread; a gap in the sequence numbers is counted as lost), the controller layers
 that went to ERROR and why, the service's frame counters (``stats`` area), the controller's
 (``controller_stats`` area, "n/a" without an owner), the F/T link (records, bad, resyncs, the

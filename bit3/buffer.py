@@ -40,7 +40,7 @@ import numpy as np
 
 from bit3.layout import (
     AREA_MAP, BUFFER_SIZE, LAYOUT_VERSION, MAGIC, MESSAGE_CONTINUED, MESSAGE_CONTINUES, MESSAGE_DTYPE,
-    MESSAGE_MAX_ENTRIES, MESSAGE_QUEUE_LEN, MESSAGE_SEVERITY_MASK, MESSAGE_TEXT_BYTES,
+    MESSAGE_MAX_ENTRIES, MESSAGE_SEVERITY_MASK, QUEUE_LEN, MESSAGE_TEXT_BYTES,
     OWNER_DTYPE, OWNER_FLAG_CLAIMED, OWNER_FLAG_SIMULATED, OWNER_NAME_BYTES, WRITER_ROLES, AreaSpec, Layout,
     ServiceState,
     Severity, _header, default_layout, resolve_role, struct_field, struct_names,
@@ -301,14 +301,15 @@ def decode_messages(queue: str, rec: np.ndarray, since_seq: int = 0) -> list[Mes
     the oldest entry read) are skipped, so the first message returned then starts after
     ``since_seq + 1`` (its ``first_seq`` says where; the gap counts the entries lost)."""
     head = int(rec["head_seq"])
-    first = max(since_seq + 1, head - MESSAGE_QUEUE_LEN + 1, 1)
-    out = []
     entries = rec["entries"]
+    n = len(entries)
+    first = max(since_seq + 1, head - n + 1, 1)
+    out = []
     parts: list[bytes] = []  # the pieces of a message whose last entry is still to come
     start = first
     orphan = False  # inside a message whose beginning is gone: skipped up to its last entry
     for s in range(first, head + 1):
-        e = entries[(s - 1) % MESSAGE_QUEUE_LEN]
+        e = entries[(s - 1) % n]
         if int(e["seq"]) != s:  # cannot happen with a stable copy; be strict anyway
             parts = []
             continue
@@ -327,7 +328,7 @@ def decode_messages(queue: str, rec: np.ndarray, since_seq: int = 0) -> list[Mes
             sev = Severity(sev_byte & MESSAGE_SEVERITY_MASK)
         except ValueError:
             sev = Severity.ERROR
-        first_e = entries[(start - 1) % MESSAGE_QUEUE_LEN]
+        first_e = entries[(start - 1) % n]
         out.append(Message(queue, s, float(first_e["t_s"]), sev, int(first_e["source"]),
                            int(first_e["code"]), b"".join(parts).decode("utf-8", "replace"), start))
         parts = []
@@ -335,9 +336,10 @@ def decode_messages(queue: str, rec: np.ndarray, since_seq: int = 0) -> list[Mes
 
 
 class MessageQueue:
-    """A 50-entry circular message queue area (like each IRSS processor card's).
+    """A circular message queue area (like each IRSS processor card's): 50 entries for the
+    service, :data:`~bit3.layout.CONTROLLER_QUEUE_LEN` for the controller.
 
-    Message ``s`` (1, 2, ...) lives in ``entries[(s - 1) % 50]``; ``head_seq`` is the newest.
+    Message ``s`` (1, 2, ...) lives in ``entries[(s - 1) % capacity]``; ``head_seq`` is the newest.
     Only the area's owner may :meth:`post`; anyone may :meth:`read`.
     """
 
@@ -346,6 +348,7 @@ class MessageQueue:
         self._lock = lock
         self._reader = AreaReader(buf, area, lock)
         self._entries_off = struct_field(area.body_dtype, "entries")[1]
+        self.capacity = QUEUE_LEN[area.name]  #: entries in the ring
         self._entry_raw = bytearray(MESSAGE_DTYPE.itemsize)
         self._entry_mv = memoryview(self._entry_raw)
         self._entry = np.ndarray((), MESSAGE_DTYPE, buffer=self._entry_raw)
@@ -356,7 +359,7 @@ class MessageQueue:
     def _attach_writer(self, buf: "Bit3Buffer") -> None:
         off = self.area.body_offset
         self._head = buf._word(off + struct_field(self.area.body_dtype, "head_seq")[1], "Q")
-        buf._word(off + struct_field(self.area.body_dtype, "capacity")[1], "I")[0] = MESSAGE_QUEUE_LEN
+        buf._word(off + struct_field(self.area.body_dtype, "capacity")[1], "I")[0] = self.capacity
 
     def post(self, text: str, severity: Severity | int = Severity.INFO, code: int = 0,
              source: int = 0, t_s: float | None = None) -> int:
@@ -381,7 +384,7 @@ class MessageQueue:
             e["severity"] = (int(severity) | (MESSAGE_CONTINUES if i < last else 0)
                              | (MESSAGE_CONTINUED if i > 0 else 0))
             e["text"] = raw
-            off = self._entries_off + ((n - 1) % MESSAGE_QUEUE_LEN) * MESSAGE_DTYPE.itemsize
+            off = self._entries_off + ((n - 1) % self.capacity) * MESSAGE_DTYPE.itemsize
             self._body[off:off + MESSAGE_DTYPE.itemsize] = self._entry_mv
         self._head[0] = n0 + len(pieces)
         self._lock.end()

@@ -25,9 +25,8 @@ Layout shape (fixed; byte offsets in the 32768-byte buffer)::
     13312  stats               2048  seqlocked, service   - loop timing, per-device rates
     15360  commands            1024  seqlocked, controller- joint rates, limits, arm requests
     16384  service_messages    4096  seqlocked, service   - 50-entry circular message queue
-    20480  controller_messages 4096  seqlocked, controller- 50-entry circular message queue
-    24576  controller_stats    2048  seqlocked, controller- the controller's frame timing
-    26624  spare               6144  reserved for later areas (zero)
+    20480  controller_stats    2048  seqlocked, controller- the controller's frame timing
+    22528  controller_messages 10240 seqlocked, controller- 127-entry circular message queue
 
 Each seqlocked area starts with a 64-byte block holding its 8-byte sequence counter;
 the area's *body* (a numpy structured record) follows at +64. Per-channel data sit in
@@ -54,7 +53,8 @@ from pfma.rack import RackConfig, load_rack
 from pfma.show import flag_names
 
 MAGIC = b"PFMABIT3"
-LAYOUT_VERSION = 1
+#: 2: the controller's message queue holds 127 entries (it took the spare area)
+LAYOUT_VERSION = 2
 #: The Bit3 dual-port RAM size (IRSS report 3.4.3: windows 0x01ED0000-0x01ED7FFF and
 #: 0x800000-0x807FFF, i.e. 32 KB; rack_default.toml ``[bit3] size``).
 BUFFER_SIZE = 32768
@@ -65,6 +65,16 @@ MAX_AREAS = 8
 #: Capacity of each circular message queue: "These queues can hold up to 50 messages per
 #: processor and are effectively a circular buffer" (IRSS report, user interface section).
 MESSAGE_QUEUE_LEN = 50
+#: Capacity of the controller's queue. Assumed: the report's seven layers ran on three
+#: computational cards (IRSS report 2.4), each with its own 50-message queue; here one process
+#: runs all seven, and a long message takes several entries, so its one queue gets every
+#: entry the rest of the buffer holds (the former spare area): 127, about 2.5 cards' worth.
+#: Measured: a power-up posts ~130 entries in half a second, a trip ~40 in one frame
+#: (``sim.system``); with 50 entries a recorder starved for ~250 ms on a loaded host lost
+#: entries in the soak (CI, 2026-11-29: 13 entries).
+CONTROLLER_QUEUE_LEN = 127
+#: entries of each message-queue area
+QUEUE_LEN = {"service_messages": MESSAGE_QUEUE_LEN, "controller_messages": CONTROLLER_QUEUE_LEN}
 MESSAGE_TEXT_BYTES = 56
 #: a message longer than one entry's text continues in the next entries of its queue: every
 #: entry of a message but its last has this bit set in its severity byte
@@ -844,14 +854,15 @@ def _controller_stats(area: AreaSpec) -> _Record:
 
 
 def _messages(area: AreaSpec) -> _Record:
+    n = QUEUE_LEN[area.name]
     r = _Record(area.name, area.body_offset, area.body_size)
     r.add("head_seq", "<u8", units="1", doc="sequence number of the newest message (0 = none)")
-    r.add("capacity", "<u4", units="1", doc=f"entries in the ring ({MESSAGE_QUEUE_LEN})")
-    off = r.add("entries", MESSAGE_DTYPE.str, (MESSAGE_QUEUE_LEN,), "",
-                "ring; message seq s is in entries[(s - 1) % 50]", align=8)
+    r.add("capacity", "<u4", units="1", doc=f"entries in the ring ({n})")
+    off = r.add("entries", MESSAGE_DTYPE.str, (n,), "",
+                f"ring; message seq s is in entries[(s - 1) % {n}]", align=8)
     # numpy needs the structured dtype itself, not its void string
-    r.formats[-1] = (MESSAGE_DTYPE, (MESSAGE_QUEUE_LEN,))
-    r.specs[-1] = FieldSpec("entries", area.name, off, "message", (MESSAGE_QUEUE_LEN,), "",
+    r.formats[-1] = (MESSAGE_DTYPE, (n,))
+    r.specs[-1] = FieldSpec("entries", area.name, off, "message", (n,), "",
                             r.specs[-1].doc)
     return r
 
@@ -908,10 +919,9 @@ AREA_MAP: tuple[tuple[str, int, int, str, bool, str], ...] = (
     ("stats", 13312, 2048, "service", True, "loop timing statistics, per-device rates"),
     ("commands", 15360, 1024, "controller", True, "joint rates, current limits, arm requests"),
     ("service_messages", 16384, 4096, "service", True, "50-entry message queue of the service"),
-    ("controller_messages", 20480, 4096, "controller", True,
-     "50-entry message queue of the controller"),
-    ("controller_stats", 24576, 2048, "controller", True, "the controller's frame timing and missed frames"),
-    ("spare", 26624, 6144, "", False, "reserved (zero) for later areas"),
+    ("controller_stats", 20480, 2048, "controller", True, "the controller's frame timing and missed frames"),
+    ("controller_messages", 22528, 10240, "controller", True,
+     "127-entry message queue of the controller"),
 )
 
 
@@ -931,8 +941,8 @@ def build_layout(rack: RackConfig | None = None) -> Layout:
     records["commands"], ch, joints, limits = _commands(areas[3], rack)
     channels += ch
     records["service_messages"] = _messages(areas[4])
-    records["controller_messages"] = _messages(areas[5])
-    records["controller_stats"] = _controller_stats(areas[6])
+    records["controller_stats"] = _controller_stats(areas[5])
+    records["controller_messages"] = _messages(areas[6])
     out_areas = tuple(AreaSpec(a.name, a.index, a.offset, a.size, a.writer, a.seqlocked, a.doc,
                                records[a.name].dtype() if a.name in records else None)
                       for a in areas)

@@ -118,6 +118,40 @@ def test_the_stats_window_waits_for_the_frames_its_snapshot_follows(tmp_path):
     assert cnt.lossless
 
 
+def test_a_recording_that_ends_before_the_frames_its_last_snapshot_follows_ends_its_window_before(tmp_path):
+    """The recorder stops while the capture thread still holds the frames the last stats
+    snapshot follows (they are never written): the window ends at the snapshot before, so it
+    is still whole (it came out a frame short: the soak, 2026-11-29, 193,213 of 193,214)."""
+    from sim.rig import SimRig
+    from tools.recording import Recorder
+    rig = SimRig(name="pfma-chaos-rec-" + uuid.uuid4().hex[:8])
+    try:
+        rec = Recorder(rig.reader, tmp_path / "end.mcap", rack=rig.world.rack_config, epoch_offset_ns=0)
+        queued = []
+
+        def hook(info):
+            queued.append(rig.reader.read_inputs().copy())
+            while len(queued) > 2:
+                rec.feed_inputs(queued.pop(0))
+            rec.poll(inputs=False)
+        rig.on_frame.append(hook)
+        rig.run(1.1)
+        for _ in range(2 * rig.svc.stats_every):  # on to a stats snapshot ahead of the frames in
+            rig.run_frames(1)
+            if rec._stats_pending is not None:
+                break
+        assert rec._stats_pending is not None  # (the setting this test is about)
+        rig.on_frame.remove(hook)
+        last_recorded = rec.counters.last_frame
+    finally:
+        rig.close()  # the service and its buffer gone: the recorder's final poll reads nothing
+    cnt = rec.close()  # the two queued frames are never written
+    assert cnt.last_frame == last_recorded and cnt.window_last_frame <= last_recorded + 1
+    assert cnt.window_service_frames > 0
+    assert cnt.window_recorded == cnt.window_service_frames
+    assert cnt.lossless
+
+
 def test_the_kill_plan_is_reproducible_and_independent_of_the_trial_count():
     a, b = plan(7, 5), plan(7, 2)
     assert plan(7, 5) == a

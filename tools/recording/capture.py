@@ -27,8 +27,9 @@ AREA_POLL_S = 0.0002
 #: instead of ~5000 (measured: the recorder's CPU is mostly its wake-ups; docs/deployment.md)
 RING_POLL_S = 0.01
 #: the message queues' bodies are copied at most this often (only when their head moved):
-#: each queue keeps its last 50 entries, and a power-up posts ~50 in ~100 ms, a trip and its
-#: error reset ~100 in ~100 ms (measured in simulated time), so the recorder's writing
+#: the service's queue keeps its last 50 entries and the controller's 127, and a power-up
+#: posts ~130 controller entries in half a second, a trip ~40 in one frame (measured in
+#: simulated time, ``bit3.layout.CONTROLLER_QUEUE_LEN``), so the recorder's writing
 #: thread, which may spend tens of ms on a backlog of frames, must not be the one to read them
 MESSAGES_POLL_S = 0.005
 #: the queues, by the names the recorder writes (``/pfma/messages`` ``queue``)
@@ -82,7 +83,7 @@ class InputsCapture:
     ring's frames.
 
     With ``messages=True`` the thread also copies the two message queues when their head
-    moved (:class:`MessagesCopy`, at most every :data:`MESSAGES_POLL_S`): the 50-entry
+    moved (:class:`MessagesCopy`, at most every :data:`MESSAGES_POLL_S`): the bounded
     queues are then read as promptly as the frames, not after the writing thread has
     worked off a backlog. After a ring switch it copies none until :meth:`messages_from`
     names the new service's client.

@@ -15,7 +15,7 @@ from mcap.writer import CompressionType, Writer
 
 from bit3.client import Client
 from bit3.buffer import decode_messages
-from bit3.layout import MESSAGE_QUEUE_LEN, Layout
+from bit3.layout import QUEUE_LEN, Layout
 from tools.recording.spool import spool_chunk_indexes
 from tools.recording.schema import (
     CHUNK_SIZE, COUNTERS_EVERY_S, FLUSH_EVERY_S, LIBRARY, PROFILE, RAW_ENCODING, RAW_SCHEMA, RAW_SCHEMA_ENCODING,
@@ -325,7 +325,9 @@ class Recorder:
     def _count_stats(self) -> None:
         """The stats window with the pending snapshot (see :meth:`_stats`)."""
         pending, self._stats_pending = self._stats_pending, None
-        if pending is None:
+        if pending is None or self._last_frame < pending[0] - 1:
+            # not every frame before k was recorded when the recording (or the session) ended:
+            # the window ends at the snapshot before (counted now, it came out a frame short)
             return
         cnt = self.counters
         k, frames, dropped = pending
@@ -392,7 +394,7 @@ class Recorder:
             self.counters.messages_missed += lost
             self.notes.append(f"{lost} {q} message entries ({cur + 1}..{got[0].first_seq - 1}) were "
                               f"overwritten before the recorder read them (the queue holds "
-                              f"{MESSAGE_QUEUE_LEN}); the recording is not lossless")
+                              f"{QUEUE_LEN[q + '_messages']}); the recording is not lossless")
         for m in got:
             self._put("/pfma/messages", _ns(m.t_s, self.offset_ns), _dumps({
                 "queue": q, "seq": m.seq, "t_s": m.t_s, "severity": m.severity.name,

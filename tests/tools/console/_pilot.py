@@ -33,3 +33,10 @@ def screen_text(app) -> str:
                       record=True, legacy_windows=False, safe_box=False)
     console.print(app.screen._compositor.render_update(full=True, screen_stack=app._background_screens))
     return console.export_text(styles=False)
+
+
+def kept_messages(app) -> str:
+    """Every message the console keeps, newest first: what its messages screen (``m``) lists.
+    The main area shows only the newest 50; a power-up alone posts more than that."""
+    from tools.console import view
+    return view.messages_screen(app.sources.messages)

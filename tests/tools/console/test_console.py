@@ -16,7 +16,7 @@ from bit3.layout import ServiceState
 from controller.decision import Status
 from tools.console import view
 from tools.console.app import MessagesScreen
-from tests.tools.console._pilot import frames, run_app
+from tests.tools.console._pilot import frames, kept_messages, run_app
 
 
 def test_five_areas_titled_as_the_report_names_them(console):
@@ -39,7 +39,7 @@ def test_power_up_from_the_global_commands(sim, console):
         assert local.count("START UP COMPLETE") >= 7
         assert "service ARMED" in console.area_text("world")
         assert "POWER UP: START UP COMPLETE -> COMPLETE" in console.area_text("global")
-        assert "request 1: POWER UP sent" in console.area_text("messages")
+        assert "request 1: POWER UP sent" in kept_messages(console)
     run_app(console, body)
 
 

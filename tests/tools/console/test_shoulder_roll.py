@@ -16,7 +16,7 @@ from sim.system import SystemSimulator
 from tools.console import view
 from tools.console.app import ConsoleApp, EditScreen, ParamScreen, PowerUpScreen
 from tools.console.control import ControllerLink
-from tests.tools.console._pilot import frames, run_app
+from tests.tools.console._pilot import frames, kept_messages, run_app
 
 
 @pytest.fixture
@@ -56,7 +56,7 @@ def test_power_up_asks_for_the_index_and_sends_nothing_until_confirmed(sim45, co
         await pilot.press("u", "y")
         frames(sim, console, 300)
         assert sim.rt.all_status(Status.START_UP_COMPLETE)
-        msgs = console.area_text("messages")
+        msgs = kept_messages(console)
         assert "shoulder-roll index +45 deg confirmed by the operator" in msgs
         assert re.search(r"request \d+: POWER UP sent", msgs), msgs  # (the sim set the index by a user write)
         assert _world_roll_line(console) == "shoulder roll +45 deg (indexed by hand, no sensor)"

@@ -1,8 +1,8 @@
 """The message queues are read by the capture thread, not after the writer's backlog.
 
-Each queue keeps its last 50 entries (IRSS report: "up to 50 messages per processor"); a
-power-up posts ~50 entries in ~100 ms and a trip with its error reset ~100 (simulated
-time). CI's soak lost 7 entries when the recorder's writing thread, behind on frames after
+The service's queue keeps its last 50 entries (IRSS report: "up to 50 messages per
+processor"), the controller's 127; a power-up posts ~130 controller entries in half a
+second and a trip ~40 in one frame (simulated time). CI's soak lost 7 entries when the recorder's writing thread, behind on frames after
 a host stall, looked at the queues too late. The capture thread now copies a queue's body
 whenever its head moved (``MessagesCopy``) and the writer decodes the copies in order."""
 
@@ -41,17 +41,17 @@ def test_copies_taken_between_bursts_keep_every_entry_though_the_writer_drains_l
         rec = Recorder(client, tmp_path / "r.mcap")
         rec.messages_captured = True
         assert cap.take_messages(force=True) == 2  # the queues as they are: history, not recorded
-        for b in range(3):  # 120 entries, 40 between two looks of the capture thread
-            _burst(ctl, 40 * b, 40)
+        for b in range(3):  # 300 entries, 100 between two looks of the capture thread
+            _burst(ctl, 100 * b, 100)
             rig.run_frames(8)
             cap.take_from_ring()
             assert cap.take_messages(force=True) == 1  # only the controller queue moved
-        cap.drain(rec)  # the writer, late: all 120 were overwritten in the queue by now
+        cap.drain(rec)  # the writer, late: 173 of the 300 were overwritten in the queue by now
         rec.poll(inputs=False)  # reads no queue itself while the capture does
         c = rec.close()
         assert c.messages_missed == 0 and not rec.notes
         assert [t for t in _recorded_texts(tmp_path / "r.mcap") if t.startswith("m")] == \
-            [f"m{i}" for i in range(120)]
+            [f"m{i}" for i in range(300)]
         cap.stop()
         client.close()
     finally:
@@ -59,21 +59,21 @@ def test_copies_taken_between_bursts_keep_every_entry_though_the_writer_drains_l
 
 
 def test_a_recorder_that_looks_after_the_queue_wrapped_counts_and_says_the_lost_entries(tmp_path):
-    """The same bursts read by the writing thread itself, once at the end: 70 of the 120
-    entries were overwritten; counted, said as it happens, and the recording not lossless."""
+    """The same bursts read by the writing thread itself, once at the end: 173 of the 300
+    entries were overwritten (the controller's queue holds 127); counted, said as it happens, and the recording not lossless."""
     rig = _rig_with_ring()
     try:
         ctl = rig.controller()
         client = Client.attach(rig.name, layout=rig.layout, clock_now=rig.clock.now)
         rec = Recorder(client, tmp_path / "r.mcap")
-        _burst(ctl, 0, 120)
+        _burst(ctl, 0, 300)
         rec.poll(inputs=False)
-        assert rec.counters.messages_missed == 70
-        assert rec.notes == ["70 controller message entries (1..70) were overwritten before the recorder "
-                             "read them (the queue holds 50); the recording is not lossless"]
+        assert rec.counters.messages_missed == 173
+        assert rec.notes == ["173 controller message entries (1..173) were overwritten before the recorder "
+                             "read them (the queue holds 127); the recording is not lossless"]
         assert not rec.close().lossless
         assert [t for t in _recorded_texts(tmp_path / "r.mcap") if t.startswith("m")] == \
-            [f"m{i}" for i in range(70, 120)]
+            [f"m{i}" for i in range(173, 300)]
         client.close()
     finally:
         rig.close()
