@@ -482,6 +482,5 @@ class CartesianLayer(Layer):
         self.seq = (self.seq + 1) & 0x7FFFFFFF
         rt.wm.post_task_outputs(self.key, {CART.pos_cmd_m: p, CART.quat_cmd: q, CART.cmd_valid: self.valid,
                                            CART.cmd_seq: self.seq, CART.ref_pos_m: p_ref,
-                                           CART.ref_quat: q_ref, CART.tool_pos_m: self.meas_pos,
-                                           CART.tool_quat: self.meas_quat})
+                                           CART.ref_quat: q_ref})
 

@@ -67,6 +67,7 @@ from controller.force import FORCE
 from controller.gripper import GRIP
 from controller.layers import ERR_INVALID_VALUE, ERROR_NAMES, UI, Layer
 from controller.messages import Level
+from controller.relays import at
 from controller.params import GRIPPER, JOINTS, N_CURRENT_LIMITS, N_JOINTS
 from controller.servo import SERVO
 from controller.teleop import TELEOP
@@ -115,6 +116,14 @@ STALE_OUTPUT_RUN = 2
 #: boards whose faults matter to the controller (the rest are reported only)
 
 
+#: what Data Acquisition reads of the layers further up, as Servo Control passes it on
+#: (controller/relays.py): the force loop's state and the reflection to the hand controller
+#: (the Cartesian engine's), the operator's camera route request (System Up/Down's)
+FORCE_STATE, REFLECT_ENABLED, REFLECT_FORCE, REFLECT_TORQUE, ROUTE_REQUEST, ROUTE_REQUEST_SEQ = (
+    at("daq", n) for n in (FORCE.state, TELEOP.reflect_enabled, TELEOP.reflect_force_n,
+                           TELEOP.reflect_torque_nm, UI.route_request, UI.route_request_seq))
+
+
 class DataAcquisitionLayer(Layer):
     """Data Acquisition (layer 7, the bottom).
 
@@ -127,9 +136,10 @@ class DataAcquisitionLayer(Layer):
     short = "DAQ "
     #: other layers' variables read (controller/neighbours.py; the far ones are listed there)
     reads = (
-        "force.state", "gripper.rate_cmd_m_s", "servo.current_limit_cmd_a", "servo.error",
-        "servo.rate_cmd_frame", "servo.rate_cmd_rad_s", "teleop.reflect_enabled", "teleop.reflect_force_n",
-        "teleop.reflect_torque_nm", "updown.route_request", "updown.route_request_seq",
+        "gripper.rate_cmd_m_s", "servo.current_limit_cmd_a", "servo.error", "servo.force_state",
+        "servo.rate_cmd_frame", "servo.rate_cmd_rad_s", "servo.teleop_reflect_enabled",
+        "servo.teleop_reflect_force_n", "servo.teleop_reflect_torque_nm", "servo.updown_route_request",
+        "servo.updown_route_request_seq",
     )
     #: ``daq.error``: the lowest hardware-check bit that tripped (FAULT_NAMES), or every layer's
     error_names = {**ERROR_NAMES, **FAULT_NAMES}
@@ -311,7 +321,8 @@ class DataAcquisitionLayer(Layer):
         """The user I/F box's switches and the console's route requests -> the route this
         layer writes to ``commands.matrix_route`` (with the next command write). A box
         selection acts when it changes (controller/routes.py); a console request arrives
-        from System Up/Down's request task (``updown.route_request``)."""
+        from System Up/Down's request task (``updown.route_request``, passed on by the layers
+        between: ``servo.updown_route_request``)."""
         word = int(rec["pio_user_inputs"])
         route = self.route
         if word != self._box_word:
@@ -327,12 +338,12 @@ class DataAcquisitionLayer(Layer):
             if route != self.route:
                 self._set_route(rt, route, "user I/F box")
         if self._has_route_req is None:
-            self._has_route_req = UI.route_request_seq in set(rt.wm.names())
+            self._has_route_req = ROUTE_REQUEST_SEQ in set(rt.wm.names())
         if self._has_route_req:
-            seq = int(rt.wm.get(UI.route_request_seq))
+            seq = int(rt.wm.get(ROUTE_REQUEST_SEQ))
             if seq != self._route_req_seq:
                 self._route_req_seq = seq
-                monitor, camera = divmod(int(rt.wm.get(UI.route_request)), 16)
+                monitor, camera = divmod(int(rt.wm.get(ROUTE_REQUEST)), 16)
                 try:
                     self._set_route(rt, set_monitor(self.route, monitor, camera), f"console request {seq}")
                 except ValueError as err:  # System Up/Down checked it; a bad one is a message, not a crash
@@ -366,11 +377,11 @@ class DataAcquisitionLayer(Layer):
         variables (a bare runtime) the F/T is taken to be in use."""
         if self._force_vars is None:  # which of them this model has: looked up once, not every frame
             names = set(rt.wm.names())
-            self._force_vars = tuple(n for n in (FORCE.state, TELEOP.reflect_enabled) if n in names)
-        if FORCE.state not in self._force_vars:
+            self._force_vars = tuple(n for n in (FORCE_STATE, REFLECT_ENABLED) if n in names)
+        if FORCE_STATE not in self._force_vars:
             return True
         v = rt.wm.get_task_inputs(self._force_vars)
-        return int(v[FORCE.state]) != 0 or bool(v.get(TELEOP.reflect_enabled, False))
+        return int(v[FORCE_STATE]) != 0 or bool(v.get(REFLECT_ENABLED, False))
 
     def _note_stalls(self, rec) -> None:
         """Keep each host stall the service publishes (its measured length and end time; the
@@ -603,7 +614,7 @@ class DataAcquisitionLayer(Layer):
             return {}
         return {"crl_reflect_force_n": self._zero3, "crl_reflect_torque_nm": self._zero3, "crl_reflect_enable": 0}
 
-    _REFLECT = (TELEOP.reflect_force_n, TELEOP.reflect_torque_nm, TELEOP.reflect_enabled)
+    _REFLECT = (REFLECT_FORCE, REFLECT_TORQUE, REFLECT_ENABLED)
 
     def _reflection(self, rt: "LayerContext", status: int) -> dict:
         """CRL force reflection (the Cartesian engine's teleop output) for the command area;
@@ -614,10 +625,10 @@ class DataAcquisitionLayer(Layer):
         if not self._has_reflect:
             return {}
         v = rt.wm.get_task_inputs(self._REFLECT)
-        on = status == Status.START_UP_COMPLETE and bool(v[TELEOP.reflect_enabled])
+        on = status == Status.START_UP_COMPLETE and bool(v[REFLECT_ENABLED])
         zero = self._zero3  # write_commands copies it into the command record
-        return {"crl_reflect_force_n": v[TELEOP.reflect_force_n] if on else zero,
-                "crl_reflect_torque_nm": v[TELEOP.reflect_torque_nm] if on else zero,
+        return {"crl_reflect_force_n": v[REFLECT_FORCE] if on else zero,
+                "crl_reflect_torque_nm": v[REFLECT_TORQUE] if on else zero,
                 "crl_reflect_enable": int(on)}
 
     # --- sequence tasks ------------------------------------------------------------------

@@ -347,7 +347,7 @@ def section_owners(layers: Sequence[Any], config: DistributedConfig) -> dict[str
             writer_layer[task] = l.key
     out: dict[str, str] = {}
     for l in layers:
-        for s in l.specs():
+        for s in l.all_specs():
             layer = writer_layer.get(s.writer, l.key)
             out[s.name] = config.process_of(layer)
     return out

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from controller.decision import Status
+from controller.relays import at
 from controller.messages import Level
 from controller.worldmodel import VarSpec
 from controller.variables import DAQ
@@ -129,6 +130,8 @@ class PathGripperVars(VarGroup, prefix="msp", writer="msp"):
 
 
 MSP_GRIP = PathGripperVars
+#: a path's gripper step as Servo Control reads it: the Joint Planner's copy (controller/relays.py)
+_MG = {n: at("servo", n) for n in MSP_GRIP.all()}
 
 
 def path_request_specs() -> list[VarSpec]:
@@ -152,7 +155,7 @@ class GripperDrive:
 
     _IN = (GRIP.request, GRIP.request_force_n, GRIP.request_seq, DAQ.gripper_rate_m_s,
            DAQ.gripper_current_a)
-    _MSP = MSP_GRIP.all()
+    _MSP = tuple(_MG.values())
 
     def __init__(self, layer) -> None:
         self.layer = layer
@@ -190,11 +193,11 @@ class GripperDrive:
             self._seen_user = seq
             self._request(rt, "user", seq, int(v[GRIP.request]), float(v[GRIP.request_force_n]))
         if self._has_msp:
-            mseq = int(v[MSP_GRIP.gripper_seq])
+            mseq = int(v[_MG[MSP_GRIP.gripper_seq]])
             if mseq != self._seen_msp:
                 self._seen_msp = mseq
                 if mseq:
-                    self._request(rt, "msp", mseq, int(v[MSP_GRIP.gripper_request]), float(v[MSP_GRIP.gripper_force_n]))
+                    self._request(rt, "msp", mseq, int(v[_MG[MSP_GRIP.gripper_request]]), float(v[_MG[MSP_GRIP.gripper_force_n]]))
         ended = self.motion.update(t, float(v[DAQ.gripper_rate_m_s]), float(v[DAQ.gripper_current_a]))
         if ended is not None:
             self._ended(rt, ended)

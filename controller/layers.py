@@ -43,6 +43,7 @@ from controller.params import (
     JOINTS, N_JOINTS, SHOULDER_ROLL_STEPS_DEG, check_shoulder_roll_deg, shoulder_roll_text,
 )
 from controller.quat import q_angle
+from controller.relays import at
 from controller.worldmodel import VarSpec
 from controller.worldmodel.var import UNIT_QUATERNION, Var, VarGroup, var
 from controller.routes import camera_name, decode_matrix_route, parse_route_request, route_text
@@ -251,6 +252,10 @@ class Layer:
     #: entry): checked against the neighbours rule when the runtime is wired, and the world
     #: model refuses any read the layer did not declare (controller/neighbours.py)
     reads: tuple[str, ...] = ()
+    #: the variables this layer passes on to a layer further away, and (its copy, what it
+    #: copies) of each: set by ``controller.relays.wire``
+    relay_specs: tuple[VarSpec, ...] = ()
+    relay_pairs: tuple[tuple[str, str], ...] = ()
 
     def __init__(self) -> None:
         self.superior: Layer | None = None
@@ -310,6 +315,10 @@ class Layer:
     def specs(self) -> list[VarSpec]:
         """Every variable this layer owns or is the declared writer of (override to add)."""
         return self.state_specs()
+
+    def all_specs(self) -> list[VarSpec]:
+        """:meth:`specs` and the copies of what it passes on (``relay_specs``)."""
+        return [*self.specs(), *self.relay_specs]
 
     # --- decision table ------------------------------------------------------------------
     def run_table(self, rt: "LayerContext") -> None:
@@ -740,6 +749,8 @@ class JointMoveVars(VarGroup, prefix="msp", writer="msp"):
 
 
 JMOVE = JointMoveVars
+#: a joint move's request as the Joint Planner reads it: the Cartesian engine's copy (controller/relays.py)
+_JM = {n: at("joint", n) for n in JMOVE.all()}
 
 
 class JointVars(VarGroup, prefix="joint", writer="joint"):
@@ -838,13 +849,13 @@ class JointPlannerLayer(Layer):
     short = "JNTP"
     #: other layers' variables read (controller/neighbours.py; the far ones are listed there)
     reads = (
-        "cart.cmd_seq", "cart.cmd_valid", "cart.pos_cmd_m", "cart.quat_cmd", "daq.joint_angle_rad",
-        "msp.jmove_goal_rad", "msp.jmove_seq", "msp.jmove_speed", "msp.jmove_stop",
+        "cart.cmd_seq", "cart.cmd_valid", "cart.msp_jmove_goal_rad", "cart.msp_jmove_seq", "cart.msp_jmove_speed",
+        "cart.msp_jmove_stop", "cart.pos_cmd_m", "cart.quat_cmd", "daq.joint_angle_rad",
     )
     #: the Cartesian Engine's command (writer "cartesian"); without them only joint goals work
     CART_VARS = (CART.pos_cmd_m, CART.quat_cmd, CART.cmd_valid, CART.cmd_seq)
     #: the Multi-Segment Path Planner's joint moves (writer "msp"); without them none
-    JMOVE_VARS = JMOVE.all()
+    JMOVE_VARS = tuple(_JM.values())
     MODE_JOINT, MODE_CARTESIAN = 0, 1
     #: ``joint.mode`` by name
     MODE_NAMES = JOINT_MODE_NAMES
@@ -914,7 +925,7 @@ class JointPlannerLayer(Layer):
         self._last_pose, self._stuck_runs, self._recover = None, 0, None
         self._jm = None
         if self._jmove_available(rt):  # a joint move sent before this start-up is not run
-            self._jm_seen = int(rt.wm.get_task_inputs((JMOVE.jmove_seq,))[JMOVE.jmove_seq])
+            self._jm_seen = int(rt.wm.get_task_inputs((_JM[JMOVE.jmove_seq],))[_JM[JMOVE.jmove_seq]])
         rt.wm.post_task_outputs("joint", {JOINT.q_cmd_rad: self.q_cmd, JOINT.q_cmd_valid: True,
                                           JOINT.mode: self.mode, JOINT.jmove_active: False})
         return TaskState.DONE
@@ -949,7 +960,7 @@ class JointPlannerLayer(Layer):
                 self._joint_goal(rt, v, out)
                 self._cart_at_goal = (np.array(v[CART.pos_cmd_m], dtype=float),
                                       np.array(v[CART.quat_cmd], dtype=float)) if valid else None
-            elif jm and (self._jm is not None or int(v[JMOVE.jmove_seq]) != self._jm_seen):
+            elif jm and (self._jm is not None or int(v[_JM[JMOVE.jmove_seq]]) != self._jm_seen):
                 self._joint_move(rt, v, out)
                 if valid and self._jm is None:  # ended: joint mode until the Cartesian command changes
                     self._cart_at_goal = (np.array(v[CART.pos_cmd_m], dtype=float),
@@ -1045,7 +1056,7 @@ class JointPlannerLayer(Layer):
 
     # --- joint moves (msp.jmove_*) -------------------------------------------------------
     def _joint_move(self, rt: "LayerContext", v: dict, out: dict) -> None:
-        seq = int(v[JMOVE.jmove_seq])
+        seq = int(v[_JM[JMOVE.jmove_seq]])
         if seq != self._jm_seen:
             self._jm_seen = seq
             if self._jm is not None:
@@ -1056,7 +1067,7 @@ class JointPlannerLayer(Layer):
                 return
         jm = self._jm
         assert jm is not None
-        if bool(v[JMOVE.jmove_stop]) and jm.stop_t is None:
+        if bool(v[_JM[JMOVE.jmove_stop]]) and jm.stop_t is None:
             jm.request_stop(rt.now)
             rt.post(self.key, Level.INFO, f"joint move {jm.seq}: stop requested")
         s, finished = jm.sample(rt.now)
@@ -1069,8 +1080,8 @@ class JointPlannerLayer(Layer):
     def _jmove_start(self, rt: "LayerContext", seq: int, v: dict, out: dict) -> None:
         from controller.kinematics import RATE_LIMIT_RAD_S
         from controller.profile import plan_trapezoid
-        goal = np.asarray(v[JMOVE.jmove_goal_rad], dtype=float)
-        speed = float(v[JMOVE.jmove_speed])
+        goal = np.asarray(v[_JM[JMOVE.jmove_goal_rad]], dtype=float)
+        speed = float(v[_JM[JMOVE.jmove_speed]])
         if not (np.all(np.isfinite(goal)) and math.isfinite(speed) and 0.0 < speed <= 1.0):
             rt.post(self.key, Level.ERROR, f"joint move {seq} refused: goal {goal.tolist()} / speed {speed!r} "
                                            f"(needs finite angles and a speed 0..1)")

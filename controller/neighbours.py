@@ -10,7 +10,8 @@ others ... (other than in the case of certain hardware data)." Here:
   the layer, the variable and its owner, a read of a layer that is not adjacent, unless the
   variable is **user-interface data** (written by the user: report 2.2.8's user interface
   area, which every layer may read), **hardware data** (:data:`HARDWARE_DATA`: what Data
-  Acquisition read from the rack) or one of the reads still :data:`NOT_YET_NEIGHBOURS`;
+  Acquisition read from the rack); what a layer needs from further away is passed on by
+  the layers between (controller/relays.py);
 - the world model then refuses, while a layer's table or task runs, a read of anything the
   layer did not declare (``WorldModel.set_read_rules`` / ``read_as``): a declaration cannot
   drift from the code.
@@ -23,6 +24,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping, Sequence
 from typing import TYPE_CHECKING
 
+from controller.relays import RELAYS
 from controller.worldmodel import VarSpec, WorldModelError
 
 if TYPE_CHECKING:
@@ -47,32 +49,6 @@ HARDWARE_DATA: Mapping[str, str] = {
     "daq.camera_route_applied": "the video matrix switcher's route, as the service applied it",
 }
 
-#: Reads that still skip a layer, each with what it waits for. They are the report's rule
-#: not yet met (issue 33 item 2 is open until this table is empty); the check lets them
-#: through and refuses every other far read, so the list can only shrink.
-NOT_YET_NEIGHBOURS: Mapping[tuple[str, str], str] = {
-    **{("msp", n): "the tool pose for teach points and playback starts: to come relayed by the "
-                   "Trajectory Planner from the Cartesian engine" for n in ("joint.tool_pos_m", "joint.tool_quat")},
-    **{("msp", n): "the Cartesian command a path starts from: to come relayed by the Trajectory Planner"
-       for n in ("cart.cmd_valid", "cart.pos_cmd_m", "cart.quat_cmd")},
-    **{("msp", n): "a joint move's start and its end: joint moves skip the Trajectory Planner and the "
-                   "Cartesian engine (msp.jmove_*), both ways"
-       for n in ("servo.q_cmd_rad", "servo.q_cmd_valid", "joint.jmove_done_seq", "joint.jmove_done_code")},
-    **{("joint", n): "a joint move's request, straight from the Path Planner (msp.jmove_*)"
-       for n in ("msp.jmove_goal_rad", "msp.jmove_seq", "msp.jmove_speed", "msp.jmove_stop")},
-    ("msp", "joint.shoulder_roll_rad"): "the shoulder-roll index the path files are checked against",
-    **{("msp", n): "a path's gripper events, from the gripper task of Servo Control"
-       for n in ("gripper.event", "gripper.event_force_n", "gripper.event_seq", "gripper.msp_done_code",
-                 "gripper.msp_done_seq")},
-    **{("servo", n): "a path's gripper steps, straight from the Path Planner (msp.gripper_*)"
-       for n in ("msp.gripper_request", "msp.gripper_force_n", "msp.gripper_seq")},
-    **{("daq", n): "force reflection to the hand controller, from the Cartesian engine"
-       for n in ("force.state", "teleop.reflect_enabled", "teleop.reflect_force_n", "teleop.reflect_torque_nm")},
-    **{("daq", n): "the operator's camera route request, from System Up/Down's request task"
-       for n in ("updown.route_request", "updown.route_request_seq")},
-}
-
-
 def owner_layer(spec: VarSpec) -> str:
     """The layer that writes ``spec`` (its task's layer), or ``"user"`` / ``"runtime"``."""
     return TASK_LAYER.get(spec.writer, spec.writer)
@@ -82,7 +58,7 @@ def own_names(layer: "Layer") -> set[str]:
     """What ``layer`` reads without declaring it: the variables it declares that it (or the
     user, its parameters) writes."""
     state = {s.name for s in layer.state_specs()}  # its command, status, row, mailbox, error
-    return state | {s.name for s in layer.specs() if owner_layer(s) in (layer.key, USER)}
+    return state | {s.name for s in layer.all_specs() if owner_layer(s) in (layer.key, USER)}
 
 
 def why_allowed(reader: str, spec: VarSpec, order: Sequence[str]) -> str | None:
@@ -96,8 +72,6 @@ def why_allowed(reader: str, spec: VarSpec, order: Sequence[str]) -> str | None:
         return "hardware data"
     if owner in order and reader in order and abs(order.index(owner) - order.index(reader)) == 1:
         return "a neighbour's"
-    if (reader, spec.name) in NOT_YET_NEIGHBOURS:
-        return "not yet through the neighbours"
     return None
 
 
@@ -117,7 +91,7 @@ def read_rules(layers: Iterable["Layer"], specs: Iterable[VarSpec]) -> dict[str,
         for n in (l.superior, l.subordinate):  # the tables' neighbours: command down, status up
             if n is not None:
                 allowed |= {s.name for s in n.state_specs()}
-        for name in l.reads:
+        for name in (*l.reads, *(src for _, src in l.relay_pairs)):  # what it passes on, too
             spec = by_name.get(name)
             if spec is None:
                 problems.append(f"{l.key} declares a read of {name!r}, which no layer declares")
@@ -148,25 +122,28 @@ DOC_END = "<!-- end of the generated reads -->"
 
 def markdown(layers: Iterable["Layer"], specs: Iterable[VarSpec]) -> str:
     """The rule's table for docs/controller.md: every layer's declared reads of the others,
-    grouped by why each is allowed, then the hardware data and the reads not yet through
-    the neighbours with what each waits for."""
+    grouped by why each is allowed, then the hardware data and what the layers between pass
+    on to a layer further away (controller/relays.py)."""
+    layers = list(layers)
     rows = table(layers, specs)
-    out = [DOC_BEGIN, "", "| layer | reads of its neighbours | hardware data | user-interface data | "
-           "not yet through the neighbours |", "|---|---|---|---|---|"]
+    out = [DOC_BEGIN, "", "| layer | reads of its neighbours | hardware data | user-interface data |",
+           "|---|---|---|---|"]
     for key in dict.fromkeys(r[0] for r in rows):
         cells = []
-        for why in ("a neighbour's", "hardware data", "user-interface data", "not yet through the neighbours"):
+        for why in ("a neighbour's", "hardware data", "user-interface data"):
             names = [f"`{n}`" for k, n, _, w in rows if k == key and w == why]
             cells.append(", ".join(names) or "-")
         out.append(f"| {key} | " + " | ".join(cells) + " |")
     out += ["", "Hardware data (any layer may read it: report 2.3.2's exception):", "",
             "| variable | what it is |", "|---|---|"]
     out += [f"| `{n}` | {what} |" for n, what in HARDWARE_DATA.items()]
-    out += ["", "Reads that still skip a layer (issue 33 item 2 stays open until this list is empty):", "",
-            "| layer | variable | owner | what it waits for |", "|---|---|---|---|"]
-    owners = {r[1]: r[2] for r in rows}
-    out += [f"| {k} | `{n}` | {owners.get(n, '?')} | {why} |" for (k, n), why in NOT_YET_NEIGHBOURS.items()]
+    out += ["", "Passed on by the layers between (`controller/relays.py`; each layer's copy is "
+            "`<its prefix>.<origin with _ for .>`, one minor frame per layer):", "",
+            "| variables | from | passed on by | to | what for |", "|---|---|---|---|---|"]
+    by_name = {s.name: s for s in specs}
+    out += [f"| {', '.join(f'`{n}`' for n in r.names)} | {owner_layer(by_name[r.names[0]])} | "
+            f"{', '.join(r.via)} | {r.to} | {r.what} |" for r in RELAYS]
     return "\n".join(out + ["", DOC_END])
 
 
-__all__ = ["HARDWARE_DATA", "NOT_YET_NEIGHBOURS", "read_rules", "table", "why_allowed", "owner_layer", "markdown"]
+__all__ = ["HARDWARE_DATA", "read_rules", "table", "why_allowed", "owner_layer", "markdown"]

@@ -90,6 +90,7 @@ from controller.layers import (
 from controller.messages import Level, Message, MessageBoard
 from controller.neighbours import read_rules
 from controller.paths import MultiSegmentLayer
+from controller.relays import wire as wire_relays
 from controller.trajectory import TrajectoryLayer
 from controller.servo import ERR_MISSED, ServoLayer
 from controller.worldmodel import VarSpec, WorldModel, WorldModelValueError
@@ -409,6 +410,8 @@ class ControllerRuntime:
         """The seven layers, those this process runs and the others (``local_keys`` set)."""
         self._has_daq = "daq" in self.local_keys
         self.layers = build_layers(client if self._has_daq else _InputsOnly(client), require_ft)
+        # what the layers between pass on to a layer further away (controller/relays.py)
+        wire_relays(self.layers, [s for l in self.layers for s in l.specs()])
         #: the layers this process runs (all seven in one process), highest first
         self.run_layers = tuple(l for l in self.layers if l.key in self.local_keys)
         #: the others (a distributed controller): their state is read from the world model
@@ -424,7 +427,7 @@ class ControllerRuntime:
 
     def _init_world_model(self, wm_name: str | None, clock, access_key: str | None) -> None:
         """The world model of every layer's variables and the runtime's (``layers`` set)."""
-        specs = [s for l in self.layers for s in l.specs()] + runtime_specs()
+        specs = [s for l in self.layers for s in l.all_specs()] + runtime_specs()
         self.wm = WorldModel.create(specs, name=wm_name, clock=clock, access_key=access_key, owner="controller")
         try:  # data between neighbours: each layer's declared reads checked, then enforced
             self.wm.set_read_rules(read_rules(self.layers, specs))
@@ -603,6 +606,8 @@ class ControllerRuntime:
         for l in self.run_layers:
             read_as(l.key)
             l.run_table(self)
+            if l.relay_pairs:  # what passes this layer on its way further (controller/relays.py)
+                self.wm.relay(l.key, l.relay_pairs)
         if self._changed:
             self._climb_errors()
         daq_status = self._decided(self.daq)

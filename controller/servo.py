@@ -396,8 +396,8 @@ class ServoLayer(Layer):
     #: other layers' variables read (controller/neighbours.py; the far ones are listed there)
     reads = (
         "daq.brakes_released", "daq.fault_bits", "daq.gripper_current_a", "daq.gripper_rate_m_s", "daq.joint_angle_rad",
-        "daq.joint_rate_rad_s", "daq.motor_current_a", "daq.service_frame", "msp.gripper_force_n",
-        "msp.gripper_request", "msp.gripper_seq", "servo.q_cmd_rad", "servo.q_cmd_valid",
+        "daq.joint_rate_rad_s", "daq.motor_current_a", "daq.service_frame", "joint.msp_gripper_force_n",
+        "joint.msp_gripper_request", "joint.msp_gripper_seq", "servo.q_cmd_rad", "servo.q_cmd_valid",
     )
     error_names = SERVO_ERROR_NAMES
 

@@ -13,7 +13,8 @@ speed and acceleration, rotation speed and acceleration. It starts where the las
 segment ended (the layer holds that pose while it waits for the next one), or - the
 first segment of a playback - at the Cartesian Engine's present command
 ``cart.pos_cmd_m``/``cart.quat_cmd`` (the measured tool pose when there is no valid
-command: ``cart.tool_pos_m``, the Cartesian engine's relay of the Joint Planner's), so a playback never starts with a jump.
+command: ``cart.joint_tool_pos_m``, the Cartesian engine's copy of the Joint Planner's,
+controller/relays.py), so a playback never starts with a jump.
 
 Profile: straight line in position and the geodesic (slerp; rotation vector
 ``r = log(q1 q0^-1)``, ``q(s) = exp(s r) q0``) in orientation, both driven by ONE
@@ -35,7 +36,8 @@ from typing import TYPE_CHECKING, NamedTuple, Sequence
 
 import numpy as np
 
-from controller.layers import Layer
+from controller.layers import JOINT, Layer
+from controller.relays import at
 from controller.messages import Level
 from controller.profile import Trapezoid, plan_trapezoid
 from controller.quat import q_conj, q_from_rotvec, q_mul, q_normalize, q_to_rotvec
@@ -218,7 +220,9 @@ SEG = SegmentVars
 SEG_VARS = SEG.all()
 #: start-pose sources, in order of preference (read only if the model has them)
 CART_START = (CART.cmd_valid, CART.pos_cmd_m, CART.quat_cmd)
-TOOL_START = (CART.tool_pos_m, CART.tool_quat)  # the Cartesian engine's relay of joint.tool_*
+#: the measured tool pose: the Cartesian engine's copy of the Joint Planner's (controller/relays.py)
+TOOL_POS, TOOL_QUAT = at("trajectory", JOINT.tool_pos_m), at("trajectory", JOINT.tool_quat)
+TOOL_START = (TOOL_POS, TOOL_QUAT)
 
 
 def segment_specs() -> list[VarSpec]:
@@ -277,7 +281,7 @@ class TrajectoryLayer(Layer):
     short = "TRAJ"
     #: other layers' variables read (controller/neighbours.py; the far ones are listed there)
     reads = (
-        "cart.cmd_valid", "cart.pos_cmd_m", "cart.quat_cmd", "cart.tool_pos_m", "cart.tool_quat",
+        "cart.cmd_valid", "cart.pos_cmd_m", "cart.quat_cmd", "cart.joint_tool_pos_m", "cart.joint_tool_quat",
         "msp.seg_last", "msp.seg_limits", "msp.seg_pos_m", "msp.seg_quat", "msp.seg_seq", "msp.seg_stop",
     )
 
@@ -312,9 +316,9 @@ class TrajectoryLayer(Layer):
                 return np.asarray(v[CART.pos_cmd_m], float), q_normalize(v[CART.quat_cmd])
         if self._has(rt, TOOL_START):
             v = rt.wm.get_task_inputs(TOOL_START)
-            q = np.asarray(v[CART.tool_quat], float)
+            q = np.asarray(v[TOOL_QUAT], float)
             if float(q @ q) > 0.5:
-                return np.asarray(v[CART.tool_pos_m], float), q_normalize(q)
+                return np.asarray(v[TOOL_POS], float), q_normalize(q)
         return None
 
     def _finish(self, rt: "LayerContext", seq: int, code: int, release: bool) -> None:

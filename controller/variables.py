@@ -107,13 +107,6 @@ class CartVars(VarGroup, prefix="cart", writer="cartesian"):
                                     doc="reference orientation before the force offset")
     hc_active: Var[bool] = var("task_status", "b1", (), False,
                                doc="the (delayed) hand controller moves the reference (deadman held)")
-    tool_pos_m: Var[np.ndarray] = var(
-        "task_io", "f8", (3,), [0.0] * 3, "m",
-        doc="measured tool point, world, as this layer last read it (joint.tool_pos_m, relayed for the "
-            "Trajectory Planner: data only between neighbours, report 2.3.2); with every command (80 Hz)")
-    tool_quat: Var[np.ndarray] = var(
-        "task_io", "f8", (4,), [1.0, 0.0, 0.0, 0.0], "1", valid=UNIT_QUATERNION,
-        doc="measured tool orientation (w x y z), world, relayed likewise (joint.tool_quat)")
 
 
 CART = CartVars

@@ -41,6 +41,7 @@ import numpy as np
 from controller.gripper import GRIP, MSP_GRIP, path_request_specs
 from controller.layers import JMOVE, JMOVE_SPEED, JOINT, Layer
 from controller.messages import Level
+from controller.relays import at
 from controller.paths.check import MAX_TURN_RAD, SAMPLES_PER_RUN, MotionCheck, Target
 from controller.paths.model import DEFAULT_LIMITS, Path, PathError, PathPoint
 from controller.paths.move import MOVE_REQUEST_LEN, MoveKind, MoveRequest
@@ -100,16 +101,26 @@ class MspResult:
              7: "FAILED", 8: "GRIPPER FAILED"}
 
 
-TOOL_POSE = (JOINT.tool_pos_m, JOINT.tool_quat)
-CMD_POSE = (CART.cmd_valid, CART.pos_cmd_m, CART.quat_cmd)
+#: What this layer reads of the layers further down is the Trajectory Planner's copy
+#: (controller/relays.py): the measured tool pose (the Joint Planner's), the Cartesian
+#: command (the Cartesian engine's), the joint command, a joint move's end and the
+#: shoulder-roll index (the Joint Planner's), the gripper's events and answers (Servo Control's)
+TOOL_POS, TOOL_QUAT = at("msp", JOINT.tool_pos_m), at("msp", JOINT.tool_quat)
+CMD_VALID, CMD_POS, CMD_QUAT = (at("msp", n) for n in (CART.cmd_valid, CART.pos_cmd_m, CART.quat_cmd))
+TOOL_POSE = (TOOL_POS, TOOL_QUAT)
+CMD_POSE = (CMD_VALID, CMD_POS, CMD_QUAT)
 #: the gripper's accepted user requests (Servo Control, controller/gripper.py): a recording stores each
-GRIPPER_EVENT = (GRIP.event_seq, GRIP.event, GRIP.event_force_n)
-GRIPPER_DONE = (GRIP.msp_done_seq, GRIP.msp_done_code)
+EVENT_SEQ, EVENT, EVENT_FORCE = (at("msp", n) for n in (GRIP.event_seq, GRIP.event, GRIP.event_force_n))
+GRIPPER_EVENT = (EVENT_SEQ, EVENT, EVENT_FORCE)
+GRIP_DONE_SEQ, GRIP_DONE_CODE = at("msp", GRIP.msp_done_seq), at("msp", GRIP.msp_done_code)
+GRIPPER_DONE = (GRIP_DONE_SEQ, GRIP_DONE_CODE)
 #: what the check and the tracking read from the layers below, when the model has them
-JOINT_VARS = (JOINT.q_cmd_rad, JOINT.q_cmd_valid, DAQ.joint_angle_rad)
-ROLL_VAR = JOINT.shoulder_roll_rad
+Q_CMD, Q_CMD_VALID = at("msp", JOINT.q_cmd_rad), at("msp", JOINT.q_cmd_valid)
+JOINT_VARS = (Q_CMD, Q_CMD_VALID, DAQ.joint_angle_rad)
+ROLL_VAR = at("msp", JOINT.shoulder_roll_rad)
 CART_MODE = CART.mode
-JMOVE_DONE = (JOINT.jmove_done_seq, JOINT.jmove_done_code)
+JM_DONE_SEQ, JM_DONE_CODE = at("msp", JOINT.jmove_done_seq), at("msp", JOINT.jmove_done_code)
+JMOVE_DONE = (JM_DONE_SEQ, JM_DONE_CODE)
 #: cart.mode that follows the Trajectory Planner (controller.cartesian MODE_TRAJECTORY)
 CART_TRAJECTORY = 2
 
@@ -254,11 +265,11 @@ class MultiSegmentLayer(Layer):
     short = "MSPP"
     #: other layers' variables read (controller/neighbours.py; the far ones are listed there)
     reads = (
-        "cart.cmd_valid", "cart.mode", "cart.pos_cmd_m", "cart.quat_cmd", "daq.joint_angle_rad",
-        "gripper.event", "gripper.event_force_n", "gripper.event_seq", "gripper.msp_done_code",
-        "gripper.msp_done_seq", "joint.jmove_done_code", "joint.jmove_done_seq", "joint.shoulder_roll_rad",
-        "joint.tool_pos_m", "joint.tool_quat", "servo.q_cmd_rad", "servo.q_cmd_valid", "traj.done_code",
-        "traj.done_seq",
+        "cart.mode", "daq.joint_angle_rad", "traj.cart_cmd_valid", "traj.cart_pos_cmd_m", "traj.cart_quat_cmd",
+        "traj.done_code", "traj.done_seq", "traj.gripper_event", "traj.gripper_event_force_n",
+        "traj.gripper_event_seq", "traj.gripper_msp_done_code", "traj.gripper_msp_done_seq",
+        "traj.joint_jmove_done_code", "traj.joint_jmove_done_seq", "traj.joint_shoulder_roll_rad",
+        "traj.joint_tool_pos_m", "traj.joint_tool_quat", "traj.servo_q_cmd_rad", "traj.servo_q_cmd_valid",
     )
 
     def __init__(self, store: PathStore | None = None, background_save: bool = True) -> None:
@@ -306,16 +317,16 @@ class MultiSegmentLayer(Layer):
             if not self._has(rt, CMD_POSE):
                 return None
             v = rt.wm.get_task_inputs(CMD_POSE)
-            if not bool(v[CART.cmd_valid]):
+            if not bool(v[CMD_VALID]):
                 return None
-            return np.asarray(v[CART.pos_cmd_m], dtype=float), q_normalize(v[CART.quat_cmd])
+            return np.asarray(v[CMD_POS], dtype=float), q_normalize(v[CMD_QUAT])
         if not self._has(rt, TOOL_POSE):
             return None
         v = rt.wm.get_task_inputs(TOOL_POSE)
-        q = np.asarray(v[JOINT.tool_quat], dtype=float)
+        q = np.asarray(v[TOOL_QUAT], dtype=float)
         if float(q @ q) < 0.5:
             return None
-        return np.asarray(v[JOINT.tool_pos_m], dtype=float), q_normalize(q)
+        return np.asarray(v[TOOL_POS], dtype=float), q_normalize(q)
 
     def _status(self, rt: "LayerContext", **kw: int) -> None:
         rt.wm.post_task_outputs("msp", {getattr(MSP, k): v for k, v in kw.items()})
@@ -363,7 +374,7 @@ class MultiSegmentLayer(Layer):
         self._rec, self._rec_t0 = [], rt.now
         self._teach_seen = int(v[MSP.teach])
         if self._has(rt, GRIPPER_EVENT):
-            self._grip_event_seen = int(rt.wm.get(GRIP.event_seq))
+            self._grip_event_seen = int(rt.wm.get(EVENT_SEQ))
         self.state = MspMode.RECORD
         if bool(v[MSP.capture]):
             self._add_point(rt, *pose, "capture")
@@ -402,18 +413,18 @@ class MultiSegmentLayer(Layer):
         if not self._has(rt, GRIPPER_EVENT):
             return
         g = rt.wm.get_task_inputs(GRIPPER_EVENT)
-        seq = int(g[GRIP.event_seq])
+        seq = int(g[EVENT_SEQ])
         if seq == self._grip_event_seen:
             return
         self._grip_event_seen = seq
-        action = GRIPPER_ACTION_NAMES.get(int(g[GRIP.event]))
+        action = GRIPPER_ACTION_NAMES.get(int(g[EVENT]))
         if action not in ("open", "close", "stop"):
             return  # a grip force alone: each event carries the force in force
         self._rec.append(PathPoint(tuple(float(x) for x in p), tuple(float(x) for x in q), "gripper",
                                    round(rt.now - self._rec_t0, 6), gripper=action,
-                                   force_n=round(float(g[GRIP.event_force_n]), 3)))
+                                   force_n=round(float(g[EVENT_FORCE]), 3)))
         rt.post(self.key, Level.INFO, f"gripper event {len(self._rec) - 1}: {action} at "
-                                      f"{float(g['gripper.event_force_n']):.0f} N")
+                                      f"{float(g[EVENT_FORCE]):.0f} N")
 
     def _stop_record(self, rt, v) -> None:
         pose = self._tool_pose(rt)
@@ -475,13 +486,13 @@ class MultiSegmentLayer(Layer):
         Cartesian command if valid, else the measured tool pose)."""
         if self._has(rt, CMD_POSE):
             v = rt.wm.get_task_inputs(CMD_POSE)
-            if bool(v[CART.cmd_valid]):
-                return np.asarray(v[CART.pos_cmd_m], dtype=float), q_normalize(v[CART.quat_cmd])
+            if bool(v[CMD_VALID]):
+                return np.asarray(v[CMD_POS], dtype=float), q_normalize(v[CMD_QUAT])
         if self._has(rt, TOOL_POSE):
             v = rt.wm.get_task_inputs(TOOL_POSE)
-            q = np.asarray(v[JOINT.tool_quat], dtype=float)
+            q = np.asarray(v[TOOL_QUAT], dtype=float)
             if float(q @ q) > 0.5:
-                return np.asarray(v[JOINT.tool_pos_m], dtype=float), q_normalize(q)
+                return np.asarray(v[TOOL_POS], dtype=float), q_normalize(q)
         return None
 
     def _joint_start(self, rt) -> np.ndarray | None:
@@ -490,8 +501,8 @@ class MultiSegmentLayer(Layer):
         if not self._has(rt, JOINT_VARS):
             return None
         v = rt.wm.get_task_inputs(JOINT_VARS)
-        if bool(v[JOINT.q_cmd_valid]):
-            return np.asarray(v[JOINT.q_cmd_rad], dtype=float).copy()
+        if bool(v[Q_CMD_VALID]):
+            return np.asarray(v[Q_CMD], dtype=float).copy()
         return np.asarray(v[DAQ.joint_angle_rad], dtype=float).copy()
 
     def _roll(self, rt) -> float:
@@ -685,10 +696,10 @@ class MultiSegmentLayer(Layer):
             if not self._has(rt, TOOL_POSE):
                 return
             v = rt.wm.get_task_inputs(TOOL_POSE)
-            qm = np.asarray(v[JOINT.tool_quat], dtype=float)
+            qm = np.asarray(v[TOOL_QUAT], dtype=float)
             if float(qm @ qm) < 0.5:
                 return
-            x = np.asarray(v[JOINT.tool_pos_m], dtype=float)
+            x = np.asarray(v[TOOL_POS], dtype=float)
             i = self._seg_i
             tol = (job.tol_m, job.tol_rad)
             err_m, err_rad = segment_deviation(x, qm, *self._segment_geometry(job, i), tol=tol)
@@ -759,9 +770,9 @@ class MultiSegmentLayer(Layer):
         """The path's gripper event: go on when Servo Control answers it COMPLETE; end the
         playback (GRIPPER FAILED) when it refuses or fails it."""
         v = rt.wm.get_task_inputs(GRIPPER_DONE)
-        if int(v[GRIP.msp_done_seq]) != self._grip_seq:
+        if int(v[GRIP_DONE_SEQ]) != self._grip_seq:
             return
-        code = int(v[GRIP.msp_done_code])
+        code = int(v[GRIP_DONE_CODE])
         if code == IN_PROGRESS:
             return
         self._grip_wait = False
@@ -784,9 +795,9 @@ class MultiSegmentLayer(Layer):
         if not self._has(rt, JMOVE_DONE):
             return
         v = rt.wm.get_task_inputs(JMOVE_DONE)
-        if int(v[JOINT.jmove_done_seq]) != job.jseq:
+        if int(v[JM_DONE_SEQ]) != job.jseq:
             return
-        code = int(v[JOINT.jmove_done_code])
+        code = int(v[JM_DONE_CODE])
         if code == DoneCode.REACHED:
             self._finish(rt, job, f"{job.label} done")
         elif code == DoneCode.STOPPED:

@@ -318,6 +318,7 @@ class WorldModel(UserRequestRing, Segment):
         self._req_step = lay.req_slot_size // 4
         self._hot = tuple(_hot(s, o) for s, o in zip(specs, lay.offsets))
         self._plans: dict[tuple, tuple[tuple[str, int], ...]] = {}
+        self._relay_plans: dict[tuple, tuple[tuple[int, int, int, int], ...]] = {}
         #: data between neighbours (controller/neighbours.py): per layer key, what it may
         #: read; the layer whose table or task runs now (None: no layer, nothing refused)
         self._reader: str | None = None
@@ -568,6 +569,52 @@ class WorldModel(UserRequestRing, Segment):
                     raise
             staged.append((i, raw))
         self._enqueue(staged)
+
+    def relay(self, writer: str, pairs: tuple[tuple[str, str], ...]) -> int:
+        """Republish variables of a neighbour under ``writer``'s own names: each ``(dst, src)``
+        pair copies ``src`` (read under the reading layer's rule) into ``dst`` (``writer``'s,
+        of the same type and shape), queued for the next communications segment like a post,
+        and only when its bytes changed. Returns how many were queued. This is how data
+        passes a layer on its way to a layer further away (report 2.3.2; controller/relays.py).
+
+        :raises WorldModelError: a ``dst`` not ``writer``'s, a ``src`` the reading layer may not
+            read, or a pair whose two variables differ in type or shape
+        """
+        key = (self._reader, writer, pairs)
+        plan = self._relay_plans.get(key)
+        if plan is None:
+            plan = self._relay_plans[key] = self._relay_plan(writer, pairs)
+        if self.readonly:  # an attachment without the body's memory: through the decoded values
+            got = self.get_task_inputs(tuple(src for _, src in pairs))
+            self.post_task_outputs(writer, {dst: got[src] for dst, src in pairs})
+            return len(pairs)
+        self._owner_guard()
+        body = self._body
+        staged = []
+        with self._comm_lock:  # the body changes only in a communications segment
+            for i, o_dst, o_src, n in plan:
+                raw = body[o_src:o_src + n]
+                if raw != body[o_dst:o_dst + n]:
+                    staged.append((i, bytes(raw)))
+        if staged:
+            self._enqueue(staged)
+        return len(staged)
+
+    def _relay_plan(self, writer: str, pairs: tuple[tuple[str, str], ...]) -> tuple[tuple[int, int, int, int], ...]:
+        plan = []
+        may = self._reader_may if self._reader is not None else None
+        for dst, src in pairs:
+            i = self._check_writer(writer, dst)
+            j = self._index.get(src)
+            if j is None:
+                self.spec(src)
+            if may is not None and src not in may:
+                self._refuse_read(src)
+            a, b = self._specs[i], self._specs[j]
+            if a.dtype != b.dtype or a.shape != b.shape:
+                raise WorldModelError(f"relay {src} -> {dst}: {b.type_text} into {a.type_text}")
+            plan.append((i, self._lay.offsets[i], self._lay.offsets[j], a.nbytes))
+        return tuple(plan)
 
     def _refused(self, err: Exception) -> None:
         """A task's post refused (rule 4: the variable keeps its last valid value): counted

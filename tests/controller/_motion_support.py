@@ -12,15 +12,24 @@ from __future__ import annotations
 
 import numpy as np
 
+from dataclasses import replace
+
 from controller.decision import Status
 from controller.frames import FrameConfig
 from controller.messages import MessageBoard
 from controller.paths import MultiSegmentLayer, PathStore
+from controller.relays import relayed
 from controller.trajectory import TrajectoryLayer
 from controller.worldmodel import VarSpec, WorldModel
 from pfma.clock import SimClock
 
 Q_ID = [1.0, 0.0, 0.0, 0.0]
+TOOL = ("joint.tool_pos_m", "joint.tool_quat")
+CMD = ("cart.cmd_valid", "cart.pos_cmd_m", "cart.quat_cmd")
+#: what the Trajectory Planner passes on to the Path Planner (controller/relays.py): the tool
+#: pose (the Cartesian engine's copy) and the Cartesian command
+TRAJ_PAIRS = tuple((relayed("trajectory", n), relayed("cartesian", n)) for n in TOOL) + \
+    tuple((relayed("trajectory", n), n) for n in CMD)
 
 
 def below_specs() -> list[VarSpec]:
@@ -33,13 +42,23 @@ def below_specs() -> list[VarSpec]:
     ]
 
 
+def relay_specs(below: list[VarSpec]) -> list[VarSpec]:
+    """The copies the Cartesian engine (of the tool pose) and the Trajectory Planner (of the
+    tool pose and the command) pass on (controller/relays.py)."""
+    by = {s.name: s for s in below}
+    return [replace(by[n], name=relayed("cartesian", n), writer="cartesian") for n in TOOL] + \
+        [replace(by[n], name=relayed("trajectory", n), writer="trajectory") for n in TOOL + CMD]
+
+
 class MiniRt:
     def __init__(self, store: PathStore, p0=(1.5, 0.0, -0.3), q0=Q_ID) -> None:
         self.frames = FrameConfig()
         self.clock = SimClock()
         self.msp = MultiSegmentLayer(store, background_save=False)
         self.traj = TrajectoryLayer()
-        self.wm = WorldModel.create(self.msp.specs() + self.traj.specs() + below_specs(), clock=self.clock)
+        below = below_specs()
+        self.wm = WorldModel.create(self.msp.specs() + self.traj.specs() + below + relay_specs(below),
+                                    clock=self.clock)
         self.key = self.wm.access_key
         self.messages = MessageBoard()
         self.frame = 0
@@ -75,6 +94,9 @@ class MiniRt:
                 self.cmd_p, self.cmd_q = np.asarray(p, float), np.asarray(q, float)
             self.wm.post_task_outputs("cartesian", {"cart.pos_cmd_m": self.cmd_p, "cart.quat_cmd": self.cmd_q})
             self.wm.post_task_outputs("joint", {"joint.tool_pos_m": self.cmd_p, "joint.tool_quat": self.cmd_q})
+            self.wm.post_task_outputs("cartesian", {relayed("cartesian", TOOL[0]): self.cmd_p,
+                                                    relayed("cartesian", TOOL[1]): self.cmd_q})
+            self.wm.relay("trajectory", TRAJ_PAIRS)  # as the runtime does after the layer's table
             k = self.frame % 16
             if k % 8 == 7:
                 self.traj.plan_task(self)

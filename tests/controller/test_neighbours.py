@@ -10,7 +10,8 @@ import os
 import pytest
 
 from controller import neighbours
-from controller.neighbours import HARDWARE_DATA, NOT_YET_NEIGHBOURS, read_rules, why_allowed
+from controller.neighbours import HARDWARE_DATA, read_rules, why_allowed
+from controller.relays import RELAYS, Relay, at, relayed, wire
 from controller.worldmodel import WorldModel, WorldModelError
 
 ORDER = ["updown", "msp", "trajectory", "cartesian", "joint", "servo", "daq"]
@@ -38,17 +39,64 @@ def test_every_declared_read_is_allowed_and_says_why(wired):
             assert by_name[name].writer == "user"
 
 
-def test_every_read_still_skipping_a_layer_is_declared_and_would_be_refused(wired):
-    """The list of reads not yet through the neighbours can only shrink: each entry is read
-    by its layer, and each is a far read that the rule would refuse without it."""
+def test_no_layer_reads_further_than_its_neighbour(wired):
+    """Issue 33 item 2 done: every declared read is the reader's neighbour's, hardware data or
+    user-interface data; what comes from further away is the neighbour's copy."""
     layers, specs = wired
+    rows = neighbours.table(layers, specs)
+    assert {why for *_, why in rows} == {"a neighbour's", "hardware data", "user-interface data"}
     by_key = {l.key: l for l in layers}
-    by_name = {s.name: s for s in specs}
-    for (reader, name), why in NOT_YET_NEIGHBOURS.items():
-        assert name in by_key[reader].reads, (reader, name)
-        owner = neighbours.owner_layer(by_name[name])
-        assert owner in ORDER and abs(ORDER.index(owner) - ORDER.index(reader)) > 1, (reader, name, owner)
-        assert name not in HARDWARE_DATA and why
+    for r in RELAYS:
+        for name in r.names:
+            assert name not in by_key[r.to].reads, (r.to, name)  # not the origin ...
+            assert at(r.to, name) in by_key[r.to].reads, (r.to, name)
+            # ... but the copy of the layer next to it, which each layer between passes on
+            src = name
+            for k in r.via:
+                assert (relayed(k, name), src) in by_key[k].relay_pairs
+                src = relayed(k, name)
+
+
+def test_a_relay_must_be_a_run_of_neighbours_and_name_something(wired):
+    layers, specs = wired
+    with pytest.raises(WorldModelError, match="msp -> cartesian -> joint is not a run of neighbours"):
+        wire(layers, specs, (Relay(("msp.jmove_seq",), ("msp", "cartesian"), "joint", "skips"),))
+    with pytest.raises(WorldModelError, match="relay of msp.no_such: no layer declares it"):
+        wire(layers, specs, (Relay(("msp.no_such",), ("trajectory", "cartesian"), "joint", "nothing"),))
+
+
+def test_requests_and_answers_arrive_a_layer_a_minor_frame_whole():
+    """A joint move's request posted by the Path Planner reaches the Joint Planner as the
+    Cartesian engine's copy two minor frames later (one per layer between), payload and
+    sequence number in the same frame; the camera route request reaches Data Acquisition
+    through the five layers between."""
+    import numpy as np
+
+    from sim.system import SystemSimulator
+    with SystemSimulator() as sim:
+        sim.step(10)
+        sim.power_up(400)
+        sim.step(4)
+        wm = sim.rt.wm
+        goal = np.asarray(wm.get("servo.q_cmd_rad"), float)
+        seen = []
+
+        def watch():
+            seen.append((int(wm.get("traj.msp_jmove_seq")), int(wm.get("cart.msp_jmove_seq")),
+                         np.asarray(wm.get("cart.msp_jmove_goal_rad"), float).copy()))
+        wm.post_task_outputs("msp", {"msp.jmove_goal_rad": goal, "msp.jmove_seq": 77})
+        wm.communications_segment()
+        for _ in range(3):
+            sim.step(1)
+            watch()
+        assert [s[:2] for s in seen] == [(77, 0), (77, 77), (77, 77)]
+        assert np.allclose(seen[1][2], goal)  # with its payload
+        seq0 = int(wm.get("servo.updown_route_request_seq"))
+        wm.post_task_outputs("updown_requests", {"updown.route_request": 1 * 16 + 2,
+                                                 "updown.route_request_seq": seq0 + 1})
+        wm.communications_segment()
+        frames = sim.run_until(lambda: int(wm.get("servo.updown_route_request_seq")) == seq0 + 1, 20)
+        assert frames == 5 and int(wm.get("servo.updown_route_request")) == 18
 
 
 def test_wiring_refuses_a_far_read_naming_layer_variable_and_owner(wired, monkeypatch):
@@ -122,19 +170,41 @@ def test_docs_show_the_declared_reads(wired):
 
 
 def test_the_trajectory_planner_reads_the_tool_pose_through_the_cartesian_engine():
-    """Its start pose without a valid Cartesian command is the Cartesian engine's relay of
-    the Joint Planner's measured pose (cart.tool_*), not joint.tool_* two layers down; the
-    relay is the measured pose as of the engine's last command (80 Hz)."""
+    """Its start pose without a valid Cartesian command is the Cartesian engine's copy of the
+    Joint Planner's measured pose (cart.joint_tool_*), not joint.tool_* two layers down."""
     import numpy as np
 
     from controller.trajectory import TrajectoryLayer
     from sim.system import SystemSimulator
     assert not any(n.startswith("joint.") for n in TrajectoryLayer.reads)
-    assert not any(layer == "trajectory" for layer, _ in neighbours.NOT_YET_NEIGHBOURS)
     with SystemSimulator() as sim:
         sim.step(10)
         sim.power_up(400)
         sim.step(8)
         wm = sim.rt.wm
-        assert np.allclose(wm.get("cart.tool_pos_m"), wm.get("joint.tool_pos_m"), atol=1e-4)
-        assert np.allclose(wm.get("cart.tool_quat"), wm.get("joint.tool_quat"), atol=1e-4)
+        assert np.allclose(wm.get("cart.joint_tool_pos_m"), wm.get("joint.tool_pos_m"), atol=1e-4)
+        assert np.allclose(wm.get("cart.joint_tool_quat"), wm.get("joint.tool_quat"), atol=1e-4)
+        assert np.allclose(wm.get("traj.joint_tool_pos_m"), wm.get("joint.tool_pos_m"), atol=1e-4)
+
+
+def test_a_relay_copies_like_for_like_and_only_what_changed():
+    from controller.worldmodel import VarSpec
+    specs = [VarSpec("a.x", "task_io", "f8", (3,), "a", [0.0] * 3, "m"),
+             VarSpec("b.a_x", "task_io", "f8", (3,), "b", [0.0] * 3, "m"),
+             VarSpec("b.n", "task_io", "i4", (), "b", 0)]
+    wm = WorldModel.create(specs)
+    try:
+        pairs = (("b.a_x", "a.x"),)
+        assert wm.relay("b", pairs) == 0  # equal bytes: nothing queued
+        wm.post_task_outputs("a", {"a.x": [1.0, 2.0, 3.0]})
+        wm.communications_segment()
+        assert wm.relay("b", pairs) == 1
+        wm.communications_segment()
+        assert list(wm.get("b.a_x")) == [1.0, 2.0, 3.0]
+        assert wm.relay("b", pairs) == 0
+        with pytest.raises(WorldModelError, match="written only by 'b'"):
+            wm.relay("a", pairs)
+        with pytest.raises(WorldModelError, match="relay a.x -> b.n"):
+            wm.relay("b", (("b.n", "a.x"),))
+    finally:
+        wm.close()

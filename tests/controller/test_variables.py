@@ -165,8 +165,8 @@ def test_cart_names_are_the_old_strings() -> None:
     from controller.variables import CART
     assert [str(v) for v in CART.all()] == [f"cart.{n}" for n in (
         "mode", "hc_source", "hc_frame", "hc_gain_lin_m_s", "hc_gain_rot_rad_s", "vernier", "pos_cmd_m", "quat_cmd",
-        "cmd_valid", "cmd_seq", "ref_pos_m", "ref_quat", "hc_active", "tool_pos_m", "tool_quat")]
-    assert [v.writer for v in CART.all()] == ["user"] * 6 + ["cartesian"] * 9
+        "cmd_valid", "cmd_seq", "ref_pos_m", "ref_quat", "hc_active")]
+    assert [v.writer for v in CART.all()] == ["user"] * 6 + ["cartesian"] * 7
     assert cartesian.MODE_NAMES is variables.MODE_NAMES and cartesian.MODE_TRAJECTORY == 2  # still importable there
     specs = {s.name: s for s in cartesian.CartesianLayer().specs()}
     assert all(specs[v].name is v for v in CART.all())
