@@ -208,3 +208,14 @@ def test_a_relay_copies_like_for_like_and_only_what_changed():
             wm.relay("b", (("b.n", "a.x"),))
     finally:
         wm.close()
+
+
+def test_a_read_only_attachment_cannot_relay(wired):
+    from sim.system import SystemSimulator
+    with SystemSimulator(wm_name=f"pfma-nb-ro-{os.getpid()}") as sim:
+        ro = WorldModel.attach(sim.rt.wm.name)
+        try:
+            with pytest.raises(WorldModelError, match="attached read-only here; relaying belongs to its owner"):
+                ro.relay("trajectory", (("traj.joint_tool_pos_m", "cart.joint_tool_pos_m"),))
+        finally:
+            ro.close()
