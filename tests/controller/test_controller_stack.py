@@ -112,3 +112,29 @@ def test_every_live_driver_stops_between_frames_on_a_taken_signal():
     d.closing = True
     with pytest.raises(AssertionError):  # past the check: the pacer it would wait on
         Driver.frame(d)
+
+
+def _stack_options(*argv: str) -> ControllerOptions:
+    import argparse
+
+    from tools.cli.controller.arguments import add_parser
+    from tools.cli.controller.common import stack_options
+    p = argparse.ArgumentParser(prog="pfma")
+    add_parser(p.add_subparsers(dest="verb"), "controller")
+    return stack_options(p.parse_args(["controller", *argv]))
+
+
+@pytest.mark.parametrize("argv, run", [((), 2), (("--max-missed-run", "5"), 5), (("--max-missed-run", "0"), 0)])
+def test_max_missed_run_reaches_the_runtime_s_frames(wm_name, argv, run):
+    opts = _stack_options("--sim", "--wm", wm_name, "-q", *argv)
+    with ControllerStack(opts) as stack:
+        assert stack.rt.frames.max_missed_run == run
+        assert stack.rt.stats()["max_missed_run"] == run
+
+
+@pytest.mark.parametrize("bad", ["17", "-1", "two"])
+def test_a_max_missed_run_outside_a_major_frame_is_a_usage_error(bad, capsys):
+    with pytest.raises(SystemExit) as e:
+        _stack_options("--sim", "--max-missed-run", bad)
+    assert e.value.code == 2
+    assert "--max-missed-run" in capsys.readouterr().err

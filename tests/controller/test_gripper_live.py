@@ -18,7 +18,7 @@ from bit3.client import Client
 from bit3.layout import ServiceState
 from controller.worldmodel import WorldModel
 from pfma.gripper import GripperState
-from tests.controller._live_support import RERUN_ON_HOST_TIMING, host_timing_named, PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for, start_service
+from tests.controller._live_support import RERUN_ON_HOST_TIMING, SLOW_HOST_CONTROLLER, host_timing_named, PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for, start_service
 
 pytestmark = [pytest.mark.realtime, RERUN_ON_HOST_TIMING]
 
@@ -48,7 +48,7 @@ def test_pfma_controller_gripper_open_then_close_moves_the_live_jaw(tmp_path):
             def start() -> subprocess.Popen:
                 with open(log, "w") as out:
                     return subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--power-up", "--duration",
-                                             "60", *RT], cwd=ROOT, stdout=out, stderr=subprocess.STDOUT)
+                                             "60", *RT, *SLOW_HOST_CONTROLLER], cwd=ROOT, stdout=out, stderr=subprocess.STDOUT)
             ctl = power_up_holding(start, lambda: armed_and_released(name), log=log)
             assert wait_for(lambda: (g := _gripper(wm)) is not None and int(g["gripper.state"]) == GripperState.STOPPED,
                             timeout_s=30), "the controller never powered the gripper up"

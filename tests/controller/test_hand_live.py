@@ -16,7 +16,7 @@ import pytest
 from bit3.buffer import Bit3Buffer
 from bit3.layout import HAND_CONTROLLERS, ServiceState
 from controller.worldmodel import WorldModel
-from tests.controller._live_support import RERUN_ON_HOST_TIMING, host_timing_named, PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for, start_service
+from tests.controller._live_support import RERUN_ON_HOST_TIMING, SLOW_HOST_CONTROLLER, host_timing_named, PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for, start_service
 
 pytestmark = [pytest.mark.realtime, RERUN_ON_HOST_TIMING]
 
@@ -43,7 +43,7 @@ def test_the_simulated_stick_flies_the_live_arm_with_the_deadman_only():
         with host_timing_named(lambda: ctl):
             ctl = power_up_holding(
                 lambda: subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--power-up", "--teleop",
-                                          "cae", "--duration", "60", "--messages", "60", *RT], cwd=ROOT,
+                                          "cae", "--duration", "60", "--messages", "60", *RT, *SLOW_HOST_CONTROLLER], cwd=ROOT,
                                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
                 lambda: armed_and_released(name))
             p0 = _tool(wm)

@@ -19,7 +19,7 @@ import pytest
 from bit3.buffer import Bit3Buffer
 from controller.decision import Status
 from controller.worldmodel import WorldModel
-from tests.controller._live_support import RERUN_ON_HOST_TIMING, host_timing_named, PY, ROOT, RT, armed_and_released, power_up_holding, stop, wait_for, start_service
+from tests.controller._live_support import RERUN_ON_HOST_TIMING, SLOW_HOST_CONTROLLER, host_timing_named, PY, ROOT, RT, armed_and_released, power_up_holding, stop, wait_for, start_service
 
 pytestmark = [pytest.mark.realtime, RERUN_ON_HOST_TIMING]
 
@@ -59,7 +59,7 @@ def test_move_from_the_shell_and_python_keeps_the_orientation_and_a_turning_one_
         with host_timing_named(lambda: ctl):
             ctl = power_up_holding(
                 lambda: subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--power-up", "--duration",
-                                          "60", "--messages", "60", *RT], cwd=ROOT, stdout=subprocess.PIPE,
+                                          "60", "--messages", "60", *RT, *SLOW_HOST_CONTROLLER], cwd=ROOT, stdout=subprocess.PIPE,
                                          stderr=subprocess.STDOUT, text=True),
                 lambda: armed_and_released(name))
             assert wait_for(lambda: _msp_up(wm)), "the path planner never started"

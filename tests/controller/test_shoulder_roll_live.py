@@ -17,7 +17,7 @@ import pytest
 
 from bit3.buffer import Bit3Buffer
 from controller.worldmodel import WorldModel
-from tests.controller._live_support import RERUN_ON_HOST_TIMING, host_timing_named, PY, ROOT, RT, armed_and_released, live_inputs, stop, wait_for
+from tests.controller._live_support import RERUN_ON_HOST_TIMING, SLOW_HOST_CONTROLLER, SLOW_HOST_SERVICE, host_timing_named, PY, ROOT, RT, armed_and_released, live_inputs, stop, wait_for
 
 pytestmark = [pytest.mark.realtime, RERUN_ON_HOST_TIMING]
 
@@ -28,7 +28,7 @@ pytestmark = [pytest.mark.realtime, RERUN_ON_HOST_TIMING]
 def test_serve_and_controller_at_45_deg_power_up_and_report_the_index():
     tag = uuid.uuid4().hex[:6]
     name, wm = f"pfma-test-roll-{tag}", f"pfma_test_roll_{tag}"
-    serve = subprocess.Popen([*PY, "serve", "--buffer", name, "--shoulder-roll", "45", "--duration", "60", *RT],
+    serve = subprocess.Popen([*PY, "serve", "--buffer", name, "--shoulder-roll", "45", "--duration", "60", *RT, *SLOW_HOST_SERVICE],
                              cwd=ROOT,
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     ctl = None
@@ -36,7 +36,7 @@ def test_serve_and_controller_at_45_deg_power_up_and_report_the_index():
         with host_timing_named(lambda: ctl, lambda: serve):
             assert wait_for(lambda: live_inputs(name) is not None), "the service did not come up"
             ctl = subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", wm, "--shoulder-roll", "45",
-                                    "--power-up", "--duration", "4", "--messages", "0", *RT], cwd=ROOT,
+                                    "--power-up", "--duration", "4", "--messages", "0", *RT, *SLOW_HOST_CONTROLLER], cwd=ROOT,
                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
             assert wait_for(lambda: armed_and_released(name)), "the controller never powered up"
             got = subprocess.run([*PY, "wm", "get", "joint.shoulder_roll_rad", "joint.shoulder_roll_deg", "--name", wm,

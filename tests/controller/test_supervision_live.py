@@ -14,7 +14,7 @@ import pytest
 
 from bit3.buffer import Bit3Buffer
 from pfma.process import host_timing_cause
-from tests.controller._live_support import RERUN_ON_HOST_TIMING, host_timing_named, PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for, start_service
+from tests.controller._live_support import RERUN_ON_HOST_TIMING, SLOW_HOST_CONTROLLER, host_timing_named, PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for, start_service
 
 pytestmark = [pytest.mark.realtime, RERUN_ON_HOST_TIMING]
 
@@ -37,7 +37,7 @@ def test_a_motion_fault_on_the_live_arm_stops_it_and_names_joint_and_cause(spec,
         with host_timing_named(lambda: ctl):
             ctl = power_up_holding(
                 lambda: subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", "none", "--power-up",
-                                          "--duration", "8", "--messages", "400", *RT], cwd=ROOT,
+                                          "--duration", "8", "--messages", "400", *RT, *SLOW_HOST_CONTROLLER], cwd=ROOT,
                                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
                 lambda: armed_and_released(name))
             inj = subprocess.run([*PY, "fault", "inject", "--buffer", name, spec], cwd=ROOT, capture_output=True,
@@ -68,7 +68,7 @@ def test_a_brake_switch_left_off_fails_the_live_power_up_naming_the_joint():
         with host_timing_named(lambda: ctl):
             for _ in range(3):
                 ctl = subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", "none", "--power-up",
-                                        "--duration", "4", "--messages", "400", *RT], cwd=ROOT,
+                                        "--duration", "4", "--messages", "400", *RT, *SLOW_HOST_CONTROLLER], cwd=ROOT,
                                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
                 out, _ = ctl.communicate(timeout=60)
                 outs.append(out)

@@ -201,6 +201,8 @@ class ControllerOptions:
     trace: bool = False  #: print each frame's trace line
     changes: bool = False  #: ... only of frames in which a status changed
     distributed: Distribution | None = None  #: one process of a distributed controller
+    #: service frames it may miss in a row before a servo fault (None: FrameConfig's default, 2)
+    max_missed_run: int | None = None
     say: Callable[[str], None] = field(default=lambda line: print(line, flush=True))  #: where lines go
 
 
@@ -417,7 +419,8 @@ class ControllerStack(contextlib.ExitStack):
         try:
             self.callback(self._restore_signals)  # the last thing closed
             from controller.frames import FrameConfig
-            frames = FrameConfig.profile(self.options.profile)
+            run = self.options.max_missed_run
+            frames = FrameConfig.profile(self.options.profile, **({} if run is None else {"max_missed_run": run}))
             if self.options.distributed is not None:
                 driver: Driver = self._open_distributed(frames)
             elif self.options.sim:

@@ -68,6 +68,11 @@ def add_parser(sub, description: str):
     add_sim_errors(p)
     p.add_argument("--no-ft", action="store_true", help="a stale F/T link is not a fault")
     p.add_argument("--tables", action="store_true", help="print the decision tables and the schedule")
+    p.add_argument("--max-missed-run", type=_missed_run, default=None, metavar="FRAMES",
+                   help="service frames the controller may miss in a row before it is a servo fault (code 12; "
+                        "default 2, fitting the service's default age limit of 4 frames). For a host too slow for "
+                        "that: raise it with `pfma serve --max-input-age` raised by as much, and its --watchdog-ms to "
+                        "cover that age (the service still refuses every rate command older than its own limit)")
     p.add_argument("--realtime", action=argparse.BooleanOptionalAction, default=None,
                    help="SCHED_FIFO priority 49 pinned to CPU 0 (pfma serve takes the last CPU): taken by default "
                         "where this user may, said in one line; --no-realtime opts out (PFMA_REALTIME=off turns "
@@ -164,6 +169,14 @@ def _add_path_arguments(p) -> None:
                    help="allow the playback (or `move`) to turn the tool up to DEG degrees from its starting "
                         "orientation (msp.max_turn_rad, default 30: more is refused before it starts)")
 
+
+
+def _missed_run(text: str) -> int:
+    from controller.frames import MINOR_FRAMES_PER_MAJOR
+    v = whole_number(text)
+    if not 0 <= v <= MINOR_FRAMES_PER_MAJOR:
+        raise argparse.ArgumentTypeError(f"{text} must be 0..{MINOR_FRAMES_PER_MAJOR} (frames of one major frame)")
+    return v
 
 
 def _turn_degrees(text: str) -> float:
