@@ -100,6 +100,10 @@ from bit3.layout import ServiceState, Severity
 
 #: frames kept in the trace by default (about 6 s at 320 Hz)
 TRACE_FRAMES = 2048
+#: a layer's message level -> its severity in the Bit3 controller message queue (the same
+#: four names; a DEBUG line stays DEBUG there, where tools may leave it out)
+_SEVERITY = {Level.DEBUG: Severity.DEBUG, Level.INFO: Severity.INFO, Level.WARNING: Severity.WARNING,
+             Level.ERROR: Severity.ERROR}
 #: at most one missed-frame WARNING per this many seconds; the others are counted into the next
 MISSED_MESSAGE_INTERVAL_S = 1.0
 #: controller statistics are published (world model, Bit3 controller_stats) this often
@@ -532,9 +536,7 @@ class ControllerRuntime:
         read it."""
         if getattr(self.client, "role", None) == "controller":
             try:
-                self.client.post_message(f"{m.source}: {m.text}",
-                                         Severity.ERROR if m.level >= Level.ERROR else
-                                         Severity.WARNING if m.level >= Level.WARNING else Severity.INFO)
+                self.client.post_message(f"{m.source}: {m.text}", _SEVERITY[m.level])
             except Exception:  # noqa: BLE001 - messages never stop the controller
                 pass
 

@@ -113,3 +113,21 @@ def test_message_queues_hold_50_per_source_and_show_the_last_100_in_time_order()
     for i in range(100):
         mb.post(f"src{i % 4}", 2, "x", t_s=1.0 + i, frame=i)
     assert len(mb.recent()) == 100 and mb.recent()[-1].t_s == 100.0
+
+
+def test_each_layer_message_reaches_the_bit3_queue_at_its_own_level():
+    """A DEBUG line (a task created) stays DEBUG in the controller's Bit3 queue, where it was
+    once forwarded as INFO; INFO, WARNING and ERROR keep theirs."""
+    from bit3.layout import Severity
+    from controller.messages import Level
+    from sim.system import SystemSimulator
+    with SystemSimulator() as sim:
+        sim.step(10)
+        sim.power_up(1000)
+        for lvl in (Level.INFO, Level.WARNING, Level.ERROR):
+            sim.rt.post("runtime", lvl, f"a {lvl.name} line")
+        got = {m.text: m.severity for m in sim.client.messages(queue="controller")}
+    assert got["trajectory: task trajectory_planner created"] == Severity.DEBUG
+    assert got["runtime: a INFO line"] == Severity.INFO
+    assert got["runtime: a WARNING line"] == Severity.WARNING
+    assert got["runtime: a ERROR line"] == Severity.ERROR
