@@ -11,6 +11,9 @@ stime from /proc over the run), the host stalls the service named. A process tha
 reported with its exit code and the tail of its output, never a traceback.
 
 ``pfma bench stack --minutes 10 [--json]``; ``--minutes 0.05`` is the short variant a test runs.
+``--clock own --profile overview`` runs the controller on its own frame clock at 268 Hz (the
+service keeps its 320 Hz; issue 33 item 5); every run reports the age of the command each
+armed service frame applied (``command_age``: frames, from the recording, so every frame).
 ``--hog`` runs one CPU hog beside the stack (a busy Python loop at nice 0, as issue 29's
 "done when" asks: an ordinary host's other work), reported with its CPU %; the report's
 ``held`` says whether no layer went to ERROR.
@@ -321,12 +324,35 @@ def _watch_report(watch: _Watch, rep: dict) -> None:
     rep["held"] = not rep["layers_in_error"] and not rep["errors"]
 
 
-def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = False, hog: bool = False) -> dict:
+def command_ages(path: Path, limit: int = 4) -> dict | None:
+    """The age of the command each ARMED service frame of the recording applied (its frame
+    minus the inputs frame the command was computed from: the service's freshness rule's
+    figure, ``command_input_age_frames``): count, p50, p99, max and how many were over
+    ``limit`` (the service's default age limit, frames). None without a readable recording."""
+    import numpy as np
+
+    from bit3.layout import ServiceState
+    from tools.recording.reader import read_frames
+    try:
+        ages = [int(r["command_input_age_frames"]) for _, _, r in read_frames(path)
+                if int(r["service_state"]) == ServiceState.ARMED]
+    except Exception:  # noqa: BLE001 - no recording (it is reported as such): no figure
+        return None
+    if not ages:
+        return {"frames": 0}
+    a = np.array(ages)
+    return {"frames": len(a), "p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
+            "max": int(a.max()), f"over_{limit}": int((a > limit).sum())}
+
+
+def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = False, hog: bool = False,
+            clock: str = "locked", profile: str = "layers") -> dict:
     py = sys.executable
     name = "pfma-stack-" + uuid.uuid4().hex[:6]
     rec_path = workdir / "stack.mcap"
     procs: dict[str, _Proc] = {}
-    rep: dict = {"minutes": minutes, "buffer": name, "started": [], "errors": [], "realtime": realtime, "hog": hog}
+    rep: dict = {"minutes": minutes, "buffer": name, "started": [], "errors": [], "realtime": realtime, "hog": hog,
+                 "clock": clock, "profile": profile}
     rt_flag = ["--realtime"] if realtime else []  # service SCHED_FIFO on the last CPU, controller on CPU 0
     client = None
     watch = None
@@ -334,7 +360,8 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
         client = _start(procs, name, workdir, rt_flag, hog, rep)
         if client is not None and not rep["errors"]:
             procs["controller"] = _Proc("controller", [py, "-m", "tools.cli", "controller", "--buffer", name,
-                                                       "--wm", name + "-wm", "--power-up", *rt_flag], workdir)
+                                                       "--wm", name + "-wm", "--power-up", "--clock", clock,
+                                                       "--profile", profile, *rt_flag], workdir)
             procs["recorder"] = _Proc("recorder", [py, "-m", "tools.cli", "record", str(rec_path), "--buffer", name,
                                                    "--quiet"], workdir)
             rep["started"] += ["controller", "recorder"]
@@ -356,6 +383,7 @@ def measure(minutes: float, workdir: Path, *, progress=None, realtime: bool = Fa
         _watch_report(watch, rep)
     rep["recorder"] = recorder_summary(rec_path, ("frames_recorded", "recorder_missed", "service_skipped",
                                                   "messages_missed", "lossless", "sessions"))
+    rep["command_age"] = command_ages(rec_path)
     return rep
 
 
@@ -374,7 +402,8 @@ def _pairs_text(d) -> str:
 
 def _print(rep: dict) -> None:
     print(f"stack on buffer {rep['buffer']}: {rep.get('run_s', 0):g} s measured "
-          f"(service up in {rep.get('service_start_s')} s){', beside a CPU hog' if rep.get('hog') else ''}")
+          f"(service up in {rep.get('service_start_s')} s){', beside a CPU hog' if rep.get('hog') else ''}; "
+          f"controller clock {rep.get('clock')}, profile {rep.get('profile')}")
     if "held" in rep:
         print(f"  {'HELD: no layer went to ERROR' if rep['held'] else 'NOT HELD: see the problems and layers below'}")
     _print_processes(rep)
@@ -388,6 +417,9 @@ def _print(rep: dict) -> None:
     r = rep.get("recorder")
     if r:
         print(f"  recorder: {_pairs_text(r)}")
+    a = rep.get("command_age")
+    if a:
+        print(f"  command age at the service (armed frames, service frames): {_pairs_text(a)}")
     if "trips" in rep:
         _print_messages(rep)
 
@@ -441,23 +473,25 @@ def _print_messages(rep: dict) -> None:
         print(f"    ... {len(rep['messages']) - 40} more (--json has them all)")
 
 
-def figures(minutes: float = 0.5, realtime: bool = False, hog: bool = False) -> dict:
+def figures(minutes: float = 0.5, realtime: bool = False, hog: bool = False, clock: str = "locked",
+            profile: str = "layers") -> dict:
     """The whole stack for ``minutes`` (real time): its headline figures (the full report is
     ``run(as_json=True)``). ``minutes`` and ``run_s`` name the duration."""
     with tempfile.TemporaryDirectory(prefix="pfma-bench-stack-") as d:
-        rep = measure(minutes, Path(d), realtime=realtime, hog=hog)
+        rep = measure(minutes, Path(d), realtime=realtime, hog=hog, clock=clock, profile=profile)
     procs = rep.get("processes", {})
     return {"minutes": minutes, "run_s": rep.get("run_s"), "realtime": realtime, "hog": hog, "held": rep.get("held"),
             "service_start_s": rep.get("service_start_s"),
             "cpu_percent": {k: p.get("cpu_percent") for k, p in procs.items()},
             "service_stats": rep.get("service_stats"), "controller_stats": rep.get("controller_stats"),
             "ft_link": rep.get("ft_link"), "host_stalls": rep.get("host_stalls"), "recorder": rep.get("recorder"),
+            "clock": clock, "profile": profile, "command_age": rep.get("command_age"),
             "trips": len(rep.get("trips", [])), "layers_in_error": rep.get("layers_in_error", []),
             "warnings_errors": len(rep.get("messages", [])), "errors": rep["errors"]}
 
 
 def run(seconds: float | None = None, minutes: float = 10.0, as_json: bool = False, realtime: bool = False,
-        hog: bool = False) -> dict:
+        hog: bool = False, clock: str = "locked", profile: str = "layers") -> dict:
     """Run the stack; ``seconds`` (``pfma bench --seconds``) overrides ``minutes`` when given."""
     if seconds is not None:
         minutes = seconds / 60.0
@@ -465,9 +499,10 @@ def run(seconds: float | None = None, minutes: float = 10.0, as_json: bool = Fal
     if not as_json:
         print(f"pfma serve --rack fake + pfma controller --power-up + pfma record, {minutes:g} min"
               f"{' (service and controller --realtime)' if realtime else ''}"
-              f"{', beside one CPU hog at nice 0' if hog else ''}", flush=True)
+              f"{', beside one CPU hog at nice 0' if hog else ''}; controller --clock {clock} --profile {profile}",
+              flush=True)
     with tempfile.TemporaryDirectory(prefix="pfma-bench-stack-") as d:
-        rep = measure(minutes, Path(d), progress=progress, realtime=realtime, hog=hog)
+        rep = measure(minutes, Path(d), progress=progress, realtime=realtime, hog=hog, clock=clock, profile=profile)
     if as_json:
         print(json.dumps(rep, indent=1))
     else:

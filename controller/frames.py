@@ -27,8 +27,21 @@ Rate profiles (select with ``FrameConfig.profile(name)`` or ``pfma controller
     generation and hand controller inputs are processed at a 33 Hz rate." With 16
     minor frames per major frame these are dividers 2, 4 and 8 of a 268 Hz minor frame
     (3.73 ms, "about 3 ms"): servo 134 Hz, joint planner and Cartesian engine 67 Hz,
-    trajectory and path planners 33.5 Hz. The I/O service must then run 268 Hz frames
-    too (its resolvers at 134 Hz); the system simulator does this when asked.
+    trajectory and path planners 33.5 Hz. Locked to the service, the I/O service must
+    then run 268 Hz frames too (its resolvers at 134 Hz); the system simulator does this
+    when asked. With the controller's own clock (below) the service keeps its rates.
+
+Clocks (``FrameConfig.clock``, ``pfma controller --clock``; docs/controller.md "Two clocks"):
+
+``locked`` (default)
+    a minor frame runs right after each service frame; its number is the service's.
+``own``
+    the controller's own frame clock, as the report's computational chassis had its own
+    frame interrupt (board 2) and the I/O chassis its own rates, meeting only in the Bit3
+    RAM: minor frame k is due ``k`` periods after the controller's first frame, whatever
+    the service does. Each frame reads the newest whole inputs; the commands still carry
+    the service frame of the inputs they were computed from, so the service's freshness
+    rule (ages in its own frames) is unchanged; missed frames are counted on this clock.
 """
 
 from __future__ import annotations
@@ -41,6 +54,8 @@ MINOR_FRAMES_PER_MAJOR = 16  # IRSS report 2.3.5
 #: service frames the controller may miss in a row before it is a Servo Control fault
 #: (assumed; see FrameConfig.max_missed_run)
 DEFAULT_MAX_MISSED_RUN = 2
+#: the controller's frame clocks (see the module doc)
+CLOCKS = ("locked", "own")
 #: share of the minor frame the communications segment takes (report 2.2.3)
 COMM_FRACTION = 0.15
 
@@ -135,7 +150,9 @@ class FrameConfig:
     :param tasks: the periodic tasks
     :param tables_budget_s: time reserved each minor frame for the seven decision tables
         and the data-acquisition bridge
-    :param max_missed_run: service frames the controller may miss in a row (their periodic
+    :param clock: ``locked`` (default: each minor frame follows a service frame and has its
+        number) or ``own`` (the controller's own frame clock; see the module doc)
+    :param max_missed_run: minor frames the controller may miss in a row (their periodic
         tasks are caught up in the frame it wakes in); more is a fault of the Servo Control
         layer. Assumed default 2: with the servo at half the frame rate and Data Acquisition's
         output at the end of the frame, two missed frames make the service see a rate command
@@ -148,6 +165,8 @@ class FrameConfig:
     tables_budget_s: float = 400e-6
     profile_name: str = "layers"
     max_missed_run: int = DEFAULT_MAX_MISSED_RUN
+    #: ``locked`` (a minor frame after each service frame) or ``own`` (its own frame clock)
+    clock: str = "locked"
 
     @classmethod
     def profile(cls, name: str = "layers", **kw) -> "FrameConfig":
@@ -170,6 +189,8 @@ class FrameConfig:
         if not 1.0 <= self.frame_rate_hz <= 5000.0:
             out.append(f"minor-frame rate {self.frame_rate_hz} Hz outside 1..5000 Hz")
             return out
+        if self.clock not in CLOCKS:
+            out.append(f"clock {self.clock!r}: one of {', '.join(CLOCKS)}")
         if not 0 <= int(self.max_missed_run) <= MINOR_FRAMES_PER_MAJOR:
             out.append(f"max_missed_run {self.max_missed_run} outside 0..{MINOR_FRAMES_PER_MAJOR}")
         names = [t.name for t in self.tasks]
@@ -230,7 +251,7 @@ class FrameConfig:
         raise KeyError(name)
 
     def last_slot(self, name: str, frame: int) -> int:
-        """The latest service frame <= ``frame`` in which task ``name`` is scheduled."""
+        """The latest minor frame <= ``frame`` in which task ``name`` is scheduled."""
         t = self.task(name)
         d = self.divider(t)
         return frame - ((frame - t.phase) % d)
@@ -244,7 +265,7 @@ class FrameConfig:
         """The scheduling table as text (rates, phases, frames)."""
         lines = [f"minor frame {self.period_s * 1e3:.3f} ms ({self.frame_rate_hz:g} Hz), "
                  f"{MINOR_FRAMES_PER_MAJOR} per major frame ({MINOR_FRAMES_PER_MAJOR * self.period_s * 1e3:.1f} ms), "
-                 f"profile {self.profile_name}"]
+                 f"profile {self.profile_name}, clock {self.clock}"]
         for t in self.tasks:
             lines.append(f"  {t.name:<20} layer {t.layer:<11} {t.rate_hz:>7g} Hz  every {self.divider(t):>2} "
                          f"frames, phase {t.phase}")

@@ -376,7 +376,14 @@ class ControllerRuntime:
         self._resume_ticks = 0
         self._changed: set[str] = set()
         # missed frames
-        self.prev_frame = -1  #: service frame of the previous step (-1: none yet)
+        self.prev_frame = -1  #: minor frame of the previous step (-1: none yet): the service's frame when locked
+        #: the controller's own frame clock (FrameConfig.clock "own"): its frame 0's clock time
+        #: (None until the first step) and, per minor frame of the last major frame, the
+        #: service frame of the inputs it ran on (the servo's freshness check is in those)
+        self._own_clock = self.frames.clock == "own"
+        self.minor_frame = -1  #: this step's minor frame (the service's frame number when locked)
+        self._epoch: float | None = None
+        self._tick_frames = [-1] * MINOR_FRAMES_PER_MAJOR
         self._prev_t_s = -math.inf  # service time of that frame (for the stalls between it and the next)
         #: of the missed frames, those the service dropped itself in a host stall (not the controller's)
         self.service_dropped_frames = 0
@@ -569,31 +576,8 @@ class ControllerRuntime:
             read_as(None)
         else:
             self.frame = f = self._inputs_frame()
-        prev = self.prev_frame
-        catch: frozenset[str] = frozenset()
-        t_f = float(self.daq.snapshot.t_s) if self._has_daq and self.daq.snapshot is not None else self.now
-        if f != prev:  # a repeated frame (no new inputs) keeps the servo period it had
-            missed = f - prev - 1 if 0 <= prev < f else 0
-            self.missed_run = missed
-            if missed:
-                # frames the service dropped itself (a host stall it measured) are not the
-                # controller's: it could not run frames that were never published
-                own = missed
-                if self._has_daq:
-                    own = max(0, missed - self.daq.service_dropped(self._prev_t_s, t_f, self.frames.period_s))
-                catch = self._missed(prev, f, missed, own)
-            else:
-                self.caught_up = ()
-            if self._has_servo:
-                self.servo_oldest_frame = f - self._servo_div
-                # the latest servo slot before this frame fell in the missed frames: it is
-                # caught up in this frame, its output is sent from the next
-                self.servo_catch_up = 0 < missed <= self.frames.max_missed_run and \
-                    self.frames.last_slot(SERVO_TASK, f - 1) > prev
-            self.prev_frame = max(prev, f)
-            self._prev_t_s = t_f
-        else:
-            self.servo_catch_up = False
+        self.minor_frame = k = self.minor_frame_at(raw, f)
+        catch = self._frame_begins(f, k)
         if self.before_segment is not None:
             self.before_segment()
         self.wm.communications_segment()
@@ -616,7 +600,7 @@ class ControllerRuntime:
         for l in self.run_layers:
             read_as(l.key)
             l.run_sequence(self)
-        slot = f % MINOR_FRAMES_PER_MAJOR
+        slot = k % MINOR_FRAMES_PER_MAJOR
         due = self._table[slot]
         ran = self._table_names[slot]  # every due task runs (one that raises has run too)
         if catch:
@@ -759,9 +743,68 @@ class ControllerRuntime:
             self.post(self.servo.key, Level.INFO, f"error reset: fault {self.servo.error_code} was an event; cleared")
             self.servo.clear_fault(self)
 
-    # --- missed frames -------------------------------------------------------------------
+    # --- the minor frame's number, missed frames ---------------------------------------------
+    def minor_frame_at(self, raw: float, f: int) -> int:
+        """The minor frame a step at clock time ``raw`` on the service's inputs frame ``f`` is:
+        ``f`` when locked to the service (the default); with the controller's own clock, the
+        number of its periods since its first step (a step late by more than a period is the
+        next frame: the one it was late for is missed)."""
+        if not self._own_clock:
+            return f
+        if self._epoch is None:
+            self._epoch = raw
+        return int(math.floor((raw - self._epoch) / self.frames.period_s + 1e-6))
+
+    def next_frame_due(self) -> float | None:
+        """With the controller's own clock: the clock time its next minor frame is due (what
+        a live pacer sleeps until); None when locked to the service or before the first step."""
+        if not self._own_clock or self._epoch is None:
+            return None
+        return self._epoch + (max(self.prev_frame, 0) + 1) * self.frames.period_s
+
+    def _frame_begins(self, f: int, k: int) -> frozenset[str]:
+        """Minor frame ``k`` on the inputs of service frame ``f`` begins: count the frames
+        missed since the last step, set the servo's freshness bounds; returns the tasks to
+        catch up. A repeated frame (no new inputs when locked, two steps in one period on
+        the own clock) keeps the servo period it had."""
+        prev = self.prev_frame
+        t_f = float(self.daq.snapshot.t_s) if self._has_daq and self.daq.snapshot is not None else self.now
+        if k == prev:
+            self.servo_catch_up = False
+            return frozenset()
+        catch: frozenset[str] = frozenset()
+        missed = k - prev - 1 if 0 <= prev < k else 0
+        self.missed_run = missed
+        if missed:
+            # frames the service dropped itself (a host stall it measured) are not the
+            # controller's: it could not run frames that were never published (locked only:
+            # on its own clock the controller's frames do not wait for the service's)
+            own = missed
+            if self._has_daq and not self._own_clock:
+                own = max(0, missed - self.daq.service_dropped(self._prev_t_s, t_f, self.frames.period_s))
+            catch = self._missed(prev, k, missed, own)
+        else:
+            self.caught_up = ()
+        if self._own_clock:  # the missed frames' slots run now, on these inputs
+            for g in range(max(prev + 1, k - MINOR_FRAMES_PER_MAJOR + 1), k + 1):
+                self._tick_frames[g % MINOR_FRAMES_PER_MAJOR] = f
+        if self._has_servo:
+            d = self._servo_div
+            if not self._own_clock:
+                self.servo_oldest_frame = f - d
+            else:  # the inputs frame of minor frame k - d (-1: before the first)
+                self.servo_oldest_frame = self._tick_frames[(k - d) % MINOR_FRAMES_PER_MAJOR] if k >= d else -1
+            # the latest servo slot before this frame fell in the missed frames: it is
+            # caught up in this frame, its output is sent from the next
+            self.servo_catch_up = 0 < missed <= self.frames.max_missed_run and \
+                self.frames.last_slot(SERVO_TASK, k - 1) > prev
+        self.prev_frame = max(prev, k)
+        self._prev_t_s = t_f
+        return catch
+
     def _missed(self, prev: int, f: int, missed: int, own: int | None = None) -> frozenset[str]:
-        """Service frames prev+1 .. f-1 were not run: count them, say so, return the tasks
+        """Minor frames prev+1 .. f-1 were not run (service frames when locked, the
+        controller's own when on its own clock): count them, say so, return the tasks
         to catch up, and fault the servo if the run is longer than allowed. ``own``: how many
         of them the service did publish (the rest it dropped in a host stall: caught up, said,
         but never the controller's fault); default all."""
@@ -778,6 +821,7 @@ class ControllerRuntime:
         self.missed_task_slots += slots
         self.caught_up = tuple(n for n in self._order if n in names)
         where = f"frame {first}" if missed == 1 else f"frames {first}..{last}"
+        where = f"own {where}" if self._own_clock else f"service {where}"
         self.wm.post_task_outputs("runtime", {
             RUNTIME.missed_frames: self.missed_frames, RUNTIME.missed_events: self.missed_events,
             RUNTIME.longest_missed_run: self.longest_missed_run, RUNTIME.missed_task_slots: self.missed_task_slots})
@@ -786,7 +830,7 @@ class ControllerRuntime:
             if self._miss_quiet[0]:
                 more = f" (+{self._miss_quiet[0]} more events, {self._miss_quiet[1]} frames, since the last message)"
             whose = "" if own == missed else f"; {missed - own} dropped by the service's own host stall"
-            self.post("runtime", Level.WARNING, f"missed service {where} ({missed}{whose}): caught up "
+            self.post("runtime", Level.WARNING, f"missed {where} ({missed}{whose}): caught up "
                                                 f"{', '.join(self.caught_up) or 'no tasks'} in frame {f}{more}")
             self._miss_msg_t = self.now
             self._miss_quiet = [0, 0]
@@ -799,7 +843,7 @@ class ControllerRuntime:
             lost = [g for g in range(first, first + span) if any(n == SERVO_TASK for n, _ in
                                                                  self._table[g % MINOR_FRAMES_PER_MAJOR])]
             lost_s = ", ".join(str(g) for g in lost[:4]) + (" ..." if len(lost) > 4 or missed > span else "")
-            self.servo.set_fault(self, ERR_MISSED, f"controller missed service {where} ({missed} in a row > "
+            self.servo.set_fault(self, ERR_MISSED, f"controller missed {where} ({missed} in a row > "
                                                    f"max_missed_run {m}): servo slot(s) {lost_s or 'none'} "
                                                    f"did not run in their period")
         return names
@@ -813,11 +857,15 @@ class ControllerRuntime:
         # then): no wake latency to record (it read as the host's uptime, past its valid range)
         t_frame = float(snap.t_s) if snap is not None and snap.t_s > 0 else raw
         period = self.frames.period_s
+        own = self._own_clock and self._epoch is not None
+        if own:  # on its own clock: the frame was due at its own tick
+            t_frame = self._epoch + self.minor_frame * period
         end = self._clock_now()
         wake_us = (raw - t_frame) * 1e6
         self.timing.add(wake_us, cost_s * 1e6)
-        # overrun: the work ended after the next service frame was due, or it was already published
-        if end > t_frame + period or self.client.changed("inputs"):
+        # overrun: the work ended after the next frame was due (locked: or the service's next
+        # frame was already published)
+        if end > t_frame + period or (not own and self.client.changed("inputs")):
             self.overruns += 1
         if self.now - self._pub_t >= STATS_PUBLISH_S:
             self.publish_stats()
@@ -893,12 +941,13 @@ class ControllerRuntime:
         snap = self.daq.hold_acquire(self)
         f = int(snap.frame)
         self.frame = f
-        self.prev_frame = max(self.prev_frame, f)
+        k = self.minor_frame_at(raw, f)
+        self.prev_frame = max(self.prev_frame, k)
         self._prev_t_s = float(snap.t_s)
         self.wm.communications_segment()
         self.updown.receive_requests(self)
         self.servo.gripper.halted(self)  # a gripper request is refused while halted
-        if self._resume_seq and self._resume_tick(snap, f):
+        if self._resume_seq and self._resume_tick(snap, f, k):
             return self.step()  # resumed: this tick is the first frame again (controller time goes on)
         if not self._resume_seq:
             self.daq.hold_output(f)
@@ -949,14 +998,15 @@ class ControllerRuntime:
             return Response.IN_PROGRESS, "re-arming the outputs" if self.daq.arm_request else "leaving halt"
         return Response.REFUSED, f"not a frame-control request: {kind}"
 
-    def _resume_tick(self, snap, f: int) -> bool:
+    def _resume_tick(self, snap, f: int, k: int) -> bool:
         """Write the resume's command; True when the frames may go on (the service armed,
-        if this controller had armed it, and this frame is a servo slot)."""
+        if this controller had armed it, and minor frame ``k`` is a servo slot; ``f``: the
+        service frame)."""
         armed = int(snap.service_state) == ServiceState.ARMED
         need_arm = bool(self.daq.arm_request)
         seen = self._resume_ticks > 0  # the service has had a frame with the resume's command
         if seen and (armed or not need_arm) and (
-                not self._has_servo or not need_arm or self.frames.last_slot(SERVO_TASK, f) == f):
+                not self._has_servo or not need_arm or self.frames.last_slot(SERVO_TASK, k) == k):
             seq, self._resume_seq = self._resume_seq, 0
             self.halted = self.daq.halted = False
             self._post_halt_state()

@@ -15,6 +15,11 @@ it, such as stepping the simulated arm so the frame reads its state at most abou
 right after them (the service's serial drain, so a long step does not overrun a FIFO).
 
 Works the same over the real monotonic clock and a ``SimClock`` (deterministic).
+
+``timers`` (each with a ``due`` clock time and ``fire(now)``) run at their due time within a
+sleep, before the sleep's end when due earlier; one due at the sleep's end itself runs after
+the frame, in the next sleep. The system simulator runs a controller on its own frame clock
+this way (sim/system.py); the live service has none.
 """
 
 from __future__ import annotations
@@ -38,6 +43,8 @@ class TickingClock:
         self.tick_s = tick_s
         self.hooks: list[Callable[[float], None]] = []
         self.pre_deadline_hooks: list[Callable[[float], None]] = []
+        #: objects with ``due`` (clock time) and ``fire(now)``, which sets the next ``due``
+        self.timers: list = []
         #: how long before a sleep's end its pre-deadline hooks run (default: two ticks,
         #: so a hook of up to about one tick does not make the frame late)
         self.pre_deadline_s = 2 * tick_s if pre_deadline_s is None else pre_deadline_s
@@ -58,16 +65,30 @@ class TickingClock:
     def sleep_until(self, t: float) -> None:
         base, tick = self.base, self.tick_s
         pre_due = bool(self.pre_deadline_hooks)
+        inf = float("inf")
         while True:
             now = base.now()
+            due = self._fire_timers(now) if self.timers else inf
             if pre_due and t - now <= self.pre_deadline_s:
                 pre_due = False  # once per sleep
                 for hook in self.pre_deadline_hooks:
                     hook(now)
                 self.tick()  # the ordinary hooks right after (a serial drain after a long step)
                 continue
+            if due < t and due < now + tick:  # a timer before the next tick: sleep to it exactly
+                base.sleep_until(due)
+                continue
             if now + tick >= t:
                 base.sleep_until(t)
                 return
             base.sleep_until(now + tick)
             self.tick()
+
+    def _fire_timers(self, now: float) -> float:
+        """Fire the timers due by ``now``; the earliest due time left."""
+        nxt = float("inf")
+        for tm in self.timers:
+            if tm.due <= now:
+                tm.fire(now)
+            nxt = min(nxt, tm.due)
+        return nxt

@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 #: come even under SCHED_FIFO (the vCPU itself is descheduled); live tests and the kill
 #: matrix start a process again, or a test once more, on these causes only, and say so. The
 #: controller's own catch-up warning ("missed service frames 12..13 (2): caught up") is not one.
-HOST_TIMING_CAUSE = re.compile(r"fault 12: controller missed service frames[^\n]*"
+HOST_TIMING_CAUSE = re.compile(r"fault 12: controller missed (?:service|own) frames[^\n]*"
                                r"|stale heartbeat [\d.]+>[\d.]+ ms[^\n]*|command stale[^\n]*"
                                r"|fault 32: service frame \d+ unchanged for \d+ frames[^\n]*")
 

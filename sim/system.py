@@ -12,7 +12,9 @@ turned on, and compensators can be designed against a plant model. Here:
   loop on the same clock (a :class:`ioservice.ticking.TickingClock` advancing the world
   between frames);
 * the real :class:`controller.runtime.ControllerRuntime`, its minor frame run right
-  after every service frame (the lock of the controller's frame to the service's).
+  after every service frame (the lock of the controller's frame to the service's), or,
+  with ``FrameConfig(clock="own")``, at its own frame clock's times while the service keeps
+  its own rates (a timer on the service's ticking clock: the two meet only in the buffer).
 
 :meth:`SystemSimulator.step` advances whole minor frames; nothing else moves time.
 Halting the simulator halts everything (as IRSS's halt stopped the frame interrupts);
@@ -145,8 +147,9 @@ class SystemSimulator(FrameStepping):
             frames = FrameConfig.profile(profile) if profile else FrameConfig()
         self.frames = frames
         roll = check_shoulder_roll_deg(shoulder_roll_deg)
+        own = frames.clock == "own"  # the service keeps its default rates
         self.rig = SimRig(name=name, prefix="pfma-sim-", ring=ring,
-                          service_kw={"schedule": Schedule(frame_rate_hz=frames.frame_rate_hz)},
+                          service_kw={"schedule": Schedule() if own else Schedule(frame_rate_hz=frames.frame_rate_hz)},
                           shoulder_roll_rad=math.radians(roll), **world_kw)
         self.name, self.clock, self.world, self.svc = self.rig.name, self.rig.clock, self.rig.world, self.rig.svc
         self.rt = None
@@ -160,19 +163,31 @@ class SystemSimulator(FrameStepping):
             self.rig.close()
             raise
         self.controller_enabled = True  #: False: the service runs alone (controller "dead")
-        #: optional pattern: service frame number -> controller steps after it (0 skips the
-        #: frame: a missed frame; 2 or more: a burst on the same inputs); None = 1 each
+        #: optional pattern: service frame number (own clock: the controller's own tick,
+        #: counted from 0) -> controller steps after it (0 skips the frame: a missed frame;
+        #: 2 or more: a burst on the same inputs); None = 1 each
         self.controller_steps: Callable[[int], int] | None = None
         self.service_frames = 0
 
         def controller_frame(info) -> None:  # right after each service frame
             self.service_frames += 1
-            if not self.controller_enabled:
-                return
-            n = 1 if self.controller_steps is None else int(self.controller_steps(self.svc_frame()))
-            for _ in range(n):
-                self.rt.tick()  # a minor frame, or the halted hold (docs/console.md)
+            if not own:
+                self._controller_ticks(self.svc_frame())
         self.rig.after_frame.append(controller_frame)
+        if own:
+            self.rig.tclock.timers.append(_OwnClock(self))
+
+    def _controller_ticks(self, key: int) -> None:
+        if not self.controller_enabled:
+            return
+        n = 1 if self.controller_steps is None else int(self.controller_steps(key))
+        for _ in range(n):
+            self.rt.tick()  # a minor frame, or the halted hold (docs/console.md)
+
+    @property
+    def service_period_s(self) -> float:
+        """The service's frame period (the controller's, ``period_s``, unless on its own clock)."""
+        return 1.0 / self.svc.schedule.frame_rate_hz
 
     # --- running: FrameStepping --------------------------------------------------------------
 
@@ -192,6 +207,8 @@ class SystemSimulator(FrameStepping):
         return int(self.client.header().frame)
 
     def close(self) -> None:
+        self.controller_enabled = False  # no controller frame while the service stops
+        self.rig.tclock.timers.clear()
         if self.rt is not None:
             self.rt.close()
         self.rig.close()
@@ -201,3 +218,22 @@ class SystemSimulator(FrameStepping):
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class _OwnClock:
+    """The controller's own frame interrupt in simulated time (a timer of the service's
+    ticking clock): its first frame at the first sleep after the service's first frame,
+    then one every controller period, exactly, whatever the service does."""
+
+    def __init__(self, sim: SystemSimulator) -> None:
+        self.sim = sim
+        self.due = -math.inf
+        self.t0: float | None = None
+        self.k = 0  #: the next tick's number
+
+    def fire(self, now: float) -> None:
+        if self.t0 is None:
+            self.t0 = now
+        self.sim._controller_ticks(self.k)
+        self.k += 1
+        self.due = self.t0 + self.k * self.sim.frames.period_s

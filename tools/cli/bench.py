@@ -77,6 +77,10 @@ def add_parser(sub):
     p.add_argument("--realtime", action="store_true",
                    help="stack, chaos, soak, flood: run the service (and the controller) with --realtime "
                         "(SCHED_FIFO, pinned CPUs)")
+    p.add_argument("--clock", choices=("locked", "own"), default="locked",
+                   help="stack: the controller's frame clock (pfma controller --clock; default locked)")
+    p.add_argument("--profile", default="layers", choices=("layers", "overview"),
+                   help="stack: the controller's rate profile (pfma controller --profile; default layers)")
     p.add_argument("--hog", action="store_true",
                    help="stack: one CPU hog (a busy process at nice 0) beside the stack, reported")
     p.add_argument("--check", action="store_true",
@@ -119,7 +123,8 @@ def _json_set(names: list[str], args) -> int:
         mod = importlib.import_module(f"bench.bench_{name}")
         try:
             if name == "stack":
-                out[name] = mod.figures(minutes=minutes, realtime=args.realtime, hog=args.hog)
+                out[name] = mod.figures(minutes=minutes, realtime=args.realtime, hog=args.hog, clock=args.clock,
+                                        profile=args.profile)
                 failed |= bool(out[name]["errors"])
             else:
                 out[name] = mod.figures(seconds=seconds)
@@ -234,7 +239,8 @@ def _run_long(name: str, mod, args, kinds: tuple[str, ...] | None) -> int | None
         print(f"== bench {name} ==")
     if name == "stack":
         rep = mod.run(seconds=args.seconds, minutes=STACK_MINUTES if args.minutes is None else args.minutes,
-                      as_json=args.json, realtime=args.realtime, hog=args.hog)
+                      as_json=args.json, realtime=args.realtime, hog=args.hog, clock=args.clock,
+                      profile=args.profile)
         return 1 if rep.get("errors") and args.json else None
     if name == "chaos":
         mod.run(trials=args.trials, seed=args.seed, as_json=args.json, realtime=args.realtime,

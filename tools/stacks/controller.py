@@ -141,6 +141,38 @@ class LivePacer:
             self.gc_frozen = False
 
 
+class OwnClockPacer(LivePacer):
+    """The controller's own frame clock, live (``FrameConfig.clock`` "own", ``pfma controller
+    --clock own``; the report's board-2 frame interrupt): each wait sleeps to the time the
+    runtime's next minor frame is due (absolute: no drift), whatever the service does; a
+    frame late by more than a period is the next one (the runtime counts the one missed).
+    The collector handling is the live pacer's; a step on the inputs of the step before
+    counts as a give-up (the service published nothing in a whole period: its silence is
+    said as when locked)."""
+
+    def __init__(self, client, rt) -> None:
+        super().__init__(client, rt.frames.period_s)
+        self.rt = rt
+        self._last_t = -1.0
+
+    def wait(self) -> None:
+        due = self.rt.next_frame_due()
+        if due is None:
+            return  # the first frame: now (its time is the clock's frame 0)
+        slack = due - time.monotonic()
+        if self.gc_frozen and slack > self.GC_MIN_SLACK_S and self.frames % self.GC_EVERY_FRAMES == 0:
+            gc.collect(1)  # young generations only, in the slack before the frame
+            slack = due - time.monotonic()
+        if slack > 0:
+            time.sleep(slack)
+
+    def stepped(self, t_frame_s: float) -> None:
+        if t_frame_s == self._last_t:
+            self.gave_up += 1
+        self._last_t = t_frame_s
+        self.frames += 1
+
+
 class PollPacer(LivePacer):
     """Paces a process whose inputs come over a bridge (``zenoh://``): no futex, and the
     service's frame times are another host's clock, so it polls for a new inputs body (the
@@ -203,6 +235,8 @@ class ControllerOptions:
     distributed: Distribution | None = None  #: one process of a distributed controller
     #: service frames it may miss in a row before a servo fault (None: FrameConfig's default, 2)
     max_missed_run: int | None = None
+    #: its frame clock: "locked" to the service's frames, or "own" (controller.frames)
+    clock: str = "locked"
     say: Callable[[str], None] = field(default=lambda line: print(line, flush=True))  #: where lines go
 
 
@@ -313,6 +347,12 @@ class LocalDriver(Driver):
             self.faults = FaultSet(sim.world)
             self._fault_frame = sim.service_frames + int(round(options.sim_fault_at_s / self.period_s))
 
+    @property
+    def period_s(self) -> float:
+        """What one :meth:`frame` advances: a service frame in the simulator (the controller's
+        own period differs on its own clock), else the controller's minor frame."""
+        return self.sim.service_period_s if self.sim is not None else self.rt.frames.period_s
+
     def frame(self) -> None:
         if self.stop_signal and not self.closing:
             raise KeyboardInterrupt  # SIGTERM/SIGINT, acted on between frames (see stop_on_signals)
@@ -420,7 +460,8 @@ class ControllerStack(contextlib.ExitStack):
             self.callback(self._restore_signals)  # the last thing closed
             from controller.frames import FrameConfig
             run = self.options.max_missed_run
-            frames = FrameConfig.profile(self.options.profile, **({} if run is None else {"max_missed_run": run}))
+            frames = FrameConfig.profile(self.options.profile, clock=self.options.clock,
+                                         **({} if run is None else {"max_missed_run": run}))
             if self.options.distributed is not None:
                 driver: Driver = self._open_distributed(frames)
             elif self.options.sim:
@@ -457,7 +498,7 @@ class ControllerStack(contextlib.ExitStack):
         self.callback(client.close)
         rt = ControllerRuntime(client, frames=frames, wm_name=o.wm, clock=MonotonicClock(), require_ft=o.require_ft)
         self.callback(rt.close)
-        pacer = self._pacer(LivePacer(client, frames.period_s))
+        pacer = self._pacer(OwnClockPacer(client, rt) if frames.clock == "own" else LivePacer(client, frames.period_s))
         return LocalDriver(rt, o, pacer=pacer, client=client)
 
     def _open_distributed(self, frames) -> Driver:

@@ -50,6 +50,9 @@ def run(args) -> int:
 def _act(args) -> int:
     """One call per action."""
     if args.distribute is not None or args.process is not None:
+        if args.clock != "locked":
+            return refuse("--clock own is for a controller in one process; a distributed one steps on "
+                          "the service's frames (docs/controller.md, \"Two clocks\")")
         return distributed.run(args)
     if args.wm is None:
         args.wm = "pfma_wm"

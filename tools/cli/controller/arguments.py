@@ -68,6 +68,10 @@ def add_parser(sub, description: str):
     add_sim_errors(p)
     p.add_argument("--no-ft", action="store_true", help="a stale F/T link is not a fault")
     p.add_argument("--tables", action="store_true", help="print the decision tables and the schedule")
+    p.add_argument("--clock", choices=("locked", "own"), default="locked",
+                   help="the minor frames' clock: locked (default: a frame after each service frame) or own "
+                        "(the controller's own frame clock at the profile's rate, e.g. --profile overview's "
+                        "268 Hz, while the service keeps 160/80/320 Hz; docs/controller.md \"Two clocks\")")
     p.add_argument("--max-missed-run", type=_missed_run, default=None, metavar="FRAMES",
                    help="service frames the controller may miss in a row before it is a servo fault (code 12; "
                         "default 2, fitting the service's default age limit of 4 frames). For a host too slow for "

@@ -41,7 +41,8 @@ def stack_options(args, distributed: Distribution | None = None) -> ControllerOp
         quiet=getattr(args, "quiet", False), sim_faults=tuple(getattr(args, "sim_fault", None) or ()),
         sim_fault_at_s=args.sim_fault_at, sim_errors=getattr(args, "sim_errors", 0), realtime=args.realtime, changes=args.changes,
         trace=args.trace or (distributed is None and (args.step is not None or args.halt)),
-        distributed=distributed, max_missed_run=getattr(args, "max_missed_run", None))
+        distributed=distributed, max_missed_run=getattr(args, "max_missed_run", None),
+        clock=getattr(args, "clock", "locked"))
 
 
 def text(words) -> str:
