@@ -170,6 +170,17 @@ def power_up_holding(start, armed, hold_s: float = 0.5, attempts: int = 3, log=N
                           f"({host_timing_cause(outs[-1])}):\n" + "\n".join(outs))
 
 
+def powered_controller(name: str, *args: str) -> subprocess.Popen:
+    """``pfma controller --buffer NAME --wm none --power-up ARGS`` (real time where permitted,
+    the limits of :data:`SLOW_HOST_CONTROLLER`, its output piped as text), once the arm is
+    powered up and holds (:func:`power_up_holding`)."""
+    return power_up_holding(
+        lambda: subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", "none", "--power-up", *args, *RT,
+                                  *SLOW_HOST_CONTROLLER], cwd=ROOT, stdout=subprocess.PIPE,
+                                 stderr=subprocess.STDOUT, text=True),
+        lambda: armed_and_released(name))
+
+
 def start_service(name: str, *args: str) -> subprocess.Popen:
     """``pfma serve --buffer NAME ARGS`` (real time where permitted, the age limit of
     :data:`SLOW_HOST_SERVICE`, output discarded), once it

@@ -14,7 +14,7 @@ import pytest
 
 from bit3.buffer import Bit3Buffer
 from pfma.process import host_timing_cause
-from tests.controller._live_support import RERUN_ON_HOST_TIMING, SLOW_HOST_CONTROLLER, host_timing_named, PY, ROOT, RT, armed_and_released, live_inputs, power_up_holding, stop, wait_for, start_service
+from tests.controller._live_support import RERUN_ON_HOST_TIMING, SLOW_HOST_CONTROLLER, host_timing_named, PY, ROOT, RT, live_inputs, powered_controller, stop, wait_for, start_service
 
 pytestmark = [pytest.mark.realtime, RERUN_ON_HOST_TIMING]
 
@@ -35,11 +35,7 @@ def test_a_motion_fault_on_the_live_arm_stops_it_and_names_joint_and_cause(spec,
     ctl = None
     try:
         with host_timing_named(lambda: ctl):
-            ctl = power_up_holding(
-                lambda: subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", "none", "--power-up",
-                                          "--duration", "8", "--messages", "400", *RT, *SLOW_HOST_CONTROLLER], cwd=ROOT,
-                                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
-                lambda: armed_and_released(name))
+            ctl = powered_controller(name, "--duration", "8", "--messages", "400")
             inj = subprocess.run([*PY, "fault", "inject", "--buffer", name, spec], cwd=ROOT, capture_output=True,
                                  text=True, timeout=30)
             assert inj.returncode == 0, inj.stdout + inj.stderr

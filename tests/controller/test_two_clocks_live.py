@@ -6,7 +6,6 @@ service's age limit. Bounded polling of processes (real time)."""
 
 from __future__ import annotations
 
-import subprocess
 import uuid
 
 import pytest
@@ -14,8 +13,8 @@ import pytest
 from bit3.buffer import Bit3Buffer
 from bit3.client import Client
 from tests.controller._live_support import (
-    PY, RERUN_ON_HOST_TIMING, ROOT, RT, SLOW_HOST_CONTROLLER, armed_and_released, host_timing_named, live_inputs,
-    power_up_holding, start_service, stop, wait_for,
+    RERUN_ON_HOST_TIMING, armed_and_released, host_timing_named, live_inputs, powered_controller, start_service, stop,
+    wait_for,
 )
 
 pytestmark = [pytest.mark.realtime, RERUN_ON_HOST_TIMING]
@@ -34,12 +33,8 @@ def test_the_controller_on_its_own_clock_flies_the_live_arm_beside_a_320_hz_serv
     ctl = None
     try:
         with host_timing_named(lambda: ctl):
-            ctl = power_up_holding(
-                lambda: subprocess.Popen([*PY, "controller", "--buffer", name, "--wm", "none", "--power-up",
-                                          "--clock", "own", "--profile", "overview", "--duration", "8",
-                                          "--messages", "100", *RT, *SLOW_HOST_CONTROLLER], cwd=ROOT,
-                                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True),
-                lambda: armed_and_released(name))
+            ctl = powered_controller(name, "--clock", "own", "--profile", "overview", "--duration", "8",
+                                     "--messages", "100")
             # the controller publishes its statistics about every 0.5 s: wait for a second set
             assert wait_for(lambda: _rates(name)[2] > 600, 10), "no controller statistics"
             ages = []
