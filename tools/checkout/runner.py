@@ -277,6 +277,8 @@ class Checkout:
                 found += noise_split(group, nbits)
             if c.kind == "rtd":
                 found += angle_jumps(codes, nbits)
+            else:
+                found += noise_strays(codes, nbits)
             n, k = seen.get(c.board, (0, 0))
             seen[c.board] = (n + len(codes), k + bool(found))
             for bit, v in list(dict.fromkeys(found))[:1]:  # the first reading names it; one row a channel
@@ -1506,6 +1508,46 @@ def angle_jumps(codes: np.ndarray, nbits: int) -> list[tuple[int, int]]:
             out.append((b, same[0]))
     return out
 
+
+def noise_strays(codes: np.ndarray, nbits: int) -> list[tuple[int, int]]:
+    """An A/D data bit stuck, from the stray reads a quiet input's noise throws 2^b away (codes
+    in the order read). Where a level's noise only touches the edge of a 2^b block (idle at
+    0x7FE, its noise now and then reading 0x800), bit ``b`` stuck sends each read across the
+    edge 2^b away (0x800 reads 0xA00 with D9 at 1): isolated reads, a read of the level just
+    before and just after, which with bit ``b`` flipped back fall next to the level (within
+    :data:`STRAY_REACH` codes). Named when at least :data:`STRAY_EVIDENCE` reads do so and the
+    bit held one value in every code of the run (it never took the other). Only D6 and up
+    (:data:`JUMP_MIN_BIT`: 64 codes, far beyond noise); a lower bit's split is
+    :func:`noise_split`'s. Found as the only miss of the 200-case matrix the anti-aliasing
+    board added (``stuck-bit:adc@SCAN[18]:9=1``, docs/checkout.md). [] when none."""
+    c = np.asarray(codes, dtype=np.int64)
+    if len(c) < 3:
+        return []
+    u = np.unique(c)
+    out: list[tuple[int, int]] = []
+    for g in code_groups(c):
+        lo, hi = int(g.min()), int(g.max())
+        if hi - lo > NOISE_SPAN:
+            continue
+        inside = (c >= lo) & (c <= hi)
+        stray = c[np.flatnonzero(~inside[1:-1] & inside[:-2] & inside[2:]) + 1]
+        if len(stray) < STRAY_EVIDENCE:
+            continue
+        for b in range(JUMP_MIN_BIT, nbits):
+            bit = (u >> b) & 1
+            if bit.min() != bit.max() or (b, int(bit[0])) in out:
+                continue
+            back = stray ^ (1 << b)
+            if int(((back >= lo - STRAY_REACH) & (back <= hi + STRAY_REACH)).sum()) >= STRAY_EVIDENCE:
+                out.append((b, int(bit[0])))
+    return out
+
+
+#: :func:`noise_strays`: how many stray reads must fall next to the level with the bit
+#: flipped back, and how far beyond the level's codes "next to" reaches (assumed: a healthy
+#: input's noise puts no read exactly 2^b (64 codes or more) away three times, each between
+#: two reads of its level; its tail reaches a code or two past what the level read)
+STRAY_EVIDENCE, STRAY_REACH = 3, 2
 
 #: the lowest resolver bit judged from a jump, and how far from 2^b counts a jump may be (the
 #: motion between two reads; the checkout's moves, a runaway's 0.25 rad/s at most, move under

@@ -251,3 +251,35 @@ def test_each_level_an_input_held_is_judged_for_its_noise():
     assert len(groups) == 2 and all(noise_split(g, 12) == [] for g in groups)
     stuck = np.concatenate([idle, ramp, _stick(held, 3, 1)])
     assert [noise_split(g, 12) for g in code_groups(stuck)] == [[], [(3, 1)]]
+
+
+def _idle_then_deflected(rng, centre: float, sigma: float, n: int = 600):
+    """A quiet input's idle noise, a deflection out and back (a ramp through a 4-pole filter
+    at 160 Hz: a few reads on the way), then idle again."""
+    import numpy as np
+    idle = np.round(rng.normal(centre, sigma, n)).astype(np.int64)
+    out = np.array([2500, 3300, 3750, 3840], dtype=np.int64)
+    held = np.round(rng.normal(3847.0, sigma, 200)).astype(np.int64)
+    back = np.array([3700, 2900, 2300, 2080], dtype=np.int64)
+    return np.concatenate([idle[: n // 2], out, held, back, idle[n // 2:]])
+
+
+def test_a_quiet_input_s_noise_thrown_2_to_the_b_away_names_a_high_stuck_bit_and_healthy_noise_never():
+    """:func:`noise_strays`: idle at 0x7FE, its noise now and then reading 0x800; with D9 stuck
+    at 1 those reads come 512 codes away (0xA00), each between two idle reads, and D9 is 1 in
+    every code of the run: named (the matrix's SCAN[18]:9=1). Healthy seeded noise about many
+    idle values, with a deflection out and back, is never named; nor is a stuck input whose
+    strays are fewer than three."""
+    import numpy as np
+    from tools.checkout.runner import STRAY_EVIDENCE, noise_strays
+    rng = np.random.default_rng(18)
+    codes = _idle_then_deflected(rng, 2046.0, 0.8)
+    assert (codes == 2048).sum() >= STRAY_EVIDENCE and noise_strays(codes, 12) == []
+    assert noise_strays(_stick(codes, 9, 1), 12) == [(9, 1)]
+    few = codes.copy()
+    few[np.flatnonzero(few == 2048)[STRAY_EVIDENCE - 1:]] = 2047  # two strays left
+    assert noise_strays(_stick(few, 9, 1), 12) == []
+    for centre in np.linspace(2040.0, 2070.0, 31):
+        for sigma in (0.3, 0.8, 1.2, 2.0):
+            c = _idle_then_deflected(rng, centre, sigma)
+            assert noise_strays(c, 12) == [], (centre, sigma)
