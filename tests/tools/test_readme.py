@@ -95,6 +95,7 @@ RUN_ALONE = (
     f"{PFMA} controller --sim --power-up --duration 0.3 --trace",
     f"{PFMA} controller --sim --power-up --duration 1.5 --sim-fault resolver-los:shoulder_pitch_angle --sim-fault-at 1",
     f"{PFMA} wm list",  # the world model the line above left (the README says so)
+    f"{PFMA} controller --sim --clock own --profile overview --power-up --duration 1 -q",
     f"{PFMA} reg read 0xD000",
     f"{PFMA} reg write 0xD000 0xC100 --yes-i-know",
     f"{PFMA} read --bus fake elbow_pitch_angle shoulder_yaw_motor_current",
@@ -115,6 +116,7 @@ ON_DEFAULT_NAMES = (
     f"{PFMA} controller --sim --power-up --duration 0.3 --trace",
     f"{PFMA} controller --sim --power-up --duration 1.5 --sim-fault resolver-los:shoulder_pitch_angle --sim-fault-at 1",
     f"{PFMA} wm list",
+    f"{PFMA} controller --sim --clock own --profile overview --power-up --duration 1 -q",
 )
 BENCHES = (f"{PFMA} bench loop --seconds 1", f"{PFMA} bench stack --minutes 0.05 --realtime")
 
