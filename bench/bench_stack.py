@@ -402,8 +402,9 @@ def _pairs_text(d) -> str:
 
 def _print(rep: dict) -> None:
     print(f"stack on buffer {rep['buffer']}: {rep.get('run_s', 0):g} s measured "
-          f"(service up in {rep.get('service_start_s')} s){', beside a CPU hog' if rep.get('hog') else ''}; "
-          f"controller clock {rep.get('clock')}, profile {rep.get('profile')}")
+          f"(service up in {rep.get('service_start_s')} s){', beside a CPU hog' if rep.get('hog') else ''}")
+    if (rep.get("clock") or "locked") != "locked" or (rep.get("profile") or "layers") != "layers":
+        print(f"  controller --clock {rep.get('clock')} --profile {rep.get('profile')}")
     if "held" in rep:
         print(f"  {'HELD: no layer went to ERROR' if rep['held'] else 'NOT HELD: see the problems and layers below'}")
     _print_processes(rep)
