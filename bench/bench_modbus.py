@@ -18,6 +18,7 @@ from __future__ import annotations
 import importlib.util
 import subprocess
 import sys
+import tempfile
 import time
 import uuid
 
@@ -60,16 +61,20 @@ def figures(seconds: float = 5.0) -> dict:
                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     svc = None
     client = None
+    err = tempfile.TemporaryFile(mode="w+")  # the service's stderr: its last lines name why it stopped
     try:
         first = gw.stdout.readline() if gw.stdout else ""
         if not first.startswith("pfma gateway:") or "Ctrl-C stops" not in first:
             return {"error": f"the gateway did not start: {first.strip() or gw.stderr.read().strip()}"}
         svc = subprocess.Popen([py, "-m", "tools.cli", "serve", "--bus", url, "--buffer", name,
                                 "--duration", str(seconds + START_TIMEOUT_S), "--schedule", "slow"],
-                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+                               stdout=subprocess.PIPE, stderr=err, text=True)
         client = wait_for_frames(name, 10, timeout_s=START_TIMEOUT_S, alive=lambda: svc.poll() is None)
         if client is None and svc.poll() is not None:
-            return {"error": f"pfma serve over {url} exited {svc.returncode} before publishing frames"}
+            err.seek(0)
+            said = " | ".join(line.strip() for line in err.read().splitlines()[-3:] if line.strip())
+            return {"error": f"pfma serve over {url} exited {svc.returncode} before publishing frames"
+                             + (f": {said}" if said else "")}
         if client is None:
             return {"error": f"pfma serve over {url} published no frames within {START_TIMEOUT_S:g} s"}
         return _measure(client, svc, gw, name, url, seconds)
@@ -78,6 +83,7 @@ def figures(seconds: float = 5.0) -> dict:
             client.close()
         stop_all((svc, gw))
         Bit3Buffer.unlink(name)
+        err.close()
 
 
 def _measure(client, svc: subprocess.Popen, gw: subprocess.Popen, name: str, url: str, seconds: float) -> dict:
