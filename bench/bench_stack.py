@@ -500,7 +500,8 @@ def run(seconds: float | None = None, minutes: float = 10.0, as_json: bool = Fal
     if not as_json:
         print(f"pfma serve --rack fake + pfma controller --power-up + pfma record, {minutes:g} min"
               f"{' (service and controller --realtime)' if realtime else ''}"
-              f"{', beside one CPU hog at nice 0' if hog else ''}; controller --clock {clock} --profile {profile}",
+              f"{', beside one CPU hog at nice 0' if hog else ''}"
+              f"{'' if (clock, profile) == ('locked', 'layers') else f'; controller --clock {clock} --profile {profile}'}",
               flush=True)
     with tempfile.TemporaryDirectory(prefix="pfma-bench-stack-") as d:
         rep = measure(minutes, Path(d), progress=progress, realtime=realtime, hog=hog, clock=clock, profile=profile)
