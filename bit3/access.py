@@ -112,12 +112,14 @@ def open_readonly(name: str) -> tuple[mmap.mmap, int]:
     for read-write). Returns ``(mapping, fd)``; the caller closes both.
 
     :raises PermissionError: not even read access
-    :raises FileNotFoundError: no such segment
+    :raises FileNotFoundError: no such segment, or one still empty (being created)
     """
     import _posixshmem  # the C module multiprocessing.shared_memory uses on POSIX
     fd = _posixshmem.shm_open("/" + name, os.O_RDONLY, mode=0)
     try:
         size = os.fstat(fd).st_size
+        if size == 0:
+            raise FileNotFoundError(f"/dev/shm/{name} exists but is still empty (being created)")
         return mmap.mmap(fd, size, mmap.MAP_SHARED, mmap.PROT_READ), fd
     except BaseException:
         os.close(fd)

@@ -33,14 +33,21 @@ def open_shm(name: str, create: bool, size: int = 0) -> SharedMemory:
     resource-tracker registration (module docstring).
 
     :raises FileExistsError: ``create`` and the name exists
-    :raises FileNotFoundError: not ``create`` and no such name
+    :raises FileNotFoundError: not ``create`` and no such name, or the name exists but is
+        still empty: its creator has opened it and not yet sized it (``shm_open`` then
+        ``ftruncate``), so there is nothing to attach to yet
     :raises PermissionError: this user may not open it read-write
     """
     from multiprocessing import shared_memory
-    if sys.version_info >= (3, 13):
-        return shared_memory.SharedMemory(name, create=create, size=size if create else 0,
-                                          track=False)
-    shm = shared_memory.SharedMemory(name, create=create, size=size if create else 0)
+    try:
+        if sys.version_info >= (3, 13):
+            return shared_memory.SharedMemory(name, create=create, size=size if create else 0,
+                                              track=False)
+        shm = shared_memory.SharedMemory(name, create=create, size=size if create else 0)
+    except ValueError as e:  # mmap of the empty segment: "cannot mmap an empty file"
+        if create:
+            raise
+        raise FileNotFoundError(f"/dev/shm/{name} exists but is still empty (being created)") from e
     from multiprocessing import resource_tracker
     # _name: the "/name" the tracker registered (typeshed lists only the public name)
     resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
