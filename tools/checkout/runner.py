@@ -272,13 +272,13 @@ class Checkout:
             codes = self.codes.of(c.kind, c.slot)
             nbits = DATA_BITS[c.kind]
             found = stuck_bits(codes, nbits)
-            found += noise_split(codes, nbits) + self._idle_split(c)
+            found += noise_split(codes, nbits) + self._idle_split(c) + noise_split(noise_core(codes), nbits)
             for group in code_groups(codes):  # each level the input held (idle, deflected, driven)
-                found += noise_split(group, nbits)
+                found += noise_split(group, nbits) + noise_split(noise_core(group), nbits)
             if c.kind == "rtd":
                 found += angle_jumps(codes, nbits)
             else:
-                found += noise_strays(codes, nbits)
+                found += noise_strays(codes, nbits) + adc_jumps(codes, nbits)
             n, k = seen.get(c.board, (0, 0))
             seen[c.board] = (n + len(codes), k + bool(found))
             for bit, v in list(dict.fromkeys(found))[:1]:  # the first reading names it; one row a channel
@@ -1118,6 +1118,10 @@ def _idle_why(code: int, lo: float, hi: float, scale: float) -> str:
 #: the rate command's test codes (12-bit offset binary, +-10 V): -1 LSB has D0..D10 at 1
 #: and D11 at 0, 0 V the opposite, so every data bit is at 1 in one and at 0 in the other
 DAC_BITS_CODES = (0x7FF, 0x800)
+#: how far the two codes' mean current may sit off zero, in ``dac_bits_tolerance``s: the
+#: channel's offset, the same at both codes (assumed: the DAC's +-10 mV, sim/errors.py, and
+#: an amplifier's input offset, times K_a up to 3.3 A/V, stay under twice the tolerance)
+DAC_BITS_OFFSET_FACTOR = 2.0
 
 
 #: the current limit's walk (``[joints] dac_bits_limit_walk``): from 32 codes (0.156 V) up by
@@ -1264,7 +1268,12 @@ class DacBits:
         bad = [(b, d, want) for b, d, want in steps if abs(d - want) > 0.5 * want]
         said = ", ".join(f"+2^{b}: {d * 1e3:+.1f} mA of {want * 1e3:.1f}" for b, d, want in steps)
         why = ""
-        if bad:
+        if bad and bad[0][1] > bad[0][2]:  # more than the codes' worth: no stuck limit bit does that
+            b, d, want = bad[0]
+            why = (f": adding 2^{b} codes raised the current by more than their worth, which no stuck bit of DAC "
+                   f"channel {self.limit_signal} does (it adds nothing): the motor-current monitor {self.current}'s "
+                   f"reading (its data bits are judged from its codes){self.monitor_excess(d - want)}")
+        elif bad:
             b, _, want = bad[0]
             lifted = base - (LIMIT_WALK_BASE - DAC_ZERO_CODE) * per_code > 0.5 * want
             why = (f": data bit D{b} of DAC channel {self.limit_signal} stuck at {int(lifted)} (adding 2^{b} codes "
@@ -1281,17 +1290,29 @@ class DacBits:
         i_sat = self.saturated_current()
         placed = all(got == c for (got, _), c in zip(seen, DAC_BITS_CODES))
         (_, i_lo), (_, i_zero) = seen
-        worst = max(abs(i_lo), abs(i_zero))
-        ok = bool(worst <= thr) if placed else None
+        # judged on the step between the two codes (1 LSB apart, K_a x 1 LSB healthy), so the
+        # channel's own offset (the DAC's +-10 mV and the amplifier's, the same at both codes:
+        # a seeded rack's shoulder pitch drew -0.051 A and -0.031 A) is not read as a bit; an
+        # offset beyond DAC_BITS_OFFSET_FACTOR x the tolerance fails as the offset it is
+        step, centre = i_zero - i_lo, 0.5 * (i_zero + i_lo)
+        offset_ok = abs(centre) <= DAC_BITS_OFFSET_FACTOR * thr
+        ok = bool(abs(step) <= thr and offset_ok) if placed else None
         drew = (f"codes 0x{DAC_BITS_CODES[0]:03X} and 0x{DAC_BITS_CODES[1]:03X} drew {i_lo:+.3f} A and "
-                f"{i_zero:+.3f} A against the set brake (limit {self.limit_a:.3f} A, healthy within "
-                f"+/-{thr:.3f} A)")
+                f"{i_zero:+.3f} A against the set brake, a step of {step:+.3f} A (limit {self.limit_a:.3f} A, "
+                f"healthy within +/-{thr:.3f} A, their offset within +/-{DAC_BITS_OFFSET_FACTOR * thr:.3f} A)")
         if not placed:
             detail = (f"not run: the service wrote codes {[f'0x{g:03X}' for g, _ in seen]} for "
                       f"{[f'0x{c:03X}' for c in DAC_BITS_CODES]} (its calibration of {self.signal})")
+        elif ok:
+            detail = drew
+        elif abs(step) <= thr:
+            detail = (f"DAC channel {self.signal}: both codes drew {centre:+.3f} A: the amplifier draws current at "
+                      f"a zero command, or the DAC's offset is that far off: {drew}")
         else:
-            detail = drew if ok else f"{self.diagnosis(i_lo, i_zero, thr)}: {drew}"
-        co.record("joints", self.signal, "DAC data bits (brake set)", ok, round(worst, 4), -thr, thr, "A", detail)
+            lo_moved = abs(i_lo) >= abs(i_zero)  # the code whose current a stuck bit moved
+            detail = (f"{self.diagnosis(i_lo if lo_moved else 0.0, 0.0 if lo_moved else i_zero, thr)}: "
+                      f"{drew}")
+        co.record("joints", self.signal, "DAC data bits (brake set)", ok, round(step, 4), -thr, thr, "A", detail)
         lim_ok = bool(abs(abs(i_sat) - self.limit_a) <= thr)
         drew = (f"a {float(co.cfg.joint(j, 'dac_bits_drive_v')):g} V rate command drew {i_sat:+.3f} A "
                 f"against the set brake, the limit written is {self.limit_a:.3f} A")
@@ -1443,6 +1464,27 @@ def noise_split(codes: np.ndarray, nbits: int, evidence: int | None = None) -> l
     return out
 
 
+def noise_core(codes: np.ndarray) -> np.ndarray:
+    """``codes`` without their passing reads: a code read fewer than :data:`CORE_READS` times
+    with no neighbour (+-1) read that often is a transient or a tail sample, not a level's
+    noise (a deflection's few reads on the way out and back, a tach settling at a move's
+    start, which on the noiseless perfect rack reads a code or two twice). What
+    is left is the levels' noise, which :func:`noise_split` judges whole: a transient's one
+    read 7 codes off made a split group too wide to judge (``stuck-bit:adc@SCAN[12]:4=1``,
+    the wrist pitch tach idling across 0x800 with D4 at 1, docs/checkout.md)."""
+    c = np.asarray(codes, dtype=np.int64)
+    u, n = np.unique(c, return_counts=True)
+    many = set(u[n >= CORE_READS].tolist())
+    keep = [int(x) for x in u.tolist() if x in many or x - 1 in many or x + 1 in many]
+    return c[np.isin(c, keep)]
+
+
+#: :func:`noise_core`: how often a code is read before it counts as a level's (assumed: a
+#: transient passes a code at most two or three times; the stuck bits' split pieces it was
+#: made for read 15 times and more)
+CORE_READS = 5
+
+
 def _hole_evidence(u: np.ndarray, n: np.ndarray) -> int:
     """How sure a hole in a group of codes ``u`` (read ``n`` times each) is no chance: the most,
     over its holes, of missing codes x the fewer reads of the codes either side (0: none)."""
@@ -1495,16 +1537,40 @@ def angle_jumps(codes: np.ndarray, nbits: int) -> list[tuple[int, int]]:
     2^b (plus the motion between two reads) and the bit is the same on both sides: the
     stuck value. A healthy angle moves a few counts a read (wrapping at a turn); only bits
     whose jump is well above that (D6 and up, 64 counts) are judged. [] when none."""
-    if len(codes) < 2:
+    return _jumps(codes, nbits, JUMP_MIN_BIT, wrap=True, evidence=1, slack=lambda w: JUMP_SLACK)
+
+
+def adc_jumps(codes: np.ndarray, nbits: int) -> list[tuple[int, int]]:
+    """An A/D input's high data bit stuck, from its reading jumping as the input sweeps across
+    the bit's edge (codes in the order read; :func:`angle_jumps`' rule without the wrap): a
+    tach driven through 0 V with D11 stuck at 0 reads 0x7FF, then 0x003 for 0x803. Only D8 and
+    up (:data:`ADC_JUMP_MIN_BIT`: 256 codes, 1.25 V, in one read through the anti-aliasing
+    filter), within an eighth of 2^b (a driven tach moves tens of codes a read), seen
+    :data:`ADC_JUMP_EVIDENCE` times or more (across the edge and back), the bit one value over
+    the whole run. Found for the tach's D11 at 0 (``stuck-bit:adc@SCAN[9]:11=0``,
+    docs/checkout.md). [] when none."""
+    return _jumps(codes, nbits, ADC_JUMP_MIN_BIT, wrap=False, evidence=ADC_JUMP_EVIDENCE,
+                  slack=lambda w: max(JUMP_SLACK, w >> 3))
+
+
+def _jumps(codes: np.ndarray, nbits: int, min_bit: int, *, wrap: bool, evidence: int,
+           slack: Callable[[int], int]) -> list[tuple[int, int]]:
+    """The bits b >= ``min_bit`` whose 2^b jumps (within ``slack(2^b)``) between consecutive
+    reads keep the bit the same on both sides, at least ``evidence`` of them, and (no
+    ``wrap``: an A/D input) the bit never took the other value in the run."""
+    c = np.asarray(codes, dtype=np.int64)
+    if len(c) < 2:
         return []
     full = 1 << nbits
-    d = (np.diff(codes) + full // 2) % full - full // 2
+    d = (np.diff(c) + full // 2) % full - full // 2 if wrap else np.diff(c)
+    u = np.unique(c)
     out = []
-    for b in range(JUMP_MIN_BIT, nbits):
+    for b in range(min_bit, nbits):
         w = 1 << b
-        at = np.flatnonzero(np.abs(np.abs(d) - w) <= JUMP_SLACK)
-        same = [(int(codes[i]) >> b) & 1 for i in at if (int(codes[i]) >> b) & 1 == (int(codes[i + 1]) >> b) & 1]
-        if same and len(set(same)) == 1:
+        at = np.flatnonzero(np.abs(np.abs(d) - w) <= slack(w))
+        same = [(int(c[i]) >> b) & 1 for i in at if (int(c[i]) >> b) & 1 == (int(c[i + 1]) >> b) & 1]
+        held = ((u >> b) & 1).min() == ((u >> b) & 1).max()
+        if len(same) >= evidence and len(set(same)) == 1 and (wrap or held):
             out.append((b, same[0]))
     return out
 
@@ -1553,6 +1619,11 @@ STRAY_EVIDENCE, STRAY_REACH = 3, 2
 #: motion between two reads; the checkout's moves, a runaway's 0.25 rad/s at most, move under
 #: 12 counts a read) (assumed)
 JUMP_MIN_BIT, JUMP_SLACK = 6, 16
+
+#: :func:`adc_jumps`: the lowest A/D bit judged from a jump, and how many jumps name it
+#: (assumed: no healthy input jumps 2^b codes (256 or more) in one read twice, each time
+#: over a whole block of the bit's other value, and never reads that value over the run)
+ADC_JUMP_MIN_BIT, ADC_JUMP_EVIDENCE = 8, 2
 
 
 #: the widest group of codes a quiet input's noise reads (assumed: +-8 codes, beyond any

@@ -102,10 +102,18 @@ def test_a_monitor_bit_stuck_at_1_fails_on_the_monitor_before_the_dac_is_judged(
 
 
 def test_a_small_current_at_a_test_code_names_the_monitor_bit_as_the_other_reading(sim, cfg):
-    """D3 of a current monitor stuck at 0 shows only at a negative current: at code 0x7FF the
-    reading is one bit away from the true small current, so both readings are named."""
+    """D3 of a current monitor stuck at 0 reads a small negative current 8 codes low, at both
+    test codes alike: the DAC row, judged on the step between them, passes (its DAC is
+    healthy); the limit walk's step across the monitor's edge rises by more than its codes'
+    worth, which no stuck limit bit does, so that row blames the monitor, and the monitor's
+    codes name its bit."""
     sim.inject_fault("stuck-bit:adc@SCAN[0]:3=0")  # shoulder yaw's monitor
     rep, _ = run(sim, cfg, only=["joints"])
     f = first_failure(rep)
-    assert f.channel == "shoulder_yaw_command"
-    assert "or the motor-current monitor shoulder_yaw_motor_current" in f.detail and "D3 stuck at 0?" in f.detail
+    rows = {(r.channel, r.check): r for r in rep.results}
+    assert rows[("shoulder_yaw_command", "DAC data bits (brake set)")].status == PASS
+    assert f.channel == "shoulder_yaw_current_limit"
+    assert "which no stuck bit of DAC channel shoulder_yaw_current_limit does" in f.detail
+    assert "the motor-current monitor shoulder_yaw_motor_current" in f.detail
+    diag = rows[("shoulder_yaw_motor_current", "data bits (diagnosis)")]
+    assert diag.status == FAIL and "bit 3 stuck at 0" in diag.detail
