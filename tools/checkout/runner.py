@@ -34,6 +34,7 @@ from typing import Callable
 import numpy as np
 
 from tools.checkout.config import CheckoutConfig
+from tools.checkout.finesteps import Level, Step, judge_steps, level, summary
 from tools.checkout.panel import ASSUMED, GRIPPER, PANEL_CHECKS, SWITCH_TEXT, PanelState, ask_panel
 from tools.checkout.report import FAIL, PASS, SKIP, Report, Result
 from tools.checkout.target import ServiceLost, Target
@@ -271,14 +272,15 @@ class Checkout:
                 continue
             codes = self.codes.of(c.kind, c.slot)
             nbits = DATA_BITS[c.kind]
-            found = stuck_bits(codes, nbits)
-            found += noise_split(codes, nbits) + self._idle_split(c) + noise_split(noise_core(codes), nbits)
+            # a jump across a bit's edge first: the strongest evidence (the bit one value on
+            # both sides of a 2^b jump), then a dense sweep's, then the noise's
+            found = angle_jumps(codes, nbits) if c.kind == "rtd" else adc_jumps(codes, nbits)
+            found += stuck_bits(codes, nbits)
+            found += noise_split(codes, nbits) + self._idle_split(c)
             for group in code_groups(codes):  # each level the input held (idle, deflected, driven)
-                found += noise_split(group, nbits) + noise_split(noise_core(group), nbits)
-            if c.kind == "rtd":
-                found += angle_jumps(codes, nbits)
-            else:
-                found += noise_strays(codes, nbits) + adc_jumps(codes, nbits)
+                found += noise_split(group, nbits)
+            if c.kind != "rtd":
+                found += core_splits(codes, nbits) + noise_strays(codes, nbits)
             n, k = seen.get(c.board, (0, 0))
             seen[c.board] = (n + len(codes), k + bool(found))
             for bit, v in list(dict.fromkeys(found))[:1]:  # the first reading names it; one row a channel
@@ -1131,6 +1133,21 @@ DAC_BITS_OFFSET_FACTOR = 2.0
 #: limit's (its code 0x829) and the moves'
 LIMIT_WALK_BASE = DAC_ZERO_CODE + 0x20
 LIMIT_WALK_BITS = (2, 3, 4)
+#: the bits stepped with the monitor's noise averaged out (``[joints] dac_bits_fine``,
+#: tools/checkout/finesteps.py): the rate command's D0..D3, each alone from 0 V (8 codes at
+#: most: K_a x 39 mV, 0.13 A on the shoulders, under the 0.2 A test limit with the channel's
+#: offset), and the current limit's D0 and D1 from LIMIT_WALK_BASE
+FINE_BITS = (0, 1, 2, 3)
+LIMIT_FINE_BITS = (0, 1)
+#: the standard error each fine level is read to, in the monitor's A/D codes (assumed: a
+#: tenth of a code; a noisier monitor reads until ``dac_bits_fine_max_s``)
+FINE_SE_CODES = 0.1
+#: the rate steps are judged only below this fraction of the test limit (a current at the
+#: limit does not follow the command: a limit bit stuck low, or a large offset; assumed)
+FINE_SAT_FRACTION = 0.8
+#: ... or to a one-code step's worth over this (assumed: half a code's worth is then over 3.5
+#: standard errors of a step, two levels' errors combined, with room to spare)
+FINE_WORTHS = 14.0
 
 
 class DacBits:
@@ -1146,6 +1163,8 @@ class DacBits:
         self.codes: list[int] = []  #: the monitor's mean A/D code at each step, in order
         self.limits, self.li = limits, li
         self.walk: list[tuple[int, int, float]] = []  #: the limit walk (:meth:`limit_walk`)
+        self.fine_limit: tuple[Level, list[Step]] | None = None  #: its low bits (:meth:`limit_steps`)
+        self.fine_saturated = False  #: the rate steps reached the test limit (:meth:`rate_steps`)
         self.rates, self.ji, self.limit_a = rates, ji, limits[li]
         rack = co.t.rack
         self.signal = rack.joint_channel(j, "rate_command").signal
@@ -1229,6 +1248,86 @@ class DacBits:
         self.cmd.set(joint_rate_rad_s=self.rates)
         return i
 
+    def fine_level(self, place: Callable[[int], int], code: int, worth: float) -> Level:
+        """``code`` placed (``place``), then the motor current read once a frame until its
+        mean's standard error is small enough to tell a step of one code's ``worth`` (A) from
+        nothing (:data:`FINE_WORTHS`), or :data:`FINE_SE_CODES` of a monitor code; at least
+        ``dac_bits_fine_window_s``, at most ``dac_bits_fine_max_s``."""
+        co, g = self.co, (lambda k: float(self.co.cfg.joint(self.j, k)))
+        got = place(code)
+        co.t.wait(g("dac_bits_settle_s"))
+        target = max(FINE_SE_CODES * self.monitor_code, abs(worth) / FINE_WORTHS)
+        t0, reads, last = co.t.now(), [], None
+        while True:
+            s = co.inputs()
+            if int(s.frame) != last:  # one read a frame: a frame read twice is no new sample
+                last = int(s.frame)
+                reads.append(float(s.channel(self.current)["adc_value"]))
+            el = co.t.now() - t0
+            if el >= g("dac_bits_fine_max_s") or (el >= g("dac_bits_fine_window_s")
+                                                   and level(code, got, reads).se <= target):
+                return level(code, got, reads, self.zero)
+            co.t.wait(co.poll_s)
+
+    def rate_steps(self, one_code: float) -> list[Step] | None:
+        """The rate command's lowest bits (:data:`FINE_BITS`), each 2^b codes stepped from 0 V
+        (0x800: D0..D10 at 0) against the set brake at the test limit (K_a x 8 codes stays
+        under it on every joint); [] when ``dac_bits_fine`` is off, None when the service
+        wrote other codes."""
+        if not bool(self.co.cfg.joint(self.j, "dac_bits_fine")):
+            return []
+        base = self.fine_level(self.place, DAC_ZERO_CODE, one_code)
+        steps = [(b, self.fine_level(self.place, DAC_ZERO_CODE + (1 << b), one_code)) for b in FINE_BITS]
+        levels = (base, *(lv for _, lv in steps))
+        if any(lv.got != lv.code for lv in levels):
+            return None
+        if max(abs(lv.mean) for lv in levels) >= FINE_SAT_FRACTION * self.limit_a:
+            self.fine_saturated = True  # the limit, not the command, bounds the current: not judged
+            return None
+        return judge_steps(base, steps, monitor_code=self.monitor_code)
+
+    @property
+    def monitor_code(self) -> float:
+        """One A/D code of the motor-current monitor, in A."""
+        return ADC_VOLTS_PER_CODE * float(self.co.t.rack.channel(self.current).scale)
+
+    def limit_steps(self, per_code: float) -> tuple[Level, list[Step]] | None:
+        """The current limit's D0 and D1 (:data:`LIMIT_FINE_BITS`), stepped from
+        :data:`LIMIT_WALK_BASE` while the drive saturates against the brake (the current is
+        the limit); None when off or the service wrote other codes."""
+        if not bool(self.co.cfg.joint(self.j, "dac_bits_fine")):
+            return None
+        place = (lambda c: self.place_limit(c, per_code))
+        base = self.fine_level(place, LIMIT_WALK_BASE, per_code)
+        steps = [(b, self.fine_level(place, LIMIT_WALK_BASE + (1 << b), per_code)) for b in LIMIT_FINE_BITS]
+        if any(lv.got != lv.code for lv in (base, *(lv for _, lv in steps))):
+            return None
+        return base, judge_steps(base, steps, per_code, self.monitor_code)
+
+    def fine_row(self, signal: str, check: str, steps: list[Step] | None) -> None:
+        """The row of a set of small steps: FAIL naming the first stuck bit, else PASS naming
+        the bits the noise left unjudged."""
+        if steps == []:
+            return
+        if steps is None:
+            self.co.record("joints", signal, check, None, detail=(
+                "not judged: the current reached the test limit (a step adds nothing there; the current "
+                "limit's rows judge it)" if self.fine_saturated else "not run: the service wrote other codes"))
+            return
+        stuck, unjudged = summary(steps)
+        said = ", ".join(s.text() for s in steps)
+        worst = min((s.step / s.want for s in steps if s.want), default=math.nan)
+        if stuck:
+            why = (f": data bit D{stuck[0].bit} of DAC channel {signal} stuck at 0 or at 1 (adding 2^{stuck[0].bit} "
+                   "codes added nothing; the two values read alike but for a constant offset, which the "
+                   "channel's own offset hides)")
+        elif unjudged:
+            why = ("; not judged (the monitor's noise hides the step, or it is under 1.5 of its codes with too "
+                   "little noise to average): " + ", ".join(f"D{s.bit}" for s in unjudged))
+        else:
+            why = ""
+        self.co.record("joints", signal, check, not stuck, round(worst, 3), 0.5, None, "of a step", said + why)
+
     def place_limit(self, code: int, per_code: float) -> int:
         """Write the current-limit code ``code`` (corrected from the code read back, as
         :meth:`place`); returns the code written."""
@@ -1246,6 +1345,7 @@ class DacBits:
         for code in (LIMIT_WALK_BASE, *(LIMIT_WALK_BASE + (1 << b) for b in LIMIT_WALK_BITS)):
             got = self.place_limit(code, per_code)
             out.append((code, got, self.mean_current()))
+        self.fine_limit = self.limit_steps(per_code)
         self.limits[self.li] = self.limit_a
         self.cmd.set(current_limit_a=self.limits)
         return out
@@ -1287,6 +1387,7 @@ class DacBits:
         co, j = self.co, self.j
         thr = float(co.cfg.joint(j, "dac_bits_tolerance")) * self.limit_a
         seen = [self.current_at(c) for c in DAC_BITS_CODES]
+        fine_rate = self.rate_steps(seen[1][1] - seen[0][1])  # one code's worth: 0x7FF to 0x800
         i_sat = self.saturated_current()
         placed = all(got == c for (got, _), c in zip(seen, DAC_BITS_CODES))
         (_, i_lo), (_, i_zero) = seen
@@ -1308,6 +1409,13 @@ class DacBits:
         elif abs(step) <= thr:
             detail = (f"DAC channel {self.signal}: both codes drew {centre:+.3f} A: the amplifier draws current at "
                       f"a zero command, or the DAC's offset is that far off: {drew}")
+        elif fine_rate and summary(fine_rate)[0]:
+            b = summary(fine_rate)[0][0].bit  # the low bits' steps (measured already) name it
+            detail = (f"data bit D{b} of DAC channel {self.signal} stuck at 0 or at 1 (its step of 2^{b} codes from "
+                      f"0 V added nothing: the low bits stepped row): {drew}")
+        elif max(abs(i_lo), abs(i_zero)) <= thr:
+            detail = (f"DAC channel {self.signal}: a low data bit of D0..D10 stuck (the step between the two codes "
+                      f"is more than one code's worth)" + self.monitor_bit() + f": {drew}")
         else:
             lo_moved = abs(i_lo) >= abs(i_zero)  # the code whose current a stuck bit moved
             detail = (f"{self.diagnosis(i_lo if lo_moved else 0.0, 0.0 if lo_moved else i_zero, thr)}: "
@@ -1331,8 +1439,18 @@ class DacBits:
                    f"{self.monitor_excess(abs(i_sat) - self.limit_a)}")
         co.record("joints", self.limit_signal, "DAC data bits: the current limit (brake set)", lim_ok,
                   round(i_sat, 4), self.limit_a - thr, self.limit_a + thr, "A", drew + why)
-        if lim_ok:
+        if lim_ok:  # the limit holds what was written: the rate steps below it are the command's
             self.walk_row()
+            self.limit_fine_row()
+            self.fine_row(self.signal, "DAC data bits: the low bits stepped (brake set)", fine_rate)
+
+    def limit_fine_row(self) -> None:
+        """The current limit's D0 and D1 row (:meth:`limit_steps`); a stuck bit's value from the
+        base's current (stuck at 1 lifts it by 2^b codes' worth)."""
+        if self.fine_limit is None:
+            return
+        _, steps = self.fine_limit  # its value is not said: the amplifier's gain spread (+-10 %) hides 1-2 codes
+        self.fine_row(self.limit_signal, "DAC data bits: the current limit's low bits stepped (brake set)", steps)
 
     def diagnosis(self, i_lo: float, i_zero: float, thr: float) -> str:
         """Which way the output went, and so which bits: at 0x7FF a bit of D0..D10 stuck at 0
@@ -1479,6 +1597,34 @@ def noise_core(codes: np.ndarray) -> np.ndarray:
     return c[np.isin(c, keep)]
 
 
+def core_splits(codes: np.ndarray, nbits: int) -> list[tuple[int, int]]:
+    """:func:`noise_split` of an A/D input's levels again without their passing reads
+    (:func:`noise_core`), cut only where more than 32 codes are left out (a D5 split stays one
+    level), and only where the two pieces interleave in time as noise does
+    (:data:`INTERLEAVE_MIN` switches between them): two levels an input rested at a few codes
+    apart, one after the other, are no split (a healthy seeded rack's resolver rested so)."""
+    out: list[tuple[int, int]] = []
+    for group in code_groups(noise_core(codes), GROUP_GAP + 1):
+        found = noise_split(group, nbits)
+        if found and _switches(group) >= INTERLEAVE_MIN:
+            out += found
+    return out
+
+
+def _switches(group: np.ndarray) -> int:
+    """How often the reads of ``group`` (in the order read) cross its widest hole."""
+    u = np.unique(group)
+    if len(u) < 2:
+        return 0
+    above = group >= u[int(np.argmax(np.diff(u))) + 1]
+    return int(np.count_nonzero(above[1:] != above[:-1]))
+
+
+#: :func:`core_splits`: the fewest crossings of a split's hole in the order read (assumed:
+#: noise crosses it at every read of the smaller piece, 15 or more in the cases it was made
+#: for; an input resting at one level, then another, crosses a few times)
+INTERLEAVE_MIN = 8
+
 #: :func:`noise_core`: how often a code is read before it counts as a level's (assumed: a
 #: transient passes a code at most two or three times; the stuck bits' split pieces it was
 #: made for read 15 times and more)
@@ -1505,15 +1651,15 @@ def _held(u: np.ndarray, alt: np.ndarray, n: np.ndarray, lo: int, hi: int) -> tu
     return np.array(keys, dtype=np.int64), np.array([got[c] for c in keys], dtype=np.int64)
 
 
-def code_groups(codes: np.ndarray) -> list[np.ndarray]:
+def code_groups(codes: np.ndarray, max_step: int | None = None) -> list[np.ndarray]:
     """The levels an input held over a run: its codes cut where neighbouring distinct codes
-    are more than :data:`GROUP_GAP` apart, each group with at least :data:`GROUP_SAMPLES`
+    are more than ``max_step`` (:data:`GROUP_GAP`) apart, each group with at least :data:`GROUP_SAMPLES`
     reads (a passing transient is no level). Each is one quiet input's noise for
     :func:`noise_split` (idle, a deflected stick, a joint driven at a steady rate)."""
     if len(codes) == 0:
         return []
     u = np.unique(codes)
-    cuts = u[1:][np.diff(u) > GROUP_GAP]
+    cuts = u[1:][np.diff(u) > (GROUP_GAP if max_step is None else max_step)]
     edges = [int(u[0])] + [int(c) for c in cuts] + [int(u[-1]) + 1]
     out = []
     for lo, hi in zip(edges[:-1], edges[1:]):

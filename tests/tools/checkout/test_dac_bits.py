@@ -19,6 +19,9 @@ def test_a_healthy_rack_passes_both_rows_on_every_joint(sim, cfg):
     rows = {(r.channel, r.check): r for r in rep.results if r.check.startswith("DAC data bits")}
     for j in JOINTS:
         assert rows[(f"{j}_command", "DAC data bits (brake set)")].status == PASS
+        assert rows[(f"{j}_command", "DAC data bits: the low bits stepped (brake set)")].status == PASS
+        assert rows[(f"{j}_current_limit", "DAC data bits: the current limit's low bits stepped (brake set)")
+                    ].status == PASS
         assert rows[(f"{j}_current_limit", "DAC data bits: the current limit (brake set)")].status == PASS
         assert rows[(f"{j}_current_limit", "DAC data bits: the current limit walked (brake set)")].status == PASS
     assert rep.passed
@@ -104,16 +107,45 @@ def test_a_monitor_bit_stuck_at_1_fails_on_the_monitor_before_the_dac_is_judged(
 def test_a_small_current_at_a_test_code_names_the_monitor_bit_as_the_other_reading(sim, cfg):
     """D3 of a current monitor stuck at 0 reads a small negative current 8 codes low, at both
     test codes alike: the DAC row, judged on the step between them, passes (its DAC is
-    healthy); the limit walk's step across the monitor's edge rises by more than its codes'
-    worth, which no stuck limit bit does, so that row blames the monitor, and the monitor's
-    codes name its bit."""
+    healthy); the run fails on the monitor: its codes name its bit, or a DAC row whose step
+    across the monitor's edge rose by more than its codes' worth (which no stuck DAC bit
+    does) points at the monitor, and the codes then name the bit."""
     sim.inject_fault("stuck-bit:adc@SCAN[0]:3=0")  # shoulder yaw's monitor
     rep, _ = run(sim, cfg, only=["joints"])
     f = first_failure(rep)
     rows = {(r.channel, r.check): r for r in rep.results}
     assert rows[("shoulder_yaw_command", "DAC data bits (brake set)")].status == PASS
-    assert f.channel == "shoulder_yaw_current_limit"
-    assert "which no stuck bit of DAC channel shoulder_yaw_current_limit does" in f.detail
-    assert "the motor-current monitor shoulder_yaw_motor_current" in f.detail
-    diag = rows[("shoulder_yaw_motor_current", "data bits (diagnosis)")]
-    assert diag.status == FAIL and "bit 3 stuck at 0" in diag.detail
+    if f.channel == "shoulder_yaw_motor_current":
+        assert "bit 3 stuck at 0" in f.detail, f.detail
+    else:
+        assert f.channel == "shoulder_yaw_current_limit", (f.channel, f.detail)
+        assert "which no stuck bit of DAC channel shoulder_yaw_current_limit does" in f.detail
+        assert "the motor-current monitor shoulder_yaw_motor_current" in f.detail
+        diag = rows[("shoulder_yaw_motor_current", "data bits (diagnosis)")]
+        assert diag.status == FAIL and "bit 3 stuck at 0" in diag.detail
+
+
+@pytest.mark.parametrize("spec, channel, words", [
+    # the rate command's lowest bits, each stepped alone from 0 V (the 200-case matrix's misses)
+    ("stuck-bit:dac@DAC[1]:1=1", "shoulder_yaw_command", "data bit D1 of DAC channel shoulder_yaw_command stuck"),
+    ("stuck-bit:dac@DAC[2]:1=0", "elbow_pitch_command", "data bit D1 of DAC channel elbow_pitch_command stuck"),
+    ("stuck-bit:dac@DAC[3]:3=1", "wrist_yaw_command", "data bit D3 of DAC channel wrist_yaw_command stuck"),
+    # the current limit's D0 and D1, stepped while the drive saturates
+    ("stuck-bit:dac@DAC[9]:0=1", "elbow_pitch_current_limit",
+     "data bit D0 of DAC channel elbow_pitch_current_limit stuck at 0 or at 1"),
+    ("stuck-bit:dac@DAC[10]:1=1", "wrist_yaw_current_limit",
+     "data bit D1 of DAC channel wrist_yaw_current_limit stuck at 0 or at 1"),
+])
+def test_a_low_dac_bit_is_found_by_its_step_through_the_monitor_s_noise(cfg, spec, channel, words):
+    """On a rack with a real rack's noise (``--sim-errors 1``, the matrix's), a step of 1 to 8
+    codes that adds nothing is that bit stuck: the first failure, on its channel."""
+    from tools.checkout.target import make_sim_target
+    t = make_sim_target(None, sim_errors=1)
+    try:
+        t.inject_fault(spec)
+        rep, _ = run(t, cfg, only=["joints"])
+    finally:
+        t.close()
+    f = first_failure(rep)
+    assert (f.group, f.channel, f.status) == ("joints", channel, FAIL), (f.channel, f.detail)
+    assert words in f.detail, f.detail

@@ -339,3 +339,18 @@ def test_the_former_misses_of_the_200_case_matrix_are_found_and_named(spec, chan
     v = run_case(case, RACK, sim_errors=1)
     assert v.right, v.first
     assert channel in v.first and words in v.first, v.first
+
+
+def test_a_split_counts_only_where_its_pieces_interleave_as_noise_does():
+    """:func:`core_splits`: idle noise about 0x7FF | 0x800 with D5 stuck at 0 reads 0x7DF and
+    0x800.. in turn, read by read: named. An input that rested at 0x7DF, then at 0x800, with
+    the same codes and counts but one after the other (two levels, as a healthy seeded
+    rack's resolver rested) is no split."""
+    import numpy as np
+    from tools.checkout.runner import core_splits
+    rng = np.random.default_rng(3)
+    idle = np.clip(np.rint(rng.normal(0x800, 0.8, 1500)), 0, 4095).astype(np.int64)
+    stuck = _stick(idle, 5, 0)
+    assert core_splits(stuck, 12) == [(5, 0)]
+    rested = np.sort(stuck)  # the same reads, the low level's first
+    assert core_splits(rested, 12) == []

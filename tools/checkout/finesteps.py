@@ -1,0 +1,107 @@
+"""A DAC channel's lowest data bits, told from the motor-current monitor's noise (issue 32).
+
+A bit b stuck (at 0 or at 1) makes a step of 2^b codes from a code whose low bits are all 0
+add nothing: the output already had (stuck at 1) or never gets (stuck at 0) that bit. The
+steps are 1 to 8 codes: a few mA to a few tens, a fraction of a monitor's A/D code to a few
+codes. So each code's current is averaged over as many reads as the monitor's noise needs
+(:class:`Level`: its mean and the mean's standard error), and a step is judged only when
+the noise lets it be told from nothing (:func:`judge_steps`). What the rack measures is
+the current against the set brake, as :class:`tools.checkout.runner.DacBits` places it.
+
+Stuck at 0 and stuck at 1 read alike here, but for a constant 2^b codes over every code,
+which the channel's own offset (the DAC's, the amplifier's) hides; the value is said only
+where the channel's absolute current tells it (the current limit's, saturated).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+#: a step is called stuck when it falls this many standard errors short of half its worth
+#: and half its worth is itself that many standard errors: a healthy step is then called
+#: stuck only by an error of 2 x 2.5 = 5 standard errors (3 in 10 million steps; assumed)
+FINE_SIGMAS = 2.5
+#: a step the monitor resolves without noise: this many of its A/D codes (assumed; rounding
+#: moves a mean by whole codes, so a step under one code can read as none)
+MIN_STEP_CODES = 1.5
+#: ...or read through at least this much noise (1 sigma, in codes), which dithers the
+#: rounding so a mean follows the current (assumed; the seeded racks' A/D noise is 0.4..1.2)
+DITHER_CODES = 0.4
+
+
+@dataclass(frozen=True)
+class Level:
+    """One code's current (A, the monitor's zero taken off): the mean of ``n`` reads and the
+    mean's standard error."""
+
+    code: int  #: the code asked for
+    got: int  #: the code the service wrote (read back)
+    mean: float
+    se: float
+    n: int
+
+
+@dataclass(frozen=True)
+class Step:
+    """Adding 2^``bit`` codes to the base: the current it added (``step``, A), its standard
+    error, and its worth (``want``, A)."""
+
+    bit: int
+    step: float
+    se: float
+    want: float
+    #: False when the monitor cannot resolve it: under :data:`MIN_STEP_CODES` of its codes
+    #: with noise under :data:`DITHER_CODES` (its mean then moves by whole codes, not by the
+    #: current: a 0.95-code step can read as none)
+    resolvable: bool = True
+
+    @property
+    def verdict(self) -> str:
+        """"ok" (it added at least half its worth), "stuck" (it added less, and the noise
+        cannot explain the shortfall) or "noise" (neither, or not resolvable: not judged)."""
+        half = 0.5 * self.want
+        if self.step >= half:
+            return "ok"
+        told = self.resolvable and half >= FINE_SIGMAS * self.se  # the noise lets it be told
+        return "stuck" if told and half - self.step >= FINE_SIGMAS * self.se else "noise"
+
+    def text(self) -> str:
+        return f"+2^{self.bit}: {self.step * 1e3:+.1f} mA of {self.want * 1e3:.1f} (+/-{self.se * 1e3:.1f})"
+
+
+def level(code: int, got: int, reads: list[float], zero: float = 0.0) -> Level:
+    """A :class:`Level` of ``reads`` (A) less the monitor's ``zero``."""
+    n = len(reads)
+    if n == 0:
+        return Level(code, got, math.nan, math.inf, 0)
+    m = sum(reads) / n
+    var = sum((x - m) ** 2 for x in reads) / (n - 1) if n > 1 else math.inf
+    return Level(code, got, m - zero, math.sqrt(var / n), n)
+
+
+def judge_steps(base: Level, steps: list[tuple[int, Level]], per_code: float | None = None,
+                monitor_code: float = 0.0) -> list[Step]:
+    """Each ``(bit, level)`` against ``base`` (the level's code is the base's plus 2^bit).
+    ``per_code``: each code's worth in A; None: the median over the steps of step / 2^bit
+    (the drive's K_a, not known to the checkout; one stuck bit among four does not move the
+    median's middle two). ``monitor_code``: one A/D code of the monitor, in A."""
+    raw = [(b, lv.mean - base.mean, math.hypot(lv.se, base.se), min(_sigma(lv), _sigma(base)))
+           for b, lv in steps]
+    if per_code is None:
+        slopes = sorted(d / (1 << b) for b, d, _, _ in raw)
+        k = len(slopes)
+        per_code = 0.5 * (slopes[(k - 1) // 2] + slopes[k // 2]) if k else math.nan
+    return [Step(b, d, se, (1 << b) * per_code,
+                 (1 << b) * per_code >= MIN_STEP_CODES * monitor_code or sigma >= DITHER_CODES * monitor_code)
+            for b, d, se, sigma in raw]
+
+
+def _sigma(lv: Level) -> float:
+    """The reads' own spread (A)."""
+    return lv.se * math.sqrt(lv.n) if lv.n > 1 and math.isfinite(lv.se) else 0.0
+
+
+def summary(steps: list[Step]) -> tuple[list[Step], list[Step]]:
+    """The stuck steps and the steps the noise left unjudged."""
+    return [s for s in steps if s.verdict == "stuck"], [s for s in steps if s.verdict == "noise"]
