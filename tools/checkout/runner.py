@@ -1841,11 +1841,19 @@ def _drifted(ang: np.ndarray, lsb: float, signal: str) -> str:
 
 
 def _runaway_cause(currents: list[float], travel: float, i_lim: float) -> str:
-    """What the motor current says of a runaway (its last reads, at least a tenth of the test's
-    limit ``i_lim``): against the motion, the amplifier holds back while something else drives
-    the joint (a load); with it, the motor drives it on (the rate loop's feedback). "" without
-    a monitor or with no current to read."""
-    i = float(np.mean(currents[-5:])) if currents else 0.0
+    """What the motor current says of a runaway (while it flowed: the mean of the reads at
+    least half the move's largest, at least a tenth of the test's limit ``i_lim``): against
+    the motion, the amplifier holds back while something else drives the joint (a load);
+    with it, the motor drives it on (the rate loop's feedback). Not its last reads: the
+    service may already have made the outputs safe (a load on the shoulder pitch held back
+    at the limit, then read 0 A once the service tripped). "" without a monitor or with no
+    current to read."""
+    c = np.asarray(currents, dtype=float)
+    if len(c) == 0:
+        return ""
+    peak = c[int(np.argmax(np.abs(c)))]
+    flowing = c[(np.sign(c) == np.sign(peak)) & (np.abs(c) >= 0.5 * abs(peak))]
+    i = float(np.mean(flowing)) if len(flowing) else 0.0
     if abs(i) < 0.1 * i_lim:
         return ""
     if i * travel < 0:

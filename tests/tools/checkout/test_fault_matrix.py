@@ -331,10 +331,12 @@ def test_a_level_s_passing_reads_do_not_hide_its_split_noise():
     ("stuck-bit:adc@SCAN[12]:4=1", "wrist_pitch_rate", "bit 4 stuck at 1"),  # split idle, passing reads
     ("stuck-bit:adc@SCAN[17]:5=0", "cae_forward_backward", "bit 5 stuck at 0"),
     ("stuck-bit:adc@SCAN[23]:5=0", "cae_discrete_2", "bit 5 stuck at 0"),
+    # the current held back at the limit, then read 0 A once the service made outputs safe
+    ("load:shoulder_pitch=300", "shoulder_pitch_rate", "an external load drives it"),
 ])
 def test_the_former_misses_of_the_200_case_matrix_are_found_and_named(spec, channel, words):
-    """Five stuck bits the 200-case matrix (seed 7, rack errors seed 1) passed or named no cause
-    for (docs/checkout.md): found, the channel and the bit named."""
+    """Five stuck bits and a load the 200-case matrix (seed 7, rack errors seed 1) passed or
+    named no cause for (docs/checkout.md): found, the channel and the bit (the cause) named."""
     case = next(c for c in cases(RACK) if c.spec == spec)
     v = run_case(case, RACK, sim_errors=1)
     assert v.right, v.first
@@ -354,3 +356,15 @@ def test_a_split_counts_only_where_its_pieces_interleave_as_noise_does():
     assert core_splits(stuck, 12) == [(5, 0)]
     rested = np.sort(stuck)  # the same reads, the low level's first
     assert core_splits(rested, 12) == []
+
+
+def test_a_runaway_s_cause_is_read_while_the_current_flowed_not_after_the_trip():
+    """A load runs the shoulder pitch away: the amplifier holds back at its -5 A limit, then
+    the service makes the outputs safe and the monitor reads 0 A; the cause is the current
+    while it flowed (a load), not the last reads. A drive that pushes with the motion is the
+    rate loop's, and no current at all says nothing."""
+    from tools.checkout.runner import _runaway_cause
+    held_then_tripped = [-4.97] * 5 + [-3.7, -0.9, 0.5, 0.25] + [0.0, 0.005] * 15
+    assert "an external load drives it" in _runaway_cause(held_then_tripped, +0.10, 5.0)
+    assert "the motor drives it on" in _runaway_cause([0.5, 2.0, 4.9, 4.9, 0.0], +0.10, 5.0)
+    assert _runaway_cause([0.0, 0.01, 0.0], +0.10, 5.0) == ""
