@@ -1387,7 +1387,10 @@ class DacBits:
         co, j = self.co, self.j
         thr = float(co.cfg.joint(j, "dac_bits_tolerance")) * self.limit_a
         seen = [self.current_at(c) for c in DAC_BITS_CODES]
-        fine_rate = self.rate_steps(seen[1][1] - seen[0][1])  # one code's worth: 0x7FF to 0x800
+        # the low bits' steps, unless a high bit already drives the current (nothing more to
+        # learn, and no need to push against the brake longer)
+        high = max(abs(seen[0][1]), abs(seen[1][1])) > 2.0 * thr
+        fine_rate = [] if high else self.rate_steps(seen[1][1] - seen[0][1])  # one code's worth
         i_sat = self.saturated_current()
         placed = all(got == c for (got, _), c in zip(seen, DAC_BITS_CODES))
         (_, i_lo), (_, i_zero) = seen
@@ -1445,8 +1448,7 @@ class DacBits:
             self.fine_row(self.signal, "DAC data bits: the low bits stepped (brake set)", fine_rate)
 
     def limit_fine_row(self) -> None:
-        """The current limit's D0 and D1 row (:meth:`limit_steps`); a stuck bit's value from the
-        base's current (stuck at 1 lifts it by 2^b codes' worth)."""
+        """The current limit's D0 and D1 row (:meth:`limit_steps`)."""
         if self.fine_limit is None:
             return
         _, steps = self.fine_limit  # its value is not said: the amplifier's gain spread (+-10 %) hides 1-2 codes
