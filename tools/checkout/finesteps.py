@@ -9,8 +9,7 @@ the noise lets it be told from nothing (:func:`judge_steps`). What the rack meas
 the current against the set brake, as :class:`tools.checkout.runner.DacBits` places it.
 
 Stuck at 0 and stuck at 1 read alike here, but for a constant 2^b codes over every code,
-which the channel's own offset (the DAC's, the amplifier's) hides; the value is said only
-where the channel's absolute current tells it (the current limit's, saturated).
+which the channel's own offset (the DAC's, the amplifier's) hides, so the value is not said.
 """
 
 from __future__ import annotations

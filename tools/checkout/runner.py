@@ -1273,7 +1273,7 @@ class DacBits:
         """The rate command's lowest bits (:data:`FINE_BITS`), each 2^b codes stepped from 0 V
         (0x800: D0..D10 at 0) against the set brake at the test limit (K_a x 8 codes stays
         under it on every joint); [] when ``dac_bits_fine`` is off, None when the service
-        wrote other codes."""
+        wrote other codes or the current reached the limit (``fine_saturated``)."""
         if not bool(self.co.cfg.joint(self.j, "dac_bits_fine")):
             return []
         base = self.fine_level(self.place, DAC_ZERO_CODE, one_code)
@@ -1412,8 +1412,8 @@ class DacBits:
         elif abs(step) <= thr:
             detail = (f"DAC channel {self.signal}: both codes drew {centre:+.3f} A: the amplifier draws current at "
                       f"a zero command, or the DAC's offset is that far off: {drew}")
-        elif fine_rate and summary(fine_rate)[0]:
-            b = summary(fine_rate)[0][0].bit  # the low bits' steps (measured already) name it
+        elif stuck_low := (summary(fine_rate)[0] if fine_rate else []):
+            b = stuck_low[0].bit  # the low bits' steps (measured already) name it
             detail = (f"data bit D{b} of DAC channel {self.signal} stuck at 0 or at 1 (its step of 2^{b} codes from "
                       f"0 V added nothing: the low bits stepped row): {drew}")
         elif max(abs(i_lo), abs(i_zero)) <= thr:
