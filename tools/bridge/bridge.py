@@ -46,6 +46,28 @@ OTHER_SENDERS = "(other senders)"
 #: a sender's name (the command body's Zenoh attachment) as the bridge keeps it, at most
 #: this many characters
 MAX_SENDER_CHARS = 64
+#: a remote writer's identity is its name, this separator and a nonce of its own
+#: (``RemoteCommander``: ``ops-laptop~1f2e3d4c``), in its liveliness token's last chunk and in
+#: every body's attachment. Names hold no ``~`` (``session.check_name``), so the split is
+#: unambiguous; a writer without a nonce (an older client) is its name alone.
+#: Why: Zenoh may deliver a writer's token withdrawal before its last bodies (the kill
+#: matrix's far end started again under the same name met it: "controller_frame 4 after
+#: 1046"); with the nonce such a late body is never taken for the next writer's.
+NONCE_SEP = "~"
+#: a nonce as the bridge keeps it, at most this many characters
+MAX_NONCE_CHARS = 16
+
+
+def writer_ident(text: str) -> str:
+    """A token chunk or body attachment as the bridge keeps it: the name cut at
+    :data:`MAX_SENDER_CHARS`, the nonce at :data:`MAX_NONCE_CHARS`."""
+    name, sep, nonce = text.partition(NONCE_SEP)
+    return name[:MAX_SENDER_CHARS] + sep + nonce[:MAX_NONCE_CHARS]
+
+
+def writer_name(ident: str) -> str:
+    """The name of a writer identity (what messages and counts show)."""
+    return ident.partition(NONCE_SEP)[0]
 #: refused remote traffic is said in one service message per this interval at most
 #: (:class:`pfma.refusals.RefusalLog`), with the counts by reason
 REFUSAL_INTERVAL_S = 60.0
@@ -138,7 +160,8 @@ class Bridge:
         if ring is not None:
             self.attach_ring(ring)
         self._entities: list[Any] = []
-        #: remote writers by the order their tokens appeared; the first is the holder
+        #: remote writers' identities (:func:`writer_ident`) by the order their tokens
+        #: appeared; the first is the holder
         self.writers: list[str] = []
         #: newest (sender, body, holder tokens withdrawn when it came) not yet written
         self._pending: tuple[str, bytes, int] | None = None
@@ -170,7 +193,8 @@ class Bridge:
             self._entities.append(session.declare_queryable(
                 key(name, "writer", "commands"),
                 lambda q: q.reply(q.key_expr, json.dumps({"holder": self.holder,
-                                                          "writers": self.writers}).encode())))
+                                                          "writers": [writer_name(w) for w in self.writers]
+                                                          }).encode())))
         # the areas and then the layout last: a peer that has the layout also gets the writer
         # key (a new remote writer asks it right after the layout; declared after it, a
         # bridge descheduled in between was once taken as one that "takes no commands")
@@ -184,7 +208,8 @@ class Bridge:
 
     def _on_set(self, sample: Any) -> None:
         a = sample.attachment
-        sender = a.to_bytes()[:4 * MAX_SENDER_CHARS].decode("utf-8", "replace")[:MAX_SENDER_CHARS] if a else ""
+        sender = writer_ident(a.to_bytes()[:4 * (MAX_SENDER_CHARS + MAX_NONCE_CHARS + 1)]
+                              .decode("utf-8", "replace")) if a else ""
         # tagged with the holder tokens withdrawn so far: a body that came before its writer's
         # token went is that writer's, never written for a writer after it under the same name
         # (assumption: Zenoh delivers a writer's last body before its token's withdrawal)
@@ -197,7 +222,7 @@ class Bridge:
             query.reply(query.key_expr, last[0], attachment=SEQ.pack(last[1]) + self._id)
 
     def _on_token(self, sample: Any) -> None:
-        owner = str(sample.key_expr).rsplit("/", 1)[-1][:MAX_SENDER_CHARS]
+        owner = writer_ident(str(sample.key_expr).rsplit("/", 1)[-1])
         writers = list(self.writers)
         if str(sample.kind).endswith("PUT"):
             if owner not in writers:
@@ -215,9 +240,9 @@ class Bridge:
 
     @property
     def holder(self) -> str | None:
-        """The remote writer whose commands are written (the first live token)."""
+        """The name of the remote writer whose commands are written (the first live token)."""
         w = self.writers
-        return w[0] if w else None
+        return writer_name(w[0]) if w else None
 
     def poll(self) -> int:
         """Write a pending remote command body, then publish every area that changed
@@ -289,7 +314,9 @@ class Bridge:
 
     def _apply_commands(self) -> None:
         assert self.commander is not None
-        holder = self.holder
+        w = self.writers
+        ident = w[0] if w else None
+        holder = writer_name(ident) if ident is not None else None
         if (holder or "") != self._holder_said:  # said once per change of holder
             left, self._holder_said = self._holder_said, holder or ""
             self._post(f"bridge: remote command writer {holder!r} holds the command area"
@@ -307,17 +334,22 @@ class Bridge:
             if self._pending is None:
                 self._pending = got
             return
-        if sender != holder:
-            self._count_refused(sender)
-            if sender not in self._said and len(self._said) < MAX_NAMED_SENDERS:
-                self._said.add(sender)
-                self._post(f"bridge: commands from {sender!r} refused: the command area is held "
+        if sender != ident:
+            name = writer_name(sender)
+            if name == holder:  # never written, and not the holder's refusal either
+                self.refusals.note("command bodies under the holder's name from another writer (an earlier "
+                                   "writer's last word after its token went, or a forger)")
+                return
+            self._count_refused(name)
+            if name not in self._said and len(self._said) < MAX_NAMED_SENDERS:
+                self._said.add(name)
+                self._post(f"bridge: commands from {name!r} refused: the command area is held "
                            f"by remote writer {holder!r}", Severity.WARNING)
             else:
                 self.refusals.note("command bodies from a writer that does not hold the command area")
             return
         if len(body) != self._body_size:
-            self._count_refused(sender)
+            self._count_refused(holder)
             self.refusals.note(f"command bodies {'shorter' if len(body) < self._body_size else 'longer'} "
                                f"than the layout's {self._body_size} bytes")
             return

@@ -10,6 +10,7 @@ bytes; decoding happens in the caller's thread.
 from __future__ import annotations
 
 import json
+import secrets
 import time
 from collections import deque
 from pathlib import Path
@@ -23,7 +24,7 @@ from bit3.client import QUEUES, Snapshot
 from bit3.layout import MAGIC, Layout, ServiceState, build_layout, default_layout
 from bit3.seqlock import Bit3Error, LayoutMismatchError, OwnershipError
 from pfma.rack import load_rack
-from tools.bridge.bridge import AREAS, STAMPED, seq_of, writer_of
+from tools.bridge.bridge import AREAS, NONCE_SEP, STAMPED, seq_of, writer_name, writer_of
 from tools.bridge.consistency import BodyCheck
 from tools.bridge.session import CREDENTIALS_ENV, check_name, key
 
@@ -323,7 +324,8 @@ class RemoteCommander:
     On creation it asks the bridge (``pfma/<name>/writer/commands``) and the liveliness
     tokens ``pfma/<name>/writer/commands/*`` who holds the command area: someone does ->
     :class:`OwnershipError` naming them; else it declares its own token
-    (``.../<owner>``), which dies with its session (lost link: after the lease).
+    (``.../<owner>~<nonce>``: its name and a nonce of its own, also in every body's attachment;
+    ``tools.bridge.bridge.NONCE_SEP``), which dies with its session (lost link: after the lease).
     ``write_commands`` takes the keys of :meth:`bit3.client.Client.write_commands`; every
     write is a new heartbeat at the bridge. Without ``inputs_frame`` a write says it used
     the newest inputs this side has received (an open-loop writer).
@@ -332,6 +334,8 @@ class RemoteCommander:
     def __init__(self, remote: RemoteBuffer, owner: str) -> None:
         self.remote = remote
         self.owner = check_name(owner, "writer name")
+        #: this writer's identity at the bridge: a body is written only while it matches the token
+        self.ident = f"{self.owner}{NONCE_SEP}{secrets.token_hex(4)}"
         s = remote.session
         name = remote.name
         holder: str | None = None
@@ -362,11 +366,11 @@ class RemoteCommander:
                             f"commands (start it with --commands), or it stalled (try again)")
         for reply in s.liveliness().get(key(name, "writer", "commands", "*"), timeout=remote.timeout_s):
             if reply.ok is not None and holder is None:
-                holder = str(reply.ok.key_expr).rsplit("/", 1)[-1]
+                holder = writer_name(str(reply.ok.key_expr).rsplit("/", 1)[-1])
         if holder is not None:
             raise OwnershipError(f"the command area of {name} is held by remote writer "
                                  f"{holder!r}; one writer at a time")
-        self._token = s.liveliness().declare_token(key(name, "writer", "commands", self.owner))
+        self._token = s.liveliness().declare_token(key(name, "writer", "commands", self.ident))
         self._pub = s.declare_publisher(key(name, "commands", "set"))
         spec = remote.layout.area("commands")
         assert spec.body_dtype is not None
@@ -402,7 +406,7 @@ class RemoteCommander:
         self._heartbeat += 1
         rec["heartbeat"] = self._heartbeat
         rec["t_s"] = time.time()
-        self._pub.put(bytes(self.raw), attachment=self.owner.encode())
+        self._pub.put(bytes(self.raw), attachment=self.ident.encode())
         return self._heartbeat
 
     def close(self) -> None:

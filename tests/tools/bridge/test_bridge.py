@@ -207,8 +207,8 @@ def test_the_bridge_writes_only_the_holders_commands(link):
     until(lambda: bridge.holder == "first", "the first writer's token")
     b_remote = RemoteBuffer(peer(), rig.name)
     b = RemoteCommander.__new__(RemoteCommander)  # skips the token check: the race
-    b.remote, b.owner, b._heartbeat = b_remote, "second", 0
-    b._token = b_remote.session.liveliness().declare_token(f"pfma/{rig.name}/writer/commands/second")
+    b.remote, b.owner, b.ident, b._heartbeat = b_remote, "second", "second~0badcafe", 0
+    b._token = b_remote.session.liveliness().declare_token(f"pfma/{rig.name}/writer/commands/{b.ident}")
     b._pub = b_remote.session.declare_publisher(f"pfma/{rig.name}/commands/set")
     b.raw = bytearray(a.raw)
     b.command = np.ndarray((), a.command.dtype, buffer=b.raw)
@@ -262,3 +262,41 @@ def test_a_new_remote_writer_whose_first_bodies_were_lost_is_not_a_second_writer
     said = [m.text for m in rig.reader.messages(queue="service")]
     assert not [t for t in said if "two writers" in t], said
     assert ServiceState(rig.reader.read_inputs().service_state) is ServiceState.ARMED
+
+
+def test_a_body_that_comes_after_its_writers_token_went_is_never_the_next_writers(link):
+    """Zenoh may deliver a writer's token withdrawal before its last body. The kill matrix's
+    far end, stopped and started again under the same name, met it: the late body came under
+    the new writer's token and was written for it, and the service saw "two writers on the
+    claim: controller_frame 4 after 1046" and refused the new writer's arming. Each writer's
+    token and bodies carry a nonce of its own (``RemoteCommander.ident``), so the late body
+    is never written: the new writer arms, and nobody is taken for a second writer."""
+    rig, bridge, peer = link
+    _s, cmd = _writer(link, "ops-laptop")
+    zero = [0.0] * len(rig.layout.joint_names)
+    limits = [1.0] * len(rig.layout.current_limit_names)
+    _deliver(rig, bridge, lambda: cmd.write_commands(joint_rate_rad_s=zero, current_limit_a=limits, arm_request=1,
+                                                     rearm_counter=1, controller_frame=1045), "the arm request")
+    _deliver(rig, bridge, lambda: cmd.write_commands(controller_frame=1046), "a heartbeat")
+    assert ServiceState(rig.reader.read_inputs().service_state) is ServiceState.ARMED
+    cmd._token.undeclare()  # the token goes first ...
+    until(lambda: bridge.holder is None, "the writer's token gone")
+    step(rig, bridge, int(np.ceil(rig.svc.guard.watchdog_s * rig.svc.schedule.frame_rate_hz)) + 2)
+    cmd2 = RemoteCommander(RemoteBuffer(peer(), rig.name), "ops-laptop")
+    until(lambda: bridge.holder == "ops-laptop", "the new writer's token")
+    assert cmd2.ident != cmd.ident
+    applied = bridge.applied
+    cmd.write_commands(controller_frame=1047)  # ... and its last body after, under the new token
+    until(lambda: bridge._pending is not None, "the late body at the bridge")
+    step(rig, bridge, SAFE_START_FRAMES + 2)
+    assert bridge.applied == applied and bridge._pending is None  # never written
+    counter = int(cmd2.command["rearm_counter"]) + 1
+    _deliver(rig, bridge, lambda: cmd2.write_commands(joint_rate_rad_s=zero, current_limit_a=limits, arm_request=1,
+                                                      rearm_counter=counter, controller_frame=4), "the re-arm")
+    for f in (5, 6, 7):
+        _deliver(rig, bridge, lambda: cmd2.write_commands(controller_frame=f), "a heartbeat")
+    said = [m.text for m in rig.reader.messages(queue="service")]
+    assert not [t for t in said if "two writers" in t], said
+    assert ServiceState(rig.reader.read_inputs().service_state) is ServiceState.ARMED
+    assert bridge.refusals.total == {"command bodies under the holder's name from another writer (an earlier "
+                                     "writer's last word after its token went, or a forger)": 1}

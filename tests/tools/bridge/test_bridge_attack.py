@@ -122,7 +122,7 @@ def test_a_holder_sending_bodies_of_the_wrong_size_is_counted_not_obeyed(link):
     size = rig.layout.area("commands").body_size
     for k in range(120):
         body = bytes(cmd.raw) + b"\x01" * (1 + k % 7) if k % 2 else bytes(cmd.raw)[: size - 1 - k]
-        cmd._pub.put(body, attachment=b"ops-laptop")
+        cmd._pub.put(body, attachment=cmd.ident.encode())
         until(lambda: bridge._pending is not None, "a body at the bridge")
         step(rig, bridge)
     assert bridge.applied == 0 and bridge.refused == {"ops-laptop": 120}
@@ -159,7 +159,7 @@ def test_a_holder_commanding_beyond_every_limit_is_refused_by_the_service(link, 
     rec["joint_rate_rad_s"][2] = value
     rec["heartbeat"] = int(rec["heartbeat"]) + 1
     before = bridge.applied
-    cmd._pub.put(bytes(rec.tobytes()), attachment=b"ops-laptop")
+    cmd._pub.put(bytes(rec.tobytes()), attachment=cmd.ident.encode())
     until(lambda: bridge._pending is not None, "the hostile body at the bridge")
     step(rig, bridge, 2)
     assert bridge.applied == before + 1
