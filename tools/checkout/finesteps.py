@@ -65,8 +65,9 @@ class Step:
         told = self.resolvable and half >= FINE_SIGMAS * self.se  # the noise lets it be told
         return "stuck" if told and half - self.step >= FINE_SIGMAS * self.se else "noise"
 
-    def text(self) -> str:
-        return f"+2^{self.bit}: {self.step * 1e3:+.1f} mA of {self.want * 1e3:.1f} (+/-{self.se * 1e3:.1f})"
+    def text(self, milli: str = "mA") -> str:
+        """The step in thousandths of its unit (``milli``: mA for a current, mV for a tach)."""
+        return f"+2^{self.bit}: {self.step * 1e3:+.1f} {milli} of {self.want * 1e3:.1f} (+/-{self.se * 1e3:.1f})"
 
 
 def level(code: int, got: int, reads: list[float], zero: float = 0.0) -> Level:

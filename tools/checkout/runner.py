@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
@@ -712,10 +713,10 @@ class Checkout:
             cmd.keepalive = True
             if not self._arm(cmd, GRIPPER, [0.0] * n_joints, limits, None, gripper=0.0):
                 return
-            for sign in (1, -1):
-                self._gripper_move(cmd, sign * float(g("command_v")), ch["rate"].signal,
-                                   ch["motor_current"].signal, i_lim)
-                self.t.wait(float(g("pause_s")))
+            moved = [self._gripper_move(cmd, sign * float(g("command_v")), ch["rate"].signal,
+                                        ch["motor_current"].signal, i_lim) for sign in (1, -1)]
+            if all(moved):  # a drive that does not follow its command is not stepped further
+                self._gripper_bits(cmd, ch["gripper_command"].signal, ch["rate"].signal)
         finally:
             try:
                 cmd.set(gripper=0.0)
@@ -726,8 +727,9 @@ class Checkout:
             finally:
                 cmd.keepalive = False
 
-    def _gripper_move(self, cmd, v: float, tach: str, current: str, i_lim: float) -> None:
-        """One gripper move at ``v`` volts: its row, with the diagnosis when it fails."""
+    def _gripper_move(self, cmd, v: float, tach: str, current: str, i_lim: float) -> bool:
+        """One gripper move at ``v`` volts, then the pause: its row, with the diagnosis when it
+        fails; True when it passed."""
         g = lambda key: self.cfg.get("gripper", key)  # noqa: E731 - one table's lookups
         move_s = float(g("move_s"))
         cmd.set(gripper=v)
@@ -750,6 +752,8 @@ class Checkout:
         self.record("joints", tach, f"gripper open-loop {tag}", ok, round(mean, 4), round(lo, 4), round(hi, 4), "V",
                     f"command {v:+.2f} V at a {i_lim:.2f} A limit: tach mean {mean:+.3f} V of {expected:+.2f} V, "
                     f"peak motor current {peak:+.3f} A ({current}){why}")
+        self.t.wait(float(g("pause_s")))
+        return ok
 
     def _gripper_why(self, tach: float, peak: float, expected: float, i_lim: float) -> str:
         """What a failed gripper move's tach and motor current say (the jaw has no position
@@ -774,6 +778,53 @@ class Checkout:
             return ("the jaw does not move with the motor current at its limit: held by a load (an object in "
                     "the jaws, a snag) or jammed")
         return "the tach's size is off the command's: its scale, its filter card, or a data bit (the data-bit rows)"
+
+    def _gripper_bits(self, cmd, signal: str, tach: str) -> None:
+        """The jaw command's data bits (:data:`GRIPPER_BITS`), read through the tach while the
+        jaw runs: each step of 2^b codes adds 2^b codes' worth of tach (the median step per
+        code, :func:`judge_steps`), a stuck bit nothing, opening and closing alike. One row,
+        each bit judged on the mean of its two steps (two reads of one step: half the
+        variance; a stuck D0 read +1.3 and +0.6 mV of 4.9, +/-0.7 each, neither alone told)."""
+        if not bool(self.cfg.get("gripper", "dac_bits")):
+            return
+        g = lambda key: float(self.cfg.get("gripper", key))  # noqa: E731 - one table's lookups
+        tach_code = ADC_VOLTS_PER_CODE * float(self.t.rack.channel(tach).scale)
+        worth = DAC_VOLTS_PER_CODE * g("tach_per_command")  # one command code's tach, nominal
+
+        def at(code: int) -> Level:
+            got = place_code(self, lambda x: cmd.set(gripper=x), signal, code, DAC_VOLTS_PER_CODE)
+            self.t.wait(g("dac_bits_settle_s"))
+            return read_fine(self, tach, code, got, max(FINE_SE_CODES * tach_code, worth / FINE_WORTHS),
+                             g("dac_bits_window_s"), g("dac_bits_max_s"))
+
+        series = []
+        for base, sign in ((GRIPPER_BITS_OPEN, 1), (GRIPPER_BITS_CLOSE, -1)):
+            levels = [at(c) for c in (base, *(base + sign * (1 << b) for b in GRIPPER_BITS))]
+            if any(lv.got != lv.code for lv in levels):
+                cmd.set(gripper=0.0)
+                self.record("joints", signal, GRIPPER_BITS_CHECK, None,
+                            detail=f"not run: the service wrote codes {[f'0x{lv.got:03X}' for lv in levels]} for "
+                                   f"{[f'0x{lv.code:03X}' for lv in levels]} (its calibration of {signal})")
+                return
+            levels = [replace(lv, mean=sign * lv.mean) for lv in levels]  # closing: the steps' size
+            series.append(judge_steps(levels[0], list(zip(GRIPPER_BITS, levels[1:])), None, tach_code))
+        cmd.set(gripper=0.0)
+        both = [Step(o.bit, 0.5 * (o.step + c.step), 0.5 * math.hypot(o.se, c.se), 0.5 * (o.want + c.want),
+                     o.resolvable or c.resolvable) for o, c in zip(*series)]
+        stuck, unjudged = (([st.bit for st in group]) for group in summary(both))
+        said = "; ".join(f"{what} from 0x{base:03X}: " + ", ".join(st.text("mV") for st in steps)
+                         for what, base, steps in (("opening", GRIPPER_BITS_OPEN, series[0]),
+                                                   ("closing", GRIPPER_BITS_CLOSE, series[1])))
+        if stuck:
+            why = (f": data bit D{stuck[0]} of DAC channel {signal} stuck at 0 or at 1 (adding 2^{stuck[0]} codes "
+                   f"added nothing to the jaw's rate)")
+        elif unjudged:
+            why = "; not judged (the tach's noise hides the step): " + ", ".join(f"D{b}" for b in unjudged)
+        else:
+            why = ""
+        worst = min((st.step / st.want for st in both if st.want), default=math.nan)
+        self.record("joints", signal, GRIPPER_BITS_CHECK, not stuck, round(worst, 3), 0.5, None, "of a step",
+                    f"tach {tach} while the jaw runs, each step against its base: {said}{why}")
 
     def _arm(self, cmd, who: str, rates: list[float], limits: list[float],
              disarmed: Callable[[], None] | None = None, **fields) -> bool:
@@ -1139,6 +1190,17 @@ LIMIT_WALK_BITS = (2, 3, 4)
 #: offset), and the current limit's D0 and D1 from LIMIT_WALK_BASE
 FINE_BITS = (0, 1, 2, 3)
 LIMIT_FINE_BITS = (0, 1)
+#: the jaw command's data bits (``[gripper] dac_bits``), stepped while the jaw moves (it has no
+#: brake to push against): opening from 64 codes (0x840, 0.31 V: D6 at 1, D0..D5 at 0), each
+#: bit set alone (at most 96 codes, 0.47 V), then closing from -65 codes (0x7BF: D0..D5 at 1,
+#: D6 at 0), each bit cleared alone, back about where it was. ASSUMED: 64 codes is above the
+#: jaw's breakaway, so it runs and the proportional rate loop's tach follows the command (the
+#: simulated jaw breaks away between 16 and 32 codes and reads 1.0 V of tach per command volt
+#: once running, its current then constant: the friction's)
+GRIPPER_BITS = (0, 1, 2, 3, 4, 5)
+GRIPPER_BITS_OPEN = DAC_ZERO_CODE + 0x40
+GRIPPER_BITS_CLOSE = DAC_ZERO_CODE - 0x41
+GRIPPER_BITS_CHECK = "DAC data bits: the jaw's command stepped while it runs"
 #: the standard error each fine level is read to, in the monitor's A/D codes (assumed: a
 #: tenth of a code; a noisier monitor reads until ``dac_bits_fine_max_s``)
 FINE_SE_CODES = 0.1
@@ -1181,18 +1243,11 @@ class DacBits:
 
     def _place(self, code: int, field: str, values: list[float], i: int, signal: str, per_code: float) -> int:
         """Write ``values[i]`` (command field ``field``) so that DAC channel ``signal`` latches
-        ``code``: a few corrections from the code read back (``dac_counts``, the service's
-        own calibration between units and codes); returns the code written."""
-        x, got = (code - DAC_ZERO_CODE) * per_code, -1
-        for _ in range(4):
+        ``code`` (:func:`place_code`); returns the code written."""
+        def write(x: float) -> None:
             values[i] = x
             self.cmd.set(**{field: values})
-            self.co.t.wait(0.01)
-            got = int(self.co.inputs().channel(signal)["dac_counts"])
-            if got == code:
-                break
-            x += (code - got) * per_code
-        return got
+        return place_code(self.co, write, signal, code, per_code)
 
     @staticmethod
     def sample(co: "Checkout", j: str, current: str) -> tuple[list[float], list[int]]:
@@ -1253,21 +1308,12 @@ class DacBits:
         mean's standard error is small enough to tell a step of one code's ``worth`` (A) from
         nothing (:data:`FINE_WORTHS`), or :data:`FINE_SE_CODES` of a monitor code; at least
         ``dac_bits_fine_window_s``, at most ``dac_bits_fine_max_s``."""
-        co, g = self.co, (lambda k: float(self.co.cfg.joint(self.j, k)))
+        g = (lambda k: float(self.co.cfg.joint(self.j, k)))
         got = place(code)
-        co.t.wait(g("dac_bits_settle_s"))
+        self.co.t.wait(g("dac_bits_settle_s"))
         target = max(FINE_SE_CODES * self.monitor_code, abs(worth) / FINE_WORTHS)
-        t0, reads, last = co.t.now(), [], None
-        while True:
-            s = co.inputs()
-            if int(s.frame) != last:  # one read a frame: a frame read twice is no new sample
-                last = int(s.frame)
-                reads.append(float(s.channel(self.current)["adc_value"]))
-            el = co.t.now() - t0
-            if el >= g("dac_bits_fine_max_s") or (el >= g("dac_bits_fine_window_s")
-                                                   and level(code, got, reads).se <= target):
-                return level(code, got, reads, self.zero)
-            co.t.wait(co.poll_s)
+        return read_fine(self.co, self.current, code, got, target, g("dac_bits_fine_window_s"),
+                         g("dac_bits_fine_max_s"), self.zero)
 
     def rate_steps(self, one_code: float) -> list[Step] | None:
         """The rate command's lowest bits (:data:`FINE_BITS`), each 2^b codes stepped from 0 V
@@ -1493,6 +1539,38 @@ class DacBits:
                 return (f"; or the motor-current monitor {self.current}: its code 0x{code:03X} is "
                         f"0x{code ^ (1 << b):03X} with D{b} flipped (data bit D{b} stuck at {(code >> b) & 1}?)")
         return ""
+
+
+def place_code(co: "Checkout", write: Callable[[float], None], signal: str, code: int, per_code: float) -> int:
+    """Command (``write``, in the channel's units) what makes DAC channel ``signal`` latch
+    ``code``: a few corrections from the code read back (``dac_counts``, the service's own
+    calibration between units and codes); returns the code written."""
+    x, got = (code - DAC_ZERO_CODE) * per_code, -1
+    for _ in range(4):
+        write(x)
+        co.t.wait(0.01)
+        got = int(co.inputs().channel(signal)["dac_counts"])
+        if got == code:
+            break
+        x += (code - got) * per_code
+    return got
+
+
+def read_fine(co: "Checkout", signal: str, code: int, got: int, target_se: float, window_s: float, max_s: float,
+              zero: float = 0.0) -> Level:
+    """A/D input ``signal`` read once a frame (a frame read twice is no new sample) until its
+    mean's standard error is ``target_se`` or less, after at least ``window_s`` and at most
+    ``max_s``: the :class:`Level` of ``code`` (``got`` written), ``zero`` taken off."""
+    t0, reads, last = co.t.now(), [], None
+    while True:
+        s = co.inputs()
+        if int(s.frame) != last:
+            last = int(s.frame)
+            reads.append(float(s.channel(signal)["adc_value"]))
+        el = co.t.now() - t0
+        if el >= max_s or (el >= window_s and level(code, got, reads).se <= target_se):
+            return level(code, got, reads, zero)
+        co.t.wait(co.poll_s)
 
 
 class CodeLog:

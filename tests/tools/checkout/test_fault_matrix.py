@@ -333,9 +333,12 @@ def test_a_level_s_passing_reads_do_not_hide_its_split_noise():
     ("stuck-bit:adc@SCAN[23]:5=0", "cae_discrete_2", "bit 5 stuck at 0"),
     # the current held back at the limit, then read 0 A once the service made outputs safe
     ("load:shoulder_pitch=300", "shoulder_pitch_rate", "an external load drives it"),
+    # the jaw's command, read through its tach while it runs (it has no brake to push against)
+    ("stuck-bit:dac@DAC[6]:0=0", "gripper_command", "data bit D0 of DAC channel gripper_command stuck"),
+    ("stuck-bit:dac@DAC[6]:5=1", "gripper_command", "data bit D5 of DAC channel gripper_command stuck"),
 ])
 def test_the_former_misses_of_the_200_case_matrix_are_found_and_named(spec, channel, words):
-    """Five stuck bits and a load the 200-case matrix (seed 7, rack errors seed 1) passed or
+    """Seven stuck bits and a load the 200-case matrix (seed 7, rack errors seed 1) passed or
     named no cause for (docs/checkout.md): found, the channel and the bit (the cause) named."""
     case = next(c for c in cases(RACK) if c.spec == spec)
     v = run_case(case, RACK, sim_errors=1)
