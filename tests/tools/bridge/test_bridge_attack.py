@@ -192,6 +192,30 @@ def test_senders_under_new_names_cannot_flood_the_messages_or_the_counts(link):
     assert len(named) == MAX_NAMED_SENDERS
 
 
+def test_a_peer_that_copies_the_holders_name_but_not_its_nonce_is_never_written(link):
+    """A hostile peer puts arming bodies under the holder's name alone (no nonce, as a peer
+    that read the name in a message would): none is written, the service never arms, and
+    they are counted, not named in a refused-sender message (the name is the holder's).
+    The nonce is no secret: this is what it does, not a trust boundary (docs/bridge.md)."""
+    rig, bridge, peer = link
+    remote = RemoteBuffer(peer(), rig.name)
+    cmd = RemoteCommander(remote, "ops-laptop")
+    until(lambda: bridge.holder == "ops-laptop", "the holder's token")
+    settle(rig, bridge, remote)
+    rec = np.ndarray((), cmd.command.dtype, buffer=bytearray(cmd.raw))
+    rec["arm_request"], rec["rearm_counter"] = 1, int(rec["rearm_counter"]) + 1
+    hostile = peer().declare_publisher(f"pfma/{rig.name}/commands/set")
+    for _ in range(5):
+        hostile.put(bytes(rec.tobytes()), attachment=b"ops-laptop")
+        until(lambda: bridge._pending is not None, "the copied-name body at the bridge")
+        step(rig, bridge, 2)
+    assert bridge.applied == 0 and bridge.refused == {}
+    assert ServiceState(rig.reader.read_inputs().service_state) is not ServiceState.ARMED
+    assert bridge.refusals.total == {"command bodies under the holder's name from another writer (an earlier "
+                                     "writer's last word after its token went, or a forger)": 5}
+    cmd.close()
+
+
 def test_a_flood_of_writer_tokens_is_bounded(link):
     """40 liveliness tokens from one peer: the bridge keeps MAX_WRITERS, the first stays
     the holder, the rest are counted and said once."""
