@@ -1196,7 +1196,9 @@ LIMIT_FINE_BITS = (0, 1)
 #: D6 at 0), each bit cleared alone, back about where it was. ASSUMED: 64 codes is above the
 #: jaw's breakaway, so it runs and the proportional rate loop's tach follows the command (the
 #: simulated jaw breaks away between 16 and 32 codes and reads 1.0 V of tach per command volt
-#: once running, its current then constant: the friction's)
+#: once running, its current then constant: the friction's). ASSUMED too: the jaw starts
+#: more than ~10 mm from either stop (the ready pose's 50 mm of 100); a jaw that reached a
+#: stop mid-steps would read its steps as adding nothing
 GRIPPER_BITS = (0, 1, 2, 3, 4, 5)
 GRIPPER_BITS_OPEN = DAC_ZERO_CODE + 0x40
 GRIPPER_BITS_CLOSE = DAC_ZERO_CODE - 0x41

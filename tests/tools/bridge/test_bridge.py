@@ -223,6 +223,28 @@ def test_the_bridge_writes_only_the_holders_commands(link):
     b.close()
 
 
+def _arm_at(rig, bridge, cmd: RemoteCommander, frame: int, counter: int) -> None:
+    """``cmd`` arms the service (0 rates, 1 A limits) at ``controller_frame`` ``frame``, then
+    one heartbeat at ``frame + 1``; ARMED after."""
+    zero = [0.0] * len(rig.layout.joint_names)
+    limits = [1.0] * len(rig.layout.current_limit_names)
+    _deliver(rig, bridge, lambda: cmd.write_commands(joint_rate_rad_s=zero, current_limit_a=limits, arm_request=1,
+                                                     rearm_counter=counter, controller_frame=frame), "the arm request")
+    _deliver(rig, bridge, lambda: cmd.write_commands(controller_frame=frame + 1), "a heartbeat")
+    assert ServiceState(rig.reader.read_inputs().service_state) is ServiceState.ARMED
+
+
+def _rearms_as_one_writer(rig, bridge, cmd: RemoteCommander, frame: int) -> None:
+    """A new writer ``cmd`` re-arms from ``frame`` (its next rearm counter) and beats three
+    times: ARMED, and the service never said "two writers"."""
+    _arm_at(rig, bridge, cmd, frame, int(cmd.command["rearm_counter"]) + 1)
+    for f in (frame + 2, frame + 3):
+        _deliver(rig, bridge, lambda: cmd.write_commands(controller_frame=f), "a heartbeat")
+    said = [m.text for m in rig.reader.messages(queue="service")]
+    assert not [t for t in said if "two writers" in t], said
+    assert ServiceState(rig.reader.read_inputs().service_state) is ServiceState.ARMED
+
+
 @pytest.mark.parametrize("second", ["ops-laptop", "ops-laptop-2"])
 def test_a_new_remote_writer_whose_first_bodies_were_lost_is_not_a_second_writer(link, second):
     """The service's claim check (ioservice/commandcheck.py) takes a step back of
@@ -237,12 +259,7 @@ def test_a_new_remote_writer_whose_first_bodies_were_lost_is_not_a_second_writer
     for it (the bench once saw "controller_frame 1 after 507" so)."""
     rig, bridge, peer = link
     s, cmd = _writer(link, "ops-laptop")
-    zero = [0.0] * len(rig.layout.joint_names)
-    limits = [1.0] * len(rig.layout.current_limit_names)
-    _deliver(rig, bridge, lambda: cmd.write_commands(joint_rate_rad_s=zero, current_limit_a=limits, arm_request=1,
-                                                     rearm_counter=1, controller_frame=299), "the arm request")
-    _deliver(rig, bridge, lambda: cmd.write_commands(controller_frame=300), "a heartbeat")
-    assert ServiceState(rig.reader.read_inputs().service_state) is ServiceState.ARMED
+    _arm_at(rig, bridge, cmd, 299, 1)
     cmd.write_commands(controller_frame=301)  # its last word, at the bridge, not written yet
     until(lambda: bridge._pending is not None, "the lost writer's last body at the bridge")
     s.close()
@@ -254,14 +271,7 @@ def test_a_new_remote_writer_whose_first_bodies_were_lost_is_not_a_second_writer
     applied = bridge.applied
     step(rig, bridge, SAFE_START_FRAMES + 2)
     assert bridge.applied == applied and bridge._pending is None  # the lost writer's body: never written
-    counter = int(cmd2.command["rearm_counter"]) + 1
-    _deliver(rig, bridge, lambda: cmd2.write_commands(joint_rate_rad_s=zero, current_limit_a=limits, arm_request=1,
-                                                      rearm_counter=counter, controller_frame=5), "the re-arm")
-    for f in (6, 7, 8):
-        _deliver(rig, bridge, lambda: cmd2.write_commands(controller_frame=f), "a heartbeat")
-    said = [m.text for m in rig.reader.messages(queue="service")]
-    assert not [t for t in said if "two writers" in t], said
-    assert ServiceState(rig.reader.read_inputs().service_state) is ServiceState.ARMED
+    _rearms_as_one_writer(rig, bridge, cmd2, 5)
 
 
 def test_a_body_that_comes_after_its_writers_token_went_is_never_the_next_writers(link):
@@ -273,12 +283,7 @@ def test_a_body_that_comes_after_its_writers_token_went_is_never_the_next_writer
     is never written: the new writer arms, and nobody is taken for a second writer."""
     rig, bridge, peer = link
     _s, cmd = _writer(link, "ops-laptop")
-    zero = [0.0] * len(rig.layout.joint_names)
-    limits = [1.0] * len(rig.layout.current_limit_names)
-    _deliver(rig, bridge, lambda: cmd.write_commands(joint_rate_rad_s=zero, current_limit_a=limits, arm_request=1,
-                                                     rearm_counter=1, controller_frame=1045), "the arm request")
-    _deliver(rig, bridge, lambda: cmd.write_commands(controller_frame=1046), "a heartbeat")
-    assert ServiceState(rig.reader.read_inputs().service_state) is ServiceState.ARMED
+    _arm_at(rig, bridge, cmd, 1045, 1)
     cmd._token.undeclare()  # the token goes first ...
     until(lambda: bridge.holder is None, "the writer's token gone")
     step(rig, bridge, int(np.ceil(rig.svc.guard.watchdog_s * rig.svc.schedule.frame_rate_hz)) + 2)
@@ -290,13 +295,6 @@ def test_a_body_that_comes_after_its_writers_token_went_is_never_the_next_writer
     until(lambda: bridge._pending is not None, "the late body at the bridge")
     step(rig, bridge, SAFE_START_FRAMES + 2)
     assert bridge.applied == applied and bridge._pending is None  # never written
-    counter = int(cmd2.command["rearm_counter"]) + 1
-    _deliver(rig, bridge, lambda: cmd2.write_commands(joint_rate_rad_s=zero, current_limit_a=limits, arm_request=1,
-                                                      rearm_counter=counter, controller_frame=4), "the re-arm")
-    for f in (5, 6, 7):
-        _deliver(rig, bridge, lambda: cmd2.write_commands(controller_frame=f), "a heartbeat")
-    said = [m.text for m in rig.reader.messages(queue="service")]
-    assert not [t for t in said if "two writers" in t], said
-    assert ServiceState(rig.reader.read_inputs().service_state) is ServiceState.ARMED
+    _rearms_as_one_writer(rig, bridge, cmd2, 4)
     assert bridge.refusals.total == {"command bodies under the holder's name from another writer (an earlier "
                                      "writer's last word after its token went, or a forger)": 1}
