@@ -16,6 +16,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any, Callable
+
+from drivers.dac.registers import VMIVME4100
+
+#: the DAC's 0 V code (12-bit offset binary)
+DAC_ZERO_CODE = int(VMIVME4100.constants["zero_code"])
 
 #: a step is called stuck when it falls this many standard errors short of half its worth
 #: and half its worth is itself that many standard errors: a healthy step is then called
@@ -27,6 +33,12 @@ MIN_STEP_CODES = 1.5
 #: ...or read through at least this much noise (1 sigma, in codes), which dithers the
 #: rounding so a mean follows the current (assumed; the seeded racks' A/D noise is 0.4..1.2)
 DITHER_CODES = 0.4
+#: the standard error each fine level is read to, in the monitor's A/D codes (assumed: a
+#: tenth of a code; a noisier monitor reads until its ``..._max_s``)
+FINE_SE_CODES = 0.1
+#: ... or to a one-code step's worth over this (assumed: half a code's worth is then over 3.5
+#: standard errors of a step, two levels' errors combined, with room to spare)
+FINE_WORTHS = 14.0
 
 
 @dataclass(frozen=True)
@@ -105,3 +117,35 @@ def _sigma(lv: Level) -> float:
 def summary(steps: list[Step]) -> tuple[list[Step], list[Step]]:
     """The stuck steps and the steps the noise left unjudged."""
     return [s for s in steps if s.verdict == "stuck"], [s for s in steps if s.verdict == "noise"]
+
+
+def place_code(co: Any, write: Callable[[float], None], signal: str, code: int, per_code: float) -> int:
+    """Command (``write``, in the channel's units) what makes DAC channel ``signal`` latch
+    ``code``: a few corrections from the code read back (``dac_counts``, the service's own
+    calibration between units and codes); returns the code written."""
+    x, got = (code - DAC_ZERO_CODE) * per_code, -1
+    for _ in range(4):
+        write(x)
+        co.t.wait(0.01)
+        got = int(co.inputs().channel(signal)["dac_counts"])
+        if got == code:
+            break
+        x += (code - got) * per_code
+    return got
+
+
+def read_fine(co: Any, signal: str, code: int, got: int, target_se: float, window_s: float, max_s: float,
+              zero: float = 0.0) -> Level:
+    """A/D input ``signal`` read once a frame (a frame read twice is no new sample) until its
+    mean's standard error is ``target_se`` or less, after at least ``window_s`` and at most
+    ``max_s``: the :class:`Level` of ``code`` (``got`` written), ``zero`` taken off."""
+    t0, reads, last = co.t.now(), [], None
+    while True:
+        s = co.inputs()
+        if int(s.frame) != last:
+            last = int(s.frame)
+            reads.append(float(s.channel(signal)["adc_value"]))
+        el = co.t.now() - t0
+        if el >= max_s or (el >= window_s and level(code, got, reads).se <= target_se):
+            return level(code, got, reads, zero)
+        co.t.wait(co.poll_s)

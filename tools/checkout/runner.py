@@ -35,7 +35,10 @@ from typing import Callable
 import numpy as np
 
 from tools.checkout.config import CheckoutConfig
-from tools.checkout.finesteps import Level, Step, judge_steps, level, summary
+from tools.checkout.finesteps import DAC_ZERO_CODE, FINE_SE_CODES, FINE_WORTHS, Level, Step, judge_steps, \
+    place_code, read_fine, summary
+from tools.checkout.limitbits import DRIVE_STILL, JAW_FIRST_BIT, JAW_PULSE_CHECK, JOINT_FIRST_BIT, PULSE_CHECK, \
+    LimitPulses, pulse_bits
 from tools.checkout.panel import ASSUMED, GRIPPER, PANEL_CHECKS, SWITCH_TEXT, PanelState, ask_panel
 from tools.checkout.report import FAIL, PASS, SKIP, Report, Result
 from tools.checkout.target import ServiceLost, Target
@@ -717,6 +720,8 @@ class Checkout:
                                         ch["motor_current"].signal, i_lim) for sign in (1, -1)]
             if all(moved):  # a drive that does not follow its command is not stepped further
                 self._gripper_bits(cmd, ch["gripper_command"].signal, ch["rate"].signal)
+                self._gripper_limit_bits(cmd, ch["rate"].signal, ch["motor_current"].signal, limits,
+                                         names.index(limit), i_lim)
         finally:
             try:
                 cmd.set(gripper=0.0)
@@ -778,6 +783,55 @@ class Checkout:
             return ("the jaw does not move with the motor current at its limit: held by a load (an object in "
                     "the jaws, a snag) or jammed")
         return "the tach's size is off the command's: its scale, its filter card, or a data bit (the data-bit rows)"
+
+    def _gripper_limit_bits(self, cmd, tach: str, current: str, limits: list[float], li: int,
+                            i_lim: float) -> None:
+        """The jaw's current-limit data bits (``[gripper] dac_bits_limit``), the jaw closed on
+        its stop and held there (:mod:`tools.checkout.limitbits`): the monitor's zero first,
+        then closing at ``dac_bits_close_v`` until the tach stops, D0..D4 stepped, D5 and up
+        pulsed, then opened back for as long as it closed. ASSUMED: nothing is in the jaw."""
+        g = lambda key: self.cfg.get("gripper", key)  # noqa: E731 - one table's lookups
+        if not bool(g("dac_bits_limit")):
+            return
+        v = float(g("dac_bits_close_v"))
+
+        def set_limit(x: float) -> None:
+            limits[li] = x
+            cmd.set(current_limit_a=limits)
+        lp = LimitPulses(self, GRIPPER, self.lay.current_limit_names[li], current, tach, v, set_limit,
+                         lambda sign: cmd.set(gripper=sign * v), hold=True)
+        lp.fine_max_s = float(g("dac_bits_limit_fine_max_s"))
+        lp.read_zero()
+        set_limit(i_lim)
+        closed_s = self._close_on_stop(cmd, tach, v, float(g("dac_bits_close_max_s")))
+        if closed_s is None:
+            self.record("joints", lp.signal, JAW_PULSE_CHECK, None,
+                        detail=f"not run: the jaw's tach {tach} did not stop within {g('dac_bits_close_max_s')} s "
+                               f"of closing at {v:g} V (no stop reached)")
+        else:
+            lp.low_steps_row()
+            ps = lp.pulses(pulse_bits(JAW_FIRST_BIT, i_lim / lp.per_code), lambda i: -1)
+            set_limit(i_lim)
+            lp.pulse_row(JAW_PULSE_CHECK, ps, f"the jaw held closed on its stop at {-v:+g} V")
+        cmd.set(gripper=v)  # back about where it was
+        self.t.wait(closed_s if closed_s is not None else float(g("dac_bits_close_max_s")))
+        cmd.set(gripper=0.0)
+
+    def _close_on_stop(self, cmd, tach: str, v: float, max_s: float) -> float | None:
+        """Close the jaw at ``v`` volts until its tach stays under :data:`DRIVE_STILL` of the
+        command for ``STOP_STILL_S``: how long it took, or None (the drive left on)."""
+        cmd.set(gripper=-v)
+        t0 = self.t.now()
+        still = None
+        while self.t.now() - t0 < max_s:
+            self.t.wait(self.poll_s)
+            if abs(self.value(tach)) >= DRIVE_STILL * v:
+                still = None
+            elif still is None:
+                still = self.t.now()
+            elif self.t.now() - still >= STOP_STILL_S:
+                return self.t.now() - t0
+        return None
 
     def _gripper_bits(self, cmd, signal: str, tach: str) -> None:
         """The jaw command's data bits (:data:`GRIPPER_BITS`), read through the tach while the
@@ -918,6 +972,8 @@ class Checkout:
                 return
             if bits:
                 DacBits(self, j, current, cmd, rates, limits, ji, li, zero[0]).run()
+                if bool(cfg.joint(j, "dac_bits_limit_pulses")):
+                    self._limit_pulses(j, tach, current, cmd, rates, limits, ji, li, i_lim, rate)
                 limits[li] = i_lim
                 cmd.set(joint_rate_rad_s=rates, current_limit_a=limits)
             try:
@@ -956,6 +1012,29 @@ class Checkout:
                 return
             self.t.wait(float(cfg.joint(j, "pause_s")))
         self._stop_and_hold(j, tach, angle, cmd, rates, limits, li)
+
+    def _limit_pulses(self, j: str, tach: str, current: str, cmd, rates: list[float], limits: list[float],
+                      ji: int, li: int, i_lim: float, rate: float) -> None:
+        """The current limit's D6 and up, each pulsed alone before the moves (after the
+        brake-set checks), the joint driven at the moves' rate each way in turn
+        (:mod:`tools.checkout.limitbits`); the moves' limit written back after."""
+        def set_limit(x: float) -> None:
+            limits[li] = x
+            cmd.set(current_limit_a=limits)
+
+        def drive(sign: int) -> None:
+            rates[ji] = sign * rate
+            cmd.set(joint_rate_rad_s=rates)
+        lp = LimitPulses(self, j, self.lay.current_limit_names[li], current, tach, rate, set_limit, drive)
+        # a joint that cannot hold its weight at a pulse's limit keeps its brake: no pulse
+        # over the brake-release cards' release threshold
+        top = i_lim / lp.per_code if bool(self.cfg.joint(j, "dac_bits_pulse_release")) else \
+            float(self.cfg.joint(j, "brake_release_v")) / DAC_VOLTS_PER_CODE
+        lp.read_zero()
+        ps = lp.pulses(pulse_bits(JOINT_FIRST_BIT, min(top, i_lim / lp.per_code)), lambda i: 1 - 2 * (i % 2))
+        limits[li] = i_lim
+        cmd.set(joint_rate_rad_s=rates, current_limit_a=limits)
+        lp.pulse_row(PULSE_CHECK, ps, f"driven at {rate:.4g} rad/s each way in turn")
 
     def _drive_move(self, tach: str, angle: str, current: str, cmd, rates: list[float], ji: int,
                     v: float, expected: float, p: "_MoveParams", i_lim: float) -> "_Sampled":
@@ -1132,7 +1211,6 @@ CODE_LOG_KEEP = 50_000
 ADC_BITS = int(DVME611.constants["adc_bits"])
 ADC_ZERO_CODE = int(DVME611.constants["full_scale_counts"]) // 2
 ADC_VOLTS_PER_CODE = float(DVME611.constants["lsb_volts"])
-DAC_ZERO_CODE = int(VMIVME4100.constants["zero_code"])
 DAC_CODES = int(VMIVME4100.constants["full_scale_counts"])
 DAC_VOLTS_PER_CODE = float(VMIVME4100.constants["lsb_volts"])
 #: a code that one flipped data bit puts this near the idle value's code is named a stuck
@@ -1203,15 +1281,11 @@ GRIPPER_BITS = (0, 1, 2, 3, 4, 5)
 GRIPPER_BITS_OPEN = DAC_ZERO_CODE + 0x40
 GRIPPER_BITS_CLOSE = DAC_ZERO_CODE - 0x41
 GRIPPER_BITS_CHECK = "DAC data bits: the jaw's command stepped while it runs"
-#: the standard error each fine level is read to, in the monitor's A/D codes (assumed: a
-#: tenth of a code; a noisier monitor reads until ``dac_bits_fine_max_s``)
-FINE_SE_CODES = 0.1
+#: the jaw is on its stop once its tach has stayed still this long (assumed)
+STOP_STILL_S = 0.1
 #: the rate steps are judged only below this fraction of the test limit (a current at the
 #: limit does not follow the command: a limit bit stuck low, or a large offset; assumed)
 FINE_SAT_FRACTION = 0.8
-#: ... or to a one-code step's worth over this (assumed: half a code's worth is then over 3.5
-#: standard errors of a step, two levels' errors combined, with room to spare)
-FINE_WORTHS = 14.0
 
 
 class DacBits:
@@ -1541,38 +1615,6 @@ class DacBits:
                 return (f"; or the motor-current monitor {self.current}: its code 0x{code:03X} is "
                         f"0x{code ^ (1 << b):03X} with D{b} flipped (data bit D{b} stuck at {(code >> b) & 1}?)")
         return ""
-
-
-def place_code(co: "Checkout", write: Callable[[float], None], signal: str, code: int, per_code: float) -> int:
-    """Command (``write``, in the channel's units) what makes DAC channel ``signal`` latch
-    ``code``: a few corrections from the code read back (``dac_counts``, the service's own
-    calibration between units and codes); returns the code written."""
-    x, got = (code - DAC_ZERO_CODE) * per_code, -1
-    for _ in range(4):
-        write(x)
-        co.t.wait(0.01)
-        got = int(co.inputs().channel(signal)["dac_counts"])
-        if got == code:
-            break
-        x += (code - got) * per_code
-    return got
-
-
-def read_fine(co: "Checkout", signal: str, code: int, got: int, target_se: float, window_s: float, max_s: float,
-              zero: float = 0.0) -> Level:
-    """A/D input ``signal`` read once a frame (a frame read twice is no new sample) until its
-    mean's standard error is ``target_se`` or less, after at least ``window_s`` and at most
-    ``max_s``: the :class:`Level` of ``code`` (``got`` written), ``zero`` taken off."""
-    t0, reads, last = co.t.now(), [], None
-    while True:
-        s = co.inputs()
-        if int(s.frame) != last:
-            last = int(s.frame)
-            reads.append(float(s.channel(signal)["adc_value"]))
-        el = co.t.now() - t0
-        if el >= max_s or (el >= window_s and level(code, got, reads).se <= target_se):
-            return level(code, got, reads, zero)
-        co.t.wait(co.poll_s)
 
 
 class CodeLog:
