@@ -91,10 +91,14 @@ class LimitPulses:
     (``drive(1)``'s). ``who`` names the joint (or the gripper) for its ``[joints]`` keys."""
 
     def __init__(self, co: Any, who: str, signal: str, current: str, tach: str, command: float,
-                 set_limit: Callable[[float], None], drive: Callable[[int], None], hold: bool = False) -> None:
+                 set_limit: Callable[[float], None], drive: Callable[[int], None], hold: bool = False,
+                 drew: bool = True) -> None:
         self.co, self.who, self.signal, self.current, self.tach = co, who, signal, current, tach
         self.command, self.set_limit, self.drive = abs(command), set_limit, drive
         self.hold = hold  #: the drive stays on between pulses (the jaw on its stop)
+        #: a current flowed before (the brake-set checks): with none, a pulse without current
+        #: is the drive's or the limit's D11 (the moves tell), not its own bit
+        self.drew = drew
         #: the longest a low step's level is read (the jaw's own, ``[gripper]
         #: dac_bits_limit_fine_max_s``)
         self.fine_max_s = self.key("dac_bits_fine_max_s")
@@ -192,6 +196,11 @@ class LimitPulses:
         said = ", ".join(f"2^{p.bit}: {p.amps * 1e3:+.1f} mA of {p.want * 1e3:.1f}"
                          + (f" (ran at {p.ran:.2f} of the command)" if p.ran >= DRIVE_STILL else "") for p in ps)
         verdicts = [(p, self.verdict(p)) for p in ps]
+        if not self.drew and all(p.amps < 0.5 * p.want and p.ran < DRIVE_STILL for p in ps):
+            self.co.record("joints", self.signal, check, None, detail=(
+                f"not judged here: no current at any limit ({said}), as against the brake: the drive, the "
+                f"monitor or D11 of the limit channel (the moves tell)"))
+            return
         bad = [(p, v) for p, v in verdicts if v]
         unjudged = [p.bit for p, v in verdicts if v == ""]
         why = f": {bad[0][1]}" if bad else (

@@ -959,6 +959,7 @@ class Checkout:
             cmd.keepalive = True
             bits = bool(cfg.joint(j, "dac_bits")) and bool(current)
             zero = [0.0]
+            pulses: Callable[[], None] | None = None
 
             def disarmed() -> None:
                 # the monitor's reading while no current can flow (not armed, limits 0): the
@@ -971,14 +972,16 @@ class Checkout:
             if not self._arm(cmd, j, rates, limits, disarmed):
                 return
             if bits:
-                DacBits(self, j, current, cmd, rates, limits, ji, li, zero[0]).run()
-                if bool(cfg.joint(j, "dac_bits_limit_pulses")):
-                    self._limit_pulses(j, tach, current, cmd, rates, limits, ji, li, i_lim, rate)
+                db = DacBits(self, j, current, cmd, rates, limits, ji, li, zero[0])
+                db.run()
+                if bool(cfg.joint(j, "dac_bits_limit_pulses")):  # after the moves: polarity known
+                    pulses = (lambda: self._limit_pulses(j, tach, current, cmd, rates, limits, ji, li, i_lim,
+                                                         rate, db.drew))
                 limits[li] = i_lim
                 cmd.set(joint_rate_rad_s=rates, current_limit_a=limits)
             try:
                 self._moves(j, tach, angle, current, cmd, rates, limits, ji, li, i_lim, rate, min_current,
-                            moves)
+                            moves, pulses)
             except StopRun:
                 # the run stops at this joint: its diagnosis still says drive or brake
                 self._diagnose(j, moves, i_lim, current, quiet=True)
@@ -995,9 +998,10 @@ class Checkout:
 
     def _moves(self, j: str, tach: str, angle: str, current: str, cmd, rates: list[float],
                limits: list[float], ji: int, li: int, i_lim: float, rate: float, min_current: float,
-               moves: list[Move]) -> None:
-        """The armed part of a joint's open-loop test: each move and its rows, then stopped,
-        held by brake, disarm (none of those after a runaway). Appends to ``moves``."""
+               moves: list[Move], pulses: Callable[[], None] | None = None) -> None:
+        """The armed part of a joint's open-loop test: each move and its rows, the limit's
+        ``pulses`` (its polarity known then), then stopped, held by brake, disarm (none of
+        those after a runaway). Appends to ``moves``."""
         cfg = self.cfg
         p = _MoveParams(cfg, j)
         self.t.wait(float(cfg.joint(j, "brake_release_s")))
@@ -1011,12 +1015,14 @@ class Checkout:
             if m.runaway:
                 return
             self.t.wait(float(cfg.joint(j, "pause_s")))
+        if pulses is not None:
+            pulses()
         self._stop_and_hold(j, tach, angle, cmd, rates, limits, li)
 
     def _limit_pulses(self, j: str, tach: str, current: str, cmd, rates: list[float], limits: list[float],
-                      ji: int, li: int, i_lim: float, rate: float) -> None:
-        """The current limit's D6 and up, each pulsed alone before the moves (after the
-        brake-set checks), the joint driven at the moves' rate each way in turn
+                      ji: int, li: int, i_lim: float, rate: float, drew: bool) -> None:
+        """The current limit's D6 and up, each pulsed alone after the moves (their polarity
+        rows passed), the joint driven at the moves' rate each way in turn
         (:mod:`tools.checkout.limitbits`); the moves' limit written back after."""
         def set_limit(x: float) -> None:
             limits[li] = x
@@ -1025,7 +1031,7 @@ class Checkout:
         def drive(sign: int) -> None:
             rates[ji] = sign * rate
             cmd.set(joint_rate_rad_s=rates)
-        lp = LimitPulses(self, j, self.lay.current_limit_names[li], current, tach, rate, set_limit, drive)
+        lp = LimitPulses(self, j, self.lay.current_limit_names[li], current, tach, rate, set_limit, drive, drew=drew)
         # a joint that cannot hold its weight at a pulse's limit keeps its brake: no pulse
         # over the brake-release cards' release threshold
         top = i_lim / lp.per_code if bool(self.cfg.joint(j, "dac_bits_pulse_release")) else \
@@ -1514,6 +1520,7 @@ class DacBits:
         high = max(abs(seen[0][1]), abs(seen[1][1])) > 2.0 * thr
         fine_rate = [] if high else self.rate_steps(seen[1][1] - seen[0][1])  # one code's worth
         i_sat = self.saturated_current()
+        self.drew = abs(i_sat) >= 0.5 * self.limit_a  #: a current flowed against the brake
         placed = all(got == c for (got, _), c in zip(seen, DAC_BITS_CODES))
         (_, i_lo), (_, i_zero) = seen
         # judged on the step between the two codes (1 LSB apart, K_a x 1 LSB healthy), so the
