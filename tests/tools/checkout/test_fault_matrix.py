@@ -336,9 +336,15 @@ def test_a_level_s_passing_reads_do_not_hide_its_split_noise():
     # the jaw's command, read through its tach while it runs (it has no brake to push against)
     ("stuck-bit:dac@DAC[6]:0=0", "gripper_command", "data bit D0 of DAC channel gripper_command stuck"),
     ("stuck-bit:dac@DAC[6]:5=1", "gripper_command", "data bit D5 of DAC channel gripper_command stuck"),
+    # current-limit bits no brake holds: the wrist pitch's D7 pulsed alone after its moves,
+    # the jaw's D5 on its stop (tools/checkout/limitbits.py)
+    ("stuck-bit:dac@DAC[11]:7=0", "wrist_pitch_current_limit",
+     "data bit D7 of DAC channel wrist_pitch_current_limit stuck at 0"),
+    ("stuck-bit:dac@DAC[13]:5=1", "gripper_current_limit",
+     "data bit D5 of DAC channel gripper_current_limit stuck at 1"),
 ])
 def test_the_former_misses_of_the_200_case_matrix_are_found_and_named(spec, channel, words):
-    """Seven stuck bits and a load the 200-case matrix (seed 7, rack errors seed 1) passed or
+    """Nine stuck bits and a load the 200-case matrix (seed 7, rack errors seed 1) passed or
     named no cause for (docs/checkout.md): found, the channel and the bit (the cause) named."""
     case = next(c for c in cases(RACK) if c.spec == spec)
     v = run_case(case, RACK, sim_errors=1)

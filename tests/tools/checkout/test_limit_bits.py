@@ -1,0 +1,58 @@
+"""A current-limit channel's data bits that no brake holds (issue 32 item 3,
+tools/checkout/limitbits.py): a joint's D6 and up pulsed alone after its moves, the jaw's
+limit stepped and pulsed with the jaw closed on its stop. A stuck bit is the first failure,
+on its channel, with its bit; the shoulder pitch, which cannot hold its weight at a pulse's
+limit, keeps its brake set through its pulses."""
+
+import pytest
+
+from fakes.arm_params import AXES
+from tools.checkout import FAIL, PASS
+from tools.checkout.limitbits import JAW_PULSE_CHECK, JAW_STEP_CHECK, PULSE_CHECK
+
+from tests.tools.checkout.test_checkout import first_failure, run
+
+JOINTS = ("shoulder_pitch", "shoulder_yaw", "elbow_pitch", "wrist_yaw", "wrist_pitch", "wrist_roll")
+
+
+def test_a_healthy_rack_passes_every_pulse_row_and_the_shoulder_pitch_keeps_its_brake(sim, cfg):
+    """Every joint's pulses and the jaw's two rows pass; while the shoulder pitch's brake is
+    released its current limit is the moves' 5 V (50 % of I_max, what holds the arm), never a
+    pulse's lower limit."""
+    arm = sim.world.sim.arm
+    ax = [a.joint for a in AXES].index("shoulder_pitch")
+    seen = []
+    sim.on_frame.append(lambda info: seen.append((bool(arm.brake_engaged[ax]),
+                                                  float(sim.world.bus["dac"].output_volts_all()[7]))))
+    rep, _ = run(sim, cfg, only=["joints"])
+    rows = {(r.channel, r.check): r for r in rep.results}
+    for j in JOINTS:
+        assert rows[(f"{j}_current_limit", PULSE_CHECK)].status == PASS
+    assert rows[("gripper_current_limit", JAW_STEP_CHECK)].status == PASS
+    assert rows[("gripper_current_limit", JAW_PULSE_CHECK)].status == PASS
+    assert "2^6:" in rows[("shoulder_pitch_current_limit", PULSE_CHECK)].detail
+    assert "2^7:" not in rows[("shoulder_pitch_current_limit", PULSE_CHECK)].detail
+    released = [v for engaged, v in seen if not engaged]
+    assert released and min(released) > 4.9
+    assert rep.passed
+
+
+@pytest.mark.parametrize("spec, channel, words", [
+    # the shoulder pitch's D6 with its brake set (0.31 V: a set brake stays set up to 0.5 V)
+    ("stuck-bit:dac@DAC[7]:6=0", "shoulder_pitch_current_limit",
+     "data bit D6 of DAC channel shoulder_pitch_current_limit stuck at 0"),
+    # the wrist yaw runs at 2^7 codes when healthy: stuck, its limit is 0 V and it is held
+    ("stuck-bit:dac@DAC[10]:7=0", "wrist_yaw_current_limit",
+     "data bit D7 of DAC channel wrist_yaw_current_limit stuck at 0"),
+    # the jaw's low bits, stepped on its stop through the monitor's noise
+    ("stuck-bit:dac@DAC[13]:1=0", "gripper_current_limit",
+     "data bit D1 of DAC channel gripper_current_limit stuck"),
+    ("stuck-bit:dac@DAC[13]:8=0", "gripper_current_limit",
+     "data bit D8 of DAC channel gripper_current_limit stuck at 0"),
+])
+def test_a_stuck_limit_bit_no_brake_holds_is_the_first_failure_on_its_channel(sim, cfg, spec, channel, words):
+    sim.inject_fault(spec)
+    rep, _ = run(sim, cfg, only=["joints"])
+    f = first_failure(rep)
+    assert (f.group, f.channel, f.status) == ("joints", channel, FAIL)
+    assert words in f.detail, f.detail
