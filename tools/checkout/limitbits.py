@@ -206,7 +206,10 @@ class LimitPulses:
         why = f": {bad[0][1]}" if bad else (
             "; not judged (the drive ran, so its current was its load's): " + ", ".join(f"D{b}" for b in unjudged)
             if unjudged else "")
-        worst = max((abs(p.amps - p.want) / p.want for p, v in verdicts if v != ""), default=math.nan)
+        # the value: the worst of the pulses held still (a running one within the tolerance is
+        # no measure of its limit)
+        worst = max((abs(p.amps - p.want) / p.want for p, v in verdicts if v or p.ran < DRIVE_STILL),
+                    default=math.nan)
         self.co.record("joints", self.signal, check, not bad, round(worst, 3), None, self.tol, "of its worth",
                        f"{where}, the limit at each bit alone, less the monitor's zero {self.zero * 1e3:+.1f} mA "
                        f"({self.current}): {said}{why}")
