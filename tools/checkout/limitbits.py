@@ -113,9 +113,11 @@ class LimitPulses:
         return place_code(self.co, self.set_limit, self.signal, code, self.per_code)
 
     def read_zero(self) -> None:
-        """The monitor with the limit at 0 and no command: no current can flow."""
+        """The monitor with the limit at 0 and no command, the drive still: no current can
+        flow (a limit bit stuck at 1 leaves a limit, but a still drive asks for no current)."""
         self.drive(0)
         self.place(DAC_ZERO_CODE)
+        self.until_still()
         self.co.t.wait(self.key("dac_bits_settle_s"))
         self.zero = float(np.mean(self.window()[0]))
 
@@ -247,3 +249,37 @@ class LimitPulses:
         self.co.record("joints", self.signal, JAW_STEP_CHECK, not stuck, round(worst, 3), 0.5, None, "of a step",
                        f"the jaw held closed on its stop, from 0x{LOW_BASE:03X} ({base.mean * 1e3:+.1f} mA): "
                        f"{said}{why}")
+
+
+def limit_low_hint(currents: list[float], i_lim: float, bound: float, per_code: float, signal: str,
+                   tol: float) -> str:
+    """Why a move that ran slow drew less than its limit: its current held flat (the middle
+    half of its second half's magnitudes within 5 % of their median) at a plateau under
+    (1 - ``tol``) of ``bound`` (the limit written, or less: what the held drive draws at the
+    move's command, so a set brake's stall current is not read as a low limit), the missing
+    codes one data bit's 2^b, and that bit set in the limit's code (a bit stuck at 0 takes
+    away only a bit that was set). "" when not so. ASSUMED: a driven joint's current is flat
+    under both only where the amplifier limits it."""
+    if len(currents) < 8 or per_code <= 0:
+        return ""
+    half = np.abs(np.asarray(currents[len(currents) // 2:], dtype=float))
+    plateau = float(np.median(half))
+    q1, q3 = np.percentile(half, [25, 75])
+    if plateau <= 0 or q3 - q1 > 0.05 * plateau or plateau > (1.0 - tol) * bound:
+        return ""
+    code = int(round(i_lim / per_code))
+    missing = (i_lim - plateau) / per_code
+    b = bit_of_codes(missing)
+    if b is None or not code >> b & 1:
+        return ""
+    return (f"; the motor current held at {plateau:.3f} A, under the {i_lim:.2f} A limit written by "
+            f"{missing:.0f} codes: data bit D{b} of DAC channel {signal} stuck at 0?")
+
+
+def zeroing_bits(i_lim: float, scale: float) -> str:
+    """The data bits of a limit code (``i_lim`` A at ``scale`` A/V) each of which, stuck at
+    0, leaves it under the brake's 0.3 V (no current): "D11", or "D10 or D11" for 0xC00."""
+    code = DAC_ZERO_CODE + int(round(i_lim / (DAC_VOLTS_PER_CODE * float(scale)))) if scale else DAC_ZERO_CODE
+    bits = [b for b in range(12) if code >> b & 1 and ((code & ~(1 << b)) - DAC_ZERO_CODE) * DAC_VOLTS_PER_CODE < 0.3]
+    return " or ".join(f"D{b}" for b in bits) or "D11"
+

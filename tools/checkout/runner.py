@@ -38,7 +38,7 @@ from tools.checkout.config import CheckoutConfig
 from tools.checkout.finesteps import DAC_ZERO_CODE, FINE_SE_CODES, FINE_WORTHS, Level, Step, judge_steps, \
     place_code, read_fine, summary
 from tools.checkout.limitbits import DRIVE_STILL, JAW_FIRST_BIT, JAW_PULSE_CHECK, JOINT_FIRST_BIT, PULSE_CHECK, \
-    LimitPulses, pulse_bits
+    LimitPulses, limit_low_hint, pulse_bits, zeroing_bits
 from tools.checkout.panel import ASSUMED, GRIPPER, PANEL_CHECKS, SWITCH_TEXT, PanelState, ask_panel
 from tools.checkout.report import FAIL, PASS, SKIP, Report, Result
 from tools.checkout.target import ServiceLost, Target
@@ -960,6 +960,7 @@ class Checkout:
             bits = bool(cfg.joint(j, "dac_bits")) and bool(current)
             zero = [0.0]
             pulses: Callable[[], None] | None = None
+            stall: list[float | None] = [None]
 
             def disarmed() -> None:
                 # the monitor's reading while no current can flow (not armed, limits 0): the
@@ -974,6 +975,8 @@ class Checkout:
             if bits:
                 db = DacBits(self, j, current, cmd, rates, limits, ji, li, zero[0])
                 db.run()
+                if db.amps_per_code:  # what the held drive draws at the moves' rate, unlimited
+                    stall[0] = db.amps_per_code * abs(rate) / db.rate_per_code
                 if bool(cfg.joint(j, "dac_bits_limit_pulses")):  # after the moves: polarity known
                     pulses = (lambda: self._limit_pulses(j, tach, current, cmd, rates, limits, ji, li, i_lim,
                                                          rate, db.drew))
@@ -981,7 +984,7 @@ class Checkout:
                 cmd.set(joint_rate_rad_s=rates, current_limit_a=limits)
             try:
                 self._moves(j, tach, angle, current, cmd, rates, limits, ji, li, i_lim, rate, min_current,
-                            moves, pulses)
+                            moves, pulses, stall[0])
             except StopRun:
                 # the run stops at this joint: its diagnosis still says drive or brake
                 self._diagnose(j, moves, i_lim, current, quiet=True)
@@ -998,12 +1001,14 @@ class Checkout:
 
     def _moves(self, j: str, tach: str, angle: str, current: str, cmd, rates: list[float],
                limits: list[float], ji: int, li: int, i_lim: float, rate: float, min_current: float,
-               moves: list[Move], pulses: Callable[[], None] | None = None) -> None:
+               moves: list[Move], pulses: Callable[[], None] | None = None,
+               stall_a: float | None = None) -> None:
         """The armed part of a joint's open-loop test: each move and its rows, the limit's
         ``pulses`` (its polarity known then), then stopped, held by brake, disarm (none of
         those after a runaway). Appends to ``moves``."""
         cfg = self.cfg
         p = _MoveParams(cfg, j)
+        p.stall_a = stall_a
         self.t.wait(float(cfg.joint(j, "brake_release_s")))
         signs = (1, -1) if cfg.joint(j, "bidirectional") else (1,)
         for sign in signs:
@@ -1101,6 +1106,13 @@ class Checkout:
         if not diag and not runaway and not t_lo <= mean_tach <= t_hi and x_lo <= travel <= x_hi:
             # the joint moved as commanded and the tach reads otherwise: the tach's reading
             diag = self._tach_bit(mean_tach - travel / max(p.move_s - p.lag, 1e-3), tach)
+        if not diag and not runaway and not t_lo <= mean_tach <= t_hi and current and p.stall_a:
+            # slow, its current flat under the limit and under what the held drive draws: the
+            # limit channel's own bit (a held brake draws the one or the other)
+            limit = self.t.rack.joint_channel(j, "current_limit").signal
+            diag = limit_low_hint(m.currents, i_lim, min(i_lim, p.stall_a),
+                                  DAC_VOLTS_PER_CODE * float(self.t.rack.channel(limit).scale), limit,
+                                  float(cfg.joint(j, "dac_bits_tolerance")))
         self.record("joints", tach, f"open-loop rate {tag}", t_lo <= mean_tach <= t_hi and not runaway,
                     round(mean_tach, 5), round(t_lo, 5), round(t_hi, 5), "rad/s",
                     f"commanded {v:+.4g} rad/s at a {i_lim:.2f} A limit" + diag
@@ -1187,8 +1199,8 @@ class Checkout:
                 value, detail = lim.not_answered(m, j, seen)
                 limit = self.t.rack.find(j, "current_limit")
                 if value == "no current" and limit is not None and not lim.moved(m):  # (moved: brake released)
-                    detail += (f" A current limit that never leaves 0 V reads the same: data bit D11 of "
-                               f"DAC channel {limit.signal} stuck at 0.")
+                    detail += (f" A current limit that never leaves 0 V reads the same: data bit "
+                               f"{zeroing_bits(i_lim, limit.scale)} of DAC channel {limit.signal} stuck at 0.")
                 record("joints", j, check, False, value, detail=detail)
                 return
         stopped = "; ".join(f"the service was not ARMED ({m.left_armed}) in the {m.tag} move" for m in unknown)
@@ -1309,6 +1321,9 @@ class DacBits:
         self.walk: list[tuple[int, int, float]] = []  #: the limit walk (:meth:`limit_walk`)
         self.fine_limit: tuple[Level, list[Step]] | None = None  #: its low bits (:meth:`limit_steps`)
         self.fine_saturated = False  #: the rate steps reached the test limit (:meth:`rate_steps`)
+        #: the motor current per rate-command code, held (K_a x a code's volts), from the low
+        #: bits' steps; None when they did not run
+        self.amps_per_code: float | None = None
         self.rates, self.ji, self.limit_a = rates, ji, limits[li]
         rack = co.t.rack
         self.signal = rack.joint_channel(j, "rate_command").signal
@@ -1519,6 +1534,8 @@ class DacBits:
         # learn, and no need to push against the brake longer)
         high = max(abs(seen[0][1]), abs(seen[1][1])) > 2.0 * thr
         fine_rate = [] if high else self.rate_steps(seen[1][1] - seen[0][1])  # one code's worth
+        if fine_rate:  # the drive's current per rate code against the brake (the median step's)
+            self.amps_per_code = fine_rate[0].want / (1 << fine_rate[0].bit)
         i_sat = self.saturated_current()
         self.drew = abs(i_sat) >= 0.5 * self.limit_a  #: a current flowed against the brake
         placed = all(got == c for (got, _), c in zip(seen, DAC_BITS_CODES))
@@ -2056,6 +2073,9 @@ class _MoveParams:
         self.agree = float(cfg.joint(j, "tach_resolver_tolerance"))
         self.max_factor = float(cfg.joint(j, "max_travel_factor"))
         self.dt = cfg.num("capture", "interval_s")
+        #: the current the held drive draws at the move's command (the brake-set low bits'
+        #: K_a x V), None when not measured
+        self.stall_a: float | None = None
 
 
 class _Sampled:

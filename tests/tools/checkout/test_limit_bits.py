@@ -8,7 +8,7 @@ import pytest
 
 from fakes.arm_params import AXES
 from tools.checkout import FAIL, PASS
-from tools.checkout.limitbits import JAW_PULSE_CHECK, JAW_STEP_CHECK, PULSE_CHECK
+from tools.checkout.limitbits import JAW_PULSE_CHECK, JAW_STEP_CHECK, PULSE_CHECK, zeroing_bits
 
 from tests.tools.checkout.test_checkout import first_failure, run
 
@@ -49,6 +49,10 @@ def test_a_healthy_rack_passes_every_pulse_row_and_the_shoulder_pitch_keeps_its_
      "data bit D1 of DAC channel gripper_current_limit stuck"),
     ("stuck-bit:dac@DAC[13]:8=0", "gripper_current_limit",
      "data bit D8 of DAC channel gripper_current_limit stuck at 0"),
+    # the elbow cannot lift itself at 0.75 A: its first move fails, the current flat under
+    # both the limit and what the held drive draws at that command
+    ("stuck-bit:dac@DAC[9]:8=0", "elbow_pitch_rate",
+     "data bit D8 of DAC channel elbow_pitch_current_limit stuck at 0?"),
 ])
 def test_a_stuck_limit_bit_no_brake_holds_is_the_first_failure_on_its_channel(sim, cfg, spec, channel, words):
     sim.inject_fault(spec)
@@ -56,3 +60,23 @@ def test_a_stuck_limit_bit_no_brake_holds_is_the_first_failure_on_its_channel(si
     f = first_failure(rep)
     assert (f.group, f.channel, f.status) == ("joints", channel, FAIL)
     assert words in f.detail, f.detail
+
+
+def test_a_held_brake_s_stall_current_is_not_read_as_a_low_limit(sim, cfg):
+    """The wrist pitch held by its brake draws K_a x V_cmd (0.74 A), flat, under its 1 A
+    limit: the move fails as a held brake, never as a limit bit."""
+    sim.inject_fault("brake-held:wrist_pitch")
+    rep, _ = run(sim, cfg, only=["joints"])
+    f = first_failure(rep)
+    assert f.channel == "wrist_pitch_rate" and "current_limit" not in f.detail
+    diag = next(r for r in rep.failures() if r.check == "drive and brake (diagnosis)")
+    assert "brake" in diag.detail
+
+
+@pytest.mark.parametrize("amps, scale, said", [
+    (2.0, 1.0, "D11"),  # 0x99A: only D11 takes it under 0.3 V
+    (5.0, 1.0, "D10 or D11"),  # 0xC00: D10 alone leaves 0 V, D11 alone -10 V
+    (0.0, 1.0, "D11"),  # nothing set above the zero code: the sign bit is all that is left
+])
+def test_the_bits_that_zero_a_limit_are_those_whose_loss_leaves_it_under_the_brake(amps, scale, said):
+    assert zeroing_bits(amps, scale) == said
