@@ -43,6 +43,22 @@ def test_a_healthy_rack_passes_both_rows_on_every_joint(sim, cfg):
      "data bit D2 of DAC channel wrist_roll_current_limit stuck at 1"),
     ("stuck-bit:dac@DAC[10]:4=0", "wrist_yaw_current_limit",
      "data bit D4 of DAC channel wrist_yaw_current_limit stuck at 0"),
+    # the limit's bits no brake holds (tools/checkout/limitbits.py, test_limit_bits.py)
+    # the shoulder pitch's D6 with its brake set (0.31 V: a set brake stays set up to 0.5 V)
+    ("stuck-bit:dac@DAC[7]:6=0", "shoulder_pitch_current_limit",
+     "data bit D6 of DAC channel shoulder_pitch_current_limit stuck at 0"),
+    # the wrist yaw runs at 2^7 codes when healthy: stuck, its limit is 0 V and it is held
+    ("stuck-bit:dac@DAC[10]:7=0", "wrist_yaw_current_limit",
+     "data bit D7 of DAC channel wrist_yaw_current_limit stuck at 0"),
+    # the jaw's low bits, stepped on its stop through the monitor's noise
+    ("stuck-bit:dac@DAC[13]:1=0", "gripper_current_limit",
+     "data bit D1 of DAC channel gripper_current_limit stuck"),
+    ("stuck-bit:dac@DAC[13]:8=0", "gripper_current_limit",
+     "data bit D8 of DAC channel gripper_current_limit stuck at 0"),
+    # the elbow cannot lift itself at 0.75 A: its first move fails, the current flat under
+    # both the limit and what the held drive draws at that command
+    ("stuck-bit:dac@DAC[9]:8=0", "elbow_pitch_rate",
+     "data bit D8 of DAC channel elbow_pitch_current_limit stuck at 0?"),
 ])
 def test_a_stuck_dac_bit_is_the_first_failure_on_its_channel(sim, cfg, spec, channel, words):
     sim.inject_fault(spec)

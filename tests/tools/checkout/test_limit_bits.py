@@ -2,12 +2,13 @@
 tools/checkout/limitbits.py): a joint's D6 and up pulsed alone after its moves, the jaw's
 limit stepped and pulsed with the jaw closed on its stop. A stuck bit is the first failure,
 on its channel, with its bit; the shoulder pitch, which cannot hold its weight at a pulse's
-limit, keeps its brake set through its pulses."""
+limit, keeps its brake set through its pulses. The stuck limit bits named first on their
+channel are among test_dac_bits.py's cases."""
 
 import pytest
 
 from fakes.arm_params import AXES
-from tools.checkout import FAIL, PASS
+from tools.checkout import PASS
 from tools.checkout.limitbits import JAW_PULSE_CHECK, JAW_STEP_CHECK, PULSE_CHECK, zeroing_bits
 
 from tests.tools.checkout.test_checkout import first_failure, run
@@ -35,31 +36,6 @@ def test_a_healthy_rack_passes_every_pulse_row_and_the_shoulder_pitch_keeps_its_
     released = [v for engaged, v in seen if not engaged]
     assert released and min(released) > 4.9
     assert rep.passed
-
-
-@pytest.mark.parametrize("spec, channel, words", [
-    # the shoulder pitch's D6 with its brake set (0.31 V: a set brake stays set up to 0.5 V)
-    ("stuck-bit:dac@DAC[7]:6=0", "shoulder_pitch_current_limit",
-     "data bit D6 of DAC channel shoulder_pitch_current_limit stuck at 0"),
-    # the wrist yaw runs at 2^7 codes when healthy: stuck, its limit is 0 V and it is held
-    ("stuck-bit:dac@DAC[10]:7=0", "wrist_yaw_current_limit",
-     "data bit D7 of DAC channel wrist_yaw_current_limit stuck at 0"),
-    # the jaw's low bits, stepped on its stop through the monitor's noise
-    ("stuck-bit:dac@DAC[13]:1=0", "gripper_current_limit",
-     "data bit D1 of DAC channel gripper_current_limit stuck"),
-    ("stuck-bit:dac@DAC[13]:8=0", "gripper_current_limit",
-     "data bit D8 of DAC channel gripper_current_limit stuck at 0"),
-    # the elbow cannot lift itself at 0.75 A: its first move fails, the current flat under
-    # both the limit and what the held drive draws at that command
-    ("stuck-bit:dac@DAC[9]:8=0", "elbow_pitch_rate",
-     "data bit D8 of DAC channel elbow_pitch_current_limit stuck at 0?"),
-])
-def test_a_stuck_limit_bit_no_brake_holds_is_the_first_failure_on_its_channel(sim, cfg, spec, channel, words):
-    sim.inject_fault(spec)
-    rep, _ = run(sim, cfg, only=["joints"])
-    f = first_failure(rep)
-    assert (f.group, f.channel, f.status) == ("joints", channel, FAIL)
-    assert words in f.detail, f.detail
 
 
 def test_a_held_brake_s_stall_current_is_not_read_as_a_low_limit(sim, cfg):
