@@ -229,3 +229,20 @@ def test_dac_rate_fails_naming_stuck_legs_and_a_gain_unlike_the_loop(cal):
     assert res.found["shoulder_yaw_command"]["dac_gain"] == pytest.approx(0.9877 / 0.6, rel=0.01)
     assert "wrist_roll_command" not in res.channels
     assert "stayed in Coulomb friction" in cal.out.getvalue()
+
+
+def test_a_still_resolver_s_spread_is_whole_counts_and_one_noise_excursion_is_not_motion():
+    """The resolver procedure's stillness check (calibration/procedures/resolver.py
+    ``_spread``): readings over 2 codes are exactly 2 LSB (a float's hair over the limit
+    failed rack seed 8's still wrist); one read a code further out at each end is noise;
+    a joint creeping 1 code a read spreads over all of them."""
+    from calibration.procedures.resolver import MAX_SPREAD_RAD, _spread
+    lsb = LSB_RAD
+    base = 5000.3
+    still = (np.array([0, 1, 2, 1, 1, 0, 2, 1, 1, 0, 1, 2, 1, 1, 0, 1]) + base) * lsb
+    assert _spread(still) == MAX_SPREAD_RAD
+    noisy = still.copy()
+    noisy[3], noisy[9] = (base + 3) * lsb, (base - 1) * lsb  # one excursion each way
+    assert _spread(noisy) <= MAX_SPREAD_RAD
+    creeping = (np.arange(16) + base) * lsb
+    assert _spread(creeping) > 5 * MAX_SPREAD_RAD
