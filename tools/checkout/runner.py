@@ -1106,9 +1106,10 @@ class Checkout:
         if not diag and not runaway and not t_lo <= mean_tach <= t_hi and x_lo <= travel <= x_hi:
             # the joint moved as commanded and the tach reads otherwise: the tach's reading
             diag = self._tach_bit(mean_tach - travel / max(p.move_s - p.lag, 1e-3), tach)
-        if not diag and not runaway and not t_lo <= mean_tach <= t_hi and current and p.stall_a:
-            # slow, its current flat under the limit and under what the held drive draws: the
-            # limit channel's own bit (a held brake draws the one or the other)
+        if not diag and not runaway and abs(mean_tach) < DRIVE_STILL * abs(v) and current and p.stall_a:
+            # stalled, its current flat under the limit and under what the held drive draws:
+            # the limit channel's own bit (a held brake draws the one or the other; a joint
+            # that runs slow draws K_a x (V - V_tach), flat and under both)
             limit = self.t.rack.joint_channel(j, "current_limit").signal
             diag = limit_low_hint(m.currents, i_lim, min(i_lim, p.stall_a),
                                   DAC_VOLTS_PER_CODE * float(self.t.rack.channel(limit).scale), limit,
@@ -1280,6 +1281,9 @@ DAC_BITS_OFFSET_FACTOR = 2.0
 #: limit's (its code 0x829) and the moves'
 LIMIT_WALK_BASE = DAC_ZERO_CODE + 0x20
 LIMIT_WALK_BITS = (2, 3, 4)
+#: each walk level is read to a standard error of its smallest step's worth over this (a
+#: step's two levels then put half its worth over 4 standard errors; assumed)
+WALK_WORTHS = 12.0
 #: the bits stepped with the monitor's noise averaged out (``[joints] dac_bits_fine``,
 #: tools/checkout/finesteps.py): the rate command's D0..D3, each alone from 0 V (8 codes at
 #: most: K_a x 39 mV, 0.13 A on the shoulders, under the 0.2 A test limit with the channel's
@@ -1484,10 +1488,18 @@ class DacBits:
         if not bool(self.co.cfg.joint(self.j, "dac_bits_limit_walk")):
             return []
         per_code = DAC_VOLTS_PER_CODE * float(self.co.t.rack.channel(self.limit_signal).scale)
+        # each level read until a step's half-worth is over 4 standard errors of a step (a
+        # noisy monitor, 1.2 LSB rms, made the 0.05 s window's steps off by half their worth:
+        # rack seed 16); at least the window, at most dac_bits_fine_max_s
+        g = (lambda k: float(self.co.cfg.joint(self.j, k)))
+        target = (1 << min(LIMIT_WALK_BITS)) * per_code / WALK_WORTHS
         out = []
         for code in (LIMIT_WALK_BASE, *(LIMIT_WALK_BASE + (1 << b) for b in LIMIT_WALK_BITS)):
             got = self.place_limit(code, per_code)
-            out.append((code, got, self.mean_current()))
+            self.co.t.wait(g("dac_bits_settle_s"))
+            lv = read_fine(self.co, self.current, code, got, max(target, FINE_SE_CODES * self.monitor_code),
+                           g("dac_bits_window_s"), g("dac_bits_fine_max_s"), self.zero)
+            out.append((code, got, lv.mean))
         self.fine_limit = self.limit_steps(per_code)
         self.limits[self.li] = self.limit_a
         self.cmd.set(current_limit_a=self.limits)
