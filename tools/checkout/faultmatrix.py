@@ -225,7 +225,10 @@ def undetectable(case: Case, target, rack: RackConfig) -> str:
     ``target`` (a :class:`SimTarget`), or "" when something could: a stuck bit that never
     changed a word (the fake counts, ``FakeBoard.stuck_bits_altered``), or one on a spare
     DAC channel (wired to nothing) or a spare resolver channel (not cabled). Every other case
-    counts as detectable."""
+    counts as detectable. A resolver's loss of signal on a spare channel is the uncabled
+    channel's own state, so it is no fault to find either."""
+    if case.kind == "resolver-los" and case.signals and all(rack.channel(sg).spare for sg in case.signals):
+        return UNCABLED_RESOLVER
     if case.kind != "stuck-bit" or case.board is None:
         return ""
     if not target.world.bus[case.board].stuck_bits_altered:

@@ -38,7 +38,7 @@ from tools.checkout.config import CheckoutConfig
 from tools.checkout.finesteps import DAC_ZERO_CODE, FINE_SE_CODES, FINE_WORTHS, Level, Step, judge_steps, \
     place_code, read_fine, summary
 from tools.checkout.limitbits import DRIVE_STILL, JAW_FIRST_BIT, JAW_PULSE_CHECK, JOINT_FIRST_BIT, PULSE_CHECK, \
-    LimitPulses, limit_low_hint, pulse_bits, zeroing_bits
+    LimitPulses, bit_of_codes, limit_low_hint, pulse_bits, zeroing_bits
 from tools.checkout.panel import ASSUMED, GRIPPER, PANEL_CHECKS, SWITCH_TEXT, PanelState, ask_panel
 from tools.checkout.report import FAIL, PASS, SKIP, Report, Result
 from tools.checkout.target import ServiceLost, Target
@@ -265,6 +265,31 @@ class Checkout:
         return out
 
     # ------------------------------------------------------------------ data bits
+    def _stuck_found(self, c, codes: np.ndarray) -> list[tuple[int, int]]:
+        """(bit, value) of every stuck data bit channel ``c``'s ``codes`` show, strongest first:
+        a jump across a bit's edge (the bit one value on both sides of a 2^b jump), then a
+        dense sweep's, then the noise's."""
+        nbits = DATA_BITS[c.kind]
+        found = angle_jumps(codes, nbits) if c.kind == "rtd" else adc_jumps(codes, nbits)
+        found += stuck_bits(codes, nbits)
+        found += noise_split(codes, nbits) + self._idle_split(c)
+        for group in code_groups(codes):  # each level the input held (idle, deflected, driven)
+            found += noise_split(group, nbits)
+        if c.kind != "rtd":
+            found += core_splits(codes, nbits) + noise_strays(codes, nbits)
+        return found
+
+    def monitor_stuck(self, signal: str) -> str:
+        """What A/D input ``signal``'s codes read so far say of its own data bits, for a row
+        that a stuck bit of that input would explain: "" when they show none."""
+        c = next((c for c in self.lay.channels if c.name == signal and c.kind in DATA_BITS), None)
+        found = self._stuck_found(c, self.codes.of(c.kind, c.slot)) if c is not None else []
+        if not found:
+            return ""
+        b, v = found[0]
+        return (f"; or the monitor {signal}: its codes so far never had a {1 - v} in bit {b} (its data bit D{b} "
+                f"stuck at {v}?)")
+
     def _data_bits(self, *, stopping: bool) -> None:
         """The resolver and A/D channels' data bits over every code the run read: a bit that
         never changed while the channel's codes swept densely across where it must have
@@ -275,16 +300,7 @@ class Checkout:
             if c.kind not in DATA_BITS:
                 continue
             codes = self.codes.of(c.kind, c.slot)
-            nbits = DATA_BITS[c.kind]
-            # a jump across a bit's edge first: the strongest evidence (the bit one value on
-            # both sides of a 2^b jump), then a dense sweep's, then the noise's
-            found = angle_jumps(codes, nbits) if c.kind == "rtd" else adc_jumps(codes, nbits)
-            found += stuck_bits(codes, nbits)
-            found += noise_split(codes, nbits) + self._idle_split(c)
-            for group in code_groups(codes):  # each level the input held (idle, deflected, driven)
-                found += noise_split(group, nbits)
-            if c.kind != "rtd":
-                found += core_splits(codes, nbits) + noise_strays(codes, nbits)
+            found = self._stuck_found(c, codes)
             n, k = seen.get(c.board, (0, 0))
             seen[c.board] = (n + len(codes), k + bool(found))
             for bit, v in list(dict.fromkeys(found))[:1]:  # the first reading names it; one row a channel
@@ -461,8 +477,12 @@ class Checkout:
                             f"({where}){why}")
             counts = cap["adc_counts"][:, c.slot].astype(int)
             pp = int(counts.max() - counts.min())
-            self.record("adc", c.name, "noise (peak-peak)", pp <= max_noise, pp, 0, max_noise, "counts",
-                        f"{len(counts)} samples ({where})" + ("" if pp <= max_noise else self._split_why(c)))
+            # within the limit, a split the idle capture alone shows (its default evidence:
+            # never named in healthy seeded noise) still fails it: a low bit stuck splits a
+            # noisy input's idle codes by 2^b, under the peak-to-peak a rack's noise may reach
+            ok = pp <= max_noise and not self._idle_split(c)
+            self.record("adc", c.name, "noise (peak-peak)", ok, pp, 0, max_noise, "counts",
+                        f"{len(counts)} samples ({where})" + ("" if ok else self._split_why(c)))
 
     # ------------------------------------------------------------------ links
     def _group_links(self) -> None:
@@ -782,7 +802,29 @@ class Checkout:
         if not moved and abs(peak) >= g("stalled_current_fraction") * i_lim:
             return ("the jaw does not move with the motor current at its limit: held by a load (an object in "
                     "the jaws, a snag) or jammed")
-        return "the tach's size is off the command's: its scale, its filter card, or a data bit (the data-bit rows)"
+        return self._gripper_bit(tach, expected) or \
+            "the tach's size is off the command's: its scale, its filter card, or a data bit (the data-bit rows)"
+
+    def _gripper_bit(self, tach: float, expected: float) -> str:
+        """The jaw's command data bit (D5 and up) whose 2^b codes the tach is off by, when the
+        command's code has that bit the other way (a stuck bit can only take it there): the
+        tach reads the command's volts one for one (``tach_per_command``) less the friction's
+        droop, so two bits may fit and both are said. "" when none does."""
+        tpc = float(self.cfg.get("gripper", "tach_per_command")) or 1.0
+        codes = (tach - expected) / tpc / DAC_VOLTS_PER_CODE
+        code = DAC_ZERO_CODE + int(round(expected / tpc / DAC_VOLTS_PER_CODE))
+        value = int(codes > 0)
+        # the bits a stuck value could take that way, near 2^b codes; the jaw's friction droop
+        # (about 0.1 V) is in the tach, so a wide band, all of them said
+        bits = [b for b in range(5, 11) if (code >> b & 1) != value and 0.55 <= abs(codes) / (1 << b) <= 1.6]
+        exact = bit_of_codes(codes)
+        if exact in bits:
+            bits = [exact]
+        if not bits:
+            return ""
+        signal = self.t.rack.find(GRIPPER, "gripper_command").signal
+        return (f"the jaw ran {codes:+.0f} codes' worth off its command (code 0x{code:03X}): data bit "
+                f"{' or '.join(f'D{b}' for b in bits)} of DAC channel {signal} stuck at {value}?")
 
     def _gripper_limit_bits(self, cmd, tach: str, current: str, limits: list[float], li: int,
                             i_lim: float) -> None:
@@ -1253,10 +1295,13 @@ def bit_of_offset(codes: float) -> int | None:
 
 def _idle_why(code: int, lo: float, hi: float, scale: float) -> str:
     """Why an A/D input is not at its idle value, from its code: when flipping one data
-    bit (D3 and up) would put the code within :data:`IDLE_FLIP_CODES` of the idle range's
-    centre (``lo``..``hi`` in engineering units, ``scale`` per volt), that bit stuck is
-    named first; a dead input (or its wiring, or the sensor) reads the same at rest."""
-    centre = ADC_ZERO_CODE + (lo + hi) / 2 / (scale or 1.0) / ADC_VOLTS_PER_CODE
+    bit (D3 and up) would put the code within :data:`IDLE_FLIP_CODES` of the idle value
+    (0 when the idle range ``lo``..``hi``, in engineering units at ``scale`` per volt, holds
+    it, as every group's does: a CAE discrete's -0.5..1 V is released at 0 V, not at its
+    centre; else the range's centre), that bit stuck is named first; a dead input (or its
+    wiring, or the sensor) reads the same at rest."""
+    idle = 0.0 if lo <= 0.0 <= hi else (lo + hi) / 2
+    centre = ADC_ZERO_CODE + idle / (scale or 1.0) / ADC_VOLTS_PER_CODE
     b = one_bit_away(code, centre)
     if b is None:
         return (f"code 0x{code:03X}: not one data bit away from the idle value: a dead input, its "
@@ -1532,7 +1577,8 @@ class DacBits:
             b, _, want = bad[0]
             lifted = base - (LIMIT_WALK_BASE - DAC_ZERO_CODE) * per_code > 0.5 * want
             why = (f": data bit D{b} of DAC channel {self.limit_signal} stuck at {int(lifted)} (adding 2^{b} codes "
-                   f"did not raise the current){self.monitor_excess(bad[0][1] - want) if abs(bad[0][1]) > want else ''}")
+                   f"did not raise the current){self.monitor_excess(bad[0][1] - want) if abs(bad[0][1]) > want else ''}"
+                   f"{co.monitor_stuck(self.current)}")
         worst = max(abs(d - want) / want for _, d, want in steps)
         co.record("joints", self.limit_signal, "DAC data bits: the current limit walked (brake set)", not bad,
                   round(worst, 3), None, 0.5, "of a step",

@@ -103,6 +103,8 @@ def test_a_current_limit_stuck_at_zero_volts_is_named_by_the_moves_diagnosis(sim
     (0x000, -0.5, 0.5, 1.0, "data bit D11 stuck at 0?"),  # -10 V on a centred CAE axis
     (0x90A, -0.5, 0.5, 1.0, "not one data bit away"),  # 1.3 V: 10 codes off once D8 is flipped
     (0x804, -0.25, 0.25, 1.0, "not one data bit away"),  # D2 flips are noise, never named
+    # a CAE discrete idles released at 0 V in its -0.5..1 V range (not at its 0.25 V centre)
+    (0x6FE, -0.5, 1.0, 1.0, "data bit D8 stuck at 0?"),
 ])
 def test_an_idle_reading_one_flipped_bit_from_its_idle_code_names_that_bit_first(code, lo, hi, scale, said):
     from tools.checkout.runner import _idle_why
