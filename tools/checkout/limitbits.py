@@ -180,11 +180,7 @@ class LimitPulses:
                 f"the monitor {self.current}'s scale")
 
     def monitor_excess(self, excess_a: float) -> str:
-        scale = float(self.co.t.rack.channel(self.current).scale) or 1.0
-        codes = excess_a / scale / ADC_VOLTS_PER_CODE
-        b = bit_of_codes(codes)
-        return "" if b is None or b < 3 else (f"; or the motor-current monitor {self.current}: {codes:+.0f} A/D codes off, "
-                                     f"its data bit D{b} stuck at {int(codes > 0)}?")
+        return monitor_excess(self.co.t.rack, self.current, excess_a)
 
     def pulse_row(self, check: str, ps: list[Pulse], where: str) -> None:
         """One row for the pulses: FAIL naming the first fault, else PASS (naming the bits not
@@ -249,6 +245,19 @@ class LimitPulses:
         self.co.record("joints", self.signal, JAW_STEP_CHECK, not stuck, round(worst, 3), 0.5, None, "of a step",
                        f"the jaw held closed on its stop, from 0x{LOW_BASE:03X} ({base.mean * 1e3:+.1f} mA): "
                        f"{said}{why}")
+
+
+def monitor_excess(rack: Any, current: str, excess_a: float) -> str:
+    """The other reading of a current off its limit by ``excess_a``: the motor-current
+    monitor ``current``'s own data bit, when the excess is within 30 % of 2^b of its A/D
+    codes (D3 and up). "" when no bit fits."""
+    scale = float(rack.channel(current).scale) or 1.0
+    codes = excess_a / scale / ADC_VOLTS_PER_CODE
+    fits = [b for b in range(3, int(DVME611.constants["adc_bits"])) if abs(abs(codes) - (1 << b)) <= 0.3 * (1 << b)]
+    if not fits:
+        return ""
+    return (f"; or the motor-current monitor {current}: {codes:+.0f} A/D codes off, its data bit D{fits[0]} "
+            f"stuck at {int(codes > 0)}?")
 
 
 def limit_low_hint(currents: list[float], i_lim: float, bound: float, per_code: float, signal: str,

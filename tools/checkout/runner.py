@@ -38,7 +38,7 @@ from tools.checkout.config import CheckoutConfig
 from tools.checkout.finesteps import DAC_ZERO_CODE, FINE_SE_CODES, FINE_WORTHS, Level, Step, judge_steps, \
     place_code, read_fine, summary
 from tools.checkout.limitbits import DRIVE_STILL, JAW_FIRST_BIT, JAW_PULSE_CHECK, JOINT_FIRST_BIT, PULSE_CHECK, \
-    LimitPulses, bit_of_codes, limit_low_hint, pulse_bits, zeroing_bits
+    LimitPulses, bit_of_codes, limit_low_hint, monitor_excess, pulse_bits, zeroing_bits
 from tools.checkout.panel import ASSUMED, GRIPPER, PANEL_CHECKS, SWITCH_TEXT, PanelState, ask_panel
 from tools.checkout.report import FAIL, PASS, SKIP, Report, Result
 from tools.checkout.target import ServiceLost, Target
@@ -1002,7 +1002,7 @@ class Checkout:
             bits = bool(cfg.joint(j, "dac_bits")) and bool(current)
             zero = [0.0]
             pulses: Callable[[], None] | None = None
-            stall: list[float | None] = [None]
+            stall_a: float | None = None  # what the held drive draws at the moves' rate, unlimited
 
             def disarmed() -> None:
                 # the monitor's reading while no current can flow (not armed, limits 0): the
@@ -1017,8 +1017,8 @@ class Checkout:
             if bits:
                 db = DacBits(self, j, current, cmd, rates, limits, ji, li, zero[0])
                 db.run()
-                if db.amps_per_code:  # what the held drive draws at the moves' rate, unlimited
-                    stall[0] = db.amps_per_code * abs(rate) / db.rate_per_code
+                if db.amps_per_code:
+                    stall_a = db.amps_per_code * abs(rate) / db.rate_per_code
                 if bool(cfg.joint(j, "dac_bits_limit_pulses")):  # after the moves: polarity known
                     pulses = (lambda: self._limit_pulses(j, tach, current, cmd, rates, limits, ji, li, i_lim,
                                                          rate, db.drew))
@@ -1026,7 +1026,7 @@ class Checkout:
                 cmd.set(joint_rate_rad_s=rates, current_limit_a=limits)
             try:
                 self._moves(j, tach, angle, current, cmd, rates, limits, ji, li, i_lim, rate, min_current,
-                            moves, pulses, stall[0])
+                            moves, pulses, stall_a)
             except StopRun:
                 # the run stops at this joint: its diagnosis still says drive or brake
                 self._diagnose(j, moves, i_lim, current, quiet=True)
@@ -1676,16 +1676,7 @@ class DacBits:
             + self.monitor_bit()
 
     def monitor_excess(self, excess_a: float) -> str:
-        """The other reading of a current off the limit by ``excess_a``: the motor-current
-        monitor's own data bit, when the excess is within 30 % of 2^b of its A/D codes (D3 and
-        up). "" when no bit fits."""
-        scale = float(self.co.t.rack.channel(self.current).scale) or 1.0
-        codes = excess_a / scale / ADC_VOLTS_PER_CODE
-        b = bit_of_offset(codes)
-        if b is None:
-            return ""
-        return (f"; or the motor-current monitor {self.current}: {codes:+.0f} A/D codes off, its data bit "
-                f"D{b} stuck at {int(codes > 0)}?")
+        return monitor_excess(self.co.t.rack, self.current, excess_a)
 
     def monitor_bit(self) -> str:
         """The other reading of a small current at the test codes: the monitor's own data bit
