@@ -317,11 +317,7 @@ class Bridge:
         w = self.writers
         ident = w[0] if w else None
         holder = writer_name(ident) if ident is not None else None
-        if (holder or "") != self._holder_said:  # said once per change of holder
-            left, self._holder_said = self._holder_said, holder or ""
-            self._post(f"bridge: remote command writer {holder!r} holds the command area"
-                       if holder else f"bridge: remote command writer {left!r} gone (token "
-                       f"withdrawn or its link lost); no remote command writer", Severity.INFO)
+        self._say_holder(holder)
         got, self._pending = self._pending, None
         if got is None:
             return
@@ -335,18 +331,7 @@ class Bridge:
                 self._pending = got
             return
         if sender != ident:
-            name = writer_name(sender)
-            if name == holder:  # never written, and not the holder's refusal either
-                self.refusals.note("command bodies under the holder's name from another writer (an earlier "
-                                   "writer's last word after its token went, or a forger)")
-                return
-            self._count_refused(name)
-            if name not in self._said and len(self._said) < MAX_NAMED_SENDERS:
-                self._said.add(name)
-                self._post(f"bridge: commands from {name!r} refused: the command area is held "
-                           f"by remote writer {holder!r}", Severity.WARNING)
-            else:
-                self.refusals.note("command bodies from a writer that does not hold the command area")
+            self._refuse_sender(writer_name(sender), holder)
             return
         if len(body) != self._body_size:
             self._count_refused(holder)
@@ -365,6 +350,29 @@ class Bridge:
         # the remote said which inputs it used; the service judges their age (unchanged)
         self.commander.write_commands(inputs_frame=int(remote["inputs_frame"]))
         self.applied += 1
+
+    def _say_holder(self, holder: str | None) -> None:
+        """A message once per change of the command area's remote holder."""
+        if (holder or "") != self._holder_said:
+            left, self._holder_said = self._holder_said, holder or ""
+            self._post(f"bridge: remote command writer {holder!r} holds the command area"
+                       if holder else f"bridge: remote command writer {left!r} gone (token "
+                       f"withdrawn or its link lost); no remote command writer", Severity.INFO)
+
+    def _refuse_sender(self, name: str, holder: str) -> None:
+        """A body from writer ``name``, not the holder: never written; counted, and named in
+        a message the first time (up to :data:`MAX_NAMED_SENDERS` names)."""
+        if name == holder:  # never written, and not the holder's refusal either
+            self.refusals.note("command bodies under the holder's name from another writer (an earlier "
+                               "writer's last word after its token went, or a forger)")
+            return
+        self._count_refused(name)
+        if name not in self._said and len(self._said) < MAX_NAMED_SENDERS:
+            self._said.add(name)
+            self._post(f"bridge: commands from {name!r} refused: the command area is held "
+                       f"by remote writer {holder!r}", Severity.WARNING)
+        else:
+            self.refusals.note("command bodies from a writer that does not hold the command area")
 
     def _safe_start(self, rec, got: tuple[str, bytes, int], who: tuple[str, int]) -> bool:
         """A new remote writer's first body: first the safe command a Data Acquisition layer

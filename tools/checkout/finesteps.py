@@ -16,12 +16,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
+from drivers.adc.registers import DVME611
 from drivers.dac.registers import VMIVME4100
 
 #: the DAC's 0 V code (12-bit offset binary)
 DAC_ZERO_CODE = int(VMIVME4100.constants["zero_code"])
+#: the A/D data bits an offset of an input is named by: D3 and up (a lower one is its noise)
+ADC_OFFSET_BITS = range(3, int(DVME611.constants["adc_bits"]))
 
 #: a step is called stuck when it falls this many standard errors short of half its worth
 #: and half its worth is itself that many standard errors: a healthy step is then called
@@ -149,3 +152,37 @@ def read_fine(co: Any, signal: str, code: int, got: int, target_se: float, windo
         if el >= max_s or (el >= window_s and level(code, got, reads).se <= target_se):
             return level(code, got, reads, zero)
         co.t.wait(co.poll_s)
+
+
+def worst_step(steps: list[Step]) -> float:
+    """The smallest step as a fraction of its worth (a steps row's value); nan with none."""
+    return min((s.step / s.want for s in steps if s.want), default=math.nan)
+
+
+def steps_why(stuck: list[int], unjudged: list[int], signal: str, added: str = "added nothing",
+              hidden: str = "the monitor's noise hides the step") -> str:
+    """What a steps row adds to its detail: the first ``stuck`` bit of DAC channel
+    ``signal`` (its step of 2^b codes ``added``), else the bits left ``unjudged`` (the
+    noise, ``hidden``), else nothing."""
+    if stuck:
+        b = stuck[0]
+        return f": data bit D{b} of DAC channel {signal} stuck at 0 or at 1 (adding 2^{b} codes {added})"
+    if unjudged:
+        return f"; not judged ({hidden}): " + ", ".join(f"D{b}" for b in unjudged)
+    return ""
+
+
+def bit_of_codes(codes: float, bits: Iterable[int]) -> int | None:
+    """The first data bit of ``bits`` whose 2^b codes ``codes`` is, within 30 %; None when
+    none is."""
+    return next((b for b in bits if abs(abs(codes) - (1 << b)) <= 0.3 * (1 << b)), None)
+
+
+def step_levels(at: Callable[[int], Level], base: int, bits: Iterable[int]) -> tuple[Level, list[tuple[int, Level]]] | None:
+    """The levels ``at`` reads at code ``base`` and at ``base`` + 2^b for each of ``bits``:
+    the base's and each bit's; None when the service wrote other codes than those asked."""
+    first = at(base)
+    steps = [(b, at(base + (1 << b))) for b in bits]
+    if any(lv.got != lv.code for lv in (first, *(lv for _, lv in steps))):
+        return None
+    return first, steps

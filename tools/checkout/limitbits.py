@@ -35,8 +35,10 @@ import numpy as np
 
 from drivers.adc.registers import DVME611
 from drivers.dac.registers import VMIVME4100
-from tools.checkout.finesteps import DAC_ZERO_CODE, FINE_SE_CODES, FINE_WORTHS, judge_steps, place_code, \
-    read_fine, summary
+from tools.checkout.finesteps import (
+    ADC_OFFSET_BITS, DAC_ZERO_CODE, FINE_SE_CODES, FINE_WORTHS, bit_of_codes, judge_steps, place_code, read_fine,
+    step_levels, steps_why, summary, worst_step,
+)
 
 DAC_VOLTS_PER_CODE = float(VMIVME4100.constants["lsb_volts"])
 ADC_VOLTS_PER_CODE = float(DVME611.constants["lsb_volts"])
@@ -49,6 +51,8 @@ JAW_LOW_BITS = (0, 1, 2, 3, 4)
 LOW_BASE = DAC_ZERO_CODE + 0x20
 #: the top bit a pulse may set alone (D10: 5 V; D11 is the sign)
 TOP_BIT = 10
+#: the DAC data bits a step or an excess of codes is named by (D0..D10)
+DAC_BITS = range(TOP_BIT + 1)
 #: the drive is still when its tach's mean is under this fraction of the command (assumed;
 #: the moves' diagnosis calls a tenth of the command "moved")
 DRIVE_STILL = 0.1
@@ -76,12 +80,6 @@ class Pulse:
 def pulse_bits(first: int, top_codes: float) -> list[int]:
     """The bits from ``first`` whose 2^b codes are at most ``top_codes`` (the moves' limit)."""
     return [b for b in range(first, TOP_BIT + 1) if (1 << b) <= top_codes]
-
-
-def bit_of_codes(codes: float) -> int | None:
-    """The data bit whose 2^b codes ``codes`` is, within 30 %; None when none is."""
-    fits = [b for b in range(TOP_BIT + 1) if abs(abs(codes) - (1 << b)) <= 0.3 * (1 << b)]
-    return fits[0] if fits else None
 
 
 class LimitPulses:
@@ -165,7 +163,7 @@ class LimitPulses:
             return None
         if p.amps > p.want:
             excess = (p.amps - p.want) / self.per_code
-            b = bit_of_codes(excess)
+            b = bit_of_codes(excess, DAC_BITS)
             bit = (f"data bit D{b} of DAC channel {self.signal} stuck at 1 ({excess:+.0f} codes over the "
                    f"2^{p.bit} written)" if b is not None and b != p.bit else
                    f"a data bit of DAC channel {self.signal} stuck at 1 ({excess:+.0f} codes over the 2^{p.bit} "
@@ -199,15 +197,7 @@ class LimitPulses:
                 f"not judged here: no current at any limit ({said}), as against the brake: the drive, the "
                 f"monitor or D11 of the limit channel (the moves tell)"))
             return
-        bad = [(p, v) for p, v in verdicts if v]
-        unjudged = [p.bit for p, v in verdicts if v == ""]
-        why = f": {bad[0][1]}" if bad else (
-            "; not judged (the drive ran, so its current was its load's): " + ", ".join(f"D{b}" for b in unjudged)
-            if unjudged else "")
-        # the value: the worst of the pulses held still (a running one within the tolerance is
-        # no measure of its limit)
-        worst = max((abs(p.amps - p.want) / p.want for p, v in verdicts if v or p.ran < DRIVE_STILL),
-                    default=math.nan)
+        bad, worst, why = _pulses_verdict(verdicts)
         self.co.record("joints", self.signal, check, not bad, round(worst, 3), None, self.tol, "of its worth",
                        f"{where}, the limit at each bit alone, less the monitor's zero {self.zero * 1e3:+.1f} mA "
                        f"({self.current}): {said}{why}")
@@ -225,26 +215,37 @@ class LimitPulses:
                              self.fine_max_s, self.zero)
 
         self.drive(-1)
-        base = at(LOW_BASE)
-        levels = [(b, at(LOW_BASE + (1 << b))) for b in JAW_LOW_BITS]
-        if any(lv.got != lv.code for lv in (base, *(lv for _, lv in levels))):
+        read = step_levels(at, LOW_BASE, JAW_LOW_BITS)
+        if read is None:
             self.co.record("joints", self.signal, JAW_STEP_CHECK, None,
                            detail="not run: the service wrote other codes")
             return
+        base, levels = read
         # closing: the current is negative; the steps' size is its magnitude
         base = replace(base, mean=-base.mean)
         levels = [(b, replace(lv, mean=-lv.mean)) for b, lv in levels]
         steps = judge_steps(base, levels, self.per_code, monitor_code)
-        stuck, unjudged = summary(steps)
+        stuck, unjudged = ([s.bit for s in group] for group in summary(steps))
         said = ", ".join(s.text() for s in steps)
-        worst = min((s.step / s.want for s in steps if s.want), default=math.nan)
-        why = (f": data bit D{stuck[0].bit} of DAC channel {self.signal} stuck at 0 or at 1 (adding 2^{stuck[0].bit} "
-               f"codes added nothing)" if stuck else
-               "; not judged (the monitor's noise hides the step): " + ", ".join(f"D{s.bit}" for s in unjudged)
-               if unjudged else "")
-        self.co.record("joints", self.signal, JAW_STEP_CHECK, not stuck, round(worst, 3), 0.5, None, "of a step",
+        why = steps_why(stuck, unjudged, self.signal)
+        self.co.record("joints", self.signal, JAW_STEP_CHECK, not stuck, round(worst_step(steps), 3), 0.5, None,
+                       "of a step",
                        f"the jaw held closed on its stop, from 0x{LOW_BASE:03X} ({base.mean * 1e3:+.1f} mA): "
                        f"{said}{why}")
+
+
+def _pulses_verdict(verdicts: list[tuple[Pulse, str | None]]) -> tuple[bool, float, str]:
+    """Of the pulses and their verdicts (:meth:`LimitPulses.verdict`: a fault's text, "" not
+    judged, None good): whether one failed, the worst of the pulses held still (a running one
+    within the tolerance is no measure of its limit), as a fraction of its worth, and what the
+    row adds: the first fault, else the bits not judged."""
+    bad = [v for _, v in verdicts if v]
+    unjudged = [p.bit for p, v in verdicts if v == ""]
+    why = f": {bad[0]}" if bad else (
+        "; not judged (the drive ran, so its current was its load's): " + ", ".join(f"D{b}" for b in unjudged)
+        if unjudged else "")
+    worst = max((abs(p.amps - p.want) / p.want for p, v in verdicts if v or p.ran < DRIVE_STILL), default=math.nan)
+    return bool(bad), worst, why
 
 
 def monitor_excess(rack: Any, current: str, excess_a: float) -> str:
@@ -253,10 +254,10 @@ def monitor_excess(rack: Any, current: str, excess_a: float) -> str:
     codes (D3 and up). "" when no bit fits."""
     scale = float(rack.channel(current).scale) or 1.0
     codes = excess_a / scale / ADC_VOLTS_PER_CODE
-    fits = [b for b in range(3, int(DVME611.constants["adc_bits"])) if abs(abs(codes) - (1 << b)) <= 0.3 * (1 << b)]
-    if not fits:
+    b = bit_of_codes(codes, ADC_OFFSET_BITS)
+    if b is None:
         return ""
-    return (f"; or the motor-current monitor {current}: {codes:+.0f} A/D codes off, its data bit D{fits[0]} "
+    return (f"; or the motor-current monitor {current}: {codes:+.0f} A/D codes off, its data bit D{b} "
             f"stuck at {int(codes > 0)}?")
 
 
@@ -278,7 +279,7 @@ def limit_low_hint(currents: list[float], i_lim: float, bound: float, per_code: 
         return ""
     code = int(round(i_lim / per_code))
     missing = (i_lim - plateau) / per_code
-    b = bit_of_codes(missing)
+    b = bit_of_codes(missing, DAC_BITS)
     if b is None or not code >> b & 1:
         return ""
     return (f"; the motor current held at {plateau:.3f} A, under the {i_lim:.2f} A limit written by "

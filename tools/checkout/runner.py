@@ -35,10 +35,12 @@ from typing import Callable
 import numpy as np
 
 from tools.checkout.config import CheckoutConfig
-from tools.checkout.finesteps import DAC_ZERO_CODE, FINE_SE_CODES, FINE_WORTHS, Level, Step, judge_steps, \
-    place_code, read_fine, summary
+from tools.checkout.finesteps import (
+    ADC_OFFSET_BITS, DAC_ZERO_CODE, FINE_SE_CODES, FINE_WORTHS, Level, Step, bit_of_codes, judge_steps, place_code,
+    read_fine, step_levels, steps_why, summary, worst_step,
+)
 from tools.checkout.limitbits import DRIVE_STILL, JAW_FIRST_BIT, JAW_PULSE_CHECK, JOINT_FIRST_BIT, PULSE_CHECK, \
-    LimitPulses, bit_of_codes, limit_low_hint, monitor_excess, pulse_bits, zeroing_bits
+    DAC_BITS, LimitPulses, limit_low_hint, monitor_excess, pulse_bits, zeroing_bits
 from tools.checkout.panel import ASSUMED, GRIPPER, PANEL_CHECKS, SWITCH_TEXT, PanelState, ask_panel
 from tools.checkout.report import FAIL, PASS, SKIP, Report, Result
 from tools.checkout.target import ServiceLost, Target
@@ -817,7 +819,7 @@ class Checkout:
         # the bits a stuck value could take that way, near 2^b codes; the jaw's friction droop
         # (about 0.1 V) is in the tach, so a wide band, all of them said
         bits = [b for b in range(5, 11) if (code >> b & 1) != value and 0.55 <= abs(codes) / (1 << b) <= 1.6]
-        exact = bit_of_codes(codes)
+        exact = bit_of_codes(codes, DAC_BITS)
         if exact in bits:
             bits = [exact]
         if not bits:
@@ -911,15 +913,9 @@ class Checkout:
         said = "; ".join(f"{what} from 0x{base:03X}: " + ", ".join(st.text("mV") for st in steps)
                          for what, base, steps in (("opening", GRIPPER_BITS_OPEN, series[0]),
                                                    ("closing", GRIPPER_BITS_CLOSE, series[1])))
-        if stuck:
-            why = (f": data bit D{stuck[0]} of DAC channel {signal} stuck at 0 or at 1 (adding 2^{stuck[0]} codes "
-                   f"added nothing to the jaw's rate)")
-        elif unjudged:
-            why = "; not judged (the tach's noise hides the step): " + ", ".join(f"D{b}" for b in unjudged)
-        else:
-            why = ""
-        worst = min((st.step / st.want for st in both if st.want), default=math.nan)
-        self.record("joints", signal, GRIPPER_BITS_CHECK, not stuck, round(worst, 3), 0.5, None, "of a step",
+        why = steps_why(stuck, unjudged, signal, "added nothing to the jaw's rate", "the tach's noise hides the step")
+        self.record("joints", signal, GRIPPER_BITS_CHECK, not stuck, round(worst_step(both), 3), 0.5, None,
+                    "of a step",
                     f"tach {tach} while the jaw runs, each step against its base: {said}{why}")
 
     def _arm(self, cmd, who: str, rates: list[float], limits: list[float],
@@ -1139,23 +1135,9 @@ class Checkout:
         peak = float(np.max(np.abs(m.currents))) if m.currents else 0.0
         moves.append(Move(tag, v, expected, travel, mean_tach, peak if current else None, m.left))
         t_lo, t_hi = sorted((v * p.r_lo, v * p.r_hi))
-        # a tach that does not change while the joint is driven is dead or stuck, not
-        # reversed (a dead input held at a few mV would otherwise read "reversed")
-        swing = float(np.ptp(xs)) if len(xs) else 0.0
-        no_current = bool(current) and peak < float(cfg.joint(j, "diag_no_current_fraction")) * i_lim
-        diag = _tach_diag(v, expected, travel, mean_tach, swing, no_current, p.r_lo)
         x_lo, x_hi = sorted((expected * p.r_lo, expected * p.r_hi))
-        if not diag and not runaway and not t_lo <= mean_tach <= t_hi and x_lo <= travel <= x_hi:
-            # the joint moved as commanded and the tach reads otherwise: the tach's reading
-            diag = self._tach_bit(mean_tach - travel / max(p.move_s - p.lag, 1e-3), tach)
-        if not diag and not runaway and abs(mean_tach) < DRIVE_STILL * abs(v) and current and p.stall_a:
-            # stalled, its current flat under the limit and under what the held drive draws:
-            # the limit channel's own bit (a held brake draws the one or the other; a joint
-            # that runs slow draws K_a x (V - V_tach), flat and under both)
-            limit = self.t.rack.joint_channel(j, "current_limit").signal
-            diag = limit_low_hint(m.currents, i_lim, min(i_lim, p.stall_a),
-                                  DAC_VOLTS_PER_CODE * float(self.t.rack.channel(limit).scale), limit,
-                                  float(cfg.joint(j, "dac_bits_tolerance")))
+        diag = self._move_diag(j, tach, current, v, expected, m, mean_tach, float(np.ptp(xs)) if len(xs) else 0.0,
+                               peak, i_lim, p, not t_lo <= mean_tach <= t_hi and x_lo <= travel <= x_hi)
         self.record("joints", tach, f"open-loop rate {tag}", t_lo <= mean_tach <= t_hi and not runaway,
                     round(mean_tach, 5), round(t_lo, 5), round(t_hi, 5), "rad/s",
                     f"commanded {v:+.4g} rad/s at a {i_lim:.2f} A limit" + diag
@@ -1177,13 +1159,39 @@ class Checkout:
                     f"tach integral {m.tach_integral:+.5f} rad vs resolver travel {travel:+.5f} rad"
                     + ("" if ok or not travel else self._tach_bit((m.tach_integral - travel) / p.move_s, tach)))
 
+    def _move_diag(self, j: str, tach: str, current: str, v: float, expected: float, m: "_Sampled",
+                   mean_tach: float, swing: float, peak: float, i_lim: float, p: "_MoveParams",
+                   tach_only: bool) -> str:
+        """What a move's rate row says of its cause: the tach's own reading (dead, stuck,
+        reversed; ``swing``: its peak-to-peak while driven), its A/D bit when the joint moved
+        as commanded and only the tach (``tach_only``) read otherwise, or the current limit's
+        bit when the joint stalled with its current flat under the limit."""
+        # a tach that does not change while the joint is driven is dead or stuck, not
+        # reversed (a dead input held at a few mV would otherwise read "reversed")
+        no_current = bool(current) and peak < float(self.cfg.joint(j, "diag_no_current_fraction")) * i_lim
+        diag = _tach_diag(v, expected, m.travel, mean_tach, swing, no_current, p.r_lo)
+        if diag or m.runaway:
+            return diag
+        # the joint moved as commanded and the tach reads otherwise: the tach's reading
+        if tach_only and (bit := self._tach_bit(mean_tach - m.travel / max(p.move_s - p.lag, 1e-3), tach)):
+            return bit
+        if abs(mean_tach) < DRIVE_STILL * abs(v) and current and p.stall_a:
+            # stalled, its current flat under the limit and under what the held drive draws:
+            # the limit channel's own bit (a held brake draws the one or the other; a joint
+            # that runs slow draws K_a x (V - V_tach), flat and under both)
+            limit = self.t.rack.joint_channel(j, "current_limit").signal
+            return limit_low_hint(m.currents, i_lim, min(i_lim, p.stall_a),
+                                  DAC_VOLTS_PER_CODE * float(self.t.rack.channel(limit).scale), limit,
+                                  float(self.cfg.joint(j, "dac_bits_tolerance")))
+        return ""
+
     def _tach_bit(self, off_rad_s: float, tach: str) -> str:
         """The A/D data bit a tach's offset from the resolver's rate (``off_rad_s`` over the
         move) would be, when it is within 30 % of 2^b codes (D3 and up): said as a question,
         the tach's scale the other answer. "" when no bit fits."""
         scale = float(self.t.rack.channel(tach).scale) or 1.0
         codes = off_rad_s / scale / ADC_VOLTS_PER_CODE
-        b = bit_of_offset(codes)
+        b = bit_of_codes(codes, ADC_OFFSET_BITS)
         if b is None:
             return ""
         return (f"; the tach reads {codes:+.0f} A/D codes off the resolver's rate: data bit D{b} of its A/D channel "
@@ -1284,13 +1292,6 @@ def one_bit_away(code: int, centre: float) -> int | None:
     :data:`IDLE_FLIP_CODES` of ``centre``; None when no one bit does."""
     bits = [b for b in range(ADC_BITS - 1, 2, -1) if abs((code ^ (1 << b)) - centre) <= IDLE_FLIP_CODES]
     return bits[0] if bits else None
-
-
-def bit_of_offset(codes: float) -> int | None:
-    """The A/D data bit (D3 and up) whose 2^b codes an offset of ``codes`` is, within 30 %;
-    None when none is."""
-    fits = [b for b in range(3, ADC_BITS) if abs(abs(codes) - (1 << b)) <= 0.3 * (1 << b)]
-    return fits[0] if fits else None
 
 
 def _idle_why(code: int, lo: float, hi: float, scale: float) -> str:
@@ -1468,12 +1469,11 @@ class DacBits:
         wrote other codes or the current reached the limit (``fine_saturated``)."""
         if not bool(self.co.cfg.joint(self.j, "dac_bits_fine")):
             return []
-        base = self.fine_level(self.place, DAC_ZERO_CODE, one_code)
-        steps = [(b, self.fine_level(self.place, DAC_ZERO_CODE + (1 << b), one_code)) for b in FINE_BITS]
-        levels = (base, *(lv for _, lv in steps))
-        if any(lv.got != lv.code for lv in levels):
+        read = step_levels(lambda c: self.fine_level(self.place, c, one_code), DAC_ZERO_CODE, FINE_BITS)
+        if read is None:
             return None
-        if max(abs(lv.mean) for lv in levels) >= FINE_SAT_FRACTION * self.limit_a:
+        base, steps = read
+        if max(abs(lv.mean) for lv in (base, *(lv for _, lv in steps))) >= FINE_SAT_FRACTION * self.limit_a:
             self.fine_saturated = True  # the limit, not the command, bounds the current: not judged
             return None
         return judge_steps(base, steps, monitor_code=self.monitor_code)
@@ -1490,10 +1490,10 @@ class DacBits:
         if not bool(self.co.cfg.joint(self.j, "dac_bits_fine")):
             return None
         place = (lambda c: self.place_limit(c, per_code))
-        base = self.fine_level(place, LIMIT_WALK_BASE, per_code)
-        steps = [(b, self.fine_level(place, LIMIT_WALK_BASE + (1 << b), per_code)) for b in LIMIT_FINE_BITS]
-        if any(lv.got != lv.code for lv in (base, *(lv for _, lv in steps))):
+        read = step_levels(lambda c: self.fine_level(place, c, per_code), LIMIT_WALK_BASE, LIMIT_FINE_BITS)
+        if read is None:
             return None
+        base, steps = read
         return base, judge_steps(base, steps, per_code, self.monitor_code)
 
     def fine_row(self, signal: str, check: str, steps: list[Step] | None) -> None:
@@ -1506,19 +1506,15 @@ class DacBits:
                 "not judged: the current reached the test limit (a step adds nothing there; the current "
                 "limit's rows judge it)" if self.fine_saturated else "not run: the service wrote other codes"))
             return
-        stuck, unjudged = summary(steps)
+        stuck, unjudged = ([s.bit for s in group] for group in summary(steps))
         said = ", ".join(s.text() for s in steps)
-        worst = min((s.step / s.want for s in steps if s.want), default=math.nan)
-        if stuck:
-            why = (f": data bit D{stuck[0].bit} of DAC channel {signal} stuck at 0 or at 1 (adding 2^{stuck[0].bit} "
-                   "codes added nothing; the two values read alike but for a constant offset, which the "
-                   "channel's own offset hides)")
-        elif unjudged:
-            why = ("; not judged (the monitor's noise hides the step, or it is under 1.5 of its codes with too "
-                   "little noise to average): " + ", ".join(f"D{s.bit}" for s in unjudged))
-        else:
-            why = ""
-        self.co.record("joints", signal, check, not stuck, round(worst, 3), 0.5, None, "of a step", said + why)
+        why = steps_why(stuck, unjudged, signal,
+                        "added nothing; the two values read alike but for a constant offset, which the channel's "
+                        "own offset hides",
+                        "the monitor's noise hides the step, or it is under 1.5 of its codes with too little noise "
+                        "to average")
+        self.co.record("joints", signal, check, not stuck, round(worst_step(steps), 3), 0.5, None, "of a step",
+                       said + why)
 
     def place_limit(self, code: int, per_code: float) -> int:
         """Write the current-limit code ``code`` (corrected from the code read back, as
@@ -1605,29 +1601,8 @@ class DacBits:
         step, centre = i_zero - i_lo, 0.5 * (i_zero + i_lo)
         offset_ok = abs(centre) <= DAC_BITS_OFFSET_FACTOR * thr
         ok = bool(abs(step) <= thr and offset_ok) if placed else None
-        drew = (f"codes 0x{DAC_BITS_CODES[0]:03X} and 0x{DAC_BITS_CODES[1]:03X} drew {i_lo:+.3f} A and "
-                f"{i_zero:+.3f} A against the set brake, a step of {step:+.3f} A (limit {self.limit_a:.3f} A, "
-                f"healthy within +/-{thr:.3f} A, their offset within +/-{DAC_BITS_OFFSET_FACTOR * thr:.3f} A)")
-        if not placed:
-            detail = (f"not run: the service wrote codes {[f'0x{g:03X}' for g, _ in seen]} for "
-                      f"{[f'0x{c:03X}' for c in DAC_BITS_CODES]} (its calibration of {self.signal})")
-        elif ok:
-            detail = drew
-        elif abs(step) <= thr:
-            detail = (f"DAC channel {self.signal}: both codes drew {centre:+.3f} A: the amplifier draws current at "
-                      f"a zero command, or the DAC's offset is that far off: {drew}")
-        elif stuck_low := (summary(fine_rate)[0] if fine_rate else []):
-            b = stuck_low[0].bit  # the low bits' steps (measured already) name it
-            detail = (f"data bit D{b} of DAC channel {self.signal} stuck at 0 or at 1 (its step of 2^{b} codes from "
-                      f"0 V added nothing: the low bits stepped row): {drew}")
-        elif max(abs(i_lo), abs(i_zero)) <= thr:
-            detail = (f"DAC channel {self.signal}: a low data bit of D0..D10 stuck (the step between the two codes "
-                      f"is more than one code's worth)" + self.monitor_bit() + f": {drew}")
-        else:
-            lo_moved = abs(i_lo) >= abs(i_zero)  # the code whose current a stuck bit moved
-            detail = (f"{self.diagnosis(i_lo if lo_moved else 0.0, 0.0 if lo_moved else i_zero, thr)}: "
-                      f"{drew}")
-        co.record("joints", self.signal, "DAC data bits (brake set)", ok, round(step, 4), -thr, thr, "A", detail)
+        co.record("joints", self.signal, "DAC data bits (brake set)", ok, round(step, 4), -thr, thr, "A",
+                  self.bits_detail(seen, ok, thr, fine_rate))
         lim_ok = bool(abs(abs(i_sat) - self.limit_a) <= thr)
         drew = (f"a {float(co.cfg.joint(j, 'dac_bits_drive_v')):g} V rate command drew {i_sat:+.3f} A "
                 f"against the set brake, the limit written is {self.limit_a:.3f} A")
@@ -1650,6 +1625,34 @@ class DacBits:
             self.walk_row()
             self.limit_fine_row()
             self.fine_row(self.signal, "DAC data bits: the low bits stepped (brake set)", fine_rate)
+
+    def bits_detail(self, seen: list[tuple[int, float]], ok: bool | None, thr: float,
+                    fine_rate: list[Step] | None) -> str:
+        """The detail of the brake-set bits row: what the two codes ``seen`` (code written,
+        current) drew, and when the row fails, which bits (``fine_rate``: the low bits' steps,
+        measured already, name one)."""
+        (_, i_lo), (_, i_zero) = seen
+        step, centre = i_zero - i_lo, 0.5 * (i_zero + i_lo)
+        drew = (f"codes 0x{DAC_BITS_CODES[0]:03X} and 0x{DAC_BITS_CODES[1]:03X} drew {i_lo:+.3f} A and "
+                f"{i_zero:+.3f} A against the set brake, a step of {step:+.3f} A (limit {self.limit_a:.3f} A, "
+                f"healthy within +/-{thr:.3f} A, their offset within +/-{DAC_BITS_OFFSET_FACTOR * thr:.3f} A)")
+        if ok is None:
+            return (f"not run: the service wrote codes {[f'0x{g:03X}' for g, _ in seen]} for "
+                    f"{[f'0x{c:03X}' for c in DAC_BITS_CODES]} (its calibration of {self.signal})")
+        if ok:
+            return drew
+        if abs(step) <= thr:
+            return (f"DAC channel {self.signal}: both codes drew {centre:+.3f} A: the amplifier draws current at "
+                    f"a zero command, or the DAC's offset is that far off: {drew}")
+        if stuck_low := (summary(fine_rate)[0] if fine_rate else []):
+            b = stuck_low[0].bit
+            return (f"data bit D{b} of DAC channel {self.signal} stuck at 0 or at 1 (its step of 2^{b} codes from "
+                    f"0 V added nothing: the low bits stepped row): {drew}")
+        if max(abs(i_lo), abs(i_zero)) <= thr:
+            return (f"DAC channel {self.signal}: a low data bit of D0..D10 stuck (the step between the two codes "
+                    f"is more than one code's worth)" + self.monitor_bit() + f": {drew}")
+        lo_moved = abs(i_lo) >= abs(i_zero)  # the code whose current a stuck bit moved
+        return f"{self.diagnosis(i_lo if lo_moved else 0.0, 0.0 if lo_moved else i_zero, thr)}: {drew}"
 
     def limit_fine_row(self) -> None:
         """The current limit's D0 and D1 row (:meth:`limit_steps`)."""
