@@ -32,10 +32,12 @@ chaos: $(STAMP)
 	$(BIN)/python -m pytest -m chaos tests/chaos
 
 # ruff (with the complexity gate, C901 over 20), the length gate (devtools/function_length.py),
-# the import contracts (the floors and no import circle), mypy
+# radon's grades (devtools/complexity_grades.py: at most 10 functions rate D or worse), the
+# import contracts (the floors and no import circle), mypy
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python devtools/function_length.py
+	$(BIN)/python devtools/complexity_grades.py
 	$(BIN)/lint-imports --no-cache
 	$(BIN)/mypy
 
