@@ -8,8 +8,8 @@ channel's engineering offset is its negative, so the service reports
 ``(raw + offset) mod 2 pi`` = the joint angle.
 
 Tolerances (stated): offset found to 1 LSB (384 urad, 14-bit); the joint must be
-still (spread <= 2 LSB, one reading left out at each end: :func:`_spread`); an offset beyond 0.25 rad means the joint is not at its
-index mark (fail).
+still (spread <= 2 LSB, one reading left out at each end: :func:`_spread`); an offset
+beyond 0.25 rad means the joint is not at its index mark (fail).
 """
 
 from __future__ import annotations

@@ -23,6 +23,9 @@ from drivers.dac.registers import VMIVME4100
 
 #: the DAC's 0 V code (12-bit offset binary)
 DAC_ZERO_CODE = int(VMIVME4100.constants["zero_code"])
+#: one code of the DAC and of the A/D, in volts (their register tables)
+DAC_VOLTS_PER_CODE = float(VMIVME4100.constants["lsb_volts"])
+ADC_VOLTS_PER_CODE = float(DVME611.constants["lsb_volts"])
 #: the A/D data bits an offset of an input is named by: D3 and up (a lower one is its noise)
 ADC_OFFSET_BITS = range(3, int(DVME611.constants["adc_bits"]))
 
@@ -178,7 +181,15 @@ def bit_of_codes(codes: float, bits: Iterable[int]) -> int | None:
     return next((b for b in bits if abs(abs(codes) - (1 << b)) <= 0.3 * (1 << b)), None)
 
 
-def step_levels(at: Callable[[int], Level], base: int, bits: Iterable[int]) -> tuple[Level, list[tuple[int, Level]]] | None:
+def adc_offset_bit(rack: Any, signal: str, offset: float) -> tuple[float, int | None]:
+    """An offset of A/D input ``signal`` (``offset`` in its engineering units) in its codes,
+    and the data bit (D3 and up) whose 2^b codes that is, within 30 % (None when none is)."""
+    codes = offset / (float(rack.channel(signal).scale) or 1.0) / ADC_VOLTS_PER_CODE
+    return codes, bit_of_codes(codes, ADC_OFFSET_BITS)
+
+
+def step_levels(at: Callable[[int], Level], base: int,
+                bits: Iterable[int]) -> tuple[Level, list[tuple[int, Level]]] | None:
     """The levels ``at`` reads at code ``base`` and at ``base`` + 2^b for each of ``bits``:
     the base's and each bit's; None when the service wrote other codes than those asked."""
     first = at(base)

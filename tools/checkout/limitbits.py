@@ -33,15 +33,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from drivers.adc.registers import DVME611
-from drivers.dac.registers import VMIVME4100
 from tools.checkout.finesteps import (
-    ADC_OFFSET_BITS, DAC_ZERO_CODE, FINE_SE_CODES, FINE_WORTHS, bit_of_codes, judge_steps, place_code, read_fine,
-    step_levels, steps_why, summary, worst_step,
+    ADC_VOLTS_PER_CODE, DAC_VOLTS_PER_CODE, DAC_ZERO_CODE, FINE_SE_CODES, FINE_WORTHS, adc_offset_bit, bit_of_codes,
+    judge_steps, place_code, read_fine, step_levels, steps_why, summary, worst_step,
 )
 
-DAC_VOLTS_PER_CODE = float(VMIVME4100.constants["lsb_volts"])
-ADC_VOLTS_PER_CODE = float(DVME611.constants["lsb_volts"])
 
 #: the joints' pulsed bits start here: D0..D5 are the brake-set walk's (runner.DacBits)
 JOINT_FIRST_BIT = 6
@@ -252,9 +248,7 @@ def monitor_excess(rack: Any, current: str, excess_a: float) -> str:
     """The other reading of a current off its limit by ``excess_a``: the motor-current
     monitor ``current``'s own data bit, when the excess is within 30 % of 2^b of its A/D
     codes (D3 and up). "" when no bit fits."""
-    scale = float(rack.channel(current).scale) or 1.0
-    codes = excess_a / scale / ADC_VOLTS_PER_CODE
-    b = bit_of_codes(codes, ADC_OFFSET_BITS)
+    codes, b = adc_offset_bit(rack, current, excess_a)
     if b is None:
         return ""
     return (f"; or the motor-current monitor {current}: {codes:+.0f} A/D codes off, its data bit D{b} "

@@ -36,8 +36,8 @@ import numpy as np
 
 from tools.checkout.config import CheckoutConfig
 from tools.checkout.finesteps import (
-    ADC_OFFSET_BITS, DAC_ZERO_CODE, FINE_SE_CODES, FINE_WORTHS, Level, Step, bit_of_codes, judge_steps, place_code,
-    read_fine, step_levels, steps_why, summary, worst_step,
+    ADC_VOLTS_PER_CODE, DAC_VOLTS_PER_CODE, DAC_ZERO_CODE, FINE_SE_CODES, FINE_WORTHS, Level, Step, adc_offset_bit,
+    bit_of_codes, judge_steps, place_code, read_fine, step_levels, steps_why, summary, worst_step,
 )
 from tools.checkout.limitbits import DRIVE_STILL, JAW_FIRST_BIT, JAW_PULSE_CHECK, JOINT_FIRST_BIT, PULSE_CHECK, \
     DAC_BITS, LimitPulses, limit_low_hint, monitor_excess, pulse_bits, zeroing_bits
@@ -1189,9 +1189,7 @@ class Checkout:
         """The A/D data bit a tach's offset from the resolver's rate (``off_rad_s`` over the
         move) would be, when it is within 30 % of 2^b codes (D3 and up): said as a question,
         the tach's scale the other answer. "" when no bit fits."""
-        scale = float(self.t.rack.channel(tach).scale) or 1.0
-        codes = off_rad_s / scale / ADC_VOLTS_PER_CODE
-        b = bit_of_codes(codes, ADC_OFFSET_BITS)
+        codes, b = adc_offset_bit(self.t.rack, tach, off_rad_s)
         if b is None:
             return ""
         return (f"; the tach reads {codes:+.0f} A/D codes off the resolver's rate: data bit D{b} of its A/D channel "
@@ -1279,9 +1277,7 @@ CODE_LOG_KEEP = 50_000
 #: +-10 V, 0 V at half scale
 ADC_BITS = int(DVME611.constants["adc_bits"])
 ADC_ZERO_CODE = int(DVME611.constants["full_scale_counts"]) // 2
-ADC_VOLTS_PER_CODE = float(DVME611.constants["lsb_volts"])
 DAC_CODES = int(VMIVME4100.constants["full_scale_counts"])
-DAC_VOLTS_PER_CODE = float(VMIVME4100.constants["lsb_volts"])
 #: a code that one flipped data bit puts this near the idle value's code is named a stuck
 #: bit first (ASSUMED: 8 codes, 39 mV, above the idle noise of a healthy input)
 IDLE_FLIP_CODES = 8
